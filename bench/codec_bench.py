@@ -1,0 +1,147 @@
+"""Codec round trips per second: bridge.codec layouts vs WHOI's ltcodecs, measured in one run.
+
+Run: ``uv run --group bench python bench/codec_bench.py [--seconds 0.5]``.
+A round trip is ``encode`` to bytes then ``decode`` back to a dict, for three reference
+layouts (MORPH Listing 1, CCL bathymetry, a navigation status). Prints bits and the ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import random
+import time
+from collections.abc import Callable
+from typing import Any
+
+from bridge.codec import Layout
+
+MORPH = [
+    {"field": "vector.x", "bits": 8, "min": 0, "max": 6.2831},
+    {"field": "vector.y", "bits": 6, "min": -0.052359878, "max": 0.052359878},
+]
+BATHY = [
+    {"field": "depth", "type": "float", "min": 0, "max": 1000, "resolution": 0.1, "count": 3},
+    {"field": "altitude", "type": "float", "min": 0, "max": 655, "resolution": 0.1, "count": 3},
+    {"field": "latitude", "codec": "ccl.latitude", "count": 3},
+    {"field": "longitude", "codec": "ccl.longitude", "count": 3},
+]
+MODES = ["idle", "dive", "survey", "transit", "surface", "hold", "abort", "home"]
+NAV = [
+    {"field": "lat", "min": -90, "max": 90, "resolution": 1e-6},
+    {"field": "lon", "min": -180, "max": 180, "resolution": 1e-6},
+    {"field": "depth", "min": 0, "max": 6000, "resolution": 0.1},
+    {"field": "heading", "min": 0, "max": 360, "resolution": 0.1},
+    {"field": "speed", "min": 0, "max": 5, "resolution": 0.01},
+    {"field": "battery", "type": "int", "min": 0, "max": 100},
+    {"field": "mode", "values": MODES},
+    {"field": "time", "type": "int", "min": 0, "max": 86400},
+]
+MINIMUM_BITS = {"MORPH": 14, "CCL bathymetry": 225, "nav status": 121}
+
+
+def _lin(lo: float, hi: float, *, resolution: float | None = None, bits: int | None = None) -> dict:
+    params: dict[str, Any] = {"codec": "linspace_float", "min_value": lo, "max_value": hi}
+    params.update({"resolution": resolution} if resolution else {"num_bits": bits})
+    return params
+
+
+LT_MORPH = {"vector": {"codec": "dict", "fields": {
+    "x": _lin(0, 6.2831, bits=8), "y": _lin(-0.052359878, 0.052359878, bits=6)}}}
+LT_BATHY = {
+    "depth": {"codec": "fixed_len_array", "element_type": "linspace_float", "length": 3,
+              "element_params": {"min_value": 0, "max_value": 1000, "resolution": 0.1}},
+    "altitude": {"codec": "fixed_len_array", "element_type": "linspace_float", "length": 3,
+                 "element_params": {"min_value": 0, "max_value": 655, "resolution": 0.1}},
+    "latitude": {"codec": "fixed_len_array", "element_type": "ccl_latlon", "length": 3},
+    "longitude": {"codec": "fixed_len_array", "element_type": "ccl_latlon", "length": 3},
+}
+LT_NAV = {
+    "lat": _lin(-90, 90, resolution=1e-6),
+    "lon": _lin(-180, 180, resolution=1e-6),
+    "depth": _lin(0, 6000, resolution=0.1),
+    "heading": _lin(0, 360, resolution=0.1),
+    "speed": _lin(0, 5, resolution=0.01),
+    "battery": {"codec": "integer", "min_value": 0, "max_value": 100},
+    "mode": {"codec": "string_enum", "entries": MODES},
+    "time": {"codec": "integer", "min_value": 0, "max_value": 86400},
+}
+
+
+def samples(name: str, rng: random.Random, n: int = 64) -> list[dict[str, Any]]:
+    """Random in-range payloads for a reference layout."""
+    out: list[dict[str, Any]] = []
+    for _ in range(n):
+        if name == "MORPH":
+            out.append({"vector": {"x": rng.uniform(0, 6.2831), "y": rng.uniform(-0.05, 0.05)}})
+        elif name == "CCL bathymetry":
+            out.append({
+                "depth": [rng.uniform(0, 1000) for _ in range(3)],
+                "altitude": [rng.uniform(0, 655) for _ in range(3)],
+                "latitude": [rng.uniform(-90, 90) for _ in range(3)],
+                "longitude": [rng.uniform(-180, 180) for _ in range(3)],
+            })
+        else:
+            out.append({
+                "lat": rng.uniform(-90, 90), "lon": rng.uniform(-180, 180),
+                "depth": rng.uniform(0, 6000), "heading": rng.uniform(0, 360),
+                "speed": rng.uniform(0, 5), "battery": rng.randint(0, 100),
+                "mode": rng.choice(MODES), "time": rng.randint(0, 86400),
+            })
+    return out
+
+
+def rate(round_trip: Callable[[dict[str, Any]], Any], values: list[dict], seconds: float) -> float:
+    """Round trips per second over ``values`` for about ``seconds``."""
+    done, start = 0, time.perf_counter()
+    deadline = start + seconds
+    while True:
+        for v in values:
+            round_trip(v)
+        done += len(values)
+        now = time.perf_counter()
+        if now >= deadline:
+            return done / (now - start)
+
+
+def main(seconds: float = 0.5) -> None:
+    """Measure and print the table."""
+    from bitstring import ConstBitStream
+    from ltcodecs import DictCodec
+
+    rng = random.Random(1)
+    rows = []
+    for name, fields, lt_fields in (
+        ("MORPH", MORPH, LT_MORPH), ("CCL bathymetry", BATHY, LT_BATHY), ("nav status", NAV, LT_NAV)
+    ):
+        layout = Layout.from_fields(fields)
+        lt = DictCodec(lt_fields)
+        values = samples(name, rng)
+
+        def ours(v: dict, layout: Layout = layout) -> Any:
+            return layout.decode(layout.encode(v))
+
+        def ours_int(v: dict, layout: Layout = layout) -> Any:
+            return layout.unpack(layout.pack(v))
+
+        def theirs(v: dict, lt: DictCodec = lt) -> Any:
+            bits, _ = lt.encode(v)
+            return lt.decode(ConstBitStream(bits.tobytes()))
+
+        r_ours, r_int, r_lt = (rate(f, values, seconds) for f in (ours, ours_int, theirs))
+        rows.append((name, layout.bits, lt.max_length_bits, r_ours, r_int, r_lt))
+
+    head = (f"{'layout':<15} {'bits':>5} {'min':>5} {'lt bits':>8} {'bytes rt/s':>12} "
+            f"{'int rt/s':>12} {'ltcodecs rt/s':>14} {'ratio':>7}")
+    print(head)
+    print("-" * len(head))
+    for name, bits, lt_bits, r_ours, r_int, r_lt in rows:
+        print(f"{name:<15} {bits:>5} {MINIMUM_BITS[name]:>5} {lt_bits:>8} {r_ours:>12,.0f} "
+              f"{r_int:>12,.0f} {r_lt:>14,.0f} {r_ours / r_lt:>6.1f}×")
+    print("rt/s = encode+decode round trips per second (bytes: encode/decode; int: pack/unpack);")
+    print("ratio = bytes round trips vs ltcodecs, same payloads, same run.")
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=0.5, help="time per measurement")
+    main(parser.parse_args().seconds)

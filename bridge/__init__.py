@@ -1,0 +1,1 @@
+"""zenoh-acoustic-bridge."""

@@ -1,0 +1,161 @@
+"""The modem backend interface every modem driver implements (like python-can's ``BusABC``).
+
+Public methods do the shared checks and counting and call one hook each, which backends
+implement: :meth:`ModemBackend._open`, :meth:`~ModemBackend._send`, :meth:`~ModemBackend._recv`
+and :meth:`~ModemBackend._close`. Every failure surfaces as :class:`~bridge.errors.BackendError`.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, ClassVar
+
+from bridge.errors import BackendError
+
+__all__ = ["ModemBackend", "ModemSetup", "Reception"]
+
+_EMPTY: Mapping[str, Any] = MappingProxyType({})
+
+
+@dataclass(frozen=True)
+class Reception:
+    """One frame received by the modem.
+
+    ``time`` is the wall clock (``time.time()``) at the END of reception. ``meta`` holds link
+    metadata the backend knows, e.g. ``start``, ``travel_time_s``, ``distance_m``, ``dest``.
+    """
+
+    data: bytes
+    src: int
+    time: float
+    meta: Mapping[str, Any] = field(default_factory=lambda: _EMPTY)
+
+    @property
+    def dest(self) -> int | None:
+        """The address the sender put on the frame (``None`` = broadcast or unknown)."""
+        return self.meta.get("dest")
+
+
+@dataclass(frozen=True)
+class ModemSetup:
+    """Everything a backend needs to know about its node, built from the mission file."""
+
+    node: str
+    address: int
+    frame_bytes: int
+    options: Mapping[str, Any] = field(default_factory=lambda: _EMPTY)
+    peers: Mapping[int, Mapping[str, Any]] = field(default_factory=lambda: MappingProxyType({}))
+    position: tuple[float, float, float] | None = None
+
+
+class ModemBackend(ABC):
+    """An async modem: ``open``, ``send`` frames, ``recv`` receptions, ``close``.
+
+    Use as ``async with Backend(setup) as modem: ...``. ``stats`` counts ``sent``, ``received``
+    and ``errors`` (backends may add more keys).
+    """
+
+    name: ClassVar[str] = "abstract"
+
+    def __init__(self, setup: ModemSetup) -> None:
+        self.setup = setup
+        self.address = setup.address
+        self.frame_bytes = setup.frame_bytes
+        self.stats: dict[str, int] = {"sent": 0, "received": 0, "errors": 0}
+        self._opened = False
+        self._closed = False
+
+    def __repr__(self) -> str:
+        state = "closed" if self._closed else "open" if self._opened else "new"
+        return f"<{type(self).__name__} {self.setup.node}@{self.address} {state}>"
+
+    @property
+    def is_open(self) -> bool:
+        """Opened and not yet closed."""
+        return self._opened and not self._closed
+
+    # -- public API ----------------------------------------------------------------------------
+
+    async def open(self) -> None:
+        """Connect to the modem (or water); raises :class:`BackendError` if unavailable.
+
+        After such an error the backend has released what it held and ``open`` may be retried.
+        """
+        if self._closed:
+            raise BackendError(f"{self!r}: cannot reopen a closed backend")
+        if self._opened:
+            return
+        try:
+            await self._open()
+        except BackendError:
+            self.stats["errors"] += 1
+            await self._close()
+            raise
+        self._opened = True
+
+    async def send(self, data: bytes, dest: int | None = None) -> None:
+        """Transmit one frame (``dest`` ``None`` = broadcast).
+
+        When it returns is backend-specific and documented by each backend. Raises
+        :class:`BackendError` if the frame is too long or empty, or the backend is not open.
+        """
+        if not self.is_open:
+            raise BackendError(f"{self!r}: send on a backend that is not open")
+        if not data:
+            raise BackendError(f"{self!r}: cannot send an empty frame")
+        if len(data) > self.frame_bytes:
+            raise BackendError(
+                f"{self!r}: frame of {len(data)} B exceeds frame_bytes={self.frame_bytes}"
+            )
+        try:
+            await self._send(bytes(data), dest)
+        except BackendError:
+            self.stats["errors"] += 1
+            raise
+        self.stats["sent"] += 1
+
+    async def recv(self) -> Reception:
+        """Wait for the next reception; raises :class:`BackendError` once the backend is down."""
+        if not self.is_open:
+            raise BackendError(f"{self!r}: recv on a backend that is not open")
+        rx = await self._recv()
+        self.stats["received"] += 1
+        return rx
+
+    async def close(self) -> None:
+        """Release the modem and cancel the backend's tasks; safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        await self._close()
+
+    def set_position(self, x: float, y: float, depth: float) -> None:  # noqa: B027
+        """Tell the backend where the vehicle is (only the simulator uses it; default no-op)."""
+
+    async def __aenter__(self) -> ModemBackend:
+        await self.open()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    # -- hooks ---------------------------------------------------------------------------------
+
+    @abstractmethod
+    async def _open(self) -> None:
+        """Connect; raise :class:`BackendError` on failure."""
+
+    @abstractmethod
+    async def _send(self, data: bytes, dest: int | None) -> None:
+        """Transmit a checked frame."""
+
+    @abstractmethod
+    async def _recv(self) -> Reception:
+        """Wait for the next reception."""
+
+    @abstractmethod
+    async def _close(self) -> None:
+        """Release resources; called once, also after a failed open."""

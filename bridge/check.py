@@ -1,0 +1,128 @@
+"""What ``zab check`` reports: channel sizes, worst-case frame fill, airtime against slots."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge.frame import FrameCodec
+from bridge.mac import TdmaSchedule
+from bridge.mission import TdmaMac
+from bridge.mission_loader import LoadedMission
+from bridge.ocean.presets import Preset, get_preset
+
+
+def preset_of(loaded: LoadedMission, node: str) -> Preset | None:
+    """The modem preset that gives ``node`` a known bit rate, if any."""
+    name = loaded.mission.node_modem(node).options.get("preset")
+    if not isinstance(name, str):
+        return None
+    try:
+        return get_preset(name)
+    except KeyError:
+        return None
+
+
+def max_propagation_s(loaded: LoadedMission, preset: Preset) -> float:
+    """Longest one-way travel time: between the farthest two positioned nodes, else the
+    modem's maximum range."""
+    nodes = loaded.mission.nodes.values()
+    points = [(n.position.x, n.position.y, n.position.depth) for n in nodes if n.position]
+    if len(points) == len(loaded.mission.nodes) and len(points) > 1:
+        far = max(math.dist(a, b) for a in points for b in points)
+        return preset.propagation_s(far)
+    return preset.propagation_s(preset.max_range_m)
+
+
+@dataclass
+class CheckReport:
+    """The result of checking a mission; ``ok`` is False when something can never fit."""
+
+    data: dict[str, Any]
+    warnings: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+def check_mission(loaded: LoadedMission) -> CheckReport:
+    mission, table = loaded.mission, loaded.table
+    codec = FrameCodec(table)
+    report = CheckReport(data={})
+    channels = [
+        {
+            "name": c.name,
+            "index": c.index,
+            "bits": c.bits,
+            "cost_bits": codec.channel_cost_bits(c),
+            "from": list(c.senders),
+            "to": [r for r in c.receivers if c.senders != (r,)],
+            "interval_s": c.interval_s,
+            "latching": c.latching,
+            "priority": c.priority,
+        }
+        for c in table.channels
+    ]
+    nodes = []
+    for name, node in mission.nodes.items():
+        frame_bytes = mission.node_modem(name).frame_bytes
+        capacity = codec.body_capacity_bits(frame_bytes) - codec.count_bits
+        sent = [c for c in table.channels if c.sent_by(name) and c.destinations(name)]
+        worst = sum(codec.channel_cost_bits(c) for c in sent)
+        for c in sent:
+            if codec.channel_cost_bits(c) > capacity:
+                report.errors.append(
+                    f"channel {c.name!r} ({codec.channel_cost_bits(c)} bits with its index) can "
+                    f"never fit in a {frame_bytes}-byte frame of {name!r} "
+                    f"({capacity} bits free after overhead)"
+                )
+        if worst > capacity:
+            report.warnings.append(
+                f"{name}: all its channels at once need {worst} bits, a frame holds {capacity}; "
+                "lower priorities wait for a later frame"
+            )
+        preset = preset_of(loaded, name)
+        largest = codec.frame_bytes_for(sent) if sent else codec.frame_bytes_for([])
+        airtime = preset.airtime(min(largest, frame_bytes)) if preset else None
+        entry = {
+            "name": name,
+            "address": node.address,
+            "role": node.role,
+            "listen": list(node.zenoh.listen),
+            "frame_bytes": frame_bytes,
+            "worst_case_bits": worst + codec.count_bits + codec.overhead_bytes() * 8,
+            "capacity_bits": frame_bytes * 8,
+            "fill": round(min(largest, frame_bytes) / frame_bytes, 3),
+            "airtime_s": None if airtime is None else round(airtime, 3),
+        }
+        if isinstance(mission.mac, TdmaMac):
+            schedule = TdmaSchedule(mission.mac, name)
+            entry["slot_s"] = schedule.usable_s()
+            entry["worst_gap_s"] = schedule.worst_gap_s()
+            if preset is not None and airtime is not None:
+                need = airtime + max_propagation_s(loaded, preset)
+                if need > schedule.usable_s():
+                    report.warnings.append(
+                        f"{name}: TDMA slot leaves {schedule.usable_s():.3f} s but a full frame "
+                        f"needs {need:.3f} s (airtime {airtime:.3f} s + propagation)"
+                    )
+        nodes.append(entry)
+    report.data = {
+        "mission": mission.mission,
+        "frame_bytes": mission.modem.frame_bytes,
+        "backend": mission.modem.backend,
+        "mac": mission.mac.type,
+        "dlbl": mission.wire.dlbl,
+        "overhead_bytes": codec.overhead_bytes(),
+        "count_bits": codec.count_bits,
+        "index_bits": codec.index_bits,
+        "channels": channels,
+        "nodes": nodes,
+        "warnings": report.warnings,
+        "errors": report.errors,
+        "ok": report.ok,
+    }
+    return report

@@ -1,0 +1,211 @@
+"""The ``zab`` command line. Each command wraps a typed function of the package."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import signal
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.logging import RichHandler
+from rich.table import Table
+
+from bridge.check import check_mission
+from bridge.errors import BackendError, MissionError
+from bridge.mission_loader import LoadedMission, load_mission
+
+app = typer.Typer(
+    help="zenoh-acoustic-bridge: one Zenoh pub/sub space across WiFi and water.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+console = Console(width=None if sys.stdout.isatty() else 120)
+err = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
+
+MissionArg = Annotated[Path, typer.Argument(help="Mission file (YAML).", show_default=False)]
+
+
+def _load(path: Path) -> LoadedMission:
+    """Load a mission or exit 2 with the loader's message (never a traceback)."""
+    try:
+        return load_mission(path)
+    except MissionError as exc:
+        err.print(f"[bold red]invalid mission[/]\n{exc}", highlight=False, markup=True)
+        raise typer.Exit(2) from None
+
+
+def _logging(verbose: bool) -> None:
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO,
+        format="%(message)s",
+        handlers=[RichHandler(console=err, show_path=False, rich_tracebacks=False)],
+        force=True,
+    )
+
+
+def _install_stop(stop: asyncio.Event) -> None:
+    """SIGINT/SIGTERM set ``stop`` so everything closes cleanly."""
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+
+
+@app.command()
+def check(
+    mission: MissionArg,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Validate a mission; show channel sizes, frame fill and airtime. Exit 1 if a channel can
+    never fit, 2 if the file is invalid."""
+    loaded = _load(mission)
+    report = check_mission(loaded)
+    if as_json:
+        print(json.dumps(report.data, indent=2))
+        raise typer.Exit(0 if report.ok else 1)
+    data = report.data
+    console.print(
+        f"[bold]{data['mission']}[/]: {len(data['nodes'])} nodes, {len(data['channels'])} "
+        f"channels, backend {data['backend']}, mac {data['mac']}, "
+        f"frame overhead {data['overhead_bytes']} B + {data['count_bits']}-bit count"
+        + (" (DLBL on)" if data["dlbl"] else "")
+    )
+    channels = Table("index", "channel", "bits", "from", "to", "interval", "latching", "priority",
+                     title="channels")
+    for c in data["channels"]:
+        channels.add_row(str(c["index"]), c["name"], str(c["bits"]), ", ".join(c["from"]),
+                         ", ".join(c["to"]), f"{c['interval_s']:g} s", str(c["latching"]).lower(),
+                         str(c["priority"]))
+    console.print(channels)
+    nodes = Table("node", "address", "role", "worst-case bits", "frame", "fill", "airtime",
+                  "listen", title="nodes")
+    for n in data["nodes"]:
+        airtime = "?" if n["airtime_s"] is None else f"{n['airtime_s']:.3f} s"
+        nodes.add_row(n["name"], str(n["address"]), n["role"], str(n["worst_case_bits"]),
+                      f"{n['frame_bytes']} B", f"{n['fill']:.0%}", airtime, " ".join(n["listen"]))
+    console.print(nodes)
+    for warning in report.warnings:
+        console.print(f"[yellow]warning:[/] {warning}", highlight=False)
+    for error in report.errors:
+        console.print(f"[red]error:[/] {error}", highlight=False)
+    raise typer.Exit(0 if report.ok else 1)
+
+
+@app.command()
+def schema(
+    out: Annotated[Path | None, typer.Option(help="Where to write (default: schemas/).")] = None,
+) -> None:
+    """Write the mission file's JSON Schema (for editors) from the models."""
+    from bridge.schema import default_schema_path, schema_text
+
+    path = out or default_schema_path()
+    path.write_text(schema_text(), encoding="utf-8")
+    console.print(f"wrote {path}")
+
+
+@app.command()
+def run(
+    mission: MissionArg,
+    node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Run the bridge of one node (what each vehicle runs)."""
+    from bridge.modem_setup import backend_factory
+    from bridge.node import BridgeNode
+
+    loaded = _load(mission)
+    if node not in loaded.mission.nodes:
+        err.print(f"no node {node!r} in {mission}; nodes: {', '.join(loaded.mission.nodes)}")
+        raise typer.Exit(2)
+    _logging(verbose)
+    try:
+        factory = backend_factory(loaded.mission, node)
+    except BackendError as exc:
+        err.print(f"[red]{exc}[/]")
+        raise typer.Exit(2) from None
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        _install_stop(stop)
+        bridge = BridgeNode(loaded, node, factory)
+        logging.getLogger("zab").info("%s: bridge running (Ctrl-C to stop)", node)
+        await bridge.run(stop)
+
+    asyncio.run(main())
+
+
+@app.command()
+def water(
+    mission: MissionArg,
+    port: Annotated[int | None, typer.Option(help="TCP port (default: the mission's water).")]
+    = None,
+    seed: Annotated[int | None, typer.Option(help="Random seed of the ocean.")] = None,
+) -> None:
+    """Run the simulated ocean that `zab run` nodes with `backend: sim` join over loopback."""
+    from bridge.backends.sim import parse_water_address
+    from bridge.fleet import water_for
+
+    loaded = _load(mission)
+    address = loaded.mission.modem.options.get("water", "127.0.0.1:7600")
+    host, default_port = parse_water_address(address)
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        _install_stop(stop)
+        service = water_for(loaded, seed)
+        bound = await service.start(host, port if port is not None else default_port)
+        console.print(f"water ({service.preset.name}) on {host}:{bound}; Ctrl-C to stop")
+        try:
+            await stop.wait()
+        finally:
+            await service.stop()
+            console.print_json(data=service.stats())
+
+    asyncio.run(main())
+
+
+@app.command()
+def sim(
+    mission: MissionArg,
+    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
+    report: Annotated[Path | None, typer.Option(help="Write a JSON report here.")] = None,
+    seed: Annotated[int | None, typer.Option(help="Random seed of the ocean.")] = None,
+    live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Run every node of the mission plus the simulated ocean, each node on its own endpoint."""
+    from bridge.simview import run_sim
+
+    loaded = _load(mission)
+    _logging(verbose)
+    result = asyncio.run(run_sim(loaded, duration=duration, seed=seed, live=live,
+                                 console=console))
+    if report is not None:
+        report.write_text(json.dumps(result, indent=2, default=str), encoding="utf-8")
+        console.print(f"report written to {report}")
+
+
+@app.command()
+def demo(
+    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.")] = 30.0,
+    mission: Annotated[Path | None, typer.Option(help="Mission (default: the MORPH fleet).")]
+    = None,
+    live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
+) -> None:
+    """A simulated MORPH fleet, end to end: data published, carried, decoded, shown."""
+    from bridge.demo import default_demo_mission, run_demo
+
+    loaded = _load(mission or default_demo_mission())
+    _logging(False)
+    asyncio.run(run_demo(loaded, duration=duration, console=console, live=live))
+
+
+def main() -> None:
+    app()

@@ -1,0 +1,48 @@
+"""Exception tree of the bridge.
+
+    ZabError
+     ├── MissionError        the mission file is wrong (names file, line, column, field path)
+     ├── LayoutError         a field list / codec layout is wrong (``loc`` says where in it)
+     ├── EncodeError         a value cannot be encoded (missing field, wrong type, rejected range)
+     ├── DecodeError         untrusted bytes cannot be decoded: the ONE error decoders raise
+     │    └── FrameError     ... a whole acoustic frame (truncated, corrupt, foreign mission)
+     └── BackendError        a modem backend failed to load, open or operate
+"""
+
+from __future__ import annotations
+
+
+class ZabError(Exception):
+    """Base class of every error the bridge raises on purpose."""
+
+
+class MissionError(ZabError):
+    """The mission file is invalid; the message is ready to show to a user."""
+
+
+class LayoutError(ZabError, ValueError):
+    """A field specification or codec layout is invalid.
+
+    ``loc`` is the path inside the field list (e.g. ``(2, "bits")``) so that a caller
+    that knows where the list came from (the mission loader) can point at the line.
+    """
+
+    def __init__(self, message: str, loc: tuple[str | int, ...] = ()) -> None:
+        super().__init__(message)
+        self.loc = loc
+
+
+class EncodeError(ZabError, ValueError):
+    """A value could not be encoded: missing field, wrong type, or out of range with ``reject``."""
+
+
+class DecodeError(ZabError, ValueError):
+    """Bytes could not be decoded. The only exception a decoder raises for any input."""
+
+
+class FrameError(DecodeError):
+    """An acoustic frame is truncated, corrupt, or was built from another mission file."""
+
+
+class BackendError(ZabError):
+    """A modem backend could not be loaded, opened, or failed while running."""

@@ -1,0 +1,143 @@
+"""The acoustic frame (wire version 1), pure.
+
+Layout, most significant bit first::
+
+    [DLBL]   dlbl missions only: 24 bits per foreign node of the SENDER, in mission order:
+             µs from the sender's last reception from that node to this frame's start;
+             0xFFFFFF = no data.
+    count    ceil(log2(C + 1)) bits: how many channels follow (C = channels in the mission)
+    count ×  index   ceil(log2 C) bits (0 bits when C == 1); no index twice in a frame
+             payload the channel's fixed number of bits (its elements' layouts, in order)
+    pad      zero bits up to the next byte
+    check    16 bits: CRC-16/CCITT (init 0xFFFF) over the mission fingerprint, then every
+             byte before the check. A frame from another mission file fails the check.
+
+:class:`FrameCodec` builds and parses frames for one :class:`~bridge.channels.ChannelTable`;
+:meth:`FrameCodec.decode` raises :class:`~bridge.errors.FrameError` and nothing else.
+"""
+
+from __future__ import annotations
+
+import binascii
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from bridge.channels import ChannelCodec, ChannelTable
+from bridge.errors import DecodeError, FrameError
+
+DELAY_BYTES = 3
+DELAY_MAX_US = (1 << 24) - 2  # largest delay sent; a longer one wraps (see ranging)
+NO_DELAY = (1 << 24) - 1  # "no reception from that node yet"
+CHECK_BYTES = 2
+
+
+@dataclass(frozen=True)
+class DecodedFrame:
+    """What a frame carried: DLBL delays (µs or None) and each channel's element values."""
+
+    delays: tuple[int | None, ...]
+    channels: tuple[tuple[ChannelCodec, list[dict]], ...]
+
+
+class FrameCodec:
+    """Encode and decode frames of one mission."""
+
+    def __init__(self, table: ChannelTable) -> None:
+        self.table = table
+        n = len(table.channels)
+        self.count_bits = n.bit_length()  # == ceil(log2(n + 1))
+        self.index_bits = (n - 1).bit_length() if n > 1 else 0
+        self.delay_count = len(table.nodes) - 1 if table.dlbl else 0
+        self.delay_bytes = DELAY_BYTES * self.delay_count
+        self._crc_init = binascii.crc_hqx(table.fingerprint, 0xFFFF)
+
+    # -- sizes ---------------------------------------------------------------------------------
+
+    def overhead_bytes(self) -> int:
+        """Bytes every frame spends outside channel data, not counting the count field."""
+        return self.delay_bytes + CHECK_BYTES
+
+    def body_capacity_bits(self, frame_bytes: int) -> int:
+        """Bits left for the count field and channels in a frame of ``frame_bytes``."""
+        return max(0, (frame_bytes - self.overhead_bytes()) * 8)
+
+    def channel_cost_bits(self, channel: ChannelCodec) -> int:
+        """Bits one channel takes in a frame: its index plus its payload."""
+        return self.index_bits + channel.bits
+
+    def frame_bytes_for(self, channels: Sequence[ChannelCodec]) -> int:
+        """Size of a frame carrying exactly ``channels``."""
+        body = self.count_bits + sum(self.channel_cost_bits(c) for c in channels)
+        return self.overhead_bytes() + (body + 7) // 8
+
+    # -- encode --------------------------------------------------------------------------------
+
+    def encode(
+        self,
+        items: Sequence[tuple[ChannelCodec, int]],
+        delays: Sequence[int | None] = (),
+    ) -> bytes:
+        """A frame carrying ``(channel, packed payload)`` items and, for DLBL, the delays."""
+        if len(delays) != self.delay_count:
+            raise ValueError(f"expected {self.delay_count} DLBL delays, got {len(delays)}")
+        acc, nbits = 0, 0
+        for delay in delays:
+            value = NO_DELAY if delay is None else min(max(int(delay), 0), DELAY_MAX_US)
+            acc, nbits = (acc << 24) | value, nbits + 24
+        acc, nbits = (acc << self.count_bits) | len(items), nbits + self.count_bits
+        seen: set[int] = set()
+        for channel, payload in items:
+            if channel.index in seen:
+                raise ValueError(f"channel {channel.name!r} twice in one frame")
+            seen.add(channel.index)
+            acc = (((acc << self.index_bits) | channel.index) << channel.bits) | payload
+            nbits += self.index_bits + channel.bits
+        pad = -nbits % 8
+        data = (acc << pad).to_bytes((nbits + pad) // 8, "big")
+        return data + binascii.crc_hqx(data, self._crc_init).to_bytes(CHECK_BYTES, "big")
+
+    # -- decode --------------------------------------------------------------------------------
+
+    def decode(self, frame: bytes) -> DecodedFrame:
+        """Parse untrusted bytes; raise :class:`FrameError` for anything but a valid frame."""
+        if not isinstance(frame, bytes | bytearray | memoryview):
+            raise FrameError(f"a frame is bytes, not {type(frame).__name__}")
+        frame = bytes(frame)
+        minimum = self.delay_bytes + CHECK_BYTES + (self.count_bits + 7) // 8
+        if len(frame) < minimum:
+            raise FrameError(f"truncated frame: {len(frame)} bytes, at least {minimum} needed")
+        body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
+        if binascii.crc_hqx(body, self._crc_init) != int.from_bytes(check, "big"):
+            raise FrameError("check failed: corrupt frame, or sent with another mission file")
+        acc = int.from_bytes(body, "big")
+        left = len(body) * 8
+
+        def take(bits: int) -> int:
+            nonlocal left
+            if bits > left:
+                raise FrameError("truncated frame: a channel runs past the end")
+            left -= bits
+            return (acc >> left) & ((1 << bits) - 1)
+
+        raw = [take(24) for _ in range(self.delay_count)]
+        delays = tuple(None if d == NO_DELAY else d for d in raw)
+        count = take(self.count_bits)
+        table = self.table.channels
+        if count > len(table):
+            raise FrameError(f"frame claims {count} channels, the mission has {len(table)}")
+        channels: list[tuple[ChannelCodec, list[dict]]] = []
+        seen: set[int] = set()
+        for _ in range(count):
+            index = take(self.index_bits)
+            if index >= len(table) or index in seen:
+                raise FrameError(f"bad or repeated channel index {index}")
+            seen.add(index)
+            channel = table[index]
+            payload = take(channel.bits)
+            try:
+                channels.append((channel, channel.unpack(payload)))
+            except DecodeError as exc:
+                raise FrameError(f"channel {channel.name!r}: {exc}") from None
+        if left >= 8 or take(left) != 0:
+            raise FrameError("trailing data after the last channel")
+        return DecodedFrame(delays, tuple(channels))

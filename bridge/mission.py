@@ -1,0 +1,152 @@
+"""The mission file: one YAML document that every node of a deployment loads.
+
+These pydantic models ARE the file format (``zab schema`` turns them into JSON Schema).
+Times are seconds and say so in their names (``interval_s``, ``slot_s``). Unknown keys are
+errors everywhere except in a node's ``zenoh`` section, whose extra keys pass through to the
+Zenoh JSON5 configuration (``"transport/link/tx/lease": 2000``).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from bridge.codec import FieldSpec
+
+NodeName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)]
+NodePattern = Annotated[
+    str | list[str],
+    Field(description="A node name, a list of names, or a regular expression matching names."),
+]
+
+
+class Strict(BaseModel):
+    """Base of every mission model: unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+class ZenohSettings(BaseModel):
+    """How a node opens its Zenoh session. Extra keys are Zenoh config paths, passed through."""
+
+    model_config = ConfigDict(extra="allow")
+
+    mode: Literal["peer", "client", "router"] = "peer"
+    listen: list[str] = Field(
+        default_factory=list, description="Endpoints, e.g. tcp/127.0.0.1:7501"
+    )
+    connect: list[str] = Field(default_factory=list)
+
+    def passthrough(self) -> dict[str, Any]:
+        """Extra keys, inserted verbatim into the Zenoh configuration."""
+        return dict(self.model_extra or {})
+
+
+class Position(Strict):
+    """A static position in metres: x east, y north, depth down (used by the simulator)."""
+
+    x: float = 0.0
+    y: float = 0.0
+    depth: float = Field(0.0, ge=0.0)
+
+
+class ModemOverride(Strict):
+    """Per-node modem settings; unset values come from the mission's ``modem`` defaults."""
+
+    backend: str | None = None
+    frame_bytes: int | None = Field(None, ge=4, le=4096)
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class Node(Strict):
+    """One vehicle or station."""
+
+    address: int = Field(ge=0, le=254, description="Acoustic modem address.")
+    role: Literal["surface", "submerged"] = "submerged"
+    zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
+    position: Position | None = None
+    modem: ModemOverride = Field(default_factory=ModemOverride)
+
+
+class Modem(Strict):
+    """Mission-wide modem defaults."""
+
+    backend: str = Field("sim", description="sim, udp, or a backend from the zab.backends group.")
+    frame_bytes: int = Field(64, ge=4, le=4096, description="Largest frame the modem sends.")
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class TdmaMac(Strict):
+    """Static TDMA: slots of ``slot_s`` in ``order``, aligned to wall-clock time."""
+
+    type: Literal["tdma"]
+    slot_s: float = Field(gt=0, description="Length of one slot, seconds.")
+    guard_s: float = Field(0.0, ge=0, description="Silence kept at the end of each slot, seconds.")
+    order: list[NodeName] = Field(min_length=1, description="Slot owners; a node may repeat.")
+
+
+class NoMac(Strict):
+    """No access control: send as soon as something is due (ideal links, tests)."""
+
+    type: Literal["none"]
+    min_gap_s: float = Field(0.0, ge=0, description="Least time between two frames of a node.")
+
+
+Mac = Annotated[TdmaMac | NoMac, Field(discriminator="type")]
+
+
+class Element(Strict):
+    """One Zenoh key carried by a channel: read at the sender, published at each receiver."""
+
+    in_: str = Field(alias="in", description="Input key at the sender; may use {node}/{src}.")
+    out: str = Field(description="Output key at receivers; may use {src}, {dst} and {node}.")
+    encoding: Literal["msgpack", "json"] = Field("msgpack", description="Published payload.")
+    fields: list[FieldSpec] = Field(min_length=1)
+
+
+class Channel(Strict):
+    """A set of elements sent together, always whole, with a fixed bit length."""
+
+    name: NodeName
+    from_: NodePattern = Field(alias="from")
+    to: NodePattern
+    interval_s: float = Field(
+        0.0, ge=0, description="Least time between two sends; 0 means every opportunity."
+    )
+    latching: bool = Field(False, description="Re-send the last value even without new data.")
+    priority: int = Field(0, description="Higher first when a frame is full.")
+    on_out_of_range: Literal["clamp", "reject"] = "clamp"
+    elements: list[Element] = Field(min_length=1)
+
+
+class Wire(Strict):
+    """Options of the frame format shared by every node."""
+
+    dlbl: bool = Field(False, description="Start each frame with the DLBL delay vector.")
+
+
+class Mission(Strict):
+    """A deployment: nodes, modem, MAC and channels."""
+
+    mission: NodeName = Field(description="Mission name; used in @zab/<mission>/... keys.")
+    nodes: dict[NodeName, Node] = Field(min_length=1)
+    modem: Modem = Field(default_factory=Modem)
+    mac: Mac = Field(default_factory=lambda: NoMac(type="none"))
+    wire: Wire = Field(default_factory=Wire)
+    channels: list[Channel] = Field(default_factory=list)
+
+    def node_modem(self, name: str) -> Modem:
+        """The modem settings of ``name``: mission defaults with the node's overrides."""
+        override = self.nodes[name].modem
+        return Modem(
+            backend=override.backend or self.modem.backend,
+            frame_bytes=override.frame_bytes or self.modem.frame_bytes,
+            options={**self.modem.options, **override.options},
+        )
+
+    def address_of(self, name: str) -> int:
+        return self.nodes[name].address
+
+    def name_of(self, address: int) -> str | None:
+        return next((n for n, node in self.nodes.items() if node.address == address), None)

@@ -1,0 +1,347 @@
+"""The bridge runtime of one node: Zenoh sample → store → frame → MAC slot → modem, and back.
+
+Asyncio adapter around the pure core. Zenoh callbacks run on Zenoh's own threads; they only
+hand samples to the event loop (``call_soon_threadsafe``), so nothing here blocks Zenoh.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgpack
+import zenoh
+
+from bridge.backends.base import ModemBackend, Reception
+from bridge.builder import plan_frame
+from bridge.channels import ChannelCodec, ElementCodec
+from bridge.errors import BackendError, DecodeError, EncodeError, FrameError
+from bridge.frame import DELAY_MAX_US, FrameCodec
+from bridge.mac import FreeSchedule, TdmaSchedule, schedule_for
+from bridge.mission_loader import LoadedMission
+from bridge.payloads import decode_payload, encode_payload
+from bridge.store import OutboundStore
+from bridge.zenoh_session import close_quietly, is_bridged, open_session, origin_tag
+
+log = logging.getLogger("zab.node")
+
+STATS_PERIOD_S = 1.0
+RETRY_MIN_S, RETRY_MAX_S = 0.5, 10.0
+
+
+@dataclass
+class NodeStats:
+    """Counters of one node, published on ``@zab/<mission>/<node>/stats``."""
+
+    frames_sent: int = 0
+    frames_received: int = 0
+    frames_dropped: Counter[str] = field(default_factory=Counter)
+    payloads_dropped: Counter[str] = field(default_factory=Counter)
+    values_published: int = 0
+    send_errors: int = 0
+    left_out: int = 0
+    sent_per_channel: Counter[str] = field(default_factory=Counter)
+    received_per_channel: Counter[str] = field(default_factory=Counter)
+
+
+class BridgeNode:
+    """Everything one vehicle runs: its Zenoh session, store, MAC loop and modem."""
+
+    def __init__(
+        self,
+        loaded: LoadedMission,
+        node: str,
+        make_backend: Callable[[], ModemBackend],
+        *,
+        clock: Callable[[], float] = time.time,
+        on_event: Callable[[str, dict[str, Any]], None] | None = None,
+    ) -> None:
+        if node not in loaded.mission.nodes:
+            raise ValueError(f"node {node!r} is not in mission {loaded.mission.mission!r}")
+        self.mission = loaded.mission
+        self.table = loaded.table
+        self.node = node
+        self._make_backend = make_backend
+        self.backend: ModemBackend | None = None
+        self.clock = clock
+        self.on_event = on_event or (lambda kind, info: None)
+        self.codec = FrameCodec(self.table)
+        self.frame_bytes = self.mission.node_modem(node).frame_bytes
+        self.schedule = schedule_for(self.mission, node)
+        self.store = OutboundStore.for_node(self.table.channels, node)
+        self.stats = NodeStats()
+        self.last_heard: dict[str, float] = {}
+        self.last_rx_start: dict[str, float] = {}
+        self.received_at: dict[str, float] = {}
+        self.prefix = f"@zab/{self.mission.mission}/{node}"
+        self._origin = origin_tag(self.mission.mission, node)
+        self._bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
+        for channel in self.table.channels:
+            if channel.index in self.store.states:
+                for i, element in enumerate(channel.elements):
+                    key = element.input_key(node)
+                    self._bindings.setdefault(key, []).append((channel, i, element))
+        self._warned_keys: set[str] = set()
+        self._latest: dict[str, tuple[bytes, str]] = {}
+        self._latched_keys: set[str] = set()
+        self._publishers: dict[str, Any] = {}
+        self._queryables: list[Any] = []
+        self._data = asyncio.Event()
+        self._modem_up = asyncio.Event()
+        self.session: zenoh.Session | None = None
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Run until ``stop`` is set; always closes the session and the modem."""
+        loop = asyncio.get_running_loop()
+        self.session = open_session(self.mission.nodes[self.node].zenoh)
+        try:
+            for key in self._bindings:
+                self.session.declare_subscriber(
+                    key, lambda s, k=key: self._from_zenoh(loop, k, s)
+                )
+            tasks = [
+                asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
+                asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
+                asyncio.create_task(self._stats_loop(), name=f"{self.node}-stats"),
+            ]
+            await stop.wait()
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+        finally:
+            if self.backend is not None:
+                await self.backend.close()
+            close_quietly(self.session)
+
+    # -- Zenoh → store -----------------------------------------------------------------------
+
+    def _from_zenoh(self, loop: asyncio.AbstractEventLoop, key: str, sample: zenoh.Sample) -> None:
+        """Zenoh thread: copy what we need and hand it to the loop."""
+        if sample.kind != zenoh.SampleKind.PUT or is_bridged(sample):
+            return
+        data, encoding = sample.payload.to_bytes(), str(sample.encoding)
+        loop.call_soon_threadsafe(self.ingest, key, data, encoding)
+
+    def ingest(self, key: str, data: bytes, encoding: str) -> None:
+        """A sample arrived on an input key: pack it for every channel that reads the key."""
+        now = self.clock()
+        try:
+            value = decode_payload(data, encoding)
+        except DecodeError as exc:
+            self._drop_payload(key, str(exc))
+            return
+        for channel, index, element in self._bindings.get(key, ()):
+            try:
+                packed = element.layout.pack(value)
+            except EncodeError as exc:
+                self._drop_payload(key, f"channel {channel.name!r}: {exc}")
+                continue
+            self.store.update(channel.index, index, packed, now)
+        self._data.set()
+
+    def _drop_payload(self, key: str, reason: str) -> None:
+        self.stats.payloads_dropped[key] += 1
+        if key not in self._warned_keys:
+            self._warned_keys.add(key)
+            log.warning("%s: dropped a payload on %r: %s (counted; warned once)",
+                        self.node, key, reason)
+        self.on_event("payload_dropped", {"key": key, "reason": reason})
+
+    # -- store → modem -------------------------------------------------------------------------
+
+    async def _sleep_until(self, t: float) -> None:
+        delay = t - self.clock()
+        if delay > 0:
+            await asyncio.sleep(delay)
+
+    async def _transmit_loop(self) -> None:
+        after = self.clock()
+        last_start: float | None = None
+        while True:
+            await self._modem_up.wait()
+            if isinstance(self.schedule, TdmaSchedule):
+                slot = self.schedule.next_slot(after)
+                if slot is None:
+                    return  # this node owns no slot: it only listens
+                await self._sleep_until(slot.start)
+                after = slot.start
+                await self.transmit(always=self.table.dlbl)
+                continue
+            assert isinstance(self.schedule, FreeSchedule)
+            due = self.store.next_due()
+            if due is None:
+                self._data.clear()
+                await self._data.wait()
+                continue
+            now = self.clock()
+            start = max(self.schedule.earliest(now, last_start), due)
+            if start > now:
+                self._data.clear()
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._data.wait(), start - now)
+                continue
+            last_start = now
+            await self.transmit()
+
+    def delays(self, now: float) -> list[int | None]:
+        """DLBL vector: µs since the last reception from each foreign node (None if stale)."""
+        if not self.table.dlbl:
+            return []
+        out: list[int | None] = []
+        for peer in self.table.foreign_nodes(self.node):
+            heard = self.last_rx_start.get(peer)
+            delay = None if heard is None else round((now - heard) * 1e6)
+            out.append(delay if delay is not None and 0 <= delay <= DELAY_MAX_US else None)
+        return out
+
+    async def transmit(self, *, always: bool = False) -> bool:
+        """Build one frame from what is due and send it. Returns whether a frame went out."""
+        now = self.clock()
+        plan = plan_frame(self.codec, self.store.due(now), self.frame_bytes)
+        self.stats.left_out += len(plan.left_out)
+        if not plan.chosen and not always:
+            return False
+        frame = self.codec.encode(
+            [(s.channel, s.payload()) for s in plan.chosen], self.delays(now)
+        )
+        targets = {d for s in plan.chosen for d in s.channel.destinations(self.node)}
+        dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
+        try:
+            if self.backend is None:
+                raise BackendError("modem not open")
+            await self.backend.send(frame, dest)
+        except BackendError as exc:
+            self.stats.send_errors += 1
+            log.warning("%s: send failed: %s", self.node, exc)
+            self.on_event("send_failed", {"error": str(exc)})
+            self._modem_up.clear()
+            return False
+        self.store.mark_sent(plan.chosen, now)
+        self.stats.frames_sent += 1
+        for state in plan.chosen:
+            self.stats.sent_per_channel[state.channel.name] += 1
+        self.on_event("frame_sent", {"bytes": len(frame), "channels": [
+            s.channel.name for s in plan.chosen], "time": now})
+        return True
+
+    # -- modem → Zenoh -------------------------------------------------------------------------
+
+    async def _modem_loop(self) -> None:
+        """Open the modem, read receptions; on failure, open a fresh one with backoff."""
+        backoff = RETRY_MIN_S
+        while True:
+            backend = self.backend = self._make_backend()
+            try:
+                await backend.open()
+                self._modem_up.set()
+                backoff = RETRY_MIN_S
+                while True:
+                    self.receive(await backend.recv())
+            except BackendError as exc:
+                self._modem_up.clear()
+                log.warning("%s: modem unavailable: %s (retry in %.1f s)", self.node, exc, backoff)
+                self.on_event("modem_down", {"error": str(exc)})
+                await backend.close()
+                await asyncio.sleep(backoff)
+                backoff = min(backoff * 2, RETRY_MAX_S)
+
+    def receive(self, rx: Reception) -> None:
+        """Decode one received frame and publish what it carries for this node."""
+        src = self.mission.name_of(rx.src)
+        if src is None or src == self.node:
+            self.stats.frames_dropped["unknown_source"] += 1
+            return
+        try:
+            frame = self.codec.decode(rx.data)
+        except FrameError as exc:
+            self.stats.frames_dropped["check" if "check" in str(exc) else "malformed"] += 1
+            self.on_event("frame_dropped", {"src": src, "reason": str(exc)})
+            return
+        self.stats.frames_received += 1
+        self.last_heard[src] = rx.time
+        self.last_rx_start[src] = float(rx.meta.get("start", rx.time))
+        self._publish_raw(f"{self.prefix}/peers/{src}",
+                          {"last_heard": rx.time, "meta": _plain(rx.meta)})
+        for channel, values in frame.channels:
+            if src not in channel.senders:
+                self.stats.frames_dropped["unexpected_sender"] += 1
+                continue
+            if self.node not in channel.destinations(src):
+                continue  # overheard: addressed to others
+            self.stats.received_per_channel[channel.name] += 1
+            self.received_at[channel.name] = rx.time
+            for element, value in zip(channel.elements, values, strict=True):
+                key = element.output_key(src, self.node)
+                self.publish(key, value, element.encoding, latched=channel.latching)
+        self.on_event("frame_received", {"src": src, "bytes": len(rx.data), "channels": [
+            c.name for c, _ in frame.channels], "time": rx.time})
+
+    def publish(self, key: str, value: Any, encoding: str, *, latched: bool = False) -> None:
+        """Put a decoded value on Zenoh, marked as bridged so no bridge sends it back."""
+        assert self.session is not None
+        payload, enc = encode_payload(value, encoding)
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            publisher = self.session.declare_publisher(key, encoding=zenoh.Encoding(enc))
+            self._publishers[key] = publisher
+        self._latest[key] = (payload, enc)
+        if latched and key not in self._latched_keys:
+            self._latched_keys.add(key)
+            self._queryables.append(
+                self.session.declare_queryable(key, lambda q, k=key: self._answer(q, k))
+            )
+        publisher.put(payload, attachment=self._origin)
+        self.stats.values_published += 1
+
+    def _answer(self, query: zenoh.Query, key: str) -> None:
+        """Zenoh thread: a late joiner asks for a latched key; reply with its last value."""
+        latest = self._latest.get(key)
+        if latest is not None:
+            query.reply(key, latest[0], encoding=zenoh.Encoding(latest[1]),
+                        attachment=self._origin)
+        query.drop()
+
+    def _publish_raw(self, key: str, value: dict[str, Any]) -> None:
+        assert self.session is not None
+        self.session.put(key, msgpack.packb(value, use_bin_type=True),
+                         encoding=zenoh.Encoding("application/msgpack"), attachment=self._origin)
+
+    # -- health --------------------------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, Any]:
+        """Counters and channel ages as plain data."""
+        now = self.clock()
+        ages = {s.channel.name: s.age(now) for s in self.store.states.values()}
+        return {
+            "node": self.node,
+            "time": now,
+            "frames_sent": self.stats.frames_sent,
+            "frames_received": self.stats.frames_received,
+            "frames_dropped": dict(self.stats.frames_dropped),
+            "payloads_dropped": dict(self.stats.payloads_dropped),
+            "values_published": self.stats.values_published,
+            "send_errors": self.stats.send_errors,
+            "left_out": self.stats.left_out,
+            "channel_age_s": ages,
+            "received_age_s": {k: now - t for k, t in self.received_at.items()},
+            "last_heard": dict(self.last_heard),
+        }
+
+    async def _stats_loop(self) -> None:
+        while True:
+            await asyncio.sleep(STATS_PERIOD_S)
+            self._publish_raw(f"{self.prefix}/stats", self.snapshot())
+
+
+def _plain(meta: Any) -> dict[str, Any]:
+    """Link metadata reduced to msgpack-able scalars."""
+    return {str(k): v for k, v in dict(meta).items()
+            if isinstance(v, int | float | str | bool) or v is None}

@@ -1,0 +1,95 @@
+"""Latest-value store of the channels a node sends (seed 000: newest data overwrites older).
+
+Pure: every method takes ``now`` (seconds). Values are packed when they arrive, so a payload
+that cannot be encoded is refused at its key, not discovered later inside a frame.
+
+A channel is *due* when every element has a value, the channel's ``interval_s`` has passed
+since it was last sent, and either new data arrived since then or the channel is latching.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+from bridge.channels import ChannelCodec
+
+
+@dataclass
+class ChannelState:
+    """What a sender holds for one channel."""
+
+    channel: ChannelCodec
+    packed: list[int | None]
+    updated: list[float | None]
+    fresh: bool = False
+    last_sent: float | None = None
+    sends: int = 0
+
+    @property
+    def complete(self) -> bool:
+        return all(p is not None for p in self.packed)
+
+    def payload(self) -> int:
+        """The channel's bits: every element's packed value, first element most significant."""
+        n = 0
+        for element, packed in zip(self.channel.elements, self.packed, strict=True):
+            n = (n << element.layout.bits) | (packed or 0)
+        return n
+
+    def ready_at(self) -> float | None:
+        """When the channel becomes due, or None while nothing could be sent."""
+        if not self.complete or not (self.fresh or self.channel.latching):
+            return None
+        if self.last_sent is None:
+            return float("-inf")
+        return self.last_sent + self.channel.interval_s
+
+    def age(self, now: float) -> float | None:
+        """Seconds since the newest value of any element arrived."""
+        stamps = [t for t in self.updated if t is not None]
+        return now - max(stamps) if stamps else None
+
+
+@dataclass
+class OutboundStore:
+    """Channel states of one sending node."""
+
+    states: dict[int, ChannelState] = field(default_factory=dict)
+
+    @classmethod
+    def for_node(cls, channels: Iterable[ChannelCodec], node: str) -> OutboundStore:
+        return cls(
+            {
+                c.index: ChannelState(c, [None] * len(c.elements), [None] * len(c.elements))
+                for c in channels
+                if c.sent_by(node) and c.destinations(node)
+            }
+        )
+
+    def update(self, index: int, element: int, packed: int, now: float) -> None:
+        """Store a newly packed element value; it replaces whatever was there."""
+        state = self.states[index]
+        state.packed[element] = packed
+        state.updated[element] = now
+        state.fresh = True
+
+    def due(self, now: float) -> list[ChannelState]:
+        """Channels that may go in a frame sent at ``now``."""
+        out = []
+        for state in self.states.values():
+            ready = state.ready_at()
+            if ready is not None and ready <= now + 1e-9:
+                out.append(state)
+        return out
+
+    def next_due(self) -> float | None:
+        """The earliest time a channel becomes due (may be in the past), or None."""
+        times = [t for s in self.states.values() if (t := s.ready_at()) is not None]
+        return min(times) if times else None
+
+    def mark_sent(self, sent: Iterable[ChannelState], now: float) -> None:
+        for state in sent:
+            state.fresh = False
+            state.last_sent = now
+            state.sends += 1

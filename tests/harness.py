@@ -1,0 +1,94 @@
+"""Run a fleet in a background event loop and talk to it with plain Zenoh sessions."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import queue
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import msgpack
+import zenoh
+
+from bridge.fleet import Fleet
+from bridge.mission_loader import LoadedMission
+
+
+@contextlib.contextmanager
+def running_fleet(loaded: LoadedMission, **kwargs: Any) -> Iterator[Fleet]:
+    """Start every node (and the water) in a thread; stop and close everything on exit."""
+    fleet = Fleet(loaded, **kwargs)
+    loop = asyncio.new_event_loop()
+    stop = asyncio.Event()
+    done = threading.Event()
+    failure: list[BaseException] = []
+
+    def main() -> None:
+        async def go() -> None:
+            await fleet.run(stop)
+
+        try:
+            loop.run_until_complete(go())
+        except BaseException as exc:  # reported to the test below
+            failure.append(exc)
+        finally:
+            loop.close()
+            done.set()
+
+    thread = threading.Thread(target=main, name="fleet", daemon=True)
+    thread.start()
+    deadline = time.time() + 10
+    while not fleet.ready.is_set() and not done.is_set() and time.time() < deadline:
+        time.sleep(0.01)
+    try:
+        if failure:
+            raise failure[0]
+        assert fleet.ready.is_set(), "fleet did not start"
+        yield fleet
+    finally:
+        loop.call_soon_threadsafe(stop.set)
+        assert done.wait(15), "fleet did not stop"
+        thread.join(5)
+    if failure:
+        raise failure[0]
+
+
+def outside_session(loaded: LoadedMission, node: str) -> zenoh.Session:
+    """An application's session, connected only to ``node``'s endpoint (client mode)."""
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps(loaded.mission.nodes[node].zenoh.listen))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(config)
+
+
+class Inbox:
+    """Collects (key, decoded msgpack value, time) from a subscriber callback."""
+
+    def __init__(self) -> None:
+        self.items: queue.Queue[tuple[str, Any, float]] = queue.Queue()
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        self.items.put((str(sample.key_expr), msgpack.unpackb(sample.payload.to_bytes()),
+                        time.time()))
+
+    def get(self, timeout: float) -> tuple[str, Any, float]:
+        return self.items.get(timeout=timeout)
+
+    def drain(self, seconds: float) -> list[tuple[str, Any, float]]:
+        out = []
+        end = time.time() + seconds
+        while (left := end - time.time()) > 0:
+            try:
+                out.append(self.items.get(timeout=left))
+            except queue.Empty:
+                break
+        return out
+
+
+def put(session: zenoh.Session, key: str, value: Any) -> None:
+    session.put(key, msgpack.packb(value), encoding=zenoh.Encoding("application/msgpack"))

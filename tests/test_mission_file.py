@@ -1,0 +1,111 @@
+"""Mission-file mistakes: each gives a message with file:line:column and the field path."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from bridge.cli import app
+from bridge.errors import MissionError
+from bridge.mission_loader import load_mission, parse_mission
+
+GOOD = """\
+mission: tiny
+nodes:
+  a: {address: 1, zenoh: {listen: [tcp/127.0.0.1:7001]}}
+  b: {address: 2}
+mac: {type: tdma, slot_s: 2.0, guard_s: 0.1, order: [a, b]}
+channels:
+  - name: pose
+    from: a
+    to: b
+    interval_s: 5
+    elements:
+      - in: pose
+        out: a/pose
+        fields:
+          - {field: x, bits: 8, min: 0, max: 10}
+"""
+
+
+def error_of(text: str) -> str:
+    with pytest.raises(MissionError) as info:
+        parse_mission(text, "m.yaml")
+    return str(info.value)
+
+
+def test_good_mission_loads() -> None:
+    loaded = parse_mission(GOOD, "m.yaml")
+    assert loaded.table.by_name("pose").bits == 8
+    assert loaded.table.by_name("pose").receivers == ("b",)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "line", "path", "words"),
+    [
+        ("    interval_s: 5", "    interval_s: 5\n    latchin: true", 11, "channels[0].latchin",
+         "unknown key"),
+        ("bits: 8", "bits: eight", 15, "channels[0].elements[0].fields[0].bits", "integer"),
+        ("    to: b\n", "", 7, "channels[0].to", "required"),
+        ("    from: a", "    from: z+", 8, "channels[0].from", "matches no node"),
+        ("    from: a", "    from: '('", 8, "channels[0].from", "regex"),
+        ("order: [a, b]", "order: [a, c]", 5, "mac.order[1]", "unknown node 'c'"),
+        ("slot_s: 2.0", "slot_s: -1", 5, "mac.slot_s", "greater than 0"),
+        ("  b: {address: 2}", "  b: {address: 1}", 4, "nodes.b.address", "already used"),
+        ("bits: 8, min: 0, max: 10", "bits: 8", 15, "channels[0].elements[0].fields[0]",
+         "min"),
+        ("out: a/pose", "out: '{who}/pose'", 13, "channels[0].elements[0].out", "{who}"),
+        ("{field: x, bits: 8, min: 0, max: 10}", "{field: x, codec: no.such}", 15,
+         "channels[0].elements[0].fields[0]", "no.such"),
+        ("mac: {type: tdma", "mac: {type: csma", 5, "mac", "type"),
+    ],
+)
+def test_mistakes_are_located(old: str, new: str, line: int, path: str, words: str) -> None:
+    assert old in GOOD
+    message = error_of(GOOD.replace(old, new, 1))
+    first = message.splitlines()[0]
+    assert first.startswith(f"m.yaml:{line}:"), message
+    assert path in first, message
+    assert words.lower() in message.lower(), message
+
+
+def test_duplicate_channel_name() -> None:
+    text = GOOD + GOOD[GOOD.index("  - name: pose"):]
+    message = error_of(text)
+    assert re.match(r"m\.yaml:16:\d+: channels\[1\]\.name: .*already used", message), message
+
+
+def test_yaml_syntax_and_duplicate_keys() -> None:
+    assert error_of(GOOD.replace("to: b", "to: [b")).startswith("m.yaml:")
+    message = error_of(GOOD.replace("    to: b\n", "    to: b\n    to: a\n"))
+    assert message.startswith("m.yaml:10:") and "duplicate key 'to'" in message
+
+
+def test_not_a_mapping_and_empty() -> None:
+    assert "mapping" in error_of("- a\n- b\n")
+    assert "empty" in error_of("")
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(MissionError, match="no such mission file"):
+        load_mission(tmp_path / "nope.yaml")
+
+
+def test_cli_exit_2_without_traceback(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(GOOD.replace("bits: 8", "bits: eight"))
+    result = CliRunner().invoke(app, ["check", str(bad)])
+    assert result.exit_code == 2
+    output = result.output + (result.stderr if result.stderr_bytes is not None else "")
+    assert "Traceback" not in output
+    assert f"{bad}:15:" in output.replace("\n", "")
+
+
+def test_zenoh_extra_keys_pass_through() -> None:
+    loaded = parse_mission(GOOD.replace(
+        "zenoh: {listen: [tcp/127.0.0.1:7001]}",
+        'zenoh: {listen: [tcp/127.0.0.1:7001], "transport/link/tx/lease": 2000}'), "m.yaml")
+    assert loaded.mission.nodes["a"].zenoh.passthrough() == {"transport/link/tx/lease": 2000}

@@ -1,0 +1,98 @@
+"""Latest-value store and MAC schedules with a fake clock (pure, deterministic)."""
+
+from __future__ import annotations
+
+from bridge.mac import FreeSchedule, TdmaSchedule
+from bridge.mission import NoMac, TdmaMac
+from bridge.mission_loader import load_mission
+from bridge.store import OutboundStore
+from tests.conftest import MISSIONS
+
+MORPH = load_mission(MISSIONS / "morph.yaml")
+
+
+def lsv_store() -> OutboundStore:
+    return OutboundStore.for_node(MORPH.table.channels, "lsv")
+
+
+def test_store_holds_only_channels_the_node_sends() -> None:
+    names = {s.channel.name for s in lsv_store().states.values()}
+    assert names == {"target_reference", "nav", "status"}
+
+
+def test_newest_overwrites_and_non_latching_sends_once() -> None:
+    store = lsv_store()
+    target = MORPH.table.by_name("target_reference").index
+    store.update(target, 0, 1, now=0.0)
+    store.update(target, 0, 2, now=0.5)
+    due = [s for s in store.due(1.0) if s.channel.index == target]
+    assert [s.payload() for s in due] == [2]
+    store.mark_sent(due, 1.0)
+    assert not [s for s in store.due(100.0) if s.channel.index == target]
+
+
+def test_interval_throttles() -> None:
+    store = lsv_store()
+    target = MORPH.table.by_name("target_reference")  # interval 10 s
+    store.update(target.index, 0, 1, now=0.0)
+    store.mark_sent(store.due(0.0), 0.0)
+    store.update(target.index, 0, 2, now=1.0)
+    assert target.index not in {s.channel.index for s in store.due(9.9)}
+    assert target.index in {s.channel.index for s in store.due(10.0)}
+    assert store.next_due() == 10.0
+
+
+def test_latching_repeats_without_new_data() -> None:
+    store = lsv_store()
+    status = MORPH.table.by_name("status")  # latching, interval 15 s
+    store.update(status.index, 0, 7, now=0.0)
+    for t in (0.0, 15.0, 30.0):
+        due = [s for s in store.due(t) if s.channel.index == status.index]
+        assert len(due) == 1 and due[0].payload() == 7
+        store.mark_sent(due, t)
+    assert not [s for s in store.due(44.0) if s.channel.index == status.index]
+
+
+def test_incomplete_channel_is_not_due() -> None:
+    store = OutboundStore.for_node(MORPH.table.channels, "ssv")
+    command = MORPH.table.by_name("mission_command")
+    assert store.states[command.index].ready_at() is None
+
+
+def test_tdma_slots_follow_the_order_and_wall_clock() -> None:
+    mac = TdmaMac(type="tdma", slot_s=2.0, guard_s=0.5, order=["a", "b", "a", "c"])
+    a = TdmaSchedule(mac, "a")
+    starts = []
+    t = 1000.0
+    for _ in range(4):
+        slot = a.next_slot(t)
+        assert slot is not None
+        starts.append(slot.start)
+        assert slot.end == slot.start + 1.5
+        t = slot.start
+    # cycle of 8 s starting at multiples of 8: a owns slots 0 and 2 → 1000 is slot 500 (a)
+    assert starts == [1004.0, 1008.0, 1012.0, 1016.0]
+    assert TdmaSchedule(mac, "b").next_slot(1000.0).start == 1002.0  # type: ignore[union-attr]
+    assert TdmaSchedule(mac, "c").next_slot(1000.0).start == 1006.0  # type: ignore[union-attr]
+    assert TdmaSchedule(mac, "z").next_slot(1000.0) is None
+    assert a.worst_gap_s() == 4.0 and TdmaSchedule(mac, "c").worst_gap_s() == 8.0
+
+
+def test_two_nodes_never_share_a_slot() -> None:
+    mac = TdmaMac(type="tdma", slot_s=1.5, guard_s=0.3, order=["ssv", "gcv", "lsv"])
+    schedules = {n: TdmaSchedule(mac, n) for n in mac.order}
+    seen: dict[float, str] = {}
+    for name, schedule in schedules.items():
+        t = 12345.6
+        for _ in range(20):
+            slot = schedule.next_slot(t)
+            assert slot is not None
+            assert seen.setdefault(round(slot.start, 6), name) == name
+            t = slot.start
+
+
+def test_free_schedule_min_gap() -> None:
+    free = FreeSchedule(NoMac(type="none", min_gap_s=2.0))
+    assert free.earliest(10.0, None) == 10.0
+    assert free.earliest(10.0, 9.0) == 11.0
+    assert free.earliest(12.0, 9.0) == 12.0
