@@ -45,13 +45,25 @@ def _lin(lo: float, hi: float, *, resolution: float | None = None, bits: int | N
     return params
 
 
-LT_MORPH = {"vector": {"codec": "dict", "fields": {
-    "x": _lin(0, 6.2831, bits=8), "y": _lin(-0.052359878, 0.052359878, bits=6)}}}
+LT_MORPH = {
+    "vector": {
+        "codec": "dict",
+        "fields": {"x": _lin(0, 6.2831, bits=8), "y": _lin(-0.052359878, 0.052359878, bits=6)},
+    }
+}
 LT_BATHY = {
-    "depth": {"codec": "fixed_len_array", "element_type": "linspace_float", "length": 3,
-              "element_params": {"min_value": 0, "max_value": 1000, "resolution": 0.1}},
-    "altitude": {"codec": "fixed_len_array", "element_type": "linspace_float", "length": 3,
-                 "element_params": {"min_value": 0, "max_value": 655, "resolution": 0.1}},
+    "depth": {
+        "codec": "fixed_len_array",
+        "element_type": "linspace_float",
+        "length": 3,
+        "element_params": {"min_value": 0, "max_value": 1000, "resolution": 0.1},
+    },
+    "altitude": {
+        "codec": "fixed_len_array",
+        "element_type": "linspace_float",
+        "length": 3,
+        "element_params": {"min_value": 0, "max_value": 655, "resolution": 0.1},
+    },
     "latitude": {"codec": "fixed_len_array", "element_type": "ccl_latlon", "length": 3},
     "longitude": {"codec": "fixed_len_array", "element_type": "ccl_latlon", "length": 3},
 }
@@ -74,19 +86,27 @@ def samples(name: str, rng: random.Random, n: int = 64) -> list[dict[str, Any]]:
         if name == "MORPH":
             out.append({"vector": {"x": rng.uniform(0, 6.2831), "y": rng.uniform(-0.05, 0.05)}})
         elif name == "CCL bathymetry":
-            out.append({
-                "depth": [rng.uniform(0, 1000) for _ in range(3)],
-                "altitude": [rng.uniform(0, 655) for _ in range(3)],
-                "latitude": [rng.uniform(-90, 90) for _ in range(3)],
-                "longitude": [rng.uniform(-180, 180) for _ in range(3)],
-            })
+            out.append(
+                {
+                    "depth": [rng.uniform(0, 1000) for _ in range(3)],
+                    "altitude": [rng.uniform(0, 655) for _ in range(3)],
+                    "latitude": [rng.uniform(-90, 90) for _ in range(3)],
+                    "longitude": [rng.uniform(-180, 180) for _ in range(3)],
+                }
+            )
         else:
-            out.append({
-                "lat": rng.uniform(-90, 90), "lon": rng.uniform(-180, 180),
-                "depth": rng.uniform(0, 6000), "heading": rng.uniform(0, 360),
-                "speed": rng.uniform(0, 5), "battery": rng.randint(0, 100),
-                "mode": rng.choice(MODES), "time": rng.randint(0, 86400),
-            })
+            out.append(
+                {
+                    "lat": rng.uniform(-90, 90),
+                    "lon": rng.uniform(-180, 180),
+                    "depth": rng.uniform(0, 6000),
+                    "heading": rng.uniform(0, 360),
+                    "speed": rng.uniform(0, 5),
+                    "battery": rng.randint(0, 100),
+                    "mode": rng.choice(MODES),
+                    "time": rng.randint(0, 86400),
+                }
+            )
     return out
 
 
@@ -111,7 +131,9 @@ def main(seconds: float = 0.5) -> None:
     rng = random.Random(1)
     rows = []
     for name, fields, lt_fields in (
-        ("MORPH", MORPH, LT_MORPH), ("CCL bathymetry", BATHY, LT_BATHY), ("nav status", NAV, LT_NAV)
+        ("MORPH", MORPH, LT_MORPH),
+        ("CCL bathymetry", BATHY, LT_BATHY),
+        ("nav status", NAV, LT_NAV),
     ):
         layout = Layout.from_fields(fields)
         lt = DictCodec(lt_fields)
@@ -130,13 +152,17 @@ def main(seconds: float = 0.5) -> None:
         r_ours, r_int, r_lt = (rate(f, values, seconds) for f in (ours, ours_int, theirs))
         rows.append((name, layout.bits, lt.max_length_bits, r_ours, r_int, r_lt))
 
-    head = (f"{'layout':<15} {'bits':>5} {'min':>5} {'lt bits':>8} {'bytes rt/s':>12} "
-            f"{'int rt/s':>12} {'ltcodecs rt/s':>14} {'ratio':>7}")
+    head = (
+        f"{'layout':<15} {'bits':>5} {'min':>5} {'lt bits':>8} {'bytes rt/s':>12} "
+        f"{'int rt/s':>12} {'ltcodecs rt/s':>14} {'ratio':>7}"
+    )
     print(head)
     print("-" * len(head))
     for name, bits, lt_bits, r_ours, r_int, r_lt in rows:
-        print(f"{name:<15} {bits:>5} {MINIMUM_BITS[name]:>5} {lt_bits:>8} {r_ours:>12,.0f} "
-              f"{r_int:>12,.0f} {r_lt:>14,.0f} {r_ours / r_lt:>6.1f}×")
+        print(
+            f"{name:<15} {bits:>5} {MINIMUM_BITS[name]:>5} {lt_bits:>8} {r_ours:>12,.0f} "
+            f"{r_int:>12,.0f} {r_lt:>14,.0f} {r_ours / r_lt:>6.1f}×"
+        )
     print("rt/s = encode+decode round trips per second (bytes: encode/decode; int: pack/unpack);")
     print("ratio = bytes round trips vs ltcodecs, same payloads, same run.")
 

@@ -61,6 +61,24 @@ def synthetic_value(spec: FieldSpec, t: float, phase: float) -> Any:
     return round(value) if spec.type == "int" else value
 
 
+TRANSIT_MPS = 0.8  # the formation moves north at this speed, weaving a little east-west
+
+
+def formation_value(name: str, position: tuple[float, float, float], t: float) -> float | None:
+    """Navigation of a vehicle that started at ``position``, transiting with the formation."""
+    x0, y0, depth = position
+    weave = 3.0 * math.sin(t / 15)
+    east_speed = 3.0 / 15 * math.cos(t / 15)
+    values = {
+        "x": x0 + weave,
+        "y": y0 + TRANSIT_MPS * t,
+        "depth": depth,
+        "heading": math.degrees(math.atan2(east_speed, TRANSIT_MPS)) % 360,
+        "speed": math.hypot(east_speed, TRANSIT_MPS),
+    }
+    return values.get(name)
+
+
 class VehicleApps:
     """Per node: a publisher of its input keys and a printer of what arrives there."""
 
@@ -111,10 +129,15 @@ class VehicleApps:
                     continue
                 for e_index, element in enumerate(channel.elements):
                     value: dict[str, Any] = {}
+                    position = self.loaded.mission.nodes[node].position
                     for f_index, spec in enumerate(element.fields):
+                        if not spec.field:
+                            continue
+                        moving = None if position is None else formation_value(
+                            spec.field, (position.x, position.y, position.depth), t)
                         phase = hash((node, channel.name, e_index, f_index)) % 628 / 100
-                        if spec.field:
-                            _set(value, spec.field, synthetic_value(spec, t, phase))
+                        _set(value, spec.field,
+                             moving if moving is not None else synthetic_value(spec, t, phase))
                     key = compiled.elements[e_index].input_key(node)
                     session.put(key, msgpack.packb(value),
                                 encoding=zenoh.Encoding("application/msgpack"))

@@ -66,6 +66,11 @@ class Node(Strict):
     role: Literal["surface", "submerged"] = "submerged"
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
     position: Position | None = None
+    nav_key: str | None = Field(
+        None,
+        description="Zenoh key of this node's live position ({x, y, depth} in metres); the "
+        "simulated ocean moves the node with it.",
+    )
     modem: ModemOverride = Field(default_factory=ModemOverride)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -107,6 +108,11 @@ class BridgeNode:
                 self.session.declare_subscriber(
                     key, lambda s, k=key: self._from_zenoh(loop, k, s)
                 )
+            nav_key = self.mission.nodes[self.node].nav_key
+            if nav_key is not None:
+                self.session.declare_subscriber(
+                    nav_key, lambda s: self._from_zenoh(loop, nav_key, s, self.move)
+                )
             tasks = [
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
@@ -123,12 +129,31 @@ class BridgeNode:
 
     # -- Zenoh → store -----------------------------------------------------------------------
 
-    def _from_zenoh(self, loop: asyncio.AbstractEventLoop, key: str, sample: zenoh.Sample) -> None:
+    def _from_zenoh(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        key: str,
+        sample: zenoh.Sample,
+        handler: Callable[[str, bytes, str], None] | None = None,
+    ) -> None:
         """Zenoh thread: copy what we need and hand it to the loop."""
         if sample.kind != zenoh.SampleKind.PUT or is_bridged(sample):
             return
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
-        loop.call_soon_threadsafe(self.ingest, key, data, encoding)
+        loop.call_soon_threadsafe(handler or self.ingest, key, data, encoding)
+
+    def move(self, key: str, data: bytes, encoding: str) -> None:
+        """A live position arrived on the node's ``nav_key``: tell the modem (simulator)."""
+        try:
+            value = decode_payload(data, encoding)
+            x, y, depth = (float(value[k]) for k in ("x", "y", "depth"))
+            if not all(map(math.isfinite, (x, y, depth))):
+                raise ValueError("not finite")
+        except (DecodeError, TypeError, KeyError, ValueError) as exc:
+            self._drop_payload(key, f"position needs numbers x, y, depth: {exc}")
+            return
+        if self.backend is not None:
+            self.backend.set_position(x, y, depth)
 
     def ingest(self, key: str, data: bytes, encoding: str) -> None:
         """A sample arrived on an input key: pack it for every channel that reads the key."""

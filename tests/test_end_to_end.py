@@ -207,3 +207,46 @@ def test_mismatched_mission_is_detected_and_counted(lab) -> None:
 
     asyncio.run(send())
     assert fleet.nodes["b"].stats.frames_dropped["check"] == before + 1
+
+
+RF_PAIR = """\
+mission: rf
+modem: {backend: sim, frame_bytes: 32, options: {preset: s100-rf, seed: 7}}
+mac: {type: none, min_gap_s: 0.3}
+nodes:
+  a: {address: 1, position: {x: 0, y: 0, depth: 1}}
+  b: {address: 2, position: {x: 2, y: 0, depth: 1}, nav_key: nav}
+channels:
+  - name: ping
+    from: a
+    to: b
+    latching: true
+    elements: [{in: ping, out: a/ping, fields: [{field: n, type: int, min: 0, max: 255}]}]
+"""
+
+
+def test_live_position_moves_a_node_out_of_and_back_into_range() -> None:
+    data = yaml.safe_load(RF_PAIR)
+    for node in data["nodes"].values():
+        node["zenoh"] = {"listen": [f"tcp/127.0.0.1:{free_port()}"]}
+    loaded = parse_mission(yaml.safe_dump(data), "rf.yaml")
+    with running_fleet(loaded) as fleet:
+        a, b = outside_session(loaded, "a"), outside_session(loaded, "b")
+        try:
+            inbox = subscribe(b, "a/ping")
+            put(a, "ping", {"n": 1})
+            assert inbox.drain(1.0), "in range (2 m of 5 m): the latched ping arrives"
+            put(b, "nav", {"x": 50.0, "y": 0.0, "depth": 1.0})  # beyond the RF modem's 5 m
+            time.sleep(0.5)
+            inbox.drain(0.1)
+            assert inbox.drain(1.5) == []
+            lost = [link for link in fleet.report()["links"] if link["link"] == "a->b"][0]
+            assert lost["lost"].get("out_of_range", 0) >= 2
+            put(b, "nav", {"x": 3.0, "y": 0.0, "depth": 1.0})
+            assert inbox.drain(1.5), "back in range"
+            put(b, "nav", {"x": "far"})
+            time.sleep(0.3)
+            assert fleet.nodes["b"].stats.payloads_dropped["nav"] == 1
+        finally:
+            a.close()
+            b.close()
