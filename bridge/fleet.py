@@ -97,6 +97,15 @@ class Fleet:
                     on_event=self._node_events(name),
                 )
             tasks = [asyncio.create_task(n.run(node_stop)) for n in self.nodes.values()]
+            started = asyncio.ensure_future(
+                asyncio.gather(*(n.started.wait() for n in self.nodes.values()))
+            )
+            await asyncio.wait([started, *tasks], return_when=asyncio.FIRST_COMPLETED)
+            started.cancel()
+            for task in tasks:
+                if task.done():  # a node ended before it started: its session could not open
+                    task.result()
+                    raise RuntimeError("a bridge node stopped while starting")
             self.started = time.time()
             self.ready.set()
             while not stop.is_set():

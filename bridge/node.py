@@ -95,6 +95,7 @@ class BridgeNode:
         self._queryables: list[Any] = []
         self._data = asyncio.Event()
         self._modem_up = asyncio.Event()
+        self.started = asyncio.Event()
         self.session: zenoh.Session | None = None
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -118,6 +119,7 @@ class BridgeNode:
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
                 asyncio.create_task(self._stats_loop(), name=f"{self.node}-stats"),
             ]
+            self.started.set()
             await stop.wait()
             for task in tasks:
                 task.cancel()

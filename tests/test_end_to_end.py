@@ -250,3 +250,18 @@ def test_live_position_moves_a_node_out_of_and_back_into_range() -> None:
         finally:
             a.close()
             b.close()
+
+
+def test_stats_and_peers_under_the_reserved_prefix(lab) -> None:
+    _, _, a, b = lab
+    wildcard = subscribe(b, "**")
+    stats = subscribe(b, "@zab/lab/b/stats")
+    peers = subscribe(b, "@zab/lab/b/peers/a")
+    put(a, "fast", {"v": 33})
+    _, snapshot, _ = stats.get(timeout=3)
+    assert snapshot["node"] == "b" and snapshot["frames_received"] >= 1
+    assert {"frames_sent", "frames_dropped", "payloads_dropped", "channel_age_s"} <= set(snapshot)
+    _, peer, _ = peers.get(timeout=3)
+    assert peer["last_heard"] > 0
+    keys = {key for key, _, _ in wildcard.drain(1.2)}
+    assert "a/fast" in keys and not any(k.startswith("@zab") for k in keys)
