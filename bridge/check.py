@@ -24,15 +24,13 @@ def preset_of(loaded: LoadedMission, node: str) -> Preset | None:
         return None
 
 
-def max_propagation_s(loaded: LoadedMission, preset: Preset) -> float:
-    """Longest one-way travel time: between the farthest two positioned nodes, else the
-    modem's maximum range."""
+def max_distance_m(loaded: LoadedMission, preset: Preset) -> float:
+    """Farthest two positioned nodes, or the modem's maximum range when positions are missing."""
     nodes = loaded.mission.nodes.values()
     points = [(n.position.x, n.position.y, n.position.depth) for n in nodes if n.position]
     if len(points) == len(loaded.mission.nodes) and len(points) > 1:
-        far = max(math.dist(a, b) for a in points for b in points)
-        return preset.propagation_s(far)
-    return preset.propagation_s(preset.max_range_m)
+        return max(math.dist(a, b) for a in points for b in points)
+    return preset.max_range_m
 
 
 @dataclass
@@ -102,12 +100,14 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             schedule = TdmaSchedule(mission.mac, name)
             entry["slot_s"] = schedule.usable_s()
             entry["worst_gap_s"] = schedule.worst_gap_s()
-            if preset is not None and airtime is not None:
-                need = airtime + max_propagation_s(loaded, preset)
+            if preset is not None:
+                need = preset.frame_time_s(min(largest, frame_bytes),
+                                           max_distance_m(loaded, preset))
                 if need > schedule.usable_s():
                     report.warnings.append(
                         f"{name}: TDMA slot leaves {schedule.usable_s():.3f} s but a full frame "
-                        f"needs {need:.3f} s (airtime {airtime:.3f} s + propagation)"
+                        f"needs {need:.3f} s (modem latency + airtime {airtime:.3f} s + "
+                        "propagation)"
                     )
         nodes.append(entry)
     report.data = {

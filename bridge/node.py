@@ -295,8 +295,6 @@ class BridgeNode:
         self.stats.frames_received += 1
         self.last_heard[src] = rx.time
         self.last_rx_start[src] = float(rx.meta.get("start", rx.time))
-        self._publish_raw(f"{self.prefix}/peers/{src}",
-                          {"last_heard": rx.time, "meta": _plain(rx.meta)})
         for channel, values in frame.channels:
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
@@ -308,6 +306,8 @@ class BridgeNode:
             for element, value in zip(channel.elements, values, strict=True):
                 key = element.output_key(src, self.node)
                 self.publish(key, value, element.encoding, latched=channel.latching)
+        self._publish_raw(f"{self.prefix}/peers/{src}",
+                          {"last_heard": rx.time, "meta": _plain(rx.meta)})
         self.on_event("frame_received", {"src": src, "bytes": len(rx.data), "channels": [
             c.name for c, _ in frame.channels], "time": rx.time})
 
