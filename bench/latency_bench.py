@@ -51,22 +51,29 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, round(q * (len(ordered) - 1)))]
 
 
+class Latencies:
+    """Subscriber callback: latency (µs) of each sample from the send time it carries."""
+
+    def __init__(self, count: int) -> None:
+        self.count = count
+        self.values: list[float] = []
+        self.done = threading.Event()
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        t = msgpack.unpackb(sample.payload.to_bytes())["t"]
+        self.values.append((time.monotonic_ns() - t) / 1000)
+        if len(self.values) >= self.count:
+            self.done.set()
+
+
 def subscriber_process(endpoint: str, count: int) -> None:
     """Child: a plain peer that samples ``count`` values and prints their latencies (µs)."""
-    latencies: list[float] = []
-    done = threading.Event()
-
-    def on_sample(sample: zenoh.Sample) -> None:
-        t = msgpack.unpackb(sample.payload.to_bytes())["t"]
-        latencies.append((time.monotonic_ns() - t) / 1000)
-        if len(latencies) >= count:
-            done.set()
-
+    latencies = Latencies(count)
     with zenoh.open(config("peer", [endpoint], [])) as session:
-        session.declare_subscriber("bench/latency", on_sample)
+        session.declare_subscriber("bench/latency", latencies)
         print("ready", flush=True)
-        done.wait(120)
-    print(json.dumps(latencies), flush=True)
+        latencies.done.wait(120)
+    print(json.dumps(latencies.values), flush=True)
 
 
 def send(session: zenoh.Session, key: str, count: int, rate: float) -> None:
@@ -116,15 +123,7 @@ def bridged(count: int, rate: float) -> list[float]:
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
-        latencies: list[float] = []
-        done = threading.Event()
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            t = msgpack.unpackb(sample.payload.to_bytes())["t"]
-            latencies.append((time.monotonic_ns() - t) / 1000)
-            if len(latencies) >= count:
-                done.set()
-
+        latencies = Latencies(count)
         try:
             deadline = time.time() + 20
             while True:
@@ -137,17 +136,17 @@ def bridged(count: int, rate: float) -> list[float]:
                         raise
                     time.sleep(0.2)
             try:
-                app_b.declare_subscriber("bench/latency", on_sample)
+                app_b.declare_subscriber("bench/latency", latencies)
                 time.sleep(0.5)
                 send(app_a, "bench/latency", count, rate)
-                done.wait(10)
+                latencies.done.wait(10)
             finally:
                 app_a.close()
                 app_b.close()
         finally:
             fleet.terminate()
             fleet.wait(20)
-    return latencies
+    return latencies.values
 
 
 def summary(name: str, values: list[float]) -> tuple[float, float]:

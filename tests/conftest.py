@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import socket
 from pathlib import Path
-from typing import Any
 
 import pytest
 import yaml
@@ -22,16 +21,17 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
         return s.getsockname()[1]
 
 
-def mission_on_free_ports(path: Path, **changes: Any) -> tuple[LoadedMission, dict[str, Any]]:
-    """Load an example mission with every node listening on a fresh loopback port.
-
-    ``changes`` replace top-level sections (e.g. ``mac={"type": "none"}``).
-    """
-    data = yaml.safe_load(path.read_text())
+def on_free_ports(text: str, name: str | Path = "test.yaml") -> LoadedMission:
+    """Load mission ``text`` with every node listening on a fresh loopback port."""
+    data = yaml.safe_load(text)
     for node in data["nodes"].values():
         node.setdefault("zenoh", {})["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
-    data.update(changes)
-    return parse_mission(yaml.safe_dump(data, sort_keys=False), path), data
+    return parse_mission(yaml.safe_dump(data, sort_keys=False), name)
+
+
+def mission_on_free_ports(path: Path) -> LoadedMission:
+    """An example mission from ``deploy/missions`` on fresh loopback ports."""
+    return on_free_ports(path.read_text(), path)
 
 
 @pytest.fixture

@@ -50,7 +50,8 @@ def running_fleet(loaded: LoadedMission, **kwargs: Any) -> Iterator[Fleet]:
         assert fleet.ready.is_set(), "fleet did not start"
         yield fleet
     finally:
-        loop.call_soon_threadsafe(stop.set)
+        if not done.is_set():
+            loop.call_soon_threadsafe(stop.set)
         assert done.wait(15), "fleet did not stop"
         thread.join(5)
     if failure:

@@ -12,19 +12,17 @@ import time
 
 import msgpack
 import pytest
-import yaml
 
 from bridge.backends.base import ModemSetup
 from bridge.backends.udp import UdpBackend
 from bridge.frame import FrameCodec
 from bridge.mac import TdmaSchedule
-from bridge.mission_loader import parse_mission
-from tests.conftest import MISSIONS, free_port, mission_on_free_ports
+from tests.conftest import MISSIONS, free_port, mission_on_free_ports, on_free_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 
 
 def test_target_reference_crosses_the_simulated_ocean() -> None:
-    loaded, _ = mission_on_free_ports(MISSIONS / "morph.yaml")
+    loaded = mission_on_free_ports(MISSIONS / "morph.yaml")
     mac = loaded.mission.mac
     with running_fleet(loaded) as fleet:
         lsv_app = outside_session(loaded, "lsv")
@@ -94,10 +92,7 @@ channels:
 def lab():
     text = LAB.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
         "PORT_B", str(free_port(socket.SOCK_DGRAM)))
-    data = yaml.safe_load(text)
-    for node in data["nodes"].values():
-        node["zenoh"] = {"listen": [f"tcp/127.0.0.1:{free_port()}"]}
-    loaded = parse_mission(yaml.safe_dump(data), "lab.yaml")
+    loaded = on_free_ports(text, "lab.yaml")
     with running_fleet(loaded) as fleet:
         a, b = outside_session(loaded, "a"), outside_session(loaded, "b")
         try:
@@ -226,10 +221,7 @@ channels:
 
 
 def test_live_position_moves_a_node_out_of_and_back_into_range() -> None:
-    data = yaml.safe_load(RF_PAIR)
-    for node in data["nodes"].values():
-        node["zenoh"] = {"listen": [f"tcp/127.0.0.1:{free_port()}"]}
-    loaded = parse_mission(yaml.safe_dump(data), "rf.yaml")
+    loaded = on_free_ports(RF_PAIR, "rf.yaml")
     with running_fleet(loaded) as fleet:
         a, b = outside_session(loaded, "a"), outside_session(loaded, "b")
         try:
