@@ -172,6 +172,7 @@ class ChannelTable:
     channels: tuple[ChannelCodec, ...]
     nodes: tuple[str, ...]
     dlbl: bool
+    auth_tag_bytes: int = 0  # 0: frames are not authenticated
 
     @classmethod
     def from_mission(cls, mission: Mission) -> ChannelTable:
@@ -185,7 +186,9 @@ class ChannelTable:
                 )
             seen[channel.name] = i
         compiled = tuple(compile_channel(i, c, nodes) for i, c in enumerate(mission.channels))
-        return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl)
+        auth = mission.wire.auth
+        return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
+                   auth_tag_bytes=auth.tag_bytes if auth else 0)
 
     def __len__(self) -> int:
         return len(self.channels)
@@ -203,6 +206,7 @@ class ChannelTable:
         description = {
             "wire": WIRE_VERSION,
             "dlbl": self.dlbl,
+            "auth": self.auth_tag_bytes,
             "nodes": self.nodes,
             "channels": [
                 [c.name, [[f"{f.path}:{f.describe()}" for f in e.layout.fields]

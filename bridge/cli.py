@@ -8,8 +8,9 @@ import json
 import logging
 import signal
 import sys
+from collections.abc import Coroutine
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, TypeVar
 
 import typer
 from rich.console import Console
@@ -19,6 +20,8 @@ from rich.table import Table
 from bridge.check import check_mission
 from bridge.errors import BackendError, MissionError
 from bridge.mission_loader import LoadedMission, load_mission
+
+T = TypeVar("T")
 
 app = typer.Typer(
     help="zenoh-acoustic-bridge: one Zenoh pub/sub space across WiFi and water.",
@@ -38,6 +41,15 @@ def _load(path: Path) -> LoadedMission:
         return load_mission(path)
     except MissionError as exc:
         err.print(f"[bold red]invalid mission[/]\n{exc}", highlight=False, markup=True)
+        raise typer.Exit(2) from None
+
+
+def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
+    """Run ``main``; a mission problem found at start (e.g. a missing key) exits 2, cleanly."""
+    try:
+        return asyncio.run(main)
+    except MissionError as exc:
+        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
         raise typer.Exit(2) from None
 
 
@@ -138,7 +150,7 @@ def run(
         logging.getLogger("zab").info("%s: bridge running (Ctrl-C to stop)", node)
         await bridge.run(stop)
 
-    asyncio.run(main())
+    _run_or_exit(main())
 
 
 @app.command()
@@ -185,8 +197,8 @@ def sim(
 
     loaded = _load(mission)
     _logging(verbose)
-    result = asyncio.run(run_sim(loaded, duration=duration, seed=seed, live=live,
-                                 console=console))
+    result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
+                                  console=console))
     if report is not None:
         report.write_text(json.dumps(result, indent=2, default=str), encoding="utf-8")
         console.print(f"report written to {report}")
@@ -204,7 +216,7 @@ def demo(
 
     loaded = _load(mission or default_demo_mission())
     _logging(False)
-    asyncio.run(run_demo(loaded, duration=duration, console=console, live=live))
+    _run_or_exit(run_demo(loaded, duration=duration, console=console, live=live))
 
 
 def main() -> None:

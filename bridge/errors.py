@@ -41,7 +41,15 @@ class DecodeError(ZabError, ValueError):
 
 
 class FrameError(DecodeError):
-    """An acoustic frame is truncated, corrupt, or was built from another mission file."""
+    """An acoustic frame is truncated, corrupt, forged, replayed or from another mission file.
+
+    ``reason`` names the drop counter: ``check`` (corrupt, or another mission file), ``forged``,
+    ``replayed`` or ``malformed``.
+    """
+
+    def __init__(self, message: str, reason: str = "malformed") -> None:
+        super().__init__(message)
+        self.reason = reason
 
 
 class BackendError(ZabError):

@@ -9,6 +9,7 @@ Layout, most significant bit first::
     count ×  index   ceil(log2 C) bits (0 bits when C == 1); no index twice in a frame
              payload the channel's fixed number of bits (its elements' layouts, in order)
     pad      zero bits up to the next byte
+    [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.auth)
     check    16 bits: CRC-16/CCITT (init 0xFFFF) over the mission fingerprint, then every
              byte before the check. A frame from another mission file fails the check.
 
@@ -22,6 +23,7 @@ import binascii
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from bridge.auth import COUNTER_BYTES, Authenticator
 from bridge.channels import ChannelCodec, ChannelTable
 from bridge.errors import DecodeError, FrameError
 
@@ -42,8 +44,10 @@ class DecodedFrame:
 class FrameCodec:
     """Encode and decode frames of one mission."""
 
-    def __init__(self, table: ChannelTable) -> None:
+    def __init__(self, table: ChannelTable, auth: Authenticator | None = None) -> None:
         self.table = table
+        self.auth = auth
+        self.auth_bytes = (COUNTER_BYTES + table.auth_tag_bytes) if table.auth_tag_bytes else 0
         n = len(table.channels)
         self.count_bits = n.bit_length()  # == ceil(log2(n + 1))
         self.index_bits = (n - 1).bit_length() if n > 1 else 0
@@ -55,7 +59,7 @@ class FrameCodec:
 
     def overhead_bytes(self) -> int:
         """Bytes every frame spends outside channel data, not counting the count field."""
-        return self.delay_bytes + CHECK_BYTES
+        return self.delay_bytes + self.auth_bytes + CHECK_BYTES
 
     def body_capacity_bits(self, frame_bytes: int) -> int:
         """Bits left for the count field and channels in a frame of ``frame_bytes``."""
@@ -76,8 +80,12 @@ class FrameCodec:
         self,
         items: Sequence[tuple[ChannelCodec, int]],
         delays: Sequence[int | None] = (),
+        now: float = 0.0,
     ) -> bytes:
-        """A frame carrying ``(channel, packed payload)`` items and, for DLBL, the delays."""
+        """A frame carrying ``(channel, packed payload)`` items and, for DLBL, the delays.
+
+        ``now`` (seconds) seeds the authentication counter of authenticated missions.
+        """
         if len(delays) != self.delay_count:
             raise ValueError(f"expected {self.delay_count} DLBL delays, got {len(delays)}")
         acc, nbits = 0, 0
@@ -94,21 +102,33 @@ class FrameCodec:
             nbits += self.index_bits + channel.bits
         pad = -nbits % 8
         data = (acc << pad).to_bytes((nbits + pad) // 8, "big")
+        if self.table.auth_tag_bytes:
+            if self.auth is None:
+                raise ValueError("this mission authenticates frames: no Authenticator given")
+            data = self.auth.seal(data, now)
         return data + binascii.crc_hqx(data, self._crc_init).to_bytes(CHECK_BYTES, "big")
 
     # -- decode --------------------------------------------------------------------------------
 
-    def decode(self, frame: bytes) -> DecodedFrame:
-        """Parse untrusted bytes; raise :class:`FrameError` for anything but a valid frame."""
+    def decode(self, frame: bytes, src: int | None = None) -> DecodedFrame:
+        """Parse untrusted bytes; raise :class:`FrameError` for anything but a valid frame.
+
+        Authenticated missions need ``src``, the sender's modem address.
+        """
         if not isinstance(frame, bytes | bytearray | memoryview):
             raise FrameError(f"a frame is bytes, not {type(frame).__name__}")
         frame = bytes(frame)
-        minimum = self.delay_bytes + CHECK_BYTES + (self.count_bits + 7) // 8
+        minimum = self.overhead_bytes() + (self.count_bits + 7) // 8
         if len(frame) < minimum:
             raise FrameError(f"truncated frame: {len(frame)} bytes, at least {minimum} needed")
         body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
         if binascii.crc_hqx(body, self._crc_init) != int.from_bytes(check, "big"):
-            raise FrameError("check failed: corrupt frame, or sent with another mission file")
+            raise FrameError("check failed: corrupt frame, or sent with another mission file",
+                             "check")
+        if self.table.auth_tag_bytes:
+            if self.auth is None or src is None:
+                raise FrameError("cannot authenticate: no key or no sender address", "forged")
+            body = self.auth.open(body, src)
         acc = int.from_bytes(body, "big")
         left = len(body) * 8
 

@@ -8,6 +8,7 @@ Zenoh JSON5 configuration (``"transport/link/tx/lease": 2000``).
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -125,10 +126,21 @@ class Channel(Strict):
     elements: list[Element] = Field(min_length=1)
 
 
+class Auth(Strict):
+    """Authenticated frames. The key is never in the mission: it comes from the environment
+    variable ``key_env`` or else from ``key_file``."""
+
+    tag_bytes: int = Field(4, ge=2, le=16, description="Bytes of the truncated HMAC tag.")
+    key_env: str = Field("ZAB_KEY", description="Environment variable holding the key.")
+    key_file: Path | None = Field(None, description="File holding the key (used if the "
+                                  "variable is unset).")
+
+
 class Wire(Strict):
     """Options of the frame format shared by every node."""
 
     dlbl: bool = Field(False, description="Start each frame with the DLBL delay vector.")
+    auth: Auth | None = Field(None, description="Counter + keyed tag in every frame.")
 
 
 class Mission(Strict):

@@ -19,6 +19,7 @@ from typing import Any
 import msgpack
 import zenoh
 
+from bridge.auth import Authenticator, load_key
 from bridge.backends.base import ModemBackend, Reception
 from bridge.builder import plan_frame
 from bridge.channels import ChannelCodec, ElementCodec
@@ -72,7 +73,10 @@ class BridgeNode:
         self.backend: ModemBackend | None = None
         self.clock = clock
         self.on_event = on_event or (lambda kind, info: None)
-        self.codec = FrameCodec(self.table)
+        auth = self.mission.wire.auth
+        self.codec = FrameCodec(self.table, auth and Authenticator(
+            load_key(auth.key_env, auth.key_file), self.table.fingerprint,
+            self.mission.address_of(node), auth.tag_bytes))
         self.frame_bytes = self.mission.node_modem(node).frame_bytes
         self.schedule = schedule_for(self.mission, node)
         self.store = OutboundStore.for_node(self.table.channels, node)
@@ -237,7 +241,7 @@ class BridgeNode:
         if not plan.chosen and not always:
             return False
         frame = self.codec.encode(
-            [(s.channel, s.payload()) for s in plan.chosen], self.delays(now)
+            [(s.channel, s.payload()) for s in plan.chosen], self.delays(now), now
         )
         targets = {d for s in plan.chosen for d in s.channel.destinations(self.node)}
         dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
@@ -287,9 +291,9 @@ class BridgeNode:
             self.stats.frames_dropped["unknown_source"] += 1
             return
         try:
-            frame = self.codec.decode(rx.data)
+            frame = self.codec.decode(rx.data, rx.src)
         except FrameError as exc:
-            self.stats.frames_dropped["check" if "check" in str(exc) else "malformed"] += 1
+            self.stats.frames_dropped[exc.reason] += 1
             self.on_event("frame_dropped", {"src": src, "reason": str(exc)})
             return
         self.stats.frames_received += 1

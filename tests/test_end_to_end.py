@@ -13,6 +13,7 @@ import time
 import msgpack
 import pytest
 
+from bridge.auth import Authenticator
 from bridge.backends.base import ModemSetup
 from bridge.backends.udp import UdpBackend
 from bridge.frame import FrameCodec
@@ -257,3 +258,35 @@ def test_stats_and_peers_under_the_reserved_prefix(lab) -> None:
     assert peer["last_heard"] > 0
     keys = {key for key, _, _ in wildcard.drain(1.2)}
     assert "a/fast" in keys and not any(k.startswith("@zab") for k in keys)
+
+
+def test_authenticated_mission_delivers_and_refuses_forgeries(monkeypatch) -> None:
+    monkeypatch.setenv("ZAB_KEY", "lab-key-0123456789abcdef")
+    text = LAB.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
+        "PORT_B", str(free_port(socket.SOCK_DGRAM))).replace(
+        "mac: {type: none", "wire: {auth: {tag_bytes: 6}}\nmac: {type: none")
+    loaded = on_free_ports(text, "lab-auth.yaml")
+    with running_fleet(loaded) as fleet:
+        a, b = outside_session(loaded, "a"), outside_session(loaded, "b")
+        try:
+            inbox = subscribe(b, "a/fast")
+            put(a, "fast", {"v": 21})
+            assert inbox.get(timeout=3)[1] == {"v": 21}
+            forger = Authenticator(b"not-the-mission-key!", loaded.table.fingerprint, 1, 6)
+            forged = FrameCodec(loaded.table, forger).encode(
+                [(loaded.table.channels[0], 99)], [], time.time())
+            port_b = loaded.mission.nodes["b"].modem.options["port"]
+
+            async def send() -> None:
+                setup = ModemSetup(node="a", address=1, frame_bytes=16, options={"port": 0},
+                                   peers={2: {"port": port_b}})
+                async with UdpBackend(setup) as modem:
+                    await modem.send(forged, None)
+                    await asyncio.sleep(0.3)
+
+            asyncio.run(send())
+            assert fleet.nodes["b"].stats.frames_dropped["forged"] == 1
+            assert all(v != {"v": 99} for _, v, _ in inbox.drain(0.5))
+        finally:
+            a.close()
+            b.close()

@@ -21,6 +21,8 @@ ENTRY_POINT_GROUP = "zab.backends"
 BUILTIN_BACKENDS: dict[str, str] = {
     "sim": "bridge.backends.sim:SimBackend",
     "udp": "bridge.backends.udp:UdpBackend",
+    "evologics": "bridge.backends.evologics:EvologicsBackend",
+    "micromodem": "bridge.backends.micromodem:MicromodemBackend",
 }
 """Name -> ``"module:Class"``; modules are imported only when their backend is loaded."""
 

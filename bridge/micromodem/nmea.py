@@ -1,0 +1,118 @@
+"""NMEA 0183 sentences as the WHOI Micro-Modem speaks them (pure: no I/O, no clock).
+
+A sentence is ``$TTXXX,f1,f2,...[*hh]\\r\\n``: a two-letter talker (``CC`` host → modem, ``CA``
+modem → host, also ``SN`` and ``GP``), a three-letter type, comma-separated fields and an
+optional checksum: the XOR of every byte after ``$`` up to ``*``, two upper-case hex digits
+(reference 2.1 [V]). :func:`parse_sentence` raises :class:`NmeaError` and nothing else.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from functools import reduce
+
+from bridge.errors import DecodeError
+
+__all__ = [
+    "MAX_SENTENCE_BYTES",
+    "ChecksumError",
+    "NmeaError",
+    "Sentence",
+    "checksum",
+    "parse_sentence",
+]
+
+MAX_SENTENCE_BYTES = 8192
+"""Longest line accepted. A rate-5 ``$CARXD`` carries 256 B as 512 hex digits and an MM2
+``$CARDP`` up to 2048 B as 4096; anything far longer is line noise, not a sentence."""
+
+_ADDRESS = re.compile(r"[A-Z]{2}[A-Z0-9]{3}")
+_HEX2 = re.compile(r"[0-9A-Fa-f]{2}")
+_HEX8 = re.compile(r"[0-9A-Fa-f]{8}")
+
+
+class NmeaError(DecodeError):
+    """A line is not a well-formed NMEA sentence (the one error the parser raises)."""
+
+
+class ChecksumError(NmeaError):
+    """The sentence's ``*hh`` does not match its contents."""
+
+
+def checksum(body: str) -> str:
+    """The NMEA XOR checksum of ``body`` (the text between ``$`` and ``*``), e.g. ``"5B"``."""
+    return f"{reduce(lambda acc, ch: acc ^ ord(ch), body, 0):02X}"
+
+
+@dataclass(frozen=True)
+class Sentence:
+    """One sentence: ``talker`` (``"CA"``), ``kind`` (``"CYC"``) and its text ``fields``."""
+
+    talker: str
+    kind: str
+    fields: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not _ADDRESS.fullmatch(self.talker + self.kind) or len(self.talker) != 2:
+            raise ValueError(f"bad NMEA address {self.talker + self.kind!r}")
+        for f in self.fields:
+            if any(c in f for c in ",*$\r\n") or not f.isascii():
+                raise ValueError(f"NMEA field {f!r} contains a reserved or non-ASCII character")
+
+    @property
+    def name(self) -> str:
+        """Talker and type together, e.g. ``"CACYC"``."""
+        return self.talker + self.kind
+
+    def body(self) -> str:
+        """The text between ``$`` and ``*``."""
+        return ",".join((self.name, *self.fields))
+
+    def to_line(self, *, with_checksum: bool = True) -> str:
+        """The sentence as text, without the line end."""
+        body = self.body()
+        return f"${body}*{checksum(body)}" if with_checksum else f"${body}"
+
+    def encode(self, *, with_checksum: bool = True) -> bytes:
+        """The sentence as bytes on the wire, ending in ``\\r\\n``."""
+        return (self.to_line(with_checksum=with_checksum) + "\r\n").encode("ascii")
+
+    def __str__(self) -> str:
+        line = self.to_line()
+        return line if len(line) <= 120 else f"{line[:100]}…({len(line)} chars)"
+
+
+def parse_sentence(line: bytes | str) -> Sentence:
+    """Parse one line (line end optional). Raises :class:`NmeaError` (or :class:`ChecksumError`).
+
+    The checksum is optional, as on the modem's input [V]. Two hex digits are checked; an MM2
+    8-digit CRC-32 [V] is accepted unchecked (its polynomial is not in the reference).
+    """
+    if isinstance(line, bytes):
+        try:
+            text = line.decode("ascii")
+        except UnicodeDecodeError:
+            raise NmeaError("non-ASCII bytes in sentence") from None
+    else:
+        text = line
+    text = text.strip("\r\n")
+    if len(text) > MAX_SENTENCE_BYTES:
+        raise NmeaError(f"sentence longer than {MAX_SENTENCE_BYTES} characters")
+    if not text.startswith("$"):
+        raise NmeaError(f"sentence must start with '$': {text[:40]!r}")
+    body, star, given = text[1:].partition("*")
+    if star:
+        if _HEX2.fullmatch(given):
+            if given.upper() != checksum(body):
+                raise ChecksumError(
+                    f"checksum mismatch in ${body[:40]}: got {given}, computed {checksum(body)}"
+                )
+        elif not _HEX8.fullmatch(given):
+            raise NmeaError(f"bad checksum field {given[:12]!r}")
+    if not body.isascii() or not body.isprintable() or "$" in body:
+        raise NmeaError(f"unprintable or reserved characters in sentence {body[:40]!r}")
+    address, *fields = body.split(",")
+    if not _ADDRESS.fullmatch(address):
+        raise NmeaError(f"bad talker/type {address[:12]!r} (want 5 characters like CACYC)")
+    return Sentence(address[:2], address[2:], tuple(fields))
