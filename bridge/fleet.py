@@ -6,7 +6,7 @@ import asyncio
 import contextlib
 import time
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -66,9 +66,16 @@ class Fleet:
         *,
         seed: int | None = None,
         on_event: Callable[[str, str, dict[str, Any]], None] | None = None,
+        only: Collection[str] | None = None,
+        water: str | None = None,
     ) -> None:
+        """``only`` runs a subset of the nodes; ``water`` joins a water already running
+        (``host:port``) instead of starting one."""
         self.loaded = loaded
-        self.water = water_for(loaded, seed) if loaded.mission.modem.backend == "sim" else None
+        self.names = [n for n in loaded.mission.nodes if only is None or n in only]
+        self.water_address = water
+        sim = loaded.mission.modem.backend == "sim" and water is None
+        self.water = water_for(loaded, seed) if sim else None
         self.on_event = on_event
         self.nodes: dict[str, BridgeNode] = {}
         self.ages = AgeTracker()
@@ -87,9 +94,11 @@ class Fleet:
         if self.water is not None:
             port = await self.water.start("127.0.0.1", 0)
             extra["water"] = f"127.0.0.1:{port}"
+        elif self.water_address is not None:
+            extra["water"] = self.water_address
         node_stop = asyncio.Event()
         try:
-            for name in self.loaded.mission.nodes:
+            for name in self.names:
                 self.nodes[name] = BridgeNode(
                     self.loaded,
                     name,

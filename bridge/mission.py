@@ -143,6 +143,18 @@ class Wire(Strict):
     auth: Auth | None = Field(None, description="Counter + keyed tag in every frame.")
 
 
+class LinkHealth(Strict):
+    """When a silent peer counts as degraded or down (seed 002: lost after 5 s of silence).
+
+    Unset thresholds follow the MAC: with TDMA, 2 and 4 cycles; otherwise 10 s and 30 s.
+    ``heartbeat_s`` makes a node send a frame (empty if need be) at least that often.
+    """
+
+    degraded_after_s: float | None = Field(None, gt=0)
+    down_after_s: float | None = Field(None, gt=0)
+    heartbeat_s: float | None = Field(None, gt=0)
+
+
 class Mission(Strict):
     """A deployment: nodes, modem, MAC and channels."""
 
@@ -151,6 +163,7 @@ class Mission(Strict):
     modem: Modem = Field(default_factory=Modem)
     mac: Mac = Field(default_factory=lambda: NoMac(type="none"))
     wire: Wire = Field(default_factory=Wire)
+    link: LinkHealth = Field(default_factory=LinkHealth)
     channels: list[Channel] = Field(default_factory=list)
 
     def node_modem(self, name: str) -> Modem:

@@ -25,6 +25,7 @@ from bridge.builder import plan_frame
 from bridge.channels import ChannelCodec, ElementCodec
 from bridge.errors import BackendError, DecodeError, EncodeError, FrameError
 from bridge.frame import DELAY_MAX_US, FrameCodec
+from bridge.link import LinkState, LinkThresholds
 from bridge.mac import FreeSchedule, TdmaSchedule, schedule_for
 from bridge.mission_loader import LoadedMission
 from bridge.payloads import decode_payload, encode_payload
@@ -81,6 +82,11 @@ class BridgeNode:
         self.schedule = schedule_for(self.mission, node)
         self.store = OutboundStore.for_node(self.table.channels, node)
         self.stats = NodeStats()
+        self.thresholds = LinkThresholds.for_mission(self.mission)
+        self.heartbeat_s = self.mission.link.heartbeat_s
+        self.link_states: dict[str, LinkState] = {}
+        self._tokens: dict[str, Any] = {}
+        self._last_tx: float | None = None
         self.last_heard: dict[str, float] = {}
         self.last_rx_start: dict[str, float] = {}
         self.received_at: dict[str, float] = {}
@@ -122,6 +128,7 @@ class BridgeNode:
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
                 asyncio.create_task(self._stats_loop(), name=f"{self.node}-stats"),
+                asyncio.create_task(self._health_loop(), name=f"{self.node}-health"),
             ]
             self.started.set()
             await stop.wait()
@@ -204,10 +211,11 @@ class BridgeNode:
                     return  # this node owns no slot: it only listens
                 await self._sleep_until(slot.start)
                 after = slot.start
-                await self.transmit(always=self.table.dlbl)
+                await self.transmit(always=self.table.dlbl or self._heartbeat_due(slot.start))
                 continue
             assert isinstance(self.schedule, FreeSchedule)
-            due = self.store.next_due()
+            due = min((t for t in (self.store.next_due(), self._next_heartbeat()) if t is not None),
+                      default=None)
             if due is None:
                 self._data.clear()
                 await self._data.wait()
@@ -220,7 +228,16 @@ class BridgeNode:
                     await asyncio.wait_for(self._data.wait(), start - now)
                 continue
             last_start = now
-            await self.transmit()
+            await self.transmit(always=self._heartbeat_due(now))
+
+    def _next_heartbeat(self) -> float | None:
+        if self.heartbeat_s is None:
+            return None
+        return float("-inf") if self._last_tx is None else self._last_tx + self.heartbeat_s
+
+    def _heartbeat_due(self, now: float) -> bool:
+        beat = self._next_heartbeat()
+        return beat is not None and beat <= now + 1e-9
 
     def delays(self, now: float) -> list[int | None]:
         """DLBL vector: µs since the last reception from each foreign node (None if stale)."""
@@ -256,6 +273,7 @@ class BridgeNode:
             self._modem_up.clear()
             return False
         self.store.mark_sent(plan.chosen, now)
+        self._last_tx = now
         self.stats.frames_sent += 1
         for state in plan.chosen:
             self.stats.sent_per_channel[state.channel.name] += 1
@@ -298,6 +316,8 @@ class BridgeNode:
             return
         self.stats.frames_received += 1
         self.last_heard[src] = rx.time
+        if self.link_states.get(src) is not LinkState.UP:
+            self.update_links(self.clock())
         self.last_rx_start[src] = float(rx.meta.get("start", rx.time))
         for channel, values in frame.channels:
             if src not in channel.senders:
@@ -364,7 +384,35 @@ class BridgeNode:
             "channel_age_s": ages,
             "received_age_s": {k: now - t for k, t in self.received_at.items()},
             "last_heard": dict(self.last_heard),
+            "links": {peer: state.value for peer, state in self.link_states.items()},
         }
+
+    def update_links(self, now: float) -> None:
+        """Re-evaluate every peer's link; publish changes and keep one liveliness token per
+        live link under ``@zab/<mission>/<node>/link/<peer>``."""
+        assert self.session is not None
+        for peer in self.table.foreign_nodes(self.node):
+            heard = self.last_heard.get(peer)
+            state = self.thresholds.state(heard, now)
+            if self.link_states.get(peer) is state:
+                continue
+            self.link_states[peer] = state
+            key = f"{self.prefix}/link/{peer}"
+            self._publish_raw(key, {"peer": peer, "state": state.value, "last_heard": heard,
+                                    "silent_s": None if heard is None else now - heard})
+            self.on_event("link", {"peer": peer, "state": state.value})
+            token = self._tokens.get(peer)
+            if state is LinkState.DOWN and token is not None:
+                token.undeclare()
+                del self._tokens[peer]
+            elif state is not LinkState.DOWN and token is None:
+                self._tokens[peer] = self.session.liveliness().declare_token(key)
+
+    async def _health_loop(self) -> None:
+        period = min(1.0, self.thresholds.degraded_after_s / 4)
+        while True:
+            self.update_links(self.clock())
+            await asyncio.sleep(period)
 
     async def _stats_loop(self) -> None:
         while True:

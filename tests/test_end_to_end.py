@@ -290,3 +290,35 @@ def test_authenticated_mission_delivers_and_refuses_forgeries(monkeypatch) -> No
         finally:
             a.close()
             b.close()
+
+
+def test_link_goes_down_when_a_node_stops_and_up_when_it_returns() -> None:
+    text = LAB.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
+        "PORT_B", str(free_port(socket.SOCK_DGRAM))).replace(
+        "mac: {type: none", "link: {degraded_after_s: 0.6, down_after_s: 1.2, heartbeat_s: 0.3}\n"
+        "mac: {type: none")
+    loaded = on_free_ports(text, "lab-link.yaml")
+    with running_fleet(loaded, only=["b"]) as fleet_b:
+        app = outside_session(loaded, "b")
+        try:
+            tokens = Inbox()
+            states = subscribe(app, "@zab/lab/b/link/a")
+            app.liveliness().declare_subscriber(
+                "@zab/lab/b/link/a",
+                lambda s: tokens.items.put((str(s.kind), None, time.time())))
+            with running_fleet(loaded, only=["a"]):
+                _, first, _ = states.get(timeout=3)
+                assert first["state"] == "up"
+                assert tokens.get(timeout=3)[0] == "SampleKind.PUT"
+            stopped = time.time()
+            seen = [v["state"] for _, v, _ in states.drain(2.0)]
+            assert seen[-1] == "down" and "degraded" in seen
+            kind, _, when = tokens.get(timeout=1)
+            assert kind == "SampleKind.DELETE" and when - stopped <= 1.2 + 0.5
+            assert fleet_b.nodes["b"].link_states["a"].value == "down"
+            with running_fleet(loaded, only=["a"]):
+                _, back, _ = states.get(timeout=3)
+                assert back["state"] == "up"
+                assert tokens.get(timeout=3)[0] == "SampleKind.PUT"
+        finally:
+            app.close()
