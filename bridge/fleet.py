@@ -13,7 +13,9 @@ from typing import Any
 from bridge.mission_loader import LoadedMission
 from bridge.modem_setup import backend_factory
 from bridge.node import BridgeNode
+from bridge.ocean.presets import get_preset
 from bridge.ocean.service import WaterService
+from bridge.positioning import mission_sound_speed
 
 AOI_SAMPLE_S = 0.25
 
@@ -27,8 +29,12 @@ def water_for(loaded: LoadedMission, seed: int | None = None) -> WaterService:
         for node in mission.nodes.values()
         if node.position is not None
     }
+    preset = get_preset(options.get("preset", "evologics-s2c-im"))
+    if mission.ranging.water is not None or mission.ranging.sound_speed_mps is not None:
+        # the mission describes the water: sound crosses the simulated ocean at that speed
+        preset = preset.replace(sound_speed_mps=mission_sound_speed(mission).mps)
     return WaterService(
-        options.get("preset", "evologics-s2c-im"),
+        preset,
         seed if seed is not None else int(options.get("seed", 0)),
         positions,
         loss=float(options.get("loss", 0.0)),

@@ -155,6 +155,33 @@ class LinkHealth(Strict):
     heartbeat_s: float | None = Field(None, gt=0)
 
 
+class WaterProperties(Strict):
+    """Temperature, salinity and depth for a computed sound speed."""
+
+    temperature_c: float = Field(ge=-2, le=40)
+    salinity_psu: float = Field(ge=0, le=42)
+    depth_m: float = Field(0.0, ge=0, le=12000)
+    equation: Literal["unesco", "mackenzie", "coppens"] = "unesco"
+    latitude_deg: float = Field(45.0, ge=-90, le=90)
+
+
+class Ranging(Strict):
+    """Ranges from DLBL delays (``wire.dlbl``) and positions from ranges to anchors."""
+
+    sound_speed_mps: float | None = Field(None, ge=1300, le=1800, description="Fixed sound "
+                                          "speed; default 1500 unless ``water`` is given.")
+    water: WaterProperties | None = None
+    ctd_key: str | None = Field(None, description="Live {temperature_c, salinity_psu, depth_m}"
+                                " at this node; replaces the fixed sound speed.")
+    tx_latency_s: float = Field(0.0, ge=0, description="Modem delay from send to emission.")
+    rx_latency_s: float = Field(0.0, ge=0, description="Modem delay of reception stamps.")
+    anchors: list[NodeName] | None = Field(None, description="Nodes with known positions; "
+                                           "default: surface nodes with a position.")
+    anchor_keys: dict[NodeName, str] = Field(default_factory=dict, description="Key with an "
+                                             "anchor's live {x, y, depth} at each node.")
+    fix_max_age_s: float = Field(30.0, gt=0, description="Oldest range used in a fix.")
+
+
 class Mission(Strict):
     """A deployment: nodes, modem, MAC and channels."""
 
@@ -164,6 +191,7 @@ class Mission(Strict):
     mac: Mac = Field(default_factory=lambda: NoMac(type="none"))
     wire: Wire = Field(default_factory=Wire)
     link: LinkHealth = Field(default_factory=LinkHealth)
+    ranging: Ranging = Field(default_factory=Ranging)
     channels: list[Channel] = Field(default_factory=list)
 
     def node_modem(self, name: str) -> Modem:

@@ -155,6 +155,12 @@ def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
         for i, owner in enumerate(mission.mac.order):
             if owner not in mission.nodes:
                 yield (("mac", "order", i), f"unknown node {owner!r}")
+    for i, anchor in enumerate(mission.ranging.anchors or ()):
+        if anchor not in mission.nodes:
+            yield (("ranging", "anchors", i), f"unknown node {anchor!r}")
+    for anchor in mission.ranging.anchor_keys:
+        if anchor not in mission.nodes:
+            yield (("ranging", "anchor_keys", anchor), f"unknown node {anchor!r}")
     for name in mission.nodes:
         frame_bytes = mission.node_modem(name).frame_bytes
         overhead = frame_overhead_bytes(mission)

@@ -24,11 +24,12 @@ from bridge.backends.base import ModemBackend, Reception
 from bridge.builder import plan_frame
 from bridge.channels import ChannelCodec, ElementCodec
 from bridge.errors import BackendError, DecodeError, EncodeError, FrameError
-from bridge.frame import DELAY_MAX_US, FrameCodec
+from bridge.frame import FrameCodec
 from bridge.link import LinkState, LinkThresholds
 from bridge.mac import FreeSchedule, TdmaSchedule, schedule_for
 from bridge.mission_loader import LoadedMission
 from bridge.payloads import decode_payload, encode_payload
+from bridge.positioning import Positioning
 from bridge.store import OutboundStore
 from bridge.zenoh_session import close_quietly, is_bridged, open_session, origin_tag
 
@@ -36,6 +37,7 @@ log = logging.getLogger("zab.node")
 
 STATS_PERIOD_S = 1.0
 RETRY_MIN_S, RETRY_MAX_S = 0.5, 10.0
+TX_LEAD_S = 0.01  # how far ahead a timed emission is scheduled
 
 
 @dataclass
@@ -88,7 +90,7 @@ class BridgeNode:
         self._tokens: dict[str, Any] = {}
         self._last_tx: float | None = None
         self.last_heard: dict[str, float] = {}
-        self.last_rx_start: dict[str, float] = {}
+        self.positioning = Positioning(self.mission, node) if self.table.dlbl else None
         self.received_at: dict[str, float] = {}
         self.prefix = f"@zab/{self.mission.mission}/{node}"
         self._origin = origin_tag(self.mission.mission, node)
@@ -119,11 +121,7 @@ class BridgeNode:
                 self.session.declare_subscriber(
                     key, lambda s, k=key: self._from_zenoh(loop, k, s)
                 )
-            nav_key = self.mission.nodes[self.node].nav_key
-            if nav_key is not None:
-                self.session.declare_subscriber(
-                    nav_key, lambda s: self._from_zenoh(loop, nav_key, s, self.move)
-                )
+            self._subscribe_positions(loop)
             tasks = [
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
@@ -155,18 +153,53 @@ class BridgeNode:
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
         loop.call_soon_threadsafe(handler or self.ingest, key, data, encoding)
 
-    def move(self, key: str, data: bytes, encoding: str) -> None:
-        """A live position arrived on the node's ``nav_key``: tell the modem (simulator)."""
+    def _subscribe_positions(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Live positions: this node's own (``nav_key``), anchors' and the CTD's."""
+        assert self.session is not None
+
+        def listen(key: str, handler: Callable[[str, tuple[float, ...]], None],
+                   names: tuple[str, ...], bridged: bool = False) -> None:
+            def on_sample(sample: zenoh.Sample) -> None:
+                if sample.kind == zenoh.SampleKind.PUT and (bridged or not is_bridged(sample)):
+                    data, encoding = sample.payload.to_bytes(), str(sample.encoding)
+                    loop.call_soon_threadsafe(self._numbers, key, data, encoding, names, handler)
+
+            self.session.declare_subscriber(key, on_sample)  # type: ignore[union-attr]
+
+        nav_key = self.mission.nodes[self.node].nav_key
+        if nav_key is not None:
+            listen(nav_key, self.move, ("x", "y", "depth"))
+        if self.positioning is None:
+            return
+        positioning = self.positioning
+        for anchor, key in self.mission.ranging.anchor_keys.items():
+            if anchor in positioning.anchors:
+                listen(key, lambda _k, v, a=anchor: positioning.set_anchor(a, v),  # type: ignore[misc]
+                       ("x", "y", "depth"), bridged=True)
+        ctd_key = self.mission.ranging.ctd_key
+        if ctd_key is not None:
+            listen(ctd_key, lambda _k, v: positioning.set_water(*v),
+                   ("temperature_c", "salinity_psu", "depth_m"), bridged=True)
+
+    def _numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
+                 handler: Callable[[str, tuple[float, ...]], None]) -> None:
+        """Decode a payload holding the numbers ``names`` and pass them on; count bad ones."""
         try:
             value = decode_payload(data, encoding)
-            x, y, depth = (float(value[k]) for k in ("x", "y", "depth"))
-            if not all(map(math.isfinite, (x, y, depth))):
+            numbers = tuple(float(value[k]) for k in names)
+            if not all(map(math.isfinite, numbers)):
                 raise ValueError("not finite")
+            handler(key, numbers)
         except (DecodeError, TypeError, KeyError, ValueError) as exc:
-            self._drop_payload(key, f"position needs numbers x, y, depth: {exc}")
-            return
+            self._drop_payload(key, f"needs numbers {', '.join(names)}: {exc}")
+
+    def move(self, key: str, position: tuple[float, ...]) -> None:
+        """This node's live position: move the (simulated) modem and keep the depth."""
+        x, y, depth = position
         if self.backend is not None:
             self.backend.set_position(x, y, depth)
+        if self.positioning is not None:
+            self.positioning.set_depth(depth)
 
     def ingest(self, key: str, data: bytes, encoding: str) -> None:
         """A sample arrived on an input key: pack it for every channel that reads the key."""
@@ -239,17 +272,6 @@ class BridgeNode:
         beat = self._next_heartbeat()
         return beat is not None and beat <= now + 1e-9
 
-    def delays(self, now: float) -> list[int | None]:
-        """DLBL vector: µs since the last reception from each foreign node (None if stale)."""
-        if not self.table.dlbl:
-            return []
-        out: list[int | None] = []
-        for peer in self.table.foreign_nodes(self.node):
-            heard = self.last_rx_start.get(peer)
-            delay = None if heard is None else round((now - heard) * 1e6)
-            out.append(delay if delay is not None and 0 <= delay <= DELAY_MAX_US else None)
-        return out
-
     async def transmit(self, *, always: bool = False) -> bool:
         """Build one frame from what is due and send it. Returns whether a frame went out."""
         now = self.clock()
@@ -257,16 +279,20 @@ class BridgeNode:
         self.stats.left_out += len(plan.left_out)
         if not plan.chosen and not always:
             return False
-        frame = self.codec.encode(
-            [(s.channel, s.payload()) for s in plan.chosen], self.delays(now), now
-        )
+        backend = self.backend
+        if backend is None:
+            return False
+        # with a timed modem the emission starts exactly at t_tx, so DLBL delays are exact
+        t_tx = backend.clock() + (TX_LEAD_S if backend.timed_send else 0.0)
+        delays = self.positioning.on_transmit(t_tx) if self.positioning else []
+        frame = self.codec.encode([(s.channel, s.payload()) for s in plan.chosen], delays, now)
         targets = {d for s in plan.chosen for d in s.channel.destinations(self.node)}
         dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
         try:
-            if self.backend is None:
-                raise BackendError("modem not open")
-            await self.backend.send(frame, dest)
+            await backend.send(frame, dest, at=t_tx)
         except BackendError as exc:
+            if self.positioning is not None:
+                self.positioning.forget_transmit(t_tx)
             self.stats.send_errors += 1
             log.warning("%s: send failed: %s", self.node, exc)
             self.on_event("send_failed", {"error": str(exc)})
@@ -315,10 +341,12 @@ class BridgeNode:
             self.on_event("frame_dropped", {"src": src, "reason": str(exc)})
             return
         self.stats.frames_received += 1
-        self.last_heard[src] = rx.time
+        now = self.clock()
+        self.last_heard[src] = now
         if self.link_states.get(src) is not LinkState.UP:
-            self.update_links(self.clock())
-        self.last_rx_start[src] = float(rx.meta.get("start", rx.time))
+            self.update_links(now)
+        if self.positioning is not None and self.backend is not None:
+            self._ranging(src, float(rx.meta.get("start", rx.time)), frame.delays)
         for channel, values in frame.channels:
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
@@ -334,6 +362,20 @@ class BridgeNode:
                           {"last_heard": rx.time, "meta": _plain(rx.meta)})
         self.on_event("frame_received", {"src": src, "bytes": len(rx.data), "channels": [
             c.name for c, _ in frame.channels], "time": rx.time})
+
+    def _ranging(self, src: str, t_rx_start: float, delays: tuple[int | None, ...]) -> None:
+        """Ranges (and a fix) from a frame's DLBL delays, published under ``@zab``."""
+        assert self.positioning is not None and self.backend is not None
+        update = self.positioning.on_receive(src, t_rx_start, delays, self.backend.clock())
+        wall = self.clock()
+        for rng in update.ranges:
+            payload = {**self.positioning.range_payload(rng), "time": wall}
+            self._publish_raw(f"{self.prefix}/range/{rng.peer}", payload)
+            self.on_event("range", payload)
+        if update.fix is not None:
+            payload = update.fix.payload(wall)
+            self._publish_raw(f"{self.prefix}/position", payload)
+            self.on_event("position", payload)
 
     def publish(self, key: str, value: Any, encoding: str, *, latched: bool = False) -> None:
         """Put a decoded value on Zenoh, marked as bridged so no bridge sends it back."""

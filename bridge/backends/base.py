@@ -7,6 +7,7 @@ and :meth:`~ModemBackend._close`. Every failure surfaces as :class:`~bridge.erro
 
 from __future__ import annotations
 
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -59,6 +60,8 @@ class ModemBackend(ABC):
     """
 
     name: ClassVar[str] = "abstract"
+    timed_send: ClassVar[bool] = False
+    """Whether :meth:`send` honours ``at`` (a scheduled emission start)."""
 
     def __init__(self, setup: ModemSetup) -> None:
         self.setup = setup
@@ -96,9 +99,11 @@ class ModemBackend(ABC):
             raise
         self._opened = True
 
-    async def send(self, data: bytes, dest: int | None = None) -> None:
+    async def send(self, data: bytes, dest: int | None = None, *, at: float | None = None) -> None:
         """Transmit one frame (``dest`` ``None`` = broadcast).
 
+        ``at`` asks for the emission to start at that time of :meth:`clock` (DLBL needs the
+        exact start); backends whose ``timed_send`` is False send at once and ignore it.
         When it returns is backend-specific and documented by each backend. Raises
         :class:`BackendError` if the frame is too long or empty, or the backend is not open.
         """
@@ -111,7 +116,10 @@ class ModemBackend(ABC):
                 f"{self!r}: frame of {len(data)} B exceeds frame_bytes={self.frame_bytes}"
             )
         try:
-            await self._send(bytes(data), dest)
+            if at is not None and self.timed_send:
+                await self._send_timed(bytes(data), dest, at)
+            else:
+                await self._send(bytes(data), dest)
         except BackendError:
             self.stats["errors"] += 1
             raise
@@ -131,6 +139,14 @@ class ModemBackend(ABC):
             return
         self._closed = True
         await self._close()
+
+    async def _send_timed(self, data: bytes, dest: int | None, at: float) -> None:
+        """Hook for backends with ``timed_send``: emit at ``at`` (modem clock)."""
+        await self._send(data, dest)
+
+    def clock(self) -> float:
+        """The modem's clock, in which it stamps receptions (default: the host's wall clock)."""
+        return time.time()
 
     def set_position(self, x: float, y: float, depth: float) -> None:  # noqa: B027
         """Tell the backend where the vehicle is (only the simulator uses it; default no-op)."""

@@ -13,6 +13,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import random
+import time
 from typing import Any, ClassVar
 
 from bridge.backends.base import ModemBackend, ModemSetup, Reception
@@ -38,10 +40,14 @@ def parse_water_address(value: Any) -> tuple[str, int]:
     raise BackendError(f"sim backend: option 'water' must be 'host:port', got {value!r}")
 
 
+CLOCK_EPOCH = 1.7e9  # drift is counted from here, so clock readings stay near wall time
+
+
 class SimBackend(ModemBackend):
     """A modem in the simulated water, reached over loopback TCP."""
 
     name: ClassVar[str] = "sim"
+    timed_send: ClassVar[bool] = True
 
     def __init__(self, setup: ModemSetup) -> None:
         super().__init__(setup)
@@ -65,6 +71,11 @@ class SimBackend(ModemBackend):
         self._failure: BackendError | None = None
         self.stats["dropped"] = 0
         self.preset_name: str | None = None
+        opts = setup.options
+        self._clock_offset = float(opts.get("clock_offset_s", 0.0))
+        self._clock_drift = float(opts.get("clock_drift_ppm", 0.0)) * 1e-6
+        self._stamp_jitter = float(opts.get("timestamp_jitter_s", 0.0))
+        self._stamp_rng = random.Random(f"{opts.get('seed', 0)}/{setup.address}")
 
     # -- hooks ---------------------------------------------------------------------------------
 
@@ -107,6 +118,12 @@ class SimBackend(ModemBackend):
         self._task = asyncio.create_task(self._read_loop(), name=f"sim-modem-{self.address}")
 
     async def _send(self, data: bytes, dest: int | None) -> None:
+        await self._transmit({"data": data, "dest": dest})
+
+    async def _send_timed(self, data: bytes, dest: int | None, at: float) -> None:
+        await self._transmit({"data": data, "dest": dest, "at": self._wall(at)})
+
+    async def _transmit(self, request: dict[str, Any]) -> None:
         async with self._lock:
             if self._failure is not None:
                 raise self._failure
@@ -114,7 +131,7 @@ class SimBackend(ModemBackend):
             fut: asyncio.Future[float] = asyncio.get_running_loop().create_future()
             self._pending[tx_id] = fut
             try:
-                self._write({"t": "tx", "id": tx_id, "data": data, "dest": dest})
+                self._write({"t": "tx", "id": tx_id, **request})
                 await fut
             finally:
                 self._pending.pop(tx_id, None)
@@ -192,15 +209,35 @@ class SimBackend(ModemBackend):
                 BackendError(f"sim modem {self.setup.node!r}: lost the water at {where}: {exc}")
             )
 
+    def clock(self) -> float:
+        """This simulated modem's clock: wall time with the node's offset and drift."""
+        return self._local(time.time())
+
+    def _local(self, wall: float) -> float:
+        return wall + self._clock_offset + self._clock_drift * (wall - CLOCK_EPOCH)
+
+    def _wall(self, local: float) -> float:
+        """Inverse of :meth:`_local`."""
+        return (local - self._clock_offset + self._clock_drift * CLOCK_EPOCH) / (
+            1 + self._clock_drift)
+
+    def _stamp(self, wall: float) -> float:
+        """A reception timestamp as this modem takes it: its clock, plus jitter."""
+        jitter = self._stamp_rng.gauss(0.0, self._stamp_jitter) if self._stamp_jitter else 0.0
+        return self._local(wall) + jitter
+
     def _on_message(self, msg: dict[str, Any]) -> None:
         kind = msg["t"]
         if kind == "rx":
-            meta = msg.get("meta") or {}
-            self._put(
-                Reception(
-                    data=bytes(msg["data"]), src=int(msg["src"]), time=float(msg["time"]), meta=meta
-                )
-            )
+            meta = dict(msg.get("meta") or {})
+            end = float(msg["time"])
+            if "start" in meta:
+                meta["start"] = self._stamp(float(meta["start"]))
+                end = meta["start"] + (end - float(msg["meta"]["start"]))
+            else:
+                end = self._stamp(end)
+            self._put(Reception(data=bytes(msg["data"]), src=int(msg["src"]), time=end,
+                                meta=meta))
         elif kind in ("txdone", "txerr"):
             fut = self._pending.get(msg.get("id", -1))
             if fut is None or fut.done():

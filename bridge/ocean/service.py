@@ -241,8 +241,16 @@ class WaterService:
             dest = msg.get("dest")
             if not isinstance(data, bytes) or not (dest is None or isinstance(dest, int)):
                 raise ProtocolError("tx needs bytes 'data' and an int or nil 'dest'")
+            at = msg.get("at")
+            if isinstance(at, int | float) and at - time.time() > 0:  # a timed emission
+                loop = asyncio.get_running_loop()
+                loop.call_later(at - time.time(), self._on_message, addr,
+                                {**msg, "at": None, "start": at - self._offset})
+                return
+            start = msg.get("start")
+            now = self._now() if start is None else max(float(start), self.ocean.now)
             try:
-                self.ocean.transmit(self._now(), addr, data, dest)
+                self.ocean.transmit(now, addr, data, dest)
             except TransmitRefused as exc:
                 self._counters["txerr"] += 1
                 self._send(

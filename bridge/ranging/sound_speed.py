@@ -27,7 +27,7 @@ VALIDITY: dict[str, tuple[tuple[float, float], tuple[float, float], tuple[float,
 
 
 def check_validity(equation: Equation, t_c: float, s_psu: float, z: float) -> bool:
-    """Whether ``(t_c, s_psu, z)`` lies in ``equation``'s fitted range (z: m, or dbar for UNESCO)."""
+    """Whether ``(t_c, s_psu, z)`` is in ``equation``'s fitted range (z: m; dbar for UNESCO)."""
     (t0, t1), (s0, s1), (z0, z1) = VALIDITY[equation]
     return t0 <= t_c <= t1 and s0 <= s_psu <= s1 and z0 <= z <= z1
 
@@ -69,10 +69,7 @@ def coppens(t_c: float, s_psu: float, depth_m: float) -> float:
     t, ds, d = t_c / 10.0, s_psu - 35.0, depth_m / 1000.0
     c0 = 1449.05 + 45.7 * t - 5.21 * t**2 + 0.23 * t**3 + (1.333 - 0.126 * t + 0.009 * t**2) * ds
     return (
-        c0
-        + (16.23 + 0.253 * t) * d
-        + (0.213 - 0.1 * t) * d**2
-        + (0.016 + 0.0002 * ds) * ds * t * d
+        c0 + (16.23 + 0.253 * t) * d + (0.213 - 0.1 * t) * d**2 + (0.016 + 0.0002 * ds) * ds * t * d
     )
 
 
