@@ -6,6 +6,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.backends.registry import load_backend
+from bridge.errors import BackendError
 from bridge.frame import FrameCodec
 from bridge.mac import TdmaSchedule
 from bridge.mission import TdmaMac
@@ -70,6 +72,15 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         capacity = codec.body_capacity_bits(frame_bytes) - codec.count_bits
         sent = [c for c in table.channels if c.sent_by(name) and c.destinations(name)]
         worst = sum(codec.channel_cost_bits(c) for c in sent)
+        modem = mission.node_modem(name)
+        try:
+            limit = load_backend(modem.backend).max_frame_bytes(modem.options)
+        except BackendError as exc:
+            report.errors.append(f"{name}: {exc}")
+            limit = None
+        if limit is not None and frame_bytes > limit:
+            report.errors.append(f"{name}: frame_bytes {frame_bytes} exceeds the {limit} bytes a "
+                                 f"{modem.backend} modem sends with these options")
         for c in sent:
             if codec.channel_cost_bits(c) > capacity:
                 report.errors.append(

@@ -9,6 +9,7 @@ import logging
 import signal
 import sys
 from collections.abc import Coroutine
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
@@ -181,6 +182,65 @@ def water(
             console.print_json(data=service.stats())
 
     asyncio.run(main())
+
+
+class ModemKind(StrEnum):
+    evologics = "evologics"
+    micromodem = "micromodem"
+
+
+@app.command()
+def emulate(
+    kind: Annotated[ModemKind, typer.Argument(help="Which modem to emulate.")],
+    mission: MissionArg,
+    node: Annotated[str, typer.Option("--node", "-n", help="The node whose modem it is.")],
+    link: Annotated[Path | None, typer.Option(help="Stable symlink to the pty (default: the "
+                                              "device in the node's modem options).")] = None,
+    tcp_port: Annotated[int | None, typer.Option(help="EvoLogics only: also listen on this "
+                                                 "loopback TCP port.")] = None,
+    water: Annotated[str | None, typer.Option(help="host:port of `zab water` (default: the "
+                                              "mission's).")] = None,
+) -> None:
+    """Emulate a node's modem on a pseudo-terminal, its frames crossing `zab water`."""
+    loaded = _load(mission)
+    if node not in loaded.mission.nodes:
+        err.print(f"no node {node!r} in {mission}; nodes: {', '.join(loaded.mission.nodes)}")
+        raise typer.Exit(2)
+    options = loaded.mission.node_modem(node).options
+    device = options.get("device")
+    if link is None and isinstance(device, str) and not device.startswith("socket://"):
+        link = Path(device)
+    address = water or str(options.get("water", "127.0.0.1:7600"))
+    _logging(False)
+
+    def ready(info: dict[str, object]) -> None:
+        shown = ", ".join(f"{k} {v}" for k, v in info.items() if v is not None)
+        console.print(f"{kind.value} modem of {node}: {shown}; water {address}; Ctrl-C to stop")
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        _install_stop(stop)
+        if kind is ModemKind.evologics:
+            from bridge.emulators.evologics import run_emulator as evologics
+
+            task = asyncio.create_task(evologics(loaded, node, water=address, link=link,
+                                                 tcp_port=tcp_port, ready=ready))
+        else:
+            from bridge.emulators.micromodem import run_emulator as micromodem
+
+            task = asyncio.create_task(micromodem(loaded, node, water=address, link=link,
+                                                  ready=ready))
+        await asyncio.wait([task, asyncio.create_task(stop.wait())],
+                           return_when=asyncio.FIRST_COMPLETED)
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+    try:
+        _run_or_exit(main())
+    except BackendError as exc:
+        err.print(f"[red]{exc}[/]")
+        raise typer.Exit(1) from None
 
 
 @app.command()

@@ -296,7 +296,8 @@ class BridgeNode:
             self.stats.send_errors += 1
             log.warning("%s: send failed: %s", self.node, exc)
             self.on_event("send_failed", {"error": str(exc)})
-            self._modem_up.clear()
+            if not backend.is_open:  # the modem is gone: wait until the modem loop reopens it
+                self._modem_up.clear()
             return False
         self.store.mark_sent(plan.chosen, now)
         self._last_tx = now

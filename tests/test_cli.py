@@ -123,3 +123,48 @@ def test_wheel_ships_codecs_and_schemas(tmp_path: Path) -> None:
     names = set(zipfile.ZipFile(wheel).namelist())
     assert "bridge/_data/codecs/ccl/bathymetry.yaml" in names
     assert "bridge/_data/schemas/mission.schema.json" in names
+
+
+def test_water_and_emulate_serve_a_real_driver(tmp_path: Path) -> None:
+    """`zab water` + `zab emulate evologics` as processes; the driver opens the emulated pty."""
+    import asyncio
+
+    from bridge.backends.evologics import EvologicsBackend
+    from bridge.mission_loader import load_mission
+    from bridge.modem_setup import modem_setup
+
+    mission = MISSIONS / "morph_evologics.yaml"
+    water_port = free_port()
+    link = tmp_path / "lsv.pty"
+    procs = [
+        subprocess.Popen([sys.executable, "-m", "bridge", "water", str(mission),
+                          "--port", str(water_port)], cwd=REPO, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL),
+    ]
+    try:
+        time.sleep(1.0)
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", "bridge", "emulate", "evologics", str(mission), "--node",
+             "lsv", "--link", str(link), "--water", f"127.0.0.1:{water_port}"],
+            cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        deadline = time.time() + 15
+        while not link.exists() and time.time() < deadline:
+            time.sleep(0.1)
+        assert link.exists(), "the emulator did not open its pty"
+        loaded = load_mission(mission)
+        setup = modem_setup(loaded.mission, "lsv", {"device": str(link)})
+
+        async def handshake() -> int:
+            async with EvologicsBackend(setup) as modem:
+                return modem.address
+
+        assert asyncio.run(handshake()) == loaded.mission.address_of("lsv")
+    finally:
+        for proc in reversed(procs):
+            proc.send_signal(signal.SIGINT)
+        for proc in procs:
+            try:
+                assert proc.wait(timeout=10) == 0
+            finally:
+                if proc.poll() is None:
+                    proc.kill()

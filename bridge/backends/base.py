@@ -140,6 +140,11 @@ class ModemBackend(ABC):
         self._closed = True
         await self._close()
 
+    @classmethod
+    def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
+        """The largest frame this backend can send with ``options`` (None: no fixed limit)."""
+        return None
+
     async def _send_timed(self, data: bytes, dest: int | None, at: float) -> None:
         """Hook for backends with ``timed_send``: emit at ``at`` (modem clock)."""
         await self._send(data, dest)

@@ -17,6 +17,7 @@ from bridge.errors import DecodeError
 __all__ = [
     "MAX_SENTENCE_BYTES",
     "ChecksumError",
+    "LineBuffer",
     "NmeaError",
     "Sentence",
     "checksum",
@@ -116,3 +117,42 @@ def parse_sentence(line: bytes | str) -> Sentence:
     if not _ADDRESS.fullmatch(address):
         raise NmeaError(f"bad talker/type {address[:12]!r} (want 5 characters like CACYC)")
     return Sentence(address[:2], address[2:], tuple(fields))
+
+
+class LineBuffer:
+    """Splits a byte stream into lines at ``\r`` and/or ``\n`` (empty lines skipped).
+
+    A line longer than :data:`MAX_SENTENCE_BYTES` is cut off: its start is returned through
+    ``overflow`` and the rest is skipped up to the next line end.
+    """
+
+    def __init__(self) -> None:
+        self._buffer = bytearray()
+        self._skipping = False
+
+    def feed(self, data: bytes) -> tuple[list[bytes], bytes | None]:
+        """Add bytes; returns the complete lines and the start of an overlong line (or None)."""
+        self._buffer += data
+        lines: list[bytes] = []
+        while True:
+            ends = [i for i in (self._buffer.find(b"\r"), self._buffer.find(b"\n")) if i >= 0]
+            if not ends:
+                break
+            cut = min(ends)
+            line = bytes(self._buffer[:cut])
+            del self._buffer[: cut + 1]
+            if self._skipping:
+                self._skipping = False
+            elif line:
+                lines.append(line)
+        overflow = None
+        if len(self._buffer) > MAX_SENTENCE_BYTES:
+            overflow = bytes(self._buffer[:80])
+            self._buffer.clear()
+            self._skipping = True
+        return lines, overflow
+
+    def clear(self) -> None:
+        """Forget a partial line (e.g. after the port was reopened)."""
+        self._buffer.clear()
+        self._skipping = False

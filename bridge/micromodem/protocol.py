@@ -28,7 +28,7 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
-from bridge.micromodem.nmea import MAX_SENTENCE_BYTES, NmeaError, Sentence, parse_sentence
+from bridge.micromodem.nmea import LineBuffer, NmeaError, Sentence, parse_sentence
 from bridge.micromodem.rates import get_rate
 
 __all__ = [
@@ -486,8 +486,7 @@ class HostProtocol:
         self.address = _addr(str(address))
         self.bad_lines = 0
         self.needs_init = False
-        self._buffer = bytearray()
-        self._discarding = False
+        self._lines = LineBuffer()
         self._events: deque[Event] = deque()
         self._out = bytearray()
         self._transfer: _Transfer | None = None
@@ -497,23 +496,15 @@ class HostProtocol:
 
     def receive_data(self, data: bytes) -> None:
         """Feed bytes from the modem (any fragment). Never raises."""
-        self._buffer += data
-        while True:
-            cut = min((i for i in (self._buffer.find(b"\r"), self._buffer.find(b"\n")) if i >= 0),
-                      default=-1)
-            if cut < 0:
-                break
-            line = bytes(self._buffer[:cut])
-            del self._buffer[: cut + 1]
-            if self._discarding:
-                self._discarding = False
-                continue
-            if line:
-                self._line(line)
-        if len(self._buffer) > MAX_SENTENCE_BYTES:
-            self._bad(bytes(self._buffer[:80]), "line too long; dropped up to the next line end")
-            self._buffer.clear()
-            self._discarding = True
+        lines, overflow = self._lines.feed(data)
+        for line in lines:
+            self._line(line)
+        if overflow is not None:
+            self._bad(overflow, "line too long; dropped up to the next line end")
+
+    def reset_input(self) -> None:
+        """Forget a partial line (the port was reopened)."""
+        self._lines.clear()
 
     def next_event(self) -> Event | None:
         """The next event, or ``None`` when more bytes are needed."""

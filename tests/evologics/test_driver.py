@@ -1,0 +1,249 @@
+"""The ``evologics`` driver against emulated modems: real ptys, real pyserial, real water."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from bridge.backends.base import ModemSetup
+from bridge.backends.evologics import EvologicsBackend
+from bridge.backends.transport import ByteTransport
+from bridge.emulators.evologics import EvologicsEmulator
+from bridge.emulators.pty_host import PtyHost
+from bridge.errors import BackendError
+from bridge.ocean.model import LossCurve
+from bridge.ocean.presets import get_preset
+from bridge.ocean.service import WaterService
+
+# airtime 20 ms + 1 ms/byte, sound at 1500 m/s: 150 m is 100 ms
+FAST = get_preset("evologics-s2c-im").replace(name="test-evologics", overhead_s=0.02,
+                                              per_byte_s=0.001)
+POSITIONS = {1: (0.0, 0.0, 0.0), 2: (150.0, 0.0, 0.0), 3: (300.0, 0.0, 0.0)}
+
+
+def arun(main: Callable[[], Awaitable[None]], timeout: float = 15.0) -> None:
+    asyncio.run(asyncio.wait_for(main(), timeout))
+
+
+@contextlib.asynccontextmanager
+async def modems(tmp_path: Path, *addrs: int, **emu: Any) -> AsyncIterator[
+        tuple[WaterService, dict[int, EvologicsEmulator]]]:
+    water = WaterService(FAST, seed=1, loss_curve=LossCurve(edge_loss=0.0))
+    port = await water.start()
+    emulators: dict[int, EvologicsEmulator] = {}
+    try:
+        for a in addrs:
+            setup = ModemSetup(node=f"n{a}", address=a, frame_bytes=64,
+                               options={"water": f"127.0.0.1:{port}"}, position=POSITIONS[a])
+            emulators[a] = EvologicsEmulator(setup, link=tmp_path / f"modem{a}",
+                                             positions=POSITIONS, tcp_port=0, **emu)
+            await emulators[a].start()
+        yield water, emulators
+    finally:
+        for e in emulators.values():
+            await e.stop()
+        await water.stop()
+
+
+def driver(emulator: EvologicsEmulator, **options: Any) -> EvologicsBackend:
+    options.setdefault("device", str(emulator.pty.link))  # the stable link, as at sea
+    options.setdefault("timeout_s", 0.5)
+    options.setdefault("send_timeout_s", 2.0)
+    return EvologicsBackend(ModemSetup(node=emulator.setup.node, address=emulator.setup.address,
+                                       frame_bytes=64, options=options))
+
+
+PAYLOAD = b"a,b\r\n+++AT:3:x\r\n\x00\xff"  # separators, CRLF, a fake TIES packet, binary
+
+
+@pytest.mark.parametrize("mode", ["data", "command"])
+def test_send_and_receive_between_two_modems(tmp_path: Path, mode: str) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2) as (_, emu), driver(emu[1], mode=mode) as a, \
+                driver(emu[2], mode=mode) as b:
+            loop = asyncio.get_running_loop()
+            t0 = loop.time()
+            await a.send(PAYLOAD, 2)
+            took = loop.time() - t0
+            assert FAST.airtime(len(PAYLOAD)) <= took < 0.5  # returns at SENDEND
+            rx = await asyncio.wait_for(b.recv(), 2)
+            assert (rx.data, rx.src, rx.dest) == (PAYLOAD, 1, 2)
+            assert rx.meta["duration_s"] == pytest.approx(FAST.airtime(len(PAYLOAD)), abs=1e-3)
+            assert rx.meta["rssi_db"] < 0 and rx.meta["integrity"] > 0
+            assert "rx_timestamp_us" in rx.meta and rx.meta["flag"] == "noack"
+            assert rx.time - rx.meta["start"] == pytest.approx(rx.meta["duration_s"], abs=1e-6)
+            await b.send(b"x" * 64, None)  # broadcast, 255, noack
+            rx = await asyncio.wait_for(a.recv(), 2)
+            assert (rx.data, rx.src, rx.dest) == (b"x" * 64, 2, None)
+            # the modems really are in the mode asked for
+            assert {s.mode.value for s in [emu[1]._pty_session]} == {mode}
+
+    arun(main)
+
+
+def test_over_tcp_and_from_command_mode(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2) as (_, emu):
+            emu[1]._pty_session.mode = emu[1]._pty_session.mode.COMMAND  # left in command mode
+            async with driver(emu[1]) as a, driver(
+                    emu[2], device=f"socket://127.0.0.1:{emu[2].tcp.port}") as b:  # type: ignore
+                assert emu[1]._pty_session.mode.value == "data"  # ATO at start-up
+                await b.send(b"over tcp", 1)
+                rx = await asyncio.wait_for(a.recv(), 2)
+                assert rx.data == b"over tcp" and rx.src == 2
+                emu[2].drop_tcp()
+                with pytest.raises(BackendError, match="lost port"):
+                    await asyncio.wait_for(b.recv(), 2)
+                with pytest.raises(BackendError):
+                    await b.send(b"x", 1)
+
+    arun(main)
+
+
+def test_ack_delivered_with_range_and_failed(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2, usbl=True) as (_, emu), \
+                driver(emu[1], ack=True, usbl=True) as a, driver(emu[2]) as b:
+            await a.send(b"ping", 2)
+            assert a.stats["delivered"] == 1
+            assert a.propagation[2][1] == pytest.approx(0.1, abs=1e-3)  # 150 m at 1500 m/s
+            assert a.fixes[2]["e"] == pytest.approx(150.0)  # USBLLONG from the ack
+            await asyncio.wait_for(b.recv(), 2)
+            await b.close()
+            await emu[2].stop()  # nobody answers any more
+            emu[1].settings["RT"] = 500
+            await a.send(b"ping", 2)
+            assert a.stats["failed"] == 1 and a.stats["sent"] == 2
+            emu[2].settings["RP"] = 1
+
+    arun(main)
+
+
+def test_unplug_and_replug(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2) as (_, emu):
+            a = driver(emu[1])
+            await a.open()
+            await emu[1].unplug()
+            with pytest.raises(BackendError, match="lost port"):
+                await asyncio.wait_for(a.recv(), 2)
+            with pytest.raises(BackendError):
+                await a.send(b"x", 2)
+            await a.close()
+            fresh = driver(emu[1])
+            with pytest.raises(BackendError, match="absent"):
+                await fresh.open()  # the cable is still out: the device is gone
+            await fresh.close()
+            await emu[1].replug()
+            async with driver(emu[1]) as again, driver(emu[2]) as b:
+                await again.send(b"back", 2)
+                assert (await asyncio.wait_for(b.recv(), 2)).data == b"back"
+
+    arun(main)
+
+
+def test_modem_reboot_mid_transfer(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2) as (_, emu):
+            a = driver(emu[1], send_timeout_s=0.5)
+            await a.open()
+            sending = asyncio.ensure_future(a.send(b"y" * 64, 2))
+            await asyncio.sleep(0.03)  # the modem accepted the IM
+            await emu[1].reboot(boot_s=0.2)
+            with pytest.raises(BackendError, match=r"no SENDEND|no reply"):
+                await sending  # the frame is reported failed, never silently lost
+            with pytest.raises(BackendError):
+                await a.recv()
+            await a.close()
+            assert emu[1].flags["ZX"] == 0  # the reboot lost the runtime settings
+            async with driver(emu[1]) as again, driver(emu[2]) as b:  # re-initialised
+                assert emu[1].flags["ZX"] == 1
+                await again.send(b"after reboot", 2)
+                assert (await asyncio.wait_for(b.recv(), 2)).data == b"after reboot"
+
+    arun(main)
+
+
+def test_busy_replies_are_retried_then_fail(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2) as (_, emu), \
+                driver(emu[1], busy_retries=3, busy_backoff_s=0.01) as a:
+            emu[1].inject_busy(2, "BACKOFF STATE")
+            await a.send(b"eventually", 2)
+            assert a.stats["busy"] == 2 and a.stats["sent"] == 1
+            emu[1].inject_busy(4, "DELIVERING")
+            with pytest.raises(BackendError, match="BUSY DELIVERING"):
+                await a.send(b"never", 2)
+            with pytest.raises(BackendError):  # the backend is down: the runtime reopens
+                await a.recv()
+
+    arun(main)
+
+
+def test_no_reply_and_absent_port(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1) as (_, emu):
+            emu[1].deaf = True
+            a = driver(emu[1], probe_retries=2, timeout_s=0.2)
+            with pytest.raises(BackendError, match="no answer"):
+                await a.open()
+            await a.close()
+        missing = driver(emu[1], device=str(tmp_path / "nothing"))
+        with pytest.raises(BackendError, match="absent"):
+            await missing.open()
+        with pytest.raises(BackendError, match="device"):
+            EvologicsBackend(ModemSetup(node="x", address=1, frame_bytes=64))
+
+    arun(main)
+
+
+async def read_line(port: ByteTransport) -> bytes:
+    """Bytes up to and including CRLF (a serial read may return any part of a line)."""
+    data = b""
+    while not data.endswith(b"\r\n"):
+        data += await asyncio.wait_for(port.read(), 2)
+    return data
+
+
+def test_guard_time_escape_and_commands(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1, guard_s=0.2) as (_, emu):
+            port = ByteTransport(emu[1].pty.device or "", name="raw")
+            await port.open()
+            try:
+                await asyncio.sleep(0.25)
+                await port.write(b"+++")
+                assert await read_line(port) == b"OK\r\n"
+                await port.write(b"AT?AL\r")
+                assert await read_line(port) == b"1\r\n"
+                await port.write(b"AT*SENDIM,65,2,ack," + b"z" * 65 + b"\r")
+                assert await read_line(port) == b"ERROR WRONG FORMAT\r\n"
+            finally:
+                await port.close()
+
+    arun(main)
+
+
+def test_pty_host_and_transport_close_cleanly(tmp_path: Path) -> None:
+    async def main() -> None:
+        got: list[bytes] = []
+        host = PtyHost(got.append, link=tmp_path / "link")
+        device = await host.open()
+        port = ByteTransport(device)
+        await port.open()
+        pending = asyncio.ensure_future(port.read())
+        await asyncio.sleep(0.05)
+        await port.close()
+        with pytest.raises(BackendError, match="closed"):
+            await pending
+        await port.close()  # idempotent
+        await host.close()
+        await host.close()
+        assert not (tmp_path / "link").exists()
+
+    arun(main)

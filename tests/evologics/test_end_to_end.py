@@ -1,0 +1,123 @@
+"""The MORPH mission with ``backend: evologics`` on every node, over emulated S2C modems.
+
+Each node's bridge opens its emulator's pty with the real driver; the emulators share one
+simulated water. The Listing-1 value crosses exactly as it does over ``sim``
+(tests/test_end_to_end.py), in a faster TDMA.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import yaml
+
+from bridge.emulators.evologics import run_emulator
+from bridge.mac import TdmaSchedule
+from bridge.mission_loader import LoadedMission
+from bridge.ocean.model import LossCurve
+from bridge.ocean.service import WaterService
+from tests.conftest import MISSIONS, on_free_ports
+from tests.evologics.test_driver import FAST
+from tests.harness import Inbox, outside_session, put, running_fleet
+
+SLOT_S, GUARD_S = 0.5, 0.1
+
+
+def fast_morph(tmp_path: Path) -> LoadedMission:
+    data = yaml.safe_load((MISSIONS / "morph_evologics.yaml").read_text())
+    data["mac"].update(slot_s=SLOT_S, guard_s=GUARD_S)
+    for name, node in data["nodes"].items():
+        node["modem"]["options"]["device"] = str(tmp_path / f"modem-{name}")
+        node["modem"]["options"]["timeout_s"] = 1.0
+    return on_free_ports(yaml.safe_dump(data, sort_keys=False), "morph_evologics.yaml")
+
+
+@contextlib.contextmanager
+def emulated_modems(loaded: LoadedMission, tmp_path: Path) -> Iterator[None]:
+    """The water and one emulator per node, on their own event loop in a thread."""
+    loop = asyncio.new_event_loop()
+    ready = threading.Event()
+    stop: list[asyncio.Event] = []
+    failure: list[BaseException] = []
+
+    async def main() -> None:
+        positions = {n.address: (n.position.x, n.position.y, n.position.depth)
+                     for n in loaded.mission.nodes.values() if n.position is not None}
+        water = WaterService(FAST, seed=1, positions=positions,
+                             loss_curve=LossCurve(edge_loss=0.0))
+        port = await water.start()
+        stop.append(asyncio.Event())
+        started: list[dict[str, object]] = []
+        tasks = [asyncio.create_task(run_emulator(loaded, name, water=f"127.0.0.1:{port}",
+                                                  link=tmp_path / f"modem-{name}",
+                                                  ready=started.append))
+                 for name in loaded.mission.nodes]
+        try:
+            while len(started) < len(tasks) and not any(t.done() for t in tasks):
+                await asyncio.sleep(0.01)
+            ready.set()
+            await stop[0].wait()
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            await water.stop()
+
+    def thread_main() -> None:
+        try:
+            loop.run_until_complete(main())
+        except BaseException as exc:
+            failure.append(exc)
+        finally:
+            loop.close()
+            ready.set()
+
+    thread = threading.Thread(target=thread_main, name="emulators", daemon=True)
+    thread.start()
+    assert ready.wait(10), "emulators did not start"
+    try:
+        assert not failure, failure
+        yield
+    finally:
+        if stop:
+            loop.call_soon_threadsafe(stop[0].set)
+        thread.join(10)
+        assert not thread.is_alive(), "emulators did not stop"
+
+
+def test_target_reference_crosses_over_emulated_evologics_modems(tmp_path: Path) -> None:
+    loaded = fast_morph(tmp_path)
+    with emulated_modems(loaded, tmp_path), running_fleet(loaded) as fleet:
+        lsv_app = outside_session(loaded, "lsv")
+        gcv_app = outside_session(loaded, "gcv")
+        try:
+            inbox = Inbox()
+            gcv_app.declare_subscriber("lsv/target_reference", inbox)
+            deadline = time.time() + 10
+            while not all(n.backend is not None and n.backend.is_open
+                          for n in fleet.nodes.values()) and time.time() < deadline:
+                time.sleep(0.05)
+            schedule = TdmaSchedule(loaded.mission.mac, "lsv")  # type: ignore[arg-type]
+            slot = schedule.next_slot(time.time())
+            assert slot is not None
+            time.sleep(max(0.0, slot.start + 0.1 - time.time()))  # just after an lsv slot
+            put(lsv_app, "target_reference", {"vector": {"x": 3.0, "y": 0.02}})
+            expected = schedule.next_slot(time.time())
+            assert expected is not None
+            key, value, arrived = inbox.get(timeout=expected.end - time.time() + 2.0)
+            assert key == "lsv/target_reference"
+            assert abs(value["vector"]["x"] - 3.0) <= 6.2831 / 255 / 2 + 1e-9
+            assert abs(value["vector"]["y"] - 0.02) <= 2 * 0.052359878 / 63 / 2 + 1e-9
+            assert expected.start < arrived <= expected.end + 0.25
+            gcv = fleet.nodes["gcv"]
+            assert gcv.stats.received_per_channel["target_reference"] == 1
+            assert gcv.backend is not None and gcv.backend.name == "evologics"
+            assert all(n.stats.send_errors == 0 for n in fleet.nodes.values())
+        finally:
+            lsv_app.close()
+            gcv_app.close()

@@ -1,0 +1,239 @@
+"""The micromodem backend against emulated modems in the simulated water, through real ptys."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import serial
+
+from bridge.backends.base import ModemSetup
+from bridge.backends.micromodem import MicromodemBackend
+from bridge.emulators.micromodem import MicromodemEmulator
+from bridge.emulators.pty_host import PtyHost
+from bridge.errors import BackendError
+from bridge.ocean.presets import get_preset
+from bridge.ocean.service import WaterService
+
+# rate-0 figures sped up 40x so that a test takes well under a second; real sound speed
+FAST = get_preset("micromodem-rate0").replace(
+    name="micromodem-fast", bitrate_bps=3200.0, overhead_s=0.05, frame_bytes=256
+)
+POSITIONS = {1: (0.0, 0.0, 10.0), 2: (300.0, 0.0, 10.0), 3: (0.0, 450.0, 10.0)}
+
+
+class Bench:
+    """A water, one emulator per address, and drivers on their ptys."""
+
+    def __init__(self, water: WaterService, emulators: dict[int, MicromodemEmulator],
+                 devices: dict[int, str]) -> None:
+        self.water, self.emulators, self.devices = water, emulators, devices
+        self.backends: list[MicromodemBackend] = []
+
+    def backend(self, address: int, frame_bytes: int = 32, **options: Any) -> MicromodemBackend:
+        opts = {"device": self.devices[address], "timeout_s": 1.0, "tx_timeout_s": 3.0,
+                **options}
+        backend = MicromodemBackend(ModemSetup(node=f"n{address}", address=address,
+                                               frame_bytes=frame_bytes, options=opts))
+        self.backends.append(backend)
+        return backend
+
+    async def modem(self, address: int, **options: Any) -> MicromodemBackend:
+        backend = self.backend(address, **options)
+        await backend.open()
+        return backend
+
+
+@contextlib.asynccontextmanager
+async def bench(tmp_path: Path, addresses: tuple[int, ...] = (1, 2),
+                **emulator_options: Any) -> AsyncIterator[Bench]:
+    water = WaterService(FAST, seed=1, positions={a: POSITIONS[a] for a in addresses})
+    await water.start()
+    emulators: dict[int, MicromodemEmulator] = {}
+    devices: dict[int, str] = {}
+    b = Bench(water, emulators, devices)
+    try:
+        for a in addresses:
+            setup = ModemSetup(node=f"n{a}", address=a, frame_bytes=32,
+                               options={"water": f"127.0.0.1:{water.port}"},
+                               position=POSITIONS[a])
+            emulators[a] = MicromodemEmulator(setup, link=tmp_path / f"mm{a}",
+                                              dto_s=1.0, **emulator_options)
+            devices[a] = await emulators[a].open()
+        yield b
+    finally:
+        for backend in b.backends:
+            await backend.close()
+        for emulator in emulators.values():
+            await emulator.close()
+        await water.stop()
+
+
+def run(test: Callable[[], Awaitable[None]]) -> None:
+    asyncio.run(asyncio.wait_for(test(), 20))
+
+
+def test_send_and_receive_rate0(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with bench(tmp_path, (1, 2, 3)) as b:
+            a, c, d = await b.modem(1), await b.modem(2), await b.modem(3)
+            t0 = time.time()
+            await a.send(b"hello, ocean", 2)
+            took = time.time() - t0
+            rx = await asyncio.wait_for(c.recv(), 2)
+            assert (rx.data, rx.src, rx.dest) == (b"hello, ocean", 1, 2)
+            assert rx.meta["rate"] == 0 and rx.meta["frames"] == 1
+            assert rx.meta["start"] <= rx.time
+            overheard = await asyncio.wait_for(d.recv(), 2)  # every modem passes every packet
+            assert overheard.data == b"hello, ocean" and overheard.dest == 2
+            # cycle-init mini-packet then data: two airtimes and a DRQ round trip at least
+            assert took >= FAST.airtime(2) + FAST.airtime(12)
+            await a.send(b"to all", None)
+            rx = await asyncio.wait_for(c.recv(), 2)
+            assert rx.data == b"to all" and rx.dest is None
+            assert a.stats["sent"] == 2 and a.stats["bad_lines"] == 0
+
+    run(main)
+
+
+def test_ack_and_failed_ack(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with bench(tmp_path) as b:
+            a = await b.modem(1, ack=True, send_retries=1, tx_timeout_s=0.8)
+            c = await b.modem(2)
+            await a.send(b"\x01\x02", 2)  # returns once node 2 acknowledged
+            assert (await asyncio.wait_for(c.recv(), 2)).data == b"\x01\x02"
+            with pytest.raises(BackendError, match="not sent after 2 tries"):
+                await a.send(b"nobody", 9)  # no modem 9: no ack
+            assert a.stats["retries"] == 1 and a.stats["errors"] == 1
+            await a.send(b"again", 2)  # the backend still works
+
+    run(main)
+
+
+def test_multi_frame_packet_at_rate1_and_rate_limits(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with bench(tmp_path) as b:
+            a = await b.modem(1, rate=1, frame_bytes=192)
+            c = await b.modem(2, rate=1, frame_bytes=192)
+            data = bytes(range(150))  # three 64-byte frames
+            await a.send(data, 2)
+            rx = await asyncio.wait_for(c.recv(), 2)
+            assert rx.data == data and rx.meta["frames"] == 3 and rx.meta["rate"] == 1
+            with pytest.raises(BackendError, match="exceeds"):
+                await a.send(bytes(193), 2)
+            small = b.backend(1, rate=0, frame_bytes=64)
+            assert small.frame_bytes == 32  # rate 0 carries 32 B whatever the mission says
+            with pytest.raises(BackendError, match="rate must be one of"):
+                b.backend(1, rate=7)
+
+    run(main)
+
+
+def test_ping_range(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with bench(tmp_path, (1, 2, 3)) as b:
+            a = await b.modem(1, ping_timeout_s=1.0)
+            await b.modem(2)
+            owtt = await a.ping(2)
+            assert owtt == pytest.approx(300.0 / 1500.0, abs=2e-4)
+            assert await a.ping(3) == pytest.approx(450.0 / 1500.0, abs=2e-4)
+            with pytest.raises(BackendError, match="no ping reply"):
+                await a.ping(9)
+
+    run(main)
+
+
+def test_unplug_and_replug(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with bench(tmp_path) as b:
+            a, c = await b.modem(1), await b.modem(2)
+            await a.send(b"before", 2)
+            assert (await asyncio.wait_for(c.recv(), 2)).data == b"before"
+            await b.emulators[1].unplug()
+            with pytest.raises(BackendError):
+                await asyncio.wait_for(a.recv(), 2)  # the port vanished
+            with pytest.raises(BackendError):
+                await a.send(b"lost?", 2)  # refused, not lost silently
+            await a.close()
+            with pytest.raises(BackendError, match="absent"):
+                await b.backend(1).open()  # port absent at start
+            await b.emulators[1].replug()
+            fresh = await b.modem(1)  # what the node's factory does after a failure
+            await fresh.send(b"after", 2)
+            assert (await asyncio.wait_for(c.recv(), 2)).data == b"after"
+
+    run(main)
+
+
+def test_modem_reboot_mid_transfer(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with bench(tmp_path) as b:
+            a, c = await b.modem(1), await b.modem(2)
+            sending = asyncio.create_task(a.send(b"survives a reboot", 2))
+            await asyncio.sleep(0.02)  # the cycle-init is on the air
+            b.emulators[1].reboot()
+            await asyncio.wait_for(sending, 5)
+            assert (await asyncio.wait_for(c.recv(), 2)).data == b"survives a reboot"
+            assert a.stats["reboots"] == 1 and a.stats["retries"] == 1
+            b.emulators[1].reboot()  # between transfers: re-initialised, keeps working
+            await asyncio.sleep(0.5)
+            await a.send(b"later", 2)
+            assert (await asyncio.wait_for(c.recv(), 2)).data == b"later"
+
+    run(main)
+
+
+def test_bad_checksums_both_ways(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with bench(tmp_path, rev_period_s=0.1) as b:
+            a = await b.modem(1)
+            b.emulators[1].pty.write(b"$CATXF,2*00\r\n$CAREV,1,AUV*\r\n")
+            await a.send(b"x", 2)  # interleaved $CAREV and garbage do not disturb it
+            assert a.stats["bad_lines"] == 2
+            assert b.emulators[1].stats["bad_checksum"] == 0
+            port = serial.serial_for_url(b.devices[2], baudrate=19200, timeout=0.2)
+            try:
+                port.write(b"$CCCFG,SRC,2*00\r\n$CCXYZ,1\r\n$CCCFQ,SRC\r\n")
+                await asyncio.sleep(0.3)
+                lines = port.read(4096).decode().split("\r\n")
+            finally:
+                port.close()
+            errors = [ln for ln in lines if ln.startswith("$CAERR")]
+            assert any(",NMEA,2,Bad checksum*" in ln for ln in errors)
+            assert any(",NMEA,1,Unknown command*" in ln for ln in errors)
+            assert "$CACFG,SRC,2*30" in lines
+            assert b.emulators[2].stats["bad_checksum"] == 1
+
+    run(main)
+
+
+def test_start_up_faults(tmp_path: Path) -> None:
+    async def main() -> None:
+        with pytest.raises(BackendError, match="absent"):
+            bad = MicromodemBackend(ModemSetup("x", 1, 32, {"device": str(tmp_path / "none")}))
+            await bad.open()
+        with pytest.raises(BackendError, match="'device'"):
+            MicromodemBackend(ModemSetup("x", 1, 32, {}))
+        silent = PtyHost(lambda data: None)  # a port with no modem behind it
+        device = await silent.open()
+        try:
+            mute = MicromodemBackend(ModemSetup("x", 1, 32, {"device": device, "timeout_s": 0.2,
+                                                             "retries": 1}))
+            with pytest.raises(BackendError, match="no reply"):
+                await mute.open()
+            await mute.close()
+        finally:
+            await silent.close()
+        async with bench(tmp_path, (1,)) as b:
+            wrong = b.backend(1)
+            object.__setattr__(wrong, "address", 5)  # the modem refuses another SRC
+            with pytest.raises(BackendError):
+                await wrong.open()
+
+    run(main)
