@@ -82,6 +82,7 @@ class ChannelCodec:
     latching: bool
     priority: int
     elements: tuple[ElementCodec, ...]
+    ack: bool = False
 
     @cached_property
     def bits(self) -> int:
@@ -162,6 +163,7 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         latching=channel.latching,
         priority=channel.priority,
         elements=tuple(elements),
+        ack=channel.ack,
     )
 
 

@@ -122,6 +122,8 @@ class Channel(Strict):
     )
     latching: bool = Field(False, description="Re-send the last value even without new data.")
     priority: int = Field(0, description="Higher first when a frame is full.")
+    ack: bool = Field(False, description="Ask the modem to confirm delivery of frames that "
+                      "carry this channel to a single node (modems that offer it).")
     on_out_of_range: Literal["clamp", "reject"] = "clamp"
     elements: list[Element] = Field(min_length=1)
 

@@ -289,7 +289,8 @@ class BridgeNode:
         targets = {d for s in plan.chosen for d in s.channel.destinations(self.node)}
         dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
         try:
-            await backend.send(frame, dest, at=t_tx)
+            ack = True if dest is not None and any(s.channel.ack for s in plan.chosen) else None
+            await backend.send(frame, dest, at=t_tx, ack=ack)
         except BackendError as exc:
             if self.positioning is not None:
                 self.positioning.forget_transmit(t_tx)

@@ -68,6 +68,7 @@ class ModemBackend(ABC):
         self.address = setup.address
         self.frame_bytes = setup.frame_bytes
         self.stats: dict[str, int] = {"sent": 0, "received": 0, "errors": 0}
+        self.ack = bool(setup.options.get("ack", False))
         self._opened = False
         self._closed = False
 
@@ -99,8 +100,14 @@ class ModemBackend(ABC):
             raise
         self._opened = True
 
-    async def send(self, data: bytes, dest: int | None = None, *, at: float | None = None) -> None:
+    async def send(
+        self, data: bytes, dest: int | None = None, *, at: float | None = None,
+        ack: bool | None = None,
+    ) -> None:
         """Transmit one frame (``dest`` ``None`` = broadcast).
+
+        ``ack`` asks the modem for a delivery confirmation of a unicast frame (default: the
+        backend's ``ack`` option); backends without one ignore it.
 
         ``at`` asks for the emission to start at that time of :meth:`clock` (DLBL needs the
         exact start); backends whose ``timed_send`` is False send at once and ignore it.
@@ -116,10 +123,11 @@ class ModemBackend(ABC):
                 f"{self!r}: frame of {len(data)} B exceeds frame_bytes={self.frame_bytes}"
             )
         try:
+            ack = self.ack if ack is None else ack
             if at is not None and self.timed_send:
-                await self._send_timed(bytes(data), dest, at)
+                await self._send_timed(bytes(data), dest, ack, at)
             else:
-                await self._send(bytes(data), dest)
+                await self._send(bytes(data), dest, ack)
         except BackendError:
             self.stats["errors"] += 1
             raise
@@ -145,9 +153,9 @@ class ModemBackend(ABC):
         """The largest frame this backend can send with ``options`` (None: no fixed limit)."""
         return None
 
-    async def _send_timed(self, data: bytes, dest: int | None, at: float) -> None:
+    async def _send_timed(self, data: bytes, dest: int | None, ack: bool, at: float) -> None:
         """Hook for backends with ``timed_send``: emit at ``at`` (modem clock)."""
-        await self._send(data, dest)
+        await self._send(data, dest, ack)
 
     def clock(self) -> float:
         """The modem's clock, in which it stamps receptions (default: the host's wall clock)."""
@@ -170,7 +178,7 @@ class ModemBackend(ABC):
         """Connect; raise :class:`BackendError` on failure."""
 
     @abstractmethod
-    async def _send(self, data: bytes, dest: int | None) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
         """Transmit a checked frame."""
 
     @abstractmethod

@@ -94,7 +94,6 @@ class EvologicsBackend(ModemBackend):
         self.device = str(opts["device"])
         self.frame_bytes = min(self.frame_bytes, IM_MAX_BYTES)
         tcp = self.device.startswith("socket://")
-        self.ack = bool(opts.get("ack", False))
         mode = str(opts.get("mode", "data"))
         if mode not in ("data", "command"):
             raise BackendError(f"evologics backend: mode must be data or command, not {mode!r}")
@@ -142,9 +141,9 @@ class EvologicsBackend(ModemBackend):
         log.info("%s: modem ready on %s (address %d, %s mode)", self.setup.node, self.device,
                  self.address, self.mode.value)
 
-    async def _send(self, data: bytes, dest: int | None) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
         dst = BROADCAST if dest is None else dest
-        ack = self.ack and dst != BROADCAST  # broadcast requires noack [V driver practice]
+        ack = ack and dst != BROADCAST  # broadcast requires noack [V driver practice]
         async with self._lock:
             self._check()
             while not self._tx_events.empty():

@@ -96,7 +96,6 @@ class MicromodemBackend(ModemBackend):
         except (TypeError, ValueError) as exc:
             raise BackendError(f"{where}: {exc}") from None
         self.device = str(opts["device"])
-        self.ack = bool(opts.get("ack", False))
         self.config: dict[str, Any] = dict(opts.get("config") or {})
         # a packet's airtime, cycle-init and travel, with room: [C] estimates (reference 2.6)
         packet_s = self.rate.max_bytes * 8 / self.rate.bitrate_bps + 4.0
@@ -132,9 +131,9 @@ class MicromodemBackend(ModemBackend):
         self._reader = asyncio.create_task(self._read_loop(), name=f"micromodem-{self.address}")
         await self._initialise()
 
-    async def _send(self, data: bytes, dest: int | None) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
         to = self.broadcast if dest is None else dest
-        ack = self.ack and dest is not None
+        ack = ack and dest is not None
         last: BackendError | None = None
         for attempt in range(self.send_retries + 1):
             if attempt:

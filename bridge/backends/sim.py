@@ -117,10 +117,11 @@ class SimBackend(ModemBackend):
             self.frame_bytes = water_max
         self._task = asyncio.create_task(self._read_loop(), name=f"sim-modem-{self.address}")
 
-    async def _send(self, data: bytes, dest: int | None) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
+        """Transmit now (the simulated water has no acknowledgements: ``ack`` is ignored)."""
         await self._transmit({"data": data, "dest": dest})
 
-    async def _send_timed(self, data: bytes, dest: int | None, at: float) -> None:
+    async def _send_timed(self, data: bytes, dest: int | None, ack: bool, at: float) -> None:
         await self._transmit({"data": data, "dest": dest, "at": self._wall(at)})
 
     async def _transmit(self, request: dict[str, Any]) -> None:

@@ -98,7 +98,8 @@ class UdpBackend(ModemBackend):
         self._transport = transport
         self.port = transport.get_extra_info("sockname")[1]
 
-    async def _send(self, data: bytes, dest: int | None) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
+        """One datagram (an ideal link: ``ack`` is ignored)."""
         transport = self._transport
         if transport is None or transport.is_closing():
             raise BackendError(f"udp backend of {self.setup.node!r}: socket is closed")
