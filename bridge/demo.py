@@ -20,6 +20,7 @@ from typing import Any
 import msgpack
 import zenoh
 from rich.console import Console
+from rich.table import Table
 
 from bridge.codec import FieldSpec
 from bridge.fleet import Fleet
@@ -88,6 +89,7 @@ class VehicleApps:
         self.sessions: dict[str, zenoh.Session] = {}
         self.published = 0
         self.arrived = 0
+        self.ranges: dict[tuple[str, str], float] = {}
         self._stop = threading.Event()
         self._lock = threading.Lock()
 
@@ -108,6 +110,20 @@ class VehicleApps:
                 continue
             self.sessions[node] = session
             session.declare_subscriber("**", lambda s, n=node: self._arrived(n, s))
+            prefix = f"@zab/{self.loaded.mission.mission}/{node}"
+            session.declare_subscriber(f"{prefix}/range/*", lambda s, n=node: self._ranged(n, s))
+            session.declare_subscriber(f"{prefix}/position", lambda s, n=node: self._fixed(n, s))
+
+    def _ranged(self, node: str, sample: zenoh.Sample) -> None:
+        """Keep the latest range each node measured to each peer, for the summary."""
+        value = msgpack.unpackb(sample.payload.to_bytes())
+        with self._lock:
+            self.ranges[(node, value["peer"])] = value["range_m"]
+
+    def _fixed(self, node: str, sample: zenoh.Sample) -> None:
+        fix = msgpack.unpackb(sample.payload.to_bytes())
+        self.show(f"[cyan]{node:>4}[/] position from {' + '.join(fix['anchors'])}: "
+                  f"x {fix['x']:.1f} m, y {fix['y']:.1f} m, ±{fix['sigma_m']:.2f} m")
 
     def _arrived(self, node: str, sample: zenoh.Sample) -> None:
         if sample.attachment is None:  # our own publications; show only what the bridge brought
@@ -197,6 +213,12 @@ async def run_demo(
         apps.close()
     report = fleet.report()
     print_report(console, report)
+    if apps.ranges:
+        table = Table("node", "peer", "range", title="DLBL ranges, last measured (from the "
+                      "frames the fleet sent anyway)")
+        for (node, peer), metres in sorted(apps.ranges.items()):
+            table.add_row(node, peer, f"{metres:.2f} m")
+        console.print(table)
     console.print(
         f"published {apps.published} values on the vehicles, {apps.arrived} delivered values "
         "arrived at other vehicles' endpoints."

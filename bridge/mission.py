@@ -181,7 +181,8 @@ class Ranging(Strict):
                                            "default: surface nodes with a position.")
     anchor_keys: dict[NodeName, str] = Field(default_factory=dict, description="Key with an "
                                              "anchor's live {x, y, depth} at each node.")
-    fix_max_age_s: float = Field(30.0, gt=0, description="Oldest range used in a fix.")
+    fix_max_age_s: float | None = Field(None, gt=0, description="Oldest range used in a fix; "
+                                        "default: one TDMA cycle, else 30 s.")
 
 
 class Mission(Strict):

@@ -72,7 +72,7 @@ class Positioning:
         own = mission.nodes[node].position
         self.depth: float | None = own.depth if own else None
         self.previous: tuple[float, float] | None = (own.x, own.y) if own else None
-        self.fix_max_age_s = ranging.fix_max_age_s
+        self.fix_max_age_s = ranging.fix_max_age_s or cycle or 30.0
         self.latest: dict[str, Range] = {}
 
     def on_transmit(self, t_start: float) -> list[int | None]:
