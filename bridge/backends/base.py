@@ -7,6 +7,7 @@ and :meth:`~ModemBackend._close`. Every failure surfaces as :class:`~bridge.erro
 
 from __future__ import annotations
 
+import asyncio
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
@@ -16,7 +17,7 @@ from typing import Any, ClassVar
 
 from bridge.errors import BackendError
 
-__all__ = ["ModemBackend", "ModemSetup", "Reception"]
+__all__ = ["Inbox", "ModemBackend", "ModemSetup", "Reception"]
 
 _EMPTY: Mapping[str, Any] = MappingProxyType({})
 
@@ -50,6 +51,33 @@ class ModemSetup:
     options: Mapping[str, Any] = field(default_factory=lambda: _EMPTY)
     peers: Mapping[int, Mapping[str, Any]] = field(default_factory=lambda: MappingProxyType({}))
     position: tuple[float, float, float] | None = None
+
+
+class Inbox:
+    """Receptions waiting for :meth:`ModemBackend.recv`.
+
+    Bounded (``maxsize`` 0 = unbounded): when full, the oldest reception is dropped and counted
+    in ``stats["dropped"]``. A :class:`BackendError` put in it is sticky: every later
+    :meth:`get` raises it, so a failed backend never hangs a reader.
+    """
+
+    def __init__(self, stats: dict[str, int], maxsize: int = 0) -> None:
+        self._stats = stats
+        self._stats.setdefault("dropped", 0)
+        self._queue: asyncio.Queue[Reception | BackendError] = asyncio.Queue(maxsize)
+
+    def put(self, item: Reception | BackendError) -> None:
+        if self._queue.full():
+            self._queue.get_nowait()
+            self._stats["dropped"] += 1
+        self._queue.put_nowait(item)
+
+    async def get(self) -> Reception:
+        item = await self._queue.get()
+        if isinstance(item, BackendError):
+            self.put(item)
+            raise item
+        return item
 
 
 class ModemBackend(ABC):

@@ -36,7 +36,7 @@ from collections.abc import Mapping
 from dataclasses import asdict
 from typing import Any, ClassVar
 
-from bridge.backends.base import ModemBackend, ModemSetup, Reception
+from bridge.backends.base import Inbox, ModemBackend, ModemSetup, Reception
 from bridge.backends.transport import ByteTransport
 from bridge.errors import BackendError
 from bridge.evologics.commands import send_im
@@ -115,7 +115,7 @@ class EvologicsBackend(ModemBackend):
                           burst_bytes=0)
         self.fixes: dict[int, dict[str, Any]] = {}
         self.propagation: dict[int, tuple[float, float]] = {}  # dst -> (time, seconds)
-        self._rx: asyncio.Queue[Reception | BackendError] = asyncio.Queue()
+        self._inbox = Inbox(self.stats)
         self._reply: asyncio.Future[Event] | None = None
         self._expect: str | None = None
         self._raw: bytearray = bytearray()
@@ -155,11 +155,7 @@ class EvologicsBackend(ModemBackend):
                 raise
 
     async def _recv(self) -> Reception:
-        item = await self._rx.get()
-        if isinstance(item, BackendError):
-            self._rx.put_nowait(item)
-            raise item
-        return item
+        return await self._inbox.get()
 
     async def _close(self) -> None:
         self._fail(BackendError(f"evologics modem {self.setup.node!r} is closed"))
@@ -342,7 +338,7 @@ class EvologicsBackend(ModemBackend):
             self.stats["modem_errors"] += 1
             log.warning("%s: modem reports %s", self._who, _text(event))
         elif isinstance(event, RecvIm | RecvImLegacy | RecvIms | RecvPbm):
-            self._put(self._reception(event, now))
+            self._inbox.put(self._reception(event, now))
         elif isinstance(event, RecvEnd):
             self._last_end = (now, event)
         elif isinstance(event, UsblLong):
@@ -411,9 +407,6 @@ class EvologicsBackend(ModemBackend):
         if self._failure is not None:
             raise self._failure
 
-    def _put(self, item: Reception | BackendError) -> None:
-        self._rx.put_nowait(item)
-
     def _fail(self, error: BackendError) -> None:
         """Enter the failed state once: pending and later calls raise ``error``."""
         if self._failure is not None:
@@ -422,7 +415,7 @@ class EvologicsBackend(ModemBackend):
         if self._reply is not None and not self._reply.done():
             self._reply.set_exception(error)
         self._tx_events.put_nowait(Malformed(b"", "failed"))  # wakes _wait_tx, which checks
-        self._put(error)
+        self._inbox.put(error)
 
 
 class _NoReply(Exception):

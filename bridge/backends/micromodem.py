@@ -33,7 +33,7 @@ import time
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-from bridge.backends.base import ModemBackend, ModemSetup, Reception
+from bridge.backends.base import Inbox, ModemBackend, ModemSetup, Reception
 from bridge.backends.transport import ByteTransport
 from bridge.errors import BackendError
 from bridge.micromodem.protocol import (
@@ -109,7 +109,7 @@ class MicromodemBackend(ModemBackend):
         self._transport: ByteTransport | None = None
         self._reader: asyncio.Task[None] | None = None
         self._init_task: asyncio.Task[None] | None = None
-        self._rx: asyncio.Queue[Reception | BackendError] = asyncio.Queue(RX_QUEUE)
+        self._inbox = Inbox(self.stats, RX_QUEUE)
         self._lock = asyncio.Lock()  # one cycle or ping at a time: the modem is half-duplex
         self._ready = asyncio.Event()
         self._failure: BackendError | None = None
@@ -122,7 +122,7 @@ class MicromodemBackend(ModemBackend):
 
     async def _open(self) -> None:
         self._failure = None  # open may be retried after a failure: start clean
-        self._rx = asyncio.Queue(RX_QUEUE)
+        self._inbox = Inbox(self.stats, RX_QUEUE)
         self._ready.clear()
         self.protocol = HostProtocol(self.address)
         name = f"micromodem {self.setup.node}"
@@ -152,11 +152,7 @@ class MicromodemBackend(ModemBackend):
                            f"{self.send_retries + 1} tries: {last}")
 
     async def _recv(self) -> Reception:
-        item = await self._rx.get()
-        if isinstance(item, BackendError):
-            self._rx.put_nowait(item)  # every later recv fails the same way
-            raise item
-        return item
+        return await self._inbox.get()
 
     async def _close(self) -> None:
         self._fail(BackendError(f"micromodem {self.setup.node!r} is closed"))
@@ -349,13 +345,7 @@ class MicromodemBackend(ModemBackend):
             "frames": packet.frames,
             "start": start if start is not None else now,
         }
-        self._put(Reception(data=packet.data, src=packet.src, time=now, meta=meta))
-
-    def _put(self, item: Reception | BackendError) -> None:
-        if self._rx.full():
-            self._rx.get_nowait()
-            self.stats["dropped"] += 1
-        self._rx.put_nowait(item)
+        self._inbox.put(Reception(data=packet.data, src=packet.src, time=now, meta=meta))
 
     def _fail(self, error: BackendError) -> None:
         """Enter the failed state once: wake every waiter with ``error``."""
@@ -372,4 +362,4 @@ class MicromodemBackend(ModemBackend):
             if not fut.done():
                 fut.set_exception(error)
         with contextlib.suppress(asyncio.QueueFull):
-            self._put(error)
+            self._inbox.put(error)

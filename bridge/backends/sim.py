@@ -17,7 +17,7 @@ import random
 import time
 from typing import Any, ClassVar
 
-from bridge.backends.base import ModemBackend, ModemSetup, Reception
+from bridge.backends.base import Inbox, ModemBackend, ModemSetup, Reception
 from bridge.errors import BackendError
 from bridge.ocean.protocol import PROTOCOL_VERSION, ProtocolError, pack, read_message
 
@@ -58,9 +58,8 @@ class SimBackend(ModemBackend):
             )
         self.water = parse_water_address(setup.options["water"])
         self._timeout = float(setup.options.get("connect_timeout", DEFAULT_CONNECT_TIMEOUT_S))
-        self._rx: asyncio.Queue[Reception | BackendError] = asyncio.Queue(
-            int(setup.options.get("rx_queue", DEFAULT_RX_QUEUE))
-        )
+        self._rx_size = int(setup.options.get("rx_queue", DEFAULT_RX_QUEUE))
+        self._inbox = Inbox(self.stats, self._rx_size)
         self._position = setup.position
         self._reader: asyncio.StreamReader | None = None
         self._writer: asyncio.StreamWriter | None = None
@@ -69,7 +68,6 @@ class SimBackend(ModemBackend):
         self._ids = itertools.count(1)
         self._lock = asyncio.Lock()
         self._failure: BackendError | None = None
-        self.stats["dropped"] = 0
         self.preset_name: str | None = None
         opts = setup.options
         self._clock_offset = float(opts.get("clock_offset_s", 0.0))
@@ -82,7 +80,7 @@ class SimBackend(ModemBackend):
     async def _open(self) -> None:
         host, port = self.water
         self._failure = None  # open may be retried after a failure
-        self._rx = asyncio.Queue(self._rx.maxsize)
+        self._inbox = Inbox(self.stats, self._rx_size)
         where = f"the water at {host}:{port}"
         try:
             self._reader, self._writer = await asyncio.wait_for(
@@ -138,11 +136,7 @@ class SimBackend(ModemBackend):
                 self._pending.pop(tx_id, None)
 
     async def _recv(self) -> Reception:
-        item = await self._rx.get()
-        if isinstance(item, BackendError):
-            self._put(item)  # every later recv fails the same way
-            raise item
-        return item
+        return await self._inbox.get()
 
     async def _close(self) -> None:
         self._fail(BackendError(f"sim modem {self.setup.node!r} is closed"))
@@ -172,12 +166,6 @@ class SimBackend(ModemBackend):
             raise self._failure or BackendError(f"sim modem {self.setup.node!r}: not connected")
         writer.write(pack(msg))
 
-    def _put(self, item: Reception | BackendError) -> None:
-        if self._rx.full():
-            self._rx.get_nowait()
-            self.stats["dropped"] += 1
-        self._rx.put_nowait(item)
-
     def _fail(self, error: BackendError) -> None:
         """Enter the failed state once: wake every waiter with ``error``."""
         if self._failure is not None:
@@ -186,7 +174,7 @@ class SimBackend(ModemBackend):
         for fut in self._pending.values():
             if not fut.done():
                 fut.set_exception(error)
-        self._put(error)
+        self._inbox.put(error)
 
     async def _read_loop(self) -> None:
         assert self._reader is not None
@@ -237,7 +225,7 @@ class SimBackend(ModemBackend):
                 end = meta["start"] + (end - float(msg["meta"]["start"]))
             else:
                 end = self._stamp(end)
-            self._put(Reception(data=bytes(msg["data"]), src=int(msg["src"]), time=end,
+            self._inbox.put(Reception(data=bytes(msg["data"]), src=int(msg["src"]), time=end,
                                 meta=meta))
         elif kind in ("txdone", "txerr"):
             fut = self._pending.get(msg.get("id", -1))

@@ -19,7 +19,7 @@ import struct
 import time
 from typing import Any, ClassVar
 
-from bridge.backends.base import ModemBackend, ModemSetup, Reception
+from bridge.backends.base import Inbox, ModemBackend, ModemSetup, Reception
 from bridge.errors import BackendError
 
 __all__ = ["BROADCAST", "HEADER", "MAGIC", "UdpBackend", "is_loopback"]
@@ -79,11 +79,9 @@ class UdpBackend(ModemBackend):
                         f"udp backend of {setup.node!r}: {where!r} is not a loopback address; "
                         "set allow_remote: true to send off this machine"
                     )
-        self._rx: asyncio.Queue[Reception | BackendError] = asyncio.Queue(
-            int(opts.get("rx_queue", DEFAULT_RX_QUEUE))
-        )
+        self._inbox = Inbox(self.stats, int(opts.get("rx_queue", DEFAULT_RX_QUEUE)))
         self._transport: asyncio.DatagramTransport | None = None
-        self.stats.update({"dropped": 0, "malformed": 0, "unreachable": 0})
+        self.stats.update({"malformed": 0, "unreachable": 0})
 
     async def _open(self) -> None:
         loop = asyncio.get_running_loop()
@@ -118,19 +116,13 @@ class UdpBackend(ModemBackend):
             transport.sendto(datagram, target)
 
     async def _recv(self) -> Reception:
-        item = await self._rx.get()
-        if isinstance(item, BackendError):
-            self._rx.put_nowait(item)
-            raise item
-        return item
+        return await self._inbox.get()
 
     async def _close(self) -> None:
         transport, self._transport = self._transport, None
         if transport is not None:
             transport.close()
-        if self._rx.full():
-            self._rx.get_nowait()
-        self._rx.put_nowait(BackendError(f"udp backend of {self.setup.node!r} is closed"))
+        self._inbox.put(BackendError(f"udp backend of {self.setup.node!r} is closed"))
 
     def _on_datagram(self, data: bytes, addr: tuple[Any, int]) -> None:
         if len(data) <= HEADER.size or data[0] != MAGIC:
@@ -149,10 +141,7 @@ class UdpBackend(ModemBackend):
                 "from": f"{addr[0]}:{addr[1]}",
             },
         )
-        if self._rx.full():
-            self._rx.get_nowait()
-            self.stats["dropped"] += 1
-        self._rx.put_nowait(rx)
+        self._inbox.put(rx)
 
 
 def _port(value: Any, who: object) -> int:
