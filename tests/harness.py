@@ -93,3 +93,33 @@ class Inbox:
 
 def put(session: zenoh.Session, key: str, value: Any) -> None:
     session.put(key, msgpack.packb(value), encoding=zenoh.Encoding("application/msgpack"))
+
+
+def listing1_crosses_in_the_next_slot(loaded: LoadedMission) -> None:
+    """Seed 000 Listing 1 end to end: put at lsv's endpoint just after one of lsv's TDMA slots;
+    gcv's endpoint gets it decoded within quantisation, during lsv's next slot."""
+    from bridge.mac import TdmaSchedule
+    from bridge.mission import TdmaMac
+
+    assert isinstance(loaded.mission.mac, TdmaMac)
+    lsv_app = outside_session(loaded, "lsv")
+    gcv_app = outside_session(loaded, "gcv")
+    try:
+        inbox = Inbox()
+        gcv_app.declare_subscriber("lsv/target_reference", inbox)
+        schedule = TdmaSchedule(loaded.mission.mac, "lsv")
+        slot = schedule.next_slot(time.time())
+        assert slot is not None
+        time.sleep(max(0.0, slot.start + 0.1 - time.time()))  # just after an lsv slot
+        put(lsv_app, "target_reference", {"vector": {"x": 3.0, "y": 0.02}})
+        expected = schedule.next_slot(time.time())
+        assert expected is not None
+        key, value, arrived = inbox.get(timeout=expected.end - time.time() + 2.0)
+        assert key == "lsv/target_reference"
+        assert abs(value["vector"]["x"] - 3.0) <= 6.2831 / 255 / 2 + 1e-9
+        assert abs(value["vector"]["y"] - 0.02) <= 2 * 0.052359878 / 63 / 2 + 1e-9
+        # it crossed in lsv's next slot: not before the slot, done by the slot's end
+        assert expected.start < arrived <= expected.end + 0.25
+    finally:
+        lsv_app.close()
+        gcv_app.close()

@@ -17,37 +17,21 @@ from bridge.auth import Authenticator
 from bridge.backends.base import ModemSetup
 from bridge.backends.udp import UdpBackend
 from bridge.frame import FrameCodec
-from bridge.mac import TdmaSchedule
 from tests.conftest import MISSIONS, free_port, mission_on_free_ports, on_free_ports
-from tests.harness import Inbox, outside_session, put, running_fleet
+from tests.harness import (
+    Inbox,
+    listing1_crosses_in_the_next_slot,
+    outside_session,
+    put,
+    running_fleet,
+)
 
 
 def test_target_reference_crosses_the_simulated_ocean() -> None:
     loaded = mission_on_free_ports(MISSIONS / "morph.yaml")
-    mac = loaded.mission.mac
     with running_fleet(loaded) as fleet:
-        lsv_app = outside_session(loaded, "lsv")
-        gcv_app = outside_session(loaded, "gcv")
-        try:
-            inbox = Inbox()
-            gcv_app.declare_subscriber("lsv/target_reference", inbox)
-            schedule = TdmaSchedule(mac, "lsv")  # type: ignore[arg-type]
-            slot = schedule.next_slot(time.time())
-            assert slot is not None
-            time.sleep(max(0.0, slot.start + 0.1 - time.time()))  # just after an lsv slot
-            put(lsv_app, "target_reference", {"vector": {"x": 3.0, "y": 0.02}})
-            expected = schedule.next_slot(time.time())
-            assert expected is not None
-            key, value, arrived = inbox.get(timeout=expected.end - time.time() + 2.0)
-            assert key == "lsv/target_reference"
-            assert abs(value["vector"]["x"] - 3.0) <= 6.2831 / 255 / 2 + 1e-9
-            assert abs(value["vector"]["y"] - 0.02) <= 2 * 0.052359878 / 63 / 2 + 1e-9
-            # it crossed in lsv's next slot: not before the slot, done by the slot's end
-            assert expected.start < arrived <= expected.end + 0.25
-            assert fleet.nodes["gcv"].stats.received_per_channel["target_reference"] == 1
-        finally:
-            lsv_app.close()
-            gcv_app.close()
+        listing1_crosses_in_the_next_slot(loaded)
+        assert fleet.nodes["gcv"].stats.received_per_channel["target_reference"] == 1
 
 
 LAB = """\
