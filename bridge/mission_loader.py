@@ -12,7 +12,7 @@ from pydantic import ValidationError
 
 from bridge.channels import ChannelTable, ChannelTableError
 from bridge.errors import MissionError
-from bridge.frame import CHECK_BYTES, DELAY_BYTES
+from bridge.frame import FrameCodec
 from bridge.mission import Mission
 
 Loc = tuple[str | int, ...]
@@ -129,6 +129,8 @@ def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
             table = ChannelTable.from_mission(mission)
         except ChannelTableError as exc:
             problems.append((exc.loc, str(exc)))
+        else:
+            problems.extend(_frame_problems(mission, table))
     if problems:
         raise MissionError(
             "\n".join(
@@ -161,18 +163,16 @@ def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
     for anchor in mission.ranging.anchor_keys:
         if anchor not in mission.nodes:
             yield (("ranging", "anchor_keys", anchor), f"unknown node {anchor!r}")
+
+
+def _frame_problems(mission: Mission, table: ChannelTable) -> Iterable[tuple[Loc, str]]:
+    """Frames too small for what every frame carries besides channels."""
+    overhead = FrameCodec(table).overhead_bytes()
     for name in mission.nodes:
         frame_bytes = mission.node_modem(name).frame_bytes
-        overhead = frame_overhead_bytes(mission)
         if frame_bytes <= overhead:
             yield (("nodes", name, "modem", "frame_bytes"),
                    f"{frame_bytes} bytes cannot hold the {overhead}-byte frame overhead")
-
-
-def frame_overhead_bytes(mission: Mission) -> int:
-    """Bytes of a frame that carry no channel data (DLBL delays and the check value)."""
-    dlbl = DELAY_BYTES * (len(mission.nodes) - 1) if mission.wire.dlbl else 0
-    return dlbl + CHECK_BYTES
 
 
 def load_mission(path: str | Path) -> LoadedMission:

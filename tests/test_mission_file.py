@@ -109,3 +109,10 @@ def test_zenoh_extra_keys_pass_through() -> None:
         "zenoh: {listen: [tcp/127.0.0.1:7001]}",
         'zenoh: {listen: [tcp/127.0.0.1:7001], "transport/link/tx/lease": 2000}'), "m.yaml")
     assert loaded.mission.nodes["a"].zenoh.passthrough() == {"transport/link/tx/lease": 2000}
+
+
+def test_frame_too_small_for_the_overhead_counts_the_auth_tag() -> None:
+    text = GOOD.replace("mac: {type", "wire: {auth: {tag_bytes: 8}}\nmac: {type").replace(
+        "  a: {address: 1,", "  a: {address: 1, modem: {frame_bytes: 14},")
+    message = error_of(text)  # 2 B check + 4 B counter + 8 B tag = 14 B
+    assert "nodes.a.modem.frame_bytes" in message and "14-byte frame overhead" in message
