@@ -145,13 +145,12 @@ class BridgeNode:
         loop: asyncio.AbstractEventLoop,
         key: str,
         sample: zenoh.Sample,
-        handler: Callable[[str, bytes, str], None] | None = None,
     ) -> None:
         """Zenoh thread: copy what we need and hand it to the loop."""
         if sample.kind != zenoh.SampleKind.PUT or is_bridged(sample):
             return
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
-        loop.call_soon_threadsafe(handler or self.ingest, key, data, encoding)
+        loop.call_soon_threadsafe(self.ingest, key, data, encoding)
 
     def _subscribe_positions(self, loop: asyncio.AbstractEventLoop) -> None:
         """Live positions: this node's own (``nav_key``), anchors' and the CTD's."""
@@ -356,14 +355,14 @@ class BridgeNode:
             if self.node not in channel.destinations(src):
                 continue  # overheard: addressed to others
             self.stats.received_per_channel[channel.name] += 1
-            self.received_at[channel.name] = rx.time
+            self.received_at[channel.name] = now
             for element, value in zip(channel.elements, values, strict=True):
                 key = element.output_key(src, self.node)
                 self.publish(key, value, element.encoding, latched=channel.latching)
         self._publish_raw(f"{self.prefix}/peers/{src}",
-                          {"last_heard": rx.time, "meta": _plain(rx.meta)})
+                          {"last_heard": now, "meta": _plain(rx.meta)})
         self.on_event("frame_received", {"src": src, "bytes": len(rx.data), "channels": [
-            c.name for c, _ in frame.channels], "time": rx.time})
+            c.name for c, _ in frame.channels], "time": now})
 
     def _ranging(self, src: str, t_rx_start: float, delays: tuple[int | None, ...]) -> None:
         """Ranges (and a fix) from a frame's DLBL delays, published under ``@zab``."""
