@@ -113,11 +113,28 @@ def check(
 
 @app.command()
 def schema(
-    out: Annotated[Path | None, typer.Option(help="Where to write (default: schemas/).")] = None,
+    out: Annotated[Path | None, typer.Option(help="Where to write (default: schemas/; with "
+                                             "--payloads, schemas/payloads/<mission>/).")] = None,
+    payloads: Annotated[Path | None, typer.Option(
+        "--payloads", help="Instead: write the JSON Schema of every bridged key's payload of "
+        "this mission.", show_default=False)] = None,
 ) -> None:
-    """Write the mission file's JSON Schema (for editors) from the models."""
+    """Write the mission file's JSON Schema (for editors) from the models, or with
+    --payloads MISSION the schema of every bridged key's payload."""
     from bridge.schema import default_schema_path, schema_text
 
+    if payloads is not None:
+        from bridge.payload_schema import write_payload_schemas
+
+        loaded = _load(payloads)
+        folder = out or Path("schemas") / "payloads" / loaded.mission.mission
+        try:
+            written = write_payload_schemas(loaded, folder)
+        except (OSError, ValueError) as exc:
+            err.print(f"[red]cannot write payload schemas:[/] {exc}", highlight=False)
+            raise typer.Exit(1) from None
+        console.print(f"wrote {len(written) - 1} payload schemas and index.json to {folder}")
+        return
     path = out or default_schema_path()
     path.write_text(schema_text(), encoding="utf-8")
     console.print(f"wrote {path}")
