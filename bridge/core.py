@@ -1,0 +1,345 @@
+"""The bridge logic of one node, sans I/O: samples in, frames out, frames in, publications out.
+
+:class:`NodeCore` never reads a clock, opens a socket or touches Zenoh: every method takes the
+times it needs, and what the node must publish or report accumulates as *outputs* the caller
+takes with :meth:`NodeCore.take`. The asyncio + Zenoh adapter (:mod:`bridge.node`) and the
+virtual-clock simulator (:mod:`bridge.fastsim`) drive the same core.
+
+Outputs:
+
+- :class:`Publish`: a decoded value for an application key (the receiving side of a channel);
+- :class:`Status`: bridge state under ``@zab/<mission>/<node>/<topic>`` (stats, link, range, …);
+- :class:`Notice`: a runtime event (``frame_sent``, ``frame_received``, ``link``, …) for
+  in-process observers; the notable ones are also published on ``…/events``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge.auth import Authenticator, load_key
+from bridge.backends.base import Reception
+from bridge.builder import FramePlan, plan_frame
+from bridge.channels import ChannelCodec, ElementCodec
+from bridge.errors import DecodeError, EncodeError, FrameError
+from bridge.frame import FrameCodec
+from bridge.link import LinkState, LinkThresholds
+from bridge.mission_loader import LoadedMission
+from bridge.payloads import decode_payload
+from bridge.positioning import Positioning
+from bridge.store import OutboundStore
+
+log = logging.getLogger("zab.core")
+
+NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payload_dropped",
+                     "delivery", "transfer"})
+"""Notice kinds also published on ``@zab/<mission>/<node>/events``."""
+
+
+@dataclass(frozen=True)
+class Publish:
+    """Put ``value`` on the application key ``key`` (bridged; latched keys answer queries)."""
+
+    key: str
+    value: Any
+    encoding: str
+    latched: bool = False
+
+
+@dataclass(frozen=True)
+class Status:
+    """Publish ``payload`` (msgpack) on ``@zab/<mission>/<node>/<topic>``."""
+
+    topic: str
+    payload: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Notice:
+    """A runtime event; ``info`` is plain data (it may hold the frame's raw bytes)."""
+
+    kind: str
+    info: dict[str, Any]
+
+
+Output = Publish | Status | Notice
+
+
+@dataclass(frozen=True)
+class OutFrame:
+    """A frame ready for the modem: bytes, unicast address (None = broadcast), ack request,
+    the modem-clock start it was built for, and what it carries."""
+
+    data: bytes
+    dest: int | None
+    ack: bool | None
+    at: float
+    plan: FramePlan
+    built: float
+
+
+@dataclass
+class NodeStats:
+    """Counters of one node, published on ``@zab/<mission>/<node>/stats``."""
+
+    frames_sent: int = 0
+    frames_received: int = 0
+    frames_dropped: Counter[str] = field(default_factory=Counter)
+    payloads_dropped: Counter[str] = field(default_factory=Counter)
+    values_published: int = 0
+    send_errors: int = 0
+    left_out: int = 0
+    sent_per_channel: Counter[str] = field(default_factory=Counter)
+    received_per_channel: Counter[str] = field(default_factory=Counter)
+
+
+class NodeCore:
+    """Store, frame building, frame decoding, link health and ranging of one node."""
+
+    def __init__(self, loaded: LoadedMission, node: str,
+                 auth: Authenticator | None = None) -> None:
+        mission = loaded.mission
+        if node not in mission.nodes:
+            raise ValueError(f"node {node!r} is not in mission {mission.mission!r}")
+        self.mission = mission
+        self.table = loaded.table
+        self.node = node
+        wire_auth = mission.wire.auth
+        if wire_auth is not None and auth is None:
+            auth = Authenticator(load_key(wire_auth.key_env, wire_auth.key_file),
+                                 self.table.fingerprint, mission.address_of(node),
+                                 wire_auth.tag_bytes)
+        self.codec = FrameCodec(self.table, auth)
+        self.frame_bytes = mission.node_modem(node).frame_bytes
+        self.store = OutboundStore.for_node(self.table.channels, node)
+        self.stats = NodeStats()
+        self.thresholds = LinkThresholds.for_mission(mission)
+        self.heartbeat_s = mission.link.heartbeat_s
+        self.link_states: dict[str, LinkState] = {}
+        self.last_heard: dict[str, float] = {}
+        self.received_at: dict[str, float] = {}
+        self.last_tx: float | None = None
+        self.positioning = Positioning(mission, node) if self.table.dlbl else None
+        self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
+        for channel in self.table.channels:
+            if channel.index in self.store.states:
+                for i, element in enumerate(channel.elements):
+                    key = element.input_key(node)
+                    self.bindings.setdefault(key, []).append((channel, i, element))
+        self._warned_keys: set[str] = set()
+        self._outputs: list[Output] = []
+
+    # -- outputs -------------------------------------------------------------------------------
+
+    def take(self) -> list[Output]:
+        """Everything produced since the last call, in order."""
+        out, self._outputs = self._outputs, []
+        return out
+
+    def _notice(self, kind: str, info: dict[str, Any]) -> None:
+        self._outputs.append(Notice(kind, info))
+
+    def _status(self, topic: str, payload: dict[str, Any]) -> None:
+        self._outputs.append(Status(topic, payload))
+
+    # -- samples in ----------------------------------------------------------------------------
+
+    def ingest(self, key: str, data: bytes, encoding: str, now: float) -> None:
+        """A sample arrived on an input key: pack it for every channel that reads the key."""
+        try:
+            value = decode_payload(data, encoding)
+        except DecodeError as exc:
+            self.drop_payload(key, str(exc), now)
+            return
+        for channel, index, element in self.bindings.get(key, ()):
+            try:
+                packed = element.layout.pack(value)
+            except EncodeError as exc:
+                self.drop_payload(key, f"channel {channel.name!r}: {exc}", now)
+                continue
+            self.store.update(channel.index, index, packed, now)
+
+    def drop_payload(self, key: str, reason: str, now: float) -> None:
+        """Count a payload that cannot be used (warned once per key)."""
+        self.stats.payloads_dropped[key] += 1
+        if key not in self._warned_keys:
+            self._warned_keys.add(key)
+            log.warning("%s: dropped a payload on %r: %s (counted; warned once)",
+                        self.node, key, reason)
+        self._notice("payload_dropped", {"time": now, "key": key, "reason": reason})
+
+    def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
+                now: float) -> tuple[float, ...] | None:
+        """The finite numbers ``names`` of a payload, or None (counted as a dropped payload)."""
+        try:
+            value = decode_payload(data, encoding)
+            numbers = tuple(float(value[k]) for k in names)
+            if not all(map(math.isfinite, numbers)):
+                raise ValueError("not finite")
+            return numbers
+        except (DecodeError, TypeError, KeyError, ValueError) as exc:
+            self.drop_payload(key, f"needs numbers {', '.join(names)}: {exc}", now)
+            return None
+
+    # -- frames out ----------------------------------------------------------------------------
+
+    def next_due(self) -> float | None:
+        """When something (data or a heartbeat) is next due; None while nothing is pending."""
+        times = [t for t in (self.store.next_due(), self.next_heartbeat()) if t is not None]
+        return min(times, default=None)
+
+    def next_heartbeat(self) -> float | None:
+        if self.heartbeat_s is None:
+            return None
+        return float("-inf") if self.last_tx is None else self.last_tx + self.heartbeat_s
+
+    def heartbeat_due(self, now: float) -> bool:
+        beat = self.next_heartbeat()
+        return beat is not None and beat <= now + 1e-9
+
+    def build_frame(self, now: float, at: float, *, always: bool = False) -> OutFrame | None:
+        """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
+        nothing to send and ``always`` is false. Pair with :meth:`frame_sent` or
+        :meth:`frame_failed`."""
+        plan = plan_frame(self.codec, self.store.due(now), self.frame_bytes)
+        self.stats.left_out += len(plan.left_out)
+        if not plan.chosen and not always:
+            return None
+        delays = self.positioning.on_transmit(at) if self.positioning else []
+        data = self.codec.encode([(s.channel, s.payload()) for s in plan.chosen], delays, now)
+        targets = {d for s in plan.chosen for d in s.channel.destinations(self.node)}
+        dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
+        ack = True if dest is not None and any(s.channel.ack for s in plan.chosen) else None
+        return OutFrame(data, dest, ack, at, plan, now)
+
+    def frame_sent(self, out: OutFrame, now: float) -> None:
+        """The modem accepted ``out``."""
+        self.store.mark_sent(out.plan.chosen, out.built)
+        self.last_tx = out.built
+        self.stats.frames_sent += 1
+        names = [s.channel.name for s in out.plan.chosen]
+        for name in names:
+            self.stats.sent_per_channel[name] += 1
+        self._notice("frame_sent", {"time": now, "bytes": len(out.data), "channels": names,
+                                    "dest": self.mission.name_of(out.dest)
+                                    if out.dest is not None else None, "data": out.data})
+
+    def frame_failed(self, out: OutFrame, error: str, now: float) -> None:
+        """The modem refused ``out``: its data stays due."""
+        if self.positioning is not None:
+            self.positioning.forget_transmit(out.at)
+        self.stats.send_errors += 1
+        self._notice("send_failed", {"time": now, "error": error})
+
+    # -- frames in -----------------------------------------------------------------------------
+
+    def receive(self, rx: Reception, now: float, modem_now: float | None = None) -> None:
+        """Decode one received frame and publish what it carries for this node.
+
+        ``modem_now`` is the modem clock at the call (DLBL times are in the modem's clock).
+        """
+        src = self.mission.name_of(rx.src)
+        if src is None or src == self.node:
+            self.stats.frames_dropped["unknown_source"] += 1
+            self._notice("frame_dropped", {"time": now, "src": src, "reason": "unknown_source",
+                                           "data": rx.data})
+            return
+        try:
+            frame = self.codec.decode(rx.data, rx.src)
+        except FrameError as exc:
+            self.stats.frames_dropped[exc.reason] += 1
+            self._notice("frame_dropped", {"time": now, "src": src, "reason": exc.reason,
+                                           "error": str(exc), "data": rx.data})
+            return
+        self.stats.frames_received += 1
+        self.last_heard[src] = now
+        if self.link_states.get(src) is not LinkState.UP:
+            self.update_links(now)
+        if self.positioning is not None:
+            t_start = float(rx.meta.get("start", rx.time))
+            self._ranging(src, t_start, frame.delays, modem_now if modem_now is not None else now,
+                          now)
+        values: dict[str, list[dict]] = {}
+        for channel, elements in frame.channels:
+            if src not in channel.senders:
+                self.stats.frames_dropped["unexpected_sender"] += 1
+                continue
+            if self.node not in channel.destinations(src):
+                continue  # overheard: addressed to others
+            values[channel.name] = elements
+            self.stats.received_per_channel[channel.name] += 1
+            self.received_at[channel.name] = now
+            for element, value in zip(channel.elements, elements, strict=True):
+                self._publish(element.output_key(src, self.node), value, element.encoding,
+                              channel.latching)
+        self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
+        self._notice("frame_received", {
+            "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
+            "data": rx.data, "meta": plain(rx.meta), "values": values})
+
+    def _publish(self, key: str, value: Any, encoding: str, latched: bool) -> None:
+        self._outputs.append(Publish(key, value, encoding, latched))
+        self.stats.values_published += 1
+
+    def _ranging(self, src: str, t_rx_start: float, delays: tuple[int | None, ...],
+                 modem_now: float, now: float) -> None:
+        """Ranges (and a fix) from a frame's DLBL delays."""
+        assert self.positioning is not None
+        update = self.positioning.on_receive(src, t_rx_start, delays, modem_now)
+        for rng in update.ranges:
+            payload = {**self.positioning.range_payload(rng), "time": now}
+            self._status(f"range/{rng.peer}", payload)
+            self._notice("range", payload)
+        if update.fix is not None:
+            payload = update.fix.payload(now)
+            self._status("position", payload)
+            self._notice("position", payload)
+
+    # -- health --------------------------------------------------------------------------------
+
+    def tick(self, now: float) -> None:
+        """Periodic work: link states."""
+        self.update_links(now)
+
+    def update_links(self, now: float) -> None:
+        """Re-evaluate every peer's link; report changes on ``link/<peer>``."""
+        for peer in self.table.foreign_nodes(self.node):
+            heard = self.last_heard.get(peer)
+            state = self.thresholds.state(heard, now)
+            if self.link_states.get(peer) is state:
+                continue
+            self.link_states[peer] = state
+            payload = {"peer": peer, "state": state.value, "last_heard": heard,
+                       "silent_s": None if heard is None else now - heard}
+            self._status(f"link/{peer}", payload)
+            self._notice("link", {"time": now, **payload})
+
+    def snapshot(self, now: float) -> dict[str, Any]:
+        """Counters and channel ages as plain data."""
+        ages = {s.channel.name: s.age(now) for s in self.store.states.values()}
+        return {
+            "node": self.node,
+            "time": now,
+            "frames_sent": self.stats.frames_sent,
+            "frames_received": self.stats.frames_received,
+            "frames_dropped": dict(self.stats.frames_dropped),
+            "payloads_dropped": dict(self.stats.payloads_dropped),
+            "values_published": self.stats.values_published,
+            "send_errors": self.stats.send_errors,
+            "left_out": self.stats.left_out,
+            "channel_age_s": ages,
+            "received_age_s": {k: now - t for k, t in self.received_at.items()},
+            "last_heard": dict(self.last_heard),
+            "links": {peer: state.value for peer, state in self.link_states.items()},
+        }
+
+
+def plain(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """Link metadata reduced to msgpack-able scalars."""
+    return {str(k): v for k, v in dict(meta).items()
+            if isinstance(v, int | float | str | bool) or v is None}
