@@ -8,6 +8,7 @@ import json
 import logging
 import signal
 import sys
+import time
 from collections.abc import Coroutine
 from enum import StrEnum
 from pathlib import Path
@@ -145,6 +146,8 @@ def run(
     mission: MissionArg,
     node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    log: Annotated[Path | None, typer.Option("--log", help="Record every frame and event to "
+                                             "this MCAP file.")] = None,
 ) -> None:
     """Run the bridge of one node (what each vehicle runs)."""
     from bridge.modem_setup import backend_factory
@@ -164,9 +167,15 @@ def run(
     async def main() -> None:
         stop = asyncio.Event()
         _install_stop(stop)
-        bridge = BridgeNode(loaded, node, factory)
+        recorder = None if log is None else _mission_log(log, loaded, node)
+        bridge = BridgeNode(loaded, node, factory, on_event=recorder)
         logging.getLogger("zab").info("%s: bridge running (Ctrl-C to stop)", node)
-        await bridge.run(stop)
+        try:
+            await bridge.run(stop)
+        finally:
+            if recorder is not None:
+                recorder.close()
+                logging.getLogger("zab").info("%s: mission log %s", node, log)
 
     _run_or_exit(main())
 
@@ -268,14 +277,24 @@ def sim(
     seed: Annotated[int | None, typer.Option(help="Random seed of the ocean.")] = None,
     live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    log: Annotated[Path | None, typer.Option("--log", help="Record each node's frames and "
+                                             "events to DIR/<mission>-<node>.mcap.")] = None,
 ) -> None:
     """Run every node of the mission plus the simulated ocean, each node on its own endpoint."""
+    from bridge.logbook import FleetLogs
     from bridge.simview import run_sim
 
     loaded = _load(mission)
     _logging(verbose)
-    result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
-                                  console=console))
+    logs = None if log is None else FleetLogs(log, loaded)
+    try:
+        result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
+                                      console=console, record=logs))
+    finally:
+        if logs is not None:
+            logs.close()
+    if logs is not None:
+        console.print(f"mission logs: {', '.join(str(p.path) for p in logs.logs.values())}")
     if report is not None:
         report.write_text(json.dumps(result, indent=2, default=str), encoding="utf-8")
         console.print(f"report written to {report}")
@@ -294,6 +313,110 @@ def demo(
     loaded = _load(mission or default_demo_mission())
     _logging(False)
     _run_or_exit(run_demo(loaded, duration=duration, console=console, live=live))
+
+
+def _mission_log(path: Path, loaded: LoadedMission, node: str) -> Any:
+    from bridge.logbook import MissionLog
+
+    try:
+        return MissionLog(path, loaded, node)
+    except OSError as exc:
+        err.print(f"[red]cannot write the mission log:[/] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+
+
+log_app = typer.Typer(help="Read mission logs (MCAP) written with --log.", no_args_is_help=True)
+app.add_typer(log_app, name="log")
+LogArg = Annotated[Path, typer.Argument(help="Mission log (.mcap).", show_default=False)]
+
+
+def _read_log(path: Path) -> Any:
+    from bridge.logbook import LogError, read_log
+
+    try:
+        return read_log(path)
+    except LogError as exc:
+        err.print(f"[red]{exc}[/]", highlight=False)
+        raise typer.Exit(2) from None
+
+
+@log_app.command("summary")
+def log_summary(
+    file: LogArg,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Per-channel counts and ages, and event counts, of a mission log."""
+    from bridge.logbook import summarise
+
+    data = summarise(_read_log(file))
+    if as_json:
+        print(json.dumps(data, indent=2))
+        return
+    console.print(f"[bold]{data.get('mission') or '?'}[/] node [bold]{data['node']}[/]: "
+                  f"{data['duration_s']:g} s logged")
+    table = Table("channel", "sent", "received", "from", "age at end", "longest gap",
+                  title="channels")
+    for name, c in data["channels"].items():
+        table.add_row(name, str(c["sent"]), str(c["received"]), ", ".join(c["from"]),
+                      "—" if c["age_s"] is None else f"{c['age_s']:.1f} s",
+                      "—" if c["max_gap_s"] is None else f"{c['max_gap_s']:.1f} s")
+    console.print(table)
+    events = Table("event", "count", title="events")
+    for kind, count in sorted(data["events"].items()):
+        events.add_row(kind, str(count))
+    console.print(events)
+
+
+@log_app.command("replay")
+def log_replay(
+    file: LogArg,
+    speed: Annotated[float, typer.Option(help="1 = as recorded, 10 = ten times faster, "
+                                         "0 = as fast as possible.", min=0)] = 1.0,
+    connect: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to connect to "
+                                                      "(repeatable).")] = None,
+    listen: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to listen on "
+                                                     "(repeatable).")] = None,
+    wait: Annotated[float, typer.Option(help="Seconds to let subscribers connect before the "
+                                        "first value.", min=0)] = 1.0,
+) -> None:
+    """Publish the decoded data of a mission log on Zenoh again, on the channels' output keys
+    (msgpack or JSON as the mission says). Without --connect/--listen it listens on
+    tcp/127.0.0.1:7447."""
+    import zenoh
+
+    from bridge.logbook import LogError, replay
+    from bridge.mission import ZenohSettings
+    from bridge.zenoh_session import close_quietly, open_session, origin_tag
+
+    data = _read_log(file)
+    if not connect and not listen:
+        listen = ["tcp/127.0.0.1:7447"]
+    session = open_session(ZenohSettings(listen=listen or [], connect=connect or []))
+    mission = data.loaded.mission.mission if data.loaded is not None else "?"
+    origin = origin_tag(mission, f"{data.node}-replay")  # never re-bridged by a live node
+    publishers: dict[str, Any] = {}
+
+    def publish(key: str, payload: bytes, encoding: str) -> None:
+        publisher = publishers.get(key)
+        if publisher is None:
+            publisher = publishers[key] = session.declare_publisher(
+                key, encoding=zenoh.Encoding(encoding))
+        publisher.put(payload, attachment=origin)
+
+    console.print(f"replaying {file} ({data.node}) at "
+                  f"{'full speed' if speed == 0 else f'{speed:g}x'} on "
+                  f"{' '.join(listen or connect or [])}")
+    try:
+        time.sleep(wait)
+        count = replay(data, publish, speed=speed)
+    except LogError as exc:
+        err.print(f"[red]{exc}[/]", highlight=False)
+        raise typer.Exit(2) from None
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    finally:
+        close_quietly(session)
+    console.print(f"published {count} values")
 
 
 def main() -> None:

@@ -24,7 +24,10 @@ from bridge.mission_loader import LoadedMission
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 Direction = Literal["in", "out"]
 
-__all__ = ["KeySchema", "json_view", "key_schemas", "schema_path", "write_payload_schemas"]
+__all__ = [
+    "KeySchema", "adapt_schema", "json_view", "key_schemas", "schema_path",
+    "write_payload_schemas",
+]
 
 
 @dataclass
@@ -56,14 +59,14 @@ class KeySchema:
         return doc
 
 
-def _adapt(node: Any, direction: Direction) -> Any:
+def adapt_schema(node: Any, direction: Direction) -> Any:
     """Rewrite a layout schema for one direction: bytes as hex strings; input enums also take
     their index."""
     if isinstance(node, list):
-        return [_adapt(item, direction) for item in node]
+        return [adapt_schema(item, direction) for item in node]
     if not isinstance(node, dict):
         return node
-    out = {k: _adapt(v, direction) for k, v in node.items()}
+    out = {k: adapt_schema(v, direction) for k, v in node.items()}
     if "x-max-bytes" in out:  # a bytes field
         size = out.pop("x-max-bytes")
         out.pop("contentEncoding", None)
@@ -77,7 +80,7 @@ def _adapt(node: Any, direction: Direction) -> Any:
 
 
 def _element_schema(element: ElementCodec, direction: Direction) -> dict[str, Any]:
-    return _adapt(element.layout.json_schema(), direction)
+    return adapt_schema(element.layout.json_schema(), direction)
 
 
 def _uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, int, ElementCodec, str]]:

@@ -7,6 +7,7 @@ import contextlib
 import signal
 import time
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 from rich.console import Console, Group
@@ -110,10 +111,17 @@ async def run_sim(
     seed: int | None,
     live: bool,
     console: Console,
+    record: Callable[[str, str, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
-    """``zab sim``: run, show, and return the report."""
+    """``zab sim``: run, show, and return the report. ``record`` also gets every event."""
     events = EventLog()
-    fleet = Fleet(loaded, seed=seed, on_event=events)
+
+    def both(node: str, kind: str, info: dict[str, Any]) -> None:
+        events(node, kind, info)
+        if record is not None:
+            record(node, kind, info)
+
+    fleet = Fleet(loaded, seed=seed, on_event=both)
     console.print(f"simulating [bold]{loaded.mission.mission}[/]: "
                   + ", ".join(f"{n} on {' '.join(node.zenoh.listen) or '(no endpoint)'}"
                               for n, node in loaded.mission.nodes.items()))
