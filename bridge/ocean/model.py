@@ -12,7 +12,9 @@ What it models, per frame:
   (cannot transmit, cannot receive) from the call until the signal ends;
 - airtime from the preset (:meth:`Preset.airtime`);
 - propagation ``distance / sound_speed`` from 3-D positions ``(x, y, depth)`` in metres, taken at
-  the moment of transmission; distances under ``min_range_m`` count as ``min_range_m``;
+  the moment of transmission; distances under ``min_range_m`` count as ``min_range_m``; a node
+  is where it was put (:meth:`~Ocean.set_position`) or where its scripted
+  :class:`~bridge.ocean.path.Path` has taken it (:meth:`~Ocean.set_path`);
 - a broadcast medium: every other node hears every frame (promiscuous); ``dest`` is metadata only;
 - a reception is decided when it ends, in this order of reasons:
   ``out_of_range`` (beyond ``max_range_m``: never delivered, and it does not interfere),
@@ -37,6 +39,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.ocean.path import Path
 from bridge.ocean.presets import Preset
 
 __all__ = [
@@ -190,6 +193,7 @@ class Ocean:
         self._rng = random.Random(seed)
         self._now = -math.inf
         self._positions: dict[int, Position] = {}
+        self._paths: dict[int, tuple[Path, float]] = {}  # addr -> (path, start time)
         self._busy_until: dict[int, float] = {}
         self._tx_intervals: dict[int, list[tuple[float, float]]] = {}
         self._rx_intervals: dict[int, list[_Rx]] = {}
@@ -207,28 +211,52 @@ class Ocean:
     @property
     def nodes(self) -> dict[int, Position]:
         """Current positions by address (a copy)."""
-        return dict(self._positions)
+        return {addr: self.position(addr) for addr in self._positions}
+
+    def position(self, addr: int, t: float | None = None) -> Position:
+        """Where ``addr`` is at time ``t`` (default: now), following its path if it has one."""
+        if addr not in self._positions:
+            raise KeyError(f"unknown node {addr}")
+        scripted = self._paths.get(addr)
+        if scripted is None:
+            return self._positions[addr]
+        path, start = scripted
+        elapsed = (self._now if t is None else t) - start
+        return path.position_at(elapsed if math.isfinite(elapsed) else 0.0)
 
     def add_node(self, addr: int, position: Position = (0.0, 0.0, 0.0)) -> None:
-        """Put a modem in the water (or move it, if it is already there)."""
+        """Put a modem in the water (or move it, if it is already there, ending its path)."""
         self._positions[addr] = _position(position)
+        self._paths.pop(addr, None)
         self._busy_until.setdefault(addr, -math.inf)
         self._tx_intervals.setdefault(addr, [])
         self._rx_intervals.setdefault(addr, [])
 
     def set_position(self, addr: int, position: Position) -> None:
-        """Move a node; frames already in the water keep the distance they started with."""
+        """Move a node (and end its path); frames already in the water keep their distance."""
         if addr not in self._positions:
             raise KeyError(f"unknown node {addr}")
         self._positions[addr] = _position(position)
+        self._paths.pop(addr, None)
+
+    def set_path(self, addr: int, path: Path, start: float) -> None:
+        """Move ``addr`` along ``path`` from time ``start`` on (it waits at the first waypoint
+        until then); each frame takes the positions of the moment it is transmitted."""
+        if addr not in self._positions:
+            raise KeyError(f"unknown node {addr}")
+        if not math.isfinite(start):
+            raise ValueError(f"path start must be a finite time, not {start}")
+        self._paths[addr] = (path, float(start))
+        self._positions[addr] = path.waypoints[0]
 
     def remove_node(self, addr: int) -> None:
         """Take a modem out: later frames are not heard by it (frames in flight still end)."""
         self._positions.pop(addr, None)
+        self._paths.pop(addr, None)
 
     def distance(self, a: int, b: int) -> float:
-        """Straight-line distance between two nodes in metres."""
-        return math.dist(self._positions[a], self._positions[b])
+        """Straight-line distance between two nodes in metres, now."""
+        return math.dist(self.position(a), self.position(b))
 
     @property
     def last_frame_id(self) -> int:

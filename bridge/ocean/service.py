@@ -4,7 +4,8 @@ Sim modems (:class:`bridge.backends.sim.SimBackend`) connect, say ``hello`` with
 and position, send ``tx`` messages and receive ``txdone`` and ``rx`` messages (see
 :mod:`bridge.ocean.protocol`). The model runs on the event loop's monotonic clock; every time
 sent to a modem is converted to wall-clock seconds. Only deliveries reach modems; losses are
-counted in :meth:`WaterService.stats`.
+counted in :meth:`WaterService.stats`. Nodes given a scripted :class:`~bridge.ocean.path.Path`
+follow it from the moment the service starts (:attr:`WaterService.started_at`, wall clock).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from bridge.ocean.model import Delivery, Loss, Ocean, Position, TransmitRefused, TxDone
+from bridge.ocean.path import Path
 from bridge.ocean.presets import Preset, get_preset
 from bridge.ocean.protocol import PROTOCOL_VERSION, ProtocolError, pack, read_message
 
@@ -39,10 +41,15 @@ class WaterService:
         *,
         loss: float = 0.0,
         loss_curve: Callable[[float, float], float] | None = None,
+        paths: Mapping[int, Path] | None = None,
     ) -> None:
         self.preset = get_preset(preset) if isinstance(preset, str) else preset
         self.ocean = Ocean(self.preset, seed, loss=loss, loss_curve=loss_curve)
         self._initial_positions: dict[int, Position] = dict(positions or {})
+        self._paths: dict[int, Path] = dict(paths or {})
+        self._path_start = 0.0  # loop clock when the service started
+        self.started_at: float | None = None
+        """Wall-clock time at which the service started, the time 0 of every path."""
         self._clients: dict[int, asyncio.StreamWriter] = {}
         self._pending_tx: dict[int, tuple[int, int]] = {}  # frame_id -> (addr, client tx id)
         self._server: asyncio.Server | None = None
@@ -70,7 +77,8 @@ class WaterService:
             raise RuntimeError("water service already started")
         loop = asyncio.get_running_loop()
         self._offset = time.time() - loop.time()
-        self._last = loop.time()
+        self._last = self._path_start = loop.time()
+        self.started_at = self._wall(self._path_start)
         self._server = await asyncio.start_server(self._handle, host, port)
         self.port = self._server.sockets[0].getsockname()[1]
         self._driver = asyncio.create_task(self._drive(), name="water-driver")
@@ -108,6 +116,11 @@ class WaterService:
         out["service"] = dict(self._counters)
         out["clients"] = sorted(self._clients)
         return out
+
+    def position(self, addr: int, wall: float | None = None) -> Position:
+        """Where node ``addr`` is at wall-clock time ``wall`` (default: now); ``KeyError`` if it
+        is not in the water."""
+        return self.ocean.position(addr, (time.time() if wall is None else wall) - self._offset)
 
     # -- clock ---------------------------------------------------------------------------------
 
@@ -224,6 +237,8 @@ class WaterService:
             position = self._initial_positions.get(addr, (0.0, 0.0, 0.0))
         self._clients[addr] = writer
         self.ocean.add_node(addr, position)
+        if addr in self._paths:
+            self.ocean.set_path(addr, self._paths[addr], self._path_start)
         self._counters["connections"] += 1
         writer.write(
             pack(
@@ -288,12 +303,13 @@ async def serve_water(
     ready: Callable[[int], None] | None = None,
     *,
     loss: float = 0.0,
+    paths: Mapping[int, Path] | None = None,
 ) -> None:
     """Run a water service until cancelled (for a standalone ``zab water``).
 
     ``ready`` is called with the bound port once it listens.
     """
-    service = WaterService(preset, seed, positions, loss=loss)
+    service = WaterService(preset, seed, positions, loss=loss, paths=paths)
     port = await service.start(host, port)
     try:
         if ready is not None:
