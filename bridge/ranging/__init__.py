@@ -8,7 +8,16 @@
 """
 
 from bridge.ranging.dlbl import DlblRanger, Range, two_sided
-from bridge.ranging.localise import Fix, dop, horizontal_range, intersect_circles, locate
+from bridge.ranging.localise import (
+    NO_FIX_REASONS,
+    Fix,
+    NoFix,
+    attempt,
+    dop,
+    horizontal_range,
+    intersect_circles,
+    locate,
+)
 from bridge.ranging.sound_speed import (
     VALIDITY,
     SoundSpeed,
@@ -31,14 +40,17 @@ from bridge.ranging.twr import (
 )
 
 __all__ = [
+    "NO_FIX_REASONS",
     "VALIDITY",
     "AnchorReplier",
     "DlblRanger",
     "Fix",
+    "NoFix",
     "Range",
     "RangingRound",
     "SoundSpeed",
     "Track",
+    "attempt",
     "check_validity",
     "coppens",
     "depth_to_pressure",

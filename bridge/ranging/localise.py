@@ -11,7 +11,10 @@ node knows its depth, so each slant range ``d`` to an anchor becomes a horizonta
 - three or more: nonlinear least squares on the slant ranges (Levenberg–Marquardt), started
   from the linearised solution, the previous estimate and the circle intersections; sigma from
   the residuals. Anchors on one line leave a mirror ambiguity, resolved like two anchors.
-- fewer than two: no fix (``None``).
+- fewer than two: no fix.
+
+:func:`attempt` says why there is no fix (:class:`NoFix`, published as such); :func:`locate`
+returns ``None`` instead.
 
 Coordinates are metres in any local horizontal frame (x east, y north); depth positive down.
 """
@@ -39,9 +42,10 @@ class Fix:
     residual_m: float = 0.0
     alternative: Point | None = None  # the rejected mirror candidate, if any
 
-    def payload(self, time: float) -> dict[str, float | str | list[str]]:
+    def payload(self, time: float) -> dict[str, bool | float | str | list[str]]:
         """The map published on ``@zab/<mission>/<node>/position``."""
         return {
+            "fix": True,
             "x": self.x,
             "y": self.y,
             "depth": self.depth,
@@ -49,6 +53,38 @@ class Fix:
             "sigma_m": self.sigma_m,
             "anchors": list(self.anchors),
             "method": self.method,
+        }
+
+
+NO_FIX_REASONS = {
+    "too_few_anchors": "fewer than two anchors with a fresh range and a known position",
+    "ambiguous": "two positions fit the ranges and no previous estimate tells them apart",
+    "degenerate_geometry": "the anchors' geometry gives no position (e.g. concentric circles)",
+    "no_depth": "this node's depth is unknown",
+}
+"""Why a fix attempt gave no position (``reason`` of :class:`NoFix`)."""
+
+
+@dataclass(frozen=True)
+class NoFix:
+    """A fix was attempted and gave no position: ``reason`` is a key of :data:`NO_FIX_REASONS`;
+    ``anchors`` are the anchors that had a usable range."""
+
+    reason: str
+    anchors: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.reason not in NO_FIX_REASONS:
+            raise ValueError(f"unknown no-fix reason {self.reason!r}")
+
+    def payload(self, time: float) -> dict[str, bool | float | str | list[str]]:
+        """The map published on ``@zab/<mission>/<node>/position`` instead of a fix."""
+        return {
+            "fix": False,
+            "reason": self.reason,
+            "detail": NO_FIX_REASONS[self.reason],
+            "anchors": list(self.anchors),
+            "time": time,
         }
 
 
@@ -181,6 +217,20 @@ def locate(
     ignored (a missing reply). ``previous`` (x, y) resolves two-anchor and mirror ambiguities;
     ``range_sigma_m`` is the expected range error, the floor of the sigma reported.
     """
+    found = attempt(anchors, ranges, depth, previous, names=names, range_sigma_m=range_sigma_m)
+    return found if isinstance(found, Fix) else None
+
+
+def attempt(
+    anchors: Sequence[Anchor],
+    ranges: Sequence[float | None],
+    depth: float,
+    previous: Point | None = None,
+    *,
+    names: Sequence[str] | None = None,
+    range_sigma_m: float = 0.1,
+) -> Fix | NoFix:
+    """Like :func:`locate`, but a failed attempt says why (:class:`NoFix`)."""
     if len(anchors) != len(ranges):
         raise ValueError(f"{len(anchors)} anchors but {len(ranges)} ranges")
     labels = list(names) if names is not None else [str(i) for i in range(len(anchors))]
@@ -191,7 +241,7 @@ def locate(
     rng = [float(r) for r in ranges if r is not None and math.isfinite(r) and r >= 0]
     tags = tuple(labels[i] for i in used)
     if len(anc) < 2:
-        return None
+        return NoFix("too_few_anchors", tags)
     hr = [horizontal_range(d, depth, a[2]) for d, a in zip(rng, anc, strict=True)]
     if len(anc) == 2:
         return _two(anc, rng, hr, depth, previous, tags, range_sigma_m)
@@ -206,15 +256,15 @@ def _two(
     previous: Point | None,
     tags: tuple[str, ...],
     sigma_r: float,
-) -> Fix | None:
+) -> Fix | NoFix:
     (x1, y1, _), (x2, y2, _) = anc
     points, gap = intersect_circles((x1, y1), hr[0], (x2, y2), hr[1])
     if not points:
-        return None
+        return NoFix("degenerate_geometry", tags)
     alternative = None
     if len(points) == 2:
         if previous is None:
-            return None  # ambiguous: no previous estimate to choose with
+            return NoFix("ambiguous", tags)  # no previous estimate to choose with
         i = _nearest(points, previous)
         p, alternative = points[i], points[1 - i]
     else:
@@ -235,7 +285,7 @@ def _many(
     previous: Point | None,
     tags: tuple[str, ...],
     sigma_r: float,
-) -> Fix | None:
+) -> Fix | NoFix:
     n = len(anc)
     starts: list[Point] = []
     lin = _linear(anc, hr)
@@ -251,7 +301,7 @@ def _many(
     pts, _ = intersect_circles(anc[i][:2], hr[i], anc[j][:2], hr[j])
     starts.extend(pts)
     if not starts:
-        return None
+        return NoFix("degenerate_geometry", tags)
     sols: list[tuple[Point, float]] = []
     for s in starts:
         p, cost = _least_squares(anc, rng, depth, s)
@@ -265,7 +315,7 @@ def _many(
     alternative = None
     if rivals:
         if previous is None:
-            return None
+            return NoFix("ambiguous", tags)
         candidates = [best, *(q for q, _ in rivals)]
         k = _nearest(candidates, previous)
         chosen = candidates[k]

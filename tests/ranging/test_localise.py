@@ -7,7 +7,15 @@ import random
 
 import pytest
 
-from bridge.ranging.localise import Fix, horizontal_range, intersect_circles, locate
+from bridge.ranging.localise import (
+    NO_FIX_REASONS,
+    Fix,
+    NoFix,
+    attempt,
+    horizontal_range,
+    intersect_circles,
+    locate,
+)
 from bridge.ranging.sound_speed import SoundSpeed
 from bridge.ranging.track import Track
 from bridge.ranging.twr import travel_time
@@ -99,6 +107,28 @@ def test_fewer_than_two_anchors_is_no_fix() -> None:
         locate(SEED_ANCHORS, [1.0], 0.9)
 
 
+def test_a_failed_attempt_says_why() -> None:
+    node = (0.0, 0.0, 0.9)
+    ranges = [slant(node, a) for a in SEED_ANCHORS]
+    names = ["left", "right"]
+    one = attempt(SEED_ANCHORS, [ranges[0], None], 0.9, (0, 0), names=names)
+    assert one == NoFix("too_few_anchors", ("left",))
+    assert attempt(SEED_ANCHORS, ranges, 0.9, None, names=names) == NoFix("ambiguous",
+                                                                          ("left", "right"))
+    concentric = attempt([(0.0, 0.0, 0.9), (0.0, 0.0, 5.0)], [3.0, 4.0], 0.9, names=names)
+    assert isinstance(concentric, NoFix) and concentric.reason == "degenerate_geometry"
+    line = [(0.0, 0.0, 0.9), (0.0, 20.0, 0.9), (0.0, 40.0, 0.9)]  # seed 001's jetty
+    mirrored = attempt(line, [slant((8.0, 13.0, 0.9), a) for a in line], 0.9)
+    assert isinstance(mirrored, NoFix) and mirrored.reason == "ambiguous"
+    payload = one.payload(12.5)
+    assert payload == {"fix": False, "reason": "too_few_anchors", "anchors": ["left"],
+                       "time": 12.5, "detail": NO_FIX_REASONS["too_few_anchors"]}
+    fix = attempt(SEED_ANCHORS, ranges, 0.9, (1.0, -1.0), names=names)
+    assert isinstance(fix, Fix) and fix.payload(1.0)["fix"] is True
+    with pytest.raises(ValueError, match="unknown no-fix reason"):
+        NoFix("bad luck")
+
+
 def test_third_anchor_least_squares() -> None:
     rnd = random.Random(5)
     anchors = [*SEED_ANCHORS, THIRD]
@@ -184,6 +214,7 @@ def test_track_gate_and_payload() -> None:
     assert track.velocity[0] > 0
     payload = Fix(1.0, 2.0, 3.0, 0.1, ("a", "b"), "circles").payload(5.0)
     assert payload == {
+        "fix": True,
         "x": 1.0,
         "y": 2.0,
         "depth": 3.0,
