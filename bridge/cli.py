@@ -315,6 +315,31 @@ def demo(
     _run_or_exit(run_demo(loaded, duration=duration, console=console, live=live))
 
 
+@app.command()
+def doctor(
+    mission: MissionArg,
+    node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
+    timeout: Annotated[float, typer.Option(help="Seconds to wait for the modem.", min=0.1)]
+    = 15.0,
+) -> None:
+    """Check that this vehicle can run its bridge: mission, modem port and answer, Zenoh
+    endpoints, clock. Prints what to fix; exit 1 if something must be fixed."""
+    from bridge.doctor import run_doctor
+
+    loaded = _load(mission)
+    findings = asyncio.run(run_doctor(loaded, node, timeout_s=timeout))
+    marks = {"ok": "[green]ok  [/]", "warn": "[yellow]warn[/]", "fail": "[red]FAIL[/]"}
+    for f in findings:
+        console.print(f"{marks[f.status]} {f.check:<8} {f.message}", highlight=False)
+        if f.fix and f.status != "ok":
+            console.print(f"     {'':<8} [bold]fix:[/] {f.fix}", highlight=False)
+    failed = sum(f.status == "fail" for f in findings)
+    warned = sum(f.status == "warn" for f in findings)
+    console.print(f"{node}: {failed} to fix, {warned} warning(s)" if failed or warned
+                  else f"{node}: ready")
+    raise typer.Exit(1 if failed else 0)
+
+
 def _mission_log(path: Path, loaded: LoadedMission, node: str) -> Any:
     from bridge.logbook import MissionLog
 

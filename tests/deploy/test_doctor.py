@@ -1,0 +1,167 @@
+"""``zab doctor`` against emulated modems on real ptys, real Zenoh sessions and clock outputs."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import socket
+import subprocess
+import sys
+from collections.abc import AsyncIterator, Sequence
+from pathlib import Path
+
+import pytest
+import yaml
+
+from bridge.doctor import (
+    ClockState,
+    Finding,
+    clock_findings,
+    parse_chronyc,
+    parse_timedatectl,
+    run_doctor,
+)
+from bridge.emulators.evologics import EvologicsEmulator
+from bridge.emulators.micromodem import MicromodemEmulator
+from bridge.fleet import water_for
+from bridge.mission_loader import LoadedMission
+from bridge.modem_setup import modem_setup
+from tests.conftest import MISSIONS, REPO, free_port, on_free_ports
+
+CHRONY = """\
+Reference ID    : C0A80101 (surface.local)
+Stratum         : 3
+Ref time (UTC)  : Tue Mar 03 10:12:01 2026
+System time     : {offset} seconds {side} of NTP time
+Last offset     : -0.000004203 seconds
+RMS offset      : 0.000010031 seconds
+Frequency       : 12.702 ppm slow
+Residual freq   : -0.001 ppm
+Skew            : 0.021 ppm
+Root delay      : 0.000356 seconds
+Root dispersion : 0.000121 seconds
+Update interval : 64.4 seconds
+Leap status     : {leap}
+"""
+
+
+def no_tools(argv: Sequence[str]) -> str | None:
+    return None
+
+
+def by_check(findings: list[Finding]) -> dict[str, list[Finding]]:
+    out: dict[str, list[Finding]] = {}
+    for f in findings:
+        out.setdefault(f.check, []).append(f)
+    return out
+
+
+def prepared(name: str, node: str, device: Path, water_port: int, **options: object
+             ) -> LoadedMission:
+    data = yaml.safe_load((MISSIONS / name).read_text())
+    data["modem"]["options"]["water"] = f"127.0.0.1:{water_port}"
+    data["nodes"][node]["modem"]["options"].update({"device": str(device), **options})
+    return on_free_ports(yaml.safe_dump(data, sort_keys=False), name)
+
+
+@contextlib.asynccontextmanager
+async def emulated(kind: str, tmp_path: Path, **options: object
+                   ) -> AsyncIterator[tuple[LoadedMission, str, object]]:
+    """The mission's first node with an emulated modem behind a pty link, in the water."""
+    name = {"evologics": "morph_evologics.yaml", "micromodem": "remus_micromodem.yaml"}[kind]
+    node = {"evologics": "ssv", "micromodem": "topside"}[kind]
+    water_port = free_port()
+    loaded = prepared(name, node, tmp_path / f"modem-{node}", water_port, **options)
+    water = water_for(loaded)
+    await water.start("127.0.0.1", water_port)
+    setup = modem_setup(loaded.mission, node)
+    emulator = (EvologicsEmulator(setup, link=tmp_path / f"modem-{node}") if kind == "evologics"
+                else MicromodemEmulator(setup, link=tmp_path / f"modem-{node}",
+                                        rev_period_s=None))
+    evologics = isinstance(emulator, EvologicsEmulator)
+    await (emulator.start() if evologics else emulator.open())
+    try:
+        yield loaded, node, emulator
+    finally:
+        await (emulator.stop() if evologics else emulator.close())
+        await water.stop()
+
+
+@pytest.mark.parametrize("kind", ["evologics", "micromodem"])
+def test_a_ready_vehicle_passes(tmp_path: Path, kind: str) -> None:
+    async def main() -> list[Finding]:
+        async with emulated(kind, tmp_path, timeout_s=1.0) as (loaded, node, _):
+            return await run_doctor(loaded, node, timeout_s=10, run=no_tools)
+
+    found = by_check(asyncio.run(asyncio.wait_for(main(), 30)))
+    assert all(f.status != "fail" for f in found["mission"])  # remus: budget warnings
+    assert found["device"][0].status == "ok"
+    assert found["modem"][0].status == "ok" and "answered" in found["modem"][0].message
+    assert found["zenoh"][0].status == "ok"
+    assert found["clock"][0].status == "warn"  # TDMA mission, no clock tool to ask
+
+
+def test_a_modem_that_does_not_answer_fails_with_a_fix(tmp_path: Path) -> None:
+    async def main() -> list[Finding]:
+        async with emulated("evologics", tmp_path, timeout_s=0.2, probe_retries=1) as (
+                loaded, node, emulator):
+            emulator.deaf = True  # type: ignore[attr-defined]
+            return await run_doctor(loaded, node, timeout_s=10, run=no_tools)
+
+    [modem] = by_check(asyncio.run(asyncio.wait_for(main(), 30)))["modem"]
+    assert modem.status == "fail" and "no answer" in modem.message
+    assert modem.fix is not None and "cable" in modem.fix
+
+
+def test_missing_device_and_busy_endpoint_fail(tmp_path: Path) -> None:
+    loaded = prepared("morph_evologics.yaml", "ssv", tmp_path / "nothing-here", free_port())
+    endpoint = loaded.mission.nodes["ssv"].zenoh.listen[0]
+    port = int(endpoint.rsplit(":", 1)[1])
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", port))
+        held.listen()
+        found = by_check(asyncio.run(run_doctor(loaded, "ssv", timeout_s=2, run=no_tools)))
+    assert found["device"][0].status == "fail" and "does not exist" in found["device"][0].message
+    assert "modem" not in found  # not opened when the device is missing
+    assert found["zenoh"][0].status == "fail"
+
+
+def test_doctor_command_prints_fixes_and_exits_1(tmp_path: Path) -> None:
+    loaded = prepared("morph_evologics.yaml", "gcv", tmp_path / "no-modem", free_port())
+    mission = tmp_path / "m.yaml"
+    mission.write_text(yaml.safe_dump(loaded.mission.model_dump(
+        by_alias=True, mode="json", exclude_unset=True)))
+    done = subprocess.run([sys.executable, "-m", "bridge", "doctor", str(mission), "--node",
+                           "gcv"], capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "FAIL device" in done.stdout and "fix:" in done.stdout
+    assert "gcv: 1 to fix" in done.stdout
+    unknown = subprocess.run([sys.executable, "-m", "bridge", "doctor", str(mission), "--node",
+                              "nobody"], capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert unknown.returncode == 1 and "no node 'nobody'" in unknown.stdout
+
+
+def test_clock_outputs_are_parsed_and_judged_against_the_guard() -> None:
+    loaded = on_free_ports((MISSIONS / "morph.yaml").read_text())  # TDMA, guard 0.3 s
+    good = parse_chronyc(CHRONY.format(offset="0.000012000", side="fast", leap="Normal"))
+    assert good == ClockState("chrony", True, 0.000012, "C0A80101 (surface.local)")
+    assert clock_findings(loaded, good)[0].status == "ok"
+    slow = parse_chronyc(CHRONY.format(offset="0.200000000", side="slow", leap="Normal"))
+    assert slow is not None and slow.offset_s == pytest.approx(-0.2)
+    assert clock_findings(loaded, slow)[0].status == "fail"
+    drifting = parse_chronyc(CHRONY.format(offset="0.040000000", side="fast", leap="Normal"))
+    assert clock_findings(loaded, drifting)[0].status == "warn"
+    lost = parse_chronyc(CHRONY.format(offset="0.0", side="fast", leap="Not synchronised"))
+    [finding] = clock_findings(loaded, lost)
+    assert finding.status == "fail" and finding.fix and "chrony" in finding.fix
+    assert parse_chronyc("506 Cannot talk to daemon") is None
+    synced = parse_timedatectl("Timezone=UTC\nNTP=yes\nNTPSynchronized=yes\n")
+    assert synced == ClockState("timedatectl", True, None, "NTP service on")
+    assert clock_findings(loaded, synced)[0].status == "ok"
+    unsynced = parse_timedatectl("NTP=no\nNTPSynchronized=no\n")
+    assert unsynced is not None and clock_findings(loaded, unsynced)[0].status == "fail"
+    assert clock_findings(loaded, None, ["/dev/pps0"])[0].message.startswith("PPS device")
+    data = yaml.safe_load((MISSIONS / "morph.yaml").read_text())
+    data["mac"] = {"type": "none"}
+    free_mac = on_free_ports(yaml.safe_dump(data))
+    assert clock_findings(free_mac, None)[0].status == "ok"
