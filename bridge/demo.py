@@ -122,6 +122,8 @@ class VehicleApps:
 
     def _fixed(self, node: str, sample: zenoh.Sample) -> None:
         fix = msgpack.unpackb(sample.payload.to_bytes())
+        if not fix.get("fix", True):
+            return  # a "no fix" report (too few anchors yet): the demo shows fixes only
         self.show(f"[cyan]{node:>4}[/] position from {' + '.join(fix['anchors'])}: "
                   f"x {fix['x']:.1f} m, y {fix['y']:.1f} m, ±{fix['sigma_m']:.2f} m")
 

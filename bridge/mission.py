@@ -52,6 +52,15 @@ class Position(Strict):
     depth: float = Field(0.0, ge=0.0)
 
 
+class NodePath(Strict):
+    """A scripted route for the simulated ocean: waypoints sailed in order at ``speed_mps``."""
+
+    waypoints: list[Position] = Field(min_length=1, description="Points (x, y, depth) in metres.")
+    speed_mps: float = Field(gt=0, le=100, description="Speed along the route, m/s.")
+    loop: bool = Field(False, description="Sail back to the first waypoint and go round again; "
+                       "otherwise stop at the last.")
+
+
 class ModemOverride(Strict):
     """Per-node modem settings; unset values come from the mission's ``modem`` defaults."""
 
@@ -71,6 +80,11 @@ class Node(Strict):
         None,
         description="Zenoh key of this node's live position ({x, y, depth} in metres); the "
         "simulated ocean moves the node with it.",
+    )
+    path: NodePath | None = Field(
+        None,
+        description="Scripted route in the simulated ocean, from the moment the water starts "
+        "(replaces position there); the node's own fixes start from its first waypoint.",
     )
     modem: ModemOverride = Field(default_factory=ModemOverride)
 
@@ -167,6 +181,17 @@ class WaterProperties(Strict):
     latitude_deg: float = Field(45.0, ge=-90, le=90)
 
 
+class PingRanging(Strict):
+    """Who asks its modem for explicit ranges, to whom, and how often."""
+
+    peers: list[NodeName] | None = Field(None, min_length=1, description="Nodes ranged to, in "
+                                         "turn; default: the anchors.")
+    nodes: list[NodeName] | None = Field(None, min_length=1, description="Nodes that range; "
+                                         "default: every node that is not a peer.")
+    interval_s: float = Field(30.0, gt=0, description="Least time between two ranges of a "
+                              "node, seconds.")
+
+
 class Ranging(Strict):
     """Ranges from DLBL delays (``wire.dlbl``) and positions from ranges to anchors."""
 
@@ -183,6 +208,15 @@ class Ranging(Strict):
                                              "anchor's live {x, y, depth} at each node.")
     fix_max_age_s: float | None = Field(None, gt=0, description="Oldest range used in a fix; "
                                         "default: one TDMA cycle, else 30 s.")
+    sound_speed_mode: Literal["local", "mean_of_ends"] = Field(
+        "local", description="Sound speed of a range: this node's, or the mean of both ends' "
+        "(seed 001) once the peer's is known from peer_ctd_key.")
+    peer_ctd_key: str | None = Field(
+        None, description="Key where this node hears each peer's water, {src} = the peer (e.g. "
+        "the output of a bridged CTD channel: {src}/ctd), holding {temperature_c, "
+        "salinity_psu, depth_m} like ctd_key.")
+    ping: PingRanging | None = Field(None, description="Explicit two-way ranges measured by "
+                                     "the modems (Micro-Modem ping, EvoLogics acked IM).")
 
 
 class Mission(Strict):
