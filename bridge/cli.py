@@ -147,7 +147,8 @@ def run(
     node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
     log: Annotated[Path | None, typer.Option("--log", help="Record every frame and event to "
-                                             "this MCAP file.")] = None,
+                                             "this MCAP file; {time} in the name becomes the "
+                                             "start time (UTC).")] = None,
 ) -> None:
     """Run the bridge of one node (what each vehicle runs)."""
     from bridge.modem_setup import backend_factory
@@ -175,7 +176,7 @@ def run(
         finally:
             if recorder is not None:
                 recorder.close()
-                logging.getLogger("zab").info("%s: mission log %s", node, log)
+                logging.getLogger("zab").info("%s: mission log %s", node, recorder.path)
 
     _run_or_exit(main())
 
@@ -316,6 +317,46 @@ def demo(
 
 
 @app.command()
+def gui(
+    mission: MissionArg,
+    connect: Annotated[list[str] | None, typer.Option(
+        "--connect", "-c", help="Zenoh endpoint of the node (default: its zenoh.listen in the "
+        "mission); repeat for several.")] = None,
+    node: Annotated[str | None, typer.Option(
+        "--node", "-n", help="The node the GUI joins (default: the surface node).")] = None,
+    host: Annotated[str, typer.Option(
+        help="Address to serve the page on; 0.0.0.0 for tablets on the WiFi.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="TCP port of the page (0: any free port).")] = 8080,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """The fleet in a browser: map, channels and links per vehicle, commands, events."""
+    from bridge.gui.server import GuiServer, serve_gui
+
+    loaded = _load(mission)
+    _logging(verbose)
+
+    def ready(server: GuiServer) -> None:
+        console.print(f"GUI of {loaded.mission.mission} at {server.url} (joins {server.node} "
+                      f"at {' '.join(server.endpoints)}); Ctrl-C to stop", highlight=False)
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        _install_stop(stop)
+        await serve_gui(loaded, stop, node=node, endpoints=connect or (), host=host, port=port,
+                        ready=ready)
+
+    try:
+        _run_or_exit(main())
+    except ValueError as exc:
+        err.print(f"[red]{exc}[/]", highlight=False)
+        raise typer.Exit(2) from None
+    except OSError as exc:
+        err.print(f"[red]cannot serve on {host}:{port}: {exc.strerror or exc}[/]",
+                  highlight=False)
+        raise typer.Exit(1) from None
+
+
+@app.command()
 def doctor(
     mission: MissionArg,
     node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
@@ -343,6 +384,7 @@ def doctor(
 def _mission_log(path: Path, loaded: LoadedMission, node: str) -> Any:
     from bridge.logbook import MissionLog
 
+    path = Path(str(path).replace("{time}", time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())))
     try:
         return MissionLog(path, loaded, node)
     except OSError as exc:
