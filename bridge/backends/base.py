@@ -10,14 +10,14 @@ from __future__ import annotations
 import asyncio
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, ClassVar
 
 from bridge.errors import BackendError
 
-__all__ = ["Inbox", "ModemBackend", "ModemSetup", "Reception"]
+__all__ = ["Inbox", "ModemBackend", "ModemRange", "ModemSetup", "Reception"]
 
 _EMPTY: Mapping[str, Any] = MappingProxyType({})
 
@@ -39,6 +39,21 @@ class Reception:
     def dest(self) -> int | None:
         """The address the sender put on the frame (``None`` = broadcast or unknown)."""
         return self.meta.get("dest")
+
+
+@dataclass(frozen=True)
+class ModemRange:
+    """A one-way travel time the modem itself measured to ``peer`` (an address).
+
+    ``method`` is ``ping`` (a two-way ping, e.g. the Micro-Modem's ``$CCMPC``) or
+    ``propagation`` (e.g. EvoLogics ``AT?T`` after an acknowledged message); ``time`` is the
+    backend's :meth:`~ModemBackend.clock` when it was measured.
+    """
+
+    peer: int
+    travel_time_s: float
+    method: str
+    time: float
 
 
 @dataclass(frozen=True)
@@ -90,6 +105,9 @@ class ModemBackend(ABC):
     name: ClassVar[str] = "abstract"
     timed_send: ClassVar[bool] = False
     """Whether :meth:`send` honours ``at`` (a scheduled emission start)."""
+    ranging: ClassVar[str | None] = None
+    """How the modem measures ranges itself: ``"ping"`` (:meth:`ping`), ``"ack"`` (after an
+    acknowledged unicast :meth:`send`), or None. Measurements go to :attr:`on_range`."""
 
     def __init__(self, setup: ModemSetup) -> None:
         self.setup = setup
@@ -97,6 +115,10 @@ class ModemBackend(ABC):
         self.frame_bytes = setup.frame_bytes
         self.stats: dict[str, int] = {"sent": 0, "received": 0, "errors": 0}
         self.ack = bool(setup.options.get("ack", False))
+        self.tx_lead_s = float(setup.options.get("tx_lead_s", 0.01))
+        """How far ahead of :meth:`clock` a timed emission is scheduled (``timed_send``)."""
+        self.on_range: Callable[[ModemRange], None] | None = None
+        """Called with every range the modem measures (the runtime sets it)."""
         self._opened = False
         self._closed = False
 
@@ -175,6 +197,28 @@ class ModemBackend(ABC):
             return
         self._closed = True
         await self._close()
+
+    async def ping(self, dest: int) -> ModemRange:
+        """Range to ``dest`` with the modem's own ping (backends whose ``ranging`` is ``ping``).
+
+        The range also goes to :attr:`on_range`. Raises :class:`BackendError` when the modem
+        has no ping, is not open or no reply came; a missing reply leaves the backend usable.
+        """
+        if not self.is_open:
+            raise BackendError(f"{self!r}: ping on a backend that is not open")
+        rng = await self._ping(dest)
+        self._report_range(rng)
+        return rng
+
+    def _report_range(self, rng: ModemRange) -> None:
+        """Hand a range the modem measured to :attr:`on_range`."""
+        self.stats["ranges"] = self.stats.get("ranges", 0) + 1
+        if self.on_range is not None:
+            self.on_range(rng)
+
+    async def _ping(self, dest: int) -> ModemRange:
+        """Hook for backends with a ping."""
+        raise BackendError(f"{self!r}: this modem has no ping")
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:

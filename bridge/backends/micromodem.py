@@ -21,7 +21,9 @@ failed cycle ``send_retries`` times, then raises :class:`BackendError`: a frame 
 caller is told. A reboot (``$CAREV,…,INIT``) fails the running cycle and re-initialises the modem.
 A line with a bad checksum is counted in ``stats["bad_lines"]`` and dropped.
 
-:meth:`MicromodemBackend.ping` runs the two-way ping and returns the one-way travel time.
+:meth:`~bridge.backends.base.ModemBackend.ping` runs the two-way ping (``$CCMPC`` →
+``$CAMPR``) and returns the one-way travel time as a
+:class:`~bridge.backends.base.ModemRange` (method ``ping``), also handed to ``on_range``.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import time
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-from bridge.backends.base import Inbox, ModemBackend, ModemSetup, Reception
+from bridge.backends.base import Inbox, ModemBackend, ModemRange, ModemSetup, Reception
 from bridge.backends.transport import ByteTransport
 from bridge.errors import BackendError
 from bridge.micromodem.protocol import (
@@ -69,6 +71,7 @@ class MicromodemBackend(ModemBackend):
     """A WHOI Micro-Modem (MM1/MM2) driven over NMEA."""
 
     name: ClassVar[str] = "micromodem"
+    ranging: ClassVar[str | None] = "ping"
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
@@ -115,7 +118,7 @@ class MicromodemBackend(ModemBackend):
         self._failure: BackendError | None = None
         self._configs: dict[str, asyncio.Future[str]] = {}
         self._transfer: asyncio.Future[TransferDone] | None = None
-        self._ping: tuple[int, asyncio.Future[float]] | None = None
+        self._pinging: tuple[int, asyncio.Future[float]] | None = None
         self._rx_start: float | None = None
 
     # -- hooks ---------------------------------------------------------------------------------
@@ -165,28 +168,26 @@ class MicromodemBackend(ModemBackend):
         if transport is not None:
             await transport.close()
 
-    # -- public extras -------------------------------------------------------------------------
-
-    async def ping(self, dest: int) -> float:
-        """Two-way ping of ``dest`` (``$CCMPC`` → ``$CAMPR``); returns the one-way travel time, s.
-
-        Raises :class:`BackendError` when no reply comes within ``ping_timeout_s``.
-        """
-        if not self.is_open:
-            raise BackendError(f"{self!r}: ping on a backend that is not open")
+    async def _ping(self, dest: int) -> ModemRange:
+        """Two-way ping of ``dest`` (``$CCMPC`` → ``$CAMPR``, which gives the one-way travel
+        time [V]); :class:`BackendError` when no reply comes within ``ping_timeout_s``."""
         async with self._lock:
             await self._wait_ready()
             fut: asyncio.Future[float] = asyncio.get_running_loop().create_future()
-            self._ping = (dest, fut)
+            self._pinging = (dest, fut)
             try:
-                self.protocol.ping(dest)
+                try:
+                    self.protocol.ping(dest)
+                except ValueError as exc:
+                    raise BackendError(f"micromodem {self.setup.node!r}: {exc}") from None
                 await self._flush()
-                return await asyncio.wait_for(fut, self.ping_timeout_s)
+                owtt = await asyncio.wait_for(fut, self.ping_timeout_s)
+                return ModemRange(dest, owtt, "ping", self.clock())
             except TimeoutError:
                 raise BackendError(f"micromodem {self.setup.node!r}: no ping reply from "
                                    f"{dest} within {self.ping_timeout_s:g} s") from None
             finally:
-                self._ping = None
+                self._pinging = None
 
     # -- internals -----------------------------------------------------------------------------
 
@@ -310,7 +311,7 @@ class MicromodemBackend(ModemBackend):
                 if fut_cfg is not None and not fut_cfg.done():
                     fut_cfg.set_result(event.value)
             elif isinstance(event, PingReply):
-                ping = self._ping
+                ping = self._pinging
                 if (ping is not None and event.src == ping[0] and event.dest == self.address
                         and not ping[1].done()):
                     ping[1].set_result(event.travel_time_s)
@@ -356,8 +357,8 @@ class MicromodemBackend(ModemBackend):
         futures: list[asyncio.Future[Any]] = [*self._configs.values()]
         if self._transfer is not None:
             futures.append(self._transfer)
-        if self._ping is not None:
-            futures.append(self._ping[1])
+        if self._pinging is not None:
+            futures.append(self._pinging[1])
         for fut in futures:
             if not fut.done():
                 fut.set_exception(error)

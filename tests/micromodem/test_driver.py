@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 import serial
 
-from bridge.backends.base import ModemSetup
+from bridge.backends.base import ModemRange, ModemSetup
 from bridge.backends.micromodem import MicromodemBackend
 from bridge.emulators.micromodem import MicromodemEmulator
 from bridge.emulators.pty_host import PtyHost
@@ -139,12 +139,23 @@ def test_ping_range(tmp_path: Path) -> None:
     async def main() -> None:
         async with bench(tmp_path, (1, 2, 3)) as b:
             a = await b.modem(1, ping_timeout_s=1.0)
-            await b.modem(2)
-            owtt = await a.ping(2)
-            assert owtt == pytest.approx(300.0 / 1500.0, abs=2e-4)
-            assert await a.ping(3) == pytest.approx(450.0 / 1500.0, abs=2e-4)
+            c = await b.modem(2)
+            heard: list[ModemRange] = []
+            a.on_range = heard.append
+            assert a.ranging == "ping"
+            rng = await a.ping(2)
+            assert (rng.peer, rng.method) == (2, "ping")
+            assert rng.travel_time_s == pytest.approx(300.0 / 1500.0, abs=2e-4)
+            assert abs(rng.time - a.clock()) < 1.0
+            assert (await a.ping(3)).travel_time_s == pytest.approx(450.0 / 1500.0, abs=2e-4)
+            assert heard == [rng, heard[1]] and a.stats["ranges"] == 2
             with pytest.raises(BackendError, match="no ping reply"):
                 await a.ping(9)
+            with pytest.raises(BackendError, match="address 300"):
+                await a.ping(300)
+            assert len(heard) == 2  # failures report nothing
+            await a.send(b"still fine", 2)  # a missing reply leaves the modem usable
+            assert (await asyncio.wait_for(c.recv(), 2)).data == b"still fine"
 
     run(main)
 
