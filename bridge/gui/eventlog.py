@@ -1,0 +1,123 @@
+"""Lines of the GUI's event log, from the bridge's events and counters (pure).
+
+A node publishes notable events on ``@zab/<mission>/<node>/events``. A node that does not (an
+older bridge) still publishes counters on ``.../stats`` every second; their increases become
+log lines too, so dropped frames and driver errors show either way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+# What a dropped frame's reason means to an operator.
+DROP_REASONS = {
+    "check": "frame check failed: do the two vehicles load the same mission file?",
+    "forged": "authentication tag wrong: another key, or not one of ours",
+    "replayed": "replayed frame (old counter)",
+    "malformed": "malformed frame",
+    "unknown_source": "frame from an unknown modem address",
+    "unexpected_sender": "channel from a node that does not send it",
+}
+
+
+@dataclass(frozen=True)
+class LogLine:
+    """One line of the log: ``level`` is info, warn or error."""
+
+    level: str
+    category: str
+    text: str
+
+
+def _drop_text(reason: str) -> str:
+    base = reason.split(":", 1)[0].strip()
+    meaning = DROP_REASONS.get(base)
+    return f"{meaning} ({reason})" if meaning and meaning != reason else meaning or reason
+
+
+def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
+    """The log line of one event published by ``node``; None for kinds shown elsewhere."""
+    kind = str(event.get("kind"))
+    if kind in ("link", "delivery", "transfer", "range", "position"):
+        return None  # the GUI logs these from their own keys, once per change
+    if kind == "frame_dropped":
+        src = event.get("src")
+        origin = f" from {src}" if src else ""
+        return LogLine("warn", "frame", f"{node} dropped a frame{origin}: "
+                       f"{_drop_text(str(event.get('reason', '?')))}")
+    if kind == "payload_dropped":
+        return LogLine("warn", "payload", f"{node} dropped a payload on "
+                       f"{event.get('key')!s}: {event.get('reason')}")
+    if kind == "send_failed":
+        return LogLine("error", "driver", f"{node}: modem send failed: {event.get('error')}")
+    if kind == "modem_down":
+        return LogLine("error", "driver", f"{node}: modem unavailable: {event.get('error')}")
+    extra = {k: v for k, v in event.items() if k not in ("kind", "time", "node", "data")}
+    details = ", ".join(f"{k} {v}" for k, v in extra.items())
+    return LogLine("info", kind, f"{node}: {kind}" + (f" ({details})" if details else ""))
+
+
+def link_line(observer: str, peer: str, state: str, silent_s: float | None) -> LogLine:
+    """A link changed state."""
+    silent = f" (silent {silent_s:.0f} s)" if silent_s is not None and state != "up" else ""
+    level = {"up": "info", "degraded": "warn"}.get(state, "error")
+    return LogLine(level, "link", f"link {observer} ↔ {peer}: {state}{silent}")
+
+
+def delivery_line(node: str, report: Mapping[str, Any]) -> LogLine:
+    """A reliable value could not be delivered."""
+    return LogLine("error", "delivery", f"{node}: delivery of {report.get('channel')} "
+                   f"#{report.get('id')} to {report.get('dst')} failed: "
+                   f"{report.get('reason') or 'no reason given'}")
+
+
+def transfer_line(node: str, report: Mapping[str, Any]) -> LogLine | None:
+    """A fragmented transfer ended (complete, cancelled or failed); None while under way."""
+    state = report.get("state")
+    if state not in ("complete", "cancelled", "failed"):
+        return None
+    level = "info" if state == "complete" else "error"
+    return LogLine(level, "transfer", f"{node}: transfer of {report.get('channel')} "
+                   f"#{report.get('id')} with {report.get('peer')} {state} "
+                   f"({report.get('fragments_done')}/{report.get('fragments_total')} "
+                   f"fragments, {report.get('bytes')} B)")
+
+
+@dataclass
+class CounterWatch:
+    """Turns increases of one node's stats counters into log lines."""
+
+    node: str
+    seen: dict[str, int] = field(default_factory=dict)
+    started: bool = False
+
+    def update(self, stats: Mapping[str, Any]) -> list[LogLine]:
+        counters: dict[str, int] = {"send_errors": _int(stats.get("send_errors"))}
+        for prefix, name in (("drop", "frames_dropped"), ("payload", "payloads_dropped")):
+            table = stats.get(name)
+            if isinstance(table, Mapping):
+                for reason, count in table.items():
+                    counters[f"{prefix}:{reason}"] = _int(count)
+        lines = []
+        if self.started:
+            for name, count in counters.items():
+                more = count - self.seen.get(name, 0)
+                if more > 0:
+                    lines.append(self._line(name, more))
+        self.seen, self.started = counters, True
+        return lines
+
+    def _line(self, name: str, more: int) -> LogLine:
+        if name == "send_errors":
+            return LogLine("error", "driver", f"{self.node}: {more} modem send error(s)")
+        prefix, _, what = name.partition(":")
+        if prefix == "drop":
+            return LogLine("warn", "frame",
+                           f"{self.node} dropped {more} frame(s): {_drop_text(what)}")
+        return LogLine("warn", "payload", f"{self.node} dropped {more} payload(s) on {what}")
+
+
+def _int(value: Any) -> int:
+    return value if isinstance(value, int) and not isinstance(value, bool) else 0

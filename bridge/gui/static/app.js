@@ -1,0 +1,607 @@
+// zab gui: the fleet as one node sees it, live over a websocket. Plain JS, no build step.
+// The server sends "hello" (mission + snapshot items), then "patch" messages of items;
+// apply() folds each item into `state`, and render() draws the page from `state`.
+"use strict";
+
+const RENDER_MS = 500;          // ages tick at this pace even without news
+const MIN_RENDER_MS = 100;      // news is drawn at most this often
+const RANGE_FADE_S = 60;        // range circles older than this are not drawn
+const STALE_S = 60;             // a position older than this is drawn hollow
+const MAX_EVENTS = 300;
+const SVG = "http://www.w3.org/2000/svg";
+
+let state = emptyState();
+let socket = null;
+let retryMs = 500;
+let requestId = 0;
+let dirty = true;
+
+function emptyState() {
+  return {
+    mission: null, offset: 0, connection: null, nodes: {}, ranges: {}, stats: {},
+    links: {}, events: [], commands: {}, transfers: {},
+  };
+}
+
+function vehicle(name) {
+  if (!state.nodes[name]) {
+    state.nodes[name] = { name, role: "submerged", position: {}, tracks: {}, channels: {},
+                          heard: null, static: null };
+  }
+  return state.nodes[name];
+}
+
+// ---- time ----------------------------------------------------------------------------------
+
+function serverNow() { return Date.now() / 1000 + state.offset; }
+
+function age(t) {
+  if (t === null || t === undefined) return "—";
+  const s = Math.max(0, serverNow() - t);
+  if (s < 10) return s.toFixed(1) + " s";
+  if (s < 120) return Math.round(s) + " s";
+  if (s < 7200) return Math.floor(s / 60) + " min " + Math.round(s % 60) + " s";
+  return (s / 3600).toFixed(1) + " h";
+}
+
+function duration(s) {
+  if (s === null || s === undefined) return "—";
+  return s < 10 ? s.toFixed(1) + " s" : Math.round(s) + " s";
+}
+
+function clockText(t) {
+  const d = new Date((t - state.offset) * 1000);
+  return d.toLocaleTimeString([], { hour12: false });
+}
+
+// ---- items ---------------------------------------------------------------------------------
+
+function apply(item) {
+  switch (item.kind) {
+    case "position": {
+      const v = vehicle(item.node);
+      v.position[item.source] = item;
+      const track = v.tracks[item.source] || (v.tracks[item.source] = []);
+      const last = track[track.length - 1];
+      if (!last || last[2] !== item.time) track.push([item.x, item.y, item.time]);
+      const limit = state.mission ? state.mission.track_points : 600;
+      if (track.length > limit) track.splice(0, track.length - limit);
+      break;
+    }
+    case "track": vehicle(item.node).tracks[item.source] = item.points.slice(); break;
+    case "channel": vehicle(item.node).channels[item.channel + "/" + item.element] = item; break;
+    case "heard": vehicle(item.node).heard = item.last_heard; break;
+    case "link": state.links[item.observer + "/" + item.node] = item; break;
+    case "range": state.ranges[item.observer + "/" + item.peer] = item; break;
+    case "stats": state.stats[item.node] = item; break;
+    case "event":
+      state.events.push(item);
+      if (state.events.length > MAX_EVENTS) state.events.shift();
+      break;
+    case "command": state.commands[item.ref] = item; break;
+    case "transfer": state.transfers[item.node + "/" + item.channel + "/" + item.id] = item; break;
+    case "feed": state.connection = item; break;
+    default: break;
+  }
+  dirty = true;
+}
+
+function onMessage(event) {
+  let message;
+  try { message = JSON.parse(event.data); } catch (e) { return; }
+  if (typeof message.time === "number") state.offset = message.time - Date.now() / 1000;
+  if (message.type === "hello") {
+    const offset = state.offset;
+    state = emptyState();
+    state.offset = offset;
+    state.mission = message.mission;
+    for (const node of message.mission.nodes) {
+      const v = vehicle(node.name);
+      v.role = node.role;
+      v.static = node.position;
+    }
+    setupPage();
+    message.items.forEach(apply);
+  } else if (message.type === "patch") {
+    message.items.forEach(apply);
+  } else if (message.type === "reply") {
+    onReply(message);
+  }
+}
+
+// ---- connection ----------------------------------------------------------------------------
+
+function connect() {
+  const scheme = location.protocol === "https:" ? "wss://" : "ws://";
+  socket = new WebSocket(scheme + location.host + "/ws");
+  socket.onopen = () => { retryMs = 500; dirty = true; };
+  socket.onmessage = onMessage;
+  socket.onclose = () => {
+    socket = null;
+    dirty = true;
+    setTimeout(connect, retryMs);
+    retryMs = Math.min(retryMs * 2, 5000);
+  };
+}
+
+function renderConnection() {
+  const badge = document.getElementById("connection");
+  let text, stateName;
+  if (!socket || socket.readyState !== WebSocket.OPEN) {
+    text = "GUI server unreachable, retrying…"; stateName = "down";
+  } else if (!state.connection || !state.connection.connected) {
+    const node = state.mission ? state.mission.node : "node";
+    text = "not connected to " + node + (state.connection && state.connection.error
+      ? ": " + state.connection.error : ""); stateName = "down";
+  } else {
+    const node = state.mission.node;
+    const stats = state.stats[node];
+    const silent = stats ? serverNow() - stats.time : null;
+    if (stats && silent < 5) { text = "connected to " + node; stateName = "up"; }
+    else { text = "connected to " + node + ", its bridge is silent"; stateName = "degraded"; }
+  }
+  badge.textContent = text;
+  badge.dataset.state = stateName;
+  document.getElementById("clock").textContent = clockText(serverNow());
+}
+
+// ---- map -----------------------------------------------------------------------------------
+
+function el(name, attrs, parent) {
+  const node = document.createElementNS(SVG, name);
+  for (const [k, v] of Object.entries(attrs || {})) node.setAttribute(k, v);
+  if (parent) parent.appendChild(node);
+  return node;
+}
+
+function linkOf(name) {
+  const mission = state.mission;
+  if (!mission) return null;
+  if (name === mission.node) return null;
+  return state.links[mission.node + "/" + name] || null;
+}
+
+function linkState(name) {
+  const link = linkOf(name);
+  return link ? link.state : "unknown";
+}
+
+function where(v) {
+  // the newest live position (navigation or fix), else the mission's static one
+  const live = [v.position.nav, v.position.fix].filter(Boolean)
+    .sort((a, b) => b.time - a.time)[0];
+  if (live) return { x: live.x, y: live.y, depth: live.depth, time: live.time, live: true };
+  if (v.static && v.role === "surface") return { ...v.static, time: null, live: false };
+  return null;
+}
+
+function niceStep(span) {
+  const raw = span / 6;
+  const p = Math.pow(10, Math.floor(Math.log10(raw)));
+  for (const m of [1, 2, 5, 10]) if (m * p >= raw) return m * p;
+  return 10 * p;
+}
+
+function renderMap() {
+  const svg = document.getElementById("map");
+  const width = svg.clientWidth || 600;
+  const height = svg.clientHeight || 400;
+  svg.setAttribute("viewBox", `0 0 ${width} ${height}`);
+  while (svg.firstChild) svg.removeChild(svg.firstChild);
+  const now = serverNow();
+  const points = [];
+  const places = {};
+  for (const v of Object.values(state.nodes)) {
+    const p = where(v);
+    if (p) { places[v.name] = p; points.push([p.x, p.y]); }
+    for (const track of Object.values(v.tracks)) for (const q of track) points.push([q[0], q[1]]);
+  }
+  const ranges = Object.values(state.ranges).filter(
+    (r) => now - r.time < RANGE_FADE_S && places[r.observer]);
+  for (const r of ranges) {
+    const c = places[r.observer];
+    points.push([c.x - r.range_m, c.y - r.range_m], [c.x + r.range_m, c.y + r.range_m]);
+  }
+  if (!points.length) {
+    const t = el("text", { x: width / 2, y: height / 2, "text-anchor": "middle",
+                           class: "map-empty" }, svg);
+    t.textContent = "no positions yet";
+    return;
+  }
+  let [x0, y0] = points[0], [x1, y1] = points[0];
+  for (const [x, y] of points) {
+    x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y);
+  }
+  const span = Math.max(x1 - x0, y1 - y0, 20);
+  const pad = 36;
+  const scale = Math.min((width - 2 * pad) / Math.max(x1 - x0, span * 0.2),
+                         (height - 2 * pad) / Math.max(y1 - y0, span * 0.2));
+  const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+  const sx = (x) => width / 2 + (x - cx) * scale;
+  const sy = (y) => height / 2 - (y - cy) * scale;
+
+  // grid and scale bar
+  const step = niceStep(Math.max(width, height) / scale);
+  const grid = el("g", { class: "grid" }, svg);
+  const gx0 = Math.floor((cx - width / 2 / scale) / step) * step;
+  for (let gx = gx0; sx(gx) <= width; gx += step) {
+    el("line", { x1: sx(gx), y1: 0, x2: sx(gx), y2: height }, grid);
+  }
+  const gy0 = Math.floor((cy - height / 2 / scale) / step) * step;
+  for (let gy = gy0; sy(gy) >= 0; gy += step) {
+    el("line", { x1: 0, y1: sy(gy), x2: width, y2: sy(gy) }, grid);
+  }
+  const bar = el("g", { class: "scale" }, svg);
+  el("line", { x1: 12, y1: height - 14, x2: 12 + step * scale, y2: height - 14 }, bar);
+  el("text", { x: 12, y: height - 20 }, bar).textContent = `${step} m`;
+  el("text", { x: width - 12, y: 18, "text-anchor": "end", class: "north" }, svg)
+    .textContent = "N ↑";
+
+  // ranges, measured by an observer to a peer: the peer is somewhere on the circle
+  for (const r of ranges) {
+    const c = places[r.observer];
+    const fade = 1 - (now - r.time) / RANGE_FADE_S;
+    const g = el("g", { class: "range", "data-observer": r.observer, "data-peer": r.peer,
+                        opacity: (0.25 + 0.75 * fade).toFixed(2) }, svg);
+    const radius = Math.max(1, r.range_m * scale);
+    el("circle", { cx: sx(c.x), cy: sy(c.y), r: radius }, g);
+    // label the circle where it passes nearest the peer's last known position
+    const peer = places[r.peer];
+    const angle = peer ? Math.atan2(sy(peer.y) - sy(c.y), sx(peer.x) - sx(c.x)) : -Math.PI / 4;
+    const label = el("text", { x: sx(c.x) + radius * Math.cos(angle) + 4,
+                               y: sy(c.y) + radius * Math.sin(angle) + 14 }, g);
+    label.textContent = `${r.range_m.toFixed(1)} m`;
+  }
+
+  // tracks
+  for (const v of Object.values(state.nodes)) {
+    for (const [source, track] of Object.entries(v.tracks)) {
+      if (track.length < 2) continue;
+      el("polyline", {
+        class: "track " + source, "data-node": v.name,
+        points: track.map((q) => `${sx(q[0]).toFixed(1)},${sy(q[1]).toFixed(1)}`).join(" "),
+      }, svg);
+    }
+  }
+
+  // fixes from the bridge's localisation
+  for (const v of Object.values(state.nodes)) {
+    const fix = v.position.fix;
+    if (!fix) continue;
+    const g = el("g", { class: "fix", "data-node": v.name }, svg);
+    if (fix.sigma_m) el("circle", { cx: sx(fix.x), cy: sy(fix.y),
+                                    r: Math.max(2, fix.sigma_m * scale) }, g);
+    el("path", { d: `M${sx(fix.x) - 6},${sy(fix.y)}h12M${sx(fix.x)},${sy(fix.y) - 6}v12` }, g);
+  }
+
+  // vehicles
+  for (const [name, p] of Object.entries(places)) {
+    const v = state.nodes[name];
+    const stale = p.time !== null && now - p.time > STALE_S;
+    const g = el("g", { class: `vehicle ${linkState(name)}${stale ? " stale" : ""}`,
+                        "data-node": name, "data-state": linkState(name) }, svg);
+    const X = sx(p.x), Y = sy(p.y);
+    if (v.role === "surface") el("rect", { x: X - 7, y: Y - 7, width: 14, height: 14 }, g);
+    else el("circle", { cx: X, cy: Y, r: 7 }, g);
+    const label = el("text", { x: X + 10, y: Y + 4 }, g);
+    label.textContent = name + (p.depth ? ` ${p.depth.toFixed(1)} m` : "");
+    el("title", {}, g).textContent =
+      `${name}: x ${p.x.toFixed(1)} m, y ${p.y.toFixed(1)} m, depth ${(p.depth || 0).toFixed(1)} m`
+      + (p.time !== null ? `, ${age(p.time)} ago` : " (mission position)");
+  }
+}
+
+// ---- vehicles ------------------------------------------------------------------------------
+
+function short(value) {
+  // {x: 1.23456, vector: {y: 2}} -> "x 1.2346 · vector.y 2": easy to scan on a small screen
+  const parts = [];
+  const walk = (v, path) => {
+    if (v && typeof v === "object" && !Array.isArray(v)) {
+      for (const [k, x] of Object.entries(v)) walk(x, path ? path + "." + k : k);
+      return;
+    }
+    let text;
+    if (typeof v === "number" && !Number.isInteger(v)) text = String(Number(v.toPrecision(5)));
+    else if (typeof v === "string") text = v;
+    else text = JSON.stringify(v);
+    parts.push(path ? path + " " + text : text);
+  };
+  walk(value, "");
+  const text = parts.join(" · ");
+  return text.length > 160 ? text.slice(0, 157) + "…" : text;
+}
+
+function make(tag, className, text, parent) {
+  const node = document.createElement(tag);
+  if (className) node.className = className;
+  if (text !== undefined && text !== null) node.textContent = text;
+  if (parent) parent.appendChild(node);
+  return node;
+}
+
+function renderVehicles() {
+  const box = document.getElementById("vehicles");
+  const mission = state.mission;
+  if (!mission) return;
+  for (const node of mission.nodes) {
+    const v = state.nodes[node.name];
+    let card = box.querySelector(`.vehicle-card[data-node="${node.name}"]`);
+    if (!card) {
+      card = make("article", "vehicle-card", null, box);
+      card.dataset.node = node.name;
+      const head = make("header", null, null, card);
+      make("h3", null, node.name, head);
+      make("span", "role muted", node.role + " · address " + node.address, head);
+      make("span", "badge link", "", head);
+      make("span", "heard muted", "", head);
+      const table = make("table", null, null, card);
+      const hr = make("tr", null, null, make("thead", null, null, table));
+      for (const h of ["channel", "value", "age", "interval"]) make("th", null, h, hr);
+      make("tbody", null, null, table);
+    }
+    const badge = card.querySelector(".link");
+    if (node.name === mission.node) {
+      const stats = state.stats[node.name];
+      badge.textContent = stats ? "this node: bridge " + (serverNow() - stats.time < 5
+        ? "running" : "silent") : "this node";
+      badge.dataset.state = stats && serverNow() - stats.time < 5 ? "up" : "unknown";
+    } else {
+      const link = linkOf(node.name);
+      badge.textContent = link ? "link " + link.state : "link not known yet";
+      badge.dataset.state = link ? link.state : "unknown";
+    }
+    card.dataset.state = badge.dataset.state;
+    card.querySelector(".heard").textContent =
+      node.name === mission.node ? "" : "last heard " + (v.heard ? age(v.heard) + " ago" : "never");
+    const body = card.querySelector("tbody");
+    const rows = Object.values(v.channels).sort((a, b) =>
+      a.channel.localeCompare(b.channel) || a.element - b.element);
+    if (!rows.length && !body.querySelector(".empty")) {
+      const tr = make("tr", "empty", null, body);
+      make("td", "muted", "nothing received yet", tr).colSpan = 4;
+    }
+    for (const item of rows) {
+      const id = item.channel + "/" + item.element;
+      let tr = body.querySelector(`tr[data-id="${CSS.escape(id)}"]`);
+      if (!tr) {
+        const empty = body.querySelector(".empty");
+        if (empty) empty.remove();
+        tr = make("tr", null, null, body);
+        tr.dataset.id = id;
+        tr.dataset.channel = item.channel;
+        tr.dataset.element = item.element;
+        const name = make("td", "channel", item.channel, tr);
+        make("div", "muted key", item.key, name);
+        make("td", "value", "", tr);
+        make("td", "age", "", tr);
+        make("td", "interval", "", tr);
+      }
+      tr.querySelector(".value").textContent = short(item.value);
+      tr.querySelector(".age").textContent = age(item.time);
+      tr.querySelector(".interval").textContent = duration(item.interval_s);
+      tr.dataset.count = item.count;
+    }
+  }
+}
+
+// ---- events --------------------------------------------------------------------------------
+
+let shownEvents = 0;
+
+function renderEvents() {
+  const list = document.getElementById("events");
+  if (shownEvents > state.events.length) { list.textContent = ""; shownEvents = 0; }
+  for (const item of state.events.slice(shownEvents)) {
+    const li = document.createElement("li");
+    li.className = item.level;
+    li.dataset.category = item.category;
+    make("time", "muted", clockText(item.time), li);
+    make("span", null, " " + item.text, li);
+    list.insertBefore(li, list.firstChild);
+  }
+  shownEvents = state.events.length;
+  while (list.children.length > MAX_EVENTS) list.removeChild(list.lastChild);
+}
+
+// ---- commands ------------------------------------------------------------------------------
+
+function commandChannels(vehicleName) {
+  return state.mission.commands.filter((c) => c.destinations.includes(vehicleName));
+}
+
+function setupPage() {
+  const mission = state.mission;
+  document.getElementById("mission").textContent = mission.mission + " from " + mission.node;
+  document.title = "zab " + mission.mission;
+  document.getElementById("vehicles").textContent = "";
+  document.getElementById("events").textContent = "";
+  document.getElementById("commands").textContent = "";
+  shownEvents = 0;
+  const vehicles = [];
+  for (const c of mission.commands) {
+    for (const d of c.destinations) if (!vehicles.includes(d)) vehicles.push(d);
+  }
+  const select = document.getElementById("command-vehicle");
+  const chosen = select.value;
+  select.textContent = "";
+  for (const name of vehicles) make("option", null, name, select).value = name;
+  if (vehicles.includes(chosen)) select.value = chosen;
+  document.getElementById("command-form").hidden = !vehicles.length;
+  if (!vehicles.length) {
+    document.getElementById("command-note").textContent =
+      mission.node + " sends no channel to other nodes: nothing to command.";
+  }
+  fillChannels();
+}
+
+function fillChannels() {
+  const vehicleName = document.getElementById("command-vehicle").value;
+  const select = document.getElementById("command-channel");
+  const chosen = select.value;
+  select.textContent = "";
+  for (const c of commandChannels(vehicleName)) {
+    make("option", null, c.channel + (c.reliable ? " (acknowledged)" : ""), select).value =
+      c.channel;
+  }
+  if ([...select.options].some((o) => o.value === chosen)) select.value = chosen;
+  fillFields();
+}
+
+function fieldInput(field) {
+  let input;
+  if (field.kind === "enum") {
+    input = document.createElement("select");
+    for (const value of field.values) make("option", null, value, input).value = value;
+  } else if (field.kind === "boolean") {
+    input = document.createElement("input");
+    input.type = "checkbox";
+  } else if (field.kind === "number" || field.kind === "integer") {
+    input = document.createElement("input");
+    input.type = "number";
+    input.step = field.kind === "integer" ? "1" : "any";
+    input.inputMode = field.kind === "integer" ? "numeric" : "decimal";
+    if (field.minimum !== null) input.min = field.minimum;
+    if (field.maximum !== null) input.max = field.maximum;
+    input.required = true;
+  } else if (field.kind === "string") {
+    input = document.createElement("input");
+    input.type = "text";
+    if (field.max_length) input.maxLength = field.max_length;
+  } else {
+    input = document.createElement("textarea");
+    input.rows = 2;
+    input.placeholder = "JSON";
+  }
+  input.dataset.path = field.path;
+  input.dataset.kind = field.kind;
+  input.name = field.path || "payload";
+  return input;
+}
+
+function fillFields() {
+  const box = document.getElementById("command-fields");
+  box.textContent = "";
+  const channel = currentChannel();
+  const note = document.getElementById("command-note");
+  if (!channel) { note.textContent = "no command channel reaches this vehicle"; return; }
+  const others = channel.destinations.filter(
+    (d) => d !== document.getElementById("command-vehicle").value);
+  note.textContent = (channel.reliable ? "acknowledged: shows delivered or failed"
+    : "best effort: shows sent; no delivery report")
+    + (others.length ? " · also reaches " + others.join(", ") : "");
+  channel.elements.forEach((element, index) => {
+    const group = make("fieldset", null, null, box);
+    group.dataset.element = index;
+    make("legend", "muted", element.key, group);
+    for (const field of element.fields) {
+      const label = make("label", "field", null, group);
+      make("span", "name", field.path || "(payload)", label);
+      label.appendChild(fieldInput(field));
+      const bounds = [];
+      if (field.minimum !== null && field.maximum !== null) {
+        bounds.push(`${field.minimum} … ${field.maximum}`);
+      }
+      if (field.units) bounds.push(field.units);
+      if (bounds.length) make("span", "muted bounds", bounds.join(" "), label);
+      if (field.description) label.title = field.description;
+    }
+  });
+}
+
+function currentChannel() {
+  const name = document.getElementById("command-channel").value;
+  return state.mission.commands.find((c) => c.channel === name) || null;
+}
+
+function readValue(input) {
+  if (input.dataset.kind === "boolean") return input.checked;
+  if (input.dataset.kind === "number" || input.dataset.kind === "integer") {
+    return input.value === "" ? "" : Number(input.value);
+  }
+  return input.value;
+}
+
+function sendCommand(event) {
+  event.preventDefault();
+  const error = document.getElementById("command-error");
+  error.textContent = "";
+  const channel = currentChannel();
+  if (!channel) return;
+  const values = [];
+  for (const group of document.querySelectorAll("#command-fields fieldset")) {
+    const element = {};
+    for (const input of group.querySelectorAll("[data-path]")) {
+      if (!input.checkValidity()) {
+        error.textContent = `${input.dataset.path || "payload"}: ${input.validationMessage}`;
+        input.focus();
+        return;
+      }
+      element[input.dataset.path] = readValue(input);
+    }
+    values.push(element);
+  }
+  if (!socket || socket.readyState !== WebSocket.OPEN) {
+    error.textContent = "not connected to the GUI server";
+    return;
+  }
+  requestId += 1;
+  socket.send(JSON.stringify({
+    type: "command", request: requestId, channel: channel.channel,
+    vehicle: document.getElementById("command-vehicle").value, values,
+  }));
+}
+
+function onReply(message) {
+  if (!message.ok) {
+    document.getElementById("command-error").textContent = message.error || "refused";
+  }
+}
+
+function renderCommands() {
+  const list = document.getElementById("commands");
+  const commands = Object.values(state.commands).sort((a, b) => b.time - a.time).slice(0, 20);
+  list.textContent = "";
+  for (const c of commands) {
+    const li = make("li", "command", null, list);
+    li.dataset.ref = c.ref;
+    li.dataset.state = c.state;
+    li.dataset.channel = c.channel;
+    li.dataset.vehicle = c.vehicle;
+    make("time", "muted", clockText(c.time), li);
+    make("span", null, ` ${c.channel} → ${c.vehicle} `, li);
+    make("span", "badge state", c.state + (c.state === "pending" && c.detail
+      ? " (" + c.detail + ")" : ""), li).dataset.state = c.state;
+    make("div", "muted", short(c.values) + (c.reason ? " · " + c.reason : "")
+      + (Object.keys(c.others).length ? " · others: " + Object.entries(c.others)
+        .map(([k, v]) => k + " " + v).join(", ") : ""), li);
+  }
+}
+
+// ---- main loop -----------------------------------------------------------------------------
+
+let lastRender = 0;
+
+function frame(t) {
+  const since = t - lastRender;
+  if (state.mission && ((dirty && since > MIN_RENDER_MS) || since > RENDER_MS)) {
+    dirty = false;
+    lastRender = t;
+    renderConnection();
+    renderMap();
+    renderVehicles();
+    renderEvents();
+    renderCommands();
+  } else if (!state.mission && since > RENDER_MS) {
+    lastRender = t;
+    renderConnection();
+  }
+  requestAnimationFrame(frame);
+}
+
+document.getElementById("command-vehicle").addEventListener("change", fillChannels);
+document.getElementById("command-channel").addEventListener("change", fillFields);
+document.getElementById("command-form").addEventListener("submit", sendCommand);
+window.addEventListener("resize", () => { dirty = true; });
+connect();
+requestAnimationFrame(frame);
