@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from bridge.codec import FieldSpec
 
@@ -106,14 +106,75 @@ class TdmaMac(Strict):
     order: list[NodeName] = Field(min_length=1, description="Slot owners; a node may repeat.")
 
 
+class RangingSlots(Strict):
+    """Seed 001's ranging rounds, reserved inside a random-access MAC.
+
+    Every frame of ``requester`` is a ranging request (it sends one at least every
+    ``interval_s``, carrying whatever is due). The ``anchors`` answer in order: the first at
+    once, each next one right after hearing the previous answer or ``tmax_s`` after the previous
+    anchor's turn. Every other node keeps quiet until the round is over.
+    """
+
+    requester: NodeName
+    anchors: list[NodeName] = Field(min_length=1, description="Answering nodes, in turn order.")
+    interval_s: float = Field(gt=0, description="A request at least this often, seconds.")
+    tmax_s: float | None = Field(None, gt=0, description="One anchor's turn, seconds; default "
+                                 "seed 001 eq. 6 from the preset: modem latency + largest "
+                                 "anchor frame's airtime + propagation over the longest range.")
+
+
 class NoMac(Strict):
     """No access control: send as soon as something is due (ideal links, tests)."""
 
     type: Literal["none"]
     min_gap_s: float = Field(0.0, ge=0, description="Least time between two frames of a node.")
+    ranging: RangingSlots | None = None
 
 
-Mac = Annotated[TdmaMac | NoMac, Field(discriminator="type")]
+class PolledMac(Strict):
+    """Master/slave polling (seed 002's token passing, seed 003's polled uplinks).
+
+    The ``master`` sends a frame every ``ipg_s``, each polling the next slave of its sequence;
+    a slave sends only right after hearing a frame that polls it. No clock sync is needed.
+    """
+
+    type: Literal["polled"]
+    master: NodeName
+    order: list[NodeName] | None = Field(None, min_length=1, description="Slaves polled in "
+                                         "turn; repeat a name to poll it more often. Default: "
+                                         "every other node, in mission order.")
+    weights: dict[NodeName, Annotated[int, Field(ge=1)]] | None = Field(
+        None, description="Polls per cycle of each slave, interleaved (instead of order).")
+    ipg_s: float | None = Field(None, gt=0, description="Inter-packet gap between two polls, "
+                                "seconds; default: the master's frame time plus the slowest "
+                                "slave's reply (latency + 3 sigma jitter, airtime, propagation) "
+                                "plus guard_s.")
+    guard_s: float = Field(0.0, ge=0, description="Spare time added to a computed ipg_s.")
+
+    @model_validator(mode="after")
+    def _one_sequence(self) -> PolledMac:
+        if self.order is not None and self.weights is not None:
+            raise ValueError("give either order or weights, not both")
+        return self
+
+
+class AlohaMac(Strict):
+    """Random access: send when something is due, after a random backoff (pure or slotted)."""
+
+    type: Literal["aloha"]
+    slotted: bool = Field(False, description="Start frames only on slot boundaries (slots "
+                          "aligned to the Unix epoch, as TDMA: clocks must agree).")
+    slot_s: float | None = Field(None, gt=0, description="Slot length, seconds; default: a "
+                                 "full frame's time (latency + 3 sigma, airtime, propagation).")
+    backoff_s: float = Field(0.0, ge=0, description="Largest random wait before a frame, "
+                             "seconds (slotted: whole slots up to this).")
+    max_airtime_share: float = Field(1.0, gt=0, le=1, description="Cap on the share of time "
+                                     "this node transmits: after a frame of airtime a, the next "
+                                     "starts at least a / share later.")
+    ranging: RangingSlots | None = None
+
+
+Mac = Annotated[TdmaMac | NoMac | PolledMac | AlohaMac, Field(discriminator="type")]
 
 
 class Element(Strict):

@@ -13,6 +13,7 @@ from pydantic import ValidationError
 from bridge.channels import ChannelTable, ChannelTableError
 from bridge.errors import MissionError
 from bridge.frame import FrameCodec
+from bridge.mac import mac_problems
 from bridge.mission import Mission
 
 Loc = tuple[str | int, ...]
@@ -142,7 +143,7 @@ def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
 
 
 def _is_union_tag(part: str | int) -> bool:
-    return isinstance(part, str) and (part in ("tdma", "none") or "[" in part)
+    return isinstance(part, str) and (part in ("tdma", "none", "polled", "aloha") or "[" in part)
 
 
 def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
@@ -153,10 +154,7 @@ def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
             yield (("nodes", name, "address"),
                    f"address {node.address} already used by node {seen[node.address]!r}")
         seen.setdefault(node.address, name)
-    if mission.mac.type == "tdma":
-        for i, owner in enumerate(mission.mac.order):
-            if owner not in mission.nodes:
-                yield (("mac", "order", i), f"unknown node {owner!r}")
+    yield from mac_problems(mission)
     for i, anchor in enumerate(mission.ranging.anchors or ()):
         if anchor not in mission.nodes:
             yield (("ranging", "anchors", i), f"unknown node {anchor!r}")

@@ -15,6 +15,8 @@ Sources of the figures:
 - ``s2cr-burst`` and ``s100-rf``: seed 002 (UMCI), Table 3, the statistical models of the
   EvoLogics S2CR in burst mode and the WFS S100 RF modem (bit rate, intrinsic delay and jitter,
   propagation per metre, minimum and maximum distance).
+- ``hippocampus-266``: seed 001 (µAUV ranging): the authors' small modem sending 15-byte packets
+  at 266 bit/s, communicating over at least 150 m (section IV); no latency figures are given.
 """
 
 from __future__ import annotations
@@ -140,6 +142,14 @@ PRESETS: dict[str, Preset] = {
             max_range_m=5.0,
             min_range_m=0.5,
             description="WFS S100 underwater RF modem, seed 002 Table 3 (propagation ~ instant)",
+        ),
+        Preset(
+            name="hippocampus-266",
+            frame_bytes=15,
+            bitrate_bps=266.0,
+            sound_speed_mps=1500.0,
+            max_range_m=150.0,
+            description="seed 001's µAUV modem: 15 B packets at 266 bit/s, 150 m",
         ),
     )
 }
