@@ -247,9 +247,12 @@ function renderMap() {
     el("circle", { cx: sx(c.x), cy: sy(c.y), r: radius }, g);
     // label the circle where it passes nearest the peer's last known position
     const peer = places[r.peer];
-    const angle = peer ? Math.atan2(sy(peer.y) - sy(c.y), sx(peer.x) - sx(c.x)) : -Math.PI / 4;
-    const label = el("text", { x: sx(c.x) + radius * Math.cos(angle) + 4,
-                               y: sy(c.y) + radius * Math.sin(angle) + 14 }, g);
+    // (a little clockwise of it, so the vehicle's own label stays readable)
+    const toward = peer ? Math.atan2(sy(peer.y) - sy(c.y), sx(peer.x) - sx(c.x)) : -Math.PI / 4;
+    const angle = toward + Math.min(0.6, 28 / radius);
+    const label = el("text", { x: sx(c.x) + radius * Math.cos(angle),
+                               y: sy(c.y) + radius * Math.sin(angle),
+                               "text-anchor": Math.cos(angle) >= 0 ? "start" : "end" }, g);
     label.textContent = `${r.range_m.toFixed(1)} m`;
   }
 
@@ -572,7 +575,8 @@ function renderCommands() {
     make("span", null, ` ${c.channel} → ${c.vehicle} `, li);
     make("span", "badge state", c.state + (c.state === "pending" && c.detail
       ? " (" + c.detail + ")" : ""), li).dataset.state = c.state;
-    make("div", "muted", short(c.values) + (c.reason ? " · " + c.reason : "")
+    const values = Array.isArray(c.values) && c.values.length === 1 ? c.values[0] : c.values;
+    make("div", "muted", short(values) + (c.reason ? " · " + c.reason : "")
       + (Object.keys(c.others).length ? " · others: " + Object.entries(c.others)
         .map(([k, v]) => k + " " + v).join(", ") : ""), li);
   }

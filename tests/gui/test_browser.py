@@ -1,0 +1,242 @@
+"""``zab gui`` in a real browser (Debian's headless Chromium, driven by Playwright) against a
+simulated fleet on loopback: vehicles appear, values and ages update, a command reaches the
+vehicle's key, a stopped vehicle turns down. Leaves a screenshot in ``artifacts/gui.png``."""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import yaml
+
+from bridge.mission_loader import LoadedMission
+from tests.conftest import REPO, on_free_ports
+from tests.harness import Inbox, outside_session, put, running_fleet
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--no-sandbox", "--headless", "--disable-gpu",
+                 "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run"]
+WAIT_MS = 20_000  # an upper bound for things the fleet does within a few TDMA cycles
+
+pytestmark = pytest.mark.skipif(not CHROMIUM.exists(),
+                                reason="needs Debian's chromium (apt-get install chromium)")
+
+# A small, quick fleet: a 2.1 s TDMA cycle, links down after 5 s of silence.
+MISSION = """
+mission: guitest
+wire: {dlbl: true}
+modem:
+  backend: sim
+  frame_bytes: 32
+  options: {preset: evologics-s2c-im, seed: 3}
+mac: {type: tdma, slot_s: 0.7, guard_s: 0.1, order: [ssv, auv1, auv2]}
+link: {degraded_after_s: 3, down_after_s: 5}
+nodes:
+  ssv: {address: 1, role: surface, position: {x: 0, y: 0, depth: 0.5}}
+  auv1: {address: 2, position: {x: 40, y: 30, depth: 8}, nav_key: nav}
+  auv2: {address: 3, position: {x: -30, y: 50, depth: 12}, nav_key: nav}
+channels:
+  - name: nav
+    from: "auv[12]"
+    to: ssv
+    elements:
+      - in: nav
+        out: "{src}/nav"
+        fields:
+          - {field: x, resolution: 0.1, min: -500, max: 500}
+          - {field: y, resolution: 0.1, min: -500, max: 500}
+          - {field: depth, resolution: 0.1, min: 0, max: 100}
+  - name: status
+    from: "auv[12]"
+    to: ssv
+    elements:
+      - in: status
+        out: "{src}/status"
+        fields:
+          - {field: battery, type: int, min: 0, max: 100}
+  - name: command
+    from: ssv
+    to: "auv[12]"
+    elements:
+      - in: command
+        out: ssv/command
+        fields:
+          - {field: action, type: enum, values: [none, start, hold, surface]}
+          - {field: leg, type: int, min: 0, max: 63}
+"""
+
+START = {"auv1": (40.0, 30.0, 8.0), "auv2": (-30.0, 50.0, 12.0)}
+
+
+class VehicleApps:
+    """On each vehicle, an application publishing navigation and status a few times a second
+    (a new battery value each time), until stopped."""
+
+    def __init__(self, loaded: LoadedMission) -> None:
+        self.sessions = {name: outside_session(loaded, name) for name in START}
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="vehicle-apps", daemon=True)
+
+    def _run(self) -> None:
+        t0 = time.time()
+        while not self.stop.wait(0.3):
+            t = time.time() - t0
+            for name, session in self.sessions.items():
+                x, y, depth = START[name]
+                put(session, "nav", {"x": x + 0.5 * t, "y": y + 0.3 * t, "depth": depth})
+                put(session, "status", {"battery": 100 - int(t * 3) % 100})
+
+    def __enter__(self) -> VehicleApps:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop.set()
+        self.thread.join(5)
+        for session in self.sessions.values():
+            session.close()
+
+
+@contextlib.contextmanager
+def gui_process(path: Path) -> Iterator[str]:
+    """``zab gui MISSION --port 0`` in a subprocess; yields the page's URL."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "bridge", "gui", str(path), "--port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=REPO)
+    try:
+        assert process.stdout is not None
+        lines = []
+        for line in process.stdout:
+            lines.append(line)
+            found = re.search(r"(http://127\.0\.0\.1:\d+/)", line)
+            if found:
+                break
+        else:
+            raise AssertionError("zab gui printed no URL:\n" + "".join(lines))
+        threading.Thread(target=process.stdout.read, daemon=True).start()  # keep it draining
+        yield found.group(1)
+    finally:
+        process.terminate()
+        try:
+            process.wait(10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(5)
+
+
+@pytest.fixture(scope="module")
+def stage(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
+    """The fleet (auv2 in its own Fleet, so it can be stopped), apps, `zab gui`, a page."""
+    from playwright.sync_api import sync_playwright
+
+    loaded = on_free_ports(MISSION, "guitest.yaml")
+    folder = tmp_path_factory.mktemp("gui")
+    path = folder / "guitest.yaml"
+    path.write_text(open_mission_text(loaded))
+    with contextlib.ExitStack() as stack:
+        main = stack.enter_context(running_fleet(loaded, only=["ssv", "auv1"]))
+        assert main.water is not None and main.water.port is not None
+        auv2 = contextlib.ExitStack()
+        stack.callback(auv2.close)
+        auv2.enter_context(running_fleet(loaded, only=["auv2"],
+                                         water=f"127.0.0.1:{main.water.port}"))
+        stack.enter_context(VehicleApps(loaded))
+        url = stack.enter_context(gui_process(path))
+        playwright = stack.enter_context(sync_playwright())
+        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        stack.callback(browser.close)
+        page = browser.new_page(viewport={"width": 1280, "height": 900})
+        errors: list[str] = []
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.goto(url)
+        yield {"page": page, "loaded": loaded, "stop_auv2": auv2.close, "errors": errors,
+               "folder": folder}
+        shot = folder / "gui.png"
+        page.screenshot(path=str(shot), full_page=True)
+        artifacts = REPO / "artifacts"
+        artifacts.mkdir(exist_ok=True)
+        shutil.copy(shot, artifacts / "gui.png")
+        print(f"GUI screenshot: {artifacts / 'gui.png'}")
+        assert errors == [], f"errors in the page: {errors}"
+
+
+def open_mission_text(loaded: LoadedMission) -> str:
+    """The test mission with the free ports ``loaded`` was given."""
+    data = yaml.safe_load(MISSION)
+    for name, node in loaded.mission.nodes.items():
+        data["nodes"][name]["zenoh"] = {"listen": node.zenoh.listen}
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+def test_vehicles_appear_on_the_map(stage):
+    page = stage["page"]
+    for name in ("auv1", "auv2"):
+        page.wait_for_selector(f'#map .vehicle[data-node="{name}"]', timeout=WAIT_MS)
+    page.wait_for_selector('#map .track[data-node="auv1"]', timeout=WAIT_MS)
+    assert page.is_visible('#map .vehicle[data-node="ssv"]')  # the surface, where it is moored
+    page.wait_for_selector('#map .range[data-peer="auv1"]', timeout=WAIT_MS)  # DLBL range
+    assert page.inner_text("#connection") == "connected to ssv"
+
+
+def test_a_channel_value_and_its_age_update(stage):
+    page = stage["page"]
+    row = '.vehicle-card[data-node="auv1"] tr[data-channel="status"]'
+    page.wait_for_selector(row, timeout=WAIT_MS)
+    first_value = page.inner_text(f"{row} .value")
+    first_count = int(page.get_attribute(row, "data-count"))
+    assert first_value.startswith("battery ")
+    age = page.inner_text(f"{row} .age")
+    page.wait_for_function(
+        "([sel, age]) => document.querySelector(sel + ' .age').textContent !== age",
+        arg=[row, age], timeout=WAIT_MS)  # the age ticks by itself
+    page.wait_for_function(
+        "([sel, count]) => Number(document.querySelector(sel).dataset.count) > count",
+        arg=[row, first_count], timeout=WAIT_MS)  # and a new value arrives
+    assert page.inner_text(f"{row} .value") != first_value
+    assert page.inner_text(f"{row} .interval").endswith(" s")
+
+
+def test_a_command_from_the_page_reaches_the_vehicle_key(stage):
+    page, loaded = stage["page"], stage["loaded"]
+    auv1 = outside_session(loaded, "auv1")
+    try:
+        inbox = Inbox()
+        auv1.declare_subscriber("ssv/command", inbox)
+        page.select_option("#command-vehicle", "auv1")
+        page.select_option("#command-channel", "command")
+        page.select_option('#command-fields [data-path="action"]', "start")
+        page.fill('#command-fields [data-path="leg"]', "99")
+        page.click("#command-send")
+        assert "63" in page.inner_text("#command-error")  # out of bounds: never sent
+        page.fill('#command-fields [data-path="leg"]', "7")
+        page.click("#command-send")
+        page.wait_for_selector('#commands li[data-vehicle="auv1"]', timeout=WAIT_MS)
+        key, value, _ = inbox.get(timeout=WAIT_MS / 1000)
+        assert (key, value) == ("ssv/command", {"action": "start", "leg": 7})
+        # best effort: no delivery report, so it shows "sent" after a few seconds
+        page.wait_for_selector('#commands li[data-vehicle="auv1"][data-state="sent"]',
+                               timeout=WAIT_MS)
+        assert page.inner_text("#command-error") == ""
+    finally:
+        auv1.close()
+
+
+def test_a_stopped_vehicle_turns_down(stage):
+    page = stage["page"]
+    card = '.vehicle-card[data-node="auv2"]'
+    page.wait_for_selector(f'{card}[data-state="up"]', timeout=WAIT_MS)
+    stage["stop_auv2"]()
+    page.wait_for_selector(f'{card}[data-state="down"]', timeout=WAIT_MS)
+    assert page.get_attribute('#map .vehicle[data-node="auv2"]', "data-state") == "down"
+    assert page.get_attribute('.vehicle-card[data-node="auv1"]', "data-state") == "up"
+    events = page.inner_text("#events")
+    assert "link ssv ↔ auv2: down" in events
