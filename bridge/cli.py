@@ -105,11 +105,28 @@ def check(
         nodes.add_row(n["name"], str(n["address"]), n["role"], str(n["worst_case_bits"]),
                       f"{n['frame_bytes']} B", f"{n['fill']:.0%}", airtime, " ".join(n["listen"]))
     console.print(nodes)
+    _print_mac(data)
     for warning in report.warnings:
         console.print(f"[yellow]warning:[/] {warning}", highlight=False)
     for error in report.errors:
         console.print(f"[red]error:[/] {error}", highlight=False)
     raise typer.Exit(0 if report.ok else 1)
+
+
+def _print_mac(data: dict[str, Any]) -> None:
+    """Per node: the longest wait between transmit turns and the airtime share it implies."""
+    def shown(v: Any) -> str:
+        return f"{v:g}" if isinstance(v, float) else " ".join(v) if isinstance(v, list) else str(v)
+
+    timing = ", ".join(f"{k} {shown(v)}" for k, v in data.get("mac_timing", {}).items())
+    table = Table("node", "worst interval", "airtime share", "note",
+                  title=f"mac {data['mac']}" + (f": {timing}" if timing else ""))
+    for n in data["nodes"]:
+        mac = n["mac"]
+        interval, share = mac["worst_interval_s"], mac["airtime_share"]
+        table.add_row(n["name"], "—" if interval is None else f"{interval:.3f} s",
+                      "?" if share is None else f"{share:.1%}", mac["note"])
+    console.print(table)
 
 
 @app.command()
