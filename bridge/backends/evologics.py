@@ -10,7 +10,24 @@ Options (``modem.options`` in the mission):
   ``busy_retries`` (5) and ``busy_backoff_s`` (0.2, doubled each time) for ``BUSY`` replies;
   ``send_timeout_s`` (10): wait for ``SENDEND``; ``ack_timeout_s`` (15): wait for the delivery
   report; ``keepalive_s`` (10, 0 = off): query ``AT?AL`` when idle to notice a dead or rebooted
-  modem; ``promiscuous`` (true: ``AT!RP1``); ``usbl`` (false: ``AT@ZU1``).
+  modem; ``promiscuous`` (true: ``AT!RP1``); ``usbl`` (false: ``AT@ZU1``);
+- ``timed_send`` (true): schedule frames on the modem clock with ``AT*SENDIMS`` when the modem
+  answers ``AT?CLOCK`` and ``AT@ZX1``; ``tx_lead_s`` (0.1): how far ahead of the modem clock a
+  frame is scheduled (the command must reach the modem first: 64 B at 19200 baud take 44 ms);
+  ``clock_sync_s`` (30): how often ``AT?CLOCK`` is read again to follow host–modem drift.
+
+Timed sends (``timed_send`` is then True for the runtime): :meth:`clock` is the modem's µs clock
+(:class:`~bridge.evologics.clock.ModemClock`), ``send(at=...)`` becomes
+``AT*SENDIMS,<len>,<dst>,<usec>,<data>`` so the emission starts exactly at ``at``, and each
+reception's ``start`` is the modem's own timestamp (``RECVIMS``, or the ``RECVEND`` just
+before a ``RECVIM``): DLBL delays and ranges are then exact to the modem's timestamping.
+``SENDIMS`` has no ack flag [V syntax], so a frame that asks for an ack goes as an
+``AT*SENDIM ... ack`` at about ``at`` (its timing is then only as good as the host's). An IMS
+that the modem reports too late (``EXPIREDIMS``) raises :class:`BackendError` without failing
+the backend, and is counted in ``stats["expired"]``.
+
+Ranges: after every delivered acknowledged IM the backend reads ``AT?T`` (one-way propagation
+of the exchange, µs [V DUNE/evins]) and reports it to ``on_range`` (method ``propagation``).
 
 ``send`` returns when the modem reports the end of the transmission (``SENDEND``); with ``ack``
 and a unicast destination, after the delivery report. A ``FAILEDIM`` is counted in
@@ -36,18 +53,21 @@ from collections.abc import Mapping
 from dataclasses import asdict
 from typing import Any, ClassVar
 
-from bridge.backends.base import Inbox, ModemBackend, ModemSetup, Reception
+from bridge.backends.base import Inbox, ModemBackend, ModemRange, ModemSetup, Reception
 from bridge.backends.transport import ByteTransport
 from bridge.errors import BackendError
-from bridge.evologics.commands import send_im
+from bridge.evologics.clock import ModemClock
+from bridge.evologics.commands import send_im, send_ims
 from bridge.evologics.protocol import (
     BROADCAST,
     IM_MAX_BYTES,
     BurstData,
     Busy,
+    CanceledIm,
     DeliveredIm,
     Error,
     Event,
+    ExpiredIms,
     FailedIm,
     HostProtocol,
     Malformed,
@@ -75,6 +95,7 @@ class EvologicsBackend(ModemBackend):
     """An EvoLogics S2C modem through pyserial (serial port or TCP)."""
 
     name: ClassVar[str] = "evologics"
+    ranging: ClassVar[str | None] = "ack"
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
@@ -108,11 +129,17 @@ class EvologicsBackend(ModemBackend):
         self.keepalive_s = float(opts.get("keepalive_s", 10.0))
         self.promiscuous = bool(opts.get("promiscuous", True))
         self.usbl = bool(opts.get("usbl", False))
+        self.want_timed = bool(opts.get("timed_send", True))
+        self.tx_lead_s = float(opts.get("tx_lead_s", 0.1))
+        self.clock_sync_s = float(opts.get("clock_sync_s", 30.0))
+        self.modem_clock = ModemClock()
+        self._timed = False
+        self._last_sync = -float("inf")
         self.transport = ByteTransport(self.device, int(opts.get("baud", 19200)),
                                        name=f"evologics {setup.node}")
         self.protocol = HostProtocol(Mode.DATA, eol=eol)
         self.stats.update(delivered=0, failed=0, busy=0, malformed=0, modem_errors=0,
-                          burst_bytes=0)
+                          burst_bytes=0, expired=0)
         self.fixes: dict[int, dict[str, Any]] = {}
         self.propagation: dict[int, tuple[float, float]] = {}  # dst -> (time, seconds)
         self._inbox = Inbox(self.stats)
@@ -128,6 +155,17 @@ class EvologicsBackend(ModemBackend):
         self._extended = True
         self._last_io = 0.0
 
+    @property  # type: ignore[override]
+    def timed_send(self) -> bool:
+        """Whether ``send(at=...)`` is exact: the modem answered ``AT?CLOCK`` at start-up."""
+        return self._timed
+
+    def clock(self) -> float:
+        """The modem's clock when sends are timed (seconds near host time), else the host's."""
+        if self._timed:
+            return self.modem_clock.now(time.time())
+        return time.time()
+
     # -- hooks ---------------------------------------------------------------------------------
 
     async def _open(self) -> None:
@@ -136,7 +174,7 @@ class EvologicsBackend(ModemBackend):
         self._reader = asyncio.create_task(self._read_loop(), name=f"evologics-{self.address}")
         async with self._lock:
             await self._initialise()
-        if self.keepalive_s > 0:
+        if self.keepalive_s > 0 or (self._timed and self.clock_sync_s > 0):
             self._keepalive = asyncio.create_task(self._keepalive_loop())
         log.info("%s: modem ready on %s (address %d, %s mode)", self.setup.node, self.device,
                  self.address, self.mode.value)
@@ -194,6 +232,29 @@ class EvologicsBackend(ModemBackend):
         await self._command_ok(f"!RP{int(self.promiscuous)}")
         if self.usbl:
             await self._command("@ZU1")  # only USBL heads have it; a refusal is harmless
+        self._timed = False
+        if self.want_timed and self._extended:
+            self._timed = await self._sync_clock()
+            if not self._timed:
+                log.warning("%s: AT?CLOCK unanswered: frames are sent untimed (AT*SENDIM)",
+                            self._who)
+
+    async def _sync_clock(self, readings: int = 3) -> bool:
+        """Read ``AT?CLOCK`` a few times and keep the reading with the shortest round trip."""
+        best: tuple[float, float, int] | None = None  # (round trip, host midpoint, counter)
+        for _ in range(readings):
+            sent = time.time()
+            reply = await self._command("?CLOCK")
+            got = time.time()
+            text = reply.text.strip() if isinstance(reply, Value) else ""
+            if not text.isdigit() or int(text) >= 1 << 32:
+                return False
+            if best is None or got - sent < best[0]:
+                best = (got - sent, (sent + got) / 2, int(text))
+        assert best is not None
+        self.modem_clock.sync(best[1], best[2])
+        self._last_sync = time.monotonic()
+        return True
 
     async def _probe_mode(self) -> Mode:
         """Send ``+++AT?MODE``: a wrapped reply means data mode, ``ERROR WRONG FORMAT`` command
@@ -228,19 +289,54 @@ class EvologicsBackend(ModemBackend):
 
     # -- sending -------------------------------------------------------------------------------
 
-    async def _send_locked(self, data: bytes, dst: int, ack: bool) -> None:
+    async def _send_timed(self, data: bytes, dest: int | None, ack: bool, at: float) -> None:
+        dst = BROADCAST if dest is None else dest
+        if ack and dst != BROADCAST:  # SENDIMS has no ack flag: an acked IM at about ``at``
+            await asyncio.sleep(max(0.0, at - self.clock()))
+            await self._send(data, dest, ack)
+            return
+        async with self._lock:
+            self._check()
+            while not self._tx_events.empty():
+                self._tx_events.get_nowait()
+            try:
+                await self._send_ims_locked(data, dst, at)
+            except _NotSent:
+                raise
+            except BackendError as exc:
+                self._fail(exc)
+                raise
+
+    async def _send_ims_locked(self, data: bytes, dst: int, at: float) -> None:
+        """``AT*SENDIMS`` at modem time ``at``; wait for its ``SENDEND`` (or ``EXPIREDIMS``)."""
+        usec = self.modem_clock.counter(at)
+        await self._command_busy(send_ims(data, dst, usec), f"AT*SENDIMS to {dst}")
+        wait = max(0.0, at - self.clock()) + self.send_timeout_s
+        end = await self._wait_tx(
+            lambda e: (isinstance(e, SendEnd) and e.addr == dst) or (
+                isinstance(e, ExpiredIms | CanceledIm) and e.dst == dst), wait, "SENDEND")
+        if isinstance(end, ExpiredIms | CanceledIm):
+            self.stats["expired"] += 1
+            raise _NotSent(f"{self._who}: the modem dropped the IMS to {dst} due at {at:.6f} "
+                           f"({end.body().decode('latin-1')}): scheduled too late?")
+
+    async def _command_busy(self, text: bytes, what: str) -> None:
+        """A send command, retried while the modem answers ``BUSY``."""
         delay = self.busy_backoff_s
         for attempt in range(self.busy_retries + 1):
-            reply = await self._command(send_im(data, dst, ack=ack))
+            reply = await self._command(text)
             if isinstance(reply, Ok):
-                break
+                return
             if isinstance(reply, Busy) and attempt < self.busy_retries:
                 self.stats["busy"] += 1
                 log.info("%s: modem busy (%s), retry in %.2f s", self._who, reply.reason, delay)
                 await asyncio.sleep(delay)
                 delay *= 2
                 continue
-            raise BackendError(f"{self._who}: AT*SENDIM to {dst} refused: {_text(reply)}")
+            raise BackendError(f"{self._who}: {what} refused: {_text(reply)}")
+
+    async def _send_locked(self, data: bytes, dst: int, ack: bool) -> None:
+        await self._command_busy(send_im(data, dst, ack=ack), f"AT*SENDIM to {dst}")
         if not self._extended:
             await asyncio.sleep(0.13 + 0.012 * len(data))  # the §1.9 airtime model [C]
             return
@@ -263,7 +359,9 @@ class EvologicsBackend(ModemBackend):
         self.stats["delivered"] += 1
         reply = await self._command("?T")  # one-way propagation, µs [V DUNE/evins]
         if isinstance(reply, Value) and reply.text.strip().isdigit():
-            self.propagation[dst] = (time.time(), int(reply.text) * 1e-6)
+            travel = int(reply.text) * 1e-6
+            self.propagation[dst] = (time.time(), travel)
+            self._report_range(ModemRange(dst, travel, "propagation", self.clock()))
 
     async def _wait_tx(self, match: Any, timeout: float, what: str) -> Event:
         deadline = asyncio.get_running_loop().time() + timeout
@@ -343,7 +441,7 @@ class EvologicsBackend(ModemBackend):
             self._last_end = (now, event)
         elif isinstance(event, UsblLong):
             self.fixes[event.remote_addr] = {"time": now, **asdict(event)}
-        elif isinstance(event, SendEnd | DeliveredIm | FailedIm):
+        elif isinstance(event, SendEnd | DeliveredIm | FailedIm | ExpiredIms | CanceledIm):
             self._tx_events.put_nowait(event)
         elif isinstance(event, BurstData):
             self._raw += event.data  # the start-up probe looks here for ERROR WRONG FORMAT
@@ -374,6 +472,13 @@ class EvologicsBackend(ModemBackend):
             meta["rx_timestamp_us"] = ev.timestamp_us
         elif self._last_end is not None and now - self._last_end[0] < RECVEND_MATCH_S:
             meta["rx_timestamp_us"] = self._last_end[1].timestamp_us
+        if self._timed:  # the modem clock: its own reception stamp when there is one
+            modem_now = self.modem_clock.now(now)
+            meta["start"] = modem_now - duration
+            if "rx_timestamp_us" in meta:
+                meta["start"] = self.modem_clock.seconds(meta["rx_timestamp_us"],
+                                                         modem_now - duration)
+            now = meta["start"] + duration
         if isinstance(ev, RecvImLegacy):
             meta["propagation_s"] = ev.ptime_us * 1e-6
         elif ev.src in self.propagation:
@@ -383,9 +488,21 @@ class EvologicsBackend(ModemBackend):
         return Reception(data=ev.data, src=ev.src, time=now, meta=meta)
 
     async def _keepalive_loop(self) -> None:
+        """Re-read the modem clock every ``clock_sync_s``; ask ``AT?AL`` when idle."""
+        period = min(t / 2 for t in (self.keepalive_s, self.clock_sync_s) if t > 0)
         while True:
-            await asyncio.sleep(self.keepalive_s / 2)
-            if time.monotonic() - self._last_io < self.keepalive_s or self._lock.locked():
+            await asyncio.sleep(period)
+            if self._timed and 0 < self.clock_sync_s <= time.monotonic() - self._last_sync \
+                    and not self._lock.locked():
+                async with self._lock:
+                    try:
+                        if not await self._sync_clock(readings=1):
+                            raise BackendError(f"{self._who}: AT?CLOCK no longer answered")
+                    except BackendError as exc:
+                        self._fail(exc)
+                        return
+            if self.keepalive_s <= 0 or self._lock.locked() or \
+                    time.monotonic() - self._last_io < self.keepalive_s:
                 continue
             async with self._lock:
                 try:
@@ -420,6 +537,11 @@ class EvologicsBackend(ModemBackend):
 
 class _NoReply(Exception):
     """A start-up probe got no reply (not yet an error)."""
+
+
+class _NotSent(BackendError):
+    """The modem dropped a frame (a late IMS) but is fine: the caller is told, the backend
+    stays up."""
 
 
 def _text(event: Event) -> str:

@@ -5,7 +5,10 @@ The host side follows ``modem-protocols.md`` §1 (checklist §1.11): command and
 the guard-time ``+++`` escape, length-framed ``AT*SEND*`` payloads, ``OK``/``ERROR``/``BUSY``
 replies, ``@ZX1`` extended notifications (``SENDSTART``/``SENDEND``/``RECVSTART``/``RECVEND``),
 ``DELIVEREDIM``/``FAILEDIM`` after ``!RI`` retries of ``!RT`` ms, ``AT?T`` propagation time in µs,
-``@ZU1`` USBL fixes from the mission's static positions, and a 32-bit µs clock.
+``@ZU1`` USBL fixes from the mission's static positions, a 32-bit µs clock (``AT?CLOCK``), and
+``AT*SENDIMS`` with a send time: the IM leaves exactly when the clock reads it, or
+``EXPIREDIMS`` if that time has passed or the transmitter is busy then [U: the real modem's
+tolerance and limits are not documented in the stored sources].
 
 The acoustic side is a :class:`~bridge.backends.sim.SimBackend` in the simulated water, which
 gives airtime, propagation, collisions, half-duplex and loss. Emulators mark their frames
@@ -66,6 +69,8 @@ transcript: 293.9 ms send-to-ack minus the 182.3 ms IM and 2 × 0.8 ms propagati
 FIRMWARE = "1.9"
 CLOCK_WRAP = 1 << 32
 MAX_TX_QUEUE = 16  # IMs waiting for the transmitter; beyond this: ERROR BUFFER FULL [U]
+IMS_MARGIN_S = 0.002
+"""A timed IMS must reach the transmitter this long before its time, else it expires [U]."""
 
 HIGHEST_ADDRESSES = (2, 6, 14, 30, 62, 126, 254)
 
@@ -217,6 +222,7 @@ class EvologicsEmulator:
         self._tasks: set[asyncio.Task[Any]] = set()
         self._loops: list[asyncio.Task[None]] = []
         self._airtime: Callable[[int], float] | None = None
+        self._air = asyncio.Lock()  # one transmission at a time: queued, acks and timed IMS
         self.failure: asyncio.Future[None] | None = None
 
     # -- lifecycle -----------------------------------------------------------------------------
@@ -405,7 +411,7 @@ class EvologicsEmulator:
             "DI": self._delivery_state(),
             "DP": "EMPTY",
             "S": "ONLINE" if self._outstanding is not None else "INITIATION LISTEN",
-            "CLOCK": self.modem_us(time.time()),
+            "CLOCK": self.modem_us(self.sim.clock()),
             "UT": f"{time.time() - self._boot_wall:.6f}",
             "BV": "24.0",
             "ZD": 0, "ZO": 0, "ZE": 0,
@@ -486,6 +492,9 @@ class EvologicsEmulator:
         if wants_ack and self._outstanding is not None:
             return "BUSY DELIVERING"  # one outstanding ack-IM [V checklist; reply text U]
         tx = _Tx(kind, request.dst, request.data, "ack" if wants_ack else request.flag or "noack")
+        if kind == "ims" and request.usec is not None:
+            self._spawn(self._timed_ims(tx, request.usec))
+            return "OK"
         if wants_ack:
             self._seq = (self._seq + 1) % 16
             tx.seq = self._seq
@@ -519,7 +528,31 @@ class EvologicsEmulator:
                 self._fail(exc)
                 return
 
-    async def _transmit(self, tx: _Tx) -> None:
+    async def _timed_ims(self, tx: _Tx, usec: int) -> None:
+        """``AT*SENDIMS`` with a time: wait for the clock to read ``usec``, then transmit."""
+        now = self.sim.clock()
+        ahead = (usec - self.modem_us(now)) % CLOCK_WRAP
+        if ahead < CLOCK_WRAP // 2:  # otherwise the time has passed (modulo the wrap)
+            at = now + ahead * 1e-6
+            await asyncio.sleep(max(0.0, at - self.sim.clock() - 0.02))
+            try:
+                if await self._transmit(tx, at=at):
+                    return
+            except BackendError as exc:
+                self._fail(exc)
+                return
+        self.notify(f"EXPIREDIMS,{tx.dst}".encode())
+
+    async def _transmit(self, tx: _Tx, at: float | None = None) -> bool:
+        """Put ``tx`` in the water (at modem-clock seconds ``at`` if given); False if ``at``
+        could no longer be met."""
+        async with self._air:
+            if at is not None and at - self.sim.clock() < IMS_MARGIN_S:
+                return False
+            await self._emit(tx, at)
+            return True
+
+    async def _emit(self, tx: _Tx, at: float | None) -> None:
         dest = tx.dst | tx.seq << AIR_SEQ_SHIFT
         dest |= {"ack": AIR_ACK, "burst": AIR_BURST, "pbm": AIR_PBM, "ims": AIR_IMS}.get(tx.kind, 0)
         if tx.flag == "ack":
@@ -529,12 +562,12 @@ class EvologicsEmulator:
             dur = round(self._estimate(len(tx.data)) * 1e6)
             self.notify(f"SENDSTART,{tx.dst},{tx.kind},{dur},0".encode())
         called = time.time()
-        await self.sim.send(tx.data, dest)
+        await self.sim.send(tx.data, dest, at=at)
         now = time.time()
         airtime = self._airtime(len(tx.data)) if self._airtime else now - called
         self.stats["sent"] += 1
         if show:
-            start = self.modem_us(now - airtime)
+            start = self.modem_us(now - airtime) if at is None else self.modem_us(at)
             self.notify(f"SENDEND,{tx.dst},{tx.kind},{start},{round(airtime * 1e6)}".encode())
         if tx.kind == "pbm":
             self._pbm_pending = False

@@ -32,6 +32,7 @@ __all__ = [
     "HostGarbage",
     "SendRequest",
     "send_im",
+    "send_ims",
     "set_value",
 ]
 
@@ -46,6 +47,24 @@ def send_im(data: bytes, dst: int, *, ack: bool = False, pid: int | None = None)
         raise LocalProtocolError(f"destination {dst} outside 0..255")
     head = f"*SENDIM,{'' if pid is None else f'p{pid},'}{len(data)},{dst},"
     return head.encode() + (b"ack," if ack else b"noack,") + bytes(data)
+
+
+def send_ims(data: bytes, dst: int, usec: int | None, *, pid: int | None = None) -> bytes:
+    """``*SENDIMS,[p<pid>,]<len>,<dst>,[<usec>],<data>``: a synchronous IM (≤ 64 B, no ack),
+    sent when the modem clock reads ``usec`` (µs, 32 bits), or at once if None [V syntax].
+
+    [U] Which instant ``usec`` marks (the start of the emission, as ``SENDEND`` timestamps are
+    taken to) and how far ahead it may lie are not confirmed by any stored source.
+    """
+    if not 1 <= len(data) <= IM_MAX_BYTES:
+        raise LocalProtocolError(f"an instant message holds 1..{IM_MAX_BYTES} B, not {len(data)}")
+    if not 0 <= dst <= 255:
+        raise LocalProtocolError(f"destination {dst} outside 0..255")
+    if usec is not None and not 0 <= usec < 1 << 32:
+        raise LocalProtocolError(f"send time {usec} µs outside the 32-bit modem clock")
+    head = (f"*SENDIMS,{'' if pid is None else f'p{pid},'}{len(data)},{dst},"
+            f"{'' if usec is None else usec},")
+    return head.encode() + bytes(data)
 
 
 def set_value(name: str, value: int | str) -> bytes:

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from bridge.backends.base import ModemSetup
+from bridge.backends.base import ModemRange, ModemSetup
 from bridge.backends.evologics import EvologicsBackend
 from bridge.backends.transport import ByteTransport
 from bridge.emulators.evologics import EvologicsEmulator
@@ -109,9 +110,15 @@ def test_ack_delivered_with_range_and_failed(tmp_path: Path) -> None:
     async def main() -> None:
         async with modems(tmp_path, 1, 2, usbl=True) as (_, emu), \
                 driver(emu[1], ack=True, usbl=True) as a, driver(emu[2]) as b:
+            heard: list[ModemRange] = []
+            a.on_range = heard.append
+            assert a.ranging == "ack"
             await a.send(b"ping", 2)
             assert a.stats["delivered"] == 1
             assert a.propagation[2][1] == pytest.approx(0.1, abs=1e-3)  # 150 m at 1500 m/s
+            (rng,) = heard  # AT?T after DELIVEREDIM: a range, reported like a ping
+            assert (rng.peer, rng.method) == (2, "propagation")
+            assert rng.travel_time_s == pytest.approx(0.1, abs=1e-3)
             assert a.fixes[2]["e"] == pytest.approx(150.0)  # USBLLONG from the ack
             await asyncio.wait_for(b.recv(), 2)
             await b.close()
@@ -119,7 +126,82 @@ def test_ack_delivered_with_range_and_failed(tmp_path: Path) -> None:
             emu[1].settings["RT"] = 500
             await a.send(b"ping", 2)
             assert a.stats["failed"] == 1 and a.stats["sent"] == 2
+            assert len(heard) == 1  # no delivery, no range
             emu[2].settings["RP"] = 1
+
+    arun(main)
+
+
+def test_timed_sends_make_a_two_way_exchange_exact(tmp_path: Path) -> None:
+    """AT*SENDIMS on each modem's clock and the modems' own reception stamps: the round trip
+    a ↔ b (150 m) comes out to the µs, as DLBL needs, though host and modem clocks differ."""
+
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2) as (_, emu), driver(emu[1]) as a, \
+                driver(emu[2], tx_lead_s=0.05) as b:
+            assert a.timed_send and b.timed_send and a.tx_lead_s == 0.1
+            assert abs(a.clock() - time.time()) < 0.05  # the modem clock, near host time
+            at_a = a.clock() + a.tx_lead_s
+            await a.send(b"request", 2, at=at_a)
+            rx_b = await asyncio.wait_for(b.recv(), 2)
+            assert rx_b.data == b"request" and "rx_timestamp_us" in rx_b.meta  # RECVIMS
+            at_b = b.clock() + b.tx_lead_s
+            await b.send(b"reply", 1, at=at_b)
+            rx_a = await asyncio.wait_for(a.recv(), 2)
+            turnaround = at_b - rx_b.meta["start"]  # b's clock only
+            round_trip = rx_a.meta["start"] - at_a  # a's clock only
+            assert (round_trip - turnaround) / 2 == pytest.approx(0.1, abs=5e-6)
+            duration = rx_a.time - rx_a.meta["start"]
+            assert duration == pytest.approx(rx_a.meta["duration_s"], abs=1e-6)
+            assert a.stats["expired"] == 0
+
+    arun(main)
+
+
+def test_a_late_ims_is_reported_and_the_modem_stays_up(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2) as (_, emu), driver(emu[1]) as a, \
+                driver(emu[2]) as b:
+            with pytest.raises(BackendError, match="EXPIREDIMS"):
+                await a.send(b"too late", 2, at=a.clock() - 0.5)
+            assert a.stats["expired"] == 1 and a.is_open
+            await a.send(b"on time", 2, at=a.clock() + 0.1)
+            assert (await asyncio.wait_for(b.recv(), 2)).data == b"on time"
+            heard: list[ModemRange] = []
+            a.on_range = heard.append
+            await a.send(b"acked", 2, at=a.clock() + 0.1, ack=True)  # SENDIMS has no ack
+            assert a.stats["delivered"] == 1 and heard[0].method == "propagation"
+            assert (await asyncio.wait_for(b.recv(), 2)).meta["flag"] == "ack"
+
+    arun(main)
+
+
+def test_untimed_when_asked_or_when_the_clock_is_unreadable(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2) as (_, emu):
+            async with driver(emu[1], timed_send=False) as a:
+                assert not a.timed_send and abs(a.clock() - time.time()) < 1e-3
+            original = emu[1]._query
+            emu[1]._query = lambda what: "ERROR WRONG FORMAT" if what == "CLOCK" \
+                else original(what)  # type: ignore[method-assign]
+            async with driver(emu[1]) as a, driver(emu[2]) as b:
+                assert not a.timed_send
+                await a.send(b"plain", 2, at=a.clock() + 5.0)  # sent at once: AT*SENDIM
+                assert (await asyncio.wait_for(b.recv(), 1)).data == b"plain"
+
+    arun(main)
+
+
+def test_clock_is_read_again_while_busy(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2) as (_, emu), \
+                driver(emu[1], clock_sync_s=0.2, keepalive_s=0) as a:
+            first = a.modem_clock.readings
+            for _ in range(4):
+                await a.send(b"x", 2, at=a.clock() + 0.1)
+                await asyncio.sleep(0.1)
+            assert a.modem_clock.readings > first
+            assert abs(a.clock() - time.time()) < 0.05
 
     arun(main)
 

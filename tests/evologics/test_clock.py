@@ -1,0 +1,56 @@
+"""The S2C's 32-bit µs clock as continuous seconds: anchoring, wraps, drift, SENDIMS times."""
+
+from __future__ import annotations
+
+import pytest
+
+from bridge.evologics.clock import WRAP_US, ModemClock
+from bridge.evologics.commands import CommandReader, send_ims
+from bridge.evologics.protocol import LocalProtocolError, Mode
+
+
+def test_counter_and_seconds_are_exact_across_wraps() -> None:
+    clock = ModemClock()
+    assert not clock.synced
+    with pytest.raises(ValueError, match="not been read"):
+        clock.counter(1.0)
+    clock.sync(1_700_000_000.0, WRAP_US - 2_000_000)  # two seconds before the counter wraps
+    assert clock.synced and clock.now(1_700_000_000.5) == 1_700_000_000.5
+    assert clock.counter(1_700_000_000.0) == WRAP_US - 2_000_000
+    after = 1_700_000_003.25  # past the wrap
+    assert clock.counter(after) == 1_250_000
+    assert clock.seconds(1_250_000, near=after + 0.3) == pytest.approx(after, abs=1e-6)
+    # a difference of two modem times is exact to the µs, whatever the wrap in between
+    t1 = clock.seconds(WRAP_US - 1_000_017, near=1_700_000_001.0)
+    t2 = clock.seconds(483, near=1_700_000_002.0)
+    assert (t2 - t1) * 1e6 == pytest.approx(1_000_500, abs=0.5)
+    # one wrap (71.6 min) later the same counter value is another time
+    later = clock.seconds(1_250_000, near=after + WRAP_US * 1e-6)
+    assert later - after == pytest.approx(WRAP_US * 1e-6, abs=1e-6)
+
+
+def test_resync_follows_drift_without_moving_the_scale() -> None:
+    clock = ModemClock()
+    clock.sync(1000.0, 5_000_000)
+    scale = clock.seconds(5_000_000 + 300_000_000, near=1300.0)
+    clock.sync(1300.0, 5_000_000 + 300_000_000 + 6_000)  # the modem ran 20 ppm fast
+    assert clock.now(1300.0) == pytest.approx(1300.006, abs=1e-9)
+    assert clock.seconds(5_000_000 + 300_000_000, near=1300.0) == scale  # scale unchanged
+    assert clock.readings == 2
+    with pytest.raises(ValueError, match="outside"):
+        clock.sync(1301.0, WRAP_US)
+
+
+def test_sendims_builder_round_trips_through_the_modem_reader() -> None:
+    wire = send_ims(b"a,b\r\n", 3, 4_294_000_123)
+    assert wire == b"*SENDIMS,5,3,4294000123,a,b\r\n"
+    assert send_ims(b"x", 255, None) == b"*SENDIMS,1,255,,x"
+    reader = CommandReader(Mode.COMMAND)
+    reader.receive_data(b"AT" + wire + b"\r")
+    (command,) = list(reader.inputs())
+    assert command.send is not None
+    assert (command.send.kind, command.send.dst, command.send.usec, command.send.data) == (
+        "IMS", 3, 4_294_000_123, b"a,b\r\n")
+    for bad in ((b"", 3, 0), (b"x" * 65, 3, 0), (b"x", 256, 0), (b"x", 3, WRAP_US)):
+        with pytest.raises(LocalProtocolError):
+            send_ims(*bad)  # type: ignore[arg-type]
