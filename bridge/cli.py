@@ -324,13 +324,18 @@ def demo(
     mission: Annotated[Path | None, typer.Option(help="Mission (default: the MORPH fleet).")]
     = None,
     live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
+    gui: Annotated[bool, typer.Option(help="Serve the browser GUI (zab gui) during the demo.")]
+    = True,
+    gui_port: Annotated[int, typer.Option(help="Port of the GUI (any free one if taken).")]
+    = 8080,
 ) -> None:
     """A simulated MORPH fleet, end to end: data published, carried, decoded, shown."""
     from bridge.demo import default_demo_mission, run_demo
 
     loaded = _load(mission or default_demo_mission())
     _logging(False)
-    _run_or_exit(run_demo(loaded, duration=duration, console=console, live=live))
+    _run_or_exit(run_demo(loaded, duration=duration, console=console, live=live, gui=gui,
+                          gui_port=gui_port))
 
 
 @app.command()

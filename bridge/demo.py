@@ -24,11 +24,13 @@ from rich.table import Table
 
 from bridge.codec import FieldSpec
 from bridge.fleet import Fleet
+from bridge.gui.server import GuiServer
 from bridge.mission_loader import LoadedMission
 from bridge.simview import EventLog, print_report, run_fleet_for
 from bridge.zenoh_session import close_quietly
 
 PUBLISH_PERIOD_S = 1.0
+OPERATOR_HOLD_S = 60.0  # a key an operator commanded (from the GUI) is left alone this long
 
 
 def default_demo_mission() -> Path:
@@ -90,6 +92,7 @@ class VehicleApps:
         self.published = 0
         self.arrived = 0
         self.ranges: dict[tuple[str, str], float] = {}
+        self.operator: dict[tuple[str, str], float] = {}  # (node, key) -> last GUI command
         self._stop = threading.Event()
         self._lock = threading.Lock()
 
@@ -134,6 +137,12 @@ class VehicleApps:
             value = msgpack.unpackb(sample.payload.to_bytes())
         except ValueError:
             return
+        if sample.attachment.to_bytes().startswith(b"ref:"):  # a command sent from the GUI
+            with self._lock:
+                self.operator[(node, str(sample.key_expr))] = time.time()
+            self.show(f"[magenta]{node:>4}[/] ← operator: [bold]{sample.key_expr}[/] "
+                      f"{_short(value)}")
+            return
         with self._lock:
             self.arrived += 1
         self.show(f"[green]{node:>4}[/] ← [bold]{sample.key_expr}[/] {_short(value)}")
@@ -157,6 +166,9 @@ class VehicleApps:
                         _set(value, spec.field,
                              moving if moving is not None else synthetic_value(spec, t, phase))
                     key = compiled.elements[e_index].input_key(node)
+                    if time.time() - self.operator.get((node, key), -OPERATOR_HOLD_S) \
+                            < OPERATOR_HOLD_S:
+                        continue  # the operator's command stands
                     session.put(key, msgpack.packb(value),
                                 encoding=zenoh.Encoding("application/msgpack"))
                     self.published += 1
@@ -172,6 +184,19 @@ class VehicleApps:
             close_quietly(session)
 
 
+async def _start_gui(loaded: LoadedMission, port: int, console: Console) -> GuiServer | None:
+    """``zab gui`` inside the demo, joined to the surface node; None if it cannot start."""
+    try:
+        server = GuiServer(loaded)
+        url = await server.start("127.0.0.1", port, any_port=True)
+    except (ValueError, OSError) as exc:
+        console.print(f"[yellow]no GUI: {exc}[/]")
+        return None
+    console.print(f"[bold]GUI:[/] open {url} in a browser to watch the fleet move and send "
+                  f"commands from {server.node}", highlight=False)
+    return server
+
+
 def _short(value: Any) -> str:
     def fmt(v: Any) -> Any:
         if isinstance(v, float):
@@ -185,7 +210,8 @@ def _short(value: Any) -> str:
 
 
 async def run_demo(
-    loaded: LoadedMission, *, duration: float, console: Console, live: bool
+    loaded: LoadedMission, *, duration: float, console: Console, live: bool,
+    gui: bool = True, gui_port: int = 8080,
 ) -> dict[str, Any]:
     """The demo: fleet + apps for ``duration`` seconds, then a summary."""
     console.print(
@@ -203,12 +229,17 @@ async def run_demo(
     await asyncio.wait([runner, asyncio.create_task(fleet.ready.wait())],
                        return_when=asyncio.FIRST_COMPLETED)
     publisher: asyncio.Task[None] | None = None
+    page: GuiServer | None = None
     try:
         if not runner.done():
             apps.start()
             publisher = asyncio.create_task(apps.run())
+            if gui:
+                page = await _start_gui(loaded, gui_port, console)
         await runner
     finally:
+        if page is not None:
+            await page.stop()
         if publisher is not None:
             publisher.cancel()
             await asyncio.gather(publisher, return_exceptions=True)

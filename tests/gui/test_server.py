@@ -1,0 +1,152 @@
+"""The GUI server over HTTP and its websocket (no browser), and the GUI inside ``zab demo``."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import re
+
+import aiohttp
+import pytest
+from rich.console import Console
+
+from bridge.demo import run_demo
+from bridge.gui.server import GuiServer
+from tests.conftest import MISSIONS, free_port, mission_on_free_ports
+
+
+async def _hello(ws: aiohttp.ClientWebSocketResponse) -> dict:
+    message = await ws.receive_json(timeout=10)
+    assert message["type"] == "hello"
+    return message
+
+
+def test_the_page_and_its_assets_are_served_locally():
+    loaded = mission_on_free_ports(MISSIONS / "morph.yaml")  # nobody listens there
+
+    async def main() -> None:
+        server = GuiServer(loaded)
+        url = await server.start("127.0.0.1", 0)
+        try:
+            async with aiohttp.ClientSession() as http:
+                async with http.get(url) as response:
+                    page = await response.text()
+                assert response.status == 200 and "/static/app.js" in page
+                # every asset the page uses is ours: nothing from the internet
+                assert not re.search(r"(src|href)=\"https?://", page)
+                for asset in ("app.js", "style.css"):
+                    async with http.get(url + "static/" + asset) as response:
+                        assert response.status == 200
+                async with http.get(url + "static/../server.py") as response:
+                    assert response.status in (403, 404)
+        finally:
+            await server.stop()
+
+    asyncio.run(main())
+
+
+def test_the_websocket_says_hello_refuses_bad_messages_and_other_origins():
+    loaded = mission_on_free_ports(MISSIONS / "morph.yaml")  # ssv is not running
+
+    async def main() -> None:
+        server = GuiServer(loaded)
+        url = await server.start("127.0.0.1", 0)
+        ws_url = url + "ws"
+        try:
+            async with aiohttp.ClientSession() as http:
+                with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                    await http.ws_connect(ws_url, origin="http://evil.example")
+                assert refused.value.status == 403
+                async with http.ws_connect(ws_url, origin=url.rstrip("/")) as ws:
+                    hello = await _hello(ws)
+                    mission = hello["mission"]
+                    assert (mission["mission"], mission["node"]) == ("morph", "ssv")
+                    assert [c["channel"] for c in mission["commands"]] == [
+                        "surface_fix", "mission_command"]
+                    feed = next(i for i in hello["items"] if i["kind"] == "feed")
+                    assert feed["connected"] is False
+                    await ws.send_str("{not json")
+                    assert (await ws.receive_json(timeout=5))["error"] == "not JSON"
+                    await ws.send_json({"type": "command", "request": 1, "channel": "nav",
+                                        "vehicle": "gcv", "values": {}})
+                    reply = await ws.receive_json(timeout=5)
+                    assert (reply["request"], reply["ok"]) == (1, False)
+                    assert "sends no channel 'nav'" in reply["error"]
+                    # a good command with no session to put it on fails, and says so
+                    await ws.send_json({"type": "command", "request": 2,
+                                        "channel": "mission_command", "vehicle": "gcv",
+                                        "values": {"action": "hold", "leg": 3}})
+                    reply = await ws.receive_json(timeout=5)
+                    assert (reply["request"], reply["ok"]) == (2, False)
+                    assert "not connected" in reply["error"]
+                    states = []
+                    while not states:
+                        message = await ws.receive_json(timeout=5)
+                        states = [i["state"] for i in message.get("items", ())
+                                  if i["kind"] == "command"]
+                    assert states[-1] == "failed"
+        finally:
+            await server.stop()
+
+    asyncio.run(main())
+
+
+def test_a_taken_port_is_an_error_unless_any_port_will_do():
+    loaded = mission_on_free_ports(MISSIONS / "morph.yaml")
+
+    async def main() -> None:
+        first, second = GuiServer(loaded), GuiServer(loaded)
+        url = await first.start("127.0.0.1", 0)
+        port = int(url.rsplit(":", 1)[1].strip("/"))
+        try:
+            with pytest.raises(OSError):
+                await second.start("127.0.0.1", port)
+            other = await second.start("127.0.0.1", port, any_port=True)
+            assert other != url
+        finally:
+            await second.stop()
+            await first.stop()
+
+    asyncio.run(main())
+
+
+def test_the_demo_serves_the_gui_and_leaves_operator_commands_alone():
+    """`zab demo` prints the GUI's address; the page sees the fleet move; a command sent
+    from it reaches the surface bridge and the demo's own publisher leaves that key alone."""
+    loaded = mission_on_free_ports(MISSIONS / "morph.yaml")
+    out = io.StringIO()
+    console = Console(file=out, width=200, color_system=None)
+
+    async def operator() -> tuple[dict, dict]:
+        while (found := re.search(r"open (http://\S+) in a browser", out.getvalue())) is None:
+            await asyncio.sleep(0.1)
+        url = found.group(1)
+        async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
+            await _hello(ws)
+            await ws.send_json({"type": "command", "request": 1, "channel": "mission_command",
+                                "vehicle": "cv1", "values": {"action": "surface", "leg": 9}})
+            while (reply := await ws.receive_json(timeout=10))["type"] != "reply":
+                pass
+            await asyncio.sleep(9)  # one TDMA cycle of the MORPH fleet and a bit
+            async with http.get(url + "state.json") as response:
+                return reply, await response.json()
+
+    async def main() -> tuple[dict, dict]:
+        demo = asyncio.create_task(run_demo(loaded, duration=14, console=console, live=False,
+                                            gui_port=free_port()))
+        reply, state = await operator()
+        await demo
+        return reply, state
+
+    reply, state = asyncio.run(main())
+    assert reply["ok"], reply
+    text = out.getvalue()
+    assert "ssv ← operator: command" in text
+    positions = {i["node"] for i in state["items"] if i["kind"] == "position"}
+    assert {"gcv", "lsv", "cv1", "cv2"} <= positions
+    # the surface's own input key shows the operator's command, not the demo's synthetic one
+    command = next(i for i in state["items"]
+                   if i["kind"] == "channel" and i["channel"] == "mission_command")
+    assert command["value"] == {"action": "surface", "leg": 9}
+    assert json.dumps(state, allow_nan=False)
