@@ -1,0 +1,70 @@
+"""The documentation site builds with `mkdocs build --strict`, and its generated pages follow the
+code: every mission model and key, every backend's options, the frame layout."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bridge.docs_reference import backend_reference, mission_reference, module_doc
+from bridge.mission import Mission
+from tests.conftest import REPO
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("site")
+    done = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+        env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+    assert done.returncode == 0, done.stdout + done.stderr
+    return out
+
+
+def _text(html: Path) -> str:
+    return re.sub(r"<[^>]+>", " ", html.read_text(encoding="utf-8"))
+
+
+def test_every_page_of_the_nav_is_built(site: Path) -> None:
+    for page in ("concepts", "mission-file", "mission-reference", "wire-format", "backends",
+                 "ranging", "gui", "deploy", "mission-logs", "developers"):
+        assert (site / page / "index.html").is_file(), page
+    assert (site / "examples" / "rust" / "src" / "main.rs").is_file()
+    assert (site / "examples" / "js" / "morph_client.mjs").is_file()
+
+
+def test_reference_page_lists_every_model_and_key(site: Path) -> None:
+    text = _text(site / "mission-reference" / "index.html")
+    assert "zab:mission-reference" not in text
+    schema = Mission.model_json_schema(by_alias=True)
+    for name, definition in schema["$defs"].items():
+        assert name in text, name
+        for key in definition.get("properties", {}):
+            assert key in text, (name, key)
+    for key in schema["properties"]:
+        assert f"`{key}`" in mission_reference()
+
+
+def test_backend_and_frame_pages_carry_the_modules_own_docs(site: Path) -> None:
+    backends = _text(site / "backends" / "index.html")
+    for name in ("sim", "udp", "evologics", "micromodem"):
+        first_line = backend_reference(name).splitlines()[0]
+        words = re.sub(r"`", "", first_line).split(":", 1)[1].split()[:4]
+        assert " ".join(words) in backends, name
+    assert "device" in backends and "probe_retries" in backends
+    wire = _text(site / "wire-format" / "index.html")
+    assert "CRC-16/CCITT" in wire and "CRC-16/CCITT" in module_doc("bridge.frame")
+    with pytest.raises(ValueError):
+        module_doc("os")
+
+
+def test_readme_stays_short_and_links_the_docs() -> None:
+    readme = (REPO / "README.md").read_text()
+    assert "mkdocs" in readme and "docs/" in readme
+    assert "## Wire format" not in readme and "## The mission file" not in readme
