@@ -13,6 +13,7 @@ from typing import Any
 from bridge.mission_loader import LoadedMission
 from bridge.modem_setup import backend_factory
 from bridge.node import BridgeNode
+from bridge.ocean.path import Path
 from bridge.ocean.presets import get_preset
 from bridge.ocean.service import WaterService
 from bridge.positioning import mission_sound_speed
@@ -21,7 +22,7 @@ AOI_SAMPLE_S = 0.25
 
 
 def water_for(loaded: LoadedMission, seed: int | None = None) -> WaterService:
-    """A water service for the mission: its preset, seed and static node positions."""
+    """A water service for the mission: its preset, seed, static positions and paths."""
     mission = loaded.mission
     options = mission.modem.options
     positions = {
@@ -33,11 +34,14 @@ def water_for(loaded: LoadedMission, seed: int | None = None) -> WaterService:
     if mission.ranging.water is not None or mission.ranging.sound_speed_mps is not None:
         # the mission describes the water: sound crosses the simulated ocean at that speed
         preset = preset.replace(sound_speed_mps=mission_sound_speed(mission).mps)
+    paths = {node.address: Path.from_spec(node.path)
+             for node in mission.nodes.values() if node.path is not None}
     return WaterService(
         preset,
         seed if seed is not None else int(options.get("seed", 0)),
         positions,
         loss=float(options.get("loss", 0.0)),
+        paths=paths,
     )
 
 

@@ -1,0 +1,81 @@
+"""Seed 001's mobile case in the simulated ocean: a vehicle sails a 10 m × 30 m rectangle east of
+three anchors on a jetty, and its DLBL fixes follow it (round a corner, through the mirror
+ambiguity of anchors on one line)."""
+
+from __future__ import annotations
+
+import math
+
+import yaml
+
+from bridge.ocean.path import Path
+from bridge.ranging import Fix, Track
+from tests.conftest import on_free_ports
+from tests.harness import Inbox, outside_session, running_fleet
+
+SLOT_S = 0.4
+SPEED = 1.5
+MISSION = {
+    "mission": "jetty",
+    "wire": {"dlbl": True},
+    "modem": {"backend": "sim", "frame_bytes": 32, "options": {"preset": "evologics-s2c-im"}},
+    "mac": {"type": "tdma", "slot_s": SLOT_S, "guard_s": 0.05,
+            "order": ["auv", "a1", "a2", "a3"]},
+    "ranging": {"anchors": ["a1", "a2", "a3"], "sound_speed_mps": 1500},
+    "nodes": {
+        "a1": {"address": 1, "role": "surface", "position": {"x": 0, "y": 0, "depth": 0.5}},
+        "a2": {"address": 2, "role": "surface", "position": {"x": 0, "y": 20, "depth": 0.5}},
+        "a3": {"address": 3, "role": "surface", "position": {"x": 0, "y": 40, "depth": 0.5}},
+        "auv": {"address": 4, "path": {
+            "waypoints": [{"x": 5, "y": 5, "depth": 1}, {"x": 15, "y": 5, "depth": 1},
+                          {"x": 15, "y": 35, "depth": 1}, {"x": 5, "y": 35, "depth": 1}],
+            "speed_mps": SPEED, "loop": True}},
+    },
+}
+
+
+def test_fixes_follow_a_vehicle_sailing_the_seed001_rectangle() -> None:
+    loaded = on_free_ports(yaml.safe_dump(MISSION), "jetty.yaml")
+    path = Path.from_spec(loaded.mission.nodes["auv"].path)
+    assert path.length_m == 80.0
+    cycle = SLOT_S * 4
+    with running_fleet(loaded) as fleet:
+        water = fleet.water
+        assert water is not None and water.started_at is not None
+        app = outside_session(loaded, "auv")
+        try:
+            inbox = Inbox()
+            app.declare_subscriber("@zab/jetty/auv/position", inbox)
+            got = inbox.drain(9.0)  # round the first corner, 10 m from the start
+        finally:
+            app.close()
+        start = water.started_at
+    fixes = [value for _, value, _ in got if value["fix"]]
+    refused = [value for _, value, _ in got if not value["fix"]]
+    assert len(fixes) >= 10, got
+    assert all(v["reason"] == "too_few_anchors" for v in refused)  # only while starting
+    track = Track(accel_sigma=0.5)
+    errors = []
+    for fix in fixes:
+        # the ranges of a fix were measured during the last TDMA cycle before it
+        t = fix["time"] - start
+        window = [path.position_at(t - k * cycle / 20) for k in range(21)]
+        errors.append(min(math.dist((fix["x"], fix["y"]), p[:2]) for p in window))
+        assert fix["depth"] == 1.0 and set(fix["anchors"]) <= {"a1", "a2", "a3"}
+        assert fix["x"] > 0  # east of the jetty: the mirror image was never chosen
+    # a DLBL range is the mean of the distances at both ends' emissions, up to a cycle apart:
+    # at 1.5 m/s the fixes stay within ~0.8 m of the route
+    assert max(errors) < 1.25, errors
+    travelled = math.dist((fixes[0]["x"], fixes[0]["y"]), (fixes[-1]["x"], fixes[-1]["y"]))
+    assert travelled > 6.0, fixes  # it really moved, and the fixes moved with it
+    assert any(f["y"] > 6.0 for f in fixes[-3:]), "turned north at the (15, 5) corner"
+    lags = []
+    for fix in fixes:  # a constant-velocity filter over the fixes keeps up with the vehicle
+        assert track.update(fix["time"], Fix(fix["x"], fix["y"], fix["depth"], fix["sigma_m"],
+                                             tuple(fix["anchors"]), fix["method"]))
+        assert track.position is not None
+        t = fix["time"] - start
+        lags.append(min(math.dist(track.position, path.position_at(t - k * cycle / 20)[:2])
+                        for k in range(41)))
+    assert max(lags) < 1.5, lags
+    assert track.velocity is not None and 0.5 * SPEED < math.hypot(*track.velocity) < 1.5 * SPEED
