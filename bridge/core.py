@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.auth import Authenticator, load_key
-from bridge.backends.base import Reception
+from bridge.backends.base import ModemRange, Reception
 from bridge.builder import FramePlan, plan_frame
 from bridge.channels import ChannelCodec, ElementCodec
 from bridge.errors import DecodeError, EncodeError, FrameError
@@ -31,7 +31,7 @@ from bridge.frame import FrameCodec
 from bridge.link import LinkState, LinkThresholds
 from bridge.mission_loader import LoadedMission
 from bridge.payloads import decode_payload
-from bridge.positioning import Positioning
+from bridge.positioning import Positioning, Update, needs_positioning
 from bridge.store import OutboundStore
 
 log = logging.getLogger("zab.core")
@@ -124,7 +124,8 @@ class NodeCore:
         self.last_heard: dict[str, float] = {}
         self.received_at: dict[str, float] = {}
         self.last_tx: float | None = None
-        self.positioning = Positioning(mission, node) if self.table.dlbl else None
+        self.positioning = Positioning(mission, node) if needs_positioning(mission, node) \
+            else None
         self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
         for channel in self.table.channels:
             if channel.index in self.store.states:
@@ -260,7 +261,7 @@ class NodeCore:
         self.last_heard[src] = now
         if self.link_states.get(src) is not LinkState.UP:
             self.update_links(now)
-        if self.positioning is not None:
+        if self.positioning is not None and self.table.dlbl:
             t_start = float(rx.meta.get("start", rx.time))
             self._ranging(src, t_start, frame.delays, modem_now if modem_now is not None else now,
                           now)
@@ -290,7 +291,34 @@ class NodeCore:
                  modem_now: float, now: float) -> None:
         """Ranges (and a fix) from a frame's DLBL delays."""
         assert self.positioning is not None
-        update = self.positioning.on_receive(src, t_rx_start, delays, modem_now)
+        self._positioned(self.positioning.on_receive(src, t_rx_start, delays, modem_now), now)
+
+    def modem_range(self, rng: ModemRange, now: float) -> None:
+        """The modem measured a range itself (a ping, a propagation time): publish it like a
+        DLBL range, and the fix attempted with it."""
+        peer = self.mission.name_of(rng.peer)
+        if self.positioning is None or peer is None:
+            return
+        self._positioned(self.positioning.on_modem_range(peer, rng.travel_time_s, rng.method,
+                                                         rng.time), now)
+
+    def range_due(self, now: float) -> int | None:
+        """The address this node should ask its modem to range to now (``ranging.ping``)."""
+        peer = self.positioning.ping_due(now) if self.positioning is not None else None
+        return None if peer is None else self.mission.address_of(peer)
+
+    def range_asked(self, dest: int, now: float, error: str | None = None) -> None:
+        """A range to ``dest`` was asked of the modem; ``error`` says why it failed."""
+        peer = self.mission.name_of(dest)
+        if self.positioning is None or peer is None:
+            return
+        self.positioning.pinged(peer, now)
+        if error is not None:
+            self._notice("range_failed", {"time": now, "peer": peer, "error": error})
+
+    def _positioned(self, update: Update, now: float) -> None:
+        """Publish the ranges of ``update`` and its fix (or why there is none)."""
+        assert self.positioning is not None
         for rng in update.ranges:
             payload = {**self.positioning.range_payload(rng), "time": now}
             self._status(f"range/{rng.peer}", payload)

@@ -13,12 +13,13 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import msgpack
 import zenoh
 
-from bridge.backends.base import ModemBackend, Reception
+from bridge.backends.base import ModemBackend, ModemRange, Reception
 from bridge.core import NOTABLE, NodeCore, NodeStats, Notice, Publish, Status
 from bridge.errors import BackendError
 from bridge.link import LinkState
@@ -135,7 +136,10 @@ class BridgeNode:
             def numbers(data: bytes, encoding: str) -> None:
                 values = self.core.numbers(key, data, encoding, names, self.clock())
                 if values is not None:
-                    handler(values)
+                    try:
+                        handler(values)
+                    except ValueError as exc:  # e.g. an implausible CTD reading
+                        self.core.drop_payload(key, str(exc), self.clock())
                 self._flush()
 
             def on_sample(sample: zenoh.Sample) -> None:
@@ -160,6 +164,10 @@ class BridgeNode:
         if ctd_key is not None:
             listen(ctd_key, ("temperature_c", "salinity_psu", "depth_m"),
                    lambda v: positioning.set_water(*v), bridged=True)
+        for peer, key in positioning.peer_ctd_keys().items():  # sound_speed_mode: mean_of_ends
+            listen(key, ("temperature_c", "salinity_psu", "depth_m"),
+                   lambda v, p=peer: positioning.set_peer_water(p, *v),  # type: ignore[misc]
+                   bridged=True)
 
     def move(self, position: tuple[float, ...]) -> None:
         """This node's live position: move the (simulated) modem and keep the depth."""
@@ -217,24 +225,54 @@ class BridgeNode:
         backend = self.backend
         if backend is None:
             return False
+        # ranging.ping: a due range takes this opportunity (a ping, or this frame acked)
+        peer = self.core.range_due(self.clock()) if backend.ranging else None
+        if peer is not None and backend.ranging == "ping":
+            return await self._ping(backend, peer)
         # with a timed modem the emission starts exactly at ``at``, so DLBL delays are exact
-        at = backend.clock() + (TX_LEAD_S if backend.timed_send else 0.0)
-        out = self.core.build_frame(self.clock(), at, always=always)
+        at = backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
+        out = self.core.build_frame(self.clock(), at, always=always or peer is not None)
         if out is None:
             self._flush()
             return False
+        if peer is not None:  # the modem measures the range when the peer acknowledges
+            out = replace(out, dest=peer, ack=True)
         try:
             await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
         except BackendError as exc:
             log.warning("%s: send failed: %s", self.node, exc)
+            if peer is not None:
+                self.core.range_asked(peer, self.clock(), str(exc))
             self.core.frame_failed(out, str(exc), self.clock())
             self._flush()
             if not backend.is_open:  # the modem is gone: wait until the modem loop reopens it
                 self._modem_up.clear()
             return False
+        if peer is not None:
+            self.core.range_asked(peer, self.clock())
         self.core.frame_sent(out, self.clock())
         self._flush()
         return True
+
+    async def _ping(self, backend: ModemBackend, peer: int) -> bool:
+        """Range to ``peer`` with the modem's ping; the range arrives through ``on_range``."""
+        try:
+            await backend.ping(peer)
+        except BackendError as exc:
+            log.info("%s: no range to %s: %s", self.node, self.mission.name_of(peer), exc)
+            self.core.range_asked(peer, self.clock(), str(exc))
+            self._flush()
+            if not backend.is_open:
+                self._modem_up.clear()
+            return False
+        self.core.range_asked(peer, self.clock())
+        self._flush()
+        return True
+
+    def _modem_range(self, rng: ModemRange) -> None:
+        """The modem measured a range (called by the backend, on the loop)."""
+        self.core.modem_range(rng, self.clock())
+        self._flush()
 
     # -- modem → core → Zenoh ------------------------------------------------------------------
 
@@ -243,6 +281,7 @@ class BridgeNode:
         backoff = RETRY_MIN_S
         while True:
             backend = self.backend = self._make_backend()
+            backend.on_range = self._modem_range
             try:
                 await backend.open()
                 self._modem_up.set()
