@@ -13,15 +13,26 @@ Localisation (table 2): seed 001's static geometry, anchors at (25.4, 19.3) m an
 (circle intersection) and with a third at (4, −24) m (least squares). The baseline is the
 prediction ``σ_r · √trace((JᵀJ)⁻¹)``; the ratio column is measured RMS over predicted.
 
-Run: ``uv run python bench/ranging_bench.py [--runs 400] [--plot ranging_bench.png]``.
+Modem ranges (table 3): the real drivers over emulated modems on ptys, 150 m apart in the
+simulated water. One two-way exchange a → b → a as DLBL does it, with host-timed sends
+(``AT*SENDIM``: host clock, reception at the host's parse time) and modem-timed sends
+(``AT*SENDIMS`` on the modem's µs clock, the modem's reception stamps); the EvoLogics
+``propagation`` time (``AT?T`` after an acknowledged IM); the Micro-Modem ``ping``. The
+baseline is the host-timed DLBL exchange; ×base is RMS error over the baseline's.
+
+Run: ``uv run python bench/ranging_bench.py [--runs 400] [--modem-runs 20] [--plot FILE]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import math
 import random
 import statistics
+import tempfile
+import time
+from pathlib import Path
 
 from bridge.ranging.dlbl import DlblRanger, Range, two_sided
 from bridge.ranging.localise import dop, locate
@@ -179,6 +190,122 @@ def localisation_table(runs: int, seed: int) -> list[dict]:
     return rows
 
 
+MODEM_DISTANCE_M = 150.0
+
+
+async def _evologics_errors(runs: int, folder: Path) -> dict[str, list[float]]:
+    """Travel-time errors (s) through the EvoLogics driver: DLBL host- and modem-timed, AT?T."""
+    from bridge.backends.base import ModemSetup
+    from bridge.backends.evologics import EvologicsBackend
+    from bridge.emulators.evologics import EvologicsEmulator
+    from bridge.ocean.model import LossCurve
+    from bridge.ocean.presets import get_preset
+    from bridge.ocean.service import WaterService
+
+    preset = get_preset("evologics-s2c-im").replace(overhead_s=0.02, per_byte_s=0.001)
+    where = {1: (0.0, 0.0, 5.0), 2: (MODEM_DISTANCE_M, 0.0, 5.0)}
+    tau = MODEM_DISTANCE_M / preset.sound_speed_mps
+    water = WaterService(preset, seed=1, loss_curve=LossCurve(edge_loss=0.0))
+    port = await water.start()
+    emulators = {}
+    out: dict[str, list[float]] = {}
+    try:
+        for a in where:
+            setup = ModemSetup(node=f"n{a}", address=a, frame_bytes=64,
+                               options={"water": f"127.0.0.1:{port}"}, position=where[a])
+            emulators[a] = EvologicsEmulator(setup, link=folder / f"evo{a}", positions=where)
+            await emulators[a].start()
+
+        def driver(a: int, **options: object) -> EvologicsBackend:
+            return EvologicsBackend(ModemSetup(node=f"n{a}", address=a, frame_bytes=64, options={
+                "device": str(folder / f"evo{a}"), "timeout_s": 1.0, **options}))
+
+        for name, timed in (("dlbl host-timed", False), ("dlbl modem-timed", True)):
+            a, b = driver(1, timed_send=timed), driver(2, timed_send=timed)
+            async with a, b:
+                errs = out[name] = []
+                lead = a.tx_lead_s if timed else 0.0  # as the runtime does
+                for _ in range(runs):
+                    at_a = a.clock() + lead
+                    await a.send(b"request", 2, at=at_a)
+                    rx_b = await asyncio.wait_for(b.recv(), 5)
+                    at_b = b.clock() + lead
+                    await b.send(b"reply", 1, at=at_b)
+                    rx_a = await asyncio.wait_for(a.recv(), 5)
+                    two_way = (rx_a.meta["start"] - at_a) - (at_b - rx_b.meta["start"])
+                    errs.append(two_way / 2 - tau)
+        a, b = driver(1, ack=True), driver(2)
+        async with a, b:
+            got: list[float] = []
+            a.on_range = lambda rng: got.append(rng.travel_time_s - tau)
+            for _ in range(runs):
+                await a.send(b"acked", 2, ack=True)
+                await asyncio.wait_for(b.recv(), 5)
+            out["propagation (AT?T)"] = got
+    finally:
+        for emulator in emulators.values():
+            await emulator.stop()
+        await water.stop()
+    return out
+
+
+async def _micromodem_errors(runs: int, folder: Path) -> list[float]:
+    """Travel-time errors (s) of the Micro-Modem ping through its driver."""
+    from bridge.backends.base import ModemSetup
+    from bridge.backends.micromodem import MicromodemBackend
+    from bridge.emulators.micromodem import MicromodemEmulator
+    from bridge.ocean.presets import get_preset
+    from bridge.ocean.service import WaterService
+
+    preset = get_preset("micromodem-rate0").replace(bitrate_bps=3200.0, overhead_s=0.05)
+    where = {1: (0.0, 0.0, 5.0), 2: (MODEM_DISTANCE_M, 0.0, 5.0)}
+    water = WaterService(preset, seed=1, positions=where)
+    port = await water.start()
+    emulators = []
+    errs: list[float] = []
+    try:
+        for a in where:
+            setup = ModemSetup(node=f"n{a}", address=a, frame_bytes=32,
+                               options={"water": f"127.0.0.1:{port}"}, position=where[a])
+            emulator = MicromodemEmulator(setup, link=folder / f"mm{a}", rev_period_s=None)
+            await emulator.open()
+            emulators.append(emulator)
+        modem = MicromodemBackend(ModemSetup(node="n1", address=1, frame_bytes=32, options={
+            "device": str(folder / "mm1"), "timeout_s": 1.0}))
+        async with modem:
+            for _ in range(runs):
+                rng = await modem.ping(2)
+                errs.append(rng.travel_time_s - MODEM_DISTANCE_M / preset.sound_speed_mps)
+    finally:
+        for emulator in emulators:
+            await emulator.close()
+        await water.stop()
+    return errs
+
+
+def modem_table(runs: int) -> list[dict]:
+    """Table 3: ranges through the real drivers over emulated modems."""
+    with tempfile.TemporaryDirectory() as tmp:
+        started = time.time()
+        rows = asyncio.run(_evologics_errors(runs, Path(tmp)))
+        rows["ping (Micro-Modem)"] = asyncio.run(_micromodem_errors(runs, Path(tmp)))
+        took = time.time() - started
+    print(f"\nModem ranges through the drivers, emulated modems {MODEM_DISTANCE_M:g} m apart "
+          f"({runs} each, {took:.0f} s)")
+    head = f"{'method':<22} | {'mean cm':>8} {'σ cm':>7} {'p95 cm':>7} | {'×base':>8}"
+    print(head)
+    print("-" * len(head))
+    base = stats_cm(rows["dlbl host-timed"])
+    base_rms = math.hypot(base[0], base[1])
+    out = []
+    for name, errs in rows.items():
+        mean, sd, p95 = stats_cm(errs)
+        print(f"{name:<22} | {mean:8.2f} {sd:7.2f} {p95:7.2f} | "
+              f"{math.hypot(mean, sd) / base_rms:8.5f}")
+        out.append({"method": name, "mean": mean, "sd": sd, "p95": p95})
+    return out
+
+
 def plot(ranging: list[dict], local: list[dict], path: str) -> None:
     try:
         import matplotlib  # type: ignore[import-not-found]
@@ -214,10 +341,14 @@ def main() -> None:
     parser.add_argument("--jitter", type=float, default=20.0, help="timestamp jitter, µs")
     parser.add_argument("--reflect", type=float, default=0.3, help="share of reflection locks")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--modem-runs", type=int, default=20,
+                        help="exchanges per method through the emulated modems (0: skip)")
     parser.add_argument("--plot", default="ranging_bench.png")
     args = parser.parse_args()
     ranging = ranging_table(args.runs, args.jitter, args.reflect, args.seed)
     local = localisation_table(args.runs * 5, args.seed)
+    if args.modem_runs > 0:
+        modem_table(args.modem_runs)
     plot(ranging, local, args.plot)
 
 

@@ -92,7 +92,9 @@ class WaterService:
         if server is not None:
             server.close()
         for writer in list(self._clients.values()):
-            writer.close()
+            writer.close()  # each handler then reads the end of its stream and returns
+        if self._handlers:
+            await asyncio.wait(list(self._handlers), timeout=1.0)
         tasks = [t for t in (self._driver, *self._handlers) if t is not None]
         self._driver = None
         for task in tasks:
