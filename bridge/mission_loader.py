@@ -161,6 +161,11 @@ def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
     for anchor in mission.ranging.anchor_keys:
         if anchor not in mission.nodes:
             yield (("ranging", "anchor_keys", anchor), f"unknown node {anchor!r}")
+    ping = mission.ranging.ping
+    for field in ("peers", "nodes"):
+        for i, name in enumerate(getattr(ping, field) or () if ping is not None else ()):
+            if name not in mission.nodes:
+                yield (("ranging", "ping", field, i), f"unknown node {name!r}")
 
 
 def _frame_problems(mission: Mission, table: ChannelTable) -> Iterable[tuple[Loc, str]]:

@@ -7,6 +7,8 @@ import math
 import pytest
 import yaml
 
+from bridge.errors import MissionError
+from bridge.mission import Mission
 from bridge.mission_loader import parse_mission
 from bridge.positioning import Positioning, needs_positioning, ping_plan
 from bridge.ranging import Fix, NoFix, SoundSpeed, mackenzie
@@ -124,9 +126,11 @@ def test_ping_turns_and_defaults() -> None:
     assert ping_plan(loaded.mission, "a3") == ()
     assert needs_positioning(loaded.mission, "auv") and not needs_positioning(loaded.mission, "a3")
     assert mission().ping_due(0.0) is None  # no ranging.ping: never
-    bad = parse_mission(yaml.safe_dump({**BASE, "ranging": {"ping": {"peers": ["nobody"]}}}))
+    bad = {**BASE, "ranging": {"ping": {"peers": ["nobody"]}}}
+    with pytest.raises(MissionError, match=r"ranging\.ping\.peers\[0\]: unknown node 'nobody'"):
+        parse_mission(yaml.safe_dump(bad))  # zab check says so
     with pytest.raises(ValueError, match=r"ranging\.ping\.peers: unknown node"):
-        Positioning(bad.mission, "auv")
+        Positioning(Mission.model_validate(bad), "auv")  # and so does a node, if it gets that far
 
 
 def test_a_node_on_a_path_starts_from_its_first_waypoint() -> None:
