@@ -27,6 +27,8 @@ from bridge.ranging import DlblRanger, Fix, NoFix, Range, SoundSpeed, Track, att
 
 DEFAULT_SOUND_SPEED_MPS = 1500.0
 MODEM_METHODS = ("ping", "propagation")
+TRACK_RESTART_AFTER = 3
+"""Fixes in a row the track refuses before it restarts at the latest one (it had diverged)."""
 MAX_MODEM_TRAVEL_S = 20.0
 """Longest one-way travel time believed from a modem (30 km at 1500 m/s); beyond is garbage."""
 
@@ -141,7 +143,8 @@ class Positioning:
         own = initial_position(mission, node)
         self.depth: float | None = own[2] if own else None
         self.start: tuple[float, float] | None = (own[0], own[1]) if own else None
-        self.track = Track()
+        self.track = Track(accel_sigma=0.3)  # a vehicle that manoeuvres, not a ship
+        self._refused_in_row = 0
         self.ping_peers = ping_plan(mission, node)
         self.ping_interval_s = ranging.ping.interval_s if ranging.ping is not None else math.inf
         self._next_ping = -math.inf
@@ -239,8 +242,12 @@ class Positioning:
             return NoFix("no_depth", tuple(names))
         previous = self.track.predict(now) or self.start
         found = attempt(anchors, ranges, self.depth, previous, names=names)
-        if isinstance(found, Fix):
-            self.track.update(now, found)  # a refused (gated) fix does not steer the next one
+        if isinstance(found, Fix):  # a refused (gated) fix does not steer the next one...
+            self._refused_in_row = 0 if self.track.update(now, found) else \
+                self._refused_in_row + 1
+            if self._refused_in_row >= TRACK_RESTART_AFTER:  # ...unless the track is lost
+                self.track.start(now, found.x, found.y, found.sigma_m)
+                self._refused_in_row = 0
         return found
 
     # -- explicit ranging ----------------------------------------------------------------------

@@ -146,3 +146,22 @@ def test_a_node_on_a_path_starts_from_its_first_waypoint() -> None:
     p.on_modem_range("a1", travel("a1", p, where), "ping", now=1.0)
     fix = p.on_modem_range("a2", travel("a2", p, where), "ping", now=1.0).fix
     assert isinstance(fix, Fix) and (fix.x, fix.y) == pytest.approx(where[:2], abs=1e-6)
+
+
+def test_the_track_restarts_when_the_vehicle_is_not_where_it_predicts() -> None:
+    p = mission()
+    t = 0.0
+    for _ in range(4):
+        for peer in ("a1", "a2", "a3"):
+            t += 1.0
+            p.on_modem_range(peer, travel(peer, p), "ping", now=t)
+    assert p.track.position == pytest.approx(AUV[:2], abs=0.01)
+    moved = (10.0, 30.0, 1.0)  # e.g. a navigation reset: 18 m away at once
+    fixes = []
+    for _ in range(3):
+        for peer in ("a1", "a2", "a3"):
+            t += 1.0
+            fixes.append(p.on_modem_range(peer, travel(peer, p, moved), "ping", now=t).fix)
+    assert all(isinstance(f, Fix) for f in fixes)  # published as measured all along
+    assert p.track.refused >= 2
+    assert p.track.position == pytest.approx(moved[:2], abs=0.5)  # then the track follows
