@@ -258,6 +258,10 @@ class Positioning:
             return None
         return self.ping_peers[self._ping_turn % len(self.ping_peers)]
 
+    def next_ping(self) -> float | None:
+        """When the next range is due (``-inf``: now), or None if this node does not range."""
+        return self._next_ping if self.ping_peers else None
+
     def pinged(self, peer: str, now: float) -> None:
         """A range to ``peer`` was asked for at ``now`` (answered or not): next peer's turn."""
         if peer in self.ping_peers:

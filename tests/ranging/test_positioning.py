@@ -113,9 +113,9 @@ def test_ping_turns_and_defaults() -> None:
     p = mission(ping={"interval_s": 3.0})
     assert p.ping_peers == ("a1", "a2", "a3")  # default: the anchors, from every non-anchor
     assert p.fix_max_age_s >= 9.0  # a peer's range lasts until its turn comes again
-    assert p.ping_due(0.0) == "a1"
+    assert p.ping_due(0.0) == "a1" and p.next_ping() == -math.inf
     p.pinged("a1", 0.0)
-    assert p.ping_due(2.9) is None
+    assert p.ping_due(2.9) is None and p.next_ping() == 3.0
     assert p.ping_due(3.0) == "a2"
     p.pinged("a2", 3.0)
     p.pinged("a3", 6.0)
@@ -125,7 +125,7 @@ def test_ping_turns_and_defaults() -> None:
     assert ping_plan(loaded.mission, "a1") == ("a2",)
     assert ping_plan(loaded.mission, "a3") == ()
     assert needs_positioning(loaded.mission, "auv") and not needs_positioning(loaded.mission, "a3")
-    assert mission().ping_due(0.0) is None  # no ranging.ping: never
+    assert mission().ping_due(0.0) is None and mission().next_ping() is None  # never
     bad = {**BASE, "ranging": {"ping": {"peers": ["nobody"]}}}
     with pytest.raises(MissionError, match=r"ranging\.ping\.peers\[0\]: unknown node 'nobody'"):
         parse_mission(yaml.safe_dump(bad))  # zab check says so
