@@ -126,6 +126,7 @@ class NodeCore:
         self.last_tx: float | None = None
         self.positioning = Positioning(mission, node) if needs_positioning(mission, node) \
             else None
+        self._ranged_last = False  # a range never takes two transmit opportunities in a row
         self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
         for channel in self.table.channels:
             if channel.index in self.store.states:
@@ -190,8 +191,10 @@ class NodeCore:
     # -- frames out ----------------------------------------------------------------------------
 
     def next_due(self) -> float | None:
-        """When something (data or a heartbeat) is next due; None while nothing is pending."""
-        times = [t for t in (self.store.next_due(), self.next_heartbeat()) if t is not None]
+        """When something (data, a heartbeat or a range) is next due; None while nothing is
+        pending."""
+        ping = self.positioning.next_ping() if self.positioning is not None else None
+        times = [t for t in (self.store.next_due(), self.next_heartbeat(), ping) if t is not None]
         return min(times, default=None)
 
     def next_heartbeat(self) -> float | None:
@@ -211,7 +214,8 @@ class NodeCore:
         self.stats.left_out += len(plan.left_out)
         if not plan.chosen and not always:
             return None
-        delays = self.positioning.on_transmit(at) if self.positioning else []
+        delays = self.positioning.on_transmit(at) if self.positioning and self.table.dlbl \
+            else []
         data = self.codec.encode([(s.channel, s.payload()) for s in plan.chosen], delays, now)
         targets = {d for s in plan.chosen for d in s.channel.destinations(self.node)}
         dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
@@ -303,8 +307,12 @@ class NodeCore:
                                                          rng.time), now)
 
     def range_due(self, now: float) -> int | None:
-        """The address this node should ask its modem to range to now (``ranging.ping``)."""
-        peer = self.positioning.ping_due(now) if self.positioning is not None else None
+        """The address this node should ask its modem to range to at this transmit opportunity
+        (``ranging.ping``); never at two opportunities in a row, so frames still go out."""
+        if self.positioning is None or self._ranged_last:
+            self._ranged_last = False
+            return None
+        peer = self.positioning.ping_due(now)
         return None if peer is None else self.mission.address_of(peer)
 
     def range_asked(self, dest: int, now: float, error: str | None = None) -> None:
@@ -312,6 +320,7 @@ class NodeCore:
         peer = self.mission.name_of(dest)
         if self.positioning is None or peer is None:
             return
+        self._ranged_last = True
         self.positioning.pinged(peer, now)
         if error is not None:
             self._notice("range_failed", {"time": now, "peer": peer, "error": error})

@@ -43,17 +43,23 @@ def test_micromodem_pings_are_published_as_ranges(tmp_path: Path) -> None:
     where = {n: (p.x, p.y, p.depth) for n, node in loaded.mission.nodes.items()
              if (p := node.position) is not None}
     with micromodem_e2e.emulated_modems(loaded, links), running_fleet(loaded) as fleet:
-        apps = {n: outside_session(loaded, n) for n in ("remus1", "remus2")}
+        apps = {n: outside_session(loaded, n) for n in ("remus1", "remus2", "topside")}
         try:
             inboxes = {n: Inbox() for n in apps}
-            for name, app in apps.items():
-                app.declare_subscriber(f"@zab/remus_micromodem/{name}/range/*", inboxes[name])
-            got = {n: collect(inboxes[n], {"topside"}, 15.0) for n in apps}
+            for name in ("remus1", "remus2"):
+                apps[name].declare_subscriber(f"@zab/remus_micromodem/{name}/range/*",
+                                              inboxes[name])
+            apps["topside"].declare_subscriber("remus1/state", inboxes["topside"])
+            put(apps["remus1"], "state", micromodem_e2e.STATE)
+            got = {n: collect(inboxes[n], {"topside"}, 15.0) for n in ("remus1", "remus2")}
+            _, state, _ = inboxes["topside"].get(timeout=10.0)  # frames flow between pings
         finally:
             for app in apps.values():
                 app.close()
         topside = fleet.nodes["topside"]
         assert topside.positioning is None  # it is only pinged: nothing to measure
+        assert all(n.stats.send_errors == 0 for n in fleet.nodes.values())
+    assert state["battery"] == micromodem_e2e.STATE["battery"]
     for name, ranges in got.items():
         value = ranges["topside"]
         assert value["method"] == "ping" and value["peer"] == "topside"

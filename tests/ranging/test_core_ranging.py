@@ -1,0 +1,62 @@
+"""NodeCore's ranging outputs, pure: modem ranges, no-fix reports, range turns."""
+
+from __future__ import annotations
+
+import math
+
+import yaml
+
+from bridge.backends.base import ModemRange, Reception
+from bridge.core import NodeCore, Notice, Status
+from bridge.mission_loader import parse_mission
+
+MISSION = {
+    "mission": "pings",
+    "mac": {"type": "none"},
+    "ranging": {"ping": {"interval_s": 5.0}},
+    "nodes": {
+        "a1": {"address": 1, "role": "surface", "position": {"x": 0, "y": 0, "depth": 0}},
+        "a2": {"address": 2, "role": "surface", "position": {"x": 0, "y": 40, "depth": 0}},
+        "auv": {"address": 3, "position": {"x": 30, "y": 20, "depth": 0}},
+    },
+    "channels": [{"name": "n", "from": "auv", "to": "a1", "elements": [
+        {"in": "n", "out": "auv/n", "fields": [{"field": "v", "type": "int", "min": 0,
+                                                 "max": 9}]}]}],
+}
+
+
+def test_ranges_turns_and_no_fix_without_dlbl() -> None:
+    core = NodeCore(parse_mission(yaml.safe_dump(MISSION)), "auv")
+    assert core.positioning is not None and not core.table.dlbl  # ranging.ping alone needs it
+    assert core.next_due() == -math.inf  # a range is due at once, even with no data
+    assert core.range_due(100.0) == 1
+    core.range_asked(1, 100.0)
+    assert core.range_due(101.0) is None and core.next_due() == 105.0
+    core.modem_range(ModemRange(1, math.dist((30, 20), (0, 0)) / 1500.0, "ping", 101.0), 101.5)
+    out = core.take()
+    status = {o.topic: o.payload for o in out if isinstance(o, Status)}
+    assert status["range/a1"]["method"] == "ping" and status["range/a1"]["time"] == 101.5
+    assert abs(status["range/a1"]["range_m"] - math.dist((30, 20), (0, 0))) < 1e-9
+    assert status["position"] == {"fix": False, "reason": "too_few_anchors", "anchors": ["a1"],
+                                  "time": 101.5, "detail": status["position"]["detail"]}
+    assert [o.kind for o in out if isinstance(o, Notice)] == ["range", "position"]
+    assert core.range_due(105.0) == 2  # the other anchor's turn
+    core.range_asked(2, 105.0, "no ping reply")
+    (failed,) = core.take()
+    assert isinstance(failed, Notice) and failed.kind == "range_failed"
+    assert failed.info == {"time": 105.0, "peer": "a2", "error": "no ping reply"}
+    assert core.range_due(200.0) is None  # the opportunity after a range goes to frames
+    assert core.range_due(200.0) == 1
+    core.modem_range(ModemRange(2, math.dist((30, 20), (0, 40)) / 1500.0, "ping", 106.0), 106.0)
+    fix = next(o.payload for o in core.take() if isinstance(o, Status) and o.topic == "position")
+    assert fix["fix"] is True and abs(fix["x"] - 30) < 1e-6 and abs(fix["y"] - 20) < 1e-6
+    core.modem_range(ModemRange(9, 0.01, "ping", 107.0), 107.0)  # nobody at address 9
+    assert core.take() == []
+    # frames still decode without DLBL delays in them
+    peer = NodeCore(parse_mission(yaml.safe_dump(MISSION)), "a1")
+    assert peer.positioning is None and peer.next_due() is None  # a1 is only ranged to
+    core.ingest("n", b'{"v": 4}', "application/json", 110.0)
+    frame = core.build_frame(110.0, 110.0)
+    assert frame is not None
+    peer.receive(Reception(frame.data, 3, 111.0), 111.0)
+    assert peer.stats.frames_received == 1
