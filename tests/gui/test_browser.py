@@ -10,16 +10,14 @@ import shutil
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import yaml
 
-from bridge.mission_loader import LoadedMission
 from tests.conftest import REPO, on_free_ports
-from tests.harness import Inbox, outside_session, put, running_fleet
+from tests.gui.fleet import MISSION, VehicleApps, mission_text
+from tests.harness import Inbox, outside_session, running_fleet
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--no-sandbox", "--headless", "--disable-gpu",
@@ -29,82 +27,6 @@ WAIT_MS = 20_000  # an upper bound for things the fleet does within a few TDMA c
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(),
                                 reason="needs Debian's chromium (apt-get install chromium)")
-
-# A small, quick fleet: a 2.1 s TDMA cycle, links down after 5 s of silence.
-MISSION = """
-mission: guitest
-wire: {dlbl: true}
-modem:
-  backend: sim
-  frame_bytes: 32
-  options: {preset: evologics-s2c-im, seed: 3}
-mac: {type: tdma, slot_s: 0.7, guard_s: 0.1, order: [ssv, auv1, auv2]}
-link: {degraded_after_s: 3, down_after_s: 5}
-nodes:
-  ssv: {address: 1, role: surface, position: {x: 0, y: 0, depth: 0.5}}
-  auv1: {address: 2, position: {x: 40, y: 30, depth: 8}, nav_key: nav}
-  auv2: {address: 3, position: {x: -30, y: 50, depth: 12}, nav_key: nav}
-channels:
-  - name: nav
-    from: "auv[12]"
-    to: ssv
-    elements:
-      - in: nav
-        out: "{src}/nav"
-        fields:
-          - {field: x, resolution: 0.1, min: -500, max: 500}
-          - {field: y, resolution: 0.1, min: -500, max: 500}
-          - {field: depth, resolution: 0.1, min: 0, max: 100}
-  - name: status
-    from: "auv[12]"
-    to: ssv
-    elements:
-      - in: status
-        out: "{src}/status"
-        fields:
-          - {field: battery, type: int, min: 0, max: 100}
-  - name: command
-    from: ssv
-    to: "auv[12]"
-    elements:
-      - in: command
-        out: ssv/command
-        fields:
-          - {field: action, type: enum, values: [none, start, hold, surface]}
-          - {field: leg, type: int, min: 0, max: 63}
-"""
-
-START = {"auv1": (40.0, 30.0, 8.0), "auv2": (-30.0, 50.0, 12.0)}
-
-
-class VehicleApps:
-    """On each vehicle, an application publishing navigation and status a few times a second
-    (a new battery value each time), until stopped."""
-
-    def __init__(self, loaded: LoadedMission) -> None:
-        self.sessions = {name: outside_session(loaded, name) for name in START}
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, name="vehicle-apps", daemon=True)
-
-    def _run(self) -> None:
-        t0 = time.time()
-        while not self.stop.wait(0.3):
-            t = time.time() - t0
-            for name, session in self.sessions.items():
-                x, y, depth = START[name]
-                put(session, "nav", {"x": x + 0.5 * t, "y": y + 0.3 * t, "depth": depth})
-                put(session, "status", {"battery": 100 - int(t * 3) % 100})
-
-    def __enter__(self) -> VehicleApps:
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop.set()
-        self.thread.join(5)
-        for session in self.sessions.values():
-            session.close()
-
 
 @contextlib.contextmanager
 def gui_process(path: Path) -> Iterator[str]:
@@ -141,7 +63,7 @@ def stage(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
     loaded = on_free_ports(MISSION, "guitest.yaml")
     folder = tmp_path_factory.mktemp("gui")
     path = folder / "guitest.yaml"
-    path.write_text(open_mission_text(loaded))
+    path.write_text(mission_text(MISSION, loaded))
     with contextlib.ExitStack() as stack:
         main = stack.enter_context(running_fleet(loaded, only=["ssv", "auv1"]))
         assert main.water is not None and main.water.port is not None
@@ -167,14 +89,6 @@ def stage(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
         shutil.copy(shot, artifacts / "gui.png")
         print(f"GUI screenshot: {artifacts / 'gui.png'}")
         assert errors == [], f"errors in the page: {errors}"
-
-
-def open_mission_text(loaded: LoadedMission) -> str:
-    """The test mission with the free ports ``loaded`` was given."""
-    data = yaml.safe_load(MISSION)
-    for name, node in loaded.mission.nodes.items():
-        data["nodes"][name]["zenoh"] = {"listen": node.zenoh.listen}
-    return yaml.safe_dump(data, sort_keys=False)
 
 
 def test_vehicles_appear_on_the_map(stage):
@@ -211,6 +125,7 @@ def test_a_command_from_the_page_reaches_the_vehicle_key(stage):
     try:
         inbox = Inbox()
         auv1.declare_subscriber("ssv/command", inbox)
+        page.wait_for_selector('#connection[data-state="up"]', timeout=WAIT_MS)
         page.select_option("#command-vehicle", "auv1")
         page.select_option("#command-channel", "command")
         page.select_option('#command-fields [data-path="action"]', "start")

@@ -12,14 +12,24 @@ import pytest
 from rich.console import Console
 
 from bridge.demo import run_demo
+from bridge.errors import MissionError
 from bridge.gui.server import GuiServer
-from tests.conftest import MISSIONS, free_port, mission_on_free_ports
+from tests.conftest import MISSIONS, free_port, mission_on_free_ports, on_free_ports
+from tests.gui.fleet import MISSION
+from tests.harness import running_fleet
 
 
 async def _hello(ws: aiohttp.ClientWebSocketResponse) -> dict:
     message = await ws.receive_json(timeout=10)
     assert message["type"] == "hello"
     return message
+
+
+async def _until_connected(ws: aiohttp.ClientWebSocketResponse, hello: dict) -> None:
+    """Read until the GUI's Zenoh session has joined the node."""
+    items = hello["items"]
+    while not any(i["kind"] == "feed" and i["connected"] for i in items):
+        items = (await ws.receive_json(timeout=10)).get("items", [])
 
 
 def test_the_page_and_its_assets_are_served_locally():
@@ -123,7 +133,7 @@ def test_the_demo_serves_the_gui_and_leaves_operator_commands_alone():
             await asyncio.sleep(0.1)
         url = found.group(1)
         async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
-            await _hello(ws)
+            await _until_connected(ws, await _hello(ws))
             await ws.send_json({"type": "command", "request": 1, "channel": "mission_command",
                                 "vehicle": "cv1", "values": {"action": "surface", "leg": 9}})
             while (reply := await ws.receive_json(timeout=10))["type"] != "reply":
@@ -150,3 +160,49 @@ def test_the_demo_serves_the_gui_and_leaves_operator_commands_alone():
                    if i["kind"] == "channel" and i["channel"] == "mission_command")
     assert command["value"] == {"action": "surface", "leg": 9}
     assert json.dumps(state, allow_nan=False)
+
+
+def test_a_reliable_command_shows_pending_then_delivered_per_receiver():
+    """With a reliable channel, the sender's delivery reports (matched by the put's ref)
+    settle the command: delivered to the chosen vehicle, and to the other receiver too."""
+    text = MISSION.replace('    to: "auv[12]"\n    elements:\n      - in: command',
+                           '    to: "auv[12]"\n    reliable: true\n    elements:\n'
+                           '      - in: command')
+    assert "reliable: true" in text
+    try:
+        loaded = on_free_ports(text, "reliable.yaml")
+    except MissionError as exc:
+        if "unknown key" not in str(exc):
+            raise
+        pytest.skip("this mission model has no reliable channels yet")
+
+    async def main(url: str) -> list[dict]:
+        seen: list[dict] = []
+        async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
+            hello = await _hello(ws)
+            assert [(c["channel"], c["reliable"]) for c in hello["mission"]["commands"]] == [
+                ("command", True)]
+            await _until_connected(ws, hello)
+            await ws.send_json({"type": "command", "request": 1, "channel": "command",
+                                "vehicle": "auv1", "values": {"action": "hold", "leg": 2}})
+            deadline = asyncio.get_running_loop().time() + 30  # a few TDMA cycles, at most
+            while asyncio.get_running_loop().time() < deadline:
+                message = await ws.receive_json(timeout=20)
+                seen += [i for i in message.get("items", ()) if i["kind"] == "command"]
+                if seen and seen[-1]["state"] in ("delivered", "failed") \
+                        and seen[-1]["others"].get("auv2") in ("delivered", "failed"):
+                    break
+        return seen
+
+    async def with_server() -> list[dict]:
+        server = GuiServer(loaded)
+        try:
+            return await main(await server.start("127.0.0.1", 0))
+        finally:
+            await server.stop()
+
+    with running_fleet(loaded):
+        seen = asyncio.run(with_server())
+    assert seen and seen[0]["state"] == "pending"
+    assert (seen[-1]["state"], seen[-1]["others"]) == ("delivered", {"auv2": "delivered"})
+    assert "queued" in {c["detail"] for c in seen}  # the sender's reports, as they came

@@ -142,6 +142,8 @@ function renderConnection() {
   }
   badge.textContent = text;
   badge.dataset.state = stateName;
+  // a command needs the GUI's session to the node; the server would refuse it anyway
+  document.getElementById("command-send").disabled = stateName === "down";
   document.getElementById("clock").textContent = clockText(serverNow());
 }
 
