@@ -59,9 +59,12 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
     return LogLine("info", kind, f"{node}: {kind}" + (f" ({details})" if details else ""))
 
 
-def link_line(observer: str, peer: str, state: str, silent_s: float | None) -> LogLine:
+def link_line(observer: str, peer: str, state: str, silent_s: float | None,
+              never_heard: bool = False) -> LogLine:
     """A link changed state."""
     silent = f" (silent {silent_s:.0f} s)" if silent_s is not None and state != "up" else ""
+    if never_heard and state != "up":
+        silent = " (not heard yet)"
     level = {"up": "info", "degraded": "warn"}.get(state, "error")
     return LogLine(level, "link", f"link {observer} ↔ {peer}: {state}{silent}")
 

@@ -274,12 +274,12 @@ class GuiModel:
                 if isinstance(table, Mapping) else 0
 
         item = {"kind": "stats", "node": node, "time": now,
-                "frames_sent": stats.get("frames_sent"),
-                "frames_received": stats.get("frames_received"),
+                "frames_sent": shown(stats.get("frames_sent")),
+                "frames_received": shown(stats.get("frames_received")),
                 "frames_dropped": total("frames_dropped"),
                 "payloads_dropped": total("payloads_dropped"),
-                "send_errors": stats.get("send_errors"),
-                "values_published": stats.get("values_published")}
+                "send_errors": shown(stats.get("send_errors")),
+                "values_published": shown(stats.get("values_published"))}
         self.stats[node] = item
         self._out.append(item)
         watch = self._watches.setdefault(node, CounterWatch(node))
@@ -319,7 +319,8 @@ class GuiModel:
         self.links[(observer, peer)] = item
         self._out.append(item)
         silent = None if heard is None else max(0.0, now - heard)
-        self._log(link_line(observer, peer, state, silent), now, observer)
+        never = self.vehicles[peer].heard is None
+        self._log(link_line(observer, peer, state, silent, never), now, observer)
 
     def liveliness(self, key: str, alive: bool, now: float) -> None:
         """A link token appeared or vanished. A vanished token means the link is down, or

@@ -24,7 +24,7 @@ from aiohttp import WSMsgType, web
 
 from bridge.gui.commands import CommandError
 from bridge.gui.feed import ZenohFeed
-from bridge.gui.model import GuiModel
+from bridge.gui.model import GuiModel, shown
 from bridge.mission import Mission
 from bridge.mission_loader import LoadedMission
 
@@ -49,6 +49,14 @@ def surface_node(mission: Mission) -> str:
     raise ValueError(f"mission {mission.mission!r} has no surface node; choose one with --node")
 
 
+def dumps(message: dict[str, Any]) -> str:
+    """JSON for the page; anything JSON cannot carry (NaN, bytes) is made safe first."""
+    try:
+        return json.dumps(message, separators=(",", ":"), allow_nan=False)
+    except (TypeError, ValueError):
+        return json.dumps(shown(message), separators=(",", ":"), allow_nan=False)
+
+
 class _Page:
     """One connected page: a bounded queue of messages and the task writing them."""
 
@@ -57,10 +65,10 @@ class _Page:
         self.queue: asyncio.Queue[str] = asyncio.Queue(CLIENT_QUEUE)
         self.writer: asyncio.Task[None] | None = None
 
-    def send(self, message: dict[str, Any]) -> bool:
+    def send(self, text: str) -> bool:
         """Queue a message; False when the page is too far behind."""
         try:
-            self.queue.put_nowait(json.dumps(message, separators=(",", ":"), allow_nan=False))
+            self.queue.put_nowait(text)
         except asyncio.QueueFull:
             return False
         return True
@@ -157,14 +165,14 @@ class GuiServer:
         await ws.prepare(request)
         page = _Page(ws)
         self._flush()  # items so far go to the other pages; this one gets them in the snapshot
-        page.send(self._hello())
+        page.send(dumps(self._hello()))
         self.pages.add(page)
         page.writer = asyncio.create_task(page.write())
         try:
             async for message in ws:
                 if message.type == WSMsgType.TEXT:
                     reply = self._from_page(message.data)
-                    if reply is not None and not page.send(reply):
+                    if reply is not None and not page.send(dumps(reply)):
                         break
                 elif message.type == WSMsgType.ERROR:
                     break
@@ -205,9 +213,9 @@ class GuiServer:
         items = self.model.take()
         if not items:
             return
-        message = {"type": "patch", "time": self.clock(), "items": items}
+        text = dumps({"type": "patch", "time": self.clock(), "items": items})
         for page in list(self.pages):
-            if not page.send(message):
+            if not page.send(text):
                 log.warning("a page fell %d messages behind; disconnecting it", CLIENT_QUEUE)
                 self.pages.discard(page)
                 closing = asyncio.ensure_future(page.ws.close())
@@ -217,8 +225,11 @@ class GuiServer:
     async def _pump(self) -> None:
         while True:
             await asyncio.sleep(FLUSH_S)
-            self.model.tick(self.clock())
-            self._flush()
+            try:
+                self.model.tick(self.clock())
+                self._flush()
+            except Exception:  # a bug must not freeze every page: log it and go on
+                log.exception("GUI update failed")
 
     # -- lifecycle -----------------------------------------------------------------------------
 
@@ -234,9 +245,15 @@ class GuiServer:
         except OSError:
             if not any_port:
                 await self._runner.cleanup()
+                self._runner = None
                 raise
             site = web.TCPSite(self._runner, host, 0)
-            await site.start()
+            try:
+                await site.start()
+            except OSError:
+                await self._runner.cleanup()
+                self._runner = None
+                raise
         bound = self._runner.addresses[0][1]
         shown = f"[{host}]" if ":" in host else host
         self.url = f"http://{shown}:{bound}/"

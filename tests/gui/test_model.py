@@ -108,7 +108,8 @@ def test_stats_give_links_last_heard_and_dropped_frames(morph):
     assert heard == {"kind": "heard", "node": "gcv", "last_heard": 98.0}
     links = {i["node"]: i["state"] for i in items if i["kind"] == "link"}
     assert links == {"gcv": "up", "lsv": "down"}
-    assert [e["level"] for e in items if e["kind"] == "event"] == ["info", "error"]
+    assert [e["text"] for e in items if e["kind"] == "event"] == [
+        "link ssv ↔ gcv: up", "link ssv ↔ lsv: down (not heard yet)"]
     # the next stats: same links (no news), two more frames dropped failing the check
     stats = {**stats, "time": 1001.0, "frames_dropped": {"check": 2}, "send_errors": 1}
     model.ingest("@zab/morph/ssv/stats", pack(stats), MSGPACK, 101.0)

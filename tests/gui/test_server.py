@@ -13,7 +13,7 @@ from rich.console import Console
 
 from bridge.demo import run_demo
 from bridge.errors import MissionError
-from bridge.gui.server import GuiServer
+from bridge.gui.server import GuiServer, dumps
 from tests.conftest import MISSIONS, free_port, mission_on_free_ports, on_free_ports
 from tests.gui.fleet import MISSION
 from tests.harness import running_fleet
@@ -30,6 +30,11 @@ async def _until_connected(ws: aiohttp.ClientWebSocketResponse, hello: dict) -> 
     items = hello["items"]
     while not any(i["kind"] == "feed" and i["connected"] for i in items):
         items = (await ws.receive_json(timeout=10)).get("items", [])
+
+
+def test_what_json_cannot_carry_is_made_safe_for_the_page():
+    assert json.loads(dumps({"a": float("nan"), "b": b"\x01", "c": [1.5]})) == {
+        "a": None, "b": "01", "c": [1.5]}
 
 
 def test_the_page_and_its_assets_are_served_locally():
