@@ -239,24 +239,24 @@ function renderMap() {
   el("text", { x: width - 12, y: 18, "text-anchor": "end", class: "north" }, svg)
     .textContent = "N ↑";
 
-  // ranges, measured by an observer to a peer: the peer is somewhere on the circle
-  for (const r of ranges) {
+  // ranges, measured by an observer to a peer: the peer is somewhere on the circle. Labels
+  // sit on the side away from the peer (where its own label is), fanned out so that
+  // concentric circles keep readable labels.
+  ranges.forEach((r, index) => {
     const c = places[r.observer];
     const fade = 1 - (now - r.time) / RANGE_FADE_S;
     const g = el("g", { class: "range", "data-observer": r.observer, "data-peer": r.peer,
                         opacity: (0.25 + 0.75 * fade).toFixed(2) }, svg);
     const radius = Math.max(1, r.range_m * scale);
     el("circle", { cx: sx(c.x), cy: sy(c.y), r: radius }, g);
-    // label the circle where it passes nearest the peer's last known position
     const peer = places[r.peer];
-    // (a little clockwise of it, so the vehicle's own label stays readable)
-    const toward = peer ? Math.atan2(sy(peer.y) - sy(c.y), sx(peer.x) - sx(c.x)) : -Math.PI / 4;
-    const angle = toward + Math.min(0.6, 28 / radius);
+    const toward = peer ? Math.atan2(sy(peer.y) - sy(c.y), sx(peer.x) - sx(c.x)) : -Math.PI / 2;
+    const angle = toward + Math.PI + (index - (ranges.length - 1) / 2) * 0.35;
     const label = el("text", { x: sx(c.x) + radius * Math.cos(angle),
-                               y: sy(c.y) + radius * Math.sin(angle),
-                               "text-anchor": Math.cos(angle) >= 0 ? "start" : "end" }, g);
-    label.textContent = `${r.range_m.toFixed(1)} m`;
-  }
+                               y: sy(c.y) + radius * Math.sin(angle) + 4,
+                               "text-anchor": "middle" }, g);
+    label.textContent = `${r.peer} ${r.range_m.toFixed(1)} m`;
+  });
 
   // tracks
   for (const v of Object.values(state.nodes)) {
