@@ -6,6 +6,7 @@ import asyncio
 import io
 import json
 import re
+import threading
 
 import aiohttp
 import pytest
@@ -211,3 +212,42 @@ def test_a_reliable_command_shows_pending_then_delivered_per_receiver():
     assert seen and seen[0]["state"] == "pending"
     assert (seen[-1]["state"], seen[-1]["others"]) == ("delivered", {"auv2": "delivered"})
     assert "queued" in {c["detail"] for c in seen}  # the sender's reports, as they came
+
+
+def test_the_page_says_when_the_node_goes_away_and_comes_back():
+    """The surface bridge stops: the page hears that the GUI lost it; the bridge restarts on
+    the same endpoint: the GUI's session reconnects by itself and the news flows again."""
+    loaded = on_free_ports(MISSION, "restart.yaml")
+    up, lost = threading.Event(), threading.Event()
+    result: list[str] = []
+
+    async def until(ws: aiohttp.ClientWebSocketResponse, wanted) -> dict:
+        while True:
+            for item in (await ws.receive_json(timeout=20)).get("items", ()):
+                if wanted(item):
+                    return item
+
+    async def page() -> None:
+        server = GuiServer(loaded)
+        url = await server.start("127.0.0.1", 0)
+        try:
+            async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
+                await _until_connected(ws, await _hello(ws))
+                await until(ws, lambda i: i["kind"] == "stats" and i["node"] == "ssv")
+                up.set()
+                gone = await until(ws, lambda i: i["kind"] == "feed" and not i["connected"])
+                lost.set()
+                await until(ws, lambda i: i["kind"] == "feed" and i["connected"])
+                await until(ws, lambda i: i["kind"] == "stats" and i["node"] == "ssv")
+                result.append(gone["error"])
+        finally:
+            await server.stop()
+
+    thread = threading.Thread(target=asyncio.run, args=(page(),), daemon=True)
+    with running_fleet(loaded, only=["ssv"]):
+        thread.start()
+        assert up.wait(30)
+    assert lost.wait(30)
+    with running_fleet(loaded, only=["ssv"]):
+        thread.join(30)
+    assert not thread.is_alive() and result == ["no route to the node"]
