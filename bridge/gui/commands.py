@@ -25,8 +25,6 @@ MAX_COMMANDS = 100
 #: Longest text accepted for a ``json`` form field.
 MAX_JSON_CHARS = 4096
 
-FINAL_STATES = frozenset({"delivered", "failed", "sent"})
-
 
 class CommandError(ValueError):
     """A command the GUI cannot send; the message says which field and why."""

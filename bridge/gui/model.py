@@ -133,7 +133,6 @@ class GuiModel:
                 "name": name, "role": node.role, "address": node.address,
                 "position": None if static is None else
                 {"x": static.x, "y": static.y, "depth": static.depth},
-                "live_position": node.nav_key is not None,
             })
         channels = [{"name": c.name, "senders": list(c.senders), "receivers": list(c.receivers),
                      "interval_s": c.interval_s, "latching": c.latching}
