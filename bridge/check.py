@@ -73,9 +73,18 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             "interval_s": c.interval_s,
             "latching": c.latching,
             "priority": c.priority,
+            "reliable": c.reliable,
+            "ttl_s": c.ttl_s,
+            "fragments": {"chunk_bytes": c.chunk_bytes,
+                          "at_most": -(-c.value_bytes // c.chunk_bytes)} if c.fragmented else None,
         }
         for c in table.channels
     ]
+    for c in table.channels:
+        if c.fragmented:
+            report.warnings.append(
+                f"channel {c.name!r}: a value ({c.bits} bits) is larger than a frame; it travels "
+                f"in up to {-(-c.value_bytes // c.chunk_bytes)} fragments of {c.chunk_bytes} B")
     nodes = []
     for name, node in mission.nodes.items():
         frame_bytes = mission.node_modem(name).frame_bytes

@@ -24,21 +24,30 @@ from typing import Any
 
 from bridge.auth import Authenticator, load_key
 from bridge.backends.base import ModemRange, Reception
-from bridge.builder import FramePlan, plan_frame
-from bridge.channels import ChannelCodec, ElementCodec
+from bridge.builder import FramePlan
+from bridge.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.errors import DecodeError, EncodeError, FrameError
 from bridge.frame import FrameCodec
 from bridge.link import LinkState, LinkThresholds
+from bridge.mission import TdmaMac
 from bridge.mission_loader import LoadedMission
 from bridge.payloads import decode_payload
 from bridge.positioning import Positioning, Update, needs_positioning
-from bridge.store import OutboundStore
+from bridge.reliable import ReliableReceiver, ReliableSender, Report
+from bridge.store import ChannelState, OutboundStore
+from bridge.transfer import TransferReceiver, TransferSender, from_bytes
 
 log = logging.getLogger("zab.core")
 
-NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payload_dropped",
-                     "delivery", "transfer"})
-"""Notice kinds also published on ``@zab/<mission>/<node>/events``."""
+NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payload_dropped"})
+"""Notice kinds also published on ``@zab/<mission>/<node>/events`` (and failed deliveries)."""
+
+DEFAULT_RETRY_S = 10.0  # first retransmission without TDMA (with TDMA: one cycle)
+
+
+def notable(kind: str, info: Mapping[str, Any]) -> bool:
+    """Whether a notice belongs on ``…/events``."""
+    return kind in NOTABLE or (kind == "delivery" and info.get("state") == "failed")
 
 
 @dataclass(frozen=True)
@@ -81,6 +90,8 @@ class OutFrame:
     at: float
     plan: FramePlan
     built: float
+    streams: tuple[tuple[ReliableSender | TransferSender, Any], ...] = ()
+    acks: tuple[tuple[str, int], ...] = ()
 
 
 @dataclass
@@ -135,6 +146,14 @@ class NodeCore:
                     self.bindings.setdefault(key, []).append((channel, i, element))
         self._warned_keys: set[str] = set()
         self._outputs: list[Output] = []
+        mac = mission.mac
+        retry_s = mac.slot_s * len(mac.order) if isinstance(mac, TdmaMac) else DEFAULT_RETRY_S
+        self.senders: dict[int, ReliableSender | TransferSender] = {
+            c.index: (TransferSender if c.fragmented else ReliableSender)(
+                c, c.destinations(node), retry_s)
+            for c in self.table.streams if c.index in self.store.states}
+        self.receivers: dict[tuple[str, int], ReliableReceiver | TransferReceiver] = {}
+        self._acks: dict[tuple[str, int], None] = {}  # (sender, channel index) owed an ack
 
     # -- outputs -------------------------------------------------------------------------------
 
@@ -151,8 +170,11 @@ class NodeCore:
 
     # -- samples in ----------------------------------------------------------------------------
 
-    def ingest(self, key: str, data: bytes, encoding: str, now: float) -> None:
-        """A sample arrived on an input key: pack it for every channel that reads the key."""
+    def ingest(self, key: str, data: bytes, encoding: str, now: float,
+               ref: str | None = None) -> None:
+        """A sample arrived on an input key: pack it for every channel that reads the key.
+
+        ``ref`` (the publisher's correlation text) is echoed in delivery reports."""
         try:
             value = decode_payload(data, encoding)
         except DecodeError as exc:
@@ -164,7 +186,12 @@ class NodeCore:
             except EncodeError as exc:
                 self.drop_payload(key, f"channel {channel.name!r}: {exc}", now)
                 continue
-            self.store.update(channel.index, index, packed, now)
+            sender = self.senders.get(channel.index)
+            if sender is None:
+                self.store.update(channel.index, index, packed, now)
+            elif self.store.update_value(channel.index, index, packed, now):
+                payload = self.store.states[channel.index].payload()
+                self._reports(sender.offer(payload, now, key, ref))
 
     def drop_payload(self, key: str, reason: str, now: float) -> None:
         """Count a payload that cannot be used (warned once per key)."""
@@ -190,12 +217,15 @@ class NodeCore:
 
     # -- frames out ----------------------------------------------------------------------------
 
-    def next_due(self) -> float | None:
-        """When something (data, a heartbeat or a range) is next due; None while nothing is
-        pending."""
-        ping = self.positioning.next_ping() if self.positioning is not None else None
-        times = [t for t in (self.store.next_due(), self.next_heartbeat(), ping) if t is not None]
-        return min(times, default=None)
+    def next_due(self, now: float | None = None) -> float | None:
+        """When something (data, an acknowledgement, a retransmission or a heartbeat) is next
+        due; None while nothing is pending."""
+        times = [self.store.next_due(now), self.next_heartbeat(),
+                 *(s.next_time() for s in self.senders.values()),
+                 self.positioning.next_ping() if self.positioning is not None else None]
+        if self._acks:
+            times.append(float("-inf"))
+        return min((t for t in times if t is not None), default=None)
 
     def next_heartbeat(self) -> float | None:
         if self.heartbeat_s is None:
@@ -210,24 +240,92 @@ class NodeCore:
         """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
         nothing to send and ``always`` is false. Pair with :meth:`frame_sent` or
         :meth:`frame_failed`."""
-        plan = plan_frame(self.codec, self.store.due(now), self.frame_bytes)
-        self.stats.left_out += len(plan.left_out)
-        if not plan.chosen and not always:
+        codec = self.codec
+        budget = codec.body_capacity_bits(self.frame_bytes) - codec.count_bits
+        room = (1 << codec.count_bits) - 1
+        items: list[tuple[ChannelCodec | AckCodec, int]] = []
+        targets: set[str] = set()
+        acks: list[tuple[str, int]] = []
+        ack_codec = self.table.ack
+        for src, index in self._acks:  # acknowledgements first: they unblock the peer
+            assert ack_codec is not None
+            cost = codec.channel_cost_bits(ack_codec)
+            if cost > budget or len(items) >= room:
+                break
+            items.append((ack_codec, self._ack_bits(src, index)))
+            budget -= cost
+            acks.append((src, index))
+            targets.add(src)
+        chosen: list[ChannelState] = []
+        left_out: list[ChannelState] = []
+        streams: list[tuple[ReliableSender | TransferSender, Any]] = []
+        for _, channel, what in sorted(self._candidates(now), key=lambda c: c[0]):
+            cost = codec.channel_cost_bits(channel)
+            if cost > budget or len(items) >= room:
+                if isinstance(what, ChannelState):
+                    left_out.append(what)
+                continue
+            budget -= cost
+            targets.update(channel.destinations(self.node))
+            if isinstance(what, ChannelState):
+                chosen.append(what)
+                items.append((channel, what.payload()))
+            else:
+                sender, item = what
+                streams.append((sender, item))
+                items.append((channel, sender.entry(item)))
+        self.stats.left_out += len(left_out)
+        if not items and not always:
             return None
         delays = self.positioning.on_transmit(at) if self.positioning and self.table.dlbl \
             else []
-        data = self.codec.encode([(s.channel, s.payload()) for s in plan.chosen], delays, now)
-        targets = {d for s in plan.chosen for d in s.channel.destinations(self.node)}
+        data = codec.encode(items, delays, now)
         dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
-        ack = True if dest is not None and any(s.channel.ack for s in plan.chosen) else None
-        return OutFrame(data, dest, ack, at, plan, now)
+        ack = True if dest is not None and any(s.channel.ack for s in chosen) else None
+        return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), tuple(left_out)), now,
+                        tuple(streams), tuple(acks))
+
+    def _candidates(self, now: float) -> list[tuple[tuple, ChannelCodec, Any]]:
+        """Everything that could go in a frame: ``(order, channel, what)``. Higher priority
+        first; among equals, whatever has waited longest since it was last sent."""
+        out: list[tuple[tuple, ChannelCodec, Any]] = []
+        for state in self.store.due(now):
+            since = state.last_sent if state.last_sent is not None else float("-inf")
+            out.append(((-state.channel.priority, since, state.channel.index, 0), state.channel,
+                        state))
+        for sender in self.senders.values():
+            channel = sender.channel
+            for n, item in enumerate(sender.due(now)):
+                since = getattr(item, "last_sent", None)
+                since = float("-inf") if since is None else since
+                out.append(((-channel.priority, since, channel.index, n), channel,
+                            (sender, item)))
+        return out
+
+    def _ack_bits(self, src: str, index: int) -> int:
+        ack_codec = self.table.ack
+        assert ack_codec is not None
+        receiver = self.receivers[(src, index)]
+        stream = next(i for i, c in enumerate(self.table.streams) if c.index == index)
+        if isinstance(receiver, TransferReceiver):
+            tid, base, bitmap = receiver.ack()
+        else:
+            (base, bitmap), tid = receiver.ack(), 0
+        return ack_codec.pack(self.table.nodes.index(src), stream, tid, base, bitmap)
 
     def frame_sent(self, out: OutFrame, now: float) -> None:
         """The modem accepted ``out``."""
         self.store.mark_sent(out.plan.chosen, out.built)
+        by_sender: dict[int, tuple[ReliableSender | TransferSender, list[Any]]] = {}
+        for sender, item in out.streams:
+            by_sender.setdefault(id(sender), (sender, []))[1].append(item)
+        for sender, group in by_sender.values():
+            self._reports(sender.sent(group, out.built))  # type: ignore[arg-type]
+        for key in out.acks:
+            self._acks.pop(key, None)
         self.last_tx = out.built
         self.stats.frames_sent += 1
-        names = [s.channel.name for s in out.plan.chosen]
+        names = [s.channel.name for s in out.plan.chosen] + [s.channel.name for s, _ in out.streams]
         for name in names:
             self.stats.sent_per_channel[name] += 1
         self._notice("frame_sent", {"time": now, "bytes": len(out.data), "channels": names,
@@ -270,22 +368,85 @@ class NodeCore:
             self._ranging(src, t_start, frame.delays, modem_now if modem_now is not None else now,
                           now)
         values: dict[str, list[dict]] = {}
-        for channel, elements in frame.channels:
+        for entry in frame.entries:
+            channel = entry.channel
+            if isinstance(channel, AckCodec):
+                self._on_ack(src, entry.header, now)
+                continue
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
                 continue
             if self.node not in channel.destinations(src):
                 continue  # overheard: addressed to others
-            values[channel.name] = elements
-            self.stats.received_per_channel[channel.name] += 1
-            self.received_at[channel.name] = now
-            for element, value in zip(channel.elements, elements, strict=True):
-                self._publish(element.output_key(src, self.node), value, element.encoding,
-                              channel.latching)
+            if channel.fragmented:
+                delivered = self._on_fragment(src, channel, entry.header, entry.chunk, now)
+            elif channel.reliable:
+                receiver = self._receiver(src, channel)
+                assert isinstance(receiver, ReliableReceiver)
+                delivered = receiver.on_entry(*entry.header, entry.values)
+                self._acks[(src, channel.index)] = None
+            else:
+                delivered = [entry.values]
+            for elements in delivered:
+                values[channel.name] = elements
+                self.stats.received_per_channel[channel.name] += 1
+                self.received_at[channel.name] = now
+                for element, value in zip(channel.elements, elements, strict=True):
+                    self._publish(element.output_key(src, self.node), value, element.encoding,
+                                  channel.latching)
         self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
         self._notice("frame_received", {
             "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
             "data": rx.data, "meta": plain(rx.meta), "values": values})
+
+    def _receiver(self, src: str, channel: ChannelCodec) -> ReliableReceiver | TransferReceiver:
+        key = (src, channel.index)
+        receiver = self.receivers.get(key)
+        if receiver is None:
+            receiver = self.receivers[key] = (TransferReceiver(channel) if channel.fragmented
+                                              else ReliableReceiver())
+        return receiver
+
+    def _on_fragment(self, src: str, channel: ChannelCodec, header: tuple[int, ...],
+                     chunk: bytes, now: float) -> list[list[dict]]:
+        receiver = self._receiver(src, channel)
+        assert isinstance(receiver, TransferReceiver)
+        tid, index, count = header
+        data = receiver.on_fragment(tid, index, count, chunk)
+        self._acks[(src, channel.index)] = None
+        self._status(f"transfer/{channel.name}", {**receiver.progress(), "peer": src,
+                                                  "time": now})
+        if data is None:
+            return []
+        try:
+            return [channel.unpack(from_bytes(channel, data))]
+        except DecodeError as exc:
+            self.stats.frames_dropped["malformed"] += 1
+            self._notice("frame_dropped", {"time": now, "src": src, "reason": "malformed",
+                                           "error": f"transfer on {channel.name!r}: {exc}"})
+            return []
+
+    def _on_ack(self, src: str, header: tuple[int, ...], now: float) -> None:
+        peer, stream, tid, base, bitmap = header
+        if self.table.nodes[peer] != self.node:
+            return  # acknowledges someone else
+        channel = self.table.streams[stream]
+        sender = self.senders.get(channel.index)
+        if sender is None or src not in sender.dests:
+            return
+        if isinstance(sender, TransferSender):
+            self._reports(sender.on_ack(src, tid, base, bitmap, now))
+            progress = sender.progress()
+            if progress is not None:
+                self._status(f"transfer/{channel.name}", {**progress, "time": now})
+        else:
+            self._reports(sender.on_ack(src, base, bitmap, now))
+
+    def _reports(self, reports: list[Report]) -> None:
+        for report in reports:
+            payload = report.payload()
+            self._status(f"delivery/{report.channel}", payload)
+            self._notice("delivery", payload)
 
     def _publish(self, key: str, value: Any, encoding: str, latched: bool) -> None:
         self._outputs.append(Publish(key, value, encoding, latched))
@@ -340,8 +501,10 @@ class NodeCore:
     # -- health --------------------------------------------------------------------------------
 
     def tick(self, now: float) -> None:
-        """Periodic work: link states."""
+        """Periodic work: link states, and reliable values past their TTL or retries."""
         self.update_links(now)
+        for sender in self.senders.values():
+            self._reports(sender.expire(now))
 
     def update_links(self, now: float) -> None:
         """Re-evaluate every peer's link; report changes on ``link/<peer>``."""

@@ -15,12 +15,12 @@ from __future__ import annotations
 import heapq
 import itertools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from bridge.backends.base import Reception
 from bridge.core import NodeCore, Output, Publish
-from bridge.mac import FreeSchedule, TdmaSchedule, schedule_for
+from bridge.mac import schedule_for
 from bridge.mission_loader import LoadedMission
 from bridge.ocean.model import Delivery, Ocean, TransmitRefused, TxDone
 from bridge.ocean.presets import Preset, get_preset
@@ -68,19 +68,18 @@ class FastFleet:
             for node in mission.nodes.values()
         }, loss=float(options.get("loss", 0.0)) if loss is None else loss)
         self.cores = {name: NodeCore(loaded, name) for name in mission.nodes}
-        self.schedules = {name: schedule_for(mission, name) for name in mission.nodes}
+        self.schedules = {name: schedule_for(mission, name, seed=seed) for name in mission.nodes}
         self.now = start
         self.outputs: list[Timed] = []
         self.on_output = on_output
         self.keep_outputs = keep_outputs
         self.stopped: set[str] = set()
         self._next_tx: dict[str, float | None] = {}
-        self._last_start: dict[str, float | None] = dict.fromkeys(mission.nodes)
         self._pending: dict[int, tuple[str, Any]] = {}
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
         for name in mission.nodes:
-            self._plan(name, start - 1e-9)
+            self._plan(name)
         self._next_tick = start
 
     # -- scheduling application behaviour --------------------------------------------------------
@@ -113,7 +112,7 @@ class FastFleet:
 
     def resume(self, node: str) -> None:
         self.stopped.discard(node)
-        self._plan(node, self.now)
+        self._plan(node)
 
     def published(self, node: str, key: str | None = None) -> list[tuple[float, Publish]]:
         """What ``node`` published on application keys (optionally only ``key``)."""
@@ -159,52 +158,54 @@ class FastFleet:
                     self._collect(name)
             self._next_tick = now + TICK_S
 
-    def _plan(self, name: str, after: float) -> None:
-        """When ``name`` next gets to transmit."""
+    def _plan(self, name: str) -> None:
+        """When ``name`` next gets to transmit: its MAC's next opportunity."""
         if name in self.stopped:
             self._next_tx[name] = None
             return
-        schedule = self.schedules[name]
-        core = self.cores[name]
-        if isinstance(schedule, TdmaSchedule):
-            slot = schedule.next_slot(after)
-            self._next_tx[name] = None if slot is None else slot.start
-            return
-        assert isinstance(schedule, FreeSchedule)
-        due = core.next_due()
-        self._next_tx[name] = None if due is None else max(
-            schedule.earliest(self.now, self._last_start[name]), due, self.now)
+        opp = self.schedules[name].next_opportunity(self.now, self.cores[name].next_due(self.now))
+        busy = self.ocean.busy_until(self.mission.address_of(name))  # a busy modem refuses
+        self._next_tx[name] = None if opp is None else max(opp.start, self.now, busy)
 
     def _replan(self, name: str) -> None:
-        """New data or a reception may make a free-access node due sooner (TDMA slots stay)."""
-        if isinstance(self.schedules[name], FreeSchedule):
-            self._plan(name, self.now)
+        """New data or a reception may change the next opportunity (a poll, a ranging turn)."""
+        self._plan(name)
 
     def _transmit(self, name: str) -> None:
-        core = self.cores[name]
-        now = self.now
-        always = core.heartbeat_due(now) or (
-            isinstance(self.schedules[name], TdmaSchedule) and core.table.dlbl)
+        core, schedule, now = self.cores[name], self.schedules[name], self.now
+        opp = schedule.next_opportunity(now, core.next_due(now))
+        if opp is None or opp.start > now:
+            self._plan(name)
+            return
         at = now + self.ocean.preset.intrinsic_delay_s
-        out = core.build_frame(now, at, always=always)
-        if out is not None:
-            self._last_start[name] = now
+        out = core.build_frame(now, at, always=opp.must_send or core.heartbeat_due(now))
+        if out is None:
+            schedule.on_skipped(now)
+        else:
+            if opp.poll is not None:  # the poll rides on the frame's destination address
+                out = replace(out, dest=self.mission.address_of(opp.poll))
             try:
-                self.ocean.transmit(now, self.mission.address_of(name), out.data, out.dest)
+                end = self.ocean.transmit(now, self.mission.address_of(name), out.data, out.dest)
             except TransmitRefused as exc:
                 core.frame_failed(out, str(exc), now)
+                schedule.on_skipped(now)
             else:
                 core.frame_sent(out, now)
+                schedule.on_sent(now, end)
             self._collect(name)
-        self._plan(name, now)
+        self._plan(name)
 
     def _deliver(self, event: Delivery) -> None:
         name = self.mission.name_of(event.dst)
         if name is None or name in self.stopped:
             return
         meta = {**event.meta, "start": event.start}
-        self.cores[name].receive(Reception(event.data, event.src, event.end, meta), self.now,
-                                 self.now)
+        core = self.cores[name]
+        valid = core.stats.frames_received
+        core.receive(Reception(event.data, event.src, event.end, meta), self.now, self.now)
+        src = self.mission.name_of(event.src)
+        if core.stats.frames_received > valid and src is not None:  # a valid frame: tell the MAC
+            self.schedules[name].on_heard(src, event.meta.get("dest") == event.dst, event.end)
         self._collect(name)
         self._replan(name)
 

@@ -200,7 +200,28 @@ class Channel(Strict):
     ack: bool = Field(False, description="Ask the modem to confirm delivery of frames that "
                       "carry this channel to a single node (modems that offer it).")
     on_out_of_range: Literal["clamp", "reject"] = "clamp"
+    ttl_s: float | None = Field(None, gt=0, description="Data older than this is never sent "
+                                "(a reliable value older than this is reported failed).")
+    reliable: bool = Field(False, description="Every value delivered exactly once and in order, "
+                           "acknowledged by the receivers, or reported failed.")
+    queue: int = Field(32, ge=1, le=4096, description="Values a reliable channel holds "
+                       "(queued and in flight).")
+    overflow: Literal["reject", "drop_oldest"] = Field(
+        "reject", description="A reliable channel's full queue refuses the new value, or "
+        "gives up its oldest unsent one; either is reported failed.")
+    retries: int | None = Field(10, ge=0, description="Retransmissions of a reliable value "
+                                "(or fragment) before it is reported failed; null: until ttl_s.")
+    retry_s: float | None = Field(None, gt=0, description="Wait for an acknowledgement before "
+                                  "the first retransmission (doubles up to 4x); default: one "
+                                  "TDMA cycle, else 10 s.")
     elements: list[Element] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _policy(self) -> Channel:
+        if self.reliable and self.latching:
+            raise ValueError("a reliable channel cannot be latching: each value is sent until "
+                             "acknowledged, once")
+        return self
 
 
 class Auth(Strict):

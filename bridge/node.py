@@ -20,10 +20,10 @@ import msgpack
 import zenoh
 
 from bridge.backends.base import ModemBackend, ModemRange, Reception
-from bridge.core import NOTABLE, NodeCore, NodeStats, Notice, Publish, Status
+from bridge.core import NodeCore, NodeStats, Notice, Publish, Status, notable
 from bridge.errors import BackendError
 from bridge.link import LinkState
-from bridge.mac import FreeSchedule, TdmaSchedule, schedule_for
+from bridge.mac import schedule_for
 from bridge.mission_loader import LoadedMission
 from bridge.payloads import encode_payload
 from bridge.positioning import Positioning
@@ -125,7 +125,9 @@ class BridgeNode:
         if sample.kind != zenoh.SampleKind.PUT or is_bridged(sample):
             return
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
-        loop.call_soon_threadsafe(self.ingest, key, data, encoding)
+        attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
+        ref = attachment[4:].decode("utf-8", "replace") if attachment[:4] == b"ref:" else None
+        loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref)
 
     def _subscribe_positions(self, loop: asyncio.AbstractEventLoop) -> None:
         """Live positions: this node's own (``nav_key``), anchors' and the CTD's."""
@@ -177,56 +179,42 @@ class BridgeNode:
         if self.core.positioning is not None:
             self.core.positioning.set_depth(depth)
 
-    def ingest(self, key: str, data: bytes, encoding: str) -> None:
-        """A sample arrived on an input key."""
-        self.core.ingest(key, data, encoding, self.clock())
+    def ingest(self, key: str, data: bytes, encoding: str, ref: str | None = None) -> None:
+        """A sample arrived on an input key (``ref``: the publisher's correlation text)."""
+        self.core.ingest(key, data, encoding, self.clock(), ref)
         self._flush()
         self._data.set()
 
     # -- core → modem --------------------------------------------------------------------------
 
-    async def _sleep_until(self, t: float) -> None:
-        delay = t - self.clock()
-        if delay > 0:
-            await asyncio.sleep(delay)
-
     async def _transmit_loop(self) -> None:
-        after = self.clock()
-        last_start: float | None = None
+        """Sleep until the MAC's next opportunity (new data or a frame heard wakes it to ask
+        again), then send one frame there."""
         while True:
             await self._modem_up.wait()
-            if isinstance(self.schedule, TdmaSchedule):
-                slot = self.schedule.next_slot(after)
-                if slot is None:
-                    return  # this node owns no slot: it only listens
-                await self._sleep_until(slot.start)
-                after = slot.start
-                await self.transmit(
-                    always=self.table.dlbl or self.core.heartbeat_due(slot.start))
-                continue
-            assert isinstance(self.schedule, FreeSchedule)
-            due = self.core.next_due()
-            if due is None:
-                self._data.clear()
-                await self._data.wait()
-                continue
+            self._data.clear()
             now = self.clock()
-            start = max(self.schedule.earliest(now, last_start), due)
-            if start > now:
-                self._data.clear()
+            opp = self.schedule.next_opportunity(now, self.core.next_due(now))
+            if opp is None or opp.start > now:
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._data.wait(), start - now)
+                    await asyncio.wait_for(self._data.wait(),
+                                           None if opp is None else opp.start - now)
                 continue
-            last_start = now
-            await self.transmit(always=self.core.heartbeat_due(now))
+            sent = await self.transmit(always=opp.must_send or self.core.heartbeat_due(now),
+                                       poll=opp.poll)
+            if sent:
+                self.schedule.on_sent(now, self.clock())
+            else:
+                self.schedule.on_skipped(now)
 
-    async def transmit(self, *, always: bool = False) -> bool:
-        """Build one frame from what is due and send it. Returns whether a frame went out."""
+    async def transmit(self, *, always: bool = False, poll: str | None = None) -> bool:
+        """Build one frame from what is due and send it (``poll``: the node it polls, carried
+        as the frame's destination). Returns whether a frame went out."""
         backend = self.backend
         if backend is None:
             return False
         # ranging.ping: a due range takes this opportunity (a ping, or this frame acked)
-        peer = self.core.range_due(self.clock()) if backend.ranging else None
+        peer = self.core.range_due(self.clock()) if backend.ranging and poll is None else None
         if peer is not None and backend.ranging == "ping":
             return await self._ping(backend, peer)
         # with a timed modem the emission starts exactly at ``at``, so DLBL delays are exact
@@ -235,6 +223,8 @@ class BridgeNode:
         if out is None:
             self._flush()
             return False
+        if poll is not None:
+            out = replace(out, dest=self.mission.address_of(poll))
         if peer is not None:  # the modem measures the range when the peer acknowledges
             out = replace(out, dest=peer, ack=True)
         try:
@@ -299,7 +289,12 @@ class BridgeNode:
     def receive(self, rx: Reception) -> None:
         """Hand one received frame to the core and publish what it produced."""
         modem_now = self.backend.clock() if self.backend is not None else None
-        self.core.receive(rx, self.clock(), modem_now)
+        now, valid = self.clock(), self.core.stats.frames_received
+        self.core.receive(rx, now, modem_now)
+        src = self.mission.name_of(rx.src)
+        if self.core.stats.frames_received > valid and src is not None:
+            self.schedule.on_heard(src, rx.dest == self.mission.address_of(self.node), now)
+            self._data.set()  # a poll or a ranging turn may open an opportunity
         self._flush()
 
     def _flush(self) -> None:
@@ -316,7 +311,7 @@ class BridgeNode:
 
     def _event(self, kind: str, info: dict[str, Any]) -> None:
         self.on_event(kind, info)
-        if kind in NOTABLE and self.session is not None:
+        if notable(kind, info) and self.session is not None:
             self._publish_raw(f"{self.prefix}/events", {
                 "kind": kind, "node": self.node,
                 **{k: v for k, v in info.items() if not isinstance(v, bytes)}})

@@ -37,9 +37,13 @@ class ChannelState:
             n = (n << element.layout.bits) | (packed or 0)
         return n
 
-    def ready_at(self) -> float | None:
-        """When the channel becomes due, or None while nothing could be sent."""
+    def ready_at(self, now: float | None = None) -> float | None:
+        """When the channel becomes due, or None while nothing could be sent (incomplete, sent
+        already, or older than the channel's ``ttl_s`` at ``now``)."""
         if not self.complete or not (self.fresh or self.channel.latching):
+            return None
+        ttl = self.channel.ttl_s
+        if ttl is not None and now is not None and (self.age(now) or 0.0) > ttl:
             return None
         if self.last_sent is None:
             return float("-inf")
@@ -67,6 +71,14 @@ class OutboundStore:
             }
         )
 
+    def update_value(self, index: int, element: int, packed: int, now: float) -> bool:
+        """Store an element of a reliable or fragmented channel (whose values are queued, not
+        sent from here); returns whether the channel now holds a complete value."""
+        state = self.states[index]
+        state.packed[element] = packed
+        state.updated[element] = now
+        return state.complete
+
     def update(self, index: int, element: int, packed: int, now: float) -> None:
         """Store a newly packed element value; it replaces whatever was there."""
         state = self.states[index]
@@ -78,14 +90,14 @@ class OutboundStore:
         """Channels that may go in a frame sent at ``now``."""
         out = []
         for state in self.states.values():
-            ready = state.ready_at()
+            ready = state.ready_at(now)
             if ready is not None and ready <= now + 1e-9:
                 out.append(state)
         return out
 
-    def next_due(self) -> float | None:
+    def next_due(self, now: float | None = None) -> float | None:
         """The earliest time a channel becomes due (may be in the past), or None."""
-        times = [t for s in self.states.values() if (t := s.ready_at()) is not None]
+        times = [t for s in self.states.values() if (t := s.ready_at(now)) is not None]
         return min(times) if times else None
 
     def mark_sent(self, sent: Iterable[ChannelState], now: float) -> None:

@@ -46,12 +46,25 @@ def test_check_morph_reports_listing_1() -> None:
 
 
 def test_check_exit_1_when_a_channel_never_fits(tmp_path: Path) -> None:
-    text = (MISSIONS / "morph.yaml").read_text().replace("frame_bytes: 64", "frame_bytes: 20")
+    # 16 B frames: 14 B of DLBL delays and check leave too little for even one fragment
+    text = (MISSIONS / "morph.yaml").read_text().replace("frame_bytes: 64", "frame_bytes: 16")
     path = tmp_path / "small.yaml"
     path.write_text(text)
     result = RUNNER.invoke(app, ["check", str(path)])
     assert result.exit_code == 1
     assert "can never fit" in result.output
+
+
+def test_check_reports_a_channel_that_travels_in_fragments(tmp_path: Path) -> None:
+    text = (MISSIONS / "morph.yaml").read_text().replace("frame_bytes: 64", "frame_bytes: 20")
+    path = tmp_path / "small.yaml"
+    path.write_text(text)
+    result = RUNNER.invoke(app, ["check", str(path), "--json"])
+    data = json.loads(result.output)
+    fragmented = [c for c in data["channels"] if c["fragments"]]
+    assert result.exit_code == 0 and fragmented
+    assert all(c["fragments"]["chunk_bytes"] >= 1 for c in fragmented)
+    assert any("fragments of" in w for w in data["warnings"])
 
 
 def test_check_warns_about_a_short_tdma_slot(tmp_path: Path) -> None:

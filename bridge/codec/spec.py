@@ -25,7 +25,7 @@ OutOfRange = Literal["clamp", "reject"]
 #: Widest single numeric field; wider values belong in ``bytes`` or a custom codec.
 MAX_BITS = 64
 #: Longest ``string``/``bytes`` field; an acoustic frame is at most a few hundred bytes.
-MAX_BYTES = 1024
+MAX_BYTES = 1 << 20  # one value of a string or bytes field; big ones travel fragmented
 #: Longest fixed array (``count``).
 MAX_COUNT = 1024
 

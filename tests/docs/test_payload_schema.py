@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import queue
 import socket
 from pathlib import Path
 
@@ -89,8 +91,13 @@ def test_a_real_decoded_payload_validates(tmp_path: Path) -> None:
         try:
             inbox = Inbox()
             b_app.declare_subscriber("a/status_at_b", inbox)
-            put(a_app, "a/status", VALUE)
-            key, decoded, _ = inbox.get(timeout=10)
+            for _ in range(20):  # the bridge's subscriber may still be propagating: put again
+                put(a_app, "a/status", VALUE)
+                with contextlib.suppress(queue.Empty):
+                    key, decoded, _ = inbox.get(timeout=1)
+                    break
+            else:
+                raise AssertionError("the bridged payload never arrived")
         finally:
             a_app.close()
             b_app.close()

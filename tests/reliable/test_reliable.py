@@ -1,0 +1,130 @@
+"""Reliable channels, pure: sequence numbers, acknowledgements, retries, TTL, queue bounds."""
+
+from __future__ import annotations
+
+from bridge.channels import ChannelTable
+from bridge.mission_loader import parse_mission
+from bridge.reliable import ReliableReceiver, ReliableSender, seq_after
+
+MISSION = """\
+mission: r
+modem: {backend: sim, frame_bytes: 64}
+mac: {type: none}
+nodes:
+  ops: {address: 1}
+  auv: {address: 2}
+channels:
+  - name: command
+    from: ops
+    to: auv
+    reliable: true
+    queue: 4
+    overflow: reject
+    retries: 2
+    retry_s: 5
+    ttl_s: 100
+    elements: [{in: cmd, out: ops/cmd, fields: [{field: n, type: int, min: 0, max: 255}]}]
+"""
+
+
+def make(**changes: object) -> tuple[ReliableSender, ChannelTable]:
+    text = MISSION
+    for key, value in changes.items():
+        text = text.replace(f"    {key}: ", f"    {key}: {value}  # ", 1)
+    table = parse_mission(text).table
+    channel = table.by_name("command")
+    return ReliableSender(channel, channel.destinations("ops"), 10.0), table
+
+
+def deliver(sender: ReliableSender, receiver: ReliableReceiver, now: float,
+            lose: set[int] = frozenset()) -> list[int]:
+    """Send what is due; entries whose seq is in ``lose`` vanish."""
+    items = sender.due(now)
+    sender.sent(items, now)
+    out = []
+    bits = sender.channel.bits
+    for item in items:
+        if item.seq in lose:
+            continue
+        entry = sender.entry(item)
+        header = entry >> bits
+        out += receiver.on_entry(header >> 4, header & 0xF, entry & ((1 << bits) - 1))
+    return out
+
+
+def test_seq_after_wraps() -> None:
+    assert seq_after(1, 255) == 2 and seq_after(255, 1) == -2 and seq_after(7, 7) == 0
+
+
+def test_in_order_exactly_once_despite_loss_and_lost_acks() -> None:
+    sender, _ = make()
+    receiver = ReliableReceiver()
+    for n in range(4):
+        assert [r.state for r in sender.offer(n, 0.0)] == ["queued"]
+    got = deliver(sender, receiver, 0.0, lose={1})
+    assert got == [0]  # 2 and 3 wait for 1
+    base, bitmap = receiver.ack()
+    assert (base, bitmap) == (1, 0b11)  # bit i: base + 1 + i arrived
+    reports = sender.on_ack("auv", base, bitmap, 1.0)
+    assert [(r.id, r.state) for r in reports] == [(0, "delivered")]
+    assert [p.seq for p in sender.due(1.0)] == []  # 1 is not due before retry_s
+    got = deliver(sender, receiver, 5.0)  # only 1 is resent: 2 and 3 are held
+    assert got == [1, 2, 3]
+    # the acknowledgement is lost: everything is sent again later, and dropped as duplicates
+    got = deliver(sender, receiver, 50.0)
+    assert got == [] and receiver.duplicates == 1  # 1 again; 2 and 3 were held, not resent
+    reports = sender.on_ack("auv", *receiver.ack(), 51.0)
+    assert sorted(r.id for r in reports) == [1, 2, 3]
+    assert not sender.flight and sender.next_time() is None
+
+
+def test_retries_then_failed_and_the_receiver_skips_it() -> None:
+    sender, _ = make()
+    receiver = ReliableReceiver()
+    sender.offer(10, 0.0)
+    sender.offer(11, 0.0)
+    for t in (0.0, 5.0, 15.0):  # 3 attempts of value 0, all lost; value 1 arrives, held
+        deliver(sender, receiver, t, lose={0})
+        sender.on_ack("auv", *receiver.ack(), t)
+    reports = sender.expire(100.0 - 1)
+    assert [(r.id, r.state) for r in reports] == [(0, "failed")]
+    assert "3 attempts" in reports[0].reason
+    # value 1 is resent with a lag that tells the receiver to skip value 0
+    got = deliver(sender, receiver, 99.0)
+    assert got == [11] and receiver.skipped == 1
+
+
+def test_ttl_fails_queued_values() -> None:
+    sender, _ = make()
+    sender.offer(1, 0.0)
+    reports = sender.expire(100.5)
+    assert [(r.state, r.reason) for r in reports] == [("failed", "older than ttl_s=100")]
+
+
+def test_queue_full_rejects_or_drops_oldest() -> None:
+    sender, _ = make()
+    for n in range(4):
+        sender.offer(n, 0.0)
+    reports = sender.offer(4, 0.0)
+    assert [(r.id, r.state) for r in reports] == [(4, "failed")]
+    assert "queue full" in reports[0].reason
+    sender, _ = make(queue=20, overflow="drop_oldest")
+    for n in range(20):
+        sender.offer(n, 0.0)
+    reports = sender.offer(99, 0.0)  # 16 in flight, 4 queued: the oldest queued one goes
+    assert [(r.id, r.state) for r in reports] == [(16, "failed"), (20, "queued")]
+
+
+def test_a_restarted_sender_continues_from_the_receivers_base() -> None:
+    sender, _ = make()
+    receiver = ReliableReceiver()
+    for n in range(3):
+        sender.offer(n, 0.0)
+    deliver(sender, receiver, 0.0)
+    sender.on_ack("auv", *receiver.ack(), 1.0)
+    assert receiver.expected == 3
+    fresh, _ = make()  # the sender rebooted: numbers from 0 again, the receiver expects 3
+    fresh.offer(42, 2.0)
+    assert deliver(fresh, receiver, 2.0) == [] and receiver.duplicates == 1
+    assert fresh.on_ack("auv", *receiver.ack(), 3.0) == []  # not taken as delivered
+    assert deliver(fresh, receiver, 3.0) == [42]
