@@ -297,6 +297,12 @@ def sim(
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
     log: Annotated[Path | None, typer.Option("--log", help="Record each node's frames and "
                                              "events to DIR/<mission>-<node>.mcap.")] = None,
+    fast: Annotated[bool, typer.Option("--fast", help="Virtual clock, flat out: every node's "
+                                       "bridge core over the simulated ocean, no Zenoh; inputs "
+                                       "get synthetic values (default duration 3600 s).")]
+    = False,
+    speed: Annotated[float | None, typer.Option(help="Like --fast, with the virtual clock at "
+                                                "this many times real time.", min=1e-3)] = None,
 ) -> None:
     """Run every node of the mission plus the simulated ocean, each node on its own endpoint."""
     from bridge.logbook import FleetLogs
@@ -304,10 +310,16 @@ def sim(
 
     loaded = _load(mission)
     _logging(verbose)
+    if fast and speed is not None:
+        err.print("--fast and --speed exclude each other (--fast: as fast as possible)")
+        raise typer.Exit(2)
     logs = None if log is None else FleetLogs(log, loaded)
     try:
-        result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
-                                      console=console, record=logs))
+        if fast or speed is not None:
+            result = _run_or_exit(_run_fast(loaded, duration or 3600.0, seed, speed, logs))
+        else:
+            result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
+                                          console=console, record=logs))
     finally:
         if logs is not None:
             logs.close()
@@ -316,6 +328,27 @@ def sim(
     if report is not None:
         report.write_text(json.dumps(result, indent=2, default=str), encoding="utf-8")
         console.print(f"report written to {report}")
+
+
+async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
+                    speed: float | None, record: Any) -> dict[str, Any]:
+    """``zab sim --fast/--speed``: the virtual-clock run, its report printed."""
+    from bridge.fastrun import run_fast
+    from bridge.simview import print_report
+
+    stop = asyncio.Event()
+    _install_stop(stop)
+    pace = "as fast as possible" if speed is None else f"at {speed:g}× real time"
+    console.print(f"simulating [bold]{loaded.mission.mission}[/] on a virtual clock, {pace}: "
+                  f"{duration:g} s, no Zenoh, synthetic inputs")
+    result = await run_fast(loaded, duration=duration, seed=seed, speed=speed, record=record,
+                            stop=stop)
+    print_report(console, result)
+    console.print(f"{result['duration_s']:g} s simulated in {result['wall_s']:g} s wall "
+                  f"({result['speedup']:g}× real time); {result['frames_sent']} frames sent, "
+                  f"{result['frames_received']} received ({result['frames_per_wall_s']:g} "
+                  "frames per wall second)")
+    return result
 
 
 @app.command()

@@ -354,12 +354,18 @@ class RangingSchedule(Schedule):
         self._quiet_until = -math.inf
         self._reserved = (math.inf, -math.inf)  # the next round, as expected by a listener
         self._answers = 0
+        self._offered = ""  # kind of the last opportunity offered
         self.rounds = 0
 
     def _round_over(self, end: float) -> None:
         self._quiet_until = min(self._quiet_until, end)
 
     def next_opportunity(self, now: float, due: float | None) -> Opportunity | None:
+        opp = self._next(now, due)
+        self._offered = "" if opp is None else opp.kind
+        return opp
+
+    def _next(self, now: float, due: float | None) -> Opportunity | None:
         if self.replier is not None and self.replier.deadline is not None and not \
                 self.replier.sent:
             deadline = self.replier.deadline
@@ -395,8 +401,10 @@ class RangingSchedule(Schedule):
 
     def on_skipped(self, now: float) -> None:
         self.inner.on_skipped(now)
-        if self.replier is not None and self.replier.deadline is not None:
-            self.replier.sent = True
+        if self._offered == "ranging_reply" and self.replier is not None:
+            self.replier.sent = True  # this round's turn is gone
+        if self._offered == "ranging_request":  # refused (modem busy?): try next interval
+            self._last_request = now
 
     def on_heard(self, src: str, polled_me: bool, end: float) -> None:
         self.inner.on_heard(src, polled_me, end)

@@ -89,3 +89,11 @@ def test_listeners_keep_the_next_round_free() -> None:
     # from 3.4; so it waits until that round is surely over: 4.0 + (n + 1)·tmax
     late = other.next_opportunity(3.0, 3.0)
     assert late is not None and late.start == pytest.approx(4.0 + 4 * TMAX)
+
+
+def test_a_refused_request_waits_one_interval() -> None:
+    hippo = ranging("hippo")
+    assert hippo.next_opportunity(0.0, None).kind == "ranging_request"  # type: ignore[union-attr]
+    hippo.on_skipped(0.0)  # the modem refused it (busy, or the frame too long)
+    again = hippo.next_opportunity(0.0, None)
+    assert again is not None and again.start == 3.0
