@@ -281,7 +281,8 @@ class NodeCore:
             else []
         data = codec.encode(items, delays, now)
         dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
-        ack = True if dest is not None and any(s.channel.ack for s in chosen) else None
+        asks = [s.channel for s in chosen] + [s.channel for s, _ in streams]
+        ack = True if dest is not None and any(c.ack for c in asks) else None
         return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), tuple(left_out)), now,
                         tuple(streams), tuple(acks))
 
@@ -313,14 +314,18 @@ class NodeCore:
             (base, bitmap), tid = receiver.ack(), 0
         return ack_codec.pack(self.table.nodes.index(src), stream, tid, base, bitmap)
 
-    def frame_sent(self, out: OutFrame, now: float) -> None:
-        """The modem accepted ``out``."""
+    def frame_sent(self, out: OutFrame, now: float, confirmed: bool | None = None) -> None:
+        """The modem accepted ``out``; ``confirmed``: its own acknowledgement said the frame
+        reached ``out.dest`` (reliable entries in it are then not re-sent, only awaited)."""
         self.store.mark_sent(out.plan.chosen, out.built)
         by_sender: dict[int, tuple[ReliableSender | TransferSender, list[Any]]] = {}
         for sender, item in out.streams:
             by_sender.setdefault(id(sender), (sender, []))[1].append(item)
         for sender, group in by_sender.values():
             self._reports(sender.sent(group, out.built))  # type: ignore[arg-type]
+            dest = self.mission.name_of(out.dest) if out.dest is not None else None
+            if confirmed and dest is not None:
+                sender.confirmed(group, dest)  # type: ignore[arg-type]
         for key in out.acks:
             self._acks.pop(key, None)
         self.last_tx = out.built

@@ -228,7 +228,7 @@ class BridgeNode:
         if peer is not None:  # the modem measures the range when the peer acknowledges
             out = replace(out, dest=peer, ack=True)
         try:
-            await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
+            confirmed = await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
         except BackendError as exc:
             log.warning("%s: send failed: %s", self.node, exc)
             if peer is not None:
@@ -240,7 +240,7 @@ class BridgeNode:
             return False
         if peer is not None:
             self.core.range_asked(peer, self.clock())
-        self.core.frame_sent(out, self.clock())
+        self.core.frame_sent(out, self.clock(), confirmed)
         self._flush()
         return True
 

@@ -139,6 +139,12 @@ class ReliableSender:
                 reports += self._report(item, "sent", now)
         return reports
 
+    def confirmed(self, items: Iterable[Pending], dst: str) -> None:
+        """The modem confirmed ``items`` reached ``dst``: wait for its ack, do not resend."""
+        for item in items:
+            if dst in item.waiting:
+                item.held.add(dst)
+
     def on_ack(self, dst: str, base: int, bitmap: int, now: float) -> list[Report]:
         """A receiver's acknowledgement."""
         reports: list[Report] = []

@@ -155,6 +155,11 @@ class TransferSender:
             reports += self._report(item, "sent", now)
         return reports
 
+    def confirmed(self, indices: Iterable[int], dst: str) -> None:
+        """The modem confirmed fragments ``indices`` reached ``dst``: do not resend them."""
+        if self.current is not None and dst in self.current.dests:
+            self.current.held.setdefault(dst, set()).update(indices)
+
     def on_ack(self, dst: str, tid: int, base: int, bitmap: int, now: float) -> list[Report]:
         item = self.current
         if item is None or tid != item.tid or dst not in item.dests:

@@ -153,11 +153,12 @@ class ModemBackend(ABC):
     async def send(
         self, data: bytes, dest: int | None = None, *, at: float | None = None,
         ack: bool | None = None,
-    ) -> None:
+    ) -> bool | None:
         """Transmit one frame (``dest`` ``None`` = broadcast).
 
         ``ack`` asks the modem for a delivery confirmation of a unicast frame (default: the
-        backend's ``ack`` option); backends without one ignore it.
+        backend's ``ack`` option); backends without one ignore it. Returns the modem's
+        confirmation: True delivered, False reported not delivered, None unknown.
 
         ``at`` asks for the emission to start at that time of :meth:`clock` (DLBL needs the
         exact start); backends whose ``timed_send`` is False send at once and ignore it.
@@ -175,13 +176,14 @@ class ModemBackend(ABC):
         try:
             ack = self.ack if ack is None else ack
             if at is not None and self.timed_send:
-                await self._send_timed(bytes(data), dest, ack, at)
+                confirmed = await self._send_timed(bytes(data), dest, ack, at)
             else:
-                await self._send(bytes(data), dest, ack)
+                confirmed = await self._send(bytes(data), dest, ack)
         except BackendError:
             self.stats["errors"] += 1
             raise
         self.stats["sent"] += 1
+        return confirmed
 
     async def recv(self) -> Reception:
         """Wait for the next reception; raises :class:`BackendError` once the backend is down."""
@@ -225,7 +227,8 @@ class ModemBackend(ABC):
         """The largest frame this backend can send with ``options`` (None: no fixed limit)."""
         return None
 
-    async def _send_timed(self, data: bytes, dest: int | None, ack: bool, at: float) -> None:
+    async def _send_timed(self, data: bytes, dest: int | None, ack: bool,
+                          at: float) -> bool | None:
         """Hook for backends with ``timed_send``: emit at ``at`` (modem clock)."""
         await self._send(data, dest, ack)
 
@@ -250,7 +253,7 @@ class ModemBackend(ABC):
         """Connect; raise :class:`BackendError` on failure."""
 
     @abstractmethod
-    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
         """Transmit a checked frame."""
 
     @abstractmethod

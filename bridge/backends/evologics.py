@@ -179,7 +179,7 @@ class EvologicsBackend(ModemBackend):
         log.info("%s: modem ready on %s (address %d, %s mode)", self.setup.node, self.device,
                  self.address, self.mode.value)
 
-    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
         dst = BROADCAST if dest is None else dest
         ack = ack and dst != BROADCAST  # broadcast requires noack [V driver practice]
         async with self._lock:
@@ -187,7 +187,7 @@ class EvologicsBackend(ModemBackend):
             while not self._tx_events.empty():
                 self._tx_events.get_nowait()  # reports of earlier, finished sends
             try:
-                await self._send_locked(data, dst, ack)
+                return await self._send_locked(data, dst, ack)
             except BackendError as exc:
                 self._fail(exc)
                 raise
@@ -289,12 +289,12 @@ class EvologicsBackend(ModemBackend):
 
     # -- sending -------------------------------------------------------------------------------
 
-    async def _send_timed(self, data: bytes, dest: int | None, ack: bool, at: float) -> None:
+    async def _send_timed(self, data: bytes, dest: int | None, ack: bool,
+                          at: float) -> bool | None:
         dst = BROADCAST if dest is None else dest
         if ack and dst != BROADCAST:  # SENDIMS has no ack flag: an acked IM at about ``at``
             await asyncio.sleep(max(0.0, at - self.clock()))
-            await self._send(data, dest, ack)
-            return
+            return await self._send(data, dest, ack)
         async with self._lock:
             self._check()
             while not self._tx_events.empty():
@@ -306,6 +306,7 @@ class EvologicsBackend(ModemBackend):
             except BackendError as exc:
                 self._fail(exc)
                 raise
+        return None
 
     async def _send_ims_locked(self, data: bytes, dst: int, at: float) -> None:
         """``AT*SENDIMS`` at modem time ``at``; wait for its ``SENDEND`` (or ``EXPIREDIMS``)."""
@@ -335,15 +336,16 @@ class EvologicsBackend(ModemBackend):
                 continue
             raise BackendError(f"{self._who}: {what} refused: {_text(reply)}")
 
-    async def _send_locked(self, data: bytes, dst: int, ack: bool) -> None:
+    async def _send_locked(self, data: bytes, dst: int, ack: bool) -> bool | None:
+        """Send one IM; with ``ack``, whether the modem reported it delivered."""
         await self._command_busy(send_im(data, dst, ack=ack), f"AT*SENDIM to {dst}")
         if not self._extended:
             await asyncio.sleep(0.13 + 0.012 * len(data))  # the §1.9 airtime model [C]
-            return
+            return None
         await self._wait_tx(lambda e: isinstance(e, SendEnd) and e.addr == dst,
                             self.send_timeout_s, "SENDEND")
         if not ack:
-            return
+            return None
         try:
             report = await self._wait_tx(
                 lambda e: isinstance(e, DeliveredIm | FailedIm) and e.dst == dst,
@@ -351,17 +353,18 @@ class EvologicsBackend(ModemBackend):
         except BackendError:
             self.stats["failed"] += 1
             log.warning("%s: no delivery report for the IM to %d", self._who, dst)
-            return
+            return None
         if isinstance(report, FailedIm):
             self.stats["failed"] += 1
             log.warning("%s: IM to %d not delivered (FAILEDIM)", self._who, dst)
-            return
+            return False
         self.stats["delivered"] += 1
         reply = await self._command("?T")  # one-way propagation, µs [V DUNE/evins]
         if isinstance(reply, Value) and reply.text.strip().isdigit():
             travel = int(reply.text) * 1e-6
             self.propagation[dst] = (time.time(), travel)
             self._report_range(ModemRange(dst, travel, "propagation", self.clock()))
+        return True
 
     async def _wait_tx(self, match: Any, timeout: float, what: str) -> Event:
         deadline = asyncio.get_running_loop().time() + timeout

@@ -134,7 +134,7 @@ class MicromodemBackend(ModemBackend):
         self._reader = asyncio.create_task(self._read_loop(), name=f"micromodem-{self.address}")
         await self._initialise()
 
-    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
         to = self.broadcast if dest is None else dest
         ack = ack and dest is not None
         last: BackendError | None = None
@@ -145,7 +145,7 @@ class MicromodemBackend(ModemBackend):
                 await asyncio.sleep(RETRY_BACKOFF_S * attempt)
             try:
                 await self._cycle(data, to, ack)
-                return
+                return True if ack else None  # with ack, a cycle ends with every $CAACK
             except BackendError as exc:
                 if self._failure is not None:
                     raise self._failure from None

@@ -128,3 +128,19 @@ def test_a_restarted_sender_continues_from_the_receivers_base() -> None:
     assert deliver(fresh, receiver, 2.0) == [] and receiver.duplicates == 1
     assert fresh.on_ack("auv", *receiver.ack(), 3.0) == []  # not taken as delivered
     assert deliver(fresh, receiver, 3.0) == [42]
+
+
+def test_a_modem_confirmation_holds_back_retransmission_until_the_ack_entry() -> None:
+    from bridge.core import NodeCore
+
+    text = MISSION.replace("    reliable: true\n", "    reliable: true\n    ack: true\n", 1)
+    loaded = parse_mission(text)
+    core = NodeCore(loaded, "ops")
+    core.ingest("cmd", b'{"n": 3}', "application/json", 0.0)
+    out = core.build_frame(0.0, 0.0)
+    assert out is not None and out.dest == 2 and out.ack is True  # unicast, modem ack asked
+    core.frame_sent(out, 0.0, confirmed=True)
+    assert core.build_frame(60.0, 60.0) is None  # confirmed by the modem: not sent again
+    core.frame_sent(core.build_frame(0.0, 0.0, always=True), 0.0)  # an empty frame is fine
+    sender = core.senders[0]
+    assert isinstance(sender, ReliableSender) and sender.flight[0].held == {"auv"}
