@@ -25,13 +25,20 @@ UWSim-NET column and its HIL column, with the ratio to the paper; ``!`` marks fi
 10 % off. Nothing is fitted to the paper: the inputs are Table 3's figures, the frame sizes
 and the 640 ms IPG.
 
-Run: ``uv run python bench/umci_table4.py [--duration 1800] [--seed 1]``.
+``--realtime S`` also runs BER 0 for ``S`` wall seconds through the deployed runtime
+(every node's Zenoh peer and asyncio bridge, the water service over loopback, applications
+publishing through Zenoh), to show what the event loop and the OS add to the timing.
+
+Run: ``uv run python bench/umci_table4.py [--duration 1800] [--seed 1] [--realtime 120]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
+import json
 import math
+import socket
 import statistics
 import time
 from collections import defaultdict
@@ -40,9 +47,14 @@ from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
+import msgpack
+import yaml
+import zenoh
+
 from bridge.core import Notice
 from bridge.fastsim import FastFleet, Timed
-from bridge.mission_loader import LoadedMission, load_mission
+from bridge.fleet import Fleet
+from bridge.mission_loader import LoadedMission, load_mission, parse_mission
 from bridge.ocean.model import Loss
 from bridge.ocean.presets import get_preset
 
@@ -92,6 +104,18 @@ class Link:
         }
 
 
+COMMAND = {"oid": False, "clo": False, "order_type": 0, "eisn": False, "ic": False, "rit": 0,
+           "vx": 0.3, "vy": 0.0, "vz": -0.1, "yaw_rate": 0.05, "arm": True,
+           "hold_heading": False, "nav_mode": "manual", "lights": 40, "camera_tilt": 0.0,
+           "gain": 0.5}
+STATUS = {"st": 1, "ready": True, "eoid": False, "loc": False, "hold_heading": False,
+          "armed": True, "nav_mode": "manual", "x": 1.0, "y": 2.0, "z": 1.5, "roll": 0.0,
+          "pitch": 0.0, "yaw": 90.0}
+IMAGE = {"ft": True, "lt": False, "isn": False, "ci": False, "itsn": 0, "trunk": bytes(range(41))}
+INPUTS = (("operator", "rov/command", COMMAND), ("rov", "rov/status", STATUS),
+          ("rov", "rov/image_trunk", IMAGE))
+
+
 def run(loaded: LoadedMission, ber: float, duration: float, seed: int) -> dict[str, Any]:
     """One teleoperation of ``duration`` virtual seconds; figures per direction."""
     links: dict[tuple[str, str], Link] = defaultdict(Link)
@@ -119,16 +143,8 @@ def run(loaded: LoadedMission, ber: float, duration: float, seed: int) -> dict[s
         return events
 
     fleet.ocean.advance = advance_noting_corrupt_frames  # type: ignore[method-assign]
-    fleet.put("operator", "rov/command", {
-        "oid": False, "clo": False, "order_type": 0, "eisn": False, "ic": False, "rit": 0,
-        "vx": 0.3, "vy": 0.0, "vz": -0.1, "yaw_rate": 0.05, "arm": True, "hold_heading": False,
-        "nav_mode": "manual", "lights": 40, "camera_tilt": 0.0, "gain": 0.5})
-    fleet.put("rov", "rov/status", {
-        "st": 1, "ready": True, "eoid": False, "loc": False, "hold_heading": False,
-        "armed": True, "nav_mode": "manual", "x": 1.0, "y": 2.0, "z": 1.5, "roll": 0.0,
-        "pitch": 0.0, "yaw": 90.0})
-    fleet.put("rov", "rov/image_trunk", {"ft": True, "lt": False, "isn": False, "ci": False,
-                                         "itsn": 0, "trunk": bytes(range(41))})
+    for node, key, value in INPUTS:
+        fleet.put(node, key, value)
     started = time.perf_counter()
     fleet.run_until(duration)
     wall = time.perf_counter() - started
@@ -168,12 +184,64 @@ def analytic(loaded: LoadedMission, ber: float, result: dict[str, Any]) -> dict[
     return out
 
 
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+async def run_realtime(loaded: LoadedMission, duration: float, seed: int) -> dict[str, Any]:
+    """BER 0 through the deployed runtime for ``duration`` wall seconds (see the docstring)."""
+    data = yaml.safe_load(MISSION.read_text())
+    for node in data["nodes"].values():
+        node["zenoh"]["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
+    loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), MISSION.name)
+    links: dict[tuple[str, str], Link] = defaultdict(Link)
+
+    def on_event(node: str, kind: str, info: dict[str, Any]) -> None:
+        if kind == "frame_received":
+            link = links[(info["src"], node)]
+            link.arrivals.append(info["time"])
+            link.delays.append(info["time"] - info["meta"]["sent_at"])
+            link.bits += 8 * info["bytes"]
+
+    fleet = Fleet(loaded, seed=seed, on_event=on_event)
+    stop = asyncio.Event()
+    runner = asyncio.create_task(fleet.run(stop))
+    await fleet.ready.wait()
+    apps = {}
+    for name in ("operator", "rov"):
+        config = zenoh.Config()
+        config.insert_json5("mode", '"client"')
+        config.insert_json5("connect/endpoints",
+                            json.dumps(loaded.mission.nodes[name].zenoh.listen))
+        config.insert_json5("scouting/multicast/enabled", "false")
+        apps[name] = zenoh.open(config)
+    try:
+        await asyncio.sleep(1.0)
+        for node, key, value in INPUTS:
+            apps[node].put(key, msgpack.packb(value, use_bin_type=True),
+                           encoding=zenoh.Encoding("application/msgpack"))
+        await asyncio.sleep(2.0)  # the first exchange
+        links.clear()
+        started = time.perf_counter()
+        await asyncio.sleep(duration)
+        measured = {label: links[(src, dst)].figures(duration) for src, dst, label in DIRECTIONS}
+    finally:
+        for app in apps.values():
+            app.close()
+        stop.set()
+        await runner
+    return {"wall_s": time.perf_counter() - started, "duration": duration, "figures": measured}
+
+
 def show(loaded: LoadedMission, column: str, ber: float, result: dict[str, Any]) -> list[str]:
     """Print one column of Table 4 beside ours; return the figures more than 10 % off."""
     paper, hil = PAPER[column], PAPER["HIL"]
     model = analytic(loaded, ber, result)
     off = []
-    print(f"\n== UWSim-NET {column} vs ours (virtual clock, {result['wall_s']:.2f} s wall) ==")
+    clock = result.get("clock", "virtual clock")
+    print(f"\n== UWSim-NET {column} vs ours ({clock}, {result['wall_s']:.2f} s wall) ==")
     print(f"{'figure':<16} {'direction':<15} {'ours':>9} {'model':>9} {'paper':>9} "
           f"{'ours/paper':>10}   {'HIL':>8}")
     for metric in METRICS:
@@ -199,12 +267,18 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=1800.0,
                         help="virtual seconds of teleoperation per run")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--realtime", type=float, default=0.0, metavar="S",
+                        help="also run BER 0 for S wall seconds through Zenoh and the water")
     args = parser.parse_args()
     loaded = load_mission(MISSION)
     print(f"mission {MISSION.name}: polled, IPG {loaded.mission.mac.ipg_s} s, "  # type: ignore[union-attr]
           f"{args.duration:g} s per run, seed {args.seed}")
     off = show(loaded, "BER 0 %", 0.0, run(loaded, 0.0, args.duration, args.seed))
     off += show(loaded, "BER 0.07 %", 0.0007, run(loaded, 0.0007, args.duration, args.seed))
+    if args.realtime > 0:
+        live = asyncio.run(run_realtime(loaded, args.realtime, args.seed))
+        live["clock"] = "real time: Zenoh, asyncio bridges, the water service"
+        off += [f"real time: {line}" for line in show(loaded, "BER 0 %", 0.0, live)]
     print(f"\n{len(off)} of {2 * 2 * len(METRICS)} figures more than 10 % from Table 4:")
     for line in off:
         print(f"  {line}")
