@@ -119,8 +119,8 @@ def _print_mac(data: dict[str, Any]) -> None:
         return f"{v:g}" if isinstance(v, float) else " ".join(v) if isinstance(v, list) else str(v)
 
     timing = ", ".join(f"{k} {shown(v)}" for k, v in data.get("mac_timing", {}).items())
-    table = Table("node", "worst interval", "airtime share", "note",
-                  title=f"mac {data['mac']}" + (f": {timing}" if timing else ""))
+    console.print(f"mac {data['mac']}" + (f": {timing}" if timing else ""), highlight=False)
+    table = Table("node", "worst interval", "airtime share", "note", title="transmit turns")
     for n in data["nodes"]:
         mac = n["mac"]
         interval, share = mac["worst_interval_s"], mac["airtime_share"]

@@ -136,3 +136,16 @@ def test_shipped_missions_check_clean() -> None:
     assert report.data["mac_timing"]["ranging_tmax_s"] == pytest.approx(
         36.4 / 1400 + 15 * 8 / 266, abs=0.005)
     assert isinstance(schedule_for(hippo.mission, "hippo"), RangingSchedule)
+
+
+def test_zab_check_prints_the_mac_report() -> None:
+    from typer.testing import CliRunner
+
+    from bridge.cli import app
+
+    result = CliRunner().invoke(app, ["check", str(MISSIONS / "bluerov_rf.yaml")])
+    assert result.exit_code == 0, result.output
+    assert "mac polled: ipg_s 0.64" in result.output and "sequence rov" in result.output
+    assert "worst interval" in result.output and "0.640 s" in result.output
+    hippo = CliRunner().invoke(app, ["check", str(MISSIONS / "hippocampus.yaml")])
+    assert "ranging requester" in hippo.output and "ranging anchor" in hippo.output
