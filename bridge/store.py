@@ -100,8 +100,11 @@ class OutboundStore:
         times = [t for s in self.states.values() if (t := s.ready_at(now)) is not None]
         return min(times) if times else None
 
-    def mark_sent(self, sent: Iterable[ChannelState], now: float) -> None:
+    def mark_sent(self, sent: Iterable[ChannelState], built: float) -> None:
+        """The frame built at ``built`` carried these channels. A value that arrived after
+        the frame was built (while the modem was sending it) stays fresh, to go next time."""
         for state in sent:
-            state.fresh = False
-            state.last_sent = now
+            if all(t is None or t <= built for t in state.updated):
+                state.fresh = False
+            state.last_sent = built
             state.sends += 1

@@ -96,3 +96,17 @@ def test_free_schedule_min_gap() -> None:
     assert free.earliest(10.0, None) == 10.0
     assert free.earliest(10.0, 9.0) == 11.0
     assert free.earliest(12.0, 9.0) == 12.0
+
+
+def test_a_value_arriving_while_its_frame_is_sent_stays_due() -> None:
+    from bridge.mission_loader import load_mission
+    from tests.conftest import MISSIONS
+
+    table = load_mission(MISSIONS / "morph.yaml").table
+    store = OutboundStore.for_node(table.channels, "lsv")
+    index = table.by_name("target_reference").index
+    store.update(index, 0, 5, 10.0)
+    due = store.due(10.0)
+    store.update(index, 0, 6, 10.05)  # arrives while the frame built at 10.0 is in the air
+    store.mark_sent(due, 10.0)
+    assert [s.channel.index for s in store.due(30.0) if s.channel.index == index] == [index]

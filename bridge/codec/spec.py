@@ -77,6 +77,8 @@ class FieldSpec(BaseModel):
     length: int | None = Field(None, description="Fixed byte length (string, bytes).")
     max_length: int | None = Field(None, description="Maximum byte length (string, bytes).")
     count: int | None = Field(None, description="Fixed array of this many values.")
+    units: str | None = Field(None, max_length=32, description="Units of the value (m, deg, "
+                              "m/s...), for people and GUIs; not on the wire.")
     on_out_of_range: OutOfRange | None = Field(
         None, description="clamp (counted) or reject; default set per channel."
     )

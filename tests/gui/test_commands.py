@@ -130,3 +130,15 @@ def test_the_book_forgets_the_oldest_commands():
         book.add(Command(f"r{i}", "gcv", "c", {}, False, float(i)))
     assert list(book.commands) == ["r1", "r2"]
     assert book.report({"ref": "r0", "state": "delivered"}, 5.0) is None
+
+
+def test_form_fields_show_the_units_the_mission_declares(morph):
+    text = (MISSIONS / "morph.yaml").read_text()
+    data = yaml.safe_load(text)
+    channel = next(c for c in data["channels"] if c["name"] == "mission_command")
+    channel["elements"][0]["fields"][1]["units"] = "legs"
+    loaded = parse_mission(yaml.safe_dump(data, sort_keys=False))
+    command = next(c for c in command_channels(loaded, "ssv") if c.channel == "mission_command")
+    action, leg = command.elements[0].fields
+    assert (action.units, leg.units) == (None, "legs")
+    assert loaded.table.fingerprint == morph.table.fingerprint  # units are not on the wire
