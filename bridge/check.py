@@ -16,24 +16,14 @@ from bridge.mac import (
     busy_s,
     frame_time_s,
     mac_report,
+    node_preset,
     polled_ipg_s,
     polled_slaves,
     ranging_tmax_s,
 )
 from bridge.mission import AlohaMac, Mission, NoMac, PolledMac, TdmaMac
 from bridge.mission_loader import LoadedMission
-from bridge.ocean.presets import Preset, get_preset
-
-
-def preset_of(loaded: LoadedMission, node: str) -> Preset | None:
-    """The modem preset that gives ``node`` a known bit rate, if any."""
-    name = loaded.mission.node_modem(node).options.get("preset")
-    if not isinstance(name, str):
-        return None
-    try:
-        return get_preset(name)
-    except KeyError:
-        return None
+from bridge.ocean.presets import Preset
 
 
 def max_distance_m(loaded: LoadedMission, preset: Preset) -> float:
@@ -112,7 +102,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
                 f"{name}: all its channels at once need {worst} bits, a frame holds {capacity}; "
                 "lower priorities wait for a later frame"
             )
-        preset = preset_of(loaded, name)
+        preset = node_preset(mission, name)
         largest = codec.frame_bytes_for(sent) if sent else codec.frame_bytes_for([])
         airtime = preset.airtime(min(largest, frame_bytes)) if preset else None
         entry = {

@@ -24,7 +24,7 @@ from typing import Any
 
 from bridge.auth import Authenticator, load_key
 from bridge.backends.base import ModemRange, Reception
-from bridge.builder import FramePlan
+from bridge.builder import Candidate, FramePlan, fill
 from bridge.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.errors import DecodeError, EncodeError, FrameError
 from bridge.frame import FrameCodec
@@ -256,24 +256,20 @@ class NodeCore:
             budget -= cost
             acks.append((src, index))
             targets.add(src)
+        picked, left = fill(codec, self._candidates(now), budget, room - len(items))
         chosen: list[ChannelState] = []
-        left_out: list[ChannelState] = []
         streams: list[tuple[ReliableSender | TransferSender, Any]] = []
-        for _, channel, what in sorted(self._candidates(now), key=lambda c: c[0]):
-            cost = codec.channel_cost_bits(channel)
-            if cost > budget or len(items) >= room:
-                if isinstance(what, ChannelState):
-                    left_out.append(what)
-                continue
-            budget -= cost
-            targets.update(channel.destinations(self.node))
+        for candidate in picked:
+            what = candidate.what
+            targets.update(candidate.channel.destinations(self.node))
             if isinstance(what, ChannelState):
                 chosen.append(what)
-                items.append((channel, what.payload()))
+                items.append((candidate.channel, what.payload()))
             else:
                 sender, item = what
                 streams.append((sender, item))
-                items.append((channel, sender.entry(item)))
+                items.append((candidate.channel, sender.entry(item)))
+        left_out = [c.what for c in left if isinstance(c.what, ChannelState)]
         self.stats.left_out += len(left_out)
         if not items and not always:
             return None
@@ -286,21 +282,12 @@ class NodeCore:
         return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), tuple(left_out)), now,
                         tuple(streams), tuple(acks))
 
-    def _candidates(self, now: float) -> list[tuple[tuple, ChannelCodec, Any]]:
-        """Everything that could go in a frame: ``(order, channel, what)``. Higher priority
-        first; among equals, whatever has waited longest since it was last sent."""
-        out: list[tuple[tuple, ChannelCodec, Any]] = []
-        for state in self.store.due(now):
-            since = state.last_sent if state.last_sent is not None else float("-inf")
-            out.append(((-state.channel.priority, since, state.channel.index, 0), state.channel,
-                        state))
+    def _candidates(self, now: float) -> list[Candidate]:
+        """Everything that could go in a frame sent at ``now``."""
+        out = [Candidate(s.channel, s.last_sent, s) for s in self.store.due(now)]
         for sender in self.senders.values():
-            channel = sender.channel
-            for n, item in enumerate(sender.due(now)):
-                since = getattr(item, "last_sent", None)
-                since = float("-inf") if since is None else since
-                out.append(((-channel.priority, since, channel.index, n), channel,
-                            (sender, item)))
+            out += [Candidate(sender.channel, getattr(item, "last_sent", None), (sender, item), n)
+                    for n, item in enumerate(sender.due(now))]
         return out
 
     def _ack_bits(self, src: str, index: int) -> int:
@@ -321,9 +308,9 @@ class NodeCore:
         by_sender: dict[int, tuple[ReliableSender | TransferSender, list[Any]]] = {}
         for sender, item in out.streams:
             by_sender.setdefault(id(sender), (sender, []))[1].append(item)
+        dest = self.mission.name_of(out.dest) if out.dest is not None else None
         for sender, group in by_sender.values():
             self._reports(sender.sent(group, out.built))  # type: ignore[arg-type]
-            dest = self.mission.name_of(out.dest) if out.dest is not None else None
             if confirmed and dest is not None:
                 sender.confirmed(group, dest)  # type: ignore[arg-type]
         for key in out.acks:
@@ -334,8 +321,7 @@ class NodeCore:
         for name in names:
             self.stats.sent_per_channel[name] += 1
         self._notice("frame_sent", {"time": now, "bytes": len(out.data), "channels": names,
-                                    "dest": self.mission.name_of(out.dest)
-                                    if out.dest is not None else None, "data": out.data})
+                                    "dest": dest, "data": out.data})
 
     def frame_failed(self, out: OutFrame, error: str, now: float) -> None:
         """The modem refused ``out``: its data stays due."""

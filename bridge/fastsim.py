@@ -23,9 +23,9 @@ from bridge.core import NodeCore, Output, Publish
 from bridge.mac import schedule_for
 from bridge.mission_loader import LoadedMission
 from bridge.ocean.model import Delivery, Ocean, TransmitRefused, TxDone
-from bridge.ocean.presets import Preset, get_preset
+from bridge.ocean.presets import Preset
 from bridge.payloads import encode_payload
-from bridge.positioning import mission_sound_speed
+from bridge.positioning import simulated_preset
 
 TICK_S = 1.0
 
@@ -59,9 +59,7 @@ class FastFleet:
         self.mission = mission
         options = mission.modem.options
         if preset is None:
-            preset = get_preset(options.get("preset", "evologics-s2c-im"))
-            if mission.ranging.water is not None or mission.ranging.sound_speed_mps is not None:
-                preset = preset.replace(sound_speed_mps=mission_sound_speed(mission).mps)
+            preset = simulated_preset(mission)
         self.ocean = Ocean(preset, seed, {
             node.address: (node.position.x, node.position.y, node.position.depth)
             if node.position is not None else (0.0, 0.0, 0.0)

@@ -14,9 +14,8 @@ from bridge.mission_loader import LoadedMission
 from bridge.modem_setup import backend_factory
 from bridge.node import BridgeNode
 from bridge.ocean.path import Path
-from bridge.ocean.presets import get_preset
 from bridge.ocean.service import WaterService
-from bridge.positioning import mission_sound_speed
+from bridge.positioning import simulated_preset
 
 AOI_SAMPLE_S = 0.25
 
@@ -30,10 +29,7 @@ def water_for(loaded: LoadedMission, seed: int | None = None) -> WaterService:
         for node in mission.nodes.values()
         if node.position is not None
     }
-    preset = get_preset(options.get("preset", "evologics-s2c-im"))
-    if mission.ranging.water is not None or mission.ranging.sound_speed_mps is not None:
-        # the mission describes the water: sound crosses the simulated ocean at that speed
-        preset = preset.replace(sound_speed_mps=mission_sound_speed(mission).mps)
+    preset = simulated_preset(mission)
     paths = {node.address: Path.from_spec(node.path)
              for node in mission.nodes.values() if node.path is not None}
     return WaterService(

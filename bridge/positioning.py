@@ -23,6 +23,7 @@ from typing import Any
 
 from bridge.mission import Mission, TdmaMac
 from bridge.ocean.path import Path
+from bridge.ocean.presets import Preset, get_preset
 from bridge.ranging import DlblRanger, Fix, NoFix, Range, SoundSpeed, Track, attempt
 
 DEFAULT_SOUND_SPEED_MPS = 1500.0
@@ -45,6 +46,15 @@ def mission_sound_speed(mission: Mission) -> SoundSpeed:
         return SoundSpeed.from_ctd(w.temperature_c, w.salinity_psu, w.depth_m,
                                    equation=w.equation, lat_deg=w.latitude_deg)
     return SoundSpeed.fixed(ranging.sound_speed_mps or DEFAULT_SOUND_SPEED_MPS)
+
+
+def simulated_preset(mission: Mission) -> Preset:
+    """The simulated ocean's preset for the mission (``modem.options.preset``); when the
+    mission describes the water, sound crosses the simulated ocean at that speed."""
+    preset = get_preset(mission.modem.options.get("preset", "evologics-s2c-im"))
+    if mission.ranging.water is not None or mission.ranging.sound_speed_mps is not None:
+        preset = preset.replace(sound_speed_mps=mission_sound_speed(mission).mps)
+    return preset
 
 
 def mission_anchors(mission: Mission) -> tuple[str, ...]:

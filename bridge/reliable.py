@@ -34,6 +34,12 @@ HALF = SEQ_MOD // 2
 BACKOFF_CAP = 4.0
 
 
+def retry_wait(retry_s: float, attempts: int) -> float:
+    """How long to wait for an acknowledgement after the ``attempts``-th send: ``retry_s``,
+    doubling with each attempt up to ``BACKOFF_CAP`` times it."""
+    return retry_s * min(2.0 ** (attempts - 1), BACKOFF_CAP)
+
+
 def seq_after(a: int, b: int) -> int:
     """How far ``a`` is after ``b`` modulo 256 (negative when before, within half the space)."""
     d = (a - b) % SEQ_MOD
@@ -134,7 +140,7 @@ class ReliableSender:
         for item in items:
             item.attempts += 1
             item.last_sent = now
-            item.next_send = now + self.retry_s * min(2.0 ** (item.attempts - 1), BACKOFF_CAP)
+            item.next_send = now + retry_wait(self.retry_s, item.attempts)
             if item.attempts == 1:
                 reports += self._report(item, "sent", now)
         return reports

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.channels import TID_BITS, WINDOW, ChannelCodec
-from bridge.reliable import BACKOFF_CAP, Report
+from bridge.reliable import Report, retry_wait
 
 TID_MOD = 1 << TID_BITS
 
@@ -149,7 +149,7 @@ class TransferSender:
         reports: list[Report] = []
         for i in indices:
             n = item.attempts[i] = item.attempts.get(i, 0) + 1
-            item.next_send[i] = now + self.retry_s * min(2.0 ** (n - 1), BACKOFF_CAP)
+            item.next_send[i] = now + retry_wait(self.retry_s, n)
         if not item.started:
             item.started = True
             reports += self._report(item, "sent", now)
