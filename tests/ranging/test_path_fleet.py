@@ -75,12 +75,18 @@ def test_fixes_follow_a_vehicle_sailing_the_seed001_rectangle() -> None:
     assert travelled > 6.0, fixes  # it really moved, and the fixes moved with it
     assert fixes[-1]["y"] > 8.0, "turned north at the (15, 5) corner"
     lags = []
-    for fix in fixes:  # a constant-velocity filter over the fixes keeps up with the vehicle
-        assert track.update(fix["time"], Fix(fix["x"], fix["y"], fix["depth"], fix["sigma_m"],
-                                             tuple(fix["anchors"]), fix["method"]))
-        assert track.position is not None
+    corner_s = 10.0 / SPEED
+    for fix in fixes:  # a constant-velocity filter over the fixes keeps up with the vehicle...
         t = fix["time"] - start
+        if not track.update(fix["time"], Fix(fix["x"], fix["y"], fix["depth"], fix["sigma_m"],
+                                             tuple(fix["anchors"]), fix["method"])):
+            # ...but may gate out a fix after the instant 90° turn at (15, 5) until its velocity
+            # has turned too (how many depends on the fixes' timing, i.e. the machine's load)
+            assert t > corner_s, (t, fix)
+            continue
+        assert track.position is not None
         lags.append(min(math.dist(track.position, path.position_at(t - k * cycle / 20)[:2])
                         for k in range(41)))
     assert max(lags) < 1.5, lags
+    assert track.refused <= 3, track
     assert track.velocity is not None and 0.5 * SPEED < math.hypot(*track.velocity) < 1.5 * SPEED
