@@ -16,6 +16,7 @@ from bridge.mac import (
     busy_s,
     frame_time_s,
     mac_report,
+    max_distance_m,
     node_preset,
     polled_ipg_s,
     polled_slaves,
@@ -23,16 +24,6 @@ from bridge.mac import (
 )
 from bridge.mission import AlohaMac, Mission, NoMac, PolledMac, TdmaMac
 from bridge.mission_loader import LoadedMission
-from bridge.ocean.presets import Preset
-
-
-def max_distance_m(loaded: LoadedMission, preset: Preset) -> float:
-    """Farthest two positioned nodes, or the modem's maximum range when positions are missing."""
-    nodes = loaded.mission.nodes.values()
-    points = [(n.position.x, n.position.y, n.position.depth) for n in nodes if n.position]
-    if len(points) == len(loaded.mission.nodes) and len(points) > 1:
-        return max(math.dist(a, b) for a in points for b in points)
-    return preset.max_range_m
 
 
 @dataclass
@@ -122,7 +113,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             entry["worst_gap_s"] = schedule.worst_gap_s()
             if preset is not None:
                 need = preset.frame_time_s(min(largest, frame_bytes),
-                                           max_distance_m(loaded, preset))
+                                           max_distance_m(mission, preset))
                 if need > schedule.usable_s():
                     report.warnings.append(
                         f"{name}: TDMA slot leaves {schedule.usable_s():.3f} s but a full frame "

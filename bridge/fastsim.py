@@ -6,8 +6,9 @@ mission runs in seconds and the same seed gives the same run. Applications are p
 :meth:`FastFleet.put` (scheduled samples on input keys); what nodes publish is collected in
 :attr:`FastFleet.outputs` and passed to ``on_output``.
 
-What it leaves out compared with ``zab sim``: Zenoh itself (keys, latching queries), modem
-drivers, and clock offsets (every node shares the virtual clock).
+Nodes with a scripted ``path`` follow it from the start time. What it leaves out compared with
+``zab sim``: Zenoh itself (keys, latching queries), modem drivers, and clock offsets (every node
+shares the virtual clock).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from bridge.core import NodeCore, Output, Publish
 from bridge.mac import schedule_for
 from bridge.mission_loader import LoadedMission
 from bridge.ocean.model import Delivery, Ocean, TransmitRefused, TxDone
+from bridge.ocean.path import Path
 from bridge.ocean.presets import Preset
 from bridge.payloads import encode_payload
 from bridge.positioning import simulated_preset
@@ -65,6 +67,9 @@ class FastFleet:
             if node.position is not None else (0.0, 0.0, 0.0)
             for node in mission.nodes.values()
         }, loss=float(options.get("loss", 0.0)) if loss is None else loss)
+        for node in mission.nodes.values():
+            if node.path is not None:
+                self.ocean.set_path(node.address, Path.from_spec(node.path), start)
         self.cores = {name: NodeCore(loaded, name) for name in mission.nodes}
         self.schedules = {name: schedule_for(mission, name, seed=seed) for name in mission.nodes}
         self.now = start

@@ -182,3 +182,17 @@ def test_water_and_emulate_serve_a_real_driver(tmp_path: Path) -> None:
             finally:
                 if proc.poll() is None:
                     proc.kill()
+
+
+def test_check_counts_a_path_waypoint_in_the_slot_warning(tmp_path: Path) -> None:
+    mission = yaml.safe_load((MISSIONS / "morph.yaml").read_text())
+    result = RUNNER.invoke(app, ["check", str(MISSIONS / "morph.yaml"), "--json"])
+    assert not any("TDMA slot" in w for w in json.loads(result.output)["warnings"])
+    vehicle = next(n for n in mission["nodes"].values() if n.get("position"))
+    start = vehicle["position"]
+    vehicle["path"] = {"waypoints": [start, {**start, "x": start["x"] + 1500}], "speed_mps": 1.5}
+    path = tmp_path / "far.yaml"
+    path.write_text(yaml.safe_dump(mission))
+    result = RUNNER.invoke(app, ["check", str(path), "--json"])
+    assert result.exit_code == 0, result.output
+    assert any("TDMA slot" in w for w in json.loads(result.output)["warnings"])
