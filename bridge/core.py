@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
+import random
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -33,7 +34,7 @@ from bridge.mission import TdmaMac
 from bridge.mission_loader import LoadedMission
 from bridge.payloads import decode_payload
 from bridge.positioning import Positioning, Update, needs_positioning
-from bridge.reliable import ReliableReceiver, ReliableSender, Report
+from bridge.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
 from bridge.store import ChannelState, OutboundStore
 from bridge.transfer import TransferReceiver, TransferSender, from_bytes
 
@@ -113,7 +114,9 @@ class NodeCore:
     """Store, frame building, frame decoding, link health and ranging of one node."""
 
     def __init__(self, loaded: LoadedMission, node: str,
-                 auth: Authenticator | None = None) -> None:
+                 auth: Authenticator | None = None, rng: random.Random | None = None) -> None:
+        """``rng`` draws each stream's first sequence number (a fresh one per run by default;
+        seeded for a reproducible simulation)."""
         mission = loaded.mission
         if node not in mission.nodes:
             raise ValueError(f"node {node!r} is not in mission {mission.mission!r}")
@@ -148,9 +151,10 @@ class NodeCore:
         self._outputs: list[Output] = []
         mac = mission.mac
         retry_s = mac.slot_s * len(mac.order) if isinstance(mac, TdmaMac) else DEFAULT_RETRY_S
+        rng = rng or random.Random()
         self.senders: dict[int, ReliableSender | TransferSender] = {
             c.index: (TransferSender if c.fragmented else ReliableSender)(
-                c, c.destinations(node), retry_s)
+                c, c.destinations(node), retry_s, rng.randrange(SEQ_MOD))
             for c in self.table.streams if c.index in self.store.states}
         self.receivers: dict[tuple[str, int], ReliableReceiver | TransferReceiver] = {}
         self._acks: dict[tuple[str, int], None] = {}  # (sender, channel index) owed an ack

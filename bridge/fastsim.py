@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import random
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -70,7 +71,8 @@ class FastFleet:
         for node in mission.nodes.values():
             if node.path is not None:
                 self.ocean.set_path(node.address, Path.from_spec(node.path), start)
-        self.cores = {name: NodeCore(loaded, name) for name in mission.nodes}
+        self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"))
+                      for name in mission.nodes}
         self.schedules = {name: schedule_for(mission, name, seed=seed) for name in mission.nodes}
         self.now = start
         self.outputs: list[Timed] = []

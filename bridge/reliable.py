@@ -14,10 +14,13 @@ Rules (seed 003's acknowledged commands; selective repeat with a small window):
   ``ttl_s``; every state change is a :class:`Report` for the publisher's side.
 - A receiver delivers in order, drops duplicates, and skips what the sender gave up: ``seq -
   lag`` tells it the sender's oldest unfinished value, so nothing before it will come again.
-- A sender that restarted numbers from 0 again; an acknowledgement ``base`` past anything it
-  has numbered shows the receiver remembers an earlier run, and the sender renumbers its values
-  in flight from there. (Left open: a restart whose new numbers straddle the receiver's
-  ``base`` can have the first few values taken for duplicates.)
+- Each run of a sender numbers from a random ``first_seq``, so a restarted sender's numbers
+  rarely meet those a receiver remembers from its earlier run. Numbers behind the receiver's
+  ``base`` read as values the new run gave up (skipped); an acknowledgement ``base`` past
+  anything the sender has numbered shows the receiver remembers an earlier run, and the sender
+  renumbers its values in flight from there. (Left: when the new numbers straddle the
+  receiver's ``base`` — about n/256 for n values sent before the first acknowledgement — the
+  first values are taken for duplicates.)
 """
 
 from __future__ import annotations
@@ -86,14 +89,15 @@ class Pending:
 class ReliableSender:
     """The sending side of one reliable channel at one node."""
 
-    def __init__(self, channel: ChannelCodec, dests: Iterable[str], retry_s: float) -> None:
+    def __init__(self, channel: ChannelCodec, dests: Iterable[str], retry_s: float,
+                 first_seq: int = 0) -> None:
         self.channel = channel
         self.dests = tuple(dests)
         self.retry_s = channel.retry_s or retry_s
         self.queue: deque[Pending] = deque()  # not yet numbered
         self.flight: list[Pending] = []  # numbered, oldest first
         self._next_id = 0
-        self._next_seq = 0
+        self._next_seq = first_seq % SEQ_MOD
 
     def offer(self, payload: int, now: float, key: str | None = None,
               ref: str | None = None) -> list[Report]:

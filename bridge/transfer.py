@@ -42,9 +42,10 @@ def from_bytes(channel: ChannelCodec, data: bytes) -> int:
 
 @dataclass(eq=False)
 class Transfer:
-    """One value on its way, at the sender."""
+    """One value on its way, at the sender; ``tid`` is its id on the wire."""
 
     id: int
+    tid: int
     data: bytes
     created: float
     key: str | None
@@ -56,10 +57,6 @@ class Transfer:
     attempts: dict[int, int] = field(default_factory=dict)
     next_send: dict[int, float] = field(default_factory=dict)
     started: bool = False
-
-    @property
-    def tid(self) -> int:
-        return self.id % TID_MOD
 
     @property
     def count(self) -> int:
@@ -84,19 +81,24 @@ class Transfer:
 class TransferSender:
     """The sending side of one fragmented channel at one node."""
 
-    def __init__(self, channel: ChannelCodec, dests: Iterable[str], retry_s: float) -> None:
+    def __init__(self, channel: ChannelCodec, dests: Iterable[str], retry_s: float,
+                 first_seq: int = 0) -> None:
+        """``first_seq``: this run's first transfer id on the wire (random at runtime, so a
+        restarted sender's first transfer is rarely taken for the one receivers completed last)."""
         self.channel = channel
         self.dests = tuple(dests)
         self.retry_s = channel.retry_s or retry_s
         self.current: Transfer | None = None
         self.queue: deque[Transfer] = deque()
         self._next_id = 0
+        self._tid_offset = first_seq % TID_MOD
 
     def offer(self, payload: int, now: float, key: str | None = None,
               ref: str | None = None) -> list[Report]:
         """A new value: queued (reliable) or replacing an unfinished transfer (latest wins)."""
         reports: list[Report] = []
-        item = Transfer(self._next_id, to_bytes(self.channel, payload), now, key, ref,
+        item = Transfer(self._next_id, (self._next_id + self._tid_offset) % TID_MOD,
+                        to_bytes(self.channel, payload), now, key, ref,
                         self.channel.chunk_bytes, self.dests)
         self._next_id += 1
         if not self.channel.reliable:

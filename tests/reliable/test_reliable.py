@@ -130,6 +130,35 @@ def test_a_restarted_sender_continues_from_the_receivers_base() -> None:
     assert deliver(fresh, receiver, 3.0) == [42]
 
 
+def test_a_restarted_sender_numbering_past_the_base_is_delivered_not_skipped() -> None:
+    sender, _ = make()
+    receiver = ReliableReceiver()
+    for n in range(2):
+        sender.offer(n, 0.0)
+    deliver(sender, receiver, 0.0)
+    assert receiver.expected == 2  # the old run's two values arrived; its ack never did
+    channel = sender.channel
+    fresh = ReliableSender(channel, channel.destinations("ops"), 10.0, first_seq=100)
+    for n in (7, 8, 9):  # a run starting at 100 (not 0, which would straddle base 2)
+        fresh.offer(n, 1.0)
+    assert deliver(fresh, receiver, 1.0) == [7, 8, 9] and receiver.duplicates == 0
+    reports = fresh.on_ack("auv", *receiver.ack(), 2.0)
+    assert [r.state for r in reports] == ["delivered"] * 3 and not fresh.flight
+
+
+def test_each_run_of_a_core_numbers_its_streams_from_its_own_first_seq() -> None:
+    import random
+
+    from bridge.core import NodeCore
+
+    loaded = parse_mission(MISSION)
+    firsts = {NodeCore(loaded, "ops", rng=random.Random(run)).senders[0]._next_seq
+              for run in range(8)}
+    assert len(firsts) > 4  # eight runs, (almost) eight different starts
+    again = NodeCore(loaded, "ops", rng=random.Random(3)).senders[0]._next_seq
+    assert again == NodeCore(loaded, "ops", rng=random.Random(3)).senders[0]._next_seq
+
+
 def test_a_modem_confirmation_holds_back_retransmission_until_the_ack_entry() -> None:
     from bridge.core import NodeCore
 
