@@ -26,6 +26,7 @@ from bridge.codec import FieldSpec
 from bridge.fleet import Fleet
 from bridge.gui.server import GuiServer
 from bridge.mission_loader import LoadedMission
+from bridge.resources import data_dir
 from bridge.simview import EventLog, print_report, run_fleet_for
 from bridge.zenoh_session import close_quietly
 
@@ -34,8 +35,8 @@ OPERATOR_HOLD_S = 60.0  # a key an operator commanded (from the GUI) is left alo
 
 
 def default_demo_mission() -> Path:
-    """``deploy/missions/morph.yaml`` in a checkout."""
-    return Path(__file__).resolve().parent.parent / "deploy" / "missions" / "morph.yaml"
+    """The MORPH example mission (``deploy/missions/morph.yaml``; shipped in the wheel too)."""
+    return data_dir("missions") / "morph.yaml"
 
 
 def _set(target: dict[str, Any], path: str, value: Any) -> None:

@@ -136,6 +136,7 @@ def test_wheel_ships_codecs_and_schemas(tmp_path: Path) -> None:
     names = set(zipfile.ZipFile(wheel).namelist())
     assert "bridge/_data/codecs/ccl/bathymetry.yaml" in names
     assert "bridge/_data/schemas/mission.schema.json" in names
+    assert "bridge/_data/missions/morph.yaml" in names  # what `zab demo` runs when installed
     assert "bridge/gui/static/app.js" in names
 
 
