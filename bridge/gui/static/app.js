@@ -15,6 +15,8 @@ let socket = null;
 let retryMs = 500;
 let requestId = 0;
 let dirty = true;
+let mapDirty = false;           // the user moved the map: redraw it on the next frame
+const mapView = new MapView(document.getElementById("map"), () => { mapDirty = true; });
 
 function emptyState() {
   return {
@@ -186,10 +188,13 @@ function niceStep(span) {
 
 function renderMap() {
   const svg = document.getElementById("map");
-  const width = svg.clientWidth || 600;
-  const height = svg.clientHeight || 400;
+  // one SVG unit per CSS pixel, fractions included: pointer positions map exactly
+  const box = svg.getBoundingClientRect();
+  const width = box.width || 600;
+  const height = box.height || 400;
   svg.setAttribute("viewBox", `0 0 ${width} ${height}`);
   while (svg.firstChild) svg.removeChild(svg.firstChild);
+  mapDirty = false;
   const now = serverNow();
   const points = [];
   const places = {};
@@ -216,9 +221,11 @@ function renderMap() {
   }
   const span = Math.max(x1 - x0, y1 - y0, 20);
   const pad = 36;
-  const scale = Math.min((width - 2 * pad) / Math.max(x1 - x0, span * 0.2),
-                         (height - 2 * pad) / Math.max(y1 - y0, span * 0.2));
-  const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+  const fit = { cx: (x0 + x1) / 2, cy: (y0 + y1) / 2,
+                scale: Math.min((width - 2 * pad) / Math.max(x1 - x0, span * 0.2),
+                                (height - 2 * pad) / Math.max(y1 - y0, span * 0.2)) };
+  const { cx, cy, scale } = mapView.view(fit, width, height);
+  document.getElementById("map-fit").disabled = svg.dataset.view === "auto";
   const sx = (x) => width / 2 + (x - cx) * scale;
   const sy = (y) => height / 2 - (y - cy) * scale;
 
@@ -598,6 +605,8 @@ function frame(t) {
     renderVehicles();
     renderEvents();
     renderCommands();
+  } else if (state.mission && mapDirty) {
+    renderMap();
   } else if (!state.mission && since > RENDER_MS) {
     lastRender = t;
     renderConnection();
@@ -608,6 +617,9 @@ function frame(t) {
 document.getElementById("command-vehicle").addEventListener("change", fillChannels);
 document.getElementById("command-channel").addEventListener("change", fillFields);
 document.getElementById("command-form").addEventListener("submit", sendCommand);
+document.getElementById("map-fit").addEventListener("click", () => mapView.fit());
+document.getElementById("map-zoom-in").addEventListener("click", () => mapView.zoomIn());
+document.getElementById("map-zoom-out").addEventListener("click", () => mapView.zoomOut());
 window.addEventListener("resize", () => { dirty = true; });
 connect();
 requestAnimationFrame(frame);
