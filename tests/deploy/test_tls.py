@@ -16,6 +16,7 @@ import pytest
 import zenoh
 
 from tests.conftest import REPO, free_port
+from tests.deploy.test_deploy_kit import _on_loopback
 
 ZENOH = REPO / "deploy" / "zenoh"
 OPENSSL = shutil.which("openssl")
@@ -81,10 +82,18 @@ def _tls(config: zenoh.Config, **paths: Path | None) -> None:
         _set(config, f"transport/link/tls/{key}", None if path is None else str(path))
 
 
+def _connect_with(config: zenoh.Config, pki: Path, cert: str | None) -> zenoh.Config:
+    """The connecting side's TLS files: the fleet CA and ``cert`` (None: no certificate)."""
+    _tls(config, root_ca_certificate=pki / "ca.pem",
+         connect_certificate=None if cert is None else pki / f"{cert}.pem",
+         connect_private_key=None if cert is None else pki / f"{cert}.key")
+    return config
+
+
 def _router_config(pki: Path, tcp_port: int, tls_port: int) -> zenoh.Config:
     """surface-router.json5: loopback TCP for the bridge and TLS for everyone else."""
-    config = _load("surface-router")
-    _set(config, "listen/endpoints", [f"tcp/127.0.0.1:{tcp_port}", f"tls/127.0.0.1:{tls_port}"])
+    config = _on_loopback("surface-router",
+                          [f"tcp/127.0.0.1:{tcp_port}", f"tls/127.0.0.1:{tls_port}"])
     _tls(config, root_ca_certificate=pki / "ca.pem",
          listen_certificate=pki / "surface-router.pem",
          listen_private_key=pki / "surface-router.key")
@@ -93,23 +102,15 @@ def _router_config(pki: Path, tcp_port: int, tls_port: int) -> zenoh.Config:
 
 def _client_config(pki: Path, tls_port: int, cert: str | None) -> zenoh.Config:
     """surface-client.json5 with the certificate ``cert`` (None: no certificate at all)."""
-    config = _load("surface-client")
-    _set(config, "connect/endpoints", [f"tls/127.0.0.1:{tls_port}"])
-    _tls(config, root_ca_certificate=pki / "ca.pem",
-         connect_certificate=None if cert is None else pki / f"{cert}.pem",
-         connect_private_key=None if cert is None else pki / f"{cert}.key")
-    return config
+    config = _on_loopback("surface-client", [], [f"tls/127.0.0.1:{tls_port}"])
+    return _connect_with(config, pki, cert)
 
 
 def _vehicle_config(pki: Path, listen_port: int, tls_port: int, cert: str | None) -> zenoh.Config:
     """vehicle.json5: loopback for the vehicle's apps, TLS to the surface router."""
-    config = _load("vehicle")
-    _set(config, "listen/endpoints", [f"tcp/127.0.0.1:{listen_port}"])
-    _set(config, "connect/endpoints", [f"tls/127.0.0.1:{tls_port}"])
-    _tls(config, root_ca_certificate=pki / "ca.pem",
-         connect_certificate=None if cert is None else pki / f"{cert}.pem",
-         connect_private_key=None if cert is None else pki / f"{cert}.key")
-    return config
+    config = _on_loopback("vehicle", [f"tcp/127.0.0.1:{listen_port}"],
+                          [f"tls/127.0.0.1:{tls_port}"])
+    return _connect_with(config, pki, cert)
 
 
 def _local_config(port: int) -> zenoh.Config:

@@ -40,11 +40,18 @@ MISSION = {
 }
 
 
+def off_route(path: Path, t: float, point: tuple[float, float], cycles: int = 1) -> float:
+    """How far ``point`` is from where the vehicle was during the ``cycles`` TDMA cycles before
+    ``t`` (the ranges of a fix were measured during the last cycle before it)."""
+    step = SLOT_S * 4 / 20
+    return min(math.dist(point, path.position_at(t - k * step)[:2])
+               for k in range(20 * cycles + 1))
+
+
 def test_fixes_follow_a_vehicle_sailing_the_seed001_rectangle() -> None:
     loaded = on_free_ports(yaml.safe_dump(MISSION), "jetty.yaml")
     path = Path.from_spec(loaded.mission.nodes["auv"].path)
     assert path.length_m == 80.0
-    cycle = SLOT_S * 4
     with running_fleet(loaded) as fleet:
         water = fleet.water
         assert water is not None and water.started_at is not None
@@ -67,10 +74,7 @@ def test_fixes_follow_a_vehicle_sailing_the_seed001_rectangle() -> None:
     track = Track(accel_sigma=0.5)
     errors = []
     for fix in fixes:
-        # the ranges of a fix were measured during the last TDMA cycle before it
-        t = fix["time"] - start
-        window = [path.position_at(t - k * cycle / 20) for k in range(21)]
-        errors.append(min(math.dist((fix["x"], fix["y"]), p[:2]) for p in window))
+        errors.append(off_route(path, fix["time"] - start, (fix["x"], fix["y"])))
         assert fix["depth"] == 1.0 and set(fix["anchors"]) <= {"a1", "a2", "a3"}
         assert fix["x"] > 0  # east of the jetty: the mirror image was never chosen
     # a DLBL range is the mean of the distances at both ends' emissions, up to a cycle apart:
@@ -90,8 +94,7 @@ def test_fixes_follow_a_vehicle_sailing_the_seed001_rectangle() -> None:
             assert t > corner_s, (t, fix)
             continue
         assert track.position is not None
-        lags.append(min(math.dist(track.position, path.position_at(t - k * cycle / 20)[:2])
-                        for k in range(41)))
+        lags.append(off_route(path, t, track.position, cycles=2))
     assert max(lags) < 1.5, lags
     assert track.refused <= 3, track
     assert track.velocity is not None and 0.5 * SPEED < math.hypot(*track.velocity) < 1.5 * SPEED
@@ -106,12 +109,10 @@ def test_two_laps_of_the_rectangle_on_the_virtual_clock() -> None:
              if t.node == "auv" and isinstance(t.output, Status)
              and t.output.topic == "position" and t.output.payload["fix"]]
     assert len(fixes) > 150  # one per TDMA cycle (1.6 s) once three anchors are heard
-    cycle = SLOT_S * 4
     errors, east = [], []
     for t, fix in fixes:
         assert fix["x"] > 0  # the mirror image across the jetty is never chosen
-        error = min(math.dist((fix["x"], fix["y"]), path.position_at(t - k * cycle / 20)[:2])
-                    for k in range(21))
+        error = off_route(path, t, (fix["x"], fix["y"]))
         errors.append(error)
         if path.position_at(t)[0] == pytest.approx(15.0):
             east.append(error)
