@@ -44,12 +44,15 @@ class FrameError(DecodeError):
     """An acoustic frame is truncated, corrupt, forged, replayed or from another mission file.
 
     ``reason`` names the drop counter: ``check`` (corrupt, or another mission file), ``forged``,
-    ``replayed`` or ``malformed``.
+    ``replayed`` or ``malformed``. A failed check also gives the ``fingerprint`` (16 bits) the
+    frame was sent with, so a receiver can tell another mission file from corruption.
     """
 
-    def __init__(self, message: str, reason: str = "malformed") -> None:
+    def __init__(self, message: str, reason: str = "malformed",
+                 fingerprint: int | None = None) -> None:
         super().__init__(message)
         self.reason = reason
+        self.fingerprint = fingerprint
 
 
 class BackendError(ZabError):

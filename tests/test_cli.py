@@ -56,7 +56,7 @@ def test_check_exit_1_when_a_channel_never_fits(tmp_path: Path) -> None:
 
 
 def test_check_reports_a_channel_that_travels_in_fragments(tmp_path: Path) -> None:
-    text = (MISSIONS / "morph.yaml").read_text().replace("frame_bytes: 64", "frame_bytes: 20")
+    text = (MISSIONS / "morph.yaml").read_text().replace("frame_bytes: 64", "frame_bytes: 21")
     path = tmp_path / "small.yaml"
     path.write_text(text)
     result = RUNNER.invoke(app, ["check", str(path), "--json"])

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import binascii
 import contextlib
 
 import pytest
@@ -13,7 +12,7 @@ from bridge.core.builder import plan_frame
 from bridge.core.store import OutboundStore
 from bridge.errors import DecodeError, FrameError
 from bridge.mission.loader import load_mission, parse_mission
-from bridge.wire.frame import CHECK_BYTES, NO_DELAY, FrameCodec
+from bridge.wire.frame import NO_DELAY, FrameCodec, check_value
 from tests.conftest import MISSIONS
 
 MORPH = load_mission(MISSIONS / "morph.yaml")
@@ -67,7 +66,7 @@ def test_random_bytes_raise_only_frame_error(data: bytes) -> None:
 @given(st.binary(max_size=70))
 def test_random_bodies_with_valid_check_raise_only_frame_error(body: bytes) -> None:
     """Past the check value, the parser itself must also refuse garbage cleanly."""
-    check = binascii.crc_hqx(body, CODEC._crc_init).to_bytes(CHECK_BYTES, "big")
+    check = check_value(body, MORPH.table.fingerprint)
     with contextlib.suppress(FrameError):
         CODEC.decode(body + check)
 

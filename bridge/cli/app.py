@@ -166,9 +166,14 @@ def run(
     log: Annotated[Path | None, typer.Option("--log", help="Record every frame and event to "
                                              "this MCAP file; {time} in the name becomes the "
                                              "start time (UTC).")] = None,
+    state_dir: Annotated[Path | None, typer.Option(
+        "--state-dir", help="Where the node keeps what a restart must resume (reliable "
+        "values, delivered windows, frame counters). Default: $STATE_DIRECTORY (systemd), "
+        "else ~/.local/state/zab.")] = None,
 ) -> None:
     """Run the bridge of one node (what each vehicle runs)."""
     from bridge.modems.setup import backend_factory
+    from bridge.runtime.state_file import StateError, StateFile, default_state_dir
     from bridge.runtime.zenoh_node import BridgeNode
 
     loaded = _load(mission)
@@ -181,12 +186,17 @@ def run(
     except BackendError as exc:
         err.print(f"[red]{exc}[/]")
         raise typer.Exit(2) from None
+    try:
+        state = StateFile(state_dir or default_state_dir(), loaded.mission.mission, node)
+    except StateError as exc:
+        err.print(f"[red]{exc}[/]")
+        raise typer.Exit(2) from None
 
     async def main() -> None:
         stop = asyncio.Event()
         _install_stop(stop)
         recorder = None if log is None else _mission_log(log, loaded, node)
-        bridge = BridgeNode(loaded, node, factory, on_event=recorder)
+        bridge = BridgeNode(loaded, node, factory, on_event=recorder, state_file=state)
         logging.getLogger("zab").info("%s: bridge running (Ctrl-C to stop)", node)
         try:
             await bridge.run(stop)

@@ -102,7 +102,8 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             "role": node.role,
             "listen": list(node.zenoh.listen),
             "frame_bytes": frame_bytes,
-            "worst_case_bits": worst + codec.count_bits + codec.overhead_bytes() * 8,
+            "worst_case_bits": worst + codec.epoch_bits + codec.count_bits
+            + codec.overhead_bytes() * 8,
             "capacity_bits": frame_bytes * 8,
             "fill": round(min(largest, frame_bytes) / frame_bytes, 3),
             "airtime_s": None if airtime is None else round(airtime, 3),

@@ -20,6 +20,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
+import msgpack
+
 from bridge.core.mac import schedule_for
 from bridge.core.node import NodeCore, Output, Publish
 from bridge.core.positioning import simulated_preset
@@ -79,6 +81,9 @@ class FastFleet:
         self.on_output = on_output
         self.keep_outputs = keep_outputs
         self.stopped: set[str] = set()
+        self.seed = seed
+        self.restarts = 0
+        self.saved: dict[str, dict[str, Any]] = {}  # each node's saved state, as on its disk
         self._next_tx: dict[str, float | None] = {}
         self._pending: dict[int, tuple[str, Any]] = {}
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
@@ -94,14 +99,15 @@ class FastFleet:
         heapq.heappush(self._timers, (t, next(self._seq), fn))
 
     def put(self, node: str, key: str, value: Any, *, at: float | None = None,
-            encoding: str = "application/msgpack") -> None:
-        """An application on ``node`` puts ``value`` on ``key`` (now, or at virtual time ``at``)."""
+            encoding: str = "application/msgpack", ref: str | None = None) -> None:
+        """An application on ``node`` puts ``value`` on ``key`` (now, or at virtual time
+        ``at``); ``ref`` is its correlation text, echoed in delivery reports."""
         data, enc = encode_payload(value, encoding)
 
         def deliver() -> None:
             if node in self.stopped:
                 return
-            self.cores[node].ingest(key, data, enc, self.now)
+            self.cores[node].ingest(key, data, enc, self.now, ref)
             self._collect(node)
             self._replan(node)
 
@@ -117,6 +123,18 @@ class FastFleet:
 
     def resume(self, node: str) -> None:
         self.stopped.discard(node)
+        self._plan(node)
+
+    def restart(self, node: str, *, keep_state: bool = True) -> None:
+        """``node`` is killed and starts again now: a new core from its last saved state
+        (``keep_state``) or from nothing (its disk was lost), and a fresh MAC schedule."""
+        self.restarts += 1
+        state = self.saved.get(node) if keep_state else None
+        self.cores[node] = NodeCore(self.loaded, node, state=state,
+                                    rng=random.Random(f"{self.seed}/{node}/{self.restarts}"))
+        self.schedules[node] = schedule_for(self.mission, node, seed=self.seed + self.restarts)
+        self.stopped.discard(node)
+        self._collect(node)
         self._plan(node)
 
     def published(self, node: str, key: str | None = None) -> list[tuple[float, Publish]]:
@@ -215,7 +233,12 @@ class FastFleet:
         self._replan(name)
 
     def _collect(self, name: str) -> None:
-        for output in self.cores[name].take():
+        core = self.cores[name]
+        if core.needs_save:  # what a real node writes to its state file before the outputs
+            self.saved[name] = msgpack.unpackb(msgpack.packb(core.state(), use_bin_type=True),
+                                               raw=False, strict_map_key=False)
+            core.saved()
+        for output in core.take():
             timed = Timed(self.now, name, output)
             if self.keep_outputs:
                 self.outputs.append(timed)

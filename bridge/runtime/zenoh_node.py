@@ -27,6 +27,7 @@ from bridge.errors import BackendError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
 from bridge.runtime.session import close_quietly, is_bridged, open_session, origin_tag
+from bridge.runtime.state_file import StateFile
 from bridge.wire.payloads import encode_payload
 
 log = logging.getLogger("zab.node")
@@ -47,8 +48,13 @@ class BridgeNode:
         *,
         clock: Callable[[], float] = time.time,
         on_event: Callable[[str, dict[str, Any]], None] | None = None,
+        state_file: StateFile | None = None,
     ) -> None:
-        self.core = NodeCore(loaded, node)
+        """``state_file``: where this node keeps what a restart must resume (None: nothing
+        survives a restart; peers then see a new epoch and resynchronise)."""
+        self.state_file = state_file
+        self.core = NodeCore(loaded, node,
+                             state=state_file.load() if state_file is not None else None)
         self.mission = loaded.mission
         self.table = loaded.table
         self.node = node
@@ -97,6 +103,7 @@ class BridgeNode:
         loop = asyncio.get_running_loop()
         self.session = open_session(self.mission.nodes[self.node].zenoh)
         try:
+            self._flush()  # this run's epoch saved; what a changed mission file ended, reported
             for key in self.core.bindings:
                 self.session.declare_subscriber(
                     key, lambda s, k=key: self._from_zenoh(loop, k, s)
@@ -113,6 +120,7 @@ class BridgeNode:
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
+            self._persist()
         finally:
             if self.backend is not None:
                 await self.backend.close()
@@ -223,6 +231,7 @@ class BridgeNode:
         if out is None:
             self._flush()
             return False
+        self._persist()  # a counter reserved for this frame is saved before it leaves
         if poll is not None:
             out = replace(out, dest=self.mission.address_of(poll))
         if peer is not None:  # the modem measures the range when the peer acknowledges
@@ -297,8 +306,16 @@ class BridgeNode:
             self._data.set()  # a poll or a ranging turn may open an opportunity
         self._flush()
 
+    def _persist(self) -> None:
+        """Save the core's state if a restart must not lose what changed."""
+        if self.core.needs_save:
+            if self.state_file is not None:
+                self.state_file.save(self.core.state())
+            self.core.saved()
+
     def _flush(self) -> None:
-        """Carry out the core's outputs."""
+        """Carry out the core's outputs, once what they depend on is saved."""
+        self._persist()
         for output in self.core.take():
             if isinstance(output, Publish):
                 self.publish(output.key, output.value, output.encoding, latched=output.latched)

@@ -18,7 +18,7 @@ from bridge.codec import Layout
 from bridge.errors import LayoutError
 from bridge.mission.model import Channel, Element, Mission
 
-WIRE_VERSION = 1
+WIRE_VERSION = 2  # 2: the check reveals the fingerprint; epochs in stream missions
 
 # Reliable channels and fragmented transfers (see bridge.core.reliable and bridge.core.transfer).
 SEQ_BITS = 8  # a reliable value's sequence number, modulo 256
@@ -26,6 +26,7 @@ LAG_BITS = 4  # how far behind the sender's oldest unfinished value is (< WINDOW
 WINDOW = 16  # values (or fragments) in flight past the first unacknowledged one
 TID_BITS = 4  # a transfer's id, modulo 16
 COUNT_BITS_REPEATABLE = 6  # entries per frame (up to 63) once channels may repeat in a frame
+EPOCH_BITS = 8  # a node's stream epoch, in every frame of missions with streams
 MAX_TRANSFER_BYTES = 1 << 20
 
 SENDER_TEMPLATES = frozenset({"node", "src"})
@@ -231,7 +232,7 @@ def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
     if mission.wire.auth is not None:
         overhead += 4 + mission.wire.auth.tag_bytes
     if streams:
-        count_bits, index_bits = COUNT_BITS_REPEATABLE, n_channels.bit_length()
+        count_bits, index_bits = COUNT_BITS_REPEATABLE + EPOCH_BITS, n_channels.bit_length()
     else:
         count_bits, index_bits = n_channels.bit_length(), (n_channels - 1).bit_length()
     return (mission.node_modem(node).frame_bytes - overhead) * 8 - count_bits - index_bits
@@ -266,8 +267,9 @@ class AckCodec:
     """The system entry acknowledging a stream (``ack`` in frames), after the mission channels.
 
     Fields: the node acknowledged (``peer``, its place in the mission), the stream (its place
-    among reliable/fragmented channels), the transfer id, ``base`` (next sequence number
-    expected, or first fragment missing) and ``bitmap`` (bit i: ``base + 1 + i`` arrived).
+    among reliable/fragmented channels), the ``epoch`` of that node's streams this receiver's
+    window belongs to, the transfer id, ``base`` (next sequence number expected, or first
+    fragment missing) and ``bitmap`` (bit i: ``base + 1 + i`` arrived).
     """
 
     index: int
@@ -279,23 +281,25 @@ class AckCodec:
 
     @property
     def wire_bits(self) -> int:
-        return self.peer_bits + self.stream_bits + TID_BITS + self.base_bits + WINDOW
+        return (self.peer_bits + self.stream_bits + EPOCH_BITS + TID_BITS + self.base_bits
+                + WINDOW)
 
-    def pack(self, peer: int, stream: int, tid: int, base: int, bitmap: int) -> int:
+    def pack(self, peer: int, stream: int, epoch: int, tid: int, base: int,
+             bitmap: int) -> int:
         n = peer
-        for value, bits in ((stream, self.stream_bits), (tid, TID_BITS),
+        for value, bits in ((stream, self.stream_bits), (epoch, EPOCH_BITS), (tid, TID_BITS),
                             (base, self.base_bits), (bitmap, WINDOW)):
             n = (n << bits) | (value & ((1 << bits) - 1))
         return n
 
-    def unpack(self, n: int) -> tuple[int, int, int, int, int]:
-        """``(peer, stream, tid, base, bitmap)``."""
+    def unpack(self, n: int) -> tuple[int, int, int, int, int, int]:
+        """``(peer, stream, epoch, tid, base, bitmap)``."""
         out = []
-        for bits in (WINDOW, self.base_bits, TID_BITS, self.stream_bits):
+        for bits in (WINDOW, self.base_bits, TID_BITS, EPOCH_BITS, self.stream_bits):
             out.append(n & ((1 << bits) - 1))
             n >>= bits
-        bitmap, base, tid, stream = out
-        return n, stream, tid, base, bitmap
+        bitmap, base, tid, epoch, stream = out
+        return n, stream, epoch, tid, base, bitmap
 
 
 @dataclass(frozen=True)
