@@ -19,7 +19,7 @@ from rich.console import Console
 from rich.logging import RichHandler
 from rich.table import Table
 
-from bridge.errors import BackendError, MissionError
+from bridge.errors import BackendError, MissionError, SessionError
 from bridge.mission.check import check_mission
 from bridge.mission.loader import LoadedMission, load_mission
 
@@ -47,11 +47,12 @@ def _load(path: Path) -> LoadedMission:
 
 
 def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
-    """Run ``main``; a mission problem found at start (e.g. a missing key) exits 2, cleanly."""
+    """Run ``main``; a problem found at start (a missing key, a Zenoh port taken, a router that
+    does not answer) exits 2 with one line, never a traceback."""
     try:
         return asyncio.run(main)
-    except MissionError as exc:
-        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
+    except (MissionError, SessionError) as exc:
+        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2) from None
 
 
@@ -187,10 +188,16 @@ def run(
         _install_stop(stop)
         recorder = None if log is None else _mission_log(log, loaded, node)
         bridge = BridgeNode(loaded, node, factory, on_event=recorder)
-        logging.getLogger("zab").info("%s: bridge running (Ctrl-C to stop)", node)
+
+        async def announce() -> None:  # once the Zenoh session is open
+            await bridge.started.wait()
+            logging.getLogger("zab").info("%s: bridge running (Ctrl-C to stop)", node)
+
+        announced = asyncio.create_task(announce())
         try:
             await bridge.run(stop)
         finally:
+            announced.cancel()
             if recorder is not None:
                 recorder.close()
                 logging.getLogger("zab").info("%s: mission log %s", node, recorder.path)
@@ -513,7 +520,12 @@ def log_replay(
     data = _read_log(file)
     if not connect and not listen:
         listen = ["tcp/127.0.0.1:7447"]
-    session = open_session(ZenohSettings(listen=listen or [], connect=connect or []))
+    try:
+        session = open_session(ZenohSettings(listen=listen or [], connect=connect or []),
+                               "replay")
+    except SessionError as exc:
+        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
+        raise typer.Exit(2) from None
     mission = data.loaded.mission.mission if data.loaded is not None else "?"
     origin = origin_tag(mission, f"{data.node}-replay")  # never re-bridged by a live node
     publishers: dict[str, Any] = {}

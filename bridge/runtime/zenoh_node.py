@@ -95,7 +95,7 @@ class BridgeNode:
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set; always closes the session and the modem."""
         loop = asyncio.get_running_loop()
-        self.session = open_session(self.mission.nodes[self.node].zenoh)
+        self.session = open_session(self.mission.nodes[self.node].zenoh, self.node)
         try:
             for key in self.core.bindings:
                 self.session.declare_subscriber(
