@@ -20,6 +20,7 @@ from tests.conftest import REPO, free_port
 
 MISSION = """\
 mission: start
+wire: {{auth: off}}
 modem: {{backend: udp, frame_bytes: 16}}
 nodes:
   a: {{address: 1, modem: {{options: {{port: {udp_a}}}}}, zenoh: {{listen: [tcp/127.0.0.1:{za}]}}}}

@@ -21,6 +21,7 @@ from rich.table import Table
 
 from bridge.errors import BackendError, MissionError, SessionError
 from bridge.mission.check import check_mission
+from bridge.mission.keys import frame_key, throwaway_note
 from bridge.mission.loader import LoadedMission, load_mission
 
 T = TypeVar("T")
@@ -77,14 +78,19 @@ def _install_stop(stop: asyncio.Event) -> None:
 def check(
     mission: MissionArg,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    no_key: Annotated[bool, typer.Option("--no-key", help="Check the file alone: do not look "
+                                         "for the frame key (CI, a design laptop).")] = False,
 ) -> None:
     """Validate a mission; show channel sizes, frame fill and airtime. Exit 1 if a channel can
-    never fit, 2 if the file is invalid."""
+    never fit, 2 if the file is invalid or its wire.auth disagrees with the frame keys here
+    (authenticated without a key, or a key present and wire.auth not said)."""
     loaded = _load(mission)
     report = check_mission(loaded)
+    key = frame_key(loaded.mission, look=not no_key)
+    code = 2 if key.problem else 0 if report.ok else 1
     if as_json:
-        print(json.dumps(report.data, indent=2))
-        raise typer.Exit(0 if report.ok else 1)
+        print(json.dumps({**report.data, "frame_key": key.as_json()}, indent=2))
+        raise typer.Exit(code)
     data = report.data
     console.print(
         f"[bold]{data['mission']}[/]: {len(data['nodes'])} nodes, {len(data['channels'])} "
@@ -109,9 +115,12 @@ def check(
     _print_mac(data)
     for warning in report.warnings:
         console.print(f"[yellow]warning:[/] {warning}", highlight=False)
+    console.print(key.describe(), highlight=False)
     for error in report.errors:
         console.print(f"[red]error:[/] {error}", highlight=False)
-    raise typer.Exit(0 if report.ok else 1)
+    if key.problem:
+        err.print(f"[bold red]error:[/] {key.problem}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
 
 
 def _print_mac(data: dict[str, Any]) -> None:
@@ -176,6 +185,11 @@ def run(
     if node not in loaded.mission.nodes:
         err.print(f"no node {node!r} in {mission}; nodes: {', '.join(loaded.mission.nodes)}")
         raise typer.Exit(2)
+    key = frame_key(loaded.mission)
+    if key.problem:
+        err.print(f"[bold red]cannot start:[/] {node}: {key.problem}", highlight=False,
+                  soft_wrap=True)
+        raise typer.Exit(2)
     _logging(verbose)
     try:
         factory = backend_factory(loaded.mission, node)
@@ -191,7 +205,10 @@ def run(
 
         async def announce() -> None:  # once the Zenoh session is open
             await bridge.started.wait()
-            logging.getLogger("zab").info("%s: bridge running (Ctrl-C to stop)", node)
+            zab_log = logging.getLogger("zab")
+            zab_log.log(logging.WARNING if key.state == "unsaid" else logging.INFO, "%s: %s",
+                        node, key.describe())
+            zab_log.info("%s: bridge running (Ctrl-C to stop)", node)
 
         announced = asyncio.create_task(announce())
         try:
@@ -348,6 +365,8 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
     pace = "as fast as possible" if speed is None else f"at {speed:g}× real time"
     console.print(f"simulating [bold]{loaded.mission.mission}[/] on a virtual clock, {pace}: "
                   f"{duration:g} s, no Zenoh, synthetic inputs")
+    if (note := throwaway_note(loaded.mission)) is not None:
+        console.print(note, highlight=False)
     result = await run_fast(loaded, duration=duration, seed=seed, speed=speed, record=record,
                             stop=stop)
     print_report(console, result)

@@ -115,9 +115,11 @@ class NodeCore:
     """Store, frame building, frame decoding, link health and ranging of one node."""
 
     def __init__(self, loaded: LoadedMission, node: str,
-                 auth: Authenticator | None = None, rng: random.Random | None = None) -> None:
+                 auth: Authenticator | None = None, rng: random.Random | None = None,
+                 key: bytes | None = None) -> None:
         """``rng`` draws each stream's first sequence number (a fresh one per run by default;
-        seeded for a reproducible simulation)."""
+        seeded for a reproducible simulation). ``key``: the frame key of an authenticated
+        mission (default: :func:`~bridge.wire.auth.load_key` finds it)."""
         mission = loaded.mission
         if node not in mission.nodes:
             raise ValueError(f"node {node!r} is not in mission {mission.mission!r}")
@@ -126,8 +128,9 @@ class NodeCore:
         self.node = node
         wire_auth = mission.wire.auth
         if wire_auth is not None and auth is None:
-            auth = Authenticator(load_key(wire_auth.key_env, wire_auth.key_file),
-                                 self.table.fingerprint, mission.address_of(node),
+            if key is None:
+                key = load_key(wire_auth.key_env, wire_auth.key_file)
+            auth = Authenticator(key, self.table.fingerprint, mission.address_of(node),
                                  wire_auth.tag_bytes)
         self.codec = FrameCodec(self.table, auth)
         self.frame_bytes = mission.node_modem(node).frame_bytes

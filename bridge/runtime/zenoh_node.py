@@ -47,8 +47,10 @@ class BridgeNode:
         *,
         clock: Callable[[], float] = time.time,
         on_event: Callable[[str, dict[str, Any]], None] | None = None,
+        key: bytes | None = None,
     ) -> None:
-        self.core = NodeCore(loaded, node)
+        """``key``: the frame key (default: found as ``wire.auth`` says)."""
+        self.core = NodeCore(loaded, node, key=key)
         self.mission = loaded.mission
         self.table = loaded.table
         self.node = node

@@ -28,7 +28,7 @@ UNIT = REPO / "deploy" / "systemd" / "zab@.service"
 
 
 @pytest.mark.parametrize("path", sorted(MISSIONS.glob("*.yaml")), ids=lambda p: p.name)
-def test_every_example_mission_passes_zab_check(path: Path) -> None:
+def test_every_example_mission_passes_zab_check(path: Path, mission_key: str) -> None:
     result = RUNNER.invoke(app, ["check", str(path)])
     assert result.exit_code == 0, result.output
 
