@@ -262,7 +262,7 @@ def zenoh_findings(loaded: LoadedMission, node: str) -> list[Finding]:
                              "vehicle cannot connect to the bridge",
                              f"set nodes.{node}.zenoh.listen, e.g. [tcp/127.0.0.1:7447]"))
     try:
-        session = open_session(settings)
+        session = open_session(settings, node)
     except Exception as exc:  # zenoh raises ZError, a plain Exception subclass
         text = str(exc)
         fix = "fix the endpoints in nodes.<node>.zenoh"
