@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import re
+from itertools import accumulate
 from typing import Any
 
 import msgpack
@@ -25,26 +26,25 @@ dotted paths a few levels deep; 32 leaves ample room while keeping every parser 
 walk over a decoded value) far from Python's recursion limit (1000), which a 200 000-deep
 ``[[[[...`` would otherwise hit inside ``json.loads``."""
 
-# A JSON string (skipped whole, so brackets inside it do not count) or one bracket.
-_JSON_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]', re.DOTALL)
+# A JSON string, from its opening quote to its closing one or to the end of the text. The pattern
+# can always match once it starts, so the regex engine never retries it further on: linear time,
+# even for text full of unterminated strings and escaped quotes.
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.?)*"?', re.DOTALL)
+_NOT_BRACKET = re.compile(r"[^\[\]{}]+")
+_STEP = {"[": 1, "{": 1, "]": -1, "}": -1}
 
 
 def _json_text(data: bytes) -> str:
     """``data`` as JSON text: UTF-8 (or the UTF-16/32 JSON allows), strictly decoded, no
-    deeper than :data:`MAX_DEPTH` (checked before parsing)."""
+    deeper than :data:`MAX_DEPTH` (checked before parsing, in linear time)."""
     try:
         text = data.decode(json.detect_encoding(data))  # strict: no lone surrogates either
     except UnicodeDecodeError as exc:
         raise DecodeError(f"not valid UTF-8: {exc}") from None
-    depth = 0
-    for token in _JSON_TOKEN.finditer(text):
-        bracket = token.group()
-        if bracket in "[{":
-            depth += 1
-            if depth > MAX_DEPTH:
-                raise DecodeError(f"nested deeper than {MAX_DEPTH} levels")
-        elif bracket in "]}":
-            depth -= 1
+    if text.count("[") + text.count("{") > MAX_DEPTH:  # else it cannot nest deeper
+        brackets = _NOT_BRACKET.sub("", _JSON_STRING.sub("", text))
+        if max(accumulate(map(_STEP.__getitem__, brackets)), default=0) > MAX_DEPTH:
+            raise DecodeError(f"nested deeper than {MAX_DEPTH} levels")
     return text
 
 
