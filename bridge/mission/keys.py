@@ -34,11 +34,12 @@ class FrameKey:
     source: str | None = None  # where the key was found: "$ZAB_KEY" or the key file's path
     problem: str | None = None  # why the node must not run (None: fine)
     tag_bytes: int = 0
+    looked: bool = True  # False: the keys here were not looked at (zab check --no-key)
 
     @property
     def throwaway(self) -> bool:
         """Authenticated but no key here: a simulation would use a throwaway key."""
-        return self.state == "on" and self.source is None
+        return self.state == "on" and self.looked and self.source is None
 
     def describe(self) -> str:
         """One line for ``zab check`` and the start of ``zab run``."""
@@ -47,12 +48,13 @@ class FrameKey:
         if self.state == "unsaid":
             return ("frames are NOT authenticated: the mission does not say wire.auth (add "
                     "`auth: {}` under wire to authenticate, or `auth: off` to mean it)")
-        where = f"key from {self.source}" if self.source else "no key on this machine"
+        where = (f"key from {self.source}" if self.source else
+                 "no key on this machine" if self.looked else "key not looked for")
         return f"frames authenticated ({self.tag_bytes}-byte tag, {where})"
 
     def as_json(self) -> dict[str, Any]:
         return {"state": self.state, "source": self.source, "problem": self.problem,
-                "tag_bytes": self.tag_bytes}
+                "tag_bytes": self.tag_bytes, "looked": self.looked}
 
 
 def frame_key(mission: Mission, *, look: bool = True) -> FrameKey:
@@ -62,7 +64,7 @@ def frame_key(mission: Mission, *, look: bool = True) -> FrameKey:
     if mission.wire.auth_off:
         return FrameKey("off")
     if not look:
-        return FrameKey("unsaid" if auth is None else "on", "(not looked for)",
+        return FrameKey("unsaid" if auth is None else "on", looked=False,
                         tag_bytes=0 if auth is None else auth.tag_bytes)
     if auth is None:
         if os.environ.get(DEFAULT_KEY_ENV):
