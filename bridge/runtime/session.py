@@ -43,7 +43,7 @@ def open_session(settings: ZenohSettings, who: str = "zenoh") -> zenoh.Session:
 
 _SOURCE = re.compile(r"\s+at \S+\.rs:\d+\.?")  # "at /root/.cargo/.../tcp.rs:61." in ZError text
 _BOUND = re.compile(r"bound to (\S+?): \[")
-_CONNECT = re.compile(r"Unable to connect to any of \[(.*)\]")
+_CONNECT = re.compile(r"Unable to connect to any of")
 
 
 def session_problem(text: str, settings: ZenohSettings) -> str:
