@@ -6,7 +6,8 @@
      ├── EncodeError         a value cannot be encoded (missing field, wrong type, rejected range)
      ├── DecodeError         untrusted bytes cannot be decoded: the ONE error decoders raise
      │    └── FrameError     ... a whole acoustic frame (truncated, corrupt, foreign mission)
-     └── BackendError        a modem backend failed to load, open or operate
+     ├── BackendError        a modem backend failed to load, open or operate
+     └── SessionError        the Zenoh session cannot open (a port taken, a router unreachable)
 """
 
 from __future__ import annotations
@@ -57,3 +58,7 @@ class FrameError(DecodeError):
 
 class BackendError(ZabError):
     """A modem backend could not be loaded, opened, or failed while running."""
+
+
+class SessionError(ZabError):
+    """The node's Zenoh session could not be opened; the message is one line for a user."""

@@ -13,8 +13,8 @@ from bridge.wire.frame import CHECK_BYTES, FrameCodec, check_value
 from tests.conftest import MISSIONS
 
 KEY = b"0123456789abcdef-mission-key"
-TEXT = (MISSIONS / "morph.yaml").read_text().replace(
-    "wire:\n  dlbl: true", "wire:\n  dlbl: true\n  auth: {tag_bytes: 4}")
+TEXT = (MISSIONS / "morph.yaml").read_text()  # ships with auth: {tag_bytes: 4}
+PLAIN = TEXT.replace("auth: {tag_bytes: 4}", "auth: off")
 LOADED = parse_mission(TEXT, "auth.yaml")
 TABLE = LOADED.table
 LSV, GCV = LOADED.mission.address_of("lsv"), LOADED.mission.address_of("gcv")
@@ -76,7 +76,7 @@ def test_bit_flips_are_refused_and_other_missions_still_fail_the_check() -> None
         flipped[i // 8] ^= 1 << (i % 8)
         with pytest.raises(FrameError):
             codec(GCV).decode(bytes(flipped), LSV)
-    plain = parse_mission((MISSIONS / "morph.yaml").read_text(), "plain.yaml")
+    plain = parse_mission(PLAIN, "plain.yaml")
     with pytest.raises(FrameError) as info:
         FrameCodec(plain.table).decode(data, LSV)
     assert info.value.reason == "check"

@@ -19,8 +19,9 @@ from rich.console import Console
 from rich.logging import RichHandler
 from rich.table import Table
 
-from bridge.errors import BackendError, MissionError
+from bridge.errors import BackendError, MissionError, SessionError
 from bridge.mission.check import check_mission
+from bridge.mission.keys import frame_key, throwaway_note
 from bridge.mission.loader import LoadedMission, load_mission
 
 T = TypeVar("T")
@@ -47,11 +48,12 @@ def _load(path: Path) -> LoadedMission:
 
 
 def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
-    """Run ``main``; a mission problem found at start (e.g. a missing key) exits 2, cleanly."""
+    """Run ``main``; a problem found at start (a missing key, a Zenoh port taken, a router that
+    does not answer) exits 2 with one line, never a traceback."""
     try:
         return asyncio.run(main)
-    except MissionError as exc:
-        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
+    except (MissionError, SessionError) as exc:
+        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2) from None
 
 
@@ -76,14 +78,19 @@ def _install_stop(stop: asyncio.Event) -> None:
 def check(
     mission: MissionArg,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    no_key: Annotated[bool, typer.Option("--no-key", help="Check the file alone: do not look "
+                                         "for the frame key (CI, a design laptop).")] = False,
 ) -> None:
     """Validate a mission; show channel sizes, frame fill and airtime. Exit 1 if a channel can
-    never fit, 2 if the file is invalid."""
+    never fit, 2 if the file is invalid or its wire.auth disagrees with the frame keys here
+    (authenticated without a key, or a key present and wire.auth not said)."""
     loaded = _load(mission)
     report = check_mission(loaded)
+    key = frame_key(loaded.mission, look=not no_key)
+    code = 2 if key.problem else 0 if report.ok else 1
     if as_json:
-        print(json.dumps(report.data, indent=2))
-        raise typer.Exit(0 if report.ok else 1)
+        print(json.dumps({**report.data, "frame_key": key.as_json()}, indent=2))
+        raise typer.Exit(code)
     data = report.data
     console.print(
         f"[bold]{data['mission']}[/]: {len(data['nodes'])} nodes, {len(data['channels'])} "
@@ -108,9 +115,12 @@ def check(
     _print_mac(data)
     for warning in report.warnings:
         console.print(f"[yellow]warning:[/] {warning}", highlight=False)
+    console.print(key.describe(), highlight=False)
     for error in report.errors:
         console.print(f"[red]error:[/] {error}", highlight=False)
-    raise typer.Exit(0 if report.ok else 1)
+    if key.problem:
+        err.print(f"[bold red]error:[/] {key.problem}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
 
 
 def _print_mac(data: dict[str, Any]) -> None:
@@ -180,6 +190,11 @@ def run(
     if node not in loaded.mission.nodes:
         err.print(f"no node {node!r} in {mission}; nodes: {', '.join(loaded.mission.nodes)}")
         raise typer.Exit(2)
+    key = frame_key(loaded.mission)
+    if key.problem:
+        err.print(f"[bold red]cannot start:[/] {node}: {key.problem}", highlight=False,
+                  soft_wrap=True)
+        raise typer.Exit(2)
     _logging(verbose)
     try:
         factory = backend_factory(loaded.mission, node)
@@ -197,10 +212,19 @@ def run(
         _install_stop(stop)
         recorder = None if log is None else _mission_log(log, loaded, node)
         bridge = BridgeNode(loaded, node, factory, on_event=recorder, state_file=state)
-        logging.getLogger("zab").info("%s: bridge running (Ctrl-C to stop)", node)
+
+        async def announce() -> None:  # once the Zenoh session is open
+            await bridge.started.wait()
+            zab_log = logging.getLogger("zab")
+            zab_log.log(logging.WARNING if key.state == "unsaid" else logging.INFO, "%s: %s",
+                        node, key.describe())
+            zab_log.info("%s: bridge running (Ctrl-C to stop)", node)
+
+        announced = asyncio.create_task(announce())
         try:
             await bridge.run(stop)
         finally:
+            announced.cancel()
             if recorder is not None:
                 recorder.close()
                 logging.getLogger("zab").info("%s: mission log %s", node, recorder.path)
@@ -351,6 +375,8 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
     pace = "as fast as possible" if speed is None else f"at {speed:g}× real time"
     console.print(f"simulating [bold]{loaded.mission.mission}[/] on a virtual clock, {pace}: "
                   f"{duration:g} s, no Zenoh, synthetic inputs")
+    if (note := throwaway_note(loaded.mission)) is not None:
+        console.print(note, highlight=False)
     result = await run_fast(loaded, duration=duration, seed=seed, speed=speed, record=record,
                             stop=stop)
     print_report(console, result)
@@ -523,7 +549,12 @@ def log_replay(
     data = _read_log(file)
     if not connect and not listen:
         listen = ["tcp/127.0.0.1:7447"]
-    session = open_session(ZenohSettings(listen=listen or [], connect=connect or []))
+    try:
+        session = open_session(ZenohSettings(listen=listen or [], connect=connect or []),
+                               "replay")
+    except SessionError as exc:
+        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
+        raise typer.Exit(2) from None
     mission = data.loaded.mission.mission if data.loaded is not None else "?"
     origin = origin_tag(mission, f"{data.node}-replay")  # never re-bridged by a live node
     publishers: dict[str, Any] = {}

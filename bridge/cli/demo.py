@@ -25,6 +25,7 @@ from rich.table import Table
 from bridge.cli.sim import EventLog, print_report, run_fleet_for
 from bridge.codec import FieldSpec
 from bridge.gui.server import GuiServer
+from bridge.mission.keys import throwaway_note
 from bridge.mission.loader import LoadedMission
 from bridge.resources import data_dir
 from bridge.runtime.fleet import Fleet
@@ -223,6 +224,8 @@ async def run_demo(
         console.print(f"  {name:>4} ({node.role}) {' '.join(node.zenoh.listen)}")
     events = EventLog()
     fleet = Fleet(loaded, on_event=events)
+    if fleet.throwaway_key:
+        console.print(f"  {throwaway_note(loaded.mission)}", highlight=False)
     apps = VehicleApps(loaded, lambda line: console.print(line, highlight=False))
     runner = asyncio.create_task(
         run_fleet_for(fleet, duration, live=live, console=console, events=events)

@@ -15,6 +15,7 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from bridge.mission.keys import throwaway_note
 from bridge.mission.loader import LoadedMission
 from bridge.runtime.fleet import Fleet
 
@@ -125,6 +126,8 @@ async def run_sim(
     console.print(f"simulating [bold]{loaded.mission.mission}[/]: "
                   + ", ".join(f"{n} on {' '.join(node.zenoh.listen) or '(no endpoint)'}"
                               for n, node in loaded.mission.nodes.items()))
+    if fleet.throwaway_key:
+        console.print(throwaway_note(loaded.mission), highlight=False)
     await run_fleet_for(fleet, duration, live=live, console=console, events=events)
     report = fleet.report()
     print_report(console, report)

@@ -128,10 +128,11 @@ class NodeCore:
 
     def __init__(self, loaded: LoadedMission, node: str,
                  auth: Authenticator | None = None, rng: random.Random | None = None,
-                 state: Mapping[str, Any] | None = None) -> None:
+                 state: Mapping[str, Any] | None = None, key: bytes | None = None) -> None:
         """``rng`` draws this run's epoch when there is no ``state`` (a fresh one per run by
         default; seeded for a reproducible simulation); ``state``: what :meth:`state` returned
-        in the previous run, to resume from."""
+        in the previous run, to resume from; ``key``: the frame key of an authenticated
+        mission (default: :func:`~bridge.wire.auth.load_key` finds it)."""
         mission = loaded.mission
         if node not in mission.nodes:
             raise ValueError(f"node {node!r} is not in mission {mission.mission!r}")
@@ -143,8 +144,9 @@ class NodeCore:
         state = self._usable(state)
         wire_auth = mission.wire.auth
         if wire_auth is not None and auth is None:
-            auth = Authenticator(load_key(wire_auth.key_env, wire_auth.key_file),
-                                 self.table.fingerprint, mission.address_of(node),
+            if key is None:
+                key = load_key(wire_auth.key_env, wire_auth.key_file)
+            auth = Authenticator(key, self.table.fingerprint, mission.address_of(node),
                                  wire_auth.tag_bytes, state.get("auth"))
         self.auth = auth
         self.epoch: int = state.get("epoch", rng.randrange(EPOCHS))

@@ -11,7 +11,16 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ModelWrapValidatorHandler,
+    PrivateAttr,
+    SerializerFunctionWrapHandler,
+    model_serializer,
+    model_validator,
+)
 
 from bridge.codec import FieldSpec
 
@@ -234,11 +243,49 @@ class Auth(Strict):
                                   "variable is unset).")
 
 
+def _auth_off_in_schema(schema: dict[str, Any]) -> None:
+    """`auth: off` is False to PyYAML (YAML 1.1) and "off" to YAML 1.2 editors: both mean off."""
+    schema["anyOf"].insert(1, {"enum": ["off", False], "description": "Frames are not "
+                               "authenticated, on purpose."})
+
+
 class Wire(Strict):
-    """Options of the frame format shared by every node."""
+    """Options of the frame format shared by every node.
+
+    ``auth`` absent means the mission does not say; ``auth: off`` says frames go
+    unauthenticated on purpose (``zab run`` and ``zab check`` refuse a mission that does not
+    say while a frame key is present). Either way ``auth`` is then None: read :attr:`auth_off`
+    to tell them apart."""
 
     dlbl: bool = Field(False, description="Start each frame with the DLBL delay vector.")
-    auth: Auth | None = Field(None, description="Counter + keyed tag in every frame.")
+    auth: Auth | None = Field(None, description="Counter + keyed tag in every frame; `off`: no "
+                              "authentication, on purpose (absent: not said, which zab run "
+                              "refuses while a frame key is present).",
+                              json_schema_extra=_auth_off_in_schema)
+    _auth_off: bool = PrivateAttr(False)
+
+    @model_validator(mode="wrap")
+    @classmethod
+    def _explicit_off(cls, data: Any, handler: ModelWrapValidatorHandler[Wire]) -> Wire:
+        value = data.get("auth") if isinstance(data, dict) else None
+        off = value is False or value == "off"
+        if off:
+            data = {k: v for k, v in data.items() if k != "auth"}
+        wire = handler(data)
+        wire._auth_off = off or wire._auth_off
+        return wire
+
+    @model_serializer(mode="wrap")
+    def _dump_off(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        data = handler(self)
+        if self._auth_off:
+            data["auth"] = "off"  # a dump reads back as the same mission
+        return data
+
+    @property
+    def auth_off(self) -> bool:
+        """The mission says ``auth: off``: frames go unauthenticated on purpose."""
+        return self._auth_off
 
 
 class LinkHealth(Strict):

@@ -18,6 +18,7 @@ from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_node import BridgeNode
 from bridge.sim.path import Path
 from bridge.sim.service import WaterService
+from bridge.wire.auth import key_for_run
 
 AOI_SAMPLE_S = 0.25
 
@@ -77,12 +78,20 @@ class Fleet:
         only: Collection[str] | None = None,
         water: str | None = None,
         state_dir: str | None = None,
+        key: bytes | None = None,
     ) -> None:
         """``only`` runs a subset of the nodes; ``water`` joins a water already running
         (``host:port``) instead of starting one; ``state_dir`` keeps the nodes' saved states
-        (default: a temporary folder, removed at the end)."""
+        (default: a temporary folder, removed at the end). ``key``: the frame key of an
+        authenticated mission (default: the mission key if present, else this process's
+        throwaway key, so fleets in one process still hear each other; see
+        :attr:`throwaway_key`)."""
         self.state_dir = state_dir
         self.loaded = loaded
+        auth = loaded.mission.wire.auth
+        self.key, self.throwaway_key = key, False
+        if key is None and auth is not None:
+            self.key, self.throwaway_key = key_for_run(auth.key_env, auth.key_file)
         self.names = [n for n in loaded.mission.nodes if only is None or n in only]
         self.water_address = water
         sim = loaded.mission.modem.backend == "sim" and water is None
@@ -119,6 +128,7 @@ class Fleet:
                     backend_factory(self.loaded.mission, name, extra),
                     on_event=self._node_events(name),
                     state_file=StateFile(state_dir, self.loaded.mission.mission, name),
+                    key=self.key,
                 )
             tasks = [asyncio.create_task(n.run(node_stop)) for n in self.nodes.values()]
             started = asyncio.ensure_future(

@@ -30,6 +30,7 @@ from bridge.modems.base import Reception
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
 from bridge.sim.path import Path
 from bridge.sim.presets import Preset
+from bridge.wire.auth import key_for_run
 from bridge.wire.payloads import encode_payload
 
 TICK_S = 1.0
@@ -57,9 +58,16 @@ class FastFleet:
         start: float = 0.0,
         on_output: Callable[[Timed], None] | None = None,
         keep_outputs: bool = True,
+        key: bytes | None = None,
     ) -> None:
-        """``keep_outputs`` false: outputs only go to ``on_output`` (long runs)."""
+        """``keep_outputs`` false: outputs only go to ``on_output`` (long runs). ``key``: the
+        frame key of an authenticated mission (default: the mission key if present, else a
+        throwaway one, see :attr:`throwaway_key`)."""
         mission = loaded.mission
+        self.key, self.throwaway_key = key, False
+        if key is None and mission.wire.auth is not None:
+            self.key, self.throwaway_key = key_for_run(mission.wire.auth.key_env,
+                                                       mission.wire.auth.key_file)
         self.loaded = loaded
         self.mission = mission
         options = mission.modem.options
@@ -73,7 +81,8 @@ class FastFleet:
         for node in mission.nodes.values():
             if node.path is not None:
                 self.ocean.set_path(node.address, Path.from_spec(node.path), start)
-        self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"))
+        self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"),
+                                     key=self.key)
                       for name in mission.nodes}
         self.schedules = {name: schedule_for(mission, name, seed=seed) for name in mission.nodes}
         self.now = start

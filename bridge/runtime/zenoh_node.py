@@ -49,11 +49,13 @@ class BridgeNode:
         clock: Callable[[], float] = time.time,
         on_event: Callable[[str, dict[str, Any]], None] | None = None,
         state_file: StateFile | None = None,
+        key: bytes | None = None,
     ) -> None:
         """``state_file``: where this node keeps what a restart must resume (None: nothing
-        survives a restart; peers then see a new epoch and resynchronise)."""
+        survives a restart; peers then see a new epoch and resynchronise); ``key``: the frame
+        key (default: found as ``wire.auth`` says)."""
         self.state_file = state_file
-        self.core = NodeCore(loaded, node,
+        self.core = NodeCore(loaded, node, key=key,
                              state=state_file.load() if state_file is not None else None)
         self.mission = loaded.mission
         self.table = loaded.table
@@ -101,7 +103,7 @@ class BridgeNode:
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set; always closes the session and the modem."""
         loop = asyncio.get_running_loop()
-        self.session = open_session(self.mission.nodes[self.node].zenoh)
+        self.session = open_session(self.mission.nodes[self.node].zenoh, self.node)
         try:
             self._flush()  # this run's epoch saved; what a changed mission file ended, reported
             for key in self.core.bindings:
