@@ -82,6 +82,12 @@ def test_a_bad_encapsulation_header_is_a_decode_error() -> None:
         messages.decode_cdr("jazzy", ODOM, b"\x7f\x01\x00\x00" + odometry()[4:])
 
 
+def test_a_string_that_is_not_utf8_is_a_decode_error() -> None:
+    data = messages.encode_cdr("jazzy", "std_msgs/msg/String", {"data": "abc"})
+    with pytest.raises(DecodeError, match="utf-8"):
+        messages.decode_cdr("jazzy", "std_msgs/msg/String", data.replace(b"abc", b"\xff\xfe!"))
+
+
 def test_encode_refuses_values_that_do_not_fit() -> None:
     with pytest.raises(EncodeError, match=r"header\.stamp\.sec"):
         messages.encode_cdr("jazzy", ODOM, {"header": {"stamp": {"sec": 2**40}}})
