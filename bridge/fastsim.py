@@ -22,6 +22,7 @@ from typing import Any
 
 from bridge.backends.base import Reception
 from bridge.core import NodeCore, Output, Publish
+from bridge.errors import EncodeError
 from bridge.mac import schedule_for
 from bridge.mission_loader import LoadedMission
 from bridge.ocean.model import Delivery, Ocean, TransmitRefused, TxDone
@@ -97,11 +98,21 @@ class FastFleet:
             encoding: str = "application/msgpack") -> None:
         """An application on ``node`` puts ``value`` on ``key`` (now, or at virtual time ``at``)."""
         data, enc = encode_payload(value, encoding)
+        sample_key = None
+        bindings = self.cores[node].bindings.get(key, ())
+        ros2 = next((e.ros2 for _, _, e in bindings if e.ros2 is not None), None)
+        if ros2 is not None:  # a ROS 2 node: CDR on its exact rmw_zenoh key
+            try:
+                data, enc = ros2.encode(value, self.now), ""
+            except EncodeError as exc:
+                self.cores[node].drop_payload(key, str(exc), self.now)
+                return
+            sample_key = ros2.publisher_key(node)
 
         def deliver() -> None:
             if node in self.stopped:
                 return
-            self.cores[node].ingest(key, data, enc, self.now)
+            self.cores[node].ingest(key, data, enc, self.now, sample_key=sample_key)
             self._collect(node)
             self._replan(node)
 

@@ -66,6 +66,11 @@ class Ros2Element:
         """Publication key (template) on the output topic."""
         return topic_key(self.domain, self.out_topic, self.msgtype, self.type_hash)
 
+    def publisher_key(self, node: str) -> str:
+        """The exact key a ROS 2 publisher of the input topic uses at ``node``."""
+        topic = self.in_topic.format(node=node, src=node)
+        return topic_key(self.domain, topic, self.msgtype, self.type_hash)
+
     @property
     def dds_type(self) -> str:
         return dds_type_name(self.msgtype)
