@@ -108,11 +108,7 @@ class BridgeNode:
                 )
             self._subscribe_positions(loop)
             self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
-            for bindings in self.core.bindings.values():  # ROS 2 inputs join the ROS graph
-                for _, _, element in bindings:
-                    if element.ros2 is not None:
-                        topic = element.ros2.in_topic.format(node=self.node, src=self.node)
-                        self._ros2.listen(element.ros2, topic)
+            self._ros2.announce(self.table, self.node)  # ROS 2 topics join the ROS 2 graph
             tasks = [
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),

@@ -21,6 +21,7 @@ from bridge.ros2.attachment import Attachment, bridge_gid
 from bridge.ros2.names import entity_token, node_name_for, node_token, parse_topic_key
 
 if TYPE_CHECKING:
+    from bridge.channels import ChannelTable
     from bridge.ros2.element import Ros2Element
 
 log = logging.getLogger("zab.ros2")
@@ -64,6 +65,20 @@ class Ros2Graph:
         self._node(ros2.domain)
         self._listening[topic] = self.session.liveliness().declare_token(key)
         return key
+
+    def announce(self, table: ChannelTable, node: str) -> None:
+        """Join the ROS 2 graph as ``node``'s bridge: a subscription per ROS 2 topic it reads,
+        a publisher per ROS 2 topic it publishes (so ``ros2 topic list/echo`` see them before
+        the first message crosses)."""
+        for channel in table.channels:
+            for element in channel.elements:
+                if element.ros2 is None:
+                    continue
+                if channel.sent_by(node) and channel.destinations(node):
+                    self.listen(element.ros2, element.ros2.in_topic.format(node=node, src=node))
+                for src in channel.senders:
+                    if node in channel.destinations(src):
+                        self._publisher(element.output_key(src, node), element.ros2)
 
     def _publisher(self, key: str, ros2: Ros2Element) -> _Publisher:
         pub = self._publishers.get(key)

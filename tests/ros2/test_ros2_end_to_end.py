@@ -83,6 +83,15 @@ def test_odometry_crosses_and_arrives_as_a_valid_rmw_zenoh_message() -> None:
     with running_fleet(loaded) as fleet:
         auv, ship = outside_session(loaded, "auv1"), outside_session(loaded, "ship")
         try:
+            # ROS 2 graph, before any message: the bridge's node and publisher at the ship...
+            ship_tokens = tokens(ship)
+            assert any(t.endswith("/0/0/NN/%/%/zab_ship") for t in ship_tokens), ship_tokens
+            assert any(t.endswith(f"/MP/%/%/zab_ship/%auv1%odom/nav_msgs::msg::dds_::Odometry_/"
+                                  f"{ODOM_HASH}/::,:,:,:,,") for t in ship_tokens), ship_tokens
+            # ... and its subscription at the vehicle
+            auv_tokens = tokens(auv)
+            assert any(t.endswith(f"/MS/%/%/zab_auv1/%auv1%odom/nav_msgs::msg::dds_::Odometry_/"
+                                  f"{ODOM_HASH}/::,:,:,:,,") for t in auv_tokens), auv_tokens
             inbox = subscribe(ship, ODOM_KEY)
             sent = time.time()
             auv.put(ODOM_KEY, odometry(123.45, -67.89, -40.12, 0.38268, 0.92388, 1.23, -0.3),
@@ -108,15 +117,6 @@ def test_odometry_crosses_and_arrives_as_a_valid_rmw_zenoh_message() -> None:
             seq, stamp_ns, gid_len, gid = struct.unpack("<qqB16s", attachment)
             assert seq == 1 and gid_len == 16 and len(gid) == 16
             assert sent <= stamp_ns / 1e9 <= arrived
-            # ROS 2 graph: the bridge's node and its publisher are announced at the ship...
-            ship_tokens = tokens(ship)
-            assert any(t.endswith("/0/0/NN/%/%/zab_ship") for t in ship_tokens), ship_tokens
-            assert any(t.endswith(f"/MP/%/%/zab_ship/%auv1%odom/nav_msgs::msg::dds_::Odometry_/"
-                                  f"{ODOM_HASH}/::,:,:,:,,") for t in ship_tokens), ship_tokens
-            # ... and its subscription at the vehicle
-            auv_tokens = tokens(auv)
-            assert any(t.endswith(f"/MS/%/%/zab_auv1/%auv1%odom/nav_msgs::msg::dds_::Odometry_/"
-                                  f"{ODOM_HASH}/::,:,:,:,,") for t in auv_tokens), auv_tokens
             # a second message: the next sequence number
             auv.put(ODOM_KEY, odometry(1.0, 2.0, -3.0, 0.0, 1.0, 0.0, 0.0),
                     attachment=rmw_attachment(2))
