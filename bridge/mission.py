@@ -199,6 +199,8 @@ class Element(Strict):
         if self.ros2 is not None and (self.in_ is not None or self.out is not None):
             raise ValueError("a `ros2` element takes its keys from ros2.topic/out_topic: "
                              "leave out `in` and `out`")
+        if self.ros2 is not None and "encoding" in self.model_fields_set:
+            raise ValueError("a `ros2` element's payloads are CDR: leave out `encoding`")
         return self
 
 

@@ -78,6 +78,9 @@ def test_the_example_mission_loads() -> None:
      "pose.covariance holds exactly 36 values in nav_msgs/msg/Odometry, not count 9"),
     ("      - ros2:", "      - in: odom\n        ros2:",
      "leave out `in` and `out`"),
+    ("      - ros2:", "      - encoding: json\n        ros2:",
+     "rostest.yaml:10:9: channels[0].elements[0]: a `ros2` element's payloads are "
+     "CDR: leave out `encoding`"),
 ])
 def test_bad_ros2_elements_are_located_check_errors(old: str, new: str, expected: str) -> None:
     assert expected in error_of(old, new)
