@@ -21,8 +21,8 @@ from bridge.ros2.attachment import Attachment, bridge_gid
 from bridge.ros2.names import entity_token, node_name_for, node_token, parse_topic_key
 
 if TYPE_CHECKING:
-    from bridge.channels import ChannelTable
     from bridge.ros2.element import Ros2Element
+    from bridge.wire.channels import ChannelTable
 
 log = logging.getLogger("zab.ros2")
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from bridge.fastsim import FastFleet
-from bridge.mission_loader import load_mission
+from bridge.mission.loader import load_mission
+from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 from tests.ros2.test_messages import GOLDEN, ODOM
 

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import pytest
 import zenoh
 
-from bridge.mission_loader import parse_mission
+from bridge.mission.loader import parse_mission
 from bridge.ros2.attachment import Attachment, from_bridge
 from bridge.ros2.graph import Ros2Graph
 from tests.conftest import free_port

@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from bridge.backends.base import Reception
-from bridge.core import NodeCore, Publish
+from bridge.core.node import NodeCore, Publish
 from bridge.errors import MissionError
-from bridge.mission_loader import parse_mission
+from bridge.mission.loader import parse_mission
+from bridge.modems.base import Reception
 from tests.conftest import MISSIONS
 from tests.ros2.test_messages import GOLDEN, ODOM, odometry
 
