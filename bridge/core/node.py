@@ -30,7 +30,7 @@ import random
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.link import LinkState, LinkThresholds, heartbeat_s
@@ -46,6 +46,9 @@ from bridge.wire.auth import Authenticator, load_key
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.wire.frame import FrameCodec
 from bridge.wire.payloads import decode_payload
+
+if TYPE_CHECKING:
+    from bridge.ros2.element import Ros2Element
 
 log = logging.getLogger("zab.core")
 
@@ -72,6 +75,7 @@ class Publish:
     value: Any
     encoding: str
     latched: bool = False
+    ros2: Ros2Element | None = None  # publish as this ROS 2 topic (CDR, rmw_zenoh attachment)
 
 
 @dataclass(frozen=True)
@@ -261,16 +265,20 @@ class NodeCore:
     # -- samples in ----------------------------------------------------------------------------
 
     def ingest(self, key: str, data: bytes, encoding: str, now: float,
-               ref: str | None = None) -> None:
+               ref: str | None = None, sample_key: str | None = None) -> None:
         """A sample arrived on an input key: pack it for every channel that reads the key.
 
-        ``ref`` (the publisher's correlation text) is echoed in delivery reports."""
+        ``ref`` (the publisher's correlation text) is echoed in delivery reports;
+        ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
+        bindings = self.bindings.get(key, ())
+        ros2 = next((e.ros2 for _, _, e in bindings if e.ros2 is not None), None)
         try:
-            value = decode_payload(data, encoding)
+            value = (ros2.decode(data, sample_key or key) if ros2 is not None
+                     else decode_payload(data, encoding))
         except DecodeError as exc:
             self.drop_payload(key, str(exc), now)
             return
-        for channel, index, element in self.bindings.get(key, ()):
+        for channel, index, element in bindings:
             try:
                 packed = element.layout.pack(value)
             except EncodeError as exc:
@@ -497,7 +505,7 @@ class NodeCore:
                 self.received_at[channel.name] = now
                 for element, value in zip(channel.elements, elements, strict=True):
                     self._publish(element.output_key(src, self.node), value, element.encoding,
-                                  channel.latching)
+                                  channel.latching, element.ros2)
         self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
         self._notice("frame_received", {
             "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
@@ -603,8 +611,9 @@ class NodeCore:
             self._status(f"delivery/{report.channel}", payload)
             self._notice("delivery", payload)
 
-    def _publish(self, key: str, value: Any, encoding: str, latched: bool) -> None:
-        self._outputs.append(Publish(key, value, encoding, latched))
+    def _publish(self, key: str, value: Any, encoding: str, latched: bool,
+                 ros2: Ros2Element | None = None) -> None:
+        self._outputs.append(Publish(key, value, encoding, latched, ros2))
         self.stats.values_published += 1
 
     def _ranging(self, src: str, t_rx_start: float, delays: tuple[int | None, ...],

@@ -23,6 +23,7 @@ from pydantic import (
 )
 
 from bridge.codec import FieldSpec
+from bridge.ros2.spec import Ros2Topic
 
 NodeName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)]
 NodePattern = Annotated[
@@ -187,12 +188,29 @@ Mac = Annotated[TdmaMac | NoMac | PolledMac | AlohaMac, Field(discriminator="typ
 
 
 class Element(Strict):
-    """One Zenoh key carried by a channel: read at the sender, published at each receiver."""
+    """One Zenoh key carried by a channel: read at the sender, published at each receiver.
 
-    in_: str = Field(alias="in", description="Input key at the sender; may use {node}/{src}.")
-    out: str = Field(description="Output key at receivers; may use {src}, {dst} and {node}.")
+    Either ``in`` and ``out`` (msgpack/JSON payloads) or ``ros2`` (a ROS 2 topic over
+    rmw_zenoh's keys, CDR payloads; see docs/ros2.md)."""
+
+    in_: str | None = Field(None, alias="in", description="Input key at the sender; may use "
+                            "{node}/{src}.")
+    out: str | None = Field(None, description="Output key at receivers; may use {src}, {dst} "
+                            "and {node}.")
     encoding: Literal["msgpack", "json"] = Field("msgpack", description="Published payload.")
+    ros2: Ros2Topic | None = Field(None, description="A ROS 2 topic instead of in/out.")
     fields: list[FieldSpec] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _keys(self) -> Element:
+        if self.ros2 is None and (self.in_ is None or self.out is None):
+            raise ValueError("an element needs `in` and `out` keys (or a `ros2` topic)")
+        if self.ros2 is not None and (self.in_ is not None or self.out is not None):
+            raise ValueError("a `ros2` element takes its keys from ros2.topic/out_topic: "
+                             "leave out `in` and `out`")
+        if self.ros2 is not None and "encoding" in self.model_fields_set:
+            raise ValueError("a `ros2` element's payloads are CDR: leave out `encoding`")
+        return self
 
 
 class Channel(Strict):

@@ -11,6 +11,7 @@ import zenoh
 
 from bridge.errors import SessionError
 from bridge.mission.model import ZenohSettings
+from bridge.ros2.attachment import from_bridge
 
 # Every sample a bridge publishes carries this attachment prefix; bridges never re-bridge it.
 ORIGIN_PREFIX = b"zab/1 "
@@ -74,6 +75,10 @@ def origin_tag(mission: str, node: str) -> bytes:
 
 
 def is_bridged(sample: zenoh.Sample) -> bool:
-    """True when a bridge published this sample (loop safety)."""
+    """True when a bridge published this sample (loop safety): its origin tag, or a ROS 2
+    attachment naming a bridge publisher (see :mod:`bridge.ros2.attachment`)."""
     attachment = sample.attachment
-    return attachment is not None and attachment.to_bytes().startswith(ORIGIN_PREFIX)
+    if attachment is None:
+        return False
+    data = attachment.to_bytes()
+    return data.startswith(ORIGIN_PREFIX) or from_bridge(data)

@@ -25,6 +25,7 @@ import msgpack
 from bridge.core.mac import schedule_for
 from bridge.core.node import NodeCore, Output, Publish
 from bridge.core.positioning import simulated_preset
+from bridge.errors import EncodeError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import Reception
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
@@ -112,11 +113,21 @@ class FastFleet:
         """An application on ``node`` puts ``value`` on ``key`` (now, or at virtual time
         ``at``); ``ref`` is its correlation text, echoed in delivery reports."""
         data, enc = encode_payload(value, encoding)
+        sample_key = None
+        bindings = self.cores[node].bindings.get(key, ())
+        ros2 = next((e.ros2 for _, _, e in bindings if e.ros2 is not None), None)
+        if ros2 is not None:  # a ROS 2 node: CDR on its exact rmw_zenoh key
+            try:
+                data, enc = ros2.encode(value, self.now), ""
+            except EncodeError as exc:
+                self.cores[node].drop_payload(key, str(exc), self.now)
+                return
+            sample_key = ros2.publisher_key(node)
 
         def deliver() -> None:
             if node in self.stopped:
                 return
-            self.cores[node].ingest(key, data, enc, self.now, ref)
+            self.cores[node].ingest(key, data, enc, self.now, ref, sample_key=sample_key)
             self._collect(node)
             self._replan(node)
 

@@ -14,7 +14,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 import zenoh
@@ -23,12 +23,16 @@ from bridge.core.link import LinkState
 from bridge.core.mac import schedule_for
 from bridge.core.node import NodeCore, NodeStats, Notice, Publish, Status, notable
 from bridge.core.positioning import Positioning
-from bridge.errors import BackendError
+from bridge.errors import BackendError, EncodeError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
+from bridge.ros2.graph import Ros2Graph
 from bridge.runtime.session import close_quietly, is_bridged, open_session, origin_tag
 from bridge.runtime.state_file import StateFile
 from bridge.wire.payloads import encode_payload
+
+if TYPE_CHECKING:
+    from bridge.ros2.element import Ros2Element
 
 log = logging.getLogger("zab.node")
 
@@ -76,6 +80,7 @@ class BridgeNode:
         self._modem_up = asyncio.Event()
         self.started = asyncio.Event()
         self.session: zenoh.Session | None = None
+        self._ros2: Ros2Graph | None = None
 
     # the core's state, for observers (fleet reports, tests)
     @property
@@ -111,6 +116,8 @@ class BridgeNode:
                     key, lambda s, k=key: self._from_zenoh(loop, k, s)
                 )
             self._subscribe_positions(loop)
+            self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
+            self._ros2.announce(self.table, self.node)  # ROS 2 topics join the ROS 2 graph
             tasks = [
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
@@ -126,6 +133,8 @@ class BridgeNode:
         finally:
             if self.backend is not None:
                 await self.backend.close()
+            if self._ros2 is not None:
+                self._ros2.close()
             close_quietly(self.session)
 
     # -- Zenoh → core ------------------------------------------------------------------------
@@ -137,7 +146,7 @@ class BridgeNode:
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
         ref = attachment[4:].decode("utf-8", "replace") if attachment[:4] == b"ref:" else None
-        loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref)
+        loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref, str(sample.key_expr))
 
     def _subscribe_positions(self, loop: asyncio.AbstractEventLoop) -> None:
         """Live positions: this node's own (``nav_key``), anchors' and the CTD's."""
@@ -189,9 +198,11 @@ class BridgeNode:
         if self.core.positioning is not None:
             self.core.positioning.set_depth(depth)
 
-    def ingest(self, key: str, data: bytes, encoding: str, ref: str | None = None) -> None:
-        """A sample arrived on an input key (``ref``: the publisher's correlation text)."""
-        self.core.ingest(key, data, encoding, self.clock(), ref)
+    def ingest(self, key: str, data: bytes, encoding: str, ref: str | None = None,
+               sample_key: str | None = None) -> None:
+        """A sample arrived on an input key (``ref``: the publisher's correlation text;
+        ``sample_key``: the sample's own key, under a wildcard input key)."""
+        self.core.ingest(key, data, encoding, self.clock(), ref, sample_key)
         self._flush()
         self._data.set()
 
@@ -319,7 +330,9 @@ class BridgeNode:
         """Carry out the core's outputs, once what they depend on is saved."""
         self._persist()
         for output in self.core.take():
-            if isinstance(output, Publish):
+            if isinstance(output, Publish) and output.ros2 is not None:
+                self._publish_ros2(output.key, output.value, output.ros2)
+            elif isinstance(output, Publish):
                 self.publish(output.key, output.value, output.encoding, latched=output.latched)
             elif isinstance(output, Status):
                 self._publish_raw(f"{self.prefix}/{output.topic}", output.payload)
@@ -361,6 +374,14 @@ class BridgeNode:
                 self.session.declare_queryable(key, lambda q, k=key: self._answer(q, k))
             )
         publisher.put(payload, attachment=self._origin)
+
+    def _publish_ros2(self, key: str, value: Any, ros2: Ros2Element) -> None:
+        """Publish a decoded value as a ROS 2 message (rmw_zenoh's key, attachment, tokens)."""
+        assert self._ros2 is not None
+        try:
+            self._ros2.publish(key, value, ros2, self.clock())
+        except EncodeError as exc:
+            self.core.drop_payload(key, str(exc), self.clock())
 
     def _answer(self, query: zenoh.Query, key: str) -> None:
         """Zenoh thread: a late joiner asks for a latched key; reply with its last value."""

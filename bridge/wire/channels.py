@@ -13,10 +13,14 @@ import string
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 from bridge.codec import Layout
 from bridge.errors import LayoutError
 from bridge.mission.model import Channel, Element, Mission
+
+if TYPE_CHECKING:
+    from bridge.ros2.element import Ros2Element
 
 WIRE_VERSION = 2  # 2: the check reveals the fingerprint; epochs in stream missions
 
@@ -71,6 +75,7 @@ class ElementCodec:
     out_key: str
     encoding: str
     layout: Layout
+    ros2: Ros2Element | None = None  # a ROS 2 topic: CDR payloads on rmw_zenoh keys
 
     def input_key(self, node: str) -> str:
         return self.in_key.format(node=node, src=node)
@@ -164,7 +169,19 @@ class ChannelCodec:
 
 def compile_element(element: Element, on_out_of_range: str) -> ElementCodec:
     layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
+    assert element.in_ is not None and element.out is not None
     return ElementCodec(element.in_, element.out, element.encoding, layout)
+
+
+def compile_ros2_element(element: Element, on_out_of_range: str, senders: Sequence[str],
+                         receivers: Sequence[str]) -> ElementCodec:
+    """An element carrying a ROS 2 topic (see :mod:`bridge.ros2`); keys from its topics."""
+    from bridge.ros2.element import compile_ros2  # rosbags loads only for ROS 2 missions
+
+    assert element.ros2 is not None
+    layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
+    ros2 = compile_ros2(element.ros2, layout, element.fields, senders, receivers)
+    return ElementCodec(ros2.in_key, ros2.out_key, "cdr", layout, ros2)
 
 
 class ChannelTableError(ValueError):
@@ -191,6 +208,11 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
     elements = []
     for i, element in enumerate(channel.elements):
         eloc = (*loc, "elements", i)
+        if element.ros2 is not None:
+            elements.append(_ros2_element(element, channel.on_out_of_range, senders, receivers,
+                                          eloc))
+            continue
+        assert element.in_ is not None and element.out is not None
         for key, allowed, where in ((element.in_, SENDER_TEMPLATES, "in"),
                                     (element.out, RECEIVER_TEMPLATES, "out")):
             bad = template_names(key) - allowed
@@ -221,6 +243,18 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         retries=channel.retries,
         retry_s=channel.retry_s,
     )
+
+
+def _ros2_element(element: Element, on_out_of_range: str, senders: Sequence[str],
+                  receivers: Sequence[str], eloc: tuple[str | int, ...]) -> ElementCodec:
+    from bridge.ros2.element import Ros2Error
+
+    try:
+        return compile_ros2_element(element, on_out_of_range, senders, receivers)
+    except LayoutError as exc:
+        raise ChannelTableError(str(exc), (*eloc, "fields", *exc.loc)) from None
+    except Ros2Error as exc:
+        raise ChannelTableError(str(exc), (*eloc, *exc.loc)) from None
 
 
 def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
