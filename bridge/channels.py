@@ -162,6 +162,11 @@ class ChannelCodec:
 
 
 def compile_element(element: Element, on_out_of_range: str) -> ElementCodec:
+    if element.dccl:  # a DCCL message: the element's bytes are libdccl's
+        from bridge.dccl.layout import DcclLayout
+
+        dccl = DcclLayout.from_reference(element.dccl, strict=on_out_of_range == "reject")
+        return ElementCodec(element.in_, element.out, element.encoding, dccl)  # type: ignore[arg-type]
     layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
     return ElementCodec(element.in_, element.out, element.encoding, layout)
 
@@ -202,7 +207,8 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         try:
             elements.append(compile_element(element, channel.on_out_of_range))
         except LayoutError as exc:
-            raise ChannelTableError(str(exc), (*eloc, "fields", *exc.loc)) from None
+            where = ("dccl",) if element.dccl else ("fields", *exc.loc)
+            raise ChannelTableError(str(exc), (*eloc, *where)) from None
     return ChannelCodec(
         index=index,
         name=channel.name,

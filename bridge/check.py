@@ -8,6 +8,7 @@ from typing import Any
 
 from bridge.backends.registry import load_backend
 from bridge.channels import ChannelCodec
+from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
 from bridge.frame import FrameCodec
 from bridge.mac import (
@@ -137,6 +138,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "count_bits": codec.count_bits,
         "index_bits": codec.index_bits,
         "channels": channels,
+        "dccl": dccl_reports(table),
         "nodes": nodes,
         "warnings": report.warnings,
         "errors": report.errors,

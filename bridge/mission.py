@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from bridge.codec import FieldSpec
 
@@ -183,7 +183,27 @@ class Element(Strict):
     in_: str = Field(alias="in", description="Input key at the sender; may use {node}/{src}.")
     out: str = Field(description="Output key at receivers; may use {src}, {dst} and {node}.")
     encoding: Literal["msgpack", "json"] = Field("msgpack", description="Published payload.")
-    fields: list[FieldSpec] = Field(min_length=1)
+    fields: list[FieldSpec] = Field(default_factory=list, description="The field codecs "
+                                    "(required unless ``dccl`` is given).")
+    dccl: str | None = Field(None, description="A DCCL message instead of fields: "
+                             "'file.proto:Message', the file relative to the mission file; "
+                             "the element's bytes are libdccl's (see docs/dccl.md).")
+
+    @field_validator("dccl")
+    @classmethod
+    def _dccl_path(cls, value: str | None, info: ValidationInfo) -> str | None:
+        """A relative .proto path is taken from the mission file's folder."""
+        base = (info.context or {}).get("mission_dir") if value else None
+        path, sep, name = (value or "").rpartition(":")
+        if base is not None and sep and path and not Path(path).is_absolute():
+            return f"{Path(base) / path}:{name}"
+        return value
+
+    @model_validator(mode="after")
+    def _fields_or_dccl(self) -> Element:
+        if bool(self.fields) == bool(self.dccl):
+            raise ValueError("give either fields (at least one) or dccl, not both")
+        return self
 
 
 class Channel(Strict):

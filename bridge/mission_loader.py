@@ -115,7 +115,7 @@ def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
         raise MissionError(f"{name}:1:1: a mission file is a mapping (key: value), not a list")
 
     try:
-        mission = Mission.model_validate(data)
+        mission = Mission.model_validate(data, context={"mission_dir": Path(path).parent})
     except ValidationError as exc:
         lines = []
         for error in exc.errors():

@@ -113,7 +113,8 @@ def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...]) -> 
             raise _fail(f, f"{f.message_type} contains itself: DCCL messages cannot recurse")
         inner = proto.message(f.message_type)
         codec = MessageCodec(path, required,
-                             build_fields(inner, proto, path, (*stack, f.message_type)))
+                             build_fields(inner, proto, path, (*stack, f.message_type)),
+                             {g.name: g.number for g in inner.fields})
     elif f.type == "group":
         raise _fail(f, "groups are not supported by DCCL")
     else:

@@ -308,9 +308,11 @@ class RepeatedCodec(FieldCodec):
 class MessageCodec(FieldCodec):
     """An embedded message (``DefaultMessageCodec`` v4): presence bit when optional."""
 
-    def __init__(self, path: str, required: bool, fields: Sequence[tuple[str, FieldCodec]]) -> None:
+    def __init__(self, path: str, required: bool, fields: Sequence[tuple[str, FieldCodec]],
+                 numbers: dict[str, int] | None = None) -> None:
         super().__init__(path, required)
         self.fields = tuple(fields)
+        self.numbers = numbers or {}  # field numbers, for analyze
         self.presence = 0 if required else 1
         inner_min = sum(c.min_bits for _, c in self.fields)
         self.max_bits = self.presence + sum(c.max_bits for _, c in self.fields)

@@ -1,0 +1,137 @@
+"""A DCCL message as a channel element: the same interface as :class:`bridge.codec.Layout`.
+
+The element's bits are the message's DCCL bytes, zero-padded to its maximum size, so a frame
+carries exactly the bytes libdccl would produce (padding after them: DCCL decoders stop where
+the message ends). ``pack``/``unpack`` give them as a big-endian int, first byte most
+significant, as the frame packs layouts.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any
+
+from bridge.dccl.analyze import analyze
+from bridge.dccl.codecs import (
+    BoolCodec,
+    BytesCodec,
+    EnumCodec,
+    FieldCodec,
+    MessageCodec,
+    NumericCodec,
+    RepeatedCodec,
+)
+from bridge.dccl.message import DcclMessage
+from bridge.dccl.schema import DcclSchemaError, load_proto
+from bridge.errors import DecodeError
+
+__all__ = ["DcclLayout", "parse_reference"]
+
+
+def parse_reference(ref: str) -> tuple[str, str]:
+    """``"file.proto:Message"`` → ``("file.proto", "Message")``."""
+    path, sep, name = ref.rpartition(":")
+    if not sep or not path or not name:
+        raise DcclSchemaError(f"expected 'file.proto:Message', got {ref!r}")
+    return path, name
+
+
+def _schema(codec: FieldCodec) -> dict[str, Any]:
+    if isinstance(codec, RepeatedCodec):
+        return {"type": "array", "items": _schema(codec.element),
+                "minItems": codec.min_repeat, "maxItems": codec.max_repeat}
+    if isinstance(codec, EnumCodec):
+        return {"enum": list(codec.names)}
+    if isinstance(codec, NumericCodec):
+        return {"type": "number" if codec.is_float else "integer",
+                "minimum": codec.lo, "maximum": codec.hi}
+    if isinstance(codec, BoolCodec):
+        return {"type": "boolean"}
+    if isinstance(codec, BytesCodec):
+        if codec.text:
+            return {"type": "string", "maxLength": codec.max_length}
+        return {"type": "string", "contentEncoding": "base16",
+                "maxLength": 2 * codec.max_length}
+    assert isinstance(codec, MessageCodec)
+    return _object(codec.fields)
+
+
+def _object(fields: Any) -> dict[str, Any]:
+    return {"type": "object", "properties": {n: _schema(c) for n, c in fields},
+            "required": [n for n, c in fields if c.required]}
+
+
+class _Payload:
+    """The single "field" of a DCCL element: the whole payload (for describe/fingerprint)."""
+
+    path = ""
+    clamped = 0
+
+    def __init__(self, layout: DcclLayout) -> None:
+        self._layout = layout
+        self.bits = layout.bits
+        self.spec = None
+
+    def describe(self) -> str:
+        return self._layout.signature
+
+    def json_schema(self) -> dict[str, Any]:
+        return self._layout.json_schema()
+
+
+class DcclLayout:
+    """Layout-compatible wrapper of a :class:`DcclMessage` (``strict``: out of range raises)."""
+
+    def __init__(self, message: DcclMessage, strict: bool = False, source: str = "") -> None:
+        self.message = message
+        self.strict = strict
+        self.nbytes = message.max_size
+        self.bits = 8 * self.nbytes
+        self.description = f"DCCL {message.name} (id {message.id}) from {source or '?'}"
+        text = repr(message.definition)
+        digest = hashlib.sha256(text.encode()).hexdigest()[:12]
+        self.signature = f"dccl {message.name} id={message.id} {digest}"
+        self.fields: tuple[Any, ...] = (_Payload(self),)
+
+    @classmethod
+    def from_reference(cls, ref: str, base: Path | None = None, strict: bool = False) -> DcclLayout:
+        """``ref`` is ``file.proto:Message``; a relative file is taken from ``base``."""
+        path, name = parse_reference(ref)
+        file = Path(path)
+        if not file.is_absolute() and base is not None:
+            file = base / file
+        return cls(DcclMessage.from_proto(load_proto(file), name), strict, path)
+
+    @property
+    def clamped(self) -> dict[str, int]:
+        return {}
+
+    def encode(self, value: Any) -> bytes:
+        """DCCL bytes of ``value`` zero-padded to the message's maximum size."""
+        return self.message.encode(value, self.strict).ljust(self.nbytes, b"\0")
+
+    def decode(self, data: bytes) -> Any:
+        if not isinstance(data, bytes | bytearray | memoryview) or len(data) != self.nbytes:
+            raise DecodeError(f"expected {self.nbytes} bytes of DCCL {self.message.name}")
+        return self.message.decode(bytes(data))
+
+    def pack(self, value: Any) -> int:
+        return int.from_bytes(self.encode(value), "big")
+
+    def unpack(self, n: int) -> Any:
+        if n.__class__ is not int or n < 0 or n >> self.bits:
+            raise DecodeError(f"{n!r} does not fit in {self.bits} bits")
+        return self.message.decode(n.to_bytes(self.nbytes, "big"))
+
+    def json_schema(self) -> dict[str, Any]:
+        m = self.message
+        schema = _object([*m.head, *m.body])
+        return {"$schema": "https://json-schema.org/draft/2020-12/schema", **schema,
+                "description": self.description}
+
+    def describe(self) -> str:
+        return analyze(self.message)
+
+    def __repr__(self) -> str:
+        return f"<DcclLayout {self.message.name} {self.bits} bits>"
