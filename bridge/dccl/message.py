@@ -115,15 +115,19 @@ class DcclMessage:
             width += w
         return code, width
 
+    def encode_head(self, value: Any, strict: bool = False) -> bytes:
+        """The head bytes (identifier and ``in_head`` fields) of ``value``."""
+        head = 0 if self.omit_id else (self.id << 1) | (self.id >= 128)
+        head, _ = self._encode_part(self.head, value, strict, head, self.id_bits)
+        return head.to_bytes(self.head_bytes, "little")
+
     def encode_reference(self, value: Any, strict: bool = False) -> bytes:
         """Field by field through the codecs (the readable twin of the generated encoder)."""
         if not isinstance(value, dict):
             raise EncodeError(f"{self.name}: expected a mapping, got {type(value).__name__}")
-        head = 0 if self.omit_id else (self.id << 1) | (self.id >= 128)
-        head, _ = self._encode_part(self.head, value, strict, head, self.id_bits)
+        head = self.encode_head(value, strict)
         body, width = self._encode_part(self.body, value, strict, 0, 0)
-        return (head.to_bytes(self.head_bytes, "little")
-                + body.to_bytes((width + 7) // 8, "little"))
+        return head + body.to_bytes((width + 7) // 8, "little")
 
     def decode_reference(self, data: Any) -> tuple[dict[str, Any], int]:
         """Decode field by field; ``(value, bytes used)``; ``DecodeError`` on any fault."""

@@ -74,3 +74,39 @@ def test_any_bytes_decode_or_raise_decode_error(data: bytes) -> None:
         except DecodeError:
             continue
         assert fast == msg.decode_reference(data)[0]
+
+
+AUV = PROTOS.parents[2] / "deploy" / "missions" / "dccl" / "auv.proto"
+NAV: DcclMessage = load_message(AUV, "NavStatus")
+BATHY: DcclMessage = load_message(AUV, "Bathymetry")
+
+
+def _near_ties(lo: float, hi: float, res: float) -> st.SearchStrategy:
+    """Values at and around k*res + res/2, where a double division could round the other way."""
+    n = round((hi - lo) / res)
+    base = st.integers(0, n - 1).map(lambda k: lo + (k + 0.5) * res)
+    return st.one_of(st.floats(lo, hi), base, base.map(lambda x: x * (1 + 1e-16)),
+                     base.map(lambda x: x * (1 - 1e-16)), st.integers(int(lo), int(hi)))
+
+
+nav_values = st.fixed_dictionaries({
+    "lat": _near_ties(-90, 90, 1e-6), "lon": _near_ties(-180, 180, 1e-6),
+    "depth": _near_ties(0, 6000, 0.1), "heading": _near_ties(0, 360, 0.1),
+    "speed": _near_ties(0, 5, 0.01), "battery": st.integers(0, 100),
+    "mode": st.sampled_from(["idle", "dive", "survey", "transit", "surface", "hold", "abort",
+                             "home"]),
+    "time": st.integers(0, 86400)})
+bathy_values = st.fixed_dictionaries({
+    "depth": st.lists(_near_ties(0, 1000, 0.1), min_size=3, max_size=3),
+    "altitude": st.lists(_near_ties(0, 655, 0.1), min_size=3, max_size=3),
+    "latitude": st.lists(_near_ties(-90, 90, 1e-4), min_size=3, max_size=3),
+    "longitude": st.lists(_near_ties(-180, 180, 1e-4), min_size=3, max_size=3)})
+
+
+@settings(max_examples=400, deadline=None)
+@given(nav_values, bathy_values)
+def test_fast_path_matches_exact_rounding_near_ties(nav: dict, bathy: dict) -> None:
+    for msg, value in ((NAV, nav), (BATHY, bathy)):
+        data = msg.encode(value)
+        assert data == msg.encode_reference(value)
+        assert msg.decode(data) == msg.decode_reference(data)[0]
