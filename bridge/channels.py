@@ -312,6 +312,7 @@ class ChannelTable:
     nodes: tuple[str, ...]
     dlbl: bool
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
+    wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.dccl.goby)
 
     @classmethod
     def from_mission(cls, mission: Mission) -> ChannelTable:
@@ -331,7 +332,8 @@ class ChannelTable:
             compiled = tuple(fragment_channel(c, mission, True) for c in compiled)
         auth = mission.wire.auth
         return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
-                   auth_tag_bytes=auth.tag_bytes if auth else 0)
+                   auth_tag_bytes=auth.tag_bytes if auth else 0,
+                   wire_format=mission.wire.format)
 
     def __len__(self) -> int:
         return len(self.channels)

@@ -8,9 +8,9 @@ from typing import Any
 
 from bridge.backends.registry import load_backend
 from bridge.channels import ChannelCodec
+from bridge.dccl.goby import frame_codec_for
 from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
-from bridge.frame import FrameCodec
 from bridge.mac import (
     TdmaSchedule,
     aloha_slot_s,
@@ -42,7 +42,7 @@ class CheckReport:
 
 def check_mission(loaded: LoadedMission) -> CheckReport:
     mission, table = loaded.mission, loaded.table
-    codec = FrameCodec(table)
+    codec = frame_codec_for(table)
     report = CheckReport(data={})
     channels = [
         {

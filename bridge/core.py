@@ -27,8 +27,8 @@ from bridge.auth import Authenticator, load_key
 from bridge.backends.base import ModemRange, Reception
 from bridge.builder import Candidate, FramePlan, fill
 from bridge.channels import AckCodec, ChannelCodec, ElementCodec
+from bridge.dccl.goby import frame_codec_for
 from bridge.errors import DecodeError, EncodeError, FrameError
-from bridge.frame import FrameCodec
 from bridge.link import LinkState, LinkThresholds
 from bridge.mission import TdmaMac
 from bridge.mission_loader import LoadedMission
@@ -128,7 +128,7 @@ class NodeCore:
             auth = Authenticator(load_key(wire_auth.key_env, wire_auth.key_file),
                                  self.table.fingerprint, mission.address_of(node),
                                  wire_auth.tag_bytes)
-        self.codec = FrameCodec(self.table, auth)
+        self.codec = frame_codec_for(self.table, auth)
         self.frame_bytes = mission.node_modem(node).frame_bytes
         self.store = OutboundStore.for_node(self.table.channels, node)
         self.stats = NodeStats()

@@ -259,6 +259,9 @@ class Wire(Strict):
 
     dlbl: bool = Field(False, description="Start each frame with the DLBL delay vector.")
     auth: Auth | None = Field(None, description="Counter + keyed tag in every frame.")
+    format: Literal["zab", "goby"] = Field(
+        "zab", description="zab's frame, or goby: DCCL messages back to back as Goby3's "
+        "queue packs them (every channel one dccl element; see docs/dccl.md).")
 
 
 class LinkHealth(Strict):

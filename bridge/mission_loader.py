@@ -11,8 +11,8 @@ import yaml
 from pydantic import ValidationError
 
 from bridge.channels import ChannelTable, ChannelTableError
+from bridge.dccl.goby import frame_codec_for, goby_problems
 from bridge.errors import MissionError
-from bridge.frame import FrameCodec
 from bridge.mac import mac_problems
 from bridge.mission import Mission
 
@@ -170,7 +170,9 @@ def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
 
 def _frame_problems(mission: Mission, table: ChannelTable) -> Iterable[tuple[Loc, str]]:
     """Frames too small for what every frame carries besides channels."""
-    overhead = FrameCodec(table).overhead_bytes()
+    if table.wire_format == "goby":
+        yield from goby_problems(table, mission.wire.dlbl, mission.wire.auth is not None)
+    overhead = frame_codec_for(table).overhead_bytes()
     for name in mission.nodes:
         frame_bytes = mission.node_modem(name).frame_bytes
         if frame_bytes <= overhead:
