@@ -43,6 +43,7 @@ class CheckReport:
 def check_mission(loaded: LoadedMission) -> CheckReport:
     mission, table = loaded.mission, loaded.table
     codec = frame_codec_for(table)
+    sent_count_bits = 0 if table.wire_format == "goby" else codec.count_bits  # goby: no count
     report = CheckReport(data={})
     channels = [
         {
@@ -103,7 +104,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             "role": node.role,
             "listen": list(node.zenoh.listen),
             "frame_bytes": frame_bytes,
-            "worst_case_bits": worst + codec.count_bits + codec.overhead_bytes() * 8,
+            "worst_case_bits": worst + sent_count_bits + codec.overhead_bytes() * 8,
             "capacity_bits": frame_bytes * 8,
             "fill": round(min(largest, frame_bytes) / frame_bytes, 3),
             "airtime_s": None if airtime is None else round(airtime, 3),
@@ -135,7 +136,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "mac_timing": mac_data,
         "dlbl": mission.wire.dlbl,
         "overhead_bytes": codec.overhead_bytes(),
-        "count_bits": codec.count_bits,
+        "count_bits": sent_count_bits,
         "index_bits": codec.index_bits,
         "channels": channels,
         "dccl": dccl_reports(table),

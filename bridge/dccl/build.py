@@ -89,8 +89,11 @@ def _numeric(f: FieldDef, path: str, required: bool) -> NumericCodec:
 
 def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...]) -> FieldCodec:
     o = f.options
-    if o.get("codec", "dccl.default4") not in _DEFAULT_CODECS:
-        raise _fail(f, f"(dccl.field).codec {o['codec']!r} is not implemented by zab")
+    codec_name = o.get("codec", "dccl.default4")
+    # dccl.var_bytes is version 4's default bytes codec under its own name: same bits.
+    if codec_name not in _DEFAULT_CODECS and not (codec_name == "dccl.var_bytes"
+                                                  and f.type == "bytes"):
+        raise _fail(f, f"(dccl.field).codec {codec_name!r} is not implemented by zab")
     for key, reason in _UNSUPPORTED_FIELD_OPTIONS.items():
         if key in o:
             raise _fail(f, reason)
