@@ -25,19 +25,38 @@ def _line(indent: int, name: str, size: str, codec: str, width: int = _WIDTH) ->
     return f"{' ' * indent}{name}{size.rjust(max(1, width - len(name)), '.')} {{{codec}}}"
 
 
-def _fields(msg: DcclMessage, fields: list[tuple[str, FieldCodec]], depth: int,
-            numbers: dict[str, int]) -> list[str]:
+def _field(name: str, codec: FieldCodec, depth: int, numbers: dict[str, int],
+           extra: int = 0) -> list[str]:
+    label = f"{numbers.get(name, 0)}. {name}"
+    if isinstance(codec, RepeatedCodec):
+        span = f"{codec.min_repeat}-" if codec.min_repeat else ""
+        label += f"[{span}{codec.max_repeat}]"
     lines = []
+    if codec.max_bits:
+        lines.append(_line(_INDENT * depth + extra, label, _size(codec), codec.codec_name))
+    inner = codec.element if isinstance(codec, RepeatedCodec) else codec
+    if isinstance(inner, MessageCodec):
+        lines += _fields(inner, list(inner.fields), depth + 1)
+    return lines
+
+
+def _fields(owner: MessageCodec, fields: list[tuple[str, FieldCodec]], depth: int) -> list[str]:
+    """Oneofs first (each with its members, indented by half a step), then the other fields."""
+    lines = []
+    sizes = dict(fields)
+    for index, ((name, members), bits) in enumerate(zip(owner.oneofs, owner.case_bits,
+                                                        strict=True)):
+        most = max((sizes[m].max_bits for m in members if m in sizes), default=0)
+        label = f"{index}. {name} [oneof]"
+        indent = " " * (_INDENT * depth)
+        lines.append(f"{indent}{label}{f'{bits}-{bits + most}'.rjust(_WIDTH - len(label), '.')} {{")
+        for m in members:
+            if m in sizes:
+                lines += _field(m, sizes[m], depth, owner.numbers, _INDENT // 2)
+        lines.append(f"{indent}}}")
     for name, codec in fields:
-        label = f"{numbers.get(name, 0)}. {name}"
-        if isinstance(codec, RepeatedCodec):
-            span = f"{codec.min_repeat}-" if codec.min_repeat else ""
-            label += f"[{span}{codec.max_repeat}]"
-        if codec.max_bits:
-            lines.append(_line(_INDENT * depth, label, _size(codec), codec.codec_name))
-        inner = codec.element if isinstance(codec, RepeatedCodec) else codec
-        if isinstance(inner, MessageCodec):
-            lines += _fields(msg, list(inner.fields), depth + 1, inner.numbers)
+        if name not in owner.member_of:
+            lines += _field(name, codec, depth, owner.numbers)
     return lines
 
 
@@ -60,12 +79,12 @@ def analyze(msg: DcclMessage) -> str:
            " Header ".center(60, "-")]
     if msg.id_bits:
         out.append(_line(0, "dccl.id head", str(msg.id_bits), "dccl.default.id", _WIDTH + _INDENT))
-    out += _fields(msg, msg.head, 1, numbers)
+    out += [line for n, c in msg.head for line in _field(n, c, 1, numbers)]
     out.append(" Body ".center(60, "-"))
     size = (f"{msg.body_min_bits}-{body_bits}" if msg.body_min_bits != body_bits
             else str(body_bits))
     out.append(_line(0, msg.name, size, "dccl.default4", _WIDTH + _INDENT))
-    out += _fields(msg, msg.body, 1, numbers)
+    out += _fields(msg.body_codec, msg.body, 1)
     return "\n".join(out)
 
 

@@ -16,7 +16,7 @@ from bridge.dccl.codecs import (
 )
 from bridge.dccl.schema import DcclSchemaError, FieldDef, MessageDef, ProtoFile
 
-__all__ = ["build_fields", "check_message_options"]
+__all__ = ["build_fields", "build_message", "check_message_options"]
 
 _DEFAULT_CODECS = {"dccl.default4", "_default", ""}
 _WIRE_LIMITS = {
@@ -97,9 +97,10 @@ def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...]) -> 
     for key, reason in _UNSUPPORTED_FIELD_OPTIONS.items():
         if key in o:
             raise _fail(f, reason)
-    if f.oneof is not None:
-        raise _fail(f, f"oneof {f.oneof!r}: oneof fields are not implemented by zab")
-    required = f.label in ("required", "repeated")
+    if f.oneof is not None and o.get("in_head"):
+        raise _fail(f, "Oneof field used in header - oneof fields cannot be encoded in the "
+                    "header.")
+    required = f.label in ("required", "repeated") or f.oneof is not None
     if f.type == "bool":
         codec: FieldCodec = BoolCodec(path, required)
     elif f.type in ("string", "bytes"):
@@ -115,9 +116,7 @@ def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...]) -> 
         if f.message_type in stack:
             raise _fail(f, f"{f.message_type} contains itself: DCCL messages cannot recurse")
         inner = proto.message(f.message_type)
-        codec = MessageCodec(path, required,
-                             build_fields(inner, proto, path, (*stack, f.message_type)),
-                             {g.name: g.number for g in inner.fields})
+        codec = build_message(inner, proto, path, required, (*stack, f.message_type))
     elif f.type == "group":
         raise _fail(f, "groups are not supported by DCCL")
     else:
@@ -148,3 +147,16 @@ def build_fields(m: MessageDef, proto: ProtoFile, prefix: str = "",
                         "(set in_head on the top-level field)")
         out.append((f.name, _codec(f, path, proto, stack)))
     return out
+
+
+def build_message(m: MessageDef, proto: ProtoFile, path: str, required: bool,
+                  stack: tuple[str, ...] = (), names: set[str] | None = None) -> MessageCodec:
+    """A :class:`MessageCodec` for ``m`` (only the fields in ``names``, if given)."""
+    fields = build_fields(m, proto, path, stack or (m.full_name,))
+    if names is not None:
+        fields = [(n, c) for n, c in fields if n in names]
+    # a oneof's case counts every member, omitted ones included (libdccl's oneof_size)
+    oneofs = [(o, [f.name for f in m.fields if f.oneof == o]) for o in m.oneofs]
+    if names is not None:
+        oneofs = [(o, members) for o, members in oneofs if set(members) & names]
+    return MessageCodec(path, required, fields, {f.name: f.number for f in m.fields}, oneofs)

@@ -306,16 +306,28 @@ class RepeatedCodec(FieldCodec):
 
 
 class MessageCodec(FieldCodec):
-    """An embedded message (``DefaultMessageCodec`` v4): presence bit when optional."""
+    """An embedded message (``DefaultMessageCodec`` v4): presence bit when optional, then one
+    case per ``oneof`` (``ceil_log2(members + 1)`` bits: 0 unset, else the member's index + 1),
+    then the fields in declaration order, a ``oneof`` member only when it is the one set."""
 
     def __init__(self, path: str, required: bool, fields: Sequence[tuple[str, FieldCodec]],
-                 numbers: dict[str, int] | None = None) -> None:
+                 numbers: dict[str, int] | None = None,
+                 oneofs: Sequence[tuple[str, Sequence[str]]] = ()) -> None:
         super().__init__(path, required)
         self.fields = tuple(fields)
         self.numbers = numbers or {}  # field numbers, for analyze
+        self.oneofs = tuple((name, tuple(members)) for name, members in oneofs)
+        self.case_bits = tuple(numeric.ceil_log2(len(m) + 1) for _, m in self.oneofs)
+        self.member_of = {n: (i, j) for i, (_, members) in enumerate(self.oneofs)
+                          for j, n in enumerate(members)}
         self.presence = 0 if required else 1
-        inner_min = sum(c.min_bits for _, c in self.fields)
-        self.max_bits = self.presence + sum(c.max_bits for _, c in self.fields)
+        sizes = dict(self.fields)
+        plain = [c for n, c in self.fields if n not in self.member_of]
+        cases = sum(self.case_bits)
+        inner_min = cases + sum(c.min_bits for c in plain)
+        self.max_bits = (self.presence + cases + sum(c.max_bits for c in plain)
+                         + sum(max((sizes[n].max_bits for n in m if n in sizes), default=0)
+                               for _, m in self.oneofs))
         self.min_bits = 1 if not required else inner_min
 
     def encode(self, value: Any, strict: bool) -> tuple[int, int]:
@@ -324,9 +336,19 @@ class MessageCodec(FieldCodec):
         if not isinstance(value, dict):
             raise EncodeError(f"{self.path}: expected a mapping, got {type(value).__name__}")
         code, width = self.presence, self.presence
+        for (oneof, members), bits in zip(self.oneofs, self.case_bits, strict=True):
+            chosen = [j for j, n in enumerate(members) if value.get(n) is not None]
+            if len(chosen) > 1:
+                raise EncodeError(f"{self.path or 'message'}: oneof {oneof!r} has more than one "
+                                  f"of {', '.join(members[j] for j in chosen)} set")
+            code |= (chosen[0] + 1 if chosen else 0) << width
+            width += bits
         for name, codec in self.fields:
             item = value.get(name)
-            if item is None and codec.required and not isinstance(codec, RepeatedCodec):
+            if name in self.member_of:
+                if item is None:
+                    continue
+            elif item is None and codec.required and not isinstance(codec, RepeatedCodec):
                 raise EncodeError(f"{codec.path}: required field missing")
             k, w = codec.encode(item, strict)
             code |= k << width
@@ -338,7 +360,12 @@ class MessageCodec(FieldCodec):
 
     def decode_fields(self, reader: BitReader) -> dict[str, Any]:
         out: dict[str, Any] = {}
+        cases = [reader.read(bits) for bits in self.case_bits]
         for name, codec in self.fields:
+            if name in self.member_of:
+                i, j = self.member_of[name]
+                if cases[i] != j + 1:
+                    continue
             v = codec.decode(reader)
             if v is ABSENT:
                 if codec.required:

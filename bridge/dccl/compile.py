@@ -79,7 +79,7 @@ def _fixed(c: FieldCodec) -> bool:
     if isinstance(c, RepeatedCodec):
         return c.min_repeat == c.max_repeat and _fixed(c.element)
     if isinstance(c, MessageCodec):
-        return c.required and all(_fixed(f) for _, f in c.fields)
+        return c.required and not c.oneofs and all(_fixed(f) for _, f in c.fields)
     return False
 
 
@@ -245,6 +245,12 @@ def _encode_source(msg: DcclMessage, g: _Gen) -> list[str]:
         g.lines.append(f"{ind}hb = ({head_expr}).to_bytes({msg.head_bytes}, 'little')")
     body = _Enc(g, "acc")
     g.lines.append(f"{ind}acc = 0")
+    if msg.body_codec.oneofs:  # oneof cases lead the body: the reference body codec does it
+        fn = g.const("_enc", msg.body_codec.encode)
+        g.lines.append(f"{ind}acc, width = {fn}(value, False)")
+        g.lines.append(f"{ind}return hb + acc.to_bytes((width + 7) >> 3, 'little')")
+        g.lines += ["    except Exception:", "        return _encode_ref(value)"]
+        return g.lines
     for name, c in msg.body:
         x = g.name("x")
         required = c.required and not isinstance(c, RepeatedCodec)
@@ -380,6 +386,17 @@ def _decode_source(msg: DcclMessage, g: _Gen) -> list[str]:
         values += [(n, head.field(c, ind), c) for n, c in msg.head]
     lines.append(f"{ind}n = int.from_bytes(data[{hb}:], 'little')")
     lines.append(f"{ind}limit = (len(data) - {hb}) << 3")
+    if msg.body_codec.oneofs:  # the reference body codec, then the head values
+        fn = g.const("_dec", msg.body_codec.decode_fields)
+        lines += [f"{ind}r = _BR(n, limit, 0)", f"{ind}out = {fn}(r)"]
+        for n, v, c in values:
+            lines.append(f"{ind}if {v} is _ABSENT: raise _F" if c.required
+                         else f"{ind}if {v} is not _ABSENT: out[{n!r}] = {v}")
+            if c.required:
+                lines.append(f"{ind}out[{n!r}] = {v}")
+        lines.append(f"{ind}return out, {hb} + ((r.pos + 7) >> 3)")
+        lines += ["    except Exception:", "        return _decode_ref(data)"]
+        return lines
     body = _Dec(g, "n", "limit", 0)
     values += [(n, body.field(c, ind), c) for n, c in msg.body]
     lines.append(f"{ind}end = {body.end()}")

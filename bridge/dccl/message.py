@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bridge.dccl.build import build_fields, check_message_options
+from bridge.dccl.build import build_fields, build_message, check_message_options
 from bridge.dccl.codecs import ABSENT, BitReader, FieldCodec, RepeatedCodec
 from bridge.dccl.schema import DcclSchemaError, MessageDef, ProtoFile
 from bridge.errors import DecodeError, EncodeError
@@ -51,6 +51,8 @@ class DcclMessage:
         head_names = {f.name for f in mdef.fields if f.options.get("in_head")}
         self.head = [(n, c) for n, c in fields if n in head_names]
         self.body = [(n, c) for n, c in fields if n not in head_names]
+        self.body_codec = build_message(mdef, proto, "", True,
+                                        names={n for n, _ in self.body})
         self.lines = {f.name: f.line for f in mdef.fields}
         for name, codec in self.head:
             if codec.variable:
@@ -60,8 +62,8 @@ class DcclMessage:
         self.id_bits = 0 if self.omit_id else id_bits(self.id)
         self.head_bits = self.id_bits + sum(c.max_bits for _, c in self.head)
         self.head_bytes = (self.head_bits + 7) // 8
-        self.body_min_bits = sum(c.min_bits for _, c in self.body)
-        self.body_max_bits = sum(c.max_bits for _, c in self.body)
+        self.body_min_bits = self.body_codec.min_bits
+        self.body_max_bits = self.body_codec.max_bits
         self.min_bytes = self.head_bytes + (self.body_min_bits + 7) // 8
         self.max_size = self.head_bytes + (self.body_max_bits + 7) // 8
         if self.max_size > self.max_bytes:
@@ -126,7 +128,7 @@ class DcclMessage:
         if not isinstance(value, dict):
             raise EncodeError(f"{self.name}: expected a mapping, got {type(value).__name__}")
         head = self.encode_head(value, strict)
-        body, width = self._encode_part(self.body, value, strict, 0, 0)
+        body, width = self.body_codec.encode(value, strict)
         return head + body.to_bytes((width + 7) // 8, "little")
 
     def decode_reference(self, data: Any) -> tuple[dict[str, Any], int]:
@@ -147,7 +149,7 @@ class DcclMessage:
         self._decode_part(self.head, head, out)
         body_data = data[self.head_bytes:]
         body = BitReader(int.from_bytes(body_data, "little"), 8 * len(body_data))
-        self._decode_part(self.body, body, out)
+        out.update(self.body_codec.decode_fields(body))
         return out, self.head_bytes + (body.pos + 7) // 8
 
     @staticmethod

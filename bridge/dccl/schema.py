@@ -66,6 +66,7 @@ class MessageDef:
     line: int
     file: str
     syntax: str = "proto2"
+    oneofs: tuple[str, ...] = ()  # oneof names, in declaration order
 
 
 @dataclass
@@ -188,8 +189,10 @@ def _collect_message(mdp: Any, prefix: str, path: tuple[int, ...], lines: dict, 
             oneof=(mdp.oneof_decl[fd.oneof_index].name
                    if fd.HasField("oneof_index") and not fd.proto3_optional else None),
         ))
+    used = {f.oneof for f in fields if f.oneof is not None}
+    oneofs = tuple(o.name for o in mdp.oneof_decl if o.name in used)
     out[full] = MessageDef(full, _dccl_options(mdp.options, msg_cls), tuple(fields),
-                           lines.get(path, 0), file, syntax)
+                           lines.get(path, 0), file, syntax, oneofs)
     for k, nested in enumerate(mdp.nested_type):
         _collect_message(nested, full, (*path, 3, k), lines, file, syntax, enums,
                          field_cls, msg_cls, out)

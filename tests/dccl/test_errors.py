@@ -97,3 +97,9 @@ def test_protoc_errors_are_located(file: str, reason: str) -> None:
 def test_unknown_message_name() -> None:
     with pytest.raises(DcclSchemaError, match="no message 'Nope'"):
         load_message(PROTOS / "golden.proto", "Nope")
+
+
+def test_two_members_of_a_oneof_is_an_error() -> None:
+    msg = load_message(PROTOS / "golden.proto", "Choice")
+    with pytest.raises(EncodeError, match="more than one"):
+        msg.encode({"seq": 1, "depth": 1.0, "mode": "ENUM_A"})

@@ -91,3 +91,22 @@ def test_quotients_round_exactly(golden: dict[str, DcclMessage]) -> None:
 def test_omit_id(golden: dict[str, DcclMessage]) -> None:
     """NoId (omit_id): no identifier, no head; v int32 0..255 required: 8 bits = 200."""
     _check(golden["NoId"], {"v": 200}, "c8")
+
+
+@pytest.mark.parametrize(("value", "hex_"), [
+    # case 2 (mode, index 1) in ceil_log2(3+1) = 2 bits | seq 5 in 3 bits | mode as a required
+    # enum (oneof members use the required encoding): index 1 in 2 bits | flag false + 1 = 1
+    # in 2 bits: 9 bits = 0x0b6
+    ({"seq": 5, "mode": "ENUM_B", "flag": False}, "10b600"),
+    # case 1 | seq 1 | depth 0..100 precision 1 required: 123 in 10 bits | flag absent 0: 17 bits
+    ({"seq": 1, "depth": 12.3}, "10650f00"),
+    # case 0 (unset) | seq 0 | flag 0: 7 bits
+    ({"seq": 0}, "1000"),
+])
+def test_oneof_case_leads_the_body(value: dict, hex_: str) -> None:
+    """Choice (id 8 → 0x10): libdccl v4 writes each oneof's case before the body's fields
+    (0 = unset, else the member's index + 1) and only the member that is set
+    (GobySoft/dccl src/codecs4/field_codec_default_message.h, src/oneof.h)."""
+    msg = load_message(PROTOS / "golden.proto", "Choice")
+    _check(msg, value, hex_)
+    assert msg.max_size == 1 + (2 + 3 + (2 + 8 * 3) + 2 + 7) // 8
