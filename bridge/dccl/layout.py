@@ -9,6 +9,7 @@ significant, as the frame packs layouts.
 from __future__ import annotations
 
 import hashlib
+import random
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,7 @@ from bridge.dccl.codecs import (
 )
 from bridge.dccl.message import DcclMessage
 from bridge.dccl.schema import DcclSchemaError, load_proto
-from bridge.errors import DecodeError
+from bridge.errors import DecodeError, EncodeError
 
 __all__ = ["DcclLayout", "parse_reference"]
 
@@ -123,6 +124,22 @@ class DcclLayout:
         if n.__class__ is not int or n < 0 or n >> self.bits:
             raise DecodeError(f"{n!r} does not fit in {self.bits} bits")
         return self.message.decode(n.to_bytes(self.nbytes, "big"))
+
+    def synthetic_value(self, rng: random.Random, draws: int = 8) -> Any:
+        """A value this message encodes (for simulations): random head and body codes after
+        the identifier, decoded; else all-zero codes (every field's minimum or absence)."""
+        m = self.message
+        ident = 0 if m.omit_id else (m.id << 1) | (m.id >= 128)
+        size = m.max_size
+        for _ in range(draws):
+            n = rng.getrandbits(8 * size - m.id_bits) << m.id_bits | ident
+            try:
+                value = m.decode(n.to_bytes(size, "little"))
+                m.encode(value, strict=True)  # codes past max decode but are out of range
+                return value
+            except (DecodeError, EncodeError):
+                continue
+        return m.decode(ident.to_bytes(size, "little"))
 
     def json_schema(self) -> dict[str, Any]:
         m = self.message

@@ -80,3 +80,16 @@ def test_bad_dccl_elements_fail_with_location(element: str, expected: str) -> No
     text = str(info.value)
     assert expected in text
     assert text.startswith("m.yaml:13:") or "give either" in text
+
+
+def test_synthetic_values_for_simulations_are_valid() -> None:
+    import random
+
+    from bridge.fastrun import synthetic_value
+
+    rng = random.Random(3)
+    for channel in load_mission(EXAMPLE).table.channels:
+        layout = channel.elements[0].layout
+        for _ in range(20):
+            value = synthetic_value(layout, rng)
+            assert layout.message.decode(layout.message.encode(value, strict=True)) == value
