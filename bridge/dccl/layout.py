@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import random
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 from bridge.dccl.analyze import analyze
@@ -42,18 +43,19 @@ def _schema(codec: FieldCodec) -> dict[str, Any]:
     if isinstance(codec, RepeatedCodec):
         return {"type": "array", "items": _schema(codec.element),
                 "minItems": codec.min_repeat, "maxItems": codec.max_repeat}
-    if isinstance(codec, EnumCodec):
-        return {"enum": list(codec.names)}
+    if isinstance(codec, EnumCodec):  # a value name, or a value number as protobuf has it
+        return {"anyOf": [{"enum": list(codec.names)},
+                          {"type": "integer", "enum": sorted(set(codec.numbers))}]}
     if isinstance(codec, NumericCodec):
-        return {"type": "number" if codec.is_float else "integer",
-                "minimum": codec.lo, "maximum": codec.hi}
+        if codec.is_float:
+            return {"type": "number", "minimum": codec.lo, "maximum": codec.hi}
+        return {"type": "integer", "minimum": int(codec.lo), "maximum": int(codec.hi)}
     if isinstance(codec, BoolCodec):
         return {"type": "boolean"}
     if isinstance(codec, BytesCodec):
         if codec.text:
             return {"type": "string", "maxLength": codec.max_length}
-        return {"type": "string", "contentEncoding": "base16",
-                "maxLength": 2 * codec.max_length}
+        return {"type": "string", "contentEncoding": "base64", "x-max-bytes": codec.max_length}
     assert isinstance(codec, MessageCodec)
     return _object(codec.fields)
 
@@ -72,7 +74,7 @@ class _Payload:
     def __init__(self, layout: DcclLayout) -> None:
         self._layout = layout
         self.bits = layout.bits
-        self.spec = None
+        self.spec = SimpleNamespace(description=layout.description, units=None)
 
     def describe(self) -> str:
         return self._layout.signature

@@ -93,3 +93,19 @@ def test_synthetic_values_for_simulations_are_valid() -> None:
         for _ in range(20):
             value = synthetic_value(layout, rng)
             assert layout.message.decode(layout.message.encode(value, strict=True)) == value
+
+
+def test_payload_schema_accepts_what_the_message_encodes() -> None:
+    import jsonschema
+
+    from bridge.payload_schema import adapt_schema
+
+    table = load_mission(EXAMPLE).table
+    nav = adapt_schema(table.by_name("nav").elements[0].layout.json_schema(), "in")
+    jsonschema.validate(NAV, nav)
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({**NAV, "mode": "sideways"}, nav)
+    command = adapt_schema(table.by_name("command").elements[0].layout.json_schema(), "in")
+    jsonschema.validate({"mode": 3, "note": "hi"}, command)  # enums also by value number
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({"note": "hi"}, command)  # mode is required
