@@ -110,3 +110,12 @@ def test_oneof_case_leads_the_body(value: dict, hex_: str) -> None:
     msg = load_message(PROTOS / "golden.proto", "Choice")
     _check(msg, value, hex_)
     assert msg.max_size == 1 + (2 + 3 + (2 + 8 * 3) + 2 + 7) // 8
+
+
+def test_negative_precision_rounds_half_away_from_zero() -> None:
+    """Coarse{n: 125, d: -15} (id 9 → 0x12), precision -1 = resolution 10. n int32 0..1000:
+    ceil_log2(101) = 7 bits; dccl::quantize(125, 10) = 130 (remainder 5 ≥ 10/2), code 13.
+    d double -50..50: ceil_log2(11) = 4 bits; round(-15/10) = -2 (half away from zero) minus
+    round(-50/10) = -5 → 3; decodes to -20. 13 | 3 << 7 = 0x18d."""
+    msg = load_message(PROTOS / "golden.proto", "Coarse")
+    _check(msg, {"n": 125, "d": -15.0}, "128d01", {"n": 130, "d": -20.0})
