@@ -214,13 +214,12 @@ class _Enc:
         assert isinstance(c, NumericCodec)
         return self.numeric(c, x, ind)
 
-    def result(self, ind: str) -> str:
-        """The accumulated int and its width expression."""
+    def result(self) -> tuple[str, str]:
+        """The accumulated int's expression and its width's expression."""
         if not self.dynamic:
             expr = " | ".join(self.terms) if self.terms else "0"
-            return f"({expr})", str(self.static)  # type: ignore[return-value]
-        width = f"o + {self.static}" if self.static else "o"
-        return self.acc, width  # type: ignore[return-value]
+            return f"({expr})", str(self.static)
+        return self.acc, f"o + {self.static}" if self.static else "o"
 
 
 def _encode_source(msg: DcclMessage, g: _Gen) -> list[str]:
@@ -259,7 +258,7 @@ def _encode_source(msg: DcclMessage, g: _Gen) -> list[str]:
         if isinstance(c, RepeatedCodec) and _fixed(c):
             g.lines.append(f"{ind}if {x} is None: raise _F")
         body.field(c, x, ind)
-    expr, width = body.result(ind)
+    expr, width = body.result()
     if body.dynamic:
         g.lines.append(f"{ind}width = {width}")
         g.lines.append(f"{ind}return hb + {expr}.to_bytes((width + 7) >> 3, 'little')")
