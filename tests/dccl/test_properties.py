@@ -13,6 +13,7 @@ from tests.dccl.conftest import PROTOS
 
 GOLDEN: DcclMessage = load_message(PROTOS / "golden.proto", "Golden")
 NESTED: DcclMessage = load_message(PROTOS / "golden.proto", "Nested")
+CHOICE: DcclMessage = load_message(PROTOS / "golden.proto", "Choice")
 ENUM = ["ENUM_A", "ENUM_B", "ENUM_C"]
 
 
@@ -68,7 +69,7 @@ def test_nested_round_trip(value: dict) -> None:
 @settings(max_examples=500, deadline=None)
 @given(st.binary(max_size=24))
 def test_any_bytes_decode_or_raise_decode_error(data: bytes) -> None:
-    for msg in (GOLDEN, NESTED):
+    for msg in (GOLDEN, NESTED, CHOICE):
         try:
             fast = msg.decode(data)
         except DecodeError:
@@ -110,3 +111,19 @@ def test_fast_path_matches_exact_rounding_near_ties(nav: dict, bathy: dict) -> N
         data = msg.encode(value)
         assert data == msg.encode_reference(value)
         assert msg.decode(data) == msg.decode_reference(data)[0]
+
+
+choice_values = st.one_of(*(
+    st.fixed_dictionaries({"seq": st.integers(0, 7), member: strategy},
+                          optional={"flag": st.booleans()})
+    for member, strategy in (("depth", st.floats(0, 100)), ("mode", st.sampled_from(ENUM)),
+                             ("note", st.text(st.characters(min_codepoint=32,
+                                                            max_codepoint=126), max_size=3)))))
+
+
+@settings(max_examples=200, deadline=None)
+@given(choice_values)
+def test_oneof_round_trip(value: dict) -> None:
+    data = CHOICE.encode(value)
+    assert data == CHOICE.encode_reference(value)
+    assert _close(CHOICE.decode(data), value, 0.05 + 1e-9)
