@@ -140,6 +140,8 @@ def dccl_rows(seconds: float) -> list[tuple[str, int, float, float]]:
     for name, message in DCCL_MESSAGES.items():
         msg = load_message(AUV_PROTO, message)
         values = samples(name, rng)
+        # the generated path measured here writes the exact reference path's bytes
+        assert all(msg.encode(v) == msg.encode_reference(v) for v in values), name
 
         def ours(v: dict, msg: Any = msg) -> Any:
             return msg.decode(msg.encode(v))
