@@ -109,3 +109,16 @@ def test_payload_schema_accepts_what_the_message_encodes() -> None:
     jsonschema.validate({"mode": 3, "note": "hi"}, command)  # enums also by value number
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate({"note": "hi"}, command)  # mode is required
+
+
+def test_reject_is_dccl_strict_mode() -> None:
+    """on_out_of_range: reject → libdccl's strict mode (the value is refused, not zeroed)."""
+    from bridge.errors import EncodeError
+
+    table = load_mission(EXAMPLE).table
+    command = table.by_name("command").elements[0].layout
+    nav = table.by_name("nav").elements[0].layout
+    with pytest.raises(EncodeError):
+        command.pack({"mode": "dive", "goto_lat": 91.0})
+    assert "lat" in nav.unpack(nav.pack({**NAV, "lat": 91.0}))  # clamp: required → its min
+    assert nav.unpack(nav.pack({**NAV, "lat": 91.0}))["lat"] == -90.0
