@@ -83,7 +83,7 @@ def analyze(msg: DcclMessage) -> str:
     out.append(" Body ".center(60, "-"))
     size = (f"{msg.body_min_bits}-{body_bits}" if msg.body_min_bits != body_bits
             else str(body_bits))
-    out.append(_line(0, msg.name, size, "dccl.default4", _WIDTH + _INDENT))
+    out.append(_line(0, msg.name, size, f"dccl.default{msg.version}", _WIDTH + _INDENT))
     out += _fields(msg.body_codec, msg.body, 1)
     return "\n".join(out)
 

@@ -10,15 +10,19 @@ from bridge.dccl.codecs import (
     BytesCodec,
     EnumCodec,
     FieldCodec,
+    FixedBytesCodec,
     MessageCodec,
     NumericCodec,
     RepeatedCodec,
+    StringCodecV3,
 )
 from bridge.dccl.schema import DcclSchemaError, FieldDef, MessageDef, ProtoFile
 
-__all__ = ["build_fields", "build_message", "check_message_options"]
+__all__ = ["VERSIONS", "build_fields", "build_message", "check_message_options"]
 
-_DEFAULT_CODECS = {"dccl.default4", "_default", ""}
+#: Codec versions whose default codecs zab implements.
+VERSIONS = (3, 4)
+_DEFAULT_CODECS = {"_default", ""}
 _WIRE_LIMITS = {
     "int32": (-2.0**31, 2.0**31 - 1), "sint32": (-2.0**31, 2.0**31 - 1),
     "sfixed32": (-2.0**31, 2.0**31 - 1), "int64": (-2.0**63, 2.0**63 - 1),
@@ -48,11 +52,12 @@ def check_message_options(m: MessageDef) -> None:
         raise _fail(m, "Missing message option `(dccl.msg).id`")
     if "max_bytes" not in o:
         raise _fail(m, "Missing message option `(dccl.msg).max_bytes`")
-    if o.get("codec_version", 2) != 4:
-        raise _fail(m, f"(dccl.msg).codec_version = {o.get('codec_version', 2)}: zab implements "
-                    "the DCCL 4 default codecs only (set option (dccl.msg).codec_version = 4)")
+    version = o.get("codec_version", 2)
+    if version not in VERSIONS:
+        raise _fail(m, f"(dccl.msg).codec_version = {version}: zab implements the default "
+                    "codecs of codec versions 3 and 4 (set option (dccl.msg).codec_version)")
     for key in ("codec", "codec_group"):
-        if o.get(key, "dccl.default4") not in _DEFAULT_CODECS:
+        if o.get(key, f"dccl.default{version}") not in _DEFAULT_CODECS | {f"dccl.default{version}"}:
             raise _fail(m, f"(dccl.msg).{key} {o[key]!r} is not implemented by zab")
     ident = o.get("id", 0)
     if not 0 <= ident <= 32767:
@@ -87,12 +92,15 @@ def _numeric(f: FieldDef, path: str, required: bool) -> NumericCodec:
     return NumericCodec(path, required, f.type, lo, hi, res)
 
 
-def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...]) -> FieldCodec:
+def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...],
+           version: int) -> FieldCodec:
     o = f.options
-    codec_name = o.get("codec", "dccl.default4")
-    # dccl.var_bytes is version 4's default bytes codec under its own name: same bits.
-    if codec_name not in _DEFAULT_CODECS and not (codec_name == "dccl.var_bytes"
-                                                  and f.type == "bytes"):
+    default = f"dccl.default{version}"
+    codec_name = o.get("codec", default)
+    # dccl.var_bytes is version 4's default bytes codec under its own name
+    var_bytes = f.type == "bytes" and (version == 4 or codec_name == "dccl.var_bytes")
+    if codec_name not in _DEFAULT_CODECS | {default} and not (codec_name == "dccl.var_bytes"
+                                                               and f.type == "bytes"):
         raise _fail(f, f"(dccl.field).codec {codec_name!r} is not implemented by zab")
     for key, reason in _UNSUPPORTED_FIELD_OPTIONS.items():
         if key in o:
@@ -100,13 +108,20 @@ def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...]) -> 
     if f.oneof is not None and o.get("in_head"):
         raise _fail(f, "Oneof field used in header - oneof fields cannot be encoded in the "
                     "header.")
-    required = f.label in ("required", "repeated") or f.oneof is not None
+    # use_required(): version 4 also encodes oneof members as required
+    required = f.label in ("required", "repeated") or (version > 3 and f.oneof is not None)
     if f.type == "bool":
         codec: FieldCodec = BoolCodec(path, required)
     elif f.type in ("string", "bytes"):
         if "max_length" not in o:
             raise _fail(f, "missing (dccl.field).max_length")
-        codec = BytesCodec(path, required, int(o["max_length"]), f.type == "string")
+        size = int(o["max_length"])
+        if f.type == "string" and version == 3:
+            codec = StringCodecV3(path, required, size)
+        elif f.type == "bytes" and not var_bytes:
+            codec = FixedBytesCodec(path, required, size)
+        else:
+            codec = BytesCodec(path, required, size, f.type == "string")
     elif f.type == "enum":
         if not f.enum_values:
             raise _fail(f, "enum has no values")
@@ -116,11 +131,12 @@ def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...]) -> 
         if f.message_type in stack:
             raise _fail(f, f"{f.message_type} contains itself: DCCL messages cannot recurse")
         inner = proto.message(f.message_type)
-        codec = build_message(inner, proto, path, required, (*stack, f.message_type))
+        codec = build_message(inner, proto, path, required, version, (*stack, f.message_type))
     elif f.type == "group":
         raise _fail(f, "groups are not supported by DCCL")
     else:
         codec = _numeric(f, path, required)
+    codec.codec_name = codec_name if codec_name == "dccl.var_bytes" else default
     if f.label == "repeated":
         if "max_repeat" not in o:
             raise _fail(f, "Missing (dccl.field).max_repeat option on `repeated` field")
@@ -133,7 +149,7 @@ def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...]) -> 
     return codec
 
 
-def build_fields(m: MessageDef, proto: ProtoFile, prefix: str = "",
+def build_fields(m: MessageDef, proto: ProtoFile, version: int, prefix: str = "",
                  stack: tuple[str, ...] = ()) -> list[tuple[str, FieldCodec]]:
     """``(name, codec)`` of every field DCCL encodes (``omit`` fields left out), in order."""
     stack = stack or (m.full_name,)
@@ -145,18 +161,23 @@ def build_fields(m: MessageDef, proto: ProtoFile, prefix: str = "",
         if f.options.get("in_head") and prefix:
             raise _fail(f, "in_head inside an embedded message is not implemented by zab "
                         "(set in_head on the top-level field)")
-        out.append((f.name, _codec(f, path, proto, stack)))
+        out.append((f.name, _codec(f, path, proto, stack, version)))
     return out
 
 
-def build_message(m: MessageDef, proto: ProtoFile, path: str, required: bool,
+def build_message(m: MessageDef, proto: ProtoFile, path: str, required: bool, version: int,
                   stack: tuple[str, ...] = (), names: set[str] | None = None) -> MessageCodec:
-    """A :class:`MessageCodec` for ``m`` (only the fields in ``names``, if given)."""
-    fields = build_fields(m, proto, path, stack or (m.full_name,))
+    """A :class:`MessageCodec` for ``m`` (only the fields in ``names``, if given); ``path``
+    empty for the root message."""
+    fields = build_fields(m, proto, version, path, stack or (m.full_name,))
     if names is not None:
         fields = [(n, c) for n, c in fields if n in names]
-    # a oneof's case counts every member, omitted ones included (libdccl's oneof_size)
+    # version 4: a oneof's case counts every member, omitted ones included (oneof_size);
+    # version 3 has no oneof cases (members are plain optional fields)
     oneofs = [(o, [f.name for f in m.fields if f.oneof == o]) for o in m.oneofs]
     if names is not None:
         oneofs = [(o, members) for o, members in oneofs if set(members) & names]
-    return MessageCodec(path, required, fields, {f.name: f.number for f in m.fields}, oneofs)
+    codec = MessageCodec(path, required, fields, {f.name: f.number for f in m.fields},
+                         oneofs if version > 3 else (), clear_empty=version == 3 and bool(path))
+    codec.codec_name = f"dccl.default{version}"
+    return codec

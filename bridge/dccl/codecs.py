@@ -28,7 +28,7 @@ from bridge.dccl import numeric
 from bridge.errors import DecodeError, EncodeError
 
 __all__ = ["ABSENT", "BitReader", "BoolCodec", "BytesCodec", "DcclRangeError", "FieldCodec",
-           "MessageCodec", "NumericCodec", "RepeatedCodec"]
+           "FixedBytesCodec", "MessageCodec", "NumericCodec", "RepeatedCodec", "StringCodecV3"]
 
 
 class _Absent:
@@ -260,6 +260,69 @@ class BytesCodec(FieldCodec):
         return data.decode("utf-8", errors="replace") if self.text else data
 
 
+class StringCodecV3(FieldCodec):
+    """Codec version 3's string: [length: ``ceil_log2(max_length+1)`` bits][bytes], no presence
+    bit; an absent string is length 0, and length 0 decodes as absent (``""`` if required)."""
+
+    def __init__(self, path: str, required: bool, max_length: int) -> None:
+        super().__init__(path, required)
+        self.max_length = max_length
+        self.prefix = numeric.ceil_log2(max_length + 1)
+        self.min_bits = self.prefix
+        self.max_bits = self.prefix + 8 * max_length
+
+    def encode(self, value: Any, strict: bool) -> tuple[int, int]:
+        if value is None:
+            return 0, self.prefix
+        if not isinstance(value, str):
+            raise EncodeError(f"{self.path}: expected a string, got {type(value).__name__}")
+        data = value.encode("utf-8")
+        if len(data) > self.max_length:
+            if strict:
+                raise DcclRangeError(f"{self.path}: {len(data)} bytes exceed max_length "
+                                     f"{self.max_length}")
+            data = data[: self.max_length]
+        return len(data) | int.from_bytes(data, "little") << self.prefix, (
+            self.prefix + 8 * len(data))
+
+    def decode(self, reader: BitReader) -> Any:
+        length = reader.read(self.prefix)
+        if not length:
+            return "" if self.required else ABSENT
+        data = reader.read(8 * length).to_bytes(length, "little")
+        return data.decode("utf-8", errors="replace")
+
+
+class FixedBytesCodec(FieldCodec):
+    """Codec versions 2 and 3's bytes: always ``max_length`` bytes (shorter values zero-padded,
+    longer ones cut), after a presence bit when optional."""
+
+    def __init__(self, path: str, required: bool, max_length: int) -> None:
+        super().__init__(path, required)
+        self.max_length = max_length
+        self.presence = 0 if required else 1
+        self.max_bits = 8 * max_length + self.presence
+        self.min_bits = self.max_bits if required else 1
+
+    def encode(self, value: Any, strict: bool) -> tuple[int, int]:
+        if value is None:
+            return 0, self.min_bits
+        if not isinstance(value, bytes | bytearray | memoryview):
+            raise EncodeError(f"{self.path}: expected bytes, got {type(value).__name__}")
+        data = bytes(value)
+        if len(data) > self.max_length:
+            if strict:
+                raise DcclRangeError(f"{self.path}: {len(data)} bytes exceed max_length "
+                                     f"{self.max_length}")
+            data = data[: self.max_length]
+        return int.from_bytes(data, "little") << self.presence | self.presence, self.max_bits
+
+    def decode(self, reader: BitReader) -> Any:
+        if self.presence and not reader.read(1):
+            return ABSENT
+        return reader.read(8 * self.max_length).to_bytes(self.max_length, "little")
+
+
 class RepeatedCodec(FieldCodec):
     """A repeated field: count prefix (offset by ``min_repeat``), then the elements."""
 
@@ -300,6 +363,8 @@ class RepeatedCodec(FieldCodec):
         out = []
         for _ in range(count):
             v = self.element.decode(reader)
+            if v is ABSENT and isinstance(self.element, MessageCodec):
+                v = {}  # version 3 clears an empty message; the repeated slot stays
             if v is not ABSENT:
                 out.append(v)
         return out
@@ -312,8 +377,10 @@ class MessageCodec(FieldCodec):
 
     def __init__(self, path: str, required: bool, fields: Sequence[tuple[str, FieldCodec]],
                  numbers: dict[str, int] | None = None,
-                 oneofs: Sequence[tuple[str, Sequence[str]]] = ()) -> None:
+                 oneofs: Sequence[tuple[str, Sequence[str]]] = (),
+                 clear_empty: bool = False) -> None:
         super().__init__(path, required)
+        self.clear_empty = clear_empty  # version 3: an embedded message with no field set is unset
         self.fields = tuple(fields)
         self.numbers = numbers or {}  # field numbers, for analyze
         self.oneofs = tuple((name, tuple(members)) for name, members in oneofs)
@@ -368,7 +435,8 @@ class MessageCodec(FieldCodec):
                     continue
             v = codec.decode(reader)
             if v is ABSENT:
-                if codec.required:
+                cleared = isinstance(codec, MessageCodec) and codec.clear_empty
+                if codec.required and not cleared:
                     raise DecodeError(f"{codec.path}: required field decodes as not present")
                 continue
             out[name] = v
@@ -377,4 +445,5 @@ class MessageCodec(FieldCodec):
     def decode(self, reader: BitReader) -> Any:
         if self.presence and not reader.read(1):
             return ABSENT
-        return self.decode_fields(reader)
+        out = self.decode_fields(reader)
+        return ABSENT if self.clear_empty and not out else out

@@ -79,7 +79,8 @@ def _fixed(c: FieldCodec) -> bool:
     if isinstance(c, RepeatedCodec):
         return c.min_repeat == c.max_repeat and _fixed(c.element)
     if isinstance(c, MessageCodec):
-        return c.required and not c.oneofs and all(_fixed(f) for _, f in c.fields)
+        return (c.required and not c.oneofs and not c.clear_empty
+                and all(_fixed(f) for _, f in c.fields))
     return False
 
 

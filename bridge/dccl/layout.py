@@ -20,9 +20,11 @@ from bridge.dccl.codecs import (
     BytesCodec,
     EnumCodec,
     FieldCodec,
+    FixedBytesCodec,
     MessageCodec,
     NumericCodec,
     RepeatedCodec,
+    StringCodecV3,
 )
 from bridge.dccl.message import DcclMessage
 from bridge.dccl.schema import DcclSchemaError, load_proto
@@ -52,6 +54,10 @@ def _schema(codec: FieldCodec) -> dict[str, Any]:
         return {"type": "integer", "minimum": int(codec.lo), "maximum": int(codec.hi)}
     if isinstance(codec, BoolCodec):
         return {"type": "boolean"}
+    if isinstance(codec, StringCodecV3):
+        return {"type": "string", "maxLength": codec.max_length}
+    if isinstance(codec, FixedBytesCodec):
+        return {"type": "string", "contentEncoding": "base64", "x-max-bytes": codec.max_length}
     if isinstance(codec, BytesCodec):
         if codec.text:
             return {"type": "string", "maxLength": codec.max_length}

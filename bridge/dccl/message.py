@@ -47,11 +47,12 @@ class DcclMessage:
         self.id: int = int(mdef.options.get("id", 0))
         self.max_bytes: int = int(mdef.options["max_bytes"])
         self.omit_id: bool = bool(mdef.options.get("omit_id", False))
-        fields = build_fields(mdef, proto)
+        self.version: int = int(mdef.options.get("codec_version", 2))
+        fields = build_fields(mdef, proto, self.version)
         head_names = {f.name for f in mdef.fields if f.options.get("in_head")}
         self.head = [(n, c) for n, c in fields if n in head_names]
         self.body = [(n, c) for n, c in fields if n not in head_names]
-        self.body_codec = build_message(mdef, proto, "", True,
+        self.body_codec = build_message(mdef, proto, "", True, self.version,
                                         names={n for n, _ in self.body})
         self.lines = {f.name: f.line for f in mdef.fields}
         for name, codec in self.head:

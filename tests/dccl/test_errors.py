@@ -73,7 +73,7 @@ def test_decoding_takes_only_its_own_bytes(golden: dict[str, DcclMessage]) -> No
     ("NoBounds", 7, "missing (dccl.field).max"),
     ("TooBig", 9, "exceeds allowed maximum (dccl.max_bytes = 2)"),
     ("NoRepeat", 15, "Missing (dccl.field).max_repeat option on `repeated` field"),
-    ("V3", 17, "codec_version = 3"),
+    ("V2", 17, "codec_version = 2"),
 ])
 def test_refused_definitions_name_file_line_and_reason(name: str, line: int, reason: str) -> None:
     with pytest.raises(DcclSchemaError) as info:

@@ -122,3 +122,11 @@ def test_reject_is_dccl_strict_mode() -> None:
         command.pack({"mode": "dive", "goto_lat": 91.0})
     assert "lat" in nav.unpack(nav.pack({**NAV, "lat": 91.0}))  # clamp: required → its min
     assert nav.unpack(nav.pack({**NAV, "lat": 91.0}))["lat"] == -90.0
+
+
+def test_json_schema_of_every_codec_kind() -> None:
+    """Every field codec has a schema (version 3 strings and fixed bytes included)."""
+    for name in ("Golden", "Nested", "Choice", "V3Msg", "Coarse"):
+        layout = DcclLayout(load_message(PROTOS / "golden.proto", name))
+        schema = layout.json_schema()
+        assert schema["type"] == "object" and schema["properties"]

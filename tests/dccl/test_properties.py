@@ -14,6 +14,7 @@ from tests.dccl.conftest import PROTOS
 GOLDEN: DcclMessage = load_message(PROTOS / "golden.proto", "Golden")
 NESTED: DcclMessage = load_message(PROTOS / "golden.proto", "Nested")
 CHOICE: DcclMessage = load_message(PROTOS / "golden.proto", "Choice")
+V3: DcclMessage = load_message(PROTOS / "golden.proto", "V3Msg")
 ENUM = ["ENUM_A", "ENUM_B", "ENUM_C"]
 
 
@@ -69,7 +70,7 @@ def test_nested_round_trip(value: dict) -> None:
 @settings(max_examples=500, deadline=None)
 @given(st.binary(max_size=24))
 def test_any_bytes_decode_or_raise_decode_error(data: bytes) -> None:
-    for msg in (GOLDEN, NESTED, CHOICE):
+    for msg in (GOLDEN, NESTED, CHOICE, V3):
         try:
             fast = msg.decode(data)
         except DecodeError:
