@@ -122,7 +122,10 @@ class NumericCodec(FieldCodec):
         if self.is_float:
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise EncodeError(f"{self.path}: expected a number, got {type(value).__name__}")
-            value = float(value)
+            try:
+                value = float(value)
+            except OverflowError:
+                raise EncodeError(f"{self.path}: {value} is too large for a double") from None
             return numeric.f32(value) if self.single and math.isfinite(value) else value
         if isinstance(value, bool) or not isinstance(value, int):
             raise EncodeError(f"{self.path}: expected an int, got {type(value).__name__}")

@@ -32,8 +32,12 @@ def size_bits(lo: float, hi: float, res: float, required: bool) -> int:
 
 
 def f32(x: float) -> float:
-    """``x`` rounded to a C ``float`` (what a protobuf ``float`` field holds)."""
-    return struct.unpack("<f", struct.pack("<f", x))[0]
+    """``x`` rounded to a C ``float`` (what a protobuf ``float`` field holds); beyond the
+    float range, an infinity as the C conversion gives."""
+    try:
+        return struct.unpack("<f", struct.pack("<f", x))[0]
+    except OverflowError:
+        return math.copysign(math.inf, x)
 
 
 def round_div(x: float, res: float) -> int:

@@ -40,7 +40,8 @@ def test_edges_of_the_range(golden: dict[str, DcclMessage]) -> None:
     assert msg.decode(msg.encode({**GOLDEN, "d": -100.005}, strict=True))["d"] == -100.0
 
 
-@pytest.mark.parametrize("value", [{}, {"d": "x"}, {"d": 1.0, "e": "NOPE"}, {"d": 1.0, "i": 1.5},
+@pytest.mark.parametrize("value", [{}, {"d": "x"}, {"d": 10**400}, {"d": 1.0, "e": "NOPE"},
+                                   {"d": 1.0, "i": 1.5}, {"d": 1.0, "i": 2**70},
                                    {"d": 1.0, "b": 1}, {"d": 1.0, "r": 3}, [1]])
 def test_bad_values_raise_encode_error(golden: dict[str, DcclMessage], value: object) -> None:
     with pytest.raises(EncodeError):
