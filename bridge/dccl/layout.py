@@ -9,6 +9,7 @@ significant, as the frame packs layouts.
 from __future__ import annotations
 
 import hashlib
+import json
 import random
 from pathlib import Path
 from types import SimpleNamespace
@@ -71,6 +72,33 @@ def _object(fields: Any) -> dict[str, Any]:
             "required": [n for n, c in fields if c.required]}
 
 
+def _wire_facts(codec: FieldCodec) -> list[Any]:
+    """What decides a codec's bits, and nothing else (no names of files, no line numbers)."""
+    facts: list[Any] = [type(codec).__name__, codec.required, codec.min_bits, codec.max_bits]
+    if isinstance(codec, NumericCodec):
+        facts += [codec.kind, codec.lo, codec.hi, codec.res]
+    if isinstance(codec, EnumCodec):
+        facts += [codec.names, codec.numbers, codec.packed]
+    if isinstance(codec, BytesCodec | StringCodecV3 | FixedBytesCodec):
+        facts += [codec.max_length]
+    if isinstance(codec, RepeatedCodec):
+        facts += [codec.min_repeat, codec.max_repeat, _wire_facts(codec.element)]
+    if isinstance(codec, MessageCodec):
+        facts += [[[n, _wire_facts(c)] for n, c in codec.fields], codec.oneofs,
+                  codec.clear_empty]
+    return facts
+
+
+def signature(message: DcclMessage) -> str:
+    """A short text that differs when two definitions would put different bits on the wire
+    (it goes into the mission fingerprint): every field's codec parameters, not where the
+    ``.proto`` file is."""
+    facts = [message.name, message.id, message.omit_id, message.version,
+             [[n, _wire_facts(c)] for n, c in message.head], _wire_facts(message.body_codec)]
+    digest = hashlib.sha256(json.dumps(facts).encode()).hexdigest()[:12]
+    return f"dccl {message.name} id={message.id} v{message.version} {digest}"
+
+
 class _Payload:
     """The single "field" of a DCCL element: the whole payload (for describe/fingerprint)."""
 
@@ -98,9 +126,7 @@ class DcclLayout:
         self.nbytes = message.max_size
         self.bits = 8 * self.nbytes
         self.description = f"DCCL {message.name} (id {message.id}) from {source or '?'}"
-        text = repr(message.definition)
-        digest = hashlib.sha256(text.encode()).hexdigest()[:12]
-        self.signature = f"dccl {message.name} id={message.id} {digest}"
+        self.signature = signature(message)
         self.fields: tuple[Any, ...] = (_Payload(self),)
 
     @classmethod

@@ -130,3 +130,18 @@ def test_json_schema_of_every_codec_kind() -> None:
         layout = DcclLayout(load_message(PROTOS / "golden.proto", name))
         schema = layout.json_schema()
         assert schema["type"] == "object" and schema["properties"]
+
+
+def test_fingerprint_depends_on_the_bits_not_on_where_the_proto_is(tmp_path: Path) -> None:
+    """Two nodes with the same .proto in different folders agree on the mission fingerprint;
+    a changed bound changes it."""
+    text = (PROTOS / "golden.proto").read_text()
+    prints = []
+    for folder, body in (("a", text), ("b/c", "\n\n" + text),
+                         ("d", text.replace("max: 3000", "max: 3001"))):
+        (tmp_path / folder).mkdir(parents=True)
+        (tmp_path / folder / "g.proto").write_text(body)
+        loaded = parse_mission(_mission(f"        dccl: {tmp_path / folder}/g.proto:Golden"),
+                               "m.yaml")
+        prints.append(loaded.table.fingerprint)
+    assert prints[0] == prints[1] != prints[2]
