@@ -21,11 +21,11 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from bridge.channels import AckCodec, ChannelCodec, ChannelTable
 from bridge.dccl.layout import DcclLayout
 from bridge.dccl.message import DcclMessage, peek_id
 from bridge.errors import DecodeError, FrameError
-from bridge.frame import DecodedFrame, Entry, FrameCodec
+from bridge.wire.channels import AckCodec, ChannelCodec, ChannelTable
+from bridge.wire.frame import DecodedFrame, Entry, FrameCodec
 
 #: At most 2**8 - 1 messages in one Goby frame (a frame of 1-byte messages is 255 bytes).
 _COUNT_BITS = 8
