@@ -105,6 +105,9 @@ def check(
                          ", ".join(c["to"]), f"{c['interval_s']:g} s", str(c["latching"]).lower(),
                          str(c["priority"]))
     console.print(channels)
+    for d in data["dccl"]:  # like dccl --analyze
+        console.print(f"DCCL message of channel {d['channel']!r}:\n{d['analysis']}",
+                      highlight=False, markup=False)
     nodes = Table("node", "address", "role", "worst-case bits", "frame", "fill", "airtime",
                   "listen", title="nodes")
     for n in data["nodes"]:

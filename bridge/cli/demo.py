@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import random
 import threading
 import time
 from collections.abc import Callable
@@ -158,6 +159,9 @@ class VehicleApps:
                     continue
                 for e_index, element in enumerate(channel.elements):
                     value: dict[str, Any] = {}
+                    layout = compiled.elements[e_index].layout
+                    if element.dccl:  # a DCCL message: a valid value of its own
+                        value = layout.synthetic_value(random.Random(hash((node, t))))
                     position = self.loaded.mission.nodes[node].position
                     for f_index, spec in enumerate(element.fields):
                         if not spec.field:

@@ -37,6 +37,9 @@ DRAWS = 8
 def synthetic_value(layout: Layout, rng: random.Random) -> Any:
     """A value the layout encodes: random codes decoded (some codes, e.g. past an enum's
     last value, are invalid), else the all-zero codes."""
+    own = getattr(layout, "synthetic_value", None)  # layouts with a header (DCCL) make their own
+    if own is not None:
+        return own(rng)
     for _ in range(DRAWS):
         try:
             value = layout.unpack(rng.getrandbits(layout.bits) if layout.bits else 0)

@@ -38,13 +38,13 @@ from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
+from bridge.dccl.goby import frame_codec_for
 from bridge.errors import DecodeError, EncodeError, FrameError
 from bridge.mission.loader import LoadedMission
 from bridge.mission.model import TdmaMac
 from bridge.modems.base import ModemRange, Reception
 from bridge.wire.auth import Authenticator, load_key
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
-from bridge.wire.frame import FrameCodec
 from bridge.wire.payloads import decode_payload
 
 if TYPE_CHECKING:
@@ -156,7 +156,7 @@ class NodeCore:
         self.epoch: int = state.get("epoch", rng.randrange(EPOCHS))
         self.peer_epochs: dict[str, int] = dict(state.get("peer_epochs", {}))
         self._dirty = True  # a new run's epoch must be saved before its first frame
-        self.codec = FrameCodec(self.table, auth)
+        self.codec = frame_codec_for(self.table, auth)
         self.frame_bytes = mission.node_modem(node).frame_bytes
         self.store = OutboundStore.for_node(self.table.channels, node)
         self.stats = NodeStats()

@@ -18,12 +18,13 @@ from bridge.core.mac import (
     polled_slaves,
     ranging_tmax_s,
 )
+from bridge.dccl.goby import frame_codec_for
+from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
 from bridge.mission.loader import LoadedMission
 from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, TdmaMac
 from bridge.modems.registry import load_backend
 from bridge.wire.channels import ChannelCodec
-from bridge.wire.frame import FrameCodec
 
 
 @dataclass
@@ -41,7 +42,8 @@ class CheckReport:
 
 def check_mission(loaded: LoadedMission) -> CheckReport:
     mission, table = loaded.mission, loaded.table
-    codec = FrameCodec(table)
+    codec = frame_codec_for(table)
+    sent_count_bits = 0 if table.wire_format == "goby" else codec.count_bits  # goby: no count
     report = CheckReport(data={})
     channels = [
         {
@@ -102,7 +104,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             "role": node.role,
             "listen": list(node.zenoh.listen),
             "frame_bytes": frame_bytes,
-            "worst_case_bits": worst + codec.epoch_bits + codec.count_bits
+            "worst_case_bits": worst + codec.epoch_bits + sent_count_bits
             + codec.overhead_bytes() * 8,
             "capacity_bits": frame_bytes * 8,
             "fill": round(min(largest, frame_bytes) / frame_bytes, 3),
@@ -135,9 +137,10 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "mac_timing": mac_data,
         "dlbl": mission.wire.dlbl,
         "overhead_bytes": codec.overhead_bytes(),
-        "count_bits": codec.count_bits,
+        "count_bits": sent_count_bits,
         "index_bits": codec.index_bits,
         "channels": channels,
+        "dccl": dccl_reports(table),
         "nodes": nodes,
         "warnings": report.warnings,
         "errors": report.errors,

@@ -11,10 +11,10 @@ import yaml
 from pydantic import ValidationError
 
 from bridge.core.mac import mac_problems
+from bridge.dccl.goby import frame_codec_for, goby_problems
 from bridge.errors import MissionError
 from bridge.mission.model import Mission
 from bridge.wire.channels import ChannelTable, ChannelTableError
-from bridge.wire.frame import FrameCodec
 
 Loc = tuple[str | int, ...]
 Marks = dict[Loc, tuple[int, int]]
@@ -115,7 +115,7 @@ def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
         raise MissionError(f"{name}:1:1: a mission file is a mapping (key: value), not a list")
 
     try:
-        mission = Mission.model_validate(data)
+        mission = Mission.model_validate(data, context={"mission_dir": Path(path).parent})
     except ValidationError as exc:
         lines = []
         for error in exc.errors():
@@ -170,7 +170,9 @@ def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
 
 def _frame_problems(mission: Mission, table: ChannelTable) -> Iterable[tuple[Loc, str]]:
     """Frames too small for what every frame carries besides channels."""
-    overhead = FrameCodec(table).overhead_bytes()
+    if table.wire_format == "goby":
+        yield from goby_problems(table, mission.wire.dlbl, mission.wire.auth is not None)
+    overhead = frame_codec_for(table).overhead_bytes()
     for name in mission.nodes:
         frame_bytes = mission.node_modem(name).frame_bytes
         if frame_bytes <= overhead:

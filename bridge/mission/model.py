@@ -18,6 +18,8 @@ from pydantic import (
     ModelWrapValidatorHandler,
     PrivateAttr,
     SerializerFunctionWrapHandler,
+    ValidationInfo,
+    field_validator,
     model_serializer,
     model_validator,
 )
@@ -199,7 +201,27 @@ class Element(Strict):
                             "and {node}.")
     encoding: Literal["msgpack", "json"] = Field("msgpack", description="Published payload.")
     ros2: Ros2Topic | None = Field(None, description="A ROS 2 topic instead of in/out.")
-    fields: list[FieldSpec] = Field(min_length=1)
+    fields: list[FieldSpec] = Field(default_factory=list, description="The field codecs "
+                                    "(required unless ``dccl`` is given).")
+    dccl: str | None = Field(None, description="A DCCL message instead of fields: "
+                             "'file.proto:Message', the file relative to the mission file; "
+                             "the element's bytes are libdccl's (see docs/dccl.md).")
+
+    @field_validator("dccl")
+    @classmethod
+    def _dccl_path(cls, value: str | None, info: ValidationInfo) -> str | None:
+        """A relative .proto path is taken from the mission file's folder."""
+        base = (info.context or {}).get("mission_dir") if value else None
+        path, sep, name = (value or "").rpartition(":")
+        if base is not None and sep and path and not Path(path).is_absolute():
+            return f"{Path(base) / path}:{name}"
+        return value
+
+    @model_validator(mode="after")
+    def _fields_or_dccl(self) -> Element:
+        if bool(self.fields) == bool(self.dccl):
+            raise ValueError("give either fields (at least one) or dccl, not both")
+        return self
 
     @model_validator(mode="after")
     def _keys(self) -> Element:
@@ -280,6 +302,9 @@ class Wire(Strict):
                               "authentication, on purpose (absent: not said, which zab run "
                               "refuses while a frame key is present).",
                               json_schema_extra=_auth_off_in_schema)
+    format: Literal["zab", "goby"] = Field(
+        "zab", description="zab's frame, or goby: DCCL messages back to back as Goby3's "
+        "queue packs them (every channel one dccl element; see docs/dccl.md).")
     _auth_off: bool = PrivateAttr(False)
 
     @model_validator(mode="wrap")

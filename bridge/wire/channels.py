@@ -168,6 +168,11 @@ class ChannelCodec:
 
 
 def compile_element(element: Element, on_out_of_range: str) -> ElementCodec:
+    if element.dccl:  # a DCCL message: the element's bytes are libdccl's
+        from bridge.dccl.layout import DcclLayout
+
+        dccl = DcclLayout.from_reference(element.dccl, strict=on_out_of_range == "reject")
+        return ElementCodec(element.in_, element.out, element.encoding, dccl)  # type: ignore[arg-type]
     layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
     assert element.in_ is not None and element.out is not None
     return ElementCodec(element.in_, element.out, element.encoding, layout)
@@ -225,7 +230,8 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         try:
             elements.append(compile_element(element, channel.on_out_of_range))
         except LayoutError as exc:
-            raise ChannelTableError(str(exc), (*eloc, "fields", *exc.loc)) from None
+            where = ("dccl",) if element.dccl else ("fields", *exc.loc)
+            raise ChannelTableError(str(exc), (*eloc, *where)) from None
     return ChannelCodec(
         index=index,
         name=channel.name,
@@ -344,6 +350,7 @@ class ChannelTable:
     nodes: tuple[str, ...]
     dlbl: bool
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
+    wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.dccl.goby)
 
     @classmethod
     def from_mission(cls, mission: Mission) -> ChannelTable:
@@ -363,7 +370,8 @@ class ChannelTable:
             compiled = tuple(fragment_channel(c, mission, True) for c in compiled)
         auth = mission.wire.auth
         return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
-                   auth_tag_bytes=auth.tag_bytes if auth else 0)
+                   auth_tag_bytes=auth.tag_bytes if auth else 0,
+                   wire_format=mission.wire.format)
 
     def __len__(self) -> int:
         return len(self.channels)
