@@ -19,22 +19,44 @@ from rich.console import Console
 from rich.logging import RichHandler
 from rich.table import Table
 
+from bridge.cli import helptext
 from bridge.errors import BackendError, MissionError
 from bridge.mission.check import check_mission
 from bridge.mission.loader import LoadedMission, load_mission
 
 T = TypeVar("T")
 
+helptext.install()
 app = typer.Typer(
     help="zenoh-acoustic-bridge: one Zenoh pub/sub space across WiFi and water.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    context_settings=helptext.HELP_OPTIONS,
+    rich_markup_mode="markdown",  # a docstring's paragraph reads as one paragraph
 )
 console = Console(width=None if sys.stdout.isatty() else 120)
 err = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
 
 MissionArg = Annotated[Path, typer.Argument(help="Mission file (YAML).", show_default=False)]
+VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="Log debug messages too.")]
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        console.print(f"zab {version('zenoh-acoustic-bridge')}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    show_version: Annotated[bool, typer.Option(
+        "--version", help="Print the version and exit.", callback=_version,
+        is_eager=True)] = False,
+) -> None:
+    """zenoh-acoustic-bridge: one Zenoh pub/sub space across WiFi and water."""
 
 
 def _load(path: Path) -> LoadedMission:
@@ -77,9 +99,19 @@ def check(
     mission: MissionArg,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Validate a mission; show channel sizes, frame fill and airtime. Exit 1 if a channel can
-    never fit, 2 if the file is invalid."""
-    loaded = _load(mission)
+    """Validate a mission; show channel sizes, frame fill and airtime.
+
+    Exit 1 if a channel can never fit, 2 if the file is invalid (with --json: a JSON object
+    with the errors on stdout).
+    """
+    if as_json:
+        try:
+            loaded = load_mission(mission)
+        except MissionError as exc:
+            print(json.dumps({"ok": False, "errors": _problems(exc)}, indent=2))
+            raise typer.Exit(2) from None
+    else:
+        loaded = _load(mission)
     report = check_mission(loaded)
     if as_json:
         print(json.dumps(report.data, indent=2))
@@ -113,6 +145,18 @@ def check(
     raise typer.Exit(0 if report.ok else 1)
 
 
+def _problems(exc: MissionError) -> list[dict[str, Any]]:
+    """A mission error as data: file, line, column, path and message of each problem."""
+    from dataclasses import asdict
+
+    from bridge.mission.loader import MissionProblems
+
+    if isinstance(exc, MissionProblems):
+        return [asdict(p) for p in exc.problems]
+    return [{"file": str(exc).split(":", 1)[0], "line": None, "column": None, "path": "",
+             "message": str(exc)}]
+
+
 def _print_mac(data: dict[str, Any]) -> None:
     """Per node: the longest wait between transmit turns and the airtime share it implies."""
     def shown(v: Any) -> str:
@@ -137,8 +181,10 @@ def schema(
         "--payloads", help="Instead: write the JSON Schema of every bridged key's payload of "
         "this mission.", show_default=False)] = None,
 ) -> None:
-    """Write the mission file's JSON Schema (for editors) from the models, or with
-    --payloads MISSION the schema of every bridged key's payload."""
+    """Write the mission file's JSON Schema (for editors), or a mission's payload schemas.
+
+    With --payloads MISSION: the JSON Schema of every bridged key's payload of that mission.
+    """
     from bridge.mission.schema import default_schema_path, schema_text
 
     if payloads is not None:
@@ -162,7 +208,7 @@ def schema(
 def run(
     mission: MissionArg,
     node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
-    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    verbose: VerboseOpt = False,
     log: Annotated[Path | None, typer.Option("--log", help="Record every frame and event to "
                                              "this MCAP file; {time} in the name becomes the "
                                              "start time (UTC).")] = None,
@@ -294,9 +340,10 @@ def sim(
     report: Annotated[Path | None, typer.Option(help="Write a JSON report here.")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed of the ocean.")] = None,
     live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
-    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
-    log: Annotated[Path | None, typer.Option("--log", help="Record each node's frames and "
-                                             "events to DIR/<mission>-<node>.mcap.")] = None,
+    verbose: VerboseOpt = False,
+    log: Annotated[Path | None, typer.Option("--log", metavar="DIR", help="Record each node's "
+                                             "frames and events, one MCAP file per node in "
+                                             "this folder.")] = None,
     fast: Annotated[bool, typer.Option("--fast", help="Virtual clock, flat out: every node's "
                                        "bridge core over the simulated ocean, no Zenoh; inputs "
                                        "get synthetic values (default duration 3600 s).")]
@@ -382,7 +429,7 @@ def gui(
     host: Annotated[str, typer.Option(
         help="Address to serve the page on; 0.0.0.0 for tablets on the WiFi.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="TCP port of the page (0: any free port).")] = 8080,
-    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    verbose: VerboseOpt = False,
 ) -> None:
     """The fleet in a browser: map, channels and links per vehicle, commands, events."""
     from bridge.gui.server import GuiServer, serve_gui
@@ -418,8 +465,11 @@ def doctor(
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the modem.", min=0.1)]
     = 15.0,
 ) -> None:
-    """Check that this vehicle can run its bridge: mission, modem port and answer, Zenoh
-    endpoints, clock. Prints what to fix; exit 1 if something must be fixed."""
+    """Check that this vehicle can run its bridge, and print what to fix.
+
+    Checks the mission, the modem port and its answer, the Zenoh endpoints and the clock;
+    exit 1 if something must be fixed.
+    """
     from bridge.cli.doctor import run_doctor
 
     loaded = _load(mission)
@@ -447,7 +497,8 @@ def _mission_log(path: Path, loaded: LoadedMission, node: str) -> Any:
         raise typer.Exit(2) from None
 
 
-log_app = typer.Typer(help="Read mission logs (MCAP) written with --log.", no_args_is_help=True)
+log_app = typer.Typer(help="Read mission logs (MCAP) written with --log.", no_args_is_help=True,
+                      context_settings=helptext.HELP_OPTIONS, rich_markup_mode="markdown")
 app.add_typer(log_app, name="log")
 LogArg = Annotated[Path, typer.Argument(help="Mission log (.mcap).", show_default=False)]
 
@@ -501,9 +552,11 @@ def log_replay(
     wait: Annotated[float, typer.Option(help="Seconds to let subscribers connect before the "
                                         "first value.", min=0)] = 1.0,
 ) -> None:
-    """Publish the decoded data of a mission log on Zenoh again, on the channels' output keys
-    (msgpack or JSON as the mission says). Without --connect/--listen it listens on
-    tcp/127.0.0.1:7447."""
+    """Publish the decoded data of a mission log on Zenoh again.
+
+    Values go to the channels' output keys (msgpack or JSON as the mission says). Without
+    --connect/--listen it listens on tcp/127.0.0.1:7447.
+    """
     import zenoh
 
     from bridge.mission.model import ZenohSettings
