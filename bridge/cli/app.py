@@ -458,6 +458,57 @@ def gui(
         raise typer.Exit(1) from None
 
 
+EndpointArg = Annotated[str, typer.Argument(
+    help="Zenoh endpoint of a vehicle, e.g. tcp/127.0.0.1:7502 (see zab demo).",
+    show_default=False)]
+
+
+@app.command()
+def listen(
+    endpoint: EndpointArg,
+    keyexpr: Annotated[str, typer.Argument(help="Key expression to subscribe to.")] = "**",
+    count: Annotated[int | None, typer.Option(help="Stop after this many values.", min=1)]
+    = None,
+    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.",
+                                                   min=0)] = None,
+) -> None:
+    """Print the values arriving at a Zenoh endpoint, decoded, one line each (Ctrl-C stops)."""
+    from bridge.cli.poke import PokeError
+    from bridge.cli.poke import listen as run_listen
+
+    err.print(f"listening on {keyexpr} at {endpoint}; Ctrl-C to stop", highlight=False)
+    try:
+        run_listen(endpoint, keyexpr, lambda line: print(line, flush=True), count=count,
+                   duration=duration)
+    except PokeError as exc:
+        err.print(f"[red]{exc}[/]", highlight=False)
+        raise typer.Exit(1) from None
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+
+
+@app.command()
+def put(
+    endpoint: EndpointArg,
+    key: Annotated[str, typer.Argument(help="Key to publish on, e.g. target_reference.",
+                                       show_default=False)],
+    value: Annotated[str, typer.Argument(help='The value as JSON, e.g. \'{"x": 10, "y": 5}\'.',
+                                         show_default=False)],
+) -> None:
+    """Publish one value (JSON on the command line, msgpack on Zenoh) at a Zenoh endpoint."""
+    from bridge.cli.poke import PokeError
+    from bridge.cli.poke import put as run_put
+
+    try:
+        payload = run_put(endpoint, key, value)
+    except PokeError as exc:
+        err.print(f"[red]{exc}[/]", highlight=False)
+        raise typer.Exit(1 if str(exc).startswith("cannot connect") else 2) from None
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    console.print(f"put {key} ({len(payload)} B msgpack) at {endpoint}", highlight=False)
+
+
 @app.command()
 def doctor(
     mission: MissionArg,
