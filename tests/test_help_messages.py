@@ -91,7 +91,8 @@ def test_check_json_on_an_invalid_file_prints_the_errors(tmp_path: Path) -> None
     data = json.loads(result.stdout)
     assert data == {"ok": False, "errors": [{
         "file": str(bad), "line": 15, "column": 24,
-        "path": "channels[0].elements[0].fields[0].bits", "message": "bits must be 1..64 (got 600)"}]}
+        "path": "channels[0].elements[0].fields[0].bits",
+        "message": "bits must be 1..64 (got 600)"}]}
     missing = CliRunner().invoke(app, ["check", str(tmp_path / "nope.yaml"), "--json"])
     assert missing.exit_code == 2
     assert "no such mission file" in json.loads(missing.stdout)["errors"][0]["message"]

@@ -13,7 +13,7 @@ import msgpack
 from bridge.cli.poke import format_sample
 from tests.conftest import REPO, on_free_ports
 from tests.gui.fleet import MISSION, VehicleApps
-from tests.harness import Inbox, outside_session, running_fleet
+from tests.harness import outside_session, running_fleet
 
 ZAB = [sys.executable, "-m", "bridge"]
 
@@ -37,7 +37,7 @@ def test_put_crosses_the_water_and_listen_prints_it_decoded() -> None:
                  '{"x": 12.34, "y": -5.06, "depth": 7.5}'],
                 capture_output=True, text=True, timeout=30)
             assert put.returncode == 0, put.stderr
-            assert f"put nav (" in put.stdout
+            assert "put nav (" in put.stdout
             out, errors = listener.communicate(timeout=45)
         finally:
             if listener.poll() is None:
