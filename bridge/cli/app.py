@@ -337,7 +337,9 @@ def emulate(
 def sim(
     mission: MissionArg,
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
-    report: Annotated[Path | None, typer.Option(help="Write a JSON report here.")] = None,
+    report: Annotated[Path | None, typer.Option(
+        help="Write a report here: .html a mission report with plots (one file, opens "
+        "offline), anything else the numbers as JSON.")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed of the ocean.")] = None,
     live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
     verbose: VerboseOpt = False,
@@ -361,24 +363,50 @@ def sim(
         err.print("--fast and --speed exclude each other (--fast: as fast as possible)")
         raise typer.Exit(2)
     logs = None if log is None else FleetLogs(log, loaded)
+    recorder = _recorder_for(report)
     try:
         if fast or speed is not None:
-            result = _run_or_exit(_run_fast(loaded, duration or 3600.0, seed, speed, logs))
+            result = _run_or_exit(_run_fast(loaded, duration or 3600.0, seed, speed, logs,
+                                            recorder))
         else:
             result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
-                                          console=console, record=logs))
+                                          console=console, record=logs, recorder=recorder))
     finally:
         if logs is not None:
             logs.close()
     if logs is not None:
         console.print(f"mission logs: {', '.join(str(p.path) for p in logs.logs.values())}")
     if report is not None:
-        report.write_text(json.dumps(result, indent=2, default=str), encoding="utf-8")
-        console.print(f"report written to {report}")
+        _write_report(report, result, recorder, loaded)
+
+
+def _recorder_for(report: Path | None) -> Any:
+    """A recorder of the run's time series when the report is an HTML page."""
+    if report is None or report.suffix.lower() not in (".html", ".htm"):
+        return None
+    from bridge.report import MissionRecorder
+
+    return MissionRecorder()
+
+
+def _write_report(path: Path, result: dict[str, Any], recorder: Any,
+                  loaded: LoadedMission) -> None:
+    """The HTML mission report if ``recorder`` ran, else the numbers as JSON."""
+    try:
+        if recorder is None:
+            path.write_text(json.dumps(result, indent=2, default=str), encoding="utf-8")
+        else:
+            from bridge.report import write_report
+
+            write_report(path, result, recorder.recording, loaded)
+    except OSError as exc:
+        err.print(f"[red]cannot write the report:[/] {exc}", highlight=False)
+        raise typer.Exit(1) from None
+    console.print(f"report written to {path}", highlight=False)
 
 
 async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
-                    speed: float | None, record: Any) -> dict[str, Any]:
+                    speed: float | None, record: Any, recorder: Any = None) -> dict[str, Any]:
     """``zab sim --fast/--speed``: the virtual-clock run, its report printed."""
     from bridge.cli.sim import print_report
     from bridge.cli.sim_fast import run_fast
@@ -389,7 +417,7 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
     console.print(f"simulating [bold]{loaded.mission.mission}[/] on a virtual clock, {pace}: "
                   f"{duration:g} s, no Zenoh, synthetic inputs")
     result = await run_fast(loaded, duration=duration, seed=seed, speed=speed, record=record,
-                            stop=stop)
+                            stop=stop, recorder=recorder)
     print_report(console, result)
     console.print(f"{result['duration_s']:g} s simulated in {result['wall_s']:g} s wall "
                   f"({result['speedup']:g}× real time); {result['frames_sent']} frames sent, "
