@@ -102,6 +102,10 @@ def age_figure(rec: Recording, bounds: dict[str, float | None],
     fig.update_xaxes(title_text="time (s)", row=len(shown), col=1)
     fig.update_layout(title="Age of information per channel (dashed: bound)",
                       height=max(320, 200 * len(shown)), showlegend=True)
+    if not rec.arrivals:
+        fig.add_annotation(text="no channel arrived anywhere: nothing was published on the "
+                           "vehicles' input keys", showarrow=False, xref="paper",
+                           yref="paper", x=0.5, y=0.5, font={"size": 14})
     return fig
 
 
