@@ -428,22 +428,40 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
 
 @app.command()
 def demo(
-    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.")] = 30.0,
+    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.")] = 60.0,
     mission: Annotated[Path | None, typer.Option(help="Mission (default: the MORPH fleet).")]
     = None,
-    live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
+    live: Annotated[bool, typer.Option(help="Live terminal view of counters (under the "
+                                       "tour's lines).")] = False,
     gui: Annotated[bool, typer.Option(help="Serve the browser GUI (zab gui) during the demo.")]
     = True,
     gui_port: Annotated[int, typer.Option(help="Port of the GUI (any free one if taken).")]
     = 8080,
+    report: Annotated[Path, typer.Option(help="Where to write the mission report (HTML).")]
+    = Path("zab-demo-report.html"),
+    loss: Annotated[float, typer.Option(help="Share of frames the simulated water loses.",
+                                        min=0, max=0.9)] = 0.1,
 ) -> None:
-    """A simulated MORPH fleet, end to end: data published, carried, decoded, shown."""
-    from bridge.cli.demo import default_demo_mission, run_demo
+    """A guided tour of a simulated fleet, end to end, in about a minute.
 
-    loaded = _load(mission or default_demo_mission())
+    It shows values crossing the water and their quantisation, latest-value semantics, an
+    acknowledged command over a lossy link, position fixes from acoustic ranges and the GUI,
+    then a summary and a mission report with plots.
+    """
+    from bridge.cli.demo import default_demo_mission, run_demo, tour_mission
+
+    path = mission or default_demo_mission()
+    _load(path)  # a mistake in the file itself is reported as such
+    try:
+        loaded, changes = tour_mission(path, loss)
+    except MissionError as exc:
+        err.print(f"[bold red]cannot make the tour's variant of {path}[/]\n{exc}",
+                  highlight=False)
+        raise typer.Exit(2) from None
     _logging(False)
+    logging.getLogger().setLevel(logging.WARNING)  # the tour's lines, not the nodes' chatter
     _run_or_exit(run_demo(loaded, duration=duration, console=console, live=live, gui=gui,
-                          gui_port=gui_port))
+                          gui_port=gui_port, report=report, changes=changes, loss=loss))
 
 
 @app.command()

@@ -150,6 +150,12 @@ def _set(target: dict[str, Any], path: str, value: Any) -> None:
     target[last] = value
 
 
+def named_as_command(*names: str) -> bool:
+    """A channel or key named as a command (``mission_command``, ``cmd``, ``command``),
+    rather than a sensor value such as a GPS fix."""
+    return any(word in name.lower() for name in names for word in ("command", "cmd"))
+
+
 @dataclass(frozen=True)
 class CommandChannel:
     """A channel the GUI's node sends: its form, its receivers, whether it is acknowledged."""
@@ -170,10 +176,8 @@ class CommandChannel:
         return [(e.key, e.payload(v)) for e, v in zip(self.elements, values, strict=True)]
 
     def is_command(self) -> bool:
-        """Named as a command (``mission_command``, ``cmd``, key ``command``): what an operator
-        most likely wants to send, rather than a sensor value such as a GPS fix."""
-        names = [self.channel, *(e.key for e in self.elements)]
-        return any(word in name.lower() for name in names for word in ("command", "cmd"))
+        """Named as a command: what an operator most likely wants to send."""
+        return named_as_command(self.channel, *(e.key for e in self.elements))
 
     def describe(self) -> dict[str, Any]:
         return {"channel": self.channel, "destinations": list(self.destinations),

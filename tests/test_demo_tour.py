@@ -1,0 +1,91 @@
+"""`zab demo` as a newcomer runs it: from an empty folder with a bare environment, one
+command, ending by itself in about a minute, telling each part of the tour and writing the
+mission report."""
+
+from __future__ import annotations
+
+import os
+import re
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+from bridge.cli.demo import default_demo_mission
+from tests.conftest import free_port
+
+ZAB = Path(sys.executable).parent / "zab"
+
+
+def demo_ports_free() -> bool:
+    """The MORPH mission's Zenoh ports (what `zab demo` listens on) are free right now."""
+    data = yaml.safe_load(default_demo_mission().read_text())
+    for node in data["nodes"].values():
+        port = int(node["zenoh"]["listen"][0].rsplit(":", 1)[1])
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return False
+    return True
+
+
+def test_zab_demo_tells_the_tour_and_writes_the_report(tmp_path: Path) -> None:
+    args = [str(ZAB), "demo", "--gui-port", "0"]
+    if not demo_ports_free():  # someone else's demo is running: same tour, other ports
+        data = yaml.safe_load(default_demo_mission().read_text())
+        for node in data["nodes"].values():
+            node["zenoh"]["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
+        (tmp_path / "morph.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+        args += ["--mission", "morph.yaml"]
+    env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "HOME": str(tmp_path),
+           "LANG": "C.UTF-8"}
+    started = time.monotonic()
+    done = subprocess.run(args, cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=240)
+    took = time.monotonic() - started
+    out = done.stdout
+    assert done.returncode == 0, done.stderr + out
+    assert "Traceback" not in done.stderr + out
+    assert 55 <= took <= 150, took  # ends by itself, in about a minute
+
+    headings = ["1. Values crossing the water, quantised", "2. Latest value, not a queue",
+                "3. A reliable command over a lossy link",
+                "4. Position fixes from acoustic ranges", "5. Summary"]
+    where = [out.find(h) for h in headings]
+    assert all(i >= 0 for i in where) and where == sorted(where), out
+    intro, values, latest, command, fixes, summary = (
+        out[:where[0]], *(out[a:b] for a, b in zip(where, [*where[1:], len(out)], strict=True)))
+
+    assert "You will see, in order: 1. values crossing the water, quantised;" in \
+        intro.replace("\n", " ")
+    assert re.search(r"open http://127\.0\.0\.1:\d+/ in a browser", out)
+    # 1: values as published and as delivered, with the step that explains the difference
+    examples = re.findall(r"^  (\w+) → (\w+): (\S+) \((\w+), (\d+) bits\)$", values, re.M)
+    assert len(examples) >= 2, values
+    assert re.search(r"^\s+\S+\s+-?[\d.]+ → -?[\d.]+\s+\d+ bits, step [\d.]+$", values, re.M)
+    # 2: latest-value semantics in words
+    assert "superseded, not lost" in latest.replace("\n", " ")
+    # 3: the acknowledged command and its delivery report
+    assert "delivery/mission_command" in command.replace("\n", "")
+    delivered = re.search(r"delivery report: (\d+) delivered, (\d+) failed", command)
+    assert delivered and int(delivered.group(1)) >= 1, command
+    assert re.search(r"delivered to \w+ after \d+ transmissions?, [\d.]+ s after the put",
+                     command)
+    # 4: fixes from the acoustic ranges
+    assert re.search(r"position from \w+ \+ \w+: x -?[\d.]+ m, y -?[\d.]+ m", fixes), fixes
+    # 5: a summary a newcomer can read, and the report's path
+    for words in ("published", "sent in frames", "received", "mean age",
+                  "acoustic ranges measured"):
+        assert words in summary, words
+    assert re.search(r"lost \d+ \(\d+%\)", summary)
+    found = re.search(r"mission report \(plots, opens offline\): (\S+)", summary)
+    assert found, summary
+    report = Path(found.group(1))
+    assert report == tmp_path / "zab-demo-report.html" and report.is_file()
+    page = report.read_text(encoding="utf-8")
+    assert all(f'data-plot="{name}"' in page
+               for name in ("tracks", "age", "slots", "losses", "ranges"))
+    # plausible numbers: no float noise, no battery jumping about
+    assert not re.search(r"\d\.\d{8,}|\de-\d\d", out), out
