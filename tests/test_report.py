@@ -115,7 +115,7 @@ def test_fast_sim_writes_a_report_that_opens_offline(tmp_path: Path) -> None:
     assert plots["tracks"]["traces"] >= 5  # a truth per node, fixes of the vehicles
     assert plots["age"]["traces"] >= 5 and plots["age"]["points"] > 100
     assert plots["slots"]["points"] >= 5
-    assert plots["losses"]["traces"] >= 2 and plots["losses"]["annotations"] == []
+    assert plots["losses"]["traces"] >= 1 and plots["losses"]["annotations"] == []  # lost: loss
     assert plots["ranges"]["points"] > 10
     assert "mission report: morph" in page["text"]
     assert "300 s simulated (virtual clock)" in page["text"]

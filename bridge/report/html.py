@@ -144,12 +144,11 @@ def losses_figure(report: dict[str, Any]) -> go.Figure:
     reasons = sorted({r for link in links for r, n in link.get("lost", {}).items() if n})
     fig = go.Figure()
     for reason in reasons:
-        fig.add_trace(go.Bar(x=names, y=[link["lost"].get(reason, 0) for link in links],
-                             name=reason))
-    fig.add_trace(go.Scatter(x=names, y=[0] * len(names), mode="markers", name="sent",
-                             marker={"size": 0.1}, hovertext=[
-                                 f"{link['link']}: {link['sent']} sent, "
-                                 f"{link['delivered']} delivered" for link in links]))
+        fig.add_trace(go.Bar(
+            x=names, y=[link["lost"].get(reason, 0) for link in links], name=reason,
+            hovertext=[f"{link['link']}: {link['lost'].get(reason, 0)} lost ({reason}) of "
+                       f"{link['sent']} sent, {link['delivered']} delivered" for link in links],
+            hoverinfo="text"))
     fig.update_layout(barmode="stack", title="Frames lost per link, by cause",
                       yaxis_title="frames lost", height=420)
     if not reasons:
@@ -174,7 +173,8 @@ def ranges_figure(rec: Recording) -> go.Figure:
         fig.add_trace(go.Scatter(x=[p[0] for p in points], y=[p[1] for p in points],
                                  mode="markers", name=name, marker={"size": 5}))
     fig.add_hline(y=0, line={"color": "grey"})
-    fig.update_layout(title="Range errors: measured − true distance"
+    fig.update_layout(title="Range errors: measured − true distance when the range was "
+                      "completed"
                       + ("" if series else " (no ranges measured)"),
                       xaxis_title="time (s)", yaxis_title=f"error ({unit})", height=420)
     return fig
