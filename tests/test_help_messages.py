@@ -96,3 +96,8 @@ def test_check_json_on_an_invalid_file_prints_the_errors(tmp_path: Path) -> None
     missing = CliRunner().invoke(app, ["check", str(tmp_path / "nope.yaml"), "--json"])
     assert missing.exit_code == 2
     assert "no such mission file" in json.loads(missing.stdout)["errors"][0]["message"]
+
+
+def test_markdown_help_keeps_placeholders() -> None:
+    text = help_of("schema")
+    assert "schemas/payloads/MISSION/" in text.replace("│", "").replace("\n", "").replace(" ", "")

@@ -176,7 +176,7 @@ def _print_mac(data: dict[str, Any]) -> None:
 @app.command()
 def schema(
     out: Annotated[Path | None, typer.Option(help="Where to write (default: schemas/; with "
-                                             "--payloads, schemas/payloads/<mission>/).")] = None,
+                                             "--payloads, schemas/payloads/MISSION/).")] = None,
     payloads: Annotated[Path | None, typer.Option(
         "--payloads", help="Instead: write the JSON Schema of every bridged key's payload of "
         "this mission.", show_default=False)] = None,
