@@ -125,7 +125,7 @@ class Tour:
     def latest(self, channel: ChannelCodec, publish_s: float, sender: str,
                wait_s: float | None) -> None:
         turn = f"every {wait_s:g} s" if wait_s else "only now and then"
-        per_turn = f"about {wait_s / publish_s:.0f}" if wait_s else "several"
+        per_turn = f"about {max(1, round(wait_s / publish_s) - 1)}" if wait_s else "several"
         self.say(f"{channel.name} is published every {publish_s:g} s on {sender}, whose turn to "
                  f"transmit comes {turn}: each frame carries the newest value, and the "
                  f"{per_turn} published in between are superseded, not lost (receivers want "
