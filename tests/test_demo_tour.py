@@ -4,6 +4,7 @@ mission report."""
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import socket
@@ -89,3 +90,28 @@ def test_zab_demo_tells_the_tour_and_writes_the_report(tmp_path: Path) -> None:
                for name in ("tracks", "age", "slots", "losses", "ranges"))
     # plausible numbers: no float noise, no battery jumping about
     assert not re.search(r"\d\.\d{8,}|\de-\d\d", out), out
+
+
+def test_numbers_print_to_their_step_without_float_noise() -> None:
+    from bridge.cli.tour import number
+
+    assert number(9.536743164062498e-08, 0.1) == "0.0"
+    assert number(3.2350001, 0.0246) == "3.235"
+    assert number(14, 1.0) == "14"
+    assert number(0.825, 0.05) == "0.825"
+
+
+def test_synthetic_status_varies_slowly_and_plausibly() -> None:
+    from bridge.cli.demo import synthetic_value
+    from bridge.codec import FieldSpec
+
+    battery = FieldSpec(field="battery", type="int", min=0, max=100)
+    mode = FieldSpec(field="mode", type="enum", values=["idle", "transit", "survey", "abort"])
+    levels = [synthetic_value(battery, t, 1.0) for t in range(0, 600)]
+    assert all(80 <= b <= 100 for b in levels)
+    assert all(0 <= a - b <= 1 for a, b in itertools.pairwise(levels))  # drains
+    assert levels[0] - levels[-1] <= 11  # about 1 % a minute
+    assert {synthetic_value(mode, t, 2.0) for t in range(0, 600, 7)} == {"transit"}
+    depth = FieldSpec(field="depth", min=0, max=100, resolution=0.1)
+    values = [synthetic_value(depth, t, 0.5) for t in range(0, 120)]
+    assert max(abs(a - b) for a, b in itertools.pairwise(values)) < 0.5
