@@ -68,8 +68,19 @@ def open_offline(path: Path) -> dict[str, Any]:
 
 
 def test_age_series_is_a_sawtooth() -> None:
-    assert age_series([1.0, 3.0, 4.0], 6.0) == (
-        [1.0, 3.0, 3.0, 4.0, 4.0, 6.0], [0.0, 2.0, 0.0, 1.0, 0.0, 2.0])
+    times, ages = age_series([1.0, 3.0, 4.0], 6.0)
+    assert list(zip(times, ages, strict=True)) == [
+        (1.0, 0.0), (1.0, 0.0), (3.0, 2.0), (3.0, 0.0), (3.0, 0.0), (4.0, 1.0),
+        (4.0, 0.0), (4.0, 0.0), (6.0, 2.0)]
+
+
+def test_a_long_age_series_keeps_its_worst_ages() -> None:
+    arrivals = [float(t) for t in range(0, 1000, 2)]
+    del arrivals[300]  # one arrival missed: a 4 s age among 2 s ones
+    times, ages = age_series(arrivals, 1000.0, limit=50)
+    assert len(times) <= 3 * 50
+    assert max(ages) == pytest.approx(4.0)
+    assert times[0] == 0.0 and times[-1] == 1000.0
 
 
 def test_bounds_follow_interval_turns_and_airtime() -> None:

@@ -24,7 +24,7 @@ from bridge.report.recorder import Recording, age_series
 CONFIG = {"displaylogo": False, "responsive": True}  # no link out to plotly's site
 LAYOUT = {"template": "plotly_white", "margin": {"l": 60, "r": 20, "t": 50, "b": 50}}
 PALETTE = qualitative.Plotly
-AOI_POINTS = 4000  # per receiver line; longer runs are thinned for the page's sake
+AOI_TEETH = 1500  # per receiver line; longer runs merge teeth, keeping the tallest
 
 
 def channel_bounds(loaded: LoadedMission) -> dict[str, float | None]:
@@ -90,9 +90,8 @@ def age_figure(rec: Recording, bounds: dict[str, float | None],
         for (ch, node), arrivals in sorted(rec.arrivals.items()):
             if ch != channel:
                 continue
-            times, ages = age_series(arrivals, rec.end_s)
-            step = max(1, len(times) // AOI_POINTS)
-            fig.add_trace(go.Scatter(x=times[::step], y=ages[::step], mode="lines",
+            times, ages = age_series(arrivals, rec.end_s, AOI_TEETH)
+            fig.add_trace(go.Scatter(x=times, y=ages, mode="lines",
                                      name=f"{channel} at {node}", legendgroup=channel,
                                      line={"width": 1}), row=row, col=1)
         bound = bounds.get(channel)

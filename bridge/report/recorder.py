@@ -95,14 +95,20 @@ class MissionRecorder:
         return math.dist(where[a], where[b])
 
 
-def age_series(arrivals: list[float], end: float) -> tuple[list[float], list[float]]:
+def age_series(arrivals: list[float], end: float,
+               limit: int | None = None) -> tuple[list[float], list[float]]:
     """The age-of-information sawtooth of one receiver: (times, ages), from the first
-    arrival to ``end``; the age drops to 0 at each arrival."""
+    arrival to ``end``; the age drops to 0 at each arrival. With more than ``limit`` teeth,
+    consecutive teeth are merged, each merged tooth as tall as the tallest it holds (the
+    worst ages stay visible)."""
+    teeth = list(zip(arrivals, [*arrivals[1:], end], strict=True))
+    group = 1 if limit is None or len(teeth) <= limit else math.ceil(len(teeth) / limit)
     times: list[float] = []
     ages: list[float] = []
-    for previous, t in zip(arrivals, [*arrivals[1:], end], strict=True):
-        times += [previous, t]
-        ages += [0.0, t - previous]
+    for i in range(0, len(teeth), group):
+        start, stop = max(teeth[i:i + group], key=lambda tooth: tooth[1] - tooth[0])
+        times += [teeth[i][0], start, stop]
+        ages += [0.0, 0.0, stop - start]
     return times, ages
 
 
