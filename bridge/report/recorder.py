@@ -109,6 +109,9 @@ def age_series(arrivals: list[float], end: float,
         start, stop = max(teeth[i:i + group], key=lambda tooth: tooth[1] - tooth[0])
         times += [teeth[i][0], start, stop]
         ages += [0.0, 0.0, stop - start]
+    if group > 1 and teeth:  # the line ends with the age at the end, as an unmerged one does
+        times += [teeth[-1][0], end]
+        ages += [0.0, end - teeth[-1][0]]
     return times, ages
 
 
