@@ -1,7 +1,8 @@
 """The words of ``zab demo``: what each part of the tour is about to show, and the summary.
 
 Pure formatting over the mission and the run's numbers; :mod:`bridge.cli.demo` runs the
-fleet and calls these at the right moments.
+fleet and calls these at the right moments. A new part (queries, authentication ...) is its
+title in :data:`PARTS`, a method here for its words, and a step in ``demo._story``.
 """
 
 from __future__ import annotations
