@@ -31,7 +31,8 @@ def test_put_crosses_the_water_and_listen_prints_it_decoded() -> None:
             [*ZAB, "listen", endpoint(loaded, "ssv"), "auv1/nav", "--count", "1",
              "--duration", "40"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
-            time.sleep(2)  # the listener's session is up
+            assert listener.stderr is not None
+            assert "listening on auv1/nav" in listener.stderr.readline()  # subscriber is up
             put = subprocess.run(
                 [*ZAB, "put", endpoint(loaded, "auv1"), "nav",
                  '{"x": 12.34, "y": -5.06, "depth": 7.5}'],

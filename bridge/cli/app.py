@@ -522,10 +522,12 @@ def listen(
     from bridge.cli.poke import PokeError
     from bridge.cli.poke import listen as run_listen
 
-    err.print(f"listening on {keyexpr} at {endpoint}; Ctrl-C to stop", highlight=False)
+    def ready() -> None:
+        err.print(f"listening on {keyexpr} at {endpoint}; Ctrl-C to stop", highlight=False)
+
     try:
         run_listen(endpoint, keyexpr, lambda line: print(line, flush=True), count=count,
-                   duration=duration)
+                   duration=duration, ready=ready)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(1) from None

@@ -81,9 +81,10 @@ def format_sample(key: str, payload: bytes, encoding: str) -> str:
 
 
 def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
-           count: int | None = None, duration: float | None = None) -> int:
+           count: int | None = None, duration: float | None = None,
+           ready: Callable[[], None] | None = None) -> int:
     """Print each value arriving on ``keyexpr`` until ``count`` values, ``duration`` seconds
-    or Ctrl-C; return how many were shown."""
+    or Ctrl-C; return how many were shown. ``ready`` is called once the subscriber is up."""
     try:
         zenoh.KeyExpr(keyexpr)
     except zenoh.ZError as exc:
@@ -101,6 +102,8 @@ def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
     shown = 0
     with client(endpoint) as session:
         session.declare_subscriber(keyexpr, on_sample)
+        if ready is not None:
+            ready()
         while count is None or shown < count:
             wait = POLL_S if end is None else min(POLL_S, end - time.monotonic())
             if wait <= 0:
