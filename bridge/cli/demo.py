@@ -30,6 +30,7 @@ from rich.console import Console
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
 from bridge.cli.tour import Tour, turn_waits
 from bridge.codec import FieldSpec
+from bridge.errors import MissionError
 from bridge.gui.commands import named_as_command
 from bridge.gui.server import GuiServer
 from bridge.mission.loader import LoadedMission, parse_mission
@@ -65,14 +66,19 @@ def tour_mission(path: Path, loss: float = TOUR_LOSS) -> tuple[LoadedMission, li
     if loss > 0:
         data.setdefault("modem", {}).setdefault("options", {})["loss"] = loss
         changes.append(f"the water loses {loss:.0%} of frames")
+    plain = yaml.safe_dump(data, sort_keys=False)
     for channel in data.get("channels") or []:
         keys = [str(e.get("in", "")) for e in channel.get("elements") or []]
         if named_as_command(str(channel.get("name", "")), *keys):
             if not channel.get("reliable"):
                 channel.update(reliable=True, latching=False)
-                changes.append(f"{channel['name']} is acknowledged (reliable: true)")
+                try:
+                    loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), path)
+                except MissionError:
+                    break  # this channel cannot be acknowledged as it is: leave it be
+                return loaded, [*changes, f"{channel['name']} is acknowledged (reliable: true)"]
             break
-    return parse_mission(yaml.safe_dump(data, sort_keys=False), path), changes
+    return parse_mission(plain, path), changes
 
 
 def _set(target: dict[str, Any], path: str, value: Any) -> None:
