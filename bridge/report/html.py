@@ -189,11 +189,13 @@ def _summary_html(report: dict[str, Any], rec: Recording) -> str:
     errors = [abs(m - t) for _, _, _, m, t in rec.ranges if t is not None]
     ranges = (f"{len(errors)} ranges, median error {sorted(errors)[len(errors) // 2]:.3f} m"
               if errors else "no ranges measured")
-    return ("<table><thead><tr><th>channel</th><th>bits</th><th>sent</th><th>delivered</th>"
-            "<th>mean age</th><th>max age</th></tr></thead><tbody>" + "".join(rows)
+    return ("<table><thead><tr><th>channel</th><th>bits</th><th>sent in frames</th>"
+            "<th>received</th><th>mean age</th><th>max age</th></tr></thead><tbody>"
+            + "".join(rows)
             + f"</tbody></table><p>{len(rec.frames)} frames sent; {html.escape(ranges)}. "
-            "“Sent” counts values that went into frames; a receiver keeps the latest value "
-            "of a channel, so values superseded before their turn are not lost.</p>")
+            "“Sent in frames” counts values a bridge carried, the newest at each turn (values "
+            "superseded before their turn are not lost: receivers keep the latest value); "
+            "“received” counts arrivals at all receivers together.</p>")
 
 
 def _s(v: Any) -> str:
