@@ -22,6 +22,7 @@ from bridge.codec import Layout
 from bridge.core.node import Notice
 from bridge.errors import DecodeError, EncodeError
 from bridge.mission.loader import LoadedMission
+from bridge.report.recorder import MissionRecorder, truth_from
 from bridge.runtime.virtual_fleet import FastFleet, Timed
 
 FEED_S = 1.0
@@ -152,10 +153,12 @@ async def run_fast(
     record: Callable[[str, str, dict[str, Any]], None] | None = None,
     progress: Callable[[FastFleet], None] | None = None,
     stop: asyncio.Event | None = None,
+    recorder: MissionRecorder | None = None,
 ) -> dict[str, Any]:
     """Run ``duration`` virtual seconds (``speed``: times real time; None: flat out) and
     return the report. ``record`` gets every node's events (frames included), ``progress``
-    the fleet now and then; ``stop`` ends the run early."""
+    the fleet now and then; ``stop`` ends the run early; ``recorder`` gets the events and
+    the ocean's positions (for the HTML report)."""
     if duration <= 0:
         raise ValueError("duration must be > 0")
     if speed is not None and speed <= 0:
@@ -172,8 +175,14 @@ async def run_fast(
                 ages.arrived(channel, timed.node, timed.time)
         if record is not None:
             record(timed.node, timed.output.kind, timed.output.info)
+        if recorder is not None:
+            recorder(timed.node, timed.output.kind, timed.output.info)
 
     fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False)
+    if recorder is not None:
+        ocean = fleet.ocean
+        recorder.truth = truth_from({n: node.address for n, node in loaded.mission.nodes.items()},
+                                    lambda address, t: ocean.position(address, t))
     feed(fleet, random.Random(f"feed/{seed}"), duration)
     started = time.perf_counter()
     step = duration if speed is None else speed * PACE_STEP_S
