@@ -41,8 +41,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, RangingSlots, TdmaMac
+from bridge.modems.presets import Preset, UnknownPresetError, get_preset
 from bridge.ranging.twr import AnchorReplier, round_timeout, tmax
-from bridge.sim.presets import Preset, UnknownPresetError, get_preset
 
 __all__ = [
     "LATE_S",

@@ -29,21 +29,22 @@ import math
 import random
 from collections import Counter
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.link import LinkState, LinkThresholds, heartbeat_s
+from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
 from bridge.dccl.goby import frame_codec_for
-from bridge.errors import DecodeError, EncodeError, FrameError
+from bridge.errors import DecodeError, EncodeError, FrameError, MissionError
 from bridge.mission.loader import LoadedMission
 from bridge.mission.model import TdmaMac
-from bridge.modems.base import ModemRange, Reception
-from bridge.wire.auth import Authenticator, load_key
+from bridge.modems.reception import ModemRange, Reception
+from bridge.wire.auth import Authenticator
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.wire.payloads import decode_payload
 
@@ -112,6 +113,26 @@ class OutFrame:
     acks: tuple[tuple[str, int], ...] = ()
 
 
+@dataclass(frozen=True)
+class SendFrame:
+    """What to do at an open opportunity: send ``frame`` (to ``frame.dest``, asking the modem
+    for its acknowledgement when ``frame.ack``); ``ranged``: its acknowledgement also measures
+    a range to ``frame.dest`` (``ranging.ping`` on a modem that ranges that way)."""
+
+    frame: OutFrame
+    ranged: bool = False
+
+
+@dataclass(frozen=True)
+class Ping:
+    """What to do at an open opportunity: ask the modem for a two-way range to ``peer``."""
+
+    peer: int
+
+
+Action = SendFrame | Ping
+
+
 @dataclass
 class NodeStats:
     """Counters of one node, published on ``@zab/<mission>/<node>/stats``."""
@@ -132,11 +153,13 @@ class NodeCore:
 
     def __init__(self, loaded: LoadedMission, node: str,
                  auth: Authenticator | None = None, rng: random.Random | None = None,
-                 state: Mapping[str, Any] | None = None, key: bytes | None = None) -> None:
+                 state: Mapping[str, Any] | None = None, key: bytes | None = None,
+                 seed: int | None = None) -> None:
         """``rng`` draws this run's epoch when there is no ``state`` (a fresh one per run by
         default; seeded for a reproducible simulation); ``state``: what :meth:`state` returned
         in the previous run, to resume from; ``key``: the frame key of an authenticated
-        mission (default: :func:`~bridge.wire.auth.load_key` finds it)."""
+        mission (the core reads no file and no environment: its runtime loads the key);
+        ``seed``: the MAC's random draws (random access backoffs)."""
         mission = loaded.mission
         if node not in mission.nodes:
             raise ValueError(f"node {node!r} is not in mission {mission.mission!r}")
@@ -149,7 +172,8 @@ class NodeCore:
         wire_auth = mission.wire.auth
         if wire_auth is not None and auth is None:
             if key is None:
-                key = load_key(wire_auth.key_env, wire_auth.key_file)
+                raise MissionError(f"{node}: wire.auth is on: give the frame key "
+                                   "(the runtime loads it, see bridge.mission.keys)")
             auth = Authenticator(key, self.table.fingerprint, mission.address_of(node),
                                  wire_auth.tag_bytes, state.get("auth"))
         self.auth = auth
@@ -162,6 +186,8 @@ class NodeCore:
         self.stats = NodeStats()
         self.thresholds = LinkThresholds.for_mission(mission)
         self.heartbeat_s = heartbeat_s(mission)
+        self.schedule: Schedule = schedule_for(mission, node, seed=seed)
+        self.modem_ranging: str | None = None  # how the modem ranges (set by the runtime)
         self.link_states: dict[str, LinkState] = {}
         self.last_heard: dict[str, float] = {}
         self.received_at: dict[str, float] = {}
@@ -338,6 +364,53 @@ class NodeCore:
         beat = self.next_heartbeat()
         return beat is not None and beat <= now + 1e-9
 
+    # -- the MAC: when to wake, what to do --------------------------------------------------
+
+    def wake_at(self, now: float) -> float | None:
+        """When this node's MAC next has an opportunity for what is due (None: nothing is,
+        wait for data or a frame); the runtime sleeps until then and calls :meth:`act`."""
+        opp = self.schedule.next_opportunity(now, self.next_due(now))
+        return None if opp is None else opp.start
+
+    def act(self, now: float, at: float) -> Action | None:
+        """What to do now, if an opportunity is open: a frame built to start at modem time
+        ``at``, or a ping (``ranging.ping`` with a modem that pings); None: nothing (the
+        opportunity, if any, is given up). Report how it went with :meth:`done`."""
+        opp = self.schedule.next_opportunity(now, self.next_due(now))
+        if opp is None or opp.start > now + 1e-9:
+            return None
+        peer = self.range_due(now) if self.modem_ranging and opp.poll is None else None
+        if peer is not None and self.modem_ranging == "ping":
+            return Ping(peer)
+        always = opp.must_send or self.heartbeat_due(now) or peer is not None
+        out = self.build_frame(now, at, always=always)
+        if out is None:
+            self.schedule.on_skipped(now)
+            return None
+        if opp.poll is not None:  # the poll rides on the frame's destination address
+            out = replace(out, dest=self.mission.address_of(opp.poll))
+        if peer is not None:  # the modem measures the range when the peer acknowledges
+            out = replace(out, dest=peer, ack=True)
+        return SendFrame(out, ranged=peer is not None)
+
+    def done(self, action: Action, start: float, end: float, *,
+             confirmed: bool | None = None, error: str | None = None) -> None:
+        """``action`` was carried out from ``start`` to ``end`` (runtime clock); ``error``:
+        it failed (a frame's data stays due); ``confirmed``: the modem's acknowledgement."""
+        peer = action.peer if isinstance(action, Ping) else (
+            action.frame.dest if action.ranged else None)
+        if peer is not None:
+            self.range_asked(peer, start, error)
+        if isinstance(action, SendFrame):
+            if error is None:
+                self.frame_sent(action.frame, start, confirmed)
+            else:
+                self.frame_failed(action.frame, error, start)
+        if error is None:
+            self.schedule.on_sent(start, end)
+        else:
+            self.schedule.on_skipped(start)
+
     def build_frame(self, now: float, at: float, *, always: bool = False) -> OutFrame | None:
         """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
         nothing to send and ``always`` is false. Pair with :meth:`frame_sent` or
@@ -467,6 +540,7 @@ class NodeCore:
                                            "error": str(exc), "data": rx.data})
             return
         self.stats.frames_received += 1
+        self.schedule.on_heard(src, rx.dest == self.mission.address_of(self.node), now)
         self._foreign.pop(src, None)
         self.last_heard[src] = now
         if self.auth is not None:

@@ -13,10 +13,10 @@ from typing import Any
 
 from bridge.core.positioning import simulated_preset
 from bridge.mission.loader import LoadedMission
+from bridge.mission.path import Path
 from bridge.modems.setup import backend_factory
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_node import BridgeNode
-from bridge.sim.path import Path
 from bridge.sim.service import WaterService
 from bridge.wire.auth import key_for_run
 

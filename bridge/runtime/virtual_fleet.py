@@ -17,20 +17,20 @@ import heapq
 import itertools
 import random
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import msgpack
 
-from bridge.core.mac import schedule_for
-from bridge.core.node import NodeCore, Output, Publish
+from bridge.core.mac import Schedule
+from bridge.core.node import NodeCore, Output, Publish, SendFrame
 from bridge.core.positioning import simulated_preset
 from bridge.errors import EncodeError
 from bridge.mission.loader import LoadedMission
+from bridge.mission.path import Path
 from bridge.modems.base import Reception
+from bridge.modems.presets import Preset
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
-from bridge.sim.path import Path
-from bridge.sim.presets import Preset
 from bridge.wire.auth import key_for_run
 from bridge.wire.payloads import encode_payload
 
@@ -83,9 +83,8 @@ class FastFleet:
             if node.path is not None:
                 self.ocean.set_path(node.address, Path.from_spec(node.path), start)
         self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"),
-                                     key=self.key)
+                                     key=self.key, seed=seed)
                       for name in mission.nodes}
-        self.schedules = {name: schedule_for(mission, name, seed=seed) for name in mission.nodes}
         self.now = start
         self.outputs: list[Timed] = []
         self.on_output = on_output
@@ -150,9 +149,9 @@ class FastFleet:
         (``keep_state``) or from nothing (its disk was lost), and a fresh MAC schedule."""
         self.restarts += 1
         state = self.saved.get(node) if keep_state else None
-        self.cores[node] = NodeCore(self.loaded, node, state=state,
-                                    rng=random.Random(f"{self.seed}/{node}/{self.restarts}"))
-        self.schedules[node] = schedule_for(self.mission, node, seed=self.seed + self.restarts)
+        self.cores[node] = NodeCore(self.loaded, node, state=state, key=self.key,
+                                    rng=random.Random(f"{self.seed}/{node}/{self.restarts}"),
+                                    seed=self.seed + self.restarts)
         self.stopped.discard(node)
         self._collect(node)
         self._plan(node)
@@ -201,41 +200,40 @@ class FastFleet:
                     self._collect(name)
             self._next_tick = now + TICK_S
 
+    @property
+    def schedules(self) -> dict[str, Schedule]:
+        """Each node's MAC schedule (owned by its core)."""
+        return {name: core.schedule for name, core in self.cores.items()}
+
     def _plan(self, name: str) -> None:
         """When ``name`` next gets to transmit: its MAC's next opportunity."""
         if name in self.stopped:
             self._next_tx[name] = None
             return
-        opp = self.schedules[name].next_opportunity(self.now, self.cores[name].next_due(self.now))
+        wake = self.cores[name].wake_at(self.now)
         busy = self.ocean.busy_until(self.mission.address_of(name))  # a busy modem refuses
-        self._next_tx[name] = None if opp is None else max(opp.start, self.now, busy)
+        self._next_tx[name] = None if wake is None else max(wake, self.now, busy)
 
     def _replan(self, name: str) -> None:
         """New data or a reception may change the next opportunity (a poll, a ranging turn)."""
         self._plan(name)
 
     def _transmit(self, name: str) -> None:
-        core, schedule, now = self.cores[name], self.schedules[name], self.now
-        opp = schedule.next_opportunity(now, core.next_due(now))
-        if opp is None or opp.start > now:
-            self._plan(name)
-            return
-        at = now + self.ocean.preset.intrinsic_delay_s
-        out = core.build_frame(now, at, always=opp.must_send or core.heartbeat_due(now))
-        if out is None:
-            schedule.on_skipped(now)
-        else:
-            if opp.poll is not None:  # the poll rides on the frame's destination address
-                out = replace(out, dest=self.mission.address_of(opp.poll))
+        """Carry out what ``name``'s core does at this opportunity, as its modem would (the
+        simulated modem, like ``zab sim``'s, sends frames and does not range)."""
+        core, now = self.cores[name], self.now
+        action = core.act(now, now + self.ocean.preset.intrinsic_delay_s)
+        if isinstance(action, SendFrame):
+            out = action.frame
             try:
                 end = self.ocean.transmit(now, self.mission.address_of(name), out.data, out.dest)
             except TransmitRefused as exc:
-                core.frame_failed(out, str(exc), now)
-                schedule.on_skipped(now)
+                core.done(action, now, now, error=str(exc))
             else:
-                core.frame_sent(out, now)
-                schedule.on_sent(now, end)
-            self._collect(name)
+                core.done(action, now, end)
+        elif action is not None:  # a ping: the simulated modem cannot
+            core.done(action, now, now, error="the simulated modem does not ping")
+        self._collect(name)
         self._plan(name)
 
     def _deliver(self, event: Delivery) -> None:
@@ -243,12 +241,8 @@ class FastFleet:
         if name is None or name in self.stopped:
             return
         meta = {**event.meta, "start": event.start}
-        core = self.cores[name]
-        valid = core.stats.frames_received
-        core.receive(Reception(event.data, event.src, event.end, meta), self.now, self.now)
-        src = self.mission.name_of(event.src)
-        if core.stats.frames_received > valid and src is not None:  # a valid frame: tell the MAC
-            self.schedules[name].on_heard(src, event.meta.get("dest") == event.dst, event.end)
+        self.cores[name].receive(Reception(event.data, event.src, event.end, meta), self.now,
+                                 self.now)
         self._collect(name)
         self._replan(name)
 

@@ -13,15 +13,13 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import msgpack
 import zenoh
 
 from bridge.core.link import LinkState
-from bridge.core.mac import schedule_for
-from bridge.core.node import NodeCore, NodeStats, Notice, Publish, Status, notable
+from bridge.core.node import NodeCore, NodeStats, Notice, Ping, Publish, Status, notable
 from bridge.core.positioning import Positioning
 from bridge.errors import BackendError, EncodeError
 from bridge.mission.loader import LoadedMission
@@ -29,6 +27,7 @@ from bridge.modems.base import ModemBackend, ModemRange, Reception
 from bridge.ros2.graph import Ros2Graph
 from bridge.runtime.session import close_quietly, is_bridged, open_session, origin_tag
 from bridge.runtime.state_file import StateFile
+from bridge.wire.auth import load_key
 from bridge.wire.payloads import encode_payload
 
 if TYPE_CHECKING:
@@ -59,6 +58,9 @@ class BridgeNode:
         survives a restart; peers then see a new epoch and resynchronise); ``key``: the frame
         key (default: found as ``wire.auth`` says)."""
         self.state_file = state_file
+        auth = loaded.mission.wire.auth
+        if key is None and auth is not None:
+            key = load_key(auth.key_env, auth.key_file)
         self.core = NodeCore(loaded, node, key=key,
                              state=state_file.load() if state_file is not None else None)
         self.mission = loaded.mission
@@ -68,7 +70,6 @@ class BridgeNode:
         self.backend: ModemBackend | None = None
         self.clock = clock
         self.on_event = on_event or (lambda kind, info: None)
-        self.schedule = schedule_for(self.mission, node)
         self.prefix = f"@zab/{self.mission.mission}/{node}"
         self._origin = origin_tag(self.mission.mission, node)
         self._tokens: dict[str, Any] = {}
@@ -209,75 +210,51 @@ class BridgeNode:
     # -- core → modem --------------------------------------------------------------------------
 
     async def _transmit_loop(self) -> None:
-        """Sleep until the MAC's next opportunity (new data or a frame heard wakes it to ask
-        again), then send one frame there."""
+        """Sleep until the core's MAC has an opportunity (new data or a frame heard wakes it to
+        ask again), then carry out what the core says to do there."""
         while True:
             await self._modem_up.wait()
             self._data.clear()
             now = self.clock()
-            opp = self.schedule.next_opportunity(now, self.core.next_due(now))
-            if opp is None or opp.start > now:
+            wake = self.core.wake_at(now)
+            if wake is None or wake > now:
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._data.wait(),
-                                           None if opp is None else opp.start - now)
+                                           None if wake is None else wake - now)
                 continue
-            sent = await self.transmit(always=opp.must_send or self.core.heartbeat_due(now),
-                                       poll=opp.poll)
-            if sent:
-                self.schedule.on_sent(now, self.clock())
-            else:
-                self.schedule.on_skipped(now)
+            await self.transmit()
 
-    async def transmit(self, *, always: bool = False, poll: str | None = None) -> bool:
-        """Build one frame from what is due and send it (``poll``: the node it polls, carried
-        as the frame's destination). Returns whether a frame went out."""
+    async def transmit(self) -> bool:
+        """Carry out the core's action at an open opportunity: send its frame, or ping.
+        Returns whether something went out."""
         backend = self.backend
         if backend is None:
             return False
-        # ranging.ping: a due range takes this opportunity (a ping, or this frame acked)
-        peer = self.core.range_due(self.clock()) if backend.ranging and poll is None else None
-        if peer is not None and backend.ranging == "ping":
-            return await self._ping(backend, peer)
+        self.core.modem_ranging = backend.ranging
+        now = self.clock()
         # with a timed modem the emission starts exactly at ``at``, so DLBL delays are exact
         at = backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
-        out = self.core.build_frame(self.clock(), at, always=always or peer is not None)
-        if out is None:
+        action = self.core.act(now, at)
+        if action is None:
             self._flush()
             return False
         self._persist()  # a counter reserved for this frame is saved before it leaves
-        if poll is not None:
-            out = replace(out, dest=self.mission.address_of(poll))
-        if peer is not None:  # the modem measures the range when the peer acknowledges
-            out = replace(out, dest=peer, ack=True)
+        confirmed = None
         try:
-            confirmed = await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
+            if isinstance(action, Ping):
+                await backend.ping(action.peer)
+            else:
+                out = action.frame
+                confirmed = await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
         except BackendError as exc:
-            log.warning("%s: send failed: %s", self.node, exc)
-            if peer is not None:
-                self.core.range_asked(peer, self.clock(), str(exc))
-            self.core.frame_failed(out, str(exc), self.clock())
+            what = "ping" if isinstance(action, Ping) else "send"
+            log.warning("%s: %s failed: %s", self.node, what, exc)
+            self.core.done(action, now, self.clock(), error=str(exc))
             self._flush()
             if not backend.is_open:  # the modem is gone: wait until the modem loop reopens it
                 self._modem_up.clear()
             return False
-        if peer is not None:
-            self.core.range_asked(peer, self.clock())
-        self.core.frame_sent(out, self.clock(), confirmed)
-        self._flush()
-        return True
-
-    async def _ping(self, backend: ModemBackend, peer: int) -> bool:
-        """Range to ``peer`` with the modem's ping; the range arrives through ``on_range``."""
-        try:
-            await backend.ping(peer)
-        except BackendError as exc:
-            log.info("%s: no range to %s: %s", self.node, self.mission.name_of(peer), exc)
-            self.core.range_asked(peer, self.clock(), str(exc))
-            self._flush()
-            if not backend.is_open:
-                self._modem_up.clear()
-            return False
-        self.core.range_asked(peer, self.clock())
+        self.core.done(action, now, self.clock(), confirmed=confirmed)
         self._flush()
         return True
 
@@ -311,11 +288,9 @@ class BridgeNode:
     def receive(self, rx: Reception) -> None:
         """Hand one received frame to the core and publish what it produced."""
         modem_now = self.backend.clock() if self.backend is not None else None
-        now, valid = self.clock(), self.core.stats.frames_received
-        self.core.receive(rx, now, modem_now)
-        src = self.mission.name_of(rx.src)
-        if self.core.stats.frames_received > valid and src is not None:
-            self.schedule.on_heard(src, rx.dest == self.mission.address_of(self.node), now)
+        valid = self.core.stats.frames_received
+        self.core.receive(rx, self.clock(), modem_now)
+        if self.core.stats.frames_received > valid:
             self._data.set()  # a poll or a ranging turn may open an opportunity
         self._flush()
 
