@@ -58,6 +58,7 @@ NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payl
 """Notice kinds also published on ``@zab/<mission>/<node>/events`` (and failed deliveries)."""
 
 DEFAULT_RETRY_S = 10.0  # first retransmission without TDMA (with TDMA: one cycle)
+PEER_STATUS_S = 1.0  # least time between two ``peers/<peer>`` status puts of one peer
 ACK_REPEATS = 3  # frames that carry an acknowledgement after it changed (acks can be lost)
 STATE_VERSION = 1
 EPOCHS = 256  # stream epochs, EPOCH_BITS wide
@@ -214,6 +215,7 @@ class NodeCore:
         self._acks: dict[tuple[str, int], None] = {}  # (sender, channel index) owed an ack now
         self._ack_repeats: dict[tuple[str, int], int] = {}  # and in this many more frames
         self._foreign: dict[str, int] = {}  # a peer's last fingerprint not ours
+        self._peer_status: dict[str, float] = {}  # when each peer's status was last put
         self.mismatched: dict[str, str] = {}  # peers known to run another mission file
 
     # -- state across restarts -----------------------------------------------------------------
@@ -580,7 +582,9 @@ class NodeCore:
                 for element, value in zip(channel.elements, elements, strict=True):
                     self._publish(element.output_key(src, self.node), value, element.encoding,
                                   channel.latching, element.ros2)
-        self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
+        if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
+            self._peer_status[src] = now
+            self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
         self._notice("frame_received", {
             "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
             "data": rx.data, "meta": plain(rx.meta), "values": values})
