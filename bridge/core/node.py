@@ -36,13 +36,12 @@ from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.link import LinkState, LinkThresholds, heartbeat_s
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
-from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
+from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report, default_retry_s
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
 from bridge.dccl.goby import frame_codec_for
 from bridge.errors import DecodeError, EncodeError, FrameError, MissionError
 from bridge.mission.loader import LoadedMission
-from bridge.mission.model import TdmaMac
 from bridge.modems.reception import ModemRange, Reception
 from bridge.wire.auth import Authenticator
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
@@ -57,7 +56,6 @@ NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payl
                      "mission_mismatch", "peer_restarted"})
 """Notice kinds also published on ``@zab/<mission>/<node>/events`` (and failed deliveries)."""
 
-DEFAULT_RETRY_S = 10.0  # first retransmission without TDMA (with TDMA: one cycle)
 PEER_STATUS_S = 1.0  # least time between two ``peers/<peer>`` status puts of one peer
 ACK_REPEATS = 3  # frames that carry an acknowledgement after it changed (acks can be lost)
 STATE_VERSION = 1
@@ -204,8 +202,7 @@ class NodeCore:
                     key = element.input_key(node)
                     self.bindings.setdefault(key, []).append((channel, i, element))
         self._warned_keys: set[str] = set()
-        mac = mission.mac
-        retry_s = mac.slot_s * len(mac.order) if isinstance(mac, TdmaMac) else DEFAULT_RETRY_S
+        retry_s = default_retry_s(mission)
         self.senders: dict[int, ReliableSender | TransferSender] = {
             c.index: (TransferSender if c.fragmented else ReliableSender)(
                 c, c.destinations(node), retry_s, rng.randrange(SEQ_MOD))
