@@ -9,7 +9,6 @@ what it outputs: publications, ``@zab`` status, liveliness tokens and events.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import time
 from collections.abc import Callable
@@ -218,11 +217,20 @@ class BridgeNode:
             now = self.clock()
             wake = self.core.wake_at(now)
             if wake is None or wake > now:
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._data.wait(),
-                                           None if wake is None else wake - now)
+                await self._wait_for_data(None if wake is None else wake - now)
                 continue
             await self.transmit()
+
+    async def _wait_for_data(self, timeout: float | None) -> None:
+        """Until new data or a frame sets ``_data``, or ``timeout`` seconds pass (a timer on
+        the loop: no task per wait, as ``asyncio.wait_for`` would make)."""
+        timer = None if timeout is None else \
+            asyncio.get_running_loop().call_later(timeout, self._data.set)
+        try:
+            await self._data.wait()
+        finally:
+            if timer is not None:
+                timer.cancel()
 
     async def transmit(self) -> bool:
         """Carry out the core's action at an open opportunity: send its frame, or ping.
