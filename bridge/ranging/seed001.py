@@ -13,8 +13,8 @@ or shorter by 1–5 m (a wrong clock), never by less than the gate could tell.
 Ranges are DLBL (:mod:`bridge.ranging.dlbl`) on a TDMA cycle of ``slot_s`` per node, the
 vehicle first: each range is half of a two-way exchange, leg 1 from the vehicle's emission to
 the anchor, leg 2 from the anchor's emission to the vehicle, each leg's travel time solved for
-the moving vehicle. The vehicle's compass gives its heading (``heading_sigma_deg``) once a
-second; speed is not measured unless ``speed``.
+the moving vehicle. The vehicle's compass gives its heading (``heading_sigma_deg``)
+``heading_hz`` times a second; speed is not measured unless ``speed``.
 """
 
 from __future__ import annotations
@@ -95,7 +95,7 @@ def _arrival(path: Path, anchor: Sequence[float], t_emit: float) -> float:
 def events(duration_s: float, anchors: Sequence[str] = ("left", "middle", "right"), *,
            seed: int = 1, reception: str = "seed001", heading: bool = True,
            speed: bool = False, outliers: float = 0.0, slot_s: float = 0.4,
-           heading_sigma_deg: float = 2.0) -> Iterator[Event]:
+           heading_sigma_deg: float = 2.0, heading_hz: float = 1.0) -> Iterator[Event]:
     """The measurements of ``duration_s`` seconds, in time order."""
     rnd = random.Random(seed)
     path = route()
@@ -138,7 +138,7 @@ def events(duration_s: float, anchors: Sequence[str] = ("left", "middle", "right
                 serial += 1
                 bisect.insort(pending, (next_heading, serial,
                                         Event(next_heading, heading=reading, speed=spd)))
-            next_heading += 1.0
+            next_heading += 1.0 / heading_hz
         while pending and pending[0][0] < t0 + cycle:
             yield pending.pop(0)[2]
         k += 1

@@ -103,6 +103,7 @@ class TrackerConfig:
     anchor_max_age_s: float = 60.0
     max_lag_s: float = 10.0
     diverged_after: int = 6
+    manoeuvre_window_s: float = 2.5
     prune_share: float = 1e-6
     min_heading_speed_mps: float = 0.2
 
@@ -125,6 +126,7 @@ class _Hypothesis:
     log_w: float = 0.0
     heading: float | None = None  # radians, compass convention, last one applied
     heading_time: float = 0.0
+    turns: list[tuple[float, float]] = field(default_factory=list)  # (when, clockwise rad)
 
 
 @dataclass(frozen=True)
@@ -259,9 +261,15 @@ class RangeTracker:
             if t < hyp.time - cfg.max_lag_s:
                 continue
             self._predict(hyp, max(t, hyp.time))
-            if hyp.heading is not None:  # the vehicle turned: so did its velocity
-                _turn(hyp, _wrap(theta - hyp.heading), t - hyp.heading_time)
-            hyp.heading, hyp.heading_time = theta, t
+            turned = _wrap(theta - hyp.heading) if hyp.heading is not None else 0.0
+            noise = math.radians(cfg.heading_sigma_deg)
+            if hyp.heading is None or abs(turned) > 3 * noise:
+                if turned:  # the vehicle turned, so did its velocity; compass noise does not
+                    _turn(hyp, turned, t - hyp.heading_time)
+                    hyp.turns = [(w, a) for w, a in hyp.turns if t - w <= cfg.max_lag_s]
+                    hyp.turns.append(((t + hyp.heading_time) / 2, turned))
+                hyp.heading = theta
+            hyp.heading_time = t
             if speed_mps is not None:
                 nis = self._speed_update(hyp, speed_mps)
                 worst = max(worst, nis)
@@ -349,12 +357,13 @@ class RangeTracker:
         return Outcome(False, reason, nis)
 
     def _manoeuvred(self, obs: RangeObs) -> bool:
-        """Three ranges from two or more anchors refused within ``coast_after_s``: the vehicle
+        """Three ranges from two or more anchors refused within ``manoeuvre_window_s``: the vehicle
         may have turned or changed speed. Allow the velocity change such a manoeuvre could make
         and take the ranges if all then fit one motion (each within 2 σ after the update, which
         unrelated outliers do not); else leave the track as it was."""
         cfg = self.config
-        recent = [(o, r) for o, r in self._refusals if obs.time - o.time <= cfg.coast_after_s]
+        recent = [(o, r) for o, r in self._refusals
+                  if obs.time - o.time <= cfg.manoeuvre_window_s]
         if (not self.resolved or len(recent) < 2
                 or len({o.anchor for o, _ in recent} | {obs.anchor}) < 2):
             return False
@@ -368,7 +377,7 @@ class RangeTracker:
         hyp.p[1, 1] += (dv * since) ** 2 / 3
         tried = [o for o, _ in recent] + [obs]
         if all(self._range_update(hyp, o)[1] for o in tried) and all(
-                (o.range_m - self._range_model(hyp.x, hyp.time, o)[0]) ** 2
+                (o.range_m - self._range_model(hyp, o)[0]) ** 2
                 <= 4 * cfg.range_sigma_m**2 + o.anchor_sigma_m**2 for o in tried):
             for _, reason in recent:  # it was the track that was wrong, not those ranges
                 self.rejected[reason] -= 1
@@ -382,7 +391,7 @@ class RangeTracker:
 
     def _innovation_sign(self, obs: RangeObs) -> float:
         hyp = max(self.hypotheses, key=lambda h: h.log_w)
-        predicted, _ = self._range_model(hyp.x, hyp.time, obs)
+        predicted, _ = self._range_model(hyp, obs)
         return obs.range_m - predicted
 
     def _start(self, t: float) -> Outcome:
@@ -495,28 +504,28 @@ class RangeTracker:
             hyp.x, hyp.p = _predicted(hyp.x, hyp.p, dt, self._accel_sigma(t))
             hyp.time = t
 
-    def _range_model(self, x: np.ndarray, t_state: float,
-                     obs: RangeObs) -> tuple[float, np.ndarray]:
-        """Predicted range and its Jacobian (1×4) for a state ``x`` at ``t_state``."""
+    def _range_model(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, np.ndarray]:
+        """Predicted range and its Jacobian (1×4) for hypothesis ``hyp``."""
         assert self.depth is not None
+        x = hyp.x
         legs = ((obs.time - obs.span_s, obs.anchor_before or obs.anchor_at),
                 (obs.time, obs.anchor_at))
         h, jac = 0.0, np.zeros(4)
         for t_leg, (ax, ay, az) in legs:
-            lag = t_leg - t_state
-            px, py = x[0] + x[2] * lag, x[1] + x[3] * lag
+            m = _displacement(hyp.time, t_leg, hyp.turns)  # p(t_leg) = p + m·v
+            px, py = x[:2] + m @ x[2:]
             ex, ey, ez = px - ax, py - ay, self.depth - az
             dist = math.sqrt(ex * ex + ey * ey + ez * ez) or 1e-9
             h += dist / 2
-            ux, uy = ex / dist / 2, ey / dist / 2
-            jac += np.array([ux, uy, ux * lag, uy * lag])
+            u = np.array([ex, ey]) / dist / 2
+            jac += np.concatenate([u, u @ m])
         return h, jac
 
     def _range_update(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
         """EKF update with one range; (NIS, accepted). The weight takes the likelihood."""
         cfg = self.config
         self._predict(hyp, obs.time)
-        predicted, jac = self._range_model(hyp.x, hyp.time, obs)
+        predicted, jac = self._range_model(hyp, obs)
         r = cfg.range_sigma_m**2 + obs.anchor_sigma_m**2
         return self._update(hyp, obs.range_m - predicted, jac, r)
 
@@ -568,6 +577,25 @@ def _predicted(x: np.ndarray, p: np.ndarray, dt: float,
     qq[0, 2] = qq[2, 0] = qq[1, 3] = qq[3, 1] = q * dt**2 / 2
     qq[2, 2] = qq[3, 3] = q * dt
     return f @ x, f @ p @ f.T + qq
+
+
+def _displacement(t_state: float, t_leg: float,
+                  turns: list[tuple[float, float]]) -> np.ndarray:
+    """The 2×2 ``m`` with ``p(t_leg) = p(t_state) + m·v(t_state)``: straight lines, except
+    that going back past a recorded turn the velocity is the one before it."""
+    if t_leg >= t_state or not turns:
+        return np.eye(2) * (t_leg - t_state)
+    m, rot, t = np.zeros((2, 2)), np.eye(2), t_state
+    for when, angle in reversed(turns):
+        if when >= t_state:
+            continue
+        if when <= t_leg:
+            break
+        m -= (t - when) * rot
+        c, s = math.cos(angle), math.sin(angle)
+        rot = np.array([[c, -s], [s, c]]) @ rot  # the velocity before that turn
+        t = when
+    return m - (t - t_leg) * rot
 
 
 def _turn(hyp: _Hypothesis, angle: float, since_s: float) -> None:
