@@ -25,6 +25,7 @@ from bridge.mission import Mission, TdmaMac
 from bridge.ocean.path import Path
 from bridge.ocean.presets import Preset, get_preset
 from bridge.ranging import DlblRanger, Fix, NoFix, Range, SoundSpeed, Track, attempt
+from bridge.ranging.tracker import Estimate, Prior, RangeObs, RangeTracker, TrackerConfig
 
 DEFAULT_SOUND_SPEED_MPS = 1500.0
 MODEM_METHODS = ("ping", "propagation")
@@ -32,6 +33,14 @@ TRACK_RESTART_AFTER = 3
 """Fixes in a row the track refuses before it restarts at the latest one (it had diverged)."""
 MAX_MODEM_TRAVEL_S = 20.0
 """Longest one-way travel time believed from a modem (30 km at 1500 m/s); beyond is garbage."""
+
+RANGE_SIGMA_M = 0.15
+"""Range error the tracker expects: DLBL stamps to tens of µs, clocks tens of ppm apart."""
+START_SIGMA_M = 2.0
+"""How well a node knows where it starts (its mission position or first waypoint)."""
+REPORT_EVERY_S = 5.0
+"""Without new ranges, the tracker's estimate (coasting, then lost) is still published this
+often."""
 
 WATER_LIMITS = {"temperature_c": (-2.0, 40.0), "salinity_psu": (0.0, 42.0),
                 "depth_m": (0.0, 12000.0)}
@@ -115,11 +124,14 @@ def water_sound_speed(temperature_c: float, salinity_psu: float, depth_m: float,
 
 @dataclass(frozen=True)
 class Update:
-    """What one measurement produced: ranges, and the fix attempted with them (a :class:`Fix`,
-    a :class:`NoFix` saying why not, or None when this node does not localise)."""
+    """What one measurement produced: ranges, the snapshot fix attempted with them (a
+    :class:`Fix`, a :class:`NoFix` saying why not, or None when this node does not localise)
+    and the range-domain tracker's estimate (:mod:`bridge.ranging.tracker`)."""
 
     ranges: tuple[Range, ...]
     fix: Fix | NoFix | None
+    estimate: Estimate | None = None
+    """The tracker's estimate after these ranges: what ``…/position`` publishes."""
 
 
 class Positioning:
@@ -165,6 +177,10 @@ class Positioning:
         self.fix_max_age_s = ranging.fix_max_age_s or default_age
         self.latest: dict[str, Range] = {}
         self.drops: Counter[str] = Counter()
+        self.anchor_reports: dict[str, list[tuple[float, tuple[float, float, float]]]] = {}
+        self.tracker = RangeTracker(TrackerConfig(range_sigma_m=RANGE_SIGMA_M),
+                                    depth=self.depth) if self.localises else None
+        self._reported_at = -math.inf
 
     # -- transmissions (DLBL) ------------------------------------------------------------------
 
@@ -178,9 +194,37 @@ class Positioning:
 
     def set_depth(self, depth: float) -> None:
         self.depth = depth
+        if self.tracker is not None:
+            self.tracker.set_depth(depth)
 
-    def set_anchor(self, anchor: str, position: tuple[float, float, float]) -> None:
+    def set_heading(self, heading_deg: float, speed_mps: float | None, now: float) -> None:
+        """This node's compass heading (degrees from north) and, if known, speed at ``now``."""
+        if self.tracker is not None:
+            self.tracker.on_heading(now, heading_deg, speed_mps)
+
+    def set_anchor(self, anchor: str, position: tuple[float, float, float],
+                   now: float | None = None) -> None:
+        """A live position of ``anchor`` (reported at ``now``, if given: it may be moving)."""
         self.anchor_positions[anchor] = position
+        if now is not None:
+            reports = self.anchor_reports.setdefault(anchor, [])
+            reports.append((now, position))
+            del reports[:-2]
+
+    def anchor_at(self, anchor: str, t: float) -> tuple[tuple[float, float, float], float, float]:
+        """Where ``anchor`` was at ``t``: (position, 1-σ metres, age of the report in seconds),
+        extrapolated from its last two live reports when it moves."""
+        reports = self.anchor_reports.get(anchor)
+        position = self.anchor_positions[anchor]
+        if not reports:
+            return position, 0.0, 0.0  # the mission's: a moored or surface anchor
+        t1, p1 = reports[-1]
+        age = max(t - t1, 0.0)
+        if len(reports) == 2 and 0 < t1 - reports[0][0] <= 60.0:
+            t0, p0 = reports[0]
+            rate = [(b - a) / (t1 - t0) for a, b in zip(p0, p1, strict=True)]
+            position = (p1[0] + rate[0] * age, p1[1] + rate[1] * age, p1[2])
+        return position, 0.05 + 0.1 * age, age  # a report's resolution; a manoeuvre since
 
     def set_water(self, temperature_c: float, salinity_psu: float, depth_m: float) -> None:
         """A CTD reading at this node (``ranging.ctd_key``); ``ValueError`` if implausible."""
@@ -215,12 +259,19 @@ class Positioning:
     # -- measurements --------------------------------------------------------------------------
 
     def on_receive(self, src: str, t_rx_start: float, delays: Sequence[int | None],
-                   now: float) -> Update:
-        """A frame from ``src`` with its DLBL ``delays`` started arriving at ``t_rx_start``."""
+                   now: float, host_now: float | None = None) -> Update:
+        """A frame from ``src`` with its DLBL ``delays`` started arriving at ``t_rx_start``
+        (``now``: the modem's clock; ``host_now``: the same instant on the clock of the node's
+        other inputs, depth and heading, if it differs)."""
         ranges = tuple(self.ranger.on_receive(src, t_rx_start, delays))
         for rng in ranges:
             self.latest[rng.peer] = rng
-        return Update(ranges, self.locate(now) if ranges and self.localises else None)
+        if not (ranges and self.localises):
+            return Update(ranges, None)
+        offset = 0.0 if host_now is None else host_now - now
+        for rng in ranges:
+            self._track(rng, rng.time + offset, rng.reply_s + 2 * rng.travel_time_s)
+        return Update(ranges, self.locate(now), self.estimate(now + offset))
 
     def on_modem_range(self, peer: str, travel_time_s: float, method: str,
                        now: float) -> Update:
@@ -236,7 +287,37 @@ class Positioning:
             return Update((), None)
         rng = Range(peer, travel_time_s, method, now)
         self.latest[peer] = rng
-        return Update((rng,), self.locate(now) if self.localises else None)
+        if not self.localises:
+            return Update((rng,), None)
+        self._track(rng, now, 2 * travel_time_s)
+        return Update((rng,), self.locate(now), self.estimate(now))
+
+    def _track(self, rng: Range, t: float, span_s: float) -> None:
+        """Hand a range to an anchor with a known position to the tracker."""
+        if self.tracker is None or rng.peer not in self.anchor_positions:
+            return
+        if self.tracker.prior is None and self.start is not None:  # where it was put in
+            self.tracker.prior = Prior(t, self.start[0], self.start[1], START_SIGMA_M)
+        now_at, sigma, age = self.anchor_at(rng.peer, t)
+        before, _, _ = self.anchor_at(rng.peer, t - span_s)
+        self.tracker.on_range(RangeObs(
+            rng.peer, rng.range_m(self.sound_speed_for(rng.peer).mps), t, now_at,
+            span_s=span_s, anchor_before=before, anchor_sigma_m=sigma, anchor_age_s=age))
+
+    def estimate(self, now: float) -> Estimate | None:
+        """The tracker's estimate at ``now`` (None if this node does not localise)."""
+        if self.tracker is None:
+            return None
+        self.tracker.drop_if_lost(now)
+        self._reported_at = now
+        return self.tracker.estimate(now)
+
+    def report(self, now: float) -> Estimate | None:
+        """The estimate, if nothing was published for :data:`REPORT_EVERY_S` (so that coasting
+        and lost tracks are seen without new ranges)."""
+        if self.tracker is None or now - self._reported_at < REPORT_EVERY_S:
+            return None
+        return self.estimate(now)
 
     def locate(self, now: float) -> Fix | NoFix:
         """A fix from the fresh ranges to anchors with known positions, or why there is none."""
