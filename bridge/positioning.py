@@ -38,6 +38,11 @@ RANGE_SIGMA_M = 0.15
 """Range error the tracker expects: DLBL stamps to tens of µs, clocks tens of ppm apart."""
 START_SIGMA_M = 2.0
 """How well a node knows where it starts (its mission position or first waypoint)."""
+ANCHOR_SAMPLE_AGE_S = 0.5
+"""Mean age of a live anchor position when its frame is built (a 1 Hz nav, sampled anywhere
+in the second before); the frame's airtime comes on top (:attr:`Positioning.report_latency_s`)."""
+UNREPORTED_ANCHOR_SIGMA_M = 3.0
+"""1-σ of a live anchor's mission position until its first report (it may have moved)."""
 REPORT_EVERY_S = 5.0
 """Without new ranges, the tracker's estimate (coasting, then lost) is still published this
 often."""
@@ -178,9 +183,15 @@ class Positioning:
         self.latest: dict[str, Range] = {}
         self.drops: Counter[str] = Counter()
         self.anchor_reports: dict[str, list[tuple[float, tuple[float, float, float]]]] = {}
+        try:  # how old an anchor's acoustic position report is when it arrives
+            airtime = simulated_preset(mission).airtime(mission.node_modem(node).frame_bytes)
+        except (KeyError, ValueError):
+            airtime = 0.0
+        self.report_latency_s = airtime + ANCHOR_SAMPLE_AGE_S
         self.tracker = RangeTracker(TrackerConfig(range_sigma_m=RANGE_SIGMA_M),
                                     depth=self.depth) if self.localises else None
         self._reported_at = -math.inf
+        self._clock_offset = 0.0  # the node's clock minus the modem's
 
     # -- transmissions (DLBL) ------------------------------------------------------------------
 
@@ -204,11 +215,19 @@ class Positioning:
 
     def set_anchor(self, anchor: str, position: tuple[float, float, float],
                    now: float | None = None) -> None:
-        """A live position of ``anchor`` (reported at ``now``, if given: it may be moving)."""
+        """A live position of ``anchor`` arriving at ``now``, if given (it may be moving): taken
+        as where the anchor was :data:`ANCHOR_SAMPLE_AGE_S` before it sent the frame that
+        brought it, if a range to it came with that frame, else :attr:`report_latency_s` ago."""
         self.anchor_positions[anchor] = position
         if now is not None:
+            sent = now - self.report_latency_s + ANCHOR_SAMPLE_AGE_S
+            rng = self.latest.get(anchor)
+            if rng is not None and rng.method == "dlbl":
+                arrived = rng.time + self._clock_offset  # that frame's start, on our clock
+                if 0 <= now - arrived <= self.report_latency_s:
+                    sent = arrived - rng.travel_time_s
             reports = self.anchor_reports.setdefault(anchor, [])
-            reports.append((now, position))
+            reports.append((sent - ANCHOR_SAMPLE_AGE_S, position))
             del reports[:-2]
 
     def anchor_at(self, anchor: str, t: float) -> tuple[tuple[float, float, float], float, float]:
@@ -216,15 +235,19 @@ class Positioning:
         extrapolated from its last two live reports when it moves."""
         reports = self.anchor_reports.get(anchor)
         position = self.anchor_positions[anchor]
-        if not reports:
-            return position, 0.0, 0.0  # the mission's: a moored or surface anchor
+        if not reports:  # the mission's: a moored anchor, or a live one not yet heard from
+            live = anchor in self.mission.ranging.anchor_keys
+            return position, UNREPORTED_ANCHOR_SIGMA_M if live else 0.0, 0.0
         t1, p1 = reports[-1]
         age = max(t - t1, 0.0)
+        speed = 0.0
         if len(reports) == 2 and 0 < t1 - reports[0][0] <= 60.0:
             t0, p0 = reports[0]
             rate = [(b - a) / (t1 - t0) for a, b in zip(p0, p1, strict=True)]
             position = (p1[0] + rate[0] * age, p1[1] + rate[1] * age, p1[2])
-        return position, 0.05 + 0.1 * age, age  # a report's resolution; a manoeuvre since
+            speed = math.hypot(rate[0], rate[1])
+        # a report's resolution, the sample's unknown age, a manoeuvre since
+        return position, 0.05 + speed * ANCHOR_SAMPLE_AGE_S / 2 + 0.05 * age, age
 
     def set_water(self, temperature_c: float, salinity_psu: float, depth_m: float) -> None:
         """A CTD reading at this node (``ranging.ctd_key``); ``ValueError`` if implausible."""
@@ -268,7 +291,7 @@ class Positioning:
             self.latest[rng.peer] = rng
         if not (ranges and self.localises):
             return Update(ranges, None)
-        offset = 0.0 if host_now is None else host_now - now
+        offset = self._clock_offset = 0.0 if host_now is None else host_now - now
         for rng in ranges:
             self._track(rng, rng.time + offset, rng.reply_s + 2 * rng.travel_time_s)
         return Update(ranges, self.locate(now), self.estimate(now + offset))

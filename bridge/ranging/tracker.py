@@ -91,7 +91,7 @@ class TrackerConfig:
 
     range_sigma_m: float = 0.1
     accel_sigma: float = 0.5
-    accel_sigma_steered: float = 0.15
+    accel_sigma_steered: float = 0.08
     heading_sigma_deg: float = 3.0
     speed_sigma_mps: float = 0.1
     max_speed_mps: float = 2.5
@@ -417,7 +417,8 @@ class RangeTracker:
             self.lost_reason = "degenerate_geometry"
             return Outcome(False, "degenerate_geometry")
         spread = max(o.time for o in fresh) - min(o.time for o in fresh)
-        sigma = math.hypot(found.sigma_m, cfg.max_speed_mps * spread / 2, cfg.range_sigma_m)
+        sigma = math.hypot(found.sigma_m, cfg.max_speed_mps * spread / 2, cfg.range_sigma_m,
+                           max(o.anchor_sigma_m for o in fresh))
         points = [(found.x, found.y)]
         if found.alternative is not None and math.dist(found.alternative, points[0]) > sigma:
             points.append(found.alternative)
