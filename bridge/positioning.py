@@ -41,8 +41,9 @@ START_SIGMA_M = 2.0
 ANCHOR_SAMPLE_AGE_S = 0.5
 """Mean age of a live anchor position when its frame is built (a 1 Hz nav, sampled anywhere
 in the second before); the frame's airtime comes on top (:attr:`Positioning.report_latency_s`)."""
-UNREPORTED_ANCHOR_SIGMA_M = 3.0
-"""1-σ of a live anchor's mission position until its first report (it may have moved)."""
+ANCHOR_MAX_SPEED_MPS = 2.0
+"""How fast a live anchor may have moved from its mission position before its first report:
+until then, that position's 1-σ grows by half of this per second since the node started."""
 REPORT_EVERY_S = 5.0
 """Without new ranges, the tracker's estimate (coasting, then lost) is still published this
 often."""
@@ -192,10 +193,13 @@ class Positioning:
                                     depth=self.depth) if self.localises else None
         self._reported_at = -math.inf
         self._clock_offset = 0.0  # the node's clock minus the modem's
+        self._first_time: float | None = None  # when this node first sent or heard
 
     # -- transmissions (DLBL) ------------------------------------------------------------------
 
     def on_transmit(self, t_start: float) -> list[int | None]:
+        if self._first_time is None:
+            self._first_time = t_start
         return self.ranger.on_transmit(t_start)
 
     def forget_transmit(self, t_start: float) -> None:
@@ -236,8 +240,10 @@ class Positioning:
         reports = self.anchor_reports.get(anchor)
         position = self.anchor_positions[anchor]
         if not reports:  # the mission's: a moored anchor, or a live one not yet heard from
-            live = anchor in self.mission.ranging.anchor_keys
-            return position, UNREPORTED_ANCHOR_SIGMA_M if live else 0.0, 0.0
+            if anchor not in self.mission.ranging.anchor_keys:
+                return position, 0.0, 0.0
+            since = max(t - (self._first_time if self._first_time is not None else t), 0.0)
+            return position, START_SIGMA_M + ANCHOR_MAX_SPEED_MPS / 2 * since, 0.0
         t1, p1 = reports[-1]
         age = max(t - t1, 0.0)
         speed = 0.0
@@ -319,8 +325,11 @@ class Positioning:
         """Hand a range to an anchor with a known position to the tracker."""
         if self.tracker is None or rng.peer not in self.anchor_positions:
             return
-        if self.tracker.prior is None and self.start is not None:  # where it was put in
-            self.tracker.prior = Prior(t, self.start[0], self.start[1], START_SIGMA_M)
+        if self._first_time is None:
+            self._first_time = t
+        if self.tracker.prior is None and self.start is not None:  # where it was put in, when
+            self.tracker.prior = Prior(min(self._first_time, t), self.start[0], self.start[1],
+                                       START_SIGMA_M)  # it started (it may have moved since)
         now_at, sigma, age = self.anchor_at(rng.peer, t)
         before, _, _ = self.anchor_at(rng.peer, t - span_s)
         self.tracker.on_range(RangeObs(
@@ -338,6 +347,8 @@ class Positioning:
     def report(self, now: float) -> Estimate | None:
         """The estimate, if nothing was published for :data:`REPORT_EVERY_S` (so that coasting
         and lost tracks are seen without new ranges)."""
+        if self._first_time is None:
+            self._first_time = now  # the node's first tick: it started (and may move) now
         if self.tracker is None or now - self._reported_at < REPORT_EVERY_S:
             return None
         return self.estimate(now)

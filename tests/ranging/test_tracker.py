@@ -150,3 +150,22 @@ def test_bad_inputs_are_counted_by_reason() -> None:
     assert far.reason == "long" and far.nis is not None and far.nis > 10
     assert tracker.rejected == {"not_finite": 2, "stale_anchor": 1, "out_of_order": 1,
                                 "long": 1}
+
+
+def test_only_the_prior_can_tell_mirrors_apart_so_it_commits_later_and_says_so() -> None:
+    a1, a2 = (0.0, 0.0, 0.5), (0.0, 40.0, 0.5)  # on one line: both sides fit every range
+    where = (6.0, 20.0, 1.0)
+    tracker = RangeTracker(prior=Prior(0.0, 6.0, 20.0, 4.0), depth=1.0)
+    states = []
+    for k in range(40):
+        for name, a in (("a1", a1), ("a2", a2)):
+            t = 1.0 + k + 0.5 * (name == "a2")
+            tracker.on_range(static_range(a, where, t, name))
+            states.append((t, tracker.estimate(t)))
+    early = [e for t, e in states if t < 20.0]
+    late = [e for t, e in states if t > 23.0]
+    assert all(e.state == "lost" and e.reason == "ambiguous" for e in early[1:])
+    assert len(early[-1].candidates) == 2
+    assert all(e.state == "tracking" for e in late)  # the prior's 98 %, after 20 s
+    payload = late[-1].payload()
+    assert 0.001 < payload["mirror_doubt"] < 0.05 and payload["x"] == pytest.approx(6.0, abs=0.1)
