@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from bridge.mission import Mission, TdmaMac
@@ -189,8 +189,11 @@ class Positioning:
         except (KeyError, ValueError):
             airtime = 0.0
         self.report_latency_s = airtime + ANCHOR_SAMPLE_AGE_S
-        self.tracker = RangeTracker(TrackerConfig(range_sigma_m=RANGE_SIGMA_M),
-                                    depth=self.depth) if self.localises else None
+        config = TrackerConfig(range_sigma_m=RANGE_SIGMA_M)
+        if cycle is not None:  # a range per anchor per TDMA cycle: no news within one is normal
+            config = replace(config, coast_after_s=max(config.coast_after_s, 1.5 * cycle),
+                             init_window_s=max(config.init_window_s, cycle))
+        self.tracker = RangeTracker(config, depth=self.depth) if self.localises else None
         self._reported_at = -math.inf
         self._clock_offset = 0.0  # the node's clock minus the modem's
         self._first_time: float | None = None  # when this node first sent or heard
