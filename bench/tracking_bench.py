@@ -199,27 +199,37 @@ def morph_run(duration_s: float, seed: int = 1) -> dict[str, Any]:
     for node, items in published.items():
         if not items:
             continue
-        errors, states = [], Counter()
+        errors, states, inside = [], Counter(), []
         finite = True
+        low, high = NEES_BOUNDS_2D
         for t, payload in items:
             states[payload.get("state", "fix" if payload["fix"] else "lost")] += 1
             finite = finite and _all_finite(payload)
             if payload["fix"]:
-                errors.append(math.dist((payload["x"], payload["y"]), truth(node, t)[:2]))
+                where = truth(node, t)
+                ex, ey = payload["x"] - where[0], payload["y"] - where[1]
+                errors.append(math.hypot(ex, ey))
+                (a, b), (_, d) = payload["cov"]
+                det = a * d - b * b
+                nees = (d * ex * ex - 2 * b * ex * ey + a * ey * ey) / det if det > 0 else math.inf
+                inside.append(low <= nees <= high)
         rows[node] = {"n": len(items), "states": states, "finite": finite,
+                      "nees_in": sum(inside) / len(inside) if inside else math.nan,
                       "p50": percentile(errors, 0.5) if errors else math.nan,
                       "p95": percentile(errors, 0.95) if errors else math.nan,
                       "mean_sigma": statistics.fmean(p["sigma_m"] for _, p in items
                                                      if p["fix"]) if errors else math.nan}
     print(f"\nMORPH formation, {duration_s:g} s on the virtual clock ({took:.0f} s to run); "
           "anchors ssv (surface, fixed) and gcv (12 m deep, moving with the formation)")
-    head = f"{'vehicle':<8} | {'reports':>7} | {'p50 m':>6} {'p95 m':>6} {'σ̄ m':>6} | states"
+    head = (f"{'vehicle':<8} | {'reports':>7} | {'p50 m':>6} {'p95 m':>6} {'σ̄ m':>6} | "
+            f"{'NEES in':>7} | states")
     print(head)
     print("-" * len(head))
     for node, r in rows.items():
         states = ", ".join(f"{k} {v}" for k, v in sorted(r["states"].items()))
         print(f"{node:<8} | {r['n']:7d} | {r['p50']:6.2f} {r['p95']:6.2f} "
-              f"{r['mean_sigma']:6.2f} | {states}{'' if r['finite'] else '  NON-FINITE!'}")
+              f"{r['mean_sigma']:6.2f} | {r['nees_in']:7.1%} | {states}"
+              f"{'' if r['finite'] else '  NON-FINITE!'}")
     print("non-finite numbers published: "
           f"{'none' if all(r['finite'] for r in rows.values()) else 'YES'}")
     return rows
