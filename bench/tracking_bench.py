@@ -143,8 +143,9 @@ def seed001_table(hours: float) -> list[dict[str, Any]]:
     for key, value in seed001.PUBLISHED.items():
         print(f"  {key:<34} {value}")
     print("Without a compass the instant 90° turns are found only from the ranges, late; with "
-          "two anchors or seed 001's losses the track then diverges, restarts and may take the "
-          "mirror (counted as flips): give the tracker the vehicle's heading.")
+          "seed 001's losses (often one anchor heard per cycle) the track then diverges, "
+          "restarts and may take the mirror (counted as flips): give the tracker the vehicle's "
+          "heading.")
     print("Issue #16's targets: 3 anchors p95 ≤ 0.30 m; 2 anchors + depth + heading p95 ≤ 1.0 m "
           "(west leg and corners included), 0 flips in 1 h; NEES in bounds ≥ 90 %.")
     return rows

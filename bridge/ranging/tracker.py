@@ -241,6 +241,7 @@ class RangeTracker:
         self.manoeuvres = 0
         self._accepted_at: deque[float] = deque(maxlen=64)  # times of recent accepted ranges
         self._now = 0.0  # the latest measurement's time
+        self._agreed_at: dict[str, float] = {}  # anchor -> its last accepted range's time
         self._ambiguous_since: float | None = None
         self.doubt = 0.0  # the share of weight the committed hypothesis's rivals held
 
@@ -328,6 +329,7 @@ class RangeTracker:
             return outcome
         self.accepted += 1
         self._accepted_at.append(obs.time)
+        self._agreed_at[obs.anchor] = obs.time
         self.last_range_time = max(self.last_range_time or obs.time, obs.time)
         self._used[obs.anchor] = obs.range_m
         return Outcome(True, None, worst_nis)
@@ -368,19 +370,27 @@ class RangeTracker:
         return Outcome(False, reason, nis)
 
     def _manoeuvred(self, obs: RangeObs) -> bool:
-        """Three ranges from two or more anchors refused within ``manoeuvre_window_s``: the vehicle
-        may have turned or changed speed. Allow the velocity change such a manoeuvre could make
-        and take the ranges if all then fit one motion (each within 2 σ after the update, which
-        unrelated outliers do not); else leave the track as it was."""
+        """Ranges refused in a row within ``manoeuvre_window_s`` (three; two without a compass):
+        the vehicle may have turned or changed speed. Allow the velocity change such a manoeuvre
+        could make since those anchors last agreed with the track, and take the ranges if all
+        then fit one motion (each within 2 σ after the update, which unrelated outliers rarely
+        do); else leave the track as it was."""
         cfg = self.config
         recent = [(o, r) for o, r in self._refusals
                   if obs.time - o.time <= cfg.manoeuvre_window_s]
-        if (not self.resolved or len(recent) < 2
-                or len({o.anchor for o, _ in recent} | {obs.anchor}) < 2):
+        anchors = {o.anchor for o, _ in recent} | {obs.anchor}
+        steered = self._accel_sigma(obs.time) == cfg.accel_sigma_steered
+        # with a compass, turns are known: it takes three refusals; without, turns are the
+        # usual reason and two (one anchor's in a row) are enough
+        if not self.resolved or len(recent) < (2 if steered else 1):
             return False
         hyp = self.hypotheses[0]
         saved = (hyp.x.copy(), hyp.p.copy(), hyp.time, hyp.log_w)
-        since = max(obs.time - (self.last_range_time or obs.time), 0.0)
+        # since when the track may have been off: the last range accepted (without a compass:
+        # the last these anchors agreed with, others' ranges may not see the turn)
+        agreed = [self._agreed_at.get(a, obs.time - cfg.manoeuvre_window_s) for a in anchors]
+        since = max(obs.time - (self.last_range_time or obs.time) if steered
+                    else obs.time - min(agreed), 0.0)
         dv = max(math.hypot(hyp.x[2], hyp.x[3]), 0.5) * math.sqrt(2)  # up to a right angle
         hyp.p[2, 2] += dv * dv
         hyp.p[3, 3] += dv * dv

@@ -68,6 +68,16 @@ def test_without_heading_it_follows_but_corners_cost() -> None:
     assert percentile(errors(samples), 0.95) <= 1.5
 
 
+def test_two_anchors_without_heading_a_turn_near_an_anchor_is_caught() -> None:
+    # by the (5, 5) corner the left anchor's ranges alone see the turn east: refused twice in a
+    # row, they are taken as a manoeuvre instead of letting the track slide towards the jetty
+    tracker = RangeTracker(prior=START)
+    samples = replay(tracker, events(1800.0, ("left", "right"), reception="all", heading=False,
+                                     seed=9))
+    assert flips(samples) == 0 and tracker.restarts == 0 and tracker.manoeuvres > 0
+    assert percentile(errors(samples), 0.95) <= 1.5
+
+
 def test_mirror_resolved_from_motion_without_a_prior() -> None:
     tracker = RangeTracker()  # no idea where it started: both sides of the jetty fit
     samples = replay(tracker, events(600.0, ("left", "right"), seed=8, reception="all"))
