@@ -249,14 +249,16 @@ class Positioning:
             return position, START_SIGMA_M + ANCHOR_MAX_SPEED_MPS / 2 * since, 0.0
         t1, p1 = reports[-1]
         age = max(t - t1, 0.0)
-        speed = 0.0
         if len(reports) == 2 and 0 < t1 - reports[0][0] <= 60.0:
             t0, p0 = reports[0]
             rate = [(b - a) / (t1 - t0) for a, b in zip(p0, p1, strict=True)]
             position = (p1[0] + rate[0] * age, p1[1] + rate[1] * age, p1[2])
             speed = math.hypot(rate[0], rate[1])
-        # a report's resolution, the sample's unknown age, a manoeuvre since
-        return position, 0.05 + speed * ANCHOR_SAMPLE_AGE_S / 2 + 0.05 * age, age
+            # a report's resolution, the sample's unknown age (up to a nav period or two), a
+            # manoeuvre since
+            return position, 0.05 + speed * 2 * ANCHOR_SAMPLE_AGE_S + 0.05 * age, age
+        # one report: where it has gone since is unknown
+        return position, 0.05 + ANCHOR_MAX_SPEED_MPS / 2 * (age + 2 * ANCHOR_SAMPLE_AGE_S), age
 
     def set_water(self, temperature_c: float, salinity_psu: float, depth_m: float) -> None:
         """A CTD reading at this node (``ranging.ctd_key``); ``ValueError`` if implausible."""
