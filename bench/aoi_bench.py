@@ -25,8 +25,8 @@ import msgpack
 import yaml
 import zenoh
 
-from bridge.fleet import Fleet
-from bridge.mission_loader import parse_mission
+from bridge.mission.loader import parse_mission
+from bridge.runtime.fleet import Fleet
 
 NODES = ("n1", "n2", "n3")
 SLOT_S = 0.8

@@ -21,10 +21,10 @@ import time
 from collections import Counter
 from collections.abc import Callable
 
-from bridge.auth import Authenticator
 from bridge.errors import FrameError
-from bridge.frame import FrameCodec
-from bridge.mission_loader import parse_mission
+from bridge.mission.loader import parse_mission
+from bridge.wire.auth import Authenticator
+from bridge.wire.frame import FrameCodec
 
 MISSION = """\
 mission: fuzz

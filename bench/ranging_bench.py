@@ -195,12 +195,12 @@ MODEM_DISTANCE_M = 150.0
 
 async def _evologics_errors(runs: int, folder: Path) -> dict[str, list[float]]:
     """Travel-time errors (s) through the EvoLogics driver: DLBL host- and modem-timed, AT?T."""
-    from bridge.backends.base import ModemSetup
-    from bridge.backends.evologics import EvologicsBackend
-    from bridge.emulators.evologics import EvologicsEmulator
-    from bridge.ocean.model import LossCurve
-    from bridge.ocean.presets import get_preset
-    from bridge.ocean.service import WaterService
+    from bridge.modems.base import ModemSetup
+    from bridge.modems.evologics.driver import EvologicsBackend
+    from bridge.modems.evologics.emulator import EvologicsEmulator
+    from bridge.sim.ocean import LossCurve
+    from bridge.sim.presets import get_preset
+    from bridge.sim.service import WaterService
 
     preset = get_preset("evologics-s2c-im").replace(overhead_s=0.02, per_byte_s=0.001)
     where = {1: (0.0, 0.0, 5.0), 2: (MODEM_DISTANCE_M, 0.0, 5.0)}
@@ -251,11 +251,11 @@ async def _evologics_errors(runs: int, folder: Path) -> dict[str, list[float]]:
 
 async def _micromodem_errors(runs: int, folder: Path) -> list[float]:
     """Travel-time errors (s) of the Micro-Modem ping through its driver."""
-    from bridge.backends.base import ModemSetup
-    from bridge.backends.micromodem import MicromodemBackend
-    from bridge.emulators.micromodem import MicromodemEmulator
-    from bridge.ocean.presets import get_preset
-    from bridge.ocean.service import WaterService
+    from bridge.modems.base import ModemSetup
+    from bridge.modems.micromodem.driver import MicromodemBackend
+    from bridge.modems.micromodem.emulator import MicromodemEmulator
+    from bridge.sim.presets import get_preset
+    from bridge.sim.service import WaterService
 
     preset = get_preset("micromodem-rate0").replace(bitrate_bps=3200.0, overhead_s=0.05)
     where = {1: (0.0, 0.0, 5.0), 2: (MODEM_DISTANCE_M, 0.0, 5.0)}

@@ -41,8 +41,8 @@ import msgpack
 import yaml
 import zenoh
 
-from bridge.fastrun import run_fast
-from bridge.mission_loader import parse_mission
+from bridge.cli.sim_fast import run_fast
+from bridge.mission.loader import parse_mission
 
 TICK = os.sysconf("SC_CLK_TCK")
 SLOT_S = 1.0

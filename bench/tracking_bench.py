@@ -14,8 +14,8 @@ NEES in 95 % bounds: the share of updates whose normalised estimation error squa
 χ²₂'s 2.5–97.5 % interval (0.051–7.38; a consistent filter: 95 %); flips: times the estimate
 went over to the mirror side of the jetty.
 
-Table 2, MORPH (``deploy/missions/morph.yaml``) on the virtual clock (:class:`~bridge.fastsim.
-FastFleet`): the formation transits north at 0.8 m/s weaving ±3 m as ``zab demo`` sails it;
+Table 2, MORPH (``deploy/missions/morph.yaml``) on the virtual clock
+(:class:`~bridge.runtime.virtual_fleet.FastFleet`): the formation transits north at 0.8 m/s weaving ±3 m as ``zab demo`` sails it;
 every vehicle's nav (depth, heading, speed) reaches its own tracker once a second and the
 gcv's position reaches the others over the acoustic nav channel (gcv is a moving anchor, as
 ``ranging.anchor_keys`` says). p95 error per vehicle, states, and any non-finite number.
@@ -34,14 +34,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from bridge.core import Publish, Status
-from bridge.demo import formation_value
-from bridge.fastsim import FastFleet, Timed
-from bridge.mission_loader import load_mission
+from bridge.cli.demo import formation_value
+from bridge.core.node import Publish, Status
+from bridge.mission.loader import load_mission
 from bridge.ranging import seed001
 from bridge.ranging.localise import Fix, attempt
 from bridge.ranging.seed001 import NEES_BOUNDS_2D, Sample, events, flips, percentile, replay
 from bridge.ranging.tracker import Prior, RangeTracker, TrackerConfig
+from bridge.runtime.virtual_fleet import FastFleet, Timed
 
 MORPH = Path(__file__).resolve().parent.parent / "deploy" / "missions" / "morph.yaml"
 CORNER_M = 3.0  # "corner": within this distance of a waypoint

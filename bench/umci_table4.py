@@ -2,8 +2,9 @@
 
 ``deploy/missions/bluerov_rf.yaml``: the operator polls the ROV every 640 ms with a 16-byte
 frame (its joystick command); the ROV answers each poll it hears with a 57-byte frame (status
-and an image trunk). Both nodes' bridges (:class:`~bridge.core.NodeCore`) run on the virtual
-clock of :class:`~bridge.fastsim.FastFleet` over the pure ocean with the ``s100-rf`` preset
+and an image trunk). Both nodes' bridges (:class:`~bridge.core.node.NodeCore`) run on the virtual
+clock of :class:`~bridge.runtime.virtual_fleet.FastFleet` over the pure ocean with the
+``s100-rf`` preset
 (seed 002 Table 3: 1.9 kbit/s, 85 ms intrinsic delay, 13.2 ms jitter taken as the standard
 deviation of a Gaussian, instant propagation), once with BER 0 and once with BER 0.07 %.
 
@@ -53,12 +54,12 @@ import msgpack
 import yaml
 import zenoh
 
-from bridge.core import Notice
-from bridge.fastsim import FastFleet, Timed
-from bridge.fleet import Fleet
-from bridge.mission_loader import LoadedMission, load_mission, parse_mission
-from bridge.ocean.model import Loss
-from bridge.ocean.presets import get_preset
+from bridge.core.node import Notice
+from bridge.mission.loader import LoadedMission, load_mission, parse_mission
+from bridge.runtime.fleet import Fleet
+from bridge.runtime.virtual_fleet import FastFleet, Timed
+from bridge.sim.ocean import Loss
+from bridge.sim.presets import get_preset
 
 MISSION = Path(__file__).resolve().parent.parent / "deploy" / "missions" / "bluerov_rf.yaml"
 DIRECTIONS = (("rov", "operator", "robot→operator"), ("operator", "rov", "operator→robot"))

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from bridge.mission_loader import LoadedMission, parse_mission
+from bridge.mission.loader import LoadedMission, parse_mission
 
 REPO = Path(__file__).resolve().parent.parent
 MISSIONS = REPO / "deploy" / "missions"

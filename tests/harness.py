@@ -14,8 +14,8 @@ from typing import Any
 import msgpack
 import zenoh
 
-from bridge.fleet import Fleet
-from bridge.mission_loader import LoadedMission
+from bridge.mission.loader import LoadedMission
+from bridge.runtime.fleet import Fleet
 
 
 @contextlib.contextmanager
@@ -98,8 +98,8 @@ def put(session: zenoh.Session, key: str, value: Any) -> None:
 def listing1_crosses_in_the_next_slot(loaded: LoadedMission) -> None:
     """Seed 000 Listing 1 end to end: put at lsv's endpoint just after one of lsv's TDMA slots;
     gcv's endpoint gets it decoded within quantisation, during lsv's next slot."""
-    from bridge.mac import TdmaSchedule
-    from bridge.mission import TdmaMac
+    from bridge.core.mac import TdmaSchedule
+    from bridge.mission.model import TdmaMac
 
     assert isinstance(loaded.mission.mac, TdmaMac)
     lsv_app = outside_session(loaded, "lsv")

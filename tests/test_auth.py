@@ -8,10 +8,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.auth import Authenticator, load_key
 from bridge.errors import FrameError, MissionError
-from bridge.frame import CHECK_BYTES, FrameCodec
-from bridge.mission_loader import parse_mission
+from bridge.mission.loader import parse_mission
+from bridge.wire.auth import Authenticator, load_key
+from bridge.wire.frame import CHECK_BYTES, FrameCodec
 from tests.conftest import MISSIONS
 
 KEY = b"0123456789abcdef-mission-key"

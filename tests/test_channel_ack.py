@@ -6,9 +6,9 @@ import asyncio
 
 import msgpack
 
-from bridge.backends.base import ModemBackend, ModemSetup, Reception
-from bridge.mission_loader import parse_mission
-from bridge.node import BridgeNode
+from bridge.mission.loader import parse_mission
+from bridge.modems.base import ModemBackend, ModemSetup, Reception
+from bridge.runtime.zenoh_node import BridgeNode
 
 MISSION = """\
 mission: acks

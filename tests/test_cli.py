@@ -14,8 +14,8 @@ from pathlib import Path
 import yaml
 from typer.testing import CliRunner
 
-from bridge.cli import app
-from bridge.schema import default_schema_path, schema_text
+from bridge.cli.app import app
+from bridge.mission.schema import default_schema_path, schema_text
 from tests.conftest import MISSIONS, REPO, free_port
 
 RUNNER = CliRunner()
@@ -144,9 +144,9 @@ def test_water_and_emulate_serve_a_real_driver(tmp_path: Path) -> None:
     """`zab water` + `zab emulate evologics` as processes; the driver opens the emulated pty."""
     import asyncio
 
-    from bridge.backends.evologics import EvologicsBackend
-    from bridge.mission_loader import load_mission
-    from bridge.modem_setup import modem_setup
+    from bridge.mission.loader import load_mission
+    from bridge.modems.evologics.driver import EvologicsBackend
+    from bridge.modems.setup import modem_setup
 
     mission = MISSIONS / "morph_evologics.yaml"
     water_port = free_port()

@@ -13,10 +13,10 @@ import time
 import msgpack
 import pytest
 
-from bridge.auth import Authenticator
-from bridge.backends.base import ModemSetup
-from bridge.backends.udp import UdpBackend
-from bridge.frame import FrameCodec
+from bridge.modems.base import ModemSetup
+from bridge.modems.udp import UdpBackend
+from bridge.wire.auth import Authenticator
+from bridge.wire.frame import FrameCodec
 from tests.conftest import MISSIONS, free_port, mission_on_free_ports, on_free_ports
 from tests.harness import (
     Inbox,

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from bridge.core import Publish
-from bridge.fastsim import FastFleet
-from bridge.mission_loader import load_mission
+from bridge.core.node import Publish
+from bridge.mission.loader import load_mission
+from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 
 

@@ -9,11 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.builder import plan_frame
+from bridge.core.builder import plan_frame
+from bridge.core.store import OutboundStore
 from bridge.errors import DecodeError, FrameError
-from bridge.frame import CHECK_BYTES, NO_DELAY, FrameCodec
-from bridge.mission_loader import load_mission, parse_mission
-from bridge.store import OutboundStore
+from bridge.mission.loader import load_mission, parse_mission
+from bridge.wire.frame import CHECK_BYTES, NO_DELAY, FrameCodec
 from tests.conftest import MISSIONS
 
 MORPH = load_mission(MISSIONS / "morph.yaml")

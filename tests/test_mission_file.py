@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from bridge.cli import app
+from bridge.cli.app import app
 from bridge.errors import MissionError
-from bridge.mission_loader import load_mission, parse_mission
+from bridge.mission.loader import load_mission, parse_mission
 
 GOOD = """\
 mission: tiny

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from bridge.mac import FreeSchedule, TdmaSchedule
-from bridge.mission import NoMac, TdmaMac
-from bridge.mission_loader import load_mission
-from bridge.store import OutboundStore
+from bridge.core.mac import FreeSchedule, TdmaSchedule
+from bridge.core.store import OutboundStore
+from bridge.mission.loader import load_mission
+from bridge.mission.model import NoMac, TdmaMac
 from tests.conftest import MISSIONS
 
 MORPH = load_mission(MISSIONS / "morph.yaml")
@@ -99,7 +99,7 @@ def test_free_schedule_min_gap() -> None:
 
 
 def test_a_value_arriving_while_its_frame_is_sent_stays_due() -> None:
-    from bridge.mission_loader import load_mission
+    from bridge.mission.loader import load_mission
     from tests.conftest import MISSIONS
 
     table = load_mission(MISSIONS / "morph.yaml").table

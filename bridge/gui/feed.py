@@ -17,8 +17,8 @@ from typing import Any
 
 import zenoh
 
-from bridge.payloads import encode_payload
-from bridge.zenoh_session import close_quietly
+from bridge.runtime.session import close_quietly
+from bridge.wire.payloads import encode_payload
 
 log = logging.getLogger("zab.gui")
 

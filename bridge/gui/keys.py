@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from bridge.mission_loader import LoadedMission
+from bridge.mission.loader import LoadedMission
 
 
 @dataclass(frozen=True)

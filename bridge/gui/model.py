@@ -34,8 +34,8 @@ from bridge.gui.eventlog import (
     transfer_line,
 )
 from bridge.gui.keys import ChannelSource, StatusKey, SurfaceKeys
-from bridge.mission_loader import LoadedMission
-from bridge.payloads import decode_payload
+from bridge.mission.loader import LoadedMission
+from bridge.wire.payloads import decode_payload
 
 #: Points of track kept per vehicle and source (about 10 min of 1 Hz navigation).
 TRACK_POINTS = 600

@@ -25,8 +25,8 @@ from aiohttp import WSMsgType, web
 from bridge.gui.commands import CommandError
 from bridge.gui.feed import ZenohFeed
 from bridge.gui.model import GuiModel, shown
-from bridge.mission import Mission
-from bridge.mission_loader import LoadedMission
+from bridge.mission.loader import LoadedMission
+from bridge.mission.model import Mission
 
 log = logging.getLogger("zab.gui")
 

@@ -2,7 +2,7 @@
 
 Each node timestamps every reception (its own clock) and, when it transmits, writes for every
 foreign node the delay ``δ`` from its last reception from that node to this transmission's start,
-in µs, 24 bits each (:mod:`bridge.frame`). When B hears A's frame carrying A's delay for B, B
+in µs, 24 bits each (:mod:`bridge.wire.frame`). When B hears A's frame carrying A's delay for B, B
 knows when it sent the frame A heard (``t_tx``, B's clock) and when A's frame arrived (``t_rx``,
 B's clock), so::
 
@@ -37,7 +37,7 @@ from collections import Counter, deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from bridge.frame import DELAY_MAX_US
+from bridge.wire.frame import DELAY_MAX_US
 
 WRAP_US = 1 << 24  # a wrapping sender counts delays modulo 2²⁴ µs
 

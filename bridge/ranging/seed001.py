@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bridge.ocean.path import Path, rectangle
 from bridge.ranging.tracker import Estimate, RangeObs, RangeTracker
+from bridge.sim.path import Path, rectangle
 
 DEPTH_M = 0.9
 ANCHORS: dict[str, tuple[float, float, float]] = {

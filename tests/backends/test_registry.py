@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from bridge.backends import ModemBackend, available_backends, load_backend
-from bridge.backends.sim import SimBackend
-from bridge.backends.udp import UdpBackend
 from bridge.errors import BackendError
+from bridge.modems import ModemBackend, available_backends, load_backend
+from bridge.modems.sim import SimBackend
+from bridge.modems.udp import UdpBackend
 
 
 def test_builtins_load() -> None:

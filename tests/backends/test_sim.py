@@ -12,12 +12,12 @@ from typing import Any
 
 import pytest
 
-from bridge.backends.base import ModemSetup, Reception
-from bridge.backends.sim import SimBackend
 from bridge.errors import BackendError
-from bridge.ocean.model import LossCurve
-from bridge.ocean.presets import Preset
-from bridge.ocean.service import WaterService, serve_water
+from bridge.modems.base import ModemSetup, Reception
+from bridge.modems.sim import SimBackend
+from bridge.sim.ocean import LossCurve
+from bridge.sim.presets import Preset
+from bridge.sim.service import WaterService, serve_water
 
 # 50 ms overhead + 1 ms per byte, sound at 1500 m/s: fast enough for tests, slow enough to measure.
 FAST = Preset(

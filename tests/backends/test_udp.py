@@ -10,9 +10,9 @@ from typing import Any
 
 import pytest
 
-from bridge.backends.base import ModemSetup
-from bridge.backends.udp import UdpBackend
 from bridge.errors import BackendError
+from bridge.modems.base import ModemSetup
+from bridge.modems.udp import UdpBackend
 
 
 def arun(main: Callable[[], Awaitable[None]], timeout: float = 10.0) -> None:

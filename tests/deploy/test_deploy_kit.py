@@ -18,8 +18,8 @@ import yaml
 import zenoh
 from typer.testing import CliRunner
 
-from bridge.cli import app
-from bridge.logbook import read_log
+from bridge.cli.app import app
+from bridge.runtime.logbook import read_log
 from tests.conftest import MISSIONS, REPO, free_port
 
 RUNNER = CliRunner()

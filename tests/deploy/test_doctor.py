@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from bridge.doctor import (
+from bridge.cli.doctor import (
     ClockState,
     Finding,
     clock_findings,
@@ -21,11 +21,11 @@ from bridge.doctor import (
     parse_timedatectl,
     run_doctor,
 )
-from bridge.emulators.evologics import EvologicsEmulator
-from bridge.emulators.micromodem import MicromodemEmulator
-from bridge.fleet import water_for
-from bridge.mission_loader import LoadedMission
-from bridge.modem_setup import modem_setup
+from bridge.mission.loader import LoadedMission
+from bridge.modems.evologics.emulator import EvologicsEmulator
+from bridge.modems.micromodem.emulator import MicromodemEmulator
+from bridge.modems.setup import modem_setup
+from bridge.runtime.fleet import water_for
 from tests.conftest import MISSIONS, REPO, free_port, on_free_ports
 
 CHRONY = """\

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from bridge.docs_reference import backend_reference, mission_reference, module_doc
-from bridge.mission import Mission
+from bridge.mission.model import Mission
+from bridge.mission.reference import backend_reference, mission_reference, module_doc
 from tests.conftest import REPO
 
 
@@ -59,7 +59,7 @@ def test_backend_and_frame_pages_carry_the_modules_own_docs(site: Path) -> None:
         assert " ".join(words) in backends, name
     assert "device" in backends and "probe_retries" in backends
     wire = _text(site / "wire-format" / "index.html")
-    assert "CRC-16/CCITT" in wire and "CRC-16/CCITT" in module_doc("bridge.frame")
+    assert "CRC-16/CCITT" in wire and "CRC-16/CCITT" in module_doc("bridge.wire.frame")
     with pytest.raises(ValueError):
         module_doc("os")
 

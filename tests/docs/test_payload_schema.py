@@ -11,8 +11,8 @@ from pathlib import Path
 import jsonschema
 from typer.testing import CliRunner
 
-from bridge.cli import app
-from bridge.payload_schema import json_view, key_schemas, write_payload_schemas
+from bridge.cli.app import app
+from bridge.mission.payload_schema import json_view, key_schemas, write_payload_schemas
 from tests.conftest import MISSIONS, free_port, on_free_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 

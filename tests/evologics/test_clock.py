@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from bridge.evologics.clock import WRAP_US, ModemClock
-from bridge.evologics.commands import CommandReader, send_ims
-from bridge.evologics.protocol import LocalProtocolError, Mode
+from bridge.modems.evologics.clock import WRAP_US, ModemClock
+from bridge.modems.evologics.commands import CommandReader, send_ims
+from bridge.modems.evologics.protocol import LocalProtocolError, Mode
 
 
 def test_counter_and_seconds_are_exact_across_wraps() -> None:

@@ -11,15 +11,15 @@ from typing import Any
 
 import pytest
 
-from bridge.backends.base import ModemRange, ModemSetup
-from bridge.backends.evologics import EvologicsBackend
-from bridge.backends.transport import ByteTransport
-from bridge.emulators.evologics import EvologicsEmulator
-from bridge.emulators.pty_host import PtyHost
 from bridge.errors import BackendError
-from bridge.ocean.model import LossCurve
-from bridge.ocean.presets import get_preset
-from bridge.ocean.service import WaterService
+from bridge.modems.base import ModemRange, ModemSetup
+from bridge.modems.evologics.driver import EvologicsBackend
+from bridge.modems.evologics.emulator import EvologicsEmulator
+from bridge.modems.pty_host import PtyHost
+from bridge.modems.transport import ByteTransport
+from bridge.sim.ocean import LossCurve
+from bridge.sim.presets import get_preset
+from bridge.sim.service import WaterService
 
 # airtime 20 ms + 1 ms/byte, sound at 1500 m/s: 150 m is 100 ms
 FAST = get_preset("evologics-s2c-im").replace(name="test-evologics", overhead_s=0.02,

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import yaml
 
-from bridge.emulators.evologics import run_emulator
-from bridge.mission_loader import LoadedMission
-from bridge.ocean.model import LossCurve
-from bridge.ocean.service import WaterService
+from bridge.mission.loader import LoadedMission
+from bridge.modems.evologics.emulator import run_emulator
+from bridge.sim.ocean import LossCurve
+from bridge.sim.service import WaterService
 from tests.conftest import MISSIONS, on_free_ports
 from tests.evologics.test_driver import FAST
 from tests.harness import listing1_crosses_in_the_next_slot, running_fleet

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.evologics.commands import (
+from bridge.modems.evologics.commands import (
     CommandReader,
     HostBurst,
     HostCommand,
@@ -17,7 +17,7 @@ from bridge.evologics.commands import (
     send_im,
     set_value,
 )
-from bridge.evologics.protocol import (
+from bridge.modems.evologics.protocol import (
     NEED_DATA,
     BurstData,
     Busy,

@@ -9,7 +9,7 @@ import yaml
 from bridge.errors import MissionError
 from bridge.gui.commands import Command, CommandBook, CommandError, command_channels
 from bridge.gui.model import GuiModel
-from bridge.mission_loader import LoadedMission, load_mission, parse_mission
+from bridge.mission.loader import LoadedMission, load_mission, parse_mission
 from tests.conftest import MISSIONS
 
 

@@ -12,7 +12,7 @@ import msgpack
 import pytest
 
 from bridge.gui.model import GuiModel
-from bridge.mission_loader import LoadedMission, load_mission
+from bridge.mission.loader import LoadedMission, load_mission
 from bridge.ranging.tracker import Estimate
 from tests.conftest import MISSIONS
 from tests.gui.test_browser import CHROMIUM

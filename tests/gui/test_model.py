@@ -9,7 +9,7 @@ import pytest
 
 from bridge.gui.keys import SurfaceKeys
 from bridge.gui.model import GuiModel, shown
-from bridge.mission_loader import LoadedMission, load_mission
+from bridge.mission.loader import LoadedMission, load_mission
 from tests.conftest import MISSIONS
 
 MSGPACK = "application/msgpack"

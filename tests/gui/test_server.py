@@ -12,7 +12,7 @@ import aiohttp
 import pytest
 from rich.console import Console
 
-from bridge.demo import run_demo
+from bridge.cli.demo import run_demo
 from bridge.errors import MissionError
 from bridge.gui.server import GuiServer, dumps
 from tests.conftest import MISSIONS, free_port, mission_on_free_ports, on_free_ports

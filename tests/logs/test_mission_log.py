@@ -15,8 +15,8 @@ import zenoh
 from mcap.reader import make_reader
 from typer.testing import CliRunner
 
-from bridge.cli import app
-from bridge.logbook import FleetLogs, LogError, read_log, summarise
+from bridge.cli.app import app
+from bridge.runtime.logbook import FleetLogs, LogError, read_log, summarise
 from tests.conftest import REPO, free_port, on_free_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from bridge.mac import Schedule
-from bridge.ocean.model import Delivery, Loss, Ocean, Position, TransmitRefused
-from bridge.ocean.presets import Preset
+from bridge.core.mac import Schedule
+from bridge.sim.ocean import Delivery, Loss, Ocean, Position, TransmitRefused
+from bridge.sim.presets import Preset
 
 
 @dataclass

@@ -7,9 +7,9 @@ import random
 
 import pytest
 
-from bridge.mac import AlohaSchedule, FreeSchedule, PolledSchedule, RangingSchedule
-from bridge.mission import AlohaMac, NoMac, RangingSlots
-from bridge.ocean.presets import get_preset
+from bridge.core.mac import AlohaSchedule, FreeSchedule, PolledSchedule, RangingSchedule
+from bridge.mission.model import AlohaMac, NoMac, RangingSlots
+from bridge.sim.presets import get_preset
 from tests.mac.medium import Medium
 
 ACOUSTIC = get_preset("evologics-s2c-im")

@@ -5,17 +5,17 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from bridge.check import check_mission
-from bridge.errors import MissionError
-from bridge.mac import (
+from bridge.core.mac import (
     AlohaSchedule,
     FreeSchedule,
     PolledSchedule,
     RangingSchedule,
     schedule_for,
 )
-from bridge.mission_loader import LoadedMission, load_mission, parse_mission
-from bridge.ocean.presets import get_preset
+from bridge.errors import MissionError
+from bridge.mission.check import check_mission
+from bridge.mission.loader import LoadedMission, load_mission, parse_mission
+from bridge.sim.presets import get_preset
 from tests.conftest import MISSIONS
 
 BASE = """\
@@ -141,7 +141,7 @@ def test_shipped_missions_check_clean() -> None:
 def test_zab_check_prints_the_mac_report() -> None:
     from typer.testing import CliRunner
 
-    from bridge.cli import app
+    from bridge.cli.app import app
 
     result = CliRunner().invoke(app, ["check", str(MISSIONS / "bluerov_rf.yaml")])
     assert result.exit_code == 0, result.output

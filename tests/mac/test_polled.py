@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bridge.mac import PolledSchedule, poll_sequence
+from bridge.core.mac import PolledSchedule, poll_sequence
 
 
 def test_poll_sequence_from_order_weights_or_default() -> None:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from bridge.mac import FreeSchedule, RangingSchedule
-from bridge.mission import NoMac, RangingSlots
+from bridge.core.mac import FreeSchedule, RangingSchedule
+from bridge.mission.model import NoMac, RangingSlots
 
 SLOTS = RangingSlots(requester="hippo", anchors=["a1", "a2", "a3"], interval_s=3.0)
 TMAX = 0.6

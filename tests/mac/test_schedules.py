@@ -6,8 +6,8 @@ import random
 
 import pytest
 
-from bridge.mac import LATE_S, AlohaSchedule, FreeSchedule, TdmaSchedule
-from bridge.mission import AlohaMac, NoMac, TdmaMac
+from bridge.core.mac import LATE_S, AlohaSchedule, FreeSchedule, TdmaSchedule
+from bridge.mission.model import AlohaMac, NoMac, TdmaMac
 
 TDMA = TdmaMac(type="tdma", slot_s=2.0, guard_s=0.5, order=["a", "b", "a", "c"])
 

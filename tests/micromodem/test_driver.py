@@ -12,13 +12,13 @@ from typing import Any
 import pytest
 import serial
 
-from bridge.backends.base import ModemRange, ModemSetup
-from bridge.backends.micromodem import MicromodemBackend
-from bridge.emulators.micromodem import MicromodemEmulator
-from bridge.emulators.pty_host import PtyHost
 from bridge.errors import BackendError
-from bridge.ocean.presets import get_preset
-from bridge.ocean.service import WaterService
+from bridge.modems.base import ModemRange, ModemSetup
+from bridge.modems.micromodem.driver import MicromodemBackend
+from bridge.modems.micromodem.emulator import MicromodemEmulator
+from bridge.modems.pty_host import PtyHost
+from bridge.sim.presets import get_preset
+from bridge.sim.service import WaterService
 
 # rate-0 figures sped up 40x so that a test takes well under a second; real sound speed
 FAST = get_preset("micromodem-rate0").replace(

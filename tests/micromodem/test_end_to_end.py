@@ -12,10 +12,10 @@ from typing import Any
 
 import yaml
 
-from bridge.emulators.micromodem import run_emulator
-from bridge.mission_loader import LoadedMission
-from bridge.ocean.presets import get_preset
-from bridge.ocean.service import WaterService
+from bridge.mission.loader import LoadedMission
+from bridge.modems.micromodem.emulator import run_emulator
+from bridge.sim.presets import get_preset
+from bridge.sim.service import WaterService
 from tests.conftest import MISSIONS, on_free_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 

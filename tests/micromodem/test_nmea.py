@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bridge.micromodem.nmea import (
+from bridge.modems.micromodem.nmea import (
     MAX_SENTENCE_BYTES,
     ChecksumError,
     NmeaError,
@@ -16,7 +16,7 @@ from bridge.micromodem.nmea import (
     checksum,
     parse_sentence,
 )
-from bridge.micromodem.rates import RATES, frame_bytes_for_rate, get_rate
+from bridge.modems.micromodem.rates import RATES, frame_bytes_for_rate, get_rate
 
 # real lines quoted in the reference (2.1, 2.3): their checksums must verify
 REAL = [

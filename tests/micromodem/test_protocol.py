@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.micromodem.nmea import Sentence, parse_sentence
-from bridge.micromodem.protocol import (
+from bridge.modems.micromodem.nmea import Sentence, parse_sentence
+from bridge.modems.micromodem.protocol import (
     Ack,
     BadSentence,
     Clock,

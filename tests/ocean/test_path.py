@@ -8,11 +8,11 @@ import time
 
 import pytest
 
-from bridge.ocean.model import Delivery, LossCurve, Ocean
-from bridge.ocean.path import Path, rectangle
-from bridge.ocean.presets import Preset
-from bridge.ocean.protocol import pack, read_message
-from bridge.ocean.service import WaterService
+from bridge.sim.ocean import Delivery, LossCurve, Ocean
+from bridge.sim.path import Path, rectangle
+from bridge.sim.presets import Preset
+from bridge.sim.protocol import pack, read_message
+from bridge.sim.service import WaterService
 
 FAST = Preset(name="fast", frame_bytes=64, bitrate_bps=8000.0, overhead_s=0.1,
               sound_speed_mps=1500.0, max_range_m=3000.0)

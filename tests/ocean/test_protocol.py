@@ -8,7 +8,7 @@ import struct
 import msgpack
 import pytest
 
-from bridge.ocean.protocol import (
+from bridge.sim.protocol import (
     MAX_MESSAGE_BYTES,
     MessageReader,
     ProtocolError,

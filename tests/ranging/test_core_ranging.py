@@ -6,9 +6,9 @@ import math
 
 import yaml
 
-from bridge.backends.base import ModemRange, Reception
-from bridge.core import NodeCore, Notice, Status
-from bridge.mission_loader import parse_mission
+from bridge.core.node import NodeCore, Notice, Status
+from bridge.mission.loader import parse_mission
+from bridge.modems.base import ModemRange, Reception
 
 MISSION = {
     "mission": "pings",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from bridge.demo import describe_fix
+from bridge.cli.demo import describe_fix
 from bridge.ranging.tracker import Estimate
 
 

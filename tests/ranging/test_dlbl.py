@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from bridge.frame import DELAY_MAX_US
 from bridge.ranging.dlbl import WRAP_US, DlblRanger, Range, two_sided
+from bridge.wire.frame import DELAY_MAX_US
 
 C = 1500.0  # m/s, uniform water
 Pos = tuple[float, float, float]

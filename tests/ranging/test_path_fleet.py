@@ -12,10 +12,10 @@ import time
 import pytest
 import yaml
 
-from bridge.core import Status
-from bridge.fastsim import FastFleet
-from bridge.mission_loader import parse_mission
-from bridge.ocean.path import Path
+from bridge.core.node import Status
+from bridge.mission.loader import parse_mission
+from bridge.runtime.virtual_fleet import FastFleet
+from bridge.sim.path import Path
 from tests.conftest import on_free_ports
 from tests.harness import Inbox, outside_session, running_fleet
 

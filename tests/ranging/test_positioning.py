@@ -7,10 +7,10 @@ import math
 import pytest
 import yaml
 
+from bridge.core.positioning import Positioning, needs_positioning, ping_plan
 from bridge.errors import MissionError
-from bridge.mission import Mission
-from bridge.mission_loader import parse_mission
-from bridge.positioning import Positioning, needs_positioning, ping_plan
+from bridge.mission.loader import parse_mission
+from bridge.mission.model import Mission
 from bridge.ranging import Fix, NoFix, SoundSpeed, mackenzie
 
 # seed 001's mobile case: three anchors on a jetty (x = 0), the vehicle east of it

@@ -10,8 +10,8 @@ import time
 
 import yaml
 
-from bridge.ocean.path import Path
 from bridge.ranging import seed001
+from bridge.sim.path import Path
 from tests.conftest import on_free_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 

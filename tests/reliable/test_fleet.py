@@ -11,9 +11,9 @@ from collections import Counter
 import msgpack
 import zenoh
 
-from bridge.core import Publish, Status
-from bridge.fastsim import FastFleet
-from bridge.mission_loader import parse_mission
+from bridge.core.node import Publish, Status
+from bridge.mission.loader import parse_mission
+from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import on_free_ports
 from tests.harness import Inbox, outside_session, running_fleet
 

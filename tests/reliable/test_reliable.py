@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from bridge.channels import ChannelTable
-from bridge.mission_loader import parse_mission
-from bridge.reliable import ReliableReceiver, ReliableSender, seq_after
+from bridge.core.reliable import ReliableReceiver, ReliableSender, seq_after
+from bridge.mission.loader import parse_mission
+from bridge.wire.channels import ChannelTable
 
 MISSION = """\
 mission: r
@@ -149,7 +149,7 @@ def test_a_restarted_sender_numbering_past_the_base_is_delivered_not_skipped() -
 def test_each_run_of_a_core_numbers_its_streams_from_its_own_first_seq() -> None:
     import random
 
-    from bridge.core import NodeCore
+    from bridge.core.node import NodeCore
 
     loaded = parse_mission(MISSION)
     firsts = {NodeCore(loaded, "ops", rng=random.Random(run)).senders[0]._next_seq
@@ -160,7 +160,7 @@ def test_each_run_of_a_core_numbers_its_streams_from_its_own_first_seq() -> None
 
 
 def test_a_modem_confirmation_holds_back_retransmission_until_the_ack_entry() -> None:
-    from bridge.core import NodeCore
+    from bridge.core.node import NodeCore
 
     text = MISSION.replace("    reliable: true\n", "    reliable: true\n    ack: true\n", 1)
     loaded = parse_mission(text)

@@ -10,12 +10,12 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from bridge.cli import app
-from bridge.core import Notice, Status
-from bridge.fastrun import run_fast
-from bridge.fastsim import FastFleet, Timed
-from bridge.mac import PolledSchedule
-from bridge.mission_loader import load_mission, parse_mission
+from bridge.cli.app import app
+from bridge.cli.sim_fast import run_fast
+from bridge.core.mac import PolledSchedule
+from bridge.core.node import Notice, Status
+from bridge.mission.loader import load_mission, parse_mission
+from bridge.runtime.virtual_fleet import FastFleet, Timed
 from tests.conftest import MISSIONS
 
 BLUEROV = MISSIONS / "bluerov_rf.yaml"

@@ -1,6 +1,0 @@
-"""Modem backends: one async interface over simulated, UDP and real acoustic modems."""
-
-from bridge.backends.base import ModemBackend, ModemSetup, Reception
-from bridge.backends.registry import available_backends, load_backend
-
-__all__ = ["ModemBackend", "ModemSetup", "Reception", "available_backends", "load_backend"]

@@ -1,0 +1,545 @@
+"""The ``zab`` command line. Each command wraps a typed function of the package."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import signal
+import sys
+import time
+from collections.abc import Coroutine
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
+
+import typer
+from rich.console import Console
+from rich.logging import RichHandler
+from rich.table import Table
+
+from bridge.errors import BackendError, MissionError
+from bridge.mission.check import check_mission
+from bridge.mission.loader import LoadedMission, load_mission
+
+T = TypeVar("T")
+
+app = typer.Typer(
+    help="zenoh-acoustic-bridge: one Zenoh pub/sub space across WiFi and water.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+console = Console(width=None if sys.stdout.isatty() else 120)
+err = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
+
+MissionArg = Annotated[Path, typer.Argument(help="Mission file (YAML).", show_default=False)]
+
+
+def _load(path: Path) -> LoadedMission:
+    """Load a mission or exit 2 with the loader's message (never a traceback)."""
+    try:
+        return load_mission(path)
+    except MissionError as exc:
+        err.print(f"[bold red]invalid mission[/]\n{exc}", highlight=False, markup=True)
+        raise typer.Exit(2) from None
+
+
+def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
+    """Run ``main``; a mission problem found at start (e.g. a missing key) exits 2, cleanly."""
+    try:
+        return asyncio.run(main)
+    except MissionError as exc:
+        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+
+
+def _logging(verbose: bool) -> None:
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO,
+        format="%(message)s",
+        handlers=[RichHandler(console=err, show_path=False, rich_tracebacks=False)],
+        force=True,
+    )
+
+
+def _install_stop(stop: asyncio.Event) -> None:
+    """SIGINT/SIGTERM set ``stop`` so everything closes cleanly."""
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+
+
+@app.command()
+def check(
+    mission: MissionArg,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Validate a mission; show channel sizes, frame fill and airtime. Exit 1 if a channel can
+    never fit, 2 if the file is invalid."""
+    loaded = _load(mission)
+    report = check_mission(loaded)
+    if as_json:
+        print(json.dumps(report.data, indent=2))
+        raise typer.Exit(0 if report.ok else 1)
+    data = report.data
+    console.print(
+        f"[bold]{data['mission']}[/]: {len(data['nodes'])} nodes, {len(data['channels'])} "
+        f"channels, backend {data['backend']}, mac {data['mac']}, "
+        f"frame overhead {data['overhead_bytes']} B + {data['count_bits']}-bit count"
+        + (" (DLBL on)" if data["dlbl"] else "")
+    )
+    channels = Table("index", "channel", "bits", "from", "to", "interval", "latching", "priority",
+                     title="channels")
+    for c in data["channels"]:
+        channels.add_row(str(c["index"]), c["name"], str(c["bits"]), ", ".join(c["from"]),
+                         ", ".join(c["to"]), f"{c['interval_s']:g} s", str(c["latching"]).lower(),
+                         str(c["priority"]))
+    console.print(channels)
+    nodes = Table("node", "address", "role", "worst-case bits", "frame", "fill", "airtime",
+                  "listen", title="nodes")
+    for n in data["nodes"]:
+        airtime = "?" if n["airtime_s"] is None else f"{n['airtime_s']:.3f} s"
+        nodes.add_row(n["name"], str(n["address"]), n["role"], str(n["worst_case_bits"]),
+                      f"{n['frame_bytes']} B", f"{n['fill']:.0%}", airtime, " ".join(n["listen"]))
+    console.print(nodes)
+    _print_mac(data)
+    for warning in report.warnings:
+        console.print(f"[yellow]warning:[/] {warning}", highlight=False)
+    for error in report.errors:
+        console.print(f"[red]error:[/] {error}", highlight=False)
+    raise typer.Exit(0 if report.ok else 1)
+
+
+def _print_mac(data: dict[str, Any]) -> None:
+    """Per node: the longest wait between transmit turns and the airtime share it implies."""
+    def shown(v: Any) -> str:
+        return f"{v:g}" if isinstance(v, float) else " ".join(v) if isinstance(v, list) else str(v)
+
+    timing = ", ".join(f"{k} {shown(v)}" for k, v in data.get("mac_timing", {}).items())
+    console.print(f"mac {data['mac']}" + (f": {timing}" if timing else ""), highlight=False)
+    table = Table("node", "worst interval", "airtime share", "note", title="transmit turns")
+    for n in data["nodes"]:
+        mac = n["mac"]
+        interval, share = mac["worst_interval_s"], mac["airtime_share"]
+        table.add_row(n["name"], "—" if interval is None else f"{interval:.3f} s",
+                      "?" if share is None else f"{share:.1%}", mac["note"])
+    console.print(table)
+
+
+@app.command()
+def schema(
+    out: Annotated[Path | None, typer.Option(help="Where to write (default: schemas/; with "
+                                             "--payloads, schemas/payloads/<mission>/).")] = None,
+    payloads: Annotated[Path | None, typer.Option(
+        "--payloads", help="Instead: write the JSON Schema of every bridged key's payload of "
+        "this mission.", show_default=False)] = None,
+) -> None:
+    """Write the mission file's JSON Schema (for editors) from the models, or with
+    --payloads MISSION the schema of every bridged key's payload."""
+    from bridge.mission.schema import default_schema_path, schema_text
+
+    if payloads is not None:
+        from bridge.mission.payload_schema import write_payload_schemas
+
+        loaded = _load(payloads)
+        folder = out or Path("schemas") / "payloads" / loaded.mission.mission
+        try:
+            written = write_payload_schemas(loaded, folder)
+        except (OSError, ValueError) as exc:
+            err.print(f"[red]cannot write payload schemas:[/] {exc}", highlight=False)
+            raise typer.Exit(1) from None
+        console.print(f"wrote {len(written) - 1} payload schemas and index.json to {folder}")
+        return
+    path = out or default_schema_path()
+    path.write_text(schema_text(), encoding="utf-8")
+    console.print(f"wrote {path}")
+
+
+@app.command()
+def run(
+    mission: MissionArg,
+    node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    log: Annotated[Path | None, typer.Option("--log", help="Record every frame and event to "
+                                             "this MCAP file; {time} in the name becomes the "
+                                             "start time (UTC).")] = None,
+) -> None:
+    """Run the bridge of one node (what each vehicle runs)."""
+    from bridge.modems.setup import backend_factory
+    from bridge.runtime.zenoh_node import BridgeNode
+
+    loaded = _load(mission)
+    if node not in loaded.mission.nodes:
+        err.print(f"no node {node!r} in {mission}; nodes: {', '.join(loaded.mission.nodes)}")
+        raise typer.Exit(2)
+    _logging(verbose)
+    try:
+        factory = backend_factory(loaded.mission, node)
+    except BackendError as exc:
+        err.print(f"[red]{exc}[/]")
+        raise typer.Exit(2) from None
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        _install_stop(stop)
+        recorder = None if log is None else _mission_log(log, loaded, node)
+        bridge = BridgeNode(loaded, node, factory, on_event=recorder)
+        logging.getLogger("zab").info("%s: bridge running (Ctrl-C to stop)", node)
+        try:
+            await bridge.run(stop)
+        finally:
+            if recorder is not None:
+                recorder.close()
+                logging.getLogger("zab").info("%s: mission log %s", node, recorder.path)
+
+    _run_or_exit(main())
+
+
+@app.command()
+def water(
+    mission: MissionArg,
+    port: Annotated[int | None, typer.Option(help="TCP port (default: the mission's water).")]
+    = None,
+    seed: Annotated[int | None, typer.Option(help="Random seed of the ocean.")] = None,
+) -> None:
+    """Run the simulated ocean that `zab run` nodes with `backend: sim` join over loopback."""
+    from bridge.modems.sim import parse_water_address
+    from bridge.runtime.fleet import water_for
+
+    loaded = _load(mission)
+    address = loaded.mission.modem.options.get("water", "127.0.0.1:7600")
+    host, default_port = parse_water_address(address)
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        _install_stop(stop)
+        service = water_for(loaded, seed)
+        bound = await service.start(host, port if port is not None else default_port)
+        console.print(f"water ({service.preset.name}) on {host}:{bound}; Ctrl-C to stop")
+        try:
+            await stop.wait()
+        finally:
+            await service.stop()
+            console.print_json(data=service.stats())
+
+    asyncio.run(main())
+
+
+class ModemKind(StrEnum):
+    evologics = "evologics"
+    micromodem = "micromodem"
+
+
+@app.command()
+def emulate(
+    kind: Annotated[ModemKind, typer.Argument(help="Which modem to emulate.")],
+    mission: MissionArg,
+    node: Annotated[str, typer.Option("--node", "-n", help="The node whose modem it is.")],
+    link: Annotated[Path | None, typer.Option(help="Stable symlink to the pty (default: the "
+                                              "device in the node's modem options).")] = None,
+    tcp_port: Annotated[int | None, typer.Option(help="EvoLogics only: also listen on this "
+                                                 "loopback TCP port.")] = None,
+    water: Annotated[str | None, typer.Option(help="host:port of `zab water` (default: the "
+                                              "mission's).")] = None,
+) -> None:
+    """Emulate a node's modem on a pseudo-terminal, its frames crossing `zab water`."""
+    loaded = _load(mission)
+    if node not in loaded.mission.nodes:
+        err.print(f"no node {node!r} in {mission}; nodes: {', '.join(loaded.mission.nodes)}")
+        raise typer.Exit(2)
+    options = loaded.mission.node_modem(node).options
+    device = options.get("device")
+    if link is None and isinstance(device, str) and not device.startswith("socket://"):
+        link = Path(device)
+    address = water or str(options.get("water", "127.0.0.1:7600"))
+    _logging(False)
+
+    def ready(info: dict[str, object]) -> None:
+        shown = ", ".join(f"{k} {v}" for k, v in info.items() if v is not None)
+        console.print(f"{kind.value} modem of {node}: {shown}; water {address}; Ctrl-C to stop")
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        _install_stop(stop)
+        if kind is ModemKind.evologics:
+            from bridge.modems.evologics.emulator import run_emulator as evologics
+
+            task = asyncio.create_task(evologics(loaded, node, water=address, link=link,
+                                                 tcp_port=tcp_port, ready=ready))
+        else:
+            from bridge.modems.micromodem.emulator import run_emulator as micromodem
+
+            task = asyncio.create_task(micromodem(loaded, node, water=address, link=link,
+                                                  ready=ready))
+        await asyncio.wait([task, asyncio.create_task(stop.wait())],
+                           return_when=asyncio.FIRST_COMPLETED)
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+    try:
+        _run_or_exit(main())
+    except BackendError as exc:
+        err.print(f"[red]{exc}[/]")
+        raise typer.Exit(1) from None
+
+
+@app.command()
+def sim(
+    mission: MissionArg,
+    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
+    report: Annotated[Path | None, typer.Option(help="Write a JSON report here.")] = None,
+    seed: Annotated[int | None, typer.Option(help="Random seed of the ocean.")] = None,
+    live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    log: Annotated[Path | None, typer.Option("--log", help="Record each node's frames and "
+                                             "events to DIR/<mission>-<node>.mcap.")] = None,
+    fast: Annotated[bool, typer.Option("--fast", help="Virtual clock, flat out: every node's "
+                                       "bridge core over the simulated ocean, no Zenoh; inputs "
+                                       "get synthetic values (default duration 3600 s).")]
+    = False,
+    speed: Annotated[float | None, typer.Option(help="Like --fast, with the virtual clock at "
+                                                "this many times real time.", min=1e-3)] = None,
+) -> None:
+    """Run every node of the mission plus the simulated ocean, each node on its own endpoint."""
+    from bridge.cli.sim import run_sim
+    from bridge.runtime.logbook import FleetLogs
+
+    loaded = _load(mission)
+    _logging(verbose)
+    if fast and speed is not None:
+        err.print("--fast and --speed exclude each other (--fast: as fast as possible)")
+        raise typer.Exit(2)
+    logs = None if log is None else FleetLogs(log, loaded)
+    try:
+        if fast or speed is not None:
+            result = _run_or_exit(_run_fast(loaded, duration or 3600.0, seed, speed, logs))
+        else:
+            result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
+                                          console=console, record=logs))
+    finally:
+        if logs is not None:
+            logs.close()
+    if logs is not None:
+        console.print(f"mission logs: {', '.join(str(p.path) for p in logs.logs.values())}")
+    if report is not None:
+        report.write_text(json.dumps(result, indent=2, default=str), encoding="utf-8")
+        console.print(f"report written to {report}")
+
+
+async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
+                    speed: float | None, record: Any) -> dict[str, Any]:
+    """``zab sim --fast/--speed``: the virtual-clock run, its report printed."""
+    from bridge.cli.sim import print_report
+    from bridge.cli.sim_fast import run_fast
+
+    stop = asyncio.Event()
+    _install_stop(stop)
+    pace = "as fast as possible" if speed is None else f"at {speed:g}× real time"
+    console.print(f"simulating [bold]{loaded.mission.mission}[/] on a virtual clock, {pace}: "
+                  f"{duration:g} s, no Zenoh, synthetic inputs")
+    result = await run_fast(loaded, duration=duration, seed=seed, speed=speed, record=record,
+                            stop=stop)
+    print_report(console, result)
+    console.print(f"{result['duration_s']:g} s simulated in {result['wall_s']:g} s wall "
+                  f"({result['speedup']:g}× real time); {result['frames_sent']} frames sent, "
+                  f"{result['frames_received']} received ({result['frames_per_wall_s']:g} "
+                  "frames per wall second)")
+    return result
+
+
+@app.command()
+def demo(
+    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.")] = 30.0,
+    mission: Annotated[Path | None, typer.Option(help="Mission (default: the MORPH fleet).")]
+    = None,
+    live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
+    gui: Annotated[bool, typer.Option(help="Serve the browser GUI (zab gui) during the demo.")]
+    = True,
+    gui_port: Annotated[int, typer.Option(help="Port of the GUI (any free one if taken).")]
+    = 8080,
+) -> None:
+    """A simulated MORPH fleet, end to end: data published, carried, decoded, shown."""
+    from bridge.cli.demo import default_demo_mission, run_demo
+
+    loaded = _load(mission or default_demo_mission())
+    _logging(False)
+    _run_or_exit(run_demo(loaded, duration=duration, console=console, live=live, gui=gui,
+                          gui_port=gui_port))
+
+
+@app.command()
+def gui(
+    mission: MissionArg,
+    connect: Annotated[list[str] | None, typer.Option(
+        "--connect", "-c", help="Zenoh endpoint of the node (default: its zenoh.listen in the "
+        "mission); repeat for several.")] = None,
+    node: Annotated[str | None, typer.Option(
+        "--node", "-n", help="The node the GUI joins (default: the surface node).")] = None,
+    host: Annotated[str, typer.Option(
+        help="Address to serve the page on; 0.0.0.0 for tablets on the WiFi.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="TCP port of the page (0: any free port).")] = 8080,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """The fleet in a browser: map, channels and links per vehicle, commands, events."""
+    from bridge.gui.server import GuiServer, serve_gui
+
+    loaded = _load(mission)
+    _logging(verbose)
+
+    def ready(server: GuiServer) -> None:
+        console.print(f"GUI of {loaded.mission.mission} at {server.url} (joins {server.node} "
+                      f"at {' '.join(server.endpoints)}); Ctrl-C to stop", highlight=False)
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        _install_stop(stop)
+        await serve_gui(loaded, stop, node=node, endpoints=connect or (), host=host, port=port,
+                        ready=ready)
+
+    try:
+        _run_or_exit(main())
+    except ValueError as exc:
+        err.print(f"[red]{exc}[/]", highlight=False)
+        raise typer.Exit(2) from None
+    except OSError as exc:
+        err.print(f"[red]cannot serve on {host}:{port}: {exc.strerror or exc}[/]",
+                  highlight=False)
+        raise typer.Exit(1) from None
+
+
+@app.command()
+def doctor(
+    mission: MissionArg,
+    node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
+    timeout: Annotated[float, typer.Option(help="Seconds to wait for the modem.", min=0.1)]
+    = 15.0,
+) -> None:
+    """Check that this vehicle can run its bridge: mission, modem port and answer, Zenoh
+    endpoints, clock. Prints what to fix; exit 1 if something must be fixed."""
+    from bridge.cli.doctor import run_doctor
+
+    loaded = _load(mission)
+    findings = asyncio.run(run_doctor(loaded, node, timeout_s=timeout))
+    marks = {"ok": "[green]ok  [/]", "warn": "[yellow]warn[/]", "fail": "[red]FAIL[/]"}
+    for f in findings:
+        console.print(f"{marks[f.status]} {f.check:<8} {f.message}", highlight=False)
+        if f.fix and f.status != "ok":
+            console.print(f"     {'':<8} [bold]fix:[/] {f.fix}", highlight=False)
+    failed = sum(f.status == "fail" for f in findings)
+    warned = sum(f.status == "warn" for f in findings)
+    console.print(f"{node}: {failed} to fix, {warned} warning(s)" if failed or warned
+                  else f"{node}: ready")
+    raise typer.Exit(1 if failed else 0)
+
+
+def _mission_log(path: Path, loaded: LoadedMission, node: str) -> Any:
+    from bridge.runtime.logbook import MissionLog
+
+    path = Path(str(path).replace("{time}", time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())))
+    try:
+        return MissionLog(path, loaded, node)
+    except OSError as exc:
+        err.print(f"[red]cannot write the mission log:[/] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+
+
+log_app = typer.Typer(help="Read mission logs (MCAP) written with --log.", no_args_is_help=True)
+app.add_typer(log_app, name="log")
+LogArg = Annotated[Path, typer.Argument(help="Mission log (.mcap).", show_default=False)]
+
+
+def _read_log(path: Path) -> Any:
+    from bridge.runtime.logbook import LogError, read_log
+
+    try:
+        return read_log(path)
+    except LogError as exc:
+        err.print(f"[red]{exc}[/]", highlight=False)
+        raise typer.Exit(2) from None
+
+
+@log_app.command("summary")
+def log_summary(
+    file: LogArg,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Per-channel counts and ages, and event counts, of a mission log."""
+    from bridge.runtime.logbook import summarise
+
+    data = summarise(_read_log(file))
+    if as_json:
+        print(json.dumps(data, indent=2))
+        return
+    console.print(f"[bold]{data.get('mission') or '?'}[/] node [bold]{data['node']}[/]: "
+                  f"{data['duration_s']:g} s logged")
+    table = Table("channel", "sent", "received", "from", "age at end", "longest gap",
+                  title="channels")
+    for name, c in data["channels"].items():
+        table.add_row(name, str(c["sent"]), str(c["received"]), ", ".join(c["from"]),
+                      "—" if c["age_s"] is None else f"{c['age_s']:.1f} s",
+                      "—" if c["max_gap_s"] is None else f"{c['max_gap_s']:.1f} s")
+    console.print(table)
+    events = Table("event", "count", title="events")
+    for kind, count in sorted(data["events"].items()):
+        events.add_row(kind, str(count))
+    console.print(events)
+
+
+@log_app.command("replay")
+def log_replay(
+    file: LogArg,
+    speed: Annotated[float, typer.Option(help="1 = as recorded, 10 = ten times faster, "
+                                         "0 = as fast as possible.", min=0)] = 1.0,
+    connect: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to connect to "
+                                                      "(repeatable).")] = None,
+    listen: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to listen on "
+                                                     "(repeatable).")] = None,
+    wait: Annotated[float, typer.Option(help="Seconds to let subscribers connect before the "
+                                        "first value.", min=0)] = 1.0,
+) -> None:
+    """Publish the decoded data of a mission log on Zenoh again, on the channels' output keys
+    (msgpack or JSON as the mission says). Without --connect/--listen it listens on
+    tcp/127.0.0.1:7447."""
+    import zenoh
+
+    from bridge.mission.model import ZenohSettings
+    from bridge.runtime.logbook import LogError, replay
+    from bridge.runtime.session import close_quietly, open_session, origin_tag
+
+    data = _read_log(file)
+    if not connect and not listen:
+        listen = ["tcp/127.0.0.1:7447"]
+    session = open_session(ZenohSettings(listen=listen or [], connect=connect or []))
+    mission = data.loaded.mission.mission if data.loaded is not None else "?"
+    origin = origin_tag(mission, f"{data.node}-replay")  # never re-bridged by a live node
+    publishers: dict[str, Any] = {}
+
+    def publish(key: str, payload: bytes, encoding: str) -> None:
+        publisher = publishers.get(key)
+        if publisher is None:
+            publisher = publishers[key] = session.declare_publisher(
+                key, encoding=zenoh.Encoding(encoding))
+        publisher.put(payload, attachment=origin)
+
+    console.print(f"replaying {file} ({data.node}) at "
+                  f"{'full speed' if speed == 0 else f'{speed:g}x'} on "
+                  f"{' '.join(listen or connect or [])}")
+    try:
+        time.sleep(wait)
+        count = replay(data, publish, speed=speed)
+    except LogError as exc:
+        err.print(f"[red]{exc}[/]", highlight=False)
+        raise typer.Exit(2) from None
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    finally:
+        close_quietly(session)
+    console.print(f"published {count} values")
+
+
+def main() -> None:
+    app()

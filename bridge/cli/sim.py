@@ -1,0 +1,131 @@
+"""``zab sim``: the fleet with a live terminal view and a final report."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from bridge.mission.loader import LoadedMission
+from bridge.runtime.fleet import Fleet
+
+REFRESH_S = 0.5
+
+
+class EventLog:
+    """The last few frame events, for the live view."""
+
+    def __init__(self, size: int = 10) -> None:
+        self.lines: deque[str] = deque(maxlen=size)
+        self.t0 = time.time()
+
+    def __call__(self, node: str, kind: str, info: dict[str, Any]) -> None:
+        t = time.time() - self.t0
+        if kind == "frame_sent":
+            text = f"{node} sent {info['bytes']} B [{', '.join(info['channels']) or 'empty'}]"
+        elif kind == "frame_received":
+            text = f"{node} heard {info['src']} ({info['bytes']} B)"
+        elif kind in ("frame_dropped", "payload_dropped", "send_failed", "modem_down"):
+            text = f"{node} {kind.replace('_', ' ')}: {info.get('reason') or info.get('error')}"
+        else:
+            return
+        self.lines.append(f"{t:7.1f} s  {text}")
+
+
+def fleet_view(fleet: Fleet, events: EventLog) -> Group:
+    """Nodes' counters, channel ages at receivers, and recent events."""
+    nodes = Table("node", "sent", "received", "dropped", "left out", "published",
+                  title="nodes", expand=False)
+    ages = Table("channel", "bits", "sent", "delivered", "age at receivers", title="channels")
+    now = time.time()
+    for name, node in fleet.nodes.items():
+        s = node.stats
+        nodes.add_row(name, str(s.frames_sent), str(s.frames_received),
+                      str(sum(s.frames_dropped.values())), str(s.left_out),
+                      str(s.values_published))
+    for c in fleet.loaded.table.channels:
+        sent = sum(n.stats.sent_per_channel[c.name] for n in fleet.nodes.values())
+        got = sum(n.stats.received_per_channel[c.name] for n in fleet.nodes.values())
+        heard = [now - n.received_at[c.name] for n in fleet.nodes.values()
+                 if c.name in n.received_at]
+        age = f"{min(heard):.1f}–{max(heard):.1f} s" if heard else "—"
+        ages.add_row(c.name, str(c.bits), str(sent), str(got), age)
+    return Group(nodes, ages, Text("\n".join(events.lines), style="dim"))
+
+
+async def run_fleet_for(
+    fleet: Fleet, duration: float | None, *, live: bool, console: Console, events: EventLog
+) -> None:
+    """Run ``fleet`` until ``duration`` passes or SIGINT/SIGTERM, with an optional live view."""
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+    if duration is not None:
+        loop.call_later(duration, stop.set)
+    runner = asyncio.create_task(fleet.run(stop))
+    try:
+        if live and console.is_terminal:
+            with Live(fleet_view(fleet, events), console=console, refresh_per_second=4) as view:
+                while not runner.done():
+                    await asyncio.wait([runner], timeout=REFRESH_S)
+                    view.update(fleet_view(fleet, events))
+        await runner
+    finally:
+        stop.set()
+        await asyncio.gather(runner, return_exceptions=True)
+
+
+def print_report(console: Console, report: dict[str, Any]) -> None:
+    table = Table("channel", "bits", "sent", "delivered", "mean age", "max age",
+                  title=f"{report['mission']}: {report['duration_s']:.0f} s")
+    for name, c in report["channels"].items():
+        aoi = c["age_of_information"] or {}
+        table.add_row(name, str(c["bits"]), str(c["sent"]), str(c["delivered"]),
+                      f"{aoi['mean_s']:.1f} s" if aoi else "—",
+                      f"{aoi['max_s']:.1f} s" if aoi else "—")
+    console.print(table)
+    if report["links"]:
+        lt = Table("link", "sent", "delivered", "lost", title="acoustic links")
+        for link in report["links"]:
+            lost = {k: v for k, v in link["lost"].items() if v}
+            lt.add_row(link["link"], str(link["sent"]), str(link["delivered"]),
+                       ", ".join(f"{k} {v}" for k, v in lost.items()) or "0")
+        console.print(lt)
+
+
+async def run_sim(
+    loaded: LoadedMission,
+    *,
+    duration: float | None,
+    seed: int | None,
+    live: bool,
+    console: Console,
+    record: Callable[[str, str, dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:
+    """``zab sim``: run, show, and return the report. ``record`` also gets every event."""
+    events = EventLog()
+
+    def both(node: str, kind: str, info: dict[str, Any]) -> None:
+        events(node, kind, info)
+        if record is not None:
+            record(node, kind, info)
+
+    fleet = Fleet(loaded, seed=seed, on_event=both)
+    console.print(f"simulating [bold]{loaded.mission.mission}[/]: "
+                  + ", ".join(f"{n} on {' '.join(node.zenoh.listen) or '(no endpoint)'}"
+                              for n, node in loaded.mission.nodes.items()))
+    await run_fleet_for(fleet, duration, live=live, console=console, events=events)
+    report = fleet.report()
+    print_report(console, report)
+    return report

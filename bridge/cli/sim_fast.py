@@ -1,0 +1,186 @@
+"""``zab sim --fast`` and ``zab sim --speed X``: a mission on the virtual clock.
+
+Every node's bridge core runs in :class:`~bridge.runtime.virtual_fleet.FastFleet` over the
+pure ocean: no
+Zenoh, no sockets. With nobody publishing, each input key is fed synthetic values (random
+valid codes of its layout) as often as its channels may send, ``interval_s`` or every
+:data:`FEED_S` seconds. ``--fast`` runs as fast as the CPU allows; ``--speed X`` keeps the
+virtual clock at ``X`` times the wall clock (a live view can follow it).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import random
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge.codec import Layout
+from bridge.core.node import Notice
+from bridge.errors import DecodeError, EncodeError
+from bridge.mission.loader import LoadedMission
+from bridge.runtime.virtual_fleet import FastFleet, Timed
+
+FEED_S = 1.0
+"""How often a synthetic application publishes a key whose channels send at every turn."""
+
+PACE_STEP_S = 0.1
+"""Wall seconds between two checks of the pace with ``--speed``."""
+
+DRAWS = 8
+"""Random codes tried for a synthetic value before falling back to all-zero codes."""
+
+
+def synthetic_value(layout: Layout, rng: random.Random) -> Any:
+    """A value the layout encodes: random codes decoded (some codes, e.g. past an enum's
+    last value, are invalid), else the all-zero codes."""
+    for _ in range(DRAWS):
+        try:
+            value = layout.unpack(rng.getrandbits(layout.bits) if layout.bits else 0)
+            layout.pack(value)
+            return value
+        except (DecodeError, EncodeError):
+            continue
+    return layout.unpack(0)
+
+
+def feed(fleet: FastFleet, rng: random.Random, until: float) -> int:
+    """Publish synthetic values on every input key of every node until ``until``; returns the
+    number of keys fed."""
+    keys = 0
+    for name, core in fleet.cores.items():
+        for key, bindings in core.bindings.items():
+            intervals = [c.interval_s for c, _, _ in bindings if c.interval_s > 0]
+            period = min(intervals) if len(intervals) == len(bindings) else FEED_S
+            publisher = _publisher(fleet, rng, name, key, bindings[0][2].layout, period, until)
+            fleet.call_at(fleet.now + rng.uniform(0, period), publisher)
+            keys += 1
+    return keys
+
+
+def _publisher(fleet: FastFleet, rng: random.Random, node: str, key: str, layout: Layout,
+               period: float, until: float) -> Callable[[], None]:
+    """A synthetic application putting a value on ``key`` every ``period`` until ``until``."""
+
+    def publish() -> None:
+        fleet.put(node, key, synthetic_value(layout, rng))
+        if fleet.now + period <= until:
+            fleet.call_at(fleet.now + period, publish)
+
+    return publish
+
+
+@dataclass
+class AgeOfInformation:
+    """Age of each channel at each receiver (time since it last arrived), exactly: the area
+    under the sawtooth between arrivals, from the first arrival on."""
+
+    first: dict[tuple[str, str], float] = field(default_factory=dict)
+    last: dict[tuple[str, str], float] = field(default_factory=dict)
+    area: dict[tuple[str, str], float] = field(default_factory=dict)
+    worst: dict[tuple[str, str], float] = field(default_factory=dict)
+
+    def arrived(self, channel: str, node: str, t: float) -> None:
+        key = (channel, node)
+        if key in self.last:
+            gap = t - self.last[key]
+            self.area[key] += gap * gap / 2
+            self.worst[key] = max(self.worst[key], gap)
+        else:
+            self.first[key], self.area[key], self.worst[key] = t, 0.0, 0.0
+        self.last[key] = t
+
+    def summary(self, end: float) -> dict[str, dict[str, float]]:
+        """Per channel over its receivers: mean and max age, seconds."""
+        area: dict[str, float] = {}
+        span: dict[str, float] = {}
+        worst: dict[str, float] = {}
+        for (channel, node), last in self.last.items():
+            tail = end - last
+            area[channel] = area.get(channel, 0.0) + self.area[(channel, node)] + tail * tail / 2
+            span[channel] = span.get(channel, 0.0) + end - self.first[(channel, node)]
+            worst[channel] = max(worst.get(channel, 0.0), self.worst[(channel, node)], tail)
+        return {c: {"mean_s": round(area[c] / span[c], 3), "max_s": round(worst[c], 3)}
+                for c in area if span[c] > 0}
+
+
+def report(fleet: FastFleet, wall_s: float, virtual_s: float,
+           ages: AgeOfInformation | None = None) -> dict[str, Any]:
+    """Per channel values sent/delivered and age, per node counters, per link water
+    statistics."""
+    cores = fleet.cores.values()
+    aoi = ages.summary(fleet.now) if ages is not None else {}
+    channels = {
+        c.name: {"bits": c.bits,
+                 "sent": sum(core.stats.sent_per_channel[c.name] for core in cores),
+                 "delivered": sum(core.stats.received_per_channel[c.name] for core in cores),
+                 "age_of_information": aoi.get(c.name)}
+        for c in fleet.loaded.table.channels
+    }
+    name = fleet.mission.name_of
+    links = [{"link": f"{name(link['src'])}->{name(link['dst'])}", **link}
+             for link in fleet.ocean.stats()["links"]]
+    sent = sum(core.stats.frames_sent for core in cores)
+    received = sum(core.stats.frames_received for core in cores)
+    return {
+        "mission": fleet.mission.mission,
+        "clock": "virtual",
+        "duration_s": round(virtual_s, 3),
+        "wall_s": round(wall_s, 3),
+        "speedup": round(virtual_s / wall_s, 1) if wall_s > 0 else math.inf,
+        "frames_sent": sent,
+        "frames_received": received,
+        "frames_per_wall_s": round((sent + received) / wall_s, 1) if wall_s > 0 else None,
+        "channels": channels,
+        "nodes": {n: core.snapshot(fleet.now) for n, core in fleet.cores.items()},
+        "links": links,
+    }
+
+
+async def run_fast(
+    loaded: LoadedMission,
+    *,
+    duration: float,
+    seed: int | None = None,
+    speed: float | None = None,
+    record: Callable[[str, str, dict[str, Any]], None] | None = None,
+    progress: Callable[[FastFleet], None] | None = None,
+    stop: asyncio.Event | None = None,
+) -> dict[str, Any]:
+    """Run ``duration`` virtual seconds (``speed``: times real time; None: flat out) and
+    return the report. ``record`` gets every node's events (frames included), ``progress``
+    the fleet now and then; ``stop`` ends the run early."""
+    if duration <= 0:
+        raise ValueError("duration must be > 0")
+    if speed is not None and speed <= 0:
+        raise ValueError("speed must be > 0")
+    seed = seed if seed is not None else int(loaded.mission.modem.options.get("seed", 0))
+
+    ages = AgeOfInformation()
+
+    def on_output(timed: Timed) -> None:
+        if not isinstance(timed.output, Notice):
+            return
+        if timed.output.kind == "frame_received":
+            for channel in timed.output.info["channels"]:
+                ages.arrived(channel, timed.node, timed.time)
+        if record is not None:
+            record(timed.node, timed.output.kind, timed.output.info)
+
+    fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False)
+    feed(fleet, random.Random(f"feed/{seed}"), duration)
+    started = time.perf_counter()
+    step = duration if speed is None else speed * PACE_STEP_S
+    while fleet.now < duration and not (stop is not None and stop.is_set()):
+        fleet.run_until(min(duration, fleet.now + step))
+        if progress is not None:
+            progress(fleet)
+        if speed is not None:  # hold the pace: virtual = speed × wall
+            ahead = fleet.now / speed - (time.perf_counter() - started)
+            await asyncio.sleep(max(0.0, ahead))
+        else:
+            await asyncio.sleep(0)
+    return report(fleet, time.perf_counter() - started, fleet.now, ages)

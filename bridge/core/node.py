@@ -1,0 +1,545 @@
+"""The bridge logic of one node, sans I/O: samples in, frames out, frames in, publications out.
+
+:class:`NodeCore` never reads a clock, opens a socket or touches Zenoh: every method takes the
+times it needs, and what the node must publish or report accumulates as *outputs* the caller
+takes with :meth:`NodeCore.take`. The asyncio + Zenoh adapter
+(:mod:`bridge.runtime.zenoh_node`) and the
+virtual-clock simulator (:mod:`bridge.runtime.virtual_fleet`) drive the same core.
+
+Outputs:
+
+- :class:`Publish`: a decoded value for an application key (the receiving side of a channel);
+- :class:`Status`: bridge state under ``@zab/<mission>/<node>/<topic>`` (stats, link, range, …);
+- :class:`Notice`: a runtime event (``frame_sent``, ``frame_received``, ``link``, …) for
+  in-process observers; the notable ones are also published on ``…/events``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge.core.builder import Candidate, FramePlan, fill
+from bridge.core.link import LinkState, LinkThresholds
+from bridge.core.positioning import Positioning, Update, needs_positioning
+from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
+from bridge.core.store import ChannelState, OutboundStore
+from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
+from bridge.errors import DecodeError, EncodeError, FrameError
+from bridge.mission.loader import LoadedMission
+from bridge.mission.model import TdmaMac
+from bridge.modems.base import ModemRange, Reception
+from bridge.wire.auth import Authenticator, load_key
+from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
+from bridge.wire.frame import FrameCodec
+from bridge.wire.payloads import decode_payload
+
+log = logging.getLogger("zab.core")
+
+NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payload_dropped"})
+"""Notice kinds also published on ``@zab/<mission>/<node>/events`` (and failed deliveries)."""
+
+DEFAULT_RETRY_S = 10.0  # first retransmission without TDMA (with TDMA: one cycle)
+
+
+def notable(kind: str, info: Mapping[str, Any]) -> bool:
+    """Whether a notice belongs on ``…/events``."""
+    return kind in NOTABLE or (kind == "delivery" and info.get("state") == "failed")
+
+
+@dataclass(frozen=True)
+class Publish:
+    """Put ``value`` on the application key ``key`` (bridged; latched keys answer queries)."""
+
+    key: str
+    value: Any
+    encoding: str
+    latched: bool = False
+
+
+@dataclass(frozen=True)
+class Status:
+    """Publish ``payload`` (msgpack) on ``@zab/<mission>/<node>/<topic>``."""
+
+    topic: str
+    payload: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Notice:
+    """A runtime event; ``info`` is plain data (it may hold the frame's raw bytes)."""
+
+    kind: str
+    info: dict[str, Any]
+
+
+Output = Publish | Status | Notice
+
+
+@dataclass(frozen=True)
+class OutFrame:
+    """A frame ready for the modem: bytes, unicast address (None = broadcast), ack request,
+    the modem-clock start it was built for, and what it carries."""
+
+    data: bytes
+    dest: int | None
+    ack: bool | None
+    at: float
+    plan: FramePlan
+    built: float
+    streams: tuple[tuple[ReliableSender | TransferSender, Any], ...] = ()
+    acks: tuple[tuple[str, int], ...] = ()
+
+
+@dataclass
+class NodeStats:
+    """Counters of one node, published on ``@zab/<mission>/<node>/stats``."""
+
+    frames_sent: int = 0
+    frames_received: int = 0
+    frames_dropped: Counter[str] = field(default_factory=Counter)
+    payloads_dropped: Counter[str] = field(default_factory=Counter)
+    values_published: int = 0
+    send_errors: int = 0
+    left_out: int = 0
+    sent_per_channel: Counter[str] = field(default_factory=Counter)
+    received_per_channel: Counter[str] = field(default_factory=Counter)
+
+
+class NodeCore:
+    """Store, frame building, frame decoding, link health and ranging of one node."""
+
+    def __init__(self, loaded: LoadedMission, node: str,
+                 auth: Authenticator | None = None, rng: random.Random | None = None) -> None:
+        """``rng`` draws each stream's first sequence number (a fresh one per run by default;
+        seeded for a reproducible simulation)."""
+        mission = loaded.mission
+        if node not in mission.nodes:
+            raise ValueError(f"node {node!r} is not in mission {mission.mission!r}")
+        self.mission = mission
+        self.table = loaded.table
+        self.node = node
+        wire_auth = mission.wire.auth
+        if wire_auth is not None and auth is None:
+            auth = Authenticator(load_key(wire_auth.key_env, wire_auth.key_file),
+                                 self.table.fingerprint, mission.address_of(node),
+                                 wire_auth.tag_bytes)
+        self.codec = FrameCodec(self.table, auth)
+        self.frame_bytes = mission.node_modem(node).frame_bytes
+        self.store = OutboundStore.for_node(self.table.channels, node)
+        self.stats = NodeStats()
+        self.thresholds = LinkThresholds.for_mission(mission)
+        self.heartbeat_s = mission.link.heartbeat_s
+        self.link_states: dict[str, LinkState] = {}
+        self.last_heard: dict[str, float] = {}
+        self.received_at: dict[str, float] = {}
+        self.last_tx: float | None = None
+        self.positioning = Positioning(mission, node) if needs_positioning(mission, node) \
+            else None
+        self._ranged_last = False  # a range never takes two transmit opportunities in a row
+        self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
+        for channel in self.table.channels:
+            if channel.index in self.store.states:
+                for i, element in enumerate(channel.elements):
+                    key = element.input_key(node)
+                    self.bindings.setdefault(key, []).append((channel, i, element))
+        self._warned_keys: set[str] = set()
+        self._outputs: list[Output] = []
+        mac = mission.mac
+        retry_s = mac.slot_s * len(mac.order) if isinstance(mac, TdmaMac) else DEFAULT_RETRY_S
+        rng = rng or random.Random()
+        self.senders: dict[int, ReliableSender | TransferSender] = {
+            c.index: (TransferSender if c.fragmented else ReliableSender)(
+                c, c.destinations(node), retry_s, rng.randrange(SEQ_MOD))
+            for c in self.table.streams if c.index in self.store.states}
+        self.receivers: dict[tuple[str, int], ReliableReceiver | TransferReceiver] = {}
+        self._acks: dict[tuple[str, int], None] = {}  # (sender, channel index) owed an ack
+
+    # -- outputs -------------------------------------------------------------------------------
+
+    def take(self) -> list[Output]:
+        """Everything produced since the last call, in order."""
+        out, self._outputs = self._outputs, []
+        return out
+
+    def _notice(self, kind: str, info: dict[str, Any]) -> None:
+        self._outputs.append(Notice(kind, info))
+
+    def _status(self, topic: str, payload: dict[str, Any]) -> None:
+        self._outputs.append(Status(topic, payload))
+
+    # -- samples in ----------------------------------------------------------------------------
+
+    def ingest(self, key: str, data: bytes, encoding: str, now: float,
+               ref: str | None = None) -> None:
+        """A sample arrived on an input key: pack it for every channel that reads the key.
+
+        ``ref`` (the publisher's correlation text) is echoed in delivery reports."""
+        try:
+            value = decode_payload(data, encoding)
+        except DecodeError as exc:
+            self.drop_payload(key, str(exc), now)
+            return
+        for channel, index, element in self.bindings.get(key, ()):
+            try:
+                packed = element.layout.pack(value)
+            except EncodeError as exc:
+                self.drop_payload(key, f"channel {channel.name!r}: {exc}", now)
+                continue
+            sender = self.senders.get(channel.index)
+            if sender is None:
+                self.store.update(channel.index, index, packed, now)
+            elif self.store.update_value(channel.index, index, packed, now):
+                payload = self.store.states[channel.index].payload()
+                self._reports(sender.offer(payload, now, key, ref))
+
+    def drop_payload(self, key: str, reason: str, now: float) -> None:
+        """Count a payload that cannot be used (warned once per key)."""
+        self.stats.payloads_dropped[key] += 1
+        if key not in self._warned_keys:
+            self._warned_keys.add(key)
+            log.warning("%s: dropped a payload on %r: %s (counted; warned once)",
+                        self.node, key, reason)
+        self._notice("payload_dropped", {"time": now, "key": key, "reason": reason})
+
+    def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
+                now: float) -> tuple[float, ...] | None:
+        """The finite numbers ``names`` of a payload, or None (counted as a dropped payload)."""
+        try:
+            value = decode_payload(data, encoding)
+            numbers = tuple(float(value[k]) for k in names)
+            if not all(map(math.isfinite, numbers)):
+                raise ValueError("not finite")
+            return numbers
+        except (DecodeError, TypeError, KeyError, ValueError) as exc:
+            self.drop_payload(key, f"needs numbers {', '.join(names)}: {exc}", now)
+            return None
+
+    # -- frames out ----------------------------------------------------------------------------
+
+    def next_due(self, now: float | None = None) -> float | None:
+        """When something (data, an acknowledgement, a retransmission or a heartbeat) is next
+        due; None while nothing is pending."""
+        times = [self.store.next_due(now), self.next_heartbeat(),
+                 *(s.next_time() for s in self.senders.values()),
+                 self.positioning.next_ping() if self.positioning is not None else None]
+        if self._acks:
+            times.append(float("-inf"))
+        return min((t for t in times if t is not None), default=None)
+
+    def next_heartbeat(self) -> float | None:
+        if self.heartbeat_s is None:
+            return None
+        return float("-inf") if self.last_tx is None else self.last_tx + self.heartbeat_s
+
+    def heartbeat_due(self, now: float) -> bool:
+        beat = self.next_heartbeat()
+        return beat is not None and beat <= now + 1e-9
+
+    def build_frame(self, now: float, at: float, *, always: bool = False) -> OutFrame | None:
+        """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
+        nothing to send and ``always`` is false. Pair with :meth:`frame_sent` or
+        :meth:`frame_failed`."""
+        codec = self.codec
+        budget = codec.body_capacity_bits(self.frame_bytes) - codec.count_bits
+        room = (1 << codec.count_bits) - 1
+        items: list[tuple[ChannelCodec | AckCodec, int]] = []
+        targets: set[str] = set()
+        acks: list[tuple[str, int]] = []
+        ack_codec = self.table.ack
+        for src, index in self._acks:  # acknowledgements first: they unblock the peer
+            assert ack_codec is not None
+            cost = codec.channel_cost_bits(ack_codec)
+            if cost > budget or len(items) >= room:
+                break
+            items.append((ack_codec, self._ack_bits(src, index)))
+            budget -= cost
+            acks.append((src, index))
+            targets.add(src)
+        picked, left = fill(codec, self._candidates(now), budget, room - len(items))
+        chosen: list[ChannelState] = []
+        streams: list[tuple[ReliableSender | TransferSender, Any]] = []
+        for candidate in picked:
+            what = candidate.what
+            targets.update(candidate.channel.destinations(self.node))
+            if isinstance(what, ChannelState):
+                chosen.append(what)
+                items.append((candidate.channel, what.payload()))
+            else:
+                sender, item = what
+                streams.append((sender, item))
+                items.append((candidate.channel, sender.entry(item)))
+        left_out = [c.what for c in left if isinstance(c.what, ChannelState)]
+        self.stats.left_out += len(left_out)
+        if not items and not always:
+            return None
+        delays = self.positioning.on_transmit(at) if self.positioning and self.table.dlbl \
+            else []
+        data = codec.encode(items, delays, now)
+        dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
+        asks = [s.channel for s in chosen] + [s.channel for s, _ in streams]
+        ack = True if dest is not None and any(c.ack for c in asks) else None
+        return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), tuple(left_out)), now,
+                        tuple(streams), tuple(acks))
+
+    def _candidates(self, now: float) -> list[Candidate]:
+        """Everything that could go in a frame sent at ``now``."""
+        out = [Candidate(s.channel, s.last_sent, s) for s in self.store.due(now)]
+        for sender in self.senders.values():
+            out += [Candidate(sender.channel, getattr(item, "last_sent", None), (sender, item), n)
+                    for n, item in enumerate(sender.due(now))]
+        return out
+
+    def _ack_bits(self, src: str, index: int) -> int:
+        ack_codec = self.table.ack
+        assert ack_codec is not None
+        receiver = self.receivers[(src, index)]
+        stream = next(i for i, c in enumerate(self.table.streams) if c.index == index)
+        if isinstance(receiver, TransferReceiver):
+            tid, base, bitmap = receiver.ack()
+        else:
+            (base, bitmap), tid = receiver.ack(), 0
+        return ack_codec.pack(self.table.nodes.index(src), stream, tid, base, bitmap)
+
+    def frame_sent(self, out: OutFrame, now: float, confirmed: bool | None = None) -> None:
+        """The modem accepted ``out``; ``confirmed``: its own acknowledgement said the frame
+        reached ``out.dest`` (reliable entries in it are then not re-sent, only awaited)."""
+        self.store.mark_sent(out.plan.chosen, out.built)
+        by_sender: dict[int, tuple[ReliableSender | TransferSender, list[Any]]] = {}
+        for sender, item in out.streams:
+            by_sender.setdefault(id(sender), (sender, []))[1].append(item)
+        dest = self.mission.name_of(out.dest) if out.dest is not None else None
+        for sender, group in by_sender.values():
+            self._reports(sender.sent(group, out.built))  # type: ignore[arg-type]
+            if confirmed and dest is not None:
+                sender.confirmed(group, dest)  # type: ignore[arg-type]
+        for key in out.acks:
+            self._acks.pop(key, None)
+        self.last_tx = out.built
+        self.stats.frames_sent += 1
+        names = [s.channel.name for s in out.plan.chosen] + [s.channel.name for s, _ in out.streams]
+        for name in names:
+            self.stats.sent_per_channel[name] += 1
+        self._notice("frame_sent", {"time": now, "bytes": len(out.data), "channels": names,
+                                    "dest": dest, "data": out.data})
+
+    def frame_failed(self, out: OutFrame, error: str, now: float) -> None:
+        """The modem refused ``out``: its data stays due."""
+        if self.positioning is not None:
+            self.positioning.forget_transmit(out.at)
+        self.stats.send_errors += 1
+        self._notice("send_failed", {"time": now, "error": error})
+
+    # -- frames in -----------------------------------------------------------------------------
+
+    def receive(self, rx: Reception, now: float, modem_now: float | None = None) -> None:
+        """Decode one received frame and publish what it carries for this node.
+
+        ``modem_now`` is the modem clock at the call (DLBL times are in the modem's clock).
+        """
+        src = self.mission.name_of(rx.src)
+        if src is None or src == self.node:
+            self.stats.frames_dropped["unknown_source"] += 1
+            self._notice("frame_dropped", {"time": now, "src": src, "reason": "unknown_source",
+                                           "data": rx.data})
+            return
+        try:
+            frame = self.codec.decode(rx.data, rx.src)
+        except FrameError as exc:
+            self.stats.frames_dropped[exc.reason] += 1
+            self._notice("frame_dropped", {"time": now, "src": src, "reason": exc.reason,
+                                           "error": str(exc), "data": rx.data})
+            return
+        self.stats.frames_received += 1
+        self.last_heard[src] = now
+        if self.link_states.get(src) is not LinkState.UP:
+            self.update_links(now)
+        if self.positioning is not None and self.table.dlbl:
+            t_start = float(rx.meta.get("start", rx.time))
+            self._ranging(src, t_start, frame.delays, modem_now if modem_now is not None else now,
+                          now)
+        values: dict[str, list[dict]] = {}
+        for entry in frame.entries:
+            channel = entry.channel
+            if isinstance(channel, AckCodec):
+                self._on_ack(src, entry.header, now)
+                continue
+            if src not in channel.senders:
+                self.stats.frames_dropped["unexpected_sender"] += 1
+                continue
+            if self.node not in channel.destinations(src):
+                continue  # overheard: addressed to others
+            if channel.fragmented:
+                delivered = self._on_fragment(src, channel, entry.header, entry.chunk, now)
+            elif channel.reliable:
+                receiver = self._receiver(src, channel)
+                assert isinstance(receiver, ReliableReceiver)
+                delivered = receiver.on_entry(*entry.header, entry.values)
+                self._acks[(src, channel.index)] = None
+            else:
+                delivered = [entry.values]
+            for elements in delivered:
+                values[channel.name] = elements
+                self.stats.received_per_channel[channel.name] += 1
+                self.received_at[channel.name] = now
+                for element, value in zip(channel.elements, elements, strict=True):
+                    self._publish(element.output_key(src, self.node), value, element.encoding,
+                                  channel.latching)
+        self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
+        self._notice("frame_received", {
+            "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
+            "data": rx.data, "meta": plain(rx.meta), "values": values})
+
+    def _receiver(self, src: str, channel: ChannelCodec) -> ReliableReceiver | TransferReceiver:
+        key = (src, channel.index)
+        receiver = self.receivers.get(key)
+        if receiver is None:
+            receiver = self.receivers[key] = (TransferReceiver(channel) if channel.fragmented
+                                              else ReliableReceiver())
+        return receiver
+
+    def _on_fragment(self, src: str, channel: ChannelCodec, header: tuple[int, ...],
+                     chunk: bytes, now: float) -> list[list[dict]]:
+        receiver = self._receiver(src, channel)
+        assert isinstance(receiver, TransferReceiver)
+        tid, index, count = header
+        data = receiver.on_fragment(tid, index, count, chunk)
+        self._acks[(src, channel.index)] = None
+        self._status(f"transfer/{channel.name}", {**receiver.progress(), "peer": src,
+                                                  "time": now})
+        if data is None:
+            return []
+        try:
+            return [channel.unpack(from_bytes(channel, data))]
+        except DecodeError as exc:
+            self.stats.frames_dropped["malformed"] += 1
+            self._notice("frame_dropped", {"time": now, "src": src, "reason": "malformed",
+                                           "error": f"transfer on {channel.name!r}: {exc}"})
+            return []
+
+    def _on_ack(self, src: str, header: tuple[int, ...], now: float) -> None:
+        peer, stream, tid, base, bitmap = header
+        if self.table.nodes[peer] != self.node:
+            return  # acknowledges someone else
+        channel = self.table.streams[stream]
+        sender = self.senders.get(channel.index)
+        if sender is None or src not in sender.dests:
+            return
+        if isinstance(sender, TransferSender):
+            self._reports(sender.on_ack(src, tid, base, bitmap, now))
+            progress = sender.progress()
+            if progress is not None:
+                self._status(f"transfer/{channel.name}", {**progress, "time": now})
+        else:
+            self._reports(sender.on_ack(src, base, bitmap, now))
+
+    def _reports(self, reports: list[Report]) -> None:
+        for report in reports:
+            payload = report.payload()
+            self._status(f"delivery/{report.channel}", payload)
+            self._notice("delivery", payload)
+
+    def _publish(self, key: str, value: Any, encoding: str, latched: bool) -> None:
+        self._outputs.append(Publish(key, value, encoding, latched))
+        self.stats.values_published += 1
+
+    def _ranging(self, src: str, t_rx_start: float, delays: tuple[int | None, ...],
+                 modem_now: float, now: float) -> None:
+        """Ranges (and a fix) from a frame's DLBL delays."""
+        assert self.positioning is not None
+        self._positioned(self.positioning.on_receive(src, t_rx_start, delays, modem_now, now),
+                         now)
+
+    def modem_range(self, rng: ModemRange, now: float) -> None:
+        """The modem measured a range itself (a ping, a propagation time): publish it like a
+        DLBL range, and the fix attempted with it."""
+        peer = self.mission.name_of(rng.peer)
+        if self.positioning is None or peer is None:
+            return
+        self._positioned(self.positioning.on_modem_range(peer, rng.travel_time_s, rng.method,
+                                                         rng.time), now)
+
+    def range_due(self, now: float) -> int | None:
+        """The address this node should ask its modem to range to at this transmit opportunity
+        (``ranging.ping``); never at two opportunities in a row, so frames still go out."""
+        if self.positioning is None or self._ranged_last:
+            self._ranged_last = False
+            return None
+        peer = self.positioning.ping_due(now)
+        return None if peer is None else self.mission.address_of(peer)
+
+    def range_asked(self, dest: int, now: float, error: str | None = None) -> None:
+        """A range to ``dest`` was asked of the modem; ``error`` says why it failed."""
+        peer = self.mission.name_of(dest)
+        if self.positioning is None or peer is None:
+            return
+        self._ranged_last = True
+        self.positioning.pinged(peer, now)
+        if error is not None:
+            self._notice("range_failed", {"time": now, "peer": peer, "error": error})
+
+    def _positioned(self, update: Update, now: float) -> None:
+        """Publish the ranges of ``update`` and its fix (or why there is none)."""
+        assert self.positioning is not None
+        for rng in update.ranges:
+            payload = {**self.positioning.range_payload(rng), "time": now}
+            self._status(f"range/{rng.peer}", payload)
+            self._notice("range", payload)
+        found = update.estimate if update.estimate is not None else update.fix
+        if found is not None:  # the tracker's estimate; a bare fix where there is no tracker
+            payload = found.payload(now)
+            self._status("position", payload)
+            self._notice("position", payload)
+
+    # -- health --------------------------------------------------------------------------------
+
+    def tick(self, now: float) -> None:
+        """Periodic work: link states, and reliable values past their TTL or retries."""
+        self.update_links(now)
+        for sender in self.senders.values():
+            self._reports(sender.expire(now))
+        if self.positioning is not None and (estimate := self.positioning.report(now)):
+            self._positioned(Update((), None, estimate), now)  # coasting, or lost, is news
+
+    def update_links(self, now: float) -> None:
+        """Re-evaluate every peer's link; report changes on ``link/<peer>``."""
+        for peer in self.table.foreign_nodes(self.node):
+            heard = self.last_heard.get(peer)
+            state = self.thresholds.state(heard, now)
+            if self.link_states.get(peer) is state:
+                continue
+            self.link_states[peer] = state
+            payload = {"peer": peer, "state": state.value, "last_heard": heard,
+                       "silent_s": None if heard is None else now - heard}
+            self._status(f"link/{peer}", payload)
+            self._notice("link", {"time": now, **payload})
+
+    def snapshot(self, now: float) -> dict[str, Any]:
+        """Counters and channel ages as plain data."""
+        ages = {s.channel.name: s.age(now) for s in self.store.states.values()}
+        return {
+            "node": self.node,
+            "time": now,
+            "frames_sent": self.stats.frames_sent,
+            "frames_received": self.stats.frames_received,
+            "frames_dropped": dict(self.stats.frames_dropped),
+            "payloads_dropped": dict(self.stats.payloads_dropped),
+            "values_published": self.stats.values_published,
+            "send_errors": self.stats.send_errors,
+            "left_out": self.stats.left_out,
+            "channel_age_s": ages,
+            "received_age_s": {k: now - t for k, t in self.received_at.items()},
+            "last_heard": dict(self.last_heard),
+            "links": {peer: state.value for peer, state in self.link_states.items()},
+        }
+
+
+def plain(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """Link metadata reduced to msgpack-able scalars."""
+    return {str(k): v for k, v in dict(meta).items()
+            if isinstance(v, int | float | str | bool) or v is None}

@@ -1,0 +1,262 @@
+"""Reliable channels: every value delivered once, in order, or reported failed (pure).
+
+Rules (seed 003's acknowledged commands; selective repeat with a small window):
+
+- The sender queues values (bounded; a full queue refuses the new value or gives up the
+  oldest unsent one). Up to ``WINDOW`` values are *in flight*, each with a sequence number
+  (``seq``, modulo 256) and ``lag``: how far it is past the oldest value still in flight.
+- A value in flight is (re)sent when its timer is due: at once, then after ``retry_s``,
+  doubling up to four times that. Several values of one channel may share a frame.
+- Receivers acknowledge in frames they send anyway: ``base`` (the next seq they will deliver)
+  and a bitmap of the ``WINDOW`` seqs after it that they hold. ``base`` past a value completes
+  it for that receiver; a bitmap bit only holds back its retransmission.
+- A value fails after ``retries`` retransmissions without acknowledgement, or once older than
+  ``ttl_s``; every state change is a :class:`Report` for the publisher's side.
+- A receiver delivers in order, drops duplicates, and skips what the sender gave up: ``seq -
+  lag`` tells it the sender's oldest unfinished value, so nothing before it will come again.
+- Each run of a sender numbers from a random ``first_seq``, so a restarted sender's numbers
+  rarely meet those a receiver remembers from its earlier run. Numbers behind the receiver's
+  ``base`` read as values the new run gave up (skipped); an acknowledgement ``base`` past
+  anything the sender has numbered shows the receiver remembers an earlier run, and the sender
+  renumbers its values in flight from there. (Left: when the new numbers straddle the
+  receiver's ``base`` — about n/256 for n values sent before the first acknowledgement — the
+  first values are taken for duplicates.)
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge.wire.channels import LAG_BITS, SEQ_BITS, WINDOW, ChannelCodec
+
+SEQ_MOD = 1 << SEQ_BITS
+HALF = SEQ_MOD // 2
+BACKOFF_CAP = 4.0
+
+
+def retry_wait(retry_s: float, attempts: int) -> float:
+    """How long to wait for an acknowledgement after the ``attempts``-th send: ``retry_s``,
+    doubling with each attempt up to ``BACKOFF_CAP`` times it."""
+    return retry_s * min(2.0 ** (attempts - 1), BACKOFF_CAP)
+
+
+def seq_after(a: int, b: int) -> int:
+    """How far ``a`` is after ``b`` modulo 256 (negative when before, within half the space)."""
+    d = (a - b) % SEQ_MOD
+    return d - SEQ_MOD if d >= HALF else d
+
+
+@dataclass(frozen=True)
+class Report:
+    """A reliable value's state, for ``@zab/<mission>/<node>/delivery/<channel>``."""
+
+    channel: str
+    id: int
+    dst: str | None
+    state: str  # queued | sent | delivered | failed
+    time: float
+    attempts: int = 0
+    reason: str | None = None
+    key: str | None = None
+    ref: str | None = None
+
+    def payload(self) -> dict[str, Any]:
+        return {"channel": self.channel, "id": self.id, "dst": self.dst, "state": self.state,
+                "reason": self.reason, "attempts": self.attempts, "time": self.time,
+                "key": self.key, "ref": self.ref}
+
+
+@dataclass(eq=False)
+class Pending:
+    """One value of a reliable channel at its sender."""
+
+    id: int
+    payload: int
+    created: float
+    key: str | None
+    ref: str | None
+    waiting: set[str]
+    seq: int | None = None
+    attempts: int = 0
+    last_sent: float | None = None
+    next_send: float = float("-inf")
+    held: set[str] = field(default_factory=set)
+
+
+class ReliableSender:
+    """The sending side of one reliable channel at one node."""
+
+    def __init__(self, channel: ChannelCodec, dests: Iterable[str], retry_s: float,
+                 first_seq: int = 0) -> None:
+        self.channel = channel
+        self.dests = tuple(dests)
+        self.retry_s = channel.retry_s or retry_s
+        self.queue: deque[Pending] = deque()  # not yet numbered
+        self.flight: list[Pending] = []  # numbered, oldest first
+        self._next_id = 0
+        self._next_seq = first_seq % SEQ_MOD
+
+    def offer(self, payload: int, now: float, key: str | None = None,
+              ref: str | None = None) -> list[Report]:
+        """A new value to deliver; reports it queued (or what the full queue did)."""
+        reports: list[Report] = []
+        item = Pending(self._next_id, payload, now, key, ref, set(self.dests))
+        self._next_id += 1
+        if len(self.queue) + len(self.flight) >= self.channel.queue:
+            if self.channel.overflow == "drop_oldest" and self.queue:
+                reports += self._fail(self.queue.popleft(), now, "queue overflow: dropped "
+                                      "for a newer value")
+            else:
+                return self._fail(item, now, f"queue full ({self.channel.queue} values)")
+        self.queue.append(item)
+        reports += self._report(item, "queued", now)
+        self._fill()
+        return reports
+
+    def _fill(self) -> None:
+        while self.queue and len(self.flight) < WINDOW:
+            item = self.queue.popleft()
+            item.seq = self._next_seq
+            self._next_seq = (self._next_seq + 1) % SEQ_MOD
+            self.flight.append(item)
+
+    def due(self, now: float) -> list[Pending]:
+        """Values to put in a frame sent at ``now``, oldest first."""
+        return [p for p in self.flight
+                if p.next_send <= now + 1e-9 and not p.waiting <= p.held]
+
+    def next_time(self) -> float | None:
+        """When a value is next due, or None."""
+        times = [p.next_send for p in self.flight if not p.waiting <= p.held]
+        return min(times, default=None)
+
+    def entry(self, item: Pending) -> int:
+        """The entry bits of ``item``: seq, lag, value."""
+        assert item.seq is not None and self.flight
+        lag = (item.seq - self.flight[0].seq) % SEQ_MOD  # type: ignore[operator]
+        return (((item.seq << LAG_BITS) | lag) << self.channel.bits) | item.payload
+
+    def sent(self, items: Iterable[Pending], now: float) -> list[Report]:
+        reports: list[Report] = []
+        for item in items:
+            item.attempts += 1
+            item.last_sent = now
+            item.next_send = now + retry_wait(self.retry_s, item.attempts)
+            if item.attempts == 1:
+                reports += self._report(item, "sent", now)
+        return reports
+
+    def confirmed(self, items: Iterable[Pending], dst: str) -> None:
+        """The modem confirmed ``items`` reached ``dst``: wait for its ack, do not resend."""
+        for item in items:
+            if dst in item.waiting:
+                item.held.add(dst)
+
+    def on_ack(self, dst: str, base: int, bitmap: int, now: float) -> list[Report]:
+        """A receiver's acknowledgement."""
+        reports: list[Report] = []
+        if seq_after(base, self._next_seq) > 0:
+            self._renumber(base)  # the receiver remembers an earlier run of this sender
+        for item in list(self.flight):
+            if dst not in item.waiting:
+                continue
+            d = seq_after(item.seq, base)  # type: ignore[arg-type]
+            if d < 0:
+                item.waiting.discard(dst)
+                item.held.discard(dst)
+                reports.append(self._one(item, dst, "delivered", now))
+                if not item.waiting:
+                    self.flight.remove(item)
+            elif 1 <= d <= WINDOW and bitmap >> (d - 1) & 1:
+                item.held.add(dst)
+        self._fill()
+        return reports
+
+    def _renumber(self, base: int) -> None:
+        """Continue from the receiver's ``base``: what is in flight was not delivered yet."""
+        for n, item in enumerate(self.flight):
+            item.seq = (base + n) % SEQ_MOD
+            item.held.clear()
+            item.next_send = float("-inf")
+        self._next_seq = (base + len(self.flight)) % SEQ_MOD
+
+    def expire(self, now: float) -> list[Report]:
+        """Give up values past their TTL or out of retries."""
+        reports: list[Report] = []
+        ttl = self.channel.ttl_s
+        retries = self.channel.retries
+        for item in [*self.flight, *self.queue]:
+            if ttl is not None and now - item.created > ttl:
+                reports += self._give_up(item, now, f"older than ttl_s={ttl:g}")
+            elif (retries is not None and item.attempts > retries
+                  and item.next_send <= now and not item.waiting <= item.held):
+                reports += self._give_up(item, now, f"no acknowledgement after "
+                                         f"{item.attempts} attempts")
+        return reports
+
+    def _give_up(self, item: Pending, now: float, reason: str) -> list[Report]:
+        if item in self.flight:
+            self.flight.remove(item)
+            for other in self.flight:  # receivers need a fresh lag to skip this one
+                if other.held:
+                    other.held.clear()
+                    other.next_send = min(other.next_send, now)
+        else:
+            self.queue.remove(item)
+        self._fill()
+        return self._fail(item, now, reason)
+
+    def _fail(self, item: Pending, now: float, reason: str) -> list[Report]:
+        return [self._one(item, dst, "failed", now, reason) for dst in sorted(item.waiting)]
+
+    def _report(self, item: Pending, state: str, now: float) -> list[Report]:
+        return [self._one(item, dst, state, now) for dst in sorted(item.waiting)]
+
+    def _one(self, item: Pending, dst: str, state: str, now: float,
+             reason: str | None = None) -> Report:
+        return Report(self.channel.name, item.id, dst, state, now, item.attempts, reason,
+                      item.key, item.ref)
+
+
+class ReliableReceiver:
+    """The receiving side of one reliable channel from one sender."""
+
+    def __init__(self) -> None:
+        self.expected: int | None = None
+        self.buffer: dict[int, Any] = {}
+        self.duplicates = 0
+        self.skipped = 0
+
+    def on_entry(self, seq: int, lag: int, values: Any) -> list[Any]:
+        """An entry arrived; returns the values now deliverable, in order."""
+        oldest = (seq - lag) % SEQ_MOD
+        if self.expected is None:
+            self.expected = oldest
+        elif seq_after(oldest, self.expected) > 0:  # the sender gave up what lies between
+            for s in list(self.buffer):
+                if seq_after(s, oldest) < 0:
+                    del self.buffer[s]
+            self.skipped += seq_after(oldest, self.expected)
+            self.expected = oldest
+        d = seq_after(seq, self.expected)
+        if d < 0 or d > WINDOW or seq in self.buffer:
+            self.duplicates += 1
+        else:
+            self.buffer[seq] = values
+        out = []
+        while self.expected in self.buffer:
+            out.append(self.buffer.pop(self.expected))
+            self.expected = (self.expected + 1) % SEQ_MOD
+        return out
+
+    def ack(self) -> tuple[int, int]:
+        """``(base, bitmap)`` for the acknowledgement entry."""
+        base = self.expected or 0
+        bitmap = 0
+        for i in range(WINDOW):
+            if (base + 1 + i) % SEQ_MOD in self.buffer:
+                bitmap |= 1 << i
+        return base, bitmap

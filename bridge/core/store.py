@@ -1,0 +1,110 @@
+"""Latest-value store of the channels a node sends (seed 000: newest data overwrites older).
+
+Pure: every method takes ``now`` (seconds). Values are packed when they arrive, so a payload
+that cannot be encoded is refused at its key, not discovered later inside a frame.
+
+A channel is *due* when every element has a value, the channel's ``interval_s`` has passed
+since it was last sent, and either new data arrived since then or the channel is latching.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+from bridge.wire.channels import ChannelCodec
+
+
+@dataclass
+class ChannelState:
+    """What a sender holds for one channel."""
+
+    channel: ChannelCodec
+    packed: list[int | None]
+    updated: list[float | None]
+    fresh: bool = False
+    last_sent: float | None = None
+    sends: int = 0
+
+    @property
+    def complete(self) -> bool:
+        return all(p is not None for p in self.packed)
+
+    def payload(self) -> int:
+        """The channel's bits: every element's packed value, first element most significant."""
+        n = 0
+        for element, packed in zip(self.channel.elements, self.packed, strict=True):
+            n = (n << element.layout.bits) | (packed or 0)
+        return n
+
+    def ready_at(self, now: float | None = None) -> float | None:
+        """When the channel becomes due, or None while nothing could be sent (incomplete, sent
+        already, or older than the channel's ``ttl_s`` at ``now``)."""
+        if not self.complete or not (self.fresh or self.channel.latching):
+            return None
+        ttl = self.channel.ttl_s
+        if ttl is not None and now is not None and (self.age(now) or 0.0) > ttl:
+            return None
+        if self.last_sent is None:
+            return float("-inf")
+        return self.last_sent + self.channel.interval_s
+
+    def age(self, now: float) -> float | None:
+        """Seconds since the newest value of any element arrived."""
+        stamps = [t for t in self.updated if t is not None]
+        return now - max(stamps) if stamps else None
+
+
+@dataclass
+class OutboundStore:
+    """Channel states of one sending node."""
+
+    states: dict[int, ChannelState] = field(default_factory=dict)
+
+    @classmethod
+    def for_node(cls, channels: Iterable[ChannelCodec], node: str) -> OutboundStore:
+        return cls(
+            {
+                c.index: ChannelState(c, [None] * len(c.elements), [None] * len(c.elements))
+                for c in channels
+                if c.sent_by(node) and c.destinations(node)
+            }
+        )
+
+    def update_value(self, index: int, element: int, packed: int, now: float) -> bool:
+        """Store an element of a reliable or fragmented channel (whose values are queued, not
+        sent from here); returns whether the channel now holds a complete value."""
+        state = self.states[index]
+        state.packed[element] = packed
+        state.updated[element] = now
+        return state.complete
+
+    def update(self, index: int, element: int, packed: int, now: float) -> None:
+        """Store a newly packed element value; it replaces whatever was there."""
+        state = self.states[index]
+        state.packed[element] = packed
+        state.updated[element] = now
+        state.fresh = True
+
+    def due(self, now: float) -> list[ChannelState]:
+        """Channels that may go in a frame sent at ``now``."""
+        out = []
+        for state in self.states.values():
+            ready = state.ready_at(now)
+            if ready is not None and ready <= now + 1e-9:
+                out.append(state)
+        return out
+
+    def next_due(self, now: float | None = None) -> float | None:
+        """The earliest time a channel becomes due (may be in the past), or None."""
+        times = [t for s in self.states.values() if (t := s.ready_at(now)) is not None]
+        return min(times) if times else None
+
+    def mark_sent(self, sent: Iterable[ChannelState], built: float) -> None:
+        """The frame built at ``built`` carried these channels. A value that arrived after
+        the frame was built (while the modem was sending it) stays fresh, to go next time."""
+        for state in sent:
+            if all(t is None or t <= built for t in state.updated):
+                state.fresh = False
+            state.last_sent = built
+            state.sends += 1

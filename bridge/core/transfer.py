@@ -1,0 +1,269 @@
+"""Values too big for a frame: fragmented transfers with selective retransmission (pure).
+
+A channel whose value does not fit a frame sends it as a *transfer*: the packed value's bytes,
+trailing zero bytes trimmed, cut into ``chunk_bytes`` fragments that share frames with other
+channels. Each fragment carries the transfer id (modulo 16), its index and the fragment count.
+
+Receivers acknowledge in the frames they send anyway with ``base`` (first fragment missing, or
+the count when complete) and a bitmap of the ``WINDOW`` fragments after it that they hold (seed
+002's requested trunks: what is missing is exactly what gets sent again). The sender keeps at
+most ``WINDOW + 1`` fragments past the lowest ``base`` in flight, re-sends a fragment after
+``retry_s`` (doubling up to four times that), and fails a transfer after ``retries``
+retransmissions of one fragment or once older than ``ttl_s``.
+
+Latest-wins channels cancel an unfinished transfer when a newer value arrives; reliable ones
+queue values (bounded) and send them one transfer after another.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge.core.reliable import Report, retry_wait
+from bridge.wire.channels import TID_BITS, WINDOW, ChannelCodec
+
+TID_MOD = 1 << TID_BITS
+
+
+def to_bytes(channel: ChannelCodec, payload: int) -> bytes:
+    """A packed value as the bytes a transfer carries (trailing zero bytes trimmed)."""
+    data = payload.to_bytes(channel.value_bytes, "big").rstrip(b"\0")
+    return data or b"\0"
+
+
+def from_bytes(channel: ChannelCodec, data: bytes) -> int:
+    """The packed value back from a transfer's bytes (zero-padded to the full size)."""
+    data = data[:channel.value_bytes].ljust(channel.value_bytes, b"\0")
+    return int.from_bytes(data, "big")
+
+
+@dataclass(eq=False)
+class Transfer:
+    """One value on its way, at the sender; ``tid`` is its id on the wire."""
+
+    id: int
+    tid: int
+    data: bytes
+    created: float
+    key: str | None
+    ref: str | None
+    chunk_bytes: int
+    dests: tuple[str, ...]
+    base: dict[str, int] = field(default_factory=dict)  # per receiver: first fragment missing
+    held: dict[str, set[int]] = field(default_factory=dict)  # per receiver, past base
+    attempts: dict[int, int] = field(default_factory=dict)
+    next_send: dict[int, float] = field(default_factory=dict)
+    started: bool = False
+
+    @property
+    def count(self) -> int:
+        return -(-len(self.data) // self.chunk_bytes)
+
+    def chunk(self, index: int) -> bytes:
+        piece = self.data[index * self.chunk_bytes:(index + 1) * self.chunk_bytes]
+        return piece.ljust(self.chunk_bytes, b"\0")
+
+    def done_by(self, dst: str) -> int:
+        return self.base.get(dst, 0)
+
+    def complete(self) -> bool:
+        return all(self.done_by(d) >= self.count for d in self.dests)
+
+    def needed(self, index: int) -> bool:
+        """Some receiver still lacks fragment ``index``."""
+        return any(index >= self.done_by(d) and index not in self.held.get(d, ())
+                   for d in self.dests)
+
+
+class TransferSender:
+    """The sending side of one fragmented channel at one node."""
+
+    def __init__(self, channel: ChannelCodec, dests: Iterable[str], retry_s: float,
+                 first_seq: int = 0) -> None:
+        """``first_seq``: this run's first transfer id on the wire (random at runtime, so a
+        restarted sender's first transfer is rarely taken for the one receivers completed last)."""
+        self.channel = channel
+        self.dests = tuple(dests)
+        self.retry_s = channel.retry_s or retry_s
+        self.current: Transfer | None = None
+        self.queue: deque[Transfer] = deque()
+        self._next_id = 0
+        self._tid_offset = first_seq % TID_MOD
+
+    def offer(self, payload: int, now: float, key: str | None = None,
+              ref: str | None = None) -> list[Report]:
+        """A new value: queued (reliable) or replacing an unfinished transfer (latest wins)."""
+        reports: list[Report] = []
+        item = Transfer(self._next_id, (self._next_id + self._tid_offset) % TID_MOD,
+                        to_bytes(self.channel, payload), now, key, ref,
+                        self.channel.chunk_bytes, self.dests)
+        self._next_id += 1
+        if not self.channel.reliable:
+            for old in [*([self.current] if self.current else []), *self.queue]:
+                reports += self._report(old, "failed", now, "cancelled by a newer value")
+            self.current, self.queue = None, deque()
+        elif len(self.queue) + (self.current is not None) >= self.channel.queue:
+            return self._report(item, "failed", now, f"queue full ({self.channel.queue} values)")
+        self.queue.append(item)
+        reports += self._report(item, "queued", now)
+        self._start(now)
+        return reports
+
+    def _start(self, now: float) -> None:
+        if self.current is None and self.queue:
+            self.current = self.queue.popleft()
+
+    def _window(self, item: Transfer) -> range:
+        low = min(item.done_by(d) for d in item.dests)
+        return range(low, min(item.count, low + WINDOW + 1))
+
+    def due(self, now: float) -> list[int]:
+        """Fragment indices to put in a frame sent at ``now``, lowest first."""
+        item = self.current
+        if item is None:
+            return []
+        return [i for i in self._window(item)
+                if item.needed(i) and item.next_send.get(i, float("-inf")) <= now + 1e-9]
+
+    def next_time(self) -> float | None:
+        item = self.current
+        if item is None:
+            return None
+        times = [item.next_send.get(i, float("-inf")) for i in self._window(item)
+                 if item.needed(i)]
+        return min(times, default=None)
+
+    def entry(self, index: int) -> int:
+        """The entry bits of fragment ``index`` of the current transfer."""
+        item = self.current
+        assert item is not None
+        fbits = self.channel.fragment_bits
+        header = (((item.tid << fbits) | index) << fbits) | item.count
+        return (header << (8 * self.channel.chunk_bytes)) | int.from_bytes(item.chunk(index),
+                                                                           "big")
+
+    def sent(self, indices: Iterable[int], now: float) -> list[Report]:
+        item = self.current
+        assert item is not None
+        reports: list[Report] = []
+        for i in indices:
+            n = item.attempts[i] = item.attempts.get(i, 0) + 1
+            item.next_send[i] = now + retry_wait(self.retry_s, n)
+        if not item.started:
+            item.started = True
+            reports += self._report(item, "sent", now)
+        return reports
+
+    def confirmed(self, indices: Iterable[int], dst: str) -> None:
+        """The modem confirmed fragments ``indices`` reached ``dst``: do not resend them."""
+        if self.current is not None and dst in self.current.dests:
+            self.current.held.setdefault(dst, set()).update(indices)
+
+    def on_ack(self, dst: str, tid: int, base: int, bitmap: int, now: float) -> list[Report]:
+        item = self.current
+        if item is None or tid != item.tid or dst not in item.dests:
+            return []
+        reports: list[Report] = []
+        was = item.done_by(dst)
+        if base > was:
+            item.base[dst] = min(base, item.count)
+        item.held[dst] = {item.done_by(dst) + 1 + i for i in range(WINDOW) if bitmap >> i & 1}
+        if was < item.count <= item.done_by(dst):
+            reports.append(self._one(item, dst, "delivered", now))
+        if item.complete():
+            self.current = None
+            self._start(now)
+        return reports
+
+    def progress(self) -> dict[str, Any] | None:
+        """The current transfer's progress, for ``…/transfer/<channel>``."""
+        item = self.current
+        if item is None:
+            return None
+        done = min(item.done_by(d) for d in item.dests)
+        return {"channel": self.channel.name, "id": item.id, "peer": list(item.dests),
+                "fragments_done": done, "fragments_total": item.count,
+                "bytes": len(item.data), "state": "sending"}
+
+    def expire(self, now: float) -> list[Report]:
+        item = self.current
+        if item is None:
+            return []
+        ttl, retries = self.channel.ttl_s, self.channel.retries
+        reason = None
+        if ttl is not None and now - item.created > ttl:
+            reason = f"older than ttl_s={ttl:g}"
+        elif retries is not None and any(
+                n > retries and item.needed(i) and item.next_send[i] <= now
+                for i, n in item.attempts.items()):
+            reason = f"a fragment was not acknowledged after {retries + 1} attempts"
+        if reason is None:
+            return []
+        self.current = None
+        self._start(now)
+        return [self._one(item, d, "failed", now, reason) for d in item.dests
+                if item.done_by(d) < item.count]
+
+    def _report(self, item: Transfer, state: str, now: float,
+                reason: str | None = None) -> list[Report]:
+        return [self._one(item, d, state, now, reason) for d in item.dests]
+
+    def _one(self, item: Transfer, dst: str, state: str, now: float,
+             reason: str | None = None) -> Report:
+        attempts = max(item.attempts.values(), default=0)
+        return Report(self.channel.name, item.id, dst, state, now, attempts, reason, item.key,
+                      item.ref)
+
+
+class TransferReceiver:
+    """The receiving side of one fragmented channel from one sender."""
+
+    def __init__(self, channel: ChannelCodec) -> None:
+        self.channel = channel
+        self.tid: int | None = None
+        self.count = 0
+        self.chunks: dict[int, bytes] = {}
+        self.complete = False
+        self.cancelled = 0
+        self.duplicates = 0
+
+    def on_fragment(self, tid: int, index: int, count: int, chunk: bytes) -> bytes | None:
+        """A fragment arrived; returns the transfer's bytes when it just completed."""
+        if tid != self.tid or count != self.count:
+            if self.tid is not None and not self.complete and self.chunks:
+                self.cancelled += 1
+            self.tid, self.count, self.chunks, self.complete = tid, count, {}, False
+        if self.complete or index in self.chunks:
+            self.duplicates += 1
+            return None
+        self.chunks[index] = chunk
+        if len(self.chunks) < self.count:
+            return None
+        self.complete = True
+        data = b"".join(self.chunks[i] for i in range(self.count))
+        self.chunks = {}
+        return data
+
+    @property
+    def base(self) -> int:
+        if self.complete:
+            return self.count
+        return next(i for i in range(self.count + 1) if i not in self.chunks)
+
+    def ack(self) -> tuple[int, int, int]:
+        """``(tid, base, bitmap)`` for the acknowledgement entry."""
+        base = self.base
+        bitmap = 0
+        for i in range(WINDOW):
+            if base + 1 + i in self.chunks:
+                bitmap |= 1 << i
+        return self.tid or 0, base, bitmap
+
+    def progress(self) -> dict[str, Any]:
+        return {"channel": self.channel.name, "id": self.tid,
+                "fragments_done": self.count if self.complete else len(self.chunks),
+                "fragments_total": self.count,
+                "state": "complete" if self.complete else "receiving"}

@@ -1,0 +1,210 @@
+"""What ``zab check`` reports: channel sizes, worst-case frame fill, airtime against slots."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge.core.mac import (
+    TdmaSchedule,
+    aloha_slot_s,
+    busy_s,
+    frame_time_s,
+    mac_report,
+    max_distance_m,
+    node_preset,
+    polled_ipg_s,
+    polled_slaves,
+    ranging_tmax_s,
+)
+from bridge.errors import BackendError
+from bridge.mission.loader import LoadedMission
+from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, TdmaMac
+from bridge.modems.registry import load_backend
+from bridge.wire.channels import ChannelCodec
+from bridge.wire.frame import FrameCodec
+
+
+@dataclass
+class CheckReport:
+    """The result of checking a mission; ``ok`` is False when something can never fit."""
+
+    data: dict[str, Any]
+    warnings: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+def check_mission(loaded: LoadedMission) -> CheckReport:
+    mission, table = loaded.mission, loaded.table
+    codec = FrameCodec(table)
+    report = CheckReport(data={})
+    channels = [
+        {
+            "name": c.name,
+            "index": c.index,
+            "bits": c.bits,
+            "cost_bits": codec.channel_cost_bits(c),
+            "from": list(c.senders),
+            "to": [r for r in c.receivers if c.senders != (r,)],
+            "interval_s": c.interval_s,
+            "latching": c.latching,
+            "priority": c.priority,
+            "reliable": c.reliable,
+            "ttl_s": c.ttl_s,
+            "fragments": {"chunk_bytes": c.chunk_bytes,
+                          "at_most": -(-c.value_bytes // c.chunk_bytes)} if c.fragmented else None,
+        }
+        for c in table.channels
+    ]
+    for c in table.channels:
+        if c.fragmented:
+            report.warnings.append(
+                f"channel {c.name!r}: a value ({c.bits} bits) is larger than a frame; it travels "
+                f"in up to {-(-c.value_bytes // c.chunk_bytes)} fragments of {c.chunk_bytes} B")
+    nodes = []
+    for name, node in mission.nodes.items():
+        frame_bytes = mission.node_modem(name).frame_bytes
+        capacity = codec.body_capacity_bits(frame_bytes) - codec.count_bits
+        sent = [c for c in table.channels if c.sent_by(name) and c.destinations(name)]
+        worst = sum(codec.channel_cost_bits(c) for c in sent)
+        modem = mission.node_modem(name)
+        try:
+            limit = load_backend(modem.backend).max_frame_bytes(modem.options)
+        except BackendError as exc:
+            report.errors.append(f"{name}: {exc}")
+            limit = None
+        if limit is not None and frame_bytes > limit:
+            report.errors.append(f"{name}: frame_bytes {frame_bytes} exceeds the {limit} bytes a "
+                                 f"{modem.backend} modem sends with these options")
+        for c in sent:
+            if codec.channel_cost_bits(c) > capacity:
+                report.errors.append(
+                    f"channel {c.name!r} ({codec.channel_cost_bits(c)} bits with its index) can "
+                    f"never fit in a {frame_bytes}-byte frame of {name!r} "
+                    f"({capacity} bits free after overhead)"
+                )
+        if worst > capacity:
+            report.warnings.append(
+                f"{name}: all its channels at once need {worst} bits, a frame holds {capacity}; "
+                "lower priorities wait for a later frame"
+            )
+        preset = node_preset(mission, name)
+        largest = codec.frame_bytes_for(sent) if sent else codec.frame_bytes_for([])
+        airtime = preset.airtime(min(largest, frame_bytes)) if preset else None
+        entry = {
+            "name": name,
+            "address": node.address,
+            "role": node.role,
+            "listen": list(node.zenoh.listen),
+            "frame_bytes": frame_bytes,
+            "worst_case_bits": worst + codec.count_bits + codec.overhead_bytes() * 8,
+            "capacity_bits": frame_bytes * 8,
+            "fill": round(min(largest, frame_bytes) / frame_bytes, 3),
+            "airtime_s": None if airtime is None else round(airtime, 3),
+        }
+        if isinstance(mission.mac, TdmaMac):
+            schedule = TdmaSchedule(mission.mac, name)
+            entry["slot_s"] = schedule.usable_s()
+            entry["worst_gap_s"] = schedule.worst_gap_s()
+            if preset is not None:
+                need = preset.frame_time_s(min(largest, frame_bytes),
+                                           max_distance_m(mission, preset))
+                if need > schedule.usable_s():
+                    report.warnings.append(
+                        f"{name}: TDMA slot leaves {schedule.usable_s():.3f} s but a full frame "
+                        f"needs {need:.3f} s (modem latency + airtime {airtime:.3f} s + "
+                        "propagation)"
+                    )
+        mac = mac_report(mission, name, airtime, _data_per_s(sent, mission.link.heartbeat_s))
+        entry["mac"] = {"worst_interval_s": _round(mac.worst_interval_s),
+                        "airtime_share": mac.airtime_share, "note": mac.note,
+                        "random_access": mac.random_access}
+        nodes.append(entry)
+    mac_data = _mac_summary(mission, nodes, report)
+    report.data = {
+        "mission": mission.mission,
+        "frame_bytes": mission.modem.frame_bytes,
+        "backend": mission.modem.backend,
+        "mac": mission.mac.type,
+        "mac_timing": mac_data,
+        "dlbl": mission.wire.dlbl,
+        "overhead_bytes": codec.overhead_bytes(),
+        "count_bits": codec.count_bits,
+        "index_bits": codec.index_bits,
+        "channels": channels,
+        "nodes": nodes,
+        "warnings": report.warnings,
+        "errors": report.errors,
+        "ok": report.ok,
+    }
+    return report
+
+
+def _data_per_s(sent: list[ChannelCodec], heartbeat_s: float | None) -> float:
+    """Most frames per second a node's channels can fill (inf if one sends every turn)."""
+    if any(c.interval_s <= 0 for c in sent):
+        return math.inf
+    return sum(1 / c.interval_s for c in sent) + (1 / heartbeat_s if heartbeat_s else 0.0)
+
+
+def _round(value: float | None) -> float | None:
+    return None if value is None else round(value, 4)
+
+
+def _mac_summary(mission: Mission, nodes: list[dict[str, Any]],
+                 report: CheckReport) -> dict[str, Any]:
+    """Times the MAC uses (given or computed from the presets), with warnings when a given
+    time is shorter than a frame needs, or random access is likely to collide."""
+    mac = mission.mac
+    data: dict[str, Any] = {}
+    if isinstance(mac, PolledMac):
+        ipg = polled_ipg_s(mission, mac)
+        needed = polled_ipg_s(mission, mac.model_copy(update={"ipg_s": None, "guard_s": 0.0}))
+        data.update(ipg_s=_round(ipg), needed_ipg_s=_round(needed),
+                    sequence=list(polled_slaves(mission, mac)))
+        if ipg is not None and needed is not None and ipg < needed:
+            report.warnings.append(
+                f"polled: ipg_s {ipg:.3f} s is shorter than a poll plus the slowest reply "
+                f"({needed:.3f} s: latency + 3 sigma jitter, airtime, propagation); replies "
+                "may collide with the next poll")
+    if isinstance(mac, AlohaMac):
+        slot = aloha_slot_s(mission, mac) if mac.slotted else None
+        data.update(slotted=mac.slotted, slot_s=_round(slot))
+        if slot is not None:
+            for name in mission.nodes:
+                need = frame_time_s(mission, name)
+                if need is not None and need > slot:
+                    report.warnings.append(f"{name}: an aloha slot of {slot:.3f} s is shorter "
+                                           f"than its largest frame needs ({need:.3f} s)")
+    if isinstance(mac, AlohaMac | NoMac):
+        shares = [n["mac"]["airtime_share"] for n in nodes if n["mac"]["random_access"]]
+        if shares and all(x is not None for x in shares):
+            load = sum(shares)
+            data["offered_load"] = round(load, 4)
+            if load > 0.18 and len(shares) > 1:
+                report.warnings.append(
+                    f"{mac.type}: every node at full rate offers a load G = {load:.2f} of the "
+                    "channel; pure ALOHA delivers at most G·e^(-2G) "
+                    f"({load * math.exp(-2 * load):.0%} of the time carries a good frame)")
+        if mac.ranging is not None:
+            tmax_s = ranging_tmax_s(mission, mac.ranging)
+            data.update(ranging_tmax_s=_round(tmax_s))
+            if tmax_s is not None:
+                round_s = (len(mac.ranging.anchors) + 1) * tmax_s
+                data["ranging_round_s"] = round(round_s, 4)
+                if round_s > mac.ranging.interval_s:
+                    report.warnings.append(
+                        f"ranging: a round lasts up to {round_s:.2f} s, longer than "
+                        f"interval_s {mac.ranging.interval_s:g} s: requests follow rounds")
+                for anchor in mac.ranging.anchors:
+                    busy = busy_s(mission, anchor)
+                    if busy is not None and busy > tmax_s:
+                        report.warnings.append(
+                            f"ranging: {anchor}'s largest frame keeps its modem busy "
+                            f"{busy:.3f} s, more than one turn (tmax_s {tmax_s:.3f} s)")
+    return data

@@ -1,0 +1,190 @@
+"""Read a mission file and explain every mistake with file, line, column and field path."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import ValidationError
+
+from bridge.core.mac import mac_problems
+from bridge.errors import MissionError
+from bridge.mission.model import Mission
+from bridge.wire.channels import ChannelTable, ChannelTableError
+from bridge.wire.frame import FrameCodec
+
+Loc = tuple[str | int, ...]
+Marks = dict[Loc, tuple[int, int]]
+
+
+@dataclass(frozen=True)
+class LoadedMission:
+    """A validated mission with its compiled channel table."""
+
+    path: Path
+    mission: Mission
+    table: ChannelTable
+
+
+def _build(node: yaml.Node, loc: Loc, marks: Marks, constructor: yaml.SafeLoader) -> Any:
+    """Turn a composed YAML node into Python data, remembering where each value starts."""
+    marks[loc] = (node.start_mark.line + 1, node.start_mark.column + 1)
+    if isinstance(node, yaml.MappingNode):
+        out: dict[Any, Any] = {}
+        for key_node, value_node in node.value:
+            key = constructor.construct_object(key_node, deep=True)
+            if not isinstance(key, str | int | float | bool) and key is not None:
+                raise _located(marks, loc, f"unsupported key {key!r}", key_node)
+            if key in out:
+                raise _located(marks, loc, f"duplicate key {key!r}", key_node)
+            marks[(*loc, key)] = (key_node.start_mark.line + 1, key_node.start_mark.column + 1)
+            out[key] = _build(value_node, (*loc, key), marks, constructor)
+            marks[(*loc, key)] = (key_node.start_mark.line + 1, key_node.start_mark.column + 1)
+        return out
+    if isinstance(node, yaml.SequenceNode):
+        return [_build(item, (*loc, i), marks, constructor) for i, item in enumerate(node.value)]
+    return constructor.construct_object(node, deep=True)
+
+
+class _LocatedYamlError(Exception):
+    def __init__(self, message: str, line: int, column: int) -> None:
+        super().__init__(message)
+        self.line, self.column = line, column
+
+
+def _located(marks: Marks, loc: Loc, message: str, node: yaml.Node) -> _LocatedYamlError:
+    path = format_loc(loc)
+    return _LocatedYamlError(
+        f"{path + ': ' if path else ''}{message}",
+        node.start_mark.line + 1,
+        node.start_mark.column + 1,
+    )
+
+
+def format_loc(loc: Iterable[str | int]) -> str:
+    """``("channels", 0, "elements", 1, "in")`` → ``channels[0].elements[1].in``."""
+    text = ""
+    for part in loc:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
+    return text
+
+
+def _where(marks: Marks, loc: Loc) -> tuple[int, int]:
+    """Line and column of the deepest part of ``loc`` that exists in the document."""
+    for end in range(len(loc), -1, -1):
+        if loc[:end] in marks:
+            return marks[loc[:end]]
+    return (1, 1)
+
+
+def _describe(error: dict[str, Any]) -> str:
+    message = error["msg"]
+    if error["type"] == "extra_forbidden":
+        return "unknown key (check its spelling and indentation)"
+    if error["type"] == "missing":
+        return "required key missing"
+    if error["type"] not in ("value_error", "assertion_error") and "input" in error:
+        shown = repr(error["input"])
+        if len(shown) > 40:
+            shown = shown[:37] + "..."
+        message += f" (got {shown})"
+    return message.removeprefix("Value error, ")
+
+
+def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
+    """Validate mission ``text``; raise :class:`MissionError` listing every problem found."""
+    name = str(path)
+    marks: Marks = {}
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        if root is None:
+            raise MissionError(f"{name}: the file is empty")
+        data = _build(root, (), marks, yaml.SafeLoader(""))
+    except _LocatedYamlError as exc:
+        raise MissionError(f"{name}:{exc.line}:{exc.column}: {exc}") from None
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"{mark.line + 1}:{mark.column + 1}" if mark else "1:1"
+        raise MissionError(f"{name}:{where}: invalid YAML: {exc.problem or exc}") from None
+    except yaml.YAMLError as exc:
+        raise MissionError(f"{name}: invalid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise MissionError(f"{name}:1:1: a mission file is a mapping (key: value), not a list")
+
+    try:
+        mission = Mission.model_validate(data)
+    except ValidationError as exc:
+        lines = []
+        for error in exc.errors():
+            loc = tuple(p for p in error["loc"] if not _is_union_tag(p))
+            line, column = _where(marks, loc)
+            lines.append(f"{name}:{line}:{column}: {format_loc(loc)}: {_describe(error)}")
+        raise MissionError("\n".join(dict.fromkeys(lines))) from None
+
+    problems = list(_semantic_problems(mission))
+    if not problems:
+        try:
+            table = ChannelTable.from_mission(mission)
+        except ChannelTableError as exc:
+            problems.append((exc.loc, str(exc)))
+        else:
+            problems.extend(_frame_problems(mission, table))
+    if problems:
+        raise MissionError(
+            "\n".join(
+                f"{name}:{':'.join(map(str, _where(marks, loc)))}: {format_loc(loc)}: {msg}"
+                for loc, msg in problems
+            )
+        )
+    return LoadedMission(Path(path), mission, table)
+
+
+def _is_union_tag(part: str | int) -> bool:
+    return isinstance(part, str) and (part in ("tdma", "none", "polled", "aloha") or "[" in part)
+
+
+def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
+    """Cross-references that a single model cannot check."""
+    seen: dict[int, str] = {}
+    for name, node in mission.nodes.items():
+        if node.address in seen:
+            yield (("nodes", name, "address"),
+                   f"address {node.address} already used by node {seen[node.address]!r}")
+        seen.setdefault(node.address, name)
+    yield from mac_problems(mission)
+    for i, anchor in enumerate(mission.ranging.anchors or ()):
+        if anchor not in mission.nodes:
+            yield (("ranging", "anchors", i), f"unknown node {anchor!r}")
+    for anchor in mission.ranging.anchor_keys:
+        if anchor not in mission.nodes:
+            yield (("ranging", "anchor_keys", anchor), f"unknown node {anchor!r}")
+    ping = mission.ranging.ping
+    for field in ("peers", "nodes"):
+        for i, name in enumerate(getattr(ping, field) or () if ping is not None else ()):
+            if name not in mission.nodes:
+                yield (("ranging", "ping", field, i), f"unknown node {name!r}")
+
+
+def _frame_problems(mission: Mission, table: ChannelTable) -> Iterable[tuple[Loc, str]]:
+    """Frames too small for what every frame carries besides channels."""
+    overhead = FrameCodec(table).overhead_bytes()
+    for name in mission.nodes:
+        frame_bytes = mission.node_modem(name).frame_bytes
+        if frame_bytes <= overhead:
+            yield (("nodes", name, "modem", "frame_bytes"),
+                   f"{frame_bytes} bytes cannot hold the {overhead}-byte frame overhead")
+
+
+def load_mission(path: str | Path) -> LoadedMission:
+    """Read and validate the mission file at ``path``."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise MissionError(f"{p}: no such mission file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MissionError(f"{p}: cannot read the mission file: {exc}") from None
+    return parse_mission(text, p)

@@ -1,0 +1,156 @@
+"""JSON Schema (draft 2020-12) of every bridged key's payload (``zab schema --payloads``).
+
+For each channel element of a mission: the *input* key each sender reads and the *output* key
+each receiver publishes, with the schema of the payload there, built from the element's field
+layout (types, min/max, enum values, string/bytes lengths, arrays). Applications in any language
+validate what they publish, or generate types, from these files.
+
+Schemas describe the JSON view of a payload. In msgpack payloads (the default) a ``bytes``
+field is a msgpack ``bin``; its JSON view is a hex string, as the bridge publishes it in JSON
+(see :func:`json_view`). At an input key an enum also accepts its index.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import Any, Literal
+
+from bridge.mission.loader import LoadedMission
+from bridge.wire.channels import ChannelCodec, ElementCodec
+
+DRAFT = "https://json-schema.org/draft/2020-12/schema"
+Direction = Literal["in", "out"]
+
+__all__ = [
+    "KeySchema", "adapt_schema", "json_view", "key_schemas", "schema_path",
+    "write_payload_schemas",
+]
+
+
+@dataclass
+class KeySchema:
+    """The payload schema of one concrete key, with where it is used."""
+
+    key: str
+    direction: Direction
+    channel: str
+    element: int
+    encoding: str
+    nodes: list[str] = field(default_factory=list)
+    schema: dict[str, Any] = field(default_factory=dict)
+
+    def document(self, mission: str) -> dict[str, Any]:
+        """The schema file's content: the layout schema with an id, title and ``x-zab``."""
+        where = "read by" if self.direction == "in" else "published at"
+        doc: dict[str, Any] = {
+            "$schema": DRAFT,
+            "$id": f"zab:{mission}/{self.direction}/{self.key}",
+            "title": self.key,
+            "description": (f"Payload of `{self.key}`, {where} {', '.join(self.nodes)}; "
+                            f"channel `{self.channel}` of mission `{mission}`."),
+        }
+        doc.update({k: v for k, v in self.schema.items() if k != "$schema"})
+        doc["x-zab"] = {"mission": mission, "direction": self.direction, "channel": self.channel,
+                        "element": self.element, "encoding": self.encoding,
+                        "nodes": list(self.nodes)}
+        return doc
+
+
+def adapt_schema(node: Any, direction: Direction) -> Any:
+    """Rewrite a layout schema for one direction: bytes as hex strings; input enums also take
+    their index."""
+    if isinstance(node, list):
+        return [adapt_schema(item, direction) for item in node]
+    if not isinstance(node, dict):
+        return node
+    out = {k: adapt_schema(v, direction) for k, v in node.items()}
+    if "x-max-bytes" in out:  # a bytes field
+        size = out.pop("x-max-bytes")
+        out.pop("contentEncoding", None)
+        out.update({"type": "string", "contentEncoding": "base16", "maxLength": 2 * size,
+                    "pattern": "^([0-9a-fA-F]{2})*$", "x-msgpack": "bin"})
+    if direction == "in" and "enum" in out and all(isinstance(v, str) for v in out["enum"]):
+        names = out.pop("enum")
+        out["anyOf"] = [{"enum": names},
+                        {"type": "integer", "minimum": 0, "maximum": len(names) - 1}]
+    return out
+
+
+def _element_schema(element: ElementCodec, direction: Direction) -> dict[str, Any]:
+    return adapt_schema(element.layout.json_schema(), direction)
+
+
+def _uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, int, ElementCodec, str]]:
+    """(direction, key, element index, element, node) for every use of a channel's elements."""
+    for i, element in enumerate(channel.elements):
+        for src in channel.senders:
+            if not channel.destinations(src):
+                continue
+            yield "in", element.input_key(src), i, element, src
+            for dst in channel.destinations(src):
+                yield "out", element.output_key(src, dst), i, element, dst
+
+
+def key_schemas(loaded: LoadedMission) -> list[KeySchema]:
+    """Every bridged key's schema, inputs first then outputs, each sorted by key.
+
+    A key read (or published) by several channels gets one schema whose ``allOf`` holds each.
+    """
+    found: dict[tuple[Direction, str], KeySchema] = {}
+    for channel in loaded.table.channels:
+        for direction, key, index, element, node in _uses(channel):
+            entry = found.get((direction, key))
+            schema = _element_schema(element, direction)
+            if entry is None:
+                entry = found[(direction, key)] = KeySchema(
+                    key, direction, channel.name, index, element.encoding, schema=schema)
+            elif (entry.channel, entry.element) != (channel.name, index):
+                parts = entry.schema.get("allOf", [entry.schema])
+                if schema not in parts:
+                    entry.schema = {"allOf": [*parts, schema]}
+                    entry.channel = f"{entry.channel},{channel.name}"
+            if node not in entry.nodes:
+                entry.nodes.append(node)
+    return sorted(found.values(), key=lambda s: (s.direction != "in", s.key))
+
+
+def schema_path(entry: KeySchema) -> PurePosixPath:
+    """Where a key's schema goes under the output folder: ``in/<key>.schema.json``."""
+    parts = entry.key.split("/")
+    if any(p in ("", ".", "..") for p in parts):
+        raise ValueError(f"key {entry.key!r} cannot name a file")
+    return PurePosixPath(entry.direction, *parts[:-1], f"{parts[-1]}.schema.json")
+
+
+def write_payload_schemas(loaded: LoadedMission, out: Path) -> list[Path]:
+    """Write every key's schema under ``out`` plus ``index.json``; return the files written."""
+    mission = loaded.mission.mission
+    written: list[Path] = []
+    index = []
+    for entry in key_schemas(loaded):
+        relative = schema_path(entry)
+        path = out.joinpath(*relative.parts)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(entry.document(mission), indent=2) + "\n", encoding="utf-8")
+        written.append(path)
+        index.append({"key": entry.key, "direction": entry.direction, "channel": entry.channel,
+                      "encoding": entry.encoding, "nodes": entry.nodes, "file": str(relative)})
+    index_path = out / "index.json"
+    out.mkdir(parents=True, exist_ok=True)
+    index_path.write_text(json.dumps({"mission": mission, "keys": index}, indent=2) + "\n",
+                          encoding="utf-8")
+    return [*written, index_path]
+
+
+def json_view(value: Any) -> Any:
+    """A decoded payload as the schemas see it: bytes as hex, tuples as lists."""
+    if isinstance(value, bytes | bytearray):
+        return bytes(value).hex()
+    if isinstance(value, dict):
+        return {k: json_view(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_view(v) for v in value]
+    return value

@@ -1,0 +1,30 @@
+"""EvoLogics S2C AT interface, sans I/O: :mod:`.protocol` (modem bytes -> events) and
+:mod:`.commands` (command builders, and the modem-side command reader used by the emulator)."""
+
+from bridge.modems.evologics.commands import CommandReader, send_im, set_value
+from bridge.modems.evologics.protocol import (
+    BROADCAST,
+    IM_MAX_BYTES,
+    NEED_DATA,
+    Event,
+    HostProtocol,
+    LocalProtocolError,
+    Mode,
+    parse_body,
+    wrap,
+)
+
+__all__ = [
+    "BROADCAST",
+    "IM_MAX_BYTES",
+    "NEED_DATA",
+    "CommandReader",
+    "Event",
+    "HostProtocol",
+    "LocalProtocolError",
+    "Mode",
+    "parse_body",
+    "send_im",
+    "set_value",
+    "wrap",
+]

@@ -1,0 +1,366 @@
+"""``micromodem``: a WHOI Micro-Modem on a serial port, through its NMEA interface.
+
+Options (``modem.options`` of the mission):
+
+- ``device`` (required): serial path (``/dev/ttyUSB0``, a pty) or pyserial URL.
+- ``baud`` (19200), ``rate`` (0–5, default 0), ``ack`` (false): ask the destination to
+  acknowledge every frame (only for frames with one destination).
+- ``timeout_s`` (5): wait for a command's echo; ``retries`` (3): resends of a command
+  (goby: 5 s, 3 tries, reference 2.4 E); ``tx_timeout_s`` (derived from the rate): one whole data
+  cycle; ``send_retries`` (2): cycles retried after a failure; ``ping_timeout_s`` (10).
+- ``broadcast`` (127): the address used for frames without one destination. [U] the reference
+  does not name a broadcast address; every Micro-Modem passes every packet to its host anyway
+  (seed 003), so this only labels the frame.
+- ``config``: extra ``$CCCFG`` keys set at start-up, e.g. ``{CTO: 10}``.
+
+Start-up sets ``SRC`` to the node's address (and ``config``) and waits for every echo. A bridge
+frame is split over the rate's frames (:func:`~bridge.modems.micromodem.rates.frame_bytes_for_rate`
+bytes at most) and joined again by the receiving backend. ``send`` returns when the packet
+left the modem (``$CATXF``), or when every frame was acknowledged with ``ack``; it retries a
+failed cycle ``send_retries`` times, then raises :class:`BackendError`: a frame is sent, or the
+caller is told. A reboot (``$CAREV,…,INIT``) fails the running cycle and re-initialises the modem.
+A line with a bad checksum is counted in ``stats["bad_lines"]`` and dropped.
+
+:meth:`~bridge.modems.base.ModemBackend.ping` runs the two-way ping (``$CCMPC`` →
+``$CAMPR``) and returns the one-way travel time as a
+:class:`~bridge.modems.base.ModemRange` (method ``ping``), also handed to ``on_range``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+from bridge.errors import BackendError
+from bridge.modems.base import Inbox, ModemBackend, ModemRange, ModemSetup, Reception
+from bridge.modems.micromodem.protocol import (
+    BadSentence,
+    Config,
+    HostProtocol,
+    ModemError,
+    Packet,
+    PacketLost,
+    PingReply,
+    Revision,
+    RxStart,
+    TransferDone,
+    TransferFailed,
+)
+from bridge.modems.micromodem.rates import get_rate
+from bridge.modems.transport import ByteTransport
+
+__all__ = ["MicromodemBackend"]
+
+log = logging.getLogger("zab.micromodem")
+
+DEFAULT_BAUD = 19200
+DEFAULT_TIMEOUT_S = 5.0
+DEFAULT_RETRIES = 3
+DEFAULT_SEND_RETRIES = 2
+DEFAULT_PING_TIMEOUT_S = 10.0
+DEFAULT_BROADCAST = 127
+RX_QUEUE = 256
+RETRY_BACKOFF_S = 0.5
+
+
+class MicromodemBackend(ModemBackend):
+    """A WHOI Micro-Modem (MM1/MM2) driven over NMEA."""
+
+    name: ClassVar[str] = "micromodem"
+    ranging: ClassVar[str | None] = "ping"
+
+    @classmethod
+    def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
+        """A whole packet at the configured rate (the driver spreads it over the rate's frames)."""
+        try:
+            return get_rate(options.get("rate", 0)).max_bytes
+        except ValueError:
+            return None
+
+    def __init__(self, setup: ModemSetup) -> None:
+        super().__init__(setup)
+        opts = setup.options
+        where = f"micromodem backend of {setup.node!r}"
+        if not opts.get("device"):
+            raise BackendError(f"{where}: option 'device' (serial path or URL) is required")
+        try:
+            self.rate = get_rate(opts.get("rate", 0))
+            self.baud = int(opts.get("baud", DEFAULT_BAUD))
+            self.timeout_s = float(opts.get("timeout_s", DEFAULT_TIMEOUT_S))
+            self.retries = int(opts.get("retries", DEFAULT_RETRIES))
+            self.send_retries = int(opts.get("send_retries", DEFAULT_SEND_RETRIES))
+            self.ping_timeout_s = float(opts.get("ping_timeout_s", DEFAULT_PING_TIMEOUT_S))
+            self.broadcast = int(opts.get("broadcast", DEFAULT_BROADCAST))
+            self.protocol = HostProtocol(setup.address)
+        except (TypeError, ValueError) as exc:
+            raise BackendError(f"{where}: {exc}") from None
+        self.device = str(opts["device"])
+        self.config: dict[str, Any] = dict(opts.get("config") or {})
+        # a packet's airtime, cycle-init and travel, with room: [C] estimates (reference 2.6)
+        packet_s = self.rate.max_bytes * 8 / self.rate.bitrate_bps + 4.0
+        self.tx_timeout_s = float(opts.get("tx_timeout_s", self.timeout_s + 2 * packet_s))
+        self.frame_bytes = min(self.frame_bytes, self.rate.max_bytes)
+        if setup.frame_bytes > self.rate.max_bytes:
+            log.warning("%s: frame_bytes %d > %d B of a rate-%d packet; frames are capped",
+                        where, setup.frame_bytes, self.rate.max_bytes, self.rate.number)
+        self.stats.update(bad_lines=0, modem_errors=0, reboots=0, rx_lost=0, retries=0,
+                          dropped=0)
+        self._transport: ByteTransport | None = None
+        self._reader: asyncio.Task[None] | None = None
+        self._init_task: asyncio.Task[None] | None = None
+        self._inbox = Inbox(self.stats, RX_QUEUE)
+        self._lock = asyncio.Lock()  # one cycle or ping at a time: the modem is half-duplex
+        self._ready = asyncio.Event()
+        self._failure: BackendError | None = None
+        self._configs: dict[str, asyncio.Future[str]] = {}
+        self._transfer: asyncio.Future[TransferDone] | None = None
+        self._pinging: tuple[int, asyncio.Future[float]] | None = None
+        self._rx_start: float | None = None
+
+    # -- hooks ---------------------------------------------------------------------------------
+
+    async def _open(self) -> None:
+        self._failure = None  # open may be retried after a failure: start clean
+        self._inbox = Inbox(self.stats, RX_QUEUE)
+        self._ready.clear()
+        self.protocol = HostProtocol(self.address)
+        name = f"micromodem {self.setup.node}"
+        self._transport = ByteTransport(self.device, self.baud, name=name)
+        await self._transport.open()
+        self._reader = asyncio.create_task(self._read_loop(), name=f"micromodem-{self.address}")
+        await self._initialise()
+
+    async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
+        to = self.broadcast if dest is None else dest
+        ack = ack and dest is not None
+        last: BackendError | None = None
+        for attempt in range(self.send_retries + 1):
+            if attempt:
+                self.stats["retries"] += 1
+                log.warning("%s: %s; retry %d/%d", self, last, attempt, self.send_retries)
+                await asyncio.sleep(RETRY_BACKOFF_S * attempt)
+            try:
+                await self._cycle(data, to, ack)
+                return True if ack else None  # with ack, a cycle ends with every $CAACK
+            except BackendError as exc:
+                if self._failure is not None:
+                    raise self._failure from None
+                last = exc
+        assert last is not None
+        raise BackendError(f"micromodem {self.setup.node!r}: frame not sent after "
+                           f"{self.send_retries + 1} tries: {last}")
+
+    async def _recv(self) -> Reception:
+        return await self._inbox.get()
+
+    async def _close(self) -> None:
+        self._fail(BackendError(f"micromodem {self.setup.node!r} is closed"))
+        tasks = [t for t in (self._reader, self._init_task) if t is not None]
+        self._reader = self._init_task = None
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        transport, self._transport = self._transport, None
+        if transport is not None:
+            await transport.close()
+
+    async def _ping(self, dest: int) -> ModemRange:
+        """Two-way ping of ``dest`` (``$CCMPC`` → ``$CAMPR``, which gives the one-way travel
+        time [V]); :class:`BackendError` when no reply comes within ``ping_timeout_s``."""
+        async with self._lock:
+            await self._wait_ready()
+            fut: asyncio.Future[float] = asyncio.get_running_loop().create_future()
+            self._pinging = (dest, fut)
+            try:
+                try:
+                    self.protocol.ping(dest)
+                except ValueError as exc:
+                    raise BackendError(f"micromodem {self.setup.node!r}: {exc}") from None
+                await self._flush()
+                owtt = await asyncio.wait_for(fut, self.ping_timeout_s)
+                return ModemRange(dest, owtt, "ping", self.clock())
+            except TimeoutError:
+                raise BackendError(f"micromodem {self.setup.node!r}: no ping reply from "
+                                   f"{dest} within {self.ping_timeout_s:g} s") from None
+            finally:
+                self._pinging = None
+
+    # -- internals -----------------------------------------------------------------------------
+
+    async def _wait_ready(self) -> None:
+        if self._failure is not None:
+            raise self._failure
+        if not self._ready.is_set():
+            try:
+                await asyncio.wait_for(self._ready.wait(), self.timeout_s * (self.retries + 1))
+            except TimeoutError:
+                raise BackendError(f"micromodem {self.setup.node!r}: modem not initialised") \
+                    from None
+        if self._failure is not None:
+            raise self._failure
+
+    async def _cycle(self, data: bytes, dest: int, ack: bool) -> None:
+        async with self._lock:
+            await self._wait_ready()
+            fut: asyncio.Future[TransferDone] = asyncio.get_running_loop().create_future()
+            self._transfer = fut
+            try:
+                try:
+                    self.protocol.start_transfer(dest, data, self.rate.number, ack)
+                except ValueError as exc:
+                    raise BackendError(f"micromodem {self.setup.node!r}: {exc}") from None
+                await self._flush()
+                try:
+                    await asyncio.wait_for(asyncio.shield(fut), self.tx_timeout_s)
+                except TimeoutError:
+                    what = "acknowledged" if ack else "sent"
+                    self.protocol.abort(f"not {what} within {self.tx_timeout_s:g} s")
+                    self._dispatch()
+                    await fut  # raises the BackendError set by TransferFailed
+            finally:
+                self._transfer = None
+
+    async def _initialise(self) -> None:
+        """Set SRC and the configured keys, each confirmed by its ``$CACFG`` echo."""
+        self._ready.clear()
+        for key, value in (("SRC", self.address), *self.config.items()):
+            await self._configure(str(key), value)
+        self.protocol.needs_init = False
+        self._ready.set()
+        log.info("%s: initialised (rate %d, %s)", self, self.rate.number, self.device)
+
+    async def _configure(self, key: str, value: Any) -> None:
+        text = str(int(value)) if isinstance(value, bool) else str(value)
+        for attempt in range(self.retries + 1):
+            if self._failure is not None:
+                raise self._failure
+            fut: asyncio.Future[str] = asyncio.get_running_loop().create_future()
+            self._configs[key] = fut
+            self.protocol.configure(key, text)
+            await self._flush()
+            try:
+                got = await asyncio.wait_for(fut, self.timeout_s)
+            except TimeoutError:
+                log.warning("%s: no echo of $CCCFG,%s (try %d)", self, key, attempt + 1)
+                continue
+            except BackendError as exc:
+                if self._failure is not None:
+                    raise
+                log.warning("%s: $CCCFG,%s refused: %s", self, key, exc)
+                continue
+            finally:
+                self._configs.pop(key, None)
+            if got.strip() != text:
+                raise BackendError(f"micromodem {self.setup.node!r}: {key} is {got!r}, "
+                                   f"wanted {text!r}")
+            return
+        raise BackendError(f"micromodem {self.setup.node!r}: no reply from the modem on "
+                           f"{self.device} to $CCCFG,{key} ({self.retries + 1} tries of "
+                           f"{self.timeout_s:g} s)")
+
+    async def _reinitialise(self) -> None:
+        try:
+            await self._initialise()
+        except BackendError as exc:
+            self.stats["errors"] += 1
+            self._fail(BackendError(f"micromodem {self.setup.node!r}: re-initialisation after "
+                                    f"a reboot failed: {exc}"))
+
+    async def _flush(self) -> None:
+        data = self.protocol.data_to_send()
+        if data and self._transport is not None:
+            try:
+                await self._transport.write(data)
+            except BackendError as exc:
+                self._fail(exc)
+                raise
+
+    async def _read_loop(self) -> None:
+        assert self._transport is not None
+        try:
+            while True:
+                self.protocol.receive_data(await self._transport.read())
+                self._dispatch()
+                await self._flush()
+        except asyncio.CancelledError:
+            raise
+        except BackendError as exc:
+            self.stats["errors"] += 1
+            self._fail(exc)
+
+    def _dispatch(self) -> None:
+        for event in self.protocol.events():
+            if isinstance(event, RxStart):
+                self._rx_start = time.time()
+            elif isinstance(event, Packet):
+                self._received(event)
+            elif isinstance(event, TransferDone | TransferFailed):
+                fut = self._transfer
+                if fut is not None and not fut.done():
+                    if isinstance(event, TransferDone):
+                        fut.set_result(event)
+                    else:
+                        fut.set_exception(BackendError(
+                            f"micromodem {self.setup.node!r}: {event.reason}"))
+            elif isinstance(event, Config):
+                fut_cfg = self._configs.get(event.key)
+                if fut_cfg is not None and not fut_cfg.done():
+                    fut_cfg.set_result(event.value)
+            elif isinstance(event, PingReply):
+                ping = self._pinging
+                if (ping is not None and event.src == ping[0] and event.dest == self.address
+                        and not ping[1].done()):
+                    ping[1].set_result(event.travel_time_s)
+            elif isinstance(event, ModemError):
+                self.stats["modem_errors"] += 1
+                log.warning("%s: modem error %s %s %s", self, event.module, event.number,
+                            event.message)
+                if event.module == "NMEA" or event.module == "CFG":  # goby stops waiting
+                    for fut_cfg in self._configs.values():
+                        if not fut_cfg.done():
+                            fut_cfg.set_exception(BackendError(f"{event.module} error"))
+            elif isinstance(event, Revision) and event.init:
+                self.stats["reboots"] += 1
+                log.warning("%s: the modem rebooted; re-initialising", self)
+                if self._ready.is_set() and (self._init_task is None or self._init_task.done()):
+                    self._ready.clear()
+                    self._init_task = asyncio.create_task(self._reinitialise())
+            elif isinstance(event, BadSentence):
+                self.stats["bad_lines"] += 1
+                log.debug("%s: dropped line %r: %s", self, event.line[:60], event.reason)
+            elif isinstance(event, PacketLost):
+                self.stats["rx_lost"] += 1
+                log.info("%s: lost a packet from %s: %s", self, event.src, event.reason)
+
+    def _received(self, packet: Packet) -> None:
+        now = time.time()
+        start, self._rx_start = self._rx_start, None
+        meta = {
+            "dest": None if packet.dest == self.broadcast else packet.dest,
+            "ack": packet.ack,
+            "rate": packet.rate,
+            "frames": packet.frames,
+            "start": start if start is not None else now,
+        }
+        self._inbox.put(Reception(data=packet.data, src=packet.src, time=now, meta=meta))
+
+    def _fail(self, error: BackendError) -> None:
+        """Enter the failed state once: wake every waiter with ``error``."""
+        if self._failure is not None:
+            return
+        self._failure = error
+        self._ready.set()  # waiters wake and see the failure
+        futures: list[asyncio.Future[Any]] = [*self._configs.values()]
+        if self._transfer is not None:
+            futures.append(self._transfer)
+        if self._pinging is not None:
+            futures.append(self._pinging[1])
+        for fut in futures:
+            if not fut.done():
+                fut.set_exception(error)
+        with contextlib.suppress(asyncio.QueueFull):
+            self._inbox.put(error)

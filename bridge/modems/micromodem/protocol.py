@@ -1,0 +1,686 @@
+"""The host side of the Micro-Modem NMEA interface as a sans-I/O state machine.
+
+Bytes from the serial port go in through :meth:`HostProtocol.receive_data`; events come out of
+:meth:`HostProtocol.next_event`; commands are queued with :meth:`HostProtocol.configure`,
+:meth:`~HostProtocol.start_transfer`, :meth:`~HostProtocol.ping` ... and the bytes to write
+come out of :meth:`HostProtocol.data_to_send`. No I/O and no clock: the adapter
+(:mod:`bridge.modems.micromodem.driver`) arms the timeouts and calls :meth:`~HostProtocol.abort`.
+
+Rules (reference section 2):
+
+* Lines end in ``\\r`` and/or ``\\n``; empty lines are ignored. A line with a wrong checksum, a
+  bad talker or unparsable fields becomes a :class:`BadSentence` event (counted in ``bad_lines``)
+  and is otherwise dropped. Receiving never raises.
+* A transfer is one data cycle: ``$CCCYC`` → echo ``$CACYC`` → (rate 0: cycle-init
+  ``$CATXF`` first) → one ``$CADRQ`` per frame, answered with ``$CCTXD`` → ``$CATXD`` echo →
+  ``$CATXF`` at the end of the packet → (ack) one ``$CAACK`` per frame. It ends with
+  :class:`TransferDone` or :class:`TransferFailed` (``$CAERR``, a reboot, or :meth:`abort`).
+* Incoming frames of one packet (``$CACYC`` from another node, then ``$CARXD`` 1..n) are joined
+  into one :class:`Packet`; a ``$CAMSG,BAD_CRC`` or an incomplete packet gives
+  :class:`PacketLost`.
+* ``$CAREV,…,INIT`` means the modem rebooted: any transfer fails and ``needs_init`` is set.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+from bridge.modems.micromodem.nmea import LineBuffer, NmeaError, Sentence, parse_sentence
+from bridge.modems.micromodem.rates import get_rate
+
+__all__ = [
+    "Ack",
+    "BadSentence",
+    "Clock",
+    "Config",
+    "CycleInit",
+    "DataRequest",
+    "Event",
+    "HostProtocol",
+    "MiniPacket",
+    "ModemError",
+    "ModemMessage",
+    "Packet",
+    "PacketLost",
+    "PingReply",
+    "PingSent",
+    "Pinged",
+    "Revision",
+    "RxData",
+    "RxStart",
+    "RxStats",
+    "Sleep",
+    "TransferDone",
+    "TransferFailed",
+    "TransferState",
+    "TxData",
+    "TxFrame",
+    "TxStart",
+    "TxStats",
+    "Unhandled",
+    "parse_event",
+]
+
+MAX_ADDRESS = 127
+"""Addresses are 0..127 here. [U] The reference gives no range; seed 003 says 16 addresses are
+in use, and 7 bits is the common description of the field."""
+
+
+# -- events from the modem ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Revision:
+    """``$CAREV,uptime,ident,rev``; ident ``INIT`` means the modem just booted."""
+
+    uptime: str
+    ident: str
+    revision: str
+
+    @property
+    def init(self) -> bool:
+        return self.ident.upper() == "INIT"
+
+
+@dataclass(frozen=True)
+class Config:
+    """``$CACFG,key,value``: reply to ``$CCCFG`` / ``$CCCFQ``."""
+
+    key: str
+    value: str
+
+
+@dataclass(frozen=True)
+class CycleInit:
+    """``$CACYC,cmd,src,dest,rate,ack,frames``: our echo, a received cycle-init or a poll."""
+
+    src: int
+    dest: int
+    rate: int
+    ack: bool
+    frames: int
+
+
+@dataclass(frozen=True)
+class DataRequest:
+    """``$CADRQ,hhmmss,src,dest,ack,max_bytes,frame`` (frame counts from 1)."""
+
+    time: str
+    src: int
+    dest: int
+    ack: bool
+    max_bytes: int
+    frame: int
+
+
+@dataclass(frozen=True)
+class TxData:
+    """``$CATXD,src,dest,ack,nbytes``: the modem took our ``$CCTXD``."""
+
+    src: int
+    dest: int
+    ack: bool
+    n_bytes: int
+
+
+@dataclass(frozen=True)
+class TxStart:
+    """``$CATXP,nbytes``: acoustic transmission starts."""
+
+    n_bytes: int
+
+
+@dataclass(frozen=True)
+class TxFrame:
+    """``$CATXF,nbytes``: a transmission ended (2 = a mini-packet)."""
+
+    n_bytes: int
+
+
+@dataclass(frozen=True)
+class RxStart:
+    """``$CARXP,type``: an incoming packet was detected (0 FSK, 1 PSK)."""
+
+    packet_type: int
+
+
+@dataclass(frozen=True)
+class RxData:
+    """``$CARXD,src,dest,ack,frame,hex``: one received frame (every frame, any destination)."""
+
+    src: int
+    dest: int
+    ack: bool
+    frame: int
+    data: bytes
+
+
+@dataclass(frozen=True)
+class Ack:
+    """``$CAACK,src,dest,frame,ack``: node ``src`` acknowledged our frame ``frame``."""
+
+    src: int
+    dest: int
+    frame: int
+    ack: bool
+
+
+@dataclass(frozen=True)
+class ModemMessage:
+    """``$CAMSG,type,value``, e.g. ``BAD_CRC`` or ``PACKET_TIMEOUT``."""
+
+    type: str
+    value: str
+
+    @property
+    def bad_crc(self) -> bool:
+        return self.type.replace(" ", "_").upper() == "BAD_CRC"
+
+
+@dataclass(frozen=True)
+class ModemError:
+    """``$CAERR,hhmmss,module,number,message``."""
+
+    time: str
+    module: str
+    number: str
+    message: str
+
+
+@dataclass(frozen=True)
+class PingSent:
+    """``$CAMPC,src,dest``: echo of our ``$CCMPC``."""
+
+    src: int
+    dest: int
+
+
+@dataclass(frozen=True)
+class Pinged:
+    """``$CAMPA,src,dest``: node ``src`` pinged us; the modem answers by itself."""
+
+    src: int
+    dest: int
+
+
+@dataclass(frozen=True)
+class PingReply:
+    """``$CAMPR,src,dest,owtt``: ``src`` answered the ping of ``dest``; one-way travel time."""
+
+    src: int
+    dest: int
+    travel_time_s: float
+
+
+@dataclass(frozen=True)
+class MiniPacket:
+    """``$CAMUC`` (echo), ``$CAMUA`` (received) or ``$CAMUR`` (reply): 13 user bits."""
+
+    kind: str
+    src: int
+    dest: int
+    value: int
+
+
+@dataclass(frozen=True)
+class Sleep:
+    """``$CAMSC,src,dest,minutes``: echo of ``$CCMSC`` (0 minutes = reboot now)."""
+
+    src: int
+    dest: int
+    minutes: int
+
+
+@dataclass(frozen=True)
+class Clock:
+    """``$CACLK,...``: echo of ``$CCCLK`` (fields kept as text)."""
+
+    fields: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class TxStats:
+    """``$CAXST,...``: transmit statistics (fields kept as text, layouts in reference 2.5)."""
+
+    fields: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class RxStats:
+    """``$CACST,...``: receive statistics (fields kept as text)."""
+
+    fields: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Unhandled:
+    """A well-formed sentence this driver has no use for (``$SNTTA``, ``$CATMQ`` ...)."""
+
+    sentence: Sentence
+
+
+@dataclass(frozen=True)
+class BadSentence:
+    """A line that was dropped: bad checksum, bad syntax or bad fields."""
+
+    line: bytes
+    reason: str
+
+
+# -- events of the state machine -----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TransferDone:
+    """Our packet left the modem (and every frame was acknowledged when ``acked``)."""
+
+    dest: int
+    frames: int
+    acked: bool
+
+
+@dataclass(frozen=True)
+class TransferFailed:
+    """Our packet did not go out (or was not acknowledged); ``reason`` says why."""
+
+    reason: str
+
+
+@dataclass(frozen=True)
+class Packet:
+    """All frames of one received packet, joined: what the bridge calls a frame."""
+
+    src: int
+    dest: int
+    ack: bool
+    rate: int | None
+    frames: int
+    data: bytes
+
+
+@dataclass(frozen=True)
+class PacketLost:
+    """An incoming packet from ``src`` could not be completed."""
+
+    src: int | None
+    reason: str
+
+
+Event = (
+    Revision | Config | CycleInit | DataRequest | TxData | TxStart | TxFrame | RxStart | RxData
+    | Ack | ModemMessage | ModemError | PingSent | Pinged | PingReply | MiniPacket | Sleep | Clock
+    | TxStats | RxStats | Unhandled | BadSentence | TransferDone | TransferFailed | Packet
+    | PacketLost
+)
+
+
+# -- sentence -> event ---------------------------------------------------------------------
+
+
+def _addr(text: str) -> int:
+    value = int(text)
+    if not 0 <= value <= MAX_ADDRESS:
+        raise ValueError(f"address {value} outside 0..{MAX_ADDRESS}")
+    return value
+
+
+def _count(text: str, low: int = 0, high: int = 1 << 16) -> int:
+    value = int(text)
+    if not low <= value <= high:
+        raise ValueError(f"{value} outside {low}..{high}")
+    return value
+
+
+def _flag(text: str) -> bool:
+    if text not in ("0", "1"):
+        raise ValueError(f"flag must be 0 or 1, got {text!r}")
+    return text == "1"
+
+
+def _need(fields: tuple[str, ...], n: int, at_least: bool = False) -> None:
+    if len(fields) < n or (not at_least and len(fields) > n):
+        raise ValueError(f"expected {'at least ' if at_least else ''}{n} fields, got {len(fields)}")
+
+
+def _cyc(f: tuple[str, ...]) -> CycleInit:
+    _need(f, 6)
+    rate = _count(f[3], 0, 6)
+    return CycleInit(_addr(f[1]), _addr(f[2]), rate, _flag(f[4]), _count(f[5], 1, 8))
+
+
+def _frame(text: str) -> int:
+    return _count(text, 1, 8)
+
+
+def _msg(f: tuple[str, ...]) -> ModemMessage:
+    _need(f, 1, at_least=True)
+    return ModemMessage(f[0], ",".join(f[1:]))
+
+
+def _drq(f: tuple[str, ...]) -> DataRequest:
+    _need(f, 6)
+    return DataRequest(
+        f[0], _addr(f[1]), _addr(f[2]), _flag(f[3]), _count(f[4], 0, 4096), _count(f[5], 1, 8)
+    )
+
+
+def _rxd(f: tuple[str, ...]) -> RxData:
+    _need(f, 5)
+    if len(f[4]) % 2:
+        raise ValueError("odd number of hex digits")
+    return RxData(_addr(f[0]), _addr(f[1]), _flag(f[2]), _count(f[3], 1, 8), bytes.fromhex(f[4]))
+
+
+def _err(f: tuple[str, ...]) -> ModemError:
+    _need(f, 2, at_least=True)
+    number = f[2] if len(f) > 2 else ""
+    return ModemError(f[0], f[1], number, ",".join(f[3:]))
+
+
+def _mpr(f: tuple[str, ...]) -> PingReply:
+    _need(f, 3)
+    owtt = float(f[2])
+    if not 0.0 <= owtt < 1e4:
+        raise ValueError(f"travel time {owtt} out of range")
+    return PingReply(_addr(f[0]), _addr(f[1]), owtt)
+
+
+def _mini(kind: str) -> Callable[[tuple[str, ...]], MiniPacket]:
+    def build(f: tuple[str, ...]) -> MiniPacket:
+        _need(f, 3)
+        value = int(f[2], 16)
+        if not 0 <= value <= 0x1FFF:
+            raise ValueError("mini-packet data is 13 bits")
+        return MiniPacket(kind, _addr(f[0]), _addr(f[1]), value)
+
+    return build
+
+
+def _fixed(n: int, build: Callable[..., Event], *kinds: Callable[[str], object],
+           at_least: bool = False) -> Callable[[tuple[str, ...]], Event]:
+    """A parser for ``n`` fields converted by ``kinds`` (text when missing), then ``build``."""
+
+    def parse(f: tuple[str, ...]) -> Event:
+        _need(f, n, at_least)
+        return build(*(kind(v) for kind, v in zip(kinds, f, strict=False)), *f[len(kinds):])
+
+    return parse
+
+
+_PARSERS: dict[str, Callable[[tuple[str, ...]], Event]] = {
+    "CAREV": _fixed(3, Revision),
+    "CACFG": _fixed(2, Config),
+    "CACYC": _cyc,
+    "CADRQ": _drq,
+    "CATXD": _fixed(4, TxData, _addr, _addr, _flag, _count),
+    "CATXP": _fixed(1, TxStart, _count),
+    "CATXF": _fixed(1, TxFrame, _count),
+    "CARXP": _fixed(1, RxStart, _count),
+    "CARXD": _rxd,
+    "CAACK": _fixed(4, Ack, _addr, _addr, _frame, _flag),
+    "CAMSG": _msg,
+    "CAERR": _err,
+    "CAMPC": _fixed(2, PingSent, _addr, _addr),
+    "CAMPA": _fixed(2, Pinged, _addr, _addr),
+    "CAMPR": _mpr,
+    "CAMUC": _mini("echo"),
+    "CAMUA": _mini("received"),
+    "CAMUR": _mini("reply"),
+    "CAMSC": _fixed(3, Sleep, _addr, _addr, _count),
+    "CACLK": Clock,
+    "CAXST": TxStats,
+    "CACST": RxStats,
+}
+
+
+def parse_event(sentence: Sentence) -> Event:
+    """The event for one sentence; ``ValueError`` if its fields do not fit its type."""
+    parser = _PARSERS.get(sentence.name)
+    if parser is None:
+        return Unhandled(sentence)
+    return parser(sentence.fields)
+
+
+# -- the state machine ---------------------------------------------------------------------
+
+
+class TransferState(enum.Enum):
+    """Where our outgoing data cycle is."""
+
+    IDLE = "idle"
+    WAIT_ECHO = "wait_echo"  # $CCCYC sent, waiting for $CACYC
+    WAIT_CYCLE_INIT = "wait_cycle_init"  # rate 0: the cycle-init mini-packet is on the air
+    WAIT_REQUEST = "wait_request"  # waiting for $CADRQ
+    WAIT_SENT = "wait_sent"  # data handed over, waiting for $CATXF
+    WAIT_ACKS = "wait_acks"  # waiting for $CAACK of every frame
+
+
+@dataclass
+class _Transfer:
+    dest: int
+    rate: int
+    ack: bool
+    frames: list[bytes]
+    state: TransferState = TransferState.WAIT_ECHO
+    handed: set[int] = field(default_factory=set)
+    acked: set[int] = field(default_factory=set)
+
+
+@dataclass
+class _Incoming:
+    src: int
+    dest: int
+    ack: bool
+    rate: int | None
+    frames: int
+    parts: dict[int, bytes] = field(default_factory=dict)
+
+
+class HostProtocol:
+    """The host's view of one Micro-Modem: feed bytes, read events, send commands."""
+
+    def __init__(self, address: int) -> None:
+        self.address = _addr(str(address))
+        self.bad_lines = 0
+        self.needs_init = False
+        self._lines = LineBuffer()
+        self._events: deque[Event] = deque()
+        self._out = bytearray()
+        self._transfer: _Transfer | None = None
+        self._incoming: _Incoming | None = None
+
+    # -- input ---------------------------------------------------------------------------------
+
+    def receive_data(self, data: bytes) -> None:
+        """Feed bytes from the modem (any fragment). Never raises."""
+        lines, overflow = self._lines.feed(data)
+        for line in lines:
+            self._line(line)
+        if overflow is not None:
+            self._bad(overflow, "line too long; dropped up to the next line end")
+
+    def reset_input(self) -> None:
+        """Forget a partial line (the port was reopened)."""
+        self._lines.clear()
+
+    def next_event(self) -> Event | None:
+        """The next event, or ``None`` when more bytes are needed."""
+        return self._events.popleft() if self._events else None
+
+    def events(self) -> Iterator[Event]:
+        """Every pending event."""
+        while self._events:
+            yield self._events.popleft()
+
+    # -- output --------------------------------------------------------------------------------
+
+    def data_to_send(self) -> bytes:
+        """Bytes to write to the modem (and forget)."""
+        out, self._out = bytes(self._out), bytearray()
+        return out
+
+    def send(self, sentence: Sentence) -> None:
+        """Queue any host sentence."""
+        self._out += sentence.encode()
+
+    def configure(self, key: str, value: object) -> None:
+        """``$CCCFG,key,value``; the modem answers :class:`Config`."""
+        self.send(Sentence("CC", "CFG", (key, _text(value))))
+
+    def query(self, key: str) -> None:
+        """``$CCCFQ,key``; answered by one :class:`Config` per key."""
+        self.send(Sentence("CC", "CFQ", (key,)))
+
+    def ping(self, dest: int) -> None:
+        """``$CCMPC,us,dest``: two-way ping; the answer is :class:`PingReply`."""
+        self.send(Sentence("CC", "MPC", (str(self.address), str(_addr(str(dest))))))
+
+    def reboot(self) -> None:
+        """``$CCMSC,us,us,0``: reboot now (the modem then prints ``$CAREV,…,INIT``)."""
+        me = str(self.address)
+        self.send(Sentence("CC", "MSC", (me, me, "0")))
+
+    @property
+    def transfer_state(self) -> TransferState:
+        return self._transfer.state if self._transfer else TransferState.IDLE
+
+    def start_transfer(self, dest: int, data: bytes, rate: int, ack: bool) -> None:
+        """Begin a data cycle carrying ``data`` (split over the rate's frames) to ``dest``.
+
+        ``ValueError`` if a transfer is running or ``data`` does not fit one packet.
+        """
+        if self._transfer is not None:
+            raise ValueError("a transfer is already in progress")
+        spec = get_rate(rate)
+        if not data or len(data) > spec.max_bytes:
+            raise ValueError(f"{len(data)} B does not fit a rate-{rate} packet "
+                             f"(1..{spec.max_bytes} B)")
+        dest = _addr(str(dest))
+        frames = [data[i:i + spec.frame_bytes] for i in range(0, len(data), spec.frame_bytes)]
+        self._transfer = _Transfer(dest, rate, ack, frames)
+        fields = ("0", str(self.address), str(dest), str(rate), _text(ack), str(len(frames)))
+        self.send(Sentence("CC", "CYC", fields))
+
+    def abort(self, reason: str) -> None:
+        """Give up the running transfer (the adapter's timeout); emits :class:`TransferFailed`."""
+        if self._transfer is not None:
+            self._transfer = None
+            self._events.append(TransferFailed(reason))
+
+    # -- internals -----------------------------------------------------------------------------
+
+    def _bad(self, line: bytes, reason: str) -> None:
+        self.bad_lines += 1
+        self._events.append(BadSentence(line, reason))
+
+    def _line(self, line: bytes) -> None:
+        start = line.find(b"$")
+        if start > 0:  # line noise before a sentence: drop the noise, keep the sentence
+            self._bad(line[:start], "noise before '$'")
+            line = line[start:]
+        try:
+            sentence = parse_sentence(line)
+            event = parse_event(sentence)
+        except NmeaError as exc:
+            self._bad(line, str(exc))
+            return
+        except (ValueError, IndexError) as exc:
+            self._bad(line, f"bad fields: {exc}")
+            return
+        self._events.append(event)
+        self._react(event)
+
+    def _react(self, event: Event) -> None:
+        t = self._transfer
+        if isinstance(event, Revision) and event.init:
+            self.needs_init = True
+            self._incoming = None
+            self.abort("modem rebooted ($CAREV INIT)")
+        elif isinstance(event, ModemError):
+            self.abort(f"modem error: {event.module} {event.number} {event.message}".strip())
+        elif isinstance(event, CycleInit):
+            self._on_cycle(event)
+        elif isinstance(event, DataRequest):
+            self._on_request(event)
+        elif isinstance(event, TxFrame) and t is not None:
+            if t.state is TransferState.WAIT_CYCLE_INIT:
+                t.state = TransferState.WAIT_REQUEST
+            elif t.state is TransferState.WAIT_SENT:
+                if t.ack:
+                    t.state = TransferState.WAIT_ACKS
+                else:
+                    self._finish(acked=False)
+        elif isinstance(event, Ack) and t is not None and t.state in (
+            TransferState.WAIT_SENT, TransferState.WAIT_ACKS
+        ):
+            # goby's test: the ack comes from the data's destination, addressed to us
+            if event.src == t.dest and event.dest == self.address and event.ack:
+                t.acked.add(event.frame)
+                if t.state is TransferState.WAIT_ACKS and len(t.acked) >= len(t.frames):
+                    self._finish(acked=True)
+        elif isinstance(event, RxData):
+            self._on_frame(event)
+        elif isinstance(event, ModemMessage) and event.bad_crc and self._incoming is not None:
+            lost, self._incoming = self._incoming, None
+            self._events.append(PacketLost(lost.src, f"bad CRC ({event.value})"))
+
+    def _finish(self, acked: bool) -> None:
+        t = self._transfer
+        assert t is not None
+        self._transfer = None
+        self._events.append(TransferDone(t.dest, len(t.frames), acked))
+
+    def _on_cycle(self, event: CycleInit) -> None:
+        t = self._transfer
+        if event.src == self.address:
+            if t is not None and t.state is TransferState.WAIT_ECHO and event.dest == t.dest:
+                t.state = (TransferState.WAIT_CYCLE_INIT if get_rate(t.rate).fsk
+                           else TransferState.WAIT_REQUEST)
+            return  # a second CACYC of our own cycle, or a poll: the DRQ follows
+        if self._incoming is not None:
+            lost = self._incoming
+            self._events.append(PacketLost(lost.src, "incomplete packet (new cycle-init)"))
+        self._incoming = _Incoming(event.src, event.dest, event.ack, event.rate, event.frames)
+
+    def _on_request(self, event: DataRequest) -> None:
+        t = self._transfer
+        me = str(self.address)
+        if (t is None or event.src != self.address or event.dest != t.dest
+                or not 1 <= event.frame <= len(t.frames) or event.frame in t.handed
+                or t.state is TransferState.WAIT_ACKS):
+            # someone polled us, or a DRQ beyond our frames: a blank TXD stops further DRQs
+            dest = str(event.dest)
+            self.send(Sentence("CC", "TXD", (me, dest, _text(event.ack), "")))
+            return
+        data = t.frames[event.frame - 1][: event.max_bytes or None]
+        t.handed.add(event.frame)
+        t.state = TransferState.WAIT_SENT
+        self.send(Sentence("CC", "TXD", (me, str(t.dest), _text(t.ack), data.hex().upper())))
+
+    def _on_frame(self, event: RxData) -> None:
+        if event.src == self.address:
+            return
+        inc = self._incoming
+        if inc is None or inc.src != event.src:
+            if inc is not None:
+                self._events.append(PacketLost(inc.src, "incomplete packet (other sender)"))
+            # no cycle-init seen for this packet: take the frames as they come
+            inc = self._incoming = _Incoming(event.src, event.dest, event.ack, None,
+                                             max(event.frame, 1))
+        inc.parts[event.frame] = event.data
+        if len(inc.parts) >= inc.frames:
+            self._incoming = None
+            if set(inc.parts) != set(range(1, inc.frames + 1)):
+                self._events.append(PacketLost(inc.src, "frames out of order"))
+                return
+            data = b"".join(inc.parts[i] for i in range(1, inc.frames + 1))
+            self._events.append(Packet(inc.src, inc.dest, inc.ack, inc.rate, inc.frames, data))
+
+
+def _text(value: object) -> str:
+    if isinstance(value, bool):
+        return "1" if value else "0"
+    return str(value)

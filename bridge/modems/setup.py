@@ -1,0 +1,37 @@
+"""Turn a node of the mission into a modem backend (setup + factory)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from bridge.mission.model import Mission
+from bridge.modems.base import ModemBackend, ModemSetup
+from bridge.modems.registry import load_backend
+
+
+def modem_setup(mission: Mission, node: str, extra: Mapping[str, Any] | None = None) -> ModemSetup:
+    """The :class:`ModemSetup` of ``node``: merged options, peers' options, static position."""
+    modem = mission.node_modem(node)
+    position = mission.nodes[node].position
+    return ModemSetup(
+        node=node,
+        address=mission.nodes[node].address,
+        frame_bytes=modem.frame_bytes,
+        options={**modem.options, **(extra or {})},
+        peers={
+            other.address: {**mission.node_modem(name).options, **(extra or {})}
+            for name, other in mission.nodes.items()
+            if name != node
+        },
+        position=(position.x, position.y, position.depth) if position else None,
+    )
+
+
+def backend_factory(
+    mission: Mission, node: str, extra: Mapping[str, Any] | None = None
+) -> Callable[[], ModemBackend]:
+    """A function that makes a fresh backend for ``node`` (the runtime reopens with it)."""
+    cls = load_backend(mission.node_modem(node).backend)
+    setup = modem_setup(mission, node, extra)
+    return lambda: cls(setup)

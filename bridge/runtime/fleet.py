@@ -1,0 +1,170 @@
+"""Run every node of a mission in one process, over the simulated ocean (``zab sim``)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+from collections import defaultdict
+from collections.abc import Callable, Collection
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge.core.positioning import simulated_preset
+from bridge.mission.loader import LoadedMission
+from bridge.modems.setup import backend_factory
+from bridge.runtime.zenoh_node import BridgeNode
+from bridge.sim.path import Path
+from bridge.sim.service import WaterService
+
+AOI_SAMPLE_S = 0.25
+
+
+def water_for(loaded: LoadedMission, seed: int | None = None) -> WaterService:
+    """A water service for the mission: its preset, seed, static positions and paths."""
+    mission = loaded.mission
+    options = mission.modem.options
+    positions = {
+        node.address: (node.position.x, node.position.y, node.position.depth)
+        for node in mission.nodes.values()
+        if node.position is not None
+    }
+    preset = simulated_preset(mission)
+    paths = {node.address: Path.from_spec(node.path)
+             for node in mission.nodes.values() if node.path is not None}
+    return WaterService(
+        preset,
+        seed if seed is not None else int(options.get("seed", 0)),
+        positions,
+        loss=float(options.get("loss", 0.0)),
+        paths=paths,
+    )
+
+
+@dataclass
+class AgeTracker:
+    """Age of information at receivers: time since each channel last arrived, sampled."""
+
+    samples: dict[tuple[str, str], list[float]] = field(default_factory=lambda: defaultdict(list))
+
+    def sample(self, nodes: dict[str, BridgeNode], now: float) -> None:
+        for name, node in nodes.items():
+            for channel, t in node.received_at.items():
+                self.samples[(channel, name)].append(now - t)
+
+    def summary(self) -> dict[str, dict[str, float | None]]:
+        per_channel: dict[str, list[float]] = defaultdict(list)
+        for (channel, _), ages in self.samples.items():
+            per_channel[channel].extend(ages)
+        return {
+            c: {"mean_s": round(sum(a) / len(a), 3), "max_s": round(max(a), 3)}
+            for c, a in per_channel.items()
+            if a
+        }
+
+
+class Fleet:
+    """All bridges of a mission plus, for ``backend: sim``, the water they share."""
+
+    def __init__(
+        self,
+        loaded: LoadedMission,
+        *,
+        seed: int | None = None,
+        on_event: Callable[[str, str, dict[str, Any]], None] | None = None,
+        only: Collection[str] | None = None,
+        water: str | None = None,
+    ) -> None:
+        """``only`` runs a subset of the nodes; ``water`` joins a water already running
+        (``host:port``) instead of starting one."""
+        self.loaded = loaded
+        self.names = [n for n in loaded.mission.nodes if only is None or n in only]
+        self.water_address = water
+        sim = loaded.mission.modem.backend == "sim" and water is None
+        self.water = water_for(loaded, seed) if sim else None
+        self.on_event = on_event
+        self.nodes: dict[str, BridgeNode] = {}
+        self.ages = AgeTracker()
+        self.started = time.time()
+        self.ready = asyncio.Event()
+
+    def _node_events(self, name: str) -> Callable[[str, dict[str, Any]], None] | None:
+        if self.on_event is None:
+            return None
+        callback = self.on_event
+        return lambda kind, info: callback(name, kind, info)
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Start the water and every node; run until ``stop`` is set; close everything."""
+        extra: dict[str, Any] = {}
+        if self.water is not None:
+            port = await self.water.start("127.0.0.1", 0)
+            extra["water"] = f"127.0.0.1:{port}"
+        elif self.water_address is not None:
+            extra["water"] = self.water_address
+        node_stop = asyncio.Event()
+        try:
+            for name in self.names:
+                self.nodes[name] = BridgeNode(
+                    self.loaded,
+                    name,
+                    backend_factory(self.loaded.mission, name, extra),
+                    on_event=self._node_events(name),
+                )
+            tasks = [asyncio.create_task(n.run(node_stop)) for n in self.nodes.values()]
+            started = asyncio.ensure_future(
+                asyncio.gather(*(n.started.wait() for n in self.nodes.values()))
+            )
+            await asyncio.wait([started, *tasks], return_when=asyncio.FIRST_COMPLETED)
+            started.cancel()
+            for task in tasks:
+                if task.done():  # a node ended before it started: its session could not open
+                    task.result()
+                    raise RuntimeError("a bridge node stopped while starting")
+            self.started = time.time()
+            self.ready.set()
+            while not stop.is_set():
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(stop.wait(), AOI_SAMPLE_S)
+                self.ages.sample(self.nodes, time.time())
+                for task in tasks:
+                    if task.done() and task.exception() is not None:
+                        raise task.exception()  # type: ignore[misc]
+            node_stop.set()
+            await asyncio.gather(*tasks, return_exceptions=True)
+        finally:
+            node_stop.set()
+            if self.water is not None:
+                await self.water.stop()
+
+    def report(self) -> dict[str, Any]:
+        """Per channel: values sent/delivered and age; per link: frames sent/lost/collided."""
+        table = self.loaded.table
+        ages = self.ages.summary()
+        channels = {}
+        for c in table.channels:
+            sent = sum(n.stats.sent_per_channel[c.name] for n in self.nodes.values())
+            delivered = sum(n.stats.received_per_channel[c.name] for n in self.nodes.values())
+            channels[c.name] = {
+                "bits": c.bits,
+                "sent": sent,
+                "delivered": delivered,
+                "age_of_information": ages.get(c.name),
+            }
+        return {
+            "mission": self.loaded.mission.mission,
+            "duration_s": round(time.time() - self.started, 3),
+            "channels": channels,
+            "nodes": {name: node.snapshot() for name, node in self.nodes.items()},
+            "links": self._links(),
+        }
+
+    def _links(self) -> list[dict[str, Any]]:
+        """Water statistics per link, with node names."""
+        if self.water is None:
+            return []
+        name = self.loaded.mission.name_of
+        return [
+            {"link": f"{name(link['src'])}->{name(link['dst'])}", **link}
+            for link in self.water.stats()["links"]
+        ]

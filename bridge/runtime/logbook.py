@@ -1,0 +1,394 @@
+"""Mission logs: every frame and runtime event of one node in an MCAP file.
+
+MCAP is the robotics log format that Foxglove and the ``mcap`` tools open. One file per node;
+messages are JSON (message encoding ``json``) with a JSON Schema per topic, so Foxglove plots
+them as they are. Topics:
+
+- ``/zab/<node>/frame_sent``, ``/zab/<node>/frame_received``, ``/zab/<node>/frame_dropped``:
+  the raw frame (``data_hex``), time, size, channels and, for receptions, the link metadata
+  and the decoded values of every channel;
+- ``/zab/<node>/channel/<channel>``: each received channel's decoded elements (its schema is
+  the channel's element layouts), the easiest topic to plot;
+- ``/zab/<node>/<kind>`` for every other event: ``range``, ``position``, ``link``,
+  ``payload_dropped``, ``send_failed``, ``modem_down``, ``delivery``, ``transfer``, ...
+
+The mission itself is attached (``mission.yaml``, as validated) with metadata ``zab``
+(mission, node, fingerprint), so :func:`read_log` alone can replay the decoded data.
+
+:class:`MissionLog` is an ``on_event`` callback for :class:`~bridge.runtime.zenoh_node.BridgeNode`;
+:func:`summarise` and :func:`read_log` read a file back.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections import Counter, defaultdict
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import yaml
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
+from bridge.codec import ArrayCodec, BytesCodec, Layout
+from bridge.errors import MissionError
+from bridge.mission.loader import LoadedMission, parse_mission
+from bridge.mission.payload_schema import adapt_schema
+from bridge.wire.channels import ChannelCodec
+from bridge.wire.payloads import encode_payload
+
+__all__ = [
+    "FleetLogs", "LogError", "LogRecord", "MissionLog", "MissionLogFile", "read_log",
+    "received_values", "replay", "restore_bytes", "summarise",
+]
+
+PROFILE = "zab"
+MISSION_ATTACHMENT = "mission.yaml"
+CHUNK_BYTES = 32 * 1024
+"""Messages stay in memory until a chunk is this big; small, so a crash loses little."""
+
+_OBJECT = {"type": "object"}
+_TIME = {"type": "number", "description": "Host clock, seconds since 1970"}
+_HEX = {"type": "string", "description": "Raw frame bytes, hex"}
+_NAMES = {"type": "array", "items": {"type": "string"}}
+_FRAME_SCHEMAS: dict[str, dict[str, Any]] = {
+    "frame_sent": {"time": _TIME, "bytes": {"type": "integer"}, "channels": _NAMES,
+                   "dest": {"type": ["string", "null"]}, "data_hex": _HEX},
+    "frame_received": {"time": _TIME, "src": {"type": "string"}, "bytes": {"type": "integer"},
+                       "channels": _NAMES, "data_hex": _HEX, "meta": _OBJECT,
+                       "values": {"type": "object", "additionalProperties": {"type": "array"}}},
+    "frame_dropped": {"time": _TIME, "src": {"type": ["string", "null"]},
+                      "reason": {"type": "string"}, "data_hex": _HEX},
+}
+
+
+class LogError(Exception):
+    """A mission log cannot be read (not MCAP, truncated, or not written by zab)."""
+
+
+def _jsonable(value: Any) -> Any:
+    """Event data as JSON: bytes as hex, non-finite floats as null, keys as strings."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | set):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, bytes | bytearray | memoryview):
+        return bytes(value).hex()
+    if isinstance(value, int | float | str | bool) or value is None:
+        return value
+    return str(value)
+
+
+def _topic_schema(title: str, properties: dict[str, Any]) -> bytes:
+    schema = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title,
+              "type": "object", "properties": properties}
+    return json.dumps(schema).encode()
+
+
+def _channel_schema(channel: ChannelCodec) -> dict[str, Any]:
+    items = [json_view_schema(e.layout) for e in channel.elements]
+    return {"time": _TIME, "src": {"type": "string"},
+            "elements": {"type": "array", "prefixItems": items, "minItems": len(items),
+                         "maxItems": len(items)}}
+
+
+def json_view_schema(layout: Layout) -> dict[str, Any]:
+    """A layout's schema as the log stores it (bytes fields as hex strings)."""
+    schema = adapt_schema(layout.json_schema(), "out")
+    schema.pop("$schema", None)
+    return schema
+
+
+class MissionLog:
+    """Records one node's events into an MCAP file; call it as ``on_event(kind, info)``.
+
+    Never raises into the runtime: an event that cannot be written is counted in ``failed``.
+    """
+
+    def __init__(self, path: str | Path, loaded: LoadedMission, node: str,
+                 clock: Callable[[], float] = time.time) -> None:
+        self.path = Path(path)
+        self.loaded = loaded
+        self.node = node
+        self.clock = clock
+        self.counts: Counter[str] = Counter()
+        self.failed = 0
+        self._channels: dict[str, int] = {}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._stream: IO[bytes] = self.path.open("wb")
+        self._writer = Writer(self._stream, chunk_size=CHUNK_BYTES,
+                              compression=CompressionType.ZSTD)
+        self._writer.start(profile=PROFILE, library="zenoh-acoustic-bridge")
+        mission = loaded.mission
+        self._writer.add_metadata("zab", {
+            "mission": mission.mission, "node": node,
+            "fingerprint": loaded.table.fingerprint.hex(), "source": str(loaded.path)})
+        text = yaml.safe_dump(mission.model_dump(by_alias=True, mode="json", exclude_unset=True),
+                              sort_keys=False)
+        now_ns = int(clock() * 1e9)
+        self._writer.add_attachment(now_ns, now_ns, MISSION_ATTACHMENT, "application/yaml",
+                                    text.encode())
+        self._closed = False
+
+    def _channel_id(self, topic: str, properties: dict[str, Any]) -> int:
+        found = self._channels.get(topic)
+        if found is None:
+            schema_id = self._writer.register_schema(topic.rsplit("/", 1)[-1], "jsonschema",
+                                                     _topic_schema(topic, properties))
+            found = self._channels[topic] = self._writer.register_channel(topic, "json",
+                                                                          schema_id)
+        return found
+
+    def _write(self, topic: str, properties: dict[str, Any], message: dict[str, Any],
+               t: float) -> None:
+        channel = self._channel_id(topic, properties)
+        ns = int(t * 1e9)
+        self._writer.add_message(channel, ns, json.dumps(message).encode(), ns)
+
+    def __call__(self, kind: str, info: dict[str, Any]) -> None:
+        if self._closed:
+            return
+        try:
+            self._record(kind, info)
+        except Exception:  # a log must never stop the bridge; counted instead
+            self.failed += 1
+
+    def _record(self, kind: str, info: dict[str, Any]) -> None:
+        t = info.get("time")
+        t = float(t) if isinstance(t, int | float) and math.isfinite(t) else self.clock()
+        message = _jsonable({k: v for k, v in info.items() if k != "data"})
+        message["time"] = t
+        if "data" in info and isinstance(info["data"], bytes | bytearray):
+            message["data_hex"] = bytes(info["data"]).hex()
+        prefix = f"/zab/{self.node}"
+        self.counts[kind] += 1
+        self._write(f"{prefix}/{kind}", _FRAME_SCHEMAS.get(kind, {}), message, t)
+        if kind != "frame_received":
+            return
+        for name, elements in (info.get("values") or {}).items():
+            try:
+                channel = self.loaded.table.by_name(name)
+            except StopIteration:
+                continue
+            self._write(f"{prefix}/channel/{name}", _channel_schema(channel),
+                        {"time": t, "src": info.get("src"), "elements": _jsonable(elements)}, t)
+
+    def close(self) -> None:
+        """Write the summary and close the file (safe to call twice)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._writer.finish()
+        finally:
+            self._stream.close()
+
+    def __enter__(self) -> MissionLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class FleetLogs:
+    """One :class:`MissionLog` per node in ``folder`` (``<mission>-<node>.mcap``); call it as a
+    :class:`~bridge.runtime.fleet.Fleet` ``on_event(node, kind, info)``."""
+
+    def __init__(self, folder: str | Path, loaded: LoadedMission) -> None:
+        self.folder = Path(folder)
+        self.loaded = loaded
+        self.logs: dict[str, MissionLog] = {}
+
+    def path_of(self, node: str) -> Path:
+        return self.folder / f"{self.loaded.mission.mission}-{node}.mcap"
+
+    def __call__(self, node: str, kind: str, info: dict[str, Any]) -> None:
+        log = self.logs.get(node)
+        if log is None:
+            log = self.logs[node] = MissionLog(self.path_of(node), self.loaded, node)
+        log(kind, info)
+
+    def close(self) -> None:
+        for log in self.logs.values():
+            log.close()
+
+
+@dataclass(frozen=True)
+class LogRecord:
+    """One message of a mission log."""
+
+    topic: str
+    kind: str
+    time: float
+    data: dict[str, Any]
+
+
+@dataclass
+class MissionLogFile:
+    """A mission log read back: its mission, node and records in time order."""
+
+    path: Path
+    node: str
+    loaded: LoadedMission | None
+    records: list[LogRecord] = field(default_factory=list)
+
+
+def _kind(topic: str, node: str) -> str:
+    rest = topic.removeprefix(f"/zab/{node}/")
+    return "channel" if rest.startswith("channel/") else rest
+
+
+def read_log(path: str | Path) -> MissionLogFile:
+    """Read a mission log; :class:`LogError` with a clear message if it is not one."""
+    p = Path(path)
+    try:
+        with p.open("rb") as stream:
+            reader = make_reader(stream)
+            meta = next((m.metadata for m in reader.iter_metadata() if m.name == "zab"), None)
+            if meta is None:
+                raise LogError(f"{p}: an MCAP file, but not a zab mission log (no 'zab' metadata)")
+            node = meta.get("node", "")
+            text = next((a.data for a in reader.iter_attachments()
+                         if a.name == MISSION_ATTACHMENT), None)
+            records = [
+                LogRecord(channel.topic, _kind(channel.topic, node), message.log_time / 1e9,
+                          json.loads(message.data))
+                for _, channel, message in reader.iter_messages(log_time_order=True)
+            ]
+    except FileNotFoundError:
+        raise LogError(f"{p}: no such file") from None
+    except (McapError, OSError, ValueError, EOFError) as exc:
+        raise LogError(f"{p}: not a readable MCAP file: {exc}") from None
+    loaded = None
+    if text is not None:
+        try:
+            loaded = parse_mission(text.decode(), f"{p}:{MISSION_ATTACHMENT}")
+        except (MissionError, UnicodeDecodeError) as exc:
+            raise LogError(f"{p}: the attached mission is invalid: {exc}") from None
+    return MissionLogFile(p, node, loaded, records)
+
+
+def summarise(log: MissionLogFile) -> dict[str, Any]:
+    """Per-channel counts and ages, and per-kind event counts, as plain data.
+
+    A channel's ``age_s`` is the time from its last reception to the end of the log;
+    ``max_gap_s`` the longest time between two receptions (or from the log's start).
+    """
+    if not log.records:
+        return {"node": log.node, "start": None, "end": None, "duration_s": 0.0,
+                "events": {}, "channels": {}}
+    start, end = log.records[0].time, log.records[-1].time
+    events = Counter(r.kind for r in log.records if r.kind != "channel")
+    sent: Counter[str] = Counter()
+    received: dict[str, list[float]] = defaultdict(list)
+    sources: dict[str, set[str]] = defaultdict(set)
+    for r in log.records:
+        if r.kind == "frame_sent":
+            sent.update(r.data.get("channels") or [])
+        elif r.kind == "frame_received":
+            for name in r.data.get("values") or {}:
+                received[name].append(r.time)
+                sources[name].add(str(r.data.get("src")))
+    names = list(dict.fromkeys([*sent, *received]))
+    if log.loaded is not None:
+        names = [c.name for c in log.loaded.table.channels if c.name in sent or c.name in received]
+    channels = {}
+    for name in names:
+        times = received.get(name, [])
+        gaps = [b - a for a, b in zip([start, *times], times, strict=False)]
+        channels[name] = {
+            "sent": sent[name],
+            "received": len(times),
+            "from": sorted(sources.get(name, ())),
+            "last": times[-1] if times else None,
+            "age_s": round(end - times[-1], 3) if times else None,
+            "max_gap_s": round(max(gaps), 3) if gaps else None,
+        }
+    return {"node": log.node, "mission": log.loaded.mission.mission if log.loaded else None,
+            "start": start, "end": end, "duration_s": round(end - start, 3),
+            "events": dict(events), "channels": channels}
+
+
+def restore_bytes(layout: Layout, value: Any) -> Any:
+    """Undo the log's hex for the ``bytes`` fields of ``layout`` (other values unchanged)."""
+    for codec in layout.fields:
+        element = codec.element if isinstance(codec, ArrayCodec) else codec
+        if not isinstance(element, BytesCodec):
+            continue
+        parts = codec.path.split(".") if codec.path else []
+        if not parts:
+            return _unhex(value)
+        node = value
+        for part in parts[:-1]:
+            node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, dict) and parts[-1] in node:
+            node[parts[-1]] = _unhex(node[parts[-1]])
+    return value
+
+
+def _unhex(value: Any) -> Any:
+    if isinstance(value, list):
+        return [_unhex(v) for v in value]
+    if isinstance(value, str):
+        try:
+            return bytes.fromhex(value)
+        except ValueError:
+            return value
+    return value
+
+
+def received_values(log: MissionLogFile) -> Iterator[tuple[float, str, Any, str]]:
+    """(time, output key, value, encoding) of every decoded value the node published."""
+    if log.loaded is None:
+        raise LogError(f"{log.path}: no mission attached; cannot name the output keys")
+    table = log.loaded.table
+    for r in log.records:
+        if r.kind != "frame_received":
+            continue
+        src = str(r.data.get("src"))
+        for name, elements in (r.data.get("values") or {}).items():
+            try:
+                channel = table.by_name(name)
+            except StopIteration:
+                continue
+            for element, value in zip(channel.elements, elements, strict=False):
+                yield (r.time, element.output_key(src, log.node),
+                       restore_bytes(element.layout, value), element.encoding)
+
+
+def replay(
+    log: MissionLogFile,
+    publish: Callable[[str, bytes, str], None],
+    *,
+    speed: float = 1.0,
+    sleep: Callable[[float], None] = time.sleep,
+    clock: Callable[[], float] = time.monotonic,
+) -> int:
+    """Publish every decoded value again, ``speed`` times faster than recorded (0: at once).
+
+    ``publish(key, payload, encoding)`` gets the payload encoded as the element says
+    (msgpack by default). Returns how many values were published.
+    """
+    if speed < 0 or not math.isfinite(speed):
+        raise ValueError(f"speed must be >= 0 (0 = as fast as possible), not {speed}")
+    count = 0
+    first: float | None = None
+    started = clock()
+    for t, key, value, encoding in received_values(log):
+        if first is None:
+            first = t
+        if speed > 0:
+            delay = (t - first) / speed - (clock() - started)
+            if delay > 0:
+                sleep(delay)
+        payload, content_type = encode_payload(value, encoding)
+        publish(key, payload, content_type)
+        count += 1
+    return count

@@ -1,0 +1,401 @@
+"""The bridge runtime of one node: the asyncio + Zenoh adapter around :class:`NodeCore`.
+
+Zenoh callbacks run on Zenoh's own threads; they only hand samples to the event loop
+(``call_soon_threadsafe``), so nothing here blocks Zenoh. The loop feeds the pure core with
+samples, receptions and the time, asks it for frames at each MAC opportunity, and carries out
+what it outputs: publications, ``@zab`` status, liveliness tokens and events.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+import msgpack
+import zenoh
+
+from bridge.core.link import LinkState
+from bridge.core.mac import schedule_for
+from bridge.core.node import NodeCore, NodeStats, Notice, Publish, Status, notable
+from bridge.core.positioning import Positioning
+from bridge.errors import BackendError, DecodeError
+from bridge.mission.loader import LoadedMission
+from bridge.modems.base import ModemBackend, ModemRange, Reception
+from bridge.runtime.session import close_quietly, is_bridged, open_session, origin_tag
+from bridge.wire.payloads import decode_payload, encode_payload
+
+log = logging.getLogger("zab.node")
+
+STATS_PERIOD_S = 1.0
+RETRY_MIN_S, RETRY_MAX_S = 0.5, 10.0
+TX_LEAD_S = 0.01  # how far ahead a timed emission is scheduled
+
+
+class BridgeNode:
+    """Everything one vehicle runs: its Zenoh session, the core, the MAC loop and the modem."""
+
+    def __init__(
+        self,
+        loaded: LoadedMission,
+        node: str,
+        make_backend: Callable[[], ModemBackend],
+        *,
+        clock: Callable[[], float] = time.time,
+        on_event: Callable[[str, dict[str, Any]], None] | None = None,
+    ) -> None:
+        self.core = NodeCore(loaded, node)
+        self.mission = loaded.mission
+        self.table = loaded.table
+        self.node = node
+        self._make_backend = make_backend
+        self.backend: ModemBackend | None = None
+        self.clock = clock
+        self.on_event = on_event or (lambda kind, info: None)
+        self.schedule = schedule_for(self.mission, node)
+        self.prefix = f"@zab/{self.mission.mission}/{node}"
+        self._origin = origin_tag(self.mission.mission, node)
+        self._tokens: dict[str, Any] = {}
+        self._latest: dict[str, tuple[bytes, str]] = {}
+        self._latched_keys: set[str] = set()
+        self._publishers: dict[str, Any] = {}
+        self._queryables: list[Any] = []
+        self._data = asyncio.Event()
+        self._modem_up = asyncio.Event()
+        self.started = asyncio.Event()
+        self.session: zenoh.Session | None = None
+
+    # the core's state, for observers (fleet reports, tests)
+    @property
+    def stats(self) -> NodeStats:
+        return self.core.stats
+
+    @property
+    def received_at(self) -> dict[str, float]:
+        return self.core.received_at
+
+    @property
+    def last_heard(self) -> dict[str, float]:
+        return self.core.last_heard
+
+    @property
+    def link_states(self) -> dict[str, LinkState]:
+        return self.core.link_states
+
+    @property
+    def positioning(self) -> Positioning | None:
+        return self.core.positioning
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Run until ``stop`` is set; always closes the session and the modem."""
+        loop = asyncio.get_running_loop()
+        self.session = open_session(self.mission.nodes[self.node].zenoh)
+        try:
+            for key in self.core.bindings:
+                self.session.declare_subscriber(
+                    key, lambda s, k=key: self._from_zenoh(loop, k, s)
+                )
+            self._subscribe_positions(loop)
+            tasks = [
+                asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
+                asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
+                asyncio.create_task(self._stats_loop(), name=f"{self.node}-stats"),
+                asyncio.create_task(self._health_loop(), name=f"{self.node}-health"),
+            ]
+            self.started.set()
+            await stop.wait()
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+        finally:
+            if self.backend is not None:
+                await self.backend.close()
+            close_quietly(self.session)
+
+    # -- Zenoh → core ------------------------------------------------------------------------
+
+    def _from_zenoh(self, loop: asyncio.AbstractEventLoop, key: str, sample: zenoh.Sample) -> None:
+        """Zenoh thread: copy what we need and hand it to the loop."""
+        if sample.kind != zenoh.SampleKind.PUT or is_bridged(sample):
+            return
+        data, encoding = sample.payload.to_bytes(), str(sample.encoding)
+        attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
+        ref = attachment[4:].decode("utf-8", "replace") if attachment[:4] == b"ref:" else None
+        loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref)
+
+    def _subscribe_positions(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Live positions: this node's own (``nav_key``), anchors' and the CTD's."""
+        assert self.session is not None
+
+        def listen(key: str, names: tuple[str, ...],
+                   handler: Callable[[tuple[float, ...]], None], bridged: bool = False) -> None:
+            def numbers(data: bytes, encoding: str) -> None:
+                values = self.core.numbers(key, data, encoding, names, self.clock())
+                if values is not None:
+                    try:
+                        handler(values)
+                    except ValueError as exc:  # e.g. an implausible CTD reading
+                        self.core.drop_payload(key, str(exc), self.clock())
+                self._flush()
+
+            def on_sample(sample: zenoh.Sample) -> None:
+                if sample.kind == zenoh.SampleKind.PUT and (bridged or not is_bridged(sample)):
+                    data, encoding = sample.payload.to_bytes(), str(sample.encoding)
+                    loop.call_soon_threadsafe(numbers, data, encoding)
+
+            self.session.declare_subscriber(key, on_sample)  # type: ignore[union-attr]
+
+        nav_key = self.mission.nodes[self.node].nav_key
+        if nav_key is not None:
+            listen(nav_key, ("x", "y", "depth"), self.move)
+        positioning = self.core.positioning
+        if positioning is None:
+            return
+        if nav_key is not None and positioning.tracker is not None:
+            def steer(sample: zenoh.Sample) -> None:  # heading and speed, where nav has them
+                if sample.kind == zenoh.SampleKind.PUT and not is_bridged(sample):
+                    data, encoding = sample.payload.to_bytes(), str(sample.encoding)
+                    loop.call_soon_threadsafe(self._steer, data, encoding)
+
+            self.session.declare_subscriber(nav_key, steer)
+        for anchor, key in self.mission.ranging.anchor_keys.items():
+            if anchor in positioning.anchors:
+                listen(key, ("x", "y", "depth"),
+                       lambda v, a=anchor: positioning.set_anchor(  # type: ignore[misc]
+                           a, v, self.clock()), bridged=True)
+        ctd_key = self.mission.ranging.ctd_key
+        if ctd_key is not None:
+            listen(ctd_key, ("temperature_c", "salinity_psu", "depth_m"),
+                   lambda v: positioning.set_water(*v), bridged=True)
+        for peer, key in positioning.peer_ctd_keys().items():  # sound_speed_mode: mean_of_ends
+            listen(key, ("temperature_c", "salinity_psu", "depth_m"),
+                   lambda v, p=peer: positioning.set_peer_water(p, *v),  # type: ignore[misc]
+                   bridged=True)
+
+    def _steer(self, data: bytes, encoding: str) -> None:
+        """This node's nav sample: its heading (and speed) steer the tracker, if it has them."""
+        assert self.core.positioning is not None
+        try:
+            value = decode_payload(data, encoding)
+            heading = float(value["heading"])
+        except (DecodeError, TypeError, KeyError, ValueError):
+            return  # no heading in this nav: ranges and depth alone
+        try:
+            speed: float | None = float(value["speed"])
+        except (TypeError, KeyError, ValueError):
+            speed = None
+        self.core.positioning.set_heading(heading, speed, self.clock())
+
+    def move(self, position: tuple[float, ...]) -> None:
+        """This node's live position: move the (simulated) modem and keep the depth."""
+        x, y, depth = position
+        if self.backend is not None:
+            self.backend.set_position(x, y, depth)
+        if self.core.positioning is not None:
+            self.core.positioning.set_depth(depth)
+
+    def ingest(self, key: str, data: bytes, encoding: str, ref: str | None = None) -> None:
+        """A sample arrived on an input key (``ref``: the publisher's correlation text)."""
+        self.core.ingest(key, data, encoding, self.clock(), ref)
+        self._flush()
+        self._data.set()
+
+    # -- core → modem --------------------------------------------------------------------------
+
+    async def _transmit_loop(self) -> None:
+        """Sleep until the MAC's next opportunity (new data or a frame heard wakes it to ask
+        again), then send one frame there."""
+        while True:
+            await self._modem_up.wait()
+            self._data.clear()
+            now = self.clock()
+            opp = self.schedule.next_opportunity(now, self.core.next_due(now))
+            if opp is None or opp.start > now:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._data.wait(),
+                                           None if opp is None else opp.start - now)
+                continue
+            sent = await self.transmit(always=opp.must_send or self.core.heartbeat_due(now),
+                                       poll=opp.poll)
+            if sent:
+                self.schedule.on_sent(now, self.clock())
+            else:
+                self.schedule.on_skipped(now)
+
+    async def transmit(self, *, always: bool = False, poll: str | None = None) -> bool:
+        """Build one frame from what is due and send it (``poll``: the node it polls, carried
+        as the frame's destination). Returns whether a frame went out."""
+        backend = self.backend
+        if backend is None:
+            return False
+        # ranging.ping: a due range takes this opportunity (a ping, or this frame acked)
+        peer = self.core.range_due(self.clock()) if backend.ranging and poll is None else None
+        if peer is not None and backend.ranging == "ping":
+            return await self._ping(backend, peer)
+        # with a timed modem the emission starts exactly at ``at``, so DLBL delays are exact
+        at = backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
+        out = self.core.build_frame(self.clock(), at, always=always or peer is not None)
+        if out is None:
+            self._flush()
+            return False
+        if poll is not None:
+            out = replace(out, dest=self.mission.address_of(poll))
+        if peer is not None:  # the modem measures the range when the peer acknowledges
+            out = replace(out, dest=peer, ack=True)
+        try:
+            confirmed = await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
+        except BackendError as exc:
+            log.warning("%s: send failed: %s", self.node, exc)
+            if peer is not None:
+                self.core.range_asked(peer, self.clock(), str(exc))
+            self.core.frame_failed(out, str(exc), self.clock())
+            self._flush()
+            if not backend.is_open:  # the modem is gone: wait until the modem loop reopens it
+                self._modem_up.clear()
+            return False
+        if peer is not None:
+            self.core.range_asked(peer, self.clock())
+        self.core.frame_sent(out, self.clock(), confirmed)
+        self._flush()
+        return True
+
+    async def _ping(self, backend: ModemBackend, peer: int) -> bool:
+        """Range to ``peer`` with the modem's ping; the range arrives through ``on_range``."""
+        try:
+            await backend.ping(peer)
+        except BackendError as exc:
+            log.info("%s: no range to %s: %s", self.node, self.mission.name_of(peer), exc)
+            self.core.range_asked(peer, self.clock(), str(exc))
+            self._flush()
+            if not backend.is_open:
+                self._modem_up.clear()
+            return False
+        self.core.range_asked(peer, self.clock())
+        self._flush()
+        return True
+
+    def _modem_range(self, rng: ModemRange) -> None:
+        """The modem measured a range (called by the backend, on the loop)."""
+        self.core.modem_range(rng, self.clock())
+        self._flush()
+
+    # -- modem → core → Zenoh ------------------------------------------------------------------
+
+    async def _modem_loop(self) -> None:
+        """Open the modem, read receptions; on failure, open a fresh one with backoff."""
+        backoff = RETRY_MIN_S
+        while True:
+            backend = self.backend = self._make_backend()
+            backend.on_range = self._modem_range
+            try:
+                await backend.open()
+                self._modem_up.set()
+                backoff = RETRY_MIN_S
+                while True:
+                    self.receive(await backend.recv())
+            except BackendError as exc:
+                self._modem_up.clear()
+                log.warning("%s: modem unavailable: %s (retry in %.1f s)", self.node, exc, backoff)
+                self._event("modem_down", {"time": self.clock(), "error": str(exc)})
+                await backend.close()
+                await asyncio.sleep(backoff)
+                backoff = min(backoff * 2, RETRY_MAX_S)
+
+    def receive(self, rx: Reception) -> None:
+        """Hand one received frame to the core and publish what it produced."""
+        modem_now = self.backend.clock() if self.backend is not None else None
+        now, valid = self.clock(), self.core.stats.frames_received
+        self.core.receive(rx, now, modem_now)
+        src = self.mission.name_of(rx.src)
+        if self.core.stats.frames_received > valid and src is not None:
+            self.schedule.on_heard(src, rx.dest == self.mission.address_of(self.node), now)
+            self._data.set()  # a poll or a ranging turn may open an opportunity
+        self._flush()
+
+    def _flush(self) -> None:
+        """Carry out the core's outputs."""
+        for output in self.core.take():
+            if isinstance(output, Publish):
+                self.publish(output.key, output.value, output.encoding, latched=output.latched)
+            elif isinstance(output, Status):
+                self._publish_raw(f"{self.prefix}/{output.topic}", output.payload)
+                if output.topic.startswith("link/"):
+                    self._token(output.topic, output.payload["state"])
+            elif isinstance(output, Notice):
+                self._event(output.kind, output.info)
+
+    def _event(self, kind: str, info: dict[str, Any]) -> None:
+        self.on_event(kind, info)
+        if notable(kind, info) and self.session is not None:
+            self._publish_raw(f"{self.prefix}/events", {
+                "kind": kind, "node": self.node,
+                **{k: v for k, v in info.items() if not isinstance(v, bytes)}})
+
+    def _token(self, topic: str, state: str) -> None:
+        """One liveliness token per live link, on the link's key."""
+        assert self.session is not None
+        token = self._tokens.get(topic)
+        if state == LinkState.DOWN.value and token is not None:
+            token.undeclare()
+            del self._tokens[topic]
+        elif state != LinkState.DOWN.value and token is None:
+            self._tokens[topic] = self.session.liveliness().declare_token(
+                f"{self.prefix}/{topic}")
+
+    def publish(self, key: str, value: Any, encoding: str, *, latched: bool = False) -> None:
+        """Put a decoded value on Zenoh, marked as bridged so no bridge sends it back."""
+        assert self.session is not None
+        payload, enc = encode_payload(value, encoding)
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            publisher = self.session.declare_publisher(key, encoding=zenoh.Encoding(enc))
+            self._publishers[key] = publisher
+        self._latest[key] = (payload, enc)
+        if latched and key not in self._latched_keys:
+            self._latched_keys.add(key)
+            self._queryables.append(
+                self.session.declare_queryable(key, lambda q, k=key: self._answer(q, k))
+            )
+        publisher.put(payload, attachment=self._origin)
+
+    def _answer(self, query: zenoh.Query, key: str) -> None:
+        """Zenoh thread: a late joiner asks for a latched key; reply with its last value."""
+        latest = self._latest.get(key)
+        if latest is not None:
+            query.reply(key, latest[0], encoding=zenoh.Encoding(latest[1]),
+                        attachment=self._origin)
+        query.drop()
+
+    def _publish_raw(self, key: str, value: dict[str, Any]) -> None:
+        assert self.session is not None
+        self.session.put(key, msgpack.packb(value, use_bin_type=True),
+                         encoding=zenoh.Encoding("application/msgpack"), attachment=self._origin)
+
+    # -- health --------------------------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, Any]:
+        """Counters and channel ages as plain data."""
+        return self.core.snapshot(self.clock())
+
+    def update_links(self, now: float) -> None:
+        """Re-evaluate every peer's link now."""
+        self.core.update_links(now)
+        self._flush()
+
+    async def _health_loop(self) -> None:
+        period = min(1.0, self.core.thresholds.degraded_after_s / 4)
+        while True:
+            self.core.tick(self.clock())
+            self._flush()
+            await asyncio.sleep(period)
+
+    async def _stats_loop(self) -> None:
+        while True:
+            await asyncio.sleep(STATS_PERIOD_S)
+            self._publish_raw(f"{self.prefix}/stats", self.snapshot())

@@ -1,0 +1,1 @@
+"""What travels on the water, pure: channel tables, the frame, authentication, payloads."""

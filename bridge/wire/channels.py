@@ -1,0 +1,378 @@
+"""Channels as the wire sees them: resolved senders/receivers, compiled layouts, fingerprint.
+
+Built once from a validated :class:`~bridge.mission.model.Mission`. The channel index is its place
+in the mission's ``channels`` list; every node derives the same table from the same file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import string
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from functools import cached_property
+
+from bridge.codec import Layout
+from bridge.errors import LayoutError
+from bridge.mission.model import Channel, Element, Mission
+
+WIRE_VERSION = 1
+
+# Reliable channels and fragmented transfers (see bridge.core.reliable and bridge.core.transfer).
+SEQ_BITS = 8  # a reliable value's sequence number, modulo 256
+LAG_BITS = 4  # how far behind the sender's oldest unfinished value is (< WINDOW)
+WINDOW = 16  # values (or fragments) in flight past the first unacknowledged one
+TID_BITS = 4  # a transfer's id, modulo 16
+COUNT_BITS_REPEATABLE = 6  # entries per frame (up to 63) once channels may repeat in a frame
+MAX_TRANSFER_BYTES = 1 << 20
+
+SENDER_TEMPLATES = frozenset({"node", "src"})
+RECEIVER_TEMPLATES = frozenset({"node", "src", "dst"})
+
+
+class PatternError(ValueError):
+    """A ``from``/``to`` pattern names no node or is not a valid regular expression."""
+
+
+def match_nodes(pattern: str | Sequence[str], nodes: Sequence[str]) -> tuple[str, ...]:
+    """Nodes named by ``pattern``: an exact name, a list of them, or a regex (full match)."""
+    items = [pattern] if isinstance(pattern, str) else list(pattern)
+    found: list[str] = []
+    for item in items:
+        if item in nodes:
+            hits = [item]
+        else:
+            try:
+                rx = re.compile(item)
+            except re.error as exc:
+                raise PatternError(
+                    f"{item!r} is neither a node name nor a valid regex: {exc}"
+                ) from None
+            hits = [n for n in nodes if rx.fullmatch(n)]
+            if not hits:
+                raise PatternError(f"{item!r} matches no node (nodes: {', '.join(nodes)})")
+        found.extend(h for h in hits if h not in found)
+    return tuple(found)
+
+
+def template_names(key: str) -> set[str]:
+    """The ``{name}`` placeholders used in a key template."""
+    return {name for _, name, _, _ in string.Formatter().parse(key) if name}
+
+
+@dataclass(frozen=True)
+class ElementCodec:
+    """An element with its compiled layout."""
+
+    in_key: str
+    out_key: str
+    encoding: str
+    layout: Layout
+
+    def input_key(self, node: str) -> str:
+        return self.in_key.format(node=node, src=node)
+
+    def output_key(self, src: str, dst: str) -> str:
+        return self.out_key.format(node=dst, src=src, dst=dst)
+
+
+@dataclass(frozen=True)
+class ChannelCodec:
+    """A channel ready for the wire: index, endpoints, policy and element layouts."""
+
+    index: int
+    name: str
+    senders: tuple[str, ...]
+    receivers: tuple[str, ...]
+    interval_s: float
+    latching: bool
+    priority: int
+    elements: tuple[ElementCodec, ...]
+    ack: bool = False
+    reliable: bool = False
+    ttl_s: float | None = None
+    queue: int = 32
+    overflow: str = "reject"
+    retries: int | None = 10
+    retry_s: float | None = None
+    chunk_bytes: int = 0  # > 0: values are too big for a frame and travel in fragments
+    fragment_bits: int = 0  # bits of a fragment index / count
+
+    @cached_property
+    def bits(self) -> int:
+        """Bits of one whole value (every element's layout)."""
+        return sum(e.layout.bits for e in self.elements)
+
+    @property
+    def fragmented(self) -> bool:
+        return self.chunk_bytes > 0
+
+    @property
+    def repeatable(self) -> bool:
+        """May appear several times in one frame (queued values, fragments)."""
+        return self.stream
+
+    @property
+    def stream(self) -> bool:
+        """Acknowledged by receivers: reliable values or fragmented transfers."""
+        return self.reliable or self.fragmented
+
+    @cached_property
+    def header_bits(self) -> int:
+        """Bits before the data of each entry: seq + lag, or transfer id + index + count."""
+        if self.fragmented:
+            return TID_BITS + 2 * self.fragment_bits
+        return SEQ_BITS + LAG_BITS if self.reliable else 0
+
+    @cached_property
+    def wire_bits(self) -> int:
+        """Bits of one entry in a frame, after its index."""
+        data = 8 * self.chunk_bytes if self.fragmented else self.bits
+        return self.header_bits + data
+
+    @property
+    def value_bytes(self) -> int:
+        """Bytes of a whole value packed (what a transfer carries, before trimming)."""
+        return (self.bits + 7) // 8
+
+    def sent_by(self, node: str) -> bool:
+        return node in self.senders
+
+    def destinations(self, sender: str) -> tuple[str, ...]:
+        """Receivers of this channel when ``sender`` sends it (never the sender itself)."""
+        return tuple(r for r in self.receivers if r != sender)
+
+    def pack(self, values: Sequence[object]) -> int:
+        """All element values as one integer of ``bits`` bits, first element most significant."""
+        n = 0
+        for element, value in zip(self.elements, values, strict=True):
+            n = (n << element.layout.bits) | element.layout.pack(value)
+        return n
+
+    def unpack(self, n: int) -> list[dict]:
+        out: list[dict] = []
+        for element in reversed(self.elements):
+            bits = element.layout.bits
+            out.append(element.layout.unpack(n & ((1 << bits) - 1)))
+            n >>= bits
+        out.reverse()
+        return out
+
+
+def compile_element(element: Element, on_out_of_range: str) -> ElementCodec:
+    layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
+    return ElementCodec(element.in_, element.out, element.encoding, layout)
+
+
+class ChannelTableError(ValueError):
+    """A channel cannot be compiled; ``loc`` points into the mission document."""
+
+    def __init__(self, message: str, loc: tuple[str | int, ...]) -> None:
+        super().__init__(message)
+        self.loc = loc
+
+
+def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> ChannelCodec:
+    """Resolve patterns and compile layouts, raising :class:`ChannelTableError` with a location."""
+    loc: tuple[str | int, ...] = ("channels", index)
+    try:
+        senders = match_nodes(channel.from_, nodes)
+    except PatternError as exc:
+        raise ChannelTableError(str(exc), (*loc, "from")) from None
+    try:
+        receivers = match_nodes(channel.to, nodes)
+    except PatternError as exc:
+        raise ChannelTableError(str(exc), (*loc, "to")) from None
+    if not any(set(receivers) - {sender} for sender in senders):
+        raise ChannelTableError("a channel must reach a node other than its sender", (*loc, "to"))
+    elements = []
+    for i, element in enumerate(channel.elements):
+        eloc = (*loc, "elements", i)
+        for key, allowed, where in ((element.in_, SENDER_TEMPLATES, "in"),
+                                    (element.out, RECEIVER_TEMPLATES, "out")):
+            bad = template_names(key) - allowed
+            if bad:
+                raise ChannelTableError(
+                    f"unknown template {{{sorted(bad)[0]}}} in {key!r}; "
+                    f"allowed here: {', '.join('{' + a + '}' for a in sorted(allowed))}",
+                    (*eloc, where),
+                )
+        try:
+            elements.append(compile_element(element, channel.on_out_of_range))
+        except LayoutError as exc:
+            raise ChannelTableError(str(exc), (*eloc, "fields", *exc.loc)) from None
+    return ChannelCodec(
+        index=index,
+        name=channel.name,
+        senders=senders,
+        receivers=receivers,
+        interval_s=channel.interval_s,
+        latching=channel.latching,
+        priority=channel.priority,
+        elements=tuple(elements),
+        ack=channel.ack,
+        reliable=channel.reliable,
+        ttl_s=channel.ttl_s,
+        queue=channel.queue,
+        overflow=channel.overflow,
+        retries=channel.retries,
+        retry_s=channel.retry_s,
+    )
+
+
+def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
+    """Bits one entry (index included) can take in a frame of ``node``, after what the
+    mission's wire options add: DLBL delays, authentication, check, count. ``streams``: the
+    mission has reliable or fragmented channels (a longer count, one more index)."""
+    n_nodes, n_channels = len(mission.nodes), len(mission.channels)
+    overhead = 2 + (3 * (n_nodes - 1) if mission.wire.dlbl else 0)
+    if mission.wire.auth is not None:
+        overhead += 4 + mission.wire.auth.tag_bytes
+    if streams:
+        count_bits, index_bits = COUNT_BITS_REPEATABLE, n_channels.bit_length()
+    else:
+        count_bits, index_bits = n_channels.bit_length(), (n_channels - 1).bit_length()
+    return (mission.node_modem(node).frame_bytes - overhead) * 8 - count_bits - index_bits
+
+
+def fragment_channel(channel: ChannelCodec, mission: Mission, streams: bool) -> ChannelCodec:
+    """``channel`` as a fragmented transfer when a whole value does not fit in every sender's
+    frame: a fragment fills about three quarters of a frame, so telemetry still fits beside
+    it."""
+    if channel.fragmented:
+        return channel
+    capacity = min(entry_capacity_bits(mission, s, streams or channel.reliable)
+                   for s in channel.senders)
+    if channel.bits + channel.header_bits <= capacity:
+        return channel
+    loc = ("channels", channel.index)
+    if channel.value_bytes > MAX_TRANSFER_BYTES:
+        raise ChannelTableError(f"a value of {channel.value_bytes} bytes exceeds the "
+                                f"{MAX_TRANSFER_BYTES}-byte transfer limit", loc)
+    fragment_bits = 1
+    for _ in range(4):  # the header size depends on the number of fragments: settle it
+        chunk = 3 * (capacity - TID_BITS - 2 * fragment_bits) // 32
+        if chunk < 1:
+            return channel  # frames too small for anything: the frame checks say so
+        fragments = -(-channel.value_bytes // chunk)
+        fragment_bits = fragments.bit_length()
+    return replace(channel, chunk_bytes=chunk, fragment_bits=fragment_bits)
+
+
+@dataclass(frozen=True)
+class AckCodec:
+    """The system entry acknowledging a stream (``ack`` in frames), after the mission channels.
+
+    Fields: the node acknowledged (``peer``, its place in the mission), the stream (its place
+    among reliable/fragmented channels), the transfer id, ``base`` (next sequence number
+    expected, or first fragment missing) and ``bitmap`` (bit i: ``base + 1 + i`` arrived).
+    """
+
+    index: int
+    peer_bits: int
+    stream_bits: int
+    base_bits: int
+    name: str = "@ack"
+    repeatable: bool = True
+
+    @property
+    def wire_bits(self) -> int:
+        return self.peer_bits + self.stream_bits + TID_BITS + self.base_bits + WINDOW
+
+    def pack(self, peer: int, stream: int, tid: int, base: int, bitmap: int) -> int:
+        n = peer
+        for value, bits in ((stream, self.stream_bits), (tid, TID_BITS),
+                            (base, self.base_bits), (bitmap, WINDOW)):
+            n = (n << bits) | (value & ((1 << bits) - 1))
+        return n
+
+    def unpack(self, n: int) -> tuple[int, int, int, int, int]:
+        """``(peer, stream, tid, base, bitmap)``."""
+        out = []
+        for bits in (WINDOW, self.base_bits, TID_BITS, self.stream_bits):
+            out.append(n & ((1 << bits) - 1))
+            n >>= bits
+        bitmap, base, tid, stream = out
+        return n, stream, tid, base, bitmap
+
+
+@dataclass(frozen=True)
+class ChannelTable:
+    """Every channel of a mission, plus what both ends of a link must agree on."""
+
+    channels: tuple[ChannelCodec, ...]
+    nodes: tuple[str, ...]
+    dlbl: bool
+    auth_tag_bytes: int = 0  # 0: frames are not authenticated
+
+    @classmethod
+    def from_mission(cls, mission: Mission) -> ChannelTable:
+        nodes = tuple(mission.nodes)
+        seen: dict[str, int] = {}
+        for i, channel in enumerate(mission.channels):
+            if channel.name in seen:
+                raise ChannelTableError(
+                    f"channel name {channel.name!r} already used by channel {seen[channel.name]}",
+                    ("channels", i, "name"),
+                )
+            seen[channel.name] = i
+        compiled = tuple(compile_channel(i, c, nodes) for i, c in enumerate(mission.channels))
+        streams = any(c.reliable for c in compiled)
+        compiled = tuple(fragment_channel(c, mission, streams) for c in compiled)
+        if not streams and any(c.fragmented for c in compiled):  # the count field grows
+            compiled = tuple(fragment_channel(c, mission, True) for c in compiled)
+        auth = mission.wire.auth
+        return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
+                   auth_tag_bytes=auth.tag_bytes if auth else 0)
+
+    def __len__(self) -> int:
+        return len(self.channels)
+
+    @cached_property
+    def streams(self) -> tuple[ChannelCodec, ...]:
+        """Channels whose receivers acknowledge (reliable or fragmented), in index order."""
+        return tuple(c for c in self.channels if c.stream)
+
+    @cached_property
+    def ack(self) -> AckCodec | None:
+        """The acknowledgement entry, present when the mission has streams."""
+        if not self.streams:
+            return None
+        fragment_bits = max((c.fragment_bits for c in self.streams), default=0)
+        return AckCodec(index=len(self.channels),
+                        peer_bits=(len(self.nodes) - 1).bit_length(),
+                        stream_bits=(len(self.streams) - 1).bit_length(),
+                        base_bits=max(SEQ_BITS, fragment_bits))
+
+    @property
+    def wire(self) -> tuple[ChannelCodec | AckCodec, ...]:
+        """Every kind of entry a frame may hold: the mission's channels, then system ones."""
+        return self.channels if self.ack is None else (*self.channels, self.ack)
+
+    def by_name(self, name: str) -> ChannelCodec:
+        return next(c for c in self.channels if c.name == name)
+
+    def foreign_nodes(self, node: str) -> tuple[str, ...]:
+        """The nodes whose DLBL delays ``node`` reports, in mission order."""
+        return tuple(n for n in self.nodes if n != node)
+
+    @cached_property
+    def fingerprint(self) -> bytes:
+        """8 bytes that differ when two mission files would disagree about the wire."""
+        description = {
+            "wire": WIRE_VERSION,
+            "dlbl": self.dlbl,
+            "auth": self.auth_tag_bytes,
+            "nodes": self.nodes,
+            "channels": [
+                [c.name, [[f"{f.path}:{f.describe()}" for f in e.layout.fields]
+                          for e in c.elements]]
+                + ([["reliable"]] if c.reliable else [])
+                + ([["fragments", c.chunk_bytes, c.fragment_bits]] if c.fragmented else [])
+                for c in self.channels
+            ],
+        }
+        blob = json.dumps(description, sort_keys=True, separators=(",", ":")).encode()
+        return hashlib.sha256(blob).digest()[:8]

@@ -1,0 +1,228 @@
+"""The acoustic frame (wire version 1), pure.
+
+Layout, most significant bit first::
+
+    [DLBL]   dlbl missions only: 24 bits per foreign node of the SENDER, in mission order:
+             µs from the sender's last reception from that node to this frame's start;
+             0xFFFFFF = no data.
+    count    ceil(log2(C + 1)) bits: how many entries follow (C = channels in the mission);
+             6 bits when the mission has reliable or fragmented channels
+    count ×  index   ceil(log2 W) bits (0 bits when W == 1), W = C plus the ``@ack`` entry
+                     when the mission has reliable or fragmented channels
+             entry   plain channel: its fixed number of bits (its elements' layouts, in order);
+                     reliable: seq (8) + lag (4) + the value; fragment: transfer id (4) +
+                     index + count + a chunk of the packed value; ``@ack``: see AckCodec.
+             Only reliable, fragmented and ``@ack`` entries may repeat in a frame.
+    pad      zero bits up to the next byte
+    [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.wire.auth)
+    check    16 bits: CRC-16/CCITT (init 0xFFFF) over the mission fingerprint, then every
+             byte before the check. A frame from another mission file fails the check.
+
+:class:`FrameCodec` builds and parses frames for one :class:`~bridge.wire.channels.ChannelTable`;
+:meth:`FrameCodec.decode` raises :class:`~bridge.errors.FrameError` and nothing else.
+"""
+
+from __future__ import annotations
+
+import binascii
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from bridge.errors import DecodeError, FrameError
+from bridge.wire.auth import COUNTER_BYTES, Authenticator
+from bridge.wire.channels import (
+    COUNT_BITS_REPEATABLE,
+    LAG_BITS,
+    AckCodec,
+    ChannelCodec,
+    ChannelTable,
+)
+
+DELAY_BYTES = 3
+DELAY_MAX_US = (1 << 24) - 2  # largest delay sent; a longer one wraps (see ranging)
+NO_DELAY = (1 << 24) - 1  # "no reception from that node yet"
+CHECK_BYTES = 2
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One entry of a frame.
+
+    ``values``: the element values (plain and reliable channels). ``header``: reliable
+    ``(seq, lag)``; fragment ``(tid, index, count)``; ``@ack`` ``(peer, stream, tid, base,
+    bitmap)``. ``chunk``: a fragment's bytes.
+    """
+
+    channel: ChannelCodec | AckCodec
+    values: list[dict] | None = None
+    header: tuple[int, ...] = ()
+    chunk: bytes = b""
+
+
+@dataclass(frozen=True)
+class DecodedFrame:
+    """What a frame carried: DLBL delays (µs or None) and its entries, in order."""
+
+    delays: tuple[int | None, ...]
+    entries: tuple[Entry, ...]
+
+    @property
+    def channels(self) -> tuple[tuple[ChannelCodec, list[dict]], ...]:
+        """The plain (latest-value) channels and their element values."""
+        return tuple((e.channel, e.values) for e in self.entries
+                     if isinstance(e.channel, ChannelCodec) and not e.channel.stream
+                     and e.values is not None)
+
+
+class FrameCodec:
+    """Encode and decode frames of one mission."""
+
+    def __init__(self, table: ChannelTable, auth: Authenticator | None = None) -> None:
+        self.table = table
+        self.auth = auth
+        self.auth_bytes = (COUNTER_BYTES + table.auth_tag_bytes) if table.auth_tag_bytes else 0
+        self.wire = table.wire
+        n = len(self.wire)
+        self.repeats = any(w.repeatable for w in self.wire)
+        # count: ceil(log2(n + 1)) bits, or room for repeated entries
+        self.count_bits = (COUNT_BITS_REPEATABLE if self.repeats
+                           else len(table.channels).bit_length())
+        self.index_bits = (n - 1).bit_length() if n > 1 else 0
+        self.delay_count = len(table.nodes) - 1 if table.dlbl else 0
+        self.delay_bytes = DELAY_BYTES * self.delay_count
+        self._crc_init = binascii.crc_hqx(table.fingerprint, 0xFFFF)
+
+    # -- sizes ---------------------------------------------------------------------------------
+
+    def overhead_bytes(self) -> int:
+        """Bytes every frame spends outside channel data, not counting the count field."""
+        return self.delay_bytes + self.auth_bytes + CHECK_BYTES
+
+    def body_capacity_bits(self, frame_bytes: int) -> int:
+        """Bits left for the count field and channels in a frame of ``frame_bytes``."""
+        return max(0, (frame_bytes - self.overhead_bytes()) * 8)
+
+    def channel_cost_bits(self, channel: ChannelCodec | AckCodec) -> int:
+        """Bits one entry takes in a frame: its index plus its payload."""
+        return self.index_bits + channel.wire_bits
+
+    def frame_bytes_for(self, channels: Sequence[ChannelCodec | AckCodec]) -> int:
+        """Size of a frame carrying exactly ``channels``."""
+        body = self.count_bits + sum(self.channel_cost_bits(c) for c in channels)
+        return self.overhead_bytes() + (body + 7) // 8
+
+    # -- encode --------------------------------------------------------------------------------
+
+    def encode(
+        self,
+        items: Sequence[tuple[ChannelCodec | AckCodec, int]],
+        delays: Sequence[int | None] = (),
+        now: float = 0.0,
+    ) -> bytes:
+        """A frame carrying ``(channel, entry bits)`` items and, for DLBL, the delays.
+
+        ``now`` (seconds) seeds the authentication counter of authenticated missions.
+        """
+        if len(delays) != self.delay_count:
+            raise ValueError(f"expected {self.delay_count} DLBL delays, got {len(delays)}")
+        acc, nbits = 0, 0
+        for delay in delays:
+            value = NO_DELAY if delay is None else min(max(int(delay), 0), DELAY_MAX_US)
+            acc, nbits = (acc << 24) | value, nbits + 24
+        if len(items) >= 1 << self.count_bits:
+            raise ValueError(f"{len(items)} entries exceed the frame's count field")
+        acc, nbits = (acc << self.count_bits) | len(items), nbits + self.count_bits
+        seen: set[int] = set()
+        for channel, payload in items:
+            if channel.index in seen and not channel.repeatable:
+                raise ValueError(f"channel {channel.name!r} twice in one frame")
+            seen.add(channel.index)
+            acc = (((acc << self.index_bits) | channel.index) << channel.wire_bits) | payload
+            nbits += self.index_bits + channel.wire_bits
+        pad = -nbits % 8
+        data = (acc << pad).to_bytes((nbits + pad) // 8, "big")
+        if self.table.auth_tag_bytes:
+            if self.auth is None:
+                raise ValueError("this mission authenticates frames: no Authenticator given")
+            data = self.auth.seal(data, now)
+        return data + binascii.crc_hqx(data, self._crc_init).to_bytes(CHECK_BYTES, "big")
+
+    # -- decode --------------------------------------------------------------------------------
+
+    def decode(self, frame: bytes, src: int | None = None) -> DecodedFrame:
+        """Parse untrusted bytes; raise :class:`FrameError` for anything but a valid frame.
+
+        Authenticated missions need ``src``, the sender's modem address.
+        """
+        if not isinstance(frame, bytes | bytearray | memoryview):
+            raise FrameError(f"a frame is bytes, not {type(frame).__name__}")
+        frame = bytes(frame)
+        minimum = self.overhead_bytes() + (self.count_bits + 7) // 8
+        if len(frame) < minimum:
+            raise FrameError(f"truncated frame: {len(frame)} bytes, at least {minimum} needed")
+        body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
+        if binascii.crc_hqx(body, self._crc_init) != int.from_bytes(check, "big"):
+            raise FrameError("check failed: corrupt frame, or sent with another mission file",
+                             "check")
+        if self.table.auth_tag_bytes:
+            if self.auth is None or src is None:
+                raise FrameError("cannot authenticate: no key or no sender address", "forged")
+            body = self.auth.open(body, src)
+        acc = int.from_bytes(body, "big")
+        left = len(body) * 8
+
+        def take(bits: int) -> int:
+            nonlocal left
+            if bits > left:
+                raise FrameError("truncated frame: a channel runs past the end")
+            left -= bits
+            return (acc >> left) & ((1 << bits) - 1)
+
+        raw = [take(24) for _ in range(self.delay_count)]
+        delays = tuple(None if d == NO_DELAY else d for d in raw)
+        count = take(self.count_bits)
+        wire = self.wire
+        if not self.repeats and count > len(wire):
+            raise FrameError(f"frame claims {count} channels, the mission has {len(wire)}")
+        entries: list[Entry] = []
+        seen: set[int] = set()
+        for _ in range(count):
+            index = take(self.index_bits)
+            if index >= len(wire) or (index in seen and not wire[index].repeatable):
+                raise FrameError(f"bad or repeated channel index {index}")
+            seen.add(index)
+            channel = wire[index]
+            payload = take(channel.wire_bits)
+            try:
+                entries.append(self._entry(channel, payload))
+            except DecodeError as exc:
+                raise FrameError(f"channel {channel.name!r}: {exc}") from None
+        if left >= 8 or take(left) != 0:
+            raise FrameError("trailing data after the last channel")
+        return DecodedFrame(delays, tuple(entries))
+
+    def _entry(self, channel: ChannelCodec | AckCodec, payload: int) -> Entry:
+        """One entry's fields, checked; raises :class:`DecodeError` when malformed."""
+        if isinstance(channel, AckCodec):
+            peer, stream, tid, base, bitmap = channel.unpack(payload)
+            if peer >= len(self.table.nodes) or stream >= len(self.table.streams):
+                raise DecodeError(f"acknowledges unknown node {peer} or stream {stream}")
+            return Entry(channel, header=(peer, stream, tid, base, bitmap))
+        if channel.fragmented:
+            data_bits = 8 * channel.chunk_bytes
+            chunk = (payload & ((1 << data_bits) - 1)).to_bytes(channel.chunk_bytes, "big")
+            header = payload >> data_bits
+            fbits = channel.fragment_bits
+            count = header & ((1 << fbits) - 1)
+            index = (header >> fbits) & ((1 << fbits) - 1)
+            tid = header >> (2 * fbits)
+            most = -(-channel.value_bytes // channel.chunk_bytes)
+            if not 0 <= index < count <= most:
+                raise DecodeError(f"fragment {index} of {count} (at most {most})")
+            return Entry(channel, header=(tid, index, count), chunk=chunk)
+        values = channel.unpack(payload & ((1 << channel.bits) - 1))
+        if channel.reliable:
+            header = payload >> channel.bits
+            seq, lag = header >> LAG_BITS, header & ((1 << LAG_BITS) - 1)
+            return Entry(channel, values, (seq, lag))
+        return Entry(channel, values)
