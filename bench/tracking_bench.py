@@ -15,7 +15,8 @@ NEES in 95 % bounds: the share of updates whose normalised estimation error squa
 went over to the mirror side of the jetty.
 
 Table 2, MORPH (``deploy/missions/morph.yaml``) on the virtual clock
-(:class:`~bridge.runtime.virtual_fleet.FastFleet`): the formation transits north at 0.8 m/s weaving ±3 m as ``zab demo`` sails it;
+(:class:`~bridge.runtime.virtual_fleet.FastFleet`): the formation transits north at 0.8 m/s
+weaving ±3 m as ``zab demo`` sails it;
 every vehicle's nav (depth, heading, speed) reaches its own tracker once a second and the
 gcv's position reaches the others over the acoustic nav channel (gcv is a moving anchor, as
 ``ranging.anchor_keys`` says). p95 error per vehicle, states, and any non-finite number.
