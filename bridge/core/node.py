@@ -695,7 +695,8 @@ class NodeCore:
                  modem_now: float, now: float) -> None:
         """Ranges (and a fix) from a frame's DLBL delays."""
         assert self.positioning is not None
-        self._positioned(self.positioning.on_receive(src, t_rx_start, delays, modem_now), now)
+        self._positioned(self.positioning.on_receive(src, t_rx_start, delays, modem_now, now),
+                         now)
 
     def modem_range(self, rng: ModemRange, now: float) -> None:
         """The modem measured a range itself (a ping, a propagation time): publish it like a
@@ -732,8 +733,9 @@ class NodeCore:
             payload = {**self.positioning.range_payload(rng), "time": now}
             self._status(f"range/{rng.peer}", payload)
             self._notice("range", payload)
-        if update.fix is not None:
-            payload = update.fix.payload(now)
+        found = update.estimate if update.estimate is not None else update.fix
+        if found is not None:  # the tracker's estimate; a bare fix where there is no tracker
+            payload = found.payload(now)
             self._status("position", payload)
             self._notice("position", payload)
 
@@ -744,6 +746,8 @@ class NodeCore:
         self.update_links(now)
         for sender in self.senders.values():
             self._reports(sender.expire(now))
+        if self.positioning is not None and (estimate := self.positioning.report(now)):
+            self._positioned(Update((), None, estimate), now)  # coasting, or lost, is news
 
     def update_links(self, now: float) -> None:
         """Re-evaluate every peer's link; report changes on ``link/<peer>``."""

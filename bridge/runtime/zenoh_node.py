@@ -20,14 +20,14 @@ import zenoh
 from bridge.core.link import LinkState
 from bridge.core.node import NodeCore, NodeStats, Notice, Ping, Publish, Status, notable
 from bridge.core.positioning import Positioning
-from bridge.errors import BackendError, EncodeError
+from bridge.errors import BackendError, DecodeError, EncodeError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
 from bridge.ros2.graph import Ros2Graph
 from bridge.runtime.session import close_quietly, is_bridged, open_session, origin_tag
 from bridge.runtime.state_file import StateFile
 from bridge.wire.auth import load_key
-from bridge.wire.payloads import encode_payload
+from bridge.wire.payloads import decode_payload, encode_payload
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -176,11 +176,18 @@ class BridgeNode:
         positioning = self.core.positioning
         if positioning is None:
             return
+        if nav_key is not None and positioning.tracker is not None:
+            def steer(sample: zenoh.Sample) -> None:  # heading and speed, where nav has them
+                if sample.kind == zenoh.SampleKind.PUT and not is_bridged(sample):
+                    data, encoding = sample.payload.to_bytes(), str(sample.encoding)
+                    loop.call_soon_threadsafe(self._steer, data, encoding)
+
+            self.session.declare_subscriber(nav_key, steer)
         for anchor, key in self.mission.ranging.anchor_keys.items():
             if anchor in positioning.anchors:
                 listen(key, ("x", "y", "depth"),
-                       lambda v, a=anchor: positioning.set_anchor(a, v),  # type: ignore[misc]
-                       bridged=True)
+                       lambda v, a=anchor: positioning.set_anchor(  # type: ignore[misc]
+                           a, v, self.clock()), bridged=True)
         ctd_key = self.mission.ranging.ctd_key
         if ctd_key is not None:
             listen(ctd_key, ("temperature_c", "salinity_psu", "depth_m"),
@@ -189,6 +196,20 @@ class BridgeNode:
             listen(key, ("temperature_c", "salinity_psu", "depth_m"),
                    lambda v, p=peer: positioning.set_peer_water(p, *v),  # type: ignore[misc]
                    bridged=True)
+
+    def _steer(self, data: bytes, encoding: str) -> None:
+        """This node's nav sample: its heading (and speed) steer the tracker, if it has them."""
+        assert self.core.positioning is not None
+        try:
+            value = decode_payload(data, encoding)
+            heading = float(value["heading"])
+        except (DecodeError, TypeError, KeyError, ValueError):
+            return  # no heading in this nav: ranges and depth alone
+        try:
+            speed: float | None = float(value["speed"])
+        except (TypeError, KeyError, ValueError):
+            speed = None
+        self.core.positioning.set_heading(heading, speed, self.clock())
 
     def move(self, position: tuple[float, ...]) -> None:
         """This node's live position: move the (simulated) modem and keep the depth."""
