@@ -34,6 +34,7 @@ The MACs (rules of each, as they apply to one node):
 
 from __future__ import annotations
 
+import bisect
 import math
 import random
 from abc import ABC, abstractmethod
@@ -128,9 +129,10 @@ class TdmaSchedule(Schedule):
         if not self.owned:
             return None
         k = math.floor(after / self.slot_s) + 1
-        n = len(self.order)
-        while (k % n) not in self.owned:
-            k += 1
+        n, owned = len(self.order), self.owned  # owned: ascending slot indices
+        phase = k % n
+        i = bisect.bisect_left(owned, phase)  # the first owned slot at or after k's phase
+        k += owned[i] - phase if i < len(owned) else owned[0] + n - phase
         start = k * self.slot_s
         return Slot(start, start + self.slot_s - self.guard_s)
 

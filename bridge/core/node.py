@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
-from bridge.core.link import LinkState, LinkThresholds
+from bridge.core.link import LinkState, LinkThresholds, LinkWatch
 from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
 from bridge.core.store import ChannelState, OutboundStore
@@ -136,6 +136,7 @@ class NodeCore:
         self.thresholds = LinkThresholds.for_mission(mission)
         self.heartbeat_s = mission.link.heartbeat_s
         self.link_states: dict[str, LinkState] = {}
+        self._link_watch = LinkWatch(self.thresholds, self.table.foreign_nodes(node))
         self.last_heard: dict[str, float] = {}
         self.received_at: dict[str, float] = {}
         self.last_tx: float | None = None
@@ -357,6 +358,7 @@ class NodeCore:
             return
         self.stats.frames_received += 1
         self.last_heard[src] = now
+        self._link_watch.heard(src)
         if self.link_states.get(src) is not LinkState.UP:
             self.update_links(now)
         if self.positioning is not None and self.table.dlbl:
@@ -503,8 +505,8 @@ class NodeCore:
             self._reports(sender.expire(now))
 
     def update_links(self, now: float) -> None:
-        """Re-evaluate every peer's link; report changes on ``link/<peer>``."""
-        for peer in self.table.foreign_nodes(self.node):
+        """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
+        for peer in self._link_watch.due(now, self.last_heard):
             heard = self.last_heard.get(peer)
             state = self.thresholds.state(heard, now)
             if self.link_states.get(peer) is state:

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
 from bridge.codec import FieldSpec
 
@@ -312,6 +312,7 @@ class Mission(Strict):
     link: LinkHealth = Field(default_factory=LinkHealth)
     ranging: Ranging = Field(default_factory=Ranging)
     channels: list[Channel] = Field(default_factory=list)
+    _names: dict[int, str] = PrivateAttr(default_factory=dict)
 
     def node_modem(self, name: str) -> Modem:
         """The modem settings of ``name``: mission defaults with the node's overrides."""
@@ -326,4 +327,12 @@ class Mission(Strict):
         return self.nodes[name].address
 
     def name_of(self, address: int) -> str | None:
-        return next((n for n, node in self.nodes.items() if node.address == address), None)
+        """The node at ``address`` (the first in file order), None if there is none."""
+        name = self._names.get(address)  # looked up per received frame: kept, and checked
+        node = self.nodes.get(name) if name is not None else None
+        if node is not None and node.address == address:
+            return name
+        name = next((n for n, node in self.nodes.items() if node.address == address), None)
+        if name is not None:
+            self._names[address] = name
+        return name

@@ -79,7 +79,12 @@ class FastFleet:
         self.on_output = on_output
         self.keep_outputs = keep_outputs
         self.stopped: set[str] = set()
+        self._order = {name: i for i, name in enumerate(mission.nodes)}
+        self._names = {node.address: name for name, node in reversed(mission.nodes.items())}
+        self._addresses = {name: node.address for name, node in mission.nodes.items()}
         self._next_tx: dict[str, float | None] = {}
+        # every value _next_tx took, as (time, node order, name): stale ones leave lazily
+        self._tx_heap: list[tuple[float, int, str]] = []
         self._pending: dict[int, tuple[str, Any]] = {}
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
@@ -113,7 +118,7 @@ class FastFleet:
     def stop(self, node: str) -> None:
         """Silence ``node``: it neither sends nor hears from now on."""
         self.stopped.add(node)
-        self._next_tx[node] = None
+        self._set_next_tx(node, None)
 
     def resume(self, node: str) -> None:
         self.stopped.discard(node)
@@ -130,18 +135,39 @@ class FastFleet:
     def run_until(self, t_end: float) -> None:
         """Advance the virtual clock to ``t_end``, handling every event on the way."""
         while True:
-            candidates = [self._next_tick]
-            if (t := self.ocean.next_event_time()) is not None:
-                candidates.append(t)
-            if self._timers:
-                candidates.append(self._timers[0][0])
-            candidates.extend(t for t in self._next_tx.values() if t is not None)
-            t = min(candidates)
+            t = self._next_tick
+            if (water := self.ocean.next_event_time()) is not None and water < t:
+                t = water
+            if self._timers and self._timers[0][0] < t:
+                t = self._timers[0][0]
+            if (tx := self._next_transmit()) is not None and tx < t:
+                t = tx
             if t > t_end:
                 self.now = t_end
                 return
             self.now = max(self.now, t)
             self._step()
+
+    def _set_next_tx(self, name: str, t: float | None) -> None:
+        self._next_tx[name] = t
+        if t is not None:
+            heapq.heappush(self._tx_heap, (t, self._order[name], name))
+
+    def _next_transmit(self) -> float | None:
+        """The earliest planned transmission (stale heap entries dropped on the way)."""
+        heap = self._tx_heap
+        while heap and self._next_tx.get(heap[0][2]) != heap[0][0]:
+            heapq.heappop(heap)
+        return heap[0][0] if heap else None
+
+    def _due_transmitters(self, now: float) -> list[str]:
+        """Nodes whose planned transmission is due at ``now``, in mission order."""
+        heap, due = self._tx_heap, {}
+        while heap and heap[0][0] <= now:
+            t, order, name = heapq.heappop(heap)
+            if self._next_tx.get(name) == t:
+                due[order] = name
+        return [due[k] for k in sorted(due)]
 
     def _step(self) -> None:
         now = self.now
@@ -153,9 +179,8 @@ class FastFleet:
         while self._timers and self._timers[0][0] <= now:
             _, _, fn = heapq.heappop(self._timers)
             fn()
-        for name, t in list(self._next_tx.items()):
-            if t is not None and t <= now:
-                self._transmit(name)
+        for name in self._due_transmitters(now):
+            self._transmit(name)
         if self._next_tick <= now:
             for name, core in self.cores.items():
                 if name not in self.stopped:
@@ -166,11 +191,11 @@ class FastFleet:
     def _plan(self, name: str) -> None:
         """When ``name`` next gets to transmit: its MAC's next opportunity."""
         if name in self.stopped:
-            self._next_tx[name] = None
+            self._set_next_tx(name, None)
             return
         opp = self.schedules[name].next_opportunity(self.now, self.cores[name].next_due(self.now))
-        busy = self.ocean.busy_until(self.mission.address_of(name))  # a busy modem refuses
-        self._next_tx[name] = None if opp is None else max(opp.start, self.now, busy)
+        busy = self.ocean.busy_until(self._addresses[name])  # a busy modem refuses
+        self._set_next_tx(name, None if opp is None else max(opp.start, self.now, busy))
 
     def _replan(self, name: str) -> None:
         """New data or a reception may change the next opportunity (a poll, a ranging turn)."""
@@ -188,9 +213,9 @@ class FastFleet:
             schedule.on_skipped(now)
         else:
             if opp.poll is not None:  # the poll rides on the frame's destination address
-                out = replace(out, dest=self.mission.address_of(opp.poll))
+                out = replace(out, dest=self._addresses[opp.poll])
             try:
-                end = self.ocean.transmit(now, self.mission.address_of(name), out.data, out.dest)
+                end = self.ocean.transmit(now, self._addresses[name], out.data, out.dest)
             except TransmitRefused as exc:
                 core.frame_failed(out, str(exc), now)
                 schedule.on_skipped(now)
@@ -201,14 +226,14 @@ class FastFleet:
         self._plan(name)
 
     def _deliver(self, event: Delivery) -> None:
-        name = self.mission.name_of(event.dst)
+        name = self._names.get(event.dst)
         if name is None or name in self.stopped:
             return
         meta = {**event.meta, "start": event.start}
         core = self.cores[name]
         valid = core.stats.frames_received
         core.receive(Reception(event.data, event.src, event.end, meta), self.now, self.now)
-        src = self.mission.name_of(event.src)
+        src = self._names.get(event.src)
         if core.stats.frames_received > valid and src is not None:  # a valid frame: tell the MAC
             self.schedules[name].on_heard(src, event.meta.get("dest") == event.dst, event.end)
         self._collect(name)
