@@ -74,11 +74,14 @@ class LinkWatch:
     def due(self, now: float, last_heard: Mapping[str, float]) -> list[str]:
         """The peers whose state may differ at ``now`` from the last look at them; each is
         watched again from ``last_heard`` (the caller re-evaluates all of them)."""
+        heap = self._heap
+        if not self._dirty and now >= self._last and (not heap or heap[0][0] > now + self.SLACK_S):
+            self._last = now
+            return []  # the common tick: nothing heard, no threshold crossed
         peers, self._dirty = self._dirty, set()
         if now < self._last:  # time went backwards: a state may go back too, look at everyone
             peers = set(self.order)
         self._last = now
-        heap = self._heap
         while heap and heap[0][0] <= now + self.SLACK_S:
             _, _, peer, heard = heapq.heappop(heap)
             if last_heard.get(peer) == heard:

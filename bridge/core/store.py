@@ -9,6 +9,7 @@ since it was last sent, and either new data arrived since then or the channel is
 
 from __future__ import annotations
 
+import heapq
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -57,9 +58,36 @@ class ChannelState:
 
 @dataclass
 class OutboundStore:
-    """Channel states of one sending node."""
+    """Channel states of one sending node.
+
+    :meth:`next_due` is asked at every planning step, so the due times of channels without a
+    ``ttl_s`` (which do not depend on ``now``) wait in a heap, refreshed when a channel
+    changes (stale entries are skipped); channels with a ``ttl_s`` are looked at each time.
+    Change states through the methods below only.
+    """
 
     states: dict[int, ChannelState] = field(default_factory=dict)
+    _heap: list[tuple[float, int, int]] = field(default_factory=list, init=False, repr=False)
+    _version: dict[int, int] = field(default_factory=dict, init=False, repr=False)
+    _ttl: list[ChannelState] = field(default_factory=list, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._ttl = [s for s in self.states.values() if s.channel.ttl_s is not None]
+        for state in self.states.values():
+            self._changed(state)
+
+    def _changed(self, state: ChannelState) -> None:
+        """Re-file ``state``'s due time (channels with a ``ttl_s`` are not filed)."""
+        index = state.channel.index
+        version = self._version[index] = self._version.get(index, 0) + 1
+        if state.channel.ttl_s is not None:
+            return
+        ready = state.ready_at()
+        if ready is not None:
+            heapq.heappush(self._heap, (ready, version, index))
+            if len(self._heap) > 4 * len(self.states) + 16:  # stale entries: compact
+                self._heap = [e for e in self._heap if self._version[e[2]] == e[1]]
+                heapq.heapify(self._heap)
 
     @classmethod
     def for_node(cls, channels: Iterable[ChannelCodec], node: str) -> OutboundStore:
@@ -77,6 +105,7 @@ class OutboundStore:
         state = self.states[index]
         state.packed[element] = packed
         state.updated[element] = now
+        self._changed(state)
         return state.complete
 
     def update(self, index: int, element: int, packed: int, now: float) -> None:
@@ -85,6 +114,7 @@ class OutboundStore:
         state.packed[element] = packed
         state.updated[element] = now
         state.fresh = True
+        self._changed(state)
 
     def due(self, now: float) -> list[ChannelState]:
         """Channels that may go in a frame sent at ``now``."""
@@ -97,8 +127,15 @@ class OutboundStore:
 
     def next_due(self, now: float | None = None) -> float | None:
         """The earliest time a channel becomes due (may be in the past), or None."""
-        times = [t for s in self.states.values() if (t := s.ready_at(now)) is not None]
-        return min(times) if times else None
+        heap, version = self._heap, self._version
+        while heap and version[heap[0][2]] != heap[0][1]:
+            heapq.heappop(heap)
+        best = heap[0][0] if heap else None
+        for state in self._ttl:
+            t = state.ready_at(now)
+            if t is not None and (best is None or t < best):
+                best = t
+        return best
 
     def mark_sent(self, sent: Iterable[ChannelState], built: float) -> None:
         """The frame built at ``built`` carried these channels. A value that arrived after
@@ -108,3 +145,4 @@ class OutboundStore:
                 state.fresh = False
             state.last_sent = built
             state.sends += 1
+            self._changed(state)
