@@ -14,11 +14,13 @@ import asyncio
 import math
 import random
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.codec import Layout
+from bridge.codec.fields import ArrayCodec, BoolCodec, EnumCodec, FieldCodec, FloatCodec, IntCodec
 from bridge.core.node import Notice
 from bridge.errors import DecodeError, EncodeError
 from bridge.mission.loader import LoadedMission
@@ -27,24 +29,76 @@ from bridge.runtime.virtual_fleet import FastFleet, Timed
 FEED_S = 1.0
 """How often a synthetic application publishes a key whose channels send at every turn."""
 
+Drawer = Callable[[random.Random], int]
+"""Draws one valid code of a field."""
+
 PACE_STEP_S = 0.1
 """Wall seconds between two checks of the pace with ``--speed``."""
 
 DRAWS = 8
-"""Random codes tried for a synthetic value before falling back to all-zero codes."""
+"""Random codes tried for a field of a plug-in type before falling back to its zero code."""
 
 
 def synthetic_value(layout: Layout, rng: random.Random) -> Any:
-    """A value the layout encodes: random codes decoded (some codes, e.g. past an enum's
-    last value, are invalid), else the all-zero codes."""
-    for _ in range(DRAWS):
-        try:
-            value = layout.unpack(rng.getrandbits(layout.bits) if layout.bits else 0)
-            layout.pack(value)
-            return value
-        except (DecodeError, EncodeError):
-            continue
-    return layout.unpack(0)
+    """A value the layout encodes: each field's code drawn uniformly among its valid codes
+    (:func:`code_drawer`), the same distribution as drawing whole random codes until one
+    decodes, without the failed draws; the all-zero codes if even that fails."""
+    n = 0
+    for codec, draw in _drawers(layout):
+        n = (n << codec.bits) | draw(rng)
+    try:
+        value = layout.unpack(n)
+        layout.pack(value)
+        return value
+    except (DecodeError, EncodeError):
+        return layout.unpack(0)
+
+
+def code_drawer(codec: FieldCodec) -> Drawer:
+    """Draws a valid code of one field: directly for the built-in value types whose valid
+    codes are a range, else random codes until one decodes (:data:`DRAWS` tries, then 0)."""
+    if isinstance(codec, FloatCodec | IntCodec):
+        top = codec.kmax + 1
+        return lambda rng: rng.randrange(top)
+    if isinstance(codec, EnumCodec):
+        top = len(codec.names)
+        return lambda rng: rng.randrange(top)
+    if isinstance(codec, BoolCodec):
+        return lambda rng: rng.getrandbits(1)
+    if isinstance(codec, ArrayCodec):
+        element, count, width = code_drawer(codec.element), codec.count, codec.element.bits
+
+        def array(rng: random.Random) -> int:
+            n = 0
+            for _ in range(count):
+                n = (n << width) | element(rng)
+            return n
+
+        return array
+
+    def reject(rng: random.Random) -> int:
+        for _ in range(DRAWS):
+            code = rng.getrandbits(codec.bits) if codec.bits else 0
+            try:
+                codec.decode(code)
+                return code
+            except DecodeError:
+                continue
+        return 0
+
+    return reject
+
+
+_DRAWERS: weakref.WeakKeyDictionary[Layout, list[tuple[FieldCodec, Drawer]]] = \
+    weakref.WeakKeyDictionary()
+
+
+def _drawers(layout: Layout) -> list[tuple[FieldCodec, Drawer]]:
+    """Each field's :func:`code_drawer`, made once per layout."""
+    drawers = _DRAWERS.get(layout)
+    if drawers is None:
+        drawers = _DRAWERS[layout] = [(f, code_drawer(f)) for f in layout.fields]
+    return drawers
 
 
 def feed(fleet: FastFleet, rng: random.Random, until: float) -> int:
