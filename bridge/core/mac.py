@@ -40,6 +40,7 @@ import random
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import ClassVar
 
 from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, RangingSlots, TdmaMac
 from bridge.ranging.twr import AnchorReplier, round_timeout, tmax
@@ -95,6 +96,10 @@ class Slot:
 class Schedule(ABC):
     """One node's view of a MAC (see the module docstring)."""
 
+    fixed: ClassVar[bool] = False
+    """True when opportunities depend only on time and this node's own sends, never on what
+    it hears or has due: a driver need not re-plan after a reception."""
+
     @abstractmethod
     def next_opportunity(self, now: float, due: float | None) -> Opportunity | None:
         """The next opportunity not yet used, or None (wait for data or a reception)."""
@@ -114,6 +119,8 @@ class Schedule(ABC):
 
 class TdmaSchedule(Schedule):
     """The static TDMA cycle as seen by one node."""
+
+    fixed = True
 
     def __init__(self, mac: TdmaMac, node: str, *, always: bool = False) -> None:
         self.slot_s = mac.slot_s

@@ -392,10 +392,11 @@ class NodeCore:
                 for element, value in zip(channel.elements, elements, strict=True):
                     self._publish(element.output_key(src, self.node), value, element.encoding,
                                   channel.latching)
-        self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
+        meta = plain(rx.meta)
+        self._status(f"peers/{src}", {"last_heard": now, "meta": meta})
         self._notice("frame_received", {
             "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
-            "data": rx.data, "meta": plain(rx.meta), "values": values})
+            "data": rx.data, "meta": dict(meta), "values": values})
 
     def _receiver(self, src: str, channel: ChannelCodec) -> ReliableReceiver | TransferReceiver:
         key = (src, channel.index)
@@ -537,7 +538,9 @@ class NodeCore:
         }
 
 
+_SCALARS = (int, float, str, bool, type(None))
+
+
 def plain(meta: Mapping[str, Any]) -> dict[str, Any]:
     """Link metadata reduced to msgpack-able scalars."""
-    return {str(k): v for k, v in dict(meta).items()
-            if isinstance(v, int | float | str | bool) or v is None}
+    return {str(k): v for k, v in meta.items() if isinstance(v, _SCALARS)}

@@ -8,10 +8,11 @@ Zenoh JSON5 configuration (``"transport/link/tx/lease": 2000``).
 
 from __future__ import annotations
 
+from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from bridge.codec import FieldSpec
 
@@ -312,7 +313,6 @@ class Mission(Strict):
     link: LinkHealth = Field(default_factory=LinkHealth)
     ranging: Ranging = Field(default_factory=Ranging)
     channels: list[Channel] = Field(default_factory=list)
-    _names: dict[int, str] = PrivateAttr(default_factory=dict)
 
     def node_modem(self, name: str) -> Modem:
         """The modem settings of ``name``: mission defaults with the node's overrides."""
@@ -328,11 +328,16 @@ class Mission(Strict):
 
     def name_of(self, address: int) -> str | None:
         """The node at ``address`` (the first in file order), None if there is none."""
-        name = self._names.get(address)  # looked up per received frame: kept, and checked
+        name = self.names_found.get(address)  # asked per received frame: kept, and checked
         node = self.nodes.get(name) if name is not None else None
         if node is not None and node.address == address:
             return name
         name = next((n for n, node in self.nodes.items() if node.address == address), None)
         if name is not None:
-            self._names[address] = name
+            self.names_found[address] = name
         return name
+
+    @cached_property
+    def names_found(self) -> dict[int, str]:
+        """Node names by address, as :meth:`name_of` found them."""
+        return {}

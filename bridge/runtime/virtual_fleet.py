@@ -23,14 +23,45 @@ from typing import Any
 from bridge.core.mac import schedule_for
 from bridge.core.node import NodeCore, Output, Publish
 from bridge.core.positioning import simulated_preset
+from bridge.errors import FrameError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import Reception
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
 from bridge.sim.path import Path
 from bridge.sim.presets import Preset
+from bridge.wire.frame import DecodedFrame
 from bridge.wire.payloads import encode_payload
 
 TICK_S = 1.0
+
+DECODED_KEPT = 64
+"""Frames whose decoding the receivers share at a time (a frame's receptions end within
+a few seconds of each other)."""
+
+
+class SharedDecoder:
+    """Decodes each frame once for all its receivers, for missions without authentication
+    (decoding is then a pure function of the bytes and the sender). Receivers share the
+    decoded values, as they share the frame's bytes: read-only."""
+
+    def __init__(self, decode: Callable[[bytes, int | None], DecodedFrame]) -> None:
+        self._decode = decode
+        self._kept: dict[tuple[bytes, int | None], DecodedFrame | FrameError] = {}
+
+    def __call__(self, frame: bytes, src: int | None = None) -> DecodedFrame:
+        key = (frame, src)
+        done = self._kept.get(key)
+        if done is None:
+            try:
+                done = self._decode(frame, src)
+            except FrameError as exc:
+                done = exc
+            if len(self._kept) >= DECODED_KEPT:
+                self._kept.clear()
+            self._kept[key] = done
+        if isinstance(done, FrameError):
+            raise FrameError(str(done), done.reason)
+        return done
 
 
 @dataclass(frozen=True)
@@ -73,6 +104,10 @@ class FastFleet:
                 self.ocean.set_path(node.address, Path.from_spec(node.path), start)
         self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"))
                       for name in mission.nodes}
+        if mission.wire.auth is None:  # every core's codec is the same pure function
+            shared = SharedDecoder(next(iter(self.cores.values())).codec.decode)
+            for core in self.cores.values():
+                core.codec.decode = shared  # type: ignore[method-assign]
         self.schedules = {name: schedule_for(mission, name, seed=seed) for name in mission.nodes}
         self.now = start
         self.outputs: list[Timed] = []
@@ -237,7 +272,8 @@ class FastFleet:
         if core.stats.frames_received > valid and src is not None:  # a valid frame: tell the MAC
             self.schedules[name].on_heard(src, event.meta.get("dest") == event.dst, event.end)
         self._collect(name)
-        self._replan(name)
+        if not self.schedules[name].fixed:
+            self._replan(name)
 
     def _collect(self, name: str) -> None:
         for output in self.cores[name].take():

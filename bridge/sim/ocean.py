@@ -151,7 +151,7 @@ class LinkStats:
         return {"sent": self.sent, "delivered": self.delivered, "lost": dict(self.lost)}
 
 
-@dataclass
+@dataclass(slots=True)
 class _Rx:
     frame_id: int
     src: int
@@ -165,6 +165,7 @@ class _Rx:
     distance_m: float
     travel_s: float
     audible: bool
+    link: LinkStats
     decided: bool = False
 
 
@@ -322,30 +323,23 @@ class Ocean:
         self._tx_intervals[src].append((now, tx_end))
         self._tx_count[src] = self._tx_count.get(src, 0) + 1
         data = bytes(data)
+        here = self.position(src)
+        min_range, max_range = p.min_range_m, p.max_range_m
+        queue, open_ = self._queue, self._open
         for dst in sorted(self._positions):
             if dst == src:
                 continue
-            dist = self.distance(src, dst)
-            travel = p.propagation_s(max(dist, p.min_range_m))
-            rx = _Rx(
-                frame_id=frame_id,
-                src=src,
-                dst=dst,
-                data=data,
-                dest=dest,
-                sent_at=now,
-                tx_start=tx_start,
-                start=tx_start + travel,
-                end=tx_end + travel,
-                distance_m=dist,
-                travel_s=travel,
-                audible=dist <= p.max_range_m,
-            )
-            self._link(src, dst).sent += 1
-            self._push(rx.end, rx)
+            dist = math.dist(here, self.position(dst))
+            travel = p.propagation_s(max(dist, min_range))
+            link = self._link(src, dst)
+            rx = _Rx(frame_id, src, dst, data, dest, now, tx_start, tx_start + travel,
+                     tx_end + travel, dist, travel, dist <= max_range, link)
+            link.sent += 1
+            self._seq += 1
+            heapq.heappush(queue, (rx.end, self._seq, rx))
             if rx.audible:
                 self._rx_intervals.setdefault(dst, []).append(rx)
-                heapq.heappush(self._open, (rx.start, self._seq, rx))
+                heapq.heappush(open_, (rx.start, self._seq, rx))
         self._push(tx_end, TxDone(src=src, time=tx_end, frame_id=frame_id))
         return tx_end
 
@@ -422,7 +416,7 @@ class Ocean:
         self._prune(rx.dst)
         reason = self._reason(rx)
         rx.decided = True
-        ls = self._link(rx.src, rx.dst)
+        ls = rx.link
         if reason is not None:
             ls.lost[reason] = ls.lost.get(reason, 0) + 1
             return Loss(dst=rx.dst, src=rx.src, reason=reason, time=rx.end, frame_id=rx.frame_id)
