@@ -233,8 +233,10 @@ class FastFleet:
         self._set_next_tx(name, None if opp is None else max(opp.start, self.now, busy))
 
     def _replan(self, name: str) -> None:
-        """New data or a reception may change the next opportunity (a poll, a ranging turn)."""
-        self._plan(name)
+        """New data or a reception may change the next opportunity (a poll, a ranging turn),
+        unless the schedule is fixed (TDMA: time and own sends only)."""
+        if not self.schedules[name].fixed:
+            self._plan(name)
 
     def _transmit(self, name: str) -> None:
         core, schedule, now = self.cores[name], self.schedules[name], self.now
@@ -272,8 +274,7 @@ class FastFleet:
         if core.stats.frames_received > valid and src is not None:  # a valid frame: tell the MAC
             self.schedules[name].on_heard(src, event.meta.get("dest") == event.dst, event.end)
         self._collect(name)
-        if not self.schedules[name].fixed:
-            self._replan(name)
+        self._replan(name)
 
     def _collect(self, name: str) -> None:
         for output in self.cores[name].take():

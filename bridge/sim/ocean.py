@@ -448,7 +448,7 @@ class Ocean:
         if spans and spans[0][1] < horizon:
             self._tx_intervals[addr] = [s for s in spans if s[1] >= horizon]
         rxs = self._rx_intervals.get(addr)
-        if rxs and any(r.end < horizon for r in rxs):
+        if rxs and rxs[0].end < horizon:  # the oldest filed; later ones go with it
             self._rx_intervals[addr] = [r for r in rxs if r.end >= horizon]
 
 
