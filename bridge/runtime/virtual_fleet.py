@@ -187,6 +187,10 @@ class FastFleet:
         self._next_tx[name] = t
         if t is not None:
             heapq.heappush(self._tx_heap, (t, self._order[name], name))
+            if len(self._tx_heap) > 4 * len(self._order) + 64:  # mostly stale: rebuild
+                self._tx_heap = [(at, self._order[n], n) for n, at in self._next_tx.items()
+                                 if at is not None]
+                heapq.heapify(self._tx_heap)
 
     def _next_transmit(self) -> float | None:
         """The earliest planned transmission (stale heap entries dropped on the way)."""
@@ -198,6 +202,8 @@ class FastFleet:
     def _due_transmitters(self, now: float) -> list[str]:
         """Nodes whose planned transmission is due at ``now``, in mission order."""
         heap, due = self._tx_heap, {}
+        if not heap or heap[0][0] > now:
+            return []
         while heap and heap[0][0] <= now:
             t, order, name = heapq.heappop(heap)
             if self._next_tx.get(name) == t:
