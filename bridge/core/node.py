@@ -374,7 +374,7 @@ class NodeCore:
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
                 continue
-            if self.node not in channel.destinations(src):
+            if not channel.reaches(src, self.node):
                 continue  # overheard: addressed to others
             if channel.fragmented:
                 delivered = self._on_fragment(src, channel, entry.header, entry.chunk, now)

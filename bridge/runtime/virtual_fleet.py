@@ -64,7 +64,7 @@ class SharedDecoder:
         return done
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Timed:
     """An output of ``node`` at virtual time ``time``."""
 

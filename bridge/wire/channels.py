@@ -152,6 +152,15 @@ class ChannelCodec:
         """:meth:`destinations` by sender, filled as asked (a frame names them per entry)."""
         return {}
 
+    def reaches(self, sender: str, node: str) -> bool:
+        """Whether ``node`` is a destination when ``sender`` sends this channel (asked per
+        received entry: a set, not a scan of every receiver)."""
+        return node != sender and node in self._receiver_set
+
+    @cached_property
+    def _receiver_set(self) -> frozenset[str]:
+        return frozenset(self.receivers)
+
     def pack(self, values: Sequence[object]) -> int:
         """All element values as one integer of ``bits`` bits, first element most significant."""
         n = 0
