@@ -67,3 +67,24 @@ def test_synthetic_values_are_valid_and_uniform_over_valid_codes() -> None:
     codes = [layout.pack(synthetic_value(layout, rng)) for _ in range(4000)]
     assert max(codes) <= 10000 and abs(sum(codes) / len(codes) - 5000) < 200
     assert codes.count(0) < 5
+
+
+def test_receivers_sharing_a_frames_decoding_see_what_their_own_decoding_gives() -> None:
+    import pytest
+
+    from bridge.errors import FrameError
+    from bridge.runtime.virtual_fleet import SharedDecoder
+
+    shared = run_morph(seed=4)
+    fleet = FastFleet(load_mission(MISSIONS / "morph.yaml"), seed=4)
+    for core in fleet.cores.values():
+        del core.codec.decode  # back to each core's own FrameCodec.decode
+    for i in range(40):
+        fleet.put("lsv", "target_reference", {"vector": {"x": 0.1 * i, "y": 0.0}}, at=i * 15.0)
+    fleet.run_until(600.0)
+    assert [repr(t) for t in shared.outputs] == [repr(t) for t in fleet.outputs]
+    decode = SharedDecoder(fleet.cores["gcv"].codec.decode)
+    for _ in range(2):  # a refused frame is refused for every receiver, with its reason
+        with pytest.raises(FrameError) as refused:
+            decode(bytes(20), 3)
+        assert refused.value.reason == "check"
