@@ -224,7 +224,8 @@ async def run_fast(
         if record is not None:
             record(timed.node, timed.output.kind, timed.output.info)
 
-    fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False)
+    fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False,
+                      kinds=(Notice,))  # what on_output looks at
     feed(fleet, random.Random(f"feed/{seed}"), duration)
     started = time.perf_counter()
     step = duration if speed is None else speed * PACE_STEP_S

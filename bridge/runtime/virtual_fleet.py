@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from bridge.core.mac import schedule_for
-from bridge.core.node import NodeCore, Output, Publish
+from bridge.core.node import NodeCore, Notice, Output, Publish, Status
 from bridge.core.positioning import simulated_preset
 from bridge.errors import FrameError
 from bridge.mission.loader import LoadedMission
@@ -86,8 +86,10 @@ class FastFleet:
         start: float = 0.0,
         on_output: Callable[[Timed], None] | None = None,
         keep_outputs: bool = True,
+        kinds: tuple[type, ...] = (Publish, Status, Notice),
     ) -> None:
-        """``keep_outputs`` false: outputs only go to ``on_output`` (long runs)."""
+        """``keep_outputs`` false: outputs only go to ``on_output`` (long runs); ``kinds``:
+        the output types kept and passed on (others are dropped unseen)."""
         mission = loaded.mission
         self.loaded = loaded
         self.mission = mission
@@ -113,6 +115,7 @@ class FastFleet:
         self.outputs: list[Timed] = []
         self.on_output = on_output
         self.keep_outputs = keep_outputs
+        self.kinds = kinds
         self.stopped: set[str] = set()
         self._order = {name: i for i, name in enumerate(mission.nodes)}
         self._names = {node.address: name for name, node in reversed(mission.nodes.items())}
@@ -284,6 +287,8 @@ class FastFleet:
 
     def _collect(self, name: str) -> None:
         for output in self.cores[name].take():
+            if not isinstance(output, self.kinds):
+                continue
             timed = Timed(self.now, name, output)
             if self.keep_outputs:
                 self.outputs.append(timed)
