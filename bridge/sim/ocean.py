@@ -398,10 +398,12 @@ class Ocean:
     def _reason(self, rx: _Rx) -> str | None:
         if not rx.audible:
             return "out_of_range"
-        if any(a < rx.end and rx.start < b for a, b in self._tx_intervals.get(rx.dst, ())):
-            return "half_duplex"
+        start, end = rx.start, rx.end
+        for a, b in self._tx_intervals.get(rx.dst, ()):
+            if a < end and start < b:
+                return "half_duplex"
         for other in self._rx_intervals.get(rx.dst, ()):
-            if other.frame_id != rx.frame_id and other.start < rx.end and rx.start < other.end:
+            if other.start < end and start < other.end and other.frame_id != rx.frame_id:
                 return "collision"
         p = self.preset
         if self._rng.random() < self.loss_curve(rx.distance_m, p.max_range_m):
