@@ -67,27 +67,29 @@ class OutboundStore:
     """
 
     states: dict[int, ChannelState] = field(default_factory=dict)
-    _heap: list[tuple[float, int, int]] = field(default_factory=list, init=False, repr=False)
-    _version: dict[int, int] = field(default_factory=dict, init=False, repr=False)
+    _heap: list[tuple[float, int]] = field(default_factory=list, init=False, repr=False)
+    _filed: dict[int, float | None] = field(default_factory=dict, init=False, repr=False)
     _ttl: list[ChannelState] = field(default_factory=list, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._ttl = [s for s in self.states.values() if s.channel.ttl_s is not None]
         for state in self.states.values():
-            self._changed(state)
+            if state.channel.ttl_s is None:
+                self._changed(state)
 
     def _changed(self, state: ChannelState) -> None:
-        """Re-file ``state``'s due time (channels with a ``ttl_s`` are not filed)."""
-        index = state.channel.index
-        version = self._version[index] = self._version.get(index, 0) + 1
+        """Re-file ``state``'s due time (channels with a ``ttl_s`` are not filed); a heap entry
+        counts while it holds its channel's filed time."""
         if state.channel.ttl_s is not None:
             return
-        ready = state.ready_at()
+        index, ready = state.channel.index, state.ready_at()
+        if index in self._filed and self._filed[index] == ready:
+            return  # unchanged: its entry stands
+        self._filed[index] = ready
         if ready is not None:
-            heapq.heappush(self._heap, (ready, version, index))
+            heapq.heappush(self._heap, (ready, index))
             if len(self._heap) > 4 * len(self.states) + 16:  # stale entries: compact
-                self._heap = [e for e in self._heap if self._version[e[2]] == e[1]]
-                heapq.heapify(self._heap)
+                self._heap = sorted({e for e in self._heap if self._filed[e[1]] == e[0]})
 
     @classmethod
     def for_node(cls, channels: Iterable[ChannelCodec], node: str) -> OutboundStore:
@@ -127,8 +129,8 @@ class OutboundStore:
 
     def next_due(self, now: float | None = None) -> float | None:
         """The earliest time a channel becomes due (may be in the past), or None."""
-        heap, version = self._heap, self._version
-        while heap and version[heap[0][2]] != heap[0][1]:
+        heap, filed = self._heap, self._filed
+        while heap and filed[heap[0][1]] != heap[0][0]:
             heapq.heappop(heap)
         best = heap[0][0] if heap else None
         for state in self._ttl:
