@@ -58,11 +58,9 @@ def code_drawer(codec: FieldCodec) -> Drawer:
     """Draws a valid code of one field: directly for the built-in value types whose valid
     codes are a range, else random codes until one decodes (:data:`DRAWS` tries, then 0)."""
     if isinstance(codec, FloatCodec | IntCodec):
-        top = codec.kmax + 1
-        return lambda rng: rng.randrange(top)
+        return _below(codec.kmax + 1)
     if isinstance(codec, EnumCodec):
-        top = len(codec.names)
-        return lambda rng: rng.randrange(top)
+        return _below(len(codec.names))
     if isinstance(codec, BoolCodec):
         return lambda rng: rng.getrandbits(1)
     if isinstance(codec, ArrayCodec):
@@ -87,6 +85,19 @@ def code_drawer(codec: FieldCodec) -> Drawer:
         return 0
 
     return reject
+
+
+def _below(top: int) -> Drawer:
+    """``rng.randrange(top)``, the same draws, without its Python-level argument checks."""
+    bits = top.bit_length()
+
+    def draw(rng: random.Random) -> int:
+        code = rng.getrandbits(bits)
+        while code >= top:
+            code = rng.getrandbits(bits)
+        return code
+
+    return draw
 
 
 _DRAWERS: weakref.WeakKeyDictionary[Layout, list[tuple[FieldCodec, Drawer]]] = \
