@@ -275,8 +275,8 @@ def sweep(nodes: list[int], channels: list[int], duration: float, repeat: int,
     print(f"virtual clock: zab sim MISSION --fast --duration {duration:g}, whole process, "
           f"median of {repeat}; load average before: {os.getloadavg()[0]:.2f} (2 cores, shared)")
     if os.environ.get("PYTHONDONTWRITEBYTECODE"):
-        print("PYTHONDONTWRITEBYTECODE is set: every run compiles its ~230 modules (~0.4 s of "
-              "start-up that an installed package does not pay)")
+        print("PYTHONDONTWRITEBYTECODE is set: modules without a cached .pyc are compiled at "
+              "every run (up to ~0.4 s of start-up that an installed package does not pay)")
     print(f"{'tree':<10} {'nodes':>5} {'chan':>5} {'wall s':>7} {'cpu s':>6} {'× real':>7} "
           f"{'× (sim)':>8} {'µs/rx':>6} {'rx':>8}  target")
     with tempfile.TemporaryDirectory() as tmp:
