@@ -1,34 +1,42 @@
-"""Scale and cost: 16 nodes × 64 channels in one ``zab sim``, and an hour on the virtual clock.
+"""Scale and cost: many nodes × many channels, in ``zab sim`` and on the virtual clock.
 
 A generated mission: ``--nodes`` vehicles on EvoLogics S2C timings (64-byte frames) within
 a few hundred metres, static TDMA (one 1 s slot each), ``--channels`` channels spread over the
 nodes (each node sends its share to every other node; a few fields, every slot or every few
-seconds). Measured:
+seconds). Acoustic addresses stop at 254, so at most 254 nodes. Measured:
 
-1. ``zab sim`` (the real command: every node's Zenoh peer, bridge and modem, plus the water,
-   in one process) run as a subprocess; its CPU time and resident memory read from ``/proc``
-   during an idle window (nobody publishes) and a loaded window (one application per node
-   publishing each of its input keys ``--rate`` times a second). Per node = process / nodes;
-   the marginal memory per node comes from the same run with 2 nodes. Frame rates come from
-   the nodes' own ``@zab/<mission>/<node>/stats``.
-2. The same mission for ``--hours`` on the virtual clock (``zab sim --fast``: every core over
-   the pure ocean, synthetic inputs): how many times faster than real time, frames per wall
-   second.
+1. The virtual clock, as a sweep over every ``--nodes`` × ``--channels``: the whole
+   ``zab sim MISSION --fast --duration D`` process (start-up, simulation, printed report) run
+   ``--repeat`` times; printed: the median wall time, the speed-up (virtual seconds per wall
+   second, whole process and simulation alone as the report gives it), CPU seconds, and µs
+   of simulation per received frame, which should stay flat as the fleet grows.
+   ``--against DIR`` also runs a source tree of another version (e.g. ``git archive`` of an
+   older commit) on the same missions, interleaved run by run, so both see the same load.
+2. With ``--zenoh`` (one node count): ``zab sim`` (the real command: every node's Zenoh peer,
+   bridge and modem, plus the water, in one process) run as a subprocess; its CPU time and
+   resident memory read from ``/proc`` during an idle window (nobody publishes) and a loaded
+   window (one application per node publishing each of its input keys ``--rate`` times a
+   second). Per node = process / nodes; the marginal memory per node comes from the same run
+   with 2 nodes. Frame rates come from the nodes' own ``@zab/<mission>/<node>/stats``.
 
-Targets: ≤ 80 MB resident and ≤ 2 % of one core per idle node; ≥ 50× real time.
-The machine may be shared: the load average is printed with the results.
+Targets: virtual clock ≥ 500× real time at 64 × 64 (simulation) and ≥ 100× at 250 × 64
+(whole process);
+≤ 80 MB resident and ≤ 2 % of one core per idle node. The machine may be shared: the load
+average is printed with the results, and medians are quoted.
 
-Run: ``uv run python bench/scale_bench.py [--nodes 16] [--channels 64] [--idle 20]
-[--loaded 20] [--rate 1] [--hours 1]``.
+Run: ``uv run python bench/scale_bench.py [--nodes 16 32 64 250] [--channels 64]
+[--duration 600] [--repeat 3] [--against DIR] [--zenoh [--idle 20] [--loaded 20] [--rate 1]]``.
 """
 
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import os
+import re
+import resource
 import socket
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -41,12 +49,12 @@ import msgpack
 import yaml
 import zenoh
 
-from bridge.cli.sim_fast import run_fast
-from bridge.mission.loader import parse_mission
-
 TICK = os.sysconf("SC_CLK_TCK")
 SLOT_S = 1.0
-TARGET_RSS_MB, TARGET_CPU_PCT, TARGET_SPEEDUP = 80.0, 2.0, 50.0
+TARGET_RSS_MB, TARGET_CPU_PCT = 80.0, 2.0
+TARGET_SPEEDUP = {(64, 64): ("sim_speedup", 500.0), (250, 64): ("speedup", 100.0)}
+"""(nodes, channels): (which speed-up, × real time): the simulation's own at 64 × 64 (as in
+issue #14's 452× / 202× / 130× at 16 / 32 / 64 nodes), the whole process at 250 × 64."""
 
 
 def free_port() -> int:
@@ -213,11 +221,82 @@ def measure_zab_sim(data: dict[str, Any], idle_s: float, loaded_s: float,
             "idle": window(a, b, frames_a, frames_b), "loaded": loaded}
 
 
-def measure_fast(data: dict[str, Any], hours: float) -> dict[str, Any]:
-    loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), "scale.yaml")
-    report = asyncio.run(run_fast(loaded, duration=3600.0 * hours, seed=1))
-    return {key: report[key] for key in ("duration_s", "wall_s", "speedup", "frames_sent",
-                                         "frames_received", "frames_per_wall_s")}
+@dataclass
+class FastRun:
+    """One whole ``zab sim --fast`` process and what its closing line says."""
+
+    wall_s: float
+    cpu_s: float
+    sim_s: float  # the simulation alone, as the command reports it
+    received: int
+
+
+CLOSING = re.compile(r"simulated in ([0-9.]+) s wall .*?(\d+) frames sent, (\d+) received")
+
+
+def run_fast_process(mission: Path, duration: float, tree: Path | None) -> FastRun:
+    """``zab sim MISSION --fast --duration D`` as a subprocess (from source tree ``tree``, or
+    this one), timed whole; simulation time and frames from its closing line."""
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    started = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "bridge", "sim", str(mission), "--fast",
+                           "--duration", str(duration)], check=True, env=env,
+                          cwd=tree or Path.cwd(), capture_output=True, text=True)
+    wall = time.perf_counter() - started
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    closing = CLOSING.search(" ".join(done.stdout.split()))
+    if closing is None:
+        raise RuntimeError(f"no closing line from zab sim --fast:\n{done.stdout[-2000:]}")
+    return FastRun(wall, cpu, float(closing.group(1)), int(closing.group(3)))
+
+
+def summarize(runs: list[FastRun], duration: float) -> dict[str, float]:
+    """Medians over the runs: whole-process wall, CPU and speed-up, the simulation's own
+    speed-up, and µs of simulation per received frame."""
+    wall = statistics.median(r.wall_s for r in runs)
+    sim = statistics.median(r.sim_s for r in runs)
+    received = runs[0].received
+    return {"wall_s": wall, "cpu_s": statistics.median(r.cpu_s for r in runs),
+            "speedup": duration / wall, "sim_speedup": duration / sim,
+            "us_per_rx": 1e6 * sim / received if received else float("nan"),
+            "received": received}
+
+
+def sweep(nodes: list[int], channels: list[int], duration: float, repeat: int,
+          against: Path | None) -> None:
+    """The virtual-clock sweep (see the module docstring), printed as one table."""
+    trees: list[tuple[str, Path | None]] = [("this", None)]
+    if against is not None:
+        trees.append((against.name, against.resolve()))
+    print(f"virtual clock: zab sim MISSION --fast --duration {duration:g}, whole process, "
+          f"median of {repeat}; load average before: {os.getloadavg()[0]:.2f} (2 cores, shared)")
+    if os.environ.get("PYTHONDONTWRITEBYTECODE"):
+        print("PYTHONDONTWRITEBYTECODE is set: modules without a cached .pyc are compiled at "
+              "every run (up to ~0.4 s of start-up that an installed package does not pay)")
+    print(f"{'tree':<10} {'nodes':>5} {'chan':>5} {'wall s':>7} {'cpu s':>6} {'× real':>7} "
+          f"{'× (sim)':>8} {'µs/rx':>6} {'rx':>8}  target")
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in nodes:
+            for c in channels:
+                mission = Path(tmp) / f"scale-{n}x{c}.yaml"
+                mission.write_text(yaml.safe_dump(mission_data(n, c), sort_keys=False))
+                runs: dict[str, list[FastRun]] = {name: [] for name, _ in trees}
+                for _ in range(repeat):  # interleaved: every tree sees the same load
+                    for name, tree in trees:
+                        runs[name].append(run_fast_process(mission, duration, tree))
+                for name, _ in trees:
+                    m = summarize(runs[name], duration)
+                    target = TARGET_SPEEDUP.get((n, c))
+                    goal = "" if target is None else \
+                        f"{target[0]} {verdict(m[target[0]], target[1], False)}"
+                    print(f"{name:<10} {n:5d} {c:5d} {m['wall_s']:7.2f} {m['cpu_s']:6.2f} "
+                          f"{m['speedup']:7.1f} {m['sim_speedup']:8.1f} {m['us_per_rx']:6.1f} "
+                          f"{m['received']:8d}  {goal}", flush=True)
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 
 def verdict(value: float, target: float, at_most: bool) -> str:
@@ -225,24 +304,16 @@ def verdict(value: float, target: float, at_most: bool) -> str:
     return f"{'meets' if ok else 'MISSES'} {'≤' if at_most else '≥'} {target:g}"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--nodes", type=int, default=16)
-    parser.add_argument("--channels", type=int, default=64)
-    parser.add_argument("--idle", type=float, default=20.0, help="idle window, seconds")
-    parser.add_argument("--loaded", type=float, default=20.0, help="loaded window, seconds")
-    parser.add_argument("--rate", type=float, default=1.0, help="puts per key per second")
-    parser.add_argument("--hours", type=float, default=1.0, help="virtual-clock mission")
-    args = parser.parse_args()
-    data = mission_data(args.nodes, args.channels)
-    print(f"{args.nodes} nodes × {args.channels} channels, TDMA {args.nodes} × {SLOT_S:g} s, "
+def zenoh_part(nodes: int, channels: int, idle_s: float, loaded_s: float, rate: float) -> None:
+    """``zab sim`` with Zenoh: CPU and memory per node, idle and loaded (module docstring)."""
+    data = mission_data(nodes, channels)
+    print(f"{nodes} nodes × {channels} channels, TDMA {nodes} × {SLOT_S:g} s, "
           f"evologics-s2c-im; load average before: {os.getloadavg()[0]:.2f}")
-    big = measure_zab_sim(data, args.idle, args.loaded, args.rate)
-    small = measure_zab_sim(mission_data(2, 2 * args.channels // args.nodes), args.idle / 2,
-                            1.0, args.rate)
-    marginal = (big["idle"]["rss_mb"] - small["idle"]["rss_mb"]) / (args.nodes - 2)
+    big = measure_zab_sim(data, idle_s, loaded_s, rate)
+    small = measure_zab_sim(mission_data(2, 2 * channels // nodes), idle_s / 2, 1.0, rate)
+    marginal = (big["idle"]["rss_mb"] - small["idle"]["rss_mb"]) / (nodes - 2)
     idle, loaded = big["idle"], big["loaded"]
-    print(f"\nzab sim (one process, {args.nodes} Zenoh peers + bridges + water), "
+    print(f"\nzab sim (one process, {nodes} Zenoh peers + bridges + water), "
           f"started in {big['startup_s']} s")
     print(f"{'window':<8} {'s':>5} {'CPU %/node':>11} {'RSS MB/node':>12} {'RSS MB':>8} "
           f"{'frames tx/s':>12} {'frames rx/s':>12}")
@@ -256,13 +327,30 @@ def main() -> None:
     print(f"idle node: CPU {idle['cpu_pct_per_node']} % of a core "
           f"({verdict(idle['cpu_pct_per_node'], TARGET_CPU_PCT, True)}), "
           f"RSS {idle['rss_mb_per_node']} MB per node, {marginal:.1f} MB marginal "
-          f"({verdict(idle['rss_mb_per_node'], TARGET_RSS_MB, True)})")
-    fast = measure_fast(data, args.hours)
-    print(f"\nvirtual clock: {fast['duration_s']:g} s of mission in {fast['wall_s']} s wall = "
-          f"{fast['speedup']:g}× real time ({verdict(fast['speedup'], TARGET_SPEEDUP, False)}); "
-          f"{fast['frames_sent']} frames sent, {fast['frames_received']} received, "
-          f"{fast['frames_per_wall_s']:g} frames handled per wall second")
-    print(f"load average after: {os.getloadavg()[0]:.2f} (2 cores, shared)")
+          f"({verdict(idle['rss_mb_per_node'], TARGET_RSS_MB, True)})\n")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--nodes", type=int, nargs="+", default=[16, 32, 64, 250],
+                        help="fleet sizes to sweep (2..254)")
+    parser.add_argument("--channels", type=int, nargs="+", default=[64])
+    parser.add_argument("--duration", type=float, default=600.0,
+                        help="virtual seconds per run")
+    parser.add_argument("--repeat", type=int, default=3, help="runs per point (median)")
+    parser.add_argument("--against", type=Path, default=None,
+                        help="another source tree to run side by side (e.g. git archive)")
+    parser.add_argument("--zenoh", action="store_true",
+                        help="also measure zab sim with Zenoh (first --nodes value)")
+    parser.add_argument("--idle", type=float, default=20.0, help="idle window, seconds")
+    parser.add_argument("--loaded", type=float, default=20.0, help="loaded window, seconds")
+    parser.add_argument("--rate", type=float, default=1.0, help="puts per key per second")
+    args = parser.parse_args()
+    if not all(2 <= n <= 254 for n in args.nodes):
+        parser.error("--nodes: 2..254 (acoustic addresses stop at 254)")
+    if args.zenoh:
+        zenoh_part(args.nodes[0], args.channels[0], args.idle, args.loaded, args.rate)
+    sweep(args.nodes, args.channels, args.duration, args.repeat, args.against)
 
 
 if __name__ == "__main__":

@@ -3,13 +3,21 @@
 from __future__ import annotations
 
 from bridge.core.node import Publish
-from bridge.mission.loader import load_mission
+from bridge.mission.loader import LoadedMission, load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 
 
-def run_morph(seed: int) -> FastFleet:
-    fleet = FastFleet(load_mission(MISSIONS / "morph.yaml"), seed=seed)
+def morph(auth: bool = True) -> LoadedMission:
+    """The MORPH mission as shipped (authenticated), or with ``auth: off``."""
+    text = (MISSIONS / "morph.yaml").read_text()
+    if not auth:
+        text = text.replace("auth: {tag_bytes: 4}", "auth: off")
+    return parse_mission(text, "morph.yaml")
+
+
+def run_morph(seed: int, auth: bool = True) -> FastFleet:
+    fleet = FastFleet(morph(auth), seed=seed)
     for i in range(40):
         fleet.put("lsv", "target_reference", {"vector": {"x": 0.1 * i, "y": 0.0}}, at=i * 15.0)
     fleet.run_until(600.0)
@@ -47,3 +55,44 @@ def test_a_stopped_node_goes_down_and_comes_back() -> None:
     assert fleet.cores["ssv"].link_states["gcv"].value == "up"
     assert not any(isinstance(o.output, Publish) for o in fleet.outputs if o.node == "gcv"
                    and 60.0 < o.time < 120.0)
+
+
+def test_synthetic_values_are_valid_and_uniform_over_valid_codes() -> None:
+    """Every input layout of every shipped mission gets values it encodes; a bounded float's
+    codes are drawn evenly over its valid range only (no failed draws, no zero fallback)."""
+    import random
+
+    from bridge.cli.sim_fast import synthetic_value
+    from bridge.codec import Layout
+
+    rng = random.Random(1)
+    for path in sorted(MISSIONS.glob("*.yaml")):
+        for channel in load_mission(path).table.channels:
+            for element in channel.elements:
+                for _ in range(20):
+                    element.layout.pack(synthetic_value(element.layout, rng))
+    layout = Layout.from_fields([{"field": "x", "resolution": 0.1, "min": -500, "max": 500}])
+    codes = [layout.pack(synthetic_value(layout, rng)) for _ in range(4000)]
+    assert max(codes) <= 10000 and abs(sum(codes) / len(codes) - 5000) < 200
+    assert codes.count(0) < 5
+
+
+def test_receivers_sharing_a_frames_decoding_see_what_their_own_decoding_gives() -> None:
+    import pytest
+
+    from bridge.errors import FrameError
+    from bridge.runtime.virtual_fleet import SharedDecoder
+
+    shared = run_morph(seed=4, auth=False)  # authenticated frames are decoded by each core
+    fleet = FastFleet(morph(auth=False), seed=4)
+    for core in fleet.cores.values():
+        del core.codec.decode  # back to each core's own FrameCodec.decode
+    for i in range(40):
+        fleet.put("lsv", "target_reference", {"vector": {"x": 0.1 * i, "y": 0.0}}, at=i * 15.0)
+    fleet.run_until(600.0)
+    assert [repr(t) for t in shared.outputs] == [repr(t) for t in fleet.outputs]
+    decode = SharedDecoder(fleet.cores["gcv"].codec.decode)
+    for _ in range(2):  # a refused frame is refused for every receiver, with its reason
+        with pytest.raises(FrameError) as refused:
+            decode(bytes(20), 3)
+        assert refused.value.reason == "check"

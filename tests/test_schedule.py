@@ -110,3 +110,54 @@ def test_a_value_arriving_while_its_frame_is_sent_stays_due() -> None:
     store.update(index, 0, 6, 10.05)  # arrives while the frame built at 10.0 is in the air
     store.mark_sent(due, 10.0)
     assert [s.channel.index for s in store.due(30.0) if s.channel.index == index] == [index]
+
+
+def test_next_due_follows_every_change() -> None:
+    """The store's heap of due times agrees with a scan over every channel (TTL included)."""
+    import dataclasses
+    import random
+
+    rng = random.Random(7)
+    nav = MORPH.table.by_name("nav")  # sent by lsv; with a ttl_s it is looked at each time
+    channels = [dataclasses.replace(c, ttl_s=3.0) if c is nav else c
+                for c in MORPH.table.channels]
+    store = OutboundStore.for_node(channels, "lsv")
+    assert any(s.channel.ttl_s for s in store.states.values())
+    states = list(store.states.values())
+    now = 0.0
+    for _ in range(400):
+        now += rng.choice((0.0, 0.3, 1.0, 4.0))
+        state = rng.choice(states)
+        if rng.random() < 0.6:
+            for element in range(len(state.packed)):
+                store.update(state.channel.index, element, rng.randrange(2), now)
+        else:
+            store.mark_sent(store.due(now), now)
+        for at in (None, now, now + 5.0):
+            times = [t for s in states if (t := s.ready_at(at)) is not None]
+            assert store.next_due(at) == (min(times) if times else None)
+
+
+def test_link_watch_finds_every_link_change() -> None:
+    """Peers looked at through LinkWatch end in the states a look at every peer gives."""
+    import random
+
+    from bridge.core.link import LinkThresholds, LinkWatch
+
+    rng = random.Random(3)
+    thresholds = LinkThresholds(degraded_after_s=2.0, down_after_s=5.0)
+    peers = [f"p{i}" for i in range(12)]
+    watch = LinkWatch(thresholds, peers)
+    heard: dict[str, float] = {}
+    seen: dict[str, object] = {}
+    now = 0.0
+    for step in range(600):
+        now += rng.choice((0.0, 0.1, 1.0, 1.0 / 3, 2.0, 3.0))
+        if step == 300:
+            now -= 4.0  # a clock stepping back: every peer is looked at again
+        for peer in rng.sample(peers, rng.randrange(3)):
+            heard[peer] = now
+            watch.heard(peer)
+        for peer in watch.due(now, heard):
+            seen[peer] = thresholds.state(heard.get(peer), now)
+        assert seen == {p: thresholds.state(heard.get(p), now) for p in peers}

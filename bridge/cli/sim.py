@@ -22,6 +22,11 @@ from bridge.runtime.fleet import Fleet
 
 REFRESH_S = 0.5
 
+LINK_ROWS = 60
+"""Links listed in the printed report at most: a fleet of n nodes has n × (n − 1) of them
+(62 250 at 250 nodes, minutes of terminal rendering); beyond this the worst are listed and
+the rest summed in one row. ``--report`` keeps every link."""
+
 
 class EventLog:
     """The last few frame events, for the live view."""
@@ -105,13 +110,38 @@ def print_report(console: Console, report: dict[str, Any]) -> None:
                       f"{aoi['mean_s']:.1f} s" if aoi else "—",
                       f"{aoi['max_s']:.1f} s" if aoi else "—")
     console.print(table)
-    if report["links"]:
-        lt = Table("link", "sent", "delivered", "lost", title="acoustic links")
-        for link in report["links"]:
-            lost = {k: v for k, v in link["lost"].items() if v}
-            lt.add_row(link["link"], str(link["sent"]), str(link["delivered"]),
-                       ", ".join(f"{k} {v}" for k, v in lost.items()) or "0")
+    links = report["links"]
+    if links:
+        shown = links if len(links) <= LINK_ROWS else worst_links(links, LINK_ROWS - 1)
+        title = "acoustic links" if shown is links else \
+            f"acoustic links: the {len(shown)} worst of {len(links)}"
+        lt = Table("link", "sent", "delivered", "lost", title=title)
+        for link in shown:
+            lt.add_row(link["link"], str(link["sent"]), str(link["delivered"]), _lost(link))
+        if shown is not links:
+            ids = {id(link) for link in shown}
+            rest = [link for link in links if id(link) not in ids]
+            lost: dict[str, int] = {}
+            for link in rest:
+                for k, v in link["lost"].items():
+                    lost[k] = lost.get(k, 0) + v
+            lt.add_row(f"{len(rest)} others", str(sum(link["sent"] for link in rest)),
+                       str(sum(link["delivered"] for link in rest)), _lost({"lost": lost}))
         console.print(lt)
+
+
+def worst_links(links: list[dict[str, Any]], n: int) -> list[dict[str, Any]]:
+    """The ``n`` links delivering the smallest share of what was sent, in report order."""
+    def ratio(i: int) -> tuple[float, int]:
+        link = links[i]
+        return (link["delivered"] / link["sent"] if link["sent"] else 1.0, i)
+
+    return [links[i] for i in sorted(sorted(range(len(links)), key=ratio)[:n])]
+
+
+def _lost(link: dict[str, Any]) -> str:
+    lost = {k: v for k, v in link["lost"].items() if v}
+    return ", ".join(f"{k} {v}" for k, v in lost.items()) or "0"
 
 
 async def run_sim(

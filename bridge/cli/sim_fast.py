@@ -14,11 +14,13 @@ import asyncio
 import math
 import random
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.codec import Layout
+from bridge.codec.fields import ArrayCodec, BoolCodec, EnumCodec, FieldCodec, FloatCodec, IntCodec
 from bridge.core.node import Notice
 from bridge.errors import DecodeError, EncodeError
 from bridge.mission.loader import LoadedMission
@@ -28,27 +30,91 @@ from bridge.runtime.virtual_fleet import FastFleet, Timed
 FEED_S = 1.0
 """How often a synthetic application publishes a key whose channels send at every turn."""
 
+Drawer = Callable[[random.Random], int]
+"""Draws one valid code of a field."""
+
 PACE_STEP_S = 0.1
 """Wall seconds between two checks of the pace with ``--speed``."""
 
 DRAWS = 8
-"""Random codes tried for a synthetic value before falling back to all-zero codes."""
+"""Random codes tried for a field of a plug-in type before falling back to its zero code."""
 
 
 def synthetic_value(layout: Layout, rng: random.Random) -> Any:
-    """A value the layout encodes: random codes decoded (some codes, e.g. past an enum's
-    last value, are invalid), else the all-zero codes."""
-    own = getattr(layout, "synthetic_value", None)  # layouts with a header (DCCL) make their own
+    """A value the layout encodes: each field's code drawn uniformly among its valid codes
+    (:func:`code_drawer`), the same distribution as drawing whole random codes until one
+    decodes, without the failed draws; the all-zero codes if even that fails. Layouts with
+    a header of their own (DCCL) make their own values."""
+    own = getattr(layout, "synthetic_value", None)
     if own is not None:
         return own(rng)
-    for _ in range(DRAWS):
-        try:
-            value = layout.unpack(rng.getrandbits(layout.bits) if layout.bits else 0)
-            layout.pack(value)
-            return value
-        except (DecodeError, EncodeError):
-            continue
-    return layout.unpack(0)
+    n = 0
+    for codec, draw in _drawers(layout):
+        n = (n << codec.bits) | draw(rng)
+    try:
+        value = layout.unpack(n)
+        layout.pack(value)
+        return value
+    except (DecodeError, EncodeError):
+        return layout.unpack(0)
+
+
+def code_drawer(codec: FieldCodec) -> Drawer:
+    """Draws a valid code of one field: directly for the built-in value types whose valid
+    codes are a range, else random codes until one decodes (:data:`DRAWS` tries, then 0)."""
+    if isinstance(codec, FloatCodec | IntCodec):
+        return _below(codec.kmax + 1)
+    if isinstance(codec, EnumCodec):
+        return _below(len(codec.names))
+    if isinstance(codec, BoolCodec):
+        return lambda rng: rng.getrandbits(1)
+    if isinstance(codec, ArrayCodec):
+        element, count, width = code_drawer(codec.element), codec.count, codec.element.bits
+
+        def array(rng: random.Random) -> int:
+            n = 0
+            for _ in range(count):
+                n = (n << width) | element(rng)
+            return n
+
+        return array
+
+    def reject(rng: random.Random) -> int:
+        for _ in range(DRAWS):
+            code = rng.getrandbits(codec.bits) if codec.bits else 0
+            try:
+                codec.decode(code)
+                return code
+            except DecodeError:
+                continue
+        return 0
+
+    return reject
+
+
+def _below(top: int) -> Drawer:
+    """``rng.randrange(top)``, the same draws, without its Python-level argument checks."""
+    bits = top.bit_length()
+
+    def draw(rng: random.Random) -> int:
+        code = rng.getrandbits(bits)
+        while code >= top:
+            code = rng.getrandbits(bits)
+        return code
+
+    return draw
+
+
+_DRAWERS: weakref.WeakKeyDictionary[Layout, list[tuple[FieldCodec, Drawer]]] = \
+    weakref.WeakKeyDictionary()
+
+
+def _drawers(layout: Layout) -> list[tuple[FieldCodec, Drawer]]:
+    """Each field's :func:`code_drawer`, made once per layout."""
+    drawers = _DRAWERS.get(layout)
+    if drawers is None:
+        drawers = _DRAWERS[layout] = [(f, code_drawer(f)) for f in layout.fields]
+    return drawers
 
 
 def feed(fleet: FastFleet, rng: random.Random, until: float) -> int:
@@ -178,7 +244,8 @@ async def run_fast(
         if recorder is not None:
             recorder(timed.node, timed.output.kind, timed.output.info)
 
-    fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False)
+    fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False,
+                      kinds=(Notice,))  # what on_output looks at
     if recorder is not None:
         ocean = fleet.ocean
         recorder.truth = truth_from({n: node.address for n, node in loaded.mission.nodes.items()},

@@ -12,6 +12,9 @@ former 4 cycles without a heartbeat went down while a sender waited out its retr
 
 from __future__ import annotations
 
+import heapq
+import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -64,3 +67,58 @@ class LinkThresholds:
         if now - last_heard >= self.degraded_after_s:
             return LinkState.DEGRADED
         return LinkState.UP
+
+
+class LinkWatch:
+    """Which peers' link states may have changed since the last look, so that a node
+    re-evaluates only those, not every peer at every tick.
+
+    A state changes only when the peer is heard (:meth:`heard`) or when its silence crosses a
+    threshold: after each look at a peer, the next crossing goes in a heap (stale entries, left
+    by a later hearing, are skipped). :meth:`due` returns the peers to re-evaluate, in the
+    order given at construction; with no time going backwards this is exactly the set of peers
+    whose state can differ from the one last reported.
+    """
+
+    SLACK_S = 1e-6
+    """Crossings are looked at this early, so float rounding of ``heard + threshold`` never
+    delays one (an early look finds no change and waits for the crossing again)."""
+
+    def __init__(self, thresholds: LinkThresholds, peers: Iterable[str]) -> None:
+        self.thresholds = thresholds
+        self.order = {peer: i for i, peer in enumerate(peers)}
+        self._dirty: set[str] = set(self.order)  # the first look covers every peer
+        self._heap: list[tuple[float, int, str, float]] = []  # (crossing, order, peer, heard)
+        self._last = -math.inf
+
+    def heard(self, peer: str) -> None:
+        """``peer`` was heard: its state may change at the next look."""
+        if peer in self.order:
+            self._dirty.add(peer)
+
+    def due(self, now: float, last_heard: Mapping[str, float]) -> list[str]:
+        """The peers whose state may differ at ``now`` from the last look at them; each is
+        watched again from ``last_heard`` (the caller re-evaluates all of them)."""
+        heap = self._heap
+        if not self._dirty and now >= self._last and (not heap or heap[0][0] > now + self.SLACK_S):
+            self._last = now
+            return []  # the common tick: nothing heard, no threshold crossed
+        peers, self._dirty = self._dirty, set()
+        if now < self._last:  # time went backwards: a state may go back too, look at everyone
+            peers = set(self.order)
+        self._last = now
+        while heap and heap[0][0] <= now + self.SLACK_S:
+            _, _, peer, heard = heapq.heappop(heap)
+            if last_heard.get(peer) == heard:
+                peers.add(peer)
+        out = sorted(peers, key=self.order.__getitem__)
+        t = self.thresholds
+        for peer in out:
+            heard = last_heard.get(peer)
+            if heard is None:
+                continue  # down until heard
+            for threshold in (t.degraded_after_s, t.down_after_s):
+                if now - heard < threshold:
+                    heapq.heappush(heap, (heard + threshold, self.order[peer], peer, heard))
+                    break
+        return out

@@ -34,11 +34,13 @@ The MACs (rules of each, as they apply to one node):
 
 from __future__ import annotations
 
+import bisect
 import math
 import random
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import ClassVar
 
 from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, RangingSlots, TdmaMac
 from bridge.modems.presets import Preset, UnknownPresetError, get_preset
@@ -94,6 +96,10 @@ class Slot:
 class Schedule(ABC):
     """One node's view of a MAC (see the module docstring)."""
 
+    fixed: ClassVar[bool] = False
+    """True when opportunities depend only on time and this node's own sends, never on what
+    it hears or has due: a driver need not re-plan after a reception."""
+
     @abstractmethod
     def next_opportunity(self, now: float, due: float | None) -> Opportunity | None:
         """The next opportunity not yet used, or None (wait for data or a reception)."""
@@ -114,6 +120,8 @@ class Schedule(ABC):
 class TdmaSchedule(Schedule):
     """The static TDMA cycle as seen by one node."""
 
+    fixed = True
+
     def __init__(self, mac: TdmaMac, node: str, *, always: bool = False) -> None:
         self.slot_s = mac.slot_s
         self.guard_s = mac.guard_s
@@ -128,9 +136,10 @@ class TdmaSchedule(Schedule):
         if not self.owned:
             return None
         k = math.floor(after / self.slot_s) + 1
-        n = len(self.order)
-        while (k % n) not in self.owned:
-            k += 1
+        n, owned = len(self.order), self.owned  # owned: ascending slot indices
+        phase = k % n
+        i = bisect.bisect_left(owned, phase)  # the first owned slot at or after k's phase
+        k += owned[i] - phase if i < len(owned) else owned[0] + n - phase
         start = k * self.slot_s
         return Slot(start, start + self.slot_s - self.guard_s)
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
-from bridge.core.link import LinkState, LinkThresholds, heartbeat_s
+from bridge.core.link import LinkState, LinkThresholds, LinkWatch, heartbeat_s
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report, default_retry_s
@@ -188,6 +188,7 @@ class NodeCore:
         self.schedule: Schedule = schedule_for(mission, node, seed=seed)
         self.modem_ranging: str | None = None  # how the modem ranges (set by the runtime)
         self.link_states: dict[str, LinkState] = {}
+        self._link_watch = LinkWatch(self.thresholds, self.table.foreign_nodes(node))
         self.last_heard: dict[str, float] = {}
         self.received_at: dict[str, float] = {}
         self.last_tx: float | None = None
@@ -546,6 +547,7 @@ class NodeCore:
             self._dirty = True  # the replay window moved: saved before anything is published
         if frame.epoch is not None:
             self._peer_epoch(src, frame.epoch, now)
+        self._link_watch.heard(src)
         if self.link_states.get(src) is not LinkState.UP:
             self.update_links(now)
         if self.positioning is not None and self.table.dlbl:
@@ -561,7 +563,7 @@ class NodeCore:
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
                 continue
-            if self.node not in channel.destinations(src):
+            if not channel.reaches(src, self.node):
                 continue  # overheard: addressed to others
             if channel.fragmented:
                 delivered = self._on_fragment(src, channel, entry.header, entry.chunk, now)
@@ -579,12 +581,13 @@ class NodeCore:
                 for element, value in zip(channel.elements, elements, strict=True):
                     self._publish(element.output_key(src, self.node), value, element.encoding,
                                   channel.latching, element.ros2)
+        meta = plain(rx.meta)
         if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             self._peer_status[src] = now
-            self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
+            self._status(f"peers/{src}", {"last_heard": now, "meta": meta})
         self._notice("frame_received", {
             "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
-            "data": rx.data, "meta": plain(rx.meta), "values": values})
+            "data": rx.data, "meta": dict(meta), "values": values})
 
     def _receiver(self, src: str, channel: ChannelCodec) -> ReliableReceiver | TransferReceiver:
         key = (src, channel.index)
@@ -750,8 +753,8 @@ class NodeCore:
             self._positioned(Update((), None, estimate), now)  # coasting, or lost, is news
 
     def update_links(self, now: float) -> None:
-        """Re-evaluate every peer's link; report changes on ``link/<peer>``."""
-        for peer in self.table.foreign_nodes(self.node):
+        """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
+        for peer in self._link_watch.due(now, self.last_heard):
             heard = self.last_heard.get(peer)
             state = self.thresholds.state(heard, now)
             if self.link_states.get(peer) is state:
@@ -785,7 +788,9 @@ class NodeCore:
         }
 
 
+_SCALARS = (int, float, str, bool, type(None))
+
+
 def plain(meta: Mapping[str, Any]) -> dict[str, Any]:
     """Link metadata reduced to msgpack-able scalars."""
-    return {str(k): v for k, v in dict(meta).items()
-            if isinstance(v, int | float | str | bool) or v is None}
+    return {str(k): v for k, v in meta.items() if isinstance(v, _SCALARS)}

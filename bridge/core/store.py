@@ -9,6 +9,7 @@ since it was last sent, and either new data arrived since then or the channel is
 
 from __future__ import annotations
 
+import heapq
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -57,9 +58,38 @@ class ChannelState:
 
 @dataclass
 class OutboundStore:
-    """Channel states of one sending node."""
+    """Channel states of one sending node.
+
+    :meth:`next_due` is asked at every planning step, so the due times of channels without a
+    ``ttl_s`` (which do not depend on ``now``) wait in a heap, refreshed when a channel
+    changes (stale entries are skipped); channels with a ``ttl_s`` are looked at each time.
+    Change states through the methods below only.
+    """
 
     states: dict[int, ChannelState] = field(default_factory=dict)
+    _heap: list[tuple[float, int]] = field(default_factory=list, init=False, repr=False)
+    _filed: dict[int, float | None] = field(default_factory=dict, init=False, repr=False)
+    _ttl: list[ChannelState] = field(default_factory=list, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._ttl = [s for s in self.states.values() if s.channel.ttl_s is not None]
+        for state in self.states.values():
+            if state.channel.ttl_s is None:
+                self._changed(state)
+
+    def _changed(self, state: ChannelState) -> None:
+        """Re-file ``state``'s due time (channels with a ``ttl_s`` are not filed); a heap entry
+        counts while it holds its channel's filed time."""
+        if state.channel.ttl_s is not None:
+            return
+        index, ready = state.channel.index, state.ready_at()
+        if index in self._filed and self._filed[index] == ready:
+            return  # unchanged: its entry stands
+        self._filed[index] = ready
+        if ready is not None:
+            heapq.heappush(self._heap, (ready, index))
+            if len(self._heap) > 4 * len(self.states) + 16:  # stale entries: compact
+                self._heap = sorted({e for e in self._heap if self._filed[e[1]] == e[0]})
 
     @classmethod
     def for_node(cls, channels: Iterable[ChannelCodec], node: str) -> OutboundStore:
@@ -77,6 +107,7 @@ class OutboundStore:
         state = self.states[index]
         state.packed[element] = packed
         state.updated[element] = now
+        self._changed(state)
         return state.complete
 
     def update(self, index: int, element: int, packed: int, now: float) -> None:
@@ -85,6 +116,7 @@ class OutboundStore:
         state.packed[element] = packed
         state.updated[element] = now
         state.fresh = True
+        self._changed(state)
 
     def due(self, now: float) -> list[ChannelState]:
         """Channels that may go in a frame sent at ``now``."""
@@ -97,8 +129,15 @@ class OutboundStore:
 
     def next_due(self, now: float | None = None) -> float | None:
         """The earliest time a channel becomes due (may be in the past), or None."""
-        times = [t for s in self.states.values() if (t := s.ready_at(now)) is not None]
-        return min(times) if times else None
+        heap, filed = self._heap, self._filed
+        while heap and filed[heap[0][1]] != heap[0][0]:
+            heapq.heappop(heap)
+        best = heap[0][0] if heap else None
+        for state in self._ttl:
+            t = state.ready_at(now)
+            if t is not None and (best is None or t < best):
+                best = t
+        return best
 
     def mark_sent(self, sent: Iterable[ChannelState], built: float) -> None:
         """The frame built at ``built`` carried these channels. A value that arrived after
@@ -108,3 +147,4 @@ class OutboundStore:
                 state.fresh = False
             state.last_sent = built
             state.sends += 1
+            self._changed(state)

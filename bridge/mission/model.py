@@ -8,6 +8,7 @@ Zenoh JSON5 configuration (``"transport/link/tx/lease": 2000``).
 
 from __future__ import annotations
 
+from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -416,4 +417,17 @@ class Mission(Strict):
         return self.nodes[name].address
 
     def name_of(self, address: int) -> str | None:
-        return next((n for n, node in self.nodes.items() if node.address == address), None)
+        """The node at ``address`` (the first in file order), None if there is none."""
+        name = self.names_found.get(address)  # asked per received frame: kept, and checked
+        node = self.nodes.get(name) if name is not None else None
+        if node is not None and node.address == address:
+            return name
+        name = next((n for n, node in self.nodes.items() if node.address == address), None)
+        if name is not None:
+            self.names_found[address] = name
+        return name
+
+    @cached_property
+    def names_found(self) -> dict[int, str]:
+        """Node names by address, as :meth:`name_of` found them."""
+        return {}

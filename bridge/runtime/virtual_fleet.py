@@ -23,21 +23,51 @@ from typing import Any
 import msgpack
 
 from bridge.core.mac import Schedule
-from bridge.core.node import NodeCore, Output, Publish, SendFrame
+from bridge.core.node import NodeCore, Notice, Output, Publish, SendFrame, Status
 from bridge.core.positioning import simulated_preset
-from bridge.errors import EncodeError
+from bridge.errors import EncodeError, FrameError
 from bridge.mission.loader import LoadedMission
 from bridge.mission.path import Path
 from bridge.modems.base import Reception
 from bridge.modems.presets import Preset
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
 from bridge.wire.auth import key_for_run
+from bridge.wire.frame import DecodedFrame
 from bridge.wire.payloads import encode_payload
 
 TICK_S = 1.0
 
+DECODED_KEPT = 64
+"""Frames whose decoding the receivers share at a time (a frame's receptions end within
+a few seconds of each other)."""
 
-@dataclass(frozen=True)
+
+class SharedDecoder:
+    """Decodes each frame once for all its receivers, for missions without authentication
+    (decoding is then a pure function of the bytes and the sender). Receivers share the
+    decoded values, as they share the frame's bytes: read-only."""
+
+    def __init__(self, decode: Callable[[bytes, int | None], DecodedFrame]) -> None:
+        self._decode = decode
+        self._kept: dict[tuple[bytes, int | None], DecodedFrame | FrameError] = {}
+
+    def __call__(self, frame: bytes, src: int | None = None) -> DecodedFrame:
+        key = (frame, src)
+        done = self._kept.get(key)
+        if done is None:
+            try:
+                done = self._decode(frame, src)
+            except FrameError as exc:
+                done = exc
+            if len(self._kept) >= DECODED_KEPT:
+                self._kept.clear()
+            self._kept[key] = done
+        if isinstance(done, FrameError):
+            raise FrameError(str(done), done.reason)
+        return done
+
+
+@dataclass(frozen=True, slots=True)
 class Timed:
     """An output of ``node`` at virtual time ``time``."""
 
@@ -60,9 +90,11 @@ class FastFleet:
         on_output: Callable[[Timed], None] | None = None,
         keep_outputs: bool = True,
         key: bytes | None = None,
+        kinds: tuple[type, ...] = (Publish, Status, Notice),
     ) -> None:
-        """``keep_outputs`` false: outputs only go to ``on_output`` (long runs). ``key``: the
-        frame key of an authenticated mission (default: the mission key if present, else a
+        """``keep_outputs`` false: outputs only go to ``on_output`` (long runs); ``kinds``:
+        the output types kept and passed on (others are dropped unseen). ``key``: the frame
+        key of an authenticated mission (default: the mission key if present, else a
         throwaway one, see :attr:`throwaway_key`)."""
         mission = loaded.mission
         self.key, self.throwaway_key = key, False
@@ -85,15 +117,26 @@ class FastFleet:
         self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"),
                                      key=self.key, seed=seed)
                       for name in mission.nodes}
+        self._shared: SharedDecoder | None = None
+        if mission.wire.auth is None:  # every core's codec is the same pure function
+            self._shared = SharedDecoder(next(iter(self.cores.values())).codec.decode)
+            for core in self.cores.values():
+                core.codec.decode = self._shared  # type: ignore[method-assign]
         self.now = start
         self.outputs: list[Timed] = []
         self.on_output = on_output
         self.keep_outputs = keep_outputs
+        self.kinds = kinds
         self.stopped: set[str] = set()
         self.seed = seed
         self.restarts = 0
         self.saved: dict[str, dict[str, Any]] = {}  # each node's saved state, as on its disk
+        self._order = {name: i for i, name in enumerate(mission.nodes)}
+        self._names = {node.address: name for name, node in reversed(mission.nodes.items())}
+        self._addresses = {name: node.address for name, node in mission.nodes.items()}
         self._next_tx: dict[str, float | None] = {}
+        # every value _next_tx took, as (time, node order, name): stale ones leave lazily
+        self._tx_heap: list[tuple[float, int, str]] = []
         self._pending: dict[int, tuple[str, Any]] = {}
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
@@ -138,7 +181,7 @@ class FastFleet:
     def stop(self, node: str) -> None:
         """Silence ``node``: it neither sends nor hears from now on."""
         self.stopped.add(node)
-        self._next_tx[node] = None
+        self._set_next_tx(node, None)
 
     def resume(self, node: str) -> None:
         self.stopped.discard(node)
@@ -152,6 +195,8 @@ class FastFleet:
         self.cores[node] = NodeCore(self.loaded, node, state=state, key=self.key,
                                     rng=random.Random(f"{self.seed}/{node}/{self.restarts}"),
                                     seed=self.seed + self.restarts)
+        if self._shared is not None:
+            self.cores[node].codec.decode = self._shared  # type: ignore[method-assign]
         self.stopped.discard(node)
         self._collect(node)
         self._plan(node)
@@ -167,18 +212,45 @@ class FastFleet:
     def run_until(self, t_end: float) -> None:
         """Advance the virtual clock to ``t_end``, handling every event on the way."""
         while True:
-            candidates = [self._next_tick]
-            if (t := self.ocean.next_event_time()) is not None:
-                candidates.append(t)
-            if self._timers:
-                candidates.append(self._timers[0][0])
-            candidates.extend(t for t in self._next_tx.values() if t is not None)
-            t = min(candidates)
+            t = self._next_tick
+            if (water := self.ocean.next_event_time()) is not None and water < t:
+                t = water
+            if self._timers and self._timers[0][0] < t:
+                t = self._timers[0][0]
+            if (tx := self._next_transmit()) is not None and tx < t:
+                t = tx
             if t > t_end:
                 self.now = t_end
                 return
             self.now = max(self.now, t)
             self._step()
+
+    def _set_next_tx(self, name: str, t: float | None) -> None:
+        self._next_tx[name] = t
+        if t is not None:
+            heapq.heappush(self._tx_heap, (t, self._order[name], name))
+            if len(self._tx_heap) > 4 * len(self._order) + 64:  # mostly stale: rebuild
+                self._tx_heap = [(at, self._order[n], n) for n, at in self._next_tx.items()
+                                 if at is not None]
+                heapq.heapify(self._tx_heap)
+
+    def _next_transmit(self) -> float | None:
+        """The earliest planned transmission (stale heap entries dropped on the way)."""
+        heap = self._tx_heap
+        while heap and self._next_tx.get(heap[0][2]) != heap[0][0]:
+            heapq.heappop(heap)
+        return heap[0][0] if heap else None
+
+    def _due_transmitters(self, now: float) -> list[str]:
+        """Nodes whose planned transmission is due at ``now``, in mission order."""
+        heap, due = self._tx_heap, {}
+        if not heap or heap[0][0] > now:
+            return []
+        while heap and heap[0][0] <= now:
+            t, order, name = heapq.heappop(heap)
+            if self._next_tx.get(name) == t:
+                due[order] = name
+        return [due[k] for k in sorted(due)]
 
     def _step(self) -> None:
         now = self.now
@@ -190,9 +262,8 @@ class FastFleet:
         while self._timers and self._timers[0][0] <= now:
             _, _, fn = heapq.heappop(self._timers)
             fn()
-        for name, t in list(self._next_tx.items()):
-            if t is not None and t <= now:
-                self._transmit(name)
+        for name in self._due_transmitters(now):
+            self._transmit(name)
         if self._next_tick <= now:
             for name, core in self.cores.items():
                 if name not in self.stopped:
@@ -208,15 +279,17 @@ class FastFleet:
     def _plan(self, name: str) -> None:
         """When ``name`` next gets to transmit: its MAC's next opportunity."""
         if name in self.stopped:
-            self._next_tx[name] = None
+            self._set_next_tx(name, None)
             return
         wake = self.cores[name].wake_at(self.now)
-        busy = self.ocean.busy_until(self.mission.address_of(name))  # a busy modem refuses
-        self._next_tx[name] = None if wake is None else max(wake, self.now, busy)
+        busy = self.ocean.busy_until(self._addresses[name])  # a busy modem refuses
+        self._set_next_tx(name, None if wake is None else max(wake, self.now, busy))
 
     def _replan(self, name: str) -> None:
-        """New data or a reception may change the next opportunity (a poll, a ranging turn)."""
-        self._plan(name)
+        """New data or a reception may change the next opportunity (a poll, a ranging turn),
+        unless the schedule is fixed (TDMA: time and own sends only)."""
+        if not self.cores[name].schedule.fixed:
+            self._plan(name)
 
     def _transmit(self, name: str) -> None:
         """Carry out what ``name``'s core does at this opportunity, as its modem would (the
@@ -226,7 +299,7 @@ class FastFleet:
         if isinstance(action, SendFrame):
             out = action.frame
             try:
-                end = self.ocean.transmit(now, self.mission.address_of(name), out.data, out.dest)
+                end = self.ocean.transmit(now, self._addresses[name], out.data, out.dest)
             except TransmitRefused as exc:
                 core.done(action, now, now, error=str(exc))
             else:
@@ -237,7 +310,7 @@ class FastFleet:
         self._plan(name)
 
     def _deliver(self, event: Delivery) -> None:
-        name = self.mission.name_of(event.dst)
+        name = self._names.get(event.dst)
         if name is None or name in self.stopped:
             return
         meta = {**event.meta, "start": event.start}
@@ -253,6 +326,8 @@ class FastFleet:
                                                raw=False, strict_map_key=False)
             core.saved()
         for output in core.take():
+            if not isinstance(output, self.kinds):
+                continue
             timed = Timed(self.now, name, output)
             if self.keep_outputs:
                 self.outputs.append(timed)

@@ -148,7 +148,24 @@ class ChannelCodec:
 
     def destinations(self, sender: str) -> tuple[str, ...]:
         """Receivers of this channel when ``sender`` sends it (never the sender itself)."""
-        return tuple(r for r in self.receivers if r != sender)
+        cached = self._destinations.get(sender)
+        if cached is None:
+            cached = self._destinations[sender] = tuple(r for r in self.receivers if r != sender)
+        return cached
+
+    @cached_property
+    def _destinations(self) -> dict[str, tuple[str, ...]]:
+        """:meth:`destinations` by sender, filled as asked (a frame names them per entry)."""
+        return {}
+
+    def reaches(self, sender: str, node: str) -> bool:
+        """Whether ``node`` is a destination when ``sender`` sends this channel (asked per
+        received entry: a set, not a scan of every receiver)."""
+        return node != sender and node in self._receiver_set
+
+    @cached_property
+    def _receiver_set(self) -> frozenset[str]:
+        return frozenset(self.receivers)
 
     def pack(self, values: Sequence[object]) -> int:
         """All element values as one integer of ``bits`` bits, first element most significant."""

@@ -236,3 +236,32 @@ def test_stats_are_json_able() -> None:
     assert stats["total"]["lost"] == {"collision": 2}
     assert stats["nodes"]["1"]["tx"] == 1
     assert {(s["src"], s["dst"]) for s in stats["links"]} == {(1, 2), (1, 3), (3, 1), (3, 2)}
+
+
+def test_pruning_forgets_only_what_cannot_matter() -> None:
+    """A busy channel (random senders, many collisions, out-of-range pairs) gives the same
+    events with pruning as without, while each node keeps only a few intervals."""
+    import random
+
+    def busy(prune: bool) -> tuple[list[TxDone | Delivery | Loss], int]:
+        ocean = Ocean(FAST, seed=5, positions=line(0, 400, 900, 2500, 3400, 5200),
+                      loss_curve=NO_RANGE_LOSS)
+        if not prune:
+            ocean._prune = lambda addr: None  # type: ignore[method-assign]
+        rng, events, now, most = random.Random(8), [], 0.0, 0
+        for _ in range(600):
+            now += rng.expovariate(4.0)
+            events += run(ocean, now)
+            src = rng.randint(1, 6)
+            if ocean.busy_until(src) <= now:
+                ocean.transmit(now, src, bytes(rng.randint(1, 64)))
+            most = max(most, *(len(v) for v in ocean._rx_intervals.values()),
+                       *(len(v) for v in ocean._tx_intervals.values()))
+        return events + run(ocean), most
+
+    pruned, most = busy(prune=True)
+    kept, _ = busy(prune=False)
+    assert pruned == kept
+    assert {type(e).__name__ for e in pruned} == {"TxDone", "Delivery", "Loss"}
+    assert {e.reason for e in pruned if isinstance(e, Loss)} >= {"collision", "out_of_range"}
+    assert most < 30
