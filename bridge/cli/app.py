@@ -91,13 +91,16 @@ def check(
         f"frame overhead {data['overhead_bytes']} B + {data['count_bits']}-bit count"
         + (" (DLBL on)" if data["dlbl"] else "")
     )
-    channels = Table("index", "channel", "bits", "from", "to", "interval", "latching", "priority",
-                     title="channels")
+    channels = Table("index", "channel", "bits", "keys", "from", "to", "interval", "latching",
+                     "priority", title="channels")
     for c in data["channels"]:
-        channels.add_row(str(c["index"]), c["name"], str(c["bits"]), ", ".join(c["from"]),
-                         ", ".join(c["to"]), f"{c['interval_s']:g} s", str(c["latching"]).lower(),
-                         str(c["priority"]))
+        channels.add_row(str(c["index"]), c["name"], str(c["bits"]), _keys_text(c.get("keys")),
+                         ", ".join(c["from"]), ", ".join(c["to"]), f"{c['interval_s']:g} s",
+                         str(c["latching"]).lower(), str(c["priority"]))
     console.print(channels)
+    if data.get("key_entry_bits"):
+        console.print(f"@key entry (names a learned member): {data['key_entry_bits']} bits",
+                      highlight=False)
     nodes = Table("node", "address", "role", "worst-case bits", "frame", "fill", "airtime",
                   "listen", title="nodes")
     for n in data["nodes"]:
@@ -111,6 +114,14 @@ def check(
     for error in report.errors:
         console.print(f"[red]error:[/] {error}", highlight=False)
     raise typer.Exit(0 if report.ok else 1)
+
+
+def _keys_text(keys: dict[str, Any] | None) -> str:
+    """A key family in the channel table: its index bits and members."""
+    if keys is None:
+        return "—"
+    members = f"learned ≤ {keys['bound']}" if keys["learned"] else f"{keys['bound']} keys"
+    return f"+{keys['index_bits']} bits ({members})"
 
 
 def _print_mac(data: dict[str, Any]) -> None:

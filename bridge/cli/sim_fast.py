@@ -58,6 +58,10 @@ def feed(fleet: FastFleet, rng: random.Random, until: float) -> int:
             publisher = _publisher(fleet, rng, name, key, bindings[0][2].layout, period, until)
             fleet.call_at(fleet.now + rng.uniform(0, period), publisher)
             keys += 1
+        for key, layout in core.families.feed_keys().items():  # each member of a key family
+            publisher = _publisher(fleet, rng, name, key, layout, FEED_S, until)
+            fleet.call_at(fleet.now + rng.uniform(0, FEED_S), publisher)
+            keys += 1
     return keys
 
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
+from bridge.core.families import Extra, Families
 from bridge.core.link import LinkState, LinkThresholds
 from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
@@ -36,6 +37,7 @@ from bridge.mission.model import TdmaMac
 from bridge.modems.base import ModemRange, Reception
 from bridge.wire.auth import Authenticator, load_key
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
+from bridge.wire.families import NameCodec
 from bridge.wire.frame import FrameCodec
 from bridge.wire.payloads import decode_payload
 
@@ -94,6 +96,7 @@ class OutFrame:
     built: float
     streams: tuple[tuple[ReliableSender | TransferSender, Any], ...] = ()
     acks: tuple[tuple[str, int], ...] = ()
+    extras: tuple[Extra, ...] = ()
 
 
 @dataclass
@@ -143,8 +146,9 @@ class NodeCore:
             else None
         self._ranged_last = False  # a range never takes two transmit opportunities in a row
         self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
+        self.families = Families(self.table, node)
         for channel in self.table.channels:
-            if channel.index in self.store.states:
+            if channel.index in self.store.states and channel.family is None:
                 for i, element in enumerate(channel.elements):
                     key = element.input_key(node)
                     self.bindings.setdefault(key, []).append((channel, i, element))
@@ -197,6 +201,9 @@ class NodeCore:
             elif self.store.update_value(channel.index, index, packed, now):
                 payload = self.store.states[channel.index].payload()
                 self._reports(sender.offer(payload, now, key, ref))
+        if self.families.senders:
+            for problem in self.families.ingest(key, value, now):
+                self.drop_payload(key, problem, now)
 
     def drop_payload(self, key: str, reason: str, now: float) -> None:
         """Count a payload that cannot be used (warned once per key)."""
@@ -226,6 +233,7 @@ class NodeCore:
         """When something (data, an acknowledgement, a retransmission or a heartbeat) is next
         due; None while nothing is pending."""
         times = [self.store.next_due(now), self.next_heartbeat(),
+                 self.families.next_due(now, self.wants),
                  *(s.next_time() for s in self.senders.values()),
                  self.positioning.next_ping() if self.positioning is not None else None]
         if self._acks:
@@ -264,8 +272,13 @@ class NodeCore:
         picked, left = fill(codec, self._candidates(now), budget, room - len(items))
         chosen: list[ChannelState] = []
         streams: list[tuple[ReliableSender | TransferSender, Any]] = []
+        extras: list[Extra] = []
         for candidate in picked:
             what = candidate.what
+            if isinstance(what, Extra):
+                extras.append(what)
+                items.append((what.channel, what.bits))
+                continue
             targets.update(candidate.channel.destinations(self.node))
             if isinstance(what, ChannelState):
                 chosen.append(what)
@@ -285,7 +298,7 @@ class NodeCore:
         asks = [s.channel for s in chosen] + [s.channel for s, _ in streams]
         ack = True if dest is not None and any(c.ack for c in asks) else None
         return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), tuple(left_out)), now,
-                        tuple(streams), tuple(acks))
+                        tuple(streams), tuple(acks), tuple(extras))
 
     def _candidates(self, now: float) -> list[Candidate]:
         """Everything that could go in a frame sent at ``now``."""
@@ -293,7 +306,11 @@ class NodeCore:
         for sender in self.senders.values():
             out += [Candidate(sender.channel, getattr(item, "last_sent", None), (sender, item), n)
                     for n, item in enumerate(sender.due(now))]
-        return out
+        return out + self.families.candidates(now, self.wants)
+
+    def wants(self, channel: ChannelCodec) -> bool:
+        """Whether some destination wants ``channel`` now (always, without demand)."""
+        return True
 
     def _ack_bits(self, src: str, index: int) -> int:
         ack_codec = self.table.ack
@@ -320,6 +337,8 @@ class NodeCore:
                 sender.confirmed(group, dest)  # type: ignore[arg-type]
         for key in out.acks:
             self._acks.pop(key, None)
+        for extra in out.extras:
+            extra.on_sent(out.built)
         self.last_tx = out.built
         self.stats.frames_sent += 1
         names = [s.channel.name for s in out.plan.chosen] + [s.channel.name for s, _ in out.streams]
@@ -369,6 +388,9 @@ class NodeCore:
             if isinstance(channel, AckCodec):
                 self._on_ack(src, entry.header, now)
                 continue
+            if isinstance(channel, NameCodec):
+                self.families.on_name(src, entry.header)
+                continue
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
                 continue
@@ -383,13 +405,22 @@ class NodeCore:
                 self._acks[(src, channel.index)] = None
             else:
                 delivered = [entry.values]
+            member = "*"
+            if channel.family is not None:
+                name = self.families.member_name(src, channel, entry.header[0])
+                if name is None:  # a learned member whose @key entry has not arrived yet
+                    self.stats.frames_dropped["unknown_member"] += 1
+                    continue
+                member = name
             for elements in delivered:
                 values[channel.name] = elements
                 self.stats.received_per_channel[channel.name] += 1
                 self.received_at[channel.name] = now
                 for element, value in zip(channel.elements, elements, strict=True):
-                    self._publish(element.output_key(src, self.node), value, element.encoding,
-                                  channel.latching)
+                    key = element.output_key(src, self.node, member)
+                    if channel.family is not None:
+                        self.families.arrived(key, now)
+                    self._publish(key, value, element.encoding, channel.latching)
         self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
         self._notice("frame_received", {
             "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
@@ -532,6 +563,8 @@ class NodeCore:
             "received_age_s": {k: now - t for k, t in self.received_at.items()},
             "last_heard": dict(self.last_heard),
             "links": {peer: state.value for peer, state in self.link_states.items()},
+            **({"families": self.families.snapshot(now)} if self.table.names is not None
+               or any(c.family for c in self.table.channels) else {}),
         }
 
 

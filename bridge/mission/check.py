@@ -23,6 +23,7 @@ from bridge.mission.loader import LoadedMission
 from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, TdmaMac
 from bridge.modems.registry import load_backend
 from bridge.wire.channels import ChannelCodec
+from bridge.wire.families import has_wildcard
 from bridge.wire.frame import FrameCodec
 
 
@@ -58,9 +59,11 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             "ttl_s": c.ttl_s,
             "fragments": {"chunk_bytes": c.chunk_bytes,
                           "at_most": -(-c.value_bytes // c.chunk_bytes)} if c.fragmented else None,
+            "keys": _family(c),
         }
         for c in table.channels
     ]
+    _family_warnings(loaded, report)
     for c in table.channels:
         if c.fragmented:
             report.warnings.append(
@@ -71,7 +74,8 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         frame_bytes = mission.node_modem(name).frame_bytes
         capacity = codec.body_capacity_bits(frame_bytes) - codec.count_bits
         sent = [c for c in table.channels if c.sent_by(name) and c.destinations(name)]
-        worst = sum(codec.channel_cost_bits(c) for c in sent)
+        worst = sum(codec.channel_cost_bits(c) * (c.family.bound if c.family else 1)
+                    for c in sent)  # every member of a key family at once
         modem = mission.node_modem(name)
         try:
             limit = load_backend(modem.backend).max_frame_bytes(modem.options)
@@ -136,6 +140,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "overhead_bytes": codec.overhead_bytes(),
         "count_bits": codec.count_bits,
         "index_bits": codec.index_bits,
+        "key_entry_bits": None if table.names is None else codec.channel_cost_bits(table.names),
         "channels": channels,
         "nodes": nodes,
         "warnings": report.warnings,
@@ -143,6 +148,29 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "ok": report.ok,
     }
     return report
+
+
+def _family(channel: ChannelCodec) -> dict[str, Any] | None:
+    """A key family as ``zab check`` shows it: members (or the learned bound) and index bits."""
+    spec = channel.family
+    if spec is None:
+        return None
+    return {"members": None if spec.learned else list(spec.members), "bound": spec.bound,
+            "learned": spec.learned, "index_bits": spec.index_bits,
+            "name_bytes": spec.name_bytes if spec.learned else None}
+
+
+def _family_warnings(loaded: LoadedMission, report: CheckReport) -> None:
+    """A wildcard input without ``keys`` collapses every matching key into one slot."""
+    for channel, spec in zip(loaded.table.channels, loaded.mission.channels, strict=True):
+        if spec.keys is not None:
+            continue
+        for element in spec.elements:
+            if has_wildcard(element.in_):
+                report.warnings.append(
+                    f"channel {channel.name!r}: input {element.in_!r} is a wildcard: every "
+                    "matching key shares one slot and one output key; give the channel `keys` "
+                    "to carry each key on its own")
 
 
 def _data_per_s(sent: list[ChannelCodec], heartbeat_s: float | None) -> float:

@@ -186,6 +186,29 @@ class Element(Strict):
     fields: list[FieldSpec] = Field(min_length=1)
 
 
+class NodeKeys(Strict):
+    """A key family with one member per node: ``{key}`` takes each matching node's name."""
+
+    nodes: NodePattern = Field(description="Node names (or a pattern) that are the members.")
+
+
+class LearnedKeys(Strict):
+    """A key family learned at run time: each new concrete key on the input becomes a member,
+    up to ``learn`` members (a further key is refused, counted); receivers learn each member's
+    name from a ``@key`` entry sent beside its first values."""
+
+    learn: int = Field(ge=1, le=65536, description="Most members the sender learns.")
+    name_bytes: int = Field(12, ge=1, le=64, description="Longest member name, bytes (UTF-8); "
+                            "a longer one is refused, counted.")
+
+
+FamilyKeys = Annotated[
+    list[Annotated[str, Field(pattern=r"^[^/*$#?{}]+$")]] | NodeKeys | LearnedKeys,
+    Field(description="The members of a key family: a list of names, ``{nodes: pattern}``, or "
+          "``{learn: n}``."),
+]
+
+
 class Channel(Strict):
     """A set of elements sent together, always whole, with a fixed bit length."""
 
@@ -214,6 +237,9 @@ class Channel(Strict):
     retry_s: float | None = Field(None, gt=0, description="Wait for an acknowledgement before "
                                   "the first retransmission (doubles up to 4x); default: one "
                                   "TDMA cycle, else 10 s.")
+    keys: FamilyKeys | None = Field(None, description="Make the channel a key family: its "
+                                    "input keys hold ``{key}`` (or one ``*`` chunk) and each "
+                                    "member keeps its own value, age and output key.")
     elements: list[Element] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -221,6 +247,10 @@ class Channel(Strict):
         if self.reliable and self.latching:
             raise ValueError("a reliable channel cannot be latching: each value is sent until "
                              "acknowledged, once")
+        if self.keys is not None and self.reliable:
+            raise ValueError("a key family cannot be reliable")
+        if isinstance(self.keys, list) and len(set(self.keys)) != len(self.keys):
+            raise ValueError("a key family lists a member twice")
         return self
 
 

@@ -101,6 +101,9 @@ class BridgeNode:
                 self.session.declare_subscriber(
                     key, lambda s, k=key: self._from_zenoh(loop, k, s)
                 )
+            for key in self.core.families.subscriptions():  # key families: concrete keys
+                self.session.declare_subscriber(
+                    key, lambda s: self._from_zenoh(loop, str(s.key_expr), s))
             self._subscribe_positions(loop)
             tasks = [
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),

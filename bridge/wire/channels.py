@@ -16,7 +16,8 @@ from functools import cached_property
 
 from bridge.codec import Layout
 from bridge.errors import LayoutError
-from bridge.mission.model import Channel, Element, Mission
+from bridge.mission.model import Channel, Element, LearnedKeys, Mission, NodeKeys
+from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, name_codec
 
 WIRE_VERSION = 1
 
@@ -71,11 +72,13 @@ class ElementCodec:
     encoding: str
     layout: Layout
 
-    def input_key(self, node: str) -> str:
-        return self.in_key.format(node=node, src=node)
+    def input_key(self, node: str, key: str = "*") -> str:
+        """The key read at ``node``; a family member's, or with ``*`` all members'."""
+        return self.in_key.format(node=node, src=node, key=key)
 
-    def output_key(self, src: str, dst: str) -> str:
-        return self.out_key.format(node=dst, src=src, dst=dst)
+    def output_key(self, src: str, dst: str, key: str = "*") -> str:
+        """The key published at ``dst``; a family member's, or with ``*`` all members'."""
+        return self.out_key.format(node=dst, src=src, dst=dst, key=key)
 
 
 @dataclass(frozen=True)
@@ -99,6 +102,7 @@ class ChannelCodec:
     retry_s: float | None = None
     chunk_bytes: int = 0  # > 0: values are too big for a frame and travel in fragments
     fragment_bits: int = 0  # bits of a fragment index / count
+    family: FamilySpec | None = None  # a key family: each entry starts with a member index
 
     @cached_property
     def bits(self) -> int:
@@ -111,8 +115,8 @@ class ChannelCodec:
 
     @property
     def repeatable(self) -> bool:
-        """May appear several times in one frame (queued values, fragments)."""
-        return self.stream
+        """May appear several times in one frame (queued values, fragments, members)."""
+        return self.stream or self.family is not None
 
     @property
     def stream(self) -> bool:
@@ -124,6 +128,8 @@ class ChannelCodec:
         """Bits before the data of each entry: seq + lag, or transfer id + index + count."""
         if self.fragmented:
             return TID_BITS + 2 * self.fragment_bits
+        if self.family is not None:
+            return self.family.index_bits
         return SEQ_BITS + LAG_BITS if self.reliable else 0
 
     @cached_property
@@ -187,11 +193,22 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         raise ChannelTableError(str(exc), (*loc, "to")) from None
     if not any(set(receivers) - {sender} for sender in senders):
         raise ChannelTableError("a channel must reach a node other than its sender", (*loc, "to"))
+    family = compile_family(channel, nodes, loc)
+    extra = {KEY} if family is not None else set()
     elements = []
     for i, element in enumerate(channel.elements):
         eloc = (*loc, "elements", i)
-        for key, allowed, where in ((element.in_, SENDER_TEMPLATES, "in"),
-                                    (element.out, RECEIVER_TEMPLATES, "out")):
+        if family is not None:
+            try:
+                element = element.model_copy(update={"in_": family_template(element.in_)})
+            except ValueError as exc:
+                raise ChannelTableError(str(exc), (*eloc, "in")) from None
+            if KEY not in template_names(element.out):
+                raise ChannelTableError(f"a keyed channel's output {element.out!r} needs {{key}}"
+                                        ": each member is published on its own key",
+                                        (*eloc, "out"))
+        for key, allowed, where in ((element.in_, SENDER_TEMPLATES | extra, "in"),
+                                    (element.out, RECEIVER_TEMPLATES | extra, "out")):
             bad = template_names(key) - allowed
             if bad:
                 raise ChannelTableError(
@@ -219,7 +236,26 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         overflow=channel.overflow,
         retries=channel.retries,
         retry_s=channel.retry_s,
+        family=family,
     )
+
+
+def compile_family(channel: Channel, nodes: Sequence[str],
+                   loc: tuple[str | int, ...]) -> FamilySpec | None:
+    """The members of a keyed channel (None for a plain channel)."""
+    keys = channel.keys
+    if keys is None:
+        return None
+    if isinstance(keys, LearnedKeys):
+        return FamilySpec((), keys.learn, learned=True, name_bytes=keys.name_bytes)
+    if isinstance(keys, NodeKeys):
+        try:
+            members = match_nodes(keys.nodes, nodes)
+        except PatternError as exc:
+            raise ChannelTableError(str(exc), (*loc, "keys", "nodes")) from None
+    else:
+        members = tuple(keys)
+    return FamilySpec(tuple(members), len(members))
 
 
 def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
@@ -241,8 +277,8 @@ def fragment_channel(channel: ChannelCodec, mission: Mission, streams: bool) -> 
     """``channel`` as a fragmented transfer when a whole value does not fit in every sender's
     frame: a fragment fills about three quarters of a frame, so telemetry still fits beside
     it."""
-    if channel.fragmented:
-        return channel
+    if channel.fragmented or channel.family is not None:
+        return channel  # a family member never fragments: `zab check` says if it cannot fit
     capacity = min(entry_capacity_bits(mission, s, streams or channel.reliable)
                    for s in channel.senders)
     if channel.bits + channel.header_bits <= capacity:
@@ -319,7 +355,7 @@ class ChannelTable:
                 )
             seen[channel.name] = i
         compiled = tuple(compile_channel(i, c, nodes) for i, c in enumerate(mission.channels))
-        streams = any(c.reliable for c in compiled)
+        streams = any(c.reliable or c.family is not None for c in compiled)
         compiled = tuple(fragment_channel(c, mission, streams) for c in compiled)
         if not streams and any(c.fragmented for c in compiled):  # the count field grows
             compiled = tuple(fragment_channel(c, mission, True) for c in compiled)
@@ -346,10 +382,18 @@ class ChannelTable:
                         stream_bits=(len(self.streams) - 1).bit_length(),
                         base_bits=max(SEQ_BITS, fragment_bits))
 
+    @cached_property
+    def names(self) -> NameCodec | None:
+        """The ``@key`` entry naming learned family members, present when there are some."""
+        learned = [(c.index, c.family) for c in self.channels
+                   if c.family is not None and c.family.learned]
+        return name_codec(len(self.channels) + (self.ack is not None), learned)
+
     @property
-    def wire(self) -> tuple[ChannelCodec | AckCodec, ...]:
+    def wire(self) -> tuple[ChannelCodec | AckCodec | NameCodec, ...]:
         """Every kind of entry a frame may hold: the mission's channels, then system ones."""
-        return self.channels if self.ack is None else (*self.channels, self.ack)
+        system = tuple(s for s in (self.ack, self.names) if s is not None)
+        return (*self.channels, *system)
 
     def by_name(self, name: str) -> ChannelCodec:
         return next(c for c in self.channels if c.name == name)
@@ -371,6 +415,7 @@ class ChannelTable:
                           for e in c.elements]]
                 + ([["reliable"]] if c.reliable else [])
                 + ([["fragments", c.chunk_bytes, c.fragment_bits]] if c.fragmented else [])
+                + ([["keys", c.family.describe()]] if c.family is not None else [])
                 for c in self.channels
             ],
         }

@@ -11,8 +11,10 @@ Layout, most significant bit first::
                      when the mission has reliable or fragmented channels
              entry   plain channel: its fixed number of bits (its elements' layouts, in order);
                      reliable: seq (8) + lag (4) + the value; fragment: transfer id (4) +
-                     index + count + a chunk of the packed value; ``@ack``: see AckCodec.
-             Only reliable, fragmented and ``@ack`` entries may repeat in a frame.
+                     index + count + a chunk of the packed value; ``@ack``: see AckCodec;
+                     key family: member index (ceil(log2 n) bits) + the value; ``@key``
+                     (learned families): see bridge.wire.families.NameCodec.
+             Only reliable, fragmented, keyed and system entries may repeat in a frame.
     pad      zero bits up to the next byte
     [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.wire.auth)
     check    16 bits: CRC-16/CCITT (init 0xFFFF) over the mission fingerprint, then every
@@ -37,6 +39,7 @@ from bridge.wire.channels import (
     ChannelCodec,
     ChannelTable,
 )
+from bridge.wire.families import NameCodec
 
 DELAY_BYTES = 3
 DELAY_MAX_US = (1 << 24) - 2  # largest delay sent; a longer one wraps (see ranging)
@@ -201,8 +204,13 @@ class FrameCodec:
             raise FrameError("trailing data after the last channel")
         return DecodedFrame(delays, tuple(entries))
 
-    def _entry(self, channel: ChannelCodec | AckCodec, payload: int) -> Entry:
+    def _entry(self, channel: ChannelCodec | AckCodec | NameCodec, payload: int) -> Entry:
         """One entry's fields, checked; raises :class:`DecodeError` when malformed."""
+        if isinstance(channel, NameCodec):
+            try:
+                return Entry(channel, header=channel.unpack(payload))  # type: ignore[arg-type]
+            except ValueError as exc:
+                raise DecodeError(str(exc)) from None
         if isinstance(channel, AckCodec):
             peer, stream, tid, base, bitmap = channel.unpack(payload)
             if peer >= len(self.table.nodes) or stream >= len(self.table.streams):
@@ -221,6 +229,11 @@ class FrameCodec:
                 raise DecodeError(f"fragment {index} of {count} (at most {most})")
             return Entry(channel, header=(tid, index, count), chunk=chunk)
         values = channel.unpack(payload & ((1 << channel.bits) - 1))
+        if channel.family is not None:
+            member = payload >> channel.bits
+            if member >= channel.family.bound:
+                raise DecodeError(f"member {member} of {channel.family.bound}")
+            return Entry(channel, values, (member,))
         if channel.reliable:
             header = payload >> channel.bits
             seq, lag = header >> LAG_BITS, header & ((1 << LAG_BITS) - 1)
