@@ -23,6 +23,14 @@ from tests.zsim import app as plain_app
 ZSPACE = MISSIONS / "zspace.yaml"
 
 
+def wanting(seed: int = 1) -> FastFleet:
+    """The example fleet with an application subscribing to everything at every node."""
+    fleet = FastFleet(load_mission(ZSPACE), seed=seed)
+    for node in fleet.cores:
+        fleet.subscribe(node, "**")
+    return fleet
+
+
 def values(fleet: FastFleet, node: str) -> dict[str, list]:
     out: dict[str, list] = {}
     for _, p in fleet.published(node):
@@ -31,7 +39,7 @@ def values(fleet: FastFleet, node: str) -> dict[str, list]:
 
 
 def test_listed_members_arrive_on_their_own_keys_with_their_own_values() -> None:
-    fleet = FastFleet(load_mission(ZSPACE), seed=1)
+    fleet = wanting()
     fleet.put("auv1", "sensors/a/temp", {"celsius": 10.0}, at=0.5)
     fleet.put("auv1", "sensors/b/temp", {"celsius": 20.0}, at=0.6)
     fleet.put("auv2", "sensors/a/temp", {"celsius": 5.0}, at=0.7)
@@ -53,7 +61,7 @@ def test_listed_members_arrive_on_their_own_keys_with_their_own_values() -> None
 
 
 def test_node_members_reach_each_vehicle() -> None:
-    fleet = FastFleet(load_mission(ZSPACE), seed=1)
+    fleet = wanting()
     fleet.put("top", "fleet/auv1/depth_order", {"depth_m": 12.5})
     fleet.put("top", "fleet/auv2/depth_order", {"depth_m": 30.0})
     fleet.run_until(5.0)
@@ -64,7 +72,7 @@ def test_node_members_reach_each_vehicle() -> None:
 
 
 def test_learned_family_names_members_and_stops_at_its_bound() -> None:
-    fleet = FastFleet(load_mission(ZSPACE), seed=1)
+    fleet = wanting()
     names = [f"c{i}" for i in range(10)]
     for i, name in enumerate(names):
         fleet.put("auv1", f"contacts/{name}", {"range_m": 100 + i, "bearing_deg": 2 * i})
@@ -82,9 +90,11 @@ def test_learned_family_names_members_and_stops_at_its_bound() -> None:
 def test_a_value_of_an_unnamed_member_is_dropped_until_its_name_arrives() -> None:
     loaded = load_mission(ZSPACE)
     auv1, top = NodeCore(loaded, "auv1"), NodeCore(loaded, "top")
+    assert auv1.interest is not None
+    auv1.interest.on_heard("top", range(len(loaded.table)), 0.0)  # top wants everything
     auv1.ingest("contacts/buoy", b'{"range_m": 7, "bearing_deg": 4}', "application/json", 0.0)
     first = auv1.build_frame(0.0, 0.0)
-    assert first is not None and [x.channel.name for x in first.extras] == ["@key"]
+    assert first is not None and [x.channel.name for x in first.extras] == ["@want", "@key"]
     auv1.frame_sent(first, 0.0)
     # a receiver that missed the names: the member's values are refused, counted
     entry = FrameCodec(loaded.table).decode(first.data)

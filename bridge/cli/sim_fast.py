@@ -153,10 +153,13 @@ async def run_fast(
     record: Callable[[str, str, dict[str, Any]], None] | None = None,
     progress: Callable[[FastFleet], None] | None = None,
     stop: asyncio.Event | None = None,
+    subscriptions: dict[str, list[str]] | None = None,
 ) -> dict[str, Any]:
     """Run ``duration`` virtual seconds (``speed``: times real time; None: flat out) and
     return the report. ``record`` gets every node's events (frames included), ``progress``
-    the fleet now and then; ``stop`` ends the run early."""
+    the fleet now and then; ``stop`` ends the run early. In a ``demand`` mission the
+    synthetic applications subscribe to ``subscriptions`` (node → key expressions; default:
+    ``**`` at every node, so every channel is wanted)."""
     if duration <= 0:
         raise ValueError("duration must be > 0")
     if speed is not None and speed <= 0:
@@ -175,6 +178,11 @@ async def run_fast(
             record(timed.node, timed.output.kind, timed.output.info)
 
     fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False)
+    if loaded.mission.demand is not None:
+        for node, keys in (subscriptions if subscriptions is not None
+                           else {n: ["**"] for n in loaded.mission.nodes}).items():
+            for key in keys:
+                fleet.subscribe(node, key)
     feed(fleet, random.Random(f"feed/{seed}"), duration)
     started = time.perf_counter()
     step = duration if speed is None else speed * PACE_STEP_S

@@ -26,6 +26,7 @@ from typing import Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.families import Extra, Families
+from bridge.core.interest import Interest
 from bridge.core.link import LinkState, LinkThresholds
 from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
@@ -39,6 +40,7 @@ from bridge.wire.auth import Authenticator, load_key
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.wire.families import NameCodec
 from bridge.wire.frame import FrameCodec
+from bridge.wire.interest import InterestCodec
 from bridge.wire.payloads import decode_payload
 
 log = logging.getLogger("zab.core")
@@ -147,6 +149,8 @@ class NodeCore:
         self._ranged_last = False  # a range never takes two transmit opportunities in a row
         self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
         self.families = Families(self.table, node)
+        self.interest = Interest(self.table.interest, mission.demand.refresh_s) \
+            if self.table.interest is not None and mission.demand is not None else None
         for channel in self.table.channels:
             if channel.index in self.store.states and channel.family is None:
                 for i, element in enumerate(channel.elements):
@@ -232,8 +236,9 @@ class NodeCore:
     def next_due(self, now: float | None = None) -> float | None:
         """When something (data, an acknowledgement, a retransmission or a heartbeat) is next
         due; None while nothing is pending."""
-        times = [self.store.next_due(now), self.next_heartbeat(),
+        times = [self._store_next_due(now), self.next_heartbeat(),
                  self.families.next_due(now, self.wants),
+                 self.interest.next_due() if self.interest is not None else None,
                  *(s.next_time() for s in self.senders.values()),
                  self.positioning.next_ping() if self.positioning is not None else None]
         if self._acks:
@@ -300,9 +305,20 @@ class NodeCore:
         return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), tuple(left_out)), now,
                         tuple(streams), tuple(acks), tuple(extras))
 
+    def _store_next_due(self, now: float | None) -> float | None:
+        """When a latest-value channel somebody wants becomes due."""
+        if self.interest is None:
+            return self.store.next_due(now)
+        times = [t for s in self.store.states.values()
+                 if self.wants(s.channel) and (t := s.ready_at(now)) is not None]
+        return min(times, default=None)
+
     def _candidates(self, now: float) -> list[Candidate]:
         """Everything that could go in a frame sent at ``now``."""
-        out = [Candidate(s.channel, s.last_sent, s) for s in self.store.due(now)]
+        out = [Candidate(s.channel, s.last_sent, s) for s in self.store.due(now)
+               if self.wants(s.channel)]
+        if self.interest is not None and (want := self.interest.candidate(now)) is not None:
+            out.append(want)
         for sender in self.senders.values():
             out += [Candidate(sender.channel, getattr(item, "last_sent", None), (sender, item), n)
                     for n, item in enumerate(sender.due(now))]
@@ -310,7 +326,7 @@ class NodeCore:
 
     def wants(self, channel: ChannelCodec) -> bool:
         """Whether some destination wants ``channel`` now (always, without demand)."""
-        return True
+        return self.interest is None or channel.stream or self.interest.wants(channel, self.node)
 
     def _ack_bits(self, src: str, index: int) -> int:
         ack_codec = self.table.ack
@@ -390,6 +406,10 @@ class NodeCore:
                 continue
             if isinstance(channel, NameCodec):
                 self.families.on_name(src, entry.header)
+                continue
+            if isinstance(channel, InterestCodec):
+                if self.interest is not None:
+                    self.interest.on_heard(src, entry.header, now)
                 continue
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
@@ -563,6 +583,8 @@ class NodeCore:
             "received_age_s": {k: now - t for k, t in self.received_at.items()},
             "last_heard": dict(self.last_heard),
             "links": {peer: state.value for peer, state in self.link_states.items()},
+            "sent_per_channel": dict(self.stats.sent_per_channel),
+            **({"interest": self.interest.snapshot(self.table)} if self.interest else {}),
             **({"families": self.families.snapshot(now)} if self.table.names is not None
                or any(c.family for c in self.table.channels) else {}),
         }

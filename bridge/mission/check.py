@@ -60,6 +60,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             "fragments": {"chunk_bytes": c.chunk_bytes,
                           "at_most": -(-c.value_bytes // c.chunk_bytes)} if c.fragmented else None,
             "keys": _family(c),
+            "always": c.always,
         }
         for c in table.channels
     ]
@@ -140,6 +141,10 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "overhead_bytes": codec.overhead_bytes(),
         "count_bits": codec.count_bits,
         "index_bits": codec.index_bits,
+        "demand": None if mission.demand is None else {
+            "refresh_s": mission.demand.refresh_s,
+            "want_entry_bits": codec.channel_cost_bits(table.interest)  # type: ignore[arg-type]
+        },
         "key_entry_bits": None if table.names is None else codec.channel_cost_bits(table.names),
         "channels": channels,
         "nodes": nodes,

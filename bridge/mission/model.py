@@ -237,6 +237,8 @@ class Channel(Strict):
     retry_s: float | None = Field(None, gt=0, description="Wait for an acknowledgement before "
                                   "the first retransmission (doubles up to 4x); default: one "
                                   "TDMA cycle, else 10 s.")
+    always: bool = Field(False, description="With ``demand``: send even while no application "
+                         "at a destination subscribes (latched state, safety data).")
     keys: FamilyKeys | None = Field(None, description="Make the channel a key family: its "
                                     "input keys hold ``{key}`` (or one ``*`` chunk) and each "
                                     "member keeps its own value, age and output key.")
@@ -269,6 +271,16 @@ class Wire(Strict):
 
     dlbl: bool = Field(False, description="Start each frame with the DLBL delay vector.")
     auth: Auth | None = Field(None, description="Counter + keyed tag in every frame.")
+
+
+class Demand(Strict):
+    """Demand-driven sending: a node sends a channel only while an application at one of its
+    destinations subscribes to its output key (except ``always`` channels). Each node tells the
+    others what its applications want in an ``@want`` bitmap over the mission's channels, sent
+    when it changes and at least every ``refresh_s``."""
+
+    refresh_s: float = Field(60.0, gt=0, description="Re-send this node's interest at least "
+                             "this often, seconds (it survives loss and restarts).")
 
 
 class LinkHealth(Strict):
@@ -340,6 +352,8 @@ class Mission(Strict):
     mac: Mac = Field(default_factory=lambda: NoMac(type="none"))
     wire: Wire = Field(default_factory=Wire)
     link: LinkHealth = Field(default_factory=LinkHealth)
+    demand: Demand | None = Field(None, description="Send channels only where applications "
+                                  "subscribe to them (see Demand).")
     ranging: Ranging = Field(default_factory=Ranging)
     channels: list[Channel] = Field(default_factory=list)
 

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
+from bridge.core.interest import own_subscriptions, wanted_by
 from bridge.core.mac import schedule_for
 from bridge.core.node import NodeCore, Output, Publish
 from bridge.core.positioning import simulated_preset
@@ -79,11 +80,13 @@ class FastFleet:
         self.on_output = on_output
         self.keep_outputs = keep_outputs
         self.stopped: set[str] = set()
+        self.subscriptions: dict[str, list[str]] = {}
         self._next_tx: dict[str, float | None] = {}
         self._pending: dict[int, tuple[str, Any]] = {}
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
         for name in mission.nodes:
+            self._interest(name)
             self._plan(name)
         self._next_tick = start
 
@@ -109,6 +112,24 @@ class FastFleet:
             deliver()
         else:
             self.call_at(at, deliver)
+
+    def subscribe(self, node: str, key: str) -> None:
+        """An application on ``node`` subscribes to ``key`` (demand-driven missions: the
+        channels whose outputs it meets become wanted there)."""
+        self.subscriptions.setdefault(node, []).append(key)
+        self._interest(node)
+
+    def unsubscribe(self, node: str, key: str) -> None:
+        """Undo one :meth:`subscribe` of ``key`` at ``node``."""
+        self.subscriptions.get(node, []).remove(key)
+        self._interest(node)
+
+    def _interest(self, node: str) -> None:
+        core = self.cores[node]
+        own = own_subscriptions(self.mission, [*core.bindings, *core.families.subscriptions()])
+        if core.interest is not None and core.interest.set_local(
+                wanted_by(self.loaded.table, node, [*own, *self.subscriptions.get(node, [])])):
+            self._replan(node)
 
     def stop(self, node: str) -> None:
         """Silence ``node``: it neither sends nor hears from now on."""

@@ -19,6 +19,7 @@ from typing import Any
 import msgpack
 import zenoh
 
+from bridge.core.interest import output_keys
 from bridge.core.link import LinkState
 from bridge.core.mac import schedule_for
 from bridge.core.node import NodeCore, NodeStats, Notice, Publish, Status, notable
@@ -64,6 +65,7 @@ class BridgeNode:
         self._latched_keys: set[str] = set()
         self._publishers: dict[str, Any] = {}
         self._queryables: list[Any] = []
+        self._interest_entities: list[Any] = []
         self._data = asyncio.Event()
         self._modem_up = asyncio.Event()
         self.started = asyncio.Event()
@@ -105,6 +107,8 @@ class BridgeNode:
                 self.session.declare_subscriber(
                     key, lambda s: self._from_zenoh(loop, str(s.key_expr), s))
             self._subscribe_positions(loop)
+            if self.core.interest is not None:
+                self._watch_interest(loop)
             tasks = [
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
@@ -173,6 +177,27 @@ class BridgeNode:
             listen(key, ("temperature_c", "salinity_psu", "depth_m"),
                    lambda v, p=peer: positioning.set_peer_water(p, *v),  # type: ignore[misc]
                    bridged=True)
+
+    def _watch_interest(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Demand-driven missions: a matching listener on every output key this node publishes
+        says whether some application (or this bridge's own input) subscribes to it."""
+        assert self.session is not None
+        keys = output_keys(self.table, self.node)
+        matched: dict[str, bool] = {}
+
+        def changed(key: str, matching: bool) -> None:
+            matched[key] = matching
+            wanted = {i for i, ks in keys.items() if any(matched.get(k) for k in ks)}
+            assert self.core.interest is not None
+            if self.core.interest.set_local(wanted):
+                self._data.set()  # the new @want is due at the next opportunity
+
+        for key in sorted({k for ks in keys.values() for k in ks}):
+            publisher = self.session.declare_publisher(key)
+            self._interest_entities.append(publisher)
+            self._interest_entities.append(publisher.declare_matching_listener(
+                lambda status, k=key: loop.call_soon_threadsafe(changed, k, status.matching)))
+            changed(key, publisher.matching_status.matching)
 
     def move(self, position: tuple[float, ...]) -> None:
         """This node's live position: move the (simulated) modem and keep the depth."""

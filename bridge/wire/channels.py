@@ -18,6 +18,7 @@ from bridge.codec import Layout
 from bridge.errors import LayoutError
 from bridge.mission.model import Channel, Element, LearnedKeys, Mission, NodeKeys
 from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, name_codec
+from bridge.wire.interest import InterestCodec
 
 WIRE_VERSION = 1
 
@@ -103,6 +104,7 @@ class ChannelCodec:
     chunk_bytes: int = 0  # > 0: values are too big for a frame and travel in fragments
     fragment_bits: int = 0  # bits of a fragment index / count
     family: FamilySpec | None = None  # a key family: each entry starts with a member index
+    always: bool = False  # with demand: sent even while no destination wants it
 
     @cached_property
     def bits(self) -> int:
@@ -237,6 +239,7 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         retries=channel.retries,
         retry_s=channel.retry_s,
         family=family,
+        always=channel.always,
     )
 
 
@@ -342,6 +345,7 @@ class ChannelTable:
     nodes: tuple[str, ...]
     dlbl: bool
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
+    demand: bool = False  # frames may carry the @want interest bitmap
 
     @classmethod
     def from_mission(cls, mission: Mission) -> ChannelTable:
@@ -361,7 +365,8 @@ class ChannelTable:
             compiled = tuple(fragment_channel(c, mission, True) for c in compiled)
         auth = mission.wire.auth
         return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
-                   auth_tag_bytes=auth.tag_bytes if auth else 0)
+                   auth_tag_bytes=auth.tag_bytes if auth else 0,
+                   demand=mission.demand is not None)
 
     def __len__(self) -> int:
         return len(self.channels)
@@ -389,10 +394,18 @@ class ChannelTable:
                    if c.family is not None and c.family.learned]
         return name_codec(len(self.channels) + (self.ack is not None), learned)
 
+    @cached_property
+    def interest(self) -> InterestCodec | None:
+        """The ``@want`` entry, present in missions with ``demand``."""
+        if not self.demand:
+            return None
+        return InterestCodec(len(self.channels) + (self.ack is not None)
+                             + (self.names is not None), len(self.channels))
+
     @property
-    def wire(self) -> tuple[ChannelCodec | AckCodec | NameCodec, ...]:
+    def wire(self) -> tuple[ChannelCodec | AckCodec | NameCodec | InterestCodec, ...]:
         """Every kind of entry a frame may hold: the mission's channels, then system ones."""
-        system = tuple(s for s in (self.ack, self.names) if s is not None)
+        system = tuple(s for s in (self.ack, self.names, self.interest) if s is not None)
         return (*self.channels, *system)
 
     def by_name(self, name: str) -> ChannelCodec:
@@ -405,7 +418,7 @@ class ChannelTable:
     @cached_property
     def fingerprint(self) -> bytes:
         """8 bytes that differ when two mission files would disagree about the wire."""
-        description = {
+        description: dict[str, object] = {
             "wire": WIRE_VERSION,
             "dlbl": self.dlbl,
             "auth": self.auth_tag_bytes,
@@ -419,5 +432,7 @@ class ChannelTable:
                 for c in self.channels
             ],
         }
+        if self.demand:
+            description["demand"] = [c.name for c in self.channels if c.always]
         blob = json.dumps(description, sort_keys=True, separators=(",", ":")).encode()
         return hashlib.sha256(blob).digest()[:8]

@@ -13,7 +13,8 @@ Layout, most significant bit first::
                      reliable: seq (8) + lag (4) + the value; fragment: transfer id (4) +
                      index + count + a chunk of the packed value; ``@ack``: see AckCodec;
                      key family: member index (ceil(log2 n) bits) + the value; ``@key``
-                     (learned families): see bridge.wire.families.NameCodec.
+                     (learned families): see bridge.wire.families.NameCodec; ``@want``
+                     (demand missions): see bridge.wire.interest.InterestCodec.
              Only reliable, fragmented, keyed and system entries may repeat in a frame.
     pad      zero bits up to the next byte
     [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.wire.auth)
@@ -40,6 +41,7 @@ from bridge.wire.channels import (
     ChannelTable,
 )
 from bridge.wire.families import NameCodec
+from bridge.wire.interest import InterestCodec
 
 DELAY_BYTES = 3
 DELAY_MAX_US = (1 << 24) - 2  # largest delay sent; a longer one wraps (see ranging)
@@ -206,6 +208,8 @@ class FrameCodec:
 
     def _entry(self, channel: ChannelCodec | AckCodec | NameCodec, payload: int) -> Entry:
         """One entry's fields, checked; raises :class:`DecodeError` when malformed."""
+        if isinstance(channel, InterestCodec):
+            return Entry(channel, header=tuple(sorted(channel.unpack(payload))))  # type: ignore
         if isinstance(channel, NameCodec):
             try:
                 return Entry(channel, header=channel.unpack(payload))  # type: ignore[arg-type]
