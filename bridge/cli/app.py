@@ -98,6 +98,16 @@ def check(
                          ", ".join(c["from"]), ", ".join(c["to"]), f"{c['interval_s']:g} s",
                          str(c["latching"]).lower(), str(c["priority"]))
     console.print(channels)
+    if data.get("queries"):
+        queries = Table("query", "key", "servers", "askers", "request bits", "reply bits",
+                        "deadline", title=f"queries (at most {data['max_open_queries']} open "
+                        "per node)")
+        for q in data["queries"]:
+            deadlines = q["deadline_s"].values()
+            queries.add_row(q["name"], q["key"], ", ".join(q["servers"]), ", ".join(q["askers"]),
+                            str(q["request_bits"]), str(q["reply_bits"]),
+                            f"≤ {max(deadlines):g} s" if deadlines else "—")
+        console.print(queries)
     if data.get("key_entry_bits"):
         console.print(f"@key entry (names a learned member): {data['key_entry_bits']} bits",
                       highlight=False)

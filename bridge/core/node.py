@@ -29,6 +29,7 @@ from bridge.core.families import Extra, Families
 from bridge.core.interest import Interest
 from bridge.core.link import LinkState, LinkThresholds
 from bridge.core.positioning import Positioning, Update, needs_positioning
+from bridge.core.queries import Queries, Ticket
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
@@ -42,6 +43,7 @@ from bridge.wire.families import NameCodec
 from bridge.wire.frame import FrameCodec
 from bridge.wire.interest import InterestCodec
 from bridge.wire.payloads import decode_payload
+from bridge.wire.queries import QueryCodec
 
 log = logging.getLogger("zab.core")
 
@@ -149,6 +151,7 @@ class NodeCore:
         self._ranged_last = False  # a range never takes two transmit opportunities in a row
         self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
         self.families = Families(self.table, node)
+        self.queries = Queries(mission, self.table, node) if self.table.queries else None
         self.interest = Interest(self.table.interest, mission.demand.refresh_s) \
             if self.table.interest is not None and mission.demand is not None else None
         for channel in self.table.channels:
@@ -172,6 +175,8 @@ class NodeCore:
 
     def take(self) -> list[Output]:
         """Everything produced since the last call, in order."""
+        if self.queries is not None:
+            self._outputs.extend(self.queries.take())
         out, self._outputs = self._outputs, []
         return out
 
@@ -239,6 +244,7 @@ class NodeCore:
         times = [self._store_next_due(now), self.next_heartbeat(),
                  self.families.next_due(now, self.wants),
                  self.interest.next_due() if self.interest is not None else None,
+                 self.queries.next_due() if self.queries is not None else None,
                  *(s.next_time() for s in self.senders.values()),
                  self.positioning.next_ping() if self.positioning is not None else None]
         if self._acks:
@@ -319,6 +325,8 @@ class NodeCore:
                if self.wants(s.channel)]
         if self.interest is not None and (want := self.interest.candidate(now)) is not None:
             out.append(want)
+        if self.queries is not None:
+            out += self.queries.candidates(now)
         for sender in self.senders.values():
             out += [Candidate(sender.channel, getattr(item, "last_sent", None), (sender, item), n)
                     for n, item in enumerate(sender.due(now))]
@@ -406,6 +414,11 @@ class NodeCore:
                 continue
             if isinstance(channel, NameCodec):
                 self.families.on_name(src, entry.header)
+                continue
+            if isinstance(channel, QueryCodec):
+                if self.queries is not None:
+                    handle = self.queries.on_reply if channel.reply else self.queries.on_request
+                    handle(src, channel, entry.header, entry.values)
                 continue
             if isinstance(channel, InterestCodec):
                 if self.interest is not None:
@@ -552,6 +565,25 @@ class NodeCore:
         self.update_links(now)
         for sender in self.senders.values():
             self._reports(sender.expire(now))
+        if self.queries is not None:
+            self.queries.expire(now)
+
+    def ask(self, key: str, parameters: Any, now: float) -> Ticket | str:
+        """A Zenoh get on ``key`` with ``parameters`` (a dict): the acoustic query's ticket it
+        waits on (replies come as QueryAnswer / QueryEnd outputs), or why it ends at once."""
+        found = self.queries.spec_for(key) if self.queries is not None else None
+        if found is None:
+            return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
+        spec, server = found
+        self.update_links(now)
+        return self.queries.ask(spec, server, parameters, now,  # type: ignore[union-attr]
+                                self.link_states.get(server))
+
+    def query_served(self, ticket: tuple[int, str, int], values: list[Any],
+                     error: str | None = None) -> None:
+        """The local get of a request ended: queue its replies for the asker."""
+        if self.queries is not None:
+            self.queries.served(ticket, values, error)
 
     def update_links(self, now: float) -> None:
         """Re-evaluate every peer's link; report changes on ``link/<peer>``."""
@@ -584,6 +616,7 @@ class NodeCore:
             "last_heard": dict(self.last_heard),
             "links": {peer: state.value for peer, state in self.link_states.items()},
             "sent_per_channel": dict(self.stats.sent_per_channel),
+            **({"queries": self.queries.snapshot()} if self.queries else {}),
             **({"interest": self.interest.snapshot(self.table)} if self.interest else {}),
             **({"families": self.families.snapshot(now)} if self.table.names is not None
                or any(c.family for c in self.table.channels) else {}),

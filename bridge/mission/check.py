@@ -18,6 +18,7 @@ from bridge.core.mac import (
     polled_slaves,
     ranging_tmax_s,
 )
+from bridge.core.queries import deadline_s
 from bridge.errors import BackendError
 from bridge.mission.loader import LoadedMission
 from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, TdmaMac
@@ -25,6 +26,7 @@ from bridge.modems.registry import load_backend
 from bridge.wire.channels import ChannelCodec
 from bridge.wire.families import has_wildcard
 from bridge.wire.frame import FrameCodec
+from bridge.wire.queries import QueryCodec
 
 
 @dataclass
@@ -145,6 +147,8 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             "refresh_s": mission.demand.refresh_s,
             "want_entry_bits": codec.channel_cost_bits(table.interest)  # type: ignore[arg-type]
         },
+        "queries": [_query(mission, codec, c) for c in table.query_codecs if not c.reply],
+        "max_open_queries": mission.max_open_queries,
         "key_entry_bits": None if table.names is None else codec.channel_cost_bits(table.names),
         "channels": channels,
         "nodes": nodes,
@@ -163,6 +167,17 @@ def _family(channel: ChannelCodec) -> dict[str, Any] | None:
     return {"members": None if spec.learned else list(spec.members), "bound": spec.bound,
             "learned": spec.learned, "index_bits": spec.index_bits,
             "name_bytes": spec.name_bytes if spec.learned else None}
+
+
+def _query(mission: Mission, codec: FrameCodec, request: QueryCodec) -> dict[str, Any]:
+    """A query as ``zab check`` shows it: entry sizes and the deadline of each asker/server."""
+    spec = request.spec
+    reply = next(c for c in codec.table.query_codecs if c.reply and c.spec is spec)
+    return {"name": spec.name, "key": spec.key, "servers": list(spec.servers),
+            "askers": list(spec.askers), "request_bits": codec.channel_cost_bits(request),
+            "reply_bits": codec.channel_cost_bits(reply), "max_replies": spec.max_replies,
+            "deadline_s": {f"{a}->{s}": deadline_s(mission, spec, a, s)
+                           for a in spec.askers for s in spec.servers if s != a}}
 
 
 def _family_warnings(loaded: LoadedMission, report: CheckReport) -> None:

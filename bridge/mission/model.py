@@ -256,6 +256,30 @@ class Channel(Strict):
         return self
 
 
+class Query(Strict):
+    """Zenoh queries across the water: a ``get`` on ``key`` at an asking node becomes a compact
+    request; the serving node's bridge runs a local ``get`` on ``local_key`` with the request's
+    parameters and sends the replies back; the asking bridge answers the original ``get``, or
+    ends it with a reply error at the deadline the MAC allows."""
+
+    name: NodeName
+    key: str = Field(description="Key expression applications get at the asking nodes; with "
+                     "several servers it holds {node}, the serving node (e.g. {node}/info).")
+    serve: NodePattern = Field(description="Serving node(s): where the queryable lives.")
+    ask: NodePattern | None = Field(None, description="Nodes whose applications may ask "
+                                    "(default: every node that does not serve).")
+    local_key: str | None = Field(None, description="Key the serving bridge gets on its own "
+                                  "session ({node} = the server); default: the asked key.")
+    request: list[FieldSpec] = Field(default_factory=list, description="The parameters "
+                                     "(selector parameters or a msgpack/JSON payload); none: "
+                                     "a bare get.")
+    reply: list[FieldSpec] = Field(min_length=1, description="Fields of each reply.")
+    encoding: Literal["msgpack", "json"] = Field("msgpack", description="Replies' payload.")
+    max_replies: int = Field(1, ge=1, le=8, description="Replies carried back per request.")
+    timeout_s: float | None = Field(None, gt=0, description="Give up after this long; default: "
+                                    "the MAC's bound for a request and its reply.")
+
+
 class Auth(Strict):
     """Authenticated frames. The key is never in the mission: it comes from the environment
     variable ``key_env`` or else from ``key_file``."""
@@ -356,6 +380,9 @@ class Mission(Strict):
                                   "subscribe to them (see Demand).")
     ranging: Ranging = Field(default_factory=Ranging)
     channels: list[Channel] = Field(default_factory=list)
+    queries: list[Query] = Field(default_factory=list, description="Queries across the water.")
+    max_open_queries: int = Field(4, ge=1, le=16, description="Acoustic queries a node keeps "
+                                  "open at once; a further get ends at once with an error.")
 
     def node_modem(self, name: str) -> Modem:
         """The modem settings of ``name``: mission defaults with the node's overrides."""

@@ -26,6 +26,7 @@ from bridge.core.node import NodeCore, Output, Publish
 from bridge.core.positioning import simulated_preset
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import Reception
+from bridge.runtime.virtual_queries import VirtualQueries
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
 from bridge.sim.path import Path
 from bridge.sim.presets import Preset
@@ -81,6 +82,7 @@ class FastFleet:
         self.keep_outputs = keep_outputs
         self.stopped: set[str] = set()
         self.subscriptions: dict[str, list[str]] = {}
+        self.queries = VirtualQueries(self)  # applications' gets and queryables
         self._next_tx: dict[str, float | None] = {}
         self._pending: dict[int, tuple[str, Any]] = {}
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
@@ -123,6 +125,11 @@ class FastFleet:
         """Undo one :meth:`subscribe` of ``key`` at ``node``."""
         self.subscriptions.get(node, []).remove(key)
         self._interest(node)
+
+    def collect_and_replan(self, node: str) -> None:
+        """Carry out ``node``'s outputs and plan its next transmission again."""
+        self._collect(node)
+        self._replan(node)
 
     def _interest(self, node: str) -> None:
         core = self.cores[node]
@@ -237,6 +244,7 @@ class FastFleet:
 
     def _collect(self, name: str) -> None:
         for output in self.cores[name].take():
+            self.queries.handle(name, output)
             timed = Timed(self.now, name, output)
             if self.keep_outputs:
                 self.outputs.append(timed)

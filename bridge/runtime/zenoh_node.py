@@ -28,6 +28,7 @@ from bridge.errors import BackendError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
 from bridge.runtime.session import close_quietly, is_bridged, open_session, origin_tag
+from bridge.runtime.zenoh_queries import QueryBridge
 from bridge.wire.payloads import encode_payload
 
 log = logging.getLogger("zab.node")
@@ -66,6 +67,7 @@ class BridgeNode:
         self._publishers: dict[str, Any] = {}
         self._queryables: list[Any] = []
         self._interest_entities: list[Any] = []
+        self._query_bridge: QueryBridge | None = None
         self._data = asyncio.Event()
         self._modem_up = asyncio.Event()
         self.started = asyncio.Event()
@@ -109,6 +111,8 @@ class BridgeNode:
             self._subscribe_positions(loop)
             if self.core.interest is not None:
                 self._watch_interest(loop)
+            if self.core.queries is not None:
+                self._query_bridge = QueryBridge(self, loop)
             tasks = [
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
@@ -121,6 +125,8 @@ class BridgeNode:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
         finally:
+            if self._query_bridge is not None:
+                self._query_bridge.close()
             if self.backend is not None:
                 await self.backend.close()
             close_quietly(self.session)
@@ -336,6 +342,8 @@ class BridgeNode:
                     self._token(output.topic, output.payload["state"])
             elif isinstance(output, Notice):
                 self._event(output.kind, output.info)
+            elif self._query_bridge is not None:
+                self._query_bridge.handle(output)
 
     def _event(self, kind: str, info: dict[str, Any]) -> None:
         self.on_event(kind, info)

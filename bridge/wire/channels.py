@@ -19,6 +19,7 @@ from bridge.errors import LayoutError
 from bridge.mission.model import Channel, Element, LearnedKeys, Mission, NodeKeys
 from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, name_codec
 from bridge.wire.interest import InterestCodec
+from bridge.wire.queries import QueryCodec, QuerySpec, compile_query, query_codecs
 
 WIRE_VERSION = 1
 
@@ -261,6 +262,35 @@ def compile_family(channel: Channel, nodes: Sequence[str],
     return FamilySpec(tuple(members), len(members))
 
 
+def compile_queries(mission: Mission) -> tuple[QuerySpec, ...]:
+    """Every query of the mission, raising :class:`ChannelTableError` with a location."""
+    out = []
+    for i, query in enumerate(mission.queries):
+        loc: tuple[str | int, ...] = ("queries", i)
+        for key, where in ((query.key, "key"), (query.local_key or "", "local_key")):
+            bad = template_names(key) - {"node"}
+            if bad:
+                raise ChannelTableError(f"unknown template {{{sorted(bad)[0]}}} in {key!r}; "
+                                        "allowed here: {node}", (*loc, where))
+        try:
+            spec = compile_query(i, query, mission, match_nodes)
+        except PatternError as exc:
+            raise ChannelTableError(str(exc), loc) from None
+        except LayoutError as exc:
+            raise ChannelTableError(str(exc), (*loc, *exc.loc)) from None
+        if len(spec.servers) > 1 and "node" not in template_names(query.key):
+            raise ChannelTableError("a query with several servers needs {node} in its key "
+                                    "(the server asked)", (*loc, "key"))
+        if not spec.askers:
+            raise ChannelTableError("no node may ask this query", (*loc, "ask"))
+        out.append(spec)
+    names = [q.name for q in out]
+    for i, name in enumerate(names):
+        if name in names[:i]:
+            raise ChannelTableError(f"query name {name!r} used twice", ("queries", i, "name"))
+    return tuple(out)
+
+
 def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
     """Bits one entry (index included) can take in a frame of ``node``, after what the
     mission's wire options add: DLBL delays, authentication, check, count. ``streams``: the
@@ -346,6 +376,7 @@ class ChannelTable:
     dlbl: bool
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
     demand: bool = False  # frames may carry the @want interest bitmap
+    queries: tuple[QuerySpec, ...] = ()  # queries across the water
 
     @classmethod
     def from_mission(cls, mission: Mission) -> ChannelTable:
@@ -366,7 +397,7 @@ class ChannelTable:
         auth = mission.wire.auth
         return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
                    auth_tag_bytes=auth.tag_bytes if auth else 0,
-                   demand=mission.demand is not None)
+                   demand=mission.demand is not None, queries=compile_queries(mission))
 
     def __len__(self) -> int:
         return len(self.channels)
@@ -402,11 +433,19 @@ class ChannelTable:
         return InterestCodec(len(self.channels) + (self.ack is not None)
                              + (self.names is not None), len(self.channels))
 
+    @cached_property
+    def query_codecs(self) -> tuple[QueryCodec, ...]:
+        """Request and reply entries of every query, after the other system entries."""
+        first = len(self.channels) + sum(s is not None
+                                         for s in (self.ack, self.names, self.interest))
+        return query_codecs(first, self.queries, len(self.nodes))
+
     @property
-    def wire(self) -> tuple[ChannelCodec | AckCodec | NameCodec | InterestCodec, ...]:
+    def wire(self) -> tuple[ChannelCodec | AckCodec | NameCodec | InterestCodec | QueryCodec,
+                            ...]:
         """Every kind of entry a frame may hold: the mission's channels, then system ones."""
         system = tuple(s for s in (self.ack, self.names, self.interest) if s is not None)
-        return (*self.channels, *system)
+        return (*self.channels, *system, *self.query_codecs)
 
     def by_name(self, name: str) -> ChannelCodec:
         return next(c for c in self.channels if c.name == name)
@@ -434,5 +473,7 @@ class ChannelTable:
         }
         if self.demand:
             description["demand"] = [c.name for c in self.channels if c.always]
+        if self.queries:
+            description["queries"] = [q.describe() for q in self.queries]
         blob = json.dumps(description, sort_keys=True, separators=(",", ":")).encode()
         return hashlib.sha256(blob).digest()[:8]

@@ -14,7 +14,8 @@ Layout, most significant bit first::
                      index + count + a chunk of the packed value; ``@ack``: see AckCodec;
                      key family: member index (ceil(log2 n) bits) + the value; ``@key``
                      (learned families): see bridge.wire.families.NameCodec; ``@want``
-                     (demand missions): see bridge.wire.interest.InterestCodec.
+                     (demand missions): see bridge.wire.interest.InterestCodec; query
+                     request ``?name`` / reply ``!name``: see bridge.wire.queries.
              Only reliable, fragmented, keyed and system entries may repeat in a frame.
     pad      zero bits up to the next byte
     [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.wire.auth)
@@ -42,6 +43,7 @@ from bridge.wire.channels import (
 )
 from bridge.wire.families import NameCodec
 from bridge.wire.interest import InterestCodec
+from bridge.wire.queries import QueryCodec, ReplyStatus
 
 DELAY_BYTES = 3
 DELAY_MAX_US = (1 << 24) - 2  # largest delay sent; a longer one wraps (see ranging)
@@ -208,6 +210,13 @@ class FrameCodec:
 
     def _entry(self, channel: ChannelCodec | AckCodec | NameCodec, payload: int) -> Entry:
         """One entry's fields, checked; raises :class:`DecodeError` when malformed."""
+        if isinstance(channel, QueryCodec):
+            qid, node, status, packed = channel.unpack(payload)
+            if node >= len(self.table.nodes):
+                raise DecodeError(f"names unknown node {node}")
+            carries = not channel.reply or status <= ReplyStatus.LAST
+            return Entry(channel, [channel.layout.unpack(packed)] if carries else None,  # type: ignore
+                         (qid, node, status))
         if isinstance(channel, InterestCodec):
             return Entry(channel, header=tuple(sorted(channel.unpack(payload))))  # type: ignore
         if isinstance(channel, NameCodec):
