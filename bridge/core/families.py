@@ -163,6 +163,19 @@ class Families:
                 state.fresh = True
         return problems
 
+    def outputs_for(self, key: str) -> list[tuple[str, str]]:
+        """(destination, output key) of each member concrete ``key`` feeds (for relays)."""
+        out: list[tuple[str, str]] = []
+        for sender in self.senders.values():
+            channel = sender.channel
+            for i, pattern in enumerate(sender.patterns):
+                match = pattern.fullmatch(key)
+                if match is not None and match.group(1) in sender.names:
+                    element = channel.elements[i]
+                    out += [(d, element.output_key(self.node, d, match.group(1)))
+                            for d in channel.destinations(self.node)]
+        return out
+
     def candidates(self, now: float, wanted: Callable[[ChannelCodec], bool]) -> list[Candidate]:
         """Members due at ``now``, and the names receivers still need to hear beside them."""
         out: list[Candidate] = []

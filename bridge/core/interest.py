@@ -122,10 +122,10 @@ class Interest:
         self.peers[src] = frozenset(wanted)
         self.heard_at[src] = now
 
-    def wants(self, channel: ChannelCodec, sender: str) -> bool:
-        """Whether ``channel`` sent by ``sender`` is wanted by one of its destinations."""
+    def wants(self, channel: ChannelCodec, destinations: Iterable[str]) -> bool:
+        """Whether ``channel`` is wanted by one of ``destinations``."""
         return channel.always or any(channel.index in self.peers.get(d, ())
-                                     for d in channel.destinations(sender))
+                                     for d in destinations)
 
     def snapshot(self, table: ChannelTable) -> dict[str, object]:
         """Names of the channels wanted here and by each peer (as last heard)."""

@@ -32,6 +32,7 @@ from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.queries import Queries, Ticket
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
 from bridge.core.store import ChannelState, OutboundStore
+from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
 from bridge.errors import DecodeError, EncodeError, FrameError
 from bridge.mission.loader import LoadedMission
@@ -47,7 +48,8 @@ from bridge.wire.queries import QueryCodec
 
 log = logging.getLogger("zab.core")
 
-NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payload_dropped"})
+NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payload_dropped",
+                     "surfaced"})
 """Notice kinds also published on ``@zab/<mission>/<node>/events`` (and failed deliveries)."""
 
 DEFAULT_RETRY_S = 10.0  # first retransmission without TDMA (with TDMA: one cycle)
@@ -152,6 +154,8 @@ class NodeCore:
         self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
         self.families = Families(self.table, node)
         self.queries = Queries(mission, self.table, node) if self.table.queries else None
+        self.surfacing = Surfacing(node, mission.surfacing.republish) \
+            if mission.surfacing is not None else None
         self.interest = Interest(self.table.interest, mission.demand.refresh_s) \
             if self.table.interest is not None and mission.demand is not None else None
         for channel in self.table.channels:
@@ -213,6 +217,12 @@ class NodeCore:
         if self.families.senders:
             for problem in self.families.ingest(key, value, now):
                 self.drop_payload(key, problem, now)
+        if self.surfacing is not None and self.surfacing.reachable:  # full fidelity over IP
+            outs = [(d, element.output_key(self.node, d))
+                    for channel, _, element in self.bindings.get(key, ()) if not channel.stream
+                    for d in channel.destinations(self.node)]
+            self._outputs.extend(self.surfacing.relays(
+                key, outs + self.families.outputs_for(key), data, encoding))
 
     def drop_payload(self, key: str, reason: str, now: float) -> None:
         """Count a payload that cannot be used (warned once per key)."""
@@ -313,7 +323,7 @@ class NodeCore:
 
     def _store_next_due(self, now: float | None) -> float | None:
         """When a latest-value channel somebody wants becomes due."""
-        if self.interest is None:
+        if self.interest is None and self.surfacing is None:
             return self.store.next_due(now)
         times = [t for s in self.store.states.values()
                  if self.wants(s.channel) and (t := s.ready_at(now)) is not None]
@@ -333,8 +343,22 @@ class NodeCore:
         return out + self.families.candidates(now, self.wants)
 
     def wants(self, channel: ChannelCodec) -> bool:
-        """Whether some destination wants ``channel`` now (always, without demand)."""
-        return self.interest is None or channel.stream or self.interest.wants(channel, self.node)
+        """Whether some destination reached acoustically wants ``channel`` now (always,
+        without demand or surfacing)."""
+        if (self.interest is None and self.surfacing is None) or channel.stream:
+            return True
+        destinations = channel.destinations(self.node)
+        if self.surfacing is not None:
+            destinations = self.surfacing.acoustic(destinations)
+        return bool(destinations) and (self.interest is None
+                                       or self.interest.wants(channel, destinations))
+
+    def ip_reachable(self, peer: str, up: bool, now: float) -> None:
+        """The peer's bridge became reachable over IP (``up``) or stopped being so."""
+        if self.surfacing is not None and self.surfacing.changed(peer, up, now):
+            payload = {"peer": peer, "ip": up, "time": now}
+            self._status(f"surfaced/{peer}", payload)
+            self._notice("surfaced", payload)
 
     def _ack_bits(self, src: str, index: int) -> int:
         ack_codec = self.table.ack
@@ -429,6 +453,10 @@ class NodeCore:
                 continue
             if self.node not in channel.destinations(src):
                 continue  # overheard: addressed to others
+            if self.surfacing is not None and src in self.surfacing.reachable \
+                    and not channel.stream:
+                self.surfacing.duplicates += 1  # it reaches us over IP at full fidelity
+                continue
             if channel.fragmented:
                 delivered = self._on_fragment(src, channel, entry.header, entry.chunk, now)
             elif channel.reliable:
@@ -617,6 +645,7 @@ class NodeCore:
             "links": {peer: state.value for peer, state in self.link_states.items()},
             "sent_per_channel": dict(self.stats.sent_per_channel),
             **({"queries": self.queries.snapshot()} if self.queries else {}),
+            **({"surfacing": self.surfacing.snapshot()} if self.surfacing else {}),
             **({"interest": self.interest.snapshot(self.table)} if self.interest else {}),
             **({"families": self.families.snapshot(now)} if self.table.names is not None
                or any(c.family for c in self.table.channels) else {}),

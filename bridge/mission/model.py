@@ -307,6 +307,18 @@ class Demand(Strict):
                              "this often, seconds (it survives loss and restarts).")
 
 
+class Surfacing(Strict):
+    """Fidelity that follows the link: while a peer's bridge is reachable over IP (its
+    liveliness token ``@zab/<mission>/<peer>/bridge`` is visible: it surfaced and its Zenoh
+    joined this node's), channels between the two are not carried acoustically; the sender's
+    bridge puts each input sample, unquantised, on the output key instead (``republish``). When
+    the token goes (the vehicle dives), acoustic bridging resumes at the next opportunity."""
+
+    republish: bool = Field(True, description="Put full-fidelity copies of input samples on "
+                            "the output keys of IP-reachable destinations (skipped when the "
+                            "output key is the input key: Zenoh carries it as it is).")
+
+
 class LinkHealth(Strict):
     """When a silent peer counts as degraded or down (seed 002: lost after 5 s of silence).
 
@@ -378,6 +390,8 @@ class Mission(Strict):
     link: LinkHealth = Field(default_factory=LinkHealth)
     demand: Demand | None = Field(None, description="Send channels only where applications "
                                   "subscribe to them (see Demand).")
+    surfacing: Surfacing | None = Field(None, description="Stop carrying a peer's channels "
+                                        "acoustically while it is reachable over IP.")
     ranging: Ranging = Field(default_factory=Ranging)
     channels: list[Channel] = Field(default_factory=list)
     queries: list[Query] = Field(default_factory=list, description="Queries across the water.")

@@ -126,6 +126,13 @@ class FastFleet:
         self.subscriptions.get(node, []).remove(key)
         self._interest(node)
 
+    def ip_link(self, a: str, b: str, up: bool) -> None:
+        """Nodes ``a`` and ``b`` reach each other over IP (surfaced, ``up``) or no longer
+        (dived): what their bridges learn from each other's liveliness token in Zenoh."""
+        for x, y in ((a, b), (b, a)):
+            self.cores[x].ip_reachable(y, up, self.now)
+            self.collect_and_replan(x)
+
     def collect_and_replan(self, node: str) -> None:
         """Carry out ``node``'s outputs and plan its next transmission again."""
         self._collect(node)

@@ -24,6 +24,7 @@ from bridge.core.link import LinkState
 from bridge.core.mac import schedule_for
 from bridge.core.node import NodeCore, NodeStats, Notice, Publish, Status, notable
 from bridge.core.positioning import Positioning
+from bridge.core.surfacing import Relay
 from bridge.errors import BackendError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
@@ -113,6 +114,8 @@ class BridgeNode:
                 self._watch_interest(loop)
             if self.core.queries is not None:
                 self._query_bridge = QueryBridge(self, loop)
+            if self.core.surfacing is not None:
+                self._watch_ip(loop)
             tasks = [
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
@@ -204,6 +207,26 @@ class BridgeNode:
             self._interest_entities.append(publisher.declare_matching_listener(
                 lambda status, k=key: loop.call_soon_threadsafe(changed, k, status.matching)))
             changed(key, publisher.matching_status.matching)
+
+    def _watch_ip(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Surfacing: this bridge's liveliness token, and the peers' tokens seen over IP."""
+        assert self.session is not None
+        liveliness = self.session.liveliness()
+        self._interest_entities.append(liveliness.declare_token(f"{self.prefix}/bridge"))
+
+        def on_token(sample: zenoh.Sample) -> None:  # Zenoh thread
+            parts = str(sample.key_expr).split("/")
+            up = sample.kind == zenoh.SampleKind.PUT
+            if len(parts) == 4 and parts[2] in self.mission.nodes:
+                loop.call_soon_threadsafe(self._ip_changed, parts[2], up)
+
+        self._interest_entities.append(liveliness.declare_subscriber(
+            f"@zab/{self.mission.mission}/*/bridge", on_token, history=True))
+
+    def _ip_changed(self, peer: str, up: bool) -> None:
+        self.core.ip_reachable(peer, up, self.clock())
+        self._flush()
+        self._data.set()  # a dive makes the peer's channels due again
 
     def move(self, position: tuple[float, ...]) -> None:
         """This node's live position: move the (simulated) modem and keep the depth."""
@@ -342,6 +365,10 @@ class BridgeNode:
                     self._token(output.topic, output.payload["state"])
             elif isinstance(output, Notice):
                 self._event(output.kind, output.info)
+            elif isinstance(output, Relay):  # surfaced peer: the sample as it came, over IP
+                assert self.session is not None
+                self.session.put(output.key, output.data, encoding=zenoh.Encoding(output.encoding),
+                                 attachment=self._origin)
             elif self._query_bridge is not None:
                 self._query_bridge.handle(output)
 
