@@ -3,6 +3,9 @@ ended with a reply error at the MAC's deadline, bounded, refused when the link i
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -17,7 +20,7 @@ from bridge.mission.loader import load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.runtime.zenoh_queries import format_parameters, parse_parameters
 from bridge.wire.frame import FrameCodec
-from tests.conftest import MISSIONS
+from tests.conftest import MISSIONS, REPO
 from tests.zsim import app as plain_app
 from tests.zsim import mission_file, zab_sim
 
@@ -207,3 +210,14 @@ def test_a_query_under_the_polled_mac_is_answered_in_the_reply_to_its_poll() -> 
     assert [v for _, v, _ in result.replies] == info({"detail": 3}) and result.error is None
     bound = deadline_s(loaded.mission, loaded.table.queries[0], "top", "auv2")
     assert result.ended_at is not None and result.ended_at - result.asked_at <= bound
+
+
+def test_zab_demo_shows_members_and_answered_gets(tmp_path: Path) -> None:
+    mission, _ = mission_file(ZSPACE.read_text(), tmp_path)
+    done = subprocess.run([sys.executable, "-m", "bridge", "demo", "--mission", str(mission),
+                           "--duration", "16", "--no-live", "--no-gui"], cwd=REPO,
+                          capture_output=True, text=True, timeout=90,
+                          env={**os.environ, "COLUMNS": "200"})
+    assert done.returncode == 0, done.stderr
+    assert "top ← auv1/sensors/a/temp" in done.stdout
+    assert "top get auv1/info?detail=0 → {'depth_m'" in done.stdout

@@ -22,6 +22,7 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
+from bridge.cli.demo_queries import QueryApps, member_keys
 from bridge.cli.sim import EventLog, print_report, run_fleet_for
 from bridge.codec import FieldSpec
 from bridge.gui.server import GuiServer
@@ -166,13 +167,13 @@ class VehicleApps:
                         phase = hash((node, channel.name, e_index, f_index)) % 628 / 100
                         _set(value, spec.field,
                              moving if moving is not None else synthetic_value(spec, t, phase))
-                    key = compiled.elements[e_index].input_key(node)
-                    if time.time() - self.operator.get((node, key), -OPERATOR_HOLD_S) \
-                            < OPERATOR_HOLD_S:
-                        continue  # the operator's command stands
-                    session.put(key, msgpack.packb(value),
-                                encoding=zenoh.Encoding("application/msgpack"))
-                    self.published += 1
+                    for key in member_keys(compiled, e_index, node):
+                        if time.time() - self.operator.get((node, key), -OPERATOR_HOLD_S) \
+                                < OPERATOR_HOLD_S:
+                            continue  # the operator's command stands
+                        session.put(key, msgpack.packb(value),
+                                    encoding=zenoh.Encoding("application/msgpack"))
+                        self.published += 1
 
     async def run(self) -> None:
         t0 = time.time()
@@ -230,20 +231,26 @@ async def run_demo(
     await asyncio.wait([runner, asyncio.create_task(fleet.ready.wait())],
                        return_when=asyncio.FIRST_COMPLETED)
     publisher: asyncio.Task[None] | None = None
+    asker: asyncio.Task[None] | None = None
     page: GuiServer | None = None
     try:
         if not runner.done():
             apps.start()
             publisher = asyncio.create_task(apps.run())
+            if loaded.table.queries:  # issue 15: gets across the water
+                queries = QueryApps(loaded, apps.sessions,
+                                    lambda line: console.print(line, highlight=False))
+                asker = asyncio.create_task(queries.run())
             if gui:
                 page = await _start_gui(loaded, gui_port, console)
         await runner
     finally:
         if page is not None:
             await page.stop()
-        if publisher is not None:
-            publisher.cancel()
-            await asyncio.gather(publisher, return_exceptions=True)
+        for task in (publisher, asker):
+            if task is not None:
+                task.cancel()
+                await asyncio.gather(task, return_exceptions=True)
         apps.close()
     report = fleet.report()
     print_report(console, report)
