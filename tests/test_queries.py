@@ -221,3 +221,27 @@ def test_zab_demo_shows_members_and_answered_gets(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     assert "top ← auv1/sensors/a/temp" in done.stdout
     assert "top get auv1/info?detail=0 → {'depth_m'" in done.stdout
+
+
+def test_a_fresh_latched_value_answers_at_once_without_a_request() -> None:
+    data = yaml.safe_load(ZSPACE.read_text())
+    data["queries"].append({"name": "state", "key": "{node}/status", "serve": "auv.*",
+                            "ask": "top", "cached_s": 10,
+                            "reply": [{"field": "battery", "min": 0, "max": 100,
+                                       "resolution": 1}]})
+    loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), "cached.yaml")
+    fleet = FastFleet(loaded, seed=1)
+    fleet.subscribe("top", "auv1/status")
+    fleet.put("auv1", "status", {"battery": 80, "mode": "survey"}, at=0.5)
+    fleet.run_until(10.0)
+    arrived = fleet.published("top", "auv1/status")[-1][0]
+    result = fleet.queries.get("top", "auv1/status")
+    assert result.done and result.error is None and result.ended_at == result.asked_at
+    assert [v for _, v, _ in result.replies] == [{"battery": 80, "mode": "survey"}]
+    assert fleet.cores["top"].queries.asked == 0 and fleet.cores["top"].queries.cached == 1
+    fleet.unsubscribe("top", "auv1/status")  # no fresher values: the cache ages
+    fleet.run_until(arrived + 8.0)  # the new @want has crossed: auv1 stopped sending
+    last = fleet.published("top", "auv1/status")[-1][0]
+    fleet.run_until(last + 11.0)
+    stale = fleet.queries.get("top", "auv1/status")
+    assert not stale.done and fleet.cores["top"].queries.asked == 1  # goes over the water

@@ -481,6 +481,8 @@ class NodeCore:
                     key = element.output_key(src, self.node, member)
                     if channel.family is not None:
                         self.families.arrived(key, now)
+                    if self.queries is not None and channel.latching:
+                        self.queries.remember(key, value, element.encoding, now)
                     self._publish(key, value, element.encoding, channel.latching)
         self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
         self._notice("frame_received", {

@@ -103,6 +103,8 @@ class Queries:
     asked: int = 0
     answered: int = 0
     failed: int = 0
+    cached: int = 0
+    cache: dict[str, tuple[Any, str, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         codecs = self.table.query_codecs
@@ -128,7 +130,15 @@ class Queries:
 
     def ask(self, spec: QuerySpec, server: str, parameters: Any, now: float,
             link: LinkState | None) -> Ticket | str:
-        """Open (or join) a query; returns its ticket, or why it ends at once."""
+        """Open (or join) a query; returns its ticket, or why it ends at once. A fresh enough
+        latched value (``cached_s``) answers at once, even with the link down."""
+        hit = self.cache.get(spec.asked_key(server))
+        if spec.cached_s is not None and hit is not None and now - hit[2] <= spec.cached_s:
+            self.cached += 1
+            ticket = (spec.index, server, -self.cached)  # never an acoustic query id
+            self.outputs += [QueryAnswer(ticket, spec.asked_key(server), hit[0], hit[1]),
+                             QueryEnd(ticket)]
+            return ticket
         if link is not LinkState.UP and link is not LinkState.DEGRADED:
             self.failed += 1
             return f"{server}: acoustic link down, query {spec.name!r} not sent"
@@ -253,6 +263,10 @@ class Queries:
             status = ReplyStatus.LAST if i == len(packed) - 1 else ReplyStatus.VALUE
             self.replies.append((codec, codec.pack(ticket[2], asker, bits, status), ticket))
 
+    def remember(self, key: str, value: Any, encoding: str, now: float) -> None:
+        """A latched channel's value this node published on ``key``."""
+        self.cache[key] = (value, encoding, now)
+
     def take(self) -> list[LocalGet | QueryAnswer | QueryEnd]:
         out, self.outputs = self.outputs, []
         return out
@@ -261,4 +275,5 @@ class Queries:
         return {"open": [{"query": self.table.queries[t[0]].name, "server": t[1],
                           "deadline": item.deadline} for t, item in self.open.items()],
                 "asked": self.asked, "answered": self.answered, "failed": self.failed,
+                "cached": self.cached,
                 "dropped": dict(self.dropped), "replies_owed": len(self.replies)}

@@ -202,7 +202,7 @@ class GuiModel:
     def ingest(self, key: str, data: bytes, encoding: str, now: float) -> None:
         """One sample the GUI's session received."""
         status = self.keys.status(key)
-        sources = self.keys.sources.get(key)
+        sources = self.keys.lookup(key)
         if status is None and sources is None:
             return
         try:

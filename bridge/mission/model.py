@@ -278,6 +278,9 @@ class Query(Strict):
     max_replies: int = Field(1, ge=1, le=8, description="Replies carried back per request.")
     timeout_s: float | None = Field(None, gt=0, description="Give up after this long; default: "
                                     "the MAC's bound for a request and its reply.")
+    cached_s: float | None = Field(None, gt=0, description="Answer at once, without an acoustic "
+                                   "request, when the asked key holds a value this node's "
+                                   "bridge published for a latched channel no older than this.")
 
 
 class Auth(Strict):

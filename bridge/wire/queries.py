@@ -42,6 +42,7 @@ class QuerySpec:
     encoding: str
     max_replies: int
     timeout_s: float | None
+    cached_s: float | None = None
 
     def asked_key(self, server: str) -> str:
         return self.key.format(node=server)
@@ -107,7 +108,8 @@ def compile_query(index: int, query: Query, mission: Mission,
         servers=servers, askers=askers,
         request=Layout.from_fields(query.request, on_out_of_range="reject"),
         reply=Layout.from_fields(query.reply, on_out_of_range="clamp"),
-        encoding=query.encoding, max_replies=query.max_replies, timeout_s=query.timeout_s)
+        encoding=query.encoding, max_replies=query.max_replies, timeout_s=query.timeout_s,
+        cached_s=query.cached_s)
 
 
 def query_codecs(first_index: int, specs: Sequence[QuerySpec],

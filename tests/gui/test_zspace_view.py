@@ -25,3 +25,13 @@ def test_stats_of_the_surface_show_wants_open_queries_and_surfaced_vehicles() ->
     assert item["wanted"] == ["status"]
     assert item["open_queries"] == ["info → auv2"]
     assert item["ip_reachable"] == ["auv1"]
+
+
+def test_each_family_member_shows_as_its_own_row() -> None:
+    loaded = load_mission(MISSIONS / "zspace.yaml")
+    model = GuiModel(loaded, "top")
+    for member, celsius in (("a", 10.0), ("b", 20.0)):
+        model.ingest(f"auv1/sensors/{member}/temp", msgpack.packb({"celsius": celsius}),
+                     "application/msgpack", 1.0)
+    rows = {i["channel"]: i["value"] for i in model.take() if i["kind"] == "channel"}
+    assert rows == {"temps:a": {"celsius": 10.0}, "temps:b": {"celsius": 20.0}}
