@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 from pathlib import Path
 
@@ -10,10 +11,12 @@ import pytest
 from typer.testing import CliRunner
 
 from bridge.cli.app import app
+from bridge.cli.sim_fast import run_fast
 from bridge.core.node import NodeCore
 from bridge.errors import FrameError, MissionError
 from bridge.mission.loader import load_mission, parse_mission
 from bridge.modems.base import Reception
+from bridge.runtime.logbook import FleetLogs, read_log, received_values
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.frame import FrameCodec
 from tests.conftest import MISSIONS
@@ -179,3 +182,15 @@ def test_two_wildcard_sources_arrive_on_their_own_keys_through_zab_sim(tmp_path:
         finally:
             auv1.close()
             top.close()
+
+
+def test_a_mission_log_replays_each_member_on_its_own_key(tmp_path: Path) -> None:
+    loaded = load_mission(ZSPACE)
+    logs = FleetLogs(tmp_path, loaded)
+    try:
+        asyncio.run(run_fast(loaded, duration=30.0, record=logs))
+    finally:
+        logs.close()
+    keys = {key for _, key, _, _ in received_values(read_log(logs.path_of("top")))}
+    assert {f"auv1/sensors/{m}/temp" for m in "abc"} <= keys
+    assert not any("*" in key for key in keys)

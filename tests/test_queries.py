@@ -245,3 +245,15 @@ def test_a_fresh_latched_value_answers_at_once_without_a_request() -> None:
     fleet.run_until(last + 11.0)
     stale = fleet.queries.get("top", "auv1/status")
     assert not stale.done and fleet.cores["top"].queries.asked == 1  # goes over the water
+
+
+def test_check_refuses_a_reply_that_can_never_fit(tmp_path: Path) -> None:
+    data = yaml.safe_load(ZSPACE.read_text())
+    data["queries"][0]["reply"].append({"field": "log", "type": "string", "length": 60})
+    path = tmp_path / "big.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    done = subprocess.run([sys.executable, "-m", "bridge", "check", str(path)], cwd=REPO,
+                          capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "COLUMNS": "200"})
+    assert done.returncode == 1 and "entry '!info'" in done.stdout
+    assert "can never fit" in done.stdout

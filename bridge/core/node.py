@@ -431,6 +431,7 @@ class NodeCore:
             self._ranging(src, t_start, frame.delays, modem_now if modem_now is not None else now,
                           now)
         values: dict[str, list[dict]] = {}
+        members: dict[str, dict[str, list[dict]]] = {}  # key families: per member
         for entry in frame.entries:
             channel = entry.channel
             if isinstance(channel, AckCodec):
@@ -475,6 +476,8 @@ class NodeCore:
                 member = name
             for elements in delivered:
                 values[channel.name] = elements
+                if channel.family is not None:
+                    members.setdefault(channel.name, {})[member] = elements
                 self.stats.received_per_channel[channel.name] += 1
                 self.received_at[channel.name] = now
                 for element, value in zip(channel.elements, elements, strict=True):
@@ -487,7 +490,8 @@ class NodeCore:
         self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
         self._notice("frame_received", {
             "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
-            "data": rx.data, "meta": plain(rx.meta), "values": values})
+            "data": rx.data, "meta": plain(rx.meta), "values": values,
+            **({"members": members} if members else {})})
 
     def _receiver(self, src: str, channel: ChannelCodec) -> ReliableReceiver | TransferReceiver:
         key = (src, channel.index)

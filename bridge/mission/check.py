@@ -67,6 +67,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         for c in table.channels
     ]
     _family_warnings(loaded, report)
+    _system_entries_fit(loaded, codec, report)
     for c in table.channels:
         if c.fragmented:
             report.warnings.append(
@@ -178,6 +179,27 @@ def _query(mission: Mission, codec: FrameCodec, request: QueryCodec) -> dict[str
             "reply_bits": codec.channel_cost_bits(reply), "max_replies": spec.max_replies,
             "deadline_s": {f"{a}->{s}": deadline_s(mission, spec, a, s)
                            for a in spec.askers for s in spec.servers if s != a}}
+
+
+def _system_entries_fit(loaded: LoadedMission, codec: FrameCodec, report: CheckReport) -> None:
+    """Each node's @key, @want and query entries must fit in one of its frames."""
+    mission, table = loaded.mission, loaded.table
+    for name in mission.nodes:
+        capacity = codec.body_capacity_bits(mission.node_modem(name).frame_bytes) \
+            - codec.count_bits
+        entries: list[Any] = []
+        if table.names is not None and any(c.family and c.family.learned and c.sent_by(name)
+                                           for c in table.channels):
+            entries.append(table.names)
+        if table.interest is not None:
+            entries.append(table.interest)
+        entries += [c for c in table.query_codecs
+                    if name in (c.spec.servers if c.reply else c.spec.askers)]
+        for entry in entries:
+            if codec.channel_cost_bits(entry) > capacity:
+                report.errors.append(
+                    f"entry {entry.name!r} ({codec.channel_cost_bits(entry)} bits with its "
+                    f"index) can never fit in a frame of {name!r} ({capacity} bits free)")
 
 
 def _family_warnings(loaded: LoadedMission, report: CheckReport) -> None:
