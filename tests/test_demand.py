@@ -61,13 +61,15 @@ def test_nothing_crosses_until_subscribed_and_it_stops_after_the_subscriber_leav
 def test_want_is_refreshed_so_a_lost_bitmap_heals() -> None:
     fleet = FastFleet(load_mission(ZSPACE), seed=1)
     fleet.put("auv1", "status", {"battery": 50, "mode": "idle"})
-    fleet.stop("auv1")  # deaf while the surface announces its interest
-    fleet.subscribe("top", "*/status")
     fleet.run_until(10.0)
+    fleet.stop("auv1")  # deaf for a moment (not long enough for its link to go down)...
+    fleet.subscribe("top", "*/status")  # ...while the surface announces its interest
+    fleet.run_until(14.0)
     fleet.resume("auv1")
-    fleet.run_until(25.0)
+    fleet.run_until(30.0)
+    assert fleet.cores["top"].link_states["auv1"].value == "up"
     assert sent(fleet, "auv1", "status") == 0  # it missed the @want
-    fleet.run_until(40.0)  # refresh_s: 30
+    fleet.run_until(50.0)  # refresh_s: 30
     assert sent(fleet, "auv1", "status") >= 1
     assert fleet.published("top", "auv1/status")
 
@@ -135,3 +137,18 @@ def test_a_subscriber_at_the_surface_turns_a_channel_on_and_off_through_zab_sim(
         finally:
             auv1.close()
             top.close()
+
+
+def test_a_sender_back_from_silence_hears_the_interest_again_at_once() -> None:
+    fleet = FastFleet(load_mission(ZSPACE), seed=1)
+    fleet.subscribe("top", "auv1/status")
+    fleet.run_until(10.0)
+    fleet.stop("auv1")
+    fleet.run_until(40.0)  # its link goes down at the surface
+    assert fleet.cores["top"].link_states["auv1"].value == "down"
+    fleet.cores["auv1"] = type(fleet.cores["auv1"])(fleet.loaded, "auv1")  # a restart
+    fleet.resume("auv1")
+    fleet.put("auv1", "status", {"battery": 42, "mode": "idle"})
+    fleet.run_until(40.0 + 4 * 3.0)  # far sooner than refresh_s (30 s)
+    got = [p.value for t, p in fleet.published("top", "auv1/status") if t > 40.0]
+    assert got and got[0] == {"battery": 42, "mode": "idle"}

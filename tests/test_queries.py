@@ -3,6 +3,7 @@ ended with a reply error at the MAC's deadline, bounded, refused when the link i
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -257,3 +258,19 @@ def test_check_refuses_a_reply_that_can_never_fit(tmp_path: Path) -> None:
                           env={**os.environ, "COLUMNS": "200"})
     assert done.returncode == 1 and "entry '!info'" in done.stdout
     assert "can never fit" in done.stdout
+
+
+def test_zab_sim_fast_asks_the_queries_and_reports_them(tmp_path: Path) -> None:
+    report = tmp_path / "r.json"
+    done = subprocess.run([sys.executable, "-m", "bridge", "sim", str(ZSPACE), "--fast",
+                           "--duration", "200", "--report", str(report)], cwd=REPO,
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "COLUMNS": "200"})
+    assert done.returncode == 0, done.stderr
+    queries = json.loads(report.read_text())["queries"]
+    assert queries["asked"] >= 10 and queries["errors"] == {}
+    assert queries["answered"] >= queries["asked"] - 2  # the last ones may still be open
+    bound = deadline_s(load_mission(ZSPACE).mission, load_mission(ZSPACE).table.queries[0],
+                       "top", "auv1")
+    assert queries["max_round_trip_s"] <= bound
+    assert "queries: " in done.stdout and "answered" in done.stdout

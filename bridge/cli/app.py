@@ -369,6 +369,11 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
                   f"({result['speedup']:g}× real time); {result['frames_sent']} frames sent, "
                   f"{result['frames_received']} received ({result['frames_per_wall_s']:g} "
                   "frames per wall second)")
+    if "queries" in result:
+        q = result["queries"]
+        console.print(f"queries: {q['asked']} gets by synthetic operators, {q['answered']} "
+                      f"answered (mean round trip {q['mean_round_trip_s']} s), "
+                      f"{sum(q['errors'].values())} ended with an error, {q['open']} open")
     return result
 
 

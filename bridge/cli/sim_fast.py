@@ -183,7 +183,9 @@ async def run_fast(
                            else {n: ["**"] for n in loaded.mission.nodes}).items():
             for key in keys:
                 fleet.subscribe(node, key)
-    feed(fleet, random.Random(f"feed/{seed}"), duration)
+    rng = random.Random(f"feed/{seed}")
+    feed(fleet, rng, duration)
+    gets = fleet.queries.synthetic(lambda layout: synthetic_value(layout, rng), duration)
     started = time.perf_counter()
     step = duration if speed is None else speed * PACE_STEP_S
     while fleet.now < duration and not (stop is not None and stop.is_set()):
@@ -195,4 +197,20 @@ async def run_fast(
             await asyncio.sleep(max(0.0, ahead))
         else:
             await asyncio.sleep(0)
-    return report(fleet, time.perf_counter() - started, fleet.now, ages)
+    out = report(fleet, time.perf_counter() - started, fleet.now, ages)
+    if fleet.loaded.table.queries:
+        out["queries"] = query_summary(gets)
+    return out
+
+
+def query_summary(gets: list[Any]) -> dict[str, Any]:
+    """The synthetic operators' gets: answered, failed (with why), round trips."""
+    trips = [g.ended_at - g.asked_at for g in gets if g.done and g.error is None and g.replies]
+    errors: dict[str, int] = {}
+    for g in gets:
+        if g.error is not None:
+            errors[g.error] = errors.get(g.error, 0) + 1
+    return {"asked": len(gets), "answered": len(trips), "open": sum(not g.done for g in gets),
+            "errors": errors,
+            "mean_round_trip_s": round(sum(trips) / len(trips), 3) if trips else None,
+            "max_round_trip_s": round(max(trips), 3) if trips else None}

@@ -7,7 +7,8 @@ Zenoh matching listeners on its output publishers (the virtual-clock fleet from 
 subscriptions) and hands the set to :meth:`Interest.set_local`.
 
 Each node tells the others in an ``@want`` entry: at its first transmit opportunity, whenever
-its set changes, and at least every ``refresh_s`` (so it survives a lost frame and a restart).
+its set changes, when a peer's link comes back up (it may have restarted and forgotten), and at
+least every ``refresh_s`` (so it survives a lost frame).
 Until a peer's first ``@want`` arrives, that peer wants nothing: a node that starts sends no
 data nobody asked for. Values keep arriving in the store while nobody wants them, so the latest
 one goes out as soon as somebody does.
@@ -99,6 +100,10 @@ class Interest:
         wanted = frozenset(wanted)
         changed, self.local = wanted != self.local, wanted
         return changed
+
+    def repeat(self) -> None:
+        """Send the interest again at the next opportunity, changed or not."""
+        self.sent = None
 
     def next_due(self) -> float | None:
         """When the next ``@want`` is due: at once if it changed (or was never sent)."""

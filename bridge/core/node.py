@@ -624,9 +624,13 @@ class NodeCore:
         for peer in self.table.foreign_nodes(self.node):
             heard = self.last_heard.get(peer)
             state = self.thresholds.state(heard, now)
-            if self.link_states.get(peer) is state:
+            previous = self.link_states.get(peer)
+            if previous is state:
                 continue
             self.link_states[peer] = state
+            if self.interest is not None and state is LinkState.UP \
+                    and previous in (None, LinkState.DOWN):
+                self.interest.repeat()  # a peer back from silence (a restart?) hears it again
             payload = {"peer": peer, "state": state.value, "last_heard": heard,
                        "silent_s": None if heard is None else now - heard}
             self._status(f"link/{peer}", payload)

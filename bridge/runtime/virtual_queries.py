@@ -32,6 +32,10 @@ class GetResult:
         return self.ended_at is not None
 
 
+QUERY_PERIOD_S = 30.0
+"""How often a synthetic operator asks each query of a mission in ``zab sim --fast``."""
+
+
 class VirtualQueries:
     """Queryables and pending gets of the applications of a virtual fleet."""
 
@@ -55,6 +59,31 @@ class VirtualQueries:
             self.waiting.setdefault((node, ticket), []).append(result)
         fleet.collect_and_replan(node)
         return result
+
+    def synthetic(self, value: Callable[[Any], Any], until: float,
+                  period: float = QUERY_PERIOD_S) -> list[GetResult]:
+        """Applications for ``zab sim --fast``: a queryable at every server answering with
+        ``value(layout)`` (a valid value of the reply fields), and at every asking node a get
+        of each asked key every ``period`` until ``until``. Returns the gets, as they fill."""
+        fleet = self.fleet
+        results: list[GetResult] = []
+        for spec in fleet.loaded.table.queries:
+            for server in spec.servers:
+                self.queryable(server, spec.served_key(server),
+                               lambda params, s=spec: [value(s.reply)])
+            for asker in spec.askers:
+                for server in spec.servers:
+                    if server == asker:
+                        continue
+
+                    def ask(a: str = asker, key: str = spec.asked_key(server),
+                            layout: Any = spec.request) -> None:
+                        results.append(self.get(a, key, value(layout) if layout.fields else {}))
+                        if fleet.now + period <= until:
+                            fleet.call_at(fleet.now + period, ask)
+
+                    fleet.call_at(fleet.now + period, ask)
+        return results
 
     def handle(self, node: str, output: object) -> bool:
         """Carry out a query output of ``node``'s core; False if it is not one."""
