@@ -152,3 +152,16 @@ def test_a_sender_back_from_silence_hears_the_interest_again_at_once() -> None:
     fleet.run_until(40.0 + 4 * 3.0)  # far sooner than refresh_s (30 s)
     got = [p.value for t, p in fleet.published("top", "auv1/status") if t > 40.0]
     assert got and got[0] == {"battery": 42, "mode": "idle"}
+
+
+def test_every_channel_and_the_want_fit_one_frame_count() -> None:
+    text = yaml.safe_load(ZSPACE.read_text())
+    del text["queries"]
+    text["channels"] = [c for c in text["channels"] if "keys" not in c][:1]  # one channel
+    loaded = parse_mission(yaml.safe_dump(text), "one.yaml")
+    codec = FrameCodec(loaded.table)
+    assert not codec.repeats and codec.count_bits == 2  # the channel and @want
+    want = loaded.table.interest
+    channel = loaded.table.channels[0]
+    data = codec.encode([(want, want.pack({0})), (channel, 3)])
+    assert [e.channel.name for e in codec.decode(data).entries] == ["@want", "status"]

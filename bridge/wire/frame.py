@@ -5,8 +5,8 @@ Layout, most significant bit first::
     [DLBL]   dlbl missions only: 24 bits per foreign node of the SENDER, in mission order:
              µs from the sender's last reception from that node to this frame's start;
              0xFFFFFF = no data.
-    count    ceil(log2(C + 1)) bits: how many entries follow (C = channels in the mission);
-             6 bits when the mission has reliable or fragmented channels
+    count    ceil(log2(C + 1)) bits: how many entries follow (C = channels in the mission,
+             plus ``@want`` in demand missions); 6 bits when entries may repeat
     count ×  index   ceil(log2 W) bits (0 bits when W == 1), W = C plus the ``@ack`` entry
                      when the mission has reliable or fragmented channels
              entry   plain channel: its fixed number of bits (its elements' layouts, in order);
@@ -93,7 +93,7 @@ class FrameCodec:
         self.repeats = any(w.repeatable for w in self.wire)
         # count: ceil(log2(n + 1)) bits, or room for repeated entries
         self.count_bits = (COUNT_BITS_REPEATABLE if self.repeats
-                           else len(table.channels).bit_length())
+                           else len(self.wire).bit_length())
         self.index_bits = (n - 1).bit_length() if n > 1 else 0
         self.delay_count = len(table.nodes) - 1 if table.dlbl else 0
         self.delay_bytes = DELAY_BYTES * self.delay_count
