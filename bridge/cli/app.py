@@ -108,6 +108,11 @@ def check(
                             str(q["request_bits"]), str(q["reply_bits"]),
                             f"≤ {max(deadlines):g} s" if deadlines else "—")
         console.print(queries)
+    if data.get("demand"):
+        always = [c["name"] for c in data["channels"] if c.get("always")]
+        console.print(f"demand: @want entry {data['demand']['want_entry_bits']} bits, re-sent "
+                      f"every {data['demand']['refresh_s']:g} s; always sent: "
+                      f"{', '.join(always) or 'none'}", highlight=False)
     if data.get("key_entry_bits"):
         console.print(f"@key entry (names a learned member): {data['key_entry_bits']} bits",
                       highlight=False)
