@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -21,7 +22,7 @@ from bridge.mission.loader import load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.runtime.zenoh_queries import format_parameters, parse_parameters
 from bridge.wire.frame import FrameCodec
-from tests.conftest import MISSIONS, REPO
+from tests.conftest import MISSIONS, REPO, free_port
 from tests.zsim import app as plain_app
 from tests.zsim import mission_file, zab_sim
 
@@ -274,3 +275,54 @@ def test_zab_sim_fast_asks_the_queries_and_reports_them(tmp_path: Path) -> None:
                        "top", "auv1")
     assert queries["max_round_trip_s"] <= bound
     assert "queries: " in done.stdout and "answered" in done.stdout
+
+
+def test_a_get_through_zab_run_processes_and_zab_water(tmp_path: Path) -> None:
+    """What the vehicles run at sea: one `zab run` per node, here over `zab water`."""
+    data = yaml.safe_load(ZSPACE.read_text())
+    water = free_port()
+    data["modem"]["options"]["water"] = f"127.0.0.1:{water}"
+    mission, endpoints = mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
+    procs = [subprocess.Popen([sys.executable, "-m", "bridge", "water", str(mission), "--port",
+                               str(water)], cwd=REPO, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)]
+    sessions = []
+    try:
+        time.sleep(1.0)
+        for node in ("top", "auv1"):
+            procs.append(subprocess.Popen([sys.executable, "-m", "bridge", "run", str(mission),
+                                           "--node", node], cwd=REPO,
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        deadline = time.time() + 20
+        while len(sessions) < 2:
+            try:
+                sessions.append(plain_app(endpoints[("auv1", "top")[len(sessions)]]))
+            except Exception:
+                assert time.time() < deadline, "zab run did not open its endpoint"
+                time.sleep(0.2)
+        auv1, top = sessions
+
+        def answer(query) -> None:
+            query.reply(query.key_expr, msgpack.packb({"depth_m": 5.0, "state": "idle",
+                                                       "detail": 1}))
+            query.drop()
+
+        auv1.declare_queryable("auv1/info", answer)
+        deadline = time.time() + 25
+        while True:
+            values, errors, _ = get(top, "auv1/info?detail=1")
+            if values or time.time() > deadline:
+                break
+            time.sleep(1.0)  # until the surface has heard auv1
+        assert values == [("auv1/info", {"depth_m": 5.0, "state": "idle", "detail": 1})], errors
+    finally:
+        for session in sessions:
+            session.close()
+        for proc in reversed(procs):
+            proc.send_signal(signal.SIGINT)
+        for proc in procs:
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
