@@ -17,6 +17,7 @@ back in reply entries, the last one marked, in the next frames the MAC allows.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -178,12 +179,12 @@ class Queries:
                                  n))
         return out
 
-    def _marker(self, item: Open) -> Any:
+    def _marker(self, item: Open) -> Callable[[float], None]:
         def sent(built: float) -> None:
             item.sent = True
         return sent
 
-    def _unqueue(self, served: Served, bits: int) -> Any:
+    def _unqueue(self, served: Served, bits: int) -> Callable[[float], None]:
         def sent(built: float) -> None:
             self.replies = [r for r in self.replies if not (r[2] == served and r[1] == bits)]
         return sent

@@ -8,7 +8,7 @@ the reply fields (zero when the status carries none). Both may repeat in a frame
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -95,12 +95,14 @@ class QueryCodec:
         return n >> self.node_bits, n & ((1 << self.node_bits) - 1), status, packed
 
 
-def compile_query(index: int, query: Query, mission: Mission,
-                  match: object) -> QuerySpec:
+Match = Callable[[str | Sequence[str], Sequence[str]], tuple[str, ...]]
+
+
+def compile_query(index: int, query: Query, mission: Mission, match: Match) -> QuerySpec:
     """``match(pattern, nodes)`` resolves node patterns (``bridge.wire.channels.match_nodes``)."""
     nodes = tuple(mission.nodes)
-    servers = match(query.serve, nodes)  # type: ignore[operator]
-    askers = (match(query.ask, nodes) if query.ask is not None  # type: ignore[operator]
+    servers = match(query.serve, nodes)
+    askers = (match(query.ask, nodes) if query.ask is not None
               else tuple(n for n in nodes if n not in servers))
     askers = tuple(a for a in askers if any(s != a for s in servers))
     return QuerySpec(
