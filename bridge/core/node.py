@@ -41,7 +41,7 @@ from bridge.modems.base import ModemRange, Reception
 from bridge.wire.auth import Authenticator, load_key
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.wire.families import NameCodec
-from bridge.wire.frame import FrameCodec
+from bridge.wire.frame import Entry, FrameCodec
 from bridge.wire.interest import InterestCodec
 from bridge.wire.payloads import decode_payload
 from bridge.wire.queries import QueryCodec
@@ -437,17 +437,7 @@ class NodeCore:
             if isinstance(channel, AckCodec):
                 self._on_ack(src, entry.header, now)
                 continue
-            if isinstance(channel, NameCodec):
-                self.families.on_name(src, entry.header)
-                continue
-            if isinstance(channel, QueryCodec):
-                if self.queries is not None:
-                    handle = self.queries.on_reply if channel.reply else self.queries.on_request
-                    handle(src, channel, entry.header, entry.values)
-                continue
-            if isinstance(channel, InterestCodec):
-                if self.interest is not None:
-                    self.interest.on_heard(src, entry.header, now)
+            if self._on_system(src, entry, now):
                 continue
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
@@ -519,6 +509,22 @@ class NodeCore:
             self._notice("frame_dropped", {"time": now, "src": src, "reason": "malformed",
                                            "error": f"transfer on {channel.name!r}: {exc}"})
             return []
+
+    def _on_system(self, src: str, entry: Entry, now: float) -> bool:
+        """An ``@key``, ``@want`` or query entry from ``src``; False for anything else."""
+        channel = entry.channel
+        if isinstance(channel, NameCodec):
+            self.families.on_name(src, entry.header)
+        elif isinstance(channel, InterestCodec):
+            if self.interest is not None:
+                self.interest.on_heard(src, entry.header, now)
+        elif isinstance(channel, QueryCodec):
+            if self.queries is not None:
+                handle = self.queries.on_reply if channel.reply else self.queries.on_request
+                handle(src, channel, entry.header, entry.values)
+        else:
+            return False
+        return True
 
     def _on_ack(self, src: str, header: tuple[int, ...], now: float) -> None:
         peer, stream, tid, base, bitmap = header
