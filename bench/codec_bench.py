@@ -3,6 +3,9 @@
 Run: ``uv run --group bench python bench/codec_bench.py [--seconds 0.5]``.
 A round trip is ``encode`` to bytes then ``decode`` back to a dict, for three reference
 layouts (MORPH Listing 1, CCL bathymetry, a navigation status). Prints bits and the ratio.
+Then the same three in DCCL wire format (``deploy/missions/dccl/auv.proto``, bytes as
+libdccl 4 writes them) against libdccl's recorded round trips per second on this machine
+class (:data:`LIBDCCL_RT_S`; libdccl is not installable here, so not re-measured).
 """
 
 from __future__ import annotations
@@ -11,9 +14,11 @@ import argparse
 import random
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from bridge.codec import Layout
+from bridge.dccl import load_message
 
 MORPH = [
     {"field": "vector.x", "bits": 8, "min": 0, "max": 6.2831},
@@ -37,6 +42,11 @@ NAV = [
     {"field": "time", "type": "int", "min": 0, "max": 86400},
 ]
 MINIMUM_BITS = {"MORPH": 14, "CCL bathymetry": 225, "nav status": 121}
+#: libdccl 4 encode+decode round trips per second, recorded for issue #17 (same machine class).
+LIBDCCL_RT_S = {"MORPH": 63_000, "CCL bathymetry": 22_000, "nav status": 30_000}
+DCCL_MESSAGES = {"MORPH": "MorphVector", "CCL bathymetry": "Bathymetry",
+                 "nav status": "NavStatus"}
+AUV_PROTO = Path(__file__).resolve().parents[1] / "deploy" / "missions" / "dccl" / "auv.proto"
 
 
 def _lin(lo: float, hi: float, *, resolution: float | None = None, bits: int | None = None) -> dict:
@@ -123,6 +133,33 @@ def rate(round_trip: Callable[[dict[str, Any]], Any], values: list[dict], second
             return done / (now - start)
 
 
+def dccl_rows(seconds: float) -> list[tuple[str, int, float, float]]:
+    """(name, max bytes, our round trips/s, libdccl's recorded) for the DCCL messages."""
+    rng = random.Random(1)
+    rows = []
+    for name, message in DCCL_MESSAGES.items():
+        msg = load_message(AUV_PROTO, message)
+        values = samples(name, rng)
+        # the generated path measured here writes the exact reference path's bytes
+        assert all(msg.encode(v) == msg.encode_reference(v) for v in values), name
+
+        def ours(v: dict, msg: Any = msg) -> Any:
+            return msg.decode(msg.encode(v))
+
+        rows.append((name, msg.max_size, rate(ours, values, seconds), LIBDCCL_RT_S[name]))
+    return rows
+
+
+def print_dccl(seconds: float) -> None:
+    """The DCCL-format table."""
+    head = f"{'DCCL message':<15} {'bytes':>5} {'zab rt/s':>12} {'libdccl rt/s':>13} {'ratio':>7}"
+    print(head)
+    print("-" * len(head))
+    for name, nbytes, r_ours, r_lib in dccl_rows(seconds):
+        print(f"{name:<15} {nbytes:>5} {r_ours:>12,.0f} {r_lib:>13,.0f} {r_ours / r_lib:>6.1f}×")
+    print("DCCL wire format (deploy/missions/dccl/auv.proto); libdccl rt/s as recorded.")
+
+
 def main(seconds: float = 0.5) -> None:
     """Measure and print the table."""
     from bitstring import ConstBitStream
@@ -165,9 +202,17 @@ def main(seconds: float = 0.5) -> None:
         )
     print("rt/s = encode+decode round trips per second (bytes: encode/decode; int: pack/unpack);")
     print("ratio = bytes round trips vs ltcodecs, same payloads, same run.")
+    print()
+    print_dccl(seconds)
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=0.5, help="time per measurement")
-    main(parser.parse_args().seconds)
+    parser.add_argument("--dccl-only", action="store_true",
+                        help="only the DCCL rows (no ltcodecs needed)")
+    args = parser.parse_args()
+    if args.dccl_only:
+        print_dccl(args.seconds)
+    else:
+        main(args.seconds)

@@ -60,7 +60,7 @@ def valid_frames(codec: FrameCodec, rng: random.Random, n: int) -> list[bytes]:
     ack = table.ack
     assert ack is not None and blob.fragmented
     frames = []
-    for i in range(n):
+    for _ in range(n):
         items: list[tuple] = [(nav, nav.pack([{"x": rng.uniform(-999, 999),
                                                "mode": rng.choice(["idle", "dive"])}]))]
         for _ in range(rng.randrange(2)):
@@ -70,9 +70,10 @@ def valid_frames(codec: FrameCodec, rng: random.Random, n: int) -> list[bytes]:
             items.append((blob, (header << (8 * blob.chunk_bytes)) | rng.getrandbits(
                 8 * blob.chunk_bytes)))
         if rng.random() < 0.5:
-            items.append((ack, ack.pack(1, 0, 0, rng.randrange(256), rng.getrandbits(16))))
+            items.append((ack, ack.pack(1, 0, rng.randrange(256), 0, rng.randrange(256),
+                                        rng.getrandbits(16))))
         delays = [rng.choice([None, rng.randrange(1 << 24 - 1)]) for _ in range(codec.delay_count)]
-        frames.append(codec.encode(items, delays, now=1000.0 + i))
+        frames.append(codec.encode(items, delays))
     return frames
 
 

@@ -198,8 +198,8 @@ async def _evologics_errors(runs: int, folder: Path) -> dict[str, list[float]]:
     from bridge.modems.base import ModemSetup
     from bridge.modems.evologics.driver import EvologicsBackend
     from bridge.modems.evologics.emulator import EvologicsEmulator
+    from bridge.modems.presets import get_preset
     from bridge.sim.ocean import LossCurve
-    from bridge.sim.presets import get_preset
     from bridge.sim.service import WaterService
 
     preset = get_preset("evologics-s2c-im").replace(overhead_s=0.02, per_byte_s=0.001)
@@ -254,7 +254,7 @@ async def _micromodem_errors(runs: int, folder: Path) -> list[float]:
     from bridge.modems.base import ModemSetup
     from bridge.modems.micromodem.driver import MicromodemBackend
     from bridge.modems.micromodem.emulator import MicromodemEmulator
-    from bridge.sim.presets import get_preset
+    from bridge.modems.presets import get_preset
     from bridge.sim.service import WaterService
 
     preset = get_preset("micromodem-rate0").replace(bitrate_bps=3200.0, overhead_s=0.05)

@@ -56,10 +56,10 @@ import zenoh
 
 from bridge.core.node import Notice
 from bridge.mission.loader import LoadedMission, load_mission, parse_mission
+from bridge.modems.presets import get_preset
 from bridge.runtime.fleet import Fleet
 from bridge.runtime.virtual_fleet import FastFleet, Timed
 from bridge.sim.ocean import Loss
-from bridge.sim.presets import get_preset
 
 MISSION = Path(__file__).resolve().parent.parent / "deploy" / "missions" / "bluerov_rf.yaml"
 DIRECTIONS = (("rov", "operator", "robot→operator"), ("operator", "rov", "operator→robot"))

@@ -6,7 +6,8 @@
      ├── EncodeError         a value cannot be encoded (missing field, wrong type, rejected range)
      ├── DecodeError         untrusted bytes cannot be decoded: the ONE error decoders raise
      │    └── FrameError     ... a whole acoustic frame (truncated, corrupt, foreign mission)
-     └── BackendError        a modem backend failed to load, open or operate
+     ├── BackendError        a modem backend failed to load, open or operate
+     └── SessionError        the Zenoh session cannot open (a port taken, a router unreachable)
 """
 
 from __future__ import annotations
@@ -44,13 +45,20 @@ class FrameError(DecodeError):
     """An acoustic frame is truncated, corrupt, forged, replayed or from another mission file.
 
     ``reason`` names the drop counter: ``check`` (corrupt, or another mission file), ``forged``,
-    ``replayed`` or ``malformed``.
+    ``replayed`` or ``malformed``. A failed check also gives the ``fingerprint`` (16 bits) the
+    frame was sent with, so a receiver can tell another mission file from corruption.
     """
 
-    def __init__(self, message: str, reason: str = "malformed") -> None:
+    def __init__(self, message: str, reason: str = "malformed",
+                 fingerprint: int | None = None) -> None:
         super().__init__(message)
         self.reason = reason
+        self.fingerprint = fingerprint
 
 
 class BackendError(ZabError):
     """A modem backend could not be loaded, opened, or failed while running."""
+
+
+class SessionError(ZabError):
+    """The node's Zenoh session could not be opened; the message is one line for a user."""

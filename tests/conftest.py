@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import secrets
 import socket
 from pathlib import Path
 
@@ -32,6 +33,22 @@ def on_free_ports(text: str, name: str | Path = "test.yaml") -> LoadedMission:
 def mission_on_free_ports(path: Path) -> LoadedMission:
     """An example mission from ``deploy/missions`` on fresh loopback ports."""
     return on_free_ports(path.read_text(), path)
+
+
+@pytest.fixture(autouse=True)
+def _no_frame_key_from_outside(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Tests see no $ZAB_KEY unless they set one: a key in the shell running them would turn
+    every mission without wire.auth into an error (and every test mission into a different
+    one)."""
+    monkeypatch.delenv("ZAB_KEY", raising=False)
+
+
+@pytest.fixture
+def mission_key(monkeypatch: pytest.MonkeyPatch) -> str:
+    """A frame key in $ZAB_KEY for this test, as an operator sets it (zab check, run, doctor)."""
+    key = secrets.token_hex(32)
+    monkeypatch.setenv("ZAB_KEY", key)
+    return key
 
 
 @pytest.fixture

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import binascii
-
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -11,12 +9,12 @@ from hypothesis import strategies as st
 from bridge.errors import FrameError, MissionError
 from bridge.mission.loader import parse_mission
 from bridge.wire.auth import Authenticator, load_key
-from bridge.wire.frame import CHECK_BYTES, FrameCodec
+from bridge.wire.frame import CHECK_BYTES, FrameCodec, check_value
 from tests.conftest import MISSIONS
 
 KEY = b"0123456789abcdef-mission-key"
-TEXT = (MISSIONS / "morph.yaml").read_text().replace(
-    "wire:\n  dlbl: true", "wire:\n  dlbl: true\n  auth: {tag_bytes: 4}")
+TEXT = (MISSIONS / "morph.yaml").read_text()  # ships with auth: {tag_bytes: 4}
+PLAIN = TEXT.replace("auth: {tag_bytes: 4}", "auth: off")
 LOADED = parse_mission(TEXT, "auth.yaml")
 TABLE = LOADED.table
 LSV, GCV = LOADED.mission.address_of("lsv"), LOADED.mission.address_of("gcv")
@@ -26,9 +24,9 @@ def codec(address: int, key: bytes = KEY) -> FrameCodec:
     return FrameCodec(TABLE, Authenticator(key, TABLE.fingerprint, address, 4))
 
 
-def frame_from_lsv(sender: FrameCodec, now: float = 1000.0) -> bytes:
+def frame_from_lsv(sender: FrameCodec) -> bytes:
     target = TABLE.by_name("target_reference")
-    return sender.encode([(target, 1234)], [None] * sender.delay_count, now)
+    return sender.encode([(target, 1234)], [None] * sender.delay_count)
 
 
 def test_overhead_is_counted_by_check() -> None:
@@ -43,7 +41,7 @@ def test_sealed_frame_round_trips_once() -> None:
     with pytest.raises(FrameError) as replay:
         receiver.decode(data, LSV)
     assert replay.value.reason == "replayed"
-    later = frame_from_lsv(sender, 1000.5)
+    later = frame_from_lsv(sender)
     assert receiver.decode(later, LSV).channels
 
 
@@ -65,9 +63,9 @@ def test_altered_frame_with_recomputed_check_is_forged() -> None:
     data = bytearray(frame_from_lsv(codec(LSV)))
     data[13] ^= 0x10  # inside the channel payload
     body = bytes(data[:-CHECK_BYTES])
-    crc = binascii.crc_hqx(body, binascii.crc_hqx(TABLE.fingerprint, 0xFFFF))
+    crc = check_value(body, TABLE.fingerprint)
     with pytest.raises(FrameError) as info:
-        codec(GCV).decode(body + crc.to_bytes(2, "big"), LSV)
+        codec(GCV).decode(body + crc, LSV)
     assert info.value.reason == "forged"
 
 
@@ -78,7 +76,7 @@ def test_bit_flips_are_refused_and_other_missions_still_fail_the_check() -> None
         flipped[i // 8] ^= 1 << (i % 8)
         with pytest.raises(FrameError):
             codec(GCV).decode(bytes(flipped), LSV)
-    plain = parse_mission((MISSIONS / "morph.yaml").read_text(), "plain.yaml")
+    plain = parse_mission(PLAIN, "plain.yaml")
     with pytest.raises(FrameError) as info:
         FrameCodec(plain.table).decode(data, LSV)
     assert info.value.reason == "check"
@@ -87,9 +85,9 @@ def test_bit_flips_are_refused_and_other_missions_still_fail_the_check() -> None
 @settings(max_examples=1000, deadline=None)
 @given(st.binary(max_size=64))
 def test_random_bodies_with_valid_check_never_authenticate(body: bytes) -> None:
-    crc = binascii.crc_hqx(body, binascii.crc_hqx(TABLE.fingerprint, 0xFFFF))
+    crc = check_value(body, TABLE.fingerprint)
     with pytest.raises(FrameError):
-        codec(GCV).decode(body + crc.to_bytes(2, "big"), LSV)
+        codec(GCV).decode(body + crc, LSV)
 
 
 def test_key_comes_from_env_or_file(tmp_path, monkeypatch) -> None:

@@ -26,7 +26,7 @@ def zab(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
                           text=True, timeout=timeout, cwd=REPO)
 
 
-def test_check_json_for_every_example_mission() -> None:
+def test_check_json_for_every_example_mission(mission_key: str) -> None:
     for path in sorted(MISSIONS.glob("*.yaml")):
         result = RUNNER.invoke(app, ["check", str(path), "--json"])
         assert result.exit_code == 0, (path, result.output)
@@ -39,7 +39,8 @@ def test_check_json_for_every_example_mission() -> None:
 
 
 def test_check_morph_reports_listing_1() -> None:
-    data = json.loads(RUNNER.invoke(app, ["check", str(MISSIONS / "morph.yaml"), "--json"]).output)
+    data = json.loads(RUNNER.invoke(app, ["check", str(MISSIONS / "morph.yaml"), "--json",
+                                          "--no-key"]).output)
     target = next(c for c in data["channels"] if c["name"] == "target_reference")
     assert target["bits"] == 14 and target["from"] == ["lsv"] and target["to"] == ["gcv"]
     assert data["frame_bytes"] == 64 and len(data["nodes"]) == 5
@@ -49,16 +50,16 @@ def test_check_exit_1_when_a_channel_never_fits(tmp_path: Path) -> None:
     # 16 B frames: 14 B of DLBL delays and check leave too little for even one fragment
     text = (MISSIONS / "morph.yaml").read_text().replace("frame_bytes: 64", "frame_bytes: 16")
     path = tmp_path / "small.yaml"
-    path.write_text(text)
+    path.write_text(text.replace("auth: {tag_bytes: 4}", "auth: off"))
     result = RUNNER.invoke(app, ["check", str(path)])
     assert result.exit_code == 1
     assert "can never fit" in result.output
 
 
 def test_check_reports_a_channel_that_travels_in_fragments(tmp_path: Path) -> None:
-    text = (MISSIONS / "morph.yaml").read_text().replace("frame_bytes: 64", "frame_bytes: 20")
+    text = (MISSIONS / "morph.yaml").read_text().replace("frame_bytes: 64", "frame_bytes: 21")
     path = tmp_path / "small.yaml"
-    path.write_text(text)
+    path.write_text(text.replace("auth: {tag_bytes: 4}", "auth: off"))
     result = RUNNER.invoke(app, ["check", str(path), "--json"])
     data = json.loads(result.output)
     fragmented = [c for c in data["channels"] if c["fragments"]]
@@ -71,7 +72,7 @@ def test_check_warns_about_a_short_tdma_slot(tmp_path: Path) -> None:
     text = (MISSIONS / "morph.yaml").read_text().replace("slot_s: 1.5", "slot_s: 0.5")
     path = tmp_path / "short.yaml"
     path.write_text(text)
-    result = RUNNER.invoke(app, ["check", str(path), "--json"])
+    result = RUNNER.invoke(app, ["check", str(path), "--json", "--no-key"])
     assert result.exit_code == 0
     assert any("TDMA slot" in w for w in json.loads(result.output)["warnings"])
 
@@ -187,13 +188,13 @@ def test_water_and_emulate_serve_a_real_driver(tmp_path: Path) -> None:
 
 def test_check_counts_a_path_waypoint_in_the_slot_warning(tmp_path: Path) -> None:
     mission = yaml.safe_load((MISSIONS / "morph.yaml").read_text())
-    result = RUNNER.invoke(app, ["check", str(MISSIONS / "morph.yaml"), "--json"])
+    result = RUNNER.invoke(app, ["check", str(MISSIONS / "morph.yaml"), "--json", "--no-key"])
     assert not any("TDMA slot" in w for w in json.loads(result.output)["warnings"])
     vehicle = next(n for n in mission["nodes"].values() if n.get("position"))
     start = vehicle["position"]
     vehicle["path"] = {"waypoints": [start, {**start, "x": start["x"] + 1500}], "speed_mps": 1.5}
     path = tmp_path / "far.yaml"
     path.write_text(yaml.safe_dump(mission))
-    result = RUNNER.invoke(app, ["check", str(path), "--json"])
+    result = RUNNER.invoke(app, ["check", str(path), "--json", "--no-key"])
     assert result.exit_code == 0, result.output
     assert any("TDMA slot" in w for w in json.loads(result.output)["warnings"])

@@ -144,13 +144,15 @@ def test_a_sender_back_from_silence_hears_the_interest_again_at_once() -> None:
     fleet.subscribe("top", "auv1/status")
     fleet.run_until(10.0)
     fleet.stop("auv1")
-    fleet.run_until(40.0)  # its link goes down at the surface
+    down_after = fleet.cores["top"].thresholds.down_after_s
+    fleet.run_until(10.0 + down_after + 1.0)  # its link goes down at the surface
     assert fleet.cores["top"].link_states["auv1"].value == "down"
+    back = fleet.now
     fleet.cores["auv1"] = type(fleet.cores["auv1"])(fleet.loaded, "auv1")  # a restart
     fleet.resume("auv1")
     fleet.put("auv1", "status", {"battery": 42, "mode": "idle"})
-    fleet.run_until(40.0 + 4 * 3.0)  # far sooner than refresh_s (30 s)
-    got = [p.value for t, p in fleet.published("top", "auv1/status") if t > 40.0]
+    fleet.run_until(back + 4 * 3.0)  # far sooner than refresh_s (30 s)
+    got = [p.value for t, p in fleet.published("top", "auv1/status") if t > back]
     assert got and got[0] == {"battery": 42, "mode": "idle"}
 
 

@@ -258,7 +258,7 @@ def test_authenticated_mission_delivers_and_refuses_forgeries(monkeypatch) -> No
             assert inbox.get(timeout=3)[1] == {"v": 21}
             forger = Authenticator(b"not-the-mission-key!", loaded.table.fingerprint, 1, 6)
             forged = FrameCodec(loaded.table, forger).encode(
-                [(loaded.table.channels[0], 99)], [], time.time())
+                [(loaded.table.channels[0], 99)], [])
             port_b = loaded.mission.nodes["b"].modem.options["port"]
 
             async def send() -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import binascii
 import contextlib
 
 import pytest
@@ -12,11 +11,13 @@ from hypothesis import strategies as st
 from bridge.core.builder import plan_frame
 from bridge.core.store import OutboundStore
 from bridge.errors import DecodeError, FrameError
-from bridge.mission.loader import load_mission, parse_mission
-from bridge.wire.frame import CHECK_BYTES, NO_DELAY, FrameCodec
+from bridge.mission.loader import parse_mission
+from bridge.wire.frame import NO_DELAY, FrameCodec, check_value
 from tests.conftest import MISSIONS
 
-MORPH = load_mission(MISSIONS / "morph.yaml")
+# The plain frame format (tests/test_auth.py: the authenticated one morph.yaml ships with).
+MORPH_TEXT = (MISSIONS / "morph.yaml").read_text().replace("auth: {tag_bytes: 4}", "auth: off")
+MORPH = parse_mission(MORPH_TEXT, "morph.yaml")
 CODEC = FrameCodec(MORPH.table)
 
 
@@ -67,7 +68,7 @@ def test_random_bytes_raise_only_frame_error(data: bytes) -> None:
 @given(st.binary(max_size=70))
 def test_random_bodies_with_valid_check_raise_only_frame_error(body: bytes) -> None:
     """Past the check value, the parser itself must also refuse garbage cleanly."""
-    check = binascii.crc_hqx(body, CODEC._crc_init).to_bytes(CHECK_BYTES, "big")
+    check = check_value(body, MORPH.table.fingerprint)
     with contextlib.suppress(FrameError):
         CODEC.decode(body + check)
 
@@ -106,8 +107,7 @@ def test_bit_flip_and_truncation_detected() -> None:
 
 
 def test_builder_priority_first_then_oldest_and_reports_left_out() -> None:
-    text = (MISSIONS / "morph.yaml").read_text()
-    loaded = parse_mission(text.replace("frame_bytes: 64", "frame_bytes: 24"), "m.yaml")
+    loaded = parse_mission(MORPH_TEXT.replace("frame_bytes: 64", "frame_bytes: 24"), "m.yaml")
     codec = FrameCodec(loaded.table)
     store = OutboundStore.for_node(loaded.table.channels, "lsv")
     nav, status, target = (loaded.table.by_name(n) for n in ("nav", "status", "target_reference"))

@@ -96,6 +96,7 @@ def test_a_lost_reply_ends_with_an_error_at_the_deadline() -> None:
     assert result.error is not None and "auv1: no reply" in result.error
     assert "MAC's bound" in result.error
     assert result.ended_at is not None and bound <= result.ended_at - result.asked_at <= bound + 1.5
+    fleet.run_until(10.0 + fleet.cores["top"].thresholds.down_after_s + 1.0)
     late = fleet.queries.get("top", "auv1/info", {"detail": 1})  # by now the link is down
     assert late.done and late.error is not None and "auv1: acoustic link down" in late.error
 
@@ -214,14 +215,13 @@ def test_a_query_under_the_polled_mac_is_answered_in_the_reply_to_its_poll() -> 
     assert result.ended_at is not None and result.ended_at - result.asked_at <= bound
 
 
-def test_zab_demo_shows_members_and_answered_gets(tmp_path: Path) -> None:
+def test_zab_demo_shows_answered_gets(tmp_path: Path) -> None:
     mission, _ = mission_file(ZSPACE.read_text(), tmp_path)
     done = subprocess.run([sys.executable, "-m", "bridge", "demo", "--mission", str(mission),
-                           "--duration", "16", "--no-live", "--no-gui"], cwd=REPO,
+                           "--duration", "16", "--no-live", "--no-gui"], cwd=tmp_path,
                           capture_output=True, text=True, timeout=90,
                           env={**os.environ, "COLUMNS": "200"})
     assert done.returncode == 0, done.stderr
-    assert "top ← auv1/sensors/a/temp" in done.stdout
     assert "top get auv1/info?detail=0 → {'depth_m'" in done.stdout
 
 

@@ -4,7 +4,6 @@ FrameError, and a node's core counts or ignores what it cannot use, never crashe
 
 from __future__ import annotations
 
-import binascii
 import contextlib
 
 from hypothesis import given, settings
@@ -14,7 +13,7 @@ from bridge.core.node import NodeCore
 from bridge.errors import FrameError
 from bridge.mission.loader import load_mission
 from bridge.modems.base import Reception
-from bridge.wire.frame import CHECK_BYTES, FrameCodec
+from bridge.wire.frame import FrameCodec, check_value
 from tests.conftest import MISSIONS
 
 LOADED = load_mission(MISSIONS / "zspace.yaml")
@@ -22,7 +21,7 @@ CODEC = FrameCodec(LOADED.table)
 
 
 def sealed(body: bytes) -> bytes:
-    return body + binascii.crc_hqx(body, CODEC._crc_init).to_bytes(CHECK_BYTES, "big")
+    return body + check_value(body, LOADED.table.fingerprint)
 
 
 @settings(max_examples=1500, deadline=None)

@@ -19,22 +19,45 @@ from rich.console import Console
 from rich.logging import RichHandler
 from rich.table import Table
 
-from bridge.errors import BackendError, MissionError
+from bridge.cli import helptext
+from bridge.errors import BackendError, MissionError, SessionError
 from bridge.mission.check import check_mission
+from bridge.mission.keys import frame_key, throwaway_note
 from bridge.mission.loader import LoadedMission, load_mission
 
 T = TypeVar("T")
 
+helptext.install()
 app = typer.Typer(
     help="zenoh-acoustic-bridge: one Zenoh pub/sub space across WiFi and water.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    context_settings=helptext.HELP_OPTIONS,
+    rich_markup_mode="markdown",  # a docstring's paragraph reads as one paragraph
 )
 console = Console(width=None if sys.stdout.isatty() else 120)
 err = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
 
 MissionArg = Annotated[Path, typer.Argument(help="Mission file (YAML).", show_default=False)]
+VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="Log debug messages too.")]
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        console.print(f"zab {version('zenoh-acoustic-bridge')}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    show_version: Annotated[bool, typer.Option(
+        "--version", help="Print the version and exit.", callback=_version,
+        is_eager=True)] = False,
+) -> None:
+    """zenoh-acoustic-bridge: one Zenoh pub/sub space across WiFi and water."""
 
 
 def _load(path: Path) -> LoadedMission:
@@ -47,11 +70,12 @@ def _load(path: Path) -> LoadedMission:
 
 
 def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
-    """Run ``main``; a mission problem found at start (e.g. a missing key) exits 2, cleanly."""
+    """Run ``main``; a problem found at start (a missing key, a Zenoh port taken, a router that
+    does not answer) exits 2 with one line, never a traceback."""
     try:
         return asyncio.run(main)
-    except MissionError as exc:
-        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
+    except (MissionError, SessionError) as exc:
+        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2) from None
 
 
@@ -76,14 +100,29 @@ def _install_stop(stop: asyncio.Event) -> None:
 def check(
     mission: MissionArg,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    no_key: Annotated[bool, typer.Option("--no-key", help="Check the file alone: do not look "
+                                         "for the frame key (CI, a design laptop).")] = False,
 ) -> None:
-    """Validate a mission; show channel sizes, frame fill and airtime. Exit 1 if a channel can
-    never fit, 2 if the file is invalid."""
-    loaded = _load(mission)
-    report = check_mission(loaded)
+    """Validate a mission; show channel sizes, frame fill and airtime.
+
+    Exit 1 if a channel can never fit, 2 if the file is invalid (with --json: a JSON object
+    with the errors on stdout) or its wire.auth disagrees with the frame keys here
+    (authenticated without a key, or a key present and wire.auth not said).
+    """
     if as_json:
-        print(json.dumps(report.data, indent=2))
-        raise typer.Exit(0 if report.ok else 1)
+        try:
+            loaded = load_mission(mission)
+        except MissionError as exc:
+            print(json.dumps({"ok": False, "errors": _problems(exc)}, indent=2))
+            raise typer.Exit(2) from None
+    else:
+        loaded = _load(mission)
+    report = check_mission(loaded)
+    key = frame_key(loaded.mission, look=not no_key)
+    code = 2 if key.problem else 0 if report.ok else 1
+    if as_json:
+        print(json.dumps({**report.data, "frame_key": key.as_json()}, indent=2))
+        raise typer.Exit(code)
     data = report.data
     console.print(
         f"[bold]{data['mission']}[/]: {len(data['nodes'])} nodes, {len(data['channels'])} "
@@ -116,6 +155,9 @@ def check(
     if data.get("key_entry_bits"):
         console.print(f"@key entry (names a learned member): {data['key_entry_bits']} bits",
                       highlight=False)
+    for d in data["dccl"]:  # like dccl --analyze
+        console.print(f"DCCL message of channel {d['channel']!r}:\n{d['analysis']}",
+                      highlight=False, markup=False)
     nodes = Table("node", "address", "role", "worst-case bits", "frame", "fill", "airtime",
                   "listen", title="nodes")
     for n in data["nodes"]:
@@ -126,9 +168,24 @@ def check(
     _print_mac(data)
     for warning in report.warnings:
         console.print(f"[yellow]warning:[/] {warning}", highlight=False)
+    console.print(key.describe(), highlight=False)
     for error in report.errors:
         console.print(f"[red]error:[/] {error}", highlight=False)
-    raise typer.Exit(0 if report.ok else 1)
+    if key.problem:
+        err.print(f"[bold red]error:[/] {key.problem}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _problems(exc: MissionError) -> list[dict[str, Any]]:
+    """A mission error as data: file, line, column, path and message of each problem."""
+    from dataclasses import asdict
+
+    from bridge.mission.loader import MissionProblems
+
+    if isinstance(exc, MissionProblems):
+        return [asdict(p) for p in exc.problems]
+    return [{"file": str(exc).split(":", 1)[0], "line": None, "column": None, "path": "",
+             "message": str(exc)}]
 
 
 def _keys_text(keys: dict[str, Any] | None) -> str:
@@ -158,13 +215,15 @@ def _print_mac(data: dict[str, Any]) -> None:
 @app.command()
 def schema(
     out: Annotated[Path | None, typer.Option(help="Where to write (default: schemas/; with "
-                                             "--payloads, schemas/payloads/<mission>/).")] = None,
+                                             "--payloads, schemas/payloads/MISSION/).")] = None,
     payloads: Annotated[Path | None, typer.Option(
         "--payloads", help="Instead: write the JSON Schema of every bridged key's payload of "
         "this mission.", show_default=False)] = None,
 ) -> None:
-    """Write the mission file's JSON Schema (for editors) from the models, or with
-    --payloads MISSION the schema of every bridged key's payload."""
+    """Write the mission file's JSON Schema (for editors), or a mission's payload schemas.
+
+    With --payloads MISSION: the JSON Schema of every bridged key's payload of that mission.
+    """
     from bridge.mission.schema import default_schema_path, schema_text
 
     if payloads is not None:
@@ -188,18 +247,28 @@ def schema(
 def run(
     mission: MissionArg,
     node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
-    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    verbose: VerboseOpt = False,
     log: Annotated[Path | None, typer.Option("--log", help="Record every frame and event to "
                                              "this MCAP file; {time} in the name becomes the "
                                              "start time (UTC).")] = None,
+    state_dir: Annotated[Path | None, typer.Option(
+        "--state-dir", help="Where the node keeps what a restart must resume (reliable "
+        "values, delivered windows, frame counters). Default: $STATE_DIRECTORY (systemd), "
+        "else ~/.local/state/zab.")] = None,
 ) -> None:
     """Run the bridge of one node (what each vehicle runs)."""
     from bridge.modems.setup import backend_factory
+    from bridge.runtime.state_file import StateError, StateFile, default_state_dir
     from bridge.runtime.zenoh_node import BridgeNode
 
     loaded = _load(mission)
     if node not in loaded.mission.nodes:
         err.print(f"no node {node!r} in {mission}; nodes: {', '.join(loaded.mission.nodes)}")
+        raise typer.Exit(2)
+    key = frame_key(loaded.mission)
+    if key.problem:
+        err.print(f"[bold red]cannot start:[/] {node}: {key.problem}", highlight=False,
+                  soft_wrap=True)
         raise typer.Exit(2)
     _logging(verbose)
     try:
@@ -207,16 +276,30 @@ def run(
     except BackendError as exc:
         err.print(f"[red]{exc}[/]")
         raise typer.Exit(2) from None
+    try:
+        state = StateFile(state_dir or default_state_dir(), loaded.mission.mission, node)
+    except StateError as exc:
+        err.print(f"[red]{exc}[/]")
+        raise typer.Exit(2) from None
 
     async def main() -> None:
         stop = asyncio.Event()
         _install_stop(stop)
         recorder = None if log is None else _mission_log(log, loaded, node)
-        bridge = BridgeNode(loaded, node, factory, on_event=recorder)
-        logging.getLogger("zab").info("%s: bridge running (Ctrl-C to stop)", node)
+        bridge = BridgeNode(loaded, node, factory, on_event=recorder, state_file=state)
+
+        async def announce() -> None:  # once the Zenoh session is open
+            await bridge.started.wait()
+            zab_log = logging.getLogger("zab")
+            zab_log.log(logging.WARNING if key.state == "unsaid" else logging.INFO, "%s: %s",
+                        node, key.describe())
+            zab_log.info("%s: bridge running (Ctrl-C to stop)", node)
+
+        announced = asyncio.create_task(announce())
         try:
             await bridge.run(stop)
         finally:
+            announced.cancel()
             if recorder is not None:
                 recorder.close()
                 logging.getLogger("zab").info("%s: mission log %s", node, recorder.path)
@@ -317,12 +400,15 @@ def emulate(
 def sim(
     mission: MissionArg,
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
-    report: Annotated[Path | None, typer.Option(help="Write a JSON report here.")] = None,
+    report: Annotated[Path | None, typer.Option(
+        help="Write a report here: .html a mission report with plots (one file, opens "
+        "offline), anything else the numbers as JSON.")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed of the ocean.")] = None,
     live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
-    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
-    log: Annotated[Path | None, typer.Option("--log", help="Record each node's frames and "
-                                             "events to DIR/<mission>-<node>.mcap.")] = None,
+    verbose: VerboseOpt = False,
+    log: Annotated[Path | None, typer.Option("--log", metavar="DIR", help="Record each node's "
+                                             "frames and events, one MCAP file per node in "
+                                             "this folder.")] = None,
     fast: Annotated[bool, typer.Option("--fast", help="Virtual clock, flat out: every node's "
                                        "bridge core over the simulated ocean, no Zenoh; inputs "
                                        "get synthetic values (default duration 3600 s).")]
@@ -340,24 +426,50 @@ def sim(
         err.print("--fast and --speed exclude each other (--fast: as fast as possible)")
         raise typer.Exit(2)
     logs = None if log is None else FleetLogs(log, loaded)
+    recorder = _recorder_for(report)
     try:
         if fast or speed is not None:
-            result = _run_or_exit(_run_fast(loaded, duration or 3600.0, seed, speed, logs))
+            result = _run_or_exit(_run_fast(loaded, duration or 3600.0, seed, speed, logs,
+                                            recorder))
         else:
             result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
-                                          console=console, record=logs))
+                                          console=console, record=logs, recorder=recorder))
     finally:
         if logs is not None:
             logs.close()
     if logs is not None:
         console.print(f"mission logs: {', '.join(str(p.path) for p in logs.logs.values())}")
     if report is not None:
-        report.write_text(json.dumps(result, indent=2, default=str), encoding="utf-8")
-        console.print(f"report written to {report}")
+        _write_report(report, result, recorder, loaded)
+
+
+def _recorder_for(report: Path | None) -> Any:
+    """A recorder of the run's time series when the report is an HTML page."""
+    if report is None or report.suffix.lower() not in (".html", ".htm"):
+        return None
+    from bridge.report import MissionRecorder
+
+    return MissionRecorder()
+
+
+def _write_report(path: Path, result: dict[str, Any], recorder: Any,
+                  loaded: LoadedMission) -> None:
+    """The HTML mission report if ``recorder`` ran, else the numbers as JSON."""
+    try:
+        if recorder is None:
+            path.write_text(json.dumps(result, indent=2, default=str), encoding="utf-8")
+        else:
+            from bridge.report import write_report
+
+            write_report(path, result, recorder.recording, loaded)
+    except OSError as exc:
+        err.print(f"[red]cannot write the report:[/] {exc}", highlight=False)
+        raise typer.Exit(1) from None
+    console.print(f"report written to {path}", highlight=False)
 
 
 async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
-                    speed: float | None, record: Any) -> dict[str, Any]:
+                    speed: float | None, record: Any, recorder: Any = None) -> dict[str, Any]:
     """``zab sim --fast/--speed``: the virtual-clock run, its report printed."""
     from bridge.cli.sim import print_report
     from bridge.cli.sim_fast import run_fast
@@ -367,8 +479,10 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
     pace = "as fast as possible" if speed is None else f"at {speed:g}× real time"
     console.print(f"simulating [bold]{loaded.mission.mission}[/] on a virtual clock, {pace}: "
                   f"{duration:g} s, no Zenoh, synthetic inputs")
+    if (note := throwaway_note(loaded.mission)) is not None:
+        console.print(note, highlight=False)
     result = await run_fast(loaded, duration=duration, seed=seed, speed=speed, record=record,
-                            stop=stop)
+                            stop=stop, recorder=recorder)
     print_report(console, result)
     console.print(f"{result['duration_s']:g} s simulated in {result['wall_s']:g} s wall "
                   f"({result['speedup']:g}× real time); {result['frames_sent']} frames sent, "
@@ -384,22 +498,40 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
 
 @app.command()
 def demo(
-    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.")] = 30.0,
+    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.")] = 60.0,
     mission: Annotated[Path | None, typer.Option(help="Mission (default: the MORPH fleet).")]
     = None,
-    live: Annotated[bool, typer.Option(help="Live terminal view.")] = True,
+    live: Annotated[bool, typer.Option(help="Live terminal view of counters (under the "
+                                       "tour's lines).")] = False,
     gui: Annotated[bool, typer.Option(help="Serve the browser GUI (zab gui) during the demo.")]
     = True,
     gui_port: Annotated[int, typer.Option(help="Port of the GUI (any free one if taken).")]
     = 8080,
+    report: Annotated[Path, typer.Option(help="Where to write the mission report (HTML).")]
+    = Path("zab-demo-report.html"),
+    loss: Annotated[float, typer.Option(help="Share of frames the simulated water loses.",
+                                        min=0, max=0.9)] = 0.1,
 ) -> None:
-    """A simulated MORPH fleet, end to end: data published, carried, decoded, shown."""
-    from bridge.cli.demo import default_demo_mission, run_demo
+    """A guided tour of a simulated fleet, end to end, in about a minute.
 
-    loaded = _load(mission or default_demo_mission())
+    It shows values crossing the water and their quantisation, latest-value semantics, an
+    acknowledged command over a lossy link, position fixes from acoustic ranges and the GUI,
+    then a summary and a mission report with plots.
+    """
+    from bridge.cli.demo import default_demo_mission, run_demo, tour_mission
+
+    path = mission or default_demo_mission()
+    _load(path)  # a mistake in the file itself is reported as such
+    try:
+        loaded, changes = tour_mission(path, loss)
+    except MissionError as exc:
+        err.print(f"[bold red]cannot make the tour's variant of {path}[/]\n{exc}",
+                  highlight=False)
+        raise typer.Exit(2) from None
     _logging(False)
+    logging.getLogger().setLevel(logging.WARNING)  # the tour's lines, not the nodes' chatter
     _run_or_exit(run_demo(loaded, duration=duration, console=console, live=live, gui=gui,
-                          gui_port=gui_port))
+                          gui_port=gui_port, report=report, changes=changes, loss=loss))
 
 
 @app.command()
@@ -413,7 +545,7 @@ def gui(
     host: Annotated[str, typer.Option(
         help="Address to serve the page on; 0.0.0.0 for tablets on the WiFi.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="TCP port of the page (0: any free port).")] = 8080,
-    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+    verbose: VerboseOpt = False,
 ) -> None:
     """The fleet in a browser: map, channels and links per vehicle, commands, events."""
     from bridge.gui.server import GuiServer, serve_gui
@@ -442,6 +574,59 @@ def gui(
         raise typer.Exit(1) from None
 
 
+EndpointArg = Annotated[str, typer.Argument(
+    help="Zenoh endpoint of a vehicle, e.g. tcp/127.0.0.1:7502 (see zab demo).",
+    show_default=False)]
+
+
+@app.command()
+def listen(
+    endpoint: EndpointArg,
+    keyexpr: Annotated[str, typer.Argument(help="Key expression to subscribe to.")] = "**",
+    count: Annotated[int | None, typer.Option(help="Stop after this many values.", min=1)]
+    = None,
+    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.",
+                                                   min=0)] = None,
+) -> None:
+    """Print the values arriving at a Zenoh endpoint, decoded, one line each (Ctrl-C stops)."""
+    from bridge.cli.poke import PokeError
+    from bridge.cli.poke import listen as run_listen
+
+    def ready() -> None:
+        err.print(f"listening on {keyexpr} at {endpoint}; Ctrl-C to stop", highlight=False)
+
+    try:
+        run_listen(endpoint, keyexpr, lambda line: print(line, flush=True), count=count,
+                   duration=duration, ready=ready)
+    except PokeError as exc:
+        err.print(f"[red]{exc}[/]", highlight=False)
+        raise typer.Exit(1) from None
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+
+
+@app.command()
+def put(
+    endpoint: EndpointArg,
+    key: Annotated[str, typer.Argument(help="Key to publish on, e.g. target_reference.",
+                                       show_default=False)],
+    value: Annotated[str, typer.Argument(help='The value as JSON, e.g. \'{"x": 10, "y": 5}\'.',
+                                         show_default=False)],
+) -> None:
+    """Publish one value (JSON on the command line, msgpack on Zenoh) at a Zenoh endpoint."""
+    from bridge.cli.poke import PokeError
+    from bridge.cli.poke import put as run_put
+
+    try:
+        payload = run_put(endpoint, key, value)
+    except PokeError as exc:
+        err.print(f"[red]{exc}[/]", highlight=False)
+        raise typer.Exit(1 if str(exc).startswith("cannot connect") else 2) from None
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    console.print(f"put {key} ({len(payload)} B msgpack) at {endpoint}", highlight=False)
+
+
 @app.command()
 def doctor(
     mission: MissionArg,
@@ -449,8 +634,11 @@ def doctor(
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the modem.", min=0.1)]
     = 15.0,
 ) -> None:
-    """Check that this vehicle can run its bridge: mission, modem port and answer, Zenoh
-    endpoints, clock. Prints what to fix; exit 1 if something must be fixed."""
+    """Check that this vehicle can run its bridge, and print what to fix.
+
+    Checks the mission, the modem port and its answer, the Zenoh endpoints and the clock;
+    exit 1 if something must be fixed.
+    """
     from bridge.cli.doctor import run_doctor
 
     loaded = _load(mission)
@@ -478,7 +666,8 @@ def _mission_log(path: Path, loaded: LoadedMission, node: str) -> Any:
         raise typer.Exit(2) from None
 
 
-log_app = typer.Typer(help="Read mission logs (MCAP) written with --log.", no_args_is_help=True)
+log_app = typer.Typer(help="Read mission logs (MCAP) written with --log.", no_args_is_help=True,
+                      context_settings=helptext.HELP_OPTIONS, rich_markup_mode="markdown")
 app.add_typer(log_app, name="log")
 LogArg = Annotated[Path, typer.Argument(help="Mission log (.mcap).", show_default=False)]
 
@@ -532,9 +721,11 @@ def log_replay(
     wait: Annotated[float, typer.Option(help="Seconds to let subscribers connect before the "
                                         "first value.", min=0)] = 1.0,
 ) -> None:
-    """Publish the decoded data of a mission log on Zenoh again, on the channels' output keys
-    (msgpack or JSON as the mission says). Without --connect/--listen it listens on
-    tcp/127.0.0.1:7447."""
+    """Publish the decoded data of a mission log on Zenoh again.
+
+    Values go to the channels' output keys (msgpack or JSON as the mission says). Without
+    --connect/--listen it listens on tcp/127.0.0.1:7447.
+    """
     import zenoh
 
     from bridge.mission.model import ZenohSettings
@@ -544,7 +735,12 @@ def log_replay(
     data = _read_log(file)
     if not connect and not listen:
         listen = ["tcp/127.0.0.1:7447"]
-    session = open_session(ZenohSettings(listen=listen or [], connect=connect or []))
+    try:
+        session = open_session(ZenohSettings(listen=listen or [], connect=connect or []),
+                               "replay")
+    except SessionError as exc:
+        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
+        raise typer.Exit(2) from None
     mission = data.loaded.mission.mission if data.loaded is not None else "?"
     origin = origin_tag(mission, f"{data.node}-replay")  # never re-bridged by a live node
     publishers: dict[str, Any] = {}

@@ -1,9 +1,11 @@
-"""``zab demo``: a simulated fleet, end to end, with nothing to set up.
+"""``zab demo``: a guided tour of a simulated fleet, with nothing to set up.
 
 Runs ``zab sim`` on the MORPH mission, plus what a lab would run around it: on every vehicle,
-an application that publishes realistic data on the vehicle's own Zenoh endpoint, and an
-application that prints what the bridge delivers there. The applications are plain Zenoh
-clients (they use only ``zenoh`` and ``msgpack``), exactly as a program in any language would.
+an application that publishes plausible data on the vehicle's own Zenoh endpoint (navigation
+from the formation's motion, a slowly draining battery), and an application that watches what
+the bridge delivers there. The applications are plain Zenoh clients (they use only ``zenoh``
+and ``msgpack``), exactly as a program in any language would. :mod:`bridge.cli.tour` holds the
+words; this module runs the fleet and says them at the right moments.
 """
 
 from __future__ import annotations
@@ -11,33 +13,75 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import queue
+import random
 import threading
 import time
+import zlib
+from collections import Counter, deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import msgpack
+import yaml
 import zenoh
 from rich.console import Console
-from rich.table import Table
 
 from bridge.cli.demo_queries import QueryApps, member_keys
-from bridge.cli.sim import EventLog, print_report, run_fleet_for
+from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
+from bridge.cli.tour import Tour, turn_waits
 from bridge.codec import FieldSpec
+from bridge.errors import MissionError
+from bridge.gui.commands import named_as_command
 from bridge.gui.server import GuiServer
-from bridge.mission.loader import LoadedMission
+from bridge.mission.keys import throwaway_note
+from bridge.mission.loader import LoadedMission, parse_mission
+from bridge.report import MissionRecorder, write_report
 from bridge.resources import data_dir
 from bridge.runtime.fleet import Fleet
 from bridge.runtime.session import close_quietly
+from bridge.wire.channels import ChannelCodec
 
 PUBLISH_PERIOD_S = 1.0
 OPERATOR_HOLD_S = 60.0  # a key an operator commanded (from the GUI) is left alone this long
+TOUR_LOSS = 0.1  # share of frames the tour's water loses, so reliability has work to do
+EXAMPLES = 3  # arrivals shown with their quantisation, of different channels
+EXAMPLES_WAIT_S = 20.0
+EXAMPLE_TRIES = 4  # arrivals of a channel passed over while they show no rounding
+COMMAND_WAIT_S = 25.0  # the tour moves on if a delivery report is still missing by then
+FIX_EVERY_S = 20.0  # a vehicle's fix is printed at most this often
+TOUR_REF = "tour-1"  # correlation of the tour's command (the put's attachment ``ref:...``)
+POLL_S = 0.2
 
 
 def default_demo_mission() -> Path:
     """The MORPH example mission (``deploy/missions/morph.yaml``; shipped in the wheel too)."""
     return data_dir("missions") / "morph.yaml"
+
+
+def tour_mission(path: Path, loss: float = TOUR_LOSS) -> tuple[LoadedMission, list[str]]:
+    """The mission at ``path`` as the tour runs it, and the changes made, in words: the water
+    loses ``loss`` of the frames, and the first channel named as a command becomes
+    acknowledged (reliable, so not latching)."""
+    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    changes = []
+    if loss > 0:
+        data.setdefault("modem", {}).setdefault("options", {})["loss"] = loss
+        changes.append(f"the water loses {loss:.0%} of frames")
+    plain = yaml.safe_dump(data, sort_keys=False)
+    for channel in data.get("channels") or []:
+        keys = [str(e.get("in", "")) for e in channel.get("elements") or []]
+        if named_as_command(str(channel.get("name", "")), *keys):
+            if not channel.get("reliable"):
+                channel.update(reliable=True, latching=False)
+                try:
+                    loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), path)
+                except MissionError:
+                    break  # this channel cannot be acknowledged as it is: leave it be
+                return loaded, [*changes, f"{channel['name']} is acknowledged (reliable: true)"]
+            break
+    return parse_mission(plain, path), changes
 
 
 def _set(target: dict[str, Any], path: str, value: Any) -> None:
@@ -47,11 +91,19 @@ def _set(target: dict[str, Any], path: str, value: Any) -> None:
     target[last] = value
 
 
+def _phase(*parts: object) -> float:
+    """A fixed phase in [0, 2π) per field, the same in every run."""
+    return zlib.crc32(repr(parts).encode()) % 628 / 100
+
+
+PREFERRED_MODES = ("transit", "survey", "hold")
+
+
 def synthetic_value(spec: FieldSpec, t: float, phase: float) -> Any:
-    """A plausible, slowly varying value inside a field's declared range."""
-    wave = 0.5 + 0.45 * math.sin(0.05 * t + phase)
+    """A plausible value inside a field's declared range that changes slowly: a battery
+    drains by about 1 % a minute, a mode stays put, other numbers drift over ten minutes."""
     if spec.values:
-        return spec.values[int(t / 20 + phase) % len(spec.values)]
+        return next((m for m in PREFERRED_MODES if m in spec.values), spec.values[0])
     if spec.type == "bool":
         return False
     if spec.type in ("string", "bytes"):
@@ -59,11 +111,15 @@ def synthetic_value(spec: FieldSpec, t: float, phase: float) -> Any:
         return text if spec.type == "string" else text.encode()
     if spec.codec in ("ccl.latitude", "ccl.longitude"):
         base = 41.81 if spec.codec == "ccl.latitude" else 3.03  # Sant Feliu de Guíxols
-        return base + 0.0005 * math.sin(0.02 * t + phase)
+        return round(base + 0.0005 * math.sin(0.02 * t + phase), 6)
     low = spec.min if spec.min is not None else 0.0
     high = spec.max if spec.max is not None else 1.0
-    value = low + (high - low) * wave
-    return round(value) if spec.type == "int" else value
+    if "battery" in spec.field:
+        value = high - (high - low) * (0.05 + 0.1 * phase / 6.28 + t / 6000)
+    else:
+        value = low + (high - low) * (0.5 + 0.3 * math.sin(2 * math.pi * t / 600 + phase))
+    value = min(high, max(low, value))
+    return round(value) if spec.type == "int" else round(value, 4)
 
 
 TRANSIT_MPS = 0.8  # the formation moves north at this speed, weaving a little east-west
@@ -81,22 +137,64 @@ def formation_value(name: str, position: tuple[float, float, float], t: float) -
         "heading": math.degrees(math.atan2(east_speed, TRANSIT_MPS)) % 360,
         "speed": math.hypot(east_speed, TRANSIT_MPS),
     }
-    return values.get(name)
+    value = values.get(name)
+    return None if value is None else round(value, 3)
+
+
+def _numbers(value: Any, prefix: str = "") -> dict[str, float]:
+    out: dict[str, float] = {}
+    if isinstance(value, dict):
+        for k, v in value.items():
+            out.update(_numbers(v, f"{prefix}{k}."))
+    elif isinstance(value, int | float) and not isinstance(value, bool):
+        out[prefix.rstrip(".")] = float(value)
+    return out
+
+
+def closest(history: list[tuple[float, Any]], got: Any) -> Any:
+    """The published value the delivered ``got`` most likely came from: the one nearest to it
+    in every numeric field (values change slowly, so any near one tells the same story)."""
+    numbers = _numbers(got)
+
+    def distance(item: tuple[float, Any]) -> float:
+        sent = _numbers(item[1])
+        return sum(abs(sent.get(k, math.inf) - v) for k, v in numbers.items())
+
+    return min(history, key=distance)[1] if history else None
 
 
 class VehicleApps:
-    """Per node: a publisher of its input keys and a printer of what arrives there."""
+    """Per node: a publisher of its input keys and a watcher of what arrives there."""
 
-    def __init__(self, loaded: LoadedMission, show: Callable[[str], None]) -> None:
+    def __init__(self, loaded: LoadedMission, show: Callable[[str], None],
+                 tour: Tour | None = None) -> None:
         self.loaded = loaded
         self.show = show
+        self.tour = tour
         self.sessions: dict[str, zenoh.Session] = {}
-        self.published = 0
+        self.published: Counter[str] = Counter()  # per channel
         self.arrived = 0
-        self.ranges: dict[tuple[str, str], float] = {}
         self.operator: dict[tuple[str, str], float] = {}  # (node, key) -> last GUI command
-        self._stop = threading.Event()
+        self.history: dict[tuple[str, str], deque[tuple[float, Any]]] = {}
+        self.routes = self._routes()
+        self.examples: list[str] = []  # channels shown with their quantisation
+        self.passed: Counter[str] = Counter()  # arrivals per channel considered for it
+        self.examples_done = threading.Event()
+        self.fixes_on = False
+        self.fixes_seen: dict[str, zenoh.Sample] = {}
+        self.fix_shown: dict[str, float] = {}
+        self.deliveries: queue.Queue[dict[str, Any]] = queue.Queue()
         self._lock = threading.Lock()
+
+    def _routes(self) -> dict[tuple[str, str], tuple[str, ChannelCodec, int]]:
+        """(receiver, output key) -> (sender, channel, element index)."""
+        routes = {}
+        for channel in self.loaded.table.channels:
+            for src in channel.senders:
+                for dst in channel.destinations(src):
+                    for index, element in enumerate(channel.elements):
+                        routes[(dst, element.output_key(src, dst))] = (src, channel, index)
+        return routes
 
     def _open(self, node: str) -> zenoh.Session | None:
         endpoints = self.loaded.mission.nodes[node].zenoh.listen
@@ -109,28 +207,49 @@ class VehicleApps:
         return zenoh.open(config)
 
     def start(self) -> None:
+        mission = self.loaded.mission.mission
         for node in self.loaded.mission.nodes:
             session = self._open(node)
             if session is None:
                 continue
             self.sessions[node] = session
             session.declare_subscriber("**", lambda s, n=node: self._arrived(n, s))
-            prefix = f"@zab/{self.loaded.mission.mission}/{node}"
-            session.declare_subscriber(f"{prefix}/range/*", lambda s, n=node: self._ranged(n, s))
-            session.declare_subscriber(f"{prefix}/position", lambda s, n=node: self._fixed(n, s))
+            prefix = f"@zab/{mission}/{node}"
+            session.declare_subscriber(f"{prefix}/position",
+                                       lambda s, n=node: self._fix_arrived(n, s))
+            session.declare_subscriber(f"{prefix}/delivery/*", self._delivered)
 
-    def _ranged(self, node: str, sample: zenoh.Sample) -> None:
-        """Keep the latest range each node measured to each peer, for the summary."""
-        value = msgpack.unpackb(sample.payload.to_bytes())
+    # -- what arrives ------------------------------------------------------------------------
+
+    def _delivered(self, sample: zenoh.Sample) -> None:
         with self._lock:
-            self.ranges[(node, value["peer"])] = value["range_m"]
+            self.deliveries.put(msgpack.unpackb(sample.payload.to_bytes()))
 
-    def _fixed(self, node: str, sample: zenoh.Sample) -> None:
+    def _fix_arrived(self, node: str, sample: zenoh.Sample) -> None:
+        """Fixes are printed once the tour reaches them, each vehicle's every FIX_EVERY_S."""
+        with self._lock:
+            self.fixes_seen[node] = sample
+            if not self.fixes_on or time.time() - self.fix_shown.get(node, 0.0) < FIX_EVERY_S:
+                return
+        if self._fixed(node, sample):
+            self.fix_shown[node] = time.time()
+
+    def show_fixes(self) -> None:
+        """From now on print fixes; first the latest one of each vehicle so far."""
+        with self._lock:
+            self.fixes_on = True
+            latest = dict(self.fixes_seen)
+        for node, sample in latest.items():
+            if self._fixed(node, sample):
+                self.fix_shown[node] = time.time()
+
+    def _fixed(self, node: str, sample: zenoh.Sample) -> bool:
         fix = msgpack.unpackb(sample.payload.to_bytes())
         if not fix.get("fix", True):
-            return  # a "no fix" report (too few anchors yet): the demo shows fixes only
+            return False  # a "no fix" report (too few anchors yet): the demo shows fixes only
         self.show(f"[cyan]{node:>4}[/] position from {' + '.join(fix['anchors'])}: "
                   f"x {fix['x']:.1f} m, y {fix['y']:.1f} m, ±{fix['sigma_m']:.2f} m")
+        return True
 
     def _arrived(self, node: str, sample: zenoh.Sample) -> None:
         if sample.attachment is None:  # our own publications; show only what the bridge brought
@@ -139,7 +258,10 @@ class VehicleApps:
             value = msgpack.unpackb(sample.payload.to_bytes())
         except ValueError:
             return
-        if sample.attachment.to_bytes().startswith(b"ref:"):  # a command sent from the GUI
+        attachment = sample.attachment.to_bytes()
+        if attachment.startswith(b"ref:"):  # a command put on this node's key
+            if attachment == f"ref:{TOUR_REF}".encode():
+                return  # the tour's own, told in its part
             with self._lock:
                 self.operator[(node, str(sample.key_expr))] = time.time()
             self.show(f"[magenta]{node:>4}[/] ← operator: [bold]{sample.key_expr}[/] "
@@ -147,24 +269,57 @@ class VehicleApps:
             return
         with self._lock:
             self.arrived += 1
-        self.show(f"[green]{node:>4}[/] ← [bold]{sample.key_expr}[/] {_short(value)}")
+        route = self.routes.get((node, str(sample.key_expr)))
+        if route is not None and self.tour is not None:
+            self._example(node, route, value)
+
+    def _example(self, dst: str, route: tuple[str, ChannelCodec, int], got: Any) -> None:
+        """The first arrivals of a few channels, beside what was published."""
+        src, channel, element = route
+        with self._lock:
+            if len(self.examples) >= EXAMPLES or channel.name in self.examples:
+                return
+            history = list(self.history.get((src, channel.elements[element].input_key(src)),
+                                            ()))
+            if not history:
+                return
+            sent = closest(history, got)
+            self.passed[channel.name] += 1
+            if _numbers(sent) == _numbers(got) and self.passed[channel.name] <= EXAMPLE_TRIES:
+                return  # nothing rounded this time: a later arrival shows quantisation better
+            self.examples.append(channel.name)
+        assert self.tour is not None
+        self.tour.quantised(src, dst, channel, element, sent, got)
+        if len(self.examples) >= EXAMPLES:
+            self.examples_done.set()
+
+    # -- what the vehicles publish -----------------------------------------------------------
+
+    def is_operators(self, channel: ChannelCodec) -> bool:
+        """Commands and acknowledged channels are the operator's to send, not the apps'."""
+        return channel.reliable or named_as_command(
+            channel.name, *(e.in_key for e in channel.elements))
 
     def publish_once(self, t: float) -> None:
         """Each node publishes one value on every input key it sends."""
         for node, session in self.sessions.items():
+            position = self.loaded.mission.nodes[node].position
             for channel in self.loaded.mission.channels:
                 compiled = self.loaded.table.by_name(channel.name)
-                if not compiled.sent_by(node):
+                if not compiled.sent_by(node) or self.is_operators(compiled):
                     continue
                 for e_index, element in enumerate(channel.elements):
                     value: dict[str, Any] = {}
-                    position = self.loaded.mission.nodes[node].position
+                    if element.dccl:  # a DCCL message: a valid value of its own
+                        layout = compiled.elements[e_index].layout
+                        value = layout.synthetic_value(  # type: ignore[attr-defined]
+                            random.Random(hash((node, t))))
                     for f_index, spec in enumerate(element.fields):
                         if not spec.field:
                             continue
                         moving = None if position is None else formation_value(
                             spec.field, (position.x, position.y, position.depth), t)
-                        phase = hash((node, channel.name, e_index, f_index)) % 628 / 100
+                        phase = _phase(node, channel.name, e_index, f_index)
                         _set(value, spec.field,
                              moving if moving is not None else synthetic_value(spec, t, phase))
                     for key in member_keys(compiled, e_index, node):
@@ -173,7 +328,10 @@ class VehicleApps:
                             continue  # the operator's command stands
                         session.put(key, msgpack.packb(value),
                                     encoding=zenoh.Encoding("application/msgpack"))
-                        self.published += 1
+                        with self._lock:
+                            self.published[channel.name] += 1
+                            self.history.setdefault((node, key), deque(maxlen=8)).append(
+                                (time.time(), value))
 
     async def run(self) -> None:
         t0 = time.time()
@@ -181,21 +339,82 @@ class VehicleApps:
             self.publish_once(time.time() - t0)
             await asyncio.sleep(PUBLISH_PERIOD_S)
 
+    # -- the operator's acknowledged command -------------------------------------------------
+
+    def command_channel(self) -> tuple[str, ChannelCodec] | None:
+        """(sender, channel): an acknowledged channel the surface node sends."""
+        surfaces = [n for n, node in self.loaded.mission.nodes.items() if node.role == "surface"]
+        for channel in self.loaded.table.channels:
+            for node in surfaces:
+                if channel.reliable and channel.sent_by(node) and node in self.sessions:
+                    return node, channel
+        return None
+
+    async def send_command(self, loss: float) -> None:
+        """Put one command on the surface node and report its delivery to each receiver."""
+        assert self.tour is not None
+        found = self.command_channel()
+        if found is None:
+            self.tour.no_command()
+            return
+        node, channel = found
+        destinations = channel.destinations(node)
+        report_key = f"@zab/{self.loaded.mission.mission}/{node}/delivery/{channel.name}"
+        values = [_command_value(element.layout.fields) for element in channel.elements]
+        self.tour.command_sent(node, channel.elements[0].input_key(node),
+                               json.dumps(values[0]), destinations, loss, report_key)
+        t0 = time.time()
+        with self._lock:
+            self.published[channel.name] += 1
+        for element, value in zip(channel.elements, values, strict=True):
+            self.sessions[node].put(element.input_key(node), msgpack.packb(value),
+                                    encoding=zenoh.Encoding("application/msgpack"),
+                                    attachment=f"ref:{TOUR_REF}".encode())
+        states: dict[str, str] = {}
+        while len(states) < len(destinations) and time.time() - t0 < COMMAND_WAIT_S:
+            await asyncio.sleep(POLL_S)
+            while not self.deliveries.empty():
+                report = self.deliveries.get_nowait()
+                if report.get("ref") != TOUR_REF or report.get("state") not in (
+                        "delivered", "failed"):
+                    continue
+                states[str(report.get("dst"))] = str(report["state"])
+                self.tour.delivery(report, time.time() - t0)
+        self.tour.command_done(states, [d for d in destinations if d not in states])
+
     def close(self) -> None:
         for session in self.sessions.values():
             close_quietly(session)
+
+
+def _command_value(fields: Any) -> dict[str, Any]:
+    """A sensible command for the tour: hold (or the second action), leg 7, mid-range."""
+    value: dict[str, Any] = {}
+    for field in fields:
+        spec = field.spec
+        if spec.values:
+            chosen = "hold" if "hold" in spec.values else spec.values[min(1, len(spec.values) - 1)]
+        elif spec.type == "bool":
+            chosen = True
+        elif spec.type == "int" and spec.min is not None and spec.max is not None:
+            chosen = int(min(spec.max, max(spec.min, 7)))
+        elif spec.min is not None and spec.max is not None:
+            chosen = round((spec.min + spec.max) / 2, 3)
+        else:
+            continue
+        if field.path:
+            _set(value, field.path, chosen)
+    return value
 
 
 async def _start_gui(loaded: LoadedMission, port: int, console: Console) -> GuiServer | None:
     """``zab gui`` inside the demo, joined to the surface node; None if it cannot start."""
     try:
         server = GuiServer(loaded)
-        url = await server.start("127.0.0.1", port, any_port=True)
+        await server.start("127.0.0.1", port, any_port=True)
     except (ValueError, OSError) as exc:
         console.print(f"[yellow]no GUI: {exc}[/]")
         return None
-    console.print(f"[bold]GUI:[/] open {url} in a browser to watch the fleet move and send "
-                  f"commands from {server.node}", highlight=False)
     return server
 
 
@@ -211,57 +430,83 @@ def _short(value: Any) -> str:
     return text if len(text) < 90 else text[:87] + "..."
 
 
+async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float) -> None:
+    """Parts 1 to 4 of the tour, each when the fleet has something to show for it."""
+    tour.part("values")
+    tour.values_intro()
+    await asyncio.to_thread(apps.examples_done.wait, EXAMPLES_WAIT_S)
+    tour.part("latest")
+    channel = next((c for c in loaded.table.channels if not apps.is_operators(c)
+                    and c.interval_s == 0), None) or loaded.table.channels[0]
+    sender = channel.senders[0]
+    tour.latest(channel, PUBLISH_PERIOD_S, sender, turn_waits(loaded).get(sender))
+    tour.part("command")
+    await apps.send_command(loss)
+    tour.part("fixes")
+    anchors = list(loaded.mission.ranging.anchors or ())
+    tour.fixes_intro(anchors)
+    apps.show_fixes()
+
+
 async def run_demo(
-    loaded: LoadedMission, *, duration: float, console: Console, live: bool,
-    gui: bool = True, gui_port: int = 8080,
+    loaded: LoadedMission, *, duration: float, console: Console, live: bool = False,
+    gui: bool = True, gui_port: int = 8080, report: Path | None = None,
+    changes: list[str] | None = None, loss: float = 0.0,
 ) -> dict[str, Any]:
-    """The demo: fleet + apps for ``duration`` seconds, then a summary."""
-    console.print(
-        f"[bold]zab demo[/]: the {loaded.mission.mission} fleet over a simulated ocean for "
-        f"{duration:.0f} s (Ctrl-C ends it sooner). Each vehicle's Zenoh endpoint:"
-    )
-    for name, node in loaded.mission.nodes.items():
-        console.print(f"  {name:>4} ({node.role}) {' '.join(node.zenoh.listen)}")
+    """The tour: fleet + apps for ``duration`` seconds, its parts told as they happen, then a
+    summary; ``report`` (an HTML file) gets the mission report."""
+    tour = Tour(loaded, console, duration)
+    tour.intro(changes or [])
     events = EventLog()
-    fleet = Fleet(loaded, on_event=events)
-    apps = VehicleApps(loaded, lambda line: console.print(line, highlight=False))
+    recorder = MissionRecorder()
+
+    def on_event(node: str, kind: str, info: dict[str, Any]) -> None:
+        events(node, kind, info)
+        recorder(node, kind, info)
+
+    fleet = Fleet(loaded, on_event=on_event)
+    if fleet.throwaway_key:
+        console.print(f"  {throwaway_note(loaded.mission)}", highlight=False)
+    attach_truth(recorder, fleet)
+    apps = VehicleApps(loaded, lambda line: console.print(line, highlight=False), tour)
     runner = asyncio.create_task(
         run_fleet_for(fleet, duration, live=live, console=console, events=events)
     )
     await asyncio.wait([runner, asyncio.create_task(fleet.ready.wait())],
                        return_when=asyncio.FIRST_COMPLETED)
-    publisher: asyncio.Task[None] | None = None
-    asker: asyncio.Task[None] | None = None
+    tasks: list[asyncio.Task[None]] = []
     page: GuiServer | None = None
     try:
         if not runner.done():
             apps.start()
-            publisher = asyncio.create_task(apps.run())
+            tasks.append(asyncio.create_task(apps.run()))
             if loaded.table.queries:  # issue 15: gets across the water
                 queries = QueryApps(loaded, apps.sessions,
                                     lambda line: console.print(line, highlight=False))
-                asker = asyncio.create_task(queries.run())
+                tasks.append(asyncio.create_task(queries.run()))
             if gui:
                 page = await _start_gui(loaded, gui_port, console)
+                tour.gui(None if page is None else page.url, page.node if page else "")
+            tasks.append(asyncio.create_task(_story(apps, tour, loaded, loss)))
         await runner
     finally:
         if page is not None:
             await page.stop()
-        for task in (publisher, asker):
-            if task is not None:
-                task.cancel()
-                await asyncio.gather(task, return_exceptions=True)
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        apps.examples_done.set()  # a story thread still waiting ends now
         apps.close()
-    report = fleet.report()
-    print_report(console, report)
-    if apps.ranges:
-        table = Table("node", "peer", "range", title="DLBL ranges, last measured (from the "
-                      "frames the fleet sent anyway)")
-        for (node, peer), metres in sorted(apps.ranges.items()):
-            table.add_row(node, peer, f"{metres:.2f} m")
-        console.print(table)
-    console.print(
-        f"published {apps.published} values on the vehicles, {apps.arrived} delivered values "
-        "arrived at other vehicles' endpoints."
-    )
-    return report
+    result = fleet.report()
+    tour.part("summary")
+    range_errors = [abs(m - t) for _, _, _, m, t in recorder.recording.ranges if t is not None]
+    tour.summary(result, apps.published, range_errors)
+    if report is not None:
+        try:
+            write_report(report, result, recorder.recording, loaded)
+        except OSError as exc:
+            console.print(f"[red]cannot write the mission report:[/] {exc}", highlight=False)
+        else:
+            console.print(f"mission report (plots, opens offline): {report.resolve()}",
+                          highlight=False, soft_wrap=True)  # a path one can copy whole
+    return result

@@ -25,12 +25,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from bridge.errors import BackendError, MissionError
+from bridge.errors import BackendError
 from bridge.mission.check import check_mission
+from bridge.mission.keys import frame_key
 from bridge.mission.loader import LoadedMission
 from bridge.mission.model import TdmaMac
 from bridge.modems.setup import backend_factory
-from bridge.wire.auth import load_key
 
 __all__ = [
     "ClockState",
@@ -164,15 +164,13 @@ def mission_findings(loaded: LoadedMission) -> list[Finding]:
     found += [Finding("mission", "warn", warning) for warning in report.warnings]
     if not found:
         found.append(Finding("mission", "ok", f"{loaded.path}: valid, every channel fits"))
-    auth = loaded.mission.wire.auth
-    if auth is not None:
-        try:
-            load_key(auth.key_env, auth.key_file)
-        except MissionError as exc:
-            found.append(Finding("key", "fail", str(exc), f"export {auth.key_env}=<the "
-                                 "mission key> (or set wire.auth.key_file)"))
-        else:
-            found.append(Finding("key", "ok", "frame key found"))
+    key = frame_key(loaded.mission)
+    if key.problem:
+        found.append(Finding("key", "fail", key.problem, "`zab run` refuses to start"))
+    elif key.state == "on":
+        found.append(Finding("key", "ok", f"frame key found in {key.source}"))
+    elif key.state == "unsaid":
+        found.append(Finding("key", "warn", key.describe()))
     return found
 
 
@@ -264,7 +262,7 @@ def zenoh_findings(loaded: LoadedMission, node: str) -> list[Finding]:
                              "vehicle cannot connect to the bridge",
                              f"set nodes.{node}.zenoh.listen, e.g. [tcp/127.0.0.1:7447]"))
     try:
-        session = open_session(settings)
+        session = open_session(settings, node)
     except Exception as exc:  # zenoh raises ZError, a plain Exception subclass
         text = str(exc)
         fix = "fix the endpoints in nodes.<node>.zenoh"

@@ -15,7 +15,9 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from bridge.mission.keys import throwaway_note
 from bridge.mission.loader import LoadedMission
+from bridge.report.recorder import MissionRecorder, truth_from
 from bridge.runtime.fleet import Fleet
 
 REFRESH_S = 0.5
@@ -86,6 +88,14 @@ async def run_fleet_for(
         await asyncio.gather(runner, return_exceptions=True)
 
 
+def attach_truth(recorder: MissionRecorder, fleet: Fleet) -> None:
+    """Let ``recorder`` ask the fleet's simulated water where each node is (wall time)."""
+    if fleet.water is not None:
+        water = fleet.water
+        names = {n: node.address for n, node in fleet.loaded.mission.nodes.items()}
+        recorder.truth = truth_from(names, lambda address, t: water.position(address, t))
+
+
 def print_report(console: Console, report: dict[str, Any]) -> None:
     table = Table("channel", "bits", "sent", "delivered", "mean age", "max age",
                   title=f"{report['mission']}: {report['duration_s']:.0f} s")
@@ -112,19 +122,27 @@ async def run_sim(
     live: bool,
     console: Console,
     record: Callable[[str, str, dict[str, Any]], None] | None = None,
+    recorder: MissionRecorder | None = None,
 ) -> dict[str, Any]:
-    """``zab sim``: run, show, and return the report. ``record`` also gets every event."""
+    """``zab sim``: run, show, and return the report. ``record`` also gets every event;
+    ``recorder`` too, and learns where the water has each node (for the HTML report)."""
     events = EventLog()
 
     def both(node: str, kind: str, info: dict[str, Any]) -> None:
         events(node, kind, info)
         if record is not None:
             record(node, kind, info)
+        if recorder is not None:
+            recorder(node, kind, info)
 
     fleet = Fleet(loaded, seed=seed, on_event=both)
+    if recorder is not None:
+        attach_truth(recorder, fleet)
     console.print(f"simulating [bold]{loaded.mission.mission}[/]: "
                   + ", ".join(f"{n} on {' '.join(node.zenoh.listen) or '(no endpoint)'}"
                               for n, node in loaded.mission.nodes.items()))
+    if fleet.throwaway_key:
+        console.print(throwaway_note(loaded.mission), highlight=False)
     await run_fleet_for(fleet, duration, live=live, console=console, events=events)
     report = fleet.report()
     print_report(console, report)

@@ -22,6 +22,7 @@ from bridge.codec import Layout
 from bridge.core.node import Notice
 from bridge.errors import DecodeError, EncodeError
 from bridge.mission.loader import LoadedMission
+from bridge.report.recorder import MissionRecorder, truth_from
 from bridge.runtime.virtual_fleet import FastFleet, Timed
 
 FEED_S = 1.0
@@ -37,6 +38,9 @@ DRAWS = 8
 def synthetic_value(layout: Layout, rng: random.Random) -> Any:
     """A value the layout encodes: random codes decoded (some codes, e.g. past an enum's
     last value, are invalid), else the all-zero codes."""
+    own = getattr(layout, "synthetic_value", None)  # layouts with a header (DCCL) make their own
+    if own is not None:
+        return own(rng)
     for _ in range(DRAWS):
         try:
             value = layout.unpack(rng.getrandbits(layout.bits) if layout.bits else 0)
@@ -153,13 +157,15 @@ async def run_fast(
     record: Callable[[str, str, dict[str, Any]], None] | None = None,
     progress: Callable[[FastFleet], None] | None = None,
     stop: asyncio.Event | None = None,
+    recorder: MissionRecorder | None = None,
     subscriptions: dict[str, list[str]] | None = None,
 ) -> dict[str, Any]:
     """Run ``duration`` virtual seconds (``speed``: times real time; None: flat out) and
     return the report. ``record`` gets every node's events (frames included), ``progress``
-    the fleet now and then; ``stop`` ends the run early. In a ``demand`` mission the
-    synthetic applications subscribe to ``subscriptions`` (node → key expressions; default:
-    ``**`` at every node, so every channel is wanted)."""
+    the fleet now and then; ``stop`` ends the run early; ``recorder`` gets the events and
+    the ocean's positions (for the HTML report). In a ``demand`` mission the synthetic
+    applications subscribe to ``subscriptions`` (node → key expressions; default: ``**`` at
+    every node, so every channel is wanted)."""
     if duration <= 0:
         raise ValueError("duration must be > 0")
     if speed is not None and speed <= 0:
@@ -176,8 +182,14 @@ async def run_fast(
                 ages.arrived(channel, timed.node, timed.time)
         if record is not None:
             record(timed.node, timed.output.kind, timed.output.info)
+        if recorder is not None:
+            recorder(timed.node, timed.output.kind, timed.output.info)
 
     fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False)
+    if recorder is not None:
+        ocean = fleet.ocean
+        recorder.truth = truth_from({n: node.address for n, node in loaded.mission.nodes.items()},
+                                    lambda address, t: ocean.position(address, t))
     if loaded.mission.demand is not None:
         for node, keys in (subscriptions if subscriptions is not None
                            else {n: ["**"] for n in loaded.mission.nodes}).items():

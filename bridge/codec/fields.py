@@ -394,14 +394,19 @@ class _ByteField(FieldCodec):
 
 
 class StringCodec(_ByteField):
-    """UTF-8 text. Fixed length strips trailing NULs on decode; invalid UTF-8 is replaced."""
+    """Strict UTF-8 text. Fixed length strips trailing NULs on decode. A value that is not
+    valid Unicode (a lone surrogate, as a JSON ``"\\ud800"`` escape gives) is an
+    ``EncodeError``, and bytes that are not valid UTF-8 a ``DecodeError``: never replaced."""
 
     kind = "string"
 
     def to_bytes(self, value: Any) -> bytes:
         if not isinstance(value, str):
             raise self.fail(f"expected a string, got {type(value).__name__}")
-        return value.encode("utf-8", errors="surrogatepass")
+        try:
+            return value.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            raise self.fail(f"not valid Unicode text: {exc.reason} at {exc.start}") from None
 
     def truncate(self, data: bytes) -> bytes:
         # Never cut a character in half.
@@ -411,7 +416,11 @@ class StringCodec(_ByteField):
         data = self.split(n)
         if self.fixed:
             data = data.rstrip(b"\0")
-        return data.decode("utf-8", errors="replace")
+        try:
+            return data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise DecodeError(f"{self.name}: not valid UTF-8: {exc.reason} at byte {exc.start}"
+                              ) from None
 
     def json_schema(self) -> dict[str, Any]:
         return self.with_description({"type": "string", "maxLength": self.size})

@@ -46,6 +46,12 @@ def _err(message: str, **ctx: Any) -> PydanticCustomError:
     return PydanticCustomError("zab_field", message, ctx or None)
 
 
+def _sibling_failed(info: ValidationInfo, *names: str) -> bool:
+    """True if a field validated before this one failed: pydantic leaves it out of
+    ``info.data`` (a field that was simply not given is there, as None)."""
+    return any(name not in info.data for name in names)
+
+
 def decimals_of(x: float) -> int:
     """Decimal places of ``x`` as written (0.1 -> 1, 0.25 -> 2, 5 -> 0, 1e-6 -> 6)."""
     exponent = Decimal(repr(float(x))).normalize().as_tuple().exponent
@@ -169,6 +175,8 @@ class FieldSpec(BaseModel):
             return v
         if not v > 0:
             raise _err("`resolution` must be > 0")
+        if _sibling_failed(info, "min", "max"):
+            return v  # min or max has its own error; nothing more to say here
         lo, hi = info.data.get("min"), info.data.get("max")
         if lo is None or hi is None:
             raise _err("`resolution` needs `min` and `max`")
@@ -201,6 +209,8 @@ class FieldSpec(BaseModel):
             return v
         if not 1 <= v <= MAX_BITS:
             raise _err("bits must be 1..64 (got {bits})", bits=v)
+        if _sibling_failed(info, "min", "max", "resolution"):
+            return v  # a sibling has its own error; nothing more to say here
         if info.data.get("min") is None or info.data.get("max") is None:
             raise _err("`bits` needs `min` and `max`")
         if info.data.get("resolution") is not None:

@@ -41,8 +41,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, RangingSlots, TdmaMac
+from bridge.modems.presets import Preset, UnknownPresetError, get_preset
 from bridge.ranging.twr import AnchorReplier, round_timeout, tmax
-from bridge.sim.presets import Preset, UnknownPresetError, get_preset
 
 __all__ = [
     "LATE_S",
@@ -311,8 +311,11 @@ class AlohaSchedule(Schedule):
     def next_opportunity(self, now: float, due: float | None) -> Opportunity | None:
         if due is None:
             return None
-        if self._start is None:  # a new frame: draw its backoff once
-            self._start = max(now, due, self._free_at) + self._draw()
+        earliest = max(now, due, self._free_at)
+        if self._start is None:
+            if earliest > now:  # not due yet (say, a heartbeat): wake then, draw then
+                return Opportunity(earliest)
+            self._start = earliest + self._draw()  # a new frame: draw its backoff once
         start = max(self._start, due, self._free_at)
         if self.slotted:
             assert self.slot_s is not None

@@ -12,6 +12,14 @@ Outputs:
 - :class:`Status`: bridge state under ``@zab/<mission>/<node>/<topic>`` (stats, link, range, …);
 - :class:`Notice`: a runtime event (``frame_sent``, ``frame_received``, ``link``, …) for
   in-process observers; the notable ones are also published on ``…/events``.
+
+Restarts. What a restart must not lose — every unfinished reliable value and transfer, each
+receiver's delivered window, the authentication counter's reservation and replay windows, the
+peers' epochs — is :meth:`NodeCore.state`, plain data that the runtime saves (atomically,
+before it carries out the outputs or sends the frame that depend on it: see
+:attr:`NodeCore.needs_save`) and hands back to the next run. A node that starts without it
+draws a new *epoch*; peers learn it from its frames and resynchronise (fresh receive windows
+for it; everything outstanding to it sent again), so a reliable channel never wedges.
 """
 
 from __future__ import annotations
@@ -21,38 +29,47 @@ import math
 import random
 from collections import Counter
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.families import Extra, Families
 from bridge.core.interest import Interest
-from bridge.core.link import LinkState, LinkThresholds
+from bridge.core.link import LinkState, LinkThresholds, heartbeat_s
+from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.queries import Queries, Ticket
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
-from bridge.errors import DecodeError, EncodeError, FrameError
+from bridge.dccl.goby import frame_codec_for
+from bridge.errors import DecodeError, EncodeError, FrameError, MissionError
 from bridge.mission.loader import LoadedMission
 from bridge.mission.model import TdmaMac
-from bridge.modems.base import ModemRange, Reception
-from bridge.wire.auth import Authenticator, load_key
+from bridge.modems.reception import ModemRange, Reception
+from bridge.wire.auth import Authenticator
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.wire.families import NameCodec
-from bridge.wire.frame import Entry, FrameCodec
+from bridge.wire.frame import Entry
 from bridge.wire.interest import InterestCodec
 from bridge.wire.payloads import decode_payload
 from bridge.wire.queries import QueryCodec
 
+if TYPE_CHECKING:
+    from bridge.ros2.element import Ros2Element
+
 log = logging.getLogger("zab.core")
 
 NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payload_dropped",
-                     "surfaced"})
+                     "mission_mismatch", "peer_restarted", "surfaced"})
 """Notice kinds also published on ``@zab/<mission>/<node>/events`` (and failed deliveries)."""
 
 DEFAULT_RETRY_S = 10.0  # first retransmission without TDMA (with TDMA: one cycle)
+PEER_STATUS_S = 1.0  # least time between two ``peers/<peer>`` status puts of one peer
+ACK_REPEATS = 3  # frames that carry an acknowledgement after it changed (acks can be lost)
+STATE_VERSION = 1
+EPOCHS = 256  # stream epochs, EPOCH_BITS wide
 
 
 def notable(kind: str, info: Mapping[str, Any]) -> bool:
@@ -68,6 +85,7 @@ class Publish:
     value: Any
     encoding: str
     latched: bool = False
+    ros2: Ros2Element | None = None  # publish as this ROS 2 topic (CDR, rmw_zenoh attachment)
 
 
 @dataclass(frozen=True)
@@ -105,6 +123,26 @@ class OutFrame:
     extras: tuple[Extra, ...] = ()
 
 
+@dataclass(frozen=True)
+class SendFrame:
+    """What to do at an open opportunity: send ``frame`` (to ``frame.dest``, asking the modem
+    for its acknowledgement when ``frame.ack``); ``ranged``: its acknowledgement also measures
+    a range to ``frame.dest`` (``ranging.ping`` on a modem that ranges that way)."""
+
+    frame: OutFrame
+    ranged: bool = False
+
+
+@dataclass(frozen=True)
+class Ping:
+    """What to do at an open opportunity: ask the modem for a two-way range to ``peer``."""
+
+    peer: int
+
+
+Action = SendFrame | Ping
+
+
 @dataclass
 class NodeStats:
     """Counters of one node, published on ``@zab/<mission>/<node>/stats``."""
@@ -124,30 +162,47 @@ class NodeCore:
     """Store, frame building, frame decoding, link health and ranging of one node."""
 
     def __init__(self, loaded: LoadedMission, node: str,
-                 auth: Authenticator | None = None, rng: random.Random | None = None) -> None:
-        """``rng`` draws each stream's first sequence number (a fresh one per run by default;
-        seeded for a reproducible simulation)."""
+                 auth: Authenticator | None = None, rng: random.Random | None = None,
+                 state: Mapping[str, Any] | None = None, key: bytes | None = None,
+                 seed: int | None = None) -> None:
+        """``rng`` draws this run's epoch when there is no ``state`` (a fresh one per run by
+        default; seeded for a reproducible simulation); ``state``: what :meth:`state` returned
+        in the previous run, to resume from; ``key``: the frame key of an authenticated
+        mission (the core reads no file and no environment: its runtime loads the key);
+        ``seed``: the MAC's random draws (random access backoffs)."""
         mission = loaded.mission
         if node not in mission.nodes:
             raise ValueError(f"node {node!r} is not in mission {mission.mission!r}")
         self.mission = mission
         self.table = loaded.table
         self.node = node
+        rng = rng or random.Random()
+        self._outputs: list[Output] = []
+        state = self._usable(state)
         wire_auth = mission.wire.auth
         if wire_auth is not None and auth is None:
-            auth = Authenticator(load_key(wire_auth.key_env, wire_auth.key_file),
-                                 self.table.fingerprint, mission.address_of(node),
-                                 wire_auth.tag_bytes)
-        self.codec = FrameCodec(self.table, auth)
+            if key is None:
+                raise MissionError(f"{node}: wire.auth is on: give the frame key "
+                                   "(the runtime loads it, see bridge.mission.keys)")
+            auth = Authenticator(key, self.table.fingerprint, mission.address_of(node),
+                                 wire_auth.tag_bytes, state.get("auth"))
+        self.auth = auth
+        self.epoch: int = state.get("epoch", rng.randrange(EPOCHS))
+        self.peer_epochs: dict[str, int] = dict(state.get("peer_epochs", {}))
+        self._dirty = True  # a new run's epoch must be saved before its first frame
+        self.codec = frame_codec_for(self.table, auth)
         self.frame_bytes = mission.node_modem(node).frame_bytes
         self.store = OutboundStore.for_node(self.table.channels, node)
         self.stats = NodeStats()
         self.thresholds = LinkThresholds.for_mission(mission)
-        self.heartbeat_s = mission.link.heartbeat_s
+        self.heartbeat_s = heartbeat_s(mission)
+        self.schedule: Schedule = schedule_for(mission, node, seed=seed)
+        self.modem_ranging: str | None = None  # how the modem ranges (set by the runtime)
         self.link_states: dict[str, LinkState] = {}
         self.last_heard: dict[str, float] = {}
         self.received_at: dict[str, float] = {}
         self.last_tx: float | None = None
+        self._started: float | None = None
         self.positioning = Positioning(mission, node) if needs_positioning(mission, node) \
             else None
         self._ranged_last = False  # a range never takes two transmit opportunities in a row
@@ -164,16 +219,78 @@ class NodeCore:
                     key = element.input_key(node)
                     self.bindings.setdefault(key, []).append((channel, i, element))
         self._warned_keys: set[str] = set()
-        self._outputs: list[Output] = []
         mac = mission.mac
         retry_s = mac.slot_s * len(mac.order) if isinstance(mac, TdmaMac) else DEFAULT_RETRY_S
-        rng = rng or random.Random()
         self.senders: dict[int, ReliableSender | TransferSender] = {
             c.index: (TransferSender if c.fragmented else ReliableSender)(
                 c, c.destinations(node), retry_s, rng.randrange(SEQ_MOD))
             for c in self.table.streams if c.index in self.store.states}
         self.receivers: dict[tuple[str, int], ReliableReceiver | TransferReceiver] = {}
-        self._acks: dict[tuple[str, int], None] = {}  # (sender, channel index) owed an ack
+        self._restore(state)
+        self._acks: dict[tuple[str, int], None] = {}  # (sender, channel index) owed an ack now
+        self._ack_repeats: dict[tuple[str, int], int] = {}  # and in this many more frames
+        self._foreign: dict[str, int] = {}  # a peer's last fingerprint not ours
+        self._peer_status: dict[str, float] = {}  # when each peer's status was last put
+        self.mismatched: dict[str, str] = {}  # peers known to run another mission file
+
+    # -- state across restarts -----------------------------------------------------------------
+
+    @property
+    def needs_save(self) -> bool:
+        """:meth:`state` changed in a way a restart must not lose: save it before carrying out
+        the outputs or sending the frame just built."""
+        return self._dirty or (self.auth is not None and self.auth.changed)
+
+    def saved(self) -> None:
+        """The runtime saved :meth:`state`."""
+        self._dirty = False
+        if self.auth is not None:
+            self.auth.changed = False
+
+    def state(self) -> dict[str, Any]:
+        """Everything a restart must resume, as msgpack-able plain data."""
+        return {
+            "version": STATE_VERSION, "mission": self.mission.mission, "node": self.node,
+            "fingerprint": self.table.fingerprint.hex(), "epoch": self.epoch,
+            "peer_epochs": dict(self.peer_epochs),
+            "senders": {s.channel.name: s.state() for s in self.senders.values()},
+            "receivers": [[src, self.table.channels[index].name, r.state()]
+                          for (src, index), r in self.receivers.items()],
+            "auth": self.auth.state() if self.auth is not None else None,
+        }
+
+    def _usable(self, state: Mapping[str, Any] | None) -> Mapping[str, Any]:
+        """``state`` if it is this node's under this mission file; else nothing (and every
+        value it left unfinished reported failed)."""
+        if not state:
+            return {}
+        same = (state.get("version") == STATE_VERSION and state.get("node") == self.node
+                and state.get("fingerprint") == self.table.fingerprint.hex())
+        if same:
+            return state
+        log.warning("%s: the saved state is from another mission file or version: starting "
+                    "afresh (its unfinished values are reported failed)", self.node)
+        for name, sender in (state.get("senders") or {}).items():
+            items = [*sender.get("queue", ()), *sender.get("flight", ()),
+                     *sender.get("items", ())]
+            for item in items:
+                for dst in item.get("waiting", item.get("dests", ())):
+                    self._reports([Report(name, item["id"], dst, "failed", 0.0,
+                                          item.get("attempts", 0),
+                                          "restarted with another mission file",
+                                          item.get("key"), item.get("ref"))])
+        return {}
+
+    def _restore(self, state: Mapping[str, Any]) -> None:
+        by_name = {s.channel.name: s for s in self.senders.values()}
+        for name, saved in (state.get("senders") or {}).items():
+            if name in by_name:
+                by_name[name].restore(saved)
+        for src, name, saved in state.get("receivers") or ():
+            channel = self.table.by_name(name)
+            self.receivers[(src, channel.index)] = (
+                TransferReceiver.from_state(channel, saved) if channel.fragmented
+                else ReliableReceiver.from_state(saved))
 
     # -- outputs -------------------------------------------------------------------------------
 
@@ -193,16 +310,20 @@ class NodeCore:
     # -- samples in ----------------------------------------------------------------------------
 
     def ingest(self, key: str, data: bytes, encoding: str, now: float,
-               ref: str | None = None) -> None:
+               ref: str | None = None, sample_key: str | None = None) -> None:
         """A sample arrived on an input key: pack it for every channel that reads the key.
 
-        ``ref`` (the publisher's correlation text) is echoed in delivery reports."""
+        ``ref`` (the publisher's correlation text) is echoed in delivery reports;
+        ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
+        bindings = self.bindings.get(key, ())
+        ros2 = next((e.ros2 for _, _, e in bindings if e.ros2 is not None), None)
         try:
-            value = decode_payload(data, encoding)
+            value = (ros2.decode(data, sample_key or key) if ros2 is not None
+                     else decode_payload(data, encoding))
         except DecodeError as exc:
             self.drop_payload(key, str(exc), now)
             return
-        for channel, index, element in self.bindings.get(key, ()):
+        for channel, index, element in bindings:
             try:
                 packed = element.layout.pack(value)
             except EncodeError as exc:
@@ -214,6 +335,7 @@ class NodeCore:
             elif self.store.update_value(channel.index, index, packed, now):
                 payload = self.store.states[channel.index].payload()
                 self._reports(sender.offer(payload, now, key, ref))
+                self._dirty = True
         if self.families.senders:
             for problem in self.families.ingest(key, value, now):
                 self.drop_payload(key, problem, now)
@@ -251,6 +373,8 @@ class NodeCore:
     def next_due(self, now: float | None = None) -> float | None:
         """When something (data, an acknowledgement, a retransmission or a heartbeat) is next
         due; None while nothing is pending."""
+        if self._started is None and now is not None:
+            self._started = now  # the first heartbeat is due one period after the start
         times = [self._store_next_due(now), self.next_heartbeat(),
                  self.families.next_due(now, self.wants),
                  self.interest.next_due() if self.interest is not None else None,
@@ -264,11 +388,59 @@ class NodeCore:
     def next_heartbeat(self) -> float | None:
         if self.heartbeat_s is None:
             return None
-        return float("-inf") if self.last_tx is None else self.last_tx + self.heartbeat_s
+        since = self._started if self.last_tx is None else self.last_tx
+        return float("-inf") if since is None else since + self.heartbeat_s
 
     def heartbeat_due(self, now: float) -> bool:
         beat = self.next_heartbeat()
         return beat is not None and beat <= now + 1e-9
+
+    # -- the MAC: when to wake, what to do --------------------------------------------------
+
+    def wake_at(self, now: float) -> float | None:
+        """When this node's MAC next has an opportunity for what is due (None: nothing is,
+        wait for data or a frame); the runtime sleeps until then and calls :meth:`act`."""
+        opp = self.schedule.next_opportunity(now, self.next_due(now))
+        return None if opp is None else opp.start
+
+    def act(self, now: float, at: float) -> Action | None:
+        """What to do now, if an opportunity is open: a frame built to start at modem time
+        ``at``, or a ping (``ranging.ping`` with a modem that pings); None: nothing (the
+        opportunity, if any, is given up). Report how it went with :meth:`done`."""
+        opp = self.schedule.next_opportunity(now, self.next_due(now))
+        if opp is None or opp.start > now + 1e-9:
+            return None
+        peer = self.range_due(now) if self.modem_ranging and opp.poll is None else None
+        if peer is not None and self.modem_ranging == "ping":
+            return Ping(peer)
+        always = opp.must_send or self.heartbeat_due(now) or peer is not None
+        out = self.build_frame(now, at, always=always)
+        if out is None:
+            self.schedule.on_skipped(now)
+            return None
+        if opp.poll is not None:  # the poll rides on the frame's destination address
+            out = replace(out, dest=self.mission.address_of(opp.poll))
+        if peer is not None:  # the modem measures the range when the peer acknowledges
+            out = replace(out, dest=peer, ack=True)
+        return SendFrame(out, ranged=peer is not None)
+
+    def done(self, action: Action, start: float, end: float, *,
+             confirmed: bool | None = None, error: str | None = None) -> None:
+        """``action`` was carried out from ``start`` to ``end`` (runtime clock); ``error``:
+        it failed (a frame's data stays due); ``confirmed``: the modem's acknowledgement."""
+        peer = action.peer if isinstance(action, Ping) else (
+            action.frame.dest if action.ranged else None)
+        if peer is not None:
+            self.range_asked(peer, start, error)
+        if isinstance(action, SendFrame):
+            if error is None:
+                self.frame_sent(action.frame, start, confirmed)
+            else:
+                self.frame_failed(action.frame, error, start)
+        if error is None:
+            self.schedule.on_sent(start, end)
+        else:
+            self.schedule.on_skipped(start)
 
     def build_frame(self, now: float, at: float, *, always: bool = False) -> OutFrame | None:
         """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
@@ -281,7 +453,8 @@ class NodeCore:
         targets: set[str] = set()
         acks: list[tuple[str, int]] = []
         ack_codec = self.table.ack
-        for src, index in self._acks:  # acknowledgements first: they unblock the peer
+        owed = {**self._acks, **dict.fromkeys(self._ack_repeats)}
+        for src, index in owed:  # acknowledgements first: they unblock the peer
             assert ack_codec is not None
             cost = codec.channel_cost_bits(ack_codec)
             if cost > budget or len(items) >= room:
@@ -314,7 +487,7 @@ class NodeCore:
             return None
         delays = self.positioning.on_transmit(at) if self.positioning and self.table.dlbl \
             else []
-        data = codec.encode(items, delays, now)
+        data = codec.encode(items, delays, self.epoch)
         dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
         asks = [s.channel for s in chosen] + [s.channel for s, _ in streams]
         ack = True if dest is not None and any(c.ack for c in asks) else None
@@ -369,7 +542,8 @@ class NodeCore:
             tid, base, bitmap = receiver.ack()
         else:
             (base, bitmap), tid = receiver.ack(), 0
-        return ack_codec.pack(self.table.nodes.index(src), stream, tid, base, bitmap)
+        return ack_codec.pack(self.table.nodes.index(src), stream, self.peer_epochs.get(src, 0),
+                              tid, base, bitmap)
 
     def frame_sent(self, out: OutFrame, now: float, confirmed: bool | None = None) -> None:
         """The modem accepted ``out``; ``confirmed``: its own acknowledgement said the frame
@@ -385,6 +559,13 @@ class NodeCore:
                 sender.confirmed(group, dest)  # type: ignore[arg-type]
         for key in out.acks:
             self._acks.pop(key, None)
+            left = self._ack_repeats.get(key, 0) - 1
+            if left > 0:
+                self._ack_repeats[key] = left
+            else:
+                self._ack_repeats.pop(key, None)
+        if out.streams:
+            self._dirty = True
         for extra in out.extras:
             extra.on_sent(out.built)
         self.last_tx = out.built
@@ -410,6 +591,11 @@ class NodeCore:
         ``modem_now`` is the modem clock at the call (DLBL times are in the modem's clock).
         """
         src = self.mission.name_of(rx.src)
+        sender_print = self.codec.sender_fingerprint(rx.data)
+        if sender_print is not None and sender_print != self.codec.fingerprint16 \
+                and src != self.node:
+            self._foreign_frame(src or f"address {rx.src}", sender_print, rx, now)
+            return
         if src is None or src == self.node:
             self.stats.frames_dropped["unknown_source"] += 1
             self._notice("frame_dropped", {"time": now, "src": src, "reason": "unknown_source",
@@ -423,7 +609,13 @@ class NodeCore:
                                            "error": str(exc), "data": rx.data})
             return
         self.stats.frames_received += 1
+        self.schedule.on_heard(src, rx.dest == self.mission.address_of(self.node), now)
+        self._foreign.pop(src, None)
         self.last_heard[src] = now
+        if self.auth is not None:
+            self._dirty = True  # the replay window moved: saved before anything is published
+        if frame.epoch is not None:
+            self._peer_epoch(src, frame.epoch, now)
         if self.link_states.get(src) is not LinkState.UP:
             self.update_links(now)
         if self.positioning is not None and self.table.dlbl:
@@ -454,7 +646,7 @@ class NodeCore:
                 receiver = self._receiver(src, channel)
                 assert isinstance(receiver, ReliableReceiver)
                 delivered = receiver.on_entry(*entry.header, entry.values)
-                self._acks[(src, channel.index)] = None
+                self._owe_ack(src, channel.index)
             else:
                 delivered = [entry.values]
             member = "*"
@@ -476,8 +668,10 @@ class NodeCore:
                         self.families.arrived(key, now)
                     if self.queries is not None and channel.latching:
                         self.queries.remember(key, value, element.encoding, now)
-                    self._publish(key, value, element.encoding, channel.latching)
-        self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
+                    self._publish(key, value, element.encoding, channel.latching, element.ros2)
+        if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
+            self._peer_status[src] = now
+            self._status(f"peers/{src}", {"last_heard": now, "meta": plain(rx.meta)})
         self._notice("frame_received", {
             "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
             "data": rx.data, "meta": plain(rx.meta), "values": values,
@@ -497,7 +691,7 @@ class NodeCore:
         assert isinstance(receiver, TransferReceiver)
         tid, index, count = header
         data = receiver.on_fragment(tid, index, count, chunk)
-        self._acks[(src, channel.index)] = None
+        self._owe_ack(src, channel.index)
         self._status(f"transfer/{channel.name}", {**receiver.progress(), "peer": src,
                                                   "time": now})
         if data is None:
@@ -525,11 +719,59 @@ class NodeCore:
         else:
             return False
         return True
+    def _owe_ack(self, src: str, index: int) -> None:
+        self._acks[(src, index)] = None
+        self._ack_repeats[(src, index)] = ACK_REPEATS
+        self._dirty = True
+
+    def _peer_epoch(self, src: str, epoch: int, now: float) -> None:
+        """``src``'s frames carry ``epoch``: when it changed, ``src`` started without its saved
+        state: open fresh windows for it and send it again everything outstanding."""
+        known = self.peer_epochs.get(src)
+        if known == epoch:
+            return
+        self.peer_epochs[src] = epoch
+        self._dirty = True
+        if known is None:
+            return
+        for key in [k for k in self.receivers if k[0] == src]:
+            del self.receivers[key]
+            self._acks.pop(key, None)
+            self._ack_repeats.pop(key, None)
+        for sender in self.senders.values():
+            if src in sender.dests:
+                sender.resync(src)
+        log.info("%s: %s started afresh (epoch %d -> %d): streams resynchronised",
+                 self.node, src, known, epoch)
+        self._notice("peer_restarted", {"time": now, "peer": src, "epoch": epoch,
+                                        "was": known})
+
+    def _foreign_frame(self, src: str, fingerprint: int, rx: Reception, now: float) -> None:
+        """A frame whose check gives another fingerprint: corrupt, or sent with another
+        mission file — the same fingerprint twice in a row from one sender says which."""
+        mismatch = self._foreign.get(src) == fingerprint
+        self._foreign[src] = fingerprint
+        reason = "mission_mismatch" if mismatch else "check"
+        self.stats.frames_dropped[reason] += 1
+        self._notice("frame_dropped", {"time": now, "src": src, "reason": reason,
+                                       "error": f"check failed (fingerprint {fingerprint:04x})",
+                                       "data": rx.data})
+        text = f"{fingerprint:04x}"
+        if mismatch and self.mismatched.get(src) != text:
+            self.mismatched[src] = text
+            ours = f"{self.codec.fingerprint16:04x}"
+            log.warning("%s: peer %s runs a different mission file (fingerprint %s, ours %s): "
+                        "its frames are dropped", self.node, src, text, ours)
+            payload = {"time": now, "peer": src, "fingerprint": text, "ours": ours}
+            self._status(f"mismatch/{src}", payload)
+            self._notice("mission_mismatch", payload)
 
     def _on_ack(self, src: str, header: tuple[int, ...], now: float) -> None:
-        peer, stream, tid, base, bitmap = header
+        peer, stream, epoch, tid, base, bitmap = header
         if self.table.nodes[peer] != self.node:
             return  # acknowledges someone else
+        if epoch != self.epoch:
+            return  # a window of an earlier run of this node
         channel = self.table.streams[stream]
         sender = self.senders.get(channel.index)
         if sender is None or src not in sender.dests:
@@ -543,13 +785,16 @@ class NodeCore:
             self._reports(sender.on_ack(src, base, bitmap, now))
 
     def _reports(self, reports: list[Report]) -> None:
+        if reports:
+            self._dirty = True
         for report in reports:
             payload = report.payload()
             self._status(f"delivery/{report.channel}", payload)
             self._notice("delivery", payload)
 
-    def _publish(self, key: str, value: Any, encoding: str, latched: bool) -> None:
-        self._outputs.append(Publish(key, value, encoding, latched))
+    def _publish(self, key: str, value: Any, encoding: str, latched: bool,
+                 ros2: Ros2Element | None = None) -> None:
+        self._outputs.append(Publish(key, value, encoding, latched, ros2))
         self.stats.values_published += 1
 
     def _ranging(self, src: str, t_rx_start: float, delays: tuple[int | None, ...],
@@ -659,6 +904,9 @@ class NodeCore:
             "received_age_s": {k: now - t for k, t in self.received_at.items()},
             "last_heard": dict(self.last_heard),
             "links": {peer: state.value for peer, state in self.link_states.items()},
+            "epoch": self.epoch,
+            "mismatched_peers": dict(self.mismatched),
+            "unfinished": {s.channel.name: s.pending() for s in self.senders.values()},
             "sent_per_channel": dict(self.stats.sent_per_channel),
             **({"queries": self.queries.snapshot()} if self.queries else {}),
             **({"surfacing": self.surfacing.snapshot()} if self.surfacing else {}),

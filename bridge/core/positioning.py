@@ -22,9 +22,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from bridge.mission.model import Mission, TdmaMac
+from bridge.mission.path import Path
+from bridge.modems.presets import Preset, get_preset
 from bridge.ranging import DlblRanger, Fix, NoFix, Range, SoundSpeed, Track, attempt
-from bridge.sim.path import Path
-from bridge.sim.presets import Preset, get_preset
 
 DEFAULT_SOUND_SPEED_MPS = 1500.0
 MODEM_METHODS = ("ping", "propagation")

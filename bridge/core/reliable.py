@@ -11,16 +11,16 @@ Rules (seed 003's acknowledged commands; selective repeat with a small window):
   and a bitmap of the ``WINDOW`` seqs after it that they hold. ``base`` past a value completes
   it for that receiver; a bitmap bit only holds back its retransmission.
 - A value fails after ``retries`` retransmissions without acknowledgement, or once older than
-  ``ttl_s``; every state change is a :class:`Report` for the publisher's side.
+  ``ttl_s`` (every stream has one: see :func:`bridge.wire.channels.stream_defaults`); every
+  state change is a :class:`Report` for the publisher's side, and each value ends in exactly
+  one terminal report, ``delivered`` or ``failed``, per receiver.
 - A receiver delivers in order, drops duplicates, and skips what the sender gave up: ``seq -
   lag`` tells it the sender's oldest unfinished value, so nothing before it will come again.
-- Each run of a sender numbers from a random ``first_seq``, so a restarted sender's numbers
-  rarely meet those a receiver remembers from its earlier run. Numbers behind the receiver's
-  ``base`` read as values the new run gave up (skipped); an acknowledgement ``base`` past
-  anything the sender has numbered shows the receiver remembers an earlier run, and the sender
-  renumbers its values in flight from there. (Left: when the new numbers straddle the
-  receiver's ``base`` — about n/256 for n values sent before the first acknowledgement — the
-  first values are taken for duplicates.)
+- Restarts: both ends save their state (:meth:`ReliableSender.state`,
+  :meth:`ReliableReceiver.state`) and resume from it. A node that starts without it begins a
+  new *epoch* (``bridge.core.node``): its peers see the change in its frames; a receiver then
+  opens a fresh window for it, and a sender calls :meth:`ReliableSender.resync` for it:
+  what that receiver held is forgotten and everything outstanding is sent again.
 """
 
 from __future__ import annotations
@@ -30,17 +30,30 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.core.persist import int_from_state, int_to_state
 from bridge.wire.channels import LAG_BITS, SEQ_BITS, WINDOW, ChannelCodec
 
 SEQ_MOD = 1 << SEQ_BITS
 HALF = SEQ_MOD // 2
 BACKOFF_CAP = 4.0
+DEFAULT_RETRIES = 10  # retransmissions when a channel's retries is null (until its TTL)
 
 
 def retry_wait(retry_s: float, attempts: int) -> float:
     """How long to wait for an acknowledgement after the ``attempts``-th send: ``retry_s``,
     doubling with each attempt up to ``BACKOFF_CAP`` times it."""
     return retry_s * min(2.0 ** (attempts - 1), BACKOFF_CAP)
+
+
+def stream_ttl_s(retry_s: float, retries: int | None, queue: int = WINDOW) -> float:
+    """The default ``ttl_s`` of a stream, from its creation: each window of ``WINDOW`` values
+    ahead of it in a full ``queue`` may take every attempt its retries allow
+    (``DEFAULT_RETRIES`` when unbounded) and one more wait. So the TTL ends only values the
+    retry limit would have ended anyway, and no value is ever left without a terminal
+    report."""
+    attempts = (DEFAULT_RETRIES if retries is None else retries) + 2
+    windows = -(-queue // WINDOW)
+    return windows * sum(retry_wait(retry_s, a) for a in range(1, attempts + 1))
 
 
 def seq_after(a: int, b: int) -> int:
@@ -94,6 +107,8 @@ class ReliableSender:
         self.channel = channel
         self.dests = tuple(dests)
         self.retry_s = channel.retry_s or retry_s
+        self.ttl_s = channel.ttl_s or stream_ttl_s(self.retry_s, channel.retries,
+                                                   channel.queue)
         self.queue: deque[Pending] = deque()  # not yet numbered
         self.flight: list[Pending] = []  # numbered, oldest first
         self._next_id = 0
@@ -156,10 +171,8 @@ class ReliableSender:
                 item.held.add(dst)
 
     def on_ack(self, dst: str, base: int, bitmap: int, now: float) -> list[Report]:
-        """A receiver's acknowledgement."""
+        """A receiver's acknowledgement (of this run's epoch)."""
         reports: list[Report] = []
-        if seq_after(base, self._next_seq) > 0:
-            self._renumber(base)  # the receiver remembers an earlier run of this sender
         for item in list(self.flight):
             if dst not in item.waiting:
                 continue
@@ -175,21 +188,39 @@ class ReliableSender:
         self._fill()
         return reports
 
-    def _renumber(self, base: int) -> None:
-        """Continue from the receiver's ``base``: what is in flight was not delivered yet."""
-        for n, item in enumerate(self.flight):
-            item.seq = (base + n) % SEQ_MOD
-            item.held.clear()
+    def resync(self, dst: str) -> None:
+        """``dst`` started afresh (a new epoch): it holds nothing of ours; send again now."""
+        for item in self.flight:
+            if dst in item.waiting:
+                item.held.discard(dst)
+                item.next_send = float("-inf")
+
+    def pending(self) -> int:
+        """Values not yet finished (queued or in flight)."""
+        return len(self.queue) + len(self.flight)
+
+    def state(self) -> dict[str, Any]:
+        """Everything a restart must resume: numbering and every unfinished value."""
+        return {"next_id": self._next_id, "next_seq": self._next_seq,
+                "queue": [_pending_state(p) for p in self.queue],
+                "flight": [_pending_state(p) for p in self.flight]}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """Resume from :meth:`state` (values keep their ids, numbers and attempts)."""
+        self._next_id = int(state["next_id"])
+        self._next_seq = int(state["next_seq"]) % SEQ_MOD
+        self.queue = deque(_pending_from(s) for s in state["queue"])
+        self.flight = [_pending_from(s) for s in state["flight"]]
+        for item in self.flight:  # the receivers may have moved on: ask again at once
             item.next_send = float("-inf")
-        self._next_seq = (base + len(self.flight)) % SEQ_MOD
 
     def expire(self, now: float) -> list[Report]:
         """Give up values past their TTL or out of retries."""
         reports: list[Report] = []
-        ttl = self.channel.ttl_s
+        ttl = self.ttl_s
         retries = self.channel.retries
         for item in [*self.flight, *self.queue]:
-            if ttl is not None and now - item.created > ttl:
+            if now - item.created > ttl:
                 reports += self._give_up(item, now, f"older than ttl_s={ttl:g}")
             elif (retries is not None and item.attempts > retries
                   and item.next_send <= now and not item.waiting <= item.held):
@@ -219,6 +250,19 @@ class ReliableSender:
              reason: str | None = None) -> Report:
         return Report(self.channel.name, item.id, dst, state, now, item.attempts, reason,
                       item.key, item.ref)
+
+
+def _pending_state(item: Pending) -> dict[str, Any]:
+    return {"id": item.id, "payload": int_to_state(item.payload), "created": item.created,
+            "key": item.key, "ref": item.ref, "waiting": sorted(item.waiting), "seq": item.seq,
+            "attempts": item.attempts, "last_sent": item.last_sent, "held": sorted(item.held)}
+
+
+def _pending_from(state: dict[str, Any]) -> Pending:
+    return Pending(int(state["id"]), int_from_state(state["payload"]), float(state["created"]),
+                   state["key"], state["ref"], set(state["waiting"]), state["seq"],
+                   int(state["attempts"]), state["last_sent"], float("-inf"),
+                   set(state["held"]))
 
 
 class ReliableReceiver:
@@ -251,6 +295,17 @@ class ReliableReceiver:
             out.append(self.buffer.pop(self.expected))
             self.expected = (self.expected + 1) % SEQ_MOD
         return out
+
+    def state(self) -> dict[str, Any]:
+        """The delivered window: what a restarted receiver must not publish again."""
+        return {"expected": self.expected, "buffer": [[s, v] for s, v in self.buffer.items()]}
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> ReliableReceiver:
+        receiver = cls()
+        receiver.expected = state["expected"]
+        receiver.buffer = {int(s): v for s, v in state["buffer"]}
+        return receiver
 
     def ack(self) -> tuple[int, int]:
         """``(base, bitmap)`` for the acknowledgement entry."""

@@ -22,7 +22,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge.core.reliable import Report, retry_wait
+from bridge.core.reliable import Report, retry_wait, stream_ttl_s
 from bridge.wire.channels import TID_BITS, WINDOW, ChannelCodec
 
 TID_MOD = 1 << TID_BITS
@@ -38,6 +38,13 @@ def from_bytes(channel: ChannelCodec, data: bytes) -> int:
     """The packed value back from a transfer's bytes (zero-padded to the full size)."""
     data = data[:channel.value_bytes].ljust(channel.value_bytes, b"\0")
     return int.from_bytes(data, "big")
+
+
+def transfer_ttl_s(channel: ChannelCodec, retry_s: float) -> float:
+    """The default ``ttl_s`` of a fragmented channel: a stream's for each fragment of the
+    largest value, the most its retry limit lets a transfer take."""
+    fragments = -(-channel.value_bytes // channel.chunk_bytes)
+    return fragments * stream_ttl_s(retry_s, channel.retries)
 
 
 @dataclass(eq=False)
@@ -88,6 +95,7 @@ class TransferSender:
         self.channel = channel
         self.dests = tuple(dests)
         self.retry_s = channel.retry_s or retry_s
+        self.ttl_s = channel.ttl_s or transfer_ttl_s(channel, self.retry_s)
         self.current: Transfer | None = None
         self.queue: deque[Transfer] = deque()
         self._next_id = 0
@@ -178,6 +186,32 @@ class TransferSender:
             self._start(now)
         return reports
 
+    def resync(self, dst: str) -> None:
+        """``dst`` started afresh (a new epoch): it holds nothing; send it every fragment."""
+        item = self.current
+        if item is not None and dst in item.dests:
+            item.base.pop(dst, None)
+            item.held.pop(dst, None)
+            item.next_send.clear()
+
+    def pending(self) -> int:
+        """Values not yet finished (queued or being sent)."""
+        return len(self.queue) + (self.current is not None)
+
+    def state(self) -> dict[str, Any]:
+        """Everything a restart must resume: numbering and every unfinished transfer."""
+        items = [*([self.current] if self.current else []), *self.queue]
+        return {"next_id": self._next_id, "tid_offset": self._tid_offset,
+                "items": [_transfer_state(i) for i in items]}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """Resume from :meth:`state`: the transfer under way starts its fragments again."""
+        self._next_id = int(state["next_id"])
+        self._tid_offset = int(state["tid_offset"])
+        items = [_transfer_from(s, self.channel.chunk_bytes) for s in state["items"]]
+        self.current, self.queue = None, deque(items)
+        self._start(0.0)
+
     def progress(self) -> dict[str, Any] | None:
         """The current transfer's progress, for ``…/transfer/<channel>``."""
         item = self.current
@@ -192,12 +226,12 @@ class TransferSender:
         item = self.current
         if item is None:
             return []
-        ttl, retries = self.channel.ttl_s, self.channel.retries
+        ttl, retries = self.ttl_s, self.channel.retries
         reason = None
-        if ttl is not None and now - item.created > ttl:
+        if now - item.created > ttl:
             reason = f"older than ttl_s={ttl:g}"
         elif retries is not None and any(
-                n > retries and item.needed(i) and item.next_send[i] <= now
+                n > retries and item.needed(i) and item.next_send.get(i, float("-inf")) <= now
                 for i, n in item.attempts.items()):
             reason = f"a fragment was not acknowledged after {retries + 1} attempts"
         if reason is None:
@@ -216,6 +250,22 @@ class TransferSender:
         attempts = max(item.attempts.values(), default=0)
         return Report(self.channel.name, item.id, dst, state, now, attempts, reason, item.key,
                       item.ref)
+
+
+def _transfer_state(item: Transfer) -> dict[str, Any]:
+    return {"id": item.id, "tid": item.tid, "data": item.data, "created": item.created,
+            "key": item.key, "ref": item.ref, "dests": list(item.dests), "base": item.base,
+            "attempts": max(item.attempts.values(), default=0), "started": item.started}
+
+
+def _transfer_from(state: dict[str, Any], chunk_bytes: int) -> Transfer:
+    item = Transfer(int(state["id"]), int(state["tid"]), bytes(state["data"]),
+                    float(state["created"]), state["key"], state["ref"], chunk_bytes,
+                    tuple(state["dests"]), {k: int(v) for k, v in state["base"].items()})
+    item.started = bool(state["started"])
+    if state["attempts"]:  # keep the retry budget spent: restarts do not reset it
+        item.attempts = dict.fromkeys(range(item.count), int(state["attempts"]))
+    return item
 
 
 class TransferReceiver:
@@ -246,6 +296,20 @@ class TransferReceiver:
         data = b"".join(self.chunks[i] for i in range(self.count))
         self.chunks = {}
         return data
+
+    def state(self) -> dict[str, Any]:
+        """What a restarted receiver needs: the transfer under way and whether it completed
+        (a completed one is never published twice)."""
+        return {"tid": self.tid, "count": self.count, "complete": self.complete,
+                "chunks": [[i, c] for i, c in self.chunks.items()]}
+
+    @classmethod
+    def from_state(cls, channel: ChannelCodec, state: dict[str, Any]) -> TransferReceiver:
+        receiver = cls(channel)
+        receiver.tid, receiver.count = state["tid"], int(state["count"])
+        receiver.complete = bool(state["complete"])
+        receiver.chunks = {int(i): bytes(c) for i, c in state["chunks"]}
+        return receiver
 
     @property
     def base(self) -> int:

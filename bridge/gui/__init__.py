@@ -5,8 +5,3 @@
 Zenoh adapter and :mod:`~bridge.gui.server` the aiohttp web server; the page is plain
 HTML/JS/CSS under ``static/``.
 """
-
-from bridge.gui.model import GuiModel
-from bridge.gui.server import GuiServer, surface_node
-
-__all__ = ["GuiModel", "GuiServer", "surface_node"]

@@ -150,6 +150,12 @@ def _set(target: dict[str, Any], path: str, value: Any) -> None:
     target[last] = value
 
 
+def named_as_command(*names: str) -> bool:
+    """A channel or key named as a command (``mission_command``, ``cmd``, ``command``),
+    rather than a sensor value such as a GPS fix."""
+    return any(word in name.lower() for name in names for word in ("command", "cmd"))
+
+
 @dataclass(frozen=True)
 class CommandChannel:
     """A channel the GUI's node sends: its form, its receivers, whether it is acknowledged."""
@@ -169,6 +175,10 @@ class CommandChannel:
                                f"{len(self.elements)} element(s)")
         return [(e.key, e.payload(v)) for e, v in zip(self.elements, values, strict=True)]
 
+    def is_command(self) -> bool:
+        """Named as a command: what an operator most likely wants to send."""
+        return named_as_command(self.channel, *(e.key for e in self.elements))
+
     def describe(self) -> dict[str, Any]:
         return {"channel": self.channel, "destinations": list(self.destinations),
                 "reliable": self.reliable, "interval_s": self.interval_s,
@@ -177,7 +187,8 @@ class CommandChannel:
 
 
 def command_channels(loaded: LoadedMission, node: str) -> list[CommandChannel]:
-    """Channels ``node`` sends to others, reliable ones first, then in mission order."""
+    """Channels ``node`` sends to others: reliable ones first, then those named as commands,
+    then in mission order (the form opens on the first)."""
     found = []
     for model, channel in zip(loaded.mission.channels, loaded.table.channels, strict=True):
         if not channel.sent_by(node) or not channel.destinations(node):
@@ -190,7 +201,7 @@ def command_channels(loaded: LoadedMission, node: str) -> list[CommandChannel]:
         found.append(CommandChannel(channel.name, channel.destinations(node),
                                     bool(getattr(model, "reliable", False)),
                                     channel.interval_s, elements))
-    return sorted(found, key=lambda c: not c.reliable)
+    return sorted(found, key=lambda c: (not c.reliable, not c.is_command()))
 
 
 @dataclass

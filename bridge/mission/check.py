@@ -19,6 +19,8 @@ from bridge.core.mac import (
     ranging_tmax_s,
 )
 from bridge.core.queries import deadline_s
+from bridge.dccl.goby import frame_codec_for
+from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
 from bridge.mission.loader import LoadedMission
 from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, TdmaMac
@@ -44,7 +46,8 @@ class CheckReport:
 
 def check_mission(loaded: LoadedMission) -> CheckReport:
     mission, table = loaded.mission, loaded.table
-    codec = FrameCodec(table)
+    codec = frame_codec_for(table)
+    sent_count_bits = 0 if table.wire_format == "goby" else codec.count_bits  # goby: no count
     report = CheckReport(data={})
     channels = [
         {
@@ -110,7 +113,8 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             "role": node.role,
             "listen": list(node.zenoh.listen),
             "frame_bytes": frame_bytes,
-            "worst_case_bits": worst + codec.count_bits + codec.overhead_bytes() * 8,
+            "worst_case_bits": worst + codec.epoch_bits + sent_count_bits
+            + codec.overhead_bytes() * 8,
             "capacity_bits": frame_bytes * 8,
             "fill": round(min(largest, frame_bytes) / frame_bytes, 3),
             "airtime_s": None if airtime is None else round(airtime, 3),
@@ -142,7 +146,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "mac_timing": mac_data,
         "dlbl": mission.wire.dlbl,
         "overhead_bytes": codec.overhead_bytes(),
-        "count_bits": codec.count_bits,
+        "count_bits": sent_count_bits,
         "index_bits": codec.index_bits,
         "demand": None if mission.demand is None else {
             "refresh_s": mission.demand.refresh_s,
@@ -152,6 +156,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "max_open_queries": mission.max_open_queries,
         "key_entry_bits": None if table.names is None else codec.channel_cost_bits(table.names),
         "channels": channels,
+        "dccl": dccl_reports(table),
         "nodes": nodes,
         "warnings": report.warnings,
         "errors": report.errors,
@@ -208,7 +213,7 @@ def _family_warnings(loaded: LoadedMission, report: CheckReport) -> None:
         if spec.keys is not None:
             continue
         for element in spec.elements:
-            if has_wildcard(element.in_):
+            if element.in_ is not None and has_wildcard(element.in_):
                 report.warnings.append(
                     f"channel {channel.name!r}: input {element.in_!r} is a wildcard: every "
                     "matching key shares one slot and one output key; give the channel `keys` "

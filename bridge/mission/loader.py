@@ -11,13 +11,36 @@ import yaml
 from pydantic import ValidationError
 
 from bridge.core.mac import mac_problems
+from bridge.dccl.goby import frame_codec_for, goby_problems
 from bridge.errors import MissionError
 from bridge.mission.model import Mission
 from bridge.wire.channels import ChannelTable, ChannelTableError
-from bridge.wire.frame import FrameCodec
 
 Loc = tuple[str | int, ...]
 Marks = dict[Loc, tuple[int, int]]
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One mistake in a mission file, where it is and what is wrong."""
+
+    file: str
+    line: int
+    column: int
+    path: str
+    message: str
+
+    def __str__(self) -> str:
+        where = f"{self.file}:{self.line}:{self.column}"
+        return f"{where}: {self.path}: {self.message}" if self.path else f"{where}: {self.message}"
+
+
+class MissionProblems(MissionError):
+    """An invalid mission file, its problems also as data (``zab check --json``)."""
+
+    def __init__(self, problems: list[Problem]) -> None:
+        super().__init__("\n".join(dict.fromkeys(map(str, problems))))
+        self.problems = list({str(p): p for p in problems}.values())
 
 
 @dataclass(frozen=True)
@@ -86,7 +109,9 @@ def _describe(error: dict[str, Any]) -> str:
         return "unknown key (check its spelling and indentation)"
     if error["type"] == "missing":
         return "required key missing"
-    if error["type"] not in ("value_error", "assertion_error") and "input" in error:
+    if (error["type"] not in ("value_error", "assertion_error") and "input" in error
+            and not (error["type"] == "zab_field" and error.get("ctx"))  # values in message
+            and "(got " not in message):
         shown = repr(error["input"])
         if len(shown) > 40:
             shown = shown[:37] + "..."
@@ -104,25 +129,26 @@ def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
             raise MissionError(f"{name}: the file is empty")
         data = _build(root, (), marks, yaml.SafeLoader(""))
     except _LocatedYamlError as exc:
-        raise MissionError(f"{name}:{exc.line}:{exc.column}: {exc}") from None
+        raise MissionProblems([Problem(name, exc.line, exc.column, "", str(exc))]) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
-        where = f"{mark.line + 1}:{mark.column + 1}" if mark else "1:1"
-        raise MissionError(f"{name}:{where}: invalid YAML: {exc.problem or exc}") from None
+        line, column = (mark.line + 1, mark.column + 1) if mark else (1, 1)
+        raise MissionProblems([Problem(name, line, column, "",
+                                       f"invalid YAML: {exc.problem or exc}")]) from None
     except yaml.YAMLError as exc:
         raise MissionError(f"{name}: invalid YAML: {exc}") from None
     if not isinstance(data, dict):
-        raise MissionError(f"{name}:1:1: a mission file is a mapping (key: value), not a list")
+        raise MissionProblems([Problem(name, 1, 1, "",
+                                       "a mission file is a mapping (key: value), not a list")])
 
     try:
-        mission = Mission.model_validate(data)
+        mission = Mission.model_validate(data, context={"mission_dir": Path(path).parent})
     except ValidationError as exc:
-        lines = []
+        found = []
         for error in exc.errors():
             loc = tuple(p for p in error["loc"] if not _is_union_tag(p))
-            line, column = _where(marks, loc)
-            lines.append(f"{name}:{line}:{column}: {format_loc(loc)}: {_describe(error)}")
-        raise MissionError("\n".join(dict.fromkeys(lines))) from None
+            found.append(Problem(name, *_where(marks, loc), format_loc(loc), _describe(error)))
+        raise MissionProblems(found) from None
 
     problems = list(_semantic_problems(mission))
     if not problems:
@@ -133,12 +159,8 @@ def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
         else:
             problems.extend(_frame_problems(mission, table))
     if problems:
-        raise MissionError(
-            "\n".join(
-                f"{name}:{':'.join(map(str, _where(marks, loc)))}: {format_loc(loc)}: {msg}"
-                for loc, msg in problems
-            )
-        )
+        raise MissionProblems([Problem(name, *_where(marks, loc), format_loc(loc), msg)
+                               for loc, msg in problems])
     return LoadedMission(Path(path), mission, table)
 
 
@@ -170,12 +192,18 @@ def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
 
 def _frame_problems(mission: Mission, table: ChannelTable) -> Iterable[tuple[Loc, str]]:
     """Frames too small for what every frame carries besides channels."""
-    overhead = FrameCodec(table).overhead_bytes()
-    for name in mission.nodes:
+    if table.wire_format == "goby":
+        yield from goby_problems(table, mission.wire.dlbl, mission.wire.auth is not None)
+    overhead = frame_codec_for(table).overhead_bytes()
+    found: dict[Loc, int] = {}  # where each too-small size is set: once, at that line
+    for name, node in mission.nodes.items():
         frame_bytes = mission.node_modem(name).frame_bytes
         if frame_bytes <= overhead:
-            yield (("nodes", name, "modem", "frame_bytes"),
-                   f"{frame_bytes} bytes cannot hold the {overhead}-byte frame overhead")
+            own = node.modem.frame_bytes is not None
+            found[("nodes", name, "modem", "frame_bytes") if own
+                  else ("modem", "frame_bytes")] = frame_bytes
+    for loc, frame_bytes in found.items():
+        yield (loc, f"{frame_bytes} bytes cannot hold the {overhead}-byte frame overhead")
 
 
 def load_mission(path: str | Path) -> LoadedMission:

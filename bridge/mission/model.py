@@ -11,9 +11,21 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ModelWrapValidatorHandler,
+    PrivateAttr,
+    SerializerFunctionWrapHandler,
+    ValidationInfo,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
 
 from bridge.codec import FieldSpec
+from bridge.ros2.spec import Ros2Topic
 
 NodeName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)]
 NodePattern = Annotated[
@@ -178,12 +190,49 @@ Mac = Annotated[TdmaMac | NoMac | PolledMac | AlohaMac, Field(discriminator="typ
 
 
 class Element(Strict):
-    """One Zenoh key carried by a channel: read at the sender, published at each receiver."""
+    """One Zenoh key carried by a channel: read at the sender, published at each receiver.
 
-    in_: str = Field(alias="in", description="Input key at the sender; may use {node}/{src}.")
-    out: str = Field(description="Output key at receivers; may use {src}, {dst} and {node}.")
+    Either ``in`` and ``out`` (msgpack/JSON payloads) or ``ros2`` (a ROS 2 topic over
+    rmw_zenoh's keys, CDR payloads; see docs/ros2.md)."""
+
+    in_: str | None = Field(None, alias="in", description="Input key at the sender; may use "
+                            "{node}/{src}.")
+    out: str | None = Field(None, description="Output key at receivers; may use {src}, {dst} "
+                            "and {node}.")
     encoding: Literal["msgpack", "json"] = Field("msgpack", description="Published payload.")
-    fields: list[FieldSpec] = Field(min_length=1)
+    ros2: Ros2Topic | None = Field(None, description="A ROS 2 topic instead of in/out.")
+    fields: list[FieldSpec] = Field(default_factory=list, description="The field codecs "
+                                    "(required unless ``dccl`` is given).")
+    dccl: str | None = Field(None, description="A DCCL message instead of fields: "
+                             "'file.proto:Message', the file relative to the mission file; "
+                             "the element's bytes are libdccl's (see docs/dccl.md).")
+
+    @field_validator("dccl")
+    @classmethod
+    def _dccl_path(cls, value: str | None, info: ValidationInfo) -> str | None:
+        """A relative .proto path is taken from the mission file's folder."""
+        base = (info.context or {}).get("mission_dir") if value else None
+        path, sep, name = (value or "").rpartition(":")
+        if base is not None and sep and path and not Path(path).is_absolute():
+            return f"{Path(base) / path}:{name}"
+        return value
+
+    @model_validator(mode="after")
+    def _fields_or_dccl(self) -> Element:
+        if bool(self.fields) == bool(self.dccl):
+            raise ValueError("give either fields (at least one) or dccl, not both")
+        return self
+
+    @model_validator(mode="after")
+    def _keys(self) -> Element:
+        if self.ros2 is None and (self.in_ is None or self.out is None):
+            raise ValueError("an element needs `in` and `out` keys (or a `ros2` topic)")
+        if self.ros2 is not None and (self.in_ is not None or self.out is not None):
+            raise ValueError("a `ros2` element takes its keys from ros2.topic/out_topic: "
+                             "leave out `in` and `out`")
+        if self.ros2 is not None and "encoding" in self.model_fields_set:
+            raise ValueError("a `ros2` element's payloads are CDR: leave out `encoding`")
+        return self
 
 
 class NodeKeys(Strict):
@@ -293,11 +342,52 @@ class Auth(Strict):
                                   "variable is unset).")
 
 
+def _auth_off_in_schema(schema: dict[str, Any]) -> None:
+    """`auth: off` is False to PyYAML (YAML 1.1) and "off" to YAML 1.2 editors: both mean off."""
+    schema["anyOf"].insert(1, {"enum": ["off", False], "description": "Frames are not "
+                               "authenticated, on purpose."})
+
+
 class Wire(Strict):
-    """Options of the frame format shared by every node."""
+    """Options of the frame format shared by every node.
+
+    ``auth`` absent means the mission does not say; ``auth: off`` says frames go
+    unauthenticated on purpose (``zab run`` and ``zab check`` refuse a mission that does not
+    say while a frame key is present). Either way ``auth`` is then None: read :attr:`auth_off`
+    to tell them apart."""
 
     dlbl: bool = Field(False, description="Start each frame with the DLBL delay vector.")
-    auth: Auth | None = Field(None, description="Counter + keyed tag in every frame.")
+    auth: Auth | None = Field(None, description="Counter + keyed tag in every frame; `off`: no "
+                              "authentication, on purpose (absent: not said, which zab run "
+                              "refuses while a frame key is present).",
+                              json_schema_extra=_auth_off_in_schema)
+    format: Literal["zab", "goby"] = Field(
+        "zab", description="zab's frame, or goby: DCCL messages back to back as Goby3's "
+        "queue packs them (every channel one dccl element; see docs/dccl.md).")
+    _auth_off: bool = PrivateAttr(False)
+
+    @model_validator(mode="wrap")
+    @classmethod
+    def _explicit_off(cls, data: Any, handler: ModelWrapValidatorHandler[Wire]) -> Wire:
+        value = data.get("auth") if isinstance(data, dict) else None
+        off = value is False or value == "off"
+        if off:
+            data = {k: v for k, v in data.items() if k != "auth"}
+        wire = handler(data)
+        wire._auth_off = off or wire._auth_off
+        return wire
+
+    @model_serializer(mode="wrap")
+    def _dump_off(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        data = handler(self)
+        if self._auth_off:
+            data["auth"] = "off"  # a dump reads back as the same mission
+        return data
+
+    @property
+    def auth_off(self) -> bool:
+        """The mission says ``auth: off``: frames go unauthenticated on purpose."""
+        return self._auth_off
 
 
 class Demand(Strict):

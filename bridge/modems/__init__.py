@@ -1,6 +1,7 @@
-"""Modem backends: one async interface over simulated, UDP and real acoustic modems."""
+"""Modem backends: one async interface over simulated, UDP and real acoustic modems.
 
-from bridge.modems.base import ModemBackend, ModemSetup, Reception
-from bridge.modems.registry import available_backends, load_backend
-
-__all__ = ["ModemBackend", "ModemSetup", "Reception", "available_backends", "load_backend"]
+:mod:`.base` (the interface, asyncio), :mod:`.registry` (backends by name), :mod:`.reception`
+(what a modem hands over, pure), :mod:`.presets` (modem performance models, pure), one folder
+per vendor (:mod:`.evologics`, :mod:`.micromodem`: protocol, driver and emulator side by side),
+:mod:`.udp`, :mod:`.sim`. Importing this package loads nothing else.
+"""

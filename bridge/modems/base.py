@@ -16,44 +16,11 @@ from types import MappingProxyType
 from typing import Any, ClassVar
 
 from bridge.errors import BackendError
+from bridge.modems.reception import ModemRange, Reception
 
 __all__ = ["Inbox", "ModemBackend", "ModemRange", "ModemSetup", "Reception"]
 
 _EMPTY: Mapping[str, Any] = MappingProxyType({})
-
-
-@dataclass(frozen=True)
-class Reception:
-    """One frame received by the modem.
-
-    ``time`` is the wall clock (``time.time()``) at the END of reception. ``meta`` holds link
-    metadata the backend knows, e.g. ``start``, ``travel_time_s``, ``distance_m``, ``dest``.
-    """
-
-    data: bytes
-    src: int
-    time: float
-    meta: Mapping[str, Any] = field(default_factory=lambda: _EMPTY)
-
-    @property
-    def dest(self) -> int | None:
-        """The address the sender put on the frame (``None`` = broadcast or unknown)."""
-        return self.meta.get("dest")
-
-
-@dataclass(frozen=True)
-class ModemRange:
-    """A one-way travel time the modem itself measured to ``peer`` (an address).
-
-    ``method`` is ``ping`` (a two-way ping, e.g. the Micro-Modem's ``$CCMPC``) or
-    ``propagation`` (e.g. EvoLogics ``AT?T`` after an acknowledged message); ``time`` is the
-    backend's :meth:`~ModemBackend.clock` when it was measured.
-    """
-
-    peer: int
-    travel_time_s: float
-    method: str
-    time: float
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import tempfile
 import time
 from collections import defaultdict
 from collections.abc import Callable, Collection
@@ -12,10 +13,12 @@ from typing import Any
 
 from bridge.core.positioning import simulated_preset
 from bridge.mission.loader import LoadedMission
+from bridge.mission.path import Path
 from bridge.modems.setup import backend_factory
+from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_node import BridgeNode
-from bridge.sim.path import Path
 from bridge.sim.service import WaterService
+from bridge.wire.auth import key_for_run
 
 AOI_SAMPLE_S = 0.25
 
@@ -74,10 +77,21 @@ class Fleet:
         on_event: Callable[[str, str, dict[str, Any]], None] | None = None,
         only: Collection[str] | None = None,
         water: str | None = None,
+        state_dir: str | None = None,
+        key: bytes | None = None,
     ) -> None:
         """``only`` runs a subset of the nodes; ``water`` joins a water already running
-        (``host:port``) instead of starting one."""
+        (``host:port``) instead of starting one; ``state_dir`` keeps the nodes' saved states
+        (default: a temporary folder, removed at the end). ``key``: the frame key of an
+        authenticated mission (default: the mission key if present, else this process's
+        throwaway key, so fleets in one process still hear each other; see
+        :attr:`throwaway_key`)."""
+        self.state_dir = state_dir
         self.loaded = loaded
+        auth = loaded.mission.wire.auth
+        self.key, self.throwaway_key = key, False
+        if key is None and auth is not None:
+            self.key, self.throwaway_key = key_for_run(auth.key_env, auth.key_file)
         self.names = [n for n in loaded.mission.nodes if only is None or n in only]
         self.water_address = water
         sim = loaded.mission.modem.backend == "sim" and water is None
@@ -103,6 +117,9 @@ class Fleet:
         elif self.water_address is not None:
             extra["water"] = self.water_address
         node_stop = asyncio.Event()
+        scratch = tempfile.TemporaryDirectory(prefix="zab-state-") if self.state_dir is None \
+            else None
+        state_dir = self.state_dir or scratch.name  # type: ignore[union-attr]
         try:
             for name in self.names:
                 self.nodes[name] = BridgeNode(
@@ -110,6 +127,8 @@ class Fleet:
                     name,
                     backend_factory(self.loaded.mission, name, extra),
                     on_event=self._node_events(name),
+                    state_file=StateFile(state_dir, self.loaded.mission.mission, name),
+                    key=self.key,
                 )
             tasks = [asyncio.create_task(n.run(node_stop)) for n in self.nodes.values()]
             started = asyncio.ensure_future(
@@ -136,6 +155,8 @@ class Fleet:
             node_stop.set()
             if self.water is not None:
                 await self.water.stop()
+            if scratch is not None:
+                scratch.cleanup()
 
     def report(self) -> dict[str, Any]:
         """Per channel: values sent/delivered and age; per link: frames sent/lost/collided."""

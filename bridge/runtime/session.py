@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 from typing import Any
 
 import zenoh
 
+from bridge.errors import SessionError
 from bridge.mission.model import ZenohSettings
+from bridge.ros2.attachment import from_bridge
 
 # Every sample a bridge publishes carries this attachment prefix; bridges never re-bridge it.
 ORIGIN_PREFIX = b"zab/1 "
@@ -30,8 +33,35 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     return config
 
 
-def open_session(settings: ZenohSettings) -> zenoh.Session:
-    return zenoh.open(zenoh_config(settings))
+def open_session(settings: ZenohSettings, who: str = "zenoh") -> zenoh.Session:
+    """A session with ``settings``; :class:`SessionError` (one line, ``who`` first) when Zenoh
+    cannot open it: a listen port taken, a client's router unreachable, a bad endpoint."""
+    try:
+        return zenoh.open(zenoh_config(settings))
+    except zenoh.ZError as exc:
+        raise SessionError(f"{who}: {session_problem(str(exc), settings)}") from None
+
+
+_SOURCE = re.compile(r"\s+at \S+\.rs:\d+\.?")  # "at /root/.cargo/.../tcp.rs:61." in ZError text
+_BOUND = re.compile(r"bound to (\S+?): \[")
+_CONNECT = re.compile(r"Unable to connect to any of")
+
+
+def session_problem(text: str, settings: ZenohSettings) -> str:
+    """What a ``zenoh.ZError`` from opening a session means, and what to do, in one line."""
+    text = " ".join(_SOURCE.sub("", text).split())
+    bound = _BOUND.search(text)
+    if bound and "in use" in text.lower():
+        return (f"{bound.group(1)} is already in use (is another `zab run` or zenohd "
+                "listening there?)")
+    if bound:
+        reason = text[bound.end():].strip(" []")
+        return f"cannot listen on {bound.group(1)}: {reason}"
+    if _CONNECT.search(text):
+        where = " ".join(settings.connect) or "(no connect endpoint)"
+        return (f"no Zenoh router answers at {where} (start the router, e.g. zenohd -c "
+                "deploy/zenoh/..., or fix zenoh.connect)")
+    return f"cannot open the Zenoh session: {text}"
 
 
 def close_quietly(session: Any) -> None:
@@ -45,6 +75,10 @@ def origin_tag(mission: str, node: str) -> bytes:
 
 
 def is_bridged(sample: zenoh.Sample) -> bool:
-    """True when a bridge published this sample (loop safety)."""
+    """True when a bridge published this sample (loop safety): its origin tag, or a ROS 2
+    attachment naming a bridge publisher (see :mod:`bridge.ros2.attachment`)."""
     attachment = sample.attachment
-    return attachment is not None and attachment.to_bytes().startswith(ORIGIN_PREFIX)
+    if attachment is None:
+        return False
+    data = attachment.to_bytes()
+    return data.startswith(ORIGIN_PREFIX) or from_bridge(data)

@@ -17,19 +17,23 @@ import heapq
 import itertools
 import random
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
+import msgpack
+
 from bridge.core.interest import own_subscriptions, wanted_by
-from bridge.core.mac import schedule_for
-from bridge.core.node import NodeCore, Output, Publish
+from bridge.core.mac import Schedule
+from bridge.core.node import NodeCore, Output, Publish, SendFrame
 from bridge.core.positioning import simulated_preset
+from bridge.errors import EncodeError
 from bridge.mission.loader import LoadedMission
+from bridge.mission.path import Path
 from bridge.modems.base import Reception
+from bridge.modems.presets import Preset
 from bridge.runtime.virtual_queries import VirtualQueries
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
-from bridge.sim.path import Path
-from bridge.sim.presets import Preset
+from bridge.wire.auth import key_for_run
 from bridge.wire.payloads import encode_payload
 
 TICK_S = 1.0
@@ -57,9 +61,16 @@ class FastFleet:
         start: float = 0.0,
         on_output: Callable[[Timed], None] | None = None,
         keep_outputs: bool = True,
+        key: bytes | None = None,
     ) -> None:
-        """``keep_outputs`` false: outputs only go to ``on_output`` (long runs)."""
+        """``keep_outputs`` false: outputs only go to ``on_output`` (long runs). ``key``: the
+        frame key of an authenticated mission (default: the mission key if present, else a
+        throwaway one, see :attr:`throwaway_key`)."""
         mission = loaded.mission
+        self.key, self.throwaway_key = key, False
+        if key is None and mission.wire.auth is not None:
+            self.key, self.throwaway_key = key_for_run(mission.wire.auth.key_env,
+                                                       mission.wire.auth.key_file)
         self.loaded = loaded
         self.mission = mission
         options = mission.modem.options
@@ -73,9 +84,9 @@ class FastFleet:
         for node in mission.nodes.values():
             if node.path is not None:
                 self.ocean.set_path(node.address, Path.from_spec(node.path), start)
-        self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"))
+        self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"),
+                                     key=self.key, seed=seed)
                       for name in mission.nodes}
-        self.schedules = {name: schedule_for(mission, name, seed=seed) for name in mission.nodes}
         self.now = start
         self.outputs: list[Timed] = []
         self.on_output = on_output
@@ -83,6 +94,9 @@ class FastFleet:
         self.stopped: set[str] = set()
         self.subscriptions: dict[str, list[str]] = {}
         self.queries = VirtualQueries(self)  # applications' gets and queryables
+        self.seed = seed
+        self.restarts = 0
+        self.saved: dict[str, dict[str, Any]] = {}  # each node's saved state, as on its disk
         self._next_tx: dict[str, float | None] = {}
         self._pending: dict[int, tuple[str, Any]] = {}
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
@@ -99,14 +113,25 @@ class FastFleet:
         heapq.heappush(self._timers, (t, next(self._seq), fn))
 
     def put(self, node: str, key: str, value: Any, *, at: float | None = None,
-            encoding: str = "application/msgpack") -> None:
-        """An application on ``node`` puts ``value`` on ``key`` (now, or at virtual time ``at``)."""
+            encoding: str = "application/msgpack", ref: str | None = None) -> None:
+        """An application on ``node`` puts ``value`` on ``key`` (now, or at virtual time
+        ``at``); ``ref`` is its correlation text, echoed in delivery reports."""
         data, enc = encode_payload(value, encoding)
+        sample_key = None
+        bindings = self.cores[node].bindings.get(key, ())
+        ros2 = next((e.ros2 for _, _, e in bindings if e.ros2 is not None), None)
+        if ros2 is not None:  # a ROS 2 node: CDR on its exact rmw_zenoh key
+            try:
+                data, enc = ros2.encode(value, self.now), ""
+            except EncodeError as exc:
+                self.cores[node].drop_payload(key, str(exc), self.now)
+                return
+            sample_key = ros2.publisher_key(node)
 
         def deliver() -> None:
             if node in self.stopped:
                 return
-            self.cores[node].ingest(key, data, enc, self.now)
+            self.cores[node].ingest(key, data, enc, self.now, ref, sample_key=sample_key)
             self._collect(node)
             self._replan(node)
 
@@ -154,6 +179,18 @@ class FastFleet:
         self.stopped.discard(node)
         self._plan(node)
 
+    def restart(self, node: str, *, keep_state: bool = True) -> None:
+        """``node`` is killed and starts again now: a new core from its last saved state
+        (``keep_state``) or from nothing (its disk was lost), and a fresh MAC schedule."""
+        self.restarts += 1
+        state = self.saved.get(node) if keep_state else None
+        self.cores[node] = NodeCore(self.loaded, node, state=state, key=self.key,
+                                    rng=random.Random(f"{self.seed}/{node}/{self.restarts}"),
+                                    seed=self.seed + self.restarts)
+        self.stopped.discard(node)
+        self._collect(node)
+        self._plan(node)
+
     def published(self, node: str, key: str | None = None) -> list[tuple[float, Publish]]:
         """What ``node`` published on application keys (optionally only ``key``)."""
         return [(t.time, t.output) for t in self.outputs
@@ -198,41 +235,40 @@ class FastFleet:
                     self._collect(name)
             self._next_tick = now + TICK_S
 
+    @property
+    def schedules(self) -> dict[str, Schedule]:
+        """Each node's MAC schedule (owned by its core)."""
+        return {name: core.schedule for name, core in self.cores.items()}
+
     def _plan(self, name: str) -> None:
         """When ``name`` next gets to transmit: its MAC's next opportunity."""
         if name in self.stopped:
             self._next_tx[name] = None
             return
-        opp = self.schedules[name].next_opportunity(self.now, self.cores[name].next_due(self.now))
+        wake = self.cores[name].wake_at(self.now)
         busy = self.ocean.busy_until(self.mission.address_of(name))  # a busy modem refuses
-        self._next_tx[name] = None if opp is None else max(opp.start, self.now, busy)
+        self._next_tx[name] = None if wake is None else max(wake, self.now, busy)
 
     def _replan(self, name: str) -> None:
         """New data or a reception may change the next opportunity (a poll, a ranging turn)."""
         self._plan(name)
 
     def _transmit(self, name: str) -> None:
-        core, schedule, now = self.cores[name], self.schedules[name], self.now
-        opp = schedule.next_opportunity(now, core.next_due(now))
-        if opp is None or opp.start > now:
-            self._plan(name)
-            return
-        at = now + self.ocean.preset.intrinsic_delay_s
-        out = core.build_frame(now, at, always=opp.must_send or core.heartbeat_due(now))
-        if out is None:
-            schedule.on_skipped(now)
-        else:
-            if opp.poll is not None:  # the poll rides on the frame's destination address
-                out = replace(out, dest=self.mission.address_of(opp.poll))
+        """Carry out what ``name``'s core does at this opportunity, as its modem would (the
+        simulated modem, like ``zab sim``'s, sends frames and does not range)."""
+        core, now = self.cores[name], self.now
+        action = core.act(now, now + self.ocean.preset.intrinsic_delay_s)
+        if isinstance(action, SendFrame):
+            out = action.frame
             try:
                 end = self.ocean.transmit(now, self.mission.address_of(name), out.data, out.dest)
             except TransmitRefused as exc:
-                core.frame_failed(out, str(exc), now)
-                schedule.on_skipped(now)
+                core.done(action, now, now, error=str(exc))
             else:
-                core.frame_sent(out, now)
-                schedule.on_sent(now, end)
-            self._collect(name)
+                core.done(action, now, end)
+        elif action is not None:  # a ping: the simulated modem cannot
+            core.done(action, now, now, error="the simulated modem does not ping")
+        self._collect(name)
         self._plan(name)
 
     def _deliver(self, event: Delivery) -> None:
@@ -240,17 +276,18 @@ class FastFleet:
         if name is None or name in self.stopped:
             return
         meta = {**event.meta, "start": event.start}
-        core = self.cores[name]
-        valid = core.stats.frames_received
-        core.receive(Reception(event.data, event.src, event.end, meta), self.now, self.now)
-        src = self.mission.name_of(event.src)
-        if core.stats.frames_received > valid and src is not None:  # a valid frame: tell the MAC
-            self.schedules[name].on_heard(src, event.meta.get("dest") == event.dst, event.end)
+        self.cores[name].receive(Reception(event.data, event.src, event.end, meta), self.now,
+                                 self.now)
         self._collect(name)
         self._replan(name)
 
     def _collect(self, name: str) -> None:
-        for output in self.cores[name].take():
+        core = self.cores[name]
+        if core.needs_save:  # what a real node writes to its state file before the outputs
+            self.saved[name] = msgpack.unpackb(msgpack.packb(core.state(), use_bin_type=True),
+                                               raw=False, strict_map_key=False)
+            core.saved()
+        for output in core.take():
             self.queries.handle(name, output)
             timed = Timed(self.now, name, output)
             if self.keep_outputs:

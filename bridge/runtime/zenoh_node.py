@@ -13,24 +13,28 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 import zenoh
 
 from bridge.core.interest import output_keys
 from bridge.core.link import LinkState
-from bridge.core.mac import schedule_for
-from bridge.core.node import NodeCore, NodeStats, Notice, Publish, Status, notable
+from bridge.core.node import NodeCore, NodeStats, Notice, Ping, Publish, Status, notable
 from bridge.core.positioning import Positioning
 from bridge.core.surfacing import Relay
-from bridge.errors import BackendError
+from bridge.errors import BackendError, EncodeError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
+from bridge.ros2.graph import Ros2Graph
 from bridge.runtime.session import close_quietly, is_bridged, open_session, origin_tag
+from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_queries import QueryBridge
+from bridge.wire.auth import load_key
 from bridge.wire.payloads import encode_payload
+
+if TYPE_CHECKING:
+    from bridge.ros2.element import Ros2Element
 
 log = logging.getLogger("zab.node")
 
@@ -50,8 +54,18 @@ class BridgeNode:
         *,
         clock: Callable[[], float] = time.time,
         on_event: Callable[[str, dict[str, Any]], None] | None = None,
+        state_file: StateFile | None = None,
+        key: bytes | None = None,
     ) -> None:
-        self.core = NodeCore(loaded, node)
+        """``state_file``: where this node keeps what a restart must resume (None: nothing
+        survives a restart; peers then see a new epoch and resynchronise); ``key``: the frame
+        key (default: found as ``wire.auth`` says)."""
+        self.state_file = state_file
+        auth = loaded.mission.wire.auth
+        if key is None and auth is not None:
+            key = load_key(auth.key_env, auth.key_file)
+        self.core = NodeCore(loaded, node, key=key,
+                             state=state_file.load() if state_file is not None else None)
         self.mission = loaded.mission
         self.table = loaded.table
         self.node = node
@@ -59,7 +73,6 @@ class BridgeNode:
         self.backend: ModemBackend | None = None
         self.clock = clock
         self.on_event = on_event or (lambda kind, info: None)
-        self.schedule = schedule_for(self.mission, node)
         self.prefix = f"@zab/{self.mission.mission}/{node}"
         self._origin = origin_tag(self.mission.mission, node)
         self._tokens: dict[str, Any] = {}
@@ -73,6 +86,7 @@ class BridgeNode:
         self._modem_up = asyncio.Event()
         self.started = asyncio.Event()
         self.session: zenoh.Session | None = None
+        self._ros2: Ros2Graph | None = None
 
     # the core's state, for observers (fleet reports, tests)
     @property
@@ -100,8 +114,9 @@ class BridgeNode:
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set; always closes the session and the modem."""
         loop = asyncio.get_running_loop()
-        self.session = open_session(self.mission.nodes[self.node].zenoh)
+        self.session = open_session(self.mission.nodes[self.node].zenoh, self.node)
         try:
+            self._flush()  # this run's epoch saved; what a changed mission file ended, reported
             for key in self.core.bindings:
                 self.session.declare_subscriber(
                     key, lambda s, k=key: self._from_zenoh(loop, k, s)
@@ -116,6 +131,8 @@ class BridgeNode:
                 self._query_bridge = QueryBridge(self, loop)
             if self.core.surfacing is not None:
                 self._watch_ip(loop)
+            self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
+            self._ros2.announce(self.table, self.node)  # ROS 2 topics join the ROS 2 graph
             tasks = [
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
@@ -127,11 +144,14 @@ class BridgeNode:
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
+            self._persist()
         finally:
             if self._query_bridge is not None:
                 self._query_bridge.close()
             if self.backend is not None:
                 await self.backend.close()
+            if self._ros2 is not None:
+                self._ros2.close()
             close_quietly(self.session)
 
     # -- Zenoh → core ------------------------------------------------------------------------
@@ -143,7 +163,7 @@ class BridgeNode:
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
         ref = attachment[4:].decode("utf-8", "replace") if attachment[:4] == b"ref:" else None
-        loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref)
+        loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref, str(sample.key_expr))
 
     def _subscribe_positions(self, loop: asyncio.AbstractEventLoop) -> None:
         """Live positions: this node's own (``nav_key``), anchors' and the CTD's."""
@@ -236,83 +256,62 @@ class BridgeNode:
         if self.core.positioning is not None:
             self.core.positioning.set_depth(depth)
 
-    def ingest(self, key: str, data: bytes, encoding: str, ref: str | None = None) -> None:
-        """A sample arrived on an input key (``ref``: the publisher's correlation text)."""
-        self.core.ingest(key, data, encoding, self.clock(), ref)
+    def ingest(self, key: str, data: bytes, encoding: str, ref: str | None = None,
+               sample_key: str | None = None) -> None:
+        """A sample arrived on an input key (``ref``: the publisher's correlation text;
+        ``sample_key``: the sample's own key, under a wildcard input key)."""
+        self.core.ingest(key, data, encoding, self.clock(), ref, sample_key)
         self._flush()
         self._data.set()
 
     # -- core → modem --------------------------------------------------------------------------
 
     async def _transmit_loop(self) -> None:
-        """Sleep until the MAC's next opportunity (new data or a frame heard wakes it to ask
-        again), then send one frame there."""
+        """Sleep until the core's MAC has an opportunity (new data or a frame heard wakes it to
+        ask again), then carry out what the core says to do there."""
         while True:
             await self._modem_up.wait()
             self._data.clear()
             now = self.clock()
-            opp = self.schedule.next_opportunity(now, self.core.next_due(now))
-            if opp is None or opp.start > now:
+            wake = self.core.wake_at(now)
+            if wake is None or wake > now:
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._data.wait(),
-                                           None if opp is None else opp.start - now)
+                                           None if wake is None else wake - now)
                 continue
-            sent = await self.transmit(always=opp.must_send or self.core.heartbeat_due(now),
-                                       poll=opp.poll)
-            if sent:
-                self.schedule.on_sent(now, self.clock())
-            else:
-                self.schedule.on_skipped(now)
+            await self.transmit()
 
-    async def transmit(self, *, always: bool = False, poll: str | None = None) -> bool:
-        """Build one frame from what is due and send it (``poll``: the node it polls, carried
-        as the frame's destination). Returns whether a frame went out."""
+    async def transmit(self) -> bool:
+        """Carry out the core's action at an open opportunity: send its frame, or ping.
+        Returns whether something went out."""
         backend = self.backend
         if backend is None:
             return False
-        # ranging.ping: a due range takes this opportunity (a ping, or this frame acked)
-        peer = self.core.range_due(self.clock()) if backend.ranging and poll is None else None
-        if peer is not None and backend.ranging == "ping":
-            return await self._ping(backend, peer)
+        self.core.modem_ranging = backend.ranging
+        now = self.clock()
         # with a timed modem the emission starts exactly at ``at``, so DLBL delays are exact
         at = backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
-        out = self.core.build_frame(self.clock(), at, always=always or peer is not None)
-        if out is None:
+        action = self.core.act(now, at)
+        if action is None:
             self._flush()
             return False
-        if poll is not None:
-            out = replace(out, dest=self.mission.address_of(poll))
-        if peer is not None:  # the modem measures the range when the peer acknowledges
-            out = replace(out, dest=peer, ack=True)
+        self._persist()  # a counter reserved for this frame is saved before it leaves
+        confirmed = None
         try:
-            confirmed = await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
+            if isinstance(action, Ping):
+                await backend.ping(action.peer)
+            else:
+                out = action.frame
+                confirmed = await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
         except BackendError as exc:
-            log.warning("%s: send failed: %s", self.node, exc)
-            if peer is not None:
-                self.core.range_asked(peer, self.clock(), str(exc))
-            self.core.frame_failed(out, str(exc), self.clock())
+            what = "ping" if isinstance(action, Ping) else "send"
+            log.warning("%s: %s failed: %s", self.node, what, exc)
+            self.core.done(action, now, self.clock(), error=str(exc))
             self._flush()
             if not backend.is_open:  # the modem is gone: wait until the modem loop reopens it
                 self._modem_up.clear()
             return False
-        if peer is not None:
-            self.core.range_asked(peer, self.clock())
-        self.core.frame_sent(out, self.clock(), confirmed)
-        self._flush()
-        return True
-
-    async def _ping(self, backend: ModemBackend, peer: int) -> bool:
-        """Range to ``peer`` with the modem's ping; the range arrives through ``on_range``."""
-        try:
-            await backend.ping(peer)
-        except BackendError as exc:
-            log.info("%s: no range to %s: %s", self.node, self.mission.name_of(peer), exc)
-            self.core.range_asked(peer, self.clock(), str(exc))
-            self._flush()
-            if not backend.is_open:
-                self._modem_up.clear()
-            return False
-        self.core.range_asked(peer, self.clock())
+        self.core.done(action, now, self.clock(), confirmed=confirmed)
         self._flush()
         return True
 
@@ -346,18 +345,26 @@ class BridgeNode:
     def receive(self, rx: Reception) -> None:
         """Hand one received frame to the core and publish what it produced."""
         modem_now = self.backend.clock() if self.backend is not None else None
-        now, valid = self.clock(), self.core.stats.frames_received
-        self.core.receive(rx, now, modem_now)
-        src = self.mission.name_of(rx.src)
-        if self.core.stats.frames_received > valid and src is not None:
-            self.schedule.on_heard(src, rx.dest == self.mission.address_of(self.node), now)
+        valid = self.core.stats.frames_received
+        self.core.receive(rx, self.clock(), modem_now)
+        if self.core.stats.frames_received > valid:
             self._data.set()  # a poll or a ranging turn may open an opportunity
         self._flush()
 
+    def _persist(self) -> None:
+        """Save the core's state if a restart must not lose what changed."""
+        if self.core.needs_save:
+            if self.state_file is not None:
+                self.state_file.save(self.core.state())
+            self.core.saved()
+
     def _flush(self) -> None:
-        """Carry out the core's outputs."""
+        """Carry out the core's outputs, once what they depend on is saved."""
+        self._persist()
         for output in self.core.take():
-            if isinstance(output, Publish):
+            if isinstance(output, Publish) and output.ros2 is not None:
+                self._publish_ros2(output.key, output.value, output.ros2)
+            elif isinstance(output, Publish):
                 self.publish(output.key, output.value, output.encoding, latched=output.latched)
             elif isinstance(output, Status):
                 self._publish_raw(f"{self.prefix}/{output.topic}", output.payload)
@@ -405,6 +412,14 @@ class BridgeNode:
                 self.session.declare_queryable(key, lambda q, k=key: self._answer(q, k))
             )
         publisher.put(payload, attachment=self._origin)
+
+    def _publish_ros2(self, key: str, value: Any, ros2: Ros2Element) -> None:
+        """Publish a decoded value as a ROS 2 message (rmw_zenoh's key, attachment, tokens)."""
+        assert self._ros2 is not None
+        try:
+            self._ros2.publish(key, value, ros2, self.clock())
+        except EncodeError as exc:
+            self.core.drop_payload(key, str(exc), self.clock())
 
     def _answer(self, query: zenoh.Query, key: str) -> None:
         """Zenoh thread: a late joiner asks for a latched key; reply with its last value."""

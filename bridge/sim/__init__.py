@@ -4,6 +4,7 @@ Only the pure parts are re-exported here; the asyncio server lives in
 :mod:`bridge.sim.service` and its wire format in :mod:`bridge.sim.protocol`.
 """
 
+from bridge.modems.presets import PRESETS, Preset, UnknownPresetError, get_preset
 from bridge.sim.ocean import (
     LOSS_REASONS,
     Delivery,
@@ -16,7 +17,6 @@ from bridge.sim.ocean import (
     TransmitRefused,
     TxDone,
 )
-from bridge.sim.presets import PRESETS, Preset, UnknownPresetError, get_preset
 
 __all__ = [
     "LOSS_REASONS",

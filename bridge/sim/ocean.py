@@ -14,7 +14,7 @@ What it models, per frame:
 - propagation ``distance / sound_speed`` from 3-D positions ``(x, y, depth)`` in metres, taken at
   the moment of transmission; distances under ``min_range_m`` count as ``min_range_m``; a node
   is where it was put (:meth:`~Ocean.set_position`) or where its scripted
-  :class:`~bridge.sim.path.Path` has taken it (:meth:`~Ocean.set_path`);
+  :class:`~bridge.mission.path.Path` has taken it (:meth:`~Ocean.set_path`);
 - a broadcast medium: every other node hears every frame (promiscuous); ``dest`` is metadata only;
 - a reception is decided when it ends, in this order of reasons:
   ``out_of_range`` (beyond ``max_range_m``: never delivered, and it does not interfere),
@@ -39,8 +39,8 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge.sim.path import Path
-from bridge.sim.presets import Preset
+from bridge.mission.path import Path
+from bridge.modems.presets import Preset
 
 __all__ = [
     "LOSS_REASONS",

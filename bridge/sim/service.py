@@ -4,7 +4,7 @@ Sim modems (:class:`bridge.modems.sim.SimBackend`) connect, say ``hello`` with t
 and position, send ``tx`` messages and receive ``txdone`` and ``rx`` messages (see
 :mod:`bridge.sim.protocol`). The model runs on the event loop's monotonic clock; every time
 sent to a modem is converted to wall-clock seconds. Only deliveries reach modems; losses are
-counted in :meth:`WaterService.stats`. Nodes given a scripted :class:`~bridge.sim.path.Path`
+counted in :meth:`WaterService.stats`. Nodes given a scripted :class:`~bridge.mission.path.Path`
 follow it from the moment the service starts (:attr:`WaterService.started_at`, wall clock).
 """
 
@@ -17,9 +17,9 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from bridge.mission.path import Path
+from bridge.modems.presets import Preset, get_preset
 from bridge.sim.ocean import Delivery, Loss, Ocean, Position, TransmitRefused, TxDone
-from bridge.sim.path import Path
-from bridge.sim.presets import Preset, get_preset
 from bridge.sim.protocol import PROTOCOL_VERSION, ProtocolError, pack, read_message
 
 __all__ = ["WaterService", "serve_water"]

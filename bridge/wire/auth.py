@@ -3,87 +3,154 @@ can forge, alter or replay a frame (pure).
 
 A sealed frame is the plain frame's bytes (without its check value), then::
 
-    counter  32 bits  strictly increasing per sender; starts from the clock (1/16 s units) so
-                      a restarted node does not fall behind what receivers already saw
-    tag      tag_bytes × 8 bits: HMAC-SHA256(key, fingerprint ‖ sender address ‖ everything
-                      before the tag), truncated
+    counter  32 bits  the low half of a 64-bit counter, strictly increasing per sender
+    tag      tag_bytes × 8 bits: HMAC-SHA256(key, fingerprint ‖ sender address ‖ 64-bit
+                      counter ‖ everything before the tag), truncated
 
-and the usual 16-bit check value last, so a frame from another mission file is still told apart
-(``check``) from a forged one (``forged``).
+and the usual 16-bit check value last (``bridge.wire.frame``).
+
+The counter never depends on a clock: it counts frames. Its high-water mark survives restarts
+through :meth:`Authenticator.state`: a sender *reserves* counters in blocks of
+:data:`RESERVE_BLOCK` and the runtime saves that reservation before any frame using it leaves,
+so a restarted sender resumes past every counter it may have used. At ten frames a second the
+64 bits last 58 billion years. A receiver keeps, per sender, the highest counter it accepted
+(saved likewise, before what the frame carried is published) and rebuilds a received counter's
+high half from it: the candidate is the first value above that mark with the received low half,
+so a sender may run up to 2**31 frames ahead of what a receiver last heard. A frame whose
+counter is at or below the mark is refused as replayed — also after either end restarts.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import hmac
 import os
+import secrets
 from pathlib import Path
+from typing import Any
 
 from bridge.errors import FrameError, MissionError
 
 COUNTER_BYTES = 4
-COUNTER_TICKS_PER_S = 16
-_COUNTER_MOD = 1 << (8 * COUNTER_BYTES)
+"""Bytes of the counter on the wire (its low half)."""
+RESERVE_BLOCK = 1 << 10
+"""Counters reserved per state write: at most one save per 1024 frames sent."""
+_LOW = 1 << (8 * COUNTER_BYTES)
+_AHEAD = _LOW // 2  # how far past the receiver's mark a counter may be rebuilt
+_MAX = (1 << 64) - 1
 
 
-def load_key(key_env: str, key_file: Path | None) -> bytes:
-    """The mission key from the environment variable, else the file; never from the mission."""
+DEFAULT_KEY_ENV = "ZAB_KEY"
+"""Where operators put the mission key (docs/deploy.md), and where a stray key is looked for."""
+
+
+def find_key(key_env: str, key_file: Path | None) -> bytes | None:
+    """The mission key from the environment variable, else the file (never from the mission);
+    None when neither holds one. A key file that exists but cannot be read is a MissionError."""
     value = os.environ.get(key_env)
     if value:
         return value.encode()
-    if key_file is not None:
+    if key_file is not None and key_file.exists():
         try:
             key = key_file.read_bytes().strip()
         except OSError as exc:
             raise MissionError(f"cannot read the frame key file {key_file}: {exc}") from None
         if key:
             return key
-    where = f"${key_env}" + (f" or {key_file}" if key_file else "")
-    raise MissionError(f"wire.auth is on but no key was found in {where}")
+    return None
+
+
+def load_key(key_env: str, key_file: Path | None) -> bytes:
+    """The mission key, as :func:`find_key`; MissionError when there is none."""
+    key = find_key(key_env, key_file)
+    if key is None:
+        where = f"${key_env}" + (f" or {key_file}" if key_file else "")
+        raise MissionError(f"wire.auth is on but no key was found in {where}")
+    return key
+
+
+@functools.cache
+def throwaway_key() -> bytes:
+    """A random key, the same for the whole process: what ``zab sim``, ``zab demo`` and test
+    fleets (every node in one process) authenticate with when no mission key is given."""
+    return secrets.token_hex(32).encode()
+
+
+def key_for_run(key_env: str, key_file: Path | None) -> tuple[bytes, bool]:
+    """The mission key if present, else the process's throwaway key; and whether it is the
+    throwaway one (say so: it cannot talk to nodes in other processes)."""
+    key = find_key(key_env, key_file)
+    return (throwaway_key(), True) if key is None else (key, False)
 
 
 class Authenticator:
-    """Seals outgoing frames and checks incoming ones for one node."""
+    """Seals outgoing frames and checks incoming ones for one node.
 
-    def __init__(self, key: bytes, fingerprint: bytes, address: int, tag_bytes: int) -> None:
+    ``changed`` turns true whenever :meth:`state` holds something a restart must not lose (a
+    new reservation, a newly accepted counter); the runtime saves it and clears the flag.
+    """
+
+    def __init__(self, key: bytes, fingerprint: bytes, address: int, tag_bytes: int,
+                 state: dict[str, Any] | None = None) -> None:
         if len(key) < 16:
             raise MissionError("the frame key must be at least 16 bytes long")
         self._key = key
         self._fingerprint = fingerprint
         self.address = address
         self.tag_bytes = tag_bytes
-        self._counter = -1
-        self._seen: dict[int, int] = {}
+        state = state or {}
+        self.counter = int(state.get("reserved", 0))  # the next counter to use
+        self.reserved = self.counter  # counters below this are saved as used
+        self.seen: dict[int, int] = {int(k): int(v) for k, v in state.get("seen", {}).items()}
+        self.changed = False
 
     @property
     def overhead_bytes(self) -> int:
         return COUNTER_BYTES + self.tag_bytes
 
-    def _tag(self, src: int, data: bytes) -> bytes:
-        mac = hmac.new(self._key, self._fingerprint + src.to_bytes(2, "big") + data,
-                       hashlib.sha256)
+    def state(self) -> dict[str, Any]:
+        """What must survive a restart: the reservation and the receive window (plain data)."""
+        return {"reserved": self.reserved, "seen": {str(k): v for k, v in self.seen.items()}}
+
+    def _tag(self, src: int, counter: int, data: bytes) -> bytes:
+        mac = hmac.new(self._key, self._fingerprint + src.to_bytes(2, "big")
+                       + counter.to_bytes(8, "big") + data, hashlib.sha256)
         return mac.digest()[: self.tag_bytes]
 
-    def next_counter(self, now: float) -> int:
-        self._counter = max(self._counter + 1, int(now * COUNTER_TICKS_PER_S)) % _COUNTER_MOD
-        return self._counter
+    def next_counter(self) -> int:
+        """This node's next counter, reserving a new block (``changed``) when needed."""
+        counter = self.counter
+        if counter >= _MAX:
+            raise FrameError("the 64-bit frame counter is exhausted", "exhausted")
+        if counter >= self.reserved:
+            self.reserved = min(counter + RESERVE_BLOCK, _MAX)
+            self.changed = True
+        self.counter = counter + 1
+        return counter
 
-    def seal(self, frame: bytes, now: float) -> bytes:
-        """``frame`` followed by this node's next counter and the tag."""
-        data = frame + self.next_counter(now).to_bytes(COUNTER_BYTES, "big")
-        return data + self._tag(self.address, data)
+    def seal(self, frame: bytes) -> bytes:
+        """``frame`` followed by the low half of this node's next counter and the tag."""
+        counter = self.next_counter()
+        data = frame + (counter % _LOW).to_bytes(COUNTER_BYTES, "big")
+        return data + self._tag(self.address, counter, data)
 
     def open(self, sealed: bytes, src: int) -> bytes:
         """The frame inside ``sealed`` from ``src``; FrameError if forged, altered or replayed."""
         if len(sealed) < self.overhead_bytes:
             raise FrameError("truncated frame: no room for the counter and tag")
         data, tag = sealed[: -self.tag_bytes], sealed[-self.tag_bytes:]
-        if not hmac.compare_digest(tag, self._tag(src, data)):
-            raise FrameError("forged or altered frame: the authentication tag does not match",
-                             "forged")
-        counter = int.from_bytes(data[-COUNTER_BYTES:], "big")
-        if counter <= self._seen.get(src, -1):
-            raise FrameError(f"replayed frame: counter {counter} already seen from {src}",
+        low = int.from_bytes(data[-COUNTER_BYTES:], "big")
+        mark = self.seen.get(src, -1)
+        counter = (mark + 1) + ((low - (mark + 1)) % _LOW)  # first value past the mark
+        if counter - mark <= _AHEAD and hmac.compare_digest(tag, self._tag(src, counter, data)):
+            self.seen[src] = counter
+            self.changed = True
+            return data[:-COUNTER_BYTES]
+        behind = counter - _LOW
+        if behind >= 0 and hmac.compare_digest(tag, self._tag(src, behind, data)):
+            raise FrameError(f"replayed frame: counter {behind} from {src} is not past "
+                             f"{mark} (a replay, or a sender restarted without its state)",
                              "replayed")
-        self._seen[src] = counter
-        return data[:-COUNTER_BYTES]
+        raise FrameError("forged or altered frame: the authentication tag does not match",
+                         "forged")

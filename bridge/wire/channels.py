@@ -13,6 +13,7 @@ import string
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 from bridge.codec import Layout
 from bridge.errors import LayoutError
@@ -21,7 +22,10 @@ from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, na
 from bridge.wire.interest import InterestCodec
 from bridge.wire.queries import QueryCodec, QuerySpec, compile_query, query_codecs
 
-WIRE_VERSION = 1
+if TYPE_CHECKING:
+    from bridge.ros2.element import Ros2Element
+
+WIRE_VERSION = 2  # 2: the check reveals the fingerprint; epochs in stream missions
 
 # Reliable channels and fragmented transfers (see bridge.core.reliable and bridge.core.transfer).
 SEQ_BITS = 8  # a reliable value's sequence number, modulo 256
@@ -29,6 +33,7 @@ LAG_BITS = 4  # how far behind the sender's oldest unfinished value is (< WINDOW
 WINDOW = 16  # values (or fragments) in flight past the first unacknowledged one
 TID_BITS = 4  # a transfer's id, modulo 16
 COUNT_BITS_REPEATABLE = 6  # entries per frame (up to 63) once channels may repeat in a frame
+EPOCH_BITS = 8  # a node's stream epoch, in every frame of missions with streams
 MAX_TRANSFER_BYTES = 1 << 20
 
 SENDER_TEMPLATES = frozenset({"node", "src"})
@@ -73,6 +78,7 @@ class ElementCodec:
     out_key: str
     encoding: str
     layout: Layout
+    ros2: Ros2Element | None = None  # a ROS 2 topic: CDR payloads on rmw_zenoh keys
 
     def input_key(self, node: str, key: str = "*") -> str:
         """The key read at ``node``; a family member's, or with ``*`` all members'."""
@@ -171,8 +177,25 @@ class ChannelCodec:
 
 
 def compile_element(element: Element, on_out_of_range: str) -> ElementCodec:
+    if element.dccl:  # a DCCL message: the element's bytes are libdccl's
+        from bridge.dccl.layout import DcclLayout
+
+        dccl = DcclLayout.from_reference(element.dccl, strict=on_out_of_range == "reject")
+        return ElementCodec(element.in_, element.out, element.encoding, dccl)  # type: ignore[arg-type]
     layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
+    assert element.in_ is not None and element.out is not None
     return ElementCodec(element.in_, element.out, element.encoding, layout)
+
+
+def compile_ros2_element(element: Element, on_out_of_range: str, senders: Sequence[str],
+                         receivers: Sequence[str]) -> ElementCodec:
+    """An element carrying a ROS 2 topic (see :mod:`bridge.ros2`); keys from its topics."""
+    from bridge.ros2.element import compile_ros2  # rosbags loads only for ROS 2 missions
+
+    assert element.ros2 is not None
+    layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
+    ros2 = compile_ros2(element.ros2, layout, element.fields, senders, receivers)
+    return ElementCodec(ros2.in_key, ros2.out_key, "cdr", layout, ros2)
 
 
 class ChannelTableError(ValueError):
@@ -201,6 +224,11 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
     elements = []
     for i, element in enumerate(channel.elements):
         eloc = (*loc, "elements", i)
+        if element.ros2 is not None:
+            elements.append(_ros2_element(element, channel.on_out_of_range, senders, receivers,
+                                          eloc))
+            continue
+        assert element.in_ is not None and element.out is not None
         if family is not None:
             try:
                 element = element.model_copy(update={"in_": family_template(element.in_)})
@@ -222,7 +250,8 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         try:
             elements.append(compile_element(element, channel.on_out_of_range))
         except LayoutError as exc:
-            raise ChannelTableError(str(exc), (*eloc, "fields", *exc.loc)) from None
+            where = ("dccl",) if element.dccl else ("fields", *exc.loc)
+            raise ChannelTableError(str(exc), (*eloc, *where)) from None
     return ChannelCodec(
         index=index,
         name=channel.name,
@@ -289,6 +318,16 @@ def compile_queries(mission: Mission) -> tuple[QuerySpec, ...]:
         if name in names[:i]:
             raise ChannelTableError(f"query name {name!r} used twice", ("queries", i, "name"))
     return tuple(out)
+def _ros2_element(element: Element, on_out_of_range: str, senders: Sequence[str],
+                  receivers: Sequence[str], eloc: tuple[str | int, ...]) -> ElementCodec:
+    from bridge.ros2.element import Ros2Error
+
+    try:
+        return compile_ros2_element(element, on_out_of_range, senders, receivers)
+    except LayoutError as exc:
+        raise ChannelTableError(str(exc), (*eloc, "fields", *exc.loc)) from None
+    except Ros2Error as exc:
+        raise ChannelTableError(str(exc), (*eloc, *exc.loc)) from None
 
 
 def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
@@ -300,7 +339,7 @@ def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
     if mission.wire.auth is not None:
         overhead += 4 + mission.wire.auth.tag_bytes
     if streams:
-        count_bits, index_bits = COUNT_BITS_REPEATABLE, n_channels.bit_length()
+        count_bits, index_bits = COUNT_BITS_REPEATABLE + EPOCH_BITS, n_channels.bit_length()
     else:
         count_bits, index_bits = n_channels.bit_length(), (n_channels - 1).bit_length()
     return (mission.node_modem(node).frame_bytes - overhead) * 8 - count_bits - index_bits
@@ -335,8 +374,9 @@ class AckCodec:
     """The system entry acknowledging a stream (``ack`` in frames), after the mission channels.
 
     Fields: the node acknowledged (``peer``, its place in the mission), the stream (its place
-    among reliable/fragmented channels), the transfer id, ``base`` (next sequence number
-    expected, or first fragment missing) and ``bitmap`` (bit i: ``base + 1 + i`` arrived).
+    among reliable/fragmented channels), the ``epoch`` of that node's streams this receiver's
+    window belongs to, the transfer id, ``base`` (next sequence number expected, or first
+    fragment missing) and ``bitmap`` (bit i: ``base + 1 + i`` arrived).
     """
 
     index: int
@@ -348,23 +388,25 @@ class AckCodec:
 
     @property
     def wire_bits(self) -> int:
-        return self.peer_bits + self.stream_bits + TID_BITS + self.base_bits + WINDOW
+        return (self.peer_bits + self.stream_bits + EPOCH_BITS + TID_BITS + self.base_bits
+                + WINDOW)
 
-    def pack(self, peer: int, stream: int, tid: int, base: int, bitmap: int) -> int:
+    def pack(self, peer: int, stream: int, epoch: int, tid: int, base: int,
+             bitmap: int) -> int:
         n = peer
-        for value, bits in ((stream, self.stream_bits), (tid, TID_BITS),
+        for value, bits in ((stream, self.stream_bits), (epoch, EPOCH_BITS), (tid, TID_BITS),
                             (base, self.base_bits), (bitmap, WINDOW)):
             n = (n << bits) | (value & ((1 << bits) - 1))
         return n
 
-    def unpack(self, n: int) -> tuple[int, int, int, int, int]:
-        """``(peer, stream, tid, base, bitmap)``."""
+    def unpack(self, n: int) -> tuple[int, int, int, int, int, int]:
+        """``(peer, stream, epoch, tid, base, bitmap)``."""
         out = []
-        for bits in (WINDOW, self.base_bits, TID_BITS, self.stream_bits):
+        for bits in (WINDOW, self.base_bits, TID_BITS, EPOCH_BITS, self.stream_bits):
             out.append(n & ((1 << bits) - 1))
             n >>= bits
-        bitmap, base, tid, stream = out
-        return n, stream, tid, base, bitmap
+        bitmap, base, tid, epoch, stream = out
+        return n, stream, epoch, tid, base, bitmap
 
 
 @dataclass(frozen=True)
@@ -377,6 +419,7 @@ class ChannelTable:
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
     demand: bool = False  # frames may carry the @want interest bitmap
     queries: tuple[QuerySpec, ...] = ()  # queries across the water
+    wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.dccl.goby)
 
     @classmethod
     def from_mission(cls, mission: Mission) -> ChannelTable:
@@ -397,6 +440,7 @@ class ChannelTable:
         auth = mission.wire.auth
         return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
                    auth_tag_bytes=auth.tag_bytes if auth else 0,
+                   wire_format=mission.wire.format,
                    demand=mission.demand is not None, queries=compile_queries(mission))
 
     def __len__(self) -> int:

@@ -1,10 +1,12 @@
-"""The acoustic frame (wire version 1), pure.
+"""The acoustic frame (wire version 2), pure.
 
 Layout, most significant bit first::
 
     [DLBL]   dlbl missions only: 24 bits per foreign node of the SENDER, in mission order:
              µs from the sender's last reception from that node to this frame's start;
              0xFFFFFF = no data.
+    [epoch]  missions with reliable or fragmented channels: 8 bits, the sender's stream epoch
+             (it changes only when a node starts without its saved state; see bridge.core)
     count    ceil(log2(C + 1)) bits: how many entries follow (C = channels in the mission,
              plus ``@want`` in demand missions); 6 bits when entries may repeat
     count ×  index   ceil(log2 W) bits (0 bits when W == 1), W = C plus the ``@ack`` entry
@@ -19,8 +21,11 @@ Layout, most significant bit first::
              Only reliable, fragmented, keyed and system entries may repeat in a frame.
     pad      zero bits up to the next byte
     [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.wire.auth)
-    check    16 bits: CRC-16/CCITT (init 0xFFFF) over the mission fingerprint, then every
-             byte before the check. A frame from another mission file fails the check.
+    check    16 bits: CRC-16/CCITT (init 0xFFFF) of every byte before the check, XOR the first
+             two bytes of the mission fingerprint. A receiver XORs them back: its own
+             fingerprint means a whole frame; the same other value from one sender, frame
+             after frame, means that sender runs another mission file (a corrupt frame gives
+             a random value instead).
 
 :class:`FrameCodec` builds and parses frames for one :class:`~bridge.wire.channels.ChannelTable`;
 :meth:`FrameCodec.decode` raises :class:`~bridge.errors.FrameError` and nothing else.
@@ -36,6 +41,7 @@ from bridge.errors import DecodeError, FrameError
 from bridge.wire.auth import COUNTER_BYTES, Authenticator
 from bridge.wire.channels import (
     COUNT_BITS_REPEATABLE,
+    EPOCH_BITS,
     LAG_BITS,
     AckCodec,
     ChannelCodec,
@@ -56,8 +62,8 @@ class Entry:
     """One entry of a frame.
 
     ``values``: the element values (plain and reliable channels). ``header``: reliable
-    ``(seq, lag)``; fragment ``(tid, index, count)``; ``@ack`` ``(peer, stream, tid, base,
-    bitmap)``. ``chunk``: a fragment's bytes.
+    ``(seq, lag)``; fragment ``(tid, index, count)``; ``@ack`` ``(peer, stream, epoch, tid,
+    base, bitmap)``. ``chunk``: a fragment's bytes.
     """
 
     channel: ChannelCodec | AckCodec
@@ -68,10 +74,12 @@ class Entry:
 
 @dataclass(frozen=True)
 class DecodedFrame:
-    """What a frame carried: DLBL delays (µs or None) and its entries, in order."""
+    """What a frame carried: DLBL delays (µs or None), its entries in order, and the sender's
+    stream epoch (None in missions without streams)."""
 
     delays: tuple[int | None, ...]
     entries: tuple[Entry, ...]
+    epoch: int | None = None
 
     @property
     def channels(self) -> tuple[tuple[ChannelCodec, list[dict]], ...]:
@@ -79,6 +87,13 @@ class DecodedFrame:
         return tuple((e.channel, e.values) for e in self.entries
                      if isinstance(e.channel, ChannelCodec) and not e.channel.stream
                      and e.values is not None)
+
+
+def check_value(body: bytes, fingerprint: bytes) -> bytes:
+    """The check a frame of ``body`` ends with: CRC-16/CCITT XOR the fingerprint's first two
+    bytes."""
+    crc = binascii.crc_hqx(body, 0xFFFF) ^ int.from_bytes(fingerprint[:2], "big")
+    return crc.to_bytes(CHECK_BYTES, "big")
 
 
 class FrameCodec:
@@ -97,7 +112,8 @@ class FrameCodec:
         self.index_bits = (n - 1).bit_length() if n > 1 else 0
         self.delay_count = len(table.nodes) - 1 if table.dlbl else 0
         self.delay_bytes = DELAY_BYTES * self.delay_count
-        self._crc_init = binascii.crc_hqx(table.fingerprint, 0xFFFF)
+        self.epoch_bits = EPOCH_BITS if table.streams else 0
+        self.fingerprint16 = int.from_bytes(table.fingerprint[:2], "big")
 
     # -- sizes ---------------------------------------------------------------------------------
 
@@ -107,7 +123,7 @@ class FrameCodec:
 
     def body_capacity_bits(self, frame_bytes: int) -> int:
         """Bits left for the count field and channels in a frame of ``frame_bytes``."""
-        return max(0, (frame_bytes - self.overhead_bytes()) * 8)
+        return max(0, (frame_bytes - self.overhead_bytes()) * 8 - self.epoch_bits)
 
     def channel_cost_bits(self, channel: ChannelCodec | AckCodec) -> int:
         """Bits one entry takes in a frame: its index plus its payload."""
@@ -115,7 +131,8 @@ class FrameCodec:
 
     def frame_bytes_for(self, channels: Sequence[ChannelCodec | AckCodec]) -> int:
         """Size of a frame carrying exactly ``channels``."""
-        body = self.count_bits + sum(self.channel_cost_bits(c) for c in channels)
+        body = self.epoch_bits + self.count_bits + sum(self.channel_cost_bits(c)
+                                                       for c in channels)
         return self.overhead_bytes() + (body + 7) // 8
 
     # -- encode --------------------------------------------------------------------------------
@@ -124,18 +141,18 @@ class FrameCodec:
         self,
         items: Sequence[tuple[ChannelCodec | AckCodec, int]],
         delays: Sequence[int | None] = (),
-        now: float = 0.0,
+        epoch: int = 0,
     ) -> bytes:
-        """A frame carrying ``(channel, entry bits)`` items and, for DLBL, the delays.
-
-        ``now`` (seconds) seeds the authentication counter of authenticated missions.
-        """
+        """A frame carrying ``(channel, entry bits)`` items, for DLBL the delays, and in
+        missions with streams the sender's ``epoch``."""
         if len(delays) != self.delay_count:
             raise ValueError(f"expected {self.delay_count} DLBL delays, got {len(delays)}")
         acc, nbits = 0, 0
         for delay in delays:
             value = NO_DELAY if delay is None else min(max(int(delay), 0), DELAY_MAX_US)
             acc, nbits = (acc << 24) | value, nbits + 24
+        if self.epoch_bits:
+            acc, nbits = (acc << EPOCH_BITS) | (epoch & ((1 << EPOCH_BITS) - 1)), nbits + 8
         if len(items) >= 1 << self.count_bits:
             raise ValueError(f"{len(items)} entries exceed the frame's count field")
         acc, nbits = (acc << self.count_bits) | len(items), nbits + self.count_bits
@@ -151,10 +168,18 @@ class FrameCodec:
         if self.table.auth_tag_bytes:
             if self.auth is None:
                 raise ValueError("this mission authenticates frames: no Authenticator given")
-            data = self.auth.seal(data, now)
-        return data + binascii.crc_hqx(data, self._crc_init).to_bytes(CHECK_BYTES, "big")
+            data = self.auth.seal(data)
+        return data + check_value(data, self.table.fingerprint)
 
     # -- decode --------------------------------------------------------------------------------
+
+    def sender_fingerprint(self, frame: bytes) -> int | None:
+        """The 16-bit fingerprint ``frame`` was sent with (ours: a whole frame of this mission
+        file; another: corrupt, or another mission file), or None if too short to tell."""
+        if len(frame) <= CHECK_BYTES:
+            return None
+        body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
+        return binascii.crc_hqx(body, 0xFFFF) ^ int.from_bytes(check, "big")
 
     def decode(self, frame: bytes, src: int | None = None) -> DecodedFrame:
         """Parse untrusted bytes; raise :class:`FrameError` for anything but a valid frame.
@@ -164,13 +189,14 @@ class FrameCodec:
         if not isinstance(frame, bytes | bytearray | memoryview):
             raise FrameError(f"a frame is bytes, not {type(frame).__name__}")
         frame = bytes(frame)
-        minimum = self.overhead_bytes() + (self.count_bits + 7) // 8
+        minimum = self.overhead_bytes() + (self.epoch_bits + self.count_bits + 7) // 8
         if len(frame) < minimum:
             raise FrameError(f"truncated frame: {len(frame)} bytes, at least {minimum} needed")
         body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
-        if binascii.crc_hqx(body, self._crc_init) != int.from_bytes(check, "big"):
-            raise FrameError("check failed: corrupt frame, or sent with another mission file",
-                             "check")
+        fingerprint = binascii.crc_hqx(body, 0xFFFF) ^ int.from_bytes(check, "big")
+        if fingerprint != self.fingerprint16:
+            raise FrameError("check failed: corrupt frame, or sent with another mission file "
+                             f"(fingerprint {fingerprint:04x})", "check", fingerprint)
         if self.table.auth_tag_bytes:
             if self.auth is None or src is None:
                 raise FrameError("cannot authenticate: no key or no sender address", "forged")
@@ -187,6 +213,7 @@ class FrameCodec:
 
         raw = [take(24) for _ in range(self.delay_count)]
         delays = tuple(None if d == NO_DELAY else d for d in raw)
+        epoch = take(EPOCH_BITS) if self.epoch_bits else None
         count = take(self.count_bits)
         wire = self.wire
         if not self.repeats and count > len(wire):
@@ -206,7 +233,7 @@ class FrameCodec:
                 raise FrameError(f"channel {channel.name!r}: {exc}") from None
         if left >= 8 or take(left) != 0:
             raise FrameError("trailing data after the last channel")
-        return DecodedFrame(delays, tuple(entries))
+        return DecodedFrame(delays, tuple(entries), epoch)
 
     def _entry(self, channel: ChannelCodec | AckCodec | NameCodec, payload: int) -> Entry:
         """One entry's fields, checked; raises :class:`DecodeError` when malformed."""
@@ -225,10 +252,11 @@ class FrameCodec:
             except ValueError as exc:
                 raise DecodeError(str(exc)) from None
         if isinstance(channel, AckCodec):
-            peer, stream, tid, base, bitmap = channel.unpack(payload)
+            header = channel.unpack(payload)
+            peer, stream = header[:2]
             if peer >= len(self.table.nodes) or stream >= len(self.table.streams):
                 raise DecodeError(f"acknowledges unknown node {peer} or stream {stream}")
-            return Entry(channel, header=(peer, stream, tid, base, bitmap))
+            return Entry(channel, header=header)
         if channel.fragmented:
             data_bits = 8 * channel.chunk_bytes
             chunk = (payload & ((1 << data_bits) - 1)).to_bytes(channel.chunk_bytes, "big")

@@ -1,9 +1,16 @@
-"""Payloads on Zenoh keys: msgpack by default, JSON accepted, chosen by the sample's encoding."""
+"""Payloads on Zenoh keys: msgpack by default, JSON accepted, chosen by the sample's encoding.
+
+Payloads come from anyone on the Zenoh network, so decoding is bounded: text must be strict
+UTF-8 and nesting at most :data:`MAX_DEPTH` deep; anything else is a :class:`DecodeError` (a
+counted drop for the caller), never a ``RecursionError``.
+"""
 
 from __future__ import annotations
 
 import json
 import math
+import re
+from itertools import accumulate
 from typing import Any
 
 import msgpack
@@ -13,26 +20,86 @@ from bridge.errors import DecodeError
 MSGPACK = "application/msgpack"
 JSON = "application/json"
 
+MAX_DEPTH = 32
+"""Deepest nesting of lists and maps a payload may have. Channel fields address values by
+dotted paths a few levels deep; 32 leaves ample room while keeping every parser (and every
+walk over a decoded value) far from Python's recursion limit (1000), which a 200 000-deep
+``[[[[...`` would otherwise hit inside ``json.loads``."""
+
+# A JSON string, from its opening quote to its closing one or to the end of the text. The pattern
+# can always match once it starts, so the regex engine never retries it further on: linear time,
+# even for text full of unterminated strings and escaped quotes.
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.?)*"?', re.DOTALL)
+_NOT_BRACKET = re.compile(r"[^\[\]{}]+")
+_STEP = {"[": 1, "{": 1, "]": -1, "}": -1}
+
+
+def _json_text(data: bytes) -> str:
+    """``data`` as JSON text: UTF-8 (or the UTF-16/32 JSON allows), strictly decoded, no
+    deeper than :data:`MAX_DEPTH` (checked before parsing, in linear time)."""
+    try:
+        text = data.decode(json.detect_encoding(data))  # strict: no lone surrogates either
+    except UnicodeDecodeError as exc:
+        raise DecodeError(f"not valid UTF-8: {exc}") from None
+    if text.count("[") + text.count("{") > MAX_DEPTH:  # else it cannot nest deeper
+        brackets = _NOT_BRACKET.sub("", _JSON_STRING.sub("", text))
+        if max(accumulate(map(_STEP.__getitem__, brackets)), default=0) > MAX_DEPTH:
+            raise DecodeError(f"nested deeper than {MAX_DEPTH} levels")
+    return text
+
+
+def _check_depth(value: Any) -> Any:
+    """``value`` unchanged, or :class:`DecodeError` if it nests deeper than :data:`MAX_DEPTH`."""
+    stack: list[tuple[Any, int]] = [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict):
+            children: Any = item.values()
+        elif isinstance(item, list | tuple):
+            children = item
+        else:
+            continue
+        if depth >= MAX_DEPTH:
+            raise DecodeError(f"nested deeper than {MAX_DEPTH} levels")
+        stack.extend((child, depth + 1) for child in children)
+    return value
+
+
+def _json(data: bytes) -> Any:
+    return json.loads(_json_text(data))
+
+
+def _msgpack(data: bytes) -> Any:
+    # strict UTF-8 for str (msgpack's default); msgpack's own stack caps nesting at 1024
+    # (StackError), and _check_depth brings that down to MAX_DEPTH.
+    try:
+        value = msgpack.unpackb(data, raw=False, strict_map_key=False)
+    except msgpack.StackError:
+        raise DecodeError(f"nested deeper than {MAX_DEPTH} levels") from None
+    return _check_depth(value)
+
 
 def decode_payload(data: bytes, encoding: str) -> Any:
-    """The value a sample carries. Raises :class:`DecodeError` when it is neither format."""
+    """The value a sample carries. Raises :class:`DecodeError` when it is neither format, is not
+    strict UTF-8, or nests deeper than :data:`MAX_DEPTH`."""
     kind = encoding.split(";", 1)[0]
     try:
         if kind in (MSGPACK, "application/x-msgpack"):
-            return msgpack.unpackb(data, raw=False, strict_map_key=False)
+            return _msgpack(data)
         if kind in (JSON, "text/json", "text/plain"):
-            return json.loads(data)
+            return _json(data)
     except (ValueError, msgpack.UnpackException) as exc:
         raise DecodeError(f"not valid {kind}: {exc}") from None
     # untagged (zenoh/bytes): JSON text first, as a person typing a value would send it
     try:
-        return json.loads(data)
-    except ValueError:
-        pass
+        return _json(data)
+    except ValueError as exc:  # DecodeError too: it may still be msgpack
+        not_json = exc
     try:
-        return msgpack.unpackb(data, raw=False, strict_map_key=False)
+        return _msgpack(data)
     except (ValueError, msgpack.UnpackException) as exc:
-        raise DecodeError(f"neither JSON nor msgpack ({encoding}): {exc}") from None
+        raise DecodeError(f"neither JSON ({not_json}) nor msgpack ({exc}) ({encoding})"
+                          ) from None
 
 
 def _jsonable(value: Any) -> Any:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from bridge.errors import BackendError
-from bridge.modems import ModemBackend, available_backends, load_backend
+from bridge.modems.base import ModemBackend
+from bridge.modems.registry import available_backends, load_backend
 from bridge.modems.sim import SimBackend
 from bridge.modems.udp import UdpBackend
 

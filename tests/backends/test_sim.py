@@ -14,9 +14,9 @@ import pytest
 
 from bridge.errors import BackendError
 from bridge.modems.base import ModemSetup, Reception
+from bridge.modems.presets import Preset
 from bridge.modems.sim import SimBackend
 from bridge.sim.ocean import LossCurve
-from bridge.sim.presets import Preset
 from bridge.sim.service import WaterService, serve_water
 
 # 50 ms overhead + 1 ms per byte, sound at 1500 m/s: fast enough for tests, slow enough to measure.

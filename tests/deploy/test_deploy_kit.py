@@ -28,7 +28,7 @@ UNIT = REPO / "deploy" / "systemd" / "zab@.service"
 
 
 @pytest.mark.parametrize("path", sorted(MISSIONS.glob("*.yaml")), ids=lambda p: p.name)
-def test_every_example_mission_passes_zab_check(path: Path) -> None:
+def test_every_example_mission_passes_zab_check(path: Path, mission_key: str) -> None:
     result = RUNNER.invoke(app, ["check", str(path)])
     assert result.exit_code == 0, result.output
 
@@ -71,8 +71,10 @@ def _wait_for(items: list, count: int, seconds: float = 5.0) -> None:
         time.sleep(0.05)
 
 
-def test_vehicle_router_joins_the_surface_router_and_routes() -> None:
-    """A surfaced vehicle: its apps' `lsv/nav` reaches a client of the surface router."""
+def test_vehicle_router_without_a_certificate_only_reads() -> None:
+    """A vehicle router that joins over the plain loopback listener is a station tool: the
+    station's `gps` reaches its apps, but its `lsv/nav` never reaches the surface (a surfaced
+    vehicle joins over TLS with its certificate: tests/deploy/test_tls.py)."""
     surface_port, vehicle_port, dead = free_port(), free_port(), free_port()
     surface = zenoh.open(_on_loopback("surface-router", [f"tcp/127.0.0.1:{surface_port}"]))
     sessions = [surface]
@@ -81,16 +83,25 @@ def test_vehicle_router_joins_the_surface_router_and_routes() -> None:
             "vehicle", [f"tcp/127.0.0.1:{vehicle_port}"],
             [f"tls/127.0.0.1:{dead}", f"tcp/127.0.0.1:{surface_port}"]))
         sessions.append(vehicle)
-        app_on_vehicle, gui = _client(vehicle_port), _client(surface_port)
-        sessions += [app_on_vehicle, gui]
-        got: list[tuple[str, bytes]] = []
-        gui.declare_subscriber("lsv/**", lambda s: got.append((str(s.key_expr),
-                                                                s.payload.to_bytes())))
-        deadline = time.time() + 5
-        while not got and time.time() < deadline:
+        app_on_vehicle, tool = _client(vehicle_port), _client(surface_port)
+        sessions += [app_on_vehicle, tool]
+        on_vehicle: list[tuple[str, bytes]] = []
+        app_on_vehicle.declare_subscriber("gps", lambda s: on_vehicle.append(
+            (str(s.key_expr), s.payload.to_bytes())))
+        at_surface: list[tuple[str, bytes]] = []
+        tool.declare_subscriber("lsv/**", lambda s: at_surface.append((str(s.key_expr),
+                                                                        s.payload.to_bytes())))
+        deadline = time.time() + 10
+        while not on_vehicle and time.time() < deadline:
+            app_on_vehicle.put("lsv/nav", b"fix")
+            tool.put("gps", b"station fix")
+            time.sleep(0.1)
+        assert on_vehicle and on_vehicle[0] == ("gps", b"station fix")
+        for _ in range(5):  # puts after the route is known both ways
             app_on_vehicle.put("lsv/nav", b"fix")
             time.sleep(0.1)
-        assert got and got[0] == ("lsv/nav", b"fix")
+        time.sleep(0.5)
+        assert at_surface == []
     finally:
         for s in reversed(sessions):
             s.close()
@@ -98,8 +109,9 @@ def test_vehicle_router_joins_the_surface_router_and_routes() -> None:
 
 def test_router_acl_lets_only_operators_publish_commands(tmp_path: Path) -> None:
     """The router's own rules and policies, with subjects named by username instead of by TLS
-    certificate (no certificates on a test machine): a viewer's command is dropped, an
-    operator's goes through, an operator cannot speak for a vehicle."""
+    certificate (tests/deploy/test_acl.py has the certificates): a viewer's command is dropped,
+    an operator's goes through, an operator cannot speak for a vehicle. Every client here is
+    also a station tool (plain TCP on loopback), which adds no right to publish."""
     users = tmp_path / "users.txt"
     users.write_text("operator-console:op\nviewer:vw\nsurface-bridge:br\nlsv:ls\n")
     port = free_port()
@@ -108,10 +120,7 @@ def test_router_acl_lets_only_operators_publish_commands(tmp_path: Path) -> None
         {"user": "router", "password": "rt", "dictionary_file": str(users)}))
     subjects = json.loads(config.get_json("access_control/subjects"))
     for subject in subjects:
-        if subject["id"] == "local":
-            subject.pop("interfaces")
-            subject["usernames"] = ["surface-bridge"]
-        else:
+        if subject.get("cert_common_names"):
             subject["usernames"] = subject.pop("cert_common_names")
     config.insert_json5("access_control/subjects", json.dumps(subjects))
     router = zenoh.open(config)

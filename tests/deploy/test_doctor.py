@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
+import secrets
 import socket
 import subprocess
 import sys
@@ -132,7 +134,8 @@ def test_doctor_command_prints_fixes_and_exits_1(tmp_path: Path) -> None:
     mission.write_text(yaml.safe_dump(loaded.mission.model_dump(
         by_alias=True, mode="json", exclude_unset=True)))
     done = subprocess.run([sys.executable, "-m", "bridge", "doctor", str(mission), "--node",
-                           "gcv"], capture_output=True, text=True, timeout=60, cwd=REPO)
+                           "gcv"], capture_output=True, text=True, timeout=60, cwd=REPO,
+                          env={**os.environ, "ZAB_KEY": secrets.token_hex(32)})
     assert done.returncode == 1, done.stdout + done.stderr
     assert "FAIL device" in done.stdout and "fix:" in done.stdout
     assert "gcv: 1 to fix" in done.stdout

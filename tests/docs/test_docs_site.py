@@ -32,7 +32,7 @@ def _text(html: Path) -> str:
 
 
 def test_every_page_of_the_nav_is_built(site: Path) -> None:
-    for page in ("concepts", "mission-file", "mission-reference", "wire-format", "backends",
+    for page in ("concepts", "mission-file", "mission-reference", "wire-format", "dccl", "backends",
                  "ranging", "gui", "deploy", "mission-logs", "developers"):
         assert (site / page / "index.html").is_file(), page
     assert (site / "examples" / "rust" / "src" / "main.rs").is_file()

@@ -15,10 +15,10 @@ from bridge.errors import BackendError
 from bridge.modems.base import ModemRange, ModemSetup
 from bridge.modems.evologics.driver import EvologicsBackend
 from bridge.modems.evologics.emulator import EvologicsEmulator
+from bridge.modems.presets import get_preset
 from bridge.modems.pty_host import PtyHost
 from bridge.modems.transport import ByteTransport
 from bridge.sim.ocean import LossCurve
-from bridge.sim.presets import get_preset
 from bridge.sim.service import WaterService
 
 # airtime 20 ms + 1 ms/byte, sound at 1500 m/s: 150 m is 100 ms

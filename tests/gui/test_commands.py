@@ -142,3 +142,10 @@ def test_form_fields_show_the_units_the_mission_declares(morph):
     action, leg = command.elements[0].fields
     assert (action.units, leg.units) == (None, "legs")
     assert loaded.table.fingerprint == morph.table.fingerprint  # units are not on the wire
+
+
+def test_the_form_opens_on_a_channel_named_as_a_command(morph):
+    """Without an acknowledged channel, the command channel comes before a sensor value (the
+    surface's GPS fix), whatever their order in the mission."""
+    assert [c.channel for c in command_channels(morph, "ssv")] == [
+        "mission_command", "surface_fix"]

@@ -79,7 +79,7 @@ def test_the_websocket_says_hello_refuses_bad_messages_and_other_origins():
                     mission = hello["mission"]
                     assert (mission["mission"], mission["node"]) == ("morph", "ssv")
                     assert [c["channel"] for c in mission["commands"]] == [
-                        "surface_fix", "mission_command"]
+                        "mission_command", "surface_fix"]  # the command channel first
                     feed = next(i for i in hello["items"] if i["kind"] == "feed")
                     assert feed["connected"] is False
                     await ws.send_str("{not json")

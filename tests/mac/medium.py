@@ -11,8 +11,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from bridge.core.mac import Schedule
+from bridge.modems.presets import Preset
 from bridge.sim.ocean import Delivery, Loss, Ocean, Position, TransmitRefused
-from bridge.sim.presets import Preset
 
 
 @dataclass

@@ -15,7 +15,7 @@ from bridge.core.mac import (
 from bridge.errors import MissionError
 from bridge.mission.check import check_mission
 from bridge.mission.loader import LoadedMission, load_mission, parse_mission
-from bridge.sim.presets import get_preset
+from bridge.modems.presets import get_preset
 from tests.conftest import MISSIONS
 
 BASE = """\

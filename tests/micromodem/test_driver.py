@@ -16,8 +16,8 @@ from bridge.errors import BackendError
 from bridge.modems.base import ModemRange, ModemSetup
 from bridge.modems.micromodem.driver import MicromodemBackend
 from bridge.modems.micromodem.emulator import MicromodemEmulator
+from bridge.modems.presets import get_preset
 from bridge.modems.pty_host import PtyHost
-from bridge.sim.presets import get_preset
 from bridge.sim.service import WaterService
 
 # rate-0 figures sped up 40x so that a test takes well under a second; real sound speed

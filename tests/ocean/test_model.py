@@ -7,8 +7,8 @@ import math
 
 import pytest
 
+from bridge.modems.presets import Preset, get_preset
 from bridge.sim.ocean import Delivery, Loss, LossCurve, Ocean, TransmitRefused, TxDone
-from bridge.sim.presets import Preset, get_preset
 
 # 0.1 s overhead + 1 ms per byte; sound at 1500 m/s; heard up to 3 km.
 FAST = Preset(

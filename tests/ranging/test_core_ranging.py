@@ -14,6 +14,7 @@ MISSION = {
     "mission": "pings",
     "mac": {"type": "none"},
     "ranging": {"ping": {"interval_s": 5.0}},
+    "link": {"heartbeat_s": 3600.0},
     "nodes": {
         "a1": {"address": 1, "role": "surface", "position": {"x": 0, "y": 0, "depth": 0}},
         "a2": {"address": 2, "role": "surface", "position": {"x": 0, "y": 40, "depth": 0}},
@@ -31,6 +32,7 @@ def test_ranges_turns_and_no_fix_without_dlbl() -> None:
     assert core.next_due() == -math.inf  # a range is due at once, even with no data
     assert core.range_due(100.0) == 1
     core.range_asked(1, 100.0)
+    core.last_tx = 100.0  # the heartbeat is not what is due next
     assert core.range_due(101.0) is None and core.next_due() == 105.0
     core.modem_range(ModemRange(1, math.dist((30, 20), (0, 0)) / 1500.0, "ping", 101.0), 101.5)
     out = core.take()
@@ -54,7 +56,8 @@ def test_ranges_turns_and_no_fix_without_dlbl() -> None:
     assert core.take() == []
     # frames still decode without DLBL delays in them
     peer = NodeCore(parse_mission(yaml.safe_dump(MISSION)), "a1")
-    assert peer.positioning is None and peer.next_due() is None  # a1 is only ranged to
+    assert peer.positioning is None  # a1 is only ranged to
+    assert peer.next_due(100.0) == 3700.0  # its first heartbeat, one period after its start
     core.ingest("n", b'{"v": 4}', "application/json", 110.0)
     frame = core.build_frame(110.0, 110.0)
     assert frame is not None

@@ -13,9 +13,9 @@ import yaml
 
 from bridge.core.node import Status
 from bridge.mission.loader import parse_mission
+from bridge.mission.path import Path
 from bridge.ranging import Fix, Track
 from bridge.runtime.virtual_fleet import FastFleet
-from bridge.sim.path import Path
 from tests.conftest import on_free_ports
 from tests.harness import Inbox, outside_session, running_fleet
 

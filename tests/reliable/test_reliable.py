@@ -115,19 +115,26 @@ def test_queue_full_rejects_or_drops_oldest() -> None:
     assert [(r.id, r.state) for r in reports] == [(16, "failed"), (20, "queued")]
 
 
-def test_a_restarted_sender_continues_from_the_receivers_base() -> None:
+def test_a_receiver_that_restarted_afresh_is_sent_again_what_it_held() -> None:
     sender, _ = make()
     receiver = ReliableReceiver()
     for n in range(3):
         sender.offer(n, 0.0)
-    deliver(sender, receiver, 0.0)
+    first = sender.flight[0]
+    sender.sent([first], 0.0)  # lost on the way
+    entries = [(p.seq, sender.entry(p)) for p in sender.due(0.0)]
+    sender.sent(sender.due(0.0), 0.0)
+    for seq, bits in entries:
+        receiver.on_entry(seq, (bits >> sender.channel.bits) & 0xF, {"n": seq})
     sender.on_ack("auv", *receiver.ack(), 1.0)
-    assert receiver.expected == 3
-    fresh, _ = make()  # the sender rebooted: numbers from 0 again, the receiver expects 3
-    fresh.offer(42, 2.0)
-    assert deliver(fresh, receiver, 2.0) == [] and receiver.duplicates == 1
-    assert fresh.on_ack("auv", *receiver.ack(), 3.0) == []  # not taken as delivered
-    assert deliver(fresh, receiver, 3.0) == [42]
+    assert sender.due(100.0) == [first]  # the others are held by the receiver: not resent
+    sender.resync("auv")  # it restarted without its state: it holds nothing now
+    assert sender.due(1.0) == sender.flight and len(sender.flight) == 3
+    fresh = ReliableReceiver()
+    for item in sender.due(1.0):
+        fresh.on_entry(item.seq, (sender.entry(item) >> sender.channel.bits) & 0xF, item.id)
+    reports = sender.on_ack("auv", *fresh.ack(), 2.0)
+    assert [r.state for r in reports] == ["delivered"] * 3 and not sender.flight
 
 
 def test_a_restarted_sender_numbering_past_the_base_is_delivered_not_skipped() -> None:

@@ -51,6 +51,11 @@ function duration(s) {
   return s < 10 ? s.toFixed(1) + " s" : Math.round(s) + " s";
 }
 
+function missionInterval(s) {
+  // a channel's interval_s as the mission file says it: 20 -> "20 s", 0 -> "each turn"
+  return s > 0 ? Number(s.toPrecision(3)) + " s" : "each turn";
+}
+
 function clockText(t) {
   const d = new Date((t - state.offset) * 1000);
   return d.toLocaleTimeString([], { hour12: false });
@@ -246,24 +251,43 @@ function renderMap() {
   el("text", { x: width - 12, y: 18, "text-anchor": "end", class: "north" }, svg)
     .textContent = "N ↑";
 
-  // ranges, measured by an observer to a peer: the peer is somewhere on the circle. Labels
-  // sit on the side away from the peer (where its own label is), fanned out so that
-  // concentric circles keep readable labels.
-  ranges.forEach((r, index) => {
+  // ranges, measured by an observer to a peer: the peer is somewhere on the circle. Each
+  // label sits on its circle, preferably on the side away from the peer (where the peer's own
+  // label is), at the first angle where it overlaps no other label or vehicle and stays on
+  // the map, so that concentric circles keep readable labels.
+  const taken = Object.entries(places).map(([name, p]) => ({
+    x0: sx(p.x) - 9, y0: sy(p.y) - 9, x1: sx(p.x) + 14 + 7 * (name.length + 7), y1: sy(p.y) + 9,
+  }));
+  const fan = {};  // per observer, its circles from the smallest out: the k-th is fanned by k
+  for (const r of [...ranges].sort((a, b) => a.range_m - b.range_m)) {
+    (fan[r.observer] ||= []).push(r);
+  }
+  const labels = [];
+  ranges.forEach((r) => {
     const c = places[r.observer];
     const fade = 1 - (now - r.time) / RANGE_FADE_S;
-    const g = el("g", { class: "range", "data-observer": r.observer, "data-peer": r.peer,
-                        opacity: (0.25 + 0.75 * fade).toFixed(2) }, svg);
+    const opacity = (0.25 + 0.75 * fade).toFixed(2);
+    const attrs = { "data-observer": r.observer, "data-peer": r.peer, opacity };
+    const g = el("g", { class: "range", ...attrs }, svg);
     const radius = Math.max(1, r.range_m * scale);
     el("circle", { cx: sx(c.x), cy: sy(c.y), r: radius }, g);
     const peer = places[r.peer];
     const toward = peer ? Math.atan2(sy(peer.y) - sy(c.y), sx(peer.x) - sx(c.x)) : -Math.PI / 2;
-    const angle = toward + Math.PI + (index - (ranges.length - 1) / 2) * 0.35;
-    const label = el("text", { x: sx(c.x) + radius * Math.cos(angle),
-                               y: sy(c.y) + radius * Math.sin(angle) + 4,
-                               "text-anchor": "middle" }, g);
-    label.textContent = `${r.peer} ${r.range_m.toFixed(1)} m`;
+    const siblings = fan[r.observer];
+    const k = siblings.indexOf(r) - (siblings.length - 1) / 2;
+    labels.push({ r, attrs, x: sx(c.x), y: sy(c.y), radius, preferred: toward + Math.PI + k * 0.7 });
   });
+  for (const { r, attrs, x, y, radius, preferred } of labels) {  // above every circle
+    const label = el("text", { "text-anchor": "middle" },
+                     el("g", { class: "range label", ...attrs }, svg));
+    label.textContent = `${r.peer} ${r.range_m.toFixed(1)} m`;
+    const spot = labelSpot(x, y, radius, preferred,
+                           label.getComputedTextLength() || 6.5 * label.textContent.length,
+                           taken, width, height);
+    label.setAttribute("x", spot.x.toFixed(1));
+    label.setAttribute("y", (spot.y + 4).toFixed(1));
+    taken.push(spot.box);
+  }
 
   // tracks
   for (const v of Object.values(state.nodes)) {
@@ -301,6 +325,26 @@ function renderMap() {
       `${name}: x ${p.x.toFixed(1)} m, y ${p.y.toFixed(1)} m, depth ${(p.depth || 0).toFixed(1)} m`
       + (p.time !== null ? `, ${age(p.time)} ago` : " (mission position)");
   }
+}
+
+const LABEL_STEPS = 48;  // candidate angles around a range circle for its label
+
+function labelSpot(cx, cy, radius, preferred, textWidth, taken, width, height) {
+  // The point of the circle nearest ``preferred`` (radians) where a label of ``textWidth``
+  // overlaps none of ``taken`` and stays inside the map; the preferred point if none is free.
+  const boxAt = (angle) => {
+    const x = cx + radius * Math.cos(angle), y = cy + radius * Math.sin(angle);
+    return { x, y, box: { x0: x - textWidth / 2 - 4, y0: y - 10, x1: x + textWidth / 2 + 4,
+                          y1: y + 9 } };
+  };
+  const clear = (b) => b.x0 >= 0 && b.y0 >= 0 && b.x1 <= width && b.y1 <= height
+    && !taken.some((t) => b.x0 < t.x1 && t.x0 < b.x1 && b.y0 < t.y1 && t.y0 < b.y1);
+  for (let i = 0; i < LABEL_STEPS; i++) {  // 0, +1, -1, +2, -2 ... steps from the preferred
+    const k = (i % 2 ? 1 : -1) * Math.ceil(i / 2);
+    const spot = boxAt(preferred + k * 2 * Math.PI / LABEL_STEPS);
+    if (clear(spot.box)) return spot;
+  }
+  return boxAt(preferred);
 }
 
 // ---- vehicles ------------------------------------------------------------------------------
@@ -384,7 +428,11 @@ function renderVehicles() {
         tr.dataset.id = id;
         tr.dataset.channel = item.channel;
         tr.dataset.element = item.element;
-        const name = make("td", "channel", item.channel, tr);
+        const name = make("td", "channel", null, tr);
+        item.channel.split("_").forEach((part, i) => {  // may wrap after "_", never mid-word
+          if (i) { name.append("_"); make("wbr", null, null, name); }
+          name.append(part);
+        });
         make("div", "muted key", item.key, name);
         make("td", "value", "", tr);
         make("td", "age", "", tr);
@@ -392,7 +440,18 @@ function renderVehicles() {
       }
       tr.querySelector(".value").textContent = short(item.value);
       tr.querySelector(".age").textContent = age(item.time);
-      tr.querySelector(".interval").textContent = duration(item.interval_s);
+      const cell = tr.querySelector(".interval");
+      if (node.name === mission.node) {
+        // this node's own inputs: how often the mission sends them, not how often a local
+        // application happens to publish them
+        const channel = mission.channels.find((c) => c.name === item.channel);
+        cell.textContent = channel ? missionInterval(channel.interval_s) : "—";
+        cell.title = "sent at most this often (mission); published here every "
+          + duration(item.interval_s);
+      } else {
+        cell.textContent = duration(item.interval_s);
+        cell.title = "time between the last two arrivals";
+      }
       tr.dataset.count = item.count;
     }
   }

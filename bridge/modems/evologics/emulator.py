@@ -39,10 +39,10 @@ from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemSetup, Reception
 from bridge.modems.evologics.commands import CommandReader, HostBurst, HostCommand, SendRequest
 from bridge.modems.evologics.protocol import BROADCAST, Mode, wrap
+from bridge.modems.presets import UnknownPresetError, get_preset
 from bridge.modems.pty_host import PtyHost, TcpHost
 from bridge.modems.setup import modem_setup
 from bridge.modems.sim import SimBackend
-from bridge.sim.presets import UnknownPresetError, get_preset
 
 __all__ = [
     "ACK_TURNAROUND_S",

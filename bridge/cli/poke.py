@@ -1,0 +1,133 @@
+"""``zab listen`` and ``zab put``: poke a vehicle's Zenoh endpoint without writing code.
+
+Both join the endpoint as a Zenoh client (no listening socket, no scouting) and close the
+session on every path: normal end, Ctrl-C, a bad argument or a failed put.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import queue
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import msgpack
+import zenoh
+
+from bridge.errors import SessionError
+from bridge.mission.model import ZenohSettings
+from bridge.runtime.session import close_quietly, open_session
+
+MSGPACK = "application/msgpack"
+POLL_S = 0.2  # how often the listen loop wakes to notice Ctrl-C and its end time
+
+
+class PokeError(Exception):
+    """An endpoint, key or value that cannot be used; the message is ready to show."""
+
+
+@contextmanager
+def client(endpoint: str) -> Iterator[zenoh.Session]:
+    """A client session to ``endpoint``, closed however the block ends."""
+    try:
+        session = open_session(ZenohSettings(mode="client", listen=[], connect=[endpoint]))
+    except SessionError as exc:
+        raise PokeError(f"cannot connect to {endpoint}: {exc}") from None
+    try:
+        yield session
+    finally:
+        close_quietly(session)
+
+
+def decode(payload: bytes, encoding: str) -> Any:
+    """A payload as Python data: msgpack or JSON by its encoding, else whichever parses."""
+    kind = encoding.split(";", 1)[0]
+    tries: list[Callable[[bytes], Any]] = [lambda b: msgpack.unpackb(b, raw=False)]
+    if kind in ("application/json", "text/json"):
+        tries.insert(0, json.loads)
+    else:
+        tries.append(json.loads)
+    for parse in tries:
+        try:
+            return parse(payload)
+        except ValueError:
+            continue
+    try:
+        return payload.decode("utf-8")
+    except UnicodeDecodeError:
+        return {"bytes": payload.hex()}
+
+
+def _plain(value: Any) -> Any:
+    """JSON-ready: floats rounded to 9 significant digits (no 9.536743164062498e-08)."""
+    if isinstance(value, float):
+        return float(f"{value:.9g}") if math.isfinite(value) else str(value)
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, bytes):
+        return value.hex()
+    return value
+
+
+def format_sample(key: str, payload: bytes, encoding: str) -> str:
+    """One line: the key, then the decoded value as compact JSON."""
+    return f"{key} {json.dumps(_plain(decode(payload, encoding)), separators=(', ', ': '))}"
+
+
+def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
+           count: int | None = None, duration: float | None = None,
+           ready: Callable[[], None] | None = None) -> int:
+    """Print each value arriving on ``keyexpr`` until ``count`` values, ``duration`` seconds
+    or Ctrl-C; return how many were shown. ``ready`` is called once the subscriber is up."""
+    try:
+        zenoh.KeyExpr(keyexpr)
+    except zenoh.ZError as exc:
+        raise PokeError(f"invalid key expression {keyexpr!r}: {exc}") from None
+    arrived: queue.Queue[str] = queue.Queue()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.DELETE:
+            arrived.put(f"{sample.key_expr} (deleted)")
+            return
+        arrived.put(format_sample(str(sample.key_expr), sample.payload.to_bytes(),
+                                  str(sample.encoding)))
+
+    end = None if duration is None else time.monotonic() + duration
+    shown = 0
+    with client(endpoint) as session:
+        session.declare_subscriber(keyexpr, on_sample)
+        if ready is not None:
+            ready()
+        while count is None or shown < count:
+            wait = POLL_S if end is None else min(POLL_S, end - time.monotonic())
+            if wait <= 0:
+                break
+            try:
+                line = arrived.get(timeout=wait)
+            except queue.Empty:
+                continue
+            show(line)
+            shown += 1
+    return shown
+
+
+def put(endpoint: str, key: str, value_json: str) -> bytes:
+    """Publish the JSON value ``value_json`` on ``key`` as msgpack; return the payload sent."""
+    try:
+        value = json.loads(value_json)
+    except ValueError as exc:
+        raise PokeError(f"the value is not JSON ({exc}): {value_json!r}") from None
+    try:
+        zenoh.KeyExpr(key)
+    except zenoh.ZError as exc:
+        raise PokeError(f"invalid key {key!r}: {exc}") from None
+    payload = msgpack.packb(value)
+    with client(endpoint) as session:
+        session.put(key, payload, encoding=zenoh.Encoding(MSGPACK),
+                    congestion_control=zenoh.CongestionControl.BLOCK)
+    return payload

@@ -1,0 +1,192 @@
+"""The words of ``zab demo``: what each part of the tour is about to show, and the summary.
+
+Pure formatting over the mission and the run's numbers; :mod:`bridge.cli.demo` runs the
+fleet and calls these at the right moments. A new part (queries, authentication ...) is its
+title in :data:`PARTS`, a method here for its words, and a step in ``demo._story``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from bridge.mission.check import check_mission
+from bridge.mission.loader import LoadedMission
+from bridge.wire.channels import ChannelCodec
+
+PARTS = {
+    "values": "Values crossing the water, quantised",
+    "latest": "Latest value, not a queue",
+    "command": "A reliable command over a lossy link",
+    "fixes": "Position fixes from acoustic ranges",
+    "summary": "Summary",
+}
+
+
+def number(value: float, step: float | None) -> str:
+    """``value`` with as many decimals as its quantisation ``step`` warrants (no float noise:
+    9.536743164062498e-08 prints as 0.0000 at a 0.0001 step)."""
+    if isinstance(value, int) and (step is None or float(step).is_integer()):
+        return str(value)
+    if step is None or step <= 0 or not math.isfinite(step):
+        return f"{value:.6g}"
+    exponent = math.log10(step)
+    decimals = max(0, -math.floor(exponent) + (0 if exponent.is_integer() else 1))
+    return f"{value:.{decimals}f}"
+
+
+def get_path(value: Any, path: str) -> Any:
+    """The value at dotted ``path`` of a nested mapping (None if absent)."""
+    for part in path.split(".") if path else ():
+        if not isinstance(value, Mapping):
+            return None
+        value = value.get(part)
+    return value
+
+
+def quantisation_lines(channel: ChannelCodec, element: int, sent: Any, got: Any) -> list[str]:
+    """Per field of one element: the value published, the value delivered, and why they
+    differ (the field's bits and step)."""
+    lines = []
+    for field in channel.elements[element].layout.fields:
+        before, after = get_path(sent, field.path), get_path(got, field.path)
+        step = getattr(field, "step", None)
+        name = field.path or "(value)"
+        if isinstance(before, int | float) and isinstance(after, int | float) \
+                and not isinstance(before, bool):
+            why = _bits(field.bits) + (f", step {step:.3g}" if step else "")
+            lines.append(f"     {name:<10} {number(before, step):>10} → "
+                         f"{number(after, step):<10} {why}")
+        else:
+            lines.append(f"     {name:<10} {before!s:>10} → {after!s:<10} {_bits(field.bits)}")
+    return lines
+
+
+def _bits(n: int) -> str:
+    return f"{n} bit" if n == 1 else f"{n} bits"
+
+
+def turn_waits(loaded: LoadedMission) -> dict[str, float | None]:
+    """Each node's longest wait between transmit turns, seconds (from ``zab check``)."""
+    return {n["name"]: n["mac"]["worst_interval_s"] for n in check_mission(loaded).data["nodes"]}
+
+
+class Tour:
+    """Prints the tour's parts in order on ``console``."""
+
+    def __init__(self, loaded: LoadedMission, console: Console, duration: float) -> None:
+        self.loaded = loaded
+        self.console = console
+        self.duration = duration
+        self.shown: list[str] = []
+
+    def say(self, text: str) -> None:
+        self.console.print(text, highlight=False)
+
+    def part(self, name: str) -> None:
+        """The heading of a part of the tour."""
+        self.shown.append(name)
+        number_ = list(PARTS).index(name) + 1
+        self.console.rule(f"[bold]{number_}. {PARTS[name]}", align="left")
+
+    def intro(self, changes: list[str]) -> None:
+        mission = self.loaded.mission
+        self.say(f"[bold]zab demo[/]: the {mission.mission} fleet, {len(mission.nodes)} "
+                 f"vehicles over a simulated ocean, for {self.duration:.0f} s (Ctrl-C ends "
+                 "it sooner). Each vehicle runs a Zenoh peer and the bridge; small programs on "
+                 "the vehicles publish navigation and status, as yours would.")
+        for change in changes:
+            self.say(f"  [dim]for the tour: {change}[/]")
+        self.say("You will see, in order: " + "; ".join(
+            f"{i}. {title.lower()}" for i, title in enumerate(PARTS.values(), start=1)) + ".")
+        for name, node in mission.nodes.items():
+            self.say(f"  {name:>4} ({node.role}) Zenoh endpoint {' '.join(node.zenoh.listen)}")
+
+    def gui(self, url: str | None, surface: str) -> None:
+        if url is None:
+            return
+        self.say(f"[bold]GUI:[/] open {url} in a browser to watch the fleet move and send "
+                 f"commands from {surface}")
+
+    def values_intro(self) -> None:
+        self.say("A channel squeezes each field into a fixed number of bits, so what arrives "
+                 "is the published value rounded to the field's step. First arrivals:")
+
+    def quantised(self, src: str, dst: str, channel: ChannelCodec, element: int, sent: Any,
+                  got: Any) -> None:
+        key = channel.elements[element].output_key(src, dst)
+        self.say(f"  {src} → {dst}: [bold]{key}[/] ({channel.name}, {channel.bits} bits)")
+        for line in quantisation_lines(channel, element, sent, got):
+            self.say(line)
+
+    def latest(self, channel: ChannelCodec, publish_s: float, sender: str,
+               wait_s: float | None) -> None:
+        turn = f"every {wait_s:g} s" if wait_s else "only now and then"
+        per_turn = f"about {max(1, round(wait_s / publish_s) - 1)}" if wait_s else "several"
+        self.say(f"{channel.name} is published every {publish_s:g} s on {sender}, whose turn to "
+                 f"transmit comes {turn}: each frame carries the newest value, and the "
+                 f"{per_turn} published in between are superseded, not lost (receivers want "
+                 "the latest value, not a backlog). So “sent” counts far fewer values than "
+                 "were published, by design.")
+
+    def command_sent(self, node: str, key: str, value: Any, destinations: tuple[str, ...],
+                     loss: float, report_key: str) -> None:
+        self.say(f"The operator on {node} puts {value} on [bold]{key}[/]; the channel is "
+                 f"acknowledged, so {node}'s bridge resends it until each of "
+                 f"{', '.join(destinations)} confirms (the water loses {loss:.0%} of frames). "
+                 f"Delivery reports arrive on {report_key}:")
+
+    def delivery(self, report: Mapping[str, Any], elapsed_s: float) -> None:
+        attempts = report.get("attempts")
+        tries = f" after {attempts} transmission{'s' if attempts != 1 else ''}" \
+            if isinstance(attempts, int) else ""
+        reason = f" ({report['reason']})" if report.get("reason") else ""
+        self.say(f"  {report.get('state')} to {report.get('dst')}{tries}, "
+                 f"{elapsed_s:.1f} s after the put{reason}")
+
+    def command_done(self, states: Mapping[str, str], waiting: list[str]) -> None:
+        delivered = sorted(d for d, s in states.items() if s == "delivered")
+        failed = sorted(d for d, s in states.items() if s == "failed")
+        text = f"delivery report: {len(delivered)} delivered, {len(failed)} failed"
+        if waiting:
+            text += f", {', '.join(waiting)} still pending when the tour moved on"
+        self.say(text)
+
+    def no_command(self) -> None:
+        self.say("This mission's surface node sends no acknowledged channel: nothing to show.")
+
+    def fixes_intro(self, anchors: list[str]) -> None:
+        self.say(f"Every frame carries DLBL timing, so each vehicle measures its range to the "
+                 f"anchors ({', '.join(anchors)}) for free and its bridge publishes a position "
+                 "fix on @zab/<mission>/<node>/position:")
+
+    def summary(self, report: Mapping[str, Any], published: Mapping[str, int],
+                range_errors: list[float]) -> None:
+        table = Table("channel", "published", "sent in frames", "received", "mean age",
+                      "max age")
+        for name, c in report["channels"].items():
+            aoi = c.get("age_of_information") or {}
+            table.add_row(name, str(published.get(name, 0)), str(c["sent"]),
+                          str(c["delivered"]),
+                          f"{aoi['mean_s']:.1f} s" if aoi else "—",
+                          f"{aoi['max_s']:.1f} s" if aoi else "—")
+        self.console.print(table)
+        self.say("published: values the vehicles' programs put on Zenoh; sent in frames: "
+                 "values a bridge carried (the newest at each turn; an acknowledged one "
+                 "again until confirmed); received: arrivals at "
+                 "all receivers together (one frame reaches several); age: how old the "
+                 "latest value at a receiver was, on average and at worst.")
+        links = report.get("links") or []
+        sent = sum(link["sent"] for link in links)
+        lost = sum(sum(link["lost"].values()) for link in links)
+        if sent:
+            self.say(f"The water carried {sent} frame copies between vehicles and lost {lost} "
+                     f"({lost / sent:.0%}).")
+        if range_errors:
+            ordered = sorted(range_errors)
+            self.say(f"{len(ordered)} acoustic ranges measured; median error against the "
+                     f"simulated truth {ordered[len(ordered) // 2]:.2f} m.")

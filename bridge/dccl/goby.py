@@ -1,0 +1,164 @@
+"""Goby-compatible frames (``wire: {format: goby}``): a frame is DCCL messages back to back.
+
+What Goby3's queue does, read in GobySoft/goby3 ``src/acomms/queue/queue_manager.cpp`` and
+``queue.cpp``: ``encode_repeated`` appends each message's ``dccl::Codec::encode`` output to the
+frame with nothing between them (no count, no length, no checksum); a message joins the frame
+only if its encoded size fits the bytes left (``get_priority_values``); ``decode_repeated``
+decodes from the front, erases ``codec->size(msg)`` bytes and repeats until the frame is empty,
+and when a message after the first fails to decode it keeps the ones already decoded (the
+first failing raises). The DCCL id in each message's head says which message it is.
+
+So in this format each channel carries one DCCL element, the channel is found by its DCCL id,
+and the frame is exactly what a Goby3 node's QueueManager would produce from those messages.
+zab's own frame features have no place in it: no DLBL delays, no authentication, no mission
+check (a frame from another mission decodes if its ids are known), no reliable or fragmented
+channels. Which messages go in a frame follows zab's scheduler (priority, interval), not
+Goby's ``ttl``/``value_base`` priority.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from bridge.dccl.layout import DcclLayout
+from bridge.dccl.message import DcclMessage, peek_id
+from bridge.errors import DecodeError, FrameError
+from bridge.wire.channels import AckCodec, ChannelCodec, ChannelTable
+from bridge.wire.frame import DecodedFrame, Entry, FrameCodec
+
+#: At most 2**8 - 1 messages in one Goby frame (a frame of 1-byte messages is 255 bytes).
+_COUNT_BITS = 8
+
+__all__ = ["GobyFrameCodec", "decode_repeated", "encode_repeated", "frame_codec_for",
+           "goby_problems"]
+
+
+def encode_repeated(messages: Iterable[tuple[DcclMessage, dict[str, Any]]]) -> bytes:
+    """Goby3's ``encode_repeated``: the DCCL encodings, concatenated."""
+    return b"".join(msg.encode(value) for msg, value in messages)
+
+
+def decode_repeated(data: bytes, by_id: dict[int, DcclMessage]
+                    ) -> list[tuple[DcclMessage, dict[str, Any]]]:
+    """Goby3's ``decode_repeated``: messages from the front until the bytes run out; a
+    failure after the first message ends the list (``DecodeError`` only if the first fails)."""
+    out: list[tuple[DcclMessage, dict[str, Any]]] = []
+    rest = bytes(data)
+    while rest:
+        try:
+            ident = peek_id(rest)
+            msg = by_id.get(ident)
+            if msg is None:
+                raise DecodeError(f"no DCCL message with id {ident} in this mission")
+            value, used = msg.decode_prefix(rest)
+        except DecodeError:
+            if not out:
+                raise
+            return out
+        out.append((msg, value))
+        rest = rest[used:]
+    return out
+
+
+def _dccl_of(channel: ChannelCodec) -> DcclLayout | None:
+    if len(channel.elements) == 1 and isinstance(channel.elements[0].layout, DcclLayout):
+        return channel.elements[0].layout
+    return None
+
+
+def goby_problems(table: ChannelTable, dlbl: bool, auth: bool
+                  ) -> Iterable[tuple[tuple[str | int, ...], str]]:
+    """What a Goby-format mission cannot have, with where it is in the mission file."""
+    if dlbl:
+        yield ("wire", "dlbl"), "wire.format goby frames have no DLBL delays"
+    if auth:
+        yield ("wire", "auth"), "wire.format goby frames cannot be authenticated"
+    ids: dict[int, str] = {}
+    for c in table.channels:
+        loc: tuple[str | int, ...] = ("channels", c.index)
+        layout = _dccl_of(c)
+        if layout is None:
+            yield (*loc, "elements"), ("wire.format goby: a channel carries exactly one element "
+                                       "with a dccl message")
+            continue
+        if c.reliable or c.fragmented:
+            what = "reliable" if c.reliable else f"larger than a frame ({layout.nbytes} B)"
+            yield loc, f"wire.format goby: channel {c.name!r} cannot be {what}"
+        m = layout.message
+        if m.omit_id:
+            yield (*loc, "elements", 0, "dccl"), f"{m.name} has omit_id: Goby frames need ids"
+        elif m.id in ids and ids[m.id] != m.name:
+            yield (*loc, "elements", 0, "dccl"), f"DCCL id {m.id} is also {ids[m.id]}'s"
+        ids.setdefault(m.id, m.name)
+
+
+class GobyFrameCodec(FrameCodec):
+    """:class:`FrameCodec`'s interface over Goby-format frames (see the module docstring)."""
+
+    def __init__(self, table: ChannelTable, auth: Any = None) -> None:
+        super().__init__(table, None)
+        # Not on the wire: the frame builder reserves count_bits from the capacity and allows
+        # 2**count_bits - 1 entries; body_capacity_bits gives the reservation back.
+        self.count_bits = _COUNT_BITS
+        self.index_bits = 0
+        self.delay_count = 0
+        self.delay_bytes = 0
+        self.auth_bytes = 0
+        self.by_id: dict[int, tuple[ChannelCodec, DcclMessage]] = {}
+        for c in table.channels:
+            layout = _dccl_of(c)
+            if layout is not None:
+                self.by_id.setdefault(layout.message.id, (c, layout.message))
+        self._messages = {i: m for i, (_, m) in self.by_id.items()}
+
+    def overhead_bytes(self) -> int:
+        return 0
+
+    def body_capacity_bits(self, frame_bytes: int) -> int:
+        return frame_bytes * 8 + self.count_bits
+
+    def channel_cost_bits(self, channel: ChannelCodec | AckCodec) -> int:
+        """Bits the channel's message may take: its maximum size in whole bytes."""
+        return channel.wire_bits
+
+    def frame_bytes_for(self, channels: Sequence[ChannelCodec | AckCodec]) -> int:
+        return sum(c.wire_bits for c in channels) // 8
+
+    def sender_fingerprint(self, frame: bytes) -> int | None:
+        """Goby frames carry no check value: nothing tells another mission file apart."""
+        return None
+
+    def encode(self, items: Sequence[tuple[ChannelCodec | AckCodec, int]],
+               delays: Sequence[int | None] = (), epoch: int = 0) -> bytes:
+        """The DCCL messages of ``items`` (payload ints as from ``ChannelCodec.pack``),
+        concatenated without their padding."""
+        out = []
+        for channel, payload in items:
+            layout = _dccl_of(channel) if isinstance(channel, ChannelCodec) else None
+            if layout is None:
+                raise ValueError(f"channel {channel.name!r} is not a DCCL channel")
+            data = payload.to_bytes(layout.nbytes, "big")
+            _, used = layout.message.decode_prefix(data)
+            out.append(data[:used])
+        return b"".join(out)
+
+    def decode(self, frame: bytes, src: int | None = None) -> DecodedFrame:
+        """Messages as Goby3 decodes them; ``FrameError`` if not even the first decodes."""
+        if not isinstance(frame, bytes | bytearray | memoryview):
+            raise FrameError(f"a frame is bytes, not {type(frame).__name__}")
+        try:
+            found = decode_repeated(bytes(frame), self._messages)
+        except DecodeError as exc:
+            raise FrameError(f"no DCCL message decodes: {exc}") from None
+        if not found:
+            raise FrameError("empty frame")
+        entries = tuple(Entry(self.by_id[m.id][0], [value]) for m, value in found)
+        return DecodedFrame((), entries)
+
+
+def frame_codec_for(table: ChannelTable, auth: Any = None) -> FrameCodec:
+    """The frame codec of the mission's wire format."""
+    if getattr(table, "wire_format", "zab") == "goby":
+        return GobyFrameCodec(table, auth)
+    return FrameCodec(table, auth)

@@ -1,0 +1,100 @@
+"""Does the mission's ``wire.auth`` agree with the frame keys on this machine?
+
+Authentication must never be off by accident. Three states of a mission:
+
+- ``on``: ``wire.auth`` is given; a key must be found (``$ZAB_KEY`` or the key file), or
+  ``zab run`` and ``zab check`` refuse (exit 2). ``zab sim``, ``zab demo`` and test fleets,
+  which run every node in one process, use a throwaway key instead, and say so.
+- ``off``: ``wire.auth: off``, frames unauthenticated on purpose. Keys are not looked at.
+- ``unsaid``: no ``wire.auth``. Refused while a key is present (``$ZAB_KEY``): the operator
+  meant to authenticate and nothing would. With no key it runs, with a warning.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from bridge.errors import MissionError
+from bridge.mission.model import Mission
+from bridge.wire.auth import DEFAULT_KEY_ENV, find_key
+
+MIN_KEY_BYTES = 16  # what the Authenticator accepts
+MAKE_KEY = "openssl rand -hex 32"  # one way to make a key (docs/deploy.md)
+
+State = Literal["on", "off", "unsaid"]
+
+
+@dataclass(frozen=True)
+class FrameKey:
+    """What the mission says about authentication and what this machine holds."""
+
+    state: State
+    source: str | None = None  # where the key was found: "$ZAB_KEY" or the key file's path
+    problem: str | None = None  # why the node must not run (None: fine)
+    tag_bytes: int = 0
+    looked: bool = True  # False: the keys here were not looked at (zab check --no-key)
+
+    @property
+    def throwaway(self) -> bool:
+        """Authenticated but no key here: a simulation would use a throwaway key."""
+        return self.state == "on" and self.looked and self.source is None
+
+    def describe(self) -> str:
+        """One line for ``zab check`` and the start of ``zab run``."""
+        if self.state == "off":
+            return "frames are not authenticated (wire.auth: off, on purpose)"
+        if self.state == "unsaid":
+            return ("frames are NOT authenticated: the mission does not say wire.auth (add "
+                    "`auth: {}` under wire to authenticate, or `auth: off` to mean it)")
+        where = (f"key from {self.source}" if self.source else
+                 "no key on this machine" if self.looked else "key not looked for")
+        return f"frames authenticated ({self.tag_bytes}-byte tag, {where})"
+
+    def as_json(self) -> dict[str, Any]:
+        return {"state": self.state, "source": self.source, "problem": self.problem,
+                "tag_bytes": self.tag_bytes, "looked": self.looked}
+
+
+def frame_key(mission: Mission, *, look: bool = True) -> FrameKey:
+    """Compare ``mission.wire.auth`` with the keys present (environment, key file); ``look``
+    false: what the mission says alone, no key looked for (``zab check --no-key``)."""
+    auth = mission.wire.auth
+    if mission.wire.auth_off:
+        return FrameKey("off")
+    if not look:
+        return FrameKey("unsaid" if auth is None else "on", looked=False,
+                        tag_bytes=0 if auth is None else auth.tag_bytes)
+    if auth is None:
+        if os.environ.get(DEFAULT_KEY_ENV):
+            return FrameKey("unsaid", f"${DEFAULT_KEY_ENV}", problem=(
+                f"${DEFAULT_KEY_ENV} holds a frame key, but the mission does not authenticate "
+                "frames (no wire.auth): add `auth: {}` under wire to authenticate them, or "
+                "`auth: off` to send them unauthenticated on purpose"))
+        return FrameKey("unsaid")
+    where = f"${auth.key_env}" + (f" or {auth.key_file}" if auth.key_file else "")
+    try:
+        key = find_key(auth.key_env, auth.key_file)
+    except MissionError as exc:
+        return FrameKey("on", problem=str(exc), tag_bytes=auth.tag_bytes)
+    if key is None:
+        return FrameKey("on", problem=(
+            f"wire.auth is on but no frame key was found in {where}: set {auth.key_env} to the "
+            f"mission key (make one with `{MAKE_KEY}`), or say `auth: off` under wire to send "
+            "frames unauthenticated on purpose"), tag_bytes=auth.tag_bytes)
+    source = f"${auth.key_env}" if os.environ.get(auth.key_env) else str(auth.key_file)
+    if len(key) < MIN_KEY_BYTES:
+        return FrameKey("on", source, problem=(
+            f"the frame key in {source} is {len(key)} bytes; at least {MIN_KEY_BYTES} are "
+            f"needed (make one with `{MAKE_KEY}`)"), tag_bytes=auth.tag_bytes)
+    return FrameKey("on", source, tag_bytes=auth.tag_bytes)
+
+
+def throwaway_note(mission: Mission) -> str | None:
+    """What ``zab sim``/``zab demo`` print when they authenticate with a throwaway key."""
+    auth = mission.wire.auth
+    if auth is None or not frame_key(mission).throwaway:
+        return None
+    where = f"${auth.key_env}" + (f" or {auth.key_file}" if auth.key_file else "")
+    return f"frames authenticated with a throwaway key for this run (no key in {where})"

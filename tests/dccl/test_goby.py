@@ -1,0 +1,120 @@
+"""Goby-compatible frames: DCCL messages back to back, as Goby3's QueueManager packs them."""
+
+from __future__ import annotations
+
+import socket
+import time
+from pathlib import Path
+
+import pytest
+
+from bridge.dccl import load_message
+from bridge.dccl.goby import GobyFrameCodec, decode_repeated, encode_repeated, frame_codec_for
+from bridge.errors import DecodeError, FrameError, MissionError
+from bridge.mission.check import check_mission
+from bridge.mission.loader import load_mission, parse_mission
+from tests.conftest import free_port, on_free_ports
+from tests.dccl.test_mission import EXAMPLE, NAV
+from tests.harness import Inbox, outside_session, put, running_fleet
+
+AUV = EXAMPLE.parent / "dccl" / "auv.proto"
+BATHY = {"depth": [10.0, 11.5, 12.0], "altitude": [3.0, 2.5, 2.0],
+         "latitude": [41.5, 41.5001, 41.5002], "longitude": [-70.6, -70.6001, -70.6002]}
+
+
+def test_frame_is_the_concatenated_dccl_encodings() -> None:
+    """encode_repeated: each message's DCCL bytes, nothing between or after them."""
+    nav, bathy = load_message(AUV, "NavStatus"), load_message(AUV, "Bathymetry")
+    frame = encode_repeated([(nav, NAV), (bathy, BATHY)])
+    assert frame == nav.encode(NAV) + bathy.encode(BATHY)
+    by_id = {nav.id: nav, bathy.id: bathy}
+    assert [(m.name, v) for m, v in decode_repeated(frame, by_id)] == [
+        (nav.name, nav.decode(nav.encode(NAV))), (bathy.name, bathy.decode(bathy.encode(BATHY)))]
+
+
+def test_decode_keeps_what_decoded_before_a_failure() -> None:
+    """Goby3's decode_repeated: a bad message after the first ends the list; a bad first one
+    (or trailing modem padding of zeros, id 0) raises only if nothing decoded."""
+    nav = load_message(AUV, "NavStatus")
+    data = nav.encode(NAV)
+    assert len(decode_repeated(data + b"\x00\x00\x00", {nav.id: nav})) == 1
+    assert len(decode_repeated(data + data[:5], {nav.id: nav})) == 1
+    with pytest.raises(DecodeError):
+        decode_repeated(b"\x00" + data, {nav.id: nav})
+
+
+def test_example_mission_uses_goby_frames() -> None:
+    loaded = load_mission(EXAMPLE)
+    table = loaded.table
+    codec = frame_codec_for(table)
+    assert isinstance(codec, GobyFrameCodec)
+    assert check_mission(loaded).ok
+    nav, bathy = table.by_name("nav"), table.by_name("bathymetry")
+    assert not bathy.fragmented  # 28 bytes fit a 32-byte frame: no zab overhead
+    frame = codec.encode([(nav, nav.pack([NAV])), (bathy, bathy.pack([BATHY]))])
+    assert frame == (load_message(AUV, "NavStatus").encode(NAV)
+                     + load_message(AUV, "Bathymetry").encode(BATHY))
+    decoded = codec.decode(frame)
+    assert [e.channel.name for e in decoded.entries] == ["nav", "bathymetry"]
+    assert decoded.entries[0].values == [load_message(AUV, "NavStatus").decode(
+        load_message(AUV, "NavStatus").encode(NAV))]
+    with pytest.raises(FrameError):
+        codec.decode(b"\x02\x00")
+
+
+GOBY_LAB = f"""\
+mission: goby_lab
+modem: {{backend: udp, frame_bytes: 32}}
+mac: {{type: none, min_gap_s: 0.3}}
+wire: {{format: goby}}
+nodes:
+  a: {{address: 1, modem: {{options: {{port: PORT_A}}}}}}
+  b: {{address: 2, modem: {{options: {{port: PORT_B}}}}}}
+channels:
+  - name: nav
+    from: a
+    to: b
+    elements: [{{in: nav, out: a/nav, dccl: "{AUV}:NavStatus"}}]
+  - name: cmd
+    from: b
+    to: a
+    elements: [{{in: cmd, out: b/cmd, dccl: "{AUV}:Command"}}]
+"""
+
+
+@pytest.mark.parametrize(("change", "expected"), [
+    ("wire: {format: goby, dlbl: true}", "no DLBL delays"),
+    ("    elements: [{in: cmd, out: b/cmd, fields: [{field: v, type: bool}]}]",
+     "exactly one element with a dccl message"),
+])
+def test_goby_missions_refuse_what_goby_frames_cannot_carry(change: str, expected: str) -> None:
+    text = GOBY_LAB.replace("PORT_A", "7001").replace("PORT_B", "7002")
+    if change.startswith("wire"):
+        text = text.replace("wire: {format: goby}", change)
+    else:
+        text = text.replace(f'    elements: [{{in: cmd, out: b/cmd, dccl: "{AUV}:Command"}}]',
+                            change)
+    with pytest.raises(MissionError, match=expected):
+        parse_mission(text, "lab.yaml")
+
+
+def test_goby_frames_cross_end_to_end(tmp_path: Path) -> None:
+    """A plain Zenoh app puts a NavStatus at a; b's app gets it as DCCL decoded it."""
+    text = GOBY_LAB.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
+        "PORT_B", str(free_port(socket.SOCK_DGRAM)))
+    loaded = on_free_ports(text, tmp_path / "lab.yaml")
+    nav = load_message(AUV, "NavStatus")
+    with running_fleet(loaded) as fleet:
+        a, b = outside_session(loaded, "a"), outside_session(loaded, "b")
+        try:
+            inbox = Inbox()
+            b.declare_subscriber("a/nav", inbox)
+            time.sleep(0.3)
+            put(a, "nav", NAV)
+            key, value, _ = inbox.get(timeout=5)
+            assert key == "a/nav"
+            assert value == nav.decode(nav.encode(NAV))
+            assert fleet.nodes["b"].stats.received_per_channel["nav"] >= 1
+        finally:
+            a.close()
+            b.close()

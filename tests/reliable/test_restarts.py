@@ -1,0 +1,173 @@
+"""Restarts: reliable channels neither wedge nor repeat, whichever end is killed, and when.
+
+The chaos runs are ``bench/chaos.py``'s: the virtual-clock one (deterministic by seed) and one
+with the real processes (``zab water``, ``zab run`` per node, plain Zenoh applications) killed
+with SIGKILL while commands stream.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+from bridge.core.node import NodeCore, Notice, Status
+from bridge.mission.loader import parse_mission
+from bridge.modems.base import Reception
+from bridge.runtime.state_file import StateFile
+from bridge.runtime.virtual_fleet import FastFleet
+
+BENCH = Path(__file__).resolve().parents[2] / "bench" / "chaos.py"
+spec = importlib.util.spec_from_file_location("chaos_bench", BENCH)
+assert spec is not None and spec.loader is not None
+chaos = importlib.util.module_from_spec(spec)
+sys.modules["chaos_bench"] = chaos
+spec.loader.exec_module(chaos)
+
+LOADED = parse_mission(chaos.mission_text(0.0), "chaos.yaml")
+
+
+@pytest.mark.parametrize("loss", [0.3, 0.4])
+def test_virtual_chaos_delivers_each_command_once_with_one_report(loss: float) -> None:
+    result = chaos.run_virtual(2000, 20, loss, seed=5)
+    assert result["sent"] > 1900
+    assert chaos.goal_met(result), result
+    assert result["reported_failed"] == {}  # no TTL set: nothing may fail at these losses
+    assert result["delivered_once"] == result["reported_delivered"] == result["sent"]
+
+
+def test_virtual_chaos_is_deterministic_by_seed() -> None:
+    assert chaos.run_virtual(300, 5, 0.3, seed=9) == chaos.run_virtual(300, 5, 0.3, seed=9)
+
+
+def test_a_receiver_restarting_without_its_state_never_wedges_the_channel() -> None:
+    """The wedge of the issue: the sender believed the fresh receiver still held what it had
+    acknowledged selectively. With epochs, every value still ends in a terminal report."""
+    result = chaos.run_virtual(1500, 15, 0.4, seed=3, forgetful="auv")
+    assert result["no_terminal_report"] == 0 and result["false_delivered"] == 0
+    assert result["reported_delivered"] == result["sent"]
+    assert result["terminal_twice"] == 0
+
+
+def test_real_processes_killed_with_sigkill_lose_and_repeat_nothing() -> None:
+    result = chaos.run_real(36, 0.3, seed=2, kill_every_s=5.0, interval_s=0.4,
+                            settle_s=90.0)
+    assert result["sent"] >= 30, result
+    assert chaos.goal_met(result), result
+
+
+# -- the core's epochs, state and mismatch detection -------------------------------------------
+
+
+def frames_between(a: NodeCore, b: NodeCore, now: float) -> None:
+    """``a`` sends one frame (if any) and ``b`` hears it."""
+    out = a.build_frame(now, now, always=True)
+    assert out is not None
+    a.frame_sent(out, now)
+    b.receive(Reception(out.data, LOADED.mission.address_of(a.node), now, {}), now)
+
+
+def test_a_fresh_receiver_is_resent_what_it_acknowledged_selectively() -> None:
+    ops, auv = NodeCore(LOADED, "ops"), NodeCore(LOADED, "auv")
+    for n in range(3):
+        ops.ingest("cmd", b'{"n": %d}' % n, "application/json", 0.0)
+    first = ops.build_frame(0.0, 0.0)
+    assert first is not None
+    ops.frame_sent(first, 0.0)  # n=0..2 in flight; the frame is lost
+    frames_between(auv, ops, 1.0)  # ops learns auv's epoch
+    auv.take()
+    fresh = NodeCore(LOADED, "auv")  # auv restarted without its state: a new epoch
+    assert fresh.epoch != auv.epoch
+    frames_between(fresh, ops, 2.0)
+    assert any(isinstance(o, Notice) and o.kind == "peer_restarted" for o in ops.take())
+    frames_between(ops, fresh, 3.0)  # everything outstanding goes again, at once
+    published = [o.value["n"] for o in fresh.take() if getattr(o, "key", None) == "ops/cmd"]
+    assert published == [0, 1, 2]
+
+
+def test_a_receiver_restarted_from_its_state_file_publishes_nothing_twice(
+        tmp_path: Path) -> None:
+    ops, auv = NodeCore(LOADED, "ops"), NodeCore(LOADED, "auv")
+    state = StateFile(tmp_path, "chaos", "auv")
+    ops.ingest("cmd", b'{"n": 7}', "application/json", 0.0)
+    out = ops.build_frame(0.0, 0.0)
+    assert out is not None
+    ops.frame_sent(out, 0.0)
+    auv.receive(Reception(out.data, 1, 0.0, {}), 0.0)
+    assert auv.needs_save
+    state.save(auv.state())  # what the runtime does before publishing
+    assert [o.value for o in auv.take() if getattr(o, "key", None) == "ops/cmd"] == [{"n": 7}]
+    again = NodeCore(LOADED, "auv", state=state.load())  # kill -9, restart
+    assert again.epoch == auv.epoch
+    again.receive(Reception(out.data, 1, 5.0, {}), 5.0)  # the sender had no ack: it resends
+    assert not [o for o in again.take() if getattr(o, "key", None) == "ops/cmd"]
+    ack = again.build_frame(6.0, 6.0)
+    assert ack is not None and ack.acks
+    ops.receive(Reception(ack.data, 2, 6.0, {}), 6.0)
+    states = [o.payload["state"] for o in ops.take()
+              if isinstance(o, Status) and o.topic == "delivery/command"]
+    assert states == ["queued", "sent", "delivered"]
+
+
+def test_a_sender_restarted_from_its_state_resumes_its_values(tmp_path: Path) -> None:
+    ops = NodeCore(LOADED, "ops")
+    ops.ingest("cmd", b'{"n": 1}', "application/json", 0.0, ref="one")
+    state = StateFile(tmp_path, "chaos", "ops")
+    state.save(ops.state())
+    again = NodeCore(LOADED, "ops", state=state.load())
+    out = again.build_frame(1.0, 1.0)
+    assert out is not None and out.streams
+    auv = NodeCore(LOADED, "auv")
+    auv.receive(Reception(out.data, 1, 1.0, {}), 1.0)
+    assert [o.value for o in auv.take() if getattr(o, "key", None) == "ops/cmd"] == [{"n": 1}]
+
+
+def test_a_state_file_of_another_mission_reports_its_values_failed(tmp_path: Path) -> None:
+    ops = NodeCore(LOADED, "ops")
+    ops.ingest("cmd", b'{"n": 1}', "application/json", 0.0, ref="one")
+    state = ops.state()
+    state["fingerprint"] = "00" * 8
+    again = NodeCore(LOADED, "ops", state=state)
+    (failed,) = [o.payload for o in again.take()
+                 if isinstance(o, Status) and o.topic == "delivery/command"]
+    assert failed["state"] == "failed" and failed["ref"] == "one"
+    assert "another mission file" in failed["reason"]
+
+
+def test_a_corrupt_state_file_is_moved_aside(tmp_path: Path) -> None:
+    state = StateFile(tmp_path, "chaos", "ops")
+    state.path.write_bytes(b"\xc1 not msgpack")
+    assert state.load() is None
+    assert (tmp_path / "chaos.ops.state.corrupt").exists() and not state.path.exists()
+
+
+def test_a_peer_with_another_mission_file_is_reported_once() -> None:
+    other = parse_mission(chaos.mission_text(0.0).replace("max: 65535", "max: 1023"), "o.yaml")
+    foreign, ours = NodeCore(other, "ops"), NodeCore(LOADED, "auv")
+    for t in (1.0, 2.0, 3.0):
+        out = foreign.build_frame(t, t, always=True)
+        assert out is not None
+        ours.receive(Reception(out.data, 1, t, {}), t)
+    dropped = ours.stats.frames_dropped
+    assert dropped["check"] == 1 and dropped["mission_mismatch"] == 2
+    notices = [o for o in ours.take() if isinstance(o, Notice) and o.kind == "mission_mismatch"]
+    assert len(notices) == 1 and notices[0].info["peer"] == "ops"
+    assert ours.snapshot(3.0)["mismatched_peers"] == {"ops": notices[0].info["fingerprint"]}
+
+
+def test_links_do_not_go_down_while_frames_keep_arriving_at_30_percent_loss() -> None:
+    downs: list[float] = []
+
+    def watch(timed) -> None:
+        out = timed.output
+        if isinstance(out, Notice) and out.kind == "link" and out.info["state"] == "down" \
+                and timed.time > 30.0:
+            downs.append(timed.time)
+
+    fleet = FastFleet(parse_mission(chaos.mission_text(0.3)), seed=4, keep_outputs=False,
+                      on_output=watch)
+    fleet.run_until(3600.0)  # nobody publishes: only heartbeats keep the links alive
+    assert fleet.cores["ops"].stats.frames_received > 500
+    assert downs == []

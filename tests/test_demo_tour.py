@@ -1,0 +1,117 @@
+"""`zab demo` as a newcomer runs it: from an empty folder with a bare environment, one
+command, ending by itself in about a minute, telling each part of the tour and writing the
+mission report."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import re
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+from bridge.cli.demo import default_demo_mission
+from tests.conftest import free_port
+
+ZAB = Path(sys.executable).parent / "zab"
+
+
+def demo_ports_free() -> bool:
+    """The MORPH mission's Zenoh ports (what `zab demo` listens on) are free right now."""
+    data = yaml.safe_load(default_demo_mission().read_text())
+    for node in data["nodes"].values():
+        port = int(node["zenoh"]["listen"][0].rsplit(":", 1)[1])
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return False
+    return True
+
+
+def test_zab_demo_tells_the_tour_and_writes_the_report(tmp_path: Path) -> None:
+    args = [str(ZAB), "demo", "--gui-port", "0"]
+    if not demo_ports_free():  # someone else's demo is running: same tour, other ports
+        data = yaml.safe_load(default_demo_mission().read_text())
+        for node in data["nodes"].values():
+            node["zenoh"]["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
+        (tmp_path / "morph.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+        args += ["--mission", "morph.yaml"]
+    env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "HOME": str(tmp_path),
+           "LANG": "C.UTF-8"}
+    started = time.monotonic()
+    done = subprocess.run(args, cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=240)
+    took = time.monotonic() - started
+    out = done.stdout
+    assert done.returncode == 0, done.stderr + out
+    assert "Traceback" not in done.stderr + out
+    assert 55 <= took <= 150, took  # ends by itself, in about a minute
+
+    headings = ["1. Values crossing the water, quantised", "2. Latest value, not a queue",
+                "3. A reliable command over a lossy link",
+                "4. Position fixes from acoustic ranges", "5. Summary"]
+    where = [out.find(h) for h in headings]
+    assert all(i >= 0 for i in where) and where == sorted(where), out
+    intro, values, latest, command, fixes, summary = (
+        out[:where[0]], *(out[a:b] for a, b in zip(where, [*where[1:], len(out)], strict=True)))
+
+    assert "You will see, in order: 1. values crossing the water, quantised;" in \
+        intro.replace("\n", " ")
+    assert re.search(r"open http://127\.0\.0\.1:\d+/ in a browser", out)
+    # 1: values as published and as delivered, with the step that explains the difference
+    examples = re.findall(r"^  (\w+) → (\w+): (\S+) \((\w+), (\d+) bits\)$", values, re.M)
+    assert len(examples) >= 2, values
+    assert re.search(r"^\s+\S+\s+-?[\d.]+ → -?[\d.]+\s+\d+ bits, step [\d.]+$", values, re.M)
+    # 2: latest-value semantics in words
+    assert "superseded, not lost" in latest.replace("\n", " ")
+    # 3: the acknowledged command and its delivery report
+    assert "delivery/mission_command" in command.replace("\n", "")
+    delivered = re.search(r"delivery report: (\d+) delivered, (\d+) failed", command)
+    assert delivered and int(delivered.group(1)) >= 1, command
+    assert re.search(r"delivered to \w+ after \d+ transmissions?, [\d.]+ s after the put",
+                     command)
+    # 4: fixes from the acoustic ranges
+    assert re.search(r"position from \w+ \+ \w+: x -?[\d.]+ m, y -?[\d.]+ m", fixes), fixes
+    # 5: a summary a newcomer can read, and the report's path
+    for words in ("published", "sent in frames", "received", "mean age",
+                  "acoustic ranges measured"):
+        assert words in summary, words
+    assert re.search(r"lost \d+ \(\d+%\)", summary)
+    found = re.search(r"mission report \(plots, opens offline\): (\S+)", summary)
+    assert found, summary
+    report = Path(found.group(1))
+    assert report == tmp_path / "zab-demo-report.html" and report.is_file()
+    page = report.read_text(encoding="utf-8")
+    assert all(f'data-plot="{name}"' in page
+               for name in ("tracks", "age", "slots", "losses", "ranges"))
+    # plausible numbers: no float noise, no battery jumping about
+    assert not re.search(r"\d\.\d{8,}|\de-\d\d", out), out
+
+
+def test_numbers_print_to_their_step_without_float_noise() -> None:
+    from bridge.cli.tour import number
+
+    assert number(9.536743164062498e-08, 0.1) == "0.0"
+    assert number(3.2350001, 0.0246) == "3.235"
+    assert number(14, 1.0) == "14"
+    assert number(0.825, 0.05) == "0.825"
+
+
+def test_synthetic_status_varies_slowly_and_plausibly() -> None:
+    from bridge.cli.demo import synthetic_value
+    from bridge.codec import FieldSpec
+
+    battery = FieldSpec(field="battery", type="int", min=0, max=100)
+    mode = FieldSpec(field="mode", type="enum", values=["idle", "transit", "survey", "abort"])
+    levels = [synthetic_value(battery, t, 1.0) for t in range(0, 600)]
+    assert all(80 <= b <= 100 for b in levels)
+    assert all(0 <= a - b <= 1 for a, b in itertools.pairwise(levels))  # drains
+    assert levels[0] - levels[-1] <= 11  # about 1 % a minute
+    assert {synthetic_value(mode, t, 2.0) for t in range(0, 600, 7)} == {"transit"}
+    depth = FieldSpec(field="depth", min=0, max=100, resolution=0.1)
+    values = [synthetic_value(depth, t, 0.5) for t in range(0, 120)]
+    assert max(abs(a - b) for a, b in itertools.pairwise(values)) < 0.5

@@ -1,0 +1,125 @@
+"""`zab run` that cannot open its Zenoh session (its port taken, its router not there) exits 2
+with one clear line, never a `zenoh.ZError` traceback: real processes on loopback ports."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from bridge.mission.model import ZenohSettings
+from bridge.runtime.session import session_problem
+from tests.conftest import REPO, free_port
+
+MISSION = """\
+mission: start
+wire: {{auth: off}}
+modem: {{backend: udp, frame_bytes: 16}}
+nodes:
+  a: {{address: 1, modem: {{options: {{port: {udp_a}}}}}, zenoh: {{listen: [tcp/127.0.0.1:{za}]}}}}
+  b: {{address: 2, modem: {{options: {{port: {udp_b}}}}},
+      zenoh: {{mode: client, connect: [tcp/127.0.0.1:{router}]}}}}
+channels:
+  - {{name: ping, from: a, to: b, elements: [{{in: ping, out: a/ping, fields: [{{field: n,
+      type: int, min: 0, max: 9}}]}}]}}
+"""
+START_S = 60.0  # generous: a loaded 2-core machine
+
+
+@pytest.fixture
+def mission(tmp_path: Path) -> tuple[Path, int, int]:
+    """The mission, node a's Zenoh port, and the port of b's (absent) router."""
+    za, router = free_port(), free_port()
+    path = tmp_path / "start.yaml"
+    path.write_text(MISSION.format(udp_a=free_port(socket.SOCK_DGRAM),
+                                   udp_b=free_port(socket.SOCK_DGRAM), za=za, router=router))
+    return path, za, router
+
+
+def _argv(path: Path, node: str) -> list[str]:
+    return [sys.executable, "-m", "bridge", "run", str(path), "--node", node]
+
+
+def _run(path: Path, node: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(_argv(path, node), cwd=REPO, capture_output=True, text=True,
+                          timeout=START_S, env={**os.environ, "COLUMNS": "80"})
+
+
+@contextmanager
+def _running(path: Path, node: str) -> Iterator[subprocess.Popen[str]]:
+    """`zab run` until it says it runs; SIGTERM on exit (it must stop cleanly, exit 0)."""
+    proc = subprocess.Popen(_argv(path, node), cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True,
+                            env={**os.environ, "COLUMNS": "200"})
+    try:
+        assert proc.stdout is not None
+        lines = []
+        for line in proc.stdout:
+            lines.append(line)
+            if "bridge running" in line:
+                break
+        else:
+            pytest.fail("zab run did not start:\n" + "".join(lines))
+        yield proc
+        proc.send_signal(signal.SIGTERM)
+        rest, _ = proc.communicate(timeout=30)
+        assert proc.returncode == 0, "".join(lines) + rest
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def _one_clear_line(result: subprocess.CompletedProcess[str]) -> str:
+    output = result.stdout + result.stderr
+    assert result.returncode == 2, output
+    assert "Traceback" not in output and "ZError" not in output and ".rs:" not in output, output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, output
+    assert "bridge running" not in output
+    return lines[0]
+
+
+def test_port_taken_by_another_zab_run_exits_2(mission: tuple[Path, int, int]) -> None:
+    path, za, _ = mission
+    with _running(path, "a"):
+        line = _one_clear_line(_run(path, "a"))
+    assert line == (f"cannot start: a: tcp/127.0.0.1:{za} is already in use (is another "
+                    "`zab run` or zenohd listening there?)")
+
+
+def test_port_taken_by_any_listener_exits_2_and_starts_once_free(
+        mission: tuple[Path, int, int]) -> None:
+    path, za, _ = mission
+    with socket.socket() as holder:
+        holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        holder.bind(("127.0.0.1", za))
+        holder.listen()
+        assert f"tcp/127.0.0.1:{za} is already in use" in _one_clear_line(_run(path, "a"))
+    with _running(path, "a"):
+        pass
+
+
+def test_unreachable_router_exits_2(mission: tuple[Path, int, int]) -> None:
+    path, _, router = mission
+    line = _one_clear_line(_run(path, "b"))
+    assert line.startswith(f"cannot start: b: no Zenoh router answers at tcp/127.0.0.1:{router}")
+
+
+def test_session_problem_keeps_other_zenoh_errors_readable() -> None:
+    """A listen address this host does not have: Zenoh's reason, without its source paths."""
+    text = ("Can not create a new TCP listener bound to tcp/10.9.9.9:7447: [10.9.9.9:7447: Cannot "
+            "assign requested address (os error 99) at /root/.cargo/git/x/tcp.rs:61.] at "
+            "/root/.cargo/git/y/unicast.rs:338.")
+    assert session_problem(text, ZenohSettings()) == (
+        "cannot listen on tcp/10.9.9.9:7447: 10.9.9.9:7447: Cannot assign requested address "
+        "(os error 99)")
+    assert session_problem("something new at /src/a.rs:1.", ZenohSettings()) == (
+        "cannot open the Zenoh session: something new")
