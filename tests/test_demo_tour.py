@@ -75,7 +75,9 @@ def test_zab_demo_tells_the_tour_and_writes_the_report(tmp_path: Path) -> None:
     assert re.search(r"delivered to \w+ after \d+ transmissions?, [\d.]+ s after the put",
                      command)
     # 4: fixes from the acoustic ranges
-    assert re.search(r"position from \w+ \+ \w+: x -?[\d.]+ m, y -?[\d.]+ m", fixes), fixes
+    assert re.search(r"position \((tracking|coasting \d+ s), \w+ \+ \w+\): x -?[\d.]+ m, "
+                     r"y -?[\d.]+ m, ±[\d.]+ m · truth x -?[\d.]+, y -?[\d.]+ · "
+                     r"error [\d.]+ m", fixes), fixes  # each fix beside the simulator's truth
     # 5: a summary a newcomer can read, and the report's path
     for words in ("published", "sent in frames", "received", "mean age",
                   "acoustic ranges measured"):

@@ -166,6 +166,14 @@ def check(
                       f"{n['frame_bytes']} B", f"{n['fill']:.0%}", airtime, " ".join(n["listen"]))
     console.print(nodes)
     _print_mac(data)
+    for s in data["streams"]:
+        retries = "no retry limit" if s["retries"] is None else f"{s['retries']} retries"
+        console.print(
+            f"channel {s['channel']!r}: {retries}, the first after "
+            f"{s['retry_s']:g} s, ttl {s['ttl_s']:g} s"
+            + (" (default)" if s["ttl_default"] else "")
+            + f": every value is reported delivered or failed within {s['report_within_s']:g} s",
+            highlight=False)
     for warning in report.warnings:
         console.print(f"[yellow]warning:[/] {warning}", highlight=False)
     console.print(key.describe(), highlight=False)

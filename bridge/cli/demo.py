@@ -27,6 +27,7 @@ import msgpack
 import yaml
 import zenoh
 from rich.console import Console
+from rich.table import Table
 
 from bridge.cli.demo_queries import QueryApps, member_keys
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
@@ -167,10 +168,17 @@ class VehicleApps:
     """Per node: a publisher of its input keys and a watcher of what arrives there."""
 
     def __init__(self, loaded: LoadedMission, show: Callable[[str], None],
-                 tour: Tour | None = None) -> None:
+                 tour: Tour | None = None,
+                 truth: Callable[[str, float], tuple[float, float, float] | None] | None = None
+                 ) -> None:
+        """``truth(node, time)``: where the simulator has ``node`` at wall ``time`` (to print
+        each published position's error beside it)."""
         self.loaded = loaded
         self.show = show
         self.tour = tour
+        self.truth = truth
+        self.errors: dict[str, list[float]] = {}
+        self.fix_state: dict[str, str] = {}
         self.sessions: dict[str, zenoh.Session] = {}
         self.published: Counter[str] = Counter()  # per channel
         self.arrived = 0
@@ -245,11 +253,32 @@ class VehicleApps:
 
     def _fixed(self, node: str, sample: zenoh.Sample) -> bool:
         fix = msgpack.unpackb(sample.payload.to_bytes())
+        state = str(fix.get("state", "tracking" if fix.get("fix", True) else "lost"))
+        said = f"{state} {fix.get('reason', '')}"
+        with self._lock:
+            changed, self.fix_state[node] = self.fix_state.get(node) != said, said
         if not fix.get("fix", True):
-            return False  # a "no fix" report (too few anchors yet): the demo shows fixes only
-        self.show(f"[cyan]{node:>4}[/] position from {' + '.join(fix['anchors'])}: "
-                  f"x {fix['x']:.1f} m, y {fix['y']:.1f} m, ±{fix['sigma_m']:.2f} m")
+            if changed:  # say it once, not at every range
+                reason = str(fix.get("reason", "")).replace("_", " ")
+                self.show(f"[cyan]{node:>4}[/] position: [yellow]{state}[/] ({reason})")
+            return changed
+        self.show(f"[cyan]{node:>4}[/] {describe_fix(fix, self._truth(node, fix))}")
         return True
+
+    def _truth(self, node: str, fix: dict[str, Any]) -> tuple[float, float] | None:
+        """Where the simulator had ``node`` at the fix's time; the error is kept."""
+        if self.truth is None:
+            return None
+        try:
+            where = self.truth(node, float(fix["time"]))
+        except (KeyError, TypeError, ValueError):
+            return None
+        if where is None:
+            return None
+        with self._lock:
+            self.errors.setdefault(node, []).append(
+                math.dist((fix["x"], fix["y"]), where[:2]))
+        return where[0], where[1]
 
     def _arrived(self, node: str, sample: zenoh.Sample) -> None:
         if sample.attachment is None:  # our own publications; show only what the bridge brought
@@ -418,6 +447,21 @@ async def _start_gui(loaded: LoadedMission, port: int, console: Console) -> GuiS
     return server
 
 
+def describe_fix(fix: dict[str, Any], truth: tuple[float, float] | None = None) -> str:
+    """One published position for a newcomer: state, anchors, where, how sure, and (from the
+    simulator) the truth and the error, in sensible units."""
+    anchors = " + ".join(fix.get("anchors", [])) or "no anchors"
+    state = str(fix.get("state", "fix"))
+    if state == "coasting":
+        state = f"coasting {float(fix.get('age_s', 0.0)):.0f} s"
+    text = (f"position ({state}, {anchors}): x {fix['x']:.1f} m, y {fix['y']:.1f} m, "
+            f"±{fix['sigma_m']:.2f} m")
+    if truth is not None:
+        error = math.dist((fix["x"], fix["y"]), truth)
+        text += f" · truth x {truth[0]:.1f}, y {truth[1]:.1f} · [bold]error {error:.2f} m[/]"
+    return text
+
+
 def _short(value: Any) -> str:
     def fmt(v: Any) -> Any:
         if isinstance(v, float):
@@ -468,7 +512,14 @@ async def run_demo(
     if fleet.throwaway_key:
         console.print(f"  {throwaway_note(loaded.mission)}", highlight=False)
     attach_truth(recorder, fleet)
-    apps = VehicleApps(loaded, lambda line: console.print(line, highlight=False), tour)
+    water = fleet.water
+
+    def truth(node: str, wall: float) -> tuple[float, float, float] | None:
+        if water is None:
+            return None
+        return water.position(loaded.mission.address_of(node), wall)
+
+    apps = VehicleApps(loaded, lambda line: console.print(line, highlight=False), tour, truth)
     runner = asyncio.create_task(
         run_fleet_for(fleet, duration, live=live, console=console, events=events)
     )
@@ -501,6 +552,15 @@ async def run_demo(
     tour.part("summary")
     range_errors = [abs(m - t) for _, _, _, m, t in recorder.recording.ranges if t is not None]
     tour.summary(result, apps.published, range_errors)
+    if apps.errors:
+        table = Table("node", "positions", "p50 error", "p95 error", "max error",
+                      title="Published positions against the simulator's truth")
+        for node, errors in sorted(apps.errors.items()):
+            ordered = sorted(errors)
+            table.add_row(node, str(len(errors)), f"{ordered[len(errors) // 2]:.2f} m",
+                          f"{ordered[min(len(errors) - 1, int(0.95 * len(errors)))]:.2f} m",
+                          f"{ordered[-1]:.2f} m")
+        console.print(table)
     if report is not None:
         try:
             write_report(report, result, recorder.recording, loaded)

@@ -39,14 +39,13 @@ from bridge.core.link import LinkState, LinkThresholds, heartbeat_s
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.queries import Queries, Ticket
-from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report
+from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report, default_retry_s
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
 from bridge.dccl.goby import frame_codec_for
 from bridge.errors import DecodeError, EncodeError, FrameError, MissionError
 from bridge.mission.loader import LoadedMission
-from bridge.mission.model import TdmaMac
 from bridge.modems.reception import ModemRange, Reception
 from bridge.wire.auth import Authenticator
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
@@ -65,7 +64,6 @@ NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payl
                      "mission_mismatch", "peer_restarted", "surfaced"})
 """Notice kinds also published on ``@zab/<mission>/<node>/events`` (and failed deliveries)."""
 
-DEFAULT_RETRY_S = 10.0  # first retransmission without TDMA (with TDMA: one cycle)
 PEER_STATUS_S = 1.0  # least time between two ``peers/<peer>`` status puts of one peer
 ACK_REPEATS = 3  # frames that carry an acknowledgement after it changed (acks can be lost)
 STATE_VERSION = 1
@@ -219,8 +217,7 @@ class NodeCore:
                     key = element.input_key(node)
                     self.bindings.setdefault(key, []).append((channel, i, element))
         self._warned_keys: set[str] = set()
-        mac = mission.mac
-        retry_s = mac.slot_s * len(mac.order) if isinstance(mac, TdmaMac) else DEFAULT_RETRY_S
+        retry_s = default_retry_s(mission)
         self.senders: dict[int, ReliableSender | TransferSender] = {
             c.index: (TransferSender if c.fragmented else ReliableSender)(
                 c, c.destinations(node), retry_s, rng.randrange(SEQ_MOD))
@@ -801,7 +798,8 @@ class NodeCore:
                  modem_now: float, now: float) -> None:
         """Ranges (and a fix) from a frame's DLBL delays."""
         assert self.positioning is not None
-        self._positioned(self.positioning.on_receive(src, t_rx_start, delays, modem_now), now)
+        self._positioned(self.positioning.on_receive(src, t_rx_start, delays, modem_now, now),
+                         now)
 
     def modem_range(self, rng: ModemRange, now: float) -> None:
         """The modem measured a range itself (a ping, a propagation time): publish it like a
@@ -838,8 +836,9 @@ class NodeCore:
             payload = {**self.positioning.range_payload(rng), "time": now}
             self._status(f"range/{rng.peer}", payload)
             self._notice("range", payload)
-        if update.fix is not None:
-            payload = update.fix.payload(now)
+        found = update.estimate if update.estimate is not None else update.fix
+        if found is not None:  # the tracker's estimate; a bare fix where there is no tracker
+            payload = found.payload(now)
             self._status("position", payload)
             self._notice("position", payload)
 
@@ -850,6 +849,8 @@ class NodeCore:
         self.update_links(now)
         for sender in self.senders.values():
             self._reports(sender.expire(now))
+        if self.positioning is not None and (estimate := self.positioning.report(now)):
+            self._positioned(Update((), None, estimate), now)  # coasting, or lost, is news
         if self.queries is not None:
             self.queries.expire(now)
 

@@ -18,13 +18,14 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from bridge.mission.model import Mission, TdmaMac
 from bridge.mission.path import Path
 from bridge.modems.presets import Preset, get_preset
 from bridge.ranging import DlblRanger, Fix, NoFix, Range, SoundSpeed, Track, attempt
+from bridge.ranging.tracker import Estimate, Prior, RangeObs, RangeTracker, TrackerConfig
 
 DEFAULT_SOUND_SPEED_MPS = 1500.0
 MODEM_METHODS = ("ping", "propagation")
@@ -32,6 +33,20 @@ TRACK_RESTART_AFTER = 3
 """Fixes in a row the track refuses before it restarts at the latest one (it had diverged)."""
 MAX_MODEM_TRAVEL_S = 20.0
 """Longest one-way travel time believed from a modem (30 km at 1500 m/s); beyond is garbage."""
+
+RANGE_SIGMA_M = 0.15
+"""Range error the tracker expects: DLBL stamps to tens of µs, clocks tens of ppm apart."""
+START_SIGMA_M = 2.0
+"""How well a node knows where it starts (its mission position or first waypoint)."""
+ANCHOR_SAMPLE_AGE_S = 0.5
+"""Mean age of a live anchor position when its frame is built (a 1 Hz nav, sampled anywhere
+in the second before); the frame's airtime comes on top (:attr:`Positioning.report_latency_s`)."""
+ANCHOR_MAX_SPEED_MPS = 2.0
+"""How fast a live anchor may have moved from its mission position before its first report:
+until then, that position's 1-σ grows by half of this per second since the node started."""
+REPORT_EVERY_S = 5.0
+"""Without new ranges, the tracker's estimate (coasting, then lost) is still published this
+often."""
 
 WATER_LIMITS = {"temperature_c": (-2.0, 40.0), "salinity_psu": (0.0, 42.0),
                 "depth_m": (0.0, 12000.0)}
@@ -115,11 +130,14 @@ def water_sound_speed(temperature_c: float, salinity_psu: float, depth_m: float,
 
 @dataclass(frozen=True)
 class Update:
-    """What one measurement produced: ranges, and the fix attempted with them (a :class:`Fix`,
-    a :class:`NoFix` saying why not, or None when this node does not localise)."""
+    """What one measurement produced: ranges, the snapshot fix attempted with them (a
+    :class:`Fix`, a :class:`NoFix` saying why not, or None when this node does not localise)
+    and the range-domain tracker's estimate (:mod:`bridge.ranging.tracker`)."""
 
     ranges: tuple[Range, ...]
     fix: Fix | NoFix | None
+    estimate: Estimate | None = None
+    """The tracker's estimate after these ranges: what ``…/position`` publishes."""
 
 
 class Positioning:
@@ -165,10 +183,26 @@ class Positioning:
         self.fix_max_age_s = ranging.fix_max_age_s or default_age
         self.latest: dict[str, Range] = {}
         self.drops: Counter[str] = Counter()
+        self.anchor_reports: dict[str, list[tuple[float, tuple[float, float, float]]]] = {}
+        try:  # how old an anchor's acoustic position report is when it arrives
+            airtime = simulated_preset(mission).airtime(mission.node_modem(node).frame_bytes)
+        except (KeyError, ValueError):
+            airtime = 0.0
+        self.report_latency_s = airtime + ANCHOR_SAMPLE_AGE_S
+        config = TrackerConfig(range_sigma_m=RANGE_SIGMA_M)
+        if cycle is not None:  # a range per anchor per TDMA cycle: no news within one is normal
+            config = replace(config, coast_after_s=max(config.coast_after_s, 1.5 * cycle),
+                             init_window_s=max(config.init_window_s, cycle))
+        self.tracker = RangeTracker(config, depth=self.depth) if self.localises else None
+        self._reported_at = -math.inf
+        self._clock_offset = 0.0  # the node's clock minus the modem's
+        self._first_time: float | None = None  # when this node first sent or heard
 
     # -- transmissions (DLBL) ------------------------------------------------------------------
 
     def on_transmit(self, t_start: float) -> list[int | None]:
+        if self._first_time is None:
+            self._first_time = t_start
         return self.ranger.on_transmit(t_start)
 
     def forget_transmit(self, t_start: float) -> None:
@@ -178,9 +212,53 @@ class Positioning:
 
     def set_depth(self, depth: float) -> None:
         self.depth = depth
+        if self.tracker is not None:
+            self.tracker.set_depth(depth)
 
-    def set_anchor(self, anchor: str, position: tuple[float, float, float]) -> None:
+    def set_heading(self, heading_deg: float, speed_mps: float | None, now: float) -> None:
+        """This node's compass heading (degrees from north) and, if known, speed at ``now``."""
+        if self.tracker is not None:
+            self.tracker.on_heading(now, heading_deg, speed_mps)
+
+    def set_anchor(self, anchor: str, position: tuple[float, float, float],
+                   now: float | None = None) -> None:
+        """A live position of ``anchor`` arriving at ``now``, if given (it may be moving): taken
+        as where the anchor was :data:`ANCHOR_SAMPLE_AGE_S` before it sent the frame that
+        brought it, if a range to it came with that frame, else :attr:`report_latency_s` ago."""
         self.anchor_positions[anchor] = position
+        if now is not None:
+            sent = now - self.report_latency_s + ANCHOR_SAMPLE_AGE_S
+            rng = self.latest.get(anchor)
+            if rng is not None and rng.method == "dlbl":
+                arrived = rng.time + self._clock_offset  # that frame's start, on our clock
+                if 0 <= now - arrived <= self.report_latency_s:
+                    sent = arrived - rng.travel_time_s
+            reports = self.anchor_reports.setdefault(anchor, [])
+            reports.append((sent - ANCHOR_SAMPLE_AGE_S, position))
+            del reports[:-2]
+
+    def anchor_at(self, anchor: str, t: float) -> tuple[tuple[float, float, float], float, float]:
+        """Where ``anchor`` was at ``t``: (position, 1-σ metres, age of the report in seconds),
+        extrapolated from its last two live reports when it moves."""
+        reports = self.anchor_reports.get(anchor)
+        position = self.anchor_positions[anchor]
+        if not reports:  # the mission's: a moored anchor, or a live one not yet heard from
+            if anchor not in self.mission.ranging.anchor_keys:
+                return position, 0.0, 0.0
+            since = max(t - (self._first_time if self._first_time is not None else t), 0.0)
+            return position, START_SIGMA_M + ANCHOR_MAX_SPEED_MPS / 2 * since, 0.0
+        t1, p1 = reports[-1]
+        age = max(t - t1, 0.0)
+        if len(reports) == 2 and 0 < t1 - reports[0][0] <= 60.0:
+            t0, p0 = reports[0]
+            rate = [(b - a) / (t1 - t0) for a, b in zip(p0, p1, strict=True)]
+            position = (p1[0] + rate[0] * age, p1[1] + rate[1] * age, p1[2])
+            speed = math.hypot(rate[0], rate[1])
+            # a report's resolution, the sample's unknown age (up to a nav period or two), a
+            # manoeuvre since
+            return position, 0.05 + speed * 2 * ANCHOR_SAMPLE_AGE_S + 0.05 * age, age
+        # one report: where it has gone since is unknown
+        return position, 0.05 + ANCHOR_MAX_SPEED_MPS / 2 * (age + 2 * ANCHOR_SAMPLE_AGE_S), age
 
     def set_water(self, temperature_c: float, salinity_psu: float, depth_m: float) -> None:
         """A CTD reading at this node (``ranging.ctd_key``); ``ValueError`` if implausible."""
@@ -215,12 +293,19 @@ class Positioning:
     # -- measurements --------------------------------------------------------------------------
 
     def on_receive(self, src: str, t_rx_start: float, delays: Sequence[int | None],
-                   now: float) -> Update:
-        """A frame from ``src`` with its DLBL ``delays`` started arriving at ``t_rx_start``."""
+                   now: float, host_now: float | None = None) -> Update:
+        """A frame from ``src`` with its DLBL ``delays`` started arriving at ``t_rx_start``
+        (``now``: the modem's clock; ``host_now``: the same instant on the clock of the node's
+        other inputs, depth and heading, if it differs)."""
         ranges = tuple(self.ranger.on_receive(src, t_rx_start, delays))
         for rng in ranges:
             self.latest[rng.peer] = rng
-        return Update(ranges, self.locate(now) if ranges and self.localises else None)
+        if not (ranges and self.localises):
+            return Update(ranges, None)
+        offset = self._clock_offset = 0.0 if host_now is None else host_now - now
+        for rng in ranges:
+            self._track(rng, rng.time + offset, rng.reply_s + 2 * rng.travel_time_s)
+        return Update(ranges, self.locate(now), self.estimate(now + offset))
 
     def on_modem_range(self, peer: str, travel_time_s: float, method: str,
                        now: float) -> Update:
@@ -236,7 +321,42 @@ class Positioning:
             return Update((), None)
         rng = Range(peer, travel_time_s, method, now)
         self.latest[peer] = rng
-        return Update((rng,), self.locate(now) if self.localises else None)
+        if not self.localises:
+            return Update((rng,), None)
+        self._track(rng, now, 2 * travel_time_s)
+        return Update((rng,), self.locate(now), self.estimate(now))
+
+    def _track(self, rng: Range, t: float, span_s: float) -> None:
+        """Hand a range to an anchor with a known position to the tracker."""
+        if self.tracker is None or rng.peer not in self.anchor_positions:
+            return
+        if self._first_time is None:
+            self._first_time = t
+        if self.tracker.prior is None and self.start is not None:  # where it was put in, when
+            self.tracker.prior = Prior(min(self._first_time, t), self.start[0], self.start[1],
+                                       START_SIGMA_M)  # it started (it may have moved since)
+        now_at, sigma, age = self.anchor_at(rng.peer, t)
+        before, _, _ = self.anchor_at(rng.peer, t - span_s)
+        self.tracker.on_range(RangeObs(
+            rng.peer, rng.range_m(self.sound_speed_for(rng.peer).mps), t, now_at,
+            span_s=span_s, anchor_before=before, anchor_sigma_m=sigma, anchor_age_s=age))
+
+    def estimate(self, now: float) -> Estimate | None:
+        """The tracker's estimate at ``now`` (None if this node does not localise)."""
+        if self.tracker is None:
+            return None
+        self.tracker.drop_if_lost(now)
+        self._reported_at = now
+        return self.tracker.estimate(now)
+
+    def report(self, now: float) -> Estimate | None:
+        """The estimate, if nothing was published for :data:`REPORT_EVERY_S` (so that coasting
+        and lost tracks are seen without new ranges)."""
+        if self._first_time is None:
+            self._first_time = now  # the node's first tick: it started (and may move) now
+        if self.tracker is None or now - self._reported_at < REPORT_EVERY_S:
+            return None
+        return self.estimate(now)
 
     def locate(self, now: float) -> Fix | NoFix:
         """A fix from the fresh ranges to anchors with known positions, or why there is none."""

@@ -7,7 +7,9 @@ the items that rebuild the whole picture for a page that has just connected. Tim
 GUI host's clock at arrival (``now``); a bridge's own clock is used only for differences, so
 ages stay right even if that vehicle's clock is off.
 
-Item kinds: ``position`` (node, x, y, depth, source nav|fix, sigma_m), ``track`` (node, source,
+Item kinds: ``position`` (node, x, y, depth, source nav|fix, sigma_m; a tracker's fix also
+state tracking|coasting, age_s and its 1-σ ellipse), ``lost`` (node, reason: the tracker has no
+position), ``track`` (node, source,
 points), ``channel`` (node, channel, element, key, value, interval_s), ``link`` (observer,
 node, state), ``heard`` (node, last_heard), ``range`` (observer, peer, range_m), ``stats``,
 ``event`` (level, category, text), ``command`` and ``transfer``.
@@ -77,6 +79,22 @@ def _finite(value: Any) -> float | None:
     return number if math.isfinite(number) else None
 
 
+def _tracked(value: Mapping[str, Any]) -> dict[str, Any]:
+    """A tracker fix's state, age and 1-σ ellipse, where the payload has them (all finite)."""
+    out: dict[str, Any] = {}
+    if value.get("state") in ("tracking", "coasting"):
+        out["state"] = value["state"]
+    age = _finite(value.get("age_s"))
+    if age is not None:
+        out["age_s"] = age
+    ellipse = value.get("ellipse")
+    if isinstance(ellipse, Mapping):
+        axes = [_finite(ellipse.get(k)) for k in ("major_m", "minor_m", "angle_deg")]
+        if all(a is not None for a in axes):
+            out["ellipse"] = dict(zip(("major_m", "minor_m", "angle_deg"), axes, strict=True))
+    return out
+
+
 def _xyz(value: Any) -> tuple[float, float, float] | None:
     """(x, y, depth) from a navigation payload; depth defaults to 0."""
     if not isinstance(value, Mapping):
@@ -112,6 +130,7 @@ class VehicleView:
     tracks: dict[str, deque[list[float]]] = field(default_factory=dict)
     channels: dict[tuple[str, int], Item] = field(default_factory=dict)
     heard: float | None = None
+    lost: Item | None = None  # the tracker said it has no position (newer than the fix)
 
 
 class GuiModel:
@@ -175,6 +194,8 @@ class GuiModel:
             items.extend(view.channels.values())
             if view.heard is not None:
                 items.append({"kind": "heard", "node": view.name, "last_heard": view.heard})
+            if view.lost is not None:
+                items.append(view.lost)
         items.extend(self.links.values())
         items.extend(self.ranges.values())
         items.extend(self.stats.values())
@@ -238,11 +259,11 @@ class GuiModel:
                 self._position(source.src, "nav", xyz, now)
 
     def _position(self, node: str, source: str, xyz: tuple[float, float, float], now: float,
-                  sigma_m: float | None = None) -> None:
+                  sigma_m: float | None = None, extra: Mapping[str, Any] | None = None) -> None:
         view = self.vehicles[node]
         x, y, depth = xyz
         item = {"kind": "position", "node": node, "source": source, "x": x, "y": y,
-                "depth": depth, "time": now, "sigma_m": sigma_m}
+                "depth": depth, "time": now, "sigma_m": sigma_m, **(extra or {})}
         view.position[source] = item
         track = view.tracks.setdefault(source, deque(maxlen=self.track_points))
         track.append([x, y, now])
@@ -267,10 +288,18 @@ class GuiModel:
                         "time": now, "method": shown(value.get("method"))}
                 self.ranges[(node, name)] = item
                 self._out.append(item)
-        elif topic == "position" and name is None and value.get("fix") is not False:
+        elif topic == "position" and name is None and value.get("fix") is False:
+            if value.get("state") == "lost":  # the tracker's word: it has no position
+                item = {"kind": "lost", "node": node, "reason": shown(value.get("reason")),
+                        "time": now}
+                self.vehicles[node].lost = item
+                self._out.append(item)
+        elif topic == "position" and name is None:
             xyz = _xyz(value)
             if xyz is not None:
-                self._position(node, "fix", xyz, now, _finite(value.get("sigma_m")))
+                self.vehicles[node].lost = None
+                self._position(node, "fix", xyz, now, _finite(value.get("sigma_m")),
+                               _tracked(value))
         elif topic == "delivery":
             self._delivery(node, value, now)
         elif topic == "transfer":

@@ -19,6 +19,8 @@ from bridge.core.mac import (
     ranging_tmax_s,
 )
 from bridge.core.queries import deadline_s
+from bridge.core.reliable import default_retry_s, stream_ttl_s
+from bridge.core.transfer import transfer_ttl_s
 from bridge.dccl.goby import frame_codec_for
 from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
@@ -29,6 +31,8 @@ from bridge.wire.channels import ChannelCodec
 from bridge.wire.families import has_wildcard
 from bridge.wire.frame import FrameCodec
 from bridge.wire.queries import QueryCodec
+
+TICK_S = 1.0  # runtimes look at TTLs at least this often (zab run's health loop)
 
 
 @dataclass
@@ -42,6 +46,17 @@ class CheckReport:
     @property
     def ok(self) -> bool:
         return not self.errors
+
+
+def stream_limits(channel: ChannelCodec, mission: Mission) -> dict[str, Any]:
+    """A reliable or fragmented channel's retries, first retry wait and TTL (given or
+    default), and so the longest a value waits for its terminal report."""
+    retry_s = channel.retry_s or default_retry_s(mission)
+    ttl = channel.ttl_s or (transfer_ttl_s(channel, retry_s) if channel.fragmented
+                            else stream_ttl_s(retry_s, channel.retries, channel.queue))
+    return {"channel": channel.name, "retries": channel.retries, "retry_s": retry_s,
+            "ttl_s": round(ttl, 3), "ttl_default": channel.ttl_s is None,
+            "report_within_s": round(ttl + TICK_S, 3)}
 
 
 def check_mission(loaded: LoadedMission) -> CheckReport:
@@ -139,6 +154,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         nodes.append(entry)
     mac_data = _mac_summary(mission, nodes, report)
     report.data = {
+        "streams": [stream_limits(c, mission) for c in table.streams],
         "mission": mission.mission,
         "frame_bytes": mission.modem.frame_bytes,
         "backend": mission.modem.backend,

@@ -136,10 +136,13 @@ class Fleet:
             )
             await asyncio.wait([started, *tasks], return_when=asyncio.FIRST_COMPLETED)
             started.cancel()
-            for task in tasks:
-                if task.done():  # a node ended before it started: its session could not open
-                    task.result()
-                    raise RuntimeError("a bridge node stopped while starting")
+            with contextlib.suppress(asyncio.CancelledError):
+                await started
+            if any(task.done() for task in tasks):  # a session could not open: stop them all
+                node_stop.set()
+                ended = await asyncio.gather(*tasks, return_exceptions=True)
+                first = next((e for e in ended if isinstance(e, BaseException)), None)
+                raise first or RuntimeError("a bridge node stopped while starting")
             self.started = time.time()
             self.ready.set()
             while not stop.is_set():

@@ -9,7 +9,6 @@ what it outputs: publications, ``@zab`` status, liveliness tokens and events.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import time
 from collections.abc import Callable
@@ -23,7 +22,7 @@ from bridge.core.link import LinkState
 from bridge.core.node import NodeCore, NodeStats, Notice, Ping, Publish, Status, notable
 from bridge.core.positioning import Positioning
 from bridge.core.surfacing import Relay
-from bridge.errors import BackendError, EncodeError
+from bridge.errors import BackendError, DecodeError, EncodeError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
 from bridge.ros2.graph import Ros2Graph
@@ -31,7 +30,7 @@ from bridge.runtime.session import close_quietly, is_bridged, open_session, orig
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_queries import QueryBridge
 from bridge.wire.auth import load_key
-from bridge.wire.payloads import encode_payload
+from bridge.wire.payloads import decode_payload, encode_payload
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -193,11 +192,18 @@ class BridgeNode:
         positioning = self.core.positioning
         if positioning is None:
             return
+        if nav_key is not None and positioning.tracker is not None:
+            def steer(sample: zenoh.Sample) -> None:  # heading and speed, where nav has them
+                if sample.kind == zenoh.SampleKind.PUT and not is_bridged(sample):
+                    data, encoding = sample.payload.to_bytes(), str(sample.encoding)
+                    loop.call_soon_threadsafe(self._steer, data, encoding)
+
+            self.session.declare_subscriber(nav_key, steer)
         for anchor, key in self.mission.ranging.anchor_keys.items():
             if anchor in positioning.anchors:
                 listen(key, ("x", "y", "depth"),
-                       lambda v, a=anchor: positioning.set_anchor(a, v),  # type: ignore[misc]
-                       bridged=True)
+                       lambda v, a=anchor: positioning.set_anchor(  # type: ignore[misc]
+                           a, v, self.clock()), bridged=True)
         ctd_key = self.mission.ranging.ctd_key
         if ctd_key is not None:
             listen(ctd_key, ("temperature_c", "salinity_psu", "depth_m"),
@@ -247,6 +253,19 @@ class BridgeNode:
         self.core.ip_reachable(peer, up, self.clock())
         self._flush()
         self._data.set()  # a dive makes the peer's channels due again
+    def _steer(self, data: bytes, encoding: str) -> None:
+        """This node's nav sample: its heading (and speed) steer the tracker, if it has them."""
+        assert self.core.positioning is not None
+        try:
+            value = decode_payload(data, encoding)
+            heading = float(value["heading"])
+        except (DecodeError, TypeError, KeyError, ValueError):
+            return  # no heading in this nav: ranges and depth alone
+        try:
+            speed: float | None = float(value["speed"])
+        except (TypeError, KeyError, ValueError):
+            speed = None
+        self.core.positioning.set_heading(heading, speed, self.clock())
 
     def move(self, position: tuple[float, ...]) -> None:
         """This node's live position: move the (simulated) modem and keep the depth."""
@@ -275,11 +294,20 @@ class BridgeNode:
             now = self.clock()
             wake = self.core.wake_at(now)
             if wake is None or wake > now:
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._data.wait(),
-                                           None if wake is None else wake - now)
+                await self._wait_for_data(None if wake is None else wake - now)
                 continue
             await self.transmit()
+
+    async def _wait_for_data(self, timeout: float | None) -> None:
+        """Until new data or a frame sets ``_data``, or ``timeout`` seconds pass (a timer on
+        the loop: no task per wait, as ``asyncio.wait_for`` would make)."""
+        timer = None if timeout is None else \
+            asyncio.get_running_loop().call_later(timeout, self._data.set)
+        try:
+            await self._data.wait()
+        finally:
+            if timer is not None:
+                timer.cancel()
 
     async def transmit(self) -> bool:
         """Carry out the core's action at an open opportunity: send its frame, or ping.

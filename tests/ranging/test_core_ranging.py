@@ -39,8 +39,9 @@ def test_ranges_turns_and_no_fix_without_dlbl() -> None:
     status = {o.topic: o.payload for o in out if isinstance(o, Status)}
     assert status["range/a1"]["method"] == "ping" and status["range/a1"]["time"] == 101.5
     assert abs(status["range/a1"]["range_m"] - math.dist((30, 20), (0, 0))) < 1e-9
-    assert status["position"] == {"fix": False, "reason": "too_few_anchors", "anchors": ["a1"],
-                                  "time": 101.5, "detail": status["position"]["detail"]}
+    assert status["position"] == {"fix": False, "state": "lost", "reason": "too_few_anchors",
+                                  "anchors": ["a1"], "time": 101.5,
+                                  "detail": status["position"]["detail"]}
     assert [o.kind for o in out if isinstance(o, Notice)] == ["range", "position"]
     assert core.range_due(105.0) == 2  # the other anchor's turn
     core.range_asked(2, 105.0, "no ping reply")

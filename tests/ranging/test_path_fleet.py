@@ -1,6 +1,7 @@
 """Seed 001's mobile case in the simulated ocean: a vehicle sails a 10 m × 30 m rectangle east of
-three anchors on a jetty, and its DLBL fixes follow it (round a corner, through the mirror
-ambiguity of anchors on one line), in real time and on the virtual clock."""
+three anchors on a jetty, and its published positions (the range-domain tracker's) follow it
+(round a corner, through the mirror ambiguity of anchors on one line), in real time and on the
+virtual clock."""
 
 from __future__ import annotations
 
@@ -14,7 +15,6 @@ import yaml
 from bridge.core.node import Status
 from bridge.mission.loader import parse_mission
 from bridge.mission.path import Path
-from bridge.ranging import Fix, Track
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import on_free_ports
 from tests.harness import Inbox, outside_session, running_fleet
@@ -40,14 +40,6 @@ MISSION = {
 }
 
 
-def off_route(path: Path, t: float, point: tuple[float, float], cycles: int = 1) -> float:
-    """How far ``point`` is from where the vehicle was during the ``cycles`` TDMA cycles before
-    ``t`` (the ranges of a fix were measured during the last cycle before it)."""
-    step = SLOT_S * 4 / 20
-    return min(math.dist(point, path.position_at(t - k * step)[:2])
-               for k in range(20 * cycles + 1))
-
-
 def test_fixes_follow_a_vehicle_sailing_the_seed001_rectangle() -> None:
     loaded = on_free_ports(yaml.safe_dump(MISSION), "jetty.yaml")
     path = Path.from_spec(loaded.mission.nodes["auv"].path)
@@ -70,34 +62,28 @@ def test_fixes_follow_a_vehicle_sailing_the_seed001_rectangle() -> None:
     fixes = [value for _, value, _ in got if value["fix"]]
     refused = [value for _, value, _ in got if not value["fix"]]
     assert len(fixes) >= 10, got
-    assert all(v["reason"] == "too_few_anchors" for v in refused)  # only while starting
-    track = Track(accel_sigma=0.5)
-    errors = []
+    assert all(v["reason"] in ("too_few_anchors", "ambiguous") for v in refused)  # starting
+    # the published position is the tracker's, at the time it names. With no compass here
+    # (ranges and depth only) the instant 90° turn at (15, 5) surprises it for a few seconds
+    # (2-3 m); elsewhere, once it has its velocity, it stays within ~half a metre of the truth.
+    # (tests/ranging/test_tracker_fleet.py: with the vehicle's heading, within 1 m throughout.)
+    corner_s = 10.0 / SPEED
+    straight, all_errors = [], []
     for fix in fixes:
-        errors.append(off_route(path, fix["time"] - start, (fix["x"], fix["y"])))
         assert fix["depth"] == 1.0 and set(fix["anchors"]) <= {"a1", "a2", "a3"}
-        assert fix["x"] > 0  # east of the jetty: the mirror image was never chosen
-    # a DLBL range is the mean of the distances at both ends' emissions, up to a cycle apart:
-    # at 1.5 m/s the fixes stay within ~0.8 m of the route
-    assert max(errors) < 1.25, errors
+        assert fix["x"] > 0 and fix["state"] == "tracking"  # the mirror image never chosen
+        t = fix["time"] - start
+        error = math.dist((fix["x"], fix["y"]), path.position_at(t)[:2])
+        if fix["time"] - fixes[0]["time"] > 3.0:  # two cycles to learn the velocity
+            all_errors.append(error)
+            if not corner_s - 0.5 < t < corner_s + 5.0:
+                straight.append(error)
+    assert max(straight) < 0.75, straight  # real time: the machine's load shows a little
+    assert max(all_errors) < 4.0, all_errors  # the instant turn, more so on a loaded machine
     travelled = math.dist((fixes[0]["x"], fixes[0]["y"]), (fixes[-1]["x"], fixes[-1]["y"]))
     assert travelled > 6.0, fixes  # it really moved, and the fixes moved with it
     assert fixes[-1]["y"] > 8.0, "turned north at the (15, 5) corner"
-    lags = []
-    corner_s = 10.0 / SPEED
-    for fix in fixes:  # a constant-velocity filter over the fixes keeps up with the vehicle...
-        t = fix["time"] - start
-        if not track.update(fix["time"], Fix(fix["x"], fix["y"], fix["depth"], fix["sigma_m"],
-                                             tuple(fix["anchors"]), fix["method"])):
-            # ...but may gate out a fix after the instant 90° turn at (15, 5) until its velocity
-            # has turned too (how many depends on the fixes' timing, i.e. the machine's load)
-            assert t > corner_s, (t, fix)
-            continue
-        assert track.position is not None
-        lags.append(off_route(path, t, track.position, cycles=2))
-    assert max(lags) < 1.5, lags
-    assert track.refused <= 3, track
-    assert track.velocity is not None and 0.5 * SPEED < math.hypot(*track.velocity) < 1.5 * SPEED
+    assert 0.5 * SPEED < math.hypot(fixes[-1]["vx"], fixes[-1]["vy"]) < 1.5 * SPEED
 
 
 def test_two_laps_of_the_rectangle_on_the_virtual_clock() -> None:
@@ -108,15 +94,20 @@ def test_two_laps_of_the_rectangle_on_the_virtual_clock() -> None:
     fixes = [(t.time, t.output.payload) for t in fleet.outputs
              if t.node == "auv" and isinstance(t.output, Status)
              and t.output.topic == "position" and t.output.payload["fix"]]
-    assert len(fixes) > 150  # one per TDMA cycle (1.6 s) once three anchors are heard
-    errors, east = [], []
+    assert len(fixes) > 180  # one per range (three per 1.6 s TDMA cycle) once tracking
+    errors, straight, west = [], [], []
     for t, fix in fixes:
-        assert fix["x"] > 0  # the mirror image across the jetty is never chosen
-        error = off_route(path, t, (fix["x"], fix["y"]))
+        assert fix["x"] > 0 and fix["time"] == t  # the mirror image is never chosen
+        truth = path.position_at(t)
+        error = math.dist((fix["x"], fix["y"]), truth[:2])
         errors.append(error)
-        if path.position_at(t)[0] == pytest.approx(15.0):
-            east.append(error)
-    # on the east leg the fixes keep within ~0.8 m of the route; on the west leg, 5 m from the
-    # line of anchors, x is ill-conditioned and a range a cycle old moves the fix by up to ~3 m
-    assert max(east) < 1.25, east
-    assert statistics.fmean(errors) < 0.8 and max(errors) < 3.5, errors
+        since_corner = min((t - along / SPEED) % path.duration_s for along in (10, 40, 50, 80))
+        if t > 3.0 and since_corner > 5.0:
+            straight.append(error)
+            if truth[0] == pytest.approx(5.0):
+                west.append(error)
+    # the tracker, with no compass here, is surprised for a few seconds by each instant 90°
+    # turn; between the corners it keeps within half a metre, the west leg (5 m from the line
+    # of anchors, where a single fix is ill-conditioned in x) included
+    assert max(straight) < 0.5 and max(west) < 0.5, (straight, west)
+    assert statistics.fmean(errors) < 0.4 and max(errors) < 2.5, errors

@@ -171,3 +171,18 @@ def test_links_do_not_go_down_while_frames_keep_arriving_at_30_percent_loss() ->
     fleet.run_until(3600.0)  # nobody publishes: only heartbeats keep the links alive
     assert fleet.cores["ops"].stats.frames_received > 500
     assert downs == []
+
+
+def test_check_prints_each_streams_retries_ttl_and_bound() -> None:
+    from bridge.core.reliable import stream_ttl_s
+    from bridge.mission.check import check_mission
+
+    (limits,) = check_mission(LOADED).data["streams"]
+    cycle = 4.0  # two 2 s TDMA slots
+    assert limits["retry_s"] == cycle and limits["retries"] == 10 and limits["ttl_default"]
+    assert limits["ttl_s"] == pytest.approx(stream_ttl_s(cycle, 10, 256))
+    assert limits["report_within_s"] == pytest.approx(limits["ttl_s"] + 1.0)
+    text = chaos.mission_text(0.0).replace("queue: 256", "queue: 256\n    ttl_s: 90")
+    given = parse_mission(text, "ttl.yaml")
+    (limits,) = check_mission(given).data["streams"]
+    assert limits["ttl_s"] == 90 and not limits["ttl_default"]

@@ -6,6 +6,7 @@
 const RENDER_MS = 500;          // ages tick at this pace even without news
 const MIN_RENDER_MS = 100;      // news is drawn at most this often
 const RANGE_FADE_S = 60;        // range circles older than this are not drawn
+const ELLIPSE_95 = Math.sqrt(5.991);  // 1-σ ellipse to the 95 % one (χ², two degrees)
 const STALE_S = 60;             // a position older than this is drawn hollow
 const MAX_EVENTS = 300;
 const SVG = "http://www.w3.org/2000/svg";
@@ -28,7 +29,7 @@ function emptyState() {
 function vehicle(name) {
   if (!state.nodes[name]) {
     state.nodes[name] = { name, role: "submerged", position: {}, tracks: {}, channels: {},
-                          heard: null, static: null };
+                          heard: null, static: null, lost: null };
   }
   return state.nodes[name];
 }
@@ -75,6 +76,7 @@ function apply(item) {
       if (track.length > limit) track.splice(0, track.length - limit);
       break;
     }
+    case "lost": vehicle(item.node).lost = item; break;
     case "track": vehicle(item.node).tracks[item.source] = item.points.slice(); break;
     case "channel": vehicle(item.node).channels[item.channel + "/" + item.element] = item; break;
     case "heard": vehicle(item.node).heard = item.last_heard; break;
@@ -300,14 +302,33 @@ function renderMap() {
     }
   }
 
-  // fixes from the bridge's localisation
+  // fixes from the bridge's tracker: the 95 % uncertainty ellipse, and its state when it is
+  // not tracking (coasting since..., or lost: then only the last fix, greyed, and why)
   for (const v of Object.values(state.nodes)) {
     const fix = v.position.fix;
     if (!fix) continue;
-    const g = el("g", { class: "fix", "data-node": v.name }, svg);
-    if (fix.sigma_m) el("circle", { cx: sx(fix.x), cy: sy(fix.y),
-                                    r: Math.max(2, fix.sigma_m * scale) }, g);
-    el("path", { d: `M${sx(fix.x) - 6},${sy(fix.y)}h12M${sx(fix.x)},${sy(fix.y) - 6}v12` }, g);
+    const lost = v.lost && v.lost.time >= fix.time ? v.lost : null;
+    const status = lost ? "lost" : (fix.state || "tracking");
+    const g = el("g", { class: `fix ${status}`, "data-node": v.name, "data-state": status }, svg);
+    const X = sx(fix.x), Y = sy(fix.y);
+    const e = fix.ellipse;
+    if (!lost && e) {
+      el("ellipse", { cx: X, cy: Y, rx: Math.max(2, ELLIPSE_95 * e.major_m * scale),
+                      ry: Math.max(2, ELLIPSE_95 * e.minor_m * scale),
+                      transform: `rotate(${(-e.angle_deg).toFixed(1)} ${X.toFixed(1)} ${Y.toFixed(1)})`,
+                      class: "uncertainty" }, g);
+    } else if (!lost && fix.sigma_m) {
+      el("circle", { cx: X, cy: Y, r: Math.max(2, fix.sigma_m * scale) }, g);
+    }
+    el("path", { d: `M${X - 6},${Y}h12M${X},${Y - 6}v12` }, g);
+    if (status !== "tracking") {
+      const text = lost ? `lost: ${String(lost.reason).replace(/_/g, " ")}`
+        : `coasting ${age(fix.time - (fix.age_s || 0))}`;
+      el("text", { x: X + 10, y: Y + 16, class: "fix-state" }, g).textContent = text;
+    }
+    el("title", {}, g).textContent = `${v.name} fix: x ${fix.x.toFixed(1)} m, y ${fix.y.toFixed(1)} m`
+      + (e ? `, 95 % ellipse ${(ELLIPSE_95 * e.major_m).toFixed(2)} × ${(ELLIPSE_95 * e.minor_m).toFixed(2)} m` : "")
+      + `, ${lost ? "lost: " + lost.reason : status}`;
   }
 
   // vehicles

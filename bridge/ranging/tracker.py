@@ -1,0 +1,653 @@
+"""A range-domain tracker for one moving node: an EKF bank over ranges, depth and heading (#16).
+
+Every range is fused as it arrives, at its own time, against the anchor's position at that time
+(a moving anchor included); the node's own depth is known (a pressure sensor), so the state is
+horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`` (m/s²;
+``accel_sigma_steered`` while a heading is coming in, which turns the velocity itself).
+
+- Range model. A DLBL range (:mod:`bridge.ranging.dlbl`) is half a two-way travel time: leg 1
+  left this node ``span_s`` before the reception that completed it, leg 2 arrived at that
+  reception. So ``h = ½(|p(t − span) − a₁| + |p(t) − a₂|)`` with slant (3-D) distances from the
+  node's depth to the anchor's: the depth difference is in the model, not subtracted first.
+  With ``span_s = 0`` it is a plain range.
+- Heading (and speed), when the node's navigation gives them, are the direction (and length) of
+  the velocity; a change of heading also turns the velocity state by the same angle (the
+  vehicle turned), so a corner does not need the ranges to discover it. Heading is taken as
+  course over ground (no current is modelled).
+- Ambiguity. Ranges alone cannot tell a position from its mirror image across a line of
+  anchors. Initialisation takes a least-squares / circle fix (:func:`~bridge.ranging.localise.
+  attempt`) and its mirror alternative as hypotheses, weighted by the prior (e.g. the start
+  position, its 1-σ growing by ``prior_speed_mps`` per second since) and then by the
+  likelihood of every measurement; the state is ``lost`` (``ambiguous``) until one holds
+  :data:`RESOLVED_SHARE` of the weight (or, when nothing tells them apart, ``commit_share``
+  after ``commit_after_s``; the rest is published as ``mirror_doubt``), and from then on only
+  that one is kept: the estimate cannot flip.
+- Gating. A range whose normalised innovation squared exceeds ``gate_nis`` (χ², one degree of
+  freedom) is refused and counted by reason in :attr:`RangeTracker.rejected`: ``long`` (later
+  than predicted: multipath, a surface reflection), ``short`` (earlier than possible: a wrong
+  clock), plus ``stale_anchor``, ``out_of_order`` and ``not_finite`` before the filter sees it.
+  After ``diverged_after`` refusals from two or more anchors within ``2·coast_after_s``,
+  outnumbering the ranges accepted meanwhile, the track restarts
+  (``lost``, ``diverged``) from a fresh fix, with the old estimate as a broad prior.
+- States: ``tracking`` (a range accepted within ``coast_after_s``), ``coasting`` (predicting;
+  ``age_s`` says since when), ``lost`` with a reason (:data:`LOST_REASONS`). A lost track has
+  no position; nothing published is ever infinite or NaN.
+
+Pure and clock-free: every time is an argument, in seconds on one clock.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bridge.ranging.localise import Fix, attempt
+
+Anchor = tuple[float, float, float]  # x, y, depth
+
+RESOLVED_SHARE = 0.999
+"""Share of the hypotheses' weight the best must hold before the track commits to it."""
+GATE_NIS_1DOF = 10.83
+"""χ² with one degree of freedom at 99.9 %: a range this far out is 1 in 1000 if all is well."""
+
+LOST_REASONS = {
+    "no_depth": "this node's depth is unknown",
+    "too_few_anchors": "fewer than two anchors with a recent range and a known position",
+    "degenerate_geometry": "the anchors' geometry gives no position",
+    "ambiguous": "two positions (mirror images) still fit the ranges and the prior",
+    "diverged": "ranges kept contradicting the track; restarting from a fresh fix",
+    "no_ranges": "no range accepted for too long; the prediction is no longer worth publishing",
+}
+"""Why a track is ``lost`` (``reason`` of :class:`Estimate`)."""
+
+
+@dataclass(frozen=True)
+class RangeObs:
+    """One measured slant range to ``anchor``, completed at ``time``.
+
+    ``span_s``: time from this node's emission of leg 1 to ``time`` (DLBL: the peer's delay
+    plus the two-way travel time; 0 for a one-way range). ``anchor_at`` is the anchor's position
+    at ``time``, ``anchor_before`` at the start of the span if it moved (default: the same);
+    ``anchor_sigma_m`` the uncertainty of those positions; ``anchor_age_s`` how old the
+    anchor's position report is.
+    """
+
+    anchor: str
+    range_m: float
+    time: float
+    anchor_at: Anchor
+    span_s: float = 0.0
+    anchor_before: Anchor | None = None
+    anchor_sigma_m: float = 0.0
+    anchor_age_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Noise figures and limits; defaults suit a small AUV at 0.5–2 m/s and DLBL ranges."""
+
+    range_sigma_m: float = 0.1
+    accel_sigma: float = 0.5
+    accel_sigma_steered: float = 0.08
+    heading_sigma_deg: float = 3.0
+    speed_sigma_mps: float = 0.1
+    max_speed_mps: float = 2.5
+    gate_nis: float = GATE_NIS_1DOF
+    coast_after_s: float = 6.0
+    lost_after_s: float = 120.0
+    max_sigma_m: float = 30.0
+    init_window_s: float = 6.0
+    anchor_max_age_s: float = 60.0
+    max_lag_s: float = 10.0
+    diverged_after: int = 6
+    manoeuvre_window_s: float = 2.5
+    prune_share: float = 1e-6
+    min_heading_speed_mps: float = 0.2
+    prior_speed_mps: float = 1.0
+    commit_after_s: float = 20.0
+    commit_share: float = 0.95
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Where the node was believed to be at ``time`` (e.g. its last GNSS fix before diving)."""
+
+    time: float
+    x: float
+    y: float
+    sigma_m: float = 2.0
+
+
+@dataclass
+class _Hypothesis:
+    x: np.ndarray  # [x, y, vx, vy]
+    p: np.ndarray  # 4×4
+    time: float
+    log_w: float = 0.0
+    heading: float | None = None  # radians, compass convention, last one applied
+    heading_time: float = 0.0
+    turns: list[tuple[float, float]] = field(default_factory=list)  # (when, clockwise rad)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What the tracker says at ``time``: a state, and a position unless ``lost``."""
+
+    state: str  # tracking | coasting | lost
+    time: float
+    x: float = 0.0
+    y: float = 0.0
+    depth: float = 0.0
+    vx: float = 0.0
+    vy: float = 0.0
+    cov: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 0.0), (0.0, 0.0))
+    age_s: float = 0.0
+    reason: str | None = None
+    anchors: tuple[str, ...] = ()
+    ranges: Mapping[str, float] = field(default_factory=dict)
+    candidates: tuple[tuple[float, float], ...] = ()
+    doubt: float = 0.0  # the weight the mirror image still had when the track committed
+
+    @property
+    def has_position(self) -> bool:
+        return self.state != "lost"
+
+    @property
+    def sigma_m(self) -> float:
+        """1-σ horizontal error radius, √(σx² + σy²)."""
+        return math.sqrt(max(self.cov[0][0] + self.cov[1][1], 0.0))
+
+    def ellipse(self) -> tuple[float, float, float]:
+        """The 1-σ error ellipse: semi-axes (major, minor) in metres and the major axis's angle
+        in degrees anticlockwise from east."""
+        (a, b), (_, d) = self.cov
+        mean, diff = (a + d) / 2, math.hypot((a - d) / 2, b)
+        angle = 0.5 * math.degrees(math.atan2(2 * b, a - d))
+        return math.sqrt(max(mean + diff, 0.0)), math.sqrt(max(mean - diff, 0.0)), angle
+
+    def payload(self, time: float | None = None) -> dict[str, Any]:
+        """The map published on ``@zab/<mission>/<node>/position``; every number finite."""
+        when = self.time if time is None else time
+        if not self.has_position:
+            out: dict[str, Any] = {
+                "fix": False, "state": "lost", "reason": self.reason,
+                "detail": LOST_REASONS.get(self.reason or "", ""),
+                "anchors": list(self.anchors), "time": when,
+            }
+            if self.candidates:
+                out["candidates"] = [list(c) for c in self.candidates]
+            return _finite(out)
+        major, minor, angle = self.ellipse()
+        return _finite({
+            "fix": True, "state": self.state, "method": "ekf",
+            "x": self.x, "y": self.y, "depth": self.depth, "vx": self.vx, "vy": self.vy,
+            "cov": [list(row) for row in self.cov], "sigma_m": self.sigma_m,
+            "ellipse": {"major_m": major, "minor_m": minor, "angle_deg": angle},
+            "age_s": self.age_s, "anchors": list(self.anchors), "ranges": dict(self.ranges),
+            "time": when, **({"mirror_doubt": self.doubt} if self.doubt >= 1e-3 else {}),
+        })
+
+
+def _finite(value: Any) -> Any:
+    """``value`` with every float checked finite (a bug otherwise, never published)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError("a tracker payload must not hold inf or NaN")
+    if isinstance(value, dict):
+        for v in value.values():
+            _finite(v)
+    elif isinstance(value, list):
+        for v in value:
+            _finite(v)
+    return value
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % (2 * math.pi) - math.pi
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What one measurement did: ``accepted``, or refused with ``reason``; ``nis`` if tested."""
+
+    accepted: bool
+    reason: str | None = None
+    nis: float | None = None
+
+
+class RangeTracker:
+    """Tracks one node from its ranges to anchors, its depth and (optionally) heading/speed."""
+
+    def __init__(self, config: TrackerConfig | None = None, prior: Prior | None = None,
+                 depth: float | None = None) -> None:
+        self.config = config or TrackerConfig()
+        self.prior = prior
+        self.depth = depth
+        self.hypotheses: list[_Hypothesis] = []
+        self.resolved = False
+        self.rejected: Counter[str] = Counter()
+        self.accepted = 0
+        self.restarts = 0
+        self.last_range_time: float | None = None
+        self.lost_reason = "too_few_anchors" if depth is not None else "no_depth"
+        self._recent: dict[str, RangeObs] = {}  # latest range per anchor (initialisation)
+        self._used: dict[str, float] = {}  # anchor -> last accepted range (m)
+        self._refusals: list[tuple[RangeObs, str]] = []  # recent refused ranges, and why
+        self._heading: tuple[float, float, float | None] | None = None  # time, rad, speed
+        self.manoeuvres = 0
+        self._accepted_at: deque[float] = deque(maxlen=64)  # times of recent accepted ranges
+        self._now = 0.0  # the latest measurement's time
+        self._agreed_at: dict[str, float] = {}  # anchor -> its last accepted range's time
+        self._ambiguous_since: float | None = None
+        self.doubt = 0.0  # the share of weight the committed hypothesis's rivals held
+
+    # -- inputs --------------------------------------------------------------------------------
+
+    def set_depth(self, depth: float) -> None:
+        """This node's depth (m, positive down), from its own sensor."""
+        if math.isfinite(depth):
+            self.depth = depth
+            if self.lost_reason == "no_depth":
+                self.lost_reason = "too_few_anchors"
+
+    def on_heading(self, t: float, heading_deg: float, speed_mps: float | None = None) -> Outcome:
+        """The node's compass heading (degrees clockwise from north) and, if known, its speed
+        through the water at ``t``."""
+        if not math.isfinite(heading_deg) or (speed_mps is not None
+                                              and not math.isfinite(speed_mps)):
+            self.rejected["not_finite"] += 1
+            return Outcome(False, "not_finite")
+        theta = math.radians(heading_deg)
+        self._heading = (t, theta, speed_mps)
+        self._now = max(self._now, t)
+        if not self.hypotheses:
+            return Outcome(False, "not_started")
+        cfg = self.config
+        worst = 0.0
+        for hyp in self.hypotheses:
+            if t < hyp.time - cfg.max_lag_s:
+                continue
+            self._predict(hyp, max(t, hyp.time))
+            turned = _wrap(theta - hyp.heading) if hyp.heading is not None else 0.0
+            noise = math.radians(cfg.heading_sigma_deg)
+            if hyp.heading is None or abs(turned) > 3 * noise:
+                if turned:  # the vehicle turned, so did its velocity; compass noise does not
+                    _turn(hyp, turned, t - hyp.heading_time)
+                    hyp.turns = [(w, a) for w, a in hyp.turns if t - w <= cfg.max_lag_s]
+                    hyp.turns.append(((t + hyp.heading_time) / 2, turned))
+                hyp.heading = theta
+            hyp.heading_time = t
+            if speed_mps is not None:
+                nis = self._speed_update(hyp, speed_mps)
+                worst = max(worst, nis)
+            speed = math.hypot(hyp.x[2], hyp.x[3])
+            if speed >= cfg.min_heading_speed_mps:
+                worst = max(worst, self._heading_update(hyp, theta, speed))
+        self._normalise()
+        return Outcome(True, None, worst)
+
+    def on_range(self, obs: RangeObs) -> Outcome:
+        """Fuse one range; refused ranges are counted in :attr:`rejected` by reason."""
+        cfg = self.config
+        if not (math.isfinite(obs.range_m) and obs.range_m >= 0 and math.isfinite(obs.time)
+                and all(map(math.isfinite, obs.anchor_at)) and math.isfinite(obs.span_s)):
+            return self._refuse("not_finite")
+        if obs.anchor_age_s > cfg.anchor_max_age_s:
+            return self._refuse("stale_anchor")
+        if self.last_range_time is not None and obs.time < self.last_range_time - cfg.max_lag_s:
+            return self._refuse("out_of_order")
+        self._recent[obs.anchor] = obs
+        self._now = max(self._now, obs.time)
+        if self.depth is None:
+            self.lost_reason = "no_depth"
+            return Outcome(False, "no_depth")
+        if not self.hypotheses:
+            return self._start(obs.time)
+        worst_nis, refused = math.inf, True
+        for hyp in self.hypotheses:
+            nis, ok = self._range_update(hyp, obs)
+            worst_nis = min(worst_nis, nis)
+            refused = refused and not ok
+        self._normalise()
+        self._refusals = [(o, r) for o, r in self._refusals
+                          if obs.time - o.time <= 2 * cfg.coast_after_s]
+        if refused and self._manoeuvred(obs):
+            refused = False
+        if refused:  # refused by every hypothesis: a bad range (or a diverged track)
+            reason = "long" if self._innovation_sign(obs) > 0 else "short"
+            self._refusals.append((obs, reason))
+            outcome = self._refuse(reason, worst_nis)
+            window = 2 * cfg.coast_after_s
+            taken = sum(obs.time - t <= window for t in self._accepted_at)
+            if (len(self._refusals) >= cfg.diverged_after and len(self._refusals) > taken
+                    and len({o.anchor for o, _ in self._refusals}) >= 2):
+                self._restart(obs.time)
+            return outcome
+        self.accepted += 1
+        self._accepted_at.append(obs.time)
+        self._agreed_at[obs.anchor] = obs.time
+        self.last_range_time = max(self.last_range_time or obs.time, obs.time)
+        self._used[obs.anchor] = obs.range_m
+        return Outcome(True, None, worst_nis)
+
+    # -- output --------------------------------------------------------------------------------
+
+    def estimate(self, t: float) -> Estimate:
+        """The state at ``t``: position predicted to ``t`` unless the track is lost."""
+        cfg = self.config
+        anchors = tuple(sorted(self._used)) if self.hypotheses else tuple(sorted(self._recent))
+        if not self.hypotheses:
+            return Estimate("lost", t, reason=self.lost_reason, anchors=anchors)
+        if not self.resolved:
+            cands = tuple((float(h.x[0]), float(h.x[1])) for h in self.hypotheses)
+            return Estimate("lost", t, reason="ambiguous", anchors=anchors, candidates=cands)
+        hyp = self.hypotheses[0]
+        age = t - (self.last_range_time if self.last_range_time is not None else hyp.time)
+        x, p = _predicted(hyp.x, hyp.p, max(t - hyp.time, 0.0), self._accel_sigma(t))
+        sigma = math.sqrt(max(p[0, 0] + p[1, 1], 0.0))
+        if age > cfg.lost_after_s or not math.isfinite(sigma) or sigma > cfg.max_sigma_m:
+            return Estimate("lost", t, reason="no_ranges", anchors=anchors)
+        state = "tracking" if age <= cfg.coast_after_s else "coasting"
+        cov = ((float(p[0, 0]), float(p[0, 1])), (float(p[1, 0]), float(p[1, 1])))
+        return Estimate(state, t, float(x[0]), float(x[1]), float(self.depth or 0.0),
+                        float(x[2]), float(x[3]), cov, max(age, 0.0), None, anchors,
+                        dict(sorted(self._used.items())), doubt=self.doubt)
+
+    def drop_if_lost(self, t: float) -> None:
+        """Forget a track whose estimate at ``t`` is ``lost`` (``no_ranges``): the next ranges
+        start afresh, with its last estimate as a broad prior."""
+        if self.resolved and self.estimate(t).reason == "no_ranges":
+            self._restart(t, reason="no_ranges")
+
+    # -- internals -----------------------------------------------------------------------------
+
+    def _refuse(self, reason: str, nis: float | None = None) -> Outcome:
+        self.rejected[reason] += 1
+        return Outcome(False, reason, nis)
+
+    def _manoeuvred(self, obs: RangeObs) -> bool:
+        """Ranges refused in a row within ``manoeuvre_window_s`` (three; two without a compass):
+        the vehicle may have turned or changed speed. Allow the velocity change such a manoeuvre
+        could make since those anchors last agreed with the track, and take the ranges if all
+        then fit one motion (each within 2 σ after the update, which unrelated outliers rarely
+        do); else leave the track as it was."""
+        cfg = self.config
+        recent = [(o, r) for o, r in self._refusals
+                  if obs.time - o.time <= cfg.manoeuvre_window_s]
+        anchors = {o.anchor for o, _ in recent} | {obs.anchor}
+        steered = self._accel_sigma(obs.time) == cfg.accel_sigma_steered
+        # with a compass, turns are known: it takes three refusals; without, turns are the
+        # usual reason and two (one anchor's in a row) are enough
+        if not self.resolved or len(recent) < (2 if steered else 1):
+            return False
+        hyp = self.hypotheses[0]
+        saved = (hyp.x.copy(), hyp.p.copy(), hyp.time, hyp.log_w)
+        # since when the track may have been off: the last range accepted (without a compass:
+        # the last these anchors agreed with, others' ranges may not see the turn)
+        agreed = [self._agreed_at.get(a, obs.time - cfg.manoeuvre_window_s) for a in anchors]
+        since = max(obs.time - (self.last_range_time or obs.time) if steered
+                    else obs.time - min(agreed), 0.0)
+        dv = max(math.hypot(hyp.x[2], hyp.x[3]), 0.5) * math.sqrt(2)  # up to a right angle
+        hyp.p[2, 2] += dv * dv
+        hyp.p[3, 3] += dv * dv
+        hyp.p[0, 0] += (dv * since) ** 2 / 3
+        hyp.p[1, 1] += (dv * since) ** 2 / 3
+        tried = [o for o, _ in recent] + [obs]
+        if all(self._range_update(hyp, o)[1] for o in tried) and all(
+                (o.range_m - self._range_model(hyp, o)[0]) ** 2
+                <= 4 * cfg.range_sigma_m**2 + o.anchor_sigma_m**2 for o in tried):
+            for _, reason in recent:  # it was the track that was wrong, not those ranges
+                self.rejected[reason] -= 1
+                if self.rejected[reason] <= 0:
+                    del self.rejected[reason]
+            self._refusals.clear()
+            self.manoeuvres += 1
+            return True
+        hyp.x, hyp.p, hyp.time, hyp.log_w = saved
+        return False
+
+    def _innovation_sign(self, obs: RangeObs) -> float:
+        hyp = max(self.hypotheses, key=lambda h: h.log_w)
+        predicted, _ = self._range_model(hyp, obs)
+        return obs.range_m - predicted
+
+    def _start(self, t: float) -> Outcome:
+        """Try to initialise from the latest range to each anchor (within the window)."""
+        cfg = self.config
+        assert self.depth is not None
+        fresh = [o for o in self._recent.values() if t - o.time <= cfg.init_window_s]
+        if len(fresh) < 2:
+            self.lost_reason = "too_few_anchors"
+            return Outcome(False, "too_few_anchors")
+        reference = self._prior_at(t)
+        anchors = [o.anchor_at for o in fresh]
+        ranges = [o.range_m for o in fresh]
+        guess = (reference[0], reference[1]) if reference is not None else \
+            (sum(a[0] for a in anchors) / len(anchors) + 1.0,
+             sum(a[1] for a in anchors) / len(anchors) + 1.0)
+        found = attempt(anchors, ranges, self.depth, guess, names=[o.anchor for o in fresh],
+                        range_sigma_m=cfg.range_sigma_m)
+        if not isinstance(found, Fix):
+            self.lost_reason = found.reason
+            return Outcome(False, found.reason)
+        if not math.isfinite(found.sigma_m):  # e.g. on the anchors' line: no telling yet
+            self.lost_reason = "degenerate_geometry"
+            return Outcome(False, "degenerate_geometry")
+        spread = max(o.time for o in fresh) - min(o.time for o in fresh)
+        sigma = math.hypot(found.sigma_m, cfg.max_speed_mps * spread / 2, cfg.range_sigma_m,
+                           max(o.anchor_sigma_m for o in fresh))
+        points = [(found.x, found.y)]
+        if found.alternative is not None and math.dist(found.alternative, points[0]) > 1.0:
+            points.append(found.alternative)  # the mirror image: motion and prior decide
+        self.hypotheses = [self._hypothesis(pt, sigma, t, reference) for pt in points]
+        self._normalise()
+        self.last_range_time = t
+        self._used = {o.anchor: o.range_m for o in fresh}
+        self._refusals.clear()
+        return Outcome(True, "started")
+
+    def _prior_at(self, t: float) -> tuple[float, float, float] | None:
+        """The prior position and its 1-σ (m) grown by how far the node may have gone since."""
+        if self.prior is None:
+            return None
+        grown = self.config.prior_speed_mps * max(t - self.prior.time, 0.0)
+        return (self.prior.x, self.prior.y, math.hypot(self.prior.sigma_m, grown))
+
+    def _hypothesis(self, point: tuple[float, float], sigma: float, t: float,
+                    reference: tuple[float, float, float] | None) -> _Hypothesis:
+        cfg = self.config
+        v_sigma = cfg.max_speed_mps / 2
+        v = np.zeros(2)
+        heading = None
+        if self._heading is not None and t - self._heading[0] <= cfg.init_window_s:
+            _, heading, speed = self._heading
+            if speed is not None:
+                v = speed * np.array([math.sin(heading), math.cos(heading)])
+                v_sigma = max(cfg.speed_sigma_mps * 3, 0.3)
+        x = np.array([point[0], point[1], v[0], v[1]], dtype=float)
+        p = np.diag([sigma**2, sigma**2, v_sigma**2, v_sigma**2])
+        log_w = 0.0
+        if reference is not None:
+            s2 = reference[2] ** 2 + sigma**2
+            d2 = (point[0] - reference[0]) ** 2 + (point[1] - reference[1]) ** 2
+            log_w = -0.5 * d2 / s2
+        return _Hypothesis(x, p, t, log_w, heading, t)
+
+    def _restart(self, t: float, reason: str = "diverged") -> None:
+        """Drop the track; the next ranges start a new one, the old estimate a broad prior."""
+        if self.hypotheses:
+            best = max(self.hypotheses, key=lambda h: h.log_w)
+            sigma = math.sqrt(max(best.p[0, 0] + best.p[1, 1], 0.0)) + 5.0
+            self.prior = Prior(best.time, float(best.x[0]), float(best.x[1]), sigma)
+        self.hypotheses = []
+        self.resolved = False
+        self._ambiguous_since = None
+        self.doubt = 0.0
+        self.restarts += 1
+        self.lost_reason = reason
+        self._refusals.clear()
+        self._used.clear()
+
+    def _normalise(self) -> None:
+        """Weights relative to the best; drop the unlikely; commit once one dominates."""
+        if not self.hypotheses:
+            return
+        top = max(h.log_w for h in self.hypotheses)
+        for h in self.hypotheses:
+            h.log_w -= top
+        cfg = self.config
+        floor = math.log(cfg.prune_share)
+        kept: list[_Hypothesis] = []
+        for h in sorted(self.hypotheses, key=lambda h: -h.log_w):
+            if h.log_w < floor:
+                continue
+            if all(math.dist(h.x[:2], k.x[:2]) > 1.0 for k in kept):
+                kept.append(h)  # two that met (e.g. near the anchors' line) are one
+        self.hypotheses = kept
+        share = 1.0 / sum(math.exp(h.log_w) for h in self.hypotheses)
+        waited = self._now - (self._ambiguous_since if self._ambiguous_since is not None
+                              else self._now)
+        if len(self.hypotheses) > 1 and (share >= RESOLVED_SHARE or (
+                waited >= cfg.commit_after_s and share >= cfg.commit_share)):
+            # decided by the data, or (when nothing can tell mirror images apart, e.g. anchors
+            # on one line and no heading) by the prior after a while: the doubt is published
+            self.hypotheses = self.hypotheses[:1]
+            self.doubt = 1.0 - share
+        if len(self.hypotheses) == 1:
+            self.resolved = True
+            self._ambiguous_since = None
+        elif self._ambiguous_since is None:
+            self._ambiguous_since = self._now
+
+    def _accel_sigma(self, t: float) -> float:
+        """Process noise: smaller while a recent heading steers the velocity through turns."""
+        cfg = self.config
+        if self._heading is not None and t - self._heading[0] <= cfg.coast_after_s:
+            return cfg.accel_sigma_steered
+        return cfg.accel_sigma
+
+    def _predict(self, hyp: _Hypothesis, t: float) -> None:
+        dt = t - hyp.time
+        if dt > 0:
+            hyp.x, hyp.p = _predicted(hyp.x, hyp.p, dt, self._accel_sigma(t))
+            hyp.time = t
+
+    def _range_model(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, np.ndarray]:
+        """Predicted range and its Jacobian (1×4) for hypothesis ``hyp``."""
+        assert self.depth is not None
+        x = hyp.x
+        legs = ((obs.time - obs.span_s, obs.anchor_before or obs.anchor_at),
+                (obs.time, obs.anchor_at))
+        h, jac = 0.0, np.zeros(4)
+        for t_leg, (ax, ay, az) in legs:
+            m = _displacement(hyp.time, t_leg, hyp.turns)  # p(t_leg) = p + m·v
+            px, py = x[:2] + m @ x[2:]
+            ex, ey, ez = px - ax, py - ay, self.depth - az
+            dist = math.sqrt(ex * ex + ey * ey + ez * ez) or 1e-9
+            h += dist / 2
+            u = np.array([ex, ey]) / dist / 2
+            jac += np.concatenate([u, u @ m])
+        return h, jac
+
+    def _range_update(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
+        """EKF update with one range; (NIS, accepted). The weight takes the likelihood."""
+        cfg = self.config
+        self._predict(hyp, obs.time)
+        predicted, jac = self._range_model(hyp, obs)
+        r = cfg.range_sigma_m**2 + obs.anchor_sigma_m**2
+        return self._update(hyp, obs.range_m - predicted, jac, r)
+
+    def _heading_update(self, hyp: _Hypothesis, theta: float, speed: float) -> float:
+        vx, vy = hyp.x[2], hyp.x[3]
+        innovation = _wrap(theta - math.atan2(vx, vy))
+        s2 = speed * speed
+        jac = np.array([0.0, 0.0, vy / s2, -vx / s2])
+        nis, _ = self._update(hyp, innovation, jac, math.radians(self.config.heading_sigma_deg)
+                              ** 2)
+        return nis
+
+    def _speed_update(self, hyp: _Hypothesis, speed_mps: float) -> float:
+        vx, vy = hyp.x[2], hyp.x[3]
+        speed = math.hypot(vx, vy)
+        if speed < 1e-3:
+            jac = np.zeros(4)
+            heading = hyp.heading if hyp.heading is not None else 0.0
+            jac[2], jac[3] = math.sin(heading), math.cos(heading)
+        else:
+            jac = np.array([0.0, 0.0, vx / speed, vy / speed])
+        nis, _ = self._update(hyp, speed_mps - speed, jac, self.config.speed_sigma_mps**2)
+        return nis
+
+    def _update(self, hyp: _Hypothesis, innovation: float, jac: np.ndarray,
+                r: float) -> tuple[float, bool]:
+        s = float(jac @ hyp.p @ jac) + r
+        nis = innovation * innovation / s
+        gate = self.config.gate_nis
+        # the weight takes the likelihood, capped at the gate: one wild value cannot decide
+        hyp.log_w += -0.5 * min(nis, gate) - 0.5 * math.log(2 * math.pi * s)
+        if nis > gate:
+            return nis, False
+        gain = hyp.p @ jac / s
+        hyp.x = hyp.x + gain * innovation
+        ikh = np.eye(4) - np.outer(gain, jac)
+        hyp.p = ikh @ hyp.p @ ikh.T + r * np.outer(gain, gain)  # Joseph form: stays symmetric
+        return nis, True
+
+
+def _predicted(x: np.ndarray, p: np.ndarray, dt: float,
+               accel_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Constant velocity ``dt`` ahead with continuous white-noise acceleration."""
+    f = np.eye(4)
+    f[0, 2] = f[1, 3] = dt
+    q = accel_sigma**2
+    qq = np.zeros((4, 4))
+    qq[0, 0] = qq[1, 1] = q * dt**3 / 3
+    qq[0, 2] = qq[2, 0] = qq[1, 3] = qq[3, 1] = q * dt**2 / 2
+    qq[2, 2] = qq[3, 3] = q * dt
+    return f @ x, f @ p @ f.T + qq
+
+
+def _displacement(t_state: float, t_leg: float,
+                  turns: list[tuple[float, float]]) -> np.ndarray:
+    """The 2×2 ``m`` with ``p(t_leg) = p(t_state) + m·v(t_state)``: straight lines, except
+    that going back past a recorded turn the velocity is the one before it."""
+    if t_leg >= t_state or not turns:
+        return np.eye(2) * (t_leg - t_state)
+    m, rot, t = np.zeros((2, 2)), np.eye(2), t_state
+    for when, angle in reversed(turns):
+        if when >= t_state:
+            continue
+        if when <= t_leg:
+            break
+        m -= (t - when) * rot
+        c, s = math.cos(angle), math.sin(angle)
+        rot = np.array([[c, -s], [s, c]]) @ rot  # the velocity before that turn
+        t = when
+    return m - (t - t_leg) * rot
+
+
+def _turn(hyp: _Hypothesis, angle: float, since_s: float) -> None:
+    """The vehicle turned clockwise by ``angle`` radians some time in the last ``since_s``
+    seconds: turn the velocity (and its covariance), and move the position as if the turn
+    came halfway, with the variance of not knowing when (uniform over the interval)."""
+    if angle == 0.0:
+        return
+    c, s = math.cos(angle), math.sin(angle)
+    g = np.eye(4)
+    g[2:, 2:] = [[c, s], [-s, c]]
+    before = hyp.x[2:].copy()
+    hyp.x = g @ hyp.x
+    hyp.p = g @ hyp.p @ g.T
+    since = max(since_s, 0.0)
+    change = hyp.x[2:] - before  # what the prediction since the turn missed, per second
+    hyp.x[:2] += change * since / 2
+    spread = np.outer(change, change) * since**2 / 12
+    hyp.p[:2, :2] += spread
+
+
+__all__ = ["LOST_REASONS", "Estimate", "Outcome", "Prior", "RangeObs", "RangeTracker",
+           "TrackerConfig"]

@@ -1,0 +1,181 @@
+"""The range-domain tracker on seed 001's simulated experiment, pure and on a virtual clock."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from bridge.ranging import seed001
+from bridge.ranging.seed001 import NEES_BOUNDS_2D, events, flips, percentile, replay
+from bridge.ranging.tracker import Prior, RangeObs, RangeTracker, TrackerConfig
+
+START = Prior(0.0, 5.0, 5.0, 2.0)  # the rectangle's first corner, where the vehicle dived
+
+
+def errors(samples: list[seed001.Sample], west: bool = False) -> list[float]:
+    return [s.error_m for s in samples if s.error_m is not None
+            and (not west or s.truth[0] == pytest.approx(5.0))]
+
+
+def inside(samples: list[seed001.Sample]) -> float:
+    nees = [s.nees for s in samples if s.nees is not None]
+    low, high = NEES_BOUNDS_2D
+    return sum(low <= n <= high for n in nees) / len(nees)
+
+
+def test_two_anchors_and_heading_for_an_hour_without_a_mirror_flip() -> None:
+    tracker = RangeTracker(prior=START)
+    samples = replay(tracker, events(3600.0, ("left", "right"), seed=3))
+    err = errors(samples)
+    assert len(err) > 1500  # seed 001's reception: ~40 % of the requests answered
+    assert flips(samples) == 0
+    assert percentile(err, 0.95) <= 1.0
+    assert percentile(errors(samples, west=True), 0.95) <= 1.0  # 5 m from the anchors' line
+    assert all(math.isfinite(s.estimate.sigma_m) for s in samples)
+
+
+def test_three_anchors_every_reply_heard() -> None:
+    samples = replay(RangeTracker(prior=START), events(900.0, reception="all", seed=4))
+    err = errors(samples)
+    assert flips(samples) == 0
+    assert percentile(err, 0.95) <= 0.6  # issue #16 asks 0.3 m: not met (corners), see bench
+    assert percentile(err, 0.5) <= 0.25
+
+
+def test_covariance_is_consistent() -> None:
+    samples = replay(RangeTracker(prior=START), events(1800.0, ("left", "right"), seed=5,
+                                                        reception="all"))
+    assert inside(samples) >= 0.85  # 95 % if perfectly consistent; overconfident would fail
+
+
+def test_outliers_are_gated_counted_and_do_not_drag_the_track() -> None:
+    tracker = RangeTracker(prior=START)
+    stream = list(events(1200.0, reception="all", seed=6, outliers=0.05))
+    samples = replay(tracker, stream)
+    bad = sum(e.outlier for e in stream)
+    assert bad > 100
+    assert tracker.rejected["long"] + tracker.rejected["short"] >= 0.8 * bad
+    assert tracker.rejected["long"] > 0 and tracker.rejected["short"] > 0
+    assert percentile(errors(samples), 0.95) <= 1.0  # 0.5 m without them (same seed)
+    assert flips(samples) == 0
+
+
+def test_without_heading_it_follows_but_corners_cost() -> None:
+    samples = replay(RangeTracker(prior=START), events(900.0, reception="all", heading=False,
+                                                       seed=7))
+    assert flips(samples) == 0
+    assert percentile(errors(samples), 0.95) <= 1.5
+
+
+def test_two_anchors_without_heading_a_turn_near_an_anchor_is_caught() -> None:
+    # by the (5, 5) corner the left anchor's ranges alone see the turn east: refused twice in a
+    # row, they are taken as a manoeuvre instead of letting the track slide towards the jetty
+    tracker = RangeTracker(prior=START)
+    samples = replay(tracker, events(1800.0, ("left", "right"), reception="all", heading=False,
+                                     seed=9))
+    assert flips(samples) == 0 and tracker.restarts == 0 and tracker.manoeuvres > 0
+    assert percentile(errors(samples), 0.95) <= 1.5
+
+
+def test_mirror_resolved_from_motion_without_a_prior() -> None:
+    tracker = RangeTracker()  # no idea where it started: both sides of the jetty fit
+    samples = replay(tracker, events(600.0, ("left", "right"), seed=8, reception="all"))
+    states = [s.estimate.state for s in samples]
+    assert states[0] == "lost"
+    assert any(s.estimate.reason == "ambiguous" for s in samples[:10])
+    assert "tracking" in states[:80]  # heading tells the sides apart once it sails east/west
+    assert flips(samples) == 0
+    tracked = [s for s in samples if s.estimate.has_position]
+    assert percentile([s.error_m for s in tracked if s.error_m is not None], 0.95) <= 1.0
+
+
+A1, A2, A3 = (0.0, 0.0, 0.5), (40.0, 0.0, 0.5), (0.0, 40.0, 0.5)
+
+
+def static_range(anchor: tuple[float, float, float], where: tuple[float, float, float],
+                 t: float, name: str, **kw: float) -> RangeObs:
+    return RangeObs(name, math.dist(anchor, where), t, anchor, **kw)
+
+
+def test_depth_difference_is_in_the_model_and_a_static_node_converges() -> None:
+    where = (12.0, 9.0, 25.0)  # deep: slant ranges are much longer than horizontal ones
+    tracker = RangeTracker(depth=25.0)
+    t = 0.0
+    for _ in range(30):
+        for name, a in (("a1", A1), ("a2", A2), ("a3", A3)):
+            t += 0.5
+            tracker.on_range(static_range(a, where, t, name))
+    est = tracker.estimate(t)
+    assert est.state == "tracking"
+    assert (est.x, est.y) == pytest.approx(where[:2], abs=0.05)
+    assert math.hypot(est.vx, est.vy) < 0.05
+    assert est.depth == 25.0 and est.sigma_m < 0.5  # 25 m deep: ranges say less about x, y
+    payload = est.payload()
+    assert payload["fix"] is True and payload["state"] == "tracking"
+    assert set(payload["ranges"]) == {"a1", "a2", "a3"} and payload["anchors"] == ["a1", "a2",
+                                                                                    "a3"]
+    major, minor, _ = est.ellipse()
+    assert major >= minor > 0 and payload["ellipse"]["major_m"] == major
+
+
+def test_states_coasting_then_lost_and_never_infinite() -> None:
+    cfg = TrackerConfig(coast_after_s=5.0, lost_after_s=60.0)
+    tracker = RangeTracker(cfg, depth=1.0)
+    assert tracker.estimate(0.0).payload()["reason"] == "too_few_anchors"
+    where = (10.0, 10.0, 1.0)
+    t = 0.0
+    for _ in range(10):
+        for name, a in (("a1", A1), ("a2", A2), ("a3", A3)):
+            t += 1.0
+            tracker.on_range(static_range(a, where, t, name))
+    assert tracker.estimate(t + 1.0).state == "tracking"
+    coasting = tracker.estimate(t + 8.0)
+    assert coasting.state == "coasting" and coasting.age_s == pytest.approx(8.0)
+    assert coasting.sigma_m > tracker.estimate(t).sigma_m  # the uncertainty grows
+    lost = tracker.estimate(t + 200.0)
+    assert lost.state == "lost" and lost.reason == "no_ranges"
+    for est in (coasting, lost):
+        for value in est.payload().values():
+            assert not isinstance(value, float) or math.isfinite(value)
+    tracker.drop_if_lost(t + 200.0)
+    assert tracker.restarts == 1 and tracker.prior is not None  # a broad prior to restart from
+
+
+def test_bad_inputs_are_counted_by_reason() -> None:
+    tracker = RangeTracker(depth=None)
+    assert tracker.estimate(0.0).reason == "no_depth"
+    assert not tracker.on_range(static_range(A1, (5, 5, 1), 1.0, "a1")).accepted
+    tracker.set_depth(1.0)
+    assert tracker.on_range(RangeObs("a1", math.nan, 2.0, A1)).reason == "not_finite"
+    assert tracker.on_range(static_range(A1, (5, 5, 1), 3.0, "a1",
+                                         anchor_age_s=500.0)).reason == "stale_anchor"
+    assert not tracker.on_heading(3.0, math.inf).accepted
+    where = (5.0, 5.0, 1.0)
+    for k in range(12):
+        for i, (name, a) in enumerate((("a1", A1), ("a2", A2), ("a3", A3))):
+            tracker.on_range(static_range(a, where, 10.0 + k + 0.3 * i, name))
+    assert tracker.on_range(static_range(A1, where, 1.0, "a1")).reason == "out_of_order"
+    far = tracker.on_range(RangeObs("a2", math.dist(A2, where) + 8.0, 22.5, A2))
+    assert far.reason == "long" and far.nis is not None and far.nis > 10
+    assert tracker.rejected == {"not_finite": 2, "stale_anchor": 1, "out_of_order": 1,
+                                "long": 1}
+
+
+def test_only_the_prior_can_tell_mirrors_apart_so_it_commits_later_and_says_so() -> None:
+    a1, a2 = (0.0, 0.0, 0.5), (0.0, 40.0, 0.5)  # on one line: both sides fit every range
+    where = (6.0, 20.0, 1.0)
+    tracker = RangeTracker(prior=Prior(0.0, 6.0, 20.0, 4.0), depth=1.0)
+    states = []
+    for k in range(40):
+        for name, a in (("a1", a1), ("a2", a2)):
+            t = 1.0 + k + 0.5 * (name == "a2")
+            tracker.on_range(static_range(a, where, t, name))
+            states.append((t, tracker.estimate(t)))
+    early = [e for t, e in states if t < 20.0]
+    late = [e for t, e in states if t > 23.0]
+    assert all(e.state == "lost" and e.reason == "ambiguous" for e in early[1:])
+    assert len(early[-1].candidates) == 2
+    assert all(e.state == "tracking" for e in late)  # the prior's 98 %, after 20 s
+    payload = late[-1].payload()
+    assert 0.001 < payload["mirror_doubt"] < 0.05 and payload["x"] == pytest.approx(6.0, abs=0.1)

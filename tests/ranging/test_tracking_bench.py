@@ -1,0 +1,56 @@
+"""``bench/tracking_bench.py`` keeps what it claims, on the virtual clock: seed 001's rectangle
+(three anchors and a 5 Hz compass; two anchors and a 1 Hz compass at seed 001's reception, an
+hour, no mirror flip), covariance consistency, injected outliers all refused, and the MORPH
+formation through the whole node core with every published number finite."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / "bench" / "tracking_bench.py"
+
+
+@pytest.fixture(scope="module")
+def bench() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("tracking_bench", BENCH)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_three_anchors_and_a_compass(bench: ModuleType) -> None:
+    row = bench.seed001_row("3", ("left", "middle", "right"), 0.5, seed=11)
+    assert row["p95"] <= 0.3 and row["corner95"] <= 0.35 and row["west95"] <= 0.3
+    assert row["flips"] == 0 and row["nees_in"] >= 0.9 and row["finite"]
+    assert row["snap95"] > 5 * row["p95"]  # what a snapshot fix published before
+
+
+def test_two_anchors_an_hour_at_seed001_reception(bench: ModuleType) -> None:
+    row = bench.seed001_row("2", ("left", "right"), 1.0, heading_hz=1.0, reception="seed001",
+                            seed=12)
+    assert row["p95"] <= 1.0 and row["west95"] <= 1.0 and row["corner95"] <= 1.0
+    assert row["flips"] == 0 and row["nees_in"] >= 0.88 and row["finite"]
+
+
+def test_injected_outliers_are_all_refused(bench: ModuleType) -> None:
+    row = bench.seed001_row("o", ("left", "middle", "right"), 0.5, outliers=0.05, seed=13)
+    refused = row["rejected"].get("long", 0) + row["rejected"].get("short", 0)
+    assert row["outliers"] > 100 and refused >= 0.95 * row["outliers"]
+    assert row["p95"] <= 0.35 and row["restarts"] == 0 and row["flips"] == 0
+
+
+def test_morph_formation_per_vehicle(bench: ModuleType) -> None:
+    rows = bench.morph_run(300.0)
+    assert set(rows) == {"lsv", "cv1", "cv2"}  # ssv and gcv are the anchors
+    for node, row in rows.items():
+        assert row["finite"], node
+        assert math.isfinite(row["p95"]) and row["p95"] <= 1.5, (node, row)
+        assert row["states"]["tracking"] > 0.8 * row["n"], (node, row)
