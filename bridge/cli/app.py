@@ -130,13 +130,31 @@ def check(
         f"frame overhead {data['overhead_bytes']} B + {data['count_bits']}-bit count"
         + (" (DLBL on)" if data["dlbl"] else "")
     )
-    channels = Table("index", "channel", "bits", "from", "to", "interval", "latching", "priority",
-                     title="channels")
+    channels = Table("index", "channel", "bits", "keys", "from", "to", "interval", "latching",
+                     "priority", title="channels")
     for c in data["channels"]:
-        channels.add_row(str(c["index"]), c["name"], str(c["bits"]), ", ".join(c["from"]),
-                         ", ".join(c["to"]), f"{c['interval_s']:g} s", str(c["latching"]).lower(),
-                         str(c["priority"]))
+        channels.add_row(str(c["index"]), c["name"], str(c["bits"]), _keys_text(c.get("keys")),
+                         ", ".join(c["from"]), ", ".join(c["to"]), f"{c['interval_s']:g} s",
+                         str(c["latching"]).lower(), str(c["priority"]))
     console.print(channels)
+    if data.get("queries"):
+        queries = Table("query", "key", "servers", "askers", "request bits", "reply bits",
+                        "deadline", title=f"queries (at most {data['max_open_queries']} open "
+                        "per node)")
+        for q in data["queries"]:
+            deadlines = q["deadline_s"].values()
+            queries.add_row(q["name"], q["key"], ", ".join(q["servers"]), ", ".join(q["askers"]),
+                            str(q["request_bits"]), str(q["reply_bits"]),
+                            f"≤ {max(deadlines):g} s" if deadlines else "—")
+        console.print(queries)
+    if data.get("demand"):
+        always = [c["name"] for c in data["channels"] if c.get("always")]
+        console.print(f"demand: @want entry {data['demand']['want_entry_bits']} bits, re-sent "
+                      f"every {data['demand']['refresh_s']:g} s; always sent: "
+                      f"{', '.join(always) or 'none'}", highlight=False)
+    if data.get("key_entry_bits"):
+        console.print(f"@key entry (names a learned member): {data['key_entry_bits']} bits",
+                      highlight=False)
     for d in data["dccl"]:  # like dccl --analyze
         console.print(f"DCCL message of channel {d['channel']!r}:\n{d['analysis']}",
                       highlight=False, markup=False)
@@ -176,6 +194,14 @@ def _problems(exc: MissionError) -> list[dict[str, Any]]:
         return [asdict(p) for p in exc.problems]
     return [{"file": str(exc).split(":", 1)[0], "line": None, "column": None, "path": "",
              "message": str(exc)}]
+
+
+def _keys_text(keys: dict[str, Any] | None) -> str:
+    """A key family in the channel table: its index bits and members."""
+    if keys is None:
+        return "—"
+    members = f"learned ≤ {keys['bound']}" if keys["learned"] else f"{keys['bound']} keys"
+    return f"+{keys['index_bits']} bits ({members})"
 
 
 def _print_mac(data: dict[str, Any]) -> None:
@@ -470,6 +496,11 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
                   f"({result['speedup']:g}× real time); {result['frames_sent']} frames sent, "
                   f"{result['frames_received']} received ({result['frames_per_wall_s']:g} "
                   "frames per wall second)")
+    if "queries" in result:
+        q = result["queries"]
+        console.print(f"queries: {q['asked']} gets by synthetic operators, {q['answered']} "
+                      f"answered (mean round trip {q['mean_round_trip_s']} s), "
+                      f"{sum(q['errors'].values())} ended with an error, {q['open']} open")
     return result
 
 

@@ -29,6 +29,7 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
+from bridge.cli.demo_queries import QueryApps, member_keys
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
 from bridge.cli.tour import Tour, turn_waits
 from bridge.codec import FieldSpec
@@ -350,16 +351,16 @@ class VehicleApps:
                         phase = _phase(node, channel.name, e_index, f_index)
                         _set(value, spec.field,
                              moving if moving is not None else synthetic_value(spec, t, phase))
-                    key = compiled.elements[e_index].input_key(node)
-                    if time.time() - self.operator.get((node, key), -OPERATOR_HOLD_S) \
-                            < OPERATOR_HOLD_S:
-                        continue  # the operator's command stands
-                    session.put(key, msgpack.packb(value),
-                                encoding=zenoh.Encoding("application/msgpack"))
-                    with self._lock:
-                        self.published[channel.name] += 1
-                        self.history.setdefault((node, key), deque(maxlen=8)).append(
-                            (time.time(), value))
+                    for key in member_keys(compiled, e_index, node):
+                        if time.time() - self.operator.get((node, key), -OPERATOR_HOLD_S) \
+                                < OPERATOR_HOLD_S:
+                            continue  # the operator's command stands
+                        session.put(key, msgpack.packb(value),
+                                    encoding=zenoh.Encoding("application/msgpack"))
+                        with self._lock:
+                            self.published[channel.name] += 1
+                            self.history.setdefault((node, key), deque(maxlen=8)).append(
+                                (time.time(), value))
 
     async def run(self) -> None:
         t0 = time.time()
@@ -530,6 +531,10 @@ async def run_demo(
         if not runner.done():
             apps.start()
             tasks.append(asyncio.create_task(apps.run()))
+            if loaded.table.queries:  # issue 15: gets across the water
+                queries = QueryApps(loaded, apps.sessions,
+                                    lambda line: console.print(line, highlight=False))
+                tasks.append(asyncio.create_task(queries.run()))
             if gui:
                 page = await _start_gui(loaded, gui_port, console)
                 tour.gui(None if page is None else page.url, page.node if page else "")

@@ -128,6 +128,10 @@ def feed(fleet: FastFleet, rng: random.Random, until: float) -> int:
             publisher = _publisher(fleet, rng, name, key, bindings[0][2].layout, period, until)
             fleet.call_at(fleet.now + rng.uniform(0, period), publisher)
             keys += 1
+        for key, layout in core.families.feed_keys().items():  # each member of a key family
+            publisher = _publisher(fleet, rng, name, key, layout, FEED_S, until)
+            fleet.call_at(fleet.now + rng.uniform(0, FEED_S), publisher)
+            keys += 1
     return keys
 
 
@@ -220,11 +224,14 @@ async def run_fast(
     progress: Callable[[FastFleet], None] | None = None,
     stop: asyncio.Event | None = None,
     recorder: MissionRecorder | None = None,
+    subscriptions: dict[str, list[str]] | None = None,
 ) -> dict[str, Any]:
     """Run ``duration`` virtual seconds (``speed``: times real time; None: flat out) and
     return the report. ``record`` gets every node's events (frames included), ``progress``
     the fleet now and then; ``stop`` ends the run early; ``recorder`` gets the events and
-    the ocean's positions (for the HTML report)."""
+    the ocean's positions (for the HTML report). In a ``demand`` mission the synthetic
+    applications subscribe to ``subscriptions`` (node → key expressions; default: ``**`` at
+    every node, so every channel is wanted)."""
     if duration <= 0:
         raise ValueError("duration must be > 0")
     if speed is not None and speed <= 0:
@@ -250,7 +257,14 @@ async def run_fast(
         ocean = fleet.ocean
         recorder.truth = truth_from({n: node.address for n, node in loaded.mission.nodes.items()},
                                     lambda address, t: ocean.position(address, t))
-    feed(fleet, random.Random(f"feed/{seed}"), duration)
+    if loaded.mission.demand is not None:
+        for node, keys in (subscriptions if subscriptions is not None
+                           else {n: ["**"] for n in loaded.mission.nodes}).items():
+            for key in keys:
+                fleet.subscribe(node, key)
+    rng = random.Random(f"feed/{seed}")
+    feed(fleet, rng, duration)
+    gets = fleet.queries.synthetic(lambda layout: synthetic_value(layout, rng), duration)
     started = time.perf_counter()
     step = duration if speed is None else speed * PACE_STEP_S
     while fleet.now < duration and not (stop is not None and stop.is_set()):
@@ -262,4 +276,20 @@ async def run_fast(
             await asyncio.sleep(max(0.0, ahead))
         else:
             await asyncio.sleep(0)
-    return report(fleet, time.perf_counter() - started, fleet.now, ages)
+    out = report(fleet, time.perf_counter() - started, fleet.now, ages)
+    if fleet.loaded.table.queries:
+        out["queries"] = query_summary(gets)
+    return out
+
+
+def query_summary(gets: list[Any]) -> dict[str, Any]:
+    """The synthetic operators' gets: answered, failed (with why), round trips."""
+    trips = [g.ended_at - g.asked_at for g in gets if g.done and g.error is None and g.replies]
+    errors: dict[str, int] = {}
+    for g in gets:
+        if g.error is not None:
+            errors[g.error] = errors.get(g.error, 0) + 1
+    return {"asked": len(gets), "answered": len(trips), "open": sum(not g.done for g in gets),
+            "errors": errors,
+            "mean_round_trip_s": round(sum(trips) / len(trips), 3) if trips else None,
+            "max_round_trip_s": round(max(trips), 3) if trips else None}

@@ -33,11 +33,15 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
+from bridge.core.families import Extra, Families
+from bridge.core.interest import Interest
 from bridge.core.link import LinkState, LinkThresholds, LinkWatch, heartbeat_s
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
+from bridge.core.queries import Queries, Ticket
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report, default_retry_s
 from bridge.core.store import ChannelState, OutboundStore
+from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
 from bridge.dccl.goby import frame_codec_for
 from bridge.errors import DecodeError, EncodeError, FrameError, MissionError
@@ -45,7 +49,11 @@ from bridge.mission.loader import LoadedMission
 from bridge.modems.reception import ModemRange, Reception
 from bridge.wire.auth import Authenticator
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
+from bridge.wire.families import NameCodec
+from bridge.wire.frame import Entry
+from bridge.wire.interest import InterestCodec
 from bridge.wire.payloads import decode_payload
+from bridge.wire.queries import QueryCodec
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -53,7 +61,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("zab.core")
 
 NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payload_dropped",
-                     "mission_mismatch", "peer_restarted"})
+                     "mission_mismatch", "peer_restarted", "surfaced"})
 """Notice kinds also published on ``@zab/<mission>/<node>/events`` (and failed deliveries)."""
 
 PEER_STATUS_S = 1.0  # least time between two ``peers/<peer>`` status puts of one peer
@@ -110,6 +118,7 @@ class OutFrame:
     built: float
     streams: tuple[tuple[ReliableSender | TransferSender, Any], ...] = ()
     acks: tuple[tuple[str, int], ...] = ()
+    extras: tuple[Extra, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -197,8 +206,14 @@ class NodeCore:
             else None
         self._ranged_last = False  # a range never takes two transmit opportunities in a row
         self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
+        self.families = Families(self.table, node)
+        self.queries = Queries(mission, self.table, node) if self.table.queries else None
+        self.surfacing = Surfacing(node, mission.surfacing.republish) \
+            if mission.surfacing is not None else None
+        self.interest = Interest(self.table.interest, mission.demand.refresh_s) \
+            if self.table.interest is not None and mission.demand is not None else None
         for channel in self.table.channels:
-            if channel.index in self.store.states:
+            if channel.index in self.store.states and channel.family is None:
                 for i, element in enumerate(channel.elements):
                     key = element.input_key(node)
                     self.bindings.setdefault(key, []).append((channel, i, element))
@@ -279,6 +294,8 @@ class NodeCore:
 
     def take(self) -> list[Output]:
         """Everything produced since the last call, in order."""
+        if self.queries is not None:
+            self._outputs.extend(self.queries.take())
         out, self._outputs = self._outputs, []
         return out
 
@@ -317,6 +334,15 @@ class NodeCore:
                 payload = self.store.states[channel.index].payload()
                 self._reports(sender.offer(payload, now, key, ref))
                 self._dirty = True
+        if self.families.senders:
+            for problem in self.families.ingest(key, value, now):
+                self.drop_payload(key, problem, now)
+        if self.surfacing is not None and self.surfacing.reachable:  # full fidelity over IP
+            outs = [(d, element.output_key(self.node, d))
+                    for channel, _, element in self.bindings.get(key, ()) if not channel.stream
+                    for d in channel.destinations(self.node)]
+            self._outputs.extend(self.surfacing.relays(
+                key, outs + self.families.outputs_for(key), data, encoding))
 
     def drop_payload(self, key: str, reason: str, now: float) -> None:
         """Count a payload that cannot be used (warned once per key)."""
@@ -347,7 +373,10 @@ class NodeCore:
         due; None while nothing is pending."""
         if self._started is None and now is not None:
             self._started = now  # the first heartbeat is due one period after the start
-        times = [self.store.next_due(now), self.next_heartbeat(),
+        times = [self._store_next_due(now), self.next_heartbeat(),
+                 self.families.next_due(now, self.wants),
+                 self.interest.next_due() if self.interest is not None else None,
+                 self.queries.next_due() if self.queries is not None else None,
                  *(s.next_time() for s in self.senders.values()),
                  self.positioning.next_ping() if self.positioning is not None else None]
         if self._acks:
@@ -435,8 +464,13 @@ class NodeCore:
         picked, left = fill(codec, self._candidates(now), budget, room - len(items))
         chosen: list[ChannelState] = []
         streams: list[tuple[ReliableSender | TransferSender, Any]] = []
+        extras: list[Extra] = []
         for candidate in picked:
             what = candidate.what
+            if isinstance(what, Extra):
+                extras.append(what)
+                items.append((what.channel, what.bits))
+                continue
             targets.update(candidate.channel.destinations(self.node))
             if isinstance(what, ChannelState):
                 chosen.append(what)
@@ -456,15 +490,46 @@ class NodeCore:
         asks = [s.channel for s in chosen] + [s.channel for s, _ in streams]
         ack = True if dest is not None and any(c.ack for c in asks) else None
         return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), tuple(left_out)), now,
-                        tuple(streams), tuple(acks))
+                        tuple(streams), tuple(acks), tuple(extras))
+
+    def _store_next_due(self, now: float | None) -> float | None:
+        """When a latest-value channel somebody wants becomes due."""
+        if self.interest is None and self.surfacing is None:
+            return self.store.next_due(now)
+        times = [t for s in self.store.states.values()
+                 if self.wants(s.channel) and (t := s.ready_at(now)) is not None]
+        return min(times, default=None)
 
     def _candidates(self, now: float) -> list[Candidate]:
         """Everything that could go in a frame sent at ``now``."""
-        out = [Candidate(s.channel, s.last_sent, s) for s in self.store.due(now)]
+        out = [Candidate(s.channel, s.last_sent, s) for s in self.store.due(now)
+               if self.wants(s.channel)]
+        if self.interest is not None and (want := self.interest.candidate(now)) is not None:
+            out.append(want)
+        if self.queries is not None:
+            out += self.queries.candidates(now)
         for sender in self.senders.values():
             out += [Candidate(sender.channel, getattr(item, "last_sent", None), (sender, item), n)
                     for n, item in enumerate(sender.due(now))]
-        return out
+        return out + self.families.candidates(now, self.wants)
+
+    def wants(self, channel: ChannelCodec) -> bool:
+        """Whether some destination reached acoustically wants ``channel`` now (always,
+        without demand or surfacing)."""
+        if (self.interest is None and self.surfacing is None) or channel.stream:
+            return True
+        destinations = channel.destinations(self.node)
+        if self.surfacing is not None:
+            destinations = self.surfacing.acoustic(destinations)
+        return bool(destinations) and (self.interest is None
+                                       or self.interest.wants(channel, destinations))
+
+    def ip_reachable(self, peer: str, up: bool, now: float) -> None:
+        """The peer's bridge became reachable over IP (``up``) or stopped being so."""
+        if self.surfacing is not None and self.surfacing.changed(peer, up, now):
+            payload = {"peer": peer, "ip": up, "time": now}
+            self._status(f"surfaced/{peer}", payload)
+            self._notice("surfaced", payload)
 
     def _ack_bits(self, src: str, index: int) -> int:
         ack_codec = self.table.ack
@@ -499,6 +564,8 @@ class NodeCore:
                 self._ack_repeats.pop(key, None)
         if out.streams:
             self._dirty = True
+        for extra in out.extras:
+            extra.on_sent(out.built)
         self.last_tx = out.built
         self.stats.frames_sent += 1
         names = [s.channel.name for s in out.plan.chosen] + [s.channel.name for s, _ in out.streams]
@@ -555,16 +622,23 @@ class NodeCore:
             self._ranging(src, t_start, frame.delays, modem_now if modem_now is not None else now,
                           now)
         values: dict[str, list[dict]] = {}
+        members: dict[str, dict[str, list[dict]]] = {}  # key families: per member
         for entry in frame.entries:
             channel = entry.channel
             if isinstance(channel, AckCodec):
                 self._on_ack(src, entry.header, now)
+                continue
+            if self._on_system(src, entry, now):
                 continue
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
                 continue
             if not channel.reaches(src, self.node):
                 continue  # overheard: addressed to others
+            if self.surfacing is not None and src in self.surfacing.reachable \
+                    and not channel.stream:
+                self.surfacing.duplicates += 1  # it reaches us over IP at full fidelity
+                continue
             if channel.fragmented:
                 delivered = self._on_fragment(src, channel, entry.header, entry.chunk, now)
             elif channel.reliable:
@@ -574,20 +648,34 @@ class NodeCore:
                 self._owe_ack(src, channel.index)
             else:
                 delivered = [entry.values]
+            member = "*"
+            if channel.family is not None:
+                name = self.families.member_name(src, channel, entry.header[0])
+                if name is None:  # a learned member whose @key entry has not arrived yet
+                    self.stats.frames_dropped["unknown_member"] += 1
+                    continue
+                member = name
             for elements in delivered:
                 values[channel.name] = elements
+                if channel.family is not None:
+                    members.setdefault(channel.name, {})[member] = elements
                 self.stats.received_per_channel[channel.name] += 1
                 self.received_at[channel.name] = now
                 for element, value in zip(channel.elements, elements, strict=True):
-                    self._publish(element.output_key(src, self.node), value, element.encoding,
-                                  channel.latching, element.ros2)
+                    key = element.output_key(src, self.node, member)
+                    if channel.family is not None:
+                        self.families.arrived(key, now)
+                    if self.queries is not None and channel.latching:
+                        self.queries.remember(key, value, element.encoding, now)
+                    self._publish(key, value, element.encoding, channel.latching, element.ros2)
         meta = plain(rx.meta)
         if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             self._peer_status[src] = now
             self._status(f"peers/{src}", {"last_heard": now, "meta": meta})
         self._notice("frame_received", {
             "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
-            "data": rx.data, "meta": dict(meta), "values": values})
+            "data": rx.data, "meta": dict(meta), "values": values,
+            **({"members": members} if members else {})})
 
     def _receiver(self, src: str, channel: ChannelCodec) -> ReliableReceiver | TransferReceiver:
         key = (src, channel.index)
@@ -616,6 +704,21 @@ class NodeCore:
                                            "error": f"transfer on {channel.name!r}: {exc}"})
             return []
 
+    def _on_system(self, src: str, entry: Entry, now: float) -> bool:
+        """An ``@key``, ``@want`` or query entry from ``src``; False for anything else."""
+        channel = entry.channel
+        if isinstance(channel, NameCodec):
+            self.families.on_name(src, entry.header)
+        elif isinstance(channel, InterestCodec):
+            if self.interest is not None:
+                self.interest.on_heard(src, entry.header, now)
+        elif isinstance(channel, QueryCodec):
+            if self.queries is not None:
+                handle = self.queries.on_reply if channel.reply else self.queries.on_request
+                handle(src, channel, entry.header, entry.values)
+        else:
+            return False
+        return True
     def _owe_ack(self, src: str, index: int) -> None:
         self._acks[(src, index)] = None
         self._ack_repeats[(src, index)] = ACK_REPEATS
@@ -751,15 +854,38 @@ class NodeCore:
             self._reports(sender.expire(now))
         if self.positioning is not None and (estimate := self.positioning.report(now)):
             self._positioned(Update((), None, estimate), now)  # coasting, or lost, is news
+        if self.queries is not None:
+            self.queries.expire(now)
+
+    def ask(self, key: str, parameters: Any, now: float) -> Ticket | str:
+        """A Zenoh get on ``key`` with ``parameters`` (a dict): the acoustic query's ticket it
+        waits on (replies come as QueryAnswer / QueryEnd outputs), or why it ends at once."""
+        found = self.queries.spec_for(key) if self.queries is not None else None
+        if found is None:
+            return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
+        spec, server = found
+        self.update_links(now)
+        return self.queries.ask(spec, server, parameters, now,  # type: ignore[union-attr]
+                                self.link_states.get(server))
+
+    def query_served(self, ticket: tuple[int, str, int], values: list[Any],
+                     error: str | None = None) -> None:
+        """The local get of a request ended: queue its replies for the asker."""
+        if self.queries is not None:
+            self.queries.served(ticket, values, error)
 
     def update_links(self, now: float) -> None:
         """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
         for peer in self._link_watch.due(now, self.last_heard):
             heard = self.last_heard.get(peer)
             state = self.thresholds.state(heard, now)
-            if self.link_states.get(peer) is state:
+            previous = self.link_states.get(peer)
+            if previous is state:
                 continue
             self.link_states[peer] = state
+            if self.interest is not None and state is LinkState.UP \
+                    and previous in (None, LinkState.DOWN):
+                self.interest.repeat()  # a peer back from silence (a restart?) hears it again
             payload = {"peer": peer, "state": state.value, "last_heard": heard,
                        "silent_s": None if heard is None else now - heard}
             self._status(f"link/{peer}", payload)
@@ -785,6 +911,12 @@ class NodeCore:
             "epoch": self.epoch,
             "mismatched_peers": dict(self.mismatched),
             "unfinished": {s.channel.name: s.pending() for s in self.senders.values()},
+            "sent_per_channel": dict(self.stats.sent_per_channel),
+            **({"queries": self.queries.snapshot()} if self.queries else {}),
+            **({"surfacing": self.surfacing.snapshot()} if self.surfacing else {}),
+            **({"interest": self.interest.snapshot(self.table)} if self.interest else {}),
+            **({"families": self.families.snapshot(now)} if self.table.names is not None
+               or any(c.family for c in self.table.channels) else {}),
         }
 
 

@@ -13,7 +13,7 @@ three kinds of key:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from bridge.mission.loader import LoadedMission
 
@@ -69,6 +69,22 @@ class SurfaceKeys:
         found = self.sources.setdefault(source.key, [])
         if source not in found:
             found.append(source)
+
+    def lookup(self, key: str) -> list[ChannelSource] | None:
+        """The sources of a received ``key``: its own, or a key family member's (the family's
+        wildcard key matches it; the member shows as ``channel:member``)."""
+        found = self.sources.get(key)
+        if found is not None or "*" in key:
+            return found
+        chunks = key.split("/")
+        out = []
+        for pattern, sources in self.sources.items():
+            parts = pattern.split("/")
+            if "*" in parts and len(parts) == len(chunks) and all(
+                    p in ("*", c) for p, c in zip(parts, chunks, strict=True)):
+                member = chunks[parts.index("*")]
+                out += [replace(s, channel=f"{s.channel}:{member}", key=key) for s in sources]
+        return out or None
 
     def subscriptions(self) -> list[str]:
         """Key expressions to subscribe to: every value key, and all bridge keys."""

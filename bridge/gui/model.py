@@ -106,6 +106,21 @@ def _xyz(value: Any) -> tuple[float, float, float] | None:
     return x, y, depth
 
 
+def zspace_view(stats: Mapping[str, Any]) -> dict[str, Any]:
+    """Issue 15's state in a node's stats, for the page: the channels its applications want
+    (demand missions), its open acoustic queries, and the peers it reaches over IP."""
+    out: dict[str, Any] = {}
+    interest, queries, surfacing = (stats.get(k) for k in ("interest", "queries", "surfacing"))
+    if isinstance(interest, Mapping) and isinstance(interest.get("here"), list):
+        out["wanted"] = [str(c) for c in interest["here"]]
+    if isinstance(queries, Mapping) and isinstance(queries.get("open"), list):
+        out["open_queries"] = [f"{q.get('query')} → {q.get('server')}"
+                               for q in queries["open"] if isinstance(q, Mapping)]
+    if isinstance(surfacing, Mapping) and isinstance(surfacing.get("ip_reachable"), list):
+        out["ip_reachable"] = [str(p) for p in surfacing["ip_reachable"]]
+    return out
+
+
 @dataclass
 class VehicleView:
     """What the GUI knows of one node."""
@@ -208,7 +223,7 @@ class GuiModel:
     def ingest(self, key: str, data: bytes, encoding: str, now: float) -> None:
         """One sample the GUI's session received."""
         status = self.keys.status(key)
-        sources = self.keys.sources.get(key)
+        sources = self.keys.lookup(key)
         if status is None and sources is None:
             return
         try:
@@ -308,6 +323,7 @@ class GuiModel:
                 "payloads_dropped": total("payloads_dropped"),
                 "send_errors": shown(stats.get("send_errors")),
                 "values_published": shown(stats.get("values_published"))}
+        item.update(zspace_view(stats))
         self.stats[node] = item
         self._out.append(item)
         watch = self._watches.setdefault(node, CounterWatch(node))

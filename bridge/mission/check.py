@@ -18,6 +18,7 @@ from bridge.core.mac import (
     polled_slaves,
     ranging_tmax_s,
 )
+from bridge.core.queries import deadline_s
 from bridge.core.reliable import default_retry_s, stream_ttl_s
 from bridge.core.transfer import transfer_ttl_s
 from bridge.dccl.goby import frame_codec_for
@@ -27,6 +28,9 @@ from bridge.mission.loader import LoadedMission
 from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, TdmaMac
 from bridge.modems.registry import load_backend
 from bridge.wire.channels import ChannelCodec
+from bridge.wire.families import has_wildcard
+from bridge.wire.frame import FrameCodec
+from bridge.wire.queries import QueryCodec
 
 TICK_S = 1.0  # runtimes look at TTLs at least this often (zab run's health loop)
 
@@ -75,9 +79,13 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             "ttl_s": c.ttl_s,
             "fragments": {"chunk_bytes": c.chunk_bytes,
                           "at_most": -(-c.value_bytes // c.chunk_bytes)} if c.fragmented else None,
+            "keys": _family(c),
+            "always": c.always,
         }
         for c in table.channels
     ]
+    _family_warnings(loaded, report)
+    _system_entries_fit(loaded, codec, report)
     for c in table.channels:
         if c.fragmented:
             report.warnings.append(
@@ -88,7 +96,8 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         frame_bytes = mission.node_modem(name).frame_bytes
         capacity = codec.body_capacity_bits(frame_bytes) - codec.count_bits
         sent = [c for c in table.channels if c.sent_by(name) and c.destinations(name)]
-        worst = sum(codec.channel_cost_bits(c) for c in sent)
+        worst = sum(codec.channel_cost_bits(c) * (c.family.bound if c.family else 1)
+                    for c in sent)  # every member of a key family at once
         modem = mission.node_modem(name)
         try:
             limit = load_backend(modem.backend).max_frame_bytes(modem.options)
@@ -155,6 +164,13 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "overhead_bytes": codec.overhead_bytes(),
         "count_bits": sent_count_bits,
         "index_bits": codec.index_bits,
+        "demand": None if mission.demand is None else {
+            "refresh_s": mission.demand.refresh_s,
+            "want_entry_bits": codec.channel_cost_bits(table.interest)  # type: ignore[arg-type]
+        },
+        "queries": [_query(mission, codec, c) for c in table.query_codecs if not c.reply],
+        "max_open_queries": mission.max_open_queries,
+        "key_entry_bits": None if table.names is None else codec.channel_cost_bits(table.names),
         "channels": channels,
         "dccl": dccl_reports(table),
         "nodes": nodes,
@@ -163,6 +179,61 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "ok": report.ok,
     }
     return report
+
+
+def _family(channel: ChannelCodec) -> dict[str, Any] | None:
+    """A key family as ``zab check`` shows it: members (or the learned bound) and index bits."""
+    spec = channel.family
+    if spec is None:
+        return None
+    return {"members": None if spec.learned else list(spec.members), "bound": spec.bound,
+            "learned": spec.learned, "index_bits": spec.index_bits,
+            "name_bytes": spec.name_bytes if spec.learned else None}
+
+
+def _query(mission: Mission, codec: FrameCodec, request: QueryCodec) -> dict[str, Any]:
+    """A query as ``zab check`` shows it: entry sizes and the deadline of each asker/server."""
+    spec = request.spec
+    reply = next(c for c in codec.table.query_codecs if c.reply and c.spec is spec)
+    return {"name": spec.name, "key": spec.key, "servers": list(spec.servers),
+            "askers": list(spec.askers), "request_bits": codec.channel_cost_bits(request),
+            "reply_bits": codec.channel_cost_bits(reply), "max_replies": spec.max_replies,
+            "deadline_s": {f"{a}->{s}": deadline_s(mission, spec, a, s)
+                           for a in spec.askers for s in spec.servers if s != a}}
+
+
+def _system_entries_fit(loaded: LoadedMission, codec: FrameCodec, report: CheckReport) -> None:
+    """Each node's @key, @want and query entries must fit in one of its frames."""
+    mission, table = loaded.mission, loaded.table
+    for name in mission.nodes:
+        capacity = codec.body_capacity_bits(mission.node_modem(name).frame_bytes) \
+            - codec.count_bits
+        entries: list[Any] = []
+        if table.names is not None and any(c.family and c.family.learned and c.sent_by(name)
+                                           for c in table.channels):
+            entries.append(table.names)
+        if table.interest is not None:
+            entries.append(table.interest)
+        entries += [c for c in table.query_codecs
+                    if name in (c.spec.servers if c.reply else c.spec.askers)]
+        for entry in entries:
+            if codec.channel_cost_bits(entry) > capacity:
+                report.errors.append(
+                    f"entry {entry.name!r} ({codec.channel_cost_bits(entry)} bits with its "
+                    f"index) can never fit in a frame of {name!r} ({capacity} bits free)")
+
+
+def _family_warnings(loaded: LoadedMission, report: CheckReport) -> None:
+    """A wildcard input without ``keys`` collapses every matching key into one slot."""
+    for channel, spec in zip(loaded.table.channels, loaded.mission.channels, strict=True):
+        if spec.keys is not None:
+            continue
+        for element in spec.elements:
+            if element.in_ is not None and has_wildcard(element.in_):
+                report.warnings.append(
+                    f"channel {channel.name!r}: input {element.in_!r} is a wildcard: every "
+                    "matching key shares one slot and one output key; give the channel `keys` "
+                    "to carry each key on its own")
 
 
 def _data_per_s(sent: list[ChannelCodec], heartbeat_s: float | None) -> float:

@@ -236,6 +236,29 @@ class Element(Strict):
         return self
 
 
+class NodeKeys(Strict):
+    """A key family with one member per node: ``{key}`` takes each matching node's name."""
+
+    nodes: NodePattern = Field(description="Node names (or a pattern) that are the members.")
+
+
+class LearnedKeys(Strict):
+    """A key family learned at run time: each new concrete key on the input becomes a member,
+    up to ``learn`` members (a further key is refused, counted); receivers learn each member's
+    name from a ``@key`` entry sent beside its first values."""
+
+    learn: int = Field(ge=1, le=65536, description="Most members the sender learns.")
+    name_bytes: int = Field(12, ge=1, le=64, description="Longest member name, bytes (UTF-8); "
+                            "a longer one is refused, counted.")
+
+
+FamilyKeys = Annotated[
+    list[Annotated[str, Field(pattern=r"^[^/*$#?{}]+$")]] | NodeKeys | LearnedKeys,
+    Field(description="The members of a key family: a list of names, ``{nodes: pattern}``, or "
+          "``{learn: n}``."),
+]
+
+
 class Channel(Strict):
     """A set of elements sent together, always whole, with a fixed bit length."""
 
@@ -264,6 +287,11 @@ class Channel(Strict):
     retry_s: float | None = Field(None, gt=0, description="Wait for an acknowledgement before "
                                   "the first retransmission (doubles up to 4x); default: one "
                                   "TDMA cycle, else 10 s.")
+    always: bool = Field(False, description="With ``demand``: send even while no application "
+                         "at a destination subscribes (latched state, safety data).")
+    keys: FamilyKeys | None = Field(None, description="Make the channel a key family: its "
+                                    "input keys hold ``{key}`` (or one ``*`` chunk) and each "
+                                    "member keeps its own value, age and output key.")
     elements: list[Element] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -271,7 +299,38 @@ class Channel(Strict):
         if self.reliable and self.latching:
             raise ValueError("a reliable channel cannot be latching: each value is sent until "
                              "acknowledged, once")
+        if self.keys is not None and self.reliable:
+            raise ValueError("a key family cannot be reliable")
+        if isinstance(self.keys, list) and len(set(self.keys)) != len(self.keys):
+            raise ValueError("a key family lists a member twice")
         return self
+
+
+class Query(Strict):
+    """Zenoh queries across the water: a ``get`` on ``key`` at an asking node becomes a compact
+    request; the serving node's bridge runs a local ``get`` on ``local_key`` with the request's
+    parameters and sends the replies back; the asking bridge answers the original ``get``, or
+    ends it with a reply error at the deadline the MAC allows."""
+
+    name: NodeName
+    key: str = Field(description="Key expression applications get at the asking nodes; with "
+                     "several servers it holds {node}, the serving node (e.g. {node}/info).")
+    serve: NodePattern = Field(description="Serving node(s): where the queryable lives.")
+    ask: NodePattern | None = Field(None, description="Nodes whose applications may ask "
+                                    "(default: every node that does not serve).")
+    local_key: str | None = Field(None, description="Key the serving bridge gets on its own "
+                                  "session ({node} = the server); default: the asked key.")
+    request: list[FieldSpec] = Field(default_factory=list, description="The parameters "
+                                     "(selector parameters or a msgpack/JSON payload); none: "
+                                     "a bare get.")
+    reply: list[FieldSpec] = Field(min_length=1, description="Fields of each reply.")
+    encoding: Literal["msgpack", "json"] = Field("msgpack", description="Replies' payload.")
+    max_replies: int = Field(1, ge=1, le=8, description="Replies carried back per request.")
+    timeout_s: float | None = Field(None, gt=0, description="Give up after this long; default: "
+                                    "the MAC's bound for a request and its reply.")
+    cached_s: float | None = Field(None, gt=0, description="Answer at once, without an acoustic "
+                                   "request, when the asked key holds a value this node's "
+                                   "bridge published for a latched channel no older than this.")
 
 
 class Auth(Strict):
@@ -330,6 +389,28 @@ class Wire(Strict):
     def auth_off(self) -> bool:
         """The mission says ``auth: off``: frames go unauthenticated on purpose."""
         return self._auth_off
+
+
+class Demand(Strict):
+    """Demand-driven sending: a node sends a channel only while an application at one of its
+    destinations subscribes to its output key (except ``always`` channels). Each node tells the
+    others what its applications want in an ``@want`` bitmap over the mission's channels, sent
+    when it changes and at least every ``refresh_s``."""
+
+    refresh_s: float = Field(60.0, gt=0, description="Re-send this node's interest at least "
+                             "this often, seconds (it survives loss and restarts).")
+
+
+class Surfacing(Strict):
+    """Fidelity that follows the link: while a peer's bridge is reachable over IP (its
+    liveliness token ``@zab/<mission>/<peer>/bridge`` is visible: it surfaced and its Zenoh
+    joined this node's), channels between the two are not carried acoustically; the sender's
+    bridge puts each input sample, unquantised, on the output key instead (``republish``). When
+    the token goes (the vehicle dives), acoustic bridging resumes at the next opportunity."""
+
+    republish: bool = Field(True, description="Put full-fidelity copies of input samples on "
+                            "the output keys of IP-reachable destinations (skipped when the "
+                            "output key is the input key: Zenoh carries it as it is).")
 
 
 class LinkHealth(Strict):
@@ -401,8 +482,15 @@ class Mission(Strict):
     mac: Mac = Field(default_factory=lambda: NoMac(type="none"))
     wire: Wire = Field(default_factory=Wire)
     link: LinkHealth = Field(default_factory=LinkHealth)
+    demand: Demand | None = Field(None, description="Send channels only where applications "
+                                  "subscribe to them (see Demand).")
+    surfacing: Surfacing | None = Field(None, description="Stop carrying a peer's channels "
+                                        "acoustically while it is reachable over IP.")
     ranging: Ranging = Field(default_factory=Ranging)
     channels: list[Channel] = Field(default_factory=list)
+    queries: list[Query] = Field(default_factory=list, description="Queries across the water.")
+    max_open_queries: int = Field(4, ge=1, le=16, description="Acoustic queries a node keeps "
+                                  "open at once; a further get ends at once with an error.")
 
     def node_modem(self, name: str) -> Modem:
         """The modem settings of ``name``: mission defaults with the node's overrides."""

@@ -61,7 +61,9 @@ _FRAME_SCHEMAS: dict[str, dict[str, Any]] = {
                    "dest": {"type": ["string", "null"]}, "data_hex": _HEX},
     "frame_received": {"time": _TIME, "src": {"type": "string"}, "bytes": {"type": "integer"},
                        "channels": _NAMES, "data_hex": _HEX, "meta": _OBJECT,
-                       "values": {"type": "object", "additionalProperties": {"type": "array"}}},
+                       "values": {"type": "object", "additionalProperties": {"type": "array"}},
+                       "members": {"type": "object", "description": "Key families: channel "
+                                   "-> member -> element values"}},
     "frame_dropped": {"time": _TIME, "src": {"type": ["string", "null"]},
                       "reason": {"type": "string"}, "data_hex": _HEX},
 }
@@ -358,9 +360,12 @@ def received_values(log: MissionLogFile) -> Iterator[tuple[float, str, Any, str]
                 channel = table.by_name(name)
             except StopIteration:
                 continue
-            for element, value in zip(channel.elements, elements, strict=False):
-                yield (r.time, element.output_key(src, log.node),
-                       restore_bytes(element.layout, value), element.encoding)
+            members = (r.data.get("members") or {}).get(name, {}) if channel.family else \
+                {"*": elements}
+            for member, values in members.items():
+                for element, value in zip(channel.elements, values, strict=False):
+                    yield (r.time, element.output_key(src, log.node, member),
+                           restore_bytes(element.layout, value), element.encoding)
 
 
 def replay(

@@ -22,14 +22,17 @@ from typing import Any
 
 import msgpack
 
+from bridge.core.interest import own_subscriptions, wanted_by
 from bridge.core.mac import Schedule
 from bridge.core.node import NodeCore, Notice, Output, Publish, SendFrame, Status
 from bridge.core.positioning import simulated_preset
+from bridge.core.surfacing import Relay
 from bridge.errors import EncodeError, FrameError
 from bridge.mission.loader import LoadedMission
 from bridge.mission.path import Path
 from bridge.modems.base import Reception
 from bridge.modems.presets import Preset
+from bridge.runtime.virtual_queries import VirtualQueries
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
 from bridge.wire.auth import key_for_run
 from bridge.wire.frame import DecodedFrame
@@ -90,7 +93,7 @@ class FastFleet:
         on_output: Callable[[Timed], None] | None = None,
         keep_outputs: bool = True,
         key: bytes | None = None,
-        kinds: tuple[type, ...] = (Publish, Status, Notice),
+        kinds: tuple[type, ...] = (Publish, Status, Notice, Relay),
     ) -> None:
         """``keep_outputs`` false: outputs only go to ``on_output`` (long runs); ``kinds``:
         the output types kept and passed on (others are dropped unseen). ``key``: the frame
@@ -128,6 +131,8 @@ class FastFleet:
         self.keep_outputs = keep_outputs
         self.kinds = kinds
         self.stopped: set[str] = set()
+        self.subscriptions: dict[str, list[str]] = {}
+        self.queries = VirtualQueries(self)  # applications' gets and queryables
         self.seed = seed
         self.restarts = 0
         self.saved: dict[str, dict[str, Any]] = {}  # each node's saved state, as on its disk
@@ -141,6 +146,7 @@ class FastFleet:
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
         for name in mission.nodes:
+            self._interest(name)
             self._plan(name)
         self._next_tick = start
 
@@ -177,6 +183,36 @@ class FastFleet:
             deliver()
         else:
             self.call_at(at, deliver)
+
+    def subscribe(self, node: str, key: str) -> None:
+        """An application on ``node`` subscribes to ``key`` (demand-driven missions: the
+        channels whose outputs it meets become wanted there)."""
+        self.subscriptions.setdefault(node, []).append(key)
+        self._interest(node)
+
+    def unsubscribe(self, node: str, key: str) -> None:
+        """Undo one :meth:`subscribe` of ``key`` at ``node``."""
+        self.subscriptions.get(node, []).remove(key)
+        self._interest(node)
+
+    def ip_link(self, a: str, b: str, up: bool) -> None:
+        """Nodes ``a`` and ``b`` reach each other over IP (surfaced, ``up``) or no longer
+        (dived): what their bridges learn from each other's liveliness token in Zenoh."""
+        for x, y in ((a, b), (b, a)):
+            self.cores[x].ip_reachable(y, up, self.now)
+            self.collect_and_replan(x)
+
+    def collect_and_replan(self, node: str) -> None:
+        """Carry out ``node``'s outputs and plan its next transmission again."""
+        self._collect(node)
+        self._replan(node)
+
+    def _interest(self, node: str) -> None:
+        core = self.cores[node]
+        own = own_subscriptions(self.mission, [*core.bindings, *core.families.subscriptions()])
+        if core.interest is not None and core.interest.set_local(
+                wanted_by(self.loaded.table, node, [*own, *self.subscriptions.get(node, [])])):
+            self._replan(node)
 
     def stop(self, node: str) -> None:
         """Silence ``node``: it neither sends nor hears from now on."""
@@ -326,6 +362,7 @@ class FastFleet:
                                                raw=False, strict_map_key=False)
             core.saved()
         for output in core.take():
+            self.queries.handle(name, output)
             if not isinstance(output, self.kinds):
                 continue
             timed = Timed(self.now, name, output)

@@ -17,15 +17,18 @@ from typing import TYPE_CHECKING, Any
 import msgpack
 import zenoh
 
+from bridge.core.interest import output_keys
 from bridge.core.link import LinkState
 from bridge.core.node import NodeCore, NodeStats, Notice, Ping, Publish, Status, notable
 from bridge.core.positioning import Positioning
+from bridge.core.surfacing import Relay
 from bridge.errors import BackendError, DecodeError, EncodeError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
 from bridge.ros2.graph import Ros2Graph
 from bridge.runtime.session import close_quietly, is_bridged, open_session, origin_tag
 from bridge.runtime.state_file import StateFile
+from bridge.runtime.zenoh_queries import QueryBridge
 from bridge.wire.auth import load_key
 from bridge.wire.payloads import decode_payload, encode_payload
 
@@ -76,6 +79,8 @@ class BridgeNode:
         self._latched_keys: set[str] = set()
         self._publishers: dict[str, Any] = {}
         self._queryables: list[Any] = []
+        self._interest_entities: list[Any] = []
+        self._query_bridge: QueryBridge | None = None
         self._data = asyncio.Event()
         self._modem_up = asyncio.Event()
         self.started = asyncio.Event()
@@ -115,7 +120,16 @@ class BridgeNode:
                 self.session.declare_subscriber(
                     key, lambda s, k=key: self._from_zenoh(loop, k, s)
                 )
+            for key in self.core.families.subscriptions():  # key families: concrete keys
+                self.session.declare_subscriber(
+                    key, lambda s: self._from_zenoh(loop, str(s.key_expr), s))
             self._subscribe_positions(loop)
+            if self.core.interest is not None:
+                self._watch_interest(loop)
+            if self.core.queries is not None:
+                self._query_bridge = QueryBridge(self, loop)
+            if self.core.surfacing is not None:
+                self._watch_ip(loop)
             self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
             self._ros2.announce(self.table, self.node)  # ROS 2 topics join the ROS 2 graph
             tasks = [
@@ -131,6 +145,8 @@ class BridgeNode:
             await asyncio.gather(*tasks, return_exceptions=True)
             self._persist()
         finally:
+            if self._query_bridge is not None:
+                self._query_bridge.close()
             if self.backend is not None:
                 await self.backend.close()
             if self._ros2 is not None:
@@ -197,6 +213,46 @@ class BridgeNode:
                    lambda v, p=peer: positioning.set_peer_water(p, *v),  # type: ignore[misc]
                    bridged=True)
 
+    def _watch_interest(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Demand-driven missions: a matching listener on every output key this node publishes
+        says whether some application (or this bridge's own input) subscribes to it."""
+        assert self.session is not None
+        keys = output_keys(self.table, self.node)
+        matched: dict[str, bool] = {}
+
+        def changed(key: str, matching: bool) -> None:
+            matched[key] = matching
+            wanted = {i for i, ks in keys.items() if any(matched.get(k) for k in ks)}
+            assert self.core.interest is not None
+            if self.core.interest.set_local(wanted):
+                self._data.set()  # the new @want is due at the next opportunity
+
+        for key in sorted({k for ks in keys.values() for k in ks}):
+            publisher = self.session.declare_publisher(key)
+            self._interest_entities.append(publisher)
+            self._interest_entities.append(publisher.declare_matching_listener(
+                lambda status, k=key: loop.call_soon_threadsafe(changed, k, status.matching)))
+            changed(key, publisher.matching_status.matching)
+
+    def _watch_ip(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Surfacing: this bridge's liveliness token, and the peers' tokens seen over IP."""
+        assert self.session is not None
+        liveliness = self.session.liveliness()
+        self._interest_entities.append(liveliness.declare_token(f"{self.prefix}/bridge"))
+
+        def on_token(sample: zenoh.Sample) -> None:  # Zenoh thread
+            parts = str(sample.key_expr).split("/")
+            up = sample.kind == zenoh.SampleKind.PUT
+            if len(parts) == 4 and parts[2] in self.mission.nodes:
+                loop.call_soon_threadsafe(self._ip_changed, parts[2], up)
+
+        self._interest_entities.append(liveliness.declare_subscriber(
+            f"@zab/{self.mission.mission}/*/bridge", on_token, history=True))
+
+    def _ip_changed(self, peer: str, up: bool) -> None:
+        self.core.ip_reachable(peer, up, self.clock())
+        self._flush()
+        self._data.set()  # a dive makes the peer's channels due again
     def _steer(self, data: bytes, encoding: str) -> None:
         """This node's nav sample: its heading (and speed) steer the tracker, if it has them."""
         assert self.core.positioning is not None
@@ -344,6 +400,12 @@ class BridgeNode:
                     self._token(output.topic, output.payload["state"])
             elif isinstance(output, Notice):
                 self._event(output.kind, output.info)
+            elif isinstance(output, Relay):  # surfaced peer: the sample as it came, over IP
+                assert self.session is not None
+                self.session.put(output.key, output.data, encoding=zenoh.Encoding(output.encoding),
+                                 attachment=self._origin)
+            elif self._query_bridge is not None:
+                self._query_bridge.handle(output)
 
     def _event(self, kind: str, info: dict[str, Any]) -> None:
         self.on_event(kind, info)

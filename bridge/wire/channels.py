@@ -17,7 +17,10 @@ from typing import TYPE_CHECKING
 
 from bridge.codec import Layout
 from bridge.errors import LayoutError
-from bridge.mission.model import Channel, Element, Mission
+from bridge.mission.model import Channel, Element, LearnedKeys, Mission, NodeKeys
+from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, name_codec
+from bridge.wire.interest import InterestCodec
+from bridge.wire.queries import QueryCodec, QuerySpec, compile_query, query_codecs
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -77,11 +80,13 @@ class ElementCodec:
     layout: Layout
     ros2: Ros2Element | None = None  # a ROS 2 topic: CDR payloads on rmw_zenoh keys
 
-    def input_key(self, node: str) -> str:
-        return self.in_key.format(node=node, src=node)
+    def input_key(self, node: str, key: str = "*") -> str:
+        """The key read at ``node``; a family member's, or with ``*`` all members'."""
+        return self.in_key.format(node=node, src=node, key=key)
 
-    def output_key(self, src: str, dst: str) -> str:
-        return self.out_key.format(node=dst, src=src, dst=dst)
+    def output_key(self, src: str, dst: str, key: str = "*") -> str:
+        """The key published at ``dst``; a family member's, or with ``*`` all members'."""
+        return self.out_key.format(node=dst, src=src, dst=dst, key=key)
 
 
 @dataclass(frozen=True)
@@ -105,6 +110,8 @@ class ChannelCodec:
     retry_s: float | None = None
     chunk_bytes: int = 0  # > 0: values are too big for a frame and travel in fragments
     fragment_bits: int = 0  # bits of a fragment index / count
+    family: FamilySpec | None = None  # a key family: each entry starts with a member index
+    always: bool = False  # with demand: sent even while no destination wants it
 
     @cached_property
     def bits(self) -> int:
@@ -117,8 +124,8 @@ class ChannelCodec:
 
     @property
     def repeatable(self) -> bool:
-        """May appear several times in one frame (queued values, fragments)."""
-        return self.stream
+        """May appear several times in one frame (queued values, fragments, members)."""
+        return self.stream or self.family is not None
 
     @property
     def stream(self) -> bool:
@@ -130,6 +137,8 @@ class ChannelCodec:
         """Bits before the data of each entry: seq + lag, or transfer id + index + count."""
         if self.fragmented:
             return TID_BITS + 2 * self.fragment_bits
+        if self.family is not None:
+            return self.family.index_bits
         return SEQ_BITS + LAG_BITS if self.reliable else 0
 
     @cached_property
@@ -227,6 +236,8 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         raise ChannelTableError(str(exc), (*loc, "to")) from None
     if not any(set(receivers) - {sender} for sender in senders):
         raise ChannelTableError("a channel must reach a node other than its sender", (*loc, "to"))
+    family = compile_family(channel, nodes, loc)
+    extra = {KEY} if family is not None else set()
     elements = []
     for i, element in enumerate(channel.elements):
         eloc = (*loc, "elements", i)
@@ -235,8 +246,17 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
                                           eloc))
             continue
         assert element.in_ is not None and element.out is not None
-        for key, allowed, where in ((element.in_, SENDER_TEMPLATES, "in"),
-                                    (element.out, RECEIVER_TEMPLATES, "out")):
+        if family is not None:
+            try:
+                element = element.model_copy(update={"in_": family_template(element.in_)})
+            except ValueError as exc:
+                raise ChannelTableError(str(exc), (*eloc, "in")) from None
+            if KEY not in template_names(element.out):
+                raise ChannelTableError(f"a keyed channel's output {element.out!r} needs {{key}}"
+                                        ": each member is published on its own key",
+                                        (*eloc, "out"))
+        for key, allowed, where in ((element.in_, SENDER_TEMPLATES | extra, "in"),
+                                    (element.out, RECEIVER_TEMPLATES | extra, "out")):
             bad = template_names(key) - allowed
             if bad:
                 raise ChannelTableError(
@@ -265,9 +285,56 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         overflow=channel.overflow,
         retries=channel.retries,
         retry_s=channel.retry_s,
+        family=family,
+        always=channel.always,
     )
 
 
+def compile_family(channel: Channel, nodes: Sequence[str],
+                   loc: tuple[str | int, ...]) -> FamilySpec | None:
+    """The members of a keyed channel (None for a plain channel)."""
+    keys = channel.keys
+    if keys is None:
+        return None
+    if isinstance(keys, LearnedKeys):
+        return FamilySpec((), keys.learn, learned=True, name_bytes=keys.name_bytes)
+    if isinstance(keys, NodeKeys):
+        try:
+            members = match_nodes(keys.nodes, nodes)
+        except PatternError as exc:
+            raise ChannelTableError(str(exc), (*loc, "keys", "nodes")) from None
+    else:
+        members = tuple(keys)
+    return FamilySpec(tuple(members), len(members))
+
+
+def compile_queries(mission: Mission) -> tuple[QuerySpec, ...]:
+    """Every query of the mission, raising :class:`ChannelTableError` with a location."""
+    out = []
+    for i, query in enumerate(mission.queries):
+        loc: tuple[str | int, ...] = ("queries", i)
+        for key, where in ((query.key, "key"), (query.local_key or "", "local_key")):
+            bad = template_names(key) - {"node"}
+            if bad:
+                raise ChannelTableError(f"unknown template {{{sorted(bad)[0]}}} in {key!r}; "
+                                        "allowed here: {node}", (*loc, where))
+        try:
+            spec = compile_query(i, query, mission, match_nodes)
+        except PatternError as exc:
+            raise ChannelTableError(str(exc), loc) from None
+        except LayoutError as exc:
+            raise ChannelTableError(str(exc), (*loc, *exc.loc)) from None
+        if len(spec.servers) > 1 and "node" not in template_names(query.key):
+            raise ChannelTableError("a query with several servers needs {node} in its key "
+                                    "(the server asked)", (*loc, "key"))
+        if not spec.askers:
+            raise ChannelTableError("no node may ask this query", (*loc, "ask"))
+        out.append(spec)
+    names = [q.name for q in out]
+    for i, name in enumerate(names):
+        if name in names[:i]:
+            raise ChannelTableError(f"query name {name!r} used twice", ("queries", i, "name"))
+    return tuple(out)
 def _ros2_element(element: Element, on_out_of_range: str, senders: Sequence[str],
                   receivers: Sequence[str], eloc: tuple[str | int, ...]) -> ElementCodec:
     from bridge.ros2.element import Ros2Error
@@ -299,8 +366,8 @@ def fragment_channel(channel: ChannelCodec, mission: Mission, streams: bool) -> 
     """``channel`` as a fragmented transfer when a whole value does not fit in every sender's
     frame: a fragment fills about three quarters of a frame, so telemetry still fits beside
     it."""
-    if channel.fragmented:
-        return channel
+    if channel.fragmented or channel.family is not None:
+        return channel  # a family member never fragments: `zab check` says if it cannot fit
     capacity = min(entry_capacity_bits(mission, s, streams or channel.reliable)
                    for s in channel.senders)
     if channel.bits + channel.header_bits <= capacity:
@@ -367,6 +434,8 @@ class ChannelTable:
     nodes: tuple[str, ...]
     dlbl: bool
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
+    demand: bool = False  # frames may carry the @want interest bitmap
+    queries: tuple[QuerySpec, ...] = ()  # queries across the water
     wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.dccl.goby)
 
     @classmethod
@@ -381,14 +450,15 @@ class ChannelTable:
                 )
             seen[channel.name] = i
         compiled = tuple(compile_channel(i, c, nodes) for i, c in enumerate(mission.channels))
-        streams = any(c.reliable for c in compiled)
+        streams = any(c.reliable or c.family is not None for c in compiled)
         compiled = tuple(fragment_channel(c, mission, streams) for c in compiled)
         if not streams and any(c.fragmented for c in compiled):  # the count field grows
             compiled = tuple(fragment_channel(c, mission, True) for c in compiled)
         auth = mission.wire.auth
         return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
                    auth_tag_bytes=auth.tag_bytes if auth else 0,
-                   wire_format=mission.wire.format)
+                   wire_format=mission.wire.format,
+                   demand=mission.demand is not None, queries=compile_queries(mission))
 
     def __len__(self) -> int:
         return len(self.channels)
@@ -409,10 +479,34 @@ class ChannelTable:
                         stream_bits=(len(self.streams) - 1).bit_length(),
                         base_bits=max(SEQ_BITS, fragment_bits))
 
+    @cached_property
+    def names(self) -> NameCodec | None:
+        """The ``@key`` entry naming learned family members, present when there are some."""
+        learned = [(c.index, c.family) for c in self.channels
+                   if c.family is not None and c.family.learned]
+        return name_codec(len(self.channels) + (self.ack is not None), learned)
+
+    @cached_property
+    def interest(self) -> InterestCodec | None:
+        """The ``@want`` entry, present in missions with ``demand``."""
+        if not self.demand:
+            return None
+        return InterestCodec(len(self.channels) + (self.ack is not None)
+                             + (self.names is not None), len(self.channels))
+
+    @cached_property
+    def query_codecs(self) -> tuple[QueryCodec, ...]:
+        """Request and reply entries of every query, after the other system entries."""
+        first = len(self.channels) + sum(s is not None
+                                         for s in (self.ack, self.names, self.interest))
+        return query_codecs(first, self.queries, len(self.nodes))
+
     @property
-    def wire(self) -> tuple[ChannelCodec | AckCodec, ...]:
+    def wire(self) -> tuple[ChannelCodec | AckCodec | NameCodec | InterestCodec | QueryCodec,
+                            ...]:
         """Every kind of entry a frame may hold: the mission's channels, then system ones."""
-        return self.channels if self.ack is None else (*self.channels, self.ack)
+        system = tuple(s for s in (self.ack, self.names, self.interest) if s is not None)
+        return (*self.channels, *system, *self.query_codecs)
 
     def by_name(self, name: str) -> ChannelCodec:
         return next(c for c in self.channels if c.name == name)
@@ -424,7 +518,7 @@ class ChannelTable:
     @cached_property
     def fingerprint(self) -> bytes:
         """8 bytes that differ when two mission files would disagree about the wire."""
-        description = {
+        description: dict[str, object] = {
             "wire": WIRE_VERSION,
             "dlbl": self.dlbl,
             "auth": self.auth_tag_bytes,
@@ -434,8 +528,13 @@ class ChannelTable:
                           for e in c.elements]]
                 + ([["reliable"]] if c.reliable else [])
                 + ([["fragments", c.chunk_bytes, c.fragment_bits]] if c.fragmented else [])
+                + ([["keys", c.family.describe()]] if c.family is not None else [])
                 for c in self.channels
             ],
         }
+        if self.demand:
+            description["demand"] = [c.name for c in self.channels if c.always]
+        if self.queries:
+            description["queries"] = [q.describe() for q in self.queries]
         blob = json.dumps(description, sort_keys=True, separators=(",", ":")).encode()
         return hashlib.sha256(blob).digest()[:8]

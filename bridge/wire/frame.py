@@ -7,14 +7,18 @@ Layout, most significant bit first::
              0xFFFFFF = no data.
     [epoch]  missions with reliable or fragmented channels: 8 bits, the sender's stream epoch
              (it changes only when a node starts without its saved state; see bridge.core)
-    count    ceil(log2(C + 1)) bits: how many entries follow (C = channels in the mission);
-             6 bits when the mission has reliable or fragmented channels
+    count    ceil(log2(C + 1)) bits: how many entries follow (C = channels in the mission,
+             plus ``@want`` in demand missions); 6 bits when entries may repeat
     count ×  index   ceil(log2 W) bits (0 bits when W == 1), W = C plus the ``@ack`` entry
                      when the mission has reliable or fragmented channels
              entry   plain channel: its fixed number of bits (its elements' layouts, in order);
                      reliable: seq (8) + lag (4) + the value; fragment: transfer id (4) +
-                     index + count + a chunk of the packed value; ``@ack``: see AckCodec.
-             Only reliable, fragmented and ``@ack`` entries may repeat in a frame.
+                     index + count + a chunk of the packed value; ``@ack``: see AckCodec;
+                     key family: member index (ceil(log2 n) bits) + the value; ``@key``
+                     (learned families): see bridge.wire.families.NameCodec; ``@want``
+                     (demand missions): see bridge.wire.interest.InterestCodec; query
+                     request ``?name`` / reply ``!name``: see bridge.wire.queries.
+             Only reliable, fragmented, keyed and system entries may repeat in a frame.
     pad      zero bits up to the next byte
     [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.wire.auth)
     check    16 bits: CRC-16/CCITT (init 0xFFFF) of every byte before the check, XOR the first
@@ -43,6 +47,9 @@ from bridge.wire.channels import (
     ChannelCodec,
     ChannelTable,
 )
+from bridge.wire.families import NameCodec
+from bridge.wire.interest import InterestCodec
+from bridge.wire.queries import QueryCodec, ReplyStatus
 
 DELAY_BYTES = 3
 DELAY_MAX_US = (1 << 24) - 2  # largest delay sent; a longer one wraps (see ranging)
@@ -101,7 +108,7 @@ class FrameCodec:
         self.repeats = any(w.repeatable for w in self.wire)
         # count: ceil(log2(n + 1)) bits, or room for repeated entries
         self.count_bits = (COUNT_BITS_REPEATABLE if self.repeats
-                           else len(table.channels).bit_length())
+                           else len(self.wire).bit_length())
         self.index_bits = (n - 1).bit_length() if n > 1 else 0
         self.delay_count = len(table.nodes) - 1 if table.dlbl else 0
         self.delay_bytes = DELAY_BYTES * self.delay_count
@@ -228,8 +235,22 @@ class FrameCodec:
             raise FrameError("trailing data after the last channel")
         return DecodedFrame(delays, tuple(entries), epoch)
 
-    def _entry(self, channel: ChannelCodec | AckCodec, payload: int) -> Entry:
+    def _entry(self, channel: ChannelCodec | AckCodec | NameCodec, payload: int) -> Entry:
         """One entry's fields, checked; raises :class:`DecodeError` when malformed."""
+        if isinstance(channel, QueryCodec):
+            qid, node, status, packed = channel.unpack(payload)
+            if node >= len(self.table.nodes):
+                raise DecodeError(f"names unknown node {node}")
+            carries = not channel.reply or status <= ReplyStatus.LAST
+            return Entry(channel, [channel.layout.unpack(packed)] if carries else None,  # type: ignore
+                         (qid, node, status))
+        if isinstance(channel, InterestCodec):
+            return Entry(channel, header=tuple(sorted(channel.unpack(payload))))  # type: ignore
+        if isinstance(channel, NameCodec):
+            try:
+                return Entry(channel, header=channel.unpack(payload))  # type: ignore[arg-type]
+            except ValueError as exc:
+                raise DecodeError(str(exc)) from None
         if isinstance(channel, AckCodec):
             header = channel.unpack(payload)
             peer, stream = header[:2]
@@ -249,6 +270,11 @@ class FrameCodec:
                 raise DecodeError(f"fragment {index} of {count} (at most {most})")
             return Entry(channel, header=(tid, index, count), chunk=chunk)
         values = channel.unpack(payload & ((1 << channel.bits) - 1))
+        if channel.family is not None:
+            member = payload >> channel.bits
+            if member >= channel.family.bound:
+                raise DecodeError(f"member {member} of {channel.family.bound}")
+            return Entry(channel, values, (member,))
         if channel.reliable:
             header = payload >> channel.bits
             seq, lag = header >> LAG_BITS, header & ((1 << LAG_BITS) - 1)

@@ -429,6 +429,7 @@ function renderVehicles() {
       badge.dataset.state = link ? link.state : "unknown";
     }
     card.dataset.state = badge.dataset.state;
+    renderZspace(card, node.name, mission.node);
     card.querySelector(".heard").textContent =
       node.name === mission.node ? "" : "last heard " + (v.heard ? age(v.heard) + " ago" : "never");
     const body = card.querySelector("tbody");
@@ -475,6 +476,23 @@ function renderVehicles() {
       tr.dataset.count = item.count;
     }
   }
+}
+
+// Issue 15: what this node's applications want, its open queries, peers reached over IP.
+function renderZspace(card, name, self) {
+  const own = state.stats[self];
+  let line = card.querySelector(".zspace");
+  const parts = [];
+  if (own && name === self) {
+    if (own.wanted) parts.push("wants: " + (own.wanted.join(", ") || "nothing"));
+    if (own.open_queries) parts.push("open queries: " + (own.open_queries.join(", ") || "none"));
+  } else if (own && own.ip_reachable && own.ip_reachable.includes(name)) {
+    parts.push("surfaced: over IP, not bridged acoustically");
+  }
+  if (!parts.length) { if (line) line.remove(); return; }
+  if (!line) line = make("p", "zspace muted", null, card.querySelector("header"));
+  line.textContent = parts.join(" · ");
+  line.dataset.surfaced = String(name !== self);
 }
 
 // ---- events --------------------------------------------------------------------------------

@@ -1,0 +1,122 @@
+"""The parts of ``zab demo`` for issue 15's features: key-family inputs and queries.
+
+Plain Zenoh applications again (only ``zenoh`` and ``msgpack``): a queryable on each serving
+vehicle answering its query's key with plausible reply fields, and an operator at each asking
+node that gets every asked key now and then and prints the answer (or the reply error).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import msgpack
+import zenoh
+
+from bridge.errors import DecodeError
+from bridge.mission.loader import LoadedMission
+from bridge.wire.channels import ChannelCodec
+from bridge.wire.queries import QuerySpec
+
+QUERY_PERIOD_S = 20.0
+FIRST_QUERY_S = 8.0
+LEARNED_DEMO_KEYS = 3  # members a demo application publishes on a learned family
+
+
+def member_keys(channel: ChannelCodec, element: int, node: str) -> list[str]:
+    """The concrete input keys a demo application publishes for one element: the element's
+    key, or one per member of a key family (a few names for a learned one)."""
+    codec = channel.elements[element]
+    family = channel.family
+    if family is None:
+        return [codec.input_key(node)]
+    names = ([f"k{i}" for i in range(min(family.bound, LEARNED_DEMO_KEYS))] if family.learned
+             else list(family.members))
+    return [codec.input_key(node, name) for name in names]
+
+
+def _reply_value(spec: QuerySpec, t: float, params: dict[str, Any]) -> dict[str, Any]:
+    """Plausible reply fields; a field named like a parameter echoes it."""
+    value: dict[str, Any] = {}
+    for field in spec.reply.fields:
+        *parents, last = field.path.split(".")
+        target = value
+        for part in parents:
+            target = target.setdefault(part, {})
+        target[last] = params[last] if last in params else _plausible(field, t)
+    return value
+
+
+def _plausible(field: Any, t: float) -> Any:
+    """A value the field encodes, moving slowly through its codes."""
+    top = (1 << field.bits) - 1
+    try:
+        return field.decode(int(top * (0.5 + 0.4 * math.sin(t / 30))))
+    except DecodeError:
+        return field.decode(0)
+
+
+class QueryApps:
+    """Queryables on serving vehicles and an operator asking from the asking nodes."""
+
+    def __init__(self, loaded: LoadedMission, sessions: dict[str, zenoh.Session],
+                 show: Callable[[str], None]) -> None:
+        self.loaded = loaded
+        self.sessions = sessions
+        self.show = show
+        self.answered = 0
+        self.failed = 0
+        self.t0 = time.time()
+        for spec in loaded.table.queries:
+            for server in spec.servers:
+                session = sessions.get(server)
+                if session is not None:
+                    session.declare_queryable(spec.served_key(server),
+                                              lambda q, s=spec: self._answer(q, s))
+
+    def _answer(self, query: zenoh.Query, spec: QuerySpec) -> None:
+        params = {}
+        for part in filter(None, str(query.parameters).split(";")):
+            name, _, raw = part.partition("=")
+            params[name] = int(raw) if raw.lstrip("-").isdigit() else raw
+        value = _reply_value(spec, time.time() - self.t0, params)
+        query.reply(query.key_expr, msgpack.packb(value),
+                    encoding=zenoh.Encoding("application/msgpack"))
+        query.drop()
+
+    def ask_once(self) -> None:
+        for spec in self.loaded.table.queries:
+            for asker in spec.askers:
+                session = self.sessions.get(asker)
+                if session is None:
+                    continue
+                for server in spec.servers:
+                    if server == asker:
+                        continue
+                    params = ";".join(f"{f.path}={f.decode(0)}" for f in spec.request.fields
+                                      if "." not in f.path)
+                    selector = spec.asked_key(server) + (f"?{params}" if params else "")
+                    asked = time.time()
+                    session.get(selector, zenoh.handlers.Callback(
+                        lambda r, a=asker, s=selector, t=asked: self._reply(a, s, t, r)),
+                        timeout=60.0)
+
+    def _reply(self, asker: str, selector: str, asked: float, reply: zenoh.Reply) -> None:
+        took = time.time() - asked
+        if reply.ok is not None:
+            self.answered += 1
+            value = msgpack.unpackb(reply.ok.payload.to_bytes())
+            self.show(f"[blue]{asker:>4}[/] get {selector} → {value} ({took:.1f} s)")
+        else:
+            self.failed += 1
+            self.show(f"[red]{asker:>4}[/] get {selector} failed after {took:.1f} s: "
+                      f"{reply.err.payload.to_string()}")
+
+    async def run(self) -> None:
+        await asyncio.sleep(FIRST_QUERY_S)  # the links come up first
+        while True:
+            self.ask_once()
+            await asyncio.sleep(QUERY_PERIOD_S)

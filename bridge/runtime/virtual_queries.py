@@ -1,0 +1,107 @@
+"""Zenoh queries played on the virtual clock: applications' gets and queryables for
+:class:`~bridge.runtime.virtual_fleet.FastFleet` (``zab sim --fast``), around the same core."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from bridge.core.interest import intersects
+from bridge.core.queries import LocalGet, QueryAnswer, QueryEnd
+
+if TYPE_CHECKING:
+    from bridge.runtime.virtual_fleet import FastFleet
+
+Answer = Callable[[dict[str, Any]], list[Any]]
+
+
+@dataclass
+class GetResult:
+    """What an application's get received: replies (key, value, time), then its end."""
+
+    node: str
+    key: str
+    asked_at: float
+    replies: list[tuple[str, Any, float]] = field(default_factory=list)
+    error: str | None = None
+    ended_at: float | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.ended_at is not None
+
+
+QUERY_PERIOD_S = 30.0
+"""How often a synthetic operator asks each query of a mission in ``zab sim --fast``."""
+
+
+class VirtualQueries:
+    """Queryables and pending gets of the applications of a virtual fleet."""
+
+    def __init__(self, fleet: FastFleet) -> None:
+        self.fleet = fleet
+        self.queryables: dict[str, list[tuple[str, Answer]]] = {}
+        self.waiting: dict[tuple[str, tuple[int, str, int]], list[GetResult]] = {}
+
+    def queryable(self, node: str, key: str, answer: Answer) -> None:
+        """An application on ``node`` answers gets meeting ``key`` with ``answer(params)``."""
+        self.queryables.setdefault(node, []).append((key, answer))
+
+    def get(self, node: str, key: str, parameters: dict[str, Any] | None = None) -> GetResult:
+        """An application on ``node`` gets ``key`` now; the result fills in as time runs."""
+        fleet = self.fleet
+        result = GetResult(node, key, fleet.now)
+        ticket = fleet.cores[node].ask(key, parameters or {}, fleet.now)
+        if isinstance(ticket, str):
+            result.error, result.ended_at = ticket, fleet.now
+        else:
+            self.waiting.setdefault((node, ticket), []).append(result)
+        fleet.collect_and_replan(node)
+        return result
+
+    def synthetic(self, value: Callable[[Any], Any], until: float,
+                  period: float = QUERY_PERIOD_S) -> list[GetResult]:
+        """Applications for ``zab sim --fast``: a queryable at every server answering with
+        ``value(layout)`` (a valid value of the reply fields), and at every asking node a get
+        of each asked key every ``period`` until ``until``. Returns the gets, as they fill."""
+        fleet = self.fleet
+        results: list[GetResult] = []
+        for spec in fleet.loaded.table.queries:
+            for server in spec.servers:
+                self.queryable(server, spec.served_key(server),
+                               lambda params, s=spec: [value(s.reply)])
+            for asker in spec.askers:
+                for server in spec.servers:
+                    if server == asker:
+                        continue
+
+                    def ask(a: str = asker, key: str = spec.asked_key(server),
+                            layout: Any = spec.request) -> None:
+                        results.append(self.get(a, key, value(layout) if layout.fields else {}))
+                        if fleet.now + period <= until:
+                            fleet.call_at(fleet.now + period, ask)
+
+                    fleet.call_at(fleet.now + period, ask)
+        return results
+
+    def handle(self, node: str, output: object) -> bool:
+        """Carry out a query output of ``node``'s core; False if it is not one."""
+        fleet = self.fleet
+        if isinstance(output, LocalGet):
+            values: list[Any] = []
+            for key, answer in self.queryables.get(node, []):
+                if intersects(key, output.key):
+                    values += answer(dict(output.parameters))
+            fleet.cores[node].query_served(output.ticket, values)
+            fleet.call_at(fleet.now, lambda: fleet.collect_and_replan(node))
+            return True
+        if isinstance(output, QueryAnswer):
+            for result in self.waiting.get((node, output.ticket), []):
+                result.replies.append((output.key, output.value, fleet.now))
+            return True
+        if isinstance(output, QueryEnd):
+            for result in self.waiting.pop((node, output.ticket), []):
+                result.error, result.ended_at = output.error, fleet.now
+            return True
+        return False

@@ -1,0 +1,57 @@
+"""``zab gui`` in a real browser on the zspace mission run by a real ``zab sim``: the surface's
+card says which channels its applications want; a vehicle that surfaces is shown as reached
+over IP, and goes back when it dives."""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+import pytest
+import yaml
+
+from tests.conftest import MISSIONS
+from tests.gui.test_browser import CHROMIUM, CHROMIUM_ARGS, WAIT_MS, gui_process
+from tests.test_surfacing import router
+from tests.zsim import app as plain_app
+from tests.zsim import mission_file, zab_sim
+
+pytestmark = pytest.mark.skipif(not CHROMIUM.exists(),
+                                reason="needs Debian's chromium (apt-get install chromium)")
+
+
+def test_wants_and_surfacing_show_on_the_page(tmp_path: Path) -> None:
+    from playwright.sync_api import sync_playwright
+
+    data = yaml.safe_load((MISSIONS / "zspace.yaml").read_text())
+    for name in ("top", "auv1"):
+        data["nodes"][name]["zenoh"] = {"mode": "router", "scouting/gossip/enabled": False,
+                                        "scouting/delay": 0}
+    mission, endpoints = mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(zab_sim(mission, endpoints))
+        top = plain_app(endpoints["top"])
+        stack.callback(top.close)
+        top.declare_subscriber("auv1/status", lambda s: None)
+        url = stack.enter_context(gui_process(mission))
+        playwright = stack.enter_context(sync_playwright())
+        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        stack.callback(browser.close)
+        page = browser.new_page(viewport={"width": 1280, "height": 900})
+        errors: list[str] = []
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.goto(url)
+        own = '.vehicle-card[data-node="top"] .zspace'
+        page.wait_for_function(f"document.querySelector('{own}')?.textContent"
+                               ".includes('wants:')", timeout=WAIT_MS)
+        assert "status" in page.inner_text(own)
+        wifi = router(endpoints["top"] + endpoints["auv1"])
+        try:
+            page.wait_for_selector('.vehicle-card[data-node="auv1"] .zspace',
+                                   timeout=WAIT_MS)
+            assert "surfaced" in page.inner_text('.vehicle-card[data-node="auv1"] .zspace')
+        finally:
+            wifi.close()
+        page.wait_for_selector('.vehicle-card[data-node="auv1"] .zspace', state="detached",
+                               timeout=WAIT_MS)
+        assert errors == []

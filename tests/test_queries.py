@@ -1,0 +1,328 @@
+"""Queries across the water: a plain Zenoh get at one node answered by a queryable on another,
+ended with a reply error at the MAC's deadline, bounded, refused when the link is down."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import msgpack
+import pytest
+import yaml
+
+from bridge.core.queries import deadline_s
+from bridge.errors import MissionError
+from bridge.mission.loader import load_mission, parse_mission
+from bridge.runtime.virtual_fleet import FastFleet
+from bridge.runtime.zenoh_queries import format_parameters, parse_parameters
+from bridge.wire.frame import FrameCodec
+from tests.conftest import MISSIONS, REPO, free_port
+from tests.zsim import app as plain_app
+from tests.zsim import mission_file, zab_sim
+
+ZSPACE = MISSIONS / "zspace.yaml"
+
+
+def info(params: dict) -> list[dict]:
+    return [{"depth_m": 12.5, "state": "survey", "detail": int(params.get("detail", 0))}]
+
+
+def fleet_with_info() -> FastFleet:
+    fleet = FastFleet(load_mission(ZSPACE), seed=1)
+    fleet.queries.queryable("auv1", "auv1/info", info)
+    fleet.run_until(10.0)  # heartbeats: every link is up
+    return fleet
+
+
+def test_a_get_is_answered_within_the_macs_bound_and_concurrent_gets_share_a_request() -> None:
+    fleet = fleet_with_info()
+    first = fleet.queries.get("top", "auv1/info", {"detail": 2})
+    second = fleet.queries.get("top", "auv1/info", {"detail": 2})
+    fleet.run_until(30.0)
+    for result in (first, second):
+        assert result.error is None and result.done
+        assert [v for _, v, _ in result.replies] == [{"depth_m": 12.5, "state": "survey",
+                                                      "detail": 2}]
+    bound = deadline_s(fleet.mission, fleet.loaded.table.queries[0], "top", "auv1")
+    assert first.ended_at is not None and first.ended_at - first.asked_at <= bound
+    assert fleet.cores["top"].queries.asked == 1  # one acoustic request for both gets
+
+
+def test_no_queryable_at_the_server_ends_without_replies() -> None:
+    fleet = fleet_with_info()
+    result = fleet.queries.get("top", "auv2/info", {"detail": 1})
+    fleet.run_until(30.0)
+    assert result.done and result.error is None and result.replies == []
+
+
+def test_several_replies_come_back_in_order_up_to_max_replies() -> None:
+    fleet = FastFleet(load_mission(ZSPACE), seed=1)
+    fleet.queries.queryable("auv2", "auv2/info", lambda p: [
+        {"depth_m": d, "state": "idle", "detail": 0} for d in (1.0, 2.0, 3.0)])
+    fleet.run_until(10.0)
+    result = fleet.queries.get("top", "auv2/info", {"detail": 0})
+    fleet.run_until(30.0)
+    assert [v["depth_m"] for _, v, _ in result.replies] == [1.0, 2.0]  # max_replies: 2
+    assert result.error is None
+
+
+def test_bad_input_ends_at_once_with_a_reason() -> None:
+    fleet = fleet_with_info()
+    bad = fleet.queries.get("top", "auv1/info", {"detail": 9})
+    assert bad.done and "malformed parameters" in (bad.error or "")
+    assert fleet.cores["top"].queries.dropped["info"] == 1
+    opened = [fleet.queries.get("top", "auv1/info", {"detail": d}) for d in range(4)]
+    opened.append(fleet.queries.get("top", "auv2/info", {"detail": 0}))
+    assert [r.done for r in opened] == [False] * 4 + [True]
+    assert "4 acoustic queries already open" in (opened[-1].error or "")
+    fleet.run_until(40.0)
+    assert all(r.error is None and r.replies for r in opened[:4])
+
+
+def test_a_lost_reply_ends_with_an_error_at_the_deadline() -> None:
+    fleet = fleet_with_info()
+    result = fleet.queries.get("top", "auv1/info", {"detail": 1})
+    fleet.stop("auv1")  # it never hears the request
+    fleet.run_until(11.0)
+    assert fleet.cores["top"].link_states["auv1"].value == "up"
+    fleet.run_until(40.0)
+    bound = deadline_s(fleet.mission, fleet.loaded.table.queries[0], "top", "auv1")
+    assert result.error is not None and "auv1: no reply" in result.error
+    assert "MAC's bound" in result.error
+    assert result.ended_at is not None and bound <= result.ended_at - result.asked_at <= bound + 1.5
+    fleet.run_until(10.0 + fleet.cores["top"].thresholds.down_after_s + 1.0)
+    late = fleet.queries.get("top", "auv1/info", {"detail": 1})  # by now the link is down
+    assert late.done and late.error is not None and "auv1: acoustic link down" in late.error
+
+
+def test_request_and_reply_entries_and_mission_errors() -> None:
+    loaded = load_mission(ZSPACE)
+    codec = FrameCodec(loaded.table)
+    request, reply = loaded.table.query_codecs
+    assert request.wire_bits == 4 + 2 + 2 and reply.wire_bits == 4 + 2 + 2 + reply.layout.bits
+    data = codec.encode([(request, request.pack(5, 1, 2)), (reply, reply.pack(3, 0, 0, 2))])
+    first, second = codec.decode(data).entries
+    assert first.header == (5, 1, 0) and first.values == [{"detail": 2}]
+    assert second.header == (3, 0, 2) and second.values is None
+    text = yaml.safe_load(ZSPACE.read_text())
+    text["queries"][0]["key"] = "info"
+    with pytest.raises(MissionError, match=r"queries\[0\]\.key.*\{node\}"):
+        parse_mission(yaml.safe_dump(text))
+
+
+def test_selector_parameters_round_trip() -> None:
+    values = parse_parameters("detail=2;mode=full;pos.x=1.5;on=true")
+    assert values == {"detail": 2, "mode": "full", "pos": {"x": 1.5}, "on": True}
+    assert parse_parameters(format_parameters(values)) == values
+
+
+TEST_MISSION = """
+nodes:
+  auv3: {address: 4, position: {x: 9000, y: 0, depth: 10}}
+queries:
+  - name: slowinfo
+    key: auv1/slowinfo
+    serve: auv1
+    ask: top
+    reply: [{field: depth_m, min: 0, max: 200, resolution: 0.5}]
+    timeout_s: 1.5
+"""
+
+
+def e2e_mission(tmp_path: Path) -> tuple[Path, dict]:
+    data = yaml.safe_load(ZSPACE.read_text())
+    extra = yaml.safe_load(TEST_MISSION)
+    data["nodes"].update(extra["nodes"])  # auv3 is out of acoustic range: its link is down
+    data["mac"]["order"].append("auv3")
+    data["queries"] += extra["queries"]
+    return mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
+
+
+def get(session, selector: str, timeout: float = 30.0) -> tuple[list, list[str], float]:
+    started = time.time()
+    values, errors = [], []
+    for reply in session.get(selector, timeout=timeout):
+        if reply.ok is not None:
+            values.append((str(reply.ok.key_expr), msgpack.unpackb(reply.ok.payload.to_bytes())))
+        else:
+            errors.append(reply.err.payload.to_string())
+    return values, errors, time.time() - started
+
+
+def test_a_plain_get_crosses_the_water_through_zab_sim(tmp_path: Path) -> None:
+    mission, endpoints = e2e_mission(tmp_path)
+    with zab_sim(mission, endpoints):
+        auv1, top = plain_app(endpoints["auv1"]), plain_app(endpoints["top"])
+        try:
+            def answer(query) -> None:
+                detail = int(str(query.parameters).partition("detail=")[2] or 0)
+                query.reply(query.key_expr, msgpack.packb(
+                    {"depth_m": 42.5, "state": "transit", "detail": detail}))
+                query.drop()
+
+            auv1.declare_queryable("auv1/info", answer)
+            deadline = time.time() + 20  # until the surface has heard auv1
+            while True:
+                values, errors, took = get(top, "auv1/info?detail=3")
+                if values or time.time() > deadline or "link down" not in " ".join(errors):
+                    break
+                time.sleep(1.0)
+            assert values == [("auv1/info", {"depth_m": 42.5, "state": "transit",
+                                             "detail": 3})], errors
+            assert not errors and took < 12.0  # two TDMA cycles of 3 s, at most
+            # concurrent gets share one request
+            results: list = []
+            threads = [threading.Thread(target=lambda: results.append(
+                get(top, "auv1/info?detail=1"))) for _ in range(2)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            assert [r[0] for r in results] == [[("auv1/info", {"depth_m": 42.5,
+                                                               "state": "transit",
+                                                               "detail": 1})]] * 2
+            # a deadline shorter than the round trip: a clear error
+            values, errors, took = get(top, "auv1/slowinfo")
+            assert values == [] and len(errors) == 1
+            assert "auv1: no reply to query 'slowinfo' within 1.5 s" in errors[0]
+            # the link to auv3 is down: at once, naming it
+            values, errors, took = get(top, "auv3/info?detail=0")
+            assert values == [] and "auv3: acoustic link down" in errors[0] and took < 1.0
+            values, errors, took = get(top, "auv1/info?detail=banana")
+            assert values == [] and "malformed parameters" in errors[0] and took < 1.0
+        finally:
+            auv1.close()
+            top.close()
+
+
+def test_a_query_under_the_polled_mac_is_answered_in_the_reply_to_its_poll() -> None:
+    data = yaml.safe_load(ZSPACE.read_text())
+    data["mac"] = {"type": "polled", "master": "top", "ipg_s": 1.5}
+    loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), "polled.yaml")
+    fleet = FastFleet(loaded, seed=2)
+    fleet.queries.queryable("auv2", "auv2/info", info)
+    fleet.run_until(10.0)
+    result = fleet.queries.get("top", "auv2/info", {"detail": 3})
+    fleet.run_until(25.0)
+    assert [v for _, v, _ in result.replies] == info({"detail": 3}) and result.error is None
+    bound = deadline_s(loaded.mission, loaded.table.queries[0], "top", "auv2")
+    assert result.ended_at is not None and result.ended_at - result.asked_at <= bound
+
+
+def test_zab_demo_shows_answered_gets(tmp_path: Path) -> None:
+    mission, _ = mission_file(ZSPACE.read_text(), tmp_path)
+    done = subprocess.run([sys.executable, "-m", "bridge", "demo", "--mission", str(mission),
+                           "--duration", "16", "--no-live", "--no-gui"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=90,
+                          env={**os.environ, "COLUMNS": "200"})
+    assert done.returncode == 0, done.stderr
+    assert "top get auv1/info?detail=0 → {'depth_m'" in done.stdout
+
+
+def test_a_fresh_latched_value_answers_at_once_without_a_request() -> None:
+    data = yaml.safe_load(ZSPACE.read_text())
+    data["queries"].append({"name": "state", "key": "{node}/status", "serve": "auv.*",
+                            "ask": "top", "cached_s": 10,
+                            "reply": [{"field": "battery", "min": 0, "max": 100,
+                                       "resolution": 1}]})
+    loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), "cached.yaml")
+    fleet = FastFleet(loaded, seed=1)
+    fleet.subscribe("top", "auv1/status")
+    fleet.put("auv1", "status", {"battery": 80, "mode": "survey"}, at=0.5)
+    fleet.run_until(10.0)
+    arrived = fleet.published("top", "auv1/status")[-1][0]
+    result = fleet.queries.get("top", "auv1/status")
+    assert result.done and result.error is None and result.ended_at == result.asked_at
+    assert [v for _, v, _ in result.replies] == [{"battery": 80, "mode": "survey"}]
+    assert fleet.cores["top"].queries.asked == 0 and fleet.cores["top"].queries.cached == 1
+    fleet.unsubscribe("top", "auv1/status")  # no fresher values: the cache ages
+    fleet.run_until(arrived + 8.0)  # the new @want has crossed: auv1 stopped sending
+    last = fleet.published("top", "auv1/status")[-1][0]
+    fleet.run_until(last + 11.0)
+    stale = fleet.queries.get("top", "auv1/status")
+    assert not stale.done and fleet.cores["top"].queries.asked == 1  # goes over the water
+
+
+def test_check_refuses_a_reply_that_can_never_fit(tmp_path: Path) -> None:
+    data = yaml.safe_load(ZSPACE.read_text())
+    data["queries"][0]["reply"].append({"field": "log", "type": "string", "length": 60})
+    path = tmp_path / "big.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    done = subprocess.run([sys.executable, "-m", "bridge", "check", str(path)], cwd=REPO,
+                          capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "COLUMNS": "200"})
+    assert done.returncode == 1 and "entry '!info'" in done.stdout
+    assert "can never fit" in done.stdout
+
+
+def test_zab_sim_fast_asks_the_queries_and_reports_them(tmp_path: Path) -> None:
+    report = tmp_path / "r.json"
+    done = subprocess.run([sys.executable, "-m", "bridge", "sim", str(ZSPACE), "--fast",
+                           "--duration", "200", "--report", str(report)], cwd=REPO,
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "COLUMNS": "200"})
+    assert done.returncode == 0, done.stderr
+    queries = json.loads(report.read_text())["queries"]
+    assert queries["asked"] >= 10 and queries["errors"] == {}
+    assert queries["answered"] >= queries["asked"] - 2  # the last ones may still be open
+    bound = deadline_s(load_mission(ZSPACE).mission, load_mission(ZSPACE).table.queries[0],
+                       "top", "auv1")
+    assert queries["max_round_trip_s"] <= bound
+    assert "queries: " in done.stdout and "answered" in done.stdout
+
+
+def test_a_get_through_zab_run_processes_and_zab_water(tmp_path: Path) -> None:
+    """What the vehicles run at sea: one `zab run` per node, here over `zab water`."""
+    data = yaml.safe_load(ZSPACE.read_text())
+    water = free_port()
+    data["modem"]["options"]["water"] = f"127.0.0.1:{water}"
+    mission, endpoints = mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
+    procs = [subprocess.Popen([sys.executable, "-m", "bridge", "water", str(mission), "--port",
+                               str(water)], cwd=REPO, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)]
+    sessions = []
+    try:
+        time.sleep(1.0)
+        for node in ("top", "auv1"):
+            procs.append(subprocess.Popen([sys.executable, "-m", "bridge", "run", str(mission),
+                                           "--node", node], cwd=REPO,
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        deadline = time.time() + 20
+        while len(sessions) < 2:
+            try:
+                sessions.append(plain_app(endpoints[("auv1", "top")[len(sessions)]]))
+            except Exception:
+                assert time.time() < deadline, "zab run did not open its endpoint"
+                time.sleep(0.2)
+        auv1, top = sessions
+
+        def answer(query) -> None:
+            query.reply(query.key_expr, msgpack.packb({"depth_m": 5.0, "state": "idle",
+                                                       "detail": 1}))
+            query.drop()
+
+        auv1.declare_queryable("auv1/info", answer)
+        deadline = time.time() + 25
+        while True:
+            values, errors, _ = get(top, "auv1/info?detail=1")
+            if values or time.time() > deadline:
+                break
+            time.sleep(1.0)  # until the surface has heard auv1
+        assert values == [("auv1/info", {"depth_m": 5.0, "state": "idle", "detail": 1})], errors
+    finally:
+        for session in sessions:
+            session.close()
+        for proc in reversed(procs):
+            proc.send_signal(signal.SIGINT)
+        for proc in procs:
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()

@@ -1,0 +1,129 @@
+"""Fidelity that follows the link: a vehicle reachable over IP gets no acoustic (quantised)
+copies; after the dive acoustic bridging resumes within a cycle, latched state and all."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import msgpack
+import yaml
+import zenoh
+
+from bridge.core.surfacing import Relay
+from bridge.mission.loader import load_mission
+from bridge.runtime.virtual_fleet import FastFleet
+from bridge.wire.payloads import encode_payload
+from tests.conftest import MISSIONS
+from tests.zsim import app as plain_app
+from tests.zsim import mission_file, put, zab_sim
+
+ZSPACE = MISSIONS / "zspace.yaml"
+CYCLE_S = 3.0  # the example's TDMA cycle
+
+
+def fleet() -> FastFleet:
+    f = FastFleet(load_mission(ZSPACE), seed=1)
+    f.subscribe("top", "auv1/status")
+    f.put("auv1", "status", {"battery": 77.3, "mode": "survey"}, at=0.5)
+    f.put("auv1", "alarm", {"leak": False}, at=0.5)
+    f.run_until(10.0)
+    return f
+
+
+def test_surfaced_vehicle_sends_nothing_acoustic_and_relays_full_fidelity() -> None:
+    f = fleet()
+    assert f.published("top", "auv1/status")[-1][1].value == {"battery": 77, "mode": "survey"}
+    f.ip_link("auv1", "top", True)
+    sent = dict(f.cores["auv1"].stats.sent_per_channel)
+    start = len(f.outputs)
+    f.put("auv1", "status", {"battery": 66.6, "mode": "transit"})
+    f.run_until(40.0)
+    assert f.cores["auv1"].stats.sent_per_channel == sent  # neither status nor alarm
+    later = f.outputs[start:]
+    assert not [o for o in later if o.node == "top" and getattr(o.output, "key", "")
+                == "auv1/status"]
+    relays = [o.output for o in later if isinstance(o.output, Relay)]
+    data, enc = encode_payload({"battery": 66.6, "mode": "transit"}, "msgpack")
+    assert relays == [Relay("auv1/status", data, enc)]  # unquantised, on the output key
+    snap = f.cores["top"].snapshot(40.0)["surfacing"]
+    assert snap["ip_reachable"] == ["auv1"]
+
+
+def test_after_the_dive_latched_state_resumes_within_a_cycle_without_a_burst() -> None:
+    f = fleet()
+    f.ip_link("auv1", "top", True)
+    f.put("auv1", "status", {"battery": 66.6, "mode": "transit"}, at=12.0)
+    f.put("auv1", "status", {"battery": 55.0, "mode": "transit"}, at=14.0)
+    f.run_until(30.0)
+    dive = f.now
+    f.ip_link("auv1", "top", False)
+    f.run_until(dive + CYCLE_S)
+    got = [(t, p.value) for t, p in f.published("top", "auv1/status") if t > dive]
+    assert got == [(got[0][0], {"battery": 55, "mode": "transit"})]  # the latest, once
+    alarms = [t for t, _ in f.published("top", "auv1/alarm") if t > dive]
+    assert len(alarms) == 1  # always-on latched state comes back too
+
+
+def test_a_sender_that_has_not_noticed_is_not_published_twice() -> None:
+    f = fleet()
+    f.cores["top"].ip_reachable("auv1", True, f.now)  # only the surface sees the token yet
+    before = len(f.published("top", "auv1/status"))
+    f.put("auv1", "status", {"battery": 50.0, "mode": "idle"})
+    f.run_until(20.0)
+    assert len(f.published("top", "auv1/status")) == before
+    assert f.cores["top"].surfacing.duplicates >= 1
+
+
+def router(endpoints: list[str]) -> zenoh.Session:
+    """The surface WiFi: a router joining the surface's and the vehicle's routers."""
+    config = zenoh.Config()
+    config.insert_json5("mode", '"router"')
+    config.insert_json5("listen/endpoints", "[]")
+    config.insert_json5("connect/endpoints", json.dumps(endpoints))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("scouting/gossip/enabled", "false")
+    config.insert_json5("scouting/delay", "0")
+    return zenoh.open(config)
+
+
+def test_surfacing_and_diving_through_zab_sim(tmp_path: Path) -> None:
+    data = yaml.safe_load(ZSPACE.read_text())
+    for name in ("top", "auv1"):  # as the deploy kit runs them: routers
+        data["nodes"][name]["zenoh"] = {"mode": "router", "scouting/gossip/enabled": False,
+                                        "scouting/delay": 0}
+    mission, endpoints = mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
+    with zab_sim(mission, endpoints):
+        auv1, top = plain_app(endpoints["auv1"]), plain_app(endpoints["top"])
+        wifi = None
+        try:
+            got: list[tuple[float, dict]] = []
+            top.declare_subscriber("auv1/status", lambda s: got.append(
+                (time.time(), msgpack.unpackb(s.payload.to_bytes()))))
+            time.sleep(0.5)
+            put(auv1, "status", {"battery": 77.3, "mode": "survey"})
+            deadline = time.time() + 12
+            while not got and time.time() < deadline:
+                time.sleep(0.1)
+            assert got and got[0][1] == {"battery": 77, "mode": "survey"}  # quantised
+            wifi = router(endpoints["top"] + endpoints["auv1"])
+            time.sleep(2.0)  # the tokens cross; the bridges switch over
+            got.clear()
+            put(auv1, "status", {"battery": 66.6, "mode": "transit"})
+            time.sleep(3 * CYCLE_S)  # latching every 2 s: acoustic copies would show here
+            assert [v for _, v in got] == [{"battery": 66.6, "mode": "transit"}]
+            got.clear()
+            dived = time.time()
+            wifi.close()
+            wifi = None
+            deadline = time.time() + 2 + 2 * CYCLE_S
+            while not got and time.time() < deadline:
+                time.sleep(0.1)
+            assert got and got[0][1] == {"battery": 67, "mode": "transit"}  # latched, acoustic
+            assert got[0][0] - dived <= 1.0 + 2 * CYCLE_S
+        finally:
+            if wifi is not None:
+                wifi.close()
+            auv1.close()
+            top.close()

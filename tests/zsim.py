@@ -1,0 +1,99 @@
+"""A real ``zab sim`` process, and plain Zenoh applications talking to its nodes.
+
+The applications use only ``zenoh`` and ``msgpack`` (no import from the project), as one
+written in another language would.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import queue
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import yaml
+import zenoh
+
+from tests.conftest import REPO, free_port
+
+
+def mission_file(text: str, folder: Path, name: str = "mission.yaml") -> tuple[Path, dict]:
+    """Write mission ``text`` with each node on a free loopback port; returns the path and
+    the node endpoints."""
+    data = yaml.safe_load(text)
+    for node in data["nodes"].values():
+        node.setdefault("zenoh", {})["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
+    path = folder / name
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path, {n: node["zenoh"]["listen"] for n, node in data["nodes"].items()}
+
+
+def app(endpoints: list[str]) -> zenoh.Session:
+    """A plain application in client mode, connected only to ``endpoints``."""
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps(endpoints))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(config)
+
+
+@contextlib.contextmanager
+def zab_sim(mission: Path, endpoints: dict[str, list[str]], *args: str,
+            timeout: float = 120) -> Iterator[subprocess.Popen[str]]:
+    """Run ``zab sim mission`` until the block ends (SIGINT, then kill if need be); yields
+    once every node's endpoint accepts a client."""
+    proc = subprocess.Popen([sys.executable, "-m", "bridge", "sim", str(mission), "--no-live",
+                             "--duration", str(timeout), *args], cwd=REPO,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 30
+        for listen in endpoints.values():
+            while True:
+                assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+                try:
+                    app(listen).close()
+                    break
+                except zenoh.ZError:
+                    assert time.time() < deadline, "zab sim did not open its endpoints"
+                    time.sleep(0.1)
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        if proc.stderr is not None:
+            proc.stderr.close()
+
+
+class Inbox:
+    """(key, value) of every sample a subscriber gets, decoded from msgpack."""
+
+    def __init__(self) -> None:
+        self.items: queue.Queue[tuple[str, Any]] = queue.Queue()
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        self.items.put((str(sample.key_expr), msgpack.unpackb(sample.payload.to_bytes())))
+
+    def drain(self, seconds: float) -> list[tuple[str, Any]]:
+        out, end = [], time.time() + seconds
+        while (left := end - time.time()) > 0:
+            try:
+                out.append(self.items.get(timeout=left))
+            except queue.Empty:
+                break
+        return out
+
+
+def put(session: zenoh.Session, key: str, value: Any) -> None:
+    session.put(key, msgpack.packb(value), encoding=zenoh.Encoding("application/msgpack"))
