@@ -233,7 +233,7 @@ def zenoh_client(endpoints: Iterable[str], timeout_s: float = 30.0) -> Any:
 
 
 def run_real(commands: int, loss: float, seed: int, kill_every_s: float = 13.0,
-             interval_s: float = 0.5, settle_s: float = 180.0) -> dict[str, Any]:
+             interval_s: float = 0.5, settle_s: float = 600.0) -> dict[str, Any]:
     """The real processes, killed with SIGKILL every ``kill_every_s`` (alternating nodes)."""
     import msgpack
     import zenoh

@@ -5,10 +5,15 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import os
 import queue
+import signal
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import msgpack
@@ -16,6 +21,8 @@ import zenoh
 
 from bridge.mission.loader import LoadedMission
 from bridge.runtime.fleet import Fleet
+
+REPO = Path(__file__).resolve().parent.parent
 
 
 @contextlib.contextmanager
@@ -123,3 +130,33 @@ def listing1_crosses_in_the_next_slot(loaded: LoadedMission) -> None:
     finally:
         lsv_app.close()
         gcv_app.close()
+
+
+@contextlib.contextmanager
+def zab_run(mission: Path, node: str, *args: str, env: dict[str, str] | None = None
+            ) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
+    """A real ``zab run`` process, yielded once it says it runs, with the lines it printed so
+    far; SIGTERM on exit, after which it must stop cleanly (exit 0). Killed if anything
+    fails."""
+    argv = [sys.executable, "-m", "bridge", "run", str(mission), "--node", node, *args]
+    proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env={**(os.environ if env is None else env),
+                                            "COLUMNS": "300"})
+    try:
+        assert proc.stdout is not None
+        lines: list[str] = []
+        for line in proc.stdout:
+            lines.append(line)
+            if "bridge running" in line:
+                break
+        else:
+            raise AssertionError("zab run did not start:\n" + "".join(lines))
+        yield proc, lines
+        proc.send_signal(signal.SIGTERM)
+        rest, _ = proc.communicate(timeout=30)
+        lines.append(rest)
+        assert proc.returncode == 0, "".join(lines)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import secrets
-import signal
 import socket
 import subprocess
 import sys
@@ -28,6 +27,7 @@ from bridge.runtime.fleet import Fleet
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.auth import load_key, throwaway_key
 from tests.conftest import MISSIONS, REPO, free_port
+from tests.harness import zab_run
 
 RUNNER = CliRunner()
 MORPH = MISSIONS / "morph.yaml"
@@ -205,26 +205,9 @@ def _clean_env() -> dict[str, str]:
 
 def _starts(path: Path, env: dict[str, str]) -> str:
     """`zab run` starts; SIGTERM stops it (exit 0). Its output up to the start."""
-    proc = subprocess.Popen([sys.executable, "-m", "bridge", "run", str(path), "--node", "a"],
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, env={**env, "COLUMNS": "300"})
-    try:
-        assert proc.stdout is not None
-        lines = []
-        for line in proc.stdout:
-            lines.append(line)
-            if "bridge running" in line:
-                break
-        else:
-            pytest.fail("zab run did not start:\n" + "".join(lines))
-        proc.send_signal(signal.SIGTERM)
-        rest, _ = proc.communicate(timeout=30)
-        assert proc.returncode == 0, "".join(lines) + rest
-        return "".join(lines)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    with zab_run(path, "a", env=env) as (_, lines):
+        started = "".join(lines)
+    return started
 
 
 def test_run_refuses_a_key_when_the_mission_does_not_say_auth(tmp_path: Path) -> None:

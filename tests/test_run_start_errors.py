@@ -4,7 +4,6 @@ with one clear line, never a `zenoh.ZError` traceback: real processes on loopbac
 from __future__ import annotations
 
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -17,6 +16,7 @@ import pytest
 from bridge.mission.model import ZenohSettings
 from bridge.runtime.session import session_problem
 from tests.conftest import REPO, free_port
+from tests.harness import zab_run
 
 MISSION = """\
 mission: start
@@ -55,26 +55,8 @@ def _run(path: Path, node: str) -> subprocess.CompletedProcess[str]:
 @contextmanager
 def _running(path: Path, node: str) -> Iterator[subprocess.Popen[str]]:
     """`zab run` until it says it runs; SIGTERM on exit (it must stop cleanly, exit 0)."""
-    proc = subprocess.Popen(_argv(path, node), cwd=REPO, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True,
-                            env={**os.environ, "COLUMNS": "200"})
-    try:
-        assert proc.stdout is not None
-        lines = []
-        for line in proc.stdout:
-            lines.append(line)
-            if "bridge running" in line:
-                break
-        else:
-            pytest.fail("zab run did not start:\n" + "".join(lines))
+    with zab_run(path, node) as (proc, _):
         yield proc
-        proc.send_signal(signal.SIGTERM)
-        rest, _ = proc.communicate(timeout=30)
-        assert proc.returncode == 0, "".join(lines) + rest
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
 
 
 def _one_clear_line(result: subprocess.CompletedProcess[str]) -> str:

@@ -94,6 +94,3 @@ class Inbox:
                 break
         return out
 
-
-def put(session: zenoh.Session, key: str, value: Any) -> None:
-    session.put(key, msgpack.packb(value), encoding=zenoh.Encoding("application/msgpack"))

@@ -4,9 +4,7 @@ with their access control, the systemd unit verifies and stops the bridge cleanl
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -21,6 +19,7 @@ from typer.testing import CliRunner
 from bridge.cli.app import app
 from bridge.runtime.logbook import read_log
 from tests.conftest import MISSIONS, REPO, free_port
+from tests.harness import zab_run
 
 RUNNER = CliRunner()
 ZENOH = REPO / "deploy" / "zenoh"
@@ -193,27 +192,8 @@ def test_sigterm_stops_zab_run_and_closes_its_time_stamped_log(tmp_path: Path) -
     mission.write_text(text)
     assert yaml.safe_load(text)["nodes"]["a"]["address"] == 1
     logs = tmp_path / "logs"
-    proc = subprocess.Popen([sys.executable, "-m", "bridge", "run", str(mission), "--node", "a",
-                             "--log", str(logs / "a-{time}.mcap")], cwd=REPO,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env={**os.environ, "COLUMNS": "200"})
-    try:
-        assert proc.stdout is not None
-        lines = []
-        for line in proc.stdout:
-            lines.append(line)
-            if "bridge running" in line:
-                break
-        else:
-            pytest.fail("".join(lines))
-        time.sleep(0.5)
-        proc.send_signal(signal.SIGTERM)
-        rest, _ = proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 0, "".join(lines) + rest
+    with zab_run(mission, "a", "--log", str(logs / "a-{time}.mcap")):
+        time.sleep(0.5)  # then SIGTERM, as systemd stops it; it must exit 0
     [log] = list(logs.glob("a-*.mcap"))
     assert "{time}" not in log.name and len(log.stem) == len("a-20260101T000000Z")
     data = read_log(log)
