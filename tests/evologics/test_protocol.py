@@ -131,7 +131,9 @@ def test_notifications_in_both_modes(body: bytes, event: Event, how: str) -> Non
 
 def test_the_real_data_mode_transcript() -> None:
     protocol = HostProtocol(Mode.DATA, eol=b"\n")
-    assert protocol.send(b"*SENDIM,p0,4,3,ack,test") == b"+++AT*SENDIM,p0,4,3,ack,test\n"
+    protocol.send(b"*SENDIM,p0,4,3,ack,test")
+    assert protocol.data_to_send() == b"+++AT*SENDIM,p0,4,3,ack,test\n"
+    assert protocol.data_to_send() == b""  # taken once
     transcript = (b"+++AT*SENDIM:2:OK\r\n+++AT:23:SENDSTART,3,im,182272,0\r\n"
                   b"+++AT:30:SENDEND,3,im,1853167139,182272\r\n+++AT:9:RECVSTART\r\n"
                   b"+++AT:32:RECVEND,1853461060,139376,-36,77\r\n+++AT:13:DELIVEREDIM,3\r\n"
@@ -170,10 +172,11 @@ def test_replies_in_data_mode_name_their_command(how: str) -> None:
 @pytest.mark.parametrize("how", HOW)
 def test_command_mode_replies_go_to_the_oldest_pending_command(how: str) -> None:
     p = HostProtocol(Mode.COMMAND)
-    assert p.send("?AL") == b"AT?AL\r"
+    p.send("?AL")
     p.send("?DI")
     p.send("&V")
     p.send("!AL3")
+    assert p.data_to_send() == b"AT?AL\rAT?DI\rAT&V\rAT!AL3\r"
     data = (b"2\r\nRECVSTART\r\nFAILED\r\nSource Level: 3\r\nLocal Address: 2\r\n\r\n"
             b"SENDSTART,3,im,182272,0\r\nOK\r\n")
     assert feed(p, data, how) == [

@@ -211,7 +211,8 @@ class EvologicsBackend(ModemBackend):
         """Find the mode, settle in the configured one, set and check the address (§1.2)."""
         current = await self._probe_mode()
         if current is Mode.COMMAND and self.mode is Mode.DATA:
-            await self._write(self.protocol.send("O", reply=False))  # ATO: no reply [V]
+            self.protocol.send("O", reply=False)  # ATO: no reply [V]
+            await self._write(self.protocol.data_to_send())
             self.protocol.mode = Mode.DATA
             if await self._probe_mode() is not Mode.DATA:
                 raise BackendError(f"{self._who}: ATO did not switch the modem to data mode")
@@ -386,9 +387,9 @@ class EvologicsBackend(ModemBackend):
         self._check()
         loop = asyncio.get_running_loop()
         self._reply = loop.create_future()
-        wire = self.protocol.send(text)
+        self.protocol.send(text)
         self._expect = self.protocol.pending[-1]
-        await self._write(wire)
+        await self._write(self.protocol.data_to_send())
         try:
             return await asyncio.wait_for(asyncio.shield(self._reply), timeout or self.timeout_s)
         except TimeoutError:

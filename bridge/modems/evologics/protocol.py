@@ -689,11 +689,13 @@ class HostProtocol:
     eol: bytes = b"\r"
     legacy_recvim: bool = False
     _buffer: bytearray = field(default_factory=bytearray, repr=False)
+    _outgoing: bytearray = field(default_factory=bytearray, repr=False)
     _pending: deque[str] = field(default_factory=deque, repr=False)
     _block: list[bytes] | None = field(default=None, repr=False)
 
-    def send(self, text: str | bytes, *, name: str | None = None, reply: bool = True) -> bytes:
-        """Bytes for the command ``AT<text>`` in the current mode; remembers the expected reply.
+    def send(self, text: str | bytes, *, name: str | None = None, reply: bool = True) -> None:
+        """Queue the command ``AT<text>`` in the current mode (take its bytes with
+        :meth:`data_to_send`); remembers the expected reply.
 
         ``text`` is what follows ``AT`` (``"?AL"``, ``b"*SENDIM,2,1,ack,hi"``); ``name`` is the
         reply's command name (default: derived, see :func:`command_name`).
@@ -704,7 +706,12 @@ class HostProtocol:
         prefix = TIES if self.mode is Mode.DATA else b"AT"
         if reply:
             self._pending.append(name or command_name(raw))
-        return prefix + raw + self.eol
+        self._outgoing += prefix + raw + self.eol
+
+    def data_to_send(self) -> bytes:
+        """The bytes queued for the modem since the last call (as the Micro-Modem's)."""
+        data, self._outgoing = bytes(self._outgoing), bytearray()
+        return data
 
     @property
     def pending(self) -> tuple[str, ...]:
