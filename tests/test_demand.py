@@ -16,8 +16,9 @@ from bridge.mission.loader import load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.frame import FrameCodec
 from tests.conftest import MISSIONS
+from tests.harness import put
 from tests.zsim import app as plain_app
-from tests.zsim import mission_file, put, zab_sim
+from tests.zsim import mission_file, zab_sim
 
 ZSPACE = MISSIONS / "zspace.yaml"
 

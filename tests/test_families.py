@@ -20,7 +20,8 @@ from bridge.runtime.logbook import FleetLogs, read_log, received_values
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.frame import FrameCodec
 from tests.conftest import MISSIONS
-from tests.zsim import Inbox, mission_file, put, zab_sim
+from tests.harness import put
+from tests.zsim import Inbox, mission_file, zab_sim
 from tests.zsim import app as plain_app
 
 ZSPACE = MISSIONS / "zspace.yaml"

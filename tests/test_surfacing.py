@@ -16,8 +16,9 @@ from bridge.mission.loader import load_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.payloads import encode_payload
 from tests.conftest import MISSIONS
+from tests.harness import put
 from tests.zsim import app as plain_app
-from tests.zsim import mission_file, put, zab_sim
+from tests.zsim import mission_file, zab_sim
 
 ZSPACE = MISSIONS / "zspace.yaml"
 CYCLE_S = 3.0  # the example's TDMA cycle
