@@ -105,3 +105,19 @@ def test_session_problem_keeps_other_zenoh_errors_readable() -> None:
         "(os error 99)")
     assert session_problem("something new at /src/a.rs:1.", ZenohSettings()) == (
         "cannot open the Zenoh session: something new")
+
+
+def test_zab_sim_with_a_taken_port_stops_every_node_and_says_it_once(
+        mission: tuple[Path, int, int]) -> None:
+    """Every node of `zab sim` starts in one process: one that cannot open its session stops
+    the others, and the command says why once (no unretrieved task exceptions)."""
+    path, za, _ = mission
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", za))
+        taken.listen()
+        result = subprocess.run([sys.executable, "-m", "bridge", "sim", str(path), "--duration",
+                                 "3", "--no-live"], cwd=REPO, capture_output=True, text=True,
+                                timeout=START_S, env={**os.environ, "COLUMNS": "200"})
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr and "never retrieved" not in result.stderr
+    assert result.stderr.count("cannot start") == 1 and f"127.0.0.1:{za}" in result.stderr
