@@ -280,6 +280,7 @@ class RangeTracker:
         self._ambiguous_since: float | None = None
         self.doubt = 0.0  # the share of weight the committed hypothesis's rivals held
         self._reckoning: _Reckoning | None = None
+        self._provisional = False  # started on an anchor whose position was uncertain
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -343,6 +344,12 @@ class RangeTracker:
             self.lost_reason = "no_depth"
             return Outcome(False, "no_depth")
         if not self.hypotheses:
+            return self._start(obs.time)
+        if self._provisional and obs.anchor_sigma_m <= cfg.init_anchor_sigma_m and sum(
+                obs.time - o.time <= cfg.init_window_s
+                and o.anchor_sigma_m <= cfg.init_anchor_sigma_m
+                for o in self._recent.values()) >= 2:
+            self._drop()  # started on an anchor whose position was a guess: start again
             return self._start(obs.time)
         worst_nis, refused = math.inf, True
         for hyp in self.hypotheses:
@@ -456,10 +463,14 @@ class RangeTracker:
         """Try to initialise from the latest range to each anchor (within the window)."""
         cfg = self.config
         assert self.depth is not None
-        # an anchor whose position is this uncertain (a moving one not yet heard from, or heard
-        # once long ago) would put both candidates somewhere else, mirror pair included
-        fresh = [o for o in self._recent.values() if t - o.time <= cfg.init_window_s
-                 and o.anchor_sigma_m <= cfg.init_anchor_sigma_m]
+        # an anchor whose position is uncertain (a moving one not yet heard from, or heard once
+        # long ago) can put both candidates elsewhere, mirror pair included: while this node
+        # dead-reckons (its prior stays good) it waits for that anchor's position; without, it
+        # starts wide and starts again once every anchor's position is known
+        recent = [o for o in self._recent.values() if t - o.time <= cfg.init_window_s]
+        known = [o for o in recent if o.anchor_sigma_m <= cfg.init_anchor_sigma_m]
+        fresh = known if len(known) >= 2 or self._reckoned(t) else recent
+        self._provisional = len(fresh) > len(known)
         if len(fresh) < 2:
             self.lost_reason = "too_few_anchors"
             return Outcome(False, "too_few_anchors")
@@ -515,6 +526,12 @@ class RangeTracker:
         grown = self.config.prior_speed_mps * max(t - self.prior.time, 0.0)
         return (self.prior.x, self.prior.y, math.hypot(self.prior.sigma_m, grown))
 
+    def _reckoned(self, t: float) -> bool:
+        """Whether the prior is being dead-reckoned with a heading and speed, recently."""
+        r = self._reckoning
+        return r is not None and r.prior is self.prior and r.velocity is not None \
+            and t - r.time <= self.config.coast_after_s
+
     def _reckon(self, t: float, theta: float, speed: float | None) -> None:
         """Carry the prior forward to ``t`` with the heading and speed that held until now;
         from now on with ``theta`` and ``speed`` (none: unknown motion)."""
@@ -568,12 +585,17 @@ class RangeTracker:
             best = max(self.hypotheses, key=lambda h: h.log_w)
             sigma = math.sqrt(max(best.p[0, 0] + best.p[1, 1], 0.0)) + 5.0
             self.prior = Prior(best.time, float(best.x[0]), float(best.x[1]), sigma)
-        self.hypotheses = []
-        self.resolved = False
-        self._ambiguous_since = None
-        self.doubt = 0.0
+        self._drop()
         self.restarts += 1
         self.lost_reason = reason
+
+    def _drop(self) -> None:
+        """Forget the hypotheses (the prior stays)."""
+        self.hypotheses = []
+        self.resolved = False
+        self._provisional = False
+        self._ambiguous_since = None
+        self.doubt = 0.0
         self._refusals.clear()
         self._used.clear()
 
