@@ -16,12 +16,22 @@ horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`
   course over ground (no current is modelled).
 - Ambiguity. Ranges alone cannot tell a position from its mirror image across a line of
   anchors. Initialisation takes a least-squares / circle fix (:func:`~bridge.ranging.localise.
-  attempt`) and its mirror alternative as hypotheses, weighted by the prior (e.g. the start
-  position, its 1-σ growing by ``prior_speed_mps`` per second since) and then by the
+  attempt`) and its mirror alternative as hypotheses, weighted by the prior and then by the
   likelihood of every measurement; the state is ``lost`` (``ambiguous``) until one holds
   :data:`RESOLVED_SHARE` of the weight (or, when nothing tells them apart, ``commit_share``
   after ``commit_after_s``; the rest is published as ``mirror_doubt``), and from then on only
-  that one is kept: the estimate cannot flip.
+  that one is kept: the estimate cannot flip. Until then, whenever no hypothesis is left on
+  the other side of the anchors' line (two that met, a first fix whose circles did not meet),
+  the best one's image is put back: only weights rule a side out. The prior (e.g. the start
+  position) is dead-reckoned with the node's own heading and speed (1-σ growing by
+  ``reckon_drift_mps``; without them by ``prior_speed_mps`` per second): in a formation that
+  moves with a moving anchor the ranges' motion hardly tells the sides apart, the vehicle's
+  own navigation does.
+- Starting. Ranges taken earlier are moved to the start time with the node's known velocity
+  (half of each DLBL span included). An anchor whose position is uncertain by more than
+  ``init_anchor_sigma_m`` (a moving one not yet heard from, or extrapolated from one old
+  report) does not take part while the node dead-reckons; without dead reckoning the track
+  starts wide with it and starts again once every anchor's position is known.
 - Gating. A range whose normalised innovation squared exceeds ``gate_nis`` (χ², one degree of
   freedom) is refused and counted by reason in :attr:`RangeTracker.rejected`: ``long`` (later
   than predicted: multipath, a surface reflection), ``short`` (earlier than possible: a wrong
@@ -113,9 +123,9 @@ class TrackerConfig:
     prior_speed_mps: float = 1.0
     commit_after_s: float = 20.0
     commit_share: float = 0.95
-    init_anchor_sigma_m: float = 3.0
-    collinear_m: float = 1.0
-    reckon_drift_mps: float = 0.1
+    init_anchor_sigma_m: float = 3.0  # anchors less certain than this do not start a track
+    collinear_m: float = 1.0  # anchors this near one line leave a mirror image
+    reckon_drift_mps: float = 0.1  # dead reckoning's 1-σ growth (current, log error)
 
 
 @dataclass(frozen=True)
