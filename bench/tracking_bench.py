@@ -21,7 +21,12 @@ every vehicle's nav (depth, heading, speed) reaches its own tracker once a secon
 gcv's position reaches the others over the acoustic nav channel (gcv is a moving anchor, as
 ``ranging.anchor_keys`` says). p95 error per vehicle, states, and any non-finite number.
 
-Run: ``uv run python bench/tracking_bench.py [--hours 1] [--morph-s 600]``.
+Table 3, the same as ``zab demo`` runs it: 10 % of frames lost, the applications (nav, and with
+it the formation's motion) starting 0–6 s after the fleet, 90 s, ``--demo-seeds`` seeds × 5
+starts: per vehicle, runs with a position published on the mirror side (across the line
+through ssv and gcv), runs without any position, and the errors of every position published.
+
+Run: ``uv run python bench/tracking_bench.py [--hours 1] [--morph-s 600] [--demo-seeds 10]``.
 """
 
 from __future__ import annotations
@@ -152,8 +157,30 @@ def seed001_table(hours: float) -> list[dict[str, Any]]:
     return rows
 
 
-def morph_run(duration_s: float, seed: int = 1) -> dict[str, Any]:
-    """The MORPH formation on the virtual clock; per vehicle, its published positions."""
+def mirror_image(point: Sequence[float], a: Sequence[float],
+                 b: Sequence[float]) -> tuple[float, float]:
+    """``point``'s image across the horizontal line through ``a`` and ``b``."""
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    norm = math.hypot(dx, dy)
+    ux, uy = dx / norm, dy / norm
+    along = (point[0] - a[0]) * ux + (point[1] - a[1]) * uy
+    fx, fy = a[0] + along * ux, a[1] + along * uy
+    return 2 * fx - point[0], 2 * fy - point[1]
+
+
+MIRROR_M = 3.0
+"""A published position more than this far from the truth and nearer its mirror image (across
+the line through the two anchors, ssv and gcv, at that moment) is on the mirror side."""
+
+
+def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
+              apps_start_s: float = 0.0, quiet: bool = False) -> dict[str, Any]:
+    """The MORPH formation on the virtual clock; per vehicle, its published positions.
+
+    ``loss``: share of frames the water loses (default: the mission's); ``apps_start_s``: when
+    the vehicles' applications start publishing nav and the formation starts moving (``zab
+    demo`` starts them once the fleet is up: the vehicles wait at their mission positions until
+    then). ``mirror``: positions published on the mirror side (:data:`MIRROR_M`)."""
     loaded = load_mission(MORPH)
     mission = loaded.mission
     start_pos = {n: (node.position.x, node.position.y, node.position.depth)
@@ -163,9 +190,10 @@ def morph_run(duration_s: float, seed: int = 1) -> dict[str, Any]:
     fleet: FastFleet
 
     def truth(node: str, t: float) -> tuple[float, float, float]:
-        if node not in moving:
+        if node not in moving or t < apps_start_s:
             return start_pos[node]
-        vals = [formation_value(k, start_pos[node], t) for k in ("x", "y", "depth")]
+        vals = [formation_value(k, start_pos[node], t - apps_start_s)
+                for k in ("x", "y", "depth")]
         return (float(vals[0] or 0.0), float(vals[1] or 0.0), float(vals[2] or 0.0))
 
     def on_output(timed: Timed) -> None:
@@ -179,7 +207,7 @@ def morph_run(duration_s: float, seed: int = 1) -> dict[str, Any]:
                 positioning.set_anchor("gcv", (value["x"], value["y"], value["depth"]),
                                        timed.time)
 
-    fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False)
+    fleet = FastFleet(loaded, seed=seed, loss=loss, on_output=on_output, keep_outputs=False)
 
     def move() -> None:  # the water follows the formation, 10 Hz
         for n in moving:
@@ -189,7 +217,7 @@ def morph_run(duration_s: float, seed: int = 1) -> dict[str, Any]:
     def navigate() -> None:  # each vehicle's nav: to its own tracker, and on the nav channel
         t = fleet.now
         for n in moving:
-            nav = {k: formation_value(k, start_pos[n], t)
+            nav = {k: formation_value(k, start_pos[n], t - apps_start_s)
                    for k in ("x", "y", "depth", "heading", "speed")}
             positioning = fleet.cores[n].positioning
             if positioning is not None:
@@ -199,7 +227,7 @@ def morph_run(duration_s: float, seed: int = 1) -> dict[str, Any]:
         fleet.call_at(t + 1.0, navigate)
 
     move()
-    navigate()
+    fleet.call_at(apps_start_s, navigate)
     started = time.perf_counter()
     fleet.run_until(duration_s)
     took = time.perf_counter() - started
@@ -208,7 +236,7 @@ def morph_run(duration_s: float, seed: int = 1) -> dict[str, Any]:
         if not items:
             continue
         errors, states, inside = [], Counter(), []
-        finite = True
+        finite, mirror = True, 0
         low, high = NEES_BOUNDS_2D
         for t, payload in items:
             states[payload.get("state", "fix" if payload["fix"] else "lost")] += 1
@@ -217,16 +245,22 @@ def morph_run(duration_s: float, seed: int = 1) -> dict[str, Any]:
                 where = truth(node, t)
                 ex, ey = payload["x"] - where[0], payload["y"] - where[1]
                 errors.append(math.hypot(ex, ey))
+                image = mirror_image(where, truth("ssv", t), truth("gcv", t))
+                mirror += errors[-1] > MIRROR_M and math.dist((payload["x"], payload["y"]),
+                                                              image) < errors[-1]
                 (a, b), (_, d) = payload["cov"]
                 det = a * d - b * b
                 nees = (d * ex * ex - 2 * b * ex * ey + a * ey * ey) / det if det > 0 else math.inf
                 inside.append(low <= nees <= high)
-        rows[node] = {"n": len(items), "states": states, "finite": finite,
+        rows[node] = {"n": len(items), "states": states, "finite": finite, "mirror": mirror,
+                      "fixes": len(errors), "errors": errors,
                       "nees_in": sum(inside) / len(inside) if inside else math.nan,
                       "p50": percentile(errors, 0.5) if errors else math.nan,
                       "p95": percentile(errors, 0.95) if errors else math.nan,
                       "mean_sigma": statistics.fmean(p["sigma_m"] for _, p in items
                                                      if p["fix"]) if errors else math.nan}
+    if quiet:
+        return rows
     print(f"\nMORPH formation, {duration_s:g} s on the virtual clock ({took:.0f} s to run); "
           "anchors ssv (surface, fixed) and gcv (12 m deep, moving with the formation)")
     head = (f"{'vehicle':<8} | {'reports':>7} | {'p50 m':>6} {'p95 m':>6} {'σ̄ m':>6} | "
@@ -241,6 +275,46 @@ def morph_run(duration_s: float, seed: int = 1) -> dict[str, Any]:
     print("non-finite numbers published: "
           f"{'none' if all(r['finite'] for r in rows.values()) else 'YES'}")
     return rows
+
+
+DEMO_STARTS_S = (0.0, 1.5, 3.0, 4.5, 6.0)
+"""When the demo's applications start after the fleet, spread over a TDMA cycle (7.5 s)."""
+
+
+def morph_mirrors(seeds: Sequence[int], starts: Sequence[float] = DEMO_STARTS_S,
+                  duration_s: float = 90.0, loss: float = 0.1,
+                  quiet: bool = False) -> dict[str, dict[str, Any]]:
+    """``zab demo``'s first minute and a half, as it runs it (10 % of frames lost, the
+    applications starting a little after the fleet), for every seed and start: per vehicle,
+    runs with a position on the mirror side, runs with no position at all, when the first
+    position came (worst run) and the p95 error of every position published."""
+    out: dict[str, dict[str, Any]] = {}
+    for seed in seeds:
+        for start in starts:
+            rows = morph_run(duration_s, seed, loss=loss, apps_start_s=start, quiet=True)
+            for node, row in rows.items():
+                agg = out.setdefault(node, {"runs": 0, "mirror_runs": 0, "mirror": 0,
+                                            "no_fix_runs": 0, "errors": []})
+                agg["runs"] += 1
+                agg["mirror_runs"] += row["mirror"] > 0
+                agg["mirror"] += row["mirror"]
+                agg["no_fix_runs"] += row["fixes"] == 0
+                agg["errors"].extend(row["errors"])
+    for agg in out.values():
+        agg["p95"] = percentile(agg["errors"], 0.95) if agg["errors"] else math.nan
+    if not quiet:
+        print(f"\nMORPH as zab demo runs it: {duration_s:g} s, {loss:.0%} of frames lost, "
+              f"seeds {seeds[0]}..{seeds[-1]} × apps starting at "
+              f"{', '.join(f'{s:g}' for s in starts)} s ({len(seeds) * len(starts)} runs)")
+        head = (f"{'vehicle':<8} | {'runs':>4} | {'mirror runs':>11} {'mirror fixes':>12} | "
+                f"{'no fix':>6} | {'fixes':>6} {'p50 m':>6} {'p95 m':>6}")
+        print(head)
+        print("-" * len(head))
+        for node, agg in out.items():
+            print(f"{node:<8} | {agg['runs']:4d} | {agg['mirror_runs']:11d} {agg['mirror']:12d} | "
+                  f"{agg['no_fix_runs']:6d} | {len(agg['errors']):6d} "
+                  f"{percentile(agg['errors'], 0.5):6.2f} {agg['p95']:6.2f}")
+    return out
 
 
 def _all_finite(value: Any) -> bool:
@@ -258,10 +332,14 @@ def main() -> None:
     parser.add_argument("--hours", type=float, default=1.0, help="simulated hours per row")
     parser.add_argument("--morph-s", type=float, default=600.0,
                         help="simulated seconds of the MORPH formation (0: skip)")
+    parser.add_argument("--demo-seeds", type=int, default=10,
+                        help="seeds of zab demo's first 90 s, each at 5 start phases (0: skip)")
     args = parser.parse_args()
     seed001_table(args.hours)
     if args.morph_s > 0:
         morph_run(args.morph_s)
+    if args.demo_seeds > 0:
+        morph_mirrors(range(args.demo_seeds))
 
 
 if __name__ == "__main__":

@@ -189,7 +189,7 @@ class VehicleApps:
         self.passed: Counter[str] = Counter()  # arrivals per channel considered for it
         self.examples_done = threading.Event()
         self.fixes_on = False
-        self.fixes_seen: dict[str, zenoh.Sample] = {}
+        self.fixes_seen: dict[str, tuple[dict[str, Any], tuple[float, float] | None]] = {}
         self.fix_shown: dict[str, float] = {}
         self.deliveries: queue.Queue[dict[str, Any]] = queue.Queue()
         self._lock = threading.Lock()
@@ -234,12 +234,20 @@ class VehicleApps:
             self.deliveries.put(msgpack.unpackb(sample.payload.to_bytes()))
 
     def _fix_arrived(self, node: str, sample: zenoh.Sample) -> None:
-        """Fixes are printed once the tour reaches them, each vehicle's every FIX_EVERY_S."""
+        """Every published position's error is kept (:attr:`errors`); positions are printed
+        once the tour reaches them, each vehicle's every FIX_EVERY_S."""
+        try:
+            fix = msgpack.unpackb(sample.payload.to_bytes())
+        except ValueError:
+            return
+        if not isinstance(fix, dict):
+            return
+        where = self._truth(node, fix)
         with self._lock:
-            self.fixes_seen[node] = sample
+            self.fixes_seen[node] = (fix, where)
             if not self.fixes_on or time.time() - self.fix_shown.get(node, 0.0) < FIX_EVERY_S:
                 return
-        if self._fixed(node, sample):
+        if self._fixed(node, fix, where):
             self.fix_shown[node] = time.time()
 
     def show_fixes(self) -> None:
@@ -247,12 +255,12 @@ class VehicleApps:
         with self._lock:
             self.fixes_on = True
             latest = dict(self.fixes_seen)
-        for node, sample in latest.items():
-            if self._fixed(node, sample):
+        for node, (fix, where) in latest.items():
+            if self._fixed(node, fix, where):
                 self.fix_shown[node] = time.time()
 
-    def _fixed(self, node: str, sample: zenoh.Sample) -> bool:
-        fix = msgpack.unpackb(sample.payload.to_bytes())
+    def _fixed(self, node: str, fix: dict[str, Any], where: tuple[float, float] | None) -> bool:
+        """Print a published position (a lost one only when its state changed)."""
         state = str(fix.get("state", "tracking" if fix.get("fix", True) else "lost"))
         said = f"{state} {fix.get('reason', '')}"
         with self._lock:
@@ -262,22 +270,24 @@ class VehicleApps:
                 reason = str(fix.get("reason", "")).replace("_", " ")
                 self.show(f"[cyan]{node:>4}[/] position: [yellow]{state}[/] ({reason})")
             return changed
-        self.show(f"[cyan]{node:>4}[/] {describe_fix(fix, self._truth(node, fix))}")
+        self.show(f"[cyan]{node:>4}[/] {describe_fix(fix, where)}")
         return True
 
     def _truth(self, node: str, fix: dict[str, Any]) -> tuple[float, float] | None:
-        """Where the simulator had ``node`` at the fix's time; the error is kept."""
-        if self.truth is None:
+        """Where the simulator had ``node`` at the time of a published position; the error of
+        every position (not only the printed ones) is kept in :attr:`errors`."""
+        if self.truth is None or not fix.get("fix", True):
             return None
         try:
             where = self.truth(node, float(fix["time"]))
+            error = math.dist((float(fix["x"]), float(fix["y"])), where[:2]) \
+                if where is not None else None
         except (KeyError, TypeError, ValueError):
             return None
-        if where is None:
+        if where is None or error is None:
             return None
         with self._lock:
-            self.errors.setdefault(node, []).append(
-                math.dist((fix["x"], fix["y"]), where[:2]))
+            self.errors.setdefault(node, []).append(error)
         return where[0], where[1]
 
     def _arrived(self, node: str, sample: zenoh.Sample) -> None:

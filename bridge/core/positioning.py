@@ -216,9 +216,20 @@ class Positioning:
             self.tracker.set_depth(depth)
 
     def set_heading(self, heading_deg: float, speed_mps: float | None, now: float) -> None:
-        """This node's compass heading (degrees from north) and, if known, speed at ``now``."""
+        """This node's compass heading (degrees from north) and, if known, speed at ``now``
+        (with a speed they also dead-reckon the start position, the tracker's prior)."""
         if self.tracker is not None:
+            self._set_prior(now)
             self.tracker.on_heading(now, heading_deg, speed_mps)
+
+    def _set_prior(self, now: float) -> None:
+        """Give the tracker where this node was put in (its mission position or first
+        waypoint), as of when it started; it may have moved since."""
+        if self._first_time is None:
+            self._first_time = now
+        if self.tracker is not None and self.tracker.prior is None and self.start is not None:
+            self.tracker.prior = Prior(min(self._first_time, now), self.start[0],
+                                       self.start[1], START_SIGMA_M)
 
     def set_anchor(self, anchor: str, position: tuple[float, float, float],
                    now: float | None = None) -> None:
@@ -330,11 +341,7 @@ class Positioning:
         """Hand a range to an anchor with a known position to the tracker."""
         if self.tracker is None or rng.peer not in self.anchor_positions:
             return
-        if self._first_time is None:
-            self._first_time = t
-        if self.tracker.prior is None and self.start is not None:  # where it was put in, when
-            self.tracker.prior = Prior(min(self._first_time, t), self.start[0], self.start[1],
-                                       START_SIGMA_M)  # it started (it may have moved since)
+        self._set_prior(t)
         now_at, sigma, age = self.anchor_at(rng.peer, t)
         before, _, _ = self.anchor_at(rng.peer, t - span_s)
         self.tracker.on_range(RangeObs(
@@ -352,8 +359,7 @@ class Positioning:
     def report(self, now: float) -> Estimate | None:
         """The estimate, if nothing was published for :data:`REPORT_EVERY_S` (so that coasting
         and lost tracks are seen without new ranges)."""
-        if self._first_time is None:
-            self._first_time = now  # the node's first tick: it started (and may move) now
+        self._set_prior(now)  # the node's first tick: it started (and may move) now
         if self.tracker is None or now - self._reported_at < REPORT_EVERY_S:
             return None
         return self.estimate(now)

@@ -16,12 +16,22 @@ horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`
   course over ground (no current is modelled).
 - Ambiguity. Ranges alone cannot tell a position from its mirror image across a line of
   anchors. Initialisation takes a least-squares / circle fix (:func:`~bridge.ranging.localise.
-  attempt`) and its mirror alternative as hypotheses, weighted by the prior (e.g. the start
-  position, its 1-σ growing by ``prior_speed_mps`` per second since) and then by the
+  attempt`) and its mirror alternative as hypotheses, weighted by the prior and then by the
   likelihood of every measurement; the state is ``lost`` (``ambiguous``) until one holds
   :data:`RESOLVED_SHARE` of the weight (or, when nothing tells them apart, ``commit_share``
   after ``commit_after_s``; the rest is published as ``mirror_doubt``), and from then on only
-  that one is kept: the estimate cannot flip.
+  that one is kept: the estimate cannot flip. Until then, whenever no hypothesis is left on
+  the other side of the anchors' line (two that met, a first fix whose circles did not meet),
+  the best one's image is put back: only weights rule a side out. The prior (e.g. the start
+  position) is dead-reckoned with the node's own heading and speed (1-σ growing by
+  ``reckon_drift_mps``; without them by ``prior_speed_mps`` per second): in a formation that
+  moves with a moving anchor the ranges' motion hardly tells the sides apart, the vehicle's
+  own navigation does.
+- Starting. Ranges taken earlier are moved to the start time with the node's known velocity
+  (half of each DLBL span included). An anchor whose position is uncertain by more than
+  ``init_anchor_sigma_m`` (a moving one not yet heard from, or extrapolated from one old
+  report) does not take part while the node dead-reckons; without dead reckoning the track
+  starts wide with it and starts again once every anchor's position is known.
 - Gating. A range whose normalised innovation squared exceeds ``gate_nis`` (χ², one degree of
   freedom) is refused and counted by reason in :attr:`RangeTracker.rejected`: ``long`` (later
   than predicted: multipath, a surface reflection), ``short`` (earlier than possible: a wrong
@@ -52,6 +62,8 @@ Anchor = tuple[float, float, float]  # x, y, depth
 
 RESOLVED_SHARE = 0.999
 """Share of the hypotheses' weight the best must hold before the track commits to it."""
+MERGE_M = 1.0
+"""Hypotheses nearer than this are one (the likelier is kept)."""
 GATE_NIS_1DOF = 10.83
 """χ² with one degree of freedom at 99.9 %: a range this far out is 1 in 1000 if all is well."""
 
@@ -111,6 +123,9 @@ class TrackerConfig:
     prior_speed_mps: float = 1.0
     commit_after_s: float = 20.0
     commit_share: float = 0.95
+    init_anchor_sigma_m: float = 3.0  # anchors less certain than this do not start a track
+    collinear_m: float = 1.0  # anchors this near one line leave a mirror image
+    reckon_drift_mps: float = 0.1  # dead reckoning's 1-σ growth (current, log error)
 
 
 @dataclass(frozen=True)
@@ -121,6 +136,31 @@ class Prior:
     x: float
     y: float
     sigma_m: float = 2.0
+
+
+@dataclass
+class _Reckoning:
+    """The prior carried forward by this node's own heading and speed (dead reckoning)."""
+
+    prior: Prior
+    time: float
+    x: float
+    y: float
+    sigma: float
+    velocity: tuple[float, float] | None = None  # from the latest heading and speed
+
+    def advanced(self, t: float, config: TrackerConfig) -> _Reckoning:
+        """Carried to ``t``: along the last velocity for up to ``coast_after_s`` (1-σ growing
+        by ``reckon_drift_mps``), beyond that as unknown motion (``prior_speed_mps``)."""
+        dt = t - self.time
+        if dt <= 0:
+            return self
+        if self.velocity is None or dt > config.coast_after_s:
+            return _Reckoning(self.prior, t, self.x, self.y,
+                              math.hypot(self.sigma, config.prior_speed_mps * dt), None)
+        vx, vy = self.velocity
+        return _Reckoning(self.prior, t, self.x + vx * dt, self.y + vy * dt,
+                          self.sigma + config.reckon_drift_mps * dt, self.velocity)
 
 
 @dataclass
@@ -206,6 +246,11 @@ def _finite(value: Any) -> Any:
     return value
 
 
+def _cross(u: np.ndarray, v: np.ndarray) -> float:
+    """The z of the cross product of two horizontal vectors (positive: ``v`` left of ``u``)."""
+    return float(u[0] * v[1] - u[1] * v[0])
+
+
 def _wrap(angle: float) -> float:
     return (angle + math.pi) % (2 * math.pi) - math.pi
 
@@ -244,6 +289,8 @@ class RangeTracker:
         self._agreed_at: dict[str, float] = {}  # anchor -> its last accepted range's time
         self._ambiguous_since: float | None = None
         self.doubt = 0.0  # the share of weight the committed hypothesis's rivals held
+        self._reckoning: _Reckoning | None = None
+        self._provisional = False  # started on an anchor whose position was uncertain
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -264,6 +311,7 @@ class RangeTracker:
         theta = math.radians(heading_deg)
         self._heading = (t, theta, speed_mps)
         self._now = max(self._now, t)
+        self._reckon(t, theta, speed_mps)
         if not self.hypotheses:
             return Outcome(False, "not_started")
         cfg = self.config
@@ -306,6 +354,12 @@ class RangeTracker:
             self.lost_reason = "no_depth"
             return Outcome(False, "no_depth")
         if not self.hypotheses:
+            return self._start(obs.time)
+        if self._provisional and obs.anchor_sigma_m <= cfg.init_anchor_sigma_m and sum(
+                obs.time - o.time <= cfg.init_window_s
+                and o.anchor_sigma_m <= cfg.init_anchor_sigma_m
+                for o in self._recent.values()) >= 2:
+            self._drop()  # started on an anchor whose position was a guess: start again
             return self._start(obs.time)
         worst_nis, refused = math.inf, True
         for hyp in self.hypotheses:
@@ -419,12 +473,29 @@ class RangeTracker:
         """Try to initialise from the latest range to each anchor (within the window)."""
         cfg = self.config
         assert self.depth is not None
-        fresh = [o for o in self._recent.values() if t - o.time <= cfg.init_window_s]
+        # an anchor whose position is uncertain (a moving one not yet heard from, or heard once
+        # long ago) can put both candidates elsewhere, mirror pair included: while this node
+        # dead-reckons (its prior stays good) it waits for that anchor's position; without, it
+        # starts wide and starts again once every anchor's position is known
+        recent = [o for o in self._recent.values() if t - o.time <= cfg.init_window_s]
+        known = [o for o in recent if o.anchor_sigma_m <= cfg.init_anchor_sigma_m]
+        fresh = known if len(known) >= 2 or self._reckoned(t) else recent
+        self._provisional = len(fresh) > len(known)
         if len(fresh) < 2:
             self.lost_reason = "too_few_anchors"
             return Outcome(False, "too_few_anchors")
         reference = self._prior_at(t)
-        anchors = [o.anchor_at for o in fresh]
+        # a range is from where the node was halfway through its span, to the anchor then:
+        # with the velocity known (heading and speed), that is a range from where it is now to
+        # the anchor moved along by the same; without, the spread of times is in the sigma
+        velocity, v_sigma = self._known_velocity(t)
+        anchors: list[Anchor] = []
+        for o in fresh:
+            before = o.anchor_before or o.anchor_at
+            back = t - o.time + o.span_s / 2 if v_sigma < cfg.max_speed_mps else 0.0
+            anchors.append(((before[0] + o.anchor_at[0]) / 2 + velocity[0] * back,
+                            (before[1] + o.anchor_at[1]) / 2 + velocity[1] * back,
+                            (before[2] + o.anchor_at[2]) / 2))
         ranges = [o.range_m for o in fresh]
         guess = (reference[0], reference[1]) if reference is not None else \
             (sum(a[0] for a in anchors) / len(anchors) + 1.0,
@@ -438,7 +509,9 @@ class RangeTracker:
             self.lost_reason = "degenerate_geometry"
             return Outcome(False, "degenerate_geometry")
         spread = max(o.time for o in fresh) - min(o.time for o in fresh)
-        sigma = math.hypot(found.sigma_m, cfg.max_speed_mps * spread / 2, cfg.range_sigma_m,
+        if v_sigma < cfg.max_speed_mps:
+            spread = 2 * max(t - o.time + o.span_s / 2 for o in fresh)
+        sigma = math.hypot(found.sigma_m, v_sigma * spread / 2, cfg.range_sigma_m,
                            max(o.anchor_sigma_m for o in fresh))
         points = [(found.x, found.y)]
         if found.alternative is not None and math.dist(found.alternative, points[0]) > 1.0:
@@ -451,11 +524,50 @@ class RangeTracker:
         return Outcome(True, "started")
 
     def _prior_at(self, t: float) -> tuple[float, float, float] | None:
-        """The prior position and its 1-σ (m) grown by how far the node may have gone since."""
+        """The prior position and its 1-σ (m) at ``t``: dead-reckoned from the prior's time
+        with this node's heading and speed where they came, else grown by how far the node may
+        have gone since."""
         if self.prior is None:
             return None
+        r = self._reckoning
+        if r is not None and r.prior is self.prior:
+            r = r.advanced(t, self.config)
+            return (r.x, r.y, r.sigma)
         grown = self.config.prior_speed_mps * max(t - self.prior.time, 0.0)
         return (self.prior.x, self.prior.y, math.hypot(self.prior.sigma_m, grown))
+
+    def _reckoned(self, t: float) -> bool:
+        """Whether the prior is being dead-reckoned with a heading and speed, recently."""
+        r = self._reckoning
+        return r is not None and r.prior is self.prior and r.velocity is not None \
+            and t - r.time <= self.config.coast_after_s
+
+    def _reckon(self, t: float, theta: float, speed: float | None) -> None:
+        """Carry the prior forward to ``t`` with the heading and speed that held until now;
+        from now on with ``theta`` and ``speed`` (none: unknown motion)."""
+        prior = self.prior
+        if prior is None or t < prior.time:
+            return
+        r = self._reckoning
+        if r is None or r.prior is not prior:
+            r = _Reckoning(prior, prior.time, prior.x, prior.y, prior.sigma_m)
+        if t < r.time:
+            return
+        r = r.advanced(t, self.config)
+        r.velocity = None if speed is None else (speed * math.sin(theta),
+                                                 speed * math.cos(theta))
+        self._reckoning = r
+
+    def _known_velocity(self, t: float) -> tuple[tuple[float, float], float]:
+        """This node's velocity from a recent heading and speed, and its 1-σ per axis; without
+        them none, give or take ``max_speed_mps``."""
+        cfg = self.config
+        if self._heading is not None and t - self._heading[0] <= cfg.init_window_s:
+            _, heading, speed = self._heading
+            if speed is not None:
+                return ((speed * math.sin(heading), speed * math.cos(heading)),
+                        max(cfg.speed_sigma_mps * 3, 0.3))
+        return (0.0, 0.0), cfg.max_speed_mps
 
     def _hypothesis(self, point: tuple[float, float], sigma: float, t: float,
                     reference: tuple[float, float, float] | None) -> _Hypothesis:
@@ -464,10 +576,10 @@ class RangeTracker:
         v = np.zeros(2)
         heading = None
         if self._heading is not None and t - self._heading[0] <= cfg.init_window_s:
-            _, heading, speed = self._heading
-            if speed is not None:
-                v = speed * np.array([math.sin(heading), math.cos(heading)])
-                v_sigma = max(cfg.speed_sigma_mps * 3, 0.3)
+            heading = self._heading[1]
+            known, spread = self._known_velocity(t)
+            if spread < cfg.max_speed_mps:
+                v, v_sigma = np.array(known), spread
         x = np.array([point[0], point[1], v[0], v[1]], dtype=float)
         p = np.diag([sigma**2, sigma**2, v_sigma**2, v_sigma**2])
         log_w = 0.0
@@ -483,17 +595,23 @@ class RangeTracker:
             best = max(self.hypotheses, key=lambda h: h.log_w)
             sigma = math.sqrt(max(best.p[0, 0] + best.p[1, 1], 0.0)) + 5.0
             self.prior = Prior(best.time, float(best.x[0]), float(best.x[1]), sigma)
-        self.hypotheses = []
-        self.resolved = False
-        self._ambiguous_since = None
-        self.doubt = 0.0
+        self._drop()
         self.restarts += 1
         self.lost_reason = reason
+
+    def _drop(self) -> None:
+        """Forget the hypotheses (the prior stays)."""
+        self.hypotheses = []
+        self.resolved = False
+        self._provisional = False
+        self._ambiguous_since = None
+        self.doubt = 0.0
         self._refusals.clear()
         self._used.clear()
 
     def _normalise(self) -> None:
-        """Weights relative to the best; drop the unlikely; commit once one dominates."""
+        """Weights relative to the best; drop the unlikely; keep the best's mirror image in the
+        bank until the weights decide; commit once one dominates."""
         if not self.hypotheses:
             return
         top = max(h.log_w for h in self.hypotheses)
@@ -505,9 +623,12 @@ class RangeTracker:
         for h in sorted(self.hypotheses, key=lambda h: -h.log_w):
             if h.log_w < floor:
                 continue
-            if all(math.dist(h.x[:2], k.x[:2]) > 1.0 for k in kept):
+            if all(math.dist(h.x[:2], k.x[:2]) > MERGE_M for k in kept):
                 kept.append(h)  # two that met (e.g. near the anchors' line) are one
         self.hypotheses = kept
+        # two that met, or a first fix without a second candidate (circles that did not meet),
+        # have not ruled out the mirror image: only weights may, so it is put back
+        on_line = not self.resolved and self._keep_mirror()
         share = 1.0 / sum(math.exp(h.log_w) for h in self.hypotheses)
         waited = self._now - (self._ambiguous_since if self._ambiguous_since is not None
                               else self._now)
@@ -517,11 +638,69 @@ class RangeTracker:
             # on one line and no heading) by the prior after a while: the doubt is published
             self.hypotheses = self.hypotheses[:1]
             self.doubt = 1.0 - share
-        if len(self.hypotheses) == 1:
+        if len(self.hypotheses) == 1 and (not on_line or waited >= cfg.commit_after_s):
             self.resolved = True
             self._ambiguous_since = None
         elif self._ambiguous_since is None:
             self._ambiguous_since = self._now
+
+    def _mirror_line(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(a point, a unit direction) of the line the anchors heard lie on, if they do (two
+        anchors always do): ranges cannot tell a position from its image across it."""
+        cfg = self.config
+        points = [np.array(o.anchor_at[:2], dtype=float) for o in self._recent.values()
+                  if self._now - o.time <= cfg.anchor_max_age_s]
+        if len(points) < 2:
+            return None
+        a, b = max(((p, q) for i, p in enumerate(points) for q in points[i + 1:]),
+                   key=lambda pq: float(np.linalg.norm(pq[1] - pq[0])))
+        length = float(np.linalg.norm(b - a))
+        if length < MERGE_M:
+            return None
+        u = (b - a) / length
+        if any(abs(_cross(u, p - a)) > cfg.collinear_m for p in points):
+            return None  # anchors off one line: no mirror image fits every range
+        return a, u
+
+    def _keep_mirror(self) -> bool:
+        """Put the best hypothesis's mirror image back in the bank if no hypothesis is on the
+        other side of the anchors' line, weighted as the best but for the prior (the ranges fit
+        both alike). True if the best lies on that line (its image is itself: which side it
+        will go is unknown)."""
+        line = self._mirror_line()
+        if line is None or not self.hypotheses:
+            return False
+        best = self.hypotheses[0]
+        a, u = line
+        side = _cross(u, best.x[:2] - a)
+        if abs(side) <= MERGE_M / 2:
+            return True
+        if any(_cross(u, h.x[:2] - a) * side < 0 for h in self.hypotheses[1:]):
+            return False  # the other side is in the bank already
+        reflect = 2 * np.outer(u, u) - np.eye(2)
+        image = a + reflect @ (best.x[:2] - a)
+        # with a compass the velocity is the vehicle's on either side; without one the image
+        # of the whole trajectory fits the ranges as well, velocity reflected too
+        steered = self._heading is not None and \
+            self._now - self._heading[0] <= self.config.coast_after_s
+        g = np.eye(4)
+        g[:2, :2] = reflect
+        if not steered:
+            g[2:, 2:] = reflect
+        x = g @ best.x
+        x[:2] = image
+        log_w = best.log_w
+        reference = self._prior_at(self._now)
+        if reference is not None:
+            s2 = reference[2] ** 2 + best.p[0, 0] + best.p[1, 1]
+            for point, sign in ((image, 1.0), (best.x[:2], -1.0)):
+                d2 = (point[0] - reference[0]) ** 2 + (point[1] - reference[1]) ** 2
+                log_w -= sign * 0.5 * d2 / s2
+        turns = best.turns if steered else [(w, -angle) for w, angle in best.turns]
+        self.hypotheses.append(_Hypothesis(x, g @ best.p @ g.T, best.time, log_w,
+                                           best.heading, best.heading_time, list(turns)))
+        self.hypotheses.sort(key=lambda h: -h.log_w)
+        return False
 
     def _accel_sigma(self, t: float) -> float:
         """Process noise: smaller while a recent heading steers the velocity through turns."""
