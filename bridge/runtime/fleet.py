@@ -11,12 +11,11 @@ from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge.core.positioning import simulated_preset
 from bridge.mission.loader import LoadedMission
-from bridge.mission.path import Path
 from bridge.modems.setup import backend_factory
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_node import BridgeNode
+from bridge.sim.scenario import water_of
 from bridge.sim.service import WaterService
 from bridge.wire.auth import key_for_run
 
@@ -24,24 +23,10 @@ AOI_SAMPLE_S = 0.25
 
 
 def water_for(loaded: LoadedMission, seed: int | None = None) -> WaterService:
-    """A water service for the mission: its preset, seed, static positions and paths."""
-    mission = loaded.mission
-    options = mission.modem.options
-    positions = {
-        node.address: (node.position.x, node.position.y, node.position.depth)
-        for node in mission.nodes.values()
-        if node.position is not None
-    }
-    preset = simulated_preset(mission)
-    paths = {node.address: Path.from_spec(node.path)
-             for node in mission.nodes.values() if node.path is not None}
-    return WaterService(
-        preset,
-        seed if seed is not None else int(options.get("seed", 0)),
-        positions,
-        loss=float(options.get("loss", 0.0)),
-        paths=paths,
-    )
+    """A water service for the mission (:func:`~bridge.sim.scenario.water_of`)."""
+    water = water_of(loaded, seed)
+    return WaterService(water.preset, water.seed, water.positions, loss=water.loss,
+                        paths=water.paths)
 
 
 @dataclass

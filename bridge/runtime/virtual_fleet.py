@@ -25,15 +25,14 @@ import msgpack
 from bridge.core.interest import own_subscriptions, wanted_by
 from bridge.core.mac import Schedule
 from bridge.core.node import NodeCore, Notice, Output, Publish, SendFrame, Status
-from bridge.core.positioning import simulated_preset
 from bridge.core.surfacing import Relay
 from bridge.errors import EncodeError, FrameError
 from bridge.mission.loader import LoadedMission
-from bridge.mission.path import Path
 from bridge.modems.base import Reception
 from bridge.modems.presets import Preset
 from bridge.runtime.virtual_queries import VirtualQueries
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
+from bridge.sim.scenario import water_of
 from bridge.wire.auth import key_for_run
 from bridge.wire.frame import DecodedFrame
 from bridge.wire.payloads import encode_payload
@@ -106,17 +105,12 @@ class FastFleet:
                                                        mission.wire.auth.key_file)
         self.loaded = loaded
         self.mission = mission
-        options = mission.modem.options
-        if preset is None:
-            preset = simulated_preset(mission)
-        self.ocean = Ocean(preset, seed, {
-            node.address: (node.position.x, node.position.y, node.position.depth)
-            if node.position is not None else (0.0, 0.0, 0.0)
-            for node in mission.nodes.values()
-        }, loss=float(options.get("loss", 0.0)) if loss is None else loss)
-        for node in mission.nodes.values():
-            if node.path is not None:
-                self.ocean.set_path(node.address, Path.from_spec(node.path), start)
+        water = water_of(loaded, seed, loss, preset)
+        self.ocean = Ocean(water.preset, water.seed, {
+            node.address: water.positions.get(node.address, (0.0, 0.0, 0.0))
+            for node in mission.nodes.values()}, loss=water.loss)
+        for address, path in water.paths.items():
+            self.ocean.set_path(address, path, start)
         self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"),
                                      key=self.key, seed=seed)
                       for name in mission.nodes}
