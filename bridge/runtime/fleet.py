@@ -6,20 +6,19 @@ import asyncio
 import contextlib
 import tempfile
 import time
-from collections import defaultdict
 from collections.abc import Callable, Collection
-from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.mission.loader import LoadedMission
 from bridge.modems.setup import backend_factory
+from bridge.report.age import AgeOfInformation
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_node import BridgeNode
 from bridge.sim.scenario import water_of
 from bridge.sim.service import WaterService
 from bridge.wire.auth import key_for_run
 
-AOI_SAMPLE_S = 0.25
+WATCH_S = 0.25  # how often a node that failed while running is noticed
 
 
 def water_for(loaded: LoadedMission, seed: int | None = None) -> WaterService:
@@ -27,28 +26,6 @@ def water_for(loaded: LoadedMission, seed: int | None = None) -> WaterService:
     water = water_of(loaded, seed)
     return WaterService(water.preset, water.seed, water.positions, loss=water.loss,
                         paths=water.paths)
-
-
-@dataclass
-class AgeTracker:
-    """Age of information at receivers: time since each channel last arrived, sampled."""
-
-    samples: dict[tuple[str, str], list[float]] = field(default_factory=lambda: defaultdict(list))
-
-    def sample(self, nodes: dict[str, BridgeNode], now: float) -> None:
-        for name, node in nodes.items():
-            for channel, t in node.received_at.items():
-                self.samples[(channel, name)].append(now - t)
-
-    def summary(self) -> dict[str, dict[str, float | None]]:
-        per_channel: dict[str, list[float]] = defaultdict(list)
-        for (channel, _), ages in self.samples.items():
-            per_channel[channel].extend(ages)
-        return {
-            c: {"mean_s": round(sum(a) / len(a), 3), "max_s": round(max(a), 3)}
-            for c, a in per_channel.items()
-            if a
-        }
 
 
 class Fleet:
@@ -83,15 +60,22 @@ class Fleet:
         self.water = water_for(loaded, seed) if sim else None
         self.on_event = on_event
         self.nodes: dict[str, BridgeNode] = {}
-        self.ages = AgeTracker()
+        self.ages = AgeOfInformation()
         self.started = time.time()
         self.ready = asyncio.Event()
 
-    def _node_events(self, name: str) -> Callable[[str, dict[str, Any]], None] | None:
-        if self.on_event is None:
-            return None
+    def _node_events(self, name: str) -> Callable[[str, dict[str, Any]], None]:
+        """``name``'s events: arrivals for the age of information, then ``on_event``."""
         callback = self.on_event
-        return lambda kind, info: callback(name, kind, info)
+
+        def event(kind: str, info: dict[str, Any]) -> None:
+            if kind == "frame_received":
+                for channel in info.get("channels", ()):
+                    self.ages.arrived(channel, name, info["time"])
+            if callback is not None:
+                callback(name, kind, info)
+
+        return event
 
     async def run(self, stop: asyncio.Event) -> None:
         """Start the water and every node; run until ``stop`` is set; close everything."""
@@ -132,8 +116,7 @@ class Fleet:
             self.ready.set()
             while not stop.is_set():
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(stop.wait(), AOI_SAMPLE_S)
-                self.ages.sample(self.nodes, time.time())
+                    await asyncio.wait_for(stop.wait(), WATCH_S)
                 for task in tasks:
                     if task.done() and task.exception() is not None:
                         raise task.exception()  # type: ignore[misc]
@@ -149,7 +132,7 @@ class Fleet:
     def report(self) -> dict[str, Any]:
         """Per channel: values sent/delivered and age; per link: frames sent/lost/collided."""
         table = self.loaded.table
-        ages = self.ages.summary()
+        ages = self.ages.summary(time.time())
         channels = {}
         for c in table.channels:
             sent = sum(n.stats.sent_per_channel[c.name] for n in self.nodes.values())
