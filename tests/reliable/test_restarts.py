@@ -7,8 +7,6 @@ with SIGKILL while commands stream.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
@@ -18,13 +16,9 @@ from bridge.mission.loader import parse_mission
 from bridge.modems.base import Reception
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.virtual_fleet import FastFleet
+from tests.harness import bench_module
 
-BENCH = Path(__file__).resolve().parents[2] / "bench" / "chaos.py"
-spec = importlib.util.spec_from_file_location("chaos_bench", BENCH)
-assert spec is not None and spec.loader is not None
-chaos = importlib.util.module_from_spec(spec)
-sys.modules["chaos_bench"] = chaos
-spec.loader.exec_module(chaos)
+chaos = bench_module("chaos")
 
 LOADED = parse_mission(chaos.mission_text(0.0), "chaos.yaml")
 

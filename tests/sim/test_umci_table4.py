@@ -4,25 +4,17 @@ are so by Table 4's own numbers."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 from types import ModuleType
 
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / "bench" / "umci_table4.py"
+from tests.harness import bench_module
 
 
 @pytest.fixture(scope="module")
 def bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("umci_table4", BENCH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+    return bench_module("umci_table4")
 
 
 @pytest.mark.parametrize(("column", "ber"), [("BER 0 %", 0.0), ("BER 0.07 %", 0.0007)])
