@@ -186,19 +186,23 @@ def test_only_the_surface_bridge_asserts_liveliness(station: Station) -> None:
 
 def test_nobody_but_the_station_reads_the_admin_space(station: Station) -> None:
     """`@/<router>/**` shows every link, locator and the config: only the station's own tools
-    get an answer; viewers, operators, vehicles and the bridge get nothing from the router."""
+    get an answer; viewers, operators, vehicles and the bridge get nothing from the router.
+
+    Asked on the router's own entry (`@/<zid>/router`: its links and locators), not `@/**`:
+    Zenoh's subscriber/queryable listings answer while holding the routing tables' read lock,
+    and a declaration arriving meanwhile wedges the whole router (eclipse-zenoh/zenoh#2619,
+    seen here as a hung test)."""
     router = f"@/{station.router.info.zid()}"
 
     def from_router(session: zenoh.Session, selector: str) -> list[str]:
         return [str(r.ok.key_expr) for r in session.get(selector, timeout=3.0)
                 if r.ok and str(r.ok.key_expr).startswith(router)]
 
-    assert from_router(station.tool, "@/**"), "the admin space answers the station's tools"
-    assert from_router(station.tool, f"{router}/**")
-    for name, session in station.senders().items():
-        if name != "station tool":
-            assert from_router(session, "@/**") == [], name
-            assert from_router(session, f"{router}/**") == [], name
+    for selector in (f"{router}/router", "@/*/router"):
+        assert from_router(station.tool, selector), "the admin space answers the station's tools"
+        for name, session in station.senders().items():
+            if name != "station tool":
+                assert from_router(session, selector) == [], name
 
 
 def test_viewers_read_data_status_and_the_bridges_answers(station: Station) -> None:
