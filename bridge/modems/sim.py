@@ -2,7 +2,10 @@
 
 Options: ``water`` = ``"host:port"`` of the water (required), ``connect_timeout`` (s, default 3),
 ``rx_queue`` (receptions kept while nobody calls ``recv``, default 256; the oldest are dropped
-and counted in ``stats["dropped"]``).
+and counted in ``stats["dropped"]``), ``tx_lead_s`` (default 0.05): how far ahead each frame's
+start is scheduled. Like a timed modem, the water refuses a frame whose start has passed when it
+arrives ("expired"), so DLBL delays are never stamped for a start that did not happen; a
+loaded host is easily 10 ms late.
 
 ``send`` returns when the water reports the transmission DONE (the modem is free again), so it
 takes the frame's airtime plus the preset's intrinsic delay.
@@ -23,6 +26,7 @@ from bridge.sim.protocol import PROTOCOL_VERSION, ProtocolError, pack, read_mess
 
 __all__ = ["SimBackend", "parse_water_address"]
 
+DEFAULT_TX_LEAD_S = 0.05
 DEFAULT_CONNECT_TIMEOUT_S = 3.0
 DEFAULT_RX_QUEUE = 256
 
@@ -74,6 +78,7 @@ class SimBackend(ModemBackend):
         self._clock_drift = float(opts.get("clock_drift_ppm", 0.0)) * 1e-6
         self._stamp_jitter = float(opts.get("timestamp_jitter_s", 0.0))
         self._stamp_rng = random.Random(f"{opts.get('seed', 0)}/{setup.address}")
+        self.tx_lead_s = float(opts.get("tx_lead_s", DEFAULT_TX_LEAD_S))
 
     # -- hooks ---------------------------------------------------------------------------------
 

@@ -6,7 +6,8 @@ the message type. Times are wall-clock seconds (``time.time()``), data is msgpac
 Modem -> water::
 
     {"t": "hello", "v": 1, "addr": int, "name": str, "pos": [x, y, depth] | None}
-    {"t": "tx", "id": int, "data": bytes, "dest": int | None}
+    {"t": "tx", "id": int, "data": bytes, "dest": int | None, "at": float | None}
+                                          (``at``: start then; already past: txerr "expired")
     {"t": "pos", "pos": [x, y, depth]}
 
 Water -> modem::

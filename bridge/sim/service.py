@@ -259,9 +259,15 @@ class WaterService:
             if not isinstance(data, bytes) or not (dest is None or isinstance(dest, int)):
                 raise ProtocolError("tx needs bytes 'data' and an int or nil 'dest'")
             at = msg.get("at")
-            if isinstance(at, int | float) and at - time.time() > 0:  # a timed emission
+            if isinstance(at, int | float):  # a timed emission
+                late = time.time() - at
+                if late > 0:  # as a timed modem does (EvoLogics' EXPIREDIMS): never sent
+                    self._counters["txerr"] += 1
+                    self._send(addr, {"t": "txerr", "id": tx_id, "reason": "expired",
+                                      "error": f"expired: asked to start {late * 1000:.1f} ms ago"})
+                    return
                 loop = asyncio.get_running_loop()
-                loop.call_later(at - time.time(), self._on_message, addr,
+                loop.call_later(-late, self._on_message, addr,
                                 {**msg, "at": None, "start": at - self._offset})
                 return
             start = msg.get("start")

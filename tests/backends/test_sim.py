@@ -179,6 +179,24 @@ def test_oversize_frame_refused() -> None:
     arun(main)
 
 
+def test_a_timed_frame_starts_on_time_or_expires() -> None:
+    """Scheduled ahead, the frame starts exactly then; asked for a start already past, the
+    water refuses it as a timed modem does, and nothing is heard (no frame stamped for a start
+    that did not happen)."""
+    async def main() -> None:
+        async with water_and_modems(1, 2) as (_, (a, b)):
+            at = a.clock() + a.tx_lead_s
+            await a.send(b"on time", at=at)
+            rx = await b.recv()
+            assert rx.meta["start"] - rx.meta["travel_time_s"] == pytest.approx(at, abs=1e-6)
+            with pytest.raises(BackendError, match="expired"):
+                await a.send(b"too late", at=a.clock() - 0.02)
+            assert await nothing_within(b, 0.3)
+            assert a.tx_lead_s == 0.05
+
+    arun(main)
+
+
 def test_water_not_running_fails_fast() -> None:
     async def main() -> None:
         modem = SimBackend(setup(1, free_tcp_port()))

@@ -52,12 +52,16 @@ def test_values_cross_both_ways(mac: str) -> None:
             for session in (top, r1, r2):
                 session.close()
         stats = {name: node.stats for name, node in fleet.nodes.items()}
+        unsent = {name: [state.channel.name for state in node.core.store.states.values()
+                         if state.fresh] for name, node in fleet.nodes.items()}
     # newest value wins, so some are overwritten before a turn; the last one always goes, even
-    # when it arrives while that node's own frame is in the air
-    for rover, base in (("r1", 10.0), ("r2", 20.0)):
+    # when it arrives while that node's own frame is in the air (nothing is left unsent).
+    # Whether it is heard is the water's business: a frame can meet another or reach a node
+    # while it transmits, and a plain channel does not repeat it.
+    assert unsent == {"top": [], "r1": [], "r2": []}
+    for rover in ("r1", "r2"):
         seen = [value["d"] for key, value, _ in heard if key == f"{rover}/depth"]
         assert len(seen) >= 3 and seen == sorted(seen)
-        assert seen[-1] >= base + 5 - 1e-6
-    assert len(commands) >= 3 and commands == sorted(commands) and commands[-1] >= 105
+    assert len(commands) >= 3 and commands == sorted(commands)
     assert stats["top"].received_per_channel["depth"] >= 6
     assert all(stats[n].frames_sent >= 3 for n in ("top", "r1", "r2"))
