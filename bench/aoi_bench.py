@@ -25,6 +25,7 @@ import msgpack
 import yaml
 import zenoh
 
+from bridge.core.events import Event, FrameSent
 from bridge.mission.loader import parse_mission
 from bridge.runtime.fleet import Fleet
 
@@ -68,9 +69,9 @@ async def main(duration: float) -> None:
     fills: list[float] = []
     bits = {c.name: c.bits for c in loaded.table.channels}
 
-    def on_event(node: str, kind: str, info: dict) -> None:
-        if kind == "frame_sent":
-            fills.append(sum(bits[c] for c in info["channels"]) / (FRAME_BYTES * 8))
+    def on_event(node: str, event: Event) -> None:
+        if isinstance(event, FrameSent):
+            fills.append(sum(bits[c] for c in event.channels) / (FRAME_BYTES * 8))
 
     fleet = Fleet(loaded, on_event=on_event)
     stop = asyncio.Event()

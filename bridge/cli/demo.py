@@ -33,6 +33,7 @@ from bridge.cli.demo_queries import QueryApps, member_keys
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
 from bridge.cli.tour import Tour, turn_waits
 from bridge.codec import FieldSpec
+from bridge.core.events import Event
 from bridge.errors import MissionError
 from bridge.gui.commands import named_as_command
 from bridge.gui.server import GuiServer
@@ -514,9 +515,9 @@ async def run_demo(
     events = EventLog()
     recorder = MissionRecorder()
 
-    def on_event(node: str, kind: str, info: dict[str, Any]) -> None:
-        events(node, kind, info)
-        recorder(node, kind, info)
+    def on_event(node: str, event: Event) -> None:
+        events(node, event)
+        recorder(node, event)
 
     fleet = Fleet(loaded, on_event=on_event)
     if fleet.throwaway_key:

@@ -15,6 +15,15 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from bridge.core.events import (
+    Event,
+    FrameDropped,
+    FrameReceived,
+    FrameSent,
+    ModemDown,
+    PayloadDropped,
+    SendFailed,
+)
 from bridge.mission.keys import throwaway_note
 from bridge.mission.loader import LoadedMission
 from bridge.report.recorder import MissionRecorder, truth_from
@@ -35,16 +44,18 @@ class EventLog:
         self.lines: deque[str] = deque(maxlen=size)
         self.t0 = time.time()
 
-    def __call__(self, node: str, kind: str, info: dict[str, Any]) -> None:
+    def __call__(self, node: str, event: Event) -> None:
         t = time.time() - self.t0
-        if kind == "frame_sent":
-            text = f"{node} sent {info['bytes']} B [{', '.join(info['channels']) or 'empty'}]"
-        elif kind == "frame_received":
-            text = f"{node} heard {info['src']} ({info['bytes']} B)"
-        elif kind in ("frame_dropped", "payload_dropped", "send_failed", "modem_down"):
-            text = f"{node} {kind.replace('_', ' ')}: {info.get('reason') or info.get('error')}"
-        else:
-            return
+        match event:
+            case FrameSent(size=size, channels=channels):
+                text = f"{node} sent {size} B [{', '.join(channels) or 'empty'}]"
+            case FrameReceived(src=src, size=size):
+                text = f"{node} heard {src} ({size} B)"
+            case FrameDropped(reason=why) | PayloadDropped(reason=why) | SendFailed(error=why) \
+                    | ModemDown(error=why):
+                text = f"{node} {event.kind.replace('_', ' ')}: {why}"
+            case _:
+                return
         self.lines.append(f"{t:7.1f} s  {text}")
 
 
@@ -151,19 +162,19 @@ async def run_sim(
     seed: int | None,
     live: bool,
     console: Console,
-    record: Callable[[str, str, dict[str, Any]], None] | None = None,
+    record: Callable[[str, Event], None] | None = None,
     recorder: MissionRecorder | None = None,
 ) -> dict[str, Any]:
     """``zab sim``: run, show, and return the report. ``record`` also gets every event;
     ``recorder`` too, and learns where the water has each node (for the HTML report)."""
     events = EventLog()
 
-    def both(node: str, kind: str, info: dict[str, Any]) -> None:
-        events(node, kind, info)
+    def both(node: str, event: Event) -> None:
+        events(node, event)
         if record is not None:
-            record(node, kind, info)
+            record(node, event)
         if recorder is not None:
-            recorder(node, kind, info)
+            recorder(node, event)
 
     fleet = Fleet(loaded, seed=seed, on_event=both)
     if recorder is not None:

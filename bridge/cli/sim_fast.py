@@ -20,7 +20,7 @@ from typing import Any
 
 from bridge.codec import Layout
 from bridge.codec.fields import ArrayCodec, BoolCodec, EnumCodec, FieldCodec, FloatCodec, IntCodec
-from bridge.core.node import Notice
+from bridge.core.events import Event, FrameReceived
 from bridge.errors import DecodeError, EncodeError
 from bridge.mission.loader import LoadedMission
 from bridge.report.age import AgeOfInformation
@@ -186,7 +186,7 @@ async def run_fast(
     duration: float,
     seed: int | None = None,
     speed: float | None = None,
-    record: Callable[[str, str, dict[str, Any]], None] | None = None,
+    record: Callable[[str, Event], None] | None = None,
     progress: Callable[[FastFleet], None] | None = None,
     stop: asyncio.Event | None = None,
     recorder: MissionRecorder | None = None,
@@ -207,18 +207,19 @@ async def run_fast(
     ages = AgeOfInformation()
 
     def on_output(timed: Timed) -> None:
-        if not isinstance(timed.output, Notice):
+        event = timed.output
+        if not isinstance(event, Event):
             return
-        if timed.output.kind == "frame_received":
-            for channel in timed.output.info["channels"]:
+        if isinstance(event, FrameReceived):
+            for channel in event.channels:
                 ages.arrived(channel, timed.node, timed.time)
         if record is not None:
-            record(timed.node, timed.output.kind, timed.output.info)
+            record(timed.node, event)
         if recorder is not None:
-            recorder(timed.node, timed.output.kind, timed.output.info)
+            recorder(timed.node, event)
 
     fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False,
-                      kinds=(Notice,))  # what on_output looks at
+                      kinds=(Event,))  # what on_output looks at
     if recorder is not None:
         ocean = fleet.ocean
         recorder.truth = truth_from({n: node.address for n, node in loaded.mission.nodes.items()},

@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable, Collection
 from typing import Any
 
+from bridge.core.events import Event, FrameReceived
 from bridge.mission.loader import LoadedMission
 from bridge.modems.setup import backend_factory
 from bridge.report.age import AgeOfInformation
@@ -36,7 +37,7 @@ class Fleet:
         loaded: LoadedMission,
         *,
         seed: int | None = None,
-        on_event: Callable[[str, str, dict[str, Any]], None] | None = None,
+        on_event: Callable[[str, Event], None] | None = None,
         only: Collection[str] | None = None,
         water: str | None = None,
         state_dir: str | None = None,
@@ -64,18 +65,18 @@ class Fleet:
         self.started = time.time()
         self.ready = asyncio.Event()
 
-    def _node_events(self, name: str) -> Callable[[str, dict[str, Any]], None]:
+    def _node_events(self, name: str) -> Callable[[Event], None]:
         """``name``'s events: arrivals for the age of information, then ``on_event``."""
         callback = self.on_event
 
-        def event(kind: str, info: dict[str, Any]) -> None:
-            if kind == "frame_received":
-                for channel in info.get("channels", ()):
-                    self.ages.arrived(channel, name, info["time"])
+        def on_event(event: Event) -> None:
+            if isinstance(event, FrameReceived):
+                for channel in event.channels:
+                    self.ages.arrived(channel, name, event.time)
             if callback is not None:
-                callback(name, kind, info)
+                callback(name, event)
 
-        return event
+        return on_event
 
     async def run(self, stop: asyncio.Event) -> None:
         """Start the water and every node; run until ``stop`` is set; close everything."""
