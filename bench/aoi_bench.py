@@ -103,12 +103,14 @@ async def main(duration: float) -> None:
           f"min {min(fills):.1%} (target ≥ 95 %)")
     print(f"TDMA cycle {cycle:.2f} s → bound: mean age {cycle / 2:.2f} s, worst age {cycle:.2f} s")
     print(f"{'channel':<8} {'mean age':>9} {'ratio':>6} {'max age':>8} {'ratio':>6}")
-    for name, aoi in sorted(fleet.ages.summary().items()):
-        print(f"{name:<8} {aoi['mean_s']:8.2f}s {aoi['mean_s'] / (cycle / 2):6.2f} "
-              f"{aoi['max_s']:7.2f}s {aoi['max_s'] / cycle:6.2f}")
-    links = fleet.report()["links"]
-    lost = sum(sum(link["lost"].values()) for link in links)
-    print(f"frames lost in the water: {lost} of {sum(link['sent'] for link in links)}")
+    report = fleet.report()
+    for name, c in sorted(report.channels.items()):
+        if c.age is not None:
+            print(f"{name:<8} {c.age.mean_s:8.2f}s {c.age.mean_s / (cycle / 2):6.2f} "
+                  f"{c.age.max_s:7.2f}s {c.age.max_s / cycle:6.2f}")
+    links = report.links
+    lost = sum(sum(link.lost.values()) for link in links)
+    print(f"frames lost in the water: {lost} of {sum(link.sent for link in links)}")
 
 
 if __name__ == "__main__":

@@ -40,6 +40,7 @@ from bridge.gui.server import GuiServer
 from bridge.mission.keys import throwaway_note
 from bridge.mission.loader import LoadedMission, parse_mission
 from bridge.report import MissionRecorder, write_report
+from bridge.report.model import MissionReport
 from bridge.resources import data_dir
 from bridge.runtime.fleet import Fleet
 from bridge.runtime.session import close_quietly
@@ -507,7 +508,7 @@ async def run_demo(
     loaded: LoadedMission, *, duration: float, console: Console, live: bool = False,
     gui: bool = True, gui_port: int = 8080, report: Path | None = None,
     changes: list[str] | None = None, loss: float = 0.0,
-) -> dict[str, Any]:
+) -> MissionReport:
     """The tour: fleet + apps for ``duration`` seconds, its parts told as they happen, then a
     summary; ``report`` (an HTML file) gets the mission report."""
     tour = Tour(loaded, console, duration)
@@ -562,7 +563,7 @@ async def run_demo(
     result = fleet.report()
     tour.part("summary")
     range_errors = [abs(m - t) for _, _, _, m, t in recorder.recording.ranges if t is not None]
-    tour.summary(result, apps.published, range_errors)
+    tour.summary(result.to_dict(), apps.published, range_errors)
     if apps.errors:
         table = Table("node", "positions", "p50 error", "p95 error", "max error",
                       title="Published positions against the simulator's truth")

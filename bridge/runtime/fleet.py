@@ -13,6 +13,7 @@ from bridge.core.events import Event, FrameReceived
 from bridge.mission.loader import LoadedMission
 from bridge.modems.setup import backend_factory
 from bridge.report.age import AgeOfInformation
+from bridge.report.model import MissionReport
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_node import BridgeNode
 from bridge.sim.scenario import water_of
@@ -63,6 +64,7 @@ class Fleet:
         self.nodes: dict[str, BridgeNode] = {}
         self.ages = AgeOfInformation()
         self.started = time.time()
+        self.ended: float | None = None  # when the run was told to stop
         self.ready = asyncio.Event()
 
     def _node_events(self, name: str) -> Callable[[Event], None]:
@@ -121,6 +123,7 @@ class Fleet:
                 for task in tasks:
                     if task.done() and task.exception() is not None:
                         raise task.exception()  # type: ignore[misc]
+            self.ended = time.time()
             node_stop.set()
             await asyncio.gather(*tasks, return_exceptions=True)
         finally:
@@ -130,34 +133,9 @@ class Fleet:
             if scratch is not None:
                 scratch.cleanup()
 
-    def report(self) -> dict[str, Any]:
-        """Per channel: values sent/delivered and age; per link: frames sent/lost/collided."""
-        table = self.loaded.table
-        ages = self.ages.summary(time.time())
-        channels = {}
-        for c in table.channels:
-            sent = sum(n.stats.sent_per_channel[c.name] for n in self.nodes.values())
-            delivered = sum(n.stats.received_per_channel[c.name] for n in self.nodes.values())
-            channels[c.name] = {
-                "bits": c.bits,
-                "sent": sent,
-                "delivered": delivered,
-                "age_of_information": ages.get(c.name),
-            }
-        return {
-            "mission": self.loaded.mission.mission,
-            "duration_s": round(time.time() - self.started, 3),
-            "channels": channels,
-            "nodes": {name: node.snapshot() for name, node in self.nodes.items()},
-            "links": self._links(),
-        }
-
-    def _links(self) -> list[dict[str, Any]]:
-        """Water statistics per link, with node names."""
-        if self.water is None:
-            return []
-        name = self.loaded.mission.name_of
-        return [
-            {"link": f"{name(link['src'])}->{name(link['dst'])}", **link}
-            for link in self.water.stats()["links"]
-        ]
+    def report(self) -> MissionReport:
+        """The run's report (:mod:`bridge.report.model`), up to its stop (or now)."""
+        end = self.ended if self.ended is not None else time.time()
+        return MissionReport.build(
+            self.loaded, {name: node.core for name, node in self.nodes.items()}, self.ages,
+            self.started, end, self.water.stats() if self.water is not None else None)

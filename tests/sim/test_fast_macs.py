@@ -127,13 +127,13 @@ def test_an_hour_of_teleoperation_on_the_virtual_clock() -> None:
     loaded = load_mission(BLUEROV)
     result = asyncio.run(run_fast(loaded, duration=3600.0, seed=1))
     ipg = loaded.mission.mac.ipg_s  # type: ignore[union-attr]
-    polls = result["nodes"]["operator"]["frames_sent"]
+    polls = result.nodes["operator"]["frames_sent"]
     assert polls == int(3600 / ipg) + 1
-    assert result["nodes"]["rov"]["frames_received"] >= polls - 5  # range loss is rare at 1 m
-    assert result["channels"]["image"]["delivered"] >= polls - 10
-    age = result["channels"]["status"]["age_of_information"]
-    assert ipg / 2 < age["mean_s"] < ipg  # one reply per IPG: mean age about IPG/2 + delay
-    assert result["clock"] == "virtual" and result["duration_s"] == 3600.0
+    assert result.nodes["rov"]["frames_received"] >= polls - 5  # range loss is rare at 1 m
+    assert result.channels["image"].delivered >= polls - 10
+    age = result.channels["status"].age
+    assert age is not None and ipg / 2 < age.mean_s < ipg  # about IPG/2 + delay
+    assert result.clock == "virtual" and result.duration_s == 3600.0
 
 
 def test_zab_sim_fast_and_speed(tmp_path: Path) -> None:
