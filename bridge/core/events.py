@@ -11,10 +11,11 @@ process (``@zab/<mission>/<node>/events``, the MCAP logbook, the GUI feed) it be
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
-from bridge.ranging.localise import Fix, NoFix
-from bridge.ranging.tracker import Estimate
+if TYPE_CHECKING:  # not imported at run time: the tracker pulls in numpy
+    from bridge.ranging.localise import Fix, NoFix
+    from bridge.ranging.tracker import Estimate
 
 __all__ = [
     "Delivery", "Event", "FrameDropped", "FrameReceived", "FrameSent", "Link", "MissionMismatch",
@@ -206,6 +207,9 @@ class Position(Event):
     @property
     def xy(self) -> tuple[float, float, float | None] | None:
         """``(x, y, sigma_m)`` when there is a position, else None."""
+        from bridge.ranging.localise import Fix
+        from bridge.ranging.tracker import Estimate
+
         found = self.estimate
         if isinstance(found, Fix) or (isinstance(found, Estimate) and found.has_position):
             return found.x, found.y, found.sigma_m

@@ -56,7 +56,7 @@ from bridge.core.link import LinkState, LinkThresholds, LinkWatch, heartbeat_s
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.queries import Queries, Ticket
-from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report, default_retry_s
+from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, default_retry_s
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
@@ -273,10 +273,11 @@ class NodeCore:
                      *sender.get("items", ())]
             for item in items:
                 for dst in item.get("waiting", item.get("dests", ())):
-                    self._reports([Report(name, item["id"], dst, "failed", 0.0,
-                                          item.get("attempts", 0),
-                                          "restarted with another mission file",
-                                          item.get("key"), item.get("ref"))])
+                    self._reports([Delivery(
+                        0.0, name, item["id"], dst, "failed",
+                        reason="restarted with another mission file",
+                        attempts=item.get("attempts", 0), key=item.get("key"),
+                        ref=item.get("ref"))])
         return {}
 
     def _restore(self, state: Mapping[str, Any]) -> None:
@@ -777,14 +778,12 @@ class NodeCore:
         else:
             self._reports(sender.on_ack(src, base, bitmap, now))
 
-    def _reports(self, reports: list[Report]) -> None:
+    def _reports(self, reports: list[Delivery]) -> None:
         if reports:
             self._dirty = True
         for report in reports:
-            event = Delivery(report.time, report.channel, report.id, report.dst, report.state,
-                             report.reason, report.attempts, report.key, report.ref)
-            self._status(f"delivery/{report.channel}", event.to_dict())
-            self._event(event)
+            self._status(f"delivery/{report.channel}", report.to_dict())
+            self._event(report)
 
     def _publish(self, key: str, value: Any, encoding: str, latched: bool,
                  ros2: Ros2Element | None = None) -> None:
