@@ -25,6 +25,7 @@ import msgpack
 import yaml
 import zenoh
 
+from bridge.core.events import Event, FrameSent
 from bridge.mission.loader import parse_mission
 from bridge.runtime.fleet import Fleet
 
@@ -68,9 +69,9 @@ async def main(duration: float) -> None:
     fills: list[float] = []
     bits = {c.name: c.bits for c in loaded.table.channels}
 
-    def on_event(node: str, kind: str, info: dict) -> None:
-        if kind == "frame_sent":
-            fills.append(sum(bits[c] for c in info["channels"]) / (FRAME_BYTES * 8))
+    def on_event(node: str, event: Event) -> None:
+        if isinstance(event, FrameSent):
+            fills.append(sum(bits[c] for c in event.channels) / (FRAME_BYTES * 8))
 
     fleet = Fleet(loaded, on_event=on_event)
     stop = asyncio.Event()
@@ -102,12 +103,14 @@ async def main(duration: float) -> None:
           f"min {min(fills):.1%} (target ≥ 95 %)")
     print(f"TDMA cycle {cycle:.2f} s → bound: mean age {cycle / 2:.2f} s, worst age {cycle:.2f} s")
     print(f"{'channel':<8} {'mean age':>9} {'ratio':>6} {'max age':>8} {'ratio':>6}")
-    for name, aoi in sorted(fleet.ages.summary().items()):
-        print(f"{name:<8} {aoi['mean_s']:8.2f}s {aoi['mean_s'] / (cycle / 2):6.2f} "
-              f"{aoi['max_s']:7.2f}s {aoi['max_s'] / cycle:6.2f}")
-    links = fleet.report()["links"]
-    lost = sum(sum(link["lost"].values()) for link in links)
-    print(f"frames lost in the water: {lost} of {sum(link['sent'] for link in links)}")
+    report = fleet.report()
+    for name, c in sorted(report.channels.items()):
+        if c.age is not None:
+            print(f"{name:<8} {c.age.mean_s:8.2f}s {c.age.mean_s / (cycle / 2):6.2f} "
+                  f"{c.age.max_s:7.2f}s {c.age.max_s / cycle:6.2f}")
+    links = report.links
+    lost = sum(sum(link.lost.values()) for link in links)
+    print(f"frames lost in the water: {lost} of {sum(link.sent for link in links)}")
 
 
 if __name__ == "__main__":

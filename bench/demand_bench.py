@@ -34,8 +34,8 @@ from typing import Any
 import yaml
 
 from bridge.cli.sim_fast import feed
+from bridge.core.events import FrameSent
 from bridge.core.interest import output_keys
-from bridge.core.node import Notice
 from bridge.core.positioning import simulated_preset
 from bridge.mission.loader import LoadedMission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet, Timed
@@ -78,11 +78,11 @@ def run(loaded: LoadedMission, duration: float,
 
     def on_output(timed: Timed) -> None:
         out = timed.output
-        if isinstance(out, Notice) and out.kind == "frame_sent":
+        if isinstance(out, FrameSent):
             totals["frames"] += 1
-            totals["bytes"] += out.info["bytes"]
-            totals["airtime_s"] += preset.airtime(out.info["bytes"]) if preset else 0.0
-            totals["channel_bits"] += sum(cost[name] for name in out.info["channels"])
+            totals["bytes"] += out.size
+            totals["airtime_s"] += preset.airtime(out.size) if preset else 0.0
+            totals["channel_bits"] += sum(cost[name] for name in out.channels)
 
     fleet = FastFleet(loaded, seed=SEED, on_output=on_output, keep_outputs=False)
     for node, keys in (subscriptions or {}).items():

@@ -27,6 +27,7 @@ import msgpack
 import yaml
 import zenoh
 
+from bridge.core.events import Event, Surfaced
 from bridge.mission.loader import parse_mission
 from tests.conftest import MISSIONS, free_port
 from tests.harness import outside_session, running_fleet
@@ -76,10 +77,10 @@ def main() -> None:
     switched: dict[tuple[str, bool], float] = {}
     lock = threading.Lock()
 
-    def on_event(node: str, kind: str, info: dict[str, Any]) -> None:
-        if kind == "surfaced":
+    def on_event(node: str, event: Event) -> None:
+        if isinstance(event, Surfaced):
             with lock:
-                switched[(node, info["ip"])] = time.time()
+                switched[(node, event.ip)] = time.time()
 
     rows: list[dict[str, float | None]] = []
     with running_fleet(loaded, on_event=on_event):

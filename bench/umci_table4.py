@@ -54,7 +54,7 @@ import msgpack
 import yaml
 import zenoh
 
-from bridge.core.node import Notice
+from bridge.core.events import Event, FrameReceived
 from bridge.mission.loader import LoadedMission, load_mission, parse_mission
 from bridge.modems.presets import get_preset
 from bridge.runtime.fleet import Fleet
@@ -126,11 +126,11 @@ def run(loaded: LoadedMission, ber: float, duration: float, seed: int) -> dict[s
 
     def on_output(timed: Timed) -> None:
         out = timed.output
-        if isinstance(out, Notice) and out.kind == "frame_received":
-            link = links[(out.info["src"], timed.node)]
+        if isinstance(out, FrameReceived):
+            link = links[(out.src, timed.node)]
             link.arrivals.append(timed.time)
-            link.delays.append(timed.time - out.info["meta"]["sent_at"])
-            link.bits += 8 * out.info["bytes"]
+            link.delays.append(timed.time - out.meta["sent_at"])
+            link.bits += 8 * out.size
 
     preset = get_preset("s100-rf").replace(ber=ber)
     fleet = FastFleet(loaded, seed=seed, preset=preset, on_output=on_output, keep_outputs=False)
@@ -203,12 +203,12 @@ async def run_realtime(loaded: LoadedMission, duration: float, seed: int) -> dic
     loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), MISSION.name)
     links: dict[tuple[str, str], Link] = defaultdict(Link)
 
-    def on_event(node: str, kind: str, info: dict[str, Any]) -> None:
-        if kind == "frame_received":
-            link = links[(info["src"], node)]
-            link.arrivals.append(info["time"])
-            link.delays.append(info["time"] - info["meta"]["sent_at"])
-            link.bits += 8 * info["bytes"]
+    def on_event(node: str, event: Event) -> None:
+        if isinstance(event, FrameReceived):
+            link = links[(event.src, node)]
+            link.arrivals.append(event.time)
+            link.delays.append(event.time - event.meta["sent_at"])
+            link.bits += 8 * event.size
 
     fleet = Fleet(loaded, seed=seed, on_event=on_event)
     stop = asyncio.Event()

@@ -217,8 +217,8 @@ def test_live_position_moves_a_node_out_of_and_back_into_range() -> None:
             time.sleep(0.5)
             inbox.drain(0.1)
             assert inbox.drain(1.5) == []
-            lost = next(link for link in fleet.report()["links"] if link["link"] == "a->b")
-            assert lost["lost"].get("out_of_range", 0) >= 2
+            lost = next(link for link in fleet.report().links if link.name == "a->b")
+            assert lost.lost.get("out_of_range", 0) >= 2
             put(b, "nav", {"x": 3.0, "y": 0.0, "depth": 1.0})
             assert inbox.drain(1.5), "back in range"
             put(b, "nav", {"x": "far"})

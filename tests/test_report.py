@@ -11,6 +11,8 @@ from typing import Any
 import pytest
 import yaml
 
+from bridge.core.events import FrameReceived, FrameSent, Position, Range
+from bridge.ranging.localise import Fix, NoFix
 from bridge.report.html import channel_bounds
 from bridge.report.recorder import MissionRecorder, age_series
 from tests.conftest import MISSIONS, free_port, mission_on_free_ports
@@ -95,11 +97,11 @@ def test_bounds_follow_interval_turns_and_airtime() -> None:
 def test_recorder_keeps_range_errors_against_the_truth() -> None:
     where = {"a": (0.0, 0.0, 0.0), "b": (30.0, 40.0, 0.0)}
     recorder = MissionRecorder(truth=lambda t: where)
-    recorder("a", "frame_sent", {"time": 100.0, "bytes": 20, "channels": ["nav"]})
-    recorder("b", "frame_received", {"time": 100.5, "src": "a", "channels": ["nav"]})
-    recorder("a", "range", {"time": 101.0, "peer": "b", "range_m": 50.2})
-    recorder("a", "position", {"time": 102.0, "fix": True, "x": 1.0, "y": 2.0, "sigma_m": 0.5})
-    recorder("a", "position", {"time": 103.0, "fix": False})
+    recorder("a", FrameSent(100.0, 20, ["nav"], "b", b""))
+    recorder("b", FrameReceived(100.5, "a", 20, ["nav"], b"", {}, {}))
+    recorder("a", Range(101.0, "b", 50.2, 0.0335, 1500.0, "dlbl", "default"))
+    recorder("a", Position(102.0, Fix(1.0, 2.0, 0.0, 0.5, ("b",), "circles")))
+    recorder("a", Position(103.0, NoFix("too_few_anchors")))
     rec = recorder.recording
     assert rec.frames == [(0.0, "a", 20, ["nav"])]
     assert rec.arrivals[("nav", "b")] == [0.5]

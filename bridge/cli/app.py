@@ -12,7 +12,7 @@ import time
 from collections.abc import Coroutine
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
 from rich.console import Console
@@ -24,6 +24,9 @@ from bridge.errors import BackendError, MissionError, SessionError
 from bridge.mission.check import check_mission
 from bridge.mission.keys import frame_key, throwaway_note
 from bridge.mission.loader import LoadedMission, load_mission
+
+if TYPE_CHECKING:
+    from bridge.report.model import MissionReport
 
 T = TypeVar("T")
 
@@ -460,12 +463,13 @@ def _recorder_for(report: Path | None) -> Any:
     return MissionRecorder()
 
 
-def _write_report(path: Path, result: dict[str, Any], recorder: Any,
+def _write_report(path: Path, result: MissionReport, recorder: Any,
                   loaded: LoadedMission) -> None:
     """The HTML mission report if ``recorder`` ran, else the numbers as JSON."""
     try:
         if recorder is None:
-            path.write_text(json.dumps(result, indent=2, default=str), encoding="utf-8")
+            path.write_text(json.dumps(result.to_dict(), indent=2, default=str),
+                            encoding="utf-8")
         else:
             from bridge.report import write_report
 
@@ -477,10 +481,10 @@ def _write_report(path: Path, result: dict[str, Any], recorder: Any,
 
 
 async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
-                    speed: float | None, record: Any, recorder: Any = None) -> dict[str, Any]:
+                    speed: float | None, record: Any, recorder: Any = None) -> MissionReport:
     """``zab sim --fast/--speed``: the virtual-clock run, its report printed."""
-    from bridge.cli.sim import print_report
     from bridge.cli.sim_fast import run_fast
+    from bridge.report.model import print_report
 
     stop = asyncio.Event()
     _install_stop(stop)
@@ -492,12 +496,8 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
     result = await run_fast(loaded, duration=duration, seed=seed, speed=speed, record=record,
                             stop=stop, recorder=recorder)
     print_report(console, result)
-    console.print(f"{result['duration_s']:g} s simulated in {result['wall_s']:g} s wall "
-                  f"({result['speedup']:g}× real time); {result['frames_sent']} frames sent, "
-                  f"{result['frames_received']} received ({result['frames_per_wall_s']:g} "
-                  "frames per wall second)")
-    if "queries" in result:
-        q = result["queries"]
+    if result.queries is not None:
+        q = result.queries
         console.print(f"queries: {q['asked']} gets by synthetic operators, {q['answered']} "
                       f"answered (mean round trip {q['mean_round_trip_s']} s), "
                       f"{sum(q['errors'].values())} ended with an error, {q['open']} open")

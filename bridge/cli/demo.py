@@ -33,12 +33,14 @@ from bridge.cli.demo_queries import QueryApps, member_keys
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
 from bridge.cli.tour import Tour, turn_waits
 from bridge.codec import FieldSpec
+from bridge.core.events import Event
 from bridge.errors import MissionError
 from bridge.gui.commands import named_as_command
 from bridge.gui.server import GuiServer
 from bridge.mission.keys import throwaway_note
 from bridge.mission.loader import LoadedMission, parse_mission
 from bridge.report import MissionRecorder, write_report
+from bridge.report.model import MissionReport
 from bridge.resources import data_dir
 from bridge.runtime.fleet import Fleet
 from bridge.runtime.session import close_quietly
@@ -506,7 +508,7 @@ async def run_demo(
     loaded: LoadedMission, *, duration: float, console: Console, live: bool = False,
     gui: bool = True, gui_port: int = 8080, report: Path | None = None,
     changes: list[str] | None = None, loss: float = 0.0,
-) -> dict[str, Any]:
+) -> MissionReport:
     """The tour: fleet + apps for ``duration`` seconds, its parts told as they happen, then a
     summary; ``report`` (an HTML file) gets the mission report."""
     tour = Tour(loaded, console, duration)
@@ -514,9 +516,9 @@ async def run_demo(
     events = EventLog()
     recorder = MissionRecorder()
 
-    def on_event(node: str, kind: str, info: dict[str, Any]) -> None:
-        events(node, kind, info)
-        recorder(node, kind, info)
+    def on_event(node: str, event: Event) -> None:
+        events(node, event)
+        recorder(node, event)
 
     fleet = Fleet(loaded, on_event=on_event)
     if fleet.throwaway_key:
@@ -561,7 +563,7 @@ async def run_demo(
     result = fleet.report()
     tour.part("summary")
     range_errors = [abs(m - t) for _, _, _, m, t in recorder.recording.ranges if t is not None]
-    tour.summary(result, apps.published, range_errors)
+    tour.summary(result.to_dict(), apps.published, range_errors)
     if apps.errors:
         table = Table("node", "positions", "p50 error", "p95 error", "max error",
                       title="Published positions against the simulator's truth")

@@ -8,24 +8,28 @@ import signal
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any
 
 from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from bridge.core.events import (
+    Event,
+    FrameDropped,
+    FrameReceived,
+    FrameSent,
+    ModemDown,
+    PayloadDropped,
+    SendFailed,
+)
 from bridge.mission.keys import throwaway_note
 from bridge.mission.loader import LoadedMission
+from bridge.report.model import MissionReport, channel_figures, print_report
 from bridge.report.recorder import MissionRecorder, truth_from
 from bridge.runtime.fleet import Fleet
 
 REFRESH_S = 0.5
-
-LINK_ROWS = 60
-"""Links listed in the printed report at most: a fleet of n nodes has n × (n − 1) of them
-(62 250 at 250 nodes, minutes of terminal rendering); beyond this the worst are listed and
-the rest summed in one row. ``--report`` keeps every link."""
 
 
 class EventLog:
@@ -35,16 +39,18 @@ class EventLog:
         self.lines: deque[str] = deque(maxlen=size)
         self.t0 = time.time()
 
-    def __call__(self, node: str, kind: str, info: dict[str, Any]) -> None:
+    def __call__(self, node: str, event: Event) -> None:
         t = time.time() - self.t0
-        if kind == "frame_sent":
-            text = f"{node} sent {info['bytes']} B [{', '.join(info['channels']) or 'empty'}]"
-        elif kind == "frame_received":
-            text = f"{node} heard {info['src']} ({info['bytes']} B)"
-        elif kind in ("frame_dropped", "payload_dropped", "send_failed", "modem_down"):
-            text = f"{node} {kind.replace('_', ' ')}: {info.get('reason') or info.get('error')}"
-        else:
-            return
+        match event:
+            case FrameSent(size=size, channels=channels):
+                text = f"{node} sent {size} B [{', '.join(channels) or 'empty'}]"
+            case FrameReceived(src=src, size=size):
+                text = f"{node} heard {src} ({size} B)"
+            case FrameDropped(reason=why) | PayloadDropped(reason=why) | SendFailed(error=why) \
+                    | ModemDown(error=why):
+                text = f"{node} {event.kind.replace('_', ' ')}: {why}"
+            case _:
+                return
         self.lines.append(f"{t:7.1f} s  {text}")
 
 
@@ -59,13 +65,12 @@ def fleet_view(fleet: Fleet, events: EventLog) -> Group:
         nodes.add_row(name, str(s.frames_sent), str(s.frames_received),
                       str(sum(s.frames_dropped.values())), str(s.left_out),
                       str(s.values_published))
-    for c in fleet.loaded.table.channels:
-        sent = sum(n.stats.sent_per_channel[c.name] for n in fleet.nodes.values())
-        got = sum(n.stats.received_per_channel[c.name] for n in fleet.nodes.values())
+    cores = {name: node.core for name, node in fleet.nodes.items()}
+    for c in channel_figures(fleet.loaded, cores).values():
         heard = [now - n.received_at[c.name] for n in fleet.nodes.values()
                  if c.name in n.received_at]
         age = f"{min(heard):.1f}–{max(heard):.1f} s" if heard else "—"
-        ages.add_row(c.name, str(c.bits), str(sent), str(got), age)
+        ages.add_row(c.name, str(c.bits), str(c.sent), str(c.delivered), age)
     return Group(nodes, ages, Text("\n".join(events.lines), style="dim"))
 
 
@@ -101,49 +106,6 @@ def attach_truth(recorder: MissionRecorder, fleet: Fleet) -> None:
         recorder.truth = truth_from(names, lambda address, t: water.position(address, t))
 
 
-def print_report(console: Console, report: dict[str, Any]) -> None:
-    table = Table("channel", "bits", "sent", "delivered", "mean age", "max age",
-                  title=f"{report['mission']}: {report['duration_s']:.0f} s")
-    for name, c in report["channels"].items():
-        aoi = c["age_of_information"] or {}
-        table.add_row(name, str(c["bits"]), str(c["sent"]), str(c["delivered"]),
-                      f"{aoi['mean_s']:.1f} s" if aoi else "—",
-                      f"{aoi['max_s']:.1f} s" if aoi else "—")
-    console.print(table)
-    links = report["links"]
-    if links:
-        shown = links if len(links) <= LINK_ROWS else worst_links(links, LINK_ROWS - 1)
-        title = "acoustic links" if shown is links else \
-            f"acoustic links: the {len(shown)} worst of {len(links)}"
-        lt = Table("link", "sent", "delivered", "lost", title=title)
-        for link in shown:
-            lt.add_row(link["link"], str(link["sent"]), str(link["delivered"]), _lost(link))
-        if shown is not links:
-            ids = {id(link) for link in shown}
-            rest = [link for link in links if id(link) not in ids]
-            lost: dict[str, int] = {}
-            for link in rest:
-                for k, v in link["lost"].items():
-                    lost[k] = lost.get(k, 0) + v
-            lt.add_row(f"{len(rest)} others", str(sum(link["sent"] for link in rest)),
-                       str(sum(link["delivered"] for link in rest)), _lost({"lost": lost}))
-        console.print(lt)
-
-
-def worst_links(links: list[dict[str, Any]], n: int) -> list[dict[str, Any]]:
-    """The ``n`` links delivering the smallest share of what was sent, in report order."""
-    def ratio(i: int) -> tuple[float, int]:
-        link = links[i]
-        return (link["delivered"] / link["sent"] if link["sent"] else 1.0, i)
-
-    return [links[i] for i in sorted(sorted(range(len(links)), key=ratio)[:n])]
-
-
-def _lost(link: dict[str, Any]) -> str:
-    lost = {k: v for k, v in link["lost"].items() if v}
-    return ", ".join(f"{k} {v}" for k, v in lost.items()) or "0"
-
-
 async def run_sim(
     loaded: LoadedMission,
     *,
@@ -151,19 +113,19 @@ async def run_sim(
     seed: int | None,
     live: bool,
     console: Console,
-    record: Callable[[str, str, dict[str, Any]], None] | None = None,
+    record: Callable[[str, Event], None] | None = None,
     recorder: MissionRecorder | None = None,
-) -> dict[str, Any]:
+) -> MissionReport:
     """``zab sim``: run, show, and return the report. ``record`` also gets every event;
     ``recorder`` too, and learns where the water has each node (for the HTML report)."""
     events = EventLog()
 
-    def both(node: str, kind: str, info: dict[str, Any]) -> None:
-        events(node, kind, info)
+    def both(node: str, event: Event) -> None:
+        events(node, event)
         if record is not None:
-            record(node, kind, info)
+            record(node, event)
         if recorder is not None:
-            recorder(node, kind, info)
+            recorder(node, event)
 
     fleet = Fleet(loaded, seed=seed, on_event=both)
     if recorder is not None:

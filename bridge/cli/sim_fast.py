@@ -11,19 +11,20 @@ virtual clock at ``X`` times the wall clock (a live view can follow it).
 from __future__ import annotations
 
 import asyncio
-import math
 import random
 import time
 import weakref
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 from bridge.codec import Layout
 from bridge.codec.fields import ArrayCodec, BoolCodec, EnumCodec, FieldCodec, FloatCodec, IntCodec
-from bridge.core.node import Notice
+from bridge.core.events import Event, FrameReceived
 from bridge.errors import DecodeError, EncodeError
 from bridge.mission.loader import LoadedMission
 from bridge.report.age import AgeOfInformation
+from bridge.report.model import MissionReport
 from bridge.report.recorder import MissionRecorder, truth_from
 from bridge.runtime.virtual_fleet import FastFleet, Timed
 
@@ -147,51 +148,18 @@ def _publisher(fleet: FastFleet, rng: random.Random, node: str, key: str, layout
     return publish
 
 
-def report(fleet: FastFleet, wall_s: float, virtual_s: float,
-           ages: AgeOfInformation | None = None) -> dict[str, Any]:
-    """Per channel values sent/delivered and age, per node counters, per link water
-    statistics."""
-    cores = fleet.cores.values()
-    aoi = ages.summary(fleet.now) if ages is not None else {}
-    channels = {
-        c.name: {"bits": c.bits,
-                 "sent": sum(core.stats.sent_per_channel[c.name] for core in cores),
-                 "delivered": sum(core.stats.received_per_channel[c.name] for core in cores),
-                 "age_of_information": aoi.get(c.name)}
-        for c in fleet.loaded.table.channels
-    }
-    name = fleet.mission.name_of
-    links = [{"link": f"{name(link['src'])}->{name(link['dst'])}", **link}
-             for link in fleet.ocean.stats()["links"]]
-    sent = sum(core.stats.frames_sent for core in cores)
-    received = sum(core.stats.frames_received for core in cores)
-    return {
-        "mission": fleet.mission.mission,
-        "clock": "virtual",
-        "duration_s": round(virtual_s, 3),
-        "wall_s": round(wall_s, 3),
-        "speedup": round(virtual_s / wall_s, 1) if wall_s > 0 else math.inf,
-        "frames_sent": sent,
-        "frames_received": received,
-        "frames_per_wall_s": round((sent + received) / wall_s, 1) if wall_s > 0 else None,
-        "channels": channels,
-        "nodes": {n: core.snapshot(fleet.now) for n, core in fleet.cores.items()},
-        "links": links,
-    }
-
-
 async def run_fast(
     loaded: LoadedMission,
     *,
     duration: float,
     seed: int | None = None,
     speed: float | None = None,
-    record: Callable[[str, str, dict[str, Any]], None] | None = None,
+    record: Callable[[str, Event], None] | None = None,
     progress: Callable[[FastFleet], None] | None = None,
     stop: asyncio.Event | None = None,
     recorder: MissionRecorder | None = None,
     subscriptions: dict[str, list[str]] | None = None,
-) -> dict[str, Any]:
+) -> MissionReport:
     """Run ``duration`` virtual seconds (``speed``: times real time; None: flat out) and
     return the report. ``record`` gets every node's events (frames included), ``progress``
     the fleet now and then; ``stop`` ends the run early; ``recorder`` gets the events and
@@ -207,18 +175,19 @@ async def run_fast(
     ages = AgeOfInformation()
 
     def on_output(timed: Timed) -> None:
-        if not isinstance(timed.output, Notice):
+        event = timed.output
+        if not isinstance(event, Event):
             return
-        if timed.output.kind == "frame_received":
-            for channel in timed.output.info["channels"]:
+        if isinstance(event, FrameReceived):
+            for channel in event.channels:
                 ages.arrived(channel, timed.node, timed.time)
         if record is not None:
-            record(timed.node, timed.output.kind, timed.output.info)
+            record(timed.node, event)
         if recorder is not None:
-            recorder(timed.node, timed.output.kind, timed.output.info)
+            recorder(timed.node, event)
 
     fleet = FastFleet(loaded, seed=seed, on_output=on_output, keep_outputs=False,
-                      kinds=(Notice,))  # what on_output looks at
+                      kinds=(Event,))  # what on_output looks at
     if recorder is not None:
         ocean = fleet.ocean
         recorder.truth = truth_from({n: node.address for n, node in loaded.mission.nodes.items()},
@@ -242,10 +211,11 @@ async def run_fast(
             await asyncio.sleep(max(0.0, ahead))
         else:
             await asyncio.sleep(0)
-    out = report(fleet, time.perf_counter() - started, fleet.now, ages)
+    report = MissionReport.build(loaded, fleet.cores, ages, 0.0, fleet.now, fleet.ocean.stats(),
+                                 clock="virtual", wall_s=time.perf_counter() - started)
     if fleet.loaded.table.queries:
-        out["queries"] = query_summary(gets)
-    return out
+        report = replace(report, queries=query_summary(gets))
+    return report
 
 
 def query_summary(gets: list[Any]) -> dict[str, Any]:

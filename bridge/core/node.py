@@ -10,7 +10,8 @@ Outputs:
 
 - :class:`Publish`: a decoded value for an application key (the receiving side of a channel);
 - :class:`Status`: bridge state under ``@zab/<mission>/<node>/<topic>`` (stats, link, range, …);
-- :class:`Notice`: a runtime event (``frame_sent``, ``frame_received``, ``link``, …) for
+- an :class:`~bridge.core.events.Event` (:class:`~bridge.core.events.FrameSent`,
+  :class:`~bridge.core.events.FrameReceived`, :class:`~bridge.core.events.Link`, …) for
   in-process observers; the notable ones are also published on ``…/events``.
 
 Restarts. What a restart must not lose — every unfinished reliable value and transfer, each
@@ -33,13 +34,29 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
+from bridge.core.events import (
+    Delivery,
+    Event,
+    FrameDropped,
+    FrameReceived,
+    FrameSent,
+    Link,
+    MissionMismatch,
+    PayloadDropped,
+    PeerRestarted,
+    Position,
+    Range,
+    RangeFailed,
+    SendFailed,
+    Surfaced,
+)
 from bridge.core.families import Extra, Families
 from bridge.core.interest import Interest
 from bridge.core.link import LinkState, LinkThresholds, LinkWatch, heartbeat_s
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.queries import Queries, Ticket
-from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, Report, default_retry_s
+from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, default_retry_s
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
@@ -60,19 +77,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("zab.core")
 
-NOTABLE = frozenset({"link", "frame_dropped", "send_failed", "modem_down", "payload_dropped",
-                     "mission_mismatch", "peer_restarted", "surfaced"})
-"""Notice kinds also published on ``@zab/<mission>/<node>/events`` (and failed deliveries)."""
-
 PEER_STATUS_S = 1.0  # least time between two ``peers/<peer>`` status puts of one peer
 ACK_REPEATS = 3  # frames that carry an acknowledgement after it changed (acks can be lost)
 STATE_VERSION = 1
 EPOCHS = 256  # stream epochs, EPOCH_BITS wide
-
-
-def notable(kind: str, info: Mapping[str, Any]) -> bool:
-    """Whether a notice belongs on ``…/events``."""
-    return kind in NOTABLE or (kind == "delivery" and info.get("state") == "failed")
 
 
 @dataclass(frozen=True)
@@ -94,15 +102,7 @@ class Status:
     payload: dict[str, Any]
 
 
-@dataclass(frozen=True)
-class Notice:
-    """A runtime event; ``info`` is plain data (it may hold the frame's raw bytes)."""
-
-    kind: str
-    info: dict[str, Any]
-
-
-Output = Publish | Status | Notice
+Output = Publish | Status | Event
 
 
 @dataclass(frozen=True)
@@ -273,10 +273,11 @@ class NodeCore:
                      *sender.get("items", ())]
             for item in items:
                 for dst in item.get("waiting", item.get("dests", ())):
-                    self._reports([Report(name, item["id"], dst, "failed", 0.0,
-                                          item.get("attempts", 0),
-                                          "restarted with another mission file",
-                                          item.get("key"), item.get("ref"))])
+                    self._reports([Delivery(
+                        0.0, name, item["id"], dst, "failed",
+                        reason="restarted with another mission file",
+                        attempts=item.get("attempts", 0), key=item.get("key"),
+                        ref=item.get("ref"))])
         return {}
 
     def _restore(self, state: Mapping[str, Any]) -> None:
@@ -299,8 +300,8 @@ class NodeCore:
         out, self._outputs = self._outputs, []
         return out
 
-    def _notice(self, kind: str, info: dict[str, Any]) -> None:
-        self._outputs.append(Notice(kind, info))
+    def _event(self, event: Event) -> None:
+        self._outputs.append(event)
 
     def _status(self, topic: str, payload: dict[str, Any]) -> None:
         self._outputs.append(Status(topic, payload))
@@ -351,7 +352,7 @@ class NodeCore:
             self._warned_keys.add(key)
             log.warning("%s: dropped a payload on %r: %s (counted; warned once)",
                         self.node, key, reason)
-        self._notice("payload_dropped", {"time": now, "key": key, "reason": reason})
+        self._event(PayloadDropped(now, key, reason))
 
     def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
                 now: float) -> tuple[float, ...] | None:
@@ -527,9 +528,9 @@ class NodeCore:
     def ip_reachable(self, peer: str, up: bool, now: float) -> None:
         """The peer's bridge became reachable over IP (``up``) or stopped being so."""
         if self.surfacing is not None and self.surfacing.changed(peer, up, now):
-            payload = {"peer": peer, "ip": up, "time": now}
-            self._status(f"surfaced/{peer}", payload)
-            self._notice("surfaced", payload)
+            event = Surfaced(now, peer, up)
+            self._status(f"surfaced/{peer}", event.to_dict())
+            self._event(event)
 
     def _ack_bits(self, src: str, index: int) -> int:
         ack_codec = self.table.ack
@@ -571,15 +572,14 @@ class NodeCore:
         names = [s.channel.name for s in out.plan.chosen] + [s.channel.name for s, _ in out.streams]
         for name in names:
             self.stats.sent_per_channel[name] += 1
-        self._notice("frame_sent", {"time": now, "bytes": len(out.data), "channels": names,
-                                    "dest": dest, "data": out.data})
+        self._event(FrameSent(now, len(out.data), names, dest, out.data))
 
     def frame_failed(self, out: OutFrame, error: str, now: float) -> None:
         """The modem refused ``out``: its data stays due."""
         if self.positioning is not None:
             self.positioning.forget_transmit(out.at)
         self.stats.send_errors += 1
-        self._notice("send_failed", {"time": now, "error": error})
+        self._event(SendFailed(now, error))
 
     # -- frames in -----------------------------------------------------------------------------
 
@@ -596,15 +596,13 @@ class NodeCore:
             return
         if src is None or src == self.node:
             self.stats.frames_dropped["unknown_source"] += 1
-            self._notice("frame_dropped", {"time": now, "src": src, "reason": "unknown_source",
-                                           "data": rx.data})
+            self._event(FrameDropped(now, src, "unknown_source", data=rx.data))
             return
         try:
             frame = self.codec.decode(rx.data, rx.src)
         except FrameError as exc:
             self.stats.frames_dropped[exc.reason] += 1
-            self._notice("frame_dropped", {"time": now, "src": src, "reason": exc.reason,
-                                           "error": str(exc), "data": rx.data})
+            self._event(FrameDropped(now, src, exc.reason, str(exc), rx.data))
             return
         self.stats.frames_received += 1
         self.schedule.on_heard(src, rx.dest == self.mission.address_of(self.node), now)
@@ -672,10 +670,8 @@ class NodeCore:
         if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             self._peer_status[src] = now
             self._status(f"peers/{src}", {"last_heard": now, "meta": meta})
-        self._notice("frame_received", {
-            "time": now, "src": src, "bytes": len(rx.data), "channels": list(values),
-            "data": rx.data, "meta": dict(meta), "values": values,
-            **({"members": members} if members else {})})
+        self._event(FrameReceived(now, src, len(rx.data), list(values), rx.data, dict(meta),
+                                  values, members or None))
 
     def _receiver(self, src: str, channel: ChannelCodec) -> ReliableReceiver | TransferReceiver:
         key = (src, channel.index)
@@ -700,8 +696,8 @@ class NodeCore:
             return [channel.unpack(from_bytes(channel, data))]
         except DecodeError as exc:
             self.stats.frames_dropped["malformed"] += 1
-            self._notice("frame_dropped", {"time": now, "src": src, "reason": "malformed",
-                                           "error": f"transfer on {channel.name!r}: {exc}"})
+            self._event(FrameDropped(now, src, "malformed",
+                                     f"transfer on {channel.name!r}: {exc}"))
             return []
 
     def _on_system(self, src: str, entry: Entry, now: float) -> bool:
@@ -743,8 +739,7 @@ class NodeCore:
                 sender.resync(src)
         log.info("%s: %s started afresh (epoch %d -> %d): streams resynchronised",
                  self.node, src, known, epoch)
-        self._notice("peer_restarted", {"time": now, "peer": src, "epoch": epoch,
-                                        "was": known})
+        self._event(PeerRestarted(now, src, epoch, known))
 
     def _foreign_frame(self, src: str, fingerprint: int, rx: Reception, now: float) -> None:
         """A frame whose check gives another fingerprint: corrupt, or sent with another
@@ -753,18 +748,17 @@ class NodeCore:
         self._foreign[src] = fingerprint
         reason = "mission_mismatch" if mismatch else "check"
         self.stats.frames_dropped[reason] += 1
-        self._notice("frame_dropped", {"time": now, "src": src, "reason": reason,
-                                       "error": f"check failed (fingerprint {fingerprint:04x})",
-                                       "data": rx.data})
+        self._event(FrameDropped(now, src, reason,
+                                 f"check failed (fingerprint {fingerprint:04x})", rx.data))
         text = f"{fingerprint:04x}"
         if mismatch and self.mismatched.get(src) != text:
             self.mismatched[src] = text
             ours = f"{self.codec.fingerprint16:04x}"
             log.warning("%s: peer %s runs a different mission file (fingerprint %s, ours %s): "
                         "its frames are dropped", self.node, src, text, ours)
-            payload = {"time": now, "peer": src, "fingerprint": text, "ours": ours}
-            self._status(f"mismatch/{src}", payload)
-            self._notice("mission_mismatch", payload)
+            event = MissionMismatch(now, src, text, ours)
+            self._status(f"mismatch/{src}", event.to_dict())
+            self._event(event)
 
     def _on_ack(self, src: str, header: tuple[int, ...], now: float) -> None:
         peer, stream, epoch, tid, base, bitmap = header
@@ -784,13 +778,12 @@ class NodeCore:
         else:
             self._reports(sender.on_ack(src, base, bitmap, now))
 
-    def _reports(self, reports: list[Report]) -> None:
+    def _reports(self, reports: list[Delivery]) -> None:
         if reports:
             self._dirty = True
         for report in reports:
-            payload = report.payload()
-            self._status(f"delivery/{report.channel}", payload)
-            self._notice("delivery", payload)
+            self._status(f"delivery/{report.channel}", report.to_dict())
+            self._event(report)
 
     def _publish(self, key: str, value: Any, encoding: str, latched: bool,
                  ros2: Ros2Element | None = None) -> None:
@@ -830,20 +823,20 @@ class NodeCore:
         self._ranged_last = True
         self.positioning.pinged(peer, now)
         if error is not None:
-            self._notice("range_failed", {"time": now, "peer": peer, "error": error})
+            self._event(RangeFailed(now, peer, error))
 
     def _positioned(self, update: Update, now: float) -> None:
         """Publish the ranges of ``update`` and its fix (or why there is none)."""
         assert self.positioning is not None
         for rng in update.ranges:
-            payload = {**self.positioning.range_payload(rng), "time": now}
-            self._status(f"range/{rng.peer}", payload)
-            self._notice("range", payload)
+            event = Range(**{**self.positioning.range_payload(rng), "time": now})
+            self._status(f"range/{rng.peer}", event.to_dict())
+            self._event(event)
         found = update.estimate if update.estimate is not None else update.fix
         if found is not None:  # the tracker's estimate; a bare fix where there is no tracker
-            payload = found.payload(now)
-            self._status("position", payload)
-            self._notice("position", payload)
+            position = Position(now, found)
+            self._status("position", position.to_dict())
+            self._event(position)
 
     # -- health --------------------------------------------------------------------------------
 
@@ -889,7 +882,7 @@ class NodeCore:
             payload = {"peer": peer, "state": state.value, "last_heard": heard,
                        "silent_s": None if heard is None else now - heard}
             self._status(f"link/{peer}", payload)
-            self._notice("link", {"time": now, **payload})
+            self._event(Link(now, **payload))
 
     def snapshot(self, now: float) -> dict[str, Any]:
         """Counters and channel ages as plain data."""

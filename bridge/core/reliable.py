@@ -12,8 +12,8 @@ Rules (seed 003's acknowledged commands; selective repeat with a small window):
   it for that receiver; a bitmap bit only holds back its retransmission.
 - A value fails after ``retries`` retransmissions without acknowledgement, or once older than
   ``ttl_s`` (every stream has one: see :func:`bridge.wire.channels.stream_defaults`); every
-  state change is a :class:`Report` for the publisher's side, and each value ends in exactly
-  one terminal report, ``delivered`` or ``failed``, per receiver.
+  state change is a :class:`~bridge.core.events.Delivery` for the publisher's side, and each
+  value ends in exactly one terminal report, ``delivered`` or ``failed``, per receiver.
 - A receiver delivers in order, drops duplicates, and skips what the sender gave up: ``seq -
   lag`` tells it the sender's oldest unfinished value, so nothing before it will come again.
 - Restarts: both ends save their state (:meth:`ReliableSender.state`,
@@ -30,6 +30,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.core.events import Delivery
 from bridge.core.persist import int_from_state, int_to_state
 from bridge.mission.model import Mission, TdmaMac
 from bridge.wire.channels import LAG_BITS, SEQ_BITS, WINDOW, ChannelCodec
@@ -73,26 +74,6 @@ def seq_after(a: int, b: int) -> int:
     return d - SEQ_MOD if d >= HALF else d
 
 
-@dataclass(frozen=True)
-class Report:
-    """A reliable value's state, for ``@zab/<mission>/<node>/delivery/<channel>``."""
-
-    channel: str
-    id: int
-    dst: str | None
-    state: str  # queued | sent | delivered | failed
-    time: float
-    attempts: int = 0
-    reason: str | None = None
-    key: str | None = None
-    ref: str | None = None
-
-    def payload(self) -> dict[str, Any]:
-        return {"channel": self.channel, "id": self.id, "dst": self.dst, "state": self.state,
-                "reason": self.reason, "attempts": self.attempts, "time": self.time,
-                "key": self.key, "ref": self.ref}
-
-
 @dataclass(eq=False)
 class Pending:
     """One value of a reliable channel at its sender."""
@@ -126,9 +107,9 @@ class ReliableSender:
         self._next_seq = first_seq % SEQ_MOD
 
     def offer(self, payload: int, now: float, key: str | None = None,
-              ref: str | None = None) -> list[Report]:
+              ref: str | None = None) -> list[Delivery]:
         """A new value to deliver; reports it queued (or what the full queue did)."""
-        reports: list[Report] = []
+        reports: list[Delivery] = []
         item = Pending(self._next_id, payload, now, key, ref, set(self.dests))
         self._next_id += 1
         if len(self.queue) + len(self.flight) >= self.channel.queue:
@@ -165,8 +146,8 @@ class ReliableSender:
         lag = (item.seq - self.flight[0].seq) % SEQ_MOD  # type: ignore[operator]
         return (((item.seq << LAG_BITS) | lag) << self.channel.bits) | item.payload
 
-    def sent(self, items: Iterable[Pending], now: float) -> list[Report]:
-        reports: list[Report] = []
+    def sent(self, items: Iterable[Pending], now: float) -> list[Delivery]:
+        reports: list[Delivery] = []
         for item in items:
             item.attempts += 1
             item.last_sent = now
@@ -181,9 +162,9 @@ class ReliableSender:
             if dst in item.waiting:
                 item.held.add(dst)
 
-    def on_ack(self, dst: str, base: int, bitmap: int, now: float) -> list[Report]:
+    def on_ack(self, dst: str, base: int, bitmap: int, now: float) -> list[Delivery]:
         """A receiver's acknowledgement (of this run's epoch)."""
-        reports: list[Report] = []
+        reports: list[Delivery] = []
         for item in list(self.flight):
             if dst not in item.waiting:
                 continue
@@ -225,9 +206,9 @@ class ReliableSender:
         for item in self.flight:  # the receivers may have moved on: ask again at once
             item.next_send = float("-inf")
 
-    def expire(self, now: float) -> list[Report]:
+    def expire(self, now: float) -> list[Delivery]:
         """Give up values past their TTL or out of retries."""
-        reports: list[Report] = []
+        reports: list[Delivery] = []
         ttl = self.ttl_s
         retries = self.channel.retries
         for item in [*self.flight, *self.queue]:
@@ -239,7 +220,7 @@ class ReliableSender:
                                          f"{item.attempts} attempts")
         return reports
 
-    def _give_up(self, item: Pending, now: float, reason: str) -> list[Report]:
+    def _give_up(self, item: Pending, now: float, reason: str) -> list[Delivery]:
         if item in self.flight:
             self.flight.remove(item)
             for other in self.flight:  # receivers need a fresh lag to skip this one
@@ -251,16 +232,16 @@ class ReliableSender:
         self._fill()
         return self._fail(item, now, reason)
 
-    def _fail(self, item: Pending, now: float, reason: str) -> list[Report]:
+    def _fail(self, item: Pending, now: float, reason: str) -> list[Delivery]:
         return [self._one(item, dst, "failed", now, reason) for dst in sorted(item.waiting)]
 
-    def _report(self, item: Pending, state: str, now: float) -> list[Report]:
+    def _report(self, item: Pending, state: str, now: float) -> list[Delivery]:
         return [self._one(item, dst, state, now) for dst in sorted(item.waiting)]
 
     def _one(self, item: Pending, dst: str, state: str, now: float,
-             reason: str | None = None) -> Report:
-        return Report(self.channel.name, item.id, dst, state, now, item.attempts, reason,
-                      item.key, item.ref)
+             reason: str | None = None) -> Delivery:
+        return Delivery(now, self.channel.name, item.id, dst, state, reason=reason,
+                        attempts=item.attempts, key=item.key, ref=item.ref)
 
 
 def _pending_state(item: Pending) -> dict[str, Any]:

@@ -22,7 +22,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge.core.reliable import Report, retry_wait, stream_ttl_s
+from bridge.core.events import Delivery
+from bridge.core.reliable import retry_wait, stream_ttl_s
 from bridge.wire.channels import TID_BITS, WINDOW, ChannelCodec
 
 TID_MOD = 1 << TID_BITS
@@ -102,9 +103,9 @@ class TransferSender:
         self._tid_offset = first_seq % TID_MOD
 
     def offer(self, payload: int, now: float, key: str | None = None,
-              ref: str | None = None) -> list[Report]:
+              ref: str | None = None) -> list[Delivery]:
         """A new value: queued (reliable) or replacing an unfinished transfer (latest wins)."""
-        reports: list[Report] = []
+        reports: list[Delivery] = []
         item = Transfer(self._next_id, (self._next_id + self._tid_offset) % TID_MOD,
                         to_bytes(self.channel, payload), now, key, ref,
                         self.channel.chunk_bytes, self.dests)
@@ -153,10 +154,10 @@ class TransferSender:
         return (header << (8 * self.channel.chunk_bytes)) | int.from_bytes(item.chunk(index),
                                                                            "big")
 
-    def sent(self, indices: Iterable[int], now: float) -> list[Report]:
+    def sent(self, indices: Iterable[int], now: float) -> list[Delivery]:
         item = self.current
         assert item is not None
-        reports: list[Report] = []
+        reports: list[Delivery] = []
         for i in indices:
             n = item.attempts[i] = item.attempts.get(i, 0) + 1
             item.next_send[i] = now + retry_wait(self.retry_s, n)
@@ -170,11 +171,11 @@ class TransferSender:
         if self.current is not None and dst in self.current.dests:
             self.current.held.setdefault(dst, set()).update(indices)
 
-    def on_ack(self, dst: str, tid: int, base: int, bitmap: int, now: float) -> list[Report]:
+    def on_ack(self, dst: str, tid: int, base: int, bitmap: int, now: float) -> list[Delivery]:
         item = self.current
         if item is None or tid != item.tid or dst not in item.dests:
             return []
-        reports: list[Report] = []
+        reports: list[Delivery] = []
         was = item.done_by(dst)
         if base > was:
             item.base[dst] = min(base, item.count)
@@ -222,7 +223,7 @@ class TransferSender:
                 "fragments_done": done, "fragments_total": item.count,
                 "bytes": len(item.data), "state": "sending"}
 
-    def expire(self, now: float) -> list[Report]:
+    def expire(self, now: float) -> list[Delivery]:
         item = self.current
         if item is None:
             return []
@@ -242,14 +243,14 @@ class TransferSender:
                 if item.done_by(d) < item.count]
 
     def _report(self, item: Transfer, state: str, now: float,
-                reason: str | None = None) -> list[Report]:
+                reason: str | None = None) -> list[Delivery]:
         return [self._one(item, d, state, now, reason) for d in item.dests]
 
     def _one(self, item: Transfer, dst: str, state: str, now: float,
-             reason: str | None = None) -> Report:
+             reason: str | None = None) -> Delivery:
         attempts = max(item.attempts.values(), default=0)
-        return Report(self.channel.name, item.id, dst, state, now, attempts, reason, item.key,
-                      item.ref)
+        return Delivery(now, self.channel.name, item.id, dst, state, reason=reason,
+                        attempts=attempts, key=item.key, ref=item.ref)
 
 
 def _transfer_state(item: Transfer) -> dict[str, Any]:

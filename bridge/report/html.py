@@ -19,6 +19,7 @@ from plotly.subplots import make_subplots
 
 from bridge.mission.check import check_mission
 from bridge.mission.loader import LoadedMission
+from bridge.report.model import MissionReport
 from bridge.report.recorder import Recording, age_series
 
 CONFIG = {"displaylogo": False, "responsive": True}  # no link out to plotly's site
@@ -136,22 +137,22 @@ def slots_figure(rec: Recording, loaded: LoadedMission, turns: dict[str, float |
     return fig
 
 
-def losses_figure(report: dict[str, Any]) -> go.Figure:
+def losses_figure(report: MissionReport) -> go.Figure:
     """Per link, frames lost in the water, stacked by why."""
-    links = report.get("links") or []
-    names = [link["link"] for link in links]
-    reasons = sorted({r for link in links for r, n in link.get("lost", {}).items() if n})
+    links = report.links
+    names = [link.name for link in links]
+    reasons = sorted({r for link in links for r, n in link.lost.items() if n})
     fig = go.Figure()
     for reason in reasons:
         fig.add_trace(go.Bar(
-            x=names, y=[link["lost"].get(reason, 0) for link in links], name=reason,
-            hovertext=[f"{link['link']}: {link['lost'].get(reason, 0)} lost ({reason}) of "
-                       f"{link['sent']} sent, {link['delivered']} delivered" for link in links],
+            x=names, y=[link.lost.get(reason, 0) for link in links], name=reason,
+            hovertext=[f"{link.name}: {link.lost.get(reason, 0)} lost ({reason}) of "
+                       f"{link.sent} sent, {link.delivered} delivered" for link in links],
             hoverinfo="text"))
     fig.update_layout(barmode="stack", title="Frames lost per link, by cause",
                       yaxis_title="frames lost", height=420)
     if not reasons:
-        sent = sum(link["sent"] for link in links)
+        sent = sum(link.sent for link in links)
         fig.add_annotation(text=f"no frame lost on any link ({sent} sent)", showarrow=False,
                            xref="paper", yref="paper", x=0.5, y=0.6, font={"size": 16})
         fig.update_yaxes(range=[0, 1])
@@ -179,20 +180,19 @@ def ranges_figure(rec: Recording) -> go.Figure:
     return fig
 
 
-def _summary_html(report: dict[str, Any], rec: Recording) -> str:
+def _summary_html(report: MissionReport, rec: Recording) -> str:
     rows = []
-    for name, c in report["channels"].items():
-        aoi = c.get("age_of_information") or {}
-        rows.append(f"<tr><td>{html.escape(name)}</td><td>{c['bits']}</td><td>{c['sent']}</td>"
-                    f"<td>{c['delivered']}</td><td>{_s(aoi.get('mean_s'))}</td>"
-                    f"<td>{_s(aoi.get('max_s'))}</td></tr>")
+    for c in report.channels.values():
+        rows.append(f"<tr><td>{html.escape(c.name)}</td><td>{c.bits}</td><td>{c.sent}</td>"
+                    f"<td>{c.delivered}</td><td>{_s(c.age and c.age.mean_s)}</td>"
+                    f"<td>{_s(c.age and c.age.max_s)}</td></tr>")
     errors = [abs(m - t) for _, _, _, m, t in rec.ranges if t is not None]
     ranges = (f"{len(errors)} ranges, median error {sorted(errors)[len(errors) // 2]:.3f} m"
               if errors else "no ranges measured")
     return ("<table><thead><tr><th>channel</th><th>bits</th><th>sent in frames</th>"
             "<th>received</th><th>mean age</th><th>max age</th></tr></thead><tbody>"
             + "".join(rows)
-            + f"</tbody></table><p>{len(rec.frames)} frames sent; {html.escape(ranges)}. "
+            + f"</tbody></table><p>{report.frames_sent} frames sent; {html.escape(ranges)}. "
             "“Sent in frames” counts values a bridge carried, the newest at each turn (values "
             "superseded before their turn are not lost: receivers keep the latest value); "
             "“received” counts arrivals at all receivers together.</p>")
@@ -202,7 +202,7 @@ def _s(v: Any) -> str:
     return "—" if not isinstance(v, int | float) or not math.isfinite(v) else f"{v:.1f} s"
 
 
-def write_report(path: Path, report: dict[str, Any], rec: Recording,
+def write_report(path: Path, report: MissionReport, rec: Recording,
                  loaded: LoadedMission) -> Path:
     """Write the report page to ``path`` and return it."""
     bounds = channel_bounds(loaded)
@@ -213,8 +213,8 @@ def write_report(path: Path, report: dict[str, Any], rec: Recording,
                ("slots", slots_figure(rec, loaded, turns)), ("losses", losses_figure(report)),
                ("ranges", ranges_figure(rec))]
     plots = "\n".join(_figure_html(fig, name, i == 0) for i, (name, fig) in enumerate(figures))
-    title = f"zab mission report: {report['mission']}"
-    clock = "virtual clock" if report.get("clock") == "virtual" else "real time"
+    title = f"zab mission report: {report.mission}"
+    clock = "virtual clock" if report.clock == "virtual" else "real time"
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <meta name="viewport" content="width=device-width, initial-scale=1">
@@ -226,7 +226,7 @@ td, th {{ padding: 0.2rem 0.8rem 0.2rem 0; text-align: left; border-bottom: 1px 
 section.plot {{ margin: 1.5rem 0; }}
 </style></head><body>
 <h1>{html.escape(title)}</h1>
-<p>{report['duration_s']:.0f} s simulated ({clock}), {len(loaded.mission.nodes)} nodes,
+<p>{report.duration_s:.0f} s simulated ({clock}), {len(loaded.mission.nodes)} nodes,
 {len(channels)} channels. Everything below is drawn from this one file; it needs no network.</p>
 {_summary_html(report, rec)}
 {plots}

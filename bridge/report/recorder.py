@@ -1,7 +1,7 @@
 """Collect what a mission report plots from the fleet's events (pure: no I/O, no plotting).
 
-Every node's events (``frame_sent``, ``frame_received``, ``range``, ``position`` ...) carry
-the node's clock in ``info["time"]``: wall seconds in ``zab sim``, virtual seconds with
+Every node's events (:mod:`bridge.core.events`: frames sent and received, ranges, positions
+...) carry the node's clock in ``time``: wall seconds in ``zab sim``, virtual seconds with
 ``--fast``. ``truth`` tells where each node really is at a time (the simulated water), so
 tracks and range errors can be drawn against it.
 """
@@ -12,7 +12,17 @@ import math
 from collections import Counter, defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+
+from bridge.core.events import (
+    Event,
+    FrameDropped,
+    FrameReceived,
+    FrameSent,
+    PayloadDropped,
+    Position,
+    Range,
+    SendFailed,
+)
 
 Xyz = tuple[float, float, float]
 Truth = Callable[[float], dict[str, Xyz]]
@@ -36,7 +46,7 @@ class Recording:
 
 
 class MissionRecorder:
-    """An event sink, ``recorder(node, kind, info)``, building a :class:`Recording`."""
+    """An event sink, ``recorder(node, event)``, building a :class:`Recording`."""
 
     def __init__(self, truth: Truth | None = None) -> None:
         self.truth = truth
@@ -44,9 +54,8 @@ class MissionRecorder:
         self._t0: float | None = None
         self._last_track = -math.inf
 
-    def _t(self, info: dict[str, Any]) -> float | None:
-        t = info.get("time")
-        if not isinstance(t, int | float) or not math.isfinite(t):
+    def _t(self, t: float) -> float | None:
+        if not math.isfinite(t):
             return None
         if self._t0 is None:
             self._t0 = float(t)
@@ -54,30 +63,25 @@ class MissionRecorder:
         self.recording.end_s = max(self.recording.end_s, rel)
         return rel
 
-    def __call__(self, node: str, kind: str, info: dict[str, Any]) -> None:
-        t = self._t(info)
+    def __call__(self, node: str, event: Event) -> None:
+        t = self._t(event.time)
         if t is None:
             return
         rec = self.recording
-        if kind == "frame_sent":
-            rec.frames.append((t, node, int(info.get("bytes", 0)), list(info.get("channels", ()))))
-            self._sample_truth(t, float(info["time"]))
-        elif kind == "frame_received":
-            for channel in info.get("channels", ()):
-                rec.arrivals[(channel, node)].append(t)
-        elif kind == "range":
-            truth = self._distance(node, str(info.get("peer")), float(info["time"]))
-            measured = info.get("range_m")
-            if isinstance(measured, int | float) and math.isfinite(measured):
-                rec.ranges.append((t, node, str(info.get("peer")), float(measured), truth))
-        elif kind == "position" and info.get("fix", True):
-            x, y = info.get("x"), info.get("y")
-            if isinstance(x, int | float) and isinstance(y, int | float):
-                sigma = info.get("sigma_m")
-                rec.fixes[node].append((t, float(x), float(y),
-                                        float(sigma) if isinstance(sigma, int | float) else None))
-        elif kind in ("frame_dropped", "payload_dropped", "send_failed"):
-            rec.drops[(node, str(info.get("reason") or info.get("error") or kind))] += 1
+        match event:
+            case FrameSent(size=size, channels=channels):
+                rec.frames.append((t, node, size, list(channels)))
+                self._sample_truth(t, event.time)
+            case FrameReceived(channels=channels):
+                for channel in channels:
+                    rec.arrivals[(channel, node)].append(t)
+            case Range(peer=peer, range_m=measured) if math.isfinite(measured):
+                truth = self._distance(node, peer, event.time)
+                rec.ranges.append((t, node, peer, measured, truth))
+            case Position(xy=(x, y, sigma)):
+                rec.fixes[node].append((t, x, y, sigma))
+            case FrameDropped(reason=why) | PayloadDropped(reason=why) | SendFailed(error=why):
+                rec.drops[(node, why or event.kind)] += 1
 
     def _sample_truth(self, t: float, clock: float) -> None:
         if self.truth is None or t - self._last_track < TRACK_STEP_S:

@@ -9,9 +9,11 @@ import time
 from collections.abc import Callable, Collection
 from typing import Any
 
+from bridge.core.events import Event, FrameReceived
 from bridge.mission.loader import LoadedMission
 from bridge.modems.setup import backend_factory
 from bridge.report.age import AgeOfInformation
+from bridge.report.model import MissionReport
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_node import BridgeNode
 from bridge.sim.scenario import water_of
@@ -36,7 +38,7 @@ class Fleet:
         loaded: LoadedMission,
         *,
         seed: int | None = None,
-        on_event: Callable[[str, str, dict[str, Any]], None] | None = None,
+        on_event: Callable[[str, Event], None] | None = None,
         only: Collection[str] | None = None,
         water: str | None = None,
         state_dir: str | None = None,
@@ -62,20 +64,21 @@ class Fleet:
         self.nodes: dict[str, BridgeNode] = {}
         self.ages = AgeOfInformation()
         self.started = time.time()
+        self.ended: float | None = None  # when the run was told to stop
         self.ready = asyncio.Event()
 
-    def _node_events(self, name: str) -> Callable[[str, dict[str, Any]], None]:
+    def _node_events(self, name: str) -> Callable[[Event], None]:
         """``name``'s events: arrivals for the age of information, then ``on_event``."""
         callback = self.on_event
 
-        def event(kind: str, info: dict[str, Any]) -> None:
-            if kind == "frame_received":
-                for channel in info.get("channels", ()):
-                    self.ages.arrived(channel, name, info["time"])
+        def on_event(event: Event) -> None:
+            if isinstance(event, FrameReceived):
+                for channel in event.channels:
+                    self.ages.arrived(channel, name, event.time)
             if callback is not None:
-                callback(name, kind, info)
+                callback(name, event)
 
-        return event
+        return on_event
 
     async def run(self, stop: asyncio.Event) -> None:
         """Start the water and every node; run until ``stop`` is set; close everything."""
@@ -120,6 +123,7 @@ class Fleet:
                 for task in tasks:
                     if task.done() and task.exception() is not None:
                         raise task.exception()  # type: ignore[misc]
+            self.ended = time.time()
             node_stop.set()
             await asyncio.gather(*tasks, return_exceptions=True)
         finally:
@@ -129,34 +133,9 @@ class Fleet:
             if scratch is not None:
                 scratch.cleanup()
 
-    def report(self) -> dict[str, Any]:
-        """Per channel: values sent/delivered and age; per link: frames sent/lost/collided."""
-        table = self.loaded.table
-        ages = self.ages.summary(time.time())
-        channels = {}
-        for c in table.channels:
-            sent = sum(n.stats.sent_per_channel[c.name] for n in self.nodes.values())
-            delivered = sum(n.stats.received_per_channel[c.name] for n in self.nodes.values())
-            channels[c.name] = {
-                "bits": c.bits,
-                "sent": sent,
-                "delivered": delivered,
-                "age_of_information": ages.get(c.name),
-            }
-        return {
-            "mission": self.loaded.mission.mission,
-            "duration_s": round(time.time() - self.started, 3),
-            "channels": channels,
-            "nodes": {name: node.snapshot() for name, node in self.nodes.items()},
-            "links": self._links(),
-        }
-
-    def _links(self) -> list[dict[str, Any]]:
-        """Water statistics per link, with node names."""
-        if self.water is None:
-            return []
-        name = self.loaded.mission.name_of
-        return [
-            {"link": f"{name(link['src'])}->{name(link['dst'])}", **link}
-            for link in self.water.stats()["links"]
-        ]
+    def report(self) -> MissionReport:
+        """The run's report (:mod:`bridge.report.model`), up to its stop (or now)."""
+        end = self.ended if self.ended is not None else time.time()
+        return MissionReport.build(
+            self.loaded, {name: node.core for name, node in self.nodes.items()}, self.ages,
+            self.started, end, self.water.stats() if self.water is not None else None)

@@ -36,6 +36,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from bridge.codec import ArrayCodec, BytesCodec, Layout
+from bridge.core.events import Event, FrameReceived
 from bridge.errors import MissionError
 from bridge.mission.loader import LoadedMission, parse_mission
 from bridge.mission.payload_schema import adapt_schema
@@ -109,7 +110,7 @@ def json_view_schema(layout: Layout) -> dict[str, Any]:
 
 
 class MissionLog:
-    """Records one node's events into an MCAP file; call it as ``on_event(kind, info)``.
+    """Records one node's events into an MCAP file; call it as ``on_event(event)``.
 
     Never raises into the runtime: an event that cannot be written is counted in ``failed``.
     """
@@ -154,17 +155,17 @@ class MissionLog:
         ns = int(t * 1e9)
         self._writer.add_message(channel, ns, json.dumps(message).encode(), ns)
 
-    def __call__(self, kind: str, info: dict[str, Any]) -> None:
+    def __call__(self, event: Event) -> None:
         if self._closed:
             return
         try:
-            self._record(kind, info)
+            self._record(event)
         except Exception:  # a log must never stop the bridge; counted instead
             self.failed += 1
 
-    def _record(self, kind: str, info: dict[str, Any]) -> None:
-        t = info.get("time")
-        t = float(t) if isinstance(t, int | float) and math.isfinite(t) else self.clock()
+    def _record(self, event: Event) -> None:
+        kind, info = event.kind, event.to_dict()
+        t = float(event.time) if math.isfinite(event.time) else self.clock()
         message = _jsonable({k: v for k, v in info.items() if k != "data"})
         message["time"] = t
         if "data" in info and isinstance(info["data"], bytes | bytearray):
@@ -172,15 +173,15 @@ class MissionLog:
         prefix = f"/zab/{self.node}"
         self.counts[kind] += 1
         self._write(f"{prefix}/{kind}", _FRAME_SCHEMAS.get(kind, {}), message, t)
-        if kind != "frame_received":
+        if not isinstance(event, FrameReceived):
             return
-        for name, elements in (info.get("values") or {}).items():
+        for name, elements in event.values.items():
             try:
                 channel = self.loaded.table.by_name(name)
             except StopIteration:
                 continue
             self._write(f"{prefix}/channel/{name}", _channel_schema(channel),
-                        {"time": t, "src": info.get("src"), "elements": _jsonable(elements)}, t)
+                        {"time": t, "src": event.src, "elements": _jsonable(elements)}, t)
 
     def close(self) -> None:
         """Write the summary and close the file (safe to call twice)."""
@@ -201,7 +202,7 @@ class MissionLog:
 
 class FleetLogs:
     """One :class:`MissionLog` per node in ``folder`` (``<mission>-<node>.mcap``); call it as a
-    :class:`~bridge.runtime.fleet.Fleet` ``on_event(node, kind, info)``."""
+    :class:`~bridge.runtime.fleet.Fleet` ``on_event(node, event)``."""
 
     def __init__(self, folder: str | Path, loaded: LoadedMission) -> None:
         self.folder = Path(folder)
@@ -211,11 +212,11 @@ class FleetLogs:
     def path_of(self, node: str) -> Path:
         return self.folder / f"{self.loaded.mission.mission}-{node}.mcap"
 
-    def __call__(self, node: str, kind: str, info: dict[str, Any]) -> None:
+    def __call__(self, node: str, event: Event) -> None:
         log = self.logs.get(node)
         if log is None:
             log = self.logs[node] = MissionLog(self.path_of(node), self.loaded, node)
-        log(kind, info)
+        log(event)
 
     def close(self) -> None:
         for log in self.logs.values():

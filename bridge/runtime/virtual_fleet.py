@@ -22,9 +22,10 @@ from typing import Any
 
 import msgpack
 
+from bridge.core.events import Event
 from bridge.core.interest import own_subscriptions, wanted_by
 from bridge.core.mac import Schedule
-from bridge.core.node import NodeCore, Notice, Output, Publish, SendFrame, Status
+from bridge.core.node import NodeCore, Output, Publish, SendFrame, Status
 from bridge.core.surfacing import Relay
 from bridge.errors import EncodeError, FrameError
 from bridge.mission.loader import LoadedMission
@@ -92,7 +93,7 @@ class FastFleet:
         on_output: Callable[[Timed], None] | None = None,
         keep_outputs: bool = True,
         key: bytes | None = None,
-        kinds: tuple[type, ...] = (Publish, Status, Notice, Relay),
+        kinds: tuple[type, ...] = (Publish, Status, Event, Relay),
     ) -> None:
         """``keep_outputs`` false: outputs only go to ``on_output`` (long runs); ``kinds``:
         the output types kept and passed on (others are dropped unseen). ``key``: the frame

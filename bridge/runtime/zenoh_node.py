@@ -17,9 +17,10 @@ from typing import TYPE_CHECKING, Any
 import msgpack
 import zenoh
 
+from bridge.core.events import Event, ModemDown, notable
 from bridge.core.interest import output_keys
 from bridge.core.link import LinkState
-from bridge.core.node import NodeCore, NodeStats, Notice, Ping, Publish, Status, notable
+from bridge.core.node import NodeCore, NodeStats, Ping, Publish, Status
 from bridge.core.positioning import Positioning
 from bridge.core.surfacing import Relay
 from bridge.errors import BackendError, DecodeError, EncodeError
@@ -52,13 +53,14 @@ class BridgeNode:
         make_backend: Callable[[], ModemBackend],
         *,
         clock: Callable[[], float] = time.time,
-        on_event: Callable[[str, dict[str, Any]], None] | None = None,
+        on_event: Callable[[Event], None] | None = None,
         state_file: StateFile | None = None,
         key: bytes | None = None,
     ) -> None:
         """``state_file``: where this node keeps what a restart must resume (None: nothing
         survives a restart; peers then see a new epoch and resynchronise); ``key``: the frame
-        key (default: found as ``wire.auth`` says)."""
+        key (default: found as ``wire.auth`` says); ``on_event``: gets every event of the node
+        (:mod:`bridge.core.events`)."""
         self.state_file = state_file
         auth = loaded.mission.wire.auth
         if key is None and auth is not None:
@@ -71,7 +73,7 @@ class BridgeNode:
         self._make_backend = make_backend
         self.backend: ModemBackend | None = None
         self.clock = clock
-        self.on_event = on_event or (lambda kind, info: None)
+        self.on_event = on_event or (lambda event: None)
         self.prefix = f"@zab/{self.mission.mission}/{node}"
         self._origin = origin_tag(self.mission.mission, node)
         self._tokens: dict[str, Any] = {}
@@ -365,7 +367,7 @@ class BridgeNode:
             except BackendError as exc:
                 self._modem_up.clear()
                 log.warning("%s: modem unavailable: %s (retry in %.1f s)", self.node, exc, backoff)
-                self._event("modem_down", {"time": self.clock(), "error": str(exc)})
+                self._event(ModemDown(self.clock(), str(exc)))
                 await backend.close()
                 await asyncio.sleep(backoff)
                 backoff = min(backoff * 2, RETRY_MAX_S)
@@ -398,8 +400,8 @@ class BridgeNode:
                 self._publish_raw(f"{self.prefix}/{output.topic}", output.payload)
                 if output.topic.startswith("link/"):
                     self._token(output.topic, output.payload["state"])
-            elif isinstance(output, Notice):
-                self._event(output.kind, output.info)
+            elif isinstance(output, Event):
+                self._event(output)
             elif isinstance(output, Relay):  # surfaced peer: the sample as it came, over IP
                 assert self.session is not None
                 self.session.put(output.key, output.data, encoding=zenoh.Encoding(output.encoding),
@@ -407,12 +409,12 @@ class BridgeNode:
             elif self._query_bridge is not None:
                 self._query_bridge.handle(output)
 
-    def _event(self, kind: str, info: dict[str, Any]) -> None:
-        self.on_event(kind, info)
-        if notable(kind, info) and self.session is not None:
+    def _event(self, event: Event) -> None:
+        self.on_event(event)
+        if notable(event) and self.session is not None:
             self._publish_raw(f"{self.prefix}/events", {
-                "kind": kind, "node": self.node,
-                **{k: v for k, v in info.items() if not isinstance(v, bytes)}})
+                "kind": event.kind, "node": self.node,
+                **{k: v for k, v in event.to_dict().items() if not isinstance(v, bytes)}})
 
     def _token(self, topic: str, state: str) -> None:
         """One liveliness token per live link, on the link's key."""

@@ -18,7 +18,6 @@ from bridge.modems.evologics.commands import (
     set_value,
 )
 from bridge.modems.evologics.protocol import (
-    NEED_DATA,
     BurstData,
     Busy,
     CanceledIm,
@@ -52,6 +51,7 @@ from bridge.modems.evologics.protocol import (
     parse_body,
     wrap,
 )
+from bridge.modems.protocol import NEED_DATA
 
 USBLLONG = (b"USBLLONG,10446.991981,10446.534643,3,-0.0604,-1.0888,-0.5851,-0.4233,-1.0020,"
             b"-0.5901,0.0063,0.0269,-0.3295,825,-36,77,1.2375")

@@ -37,6 +37,7 @@ from bridge.modems.micromodem.protocol import (
     TxStats,
     Unhandled,
 )
+from bridge.modems.protocol import NEED_DATA
 
 
 def line(text: str) -> bytes:
@@ -137,6 +138,15 @@ def test_bad_lines_are_counted_and_dropped(bad: bytes, how: str) -> None:
     got = feed(proto, bad + b"\r\n$CATXF,2*56\r\n", how)
     assert len(got) == 2 and isinstance(got[0], BadSentence) and got[1] == TxFrame(2)
     assert proto.bad_lines == 1
+
+
+def test_next_event_needs_data_until_a_line_ends() -> None:
+    proto = HostProtocol(1)
+    proto.receive_data(b"$CATXP,64")
+    assert proto.next_event() is NEED_DATA
+    proto.receive_data(b"\r\n")
+    assert proto.next_event() == TxStart(64)
+    assert proto.next_event() is NEED_DATA
 
 
 def test_noise_before_a_sentence_is_dropped_and_the_sentence_kept() -> None:

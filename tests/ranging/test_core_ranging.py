@@ -6,7 +6,8 @@ import math
 
 import yaml
 
-from bridge.core.node import NodeCore, Notice, Status
+from bridge.core.events import Event, Position, Range, RangeFailed
+from bridge.core.node import NodeCore, Status
 from bridge.mission.loader import parse_mission
 from bridge.modems.base import ModemRange, Reception
 
@@ -42,12 +43,11 @@ def test_ranges_turns_and_no_fix_without_dlbl() -> None:
     assert status["position"] == {"fix": False, "state": "lost", "reason": "too_few_anchors",
                                   "anchors": ["a1"], "time": 101.5,
                                   "detail": status["position"]["detail"]}
-    assert [o.kind for o in out if isinstance(o, Notice)] == ["range", "position"]
+    assert [type(o) for o in out if isinstance(o, Event)] == [Range, Position]
     assert core.range_due(105.0) == 2  # the other anchor's turn
     core.range_asked(2, 105.0, "no ping reply")
     (failed,) = core.take()
-    assert isinstance(failed, Notice) and failed.kind == "range_failed"
-    assert failed.info == {"time": 105.0, "peer": "a2", "error": "no ping reply"}
+    assert failed == RangeFailed(105.0, "a2", "no ping reply")
     assert core.range_due(200.0) is None  # the opportunity after a range goes to frames
     assert core.range_due(200.0) == 1
     core.modem_range(ModemRange(2, math.dist((30, 20), (0, 40)) / 1500.0, "ping", 106.0), 106.0)

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from bridge.core.node import NodeCore, Notice, Status
+from bridge.core.events import Link, MissionMismatch, PeerRestarted
+from bridge.core.node import NodeCore, Status
 from bridge.mission.loader import parse_mission
 from bridge.modems.base import Reception
 from bridge.runtime.state_file import StateFile
@@ -75,7 +76,7 @@ def test_a_fresh_receiver_is_resent_what_it_acknowledged_selectively() -> None:
     fresh = NodeCore(LOADED, "auv")  # auv restarted without its state: a new epoch
     assert fresh.epoch != auv.epoch
     frames_between(fresh, ops, 2.0)
-    assert any(isinstance(o, Notice) and o.kind == "peer_restarted" for o in ops.take())
+    assert any(isinstance(o, PeerRestarted) for o in ops.take())
     frames_between(ops, fresh, 3.0)  # everything outstanding goes again, at once
     published = [o.value["n"] for o in fresh.take() if getattr(o, "key", None) == "ops/cmd"]
     assert published == [0, 1, 2]
@@ -146,9 +147,9 @@ def test_a_peer_with_another_mission_file_is_reported_once() -> None:
         ours.receive(Reception(out.data, 1, t, {}), t)
     dropped = ours.stats.frames_dropped
     assert dropped["check"] == 1 and dropped["mission_mismatch"] == 2
-    notices = [o for o in ours.take() if isinstance(o, Notice) and o.kind == "mission_mismatch"]
-    assert len(notices) == 1 and notices[0].info["peer"] == "ops"
-    assert ours.snapshot(3.0)["mismatched_peers"] == {"ops": notices[0].info["fingerprint"]}
+    events = [o for o in ours.take() if isinstance(o, MissionMismatch)]
+    assert len(events) == 1 and events[0].peer == "ops"
+    assert ours.snapshot(3.0)["mismatched_peers"] == {"ops": events[0].fingerprint}
 
 
 def test_links_do_not_go_down_while_frames_keep_arriving_at_30_percent_loss() -> None:
@@ -156,7 +157,7 @@ def test_links_do_not_go_down_while_frames_keep_arriving_at_30_percent_loss() ->
 
     def watch(timed) -> None:
         out = timed.output
-        if isinstance(out, Notice) and out.kind == "link" and out.info["state"] == "down" \
+        if isinstance(out, Link) and out.state == "down" \
                 and timed.time > 30.0:
             downs.append(timed.time)
 

@@ -12,8 +12,9 @@ from typer.testing import CliRunner
 
 from bridge.cli.app import app
 from bridge.cli.sim_fast import run_fast
+from bridge.core.events import FrameSent
 from bridge.core.mac import PolledSchedule
-from bridge.core.node import Notice, Status
+from bridge.core.node import Status
 from bridge.mission.loader import load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet, Timed
 from tests.conftest import MISSIONS
@@ -28,9 +29,9 @@ STATUS = {"st": 1, "ready": True, "eoid": False, "loc": False, "hold_heading": F
           "pitch": 0.0, "yaw": 45.0}
 
 
-def frames(fleet_outputs: list[Timed], kind: str, node: str) -> list[Timed]:
-    return [t for t in fleet_outputs if t.node == node and isinstance(t.output, Notice)
-            and t.output.kind == kind]
+def frames(fleet_outputs: list[Timed], node: str) -> list[Timed]:
+    """The frames ``node`` sent."""
+    return [t for t in fleet_outputs if t.node == node and isinstance(t.output, FrameSent)]
 
 
 def test_polled_teleoperation_one_frame_each_way_per_ipg() -> None:
@@ -40,11 +41,11 @@ def test_polled_teleoperation_one_frame_each_way_per_ipg() -> None:
     fleet.put("rov", "rov/image_trunk", {"ft": True, "lt": False, "isn": False, "ci": False,
                                          "itsn": 3, "trunk": bytes(41)})
     fleet.run_until(64.1)
-    polls = frames(fleet.outputs, "frame_sent", "operator")
-    replies = frames(fleet.outputs, "frame_sent", "rov")
+    polls = frames(fleet.outputs, "operator")
+    replies = frames(fleet.outputs, "rov")
     assert len(polls) == 101  # t = 0, 0.64, ..., 64
-    assert all(p.output.info["bytes"] == 16 and p.output.info["dest"] == "rov" for p in polls)
-    assert {r.output.info["bytes"] for r in replies} == {57}
+    assert all(p.output.size == 16 and p.output.dest == "rov" for p in polls)
+    assert {r.output.size for r in replies} == {57}
     assert len(replies) >= 99  # one per poll heard; the last poll's reply is still on its way
     # a reply leaves when its poll has arrived: delay + airtime of 16 B later, never unpolled
     for reply in replies:
@@ -95,8 +96,8 @@ def test_aloha_fleet_delivers_within_its_airtime_cap() -> None:
     for i, node in enumerate(("a1", "a2", "a3")):
         got = fleet.published("buoy", f"{node}/nav")
         assert len(got) > 20 and got[-1][1].value["depth"] == pytest.approx(10.0 + i)
-        sent = frames(fleet.outputs, "frame_sent", node)
-        airtime = fleet.ocean.preset.airtime(sent[0].output.info["bytes"])
+        sent = frames(fleet.outputs, node)
+        airtime = fleet.ocean.preset.airtime(sent[0].output.size)
         assert len(sent) * airtime / 600.0 <= 0.1 + 1e-9
     lost = sum(sum(link["lost"].values()) for link in fleet.ocean.stats()["links"])
     assert lost > 0  # random access: some frames collide at the buoy
@@ -106,11 +107,11 @@ def test_hippocampus_rounds_give_ranges_and_fixes() -> None:
     fleet = FastFleet(load_mission(MISSIONS / "hippocampus.yaml"), seed=1)
     fleet.put("hippo", "sensors", {"depth": 1.0, "temperature_c": 15.2, "conductivity_us": 600})
     fleet.run_until(60.0)
-    requests = frames(fleet.outputs, "frame_sent", "hippo")
+    requests = frames(fleet.outputs, "hippo")
     assert [round(r.time, 6) for r in requests] == [3.0 * k for k in range(21)]
-    assert all(r.output.info["bytes"] == 15 for r in requests)
-    sent = sorted((t.time, t.node) for t in fleet.outputs if isinstance(t.output, Notice)
-                  and t.output.kind == "frame_sent" and t.node.startswith("anchor"))
+    assert all(r.output.size == 15 for r in requests)
+    sent = sorted((t.time, t.node) for t in fleet.outputs if isinstance(t.output, FrameSent)
+                  and t.node.startswith("anchor"))
     assert [n for _, n in sent[:6]] == ["anchor1", "anchor2", "anchor3"] * 2  # turns in order
     assert sum(sum(link["lost"].values()) for link in fleet.ocean.stats()["links"]) == 0
     status = [t.output for t in fleet.outputs if t.node == "hippo"
@@ -126,13 +127,13 @@ def test_an_hour_of_teleoperation_on_the_virtual_clock() -> None:
     loaded = load_mission(BLUEROV)
     result = asyncio.run(run_fast(loaded, duration=3600.0, seed=1))
     ipg = loaded.mission.mac.ipg_s  # type: ignore[union-attr]
-    polls = result["nodes"]["operator"]["frames_sent"]
+    polls = result.nodes["operator"]["frames_sent"]
     assert polls == int(3600 / ipg) + 1
-    assert result["nodes"]["rov"]["frames_received"] >= polls - 5  # range loss is rare at 1 m
-    assert result["channels"]["image"]["delivered"] >= polls - 10
-    age = result["channels"]["status"]["age_of_information"]
-    assert ipg / 2 < age["mean_s"] < ipg  # one reply per IPG: mean age about IPG/2 + delay
-    assert result["clock"] == "virtual" and result["duration_s"] == 3600.0
+    assert result.nodes["rov"]["frames_received"] >= polls - 5  # range loss is rare at 1 m
+    assert result.channels["image"].delivered >= polls - 10
+    age = result.channels["status"].age
+    assert age is not None and ipg / 2 < age.mean_s < ipg  # about IPG/2 + delay
+    assert result.clock == "virtual" and result.duration_s == 3600.0
 
 
 def test_zab_sim_fast_and_speed(tmp_path: Path) -> None:

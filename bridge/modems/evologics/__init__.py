@@ -5,7 +5,6 @@ from bridge.modems.evologics.commands import CommandReader, send_im, set_value
 from bridge.modems.evologics.protocol import (
     BROADCAST,
     IM_MAX_BYTES,
-    NEED_DATA,
     Event,
     HostProtocol,
     LocalProtocolError,
@@ -17,7 +16,6 @@ from bridge.modems.evologics.protocol import (
 __all__ = [
     "BROADCAST",
     "IM_MAX_BYTES",
-    "NEED_DATA",
     "CommandReader",
     "Event",
     "HostProtocol",

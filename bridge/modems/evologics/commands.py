@@ -18,13 +18,13 @@ from typing import Any
 from bridge.modems.evologics.protocol import (
     IM_MAX_BYTES,
     MAX_INCOMPLETE,
-    NEED_DATA,
     TIES,
     LocalProtocolError,
     Mode,
     _partial_prefix,
     command_name,
 )
+from bridge.modems.protocol import NEED_DATA
 
 __all__ = [
     "CommandReader",

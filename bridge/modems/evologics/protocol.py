@@ -4,8 +4,9 @@ Rules of this module (see ``modem-protocols.md`` §1; its [V]/[C]/[U] tags are r
 
 - No I/O, no clock, no threads. :class:`HostProtocol` takes bytes with
   :meth:`~HostProtocol.receive_data` and returns events from :meth:`~HostProtocol.next_event`
-  (or :data:`NEED_DATA`), like h11. Commands go out through :meth:`HostProtocol.send`, which
-  returns the bytes to write and remembers which reply is expected.
+  (or :data:`~bridge.modems.protocol.NEED_DATA`), like h11. Commands go out through
+  :meth:`HostProtocol.send`, which returns the bytes to write and remembers which reply is
+  expected.
 - Modem bytes never raise: anything that cannot be parsed becomes a :class:`Malformed` event and
   the parser resynchronises. :class:`LocalProtocolError` is raised only for our own misuse (an
   impossible event or command), never for what the modem sends.
@@ -33,11 +34,12 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
+from bridge.modems.protocol import NEED_DATA, NeedData
+
 __all__ = [
     "BROADCAST",
     "IM_MAX_BYTES",
     "MAX_INCOMPLETE",
-    "NEED_DATA",
     "BurstData",
     "Busy",
     "CanceledIm",
@@ -89,14 +91,6 @@ MAX_PAYLOAD = 1 << 16
 TIES = b"+++AT"
 CRLF = b"\r\n"
 
-
-class _NeedData:
-    def __repr__(self) -> str:
-        return "NEED_DATA"
-
-
-NEED_DATA: Any = _NeedData()
-"""Returned by :meth:`HostProtocol.next_event` when more bytes are needed."""
 
 
 class Mode(enum.Enum):
@@ -642,7 +636,7 @@ def _payload_header(rest: bytes, n_fields: int) -> tuple[int | None, int, list[b
 
 def _payload_event(
     name: bytes, rest: bytes, legacy_recvim: bool, *, whole: bool
-) -> tuple[Event, int]:
+) -> tuple[Event | NeedData, int]:
     """Build a length-framed event from ``rest`` (after ``NAME,``).
 
     With ``whole`` the payload must end ``rest`` exactly (a data-mode body); otherwise it must be
@@ -732,8 +726,8 @@ class HostProtocol:
         while (event := self.next_event()) is not NEED_DATA:
             yield event
 
-    def next_event(self) -> Event:
-        """The next event, or :data:`NEED_DATA`."""
+    def next_event(self) -> Event | NeedData:
+        """The next event, or :data:`~bridge.modems.protocol.NEED_DATA`."""
         while True:
             if not self._buffer:
                 return NEED_DATA
@@ -744,7 +738,7 @@ class HostProtocol:
 
     # -- data mode -----------------------------------------------------------------------------
 
-    def _next_data_mode(self) -> Event | None:
+    def _next_data_mode(self) -> Event | NeedData | None:
         buf = self._buffer
         at = buf.find(TIES)
         if at < 0:
@@ -760,7 +754,7 @@ class HostProtocol:
             return BurstData(raw)
         return self._wrapped()
 
-    def _wrapped(self) -> Event | None:
+    def _wrapped(self) -> Event | NeedData | None:
         """A ``+++AT<cmd>:<len>:<body>\\r\\n`` packet at the start of the buffer."""
         buf = self._buffer
         colon = buf.find(b":", 5, 5 + 40)
@@ -805,7 +799,7 @@ class HostProtocol:
 
     # -- command mode --------------------------------------------------------------------------
 
-    def _next_command_mode(self) -> Event | None:
+    def _next_command_mode(self) -> Event | NeedData | None:
         buf = self._buffer
         if buf.startswith(TIES) or (len(buf) < 5 and TIES.startswith(buf)):
             if len(buf) < 5:
@@ -871,7 +865,7 @@ class HostProtocol:
         del buf[:end]
         return Malformed(data, reason)
 
-    def _need_or_overflow(self, limit: int) -> Event:
+    def _need_or_overflow(self, limit: int) -> Event | NeedData:
         if len(self._buffer) <= limit:
             return NEED_DATA
         return self._bad(limit, f"no line end within {limit} bytes")

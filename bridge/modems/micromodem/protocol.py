@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 from bridge.modems.micromodem.nmea import LineBuffer, NmeaError, Sentence, parse_sentence
 from bridge.modems.micromodem.rates import get_rate
+from bridge.modems.protocol import NEED_DATA, NeedData
 
 __all__ = [
     "Ack",
@@ -506,14 +507,15 @@ class HostProtocol:
         """Forget a partial line (the port was reopened)."""
         self._lines.clear()
 
-    def next_event(self) -> Event | None:
-        """The next event, or ``None`` when more bytes are needed."""
-        return self._events.popleft() if self._events else None
+    def next_event(self) -> Event | NeedData:
+        """The next event, or :data:`~bridge.modems.protocol.NEED_DATA` when more bytes are
+        needed."""
+        return self._events.popleft() if self._events else NEED_DATA
 
     def events(self) -> Iterator[Event]:
         """Every pending event."""
-        while self._events:
-            yield self._events.popleft()
+        while (event := self.next_event()) is not NEED_DATA:
+            yield event
 
     # -- output --------------------------------------------------------------------------------
 

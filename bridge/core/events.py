@@ -1,0 +1,267 @@
+"""What happened at a node, as typed events (pure data, in the spirit of h11's ``_events``).
+
+:class:`~bridge.core.node.NodeCore` outputs one of these for each runtime event (a frame sent,
+heard or dropped, a link change, a range, a fix, a delivery report …); the runtime adds
+:class:`ModemDown`. In-process observers ``match`` on the classes. Where an event leaves the
+process (``@zab/<mission>/<node>/events``, the MCAP logbook, the GUI feed) it becomes the map
+:meth:`Event.to_dict` returns, named by the class's :attr:`Event.kind`: the wire names
+(``frame_sent``, ``bytes``, ``src`` …) live only there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
+
+if TYPE_CHECKING:  # not imported at run time: the tracker pulls in numpy
+    from bridge.ranging.localise import Fix, NoFix
+    from bridge.ranging.tracker import Estimate
+
+__all__ = [
+    "Delivery", "Event", "FrameDropped", "FrameReceived", "FrameSent", "Link", "MissionMismatch",
+    "ModemDown", "PayloadDropped", "PeerRestarted", "Position", "Range", "RangeFailed",
+    "SendFailed", "Surfaced", "notable",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """Base of every event; ``time`` is the node's clock when it happened."""
+
+    kind: ClassVar[str]
+    """The event's name on the wire (a ``kind`` field, an MCAP topic)."""
+
+    time: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The event as plain data, with its wire field names (bytes stay bytes)."""
+        raise NotImplementedError
+
+
+@dataclass(frozen=True, slots=True)
+class PayloadDropped(Event):
+    """A sample on an input key could not be used (counted per key)."""
+
+    kind: ClassVar[str] = "payload_dropped"
+    key: str
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "key": self.key, "reason": self.reason}
+
+
+@dataclass(frozen=True, slots=True)
+class FrameSent(Event):
+    """The modem accepted a frame of ``size`` bytes carrying ``channels`` (``dest``: its
+    unicast destination, None = broadcast)."""
+
+    kind: ClassVar[str] = "frame_sent"
+    size: int
+    channels: list[str]
+    dest: str | None
+    data: bytes
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "bytes": self.size, "channels": self.channels,
+                "dest": self.dest, "data": self.data}
+
+
+@dataclass(frozen=True, slots=True)
+class SendFailed(Event):
+    """The modem refused a frame (its data stays due)."""
+
+    kind: ClassVar[str] = "send_failed"
+    error: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "error": self.error}
+
+
+@dataclass(frozen=True, slots=True)
+class FrameReceived(Event):
+    """A frame from ``src`` decoded: the channels it carried for this node and their element
+    values (``members``: per member of a key family), with the link metadata."""
+
+    kind: ClassVar[str] = "frame_received"
+    src: str
+    size: int
+    channels: list[str]
+    data: bytes
+    meta: dict[str, Any]
+    values: dict[str, list[dict]]
+    members: dict[str, dict[str, list[dict]]] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {"time": self.time, "src": self.src, "bytes": self.size, "channels": self.channels,
+               "data": self.data, "meta": self.meta, "values": self.values}
+        if self.members:
+            out["members"] = self.members
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class FrameDropped(Event):
+    """A frame (or a transfer it completed) could not be used: ``reason`` is the counter it
+    went to (``check``, ``mission_mismatch``, ``unknown_source``, ``malformed`` …)."""
+
+    kind: ClassVar[str] = "frame_dropped"
+    src: str | None
+    reason: str
+    error: str | None = None
+    data: bytes | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"time": self.time, "src": self.src, "reason": self.reason}
+        if self.error is not None:
+            out["error"] = self.error
+        if self.data is not None:
+            out["data"] = self.data
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class PeerRestarted(Event):
+    """``peer``'s frames carry a new epoch (``was`` before): it started without its state."""
+
+    kind: ClassVar[str] = "peer_restarted"
+    peer: str
+    epoch: int
+    was: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "peer": self.peer, "epoch": self.epoch, "was": self.was}
+
+
+@dataclass(frozen=True, slots=True)
+class MissionMismatch(Event):
+    """``peer`` runs another mission file: its frame fingerprint is not ``ours`` (hex)."""
+
+    kind: ClassVar[str] = "mission_mismatch"
+    peer: str
+    fingerprint: str
+    ours: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "peer": self.peer, "fingerprint": self.fingerprint,
+                "ours": self.ours}
+
+
+@dataclass(frozen=True, slots=True)
+class Delivery(Event):
+    """A reliable value's state changed (``queued``, ``sent``, ``delivered``, ``failed``)."""
+
+    kind: ClassVar[str] = "delivery"
+    channel: str
+    id: int
+    dst: str | None
+    state: str
+    reason: str | None = None
+    attempts: int = 0
+    key: str | None = None
+    ref: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"channel": self.channel, "id": self.id, "dst": self.dst, "state": self.state,
+                "reason": self.reason, "attempts": self.attempts, "time": self.time,
+                "key": self.key, "ref": self.ref}
+
+
+@dataclass(frozen=True, slots=True)
+class RangeFailed(Event):
+    """A range asked of the modem failed."""
+
+    kind: ClassVar[str] = "range_failed"
+    peer: str
+    error: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "peer": self.peer, "error": self.error}
+
+
+@dataclass(frozen=True, slots=True)
+class Range(Event):
+    """A range to ``peer`` (``method``: how it was measured)."""
+
+    kind: ClassVar[str] = "range"
+    peer: str
+    range_m: float
+    travel_time_s: float
+    sound_speed_mps: float
+    method: str
+    sound_speed_source: str
+
+    def to_dict(self) -> dict[str, Any]:  # the published ``time`` is when it was reported
+        return {"peer": self.peer, "range_m": self.range_m, "time": self.time,
+                "travel_time_s": self.travel_time_s, "sound_speed_mps": self.sound_speed_mps,
+                "method": self.method, "sound_speed_source": self.sound_speed_source}
+
+
+@dataclass(frozen=True, slots=True)
+class Position(Event):
+    """Where this node is: the tracker's ``estimate``, a snapshot :class:`Fix`, or a
+    :class:`NoFix` saying why there is none."""
+
+    kind: ClassVar[str] = "position"
+    estimate: Estimate | Fix | NoFix
+
+    @property
+    def xy(self) -> tuple[float, float, float | None] | None:
+        """``(x, y, sigma_m)`` when there is a position, else None."""
+        from bridge.ranging.localise import Fix
+        from bridge.ranging.tracker import Estimate
+
+        found = self.estimate
+        if isinstance(found, Fix) or (isinstance(found, Estimate) and found.has_position):
+            return found.x, found.y, found.sigma_m
+        return None
+
+    def to_dict(self) -> dict[str, Any]:
+        return self.estimate.payload(self.time)
+
+
+@dataclass(frozen=True, slots=True)
+class Link(Event):
+    """The link to ``peer`` changed state (``up``, ``degraded``, ``down``)."""
+
+    kind: ClassVar[str] = "link"
+    peer: str
+    state: str
+    last_heard: float | None
+    silent_s: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "peer": self.peer, "state": self.state,
+                "last_heard": self.last_heard, "silent_s": self.silent_s}
+
+
+@dataclass(frozen=True, slots=True)
+class Surfaced(Event):
+    """``peer``'s bridge became reachable over IP (``ip``) or stopped being so."""
+
+    kind: ClassVar[str] = "surfaced"
+    peer: str
+    ip: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"peer": self.peer, "ip": self.ip, "time": self.time}
+
+
+@dataclass(frozen=True, slots=True)
+class ModemDown(Event):
+    """The modem failed or could not be opened (the runtime retries)."""
+
+    kind: ClassVar[str] = "modem_down"
+    error: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "error": self.error}
+
+
+NOTABLE = (Link, FrameDropped, SendFailed, ModemDown, PayloadDropped, MissionMismatch,
+           PeerRestarted, Surfaced)
+"""Events also published on ``@zab/<mission>/<node>/events`` (with failed deliveries)."""
+
+
+def notable(event: Event) -> bool:
+    """Whether ``event`` belongs on ``…/events``."""
+    return isinstance(event, NOTABLE) or (isinstance(event, Delivery) and event.state == "failed")

@@ -1,0 +1,205 @@
+"""The one report of a fleet run: ``zab sim``, ``zab sim --fast``/``--speed`` and the demo build
+it the same way (:meth:`MissionReport.build`) and render it as text
+(:func:`print_report`), JSON (:meth:`MissionReport.to_dict`) or HTML
+(:func:`bridge.report.html.write_report`).
+
+Definitions, one each:
+
+- a channel's *sent*: values the bridges put in frames (the newest at each turn; an
+  acknowledged one again until confirmed), summed over the senders; *delivered*: arrivals at
+  all receivers together (one frame reaches several);
+- its age of information: :mod:`bridge.report.age`, exact from the arrivals, up to the end of
+  the run;
+- the run's end: when it was told to stop (or now, while it runs); its duration from the start
+  (the fleet ready, or virtual time 0);
+- frames: each node's counters (``NodeStats``) summed; per link: the water's counters (only
+  when the run has a simulated water of its own).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from rich.console import Console
+from rich.table import Table
+
+from bridge.report.age import AgeOfInformation
+
+if TYPE_CHECKING:
+    from bridge.core.node import NodeCore
+    from bridge.mission.loader import LoadedMission
+
+LINK_ROWS = 60
+"""Links listed in the printed report at most: a fleet of n nodes has n × (n − 1) of them
+(62 250 at 250 nodes, minutes of terminal rendering); beyond this the worst are listed and
+the rest summed in one row. The JSON and HTML reports keep every link."""
+
+
+@dataclass(frozen=True, slots=True)
+class Age:
+    """Age of information of a channel over its receivers, seconds."""
+
+    mean_s: float
+    max_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class ChannelFigures:
+    """One channel: its bit length, values sent and delivered, and its age."""
+
+    name: str
+    bits: int
+    sent: int
+    delivered: int
+    age: Age | None
+
+
+@dataclass(frozen=True, slots=True)
+class LinkFigures:
+    """One directed link ``src -> dst`` of the simulated water (addresses, ``name`` with node
+    names): frames sent, delivered, and lost per cause."""
+
+    name: str
+    src: int
+    dst: int
+    sent: int
+    delivered: int
+    lost: dict[str, int]
+
+    @property
+    def ratio(self) -> float:
+        """Share of the frames sent that were delivered (1 when none were sent)."""
+        return self.delivered / self.sent if self.sent else 1.0
+
+
+@dataclass(frozen=True)
+class MissionReport:
+    """What a fleet run achieved; see the module docstring for each figure's definition."""
+
+    mission: str
+    clock: str  # "wall" (zab sim) or "virtual" (--fast, --speed)
+    duration_s: float
+    channels: dict[str, ChannelFigures]
+    nodes: dict[str, dict[str, Any]]  # each node's NodeCore.snapshot at the end
+    links: list[LinkFigures]
+    frames_sent: int
+    frames_received: int
+    wall_s: float | None = None  # virtual clock: the wall seconds the run took (unrounded)
+    queries: dict[str, Any] | None = field(default=None)  # synthetic gets (--fast)
+
+    @classmethod
+    def build(cls, loaded: LoadedMission, cores: Mapping[str, NodeCore],
+              ages: AgeOfInformation, start: float, end: float,
+              water: Mapping[str, Any] | None = None, *, clock: str = "wall",
+              wall_s: float | None = None) -> MissionReport:
+        """The report of ``cores`` run from ``start`` to ``end`` (their clock); ``water``: the
+        simulated water's ``stats()`` when the run has one."""
+        channels = channel_figures(loaded, cores, ages.summary(end))
+        name = loaded.mission.name_of
+        links = [LinkFigures(f"{name(link['src'])}->{name(link['dst'])}", link["src"],
+                             link["dst"], link["sent"], link["delivered"], dict(link["lost"]))
+                 for link in (water or {}).get("links", ())]
+        return cls(
+            mission=loaded.mission.mission, clock=clock, duration_s=round(end - start, 3),
+            channels=channels, nodes={n: core.snapshot(end) for n, core in cores.items()},
+            links=links,
+            frames_sent=sum(core.stats.frames_sent for core in cores.values()),
+            frames_received=sum(core.stats.frames_received for core in cores.values()),
+            wall_s=wall_s)
+
+    @property
+    def speedup(self) -> float | None:
+        """Virtual seconds per wall second (virtual clock only)."""
+        if self.wall_s is None:
+            return None
+        return round(self.duration_s / self.wall_s, 1) if self.wall_s > 0 else math.inf
+
+    @property
+    def frames_per_wall_s(self) -> float | None:
+        """Frames sent and received per wall second (virtual clock only)."""
+        if self.wall_s is None or self.wall_s <= 0:
+            return None
+        return round((self.frames_sent + self.frames_received) / self.wall_s, 1)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report as JSON-able data (``--report x.json``)."""
+        out: dict[str, Any] = {"mission": self.mission, "clock": self.clock,
+                               "duration_s": self.duration_s}
+        if self.wall_s is not None:
+            out |= {"wall_s": round(self.wall_s, 3), "speedup": self.speedup}
+        out |= {"frames_sent": self.frames_sent, "frames_received": self.frames_received}
+        if self.wall_s is not None:
+            out["frames_per_wall_s"] = self.frames_per_wall_s
+        out["channels"] = {
+            c.name: {"bits": c.bits, "sent": c.sent, "delivered": c.delivered,
+                     "age_of_information": None if c.age is None else
+                     {"mean_s": c.age.mean_s, "max_s": c.age.max_s}}
+            for c in self.channels.values()}
+        out["nodes"] = self.nodes
+        out["links"] = [{"link": link.name, "src": link.src, "dst": link.dst,
+                         "sent": link.sent, "delivered": link.delivered,
+                         "lost": dict(link.lost)} for link in self.links]
+        if self.queries is not None:
+            out["queries"] = self.queries
+        return out
+
+
+def channel_figures(loaded: LoadedMission, cores: Mapping[str, NodeCore],
+                    ages: Mapping[str, Mapping[str, float]] | None = None,
+                    ) -> dict[str, ChannelFigures]:
+    """Each channel's figures so far (``ages``: :meth:`AgeOfInformation.summary`)."""
+    out = {}
+    for c in loaded.table.channels:
+        age = (ages or {}).get(c.name)
+        out[c.name] = ChannelFigures(
+            c.name, c.bits, sum(core.stats.sent_per_channel[c.name] for core in cores.values()),
+            sum(core.stats.received_per_channel[c.name] for core in cores.values()),
+            Age(age["mean_s"], age["max_s"]) if age is not None else None)
+    return out
+
+
+def print_report(console: Console, report: MissionReport) -> None:
+    """The report as text: channels, acoustic links and, on a virtual clock, the pace."""
+    table = Table("channel", "bits", "sent", "delivered", "mean age", "max age",
+                  title=f"{report.mission}: {report.duration_s:.0f} s")
+    for c in report.channels.values():
+        table.add_row(c.name, str(c.bits), str(c.sent), str(c.delivered),
+                      f"{c.age.mean_s:.1f} s" if c.age else "—",
+                      f"{c.age.max_s:.1f} s" if c.age else "—")
+    console.print(table)
+    links = report.links
+    if links:
+        shown = links if len(links) <= LINK_ROWS else worst_links(links, LINK_ROWS - 1)
+        title = "acoustic links" if shown is links else \
+            f"acoustic links: the {len(shown)} worst of {len(links)}"
+        lt = Table("link", "sent", "delivered", "lost", title=title)
+        for link in shown:
+            lt.add_row(link.name, str(link.sent), str(link.delivered), _lost(link.lost))
+        if shown is not links:
+            ids = {id(link) for link in shown}
+            rest = [link for link in links if id(link) not in ids]
+            lost: dict[str, int] = {}
+            for link in rest:
+                for k, v in link.lost.items():
+                    lost[k] = lost.get(k, 0) + v
+            lt.add_row(f"{len(rest)} others", str(sum(link.sent for link in rest)),
+                       str(sum(link.delivered for link in rest)), _lost(lost))
+        console.print(lt)
+    if report.wall_s is not None:
+        console.print(f"{report.duration_s:g} s simulated in {round(report.wall_s, 3):g} s wall "
+                      f"({report.speedup:g}× real time); {report.frames_sent} frames sent, "
+                      f"{report.frames_received} received ({report.frames_per_wall_s:g} "
+                      "frames per wall second)")
+
+
+def worst_links(links: list[LinkFigures], n: int) -> list[LinkFigures]:
+    """The ``n`` links delivering the smallest share of what was sent, in report order."""
+    order = sorted(range(len(links)), key=lambda i: (links[i].ratio, i))[:n]
+    return [links[i] for i in sorted(order)]
+
+
+def _lost(lost: Mapping[str, int]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in lost.items() if v) or "0"
