@@ -1,13 +1,17 @@
 """Latency the bridge adds: put at one node → sample at another, against plain Zenoh.
 
-Both paths are measured in the same run, with the send time (CLOCK_MONOTONIC ns, shared by all
-processes) inside the payload:
+Three paths are measured side by side in one run, each tick putting once on each (in
+rotating order, so load falls on all three alike), with the send time (CLOCK_MONOTONIC ns,
+shared by all processes) inside the payload:
 
-- plain: an application puts on a Zenoh peer in another process, whose subscriber samples it;
-- bridge: an application puts on node ``a``'s endpoint; ``zab sim`` (another process) carries
+- direct: an application puts on a Zenoh peer in another process, whose own subscriber
+  samples it (one Zenoh hop);
+- relayed: an application puts on that peer and another application, a client of the same
+  peer, samples it (two Zenoh hops: the bridged path's Zenoh hops, without the water);
+- bridged: an application puts on node ``a``'s endpoint; ``zab sim`` (another process) carries
   it over the ``udp`` backend with ``mac: none`` to node ``b``; an application at ``b`` samples.
 
-Run: ``uv run python bench/latency_bench.py [--count 500] [--rate 50]``.
+Run: ``uv run python bench/latency_bench.py [--count 2000] [--rate 100]``.
 """
 
 from __future__ import annotations
@@ -66,41 +70,21 @@ class Latencies:
             self.done.set()
 
 
-def subscriber_process(endpoint: str, count: int) -> None:
-    """Child: a plain peer that samples ``count`` values and prints their latencies (µs)."""
+def peer_process(endpoint: str, count: int) -> None:
+    """Child: a plain peer that samples ``count`` direct values, prints their latencies (µs);
+    it also routes the relayed key between its clients."""
     latencies = Latencies(count)
     with zenoh.open(config("peer", [endpoint], [])) as session:
-        session.declare_subscriber("bench/latency", latencies)
+        session.declare_subscriber("bench/direct", latencies)
         print("ready", flush=True)
-        latencies.done.wait(120)
+        latencies.done.wait(300)
+        time.sleep(1.0)  # the relayed values still pass through
     print(json.dumps(latencies.values), flush=True)
 
 
-def send(session: zenoh.Session, key: str, count: int, rate: float) -> None:
-    for _ in range(count):
-        value = {"t": time.monotonic_ns()}
-        session.put(key, msgpack.packb(value), encoding=zenoh.Encoding("application/msgpack"))
-        time.sleep(1 / rate)
-
-
-def plain(count: int, rate: float) -> list[float]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    child = subprocess.Popen([sys.executable, __file__, "--child", endpoint, str(count)],
-                             stdout=subprocess.PIPE, text=True)
-    assert child.stdout is not None
-    assert child.stdout.readline().strip() == "ready"
-    with zenoh.open(config("client", [], [endpoint])) as session:
-        time.sleep(0.5)
-        send(session, "bench/latency", count, rate)
-    out = child.stdout.readline()
-    child.wait(30)
-    return json.loads(out)
-
-
-def bridged(count: int, rate: float) -> list[float]:
-    ports = {n: free_port() for n in "ab"}
-    udp = {n: free_port(socket.SOCK_DGRAM) for n in "ab"}
-    mission = {
+def bridge_mission(ports: dict[str, int], udp: dict[str, int]) -> dict:
+    """Two nodes over UDP, no MAC, one channel carrying the send time."""
+    return {
         "mission": "latency",
         "modem": {"backend": "udp", "frame_bytes": 64},
         "mac": {"type": "none"},
@@ -111,42 +95,69 @@ def bridged(count: int, rate: float) -> list[float]:
         },
         "channels": [{
             "name": "stamp", "from": "a", "to": "b",
-            "elements": [{"in": "bench/latency", "out": "bench/latency",
+            "elements": [{"in": "bench/bridged", "out": "bench/bridged",
                           "fields": [{"field": "t", "type": "int", "min": 0, "max": MAX_NS}]}],
         }],
     }
+
+
+def client(endpoint: str, deadline: float) -> zenoh.Session:
+    """A client session, retried until its peer listens or ``deadline`` passes."""
+    while True:
+        try:
+            return zenoh.open(config("client", [], [endpoint]))
+        except zenoh.ZError:
+            if time.time() > deadline:
+                raise
+            time.sleep(0.2)
+
+
+def measure(count: int, rate: float) -> dict[str, list[float]]:
+    """Latencies (µs) of the direct, relayed and bridged paths, from one interleaved run."""
+    peer = f"tcp/127.0.0.1:{free_port()}"
+    ports = {n: free_port() for n in "ab"}
+    udp = {n: free_port(socket.SOCK_DGRAM) for n in "ab"}
+    child = subprocess.Popen([sys.executable, __file__, "--child", peer, str(count)],
+                             stdout=subprocess.PIPE, text=True)
+    assert child.stdout is not None
+    assert child.stdout.readline().strip() == "ready"
+    relayed, bridged = Latencies(count), Latencies(count)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "latency.yaml"
-        path.write_text(yaml.safe_dump(mission))
+        path.write_text(yaml.safe_dump(bridge_mission(ports, udp)))
         fleet = subprocess.Popen(
             [sys.executable, "-m", "bridge", "sim", str(path), "--no-live"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
-        latencies = Latencies(count)
+        sessions: list[zenoh.Session] = []
         try:
             deadline = time.time() + 20
-            while True:
-                try:
-                    app_a = zenoh.open(config("client", [], [f"tcp/127.0.0.1:{ports['a']}"]))
-                    app_b = zenoh.open(config("client", [], [f"tcp/127.0.0.1:{ports['b']}"]))
-                    break
-                except zenoh.ZError:
-                    if time.time() > deadline:
-                        raise
-                    time.sleep(0.2)
-            try:
-                app_b.declare_subscriber("bench/latency", latencies)
-                time.sleep(0.5)
-                send(app_a, "bench/latency", count, rate)
-                latencies.done.wait(10)
-            finally:
-                app_a.close()
-                app_b.close()
+            sessions = [client(e, deadline) for e in
+                        (peer, peer, f"tcp/127.0.0.1:{ports['a']}",
+                         f"tcp/127.0.0.1:{ports['b']}")]
+            put_peer, get_peer, put_a, get_b = sessions
+            get_peer.declare_subscriber("bench/relayed", relayed)
+            get_b.declare_subscriber("bench/bridged", bridged)
+            time.sleep(1.0)
+            paths = [(put_peer, "bench/direct"), (put_peer, "bench/relayed"),
+                     (put_a, "bench/bridged")]
+            encoding = zenoh.Encoding("application/msgpack")
+            for i in range(count):
+                for session, key in paths[i % 3:] + paths[: i % 3]:
+                    session.put(key, msgpack.packb({"t": time.monotonic_ns()}),
+                                encoding=encoding)
+                time.sleep(1 / rate)
+            relayed.done.wait(10)
+            bridged.done.wait(10)
         finally:
+            for session in sessions:
+                session.close()
             fleet.terminate()
             fleet.wait(20)
-    return latencies.values
+    out = child.stdout.readline()
+    child.wait(30)
+    return {"direct": json.loads(out), "relayed": relayed.values, "bridged": bridged.values}
 
 
 def summary(name: str, values: list[float]) -> tuple[float, float]:
@@ -157,20 +168,21 @@ def summary(name: str, values: list[float]) -> tuple[float, float]:
 
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
-        subscriber_process(sys.argv[2], int(sys.argv[3]))
+        peer_process(sys.argv[2], int(sys.argv[3]))
         return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--count", type=int, default=500)
-    parser.add_argument("--rate", type=float, default=50.0, help="puts per second")
+    parser.add_argument("--count", type=int, default=2000)
+    parser.add_argument("--rate", type=float, default=100.0, help="puts per second per path")
     args = parser.parse_args()
-    base_med, base_p99 = summary("plain", plain(args.count, args.rate))
-    values = bridged(args.count, args.rate)
-    if len(values) < args.count:
-        print(f"bridge delivered {len(values)} of {args.count}")
-    med, p99 = summary("bridge", values)
-    print(f"added by the bridge: median {(med - base_med) / 1000:.2f} ms, "
-          f"p99 {(p99 - base_p99) / 1000:.2f} ms (target ≤ 1 ms at p99); "
-          f"ratio bridge/plain median {med / base_med:.1f}×")
+    runs = measure(args.count, args.rate)
+    figures = {name: summary(name, values) for name, values in runs.items()}
+    if len(runs["bridged"]) < args.count:
+        print(f"bridge delivered {len(runs['bridged'])} of {args.count}")
+    med, p99 = figures["bridged"]
+    for base in ("direct", "relayed"):
+        base_med, base_p99 = figures[base]
+        print(f"added over {base:<8}: median {(med - base_med) / 1000:.2f} ms, "
+              f"p99 {(p99 - base_p99) / 1000:.2f} ms (goal ≤ 0.5 ms at p99)")
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from bridge.errors import BackendError, DecodeError, EncodeError
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
 from bridge.ros2.graph import Ros2Graph
+from bridge.runtime.eager import start_eagerly
 from bridge.runtime.session import close_quietly, is_bridged, open_session, origin_tag
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_queries import QueryBridge
@@ -85,6 +86,7 @@ class BridgeNode:
         self._query_bridge: QueryBridge | None = None
         self._data = asyncio.Event()
         self._modem_up = asyncio.Event()
+        self._sending = False
         self.started = asyncio.Event()
         self.session: zenoh.Session | None = None
         self._ros2: Ros2Graph | None = None
@@ -255,6 +257,7 @@ class BridgeNode:
         self.core.ip_reachable(peer, up, self.clock())
         self._flush()
         self._data.set()  # a dive makes the peer's channels due again
+
     def _steer(self, data: bytes, encoding: str) -> None:
         """This node's nav sample: its heading (and speed) steer the tracker, if it has them."""
         assert self.core.positioning is not None
@@ -281,9 +284,18 @@ class BridgeNode:
                sample_key: str | None = None) -> None:
         """A sample arrived on an input key (``ref``: the publisher's correlation text;
         ``sample_key``: the sample's own key, under a wildcard input key)."""
-        self.core.ingest(key, data, encoding, self.clock(), ref, sample_key)
+        now = self.clock()
+        self.core.ingest(key, data, encoding, now, ref, sample_key)
         self._flush()
-        self._data.set()
+        if self._sending or not self._modem_up.is_set() or not self._open_at(now):
+            self._data.set()  # the transmit loop decides when
+            return
+        start_eagerly(self.transmit())  # an open opportunity: the frame leaves from here
+
+    def _open_at(self, now: float) -> bool:
+        """Whether the MAC has an opportunity open at ``now`` for what is due."""
+        wake = self.core.wake_at(now)
+        return wake is not None and wake <= now
 
     # -- core → modem --------------------------------------------------------------------------
 
@@ -295,8 +307,8 @@ class BridgeNode:
             self._data.clear()
             now = self.clock()
             wake = self.core.wake_at(now)
-            if wake is None or wake > now:
-                await self._wait_for_data(None if wake is None else wake - now)
+            if self._sending or wake is None or wake > now:  # a send in flight sets _data
+                await self._wait_for_data(None if wake is None or self._sending else wake - now)
                 continue
             await self.transmit()
 
@@ -313,10 +325,19 @@ class BridgeNode:
 
     async def transmit(self) -> bool:
         """Carry out the core's action at an open opportunity: send its frame, or ping.
-        Returns whether something went out."""
+        Returns whether something went out. One at a time: the transmit loop and the ingest
+        path both come here."""
         backend = self.backend
-        if backend is None:
+        if backend is None or self._sending:
             return False
+        self._sending = True
+        try:
+            return await self._transmit(backend)
+        finally:
+            self._sending = False
+            self._data.set()  # the transmit loop looks again
+
+    async def _transmit(self, backend: ModemBackend) -> bool:
         self.core.modem_ranging = backend.ranging
         now = self.clock()
         # with a timed modem the emission starts exactly at ``at``, so DLBL delays are exact
