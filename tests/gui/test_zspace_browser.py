@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 from tests.conftest import MISSIONS
+from tests.core.test_surfacing import router
 from tests.gui.test_browser import CHROMIUM, CHROMIUM_ARGS, WAIT_MS, gui_process
-from tests.test_surfacing import router
 from tests.zsim import app as plain_app
 from tests.zsim import mission_file, zab_sim
 

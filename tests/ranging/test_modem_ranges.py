@@ -12,9 +12,9 @@ import yaml
 
 from bridge.ranging import SoundSpeed
 from tests.conftest import MISSIONS, on_free_ports
-from tests.evologics import test_end_to_end as evologics_e2e
 from tests.harness import Inbox, outside_session, put, running_fleet
-from tests.micromodem import test_end_to_end as micromodem_e2e
+from tests.modems.evologics import test_end_to_end as evologics_e2e
+from tests.modems.micromodem import test_end_to_end as micromodem_e2e
 
 
 def collect(inbox: Inbox, want: set[str], seconds: float,

@@ -15,7 +15,7 @@ from bridge.mission.loader import parse_mission
 from bridge.wire.frame import NO_DELAY, FrameCodec, check_value
 from tests.conftest import MISSIONS
 
-# The plain frame format (tests/test_auth.py: the authenticated one morph.yaml ships with).
+# The plain frame format (tests/wire/test_auth.py: the authenticated one morph.yaml ships with).
 MORPH_TEXT = (MISSIONS / "morph.yaml").read_text().replace("auth: {tag_bytes: 4}", "auth: off")
 MORPH = parse_mission(MORPH_TEXT, "morph.yaml")
 CODEC = FrameCodec(MORPH.table)

@@ -2,7 +2,7 @@
 
 Each node's bridge opens its emulator's pty with the real driver; the emulators share one
 simulated water. The Listing-1 value crosses exactly as it does over ``sim``
-(tests/test_end_to_end.py), in a faster TDMA.
+(tests/runtime/test_end_to_end.py), in a faster TDMA.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from bridge.modems.evologics.emulator import run_emulator
 from bridge.sim.ocean import LossCurve
 from bridge.sim.service import WaterService
 from tests.conftest import MISSIONS, on_free_ports
-from tests.evologics.test_driver import FAST
 from tests.harness import listing1_crosses_in_the_next_slot, running_fleet
+from tests.modems.evologics.test_driver import FAST
 
 SLOT_S, GUARD_S = 0.5, 0.1
 

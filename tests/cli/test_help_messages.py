@@ -11,7 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from bridge.cli.app import app
-from tests.test_mission_file import GOOD, error_of
+from tests.mission.test_mission_file import GOOD, error_of
 
 COMMANDS = ["check", "schema", "run", "water", "emulate", "sim", "demo", "gui", "doctor",
             "listen", "put", "log summary", "log replay"]
@@ -56,7 +56,7 @@ def test_sim_log_help_is_not_cut() -> None:
 
 
 def test_readme_lists_every_command() -> None:
-    readme = (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")
+    readme = (Path(__file__).parents[2] / "README.md").read_text(encoding="utf-8")
     for command in COMMANDS:
         assert f"zab {command}" in readme, command
 

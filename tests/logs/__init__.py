@@ -1,1 +1,0 @@
-"""Tests of issue #9: logs."""
