@@ -13,8 +13,9 @@ from bridge.mission.loader import LoadedMission
 from bridge.modems.setup import backend_factory
 from bridge.report.age import AgeOfInformation
 from bridge.runtime.state_file import StateFile
+from bridge.runtime.surface_wifi import SurfaceWifi
 from bridge.runtime.zenoh_node import BridgeNode
-from bridge.sim.scenario import water_of
+from bridge.sim.scenario import surface_script, water_of
 from bridge.sim.service import WaterService
 from bridge.wire.auth import key_for_run
 
@@ -113,6 +114,10 @@ class Fleet:
                 first = next((e for e in ended if isinstance(e, BaseException)), None)
                 raise first or RuntimeError("a bridge node stopped while starting")
             self.started = time.time()
+            if self.water is not None and self.water.started_at is not None and (
+                    script := surface_script(self.loaded, self.water.started_at)) is not None:
+                wifi = SurfaceWifi(self.loaded.mission, script, self._surfaced)
+                tasks.append(asyncio.create_task(wifi.run(node_stop), name="surface-wifi"))
             self.ready.set()
             while not stop.is_set():
                 with contextlib.suppress(TimeoutError):
@@ -128,6 +133,13 @@ class Fleet:
                 await self.water.stop()
             if scratch is not None:
                 scratch.cleanup()
+
+    def _surfaced(self, a: str, b: str, up: bool) -> None:
+        """The scripted surfacing joined ``a`` and ``b`` over IP (``up``) or parted them."""
+        if self.on_event is not None:
+            for node, peer in ((a, b), (b, a)):
+                self.on_event(node, "surface_wifi", {"time": time.time(), "peer": peer,
+                                                     "ip": up})
 
     def report(self) -> dict[str, Any]:
         """Per channel: values sent/delivered and age; per link: frames sent/lost/collided."""
