@@ -5,6 +5,7 @@ intact and without a burst."""
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections.abc import Callable
@@ -14,6 +15,7 @@ import msgpack
 import yaml
 import zenoh
 
+from bridge.cli.sim_fast import run_fast
 from bridge.core.surfacing import Relay
 from bridge.mission.loader import parse_mission
 from bridge.mission.path import Path
@@ -86,6 +88,12 @@ def test_a_scripted_surfacing_stops_acoustic_carrying_and_the_dive_resumes_it() 
     assert len([t for t, _ in f.published("top", "auv1/alarm") if t > 30.1]) == 1
     switches = f.cores["top"].surfacing.switches
     assert [(s["peer"], s["ip"]) for s in switches] == [("auv1", True), ("auv1", False)]
+
+
+def test_zab_sim_fast_reports_the_scripted_surfacing() -> None:
+    out = asyncio.run(run_fast(mission(), duration=60.0, seed=1))
+    assert [(s["peer"], s["ip"], round(s["time"], 1)) for s in out["surfacing"]["auv1"]] == [
+        ("top", True, 9.9), ("top", False, 30.1)]
 
 
 def token_seen(session: zenoh.Session, node: str) -> bool:

@@ -245,6 +245,9 @@ async def run_fast(
     out = report(fleet, time.perf_counter() - started, fleet.now, ages)
     if fleet.loaded.table.queries:
         out["queries"] = query_summary(gets)
+    if fleet.surface is not None:  # the scripted surfacings, as the vehicles saw them
+        out["surfacing"] = {n: core.surfacing.switches for n, core in fleet.cores.items()
+                            if core.surfacing is not None and n in fleet.surface.windows}
     return out
 
 
