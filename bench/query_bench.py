@@ -8,7 +8,12 @@ query rides on a poll, the answer on the reply to it). Printed per MAC: the roun
 the ``get`` to its answer (in seconds and in slots / poll gaps), against the deadline
 ``zab check`` derives from the MAC (the query ends with an error there).
 
-Run: ``uv run python bench/query_bench.py [--queries 200] [--json]``.
+Under loss (``--loss``, frame loss shares, default 0, 0.2 and 0.4, all in one run): the share of
+gets answered completely within the deadline and their round trip, with requests repeated
+until every reply arrived against the baseline measured in the same run (each request sent
+once, ``Queries.repeats`` false).
+
+Run: ``uv run python bench/query_bench.py [--queries 200] [--loss 0,0.2,0.4] [--json]``.
 """
 
 from __future__ import annotations
@@ -36,8 +41,12 @@ def mission(mac: dict[str, Any] | None) -> LoadedMission:
     return parse_mission(yaml.safe_dump(data, sort_keys=False), "zspace.yaml")
 
 
-def run(loaded: LoadedMission, queries: int, unit_s: float) -> dict[str, Any]:
-    fleet = FastFleet(loaded, seed=SEED)
+def run(loaded: LoadedMission, queries: int, unit_s: float, loss: float = 0.0,
+        repeats: bool = True) -> dict[str, Any]:
+    fleet = FastFleet(loaded, seed=SEED, loss=loss)
+    for core in fleet.cores.values():
+        if core.queries is not None:
+            core.queries.repeats = repeats
     for auv in ("auv1", "auv2"):
         fleet.queries.queryable(auv, f"{auv}/info", lambda p: [
             {"depth_m": 10.0, "state": "survey", "detail": int(p.get("detail", 0))}])
@@ -57,34 +66,53 @@ def run(loaded: LoadedMission, queries: int, unit_s: float) -> dict[str, Any]:
             trips.append(result.replies[-1][2] - result.asked_at)
         else:
             errors += 1
+    top = fleet.cores["top"].queries
     return {"queries": queries, "answered": len(trips), "errors": errors,
+            "success": round(len(trips) / queries, 3),
             "mean_s": round(statistics.fmean(trips), 3), "p95_s": round(
                 statistics.quantiles(trips, n=20)[-1], 3), "max_s": round(max(trips), 3),
             "unit_s": unit_s, "mean_units": round(statistics.fmean(trips) / unit_s, 2),
             "max_units": round(max(trips) / unit_s, 2), "bound_s": bound,
-            "bound_units": round(bound / unit_s, 2)}
+            "bound_units": round(bound / unit_s, 2),
+            "repeated": top.repeated if top is not None else 0}
+
+
+MACS: dict[str, tuple[dict[str, Any] | None, float]] = {
+    "tdma": (None, 1.0), "polled": ({"type": "polled", "master": "top", "ipg_s": 1.5}, 1.5)}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--queries", type=int, default=200)
+    parser.add_argument("--loss", default="0,0.2,0.4",
+                        help="frame loss shares to run, comma separated")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
-    out = {"tdma": run(mission(None), args.queries, 1.0),
-           "polled": run(mission({"type": "polled", "master": "top", "ipg_s": 1.5}),
-                         args.queries, 1.5)}
+    losses = [float(x) for x in args.loss.split(",") if x.strip()]
+    out: dict[str, Any] = {}
+    for mac, (spec, unit) in MACS.items():
+        loaded = mission(spec)
+        for loss in losses:
+            out[f"{mac}@{loss:g}"] = {
+                "once": run(loaded, args.queries, unit, loss, repeats=False),
+                "repeated": run(loaded, args.queries, unit, loss, repeats=True)}
     if args.json:
         print(json.dumps(out, indent=2))
         return
-    print(f"query round trip, {args.queries} gets at the surface, seed {SEED}")
-    print(f"{'mac':<8} {'answered':>9} {'errors':>7} {'mean s':>7} {'p95 s':>6} {'max s':>6} "
-          f"{'mean slots':>11} {'max slots':>10} {'bound s':>8} {'bound slots':>12}")
-    for mac, r in out.items():
-        print(f"{mac:<8} {r['answered']:>9} {r['errors']:>7} {r['mean_s']:>7} {r['p95_s']:>6} "
-              f"{r['max_s']:>6} {r['mean_units']:>11} {r['max_units']:>10} {r['bound_s']:>8} "
-              f"{r['bound_units']:>12}")
+    print(f"query round trip, {args.queries} gets at the surface, seed {SEED}; "
+          "once = each request sent once (baseline), repeated = until every reply arrived")
+    print(f"{'mac':<8} {'loss':>5} {'mode':<9} {'success':>8} {'mean s':>7} {'p95 s':>6} "
+          f"{'max s':>6} {'mean slots':>11} {'max slots':>10} {'bound slots':>12} "
+          f"{'repeats':>8}")
+    for name, pair in out.items():
+        mac, loss = name.split("@")
+        for mode, r in pair.items():
+            print(f"{mac:<8} {float(loss):>5.0%} {mode:<9} {r['success']:>8.1%} "
+                  f"{r['mean_s']:>7} {r['p95_s']:>6} {r['max_s']:>6} {r['mean_units']:>11} "
+                  f"{r['max_units']:>10} {r['bound_units']:>12} {r['repeated']:>8}")
+        ratio = pair["repeated"]["success"] / pair["once"]["success"]
+        print(f"{'':<8} {'':>5} {'ratio':<9} {ratio:>7.2f}x")
     print("slots: TDMA slot_s (1 s; cycle 3 slots) or the polled ipg_s (1.5 s; cycle 2 polls)")
-
 
 if __name__ == "__main__":
     main()

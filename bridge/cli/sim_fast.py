@@ -215,6 +215,10 @@ async def run_fast(
                                  clock="virtual", wall_s=time.perf_counter() - started)
     if fleet.loaded.table.queries:
         report = replace(report, queries=query_summary(gets))
+    if fleet.surface is not None:  # the scripted surfacings, as the vehicles saw them
+        report = replace(report, surfacing={
+            n: core.surfacing.switches for n, core in fleet.cores.items()
+            if core.surfacing is not None and n in fleet.surface.windows})
     return report
 
 

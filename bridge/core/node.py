@@ -711,7 +711,7 @@ class NodeCore:
         elif isinstance(channel, QueryCodec):
             if self.queries is not None:
                 handle = self.queries.on_reply if channel.reply else self.queries.on_request
-                handle(src, channel, entry.header, entry.values)
+                handle(src, channel, entry.header, entry.values, now)
         else:
             return False
         return True

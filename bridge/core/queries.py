@@ -11,7 +11,15 @@ for a request and its reply, see :func:`deadline_s`).
 
 Serving side: a request becomes a :class:`LocalGet` for the runtime, which runs the local Zenoh
 ``get`` and calls :meth:`Queries.served` with the replies (at most ``max_replies``); they go
-back in reply entries, the last one marked, in the next frames the MAC allows.
+back in reply entries, each with its index and the last one marked, in the next frames the MAC
+allows.
+
+Under loss: the asker repeats the request at each later opportunity (once a reply could have
+come back, :func:`retry_s`) until it holds every reply or the deadline passes; replies are
+handed on once each, in the server's order. The server answers a repeated request from the
+replies it kept (:class:`Answered`, at most ``answers_kept``, each for one deadline)
+without running its local get again. Query ids rotate and cool for a deadline before reuse, so
+a kept answer never meets a newer query.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ from bridge.wire.channels import ChannelTable
 from bridge.wire.queries import QID_BITS, QueryCodec, QuerySpec, ReplyStatus
 
 LOCAL_GET_S = 1.0  # time the serving bridge allows its local get, within the deadline
+ANSWERS_KEPT = 32  # answers a serving node keeps for repeated requests (oldest go first)
 UNBOUNDED_TURN_S = 30.0  # a node's wait for a turn when the MAC gives no bound
 
 Ticket = tuple[int, str, int]  # (query index, serving node, query id) at the asking node
@@ -79,20 +88,47 @@ def deadline_s(mission: Mission, spec: QuerySpec, asker: str, server: str) -> fl
     return round(total, 3)
 
 
+def retry_s(mission: Mission, asker: str, server: str) -> float:
+    """How long after sending a request the asker waits before repeating it: the earliest a
+    reply could be back (its frame and the server's)."""
+    return round(sum(frame_time_s(mission, n) or 0.0 for n in (asker, server)), 3)
+
+
 @dataclass
 class Open:
-    """A query open at the asking node."""
+    """A query open at the asking node: its request, when it last went out, the replies."""
 
     ticket: Ticket
     key: str
     packed: int
     deadline: float
-    sent: bool = False
+    retry_s: float
+    sent_at: float | None = None
+    released: int = 0  # replies handed on, in index order
+    held: dict[int, Any] = field(default_factory=dict)  # arrived ahead of a missing one
+    count: int | None = None  # known once the last reply (or "done") arrived
+
+    def due_at(self) -> float | None:
+        """When the request is next due: now if never sent, else once a reply is late."""
+        if self.sent_at is None:
+            return float("-inf")
+        return self.sent_at + self.retry_s
+
+
+@dataclass
+class Answered:
+    """A request served here, kept for its repeats: the reply entries (None while the local
+    get runs) until ``expires``."""
+
+    request: dict[str, Any]
+    expires: float
+    replies: tuple[int, ...] | None = None
 
 
 @dataclass
 class Queries:
-    """The queries of one node, asking and serving."""
+    """The queries of one node, asking and serving. ``repeats`` false: each request goes
+    once (the behaviour before repeats; benches compare against it)."""
 
     mission: Mission
     table: ChannelTable
@@ -105,13 +141,19 @@ class Queries:
     answered: int = 0
     failed: int = 0
     cached: int = 0
+    repeated: int = 0  # requests sent again
+    duplicates: int = 0  # replies or requests heard again (dropped, or served from answers)
     cache: dict[str, tuple[Any, str, float]] = field(default_factory=dict)
+    answers: dict[Served, Answered] = field(default_factory=dict)
+    repeats: bool = True
+    answers_kept: int = ANSWERS_KEPT
 
     def __post_init__(self) -> None:
         codecs = self.table.query_codecs
         self.requests = {c.spec.index: c for c in codecs if not c.reply}
         self.reply_codecs = {c.spec.index: c for c in codecs if c.reply}
-        self._qid = 0
+        self._qid = -1  # the last query id used
+        self._cooling: dict[int, float] = {}  # query id -> when it may be used again
 
     def spec_for(self, key: str) -> tuple[QuerySpec, str] | None:
         """The query asked by a get on concrete ``key`` here, and its server."""
@@ -156,19 +198,30 @@ class Queries:
             self.failed += 1
             return (f"{self.node}: {self.mission.max_open_queries} acoustic queries already "
                     "open (max_open_queries)")
-        used = {t[2] for t in self.open}
-        qid = next(q for q in range(1 << QID_BITS) if q not in used)
-        ticket = (spec.index, server, qid)
+        ticket = (spec.index, server, self._next_qid(now))
         self.open[ticket] = Open(ticket, spec.asked_key(server), packed,
-                                 now + deadline_s(self.mission, spec, self.node, server))
+                                 now + deadline_s(self.mission, spec, self.node, server),
+                                 retry_s(self.mission, self.node, server))
         self.asked += 1
         return ticket
 
+    def _next_qid(self, now: float) -> int:
+        """The next query id in turn that is neither open nor cooling (else the next one not
+        open: more queries than ids in one deadline)."""
+        used = {t[2] for t in self.open}
+        turn = [(self._qid + k) % (1 << QID_BITS) for k in range(1, (1 << QID_BITS) + 1)]
+        free = [q for q in turn if q not in used]
+        qid = next((q for q in free if self._cooling.get(q, now) <= now), free[0])
+        self._cooling.pop(qid, None)
+        self._qid = qid
+        return qid
+
     def candidates(self, now: float) -> list[Candidate]:
-        """Requests not sent yet and replies owed."""
+        """Requests due (new, or repeated while replies are missing) and replies owed."""
         out: list[Candidate] = []
         for item in self.open.values():
-            if not item.sent:
+            due = item.due_at()
+            if due is not None and (item.sent_at is None or self.repeats) and due <= now:
                 codec = self.requests[item.ticket[0]]
                 server = self.table.nodes.index(item.ticket[1])
                 bits = codec.pack(item.ticket[2], server, item.packed)
@@ -181,7 +234,9 @@ class Queries:
 
     def _marker(self, item: Open) -> Callable[[float], None]:
         def sent(built: float) -> None:
-            item.sent = True
+            if item.sent_at is not None:
+                self.repeated += 1
+            item.sent_at = built
         return sent
 
     def _unqueue(self, served: Served, bits: int) -> Callable[[float], None]:
@@ -190,13 +245,14 @@ class Queries:
         return sent
 
     def next_due(self) -> float | None:
-        if self.replies or any(not item.sent for item in self.open.values()):
+        if self.replies:
             return float("-inf")
-        return None
+        return min((t for item in self.open.values() if (t := item.due_at()) is not None
+                    and (self.repeats or item.sent_at is None)), default=None)
 
     def on_reply(self, src: str, codec: QueryCodec, header: tuple[int, ...],
-                 values: list[dict] | None) -> None:
-        qid, asker, status = header
+                 values: list[dict] | None, now: float) -> None:
+        qid, asker, status, index = header
         if self.table.nodes[asker] != self.node:
             return  # a reply to somebody else
         ticket = (codec.spec.index, src, qid)
@@ -204,28 +260,55 @@ class Queries:
         if item is None:
             self.dropped["late_reply"] += 1
             return
-        if values is not None:
-            self.outputs.append(QueryAnswer(ticket, item.key, values[0], codec.spec.encoding))
         if status == ReplyStatus.FAILED:
             self._end(ticket, f"{src}: the serving node's get failed or gave no usable reply")
-        elif status in (ReplyStatus.LAST, ReplyStatus.DONE):
+            return
+        if status == ReplyStatus.DONE:
+            item.count = 0
+        elif index < item.released or index in item.held:
+            self.duplicates += 1
+            return
+        else:
+            if values is not None:
+                item.held[index] = values[0]
+            if status == ReplyStatus.LAST:
+                item.count = index + 1
+        self._release(item, codec.spec.encoding)
+        if item.count is not None and item.released >= item.count:
             self.answered += 1
             self._end(ticket, None)
 
+    def _release(self, item: Open, encoding: str, flush: bool = False) -> None:
+        """Hand on the replies next in order (``flush``: also those after a missing one)."""
+        while item.held and (flush or item.released in item.held):
+            index = item.released if item.released in item.held else min(item.held)
+            self.outputs.append(QueryAnswer(item.ticket, item.key, item.held.pop(index),
+                                            encoding))
+            item.released = index + 1
+
     def _end(self, ticket: Ticket, error: str | None) -> None:
-        self.open.pop(ticket, None)
+        item = self.open.pop(ticket, None)
+        if item is not None:
+            if item.held:
+                self._release(item, self.table.queries[ticket[0]].encoding, flush=True)
+            spec = self.table.queries[ticket[0]]  # the server keeps its answer that long:
+            self._cooling[ticket[2]] = item.deadline + deadline_s(
+                self.mission, spec, self.node, ticket[1])
         if error is not None:
             self.failed += 1
         self.outputs.append(QueryEnd(ticket, error))
 
     def expire(self, now: float) -> None:
-        """End the queries whose deadline passed."""
+        """End the queries whose deadline passed; forget answers kept past theirs."""
         for ticket, item in list(self.open.items()):
             if now >= item.deadline:
                 spec = self.table.queries[ticket[0]]
                 self._end(ticket, f"{ticket[1]}: no reply to query {spec.name!r} within "
                           f"{deadline_s(self.mission, spec, self.node, ticket[1]):g} s "
                           + ("(its timeout_s)" if spec.timeout_s else "(the MAC's bound)"))
+        for served, answered in list(self.answers.items()):
+            if now >= answered.expires:
+                del self.answers[served]
 
     def next_deadline(self) -> float | None:
         return min((item.deadline for item in self.open.values()), default=None)
@@ -233,13 +316,25 @@ class Queries:
     # -- serving -----------------------------------------------------------------------------
 
     def on_request(self, src: str, codec: QueryCodec, header: tuple[int, ...],
-                   values: list[dict] | None) -> None:
-        qid, server, _ = header
+                   values: list[dict] | None, now: float) -> None:
+        qid, server = header[:2]
         spec = codec.spec
         if self.table.nodes[server] != self.node or src not in spec.askers:
             return
-        self.outputs.append(LocalGet((spec.index, src, qid), spec.served_key(self.node),
-                                     values[0] if values else {}, LOCAL_GET_S))
+        ticket = (spec.index, src, qid)
+        request = values[0] if values else {}
+        kept = self.answers.get(ticket)
+        if kept is not None and kept.request == request and now < kept.expires:
+            self.duplicates += 1
+            if kept.replies is not None:  # answer again from what the get gave
+                self._queue(ticket, kept.replies)
+            return  # else the local get still runs: its replies will go out
+        self.answers.pop(ticket, None)
+        while len(self.answers) >= self.answers_kept:
+            del self.answers[next(iter(self.answers))]
+        self.answers[ticket] = Answered(
+            request, now + deadline_s(self.mission, spec, src, self.node))
+        self.outputs.append(LocalGet(ticket, spec.served_key(self.node), request, LOCAL_GET_S))
 
     def served(self, ticket: Served, values: list[Any], error: str | None) -> None:
         """The local get of ``ticket`` ended with ``values`` (or failed with ``error``)."""
@@ -253,16 +348,23 @@ class Queries:
             except (EncodeError, TypeError, ValueError, KeyError):
                 self.dropped[f"{spec.name}:reply"] += 1
         if error is not None or (values and not packed):
-            self.replies.append((codec, codec.pack(ticket[2], asker, 0, ReplyStatus.FAILED),
-                                 ticket))
-            return
-        if not packed:
-            self.replies.append((codec, codec.pack(ticket[2], asker, 0, ReplyStatus.DONE),
-                                 ticket))
-            return
-        for i, bits in enumerate(packed):
-            status = ReplyStatus.LAST if i == len(packed) - 1 else ReplyStatus.VALUE
-            self.replies.append((codec, codec.pack(ticket[2], asker, bits, status), ticket))
+            entries = [codec.pack(ticket[2], asker, 0, ReplyStatus.FAILED)]
+        elif not packed:
+            entries = [codec.pack(ticket[2], asker, 0, ReplyStatus.DONE)]
+        else:
+            entries = [codec.pack(ticket[2], asker, bits, ReplyStatus.LAST
+                                  if i == len(packed) - 1 else ReplyStatus.VALUE, i)
+                       for i, bits in enumerate(packed)]
+        if (kept := self.answers.get(ticket)) is not None:
+            kept.replies = tuple(entries)
+        self._queue(ticket, entries)
+
+    def _queue(self, ticket: Served, entries: tuple[int, ...] | list[int]) -> None:
+        """Owe the asker ``entries`` (once each: a queued one is not queued twice)."""
+        codec = self.reply_codecs[ticket[0]]
+        for bits in entries:
+            if not any(r[2] == ticket and r[1] == bits for r in self.replies):
+                self.replies.append((codec, bits, ticket))
 
     def remember(self, key: str, value: Any, encoding: str, now: float) -> None:
         """A latched channel's value this node published on ``key``."""
@@ -276,5 +378,6 @@ class Queries:
         return {"open": [{"query": self.table.queries[t[0]].name, "server": t[1],
                           "deadline": item.deadline} for t, item in self.open.items()],
                 "asked": self.asked, "answered": self.answered, "failed": self.failed,
-                "cached": self.cached,
+                "cached": self.cached, "repeated": self.repeated,
+                "duplicates": self.duplicates, "answers_kept": len(self.answers),
                 "dropped": dict(self.dropped), "replies_owed": len(self.replies)}

@@ -89,6 +89,8 @@ class MissionReport:
     frames_received: int
     wall_s: float | None = None  # virtual clock: the wall seconds the run took (unrounded)
     queries: dict[str, Any] | None = field(default=None)  # synthetic gets (--fast)
+    surfacing: dict[str, list[dict[str, Any]]] | None = field(default=None)
+    """Scripted surfacings (--fast): per vehicle, its switches to IP and back."""
 
     @classmethod
     def build(cls, loaded: LoadedMission, cores: Mapping[str, NodeCore],
@@ -144,6 +146,8 @@ class MissionReport:
                          "lost": dict(link.lost)} for link in self.links]
         if self.queries is not None:
             out["queries"] = self.queries
+        if self.surfacing is not None:
+            out["surfacing"] = self.surfacing
         return out
 
 

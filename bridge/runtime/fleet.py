@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import tempfile
 import time
 from collections.abc import Callable, Collection
@@ -15,10 +16,13 @@ from bridge.modems.setup import backend_factory
 from bridge.report.age import AgeOfInformation
 from bridge.report.model import MissionReport
 from bridge.runtime.state_file import StateFile
+from bridge.runtime.surface_wifi import SurfaceWifi
 from bridge.runtime.zenoh_node import BridgeNode
-from bridge.sim.scenario import water_of
+from bridge.sim.scenario import surface_script, water_of
 from bridge.sim.service import WaterService
 from bridge.wire.auth import key_for_run
+
+log = logging.getLogger("zab.fleet")
 
 WATCH_S = 0.25  # how often a node that failed while running is noticed
 
@@ -116,6 +120,10 @@ class Fleet:
                 first = next((e for e in ended if isinstance(e, BaseException)), None)
                 raise first or RuntimeError("a bridge node stopped while starting")
             self.started = time.time()
+            if self.water is not None and self.water.started_at is not None and (
+                    script := surface_script(self.loaded, self.water.started_at)) is not None:
+                wifi = SurfaceWifi(self.loaded.mission, script, self._surfaced)
+                tasks.append(asyncio.create_task(wifi.run(node_stop), name="surface-wifi"))
             self.ready.set()
             while not stop.is_set():
                 with contextlib.suppress(TimeoutError):
@@ -132,6 +140,11 @@ class Fleet:
                 await self.water.stop()
             if scratch is not None:
                 scratch.cleanup()
+
+    def _surfaced(self, a: str, b: str, up: bool) -> None:
+        """The scripted surfacing joined ``a`` and ``b`` over IP (``up``) or parted them (the
+        bridges then see it themselves: :class:`~bridge.core.events.Surfaced`)."""
+        log.info("surface WiFi: %s and %s %s", a, b, "joined" if up else "parted")
 
     def report(self) -> MissionReport:
         """The run's report (:mod:`bridge.report.model`), up to its stop (or now)."""

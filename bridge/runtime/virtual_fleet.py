@@ -33,7 +33,7 @@ from bridge.modems.base import Reception
 from bridge.modems.presets import Preset
 from bridge.runtime.virtual_queries import VirtualQueries
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
-from bridge.sim.scenario import water_of
+from bridge.sim.scenario import surface_script, water_of
 from bridge.wire.auth import key_for_run
 from bridge.wire.frame import DecodedFrame
 from bridge.wire.payloads import encode_payload
@@ -144,6 +144,10 @@ class FastFleet:
             self._interest(name)
             self._plan(name)
         self._next_tick = start
+        self.surface = surface_script(loaded, start)  # scripted surfacings, from the paths
+        self._ip: set[tuple[str, str]] = set()
+        if self.surface is not None:
+            self.call_at(start, self._surface_step)
 
     # -- scheduling application behaviour --------------------------------------------------------
 
@@ -196,6 +200,19 @@ class FastFleet:
         for x, y in ((a, b), (b, a)):
             self.cores[x].ip_reachable(y, up, self.now)
             self.collect_and_replan(x)
+
+    def _surface_step(self) -> None:
+        """Put the pairs the scripted surfacings join on the IP link, take the others off,
+        and come back at the next surfacing or dive."""
+        assert self.surface is not None
+        now = self.surface.ip_pairs(self.now)
+        for a, b in sorted(self._ip - now):
+            self.ip_link(a, b, False)
+        for a, b in sorted(now - self._ip):
+            self.ip_link(a, b, True)
+        self._ip = now
+        if (at := self.surface.next_any(self.now)) is not None:
+            self.call_at(at, self._surface_step)
 
     def collect_and_replan(self, node: str) -> None:
         """Carry out ``node``'s outputs and plan its next transmission again."""

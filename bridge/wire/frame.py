@@ -238,12 +238,14 @@ class FrameCodec:
     def _entry(self, channel: ChannelCodec | AckCodec | NameCodec, payload: int) -> Entry:
         """One entry's fields, checked; raises :class:`DecodeError` when malformed."""
         if isinstance(channel, QueryCodec):
-            qid, node, status, packed = channel.unpack(payload)
+            qid, node, status, index, packed = channel.unpack(payload)
             if node >= len(self.table.nodes):
                 raise DecodeError(f"names unknown node {node}")
+            if index >= channel.spec.max_replies:
+                raise DecodeError(f"reply index {index} beyond max_replies")
             carries = not channel.reply or status <= ReplyStatus.LAST
             return Entry(channel, [channel.layout.unpack(packed)] if carries else None,  # type: ignore
-                         (qid, node, status))
+                         (qid, node, status, index))
         if isinstance(channel, InterestCodec):
             return Entry(channel, header=tuple(sorted(channel.unpack(payload))))  # type: ignore
         if isinstance(channel, NameCodec):

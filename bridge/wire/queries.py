@@ -3,7 +3,9 @@
 Request ``?<name>``: query id (4 bits, per asking node) + the serving node (its place in the
 mission, ⌈log2 N⌉ bits) + the request fields. Reply ``!<name>``: query id + the asking node +
 status (2 bits: 0 a reply, 1 the last reply, 2 done without a reply, 3 failed at the server) +
-the reply fields (zero when the status carries none). Both may repeat in a frame.
+the reply's index (⌈log2 max_replies⌉ bits: the last reply's index tells the count) + the reply
+fields (zero when the status carries none). Both may repeat in a frame. An asker repeats a
+request until every reply arrived; the index lets it drop duplicates and see what is missing.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from bridge.mission.model import Mission, Query
 
 QID_BITS = 4
 STATUS_BITS = 2
+QUERY_WIRE = 2  # 2: replies carry their index (in the fingerprint: older nodes refuse them)
 QUERY_PRIORITY = 1 << 19  # requests and replies go before ordinary channels
 
 
@@ -50,10 +53,16 @@ class QuerySpec:
     def served_key(self, server: str) -> str:
         return self.local_key.format(node=server)
 
+    @property
+    def index_bits(self) -> int:
+        """Bits of a reply's index: enough for ``max_replies`` (none for a single reply)."""
+        return (self.max_replies - 1).bit_length()
+
     def describe(self) -> list[object]:
         return [self.name, list(self.servers), list(self.askers),
                 [f"{f.path}:{f.describe()}" for f in self.request.fields],
-                [f"{f.path}:{f.describe()}" for f in self.reply.fields], self.max_replies]
+                [f"{f.path}:{f.describe()}" for f in self.reply.fields], self.max_replies,
+                QUERY_WIRE]
 
 
 @dataclass(frozen=True)
@@ -76,23 +85,30 @@ class QueryCodec:
         return self.spec.reply if self.reply else self.spec.request
 
     @property
-    def wire_bits(self) -> int:
-        return QID_BITS + self.node_bits + (STATUS_BITS if self.reply else 0) + self.layout.bits
+    def index_bits(self) -> int:
+        return self.spec.index_bits if self.reply else 0
 
-    def pack(self, qid: int, node: int, packed: int, status: int = 0) -> int:
+    @property
+    def wire_bits(self) -> int:
+        return (QID_BITS + self.node_bits + (STATUS_BITS if self.reply else 0)
+                + self.index_bits + self.layout.bits)
+
+    def pack(self, qid: int, node: int, packed: int, status: int = 0, index: int = 0) -> int:
         n = (qid << self.node_bits) | node
         if self.reply:
-            n = (n << STATUS_BITS) | status
+            n = (((n << STATUS_BITS) | status) << self.index_bits) | index
         return (n << self.layout.bits) | packed
 
-    def unpack(self, n: int) -> tuple[int, int, int, int]:
-        """``(qid, node, status, packed fields)``; status is 0 for a request."""
+    def unpack(self, n: int) -> tuple[int, int, int, int, int]:
+        """``(qid, node, status, index, packed fields)``; status and index are 0 for a
+        request."""
         packed = n & ((1 << self.layout.bits) - 1)
         n >>= self.layout.bits
-        status = 0
+        status = index = 0
         if self.reply:
+            index, n = n & ((1 << self.index_bits) - 1), n >> self.index_bits
             status, n = n & ((1 << STATUS_BITS) - 1), n >> STATUS_BITS
-        return n >> self.node_bits, n & ((1 << self.node_bits) - 1), status, packed
+        return n >> self.node_bits, n & ((1 << self.node_bits) - 1), status, index, packed
 
 
 Match = Callable[[str | Sequence[str], Sequence[str]], tuple[str, ...]]

@@ -105,11 +105,17 @@ def test_request_and_reply_entries_and_mission_errors() -> None:
     loaded = load_mission(ZSPACE)
     codec = FrameCodec(loaded.table)
     request, reply = loaded.table.query_codecs
-    assert request.wire_bits == 4 + 2 + 2 and reply.wire_bits == 4 + 2 + 2 + reply.layout.bits
-    data = codec.encode([(request, request.pack(5, 1, 2)), (reply, reply.pack(3, 0, 0, 2))])
-    first, second = codec.decode(data).entries
-    assert first.header == (5, 1, 0) and first.values == [{"detail": 2}]
-    assert second.header == (3, 0, 2) and second.values is None
+    # reply: query id 4 + node 2 + status 2 + index 1 (max_replies 2) + the fields
+    assert request.wire_bits == 4 + 2 + 2
+    assert reply.wire_bits == 4 + 2 + 2 + 1 + reply.layout.bits
+    data = codec.encode([(request, request.pack(5, 1, 2)), (reply, reply.pack(3, 0, 0, 2)),
+                         (reply, reply.pack(3, 0, reply.layout.pack(
+                             {"depth_m": 4.5, "state": "idle", "detail": 1}), 1, 1))])
+    first, second, third = codec.decode(data).entries
+    assert first.header == (5, 1, 0, 0) and first.values == [{"detail": 2}]
+    assert second.header == (3, 0, 2, 0) and second.values is None
+    assert third.header == (3, 0, 1, 1) and third.values == [
+        {"depth_m": 4.5, "state": "idle", "detail": 1}]
     text = yaml.safe_load(ZSPACE.read_text())
     text["queries"][0]["key"] = "info"
     with pytest.raises(MissionError, match=r"queries\[0\]\.key.*\{node\}"):
