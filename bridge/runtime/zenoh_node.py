@@ -305,10 +305,13 @@ class BridgeNode:
         while True:
             await self._modem_up.wait()
             self._data.clear()
+            if self._sending:  # one in flight (from the ingest path): it wakes us after
+                await self._wait_for_data(None)
+                continue
             now = self.clock()
             wake = self.core.wake_at(now)
-            if self._sending or wake is None or wake > now:  # a send in flight sets _data
-                await self._wait_for_data(None if wake is None or self._sending else wake - now)
+            if wake is None or wake > now:
+                await self._wait_for_data(None if wake is None else wake - now)
                 continue
             await self.transmit()
 
@@ -335,7 +338,9 @@ class BridgeNode:
             return await self._transmit(backend)
         finally:
             self._sending = False
-            self._data.set()  # the transmit loop looks again
+            # the transmit loop looks again (what is due changed), behind the I/O already
+            # waiting: a frame this send put on a local link is heard first
+            asyncio.get_running_loop().call_soon(self._data.set)
 
     async def _transmit(self, backend: ModemBackend) -> bool:
         self.core.modem_ranging = backend.ranging
