@@ -5,6 +5,13 @@ Every range is fused as it arrives, at its own time, against the anchor's positi
 horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`` (m/s²;
 ``accel_sigma_steered`` while a heading is coming in, which turns the velocity itself).
 
+- Manoeuvres. A small vehicle holds its course and speed, then turns within a second or two:
+  next to a range cycle of seconds that is a jump of velocity, which white-noise acceleration
+  either lags (small) or pays for on every straight (large). So the acceleration noise is small
+  and, without a compass, a range far out asks a generalised likelihood-ratio test whether the
+  vehicle turned between recent ranges (:meth:`RangeTracker._jumped`): the turn it likes best
+  (at its old speed, any new heading) is taken if it explains those ranges better than none.
+
 - Range model. A DLBL range (:mod:`bridge.ranging.dlbl`) is half a two-way travel time: leg 1
   left this node ``span_s`` before the reception that completed it, leg 2 arrived at that
   reception. So ``h = ½(|p(t − span) − a₁| + |p(t) − a₂|)`` with slant (3-D) distances from the
@@ -60,6 +67,8 @@ from bridge.ranging.localise import Fix, attempt
 
 Anchor = tuple[float, float, float]  # x, y, depth
 
+JUMP_SPEED_SHARE = 0.15
+"""1-σ change of speed through a turn, as a share of the speed held before it."""
 RESOLVED_SHARE = 0.999
 """Share of the hypotheses' weight the best must hold before the track commits to it."""
 MERGE_M = 1.0
@@ -104,11 +113,15 @@ class TrackerConfig:
     """Noise figures and limits; defaults suit a small AUV at 0.5–2 m/s and DLBL ranges."""
 
     range_sigma_m: float = 0.1
-    accel_sigma: float = 0.5
+    accel_sigma: float = 0.06
     accel_sigma_steered: float = 0.08
     heading_sigma_deg: float = 3.0
     speed_sigma_mps: float = 0.1
     max_speed_mps: float = 2.5
+    jump_window_s: float = 2.5  # how far back a manoeuvre (a jump of velocity) is looked for
+    jump_test_nis: float = 2.0  # a range this far out asks whether the vehicle manoeuvred
+    jump_min_llr: float = 3.0  # log-likelihood a manoeuvre must gain over none to be taken
+    jump_ring_deg: float = 45.0  # the turns a manoeuvre test tries: a ring, every so many °
     gate_nis: float = GATE_NIS_1DOF
     coast_after_s: float = 6.0
     lost_after_s: float = 120.0
@@ -171,7 +184,22 @@ class _Hypothesis:
     log_w: float = 0.0
     heading: float | None = None  # radians, compass convention, last one applied
     heading_time: float = 0.0
-    turns: list[tuple[float, float]] = field(default_factory=list)  # (when, clockwise rad)
+    turns: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (when, v before)
+    steps: list[_Step] = field(default_factory=list)  # recent ranges, for a manoeuvre test
+
+
+@dataclass
+class _Step:
+    """One range as a hypothesis took it: its state just before, and what the range did."""
+
+    obs: RangeObs
+    x: np.ndarray
+    p: np.ndarray
+    time: float
+    turns: list[tuple[float, np.ndarray]]
+    loglik: float
+    nis: float
+    accepted: bool
 
 
 @dataclass(frozen=True)
@@ -324,9 +352,9 @@ class RangeTracker:
             noise = math.radians(cfg.heading_sigma_deg)
             if hyp.heading is None or abs(turned) > 3 * noise:
                 if turned:  # the vehicle turned, so did its velocity; compass noise does not
+                    before = hyp.x[2:].copy()
                     _turn(hyp, turned, t - hyp.heading_time)
-                    hyp.turns = [(w, a) for w, a in hyp.turns if t - w <= cfg.max_lag_s]
-                    hyp.turns.append(((t + hyp.heading_time) / 2, turned))
+                    _remember_turn(hyp, (t + hyp.heading_time) / 2, before, cfg.max_lag_s)
                 hyp.heading = theta
             hyp.heading_time = t
             if speed_mps is not None:
@@ -363,7 +391,7 @@ class RangeTracker:
             return self._start(obs.time)
         worst_nis, refused = math.inf, True
         for hyp in self.hypotheses:
-            nis, ok = self._range_update(hyp, obs)
+            nis, ok = self._take_range(hyp, obs)
             worst_nis = min(worst_nis, nis)
             refused = refused and not ok
         self._normalise()
@@ -696,7 +724,7 @@ class RangeTracker:
             for point, sign in ((image, 1.0), (best.x[:2], -1.0)):
                 d2 = (point[0] - reference[0]) ** 2 + (point[1] - reference[1]) ** 2
                 log_w -= sign * 0.5 * d2 / s2
-        turns = best.turns if steered else [(w, -angle) for w, angle in best.turns]
+        turns = best.turns if steered else [(w, reflect @ v) for w, v in best.turns]
         self.hypotheses.append(_Hypothesis(x, g @ best.p @ g.T, best.time, log_w,
                                            best.heading, best.heading_time, list(turns)))
         self.hypotheses.sort(key=lambda h: -h.log_w)
@@ -723,8 +751,8 @@ class RangeTracker:
                 (obs.time, obs.anchor_at))
         h, jac = 0.0, np.zeros(4)
         for t_leg, (ax, ay, az) in legs:
-            m = _displacement(hyp.time, t_leg, hyp.turns)  # p(t_leg) = p + m·v
-            px, py = x[:2] + m @ x[2:]
+            m, offset = _displacement(hyp.time, t_leg, hyp.turns)  # p(t_leg) = p + m·v + o
+            px, py = x[:2] + m @ x[2:] + offset
             ex, ey, ez = px - ax, py - ay, self.depth - az
             dist = math.sqrt(ex * ex + ey * ey + ez * ez) or 1e-9
             h += dist / 2
@@ -739,6 +767,112 @@ class RangeTracker:
         predicted, jac = self._range_model(hyp, obs)
         r = cfg.range_sigma_m**2 + obs.anchor_sigma_m**2
         return self._update(hyp, obs.range_m - predicted, jac, r)
+
+    def _take_range(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
+        """Fuse ``obs`` into ``hyp``, remembering the step; without a compass, a range far out
+        (this one or one of the last few) asks whether the vehicle manoeuvred (:meth:`_jumped`)."""
+        cfg = self.config
+        before = _Step(obs, hyp.x.copy(), hyp.p.copy(), hyp.time, list(hyp.turns), 0.0, 0.0,
+                       False)
+        log_w = hyp.log_w
+        nis, ok = self._range_update(hyp, obs)
+        before.loglik, before.nis, before.accepted = hyp.log_w - log_w, nis, ok
+        hyp.steps = [s for s in hyp.steps if obs.time - s.obs.time <= cfg.jump_window_s]
+        hyp.steps.append(before)
+        if self._accel_sigma(obs.time) != cfg.accel_sigma_steered and max(
+                s.nis for s in hyp.steps[-3:]) > cfg.jump_test_nis:
+            jumped = self._jumped(hyp)
+            if jumped is not None:
+                return jumped
+        return nis, ok
+
+    def _jumped(self, hyp: _Hypothesis) -> tuple[float, bool] | None:
+        """A generalised likelihood-ratio test for a manoeuvre. For every gap between recent
+        ranges, suppose the vehicle turned there, keeping its speed, to a heading it does not
+        say (a ring every ``jump_ring_deg``, each 1 σ wide enough to join the next, and a
+        broad change of speed besides), and refilter the ranges since under each. If the
+        likeliest gap explains them better than no manoeuvre by ``jump_min_llr`` (the mixture's
+        marginal likelihood, so a free velocity is not given for nothing), the hypothesis takes
+        it: the turns' posteriors merged by their weights, covariance spread included.
+        (A vehicle's turns are abrupt next to a range cycle: white-noise acceleration either
+        lags them or is noisy on the straights.) Returns the latest range's (NIS, accepted)."""
+        cfg = self.config
+        best: tuple[float, int, list[tuple[float, _Hypothesis, list[_Step]]]] | None = None
+        ring = cfg.jump_ring_deg
+        turns = [ring * k for k in range(1, round(360 / ring))]
+        for j in range(len(hyp.steps)):
+            tried = [self._refilter(hyp, j, turn) for turn in (*turns, None)]
+            top = max(t[0] for t in tried)
+            mixture = top + math.log(sum(math.exp(t[0] - top) for t in tried) / len(tried))
+            llr = mixture - sum(s.loglik for s in hyp.steps[j:])
+            if llr >= cfg.jump_min_llr and (best is None or llr > best[0]):
+                best = (llr, j, tried)
+        if best is None:
+            return None
+        llr, j, tried = best
+        top = max(t[0] for t in tried)
+        weights = [math.exp(t[0] - top) for t in tried]
+        total = sum(weights)
+        _, trial, redone = tried[max(range(len(tried)), key=weights.__getitem__)]
+        mean = sum(w * t[1].x for w, t in zip(weights, tried, strict=True)) / total
+        cov = sum(w * (t[1].p + np.outer(t[1].x - mean, t[1].x - mean))
+                  for w, t in zip(weights, tried, strict=True)) / total
+        if len(self.hypotheses) == 1:  # ranges refused for want of the manoeuvre: not bad
+            for old, new in zip(hyp.steps[j:-1], redone[:-1], strict=True):
+                if new.accepted and not old.accepted:
+                    for k, (o, reason) in enumerate(self._refusals):
+                        if o is old.obs:
+                            self.rejected[reason] -= 1
+                            if self.rejected[reason] <= 0:
+                                del self.rejected[reason]
+                            del self._refusals[k]
+                            break
+        hyp.x, hyp.p, hyp.time, hyp.turns = mean, cov, trial.time, trial.turns
+        hyp.log_w += llr
+        hyp.steps = hyp.steps[:j] + redone
+        self.manoeuvres += 1
+        return redone[-1].nis, redone[-1].accepted
+
+    def _refilter(self, hyp: _Hypothesis, j: int,
+                  turn_deg: float | None) -> tuple[float, _Hypothesis, list[_Step]]:
+        """The ranges from ``hyp.steps[j]`` on, refiltered as if the vehicle had turned by
+        ``turn_deg`` (clockwise; None: changed its velocity by up to its speed, each axis)
+        halfway between the range before and that one: (log-likelihood, state, steps)."""
+        cfg = self.config
+        step = hyp.steps[j]
+        trial = _Hypothesis(step.x.copy(), step.p.copy(), step.time, 0.0, hyp.heading,
+                            hyp.heading_time, list(step.turns))
+        gap = max(step.obs.time - step.time, 0.0)
+        self._predict(trial, step.time + gap / 2)
+        v = trial.x[2:].copy()
+        _remember_turn(trial, trial.time, v, cfg.max_lag_s)
+        speed = max(float(np.hypot(*v)), cfg.min_heading_speed_mps)
+        if turn_deg is None:
+            trial.p[2:, 2:] += np.eye(2) * speed**2
+            change = speed**2 * 2
+        else:
+            a = math.radians(turn_deg)
+            c, s = math.cos(a), math.sin(a)
+            rot = np.array([[c, s], [-s, c]])  # clockwise, as headings go
+            trial.x[2:] = rot @ v
+            along = trial.x[2:] / float(np.hypot(*trial.x[2:]) or 1.0)
+            across = np.array([-along[1], along[0]])
+            spread = (JUMP_SPEED_SHARE * speed) ** 2 * np.outer(along, along) + (
+                speed * math.tan(math.radians(cfg.jump_ring_deg / 2))) ** 2 * np.outer(across,
+                                                                                   across)
+            trial.p[2:, 2:] = spread
+            trial.p[:2, 2:] = trial.p[2:, :2] = 0.0
+            change = float(np.sum((trial.x[2:] - v) ** 2) + np.trace(spread))
+        trial.p[:2, :2] += np.eye(2) * change / 2 * gap * gap / 12  # when in the gap it turned
+        redone: list[_Step] = []
+        for old in hyp.steps[j:]:
+            again = _Step(old.obs, trial.x.copy(), trial.p.copy(), trial.time, list(trial.turns),
+                          0.0, 0.0, False)
+            log_w = trial.log_w
+            again.nis, again.accepted = self._range_update(trial, old.obs)
+            again.loglik = trial.log_w - log_w
+            redone.append(again)
+        return trial.log_w, trial, redone
 
     def _heading_update(self, hyp: _Hypothesis, theta: float, speed: float) -> float:
         vx, vy = hyp.x[2], hyp.x[3]
@@ -791,22 +925,30 @@ def _predicted(x: np.ndarray, p: np.ndarray, dt: float,
 
 
 def _displacement(t_state: float, t_leg: float,
-                  turns: list[tuple[float, float]]) -> np.ndarray:
-    """The 2×2 ``m`` with ``p(t_leg) = p(t_state) + m·v(t_state)``: straight lines, except
-    that going back past a recorded turn the velocity is the one before it."""
-    if t_leg >= t_state or not turns:
-        return np.eye(2) * (t_leg - t_state)
-    m, rot, t = np.zeros((2, 2)), np.eye(2), t_state
-    for when, angle in reversed(turns):
+                  turns: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """``(m, offset)`` with ``p(t_leg) = p(t_state) + m·v(t_state) + offset``: straight lines,
+    except that going back past a recorded turn the velocity is the one held before it."""
+    m, offset, t = np.zeros((2, 2)), np.zeros(2), t_state
+    held: np.ndarray | None = None  # None: the state's own velocity
+    for when, before in reversed(turns):
         if when >= t_state:
             continue
         if when <= t_leg:
             break
-        m -= (t - when) * rot
-        c, s = math.cos(angle), math.sin(angle)
-        rot = np.array([[c, -s], [s, c]]) @ rot  # the velocity before that turn
-        t = when
-    return m - (t - t_leg) * rot
+        if held is None:
+            m = -(t - when) * np.eye(2)
+        else:
+            offset -= (t - when) * held
+        held, t = before, when
+    if held is None:
+        return np.eye(2) * (t_leg - t_state), offset
+    return m, offset - (t - t_leg) * held
+
+
+def _remember_turn(hyp: _Hypothesis, when: float, before: np.ndarray, keep_s: float) -> None:
+    """Record that the velocity was ``before`` until ``when`` (for ranges reaching back)."""
+    hyp.turns = [(w, v) for w, v in hyp.turns if when - w <= keep_s]
+    hyp.turns.append((when, before))
 
 
 def _turn(hyp: _Hypothesis, angle: float, since_s: float) -> None:
