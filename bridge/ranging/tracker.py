@@ -119,6 +119,7 @@ class TrackerConfig:
     speed_sigma_mps: float = 0.1
     max_speed_mps: float = 2.5
     jump_window_s: float = 2.5  # how far back a manoeuvre (a jump of velocity) is looked for
+    jump_steps: int = 6  # ... and at least so many ranges back
     jump_test_nis: float = 2.0  # a range this far out asks whether the vehicle manoeuvred
     jump_min_llr: float = 3.0  # log-likelihood a manoeuvre must gain over none to be taken
     jump_ring_deg: float = 45.0  # the turns a manoeuvre test tries: a ring, every so many °
@@ -777,8 +778,12 @@ class RangeTracker:
         log_w = hyp.log_w
         nis, ok = self._range_update(hyp, obs)
         before.loglik, before.nis, before.accepted = hyp.log_w - log_w, nis, ok
-        hyp.steps = [s for s in hyp.steps if obs.time - s.obs.time <= cfg.jump_window_s]
         hyp.steps.append(before)
+        # the last few ranges, however sparse (seed 001 often heard one anchor a cycle), and
+        # all of ``jump_window_s``; never beyond ``max_lag_s``
+        n = len(hyp.steps)
+        hyp.steps = [s for k, s in enumerate(hyp.steps) if obs.time - s.obs.time <= cfg.max_lag_s
+                     and (n - k <= cfg.jump_steps or obs.time - s.obs.time <= cfg.jump_window_s)]
         if self._accel_sigma(obs.time) != cfg.accel_sigma_steered and max(
                 s.nis for s in hyp.steps[-3:]) > cfg.jump_test_nis:
             jumped = self._jumped(hyp)
@@ -805,11 +810,16 @@ class RangeTracker:
             top = max(t[0] for t in tried)
             mixture = top + math.log(sum(math.exp(t[0] - top) for t in tried) / len(tried))
             llr = mixture - sum(s.loglik for s in hyp.steps[j:])
-            if llr >= cfg.jump_min_llr and (best is None or llr > best[0]):
+            # one anchor's ranges fit any turn (a circle): it takes two to see one
+            seen = len({s.obs.anchor for s in hyp.steps[j:]}) >= 2
+            if seen and llr >= cfg.jump_min_llr and (best is None or llr > best[0]):
                 best = (llr, j, tried)
         if best is None:
             return None
         llr, j, tried = best
+        tried = [t for t in tried if math.hypot(t[1].x[2], t[1].x[3]) <= cfg.max_speed_mps]
+        if not tried:
+            return None
         top = max(t[0] for t in tried)
         weights = [math.exp(t[0] - top) for t in tried]
         total = sum(weights)
