@@ -187,6 +187,7 @@ class _Hypothesis:
     heading_time: float = 0.0
     turns: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (when, v before)
     steps: list[_Step] = field(default_factory=list)  # recent ranges, for a manoeuvre test
+    blend: tuple[float, float, np.ndarray, np.ndarray] | None = None  # time, share, x, p
 
 
 @dataclass
@@ -430,7 +431,14 @@ class RangeTracker:
             return Estimate("lost", t, reason="ambiguous", anchors=anchors, candidates=cands)
         hyp = self.hypotheses[0]
         age = t - (self.last_range_time if self.last_range_time is not None else hyp.time)
-        x, p = _predicted(hyp.x, hyp.p, max(t - hyp.time, 0.0), self._accel_sigma(t))
+        x, p = hyp.x, hyp.p
+        if hyp.blend is not None and hyp.blend[0] == hyp.time:  # a manoeuvre, perhaps
+            _, share, jx, jp = hyp.blend
+            mean = (1 - share) * x + share * jx
+            p = (1 - share) * (p + np.outer(x - mean, x - mean)) + share * (
+                jp + np.outer(jx - mean, jx - mean))
+            x = mean
+        x, p = _predicted(x, p, max(t - hyp.time, 0.0), self._accel_sigma(t))
         sigma = math.sqrt(max(p[0, 0] + p[1, 1], 0.0))
         if age > cfg.lost_after_s or not math.isfinite(sigma) or sigma > cfg.max_sigma_m:
             return Estimate("lost", t, reason="no_ranges", anchors=anchors)
@@ -773,6 +781,7 @@ class RangeTracker:
         """Fuse ``obs`` into ``hyp``, remembering the step; without a compass, a range far out
         (this one or one of the last few) asks whether the vehicle manoeuvred (:meth:`_jumped`)."""
         cfg = self.config
+        hyp.blend = None
         before = _Step(obs, hyp.x.copy(), hyp.p.copy(), hyp.time, list(hyp.turns), 0.0, 0.0,
                        False)
         log_w = hyp.log_w
@@ -812,7 +821,7 @@ class RangeTracker:
             llr = mixture - sum(s.loglik for s in hyp.steps[j:])
             # one anchor's ranges fit any turn (a circle): it takes two to see one
             seen = len({s.obs.anchor for s in hyp.steps[j:]}) >= 2
-            if seen and llr >= cfg.jump_min_llr and (best is None or llr > best[0]):
+            if seen and (best is None or llr > best[0]):
                 best = (llr, j, tried)
         if best is None:
             return None
@@ -827,6 +836,13 @@ class RangeTracker:
         mean = sum(w * t[1].x for w, t in zip(weights, tried, strict=True)) / total
         cov = sum(w * (t[1].p + np.outer(t[1].x - mean, t[1].x - mean))
                   for w, t in zip(weights, tried, strict=True)) / total
+        if llr < cfg.jump_min_llr:
+            # not taken, not ruled out: until the next range the estimate is the mixture of
+            # both, weighted by the odds (even at the threshold), so its covariance says so
+            share = 1.0 / (1.0 + math.exp(min(cfg.jump_min_llr - llr, 50.0)))
+            if share >= 0.01 and trial.time == hyp.time:
+                hyp.blend = (hyp.time, share, mean, cov)
+            return None
         if len(self.hypotheses) == 1:  # ranges refused for want of the manoeuvre: not bad
             for old, new in zip(hyp.steps[j:-1], redone[:-1], strict=True):
                 if new.accepted and not old.accepted:
