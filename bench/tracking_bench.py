@@ -235,13 +235,14 @@ def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
     for node, items in published.items():
         if not items:
             continue
-        errors, states, inside = [], Counter(), []
+        errors, states, inside, first = [], Counter(), [], math.nan
         finite, mirror = True, 0
         low, high = NEES_BOUNDS_2D
         for t, payload in items:
             states[payload.get("state", "fix" if payload["fix"] else "lost")] += 1
             finite = finite and _all_finite(payload)
             if payload["fix"]:
+                first = min(first, t) if math.isfinite(first) else t
                 where = truth(node, t)
                 ex, ey = payload["x"] - where[0], payload["y"] - where[1]
                 errors.append(math.hypot(ex, ey))
@@ -253,7 +254,7 @@ def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
                 nees = (d * ex * ex - 2 * b * ex * ey + a * ey * ey) / det if det > 0 else math.inf
                 inside.append(low <= nees <= high)
         rows[node] = {"n": len(items), "states": states, "finite": finite, "mirror": mirror,
-                      "fixes": len(errors), "errors": errors,
+                      "fixes": len(errors), "errors": errors, "first_fix_s": first,
                       "nees_in": sum(inside) / len(inside) if inside else math.nan,
                       "p50": percentile(errors, 0.5) if errors else math.nan,
                       "p95": percentile(errors, 0.95) if errors else math.nan,
@@ -294,12 +295,14 @@ def morph_mirrors(seeds: Sequence[int], starts: Sequence[float] = DEMO_STARTS_S,
             rows = morph_run(duration_s, seed, loss=loss, apps_start_s=start, quiet=True)
             for node, row in rows.items():
                 agg = out.setdefault(node, {"runs": 0, "mirror_runs": 0, "mirror": 0,
-                                            "no_fix_runs": 0, "errors": []})
+                                            "no_fix_runs": 0, "errors": [], "first": []})
                 agg["runs"] += 1
                 agg["mirror_runs"] += row["mirror"] > 0
                 agg["mirror"] += row["mirror"]
                 agg["no_fix_runs"] += row["fixes"] == 0
                 agg["errors"].extend(row["errors"])
+                if math.isfinite(row["first_fix_s"]):
+                    agg["first"].append(row["first_fix_s"] - start)
     for agg in out.values():
         agg["p95"] = percentile(agg["errors"], 0.95) if agg["errors"] else math.nan
     if not quiet:
@@ -307,13 +310,15 @@ def morph_mirrors(seeds: Sequence[int], starts: Sequence[float] = DEMO_STARTS_S,
               f"seeds {seeds[0]}..{seeds[-1]} × apps starting at "
               f"{', '.join(f'{s:g}' for s in starts)} s ({len(seeds) * len(starts)} runs)")
         head = (f"{'vehicle':<8} | {'runs':>4} | {'mirror runs':>11} {'mirror fixes':>12} | "
-                f"{'no fix':>6} | {'fixes':>6} {'p50 m':>6} {'p95 m':>6}")
+                f"{'no fix':>6} | {'fixes':>6} {'p50 m':>6} {'p95 m':>6} | "
+                f"{'1st fix s (median, worst)':>25}")
         print(head)
         print("-" * len(head))
         for node, agg in out.items():
             print(f"{node:<8} | {agg['runs']:4d} | {agg['mirror_runs']:11d} {agg['mirror']:12d} | "
                   f"{agg['no_fix_runs']:6d} | {len(agg['errors']):6d} "
-                  f"{percentile(agg['errors'], 0.5):6.2f} {agg['p95']:6.2f}")
+                  f"{percentile(agg['errors'], 0.5):6.2f} {agg['p95']:6.2f} | "
+                  f"{statistics.median(agg['first']):12.1f} {max(agg['first']):12.1f}")
     return out
 
 

@@ -140,6 +140,8 @@ class TrackerConfig:
     init_anchor_sigma_m: float = 3.0  # anchors less certain than this do not start a track
     collinear_m: float = 1.0  # anchors this near one line leave a mirror image
     reckon_drift_mps: float = 0.1  # dead reckoning's 1-σ growth (current, log error)
+    prior_side_sigmas: float = 3.0  # a dead-reckoned prior this far from the anchors' line
+    # (in its and the anchors' 1-σ) tells the side by itself: the track starts from it
 
 
 @dataclass(frozen=True)
@@ -515,6 +517,8 @@ class RangeTracker:
         # dead-reckons (its prior stays good) it waits for that anchor's position; without, it
         # starts wide and starts again once every anchor's position is known
         recent = [o for o in self._recent.values() if t - o.time <= cfg.init_window_s]
+        if self._reckoned(t) and len(recent) >= 2 and self._start_from_prior(t, recent):
+            return Outcome(True, "started")
         known = [o for o in recent if o.anchor_sigma_m <= cfg.init_anchor_sigma_m]
         fresh = known if len(known) >= 2 or self._reckoned(t) else recent
         self._provisional = len(fresh) > len(known)
@@ -559,6 +563,44 @@ class RangeTracker:
         self._used = {o.anchor: o.range_m for o in fresh}
         self._refusals.clear()
         return Outcome(True, "started")
+
+    def _start_from_prior(self, t: float, recent: list[RangeObs]) -> bool:
+        """Start from the dead-reckoned prior and fuse the recent ranges into it, each with its
+        anchor's uncertainty in its noise (a moving anchor not yet heard from included), when
+        the prior alone tells the side of the anchors' line: it lies further from that line
+        than ``prior_side_sigmas`` times its and the anchors' 1-σ (else the mirror image is
+        not ruled out, and a fix with both candidates starts the track). False if not started
+        (or the ranges disagree with the prior)."""
+        cfg = self.config
+        reference = self._prior_at(t)
+        if reference is None:
+            return False
+        x, y, sigma = reference
+        spread = math.hypot(sigma, max(o.anchor_sigma_m for o in recent))
+        points = [np.array(o.anchor_at[:2], dtype=float) for o in recent]
+        a, b = max(((p, q) for i, p in enumerate(points) for q in points[i + 1:]),
+                   key=lambda pq: float(np.linalg.norm(pq[1] - pq[0])))
+        length = float(np.linalg.norm(b - a))
+        if length < MERGE_M:
+            return False
+        u = (b - a) / length
+        here = np.array([x, y])
+        if all(abs(_cross(u, p - a)) <= cfg.collinear_m + spread for p in points) and abs(
+                _cross(u, here - a)) < cfg.prior_side_sigmas * spread:
+            return False
+        hyp = self._hypothesis((x, y), sigma, t, None)
+        taken = sum(self._range_update(hyp, o)[1] for o in sorted(recent, key=lambda o: o.time))
+        if 2 * taken <= len(recent):
+            return False  # the prior and the ranges disagree: start from a fix instead
+        hyp.log_w = 0.0
+        self.hypotheses = [hyp]
+        self.resolved = True
+        self._provisional = False
+        self._ambiguous_since = None
+        self.last_range_time = t
+        self._used = {o.anchor: o.range_m for o in recent}
+        self._refusals.clear()
+        return True
 
     def _prior_at(self, t: float) -> tuple[float, float, float] | None:
         """The prior position and its 1-σ (m) at ``t``: dead-reckoned from the prior's time

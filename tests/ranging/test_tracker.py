@@ -179,3 +179,31 @@ def test_only_the_prior_can_tell_mirrors_apart_so_it_commits_later_and_says_so()
     assert all(e.state == "tracking" for e in late)  # the prior's 98 %, after 20 s
     payload = late[-1].payload()
     assert 0.001 < payload["mirror_doubt"] < 0.05 and payload["x"] == pytest.approx(6.0, abs=0.1)
+
+
+def test_dead_reckoned_start_does_not_wait_for_an_uncertain_anchor() -> None:
+    # a moving anchor not yet heard from (its position a guess, σ 8 m) and a moored one: the
+    # node dead-reckons from its start 30 m off their line, so its prior alone tells the side
+    moored, moving = (0.0, 0.0, 0.5), (0.0, 40.0, 10.0)
+    guess = (3.0, 44.0, 10.0)  # where the moving anchor is believed to be
+
+    def ranges(where: tuple[float, float, float], t: float) -> list[RangeObs]:
+        return [RangeObs("moored", math.dist(moored, where), t, moored),
+                RangeObs("moving", math.dist(moving, where), t + 1.5, guess,
+                         anchor_sigma_m=8.0)]
+
+    def tracker_at(x: float) -> tuple[RangeTracker, tuple[float, float, float]]:
+        tracker = RangeTracker(prior=Prior(0.0, x, 20.0, 2.0), depth=5.0)
+        tracker.on_heading(0.5, 0.0, 0.0)  # holding station: heading and speed both known
+        return tracker, (x, 20.0, 5.0)
+
+    far, where = tracker_at(30.0)
+    for obs in ranges(where, 2.0):
+        far.on_range(obs)
+    est = far.estimate(3.5)
+    assert est.state == "tracking" and est.x > 20.0  # the first two ranges, the right side
+    assert math.dist((est.x, est.y), where[:2]) < 3 * est.sigma_m  # honest about the guess
+    near, where = tracker_at(4.0)  # 4 m off the line: its image is as likely as it
+    for obs in ranges(where, 2.0):
+        near.on_range(obs)
+    assert not near.estimate(3.5).has_position
