@@ -517,7 +517,9 @@ class RangeTracker:
         # dead-reckons (its prior stays good) it waits for that anchor's position; without, it
         # starts wide and starts again once every anchor's position is known
         recent = [o for o in self._recent.values() if t - o.time <= cfg.init_window_s]
-        if self._reckoned(t) and len(recent) >= 2 and self._start_from_prior(t, recent):
+        # dead reckoning carries older ranges too: one lost frame need not cost a cycle
+        reckoned = [o for o in self._recent.values() if t - o.time <= 2 * cfg.init_window_s]
+        if self._reckoned(t) and len(reckoned) >= 2 and self._start_from_prior(t, reckoned):
             return Outcome(True, "started")
         known = [o for o in recent if o.anchor_sigma_m <= cfg.init_anchor_sigma_m]
         fresh = known if len(known) >= 2 or self._reckoned(t) else recent
