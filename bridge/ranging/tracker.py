@@ -34,11 +34,15 @@ horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`
   ``reckon_drift_mps``; without them by ``prior_speed_mps`` per second): in a formation that
   moves with a moving anchor the ranges' motion hardly tells the sides apart, the vehicle's
   own navigation does.
-- Starting. Ranges taken earlier are moved to the start time with the node's known velocity
-  (half of each DLBL span included). An anchor whose position is uncertain by more than
-  ``init_anchor_sigma_m`` (a moving one not yet heard from, or extrapolated from one old
-  report) does not take part while the node dead-reckons; without dead reckoning the track
-  starts wide with it and starts again once every anchor's position is known.
+- Starting. While the node dead-reckons and its prior alone tells the side of the anchors'
+  line (``prior_side_sigmas``), the track starts from the prior and takes the recent ranges
+  (up to two ``init_window_s`` old) into it, each with its anchor's uncertainty in its noise:
+  a moving anchor not yet heard from takes part, weakly. Otherwise from a fix: ranges taken
+  earlier are moved to the start time with the node's known velocity (half of each DLBL span
+  included); an anchor whose position is uncertain by more than ``init_anchor_sigma_m`` (a
+  moving one not yet heard from, or extrapolated from one old report) does not take part
+  while the node dead-reckons; without dead reckoning the track starts wide with it and
+  starts again once every anchor's position is known.
 - Gating. A range whose normalised innovation squared exceeds ``gate_nis`` (χ², one degree of
   freedom) is refused and counted by reason in :attr:`RangeTracker.rejected`: ``long`` (later
   than predicted: multipath, a surface reflection), ``short`` (earlier than possible: a wrong
