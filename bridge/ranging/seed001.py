@@ -51,9 +51,28 @@ PUBLISHED = {
 """What seed 001 published, to print beside measured figures."""
 
 
-def route() -> Path:
-    """Seed 001's rectangle: from (5, 5) east 10 m, north 30 m, at :data:`SPEED_MPS`."""
-    return rectangle((5.0, 5.0), 10.0, 30.0, DEPTH_M, SPEED_MPS)
+CORNERS = ((5.0, 5.0), (15.0, 5.0), (15.0, 35.0), (5.0, 35.0))
+"""The rectangle's corners (x, y), in sailing order."""
+
+
+def route(turn_radius_m: float = 0.0) -> Path:
+    """Seed 001's rectangle: from (5, 5) east 10 m, north 30 m, at :data:`SPEED_MPS`.
+
+    ``turn_radius_m`` 0: the corners are turned instantly (no vehicle can: infinite
+    acceleration); else as arcs of that radius (polylines of 5° steps), as a vehicle turns."""
+    if turn_radius_m <= 0:
+        return rectangle(CORNERS[0], 10.0, 30.0, DEPTH_M, SPEED_MPS)
+    r = turn_radius_m
+    points: list[tuple[float, float, float]] = []
+    for k, (cx, cy) in enumerate(CORNERS):
+        # the arc's centre is r inside the corner; it turns anticlockwise through 90°
+        ox = cx + (r if cx == CORNERS[0][0] else -r)
+        oy = cy + (r if cy == CORNERS[0][1] else -r)
+        for step in range(19):
+            a = math.radians(180.0 + 90.0 * k + 5.0 * step)
+            points.append((ox + r * math.cos(a), oy + r * math.sin(a), DEPTH_M))
+    points = points[9:] + points[:9]  # from the middle of the first corner, as near (5, 5)
+    return Path(tuple(points), SPEED_MPS, loop=True)
 
 
 def range_sigma(distance_m: float) -> float:
@@ -95,10 +114,12 @@ def _arrival(path: Path, anchor: Sequence[float], t_emit: float) -> float:
 def events(duration_s: float, anchors: Sequence[str] = ("left", "middle", "right"), *,
            seed: int = 1, reception: str = "seed001", heading: bool = True,
            speed: bool = False, outliers: float = 0.0, slot_s: float = 0.4,
-           heading_sigma_deg: float = 2.0, heading_hz: float = 1.0) -> Iterator[Event]:
-    """The measurements of ``duration_s`` seconds, in time order."""
+           heading_sigma_deg: float = 2.0, heading_hz: float = 1.0,
+           turn_radius_m: float = 0.0) -> Iterator[Event]:
+    """The measurements of ``duration_s`` seconds, in time order, sailing
+    ``route(turn_radius_m)``."""
     rnd = random.Random(seed)
-    path = route()
+    path = route(turn_radius_m)
     cycle = slot_s * (1 + len(ANCHORS))
     order = list(ANCHORS)
     pending: list[tuple[float, int, Event]] = []

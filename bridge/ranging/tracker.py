@@ -5,6 +5,13 @@ Every range is fused as it arrives, at its own time, against the anchor's positi
 horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`` (m/s²;
 ``accel_sigma_steered`` while a heading is coming in, which turns the velocity itself).
 
+- Manoeuvres. A small vehicle holds its course and speed, then turns within a second or two:
+  next to a range cycle of seconds that is a jump of velocity, which white-noise acceleration
+  either lags (small) or pays for on every straight (large). So the acceleration noise is small
+  and, without a compass, a range far out asks a generalised likelihood-ratio test whether the
+  vehicle turned between recent ranges (:meth:`RangeTracker._jumped`): the turn it likes best
+  (at its old speed, any new heading) is taken if it explains those ranges better than none.
+
 - Range model. A DLBL range (:mod:`bridge.ranging.dlbl`) is half a two-way travel time: leg 1
   left this node ``span_s`` before the reception that completed it, leg 2 arrived at that
   reception. So ``h = ½(|p(t − span) − a₁| + |p(t) − a₂|)`` with slant (3-D) distances from the
@@ -27,11 +34,15 @@ horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`
   ``reckon_drift_mps``; without them by ``prior_speed_mps`` per second): in a formation that
   moves with a moving anchor the ranges' motion hardly tells the sides apart, the vehicle's
   own navigation does.
-- Starting. Ranges taken earlier are moved to the start time with the node's known velocity
-  (half of each DLBL span included). An anchor whose position is uncertain by more than
-  ``init_anchor_sigma_m`` (a moving one not yet heard from, or extrapolated from one old
-  report) does not take part while the node dead-reckons; without dead reckoning the track
-  starts wide with it and starts again once every anchor's position is known.
+- Starting. While the node dead-reckons and its prior alone tells the side of the anchors'
+  line (``prior_side_sigmas``), the track starts from the prior and takes the recent ranges
+  (up to two ``init_window_s`` old) into it, each with its anchor's uncertainty in its noise:
+  a moving anchor not yet heard from takes part, weakly. Otherwise from a fix: ranges taken
+  earlier are moved to the start time with the node's known velocity (half of each DLBL span
+  included); an anchor whose position is uncertain by more than ``init_anchor_sigma_m`` (a
+  moving one not yet heard from, or extrapolated from one old report) does not take part
+  while the node dead-reckons; without dead reckoning the track starts wide with it and
+  starts again once every anchor's position is known.
 - Gating. A range whose normalised innovation squared exceeds ``gate_nis`` (χ², one degree of
   freedom) is refused and counted by reason in :attr:`RangeTracker.rejected`: ``long`` (later
   than predicted: multipath, a surface reflection), ``short`` (earlier than possible: a wrong
@@ -60,6 +71,8 @@ from bridge.ranging.localise import Fix, attempt
 
 Anchor = tuple[float, float, float]  # x, y, depth
 
+JUMP_SPEED_SHARE = 0.15
+"""1-σ change of speed through a turn, as a share of the speed held before it."""
 RESOLVED_SHARE = 0.999
 """Share of the hypotheses' weight the best must hold before the track commits to it."""
 MERGE_M = 1.0
@@ -104,11 +117,16 @@ class TrackerConfig:
     """Noise figures and limits; defaults suit a small AUV at 0.5–2 m/s and DLBL ranges."""
 
     range_sigma_m: float = 0.1
-    accel_sigma: float = 0.5
+    accel_sigma: float = 0.06
     accel_sigma_steered: float = 0.08
     heading_sigma_deg: float = 3.0
     speed_sigma_mps: float = 0.1
     max_speed_mps: float = 2.5
+    jump_window_s: float = 2.5  # how far back a manoeuvre (a jump of velocity) is looked for
+    jump_steps: int = 6  # ... and at least so many ranges back
+    jump_test_nis: float = 2.0  # a range this far out asks whether the vehicle manoeuvred
+    jump_min_llr: float = 3.0  # log-likelihood a manoeuvre must gain over none to be taken
+    jump_ring_deg: float = 45.0  # the turns a manoeuvre test tries: a ring, every so many °
     gate_nis: float = GATE_NIS_1DOF
     coast_after_s: float = 6.0
     lost_after_s: float = 120.0
@@ -126,6 +144,8 @@ class TrackerConfig:
     init_anchor_sigma_m: float = 3.0  # anchors less certain than this do not start a track
     collinear_m: float = 1.0  # anchors this near one line leave a mirror image
     reckon_drift_mps: float = 0.1  # dead reckoning's 1-σ growth (current, log error)
+    prior_side_sigmas: float = 3.0  # a dead-reckoned prior this far from the anchors' line
+    # (in its and the anchors' 1-σ) tells the side by itself: the track starts from it
 
 
 @dataclass(frozen=True)
@@ -171,7 +191,23 @@ class _Hypothesis:
     log_w: float = 0.0
     heading: float | None = None  # radians, compass convention, last one applied
     heading_time: float = 0.0
-    turns: list[tuple[float, float]] = field(default_factory=list)  # (when, clockwise rad)
+    turns: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (when, v before)
+    steps: list[_Step] = field(default_factory=list)  # recent ranges, for a manoeuvre test
+    blend: tuple[float, float, np.ndarray, np.ndarray] | None = None  # time, share, x, p
+
+
+@dataclass
+class _Step:
+    """One range as a hypothesis took it: its state just before, and what the range did."""
+
+    obs: RangeObs
+    x: np.ndarray
+    p: np.ndarray
+    time: float
+    turns: list[tuple[float, np.ndarray]]
+    loglik: float
+    nis: float
+    accepted: bool
 
 
 @dataclass(frozen=True)
@@ -324,9 +360,9 @@ class RangeTracker:
             noise = math.radians(cfg.heading_sigma_deg)
             if hyp.heading is None or abs(turned) > 3 * noise:
                 if turned:  # the vehicle turned, so did its velocity; compass noise does not
+                    before = hyp.x[2:].copy()
                     _turn(hyp, turned, t - hyp.heading_time)
-                    hyp.turns = [(w, a) for w, a in hyp.turns if t - w <= cfg.max_lag_s]
-                    hyp.turns.append(((t + hyp.heading_time) / 2, turned))
+                    _remember_turn(hyp, (t + hyp.heading_time) / 2, before, cfg.max_lag_s)
                 hyp.heading = theta
             hyp.heading_time = t
             if speed_mps is not None:
@@ -363,7 +399,7 @@ class RangeTracker:
             return self._start(obs.time)
         worst_nis, refused = math.inf, True
         for hyp in self.hypotheses:
-            nis, ok = self._range_update(hyp, obs)
+            nis, ok = self._take_range(hyp, obs)
             worst_nis = min(worst_nis, nis)
             refused = refused and not ok
         self._normalise()
@@ -401,7 +437,14 @@ class RangeTracker:
             return Estimate("lost", t, reason="ambiguous", anchors=anchors, candidates=cands)
         hyp = self.hypotheses[0]
         age = t - (self.last_range_time if self.last_range_time is not None else hyp.time)
-        x, p = _predicted(hyp.x, hyp.p, max(t - hyp.time, 0.0), self._accel_sigma(t))
+        x, p = hyp.x, hyp.p
+        if hyp.blend is not None and hyp.blend[0] == hyp.time:  # a manoeuvre, perhaps
+            _, share, jx, jp = hyp.blend
+            mean = (1 - share) * x + share * jx
+            p = (1 - share) * (p + np.outer(x - mean, x - mean)) + share * (
+                jp + np.outer(jx - mean, jx - mean))
+            x = mean
+        x, p = _predicted(x, p, max(t - hyp.time, 0.0), self._accel_sigma(t))
         sigma = math.sqrt(max(p[0, 0] + p[1, 1], 0.0))
         if age > cfg.lost_after_s or not math.isfinite(sigma) or sigma > cfg.max_sigma_m:
             return Estimate("lost", t, reason="no_ranges", anchors=anchors)
@@ -478,6 +521,10 @@ class RangeTracker:
         # dead-reckons (its prior stays good) it waits for that anchor's position; without, it
         # starts wide and starts again once every anchor's position is known
         recent = [o for o in self._recent.values() if t - o.time <= cfg.init_window_s]
+        # dead reckoning carries older ranges too: one lost frame need not cost a cycle
+        reckoned = [o for o in self._recent.values() if t - o.time <= 2 * cfg.init_window_s]
+        if self._reckoned(t) and len(reckoned) >= 2 and self._start_from_prior(t, reckoned):
+            return Outcome(True, "started")
         known = [o for o in recent if o.anchor_sigma_m <= cfg.init_anchor_sigma_m]
         fresh = known if len(known) >= 2 or self._reckoned(t) else recent
         self._provisional = len(fresh) > len(known)
@@ -522,6 +569,44 @@ class RangeTracker:
         self._used = {o.anchor: o.range_m for o in fresh}
         self._refusals.clear()
         return Outcome(True, "started")
+
+    def _start_from_prior(self, t: float, recent: list[RangeObs]) -> bool:
+        """Start from the dead-reckoned prior and fuse the recent ranges into it, each with its
+        anchor's uncertainty in its noise (a moving anchor not yet heard from included), when
+        the prior alone tells the side of the anchors' line: it lies further from that line
+        than ``prior_side_sigmas`` times its and the anchors' 1-σ (else the mirror image is
+        not ruled out, and a fix with both candidates starts the track). False if not started
+        (or the ranges disagree with the prior)."""
+        cfg = self.config
+        reference = self._prior_at(t)
+        if reference is None:
+            return False
+        x, y, sigma = reference
+        spread = math.hypot(sigma, max(o.anchor_sigma_m for o in recent))
+        points = [np.array(o.anchor_at[:2], dtype=float) for o in recent]
+        a, b = max(((p, q) for i, p in enumerate(points) for q in points[i + 1:]),
+                   key=lambda pq: float(np.linalg.norm(pq[1] - pq[0])))
+        length = float(np.linalg.norm(b - a))
+        if length < MERGE_M:
+            return False
+        u = (b - a) / length
+        here = np.array([x, y])
+        if all(abs(_cross(u, p - a)) <= cfg.collinear_m + spread for p in points) and abs(
+                _cross(u, here - a)) < cfg.prior_side_sigmas * spread:
+            return False
+        hyp = self._hypothesis((x, y), sigma, t, None)
+        taken = sum(self._range_update(hyp, o)[1] for o in sorted(recent, key=lambda o: o.time))
+        if 2 * taken <= len(recent):
+            return False  # the prior and the ranges disagree: start from a fix instead
+        hyp.log_w = 0.0
+        self.hypotheses = [hyp]
+        self.resolved = True
+        self._provisional = False
+        self._ambiguous_since = None
+        self.last_range_time = t
+        self._used = {o.anchor: o.range_m for o in recent}
+        self._refusals.clear()
+        return True
 
     def _prior_at(self, t: float) -> tuple[float, float, float] | None:
         """The prior position and its 1-σ (m) at ``t``: dead-reckoned from the prior's time
@@ -696,7 +781,7 @@ class RangeTracker:
             for point, sign in ((image, 1.0), (best.x[:2], -1.0)):
                 d2 = (point[0] - reference[0]) ** 2 + (point[1] - reference[1]) ** 2
                 log_w -= sign * 0.5 * d2 / s2
-        turns = best.turns if steered else [(w, -angle) for w, angle in best.turns]
+        turns = best.turns if steered else [(w, reflect @ v) for w, v in best.turns]
         self.hypotheses.append(_Hypothesis(x, g @ best.p @ g.T, best.time, log_w,
                                            best.heading, best.heading_time, list(turns)))
         self.hypotheses.sort(key=lambda h: -h.log_w)
@@ -723,8 +808,8 @@ class RangeTracker:
                 (obs.time, obs.anchor_at))
         h, jac = 0.0, np.zeros(4)
         for t_leg, (ax, ay, az) in legs:
-            m = _displacement(hyp.time, t_leg, hyp.turns)  # p(t_leg) = p + m·v
-            px, py = x[:2] + m @ x[2:]
+            m, offset = _displacement(hyp.time, t_leg, hyp.turns)  # p(t_leg) = p + m·v + o
+            px, py = x[:2] + m @ x[2:] + offset
             ex, ey, ez = px - ax, py - ay, self.depth - az
             dist = math.sqrt(ex * ex + ey * ey + ez * ez) or 1e-9
             h += dist / 2
@@ -739,6 +824,129 @@ class RangeTracker:
         predicted, jac = self._range_model(hyp, obs)
         r = cfg.range_sigma_m**2 + obs.anchor_sigma_m**2
         return self._update(hyp, obs.range_m - predicted, jac, r)
+
+    def _take_range(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
+        """Fuse ``obs`` into ``hyp``, remembering the step; without a compass, a range far out
+        (this one or one of the last few) asks whether the vehicle manoeuvred (:meth:`_jumped`)."""
+        cfg = self.config
+        hyp.blend = None
+        before = _Step(obs, hyp.x.copy(), hyp.p.copy(), hyp.time, list(hyp.turns), 0.0, 0.0,
+                       False)
+        log_w = hyp.log_w
+        nis, ok = self._range_update(hyp, obs)
+        before.loglik, before.nis, before.accepted = hyp.log_w - log_w, nis, ok
+        hyp.steps.append(before)
+        # the last few ranges, however sparse (seed 001 often heard one anchor a cycle), and
+        # all of ``jump_window_s``; never beyond ``max_lag_s``
+        n = len(hyp.steps)
+        hyp.steps = [s for k, s in enumerate(hyp.steps) if obs.time - s.obs.time <= cfg.max_lag_s
+                     and (n - k <= cfg.jump_steps or obs.time - s.obs.time <= cfg.jump_window_s)]
+        if self._accel_sigma(obs.time) != cfg.accel_sigma_steered and max(
+                s.nis for s in hyp.steps[-3:]) > cfg.jump_test_nis:
+            jumped = self._jumped(hyp)
+            if jumped is not None:
+                return jumped
+        return nis, ok
+
+    def _jumped(self, hyp: _Hypothesis) -> tuple[float, bool] | None:
+        """A generalised likelihood-ratio test for a manoeuvre. For every gap between recent
+        ranges, suppose the vehicle turned there, keeping its speed, to a heading it does not
+        say (a ring every ``jump_ring_deg``, each 1 σ wide enough to join the next, and a
+        broad change of speed besides), and refilter the ranges since under each. If the
+        likeliest gap explains them better than no manoeuvre by ``jump_min_llr`` (the mixture's
+        marginal likelihood, so a free velocity is not given for nothing), the hypothesis takes
+        it: the turns' posteriors merged by their weights, covariance spread included.
+        (A vehicle's turns are abrupt next to a range cycle: white-noise acceleration either
+        lags them or is noisy on the straights.) Returns the latest range's (NIS, accepted)."""
+        cfg = self.config
+        best: tuple[float, int, list[tuple[float, _Hypothesis, list[_Step]]]] | None = None
+        ring = cfg.jump_ring_deg
+        turns = [ring * k for k in range(1, round(360 / ring))]
+        for j in range(len(hyp.steps)):
+            tried = [self._refilter(hyp, j, turn) for turn in (*turns, None)]
+            top = max(t[0] for t in tried)
+            mixture = top + math.log(sum(math.exp(t[0] - top) for t in tried) / len(tried))
+            llr = mixture - sum(s.loglik for s in hyp.steps[j:])
+            # one anchor's ranges fit any turn (a circle): it takes two to see one
+            seen = len({s.obs.anchor for s in hyp.steps[j:]}) >= 2
+            if seen and (best is None or llr > best[0]):
+                best = (llr, j, tried)
+        if best is None:
+            return None
+        llr, j, tried = best
+        tried = [t for t in tried if math.hypot(t[1].x[2], t[1].x[3]) <= cfg.max_speed_mps]
+        if not tried:
+            return None
+        top = max(t[0] for t in tried)
+        weights = [math.exp(t[0] - top) for t in tried]
+        total = sum(weights)
+        _, trial, redone = tried[max(range(len(tried)), key=weights.__getitem__)]
+        mean = sum(w * t[1].x for w, t in zip(weights, tried, strict=True)) / total
+        cov = sum(w * (t[1].p + np.outer(t[1].x - mean, t[1].x - mean))
+                  for w, t in zip(weights, tried, strict=True)) / total
+        if llr < cfg.jump_min_llr:
+            # not taken, not ruled out: until the next range the estimate is the mixture of
+            # both, weighted by the odds (even at the threshold), so its covariance says so
+            share = 1.0 / (1.0 + math.exp(min(cfg.jump_min_llr - llr, 50.0)))
+            if share >= 0.01 and trial.time == hyp.time:
+                hyp.blend = (hyp.time, share, mean, cov)
+            return None
+        if len(self.hypotheses) == 1:  # ranges refused for want of the manoeuvre: not bad
+            for old, new in zip(hyp.steps[j:-1], redone[:-1], strict=True):
+                if new.accepted and not old.accepted:
+                    for k, (o, reason) in enumerate(self._refusals):
+                        if o is old.obs:
+                            self.rejected[reason] -= 1
+                            if self.rejected[reason] <= 0:
+                                del self.rejected[reason]
+                            del self._refusals[k]
+                            break
+        hyp.x, hyp.p, hyp.time, hyp.turns = mean, cov, trial.time, trial.turns
+        hyp.log_w += llr
+        hyp.steps = hyp.steps[:j] + redone
+        self.manoeuvres += 1
+        return redone[-1].nis, redone[-1].accepted
+
+    def _refilter(self, hyp: _Hypothesis, j: int,
+                  turn_deg: float | None) -> tuple[float, _Hypothesis, list[_Step]]:
+        """The ranges from ``hyp.steps[j]`` on, refiltered as if the vehicle had turned by
+        ``turn_deg`` (clockwise; None: changed its velocity by up to its speed, each axis)
+        halfway between the range before and that one: (log-likelihood, state, steps)."""
+        cfg = self.config
+        step = hyp.steps[j]
+        trial = _Hypothesis(step.x.copy(), step.p.copy(), step.time, 0.0, hyp.heading,
+                            hyp.heading_time, list(step.turns))
+        gap = max(step.obs.time - step.time, 0.0)
+        self._predict(trial, step.time + gap / 2)
+        v = trial.x[2:].copy()
+        _remember_turn(trial, trial.time, v, cfg.max_lag_s)
+        speed = max(float(np.hypot(*v)), cfg.min_heading_speed_mps)
+        if turn_deg is None:
+            trial.p[2:, 2:] += np.eye(2) * speed**2
+            change = speed**2 * 2
+        else:
+            a = math.radians(turn_deg)
+            c, s = math.cos(a), math.sin(a)
+            rot = np.array([[c, s], [-s, c]])  # clockwise, as headings go
+            trial.x[2:] = rot @ v
+            along = trial.x[2:] / float(np.hypot(*trial.x[2:]) or 1.0)
+            across = np.array([-along[1], along[0]])
+            spread = (JUMP_SPEED_SHARE * speed) ** 2 * np.outer(along, along) + (
+                speed * math.tan(math.radians(cfg.jump_ring_deg / 2))) ** 2 * np.outer(across,
+                                                                                   across)
+            trial.p[2:, 2:] = spread
+            trial.p[:2, 2:] = trial.p[2:, :2] = 0.0
+            change = float(np.sum((trial.x[2:] - v) ** 2) + np.trace(spread))
+        trial.p[:2, :2] += np.eye(2) * change / 2 * gap * gap / 12  # when in the gap it turned
+        redone: list[_Step] = []
+        for old in hyp.steps[j:]:
+            again = _Step(old.obs, trial.x.copy(), trial.p.copy(), trial.time, list(trial.turns),
+                          0.0, 0.0, False)
+            log_w = trial.log_w
+            again.nis, again.accepted = self._range_update(trial, old.obs)
+            again.loglik = trial.log_w - log_w
+            redone.append(again)
+        return trial.log_w, trial, redone
 
     def _heading_update(self, hyp: _Hypothesis, theta: float, speed: float) -> float:
         vx, vy = hyp.x[2], hyp.x[3]
@@ -791,22 +999,30 @@ def _predicted(x: np.ndarray, p: np.ndarray, dt: float,
 
 
 def _displacement(t_state: float, t_leg: float,
-                  turns: list[tuple[float, float]]) -> np.ndarray:
-    """The 2×2 ``m`` with ``p(t_leg) = p(t_state) + m·v(t_state)``: straight lines, except
-    that going back past a recorded turn the velocity is the one before it."""
-    if t_leg >= t_state or not turns:
-        return np.eye(2) * (t_leg - t_state)
-    m, rot, t = np.zeros((2, 2)), np.eye(2), t_state
-    for when, angle in reversed(turns):
+                  turns: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """``(m, offset)`` with ``p(t_leg) = p(t_state) + m·v(t_state) + offset``: straight lines,
+    except that going back past a recorded turn the velocity is the one held before it."""
+    m, offset, t = np.zeros((2, 2)), np.zeros(2), t_state
+    held: np.ndarray | None = None  # None: the state's own velocity
+    for when, before in reversed(turns):
         if when >= t_state:
             continue
         if when <= t_leg:
             break
-        m -= (t - when) * rot
-        c, s = math.cos(angle), math.sin(angle)
-        rot = np.array([[c, -s], [s, c]]) @ rot  # the velocity before that turn
-        t = when
-    return m - (t - t_leg) * rot
+        if held is None:
+            m = -(t - when) * np.eye(2)
+        else:
+            offset -= (t - when) * held
+        held, t = before, when
+    if held is None:
+        return np.eye(2) * (t_leg - t_state), offset
+    return m, offset - (t - t_leg) * held
+
+
+def _remember_turn(hyp: _Hypothesis, when: float, before: np.ndarray, keep_s: float) -> None:
+    """Record that the velocity was ``before`` until ``when`` (for ranges reaching back)."""
+    hyp.turns = [(w, v) for w, v in hyp.turns if when - w <= keep_s]
+    hyp.turns.append((when, before))
 
 
 def _turn(hyp: _Hypothesis, angle: float, since_s: float) -> None:

@@ -26,6 +26,14 @@ def test_three_anchors_and_a_compass(bench: ModuleType) -> None:
     assert row["snap95"] > 5 * row["p95"]  # what a snapshot fix published before
 
 
+def test_three_anchors_a_1hz_compass_and_turns_a_vehicle_can_make(bench: ModuleType) -> None:
+    # corners as 2 m arcs (1.1 m/s² sideways): a 1 Hz compass is enough for issue #16's 0.3 m
+    row = bench.seed001_row("3r", ("left", "middle", "right"), 0.5, heading_hz=1.0,
+                            turn_radius_m=2.0, seed=11)
+    assert row["p95"] <= 0.3 and row["west95"] <= 0.3 and row["corner95"] <= 0.4
+    assert row["flips"] == 0 and row["nees_in"] >= 0.9 and row["finite"]
+
+
 def test_two_anchors_an_hour_at_seed001_reception(bench: ModuleType) -> None:
     row = bench.seed001_row("2", ("left", "right"), 1.0, heading_hz=1.0, reception="seed001",
                             seed=12)
