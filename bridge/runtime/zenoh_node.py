@@ -287,15 +287,10 @@ class BridgeNode:
         now = self.clock()
         self.core.ingest(key, data, encoding, now, ref, sample_key)
         self._flush()
-        if self._sending or not self._modem_up.is_set() or not self._open_at(now):
+        if self._sending or not self._modem_up.is_set():
             self._data.set()  # the transmit loop decides when
             return
-        start_eagerly(self.transmit())  # an open opportunity: the frame leaves from here
-
-    def _open_at(self, now: float) -> bool:
-        """Whether the MAC has an opportunity open at ``now`` for what is due."""
-        wake = self.core.wake_at(now)
-        return wake is not None and wake <= now
+        start_eagerly(self.transmit())  # an opportunity open now: the frame leaves from here
 
     # -- core → modem --------------------------------------------------------------------------
 
