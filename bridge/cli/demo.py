@@ -29,11 +29,13 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from bridge.cli.demo_queries import QueryApps, member_keys
+from bridge.cli.demo_queries import QueryApps, member_keys, query_for_tour
+from bridge.cli.demo_surfacing import SurfacingWatch, surfaced_vehicle, surfacing_for_tour
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
 from bridge.cli.tour import Tour, turn_waits
 from bridge.codec import FieldSpec
 from bridge.core.events import Event
+from bridge.core.queries import deadline_s
 from bridge.errors import MissionError
 from bridge.gui.commands import named_as_command
 from bridge.gui.server import GuiServer
@@ -53,6 +55,8 @@ EXAMPLES = 3  # arrivals shown with their quantisation, of different channels
 EXAMPLES_WAIT_S = 20.0
 EXAMPLE_TRIES = 4  # arrivals of a channel passed over while they show no rounding
 COMMAND_WAIT_S = 25.0  # the tour moves on if a delivery report is still missing by then
+RELAY_SETTLE_S = 0.3  # IP relays sent before the dive have landed by then (loopback)
+SWITCH_WAIT_S = 10.0  # the tour waits this long past a scripted surfacing or dive for it
 FIX_EVERY_S = 20.0  # a vehicle's fix is printed at most this often
 TOUR_REF = "tour-1"  # correlation of the tour's command (the put's attachment ``ref:...``)
 POLL_S = 0.2
@@ -65,13 +69,18 @@ def default_demo_mission() -> Path:
 
 def tour_mission(path: Path, loss: float = TOUR_LOSS) -> tuple[LoadedMission, list[str]]:
     """The mission at ``path`` as the tour runs it, and the changes made, in words: the water
-    loses ``loss`` of the frames, and the first channel named as a command becomes
-    acknowledged (reliable, so not latching)."""
+    loses ``loss`` of the frames, a mission without queries gets one (the surface node asks
+    the vehicles' health), one without surfacing gets a vehicle surfacing on a scripted path,
+    and the first channel named as a command becomes acknowledged (reliable, so not
+    latching)."""
     data = yaml.safe_load(path.read_text(encoding="utf-8"))
     changes = []
     if loss > 0:
         data.setdefault("modem", {}).setdefault("options", {})["loss"] = loss
         changes.append(f"the water loses {loss:.0%} of frames")
+    for extra in (query_for_tour(data), surfacing_for_tour(data)):
+        if extra is not None:
+            changes.append(extra)
     plain = yaml.safe_dump(data, sort_keys=False)
     for channel in data.get("channels") or []:
         keys = [str(e.get("in", "")) for e in channel.get("elements") or []]
@@ -486,8 +495,87 @@ def _short(value: Any) -> str:
     return text if len(text) < 90 else text[:87] + "..."
 
 
-async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float) -> None:
-    """Parts 1 to 4 of the tour, each when the fleet has something to show for it."""
+async def _query_part(tour: Tour, loaded: LoadedMission, queries: QueryApps | None,
+                      tasks: list[asyncio.Task[None]]) -> None:
+    """A plain get at the surface answered on a submerged vehicle; then the operators keep
+    asking now and then."""
+    tour.part("queries")
+    found = None if queries is None else next(
+        ((spec, asker, server) for spec in loaded.table.queries for asker in spec.askers
+         for server in spec.servers if server != asker
+         and {asker, server} <= set(queries.sessions)), None)
+    if queries is None or found is None:
+        tour.say("This mission has no query between two running nodes: nothing to show.")
+        return
+    spec, asker, server = found
+    selector = queries.selector(spec, server)
+    deadline = deadline_s(loaded.mission, spec, asker, server)
+    tour.query_intro(asker, selector, server, deadline,
+                     "the query's timeout_s" if spec.timeout_s else "the MAC's bound")
+    values, errors, took = await queries.ask(asker, selector, timeout=deadline + 5.0)
+    tour.query_answered(asker, selector, values, errors, took)
+
+
+async def _surfacing_part(tour: Tour, loaded: LoadedMission, fleet: Fleet,
+                          watch: SurfacingWatch | None, started: float) -> None:
+    """The scripted surfacing as the running system saw it: the token over IP, what crossed
+    acoustically and over IP meanwhile, and the first acoustic value after the dive."""
+    tour.part("surfacing")
+    plan = surfaced_vehicle(loaded)
+    if watch is None or plan is None or fleet.water is None:
+        tour.say("No vehicle of this mission surfaces: nothing to show.")
+        return
+    surface, vehicle, up_s, down_s = plan
+    tour.surfacing_intro(vehicle, surface, up_s, down_s)
+    origin = fleet.water.started_at or started
+    core = fleet.nodes[vehicle].core
+    before = dict(core.stats.sent_per_channel)
+    dropped = fleet.nodes[surface].core.surfacing
+    seen_before = dropped.duplicates if dropped is not None else 0
+    up = await _switch(watch, True, origin + up_s + SWITCH_WAIT_S)
+    if up is None:
+        tour.not_seen(f"{vehicle} joining over IP")
+        return
+    tour.switched(vehicle, surface, True, up - origin)
+    down = await _switch(watch, False, origin + down_s + SWITCH_WAIT_S, after=up)
+    if down is None:
+        tour.not_seen(f"{vehicle}'s dive")
+        return
+    channels = [c for c in loaded.table.channels if c.sent_by(vehicle)]
+    sent = {c.name: core.stats.sent_per_channel[c.name] - before.get(c.name, 0)
+            for c in channels if surface in c.destinations(vehicle)}
+    left = {c.name: tuple(d for d in c.destinations(vehicle) if d != surface)
+            for c in channels}
+    over_ip = watch.between(up, down)
+    if over_ip:
+        tour.over_ip(over_ip[-1][1], _short(over_ip[-1][2]), len(over_ip))
+    tour.acoustic_while_up(vehicle, sent, left, (dropped.duplicates if dropped else 0)
+                           - seen_before, surface)
+    tour.switched(vehicle, surface, False, down - origin)
+    wait = down + 2 * (turn_waits(loaded).get(vehicle) or 10.0) + 2.0
+    after = down + RELAY_SETTLE_S  # a relay already on its way is not an acoustic arrival
+    while not watch.between(after, math.inf) and time.time() < wait:
+        await asyncio.sleep(POLL_S)
+    again = watch.between(after, math.inf)
+    if again:
+        tour.acoustic_again(again[0][1], _short(again[0][2]), again[0][0] - down)
+    else:
+        tour.not_seen(f"{vehicle}'s next acoustic value")
+
+
+async def _switch(watch: SurfacingWatch, up: bool, until: float,
+                  after: float = 0.0) -> float | None:
+    """When the watched token came (``up``) or went, waiting until wall time ``until``."""
+    while (at := watch.switch(up, after)) is None and time.time() < until:
+        watch.changed.clear()
+        await asyncio.to_thread(watch.changed.wait, POLL_S * 5)
+    return at
+
+
+async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float,
+                 fleet: Fleet, queries: QueryApps | None, watch: SurfacingWatch | None,
+                 tasks: list[asyncio.Task[None]]) -> None:
+    """Parts 1 to 6 of the tour, each when the fleet has something to show for it."""
     tour.part("values")
     tour.values_intro()
     await asyncio.to_thread(apps.examples_done.wait, EXAMPLES_WAIT_S)
@@ -502,6 +590,8 @@ async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: flo
     anchors = list(loaded.mission.ranging.anchors or ())
     tour.fixes_intro(anchors)
     apps.show_fixes()
+    await _query_part(tour, loaded, queries, tasks)
+    await _surfacing_part(tour, loaded, fleet, watch, fleet.started)
 
 
 async def run_demo(
@@ -543,14 +633,19 @@ async def run_demo(
         if not runner.done():
             apps.start()
             tasks.append(asyncio.create_task(apps.run()))
-            if loaded.table.queries:  # issue 15: gets across the water
+            queries = None
+            if loaded.table.queries:  # issue 15: gets across the water (a part of the tour)
                 queries = QueryApps(loaded, apps.sessions,
                                     lambda line: console.print(line, highlight=False))
-                tasks.append(asyncio.create_task(queries.run()))
+                tasks.append(asyncio.create_task(queries.run()))  # operators, now and then
+            plan = surfaced_vehicle(loaded)
+            watch = None if plan is None or plan[0] not in apps.sessions else SurfacingWatch(
+                loaded, apps.sessions[plan[0]], plan[0], plan[1])
             if gui:
                 page = await _start_gui(loaded, gui_port, console)
                 tour.gui(None if page is None else page.url, page.node if page else "")
-            tasks.append(asyncio.create_task(_story(apps, tour, loaded, loss)))
+            tasks.append(asyncio.create_task(
+                _story(apps, tour, loaded, loss, fleet, queries, watch, tasks)))
         await runner
     finally:
         if page is not None:
