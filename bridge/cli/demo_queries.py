@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -16,6 +17,7 @@ from typing import Any
 import msgpack
 import zenoh
 
+from bridge.core.queries import deadline_s
 from bridge.errors import DecodeError
 from bridge.mission.loader import LoadedMission
 from bridge.wire.channels import ChannelCodec
@@ -24,6 +26,7 @@ from bridge.wire.queries import QuerySpec
 QUERY_PERIOD_S = 20.0
 FIRST_QUERY_S = 8.0
 TOUR_QUERY_TIMEOUT_S = 30.0  # the tour's query: several TDMA cycles, for repeats under loss
+POLL_S = 0.2
 LEARNED_DEMO_KEYS = 3  # members a demo application publishes on a learned family
 
 
@@ -91,6 +94,9 @@ class QueryApps:
         self.answered = 0
         self.failed = 0
         self.t0 = time.time()
+        self.pending = 0  # the operators' gets not ended yet
+        self.alone = False  # the tour's own get runs: the operators wait
+        self._lock = threading.Lock()
         for spec in loaded.table.queries:
             for server in spec.servers:
                 session = sessions.get(server)
@@ -140,20 +146,45 @@ class QueryApps:
         await done
         return values, errors, ended[0] - asked
 
-    def ask_once(self) -> None:
+    def ask_once(self, until: float = math.inf) -> None:
+        """Each asking node gets every asked key once (those whose deadline would pass
+        ``until``, the tour's end, are not asked: they could only fail as the bridge stops)."""
         for spec in self.loaded.table.queries:
             for asker in spec.askers:
                 session = self.sessions.get(asker)
                 if session is None:
                     continue
                 for server in spec.servers:
-                    if server == asker:
+                    if server == asker or time.time() + deadline_s(
+                            self.loaded.mission, spec, asker, server) > until:
                         continue
                     selector = self.selector(spec, server)
                     asked = time.time()
+                    with self._lock:
+                        self.pending += 1
                     session.get(selector, zenoh.handlers.Callback(
-                        lambda r, a=asker, s=selector, t=asked: self._reply(a, s, t, r)),
-                        timeout=60.0)
+                        lambda r, a=asker, s=selector, t=asked: self._reply(a, s, t, r),
+                        self._ended), timeout=60.0)
+
+    def _ended(self) -> None:  # Zenoh thread: an operator's get is over
+        with self._lock:
+            self.pending -= 1
+
+    async def ask_alone(self, asker: str, selector: str, timeout: Callable[[], float]
+                        ) -> tuple[float | None, tuple[list[Any], list[str], float]]:
+        """:meth:`ask`, once the operators' gets have ended, with theirs held meanwhile;
+        returns the seconds waited for them too (None: none was open). ``timeout()`` is the
+        get's, asked when it starts."""
+        self.alone = True
+        started = time.time()
+        try:
+            busy = self.pending > 0
+            while self.pending > 0:  # each ends by its deadline at the latest
+                await asyncio.sleep(POLL_S)
+            waited = time.time() - started if busy else None
+            return waited, await self.ask(asker, selector, timeout())
+        finally:
+            self.alone = False
 
     def _reply(self, asker: str, selector: str, asked: float, reply: zenoh.Reply) -> None:
         took = time.time() - asked
@@ -166,8 +197,12 @@ class QueryApps:
             self.show(f"[red]{asker:>4}[/] get {selector} failed after {took:.1f} s: "
                       f"{reply.err.payload.to_string()}")
 
-    async def run(self, first_s: float = FIRST_QUERY_S) -> None:
+    async def run(self, first_s: float = FIRST_QUERY_S, until: float = math.inf) -> None:
+        """Ask every QUERY_PERIOD_S from ``first_s`` on, the tour's get aside
+        (:meth:`ask_alone`); no get is left to fail at ``until``."""
         await asyncio.sleep(first_s)  # the links come up first
         while True:
-            self.ask_once()
+            while self.alone:  # the tour's get goes alone
+                await asyncio.sleep(POLL_S)
+            self.ask_once(until)
             await asyncio.sleep(QUERY_PERIOD_S)

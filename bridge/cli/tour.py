@@ -174,10 +174,16 @@ class Tour:
                  f"back, repeating the request if a frame is lost, for up to {deadline:g} s "
                  f"({why}, from zab check).")
 
+    def waited_for_operators(self, waited_s: float) -> None:
+        self.say(f"  (it waited {waited_s:.1f} s for the operators' earlier gets to end: "
+                 "they would share its frames)")
+
     def query_answered(self, asker: str, selector: str, values: list[Any], errors: list[str],
-                       took: float) -> None:
+                       took: float, sends: int | None = None) -> None:
+        went = "" if sends is None else \
+            f", the request sent {sends} time{'s' if sends != 1 else ''}"
         for value in values:
-            self.say(f"  {asker} get {selector} → {value} ({took:.1f} s round trip)")
+            self.say(f"  {asker} get {selector} → {value} ({took:.1f} s round trip{went})")
         for error in errors:
             self.say(f"  {asker} get {selector} failed after {took:.1f} s: {error}")
         if not values and not errors:
@@ -199,12 +205,14 @@ class Tour:
         self.say(f"          {count} values arrived over IP, e.g. {key} = {value}")
 
     def acoustic_while_up(self, vehicle: str, sent: Mapping[str, int],
-                          destinations: Mapping[str, tuple[str, ...]],
+                          destinations: Mapping[str, tuple[str, ...]], published: int,
                           duplicates: int, surface: str) -> None:
         for name, n in sent.items():
             still = ", ".join(destinations[name]) or "nobody"
             self.say(f"          {name}: {n} values sent acoustically while up "
                      f"(acoustic destinations left: {still})")
+        self.say(f"          {published} acoustic values of {vehicle} published at {surface} "
+                 "while up")
         if duplicates:
             self.say(f"          {surface} dropped {duplicates} acoustic copies heard anyway "
                      "(the IP copy wins)")
