@@ -673,7 +673,8 @@ async def run_demo(
             if loaded.table.queries:  # issue 15: gets across the water (a part of the tour)
                 queries = QueryApps(loaded, apps.sessions,
                                     lambda line: console.print(line, highlight=False))
-                tasks.append(asyncio.create_task(queries.run(until=end)))  # operators
+                tasks.append(asyncio.create_task(  # operators, now and then
+                    queries.run(until=end + END_MARGIN_S)))
             watch = None if plan is None or plan[0] not in apps.sessions else SurfacingWatch(
                 loaded, apps.sessions[plan[0]], plan[0], plan[1])
             if gui:

@@ -17,7 +17,6 @@ from typing import Any
 import msgpack
 import zenoh
 
-from bridge.core.queries import deadline_s
 from bridge.errors import DecodeError
 from bridge.mission.loader import LoadedMission
 from bridge.wire.channels import ChannelCodec
@@ -96,6 +95,7 @@ class QueryApps:
         self.t0 = time.time()
         self.pending = 0  # the operators' gets not ended yet
         self.alone = False  # the tour's own get runs: the operators wait
+        self.until = math.inf  # the fleet stops then: replies after it are not the fleet's
         self._lock = threading.Lock()
         for spec in loaded.table.queries:
             for server in spec.servers:
@@ -146,17 +146,15 @@ class QueryApps:
         await done
         return values, errors, ended[0] - asked
 
-    def ask_once(self, until: float = math.inf) -> None:
-        """Each asking node gets every asked key once (those whose deadline would pass
-        ``until``, the tour's end, are not asked: they could only fail as the bridge stops)."""
+    def ask_once(self) -> None:
+        """Each asking node gets every asked key once."""
         for spec in self.loaded.table.queries:
             for asker in spec.askers:
                 session = self.sessions.get(asker)
                 if session is None:
                     continue
                 for server in spec.servers:
-                    if server == asker or time.time() + deadline_s(
-                            self.loaded.mission, spec, asker, server) > until:
+                    if server == asker:
                         continue
                     selector = self.selector(spec, server)
                     asked = time.time()
@@ -187,6 +185,8 @@ class QueryApps:
             self.alone = False
 
     def _reply(self, asker: str, selector: str, asked: float, reply: zenoh.Reply) -> None:
+        if time.time() >= self.until:
+            return  # the bridges are stopping: they end what is still open, not the water
         took = time.time() - asked
         if reply.ok is not None:
             self.answered += 1
@@ -199,10 +199,11 @@ class QueryApps:
 
     async def run(self, first_s: float = FIRST_QUERY_S, until: float = math.inf) -> None:
         """Ask every QUERY_PERIOD_S from ``first_s`` on, the tour's get aside
-        (:meth:`ask_alone`); no get is left to fail at ``until``."""
+        (:meth:`ask_alone`), until the fleet stops at wall time ``until``."""
+        self.until = until
         await asyncio.sleep(first_s)  # the links come up first
         while True:
             while self.alone:  # the tour's get goes alone
                 await asyncio.sleep(POLL_S)
-            self.ask_once(until)
+            self.ask_once()
             await asyncio.sleep(QUERY_PERIOD_S)
