@@ -506,7 +506,7 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
 
 @app.command()
 def demo(
-    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.")] = 60.0,
+    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.")] = 70.0,
     mission: Annotated[Path | None, typer.Option(help="Mission (default: the MORPH fleet).")]
     = None,
     live: Annotated[bool, typer.Option(help="Live terminal view of counters (under the "
@@ -524,6 +524,7 @@ def demo(
 
     It shows values crossing the water and their quantisation, latest-value semantics, an
     acknowledged command over a lossy link, position fixes from acoustic ranges and the GUI,
+    a Zenoh get answered across the water, a vehicle surfacing (its data over IP) and diving,
     then a summary and a mission report with plots.
     """
     from bridge.cli.demo import default_demo_mission, run_demo, tour_mission

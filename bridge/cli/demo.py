@@ -29,11 +29,20 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from bridge.cli.demo_queries import QueryApps, member_keys
+from bridge.cli.demo_queries import QueryApps, member_keys, query_for_tour
+from bridge.cli.demo_surfacing import (
+    SentAtSwitches,
+    SurfacingWatch,
+    surfaced_vehicle,
+    surfacing_for_tour,
+    turns_to_wait,
+)
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
 from bridge.cli.tour import Tour, turn_waits
 from bridge.codec import FieldSpec
 from bridge.core.events import Event
+from bridge.core.mac import frame_time_s
+from bridge.core.queries import UNBOUNDED_TURN_S, deadline_s
 from bridge.errors import MissionError
 from bridge.gui.commands import named_as_command
 from bridge.gui.server import GuiServer
@@ -53,6 +62,9 @@ EXAMPLES = 3  # arrivals shown with their quantisation, of different channels
 EXAMPLES_WAIT_S = 20.0
 EXAMPLE_TRIES = 4  # arrivals of a channel passed over while they show no rounding
 COMMAND_WAIT_S = 25.0  # the tour moves on if a delivery report is still missing by then
+GET_MARGIN_S = 2.0  # past its deadline, the bridge's reply error reaches the get by then
+END_MARGIN_S = 1.0  # the story's waits end this long before the fleet does
+SWITCH_WAIT_S = 10.0  # the tour waits this long past a scripted surfacing or dive for it
 FIX_EVERY_S = 20.0  # a vehicle's fix is printed at most this often
 TOUR_REF = "tour-1"  # correlation of the tour's command (the put's attachment ``ref:...``)
 POLL_S = 0.2
@@ -65,13 +77,18 @@ def default_demo_mission() -> Path:
 
 def tour_mission(path: Path, loss: float = TOUR_LOSS) -> tuple[LoadedMission, list[str]]:
     """The mission at ``path`` as the tour runs it, and the changes made, in words: the water
-    loses ``loss`` of the frames, and the first channel named as a command becomes
-    acknowledged (reliable, so not latching)."""
+    loses ``loss`` of the frames, a mission without queries gets one (the surface node asks
+    the vehicles' health), one without surfacing gets a vehicle surfacing on a scripted path,
+    and the first channel named as a command becomes acknowledged (reliable, so not
+    latching)."""
     data = yaml.safe_load(path.read_text(encoding="utf-8"))
     changes = []
     if loss > 0:
         data.setdefault("modem", {}).setdefault("options", {})["loss"] = loss
         changes.append(f"the water loses {loss:.0%} of frames")
+    for extra in (query_for_tour(data), surfacing_for_tour(data)):
+        if extra is not None:
+            changes.append(extra)
     plain = yaml.safe_dump(data, sort_keys=False)
     for channel in data.get("channels") or []:
         keys = [str(e.get("in", "")) for e in channel.get("elements") or []]
@@ -486,8 +503,110 @@ def _short(value: Any) -> str:
     return text if len(text) < 90 else text[:87] + "..."
 
 
-async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float) -> None:
-    """Parts 1 to 4 of the tour, each when the fleet has something to show for it."""
+async def _query_part(tour: Tour, loaded: LoadedMission, fleet: Fleet,
+                      queries: QueryApps | None, tasks: list[asyncio.Task[None]],
+                      end: float) -> None:
+    """A plain get at the surface answered on a submerged vehicle, alone: the operators' gets
+    (now and then) end first and wait for it (they would share its request, its frames and
+    the open-query limit)."""
+    tour.part("queries")
+    found = None if queries is None else next(
+        ((spec, asker, server) for spec in loaded.table.queries for asker in spec.askers
+         for server in spec.servers if server != asker
+         and {asker, server} <= set(queries.sessions)), None)
+    if queries is None or found is None:
+        tour.say("This mission has no query between two running nodes: nothing to show.")
+    else:
+        spec, asker, server = found
+        selector = queries.selector(spec, server)
+        deadline = deadline_s(loaded.mission, spec, asker, server)
+        tour.query_intro(asker, selector, server, deadline,
+                         "the query's timeout_s" if spec.timeout_s else "the MAC's bound")
+        core = fleet.nodes[asker].core.queries
+        repeated = core.repeated if core is not None else 0
+        # the bridge ends the query itself at its deadline (a reply error); the get waits for
+        # that, but not past the tour's end
+        waited, (values, errors, took) = await queries.ask_alone(
+            asker, selector, lambda: max(1.0, min(deadline + GET_MARGIN_S, end - time.time())))
+        if waited is not None:
+            tour.waited_for_operators(waited)
+        tour.query_answered(asker, selector, values, errors, took,
+                            None if core is None else 1 + core.repeated - repeated)
+
+
+async def _surfacing_part(tour: Tour, loaded: LoadedMission, fleet: Fleet,
+                          watch: SurfacingWatch | None, sent: SentAtSwitches | None,
+                          end: float) -> None:
+    """The scripted surfacing as the running system saw it: the token over IP, what crossed
+    over IP and acoustically meanwhile (the vehicle's own counters at its switches), and the
+    first acoustic value after the dive. Everything is recorded as it happens, so the part
+    tells it right even when it starts late; no wait outlasts the tour (``end``)."""
+    tour.part("surfacing")
+    plan = surfaced_vehicle(loaded)
+    if watch is None or sent is None or plan is None or fleet.water is None:
+        tour.say("No vehicle of this mission surfaces: nothing to show.")
+        return
+    surface, vehicle, up_s, down_s = plan
+    tour.surfacing_intro(vehicle, surface, up_s, down_s)
+    origin = fleet.water.started_at or fleet.started
+    up = await _switch(watch, True, min(end, origin + up_s + SWITCH_WAIT_S))
+    if up is None:
+        tour.not_seen(f"{vehicle} joining over IP")
+        return
+    tour.switched(vehicle, surface, True, up - origin)
+    down = await _switch(watch, False, min(end, origin + down_s + SWITCH_WAIT_S), after=up)
+    if down is None:
+        tour.not_seen(f"{vehicle}'s dive")
+        return
+    over_ip = watch.between(up, math.inf, "ip")
+    if over_ip:
+        tour.over_ip(over_ip[-1][1], _short(over_ip[-1][2]), len(over_ip))
+    else:
+        tour.not_seen(f"a value of {vehicle} over IP")
+    while (counts := sent.while_up()) is None and time.time() < min(end, down + SWITCH_WAIT_S):
+        await asyncio.sleep(POLL_S)  # the vehicle's bridge sees the dive about when ssv does
+    channels = [c for c in loaded.table.channels if c.sent_by(vehicle)]
+    if counts is None:
+        tour.not_seen(f"{vehicle}'s bridge noticing the dive")
+    else:
+        dropped = fleet.nodes[surface].core.surfacing
+        tour.acoustic_while_up(
+            vehicle, {c.name: counts.get(c.name, 0) for c in channels
+                      if surface in c.destinations(vehicle)},
+            {c.name: tuple(d for d in c.destinations(vehicle) if d != surface)
+             for c in channels},
+            len(watch.between(up, down, "acoustic")),
+            dropped.duplicates if dropped is not None else 0, surface)
+    tour.switched(vehicle, surface, False, down - origin)
+    loss = float(loaded.mission.modem.options.get("loss", 0.0) or 0.0)
+    turns = turns_to_wait(loss)
+    turn = turn_waits(loaded).get(vehicle) or UNBOUNDED_TURN_S
+    frame = frame_time_s(loaded.mission, vehicle) or 0.0
+    wait = down + turns * turn + frame  # its next turns, a frame each
+    while not watch.between(down, math.inf, "acoustic") and time.time() < min(wait, end):
+        await asyncio.sleep(POLL_S)
+    again = watch.between(down, math.inf, "acoustic")
+    if again:
+        tour.acoustic_again(again[0][1], _short(again[0][2]), again[0][0] - down)
+    else:
+        tour.not_seen(f"{vehicle}'s next acoustic value ({turns} of its turns, "
+                      f"{min(wait, end) - down:.0f} s after the dive)")
+
+
+async def _switch(watch: SurfacingWatch, up: bool, until: float,
+                  after: float = 0.0) -> float | None:
+    """When the watched token came (``up``) or went, waiting until wall time ``until``."""
+    while (at := watch.switch(up, after)) is None and time.time() < until:
+        watch.changed.clear()
+        await asyncio.to_thread(watch.changed.wait, POLL_S * 5)
+    return at
+
+
+async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float,
+                 fleet: Fleet, queries: QueryApps | None, watch: SurfacingWatch | None,
+                 sent: SentAtSwitches | None, tasks: list[asyncio.Task[None]],
+                 end: float) -> None:
+    """Parts 1 to 6 of the tour, each when the fleet has something to show for it."""
     tour.part("values")
     tour.values_intro()
     await asyncio.to_thread(apps.examples_done.wait, EXAMPLES_WAIT_S)
@@ -502,6 +621,8 @@ async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: flo
     anchors = list(loaded.mission.ranging.anchors or ())
     tour.fixes_intro(anchors)
     apps.show_fixes()
+    await _query_part(tour, loaded, fleet, queries, tasks, end)
+    await _surfacing_part(tour, loaded, fleet, watch, sent, end)
 
 
 async def run_demo(
@@ -515,10 +636,14 @@ async def run_demo(
     tour.intro(changes or [])
     events = EventLog()
     recorder = MissionRecorder()
+    plan = surfaced_vehicle(loaded)
+    sent = None if plan is None else SentAtSwitches(plan[1], plan[0])
 
     def on_event(node: str, event: Event) -> None:
         events(node, event)
         recorder(node, event)
+        if sent is not None:  # the vehicle's counters as its bridge switches
+            sent(node, event, fleet.nodes[node].core.stats.sent_per_channel)
 
     fleet = Fleet(loaded, on_event=on_event)
     if fleet.throwaway_key:
@@ -532,6 +657,7 @@ async def run_demo(
         return water.position(loaded.mission.address_of(node), wall)
 
     apps = VehicleApps(loaded, lambda line: console.print(line, highlight=False), tour, truth)
+    end = time.time() + duration - END_MARGIN_S  # the story's last moment
     runner = asyncio.create_task(
         run_fleet_for(fleet, duration, live=live, console=console, events=events)
     )
@@ -543,14 +669,19 @@ async def run_demo(
         if not runner.done():
             apps.start()
             tasks.append(asyncio.create_task(apps.run()))
-            if loaded.table.queries:  # issue 15: gets across the water
+            queries = None
+            if loaded.table.queries:  # issue 15: gets across the water (a part of the tour)
                 queries = QueryApps(loaded, apps.sessions,
                                     lambda line: console.print(line, highlight=False))
-                tasks.append(asyncio.create_task(queries.run()))
+                tasks.append(asyncio.create_task(  # operators, now and then
+                    queries.run(until=end + END_MARGIN_S)))
+            watch = None if plan is None or plan[0] not in apps.sessions else SurfacingWatch(
+                loaded, apps.sessions[plan[0]], plan[0], plan[1])
             if gui:
                 page = await _start_gui(loaded, gui_port, console)
                 tour.gui(None if page is None else page.url, page.node if page else "")
-            tasks.append(asyncio.create_task(_story(apps, tour, loaded, loss)))
+            tasks.append(asyncio.create_task(
+                _story(apps, tour, loaded, loss, fleet, queries, watch, sent, tasks, end)))
         await runner
     finally:
         if page is not None:

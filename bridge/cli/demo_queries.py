@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -23,7 +24,27 @@ from bridge.wire.queries import QuerySpec
 
 QUERY_PERIOD_S = 20.0
 FIRST_QUERY_S = 8.0
+TOUR_QUERY_TIMEOUT_S = 30.0  # the tour's query: several TDMA cycles, for repeats under loss
+POLL_S = 0.2
 LEARNED_DEMO_KEYS = 3  # members a demo application publishes on a learned family
+
+
+def query_for_tour(data: dict[str, Any]) -> str | None:
+    """Give a mission without queries (raw YAML data, changed in place) one for the tour: the
+    surface node gets ``<vehicle>/health`` from any submerged vehicle. Returns the change in
+    words (None: it has queries, or no surface node and vehicle)."""
+    nodes = data.get("nodes") or {}
+    surface = next((n for n, v in nodes.items() if v.get("role") == "surface"), None)
+    vehicles = [n for n, v in nodes.items() if v.get("role", "submerged") != "surface"]
+    if data.get("queries") or surface is None or not vehicles:
+        return None
+    data["queries"] = [{
+        "name": "health", "key": "{node}/health", "serve": "|".join(vehicles), "ask": surface,
+        "reply": [{"field": "battery", "type": "int", "min": 0, "max": 100},
+                  {"field": "depth_m", "min": 0, "max": 200, "resolution": 0.5}],
+        "timeout_s": TOUR_QUERY_TIMEOUT_S}]
+    return (f"{surface} may get <vehicle>/health from a queryable on any vehicle (a query "
+            f"across the water, {TOUR_QUERY_TIMEOUT_S:g} s to answer)")
 
 
 def member_keys(channel: ChannelCodec, element: int, node: str) -> list[str]:
@@ -52,11 +73,13 @@ def _reply_value(spec: QuerySpec, t: float, params: dict[str, Any]) -> dict[str,
 
 def _plausible(field: Any, t: float) -> Any:
     """A value the field encodes, moving slowly through its codes."""
-    top = (1 << field.bits) - 1
-    try:
-        return field.decode(int(top * (0.5 + 0.4 * math.sin(t / 30))))
-    except DecodeError:
-        return field.decode(0)
+    code = int(((1 << field.bits) - 1) * (0.5 + 0.4 * math.sin(t / 30)))
+    while code > 0:  # a code past the field's range (an int field's spare codes): go lower
+        try:
+            return field.decode(code)
+        except DecodeError:
+            code //= 2
+    return field.decode(0)
 
 
 class QueryApps:
@@ -70,6 +93,10 @@ class QueryApps:
         self.answered = 0
         self.failed = 0
         self.t0 = time.time()
+        self.pending = 0  # the operators' gets not ended yet
+        self.alone = False  # the tour's own get runs: the operators wait
+        self.until = math.inf  # the fleet stops then: replies after it are not the fleet's
+        self._lock = threading.Lock()
         for spec in loaded.table.queries:
             for server in spec.servers:
                 session = sessions.get(server)
@@ -87,7 +114,40 @@ class QueryApps:
                     encoding=zenoh.Encoding("application/msgpack"))
         query.drop()
 
+    def selector(self, spec: QuerySpec, server: str) -> str:
+        """The selector an operator gets: the asked key, with each request field at zero."""
+        params = ";".join(f"{f.path}={f.decode(0)}" for f in spec.request.fields
+                          if "." not in f.path)
+        return spec.asked_key(server) + (f"?{params}" if params else "")
+
+    async def ask(self, asker: str, selector: str,
+                  timeout: float = 60.0) -> tuple[list[Any], list[str], float]:
+        """One plain Zenoh get at ``asker``: the reply values, the reply errors, and the
+        seconds from the get to its end (its last reply)."""
+        session = self.sessions[asker]
+        loop = asyncio.get_running_loop()
+        done: asyncio.Future[None] = loop.create_future()
+        values: list[Any] = []
+        errors: list[str] = []
+        ended: list[float] = []
+
+        def on_reply(reply: zenoh.Reply) -> None:  # Zenoh thread
+            if reply.ok is not None:
+                values.append(msgpack.unpackb(reply.ok.payload.to_bytes()))
+            else:
+                errors.append(reply.err.payload.to_string())
+
+        def finished() -> None:
+            ended.append(time.time())
+            loop.call_soon_threadsafe(lambda: done.done() or done.set_result(None))
+
+        asked = time.time()
+        session.get(selector, zenoh.handlers.Callback(on_reply, finished), timeout=timeout)
+        await done
+        return values, errors, ended[0] - asked
+
     def ask_once(self) -> None:
+        """Each asking node gets every asked key once."""
         for spec in self.loaded.table.queries:
             for asker in spec.askers:
                 session = self.sessions.get(asker)
@@ -96,15 +156,37 @@ class QueryApps:
                 for server in spec.servers:
                     if server == asker:
                         continue
-                    params = ";".join(f"{f.path}={f.decode(0)}" for f in spec.request.fields
-                                      if "." not in f.path)
-                    selector = spec.asked_key(server) + (f"?{params}" if params else "")
+                    selector = self.selector(spec, server)
                     asked = time.time()
+                    with self._lock:
+                        self.pending += 1
                     session.get(selector, zenoh.handlers.Callback(
-                        lambda r, a=asker, s=selector, t=asked: self._reply(a, s, t, r)),
-                        timeout=60.0)
+                        lambda r, a=asker, s=selector, t=asked: self._reply(a, s, t, r),
+                        self._ended), timeout=60.0)
+
+    def _ended(self) -> None:  # Zenoh thread: an operator's get is over
+        with self._lock:
+            self.pending -= 1
+
+    async def ask_alone(self, asker: str, selector: str, timeout: Callable[[], float]
+                        ) -> tuple[float | None, tuple[list[Any], list[str], float]]:
+        """:meth:`ask`, once the operators' gets have ended, with theirs held meanwhile;
+        returns the seconds waited for them too (None: none was open). ``timeout()`` is the
+        get's, asked when it starts."""
+        self.alone = True
+        started = time.time()
+        try:
+            busy = self.pending > 0
+            while self.pending > 0:  # each ends by its deadline at the latest
+                await asyncio.sleep(POLL_S)
+            waited = time.time() - started if busy else None
+            return waited, await self.ask(asker, selector, timeout())
+        finally:
+            self.alone = False
 
     def _reply(self, asker: str, selector: str, asked: float, reply: zenoh.Reply) -> None:
+        if time.time() >= self.until:
+            return  # the bridges are stopping: they end what is still open, not the water
         took = time.time() - asked
         if reply.ok is not None:
             self.answered += 1
@@ -115,8 +197,13 @@ class QueryApps:
             self.show(f"[red]{asker:>4}[/] get {selector} failed after {took:.1f} s: "
                       f"{reply.err.payload.to_string()}")
 
-    async def run(self) -> None:
-        await asyncio.sleep(FIRST_QUERY_S)  # the links come up first
+    async def run(self, first_s: float = FIRST_QUERY_S, until: float = math.inf) -> None:
+        """Ask every QUERY_PERIOD_S from ``first_s`` on, the tour's get aside
+        (:meth:`ask_alone`), until the fleet stops at wall time ``until``."""
+        self.until = until
+        await asyncio.sleep(first_s)  # the links come up first
         while True:
+            while self.alone:  # the tour's get goes alone
+                await asyncio.sleep(POLL_S)
             self.ask_once()
             await asyncio.sleep(QUERY_PERIOD_S)

@@ -23,6 +23,8 @@ PARTS = {
     "latest": "Latest value, not a queue",
     "command": "A reliable command over a lossy link",
     "fixes": "Position fixes from acoustic ranges",
+    "queries": "A Zenoh get across the water",
+    "surfacing": "A vehicle surfaces, then dives",
     "summary": "Summary",
 }
 
@@ -163,6 +165,64 @@ class Tour:
         self.say(f"Every frame carries DLBL timing, so each vehicle measures its range to the "
                  f"anchors ({', '.join(anchors)}) for free and its bridge publishes a position "
                  "fix on @zab/<mission>/<node>/position:")
+
+    def query_intro(self, asker: str, selector: str, server: str, deadline: float,
+                    why: str) -> None:
+        self.say(f"An application on {asker} calls a plain Zenoh get({selector!r}); a queryable "
+                 f"on {server} (an ordinary Zenoh app) answers it. {asker}'s bridge carries the "
+                 f"request in a frame, {server}'s bridge runs the get there and sends the reply "
+                 f"back, repeating the request if a frame is lost, for up to {deadline:g} s "
+                 f"({why}, from zab check).")
+
+    def waited_for_operators(self, waited_s: float) -> None:
+        self.say(f"  (it waited {waited_s:.1f} s for the operators' earlier gets to end: "
+                 "they would share its frames)")
+
+    def query_answered(self, asker: str, selector: str, values: list[Any], errors: list[str],
+                       took: float, sends: int | None = None) -> None:
+        went = "" if sends is None else \
+            f", the request sent {sends} time{'s' if sends != 1 else ''}"
+        for value in values:
+            self.say(f"  {asker} get {selector} → {value} ({took:.1f} s round trip{went})")
+        for error in errors:
+            self.say(f"  {asker} get {selector} failed after {took:.1f} s: {error}")
+        if not values and not errors:
+            self.say(f"  {asker} get {selector}: no reply ({took:.1f} s)")
+
+    def surfacing_intro(self, vehicle: str, surface: str, up_s: float, down_s: float) -> None:
+        self.say(f"{vehicle}'s scripted path reaches the surface {up_s:.0f} s into the "
+                 f"simulation and dives at {down_s:.0f} s. At the surface its Zenoh joins "
+                 f"{surface}'s over WiFi: the bridges see each other's liveliness token and "
+                 f"stop carrying {vehicle}'s channels to {surface} acoustically; its "
+                 "programs' values reach the surface over IP, unquantised.")
+
+    def switched(self, vehicle: str, surface: str, up: bool, at_s: float) -> None:
+        what = ("joined over IP (its bridge token is visible at" if up
+                else "dived: its bridge token is gone from")
+        self.say(f"  {at_s:5.1f} s  {vehicle} {what} {surface}{')' if up else ''}")
+
+    def over_ip(self, key: str, value: Any, count: int) -> None:
+        self.say(f"          {count} values arrived over IP, e.g. {key} = {value}")
+
+    def acoustic_while_up(self, vehicle: str, sent: Mapping[str, int],
+                          destinations: Mapping[str, tuple[str, ...]], published: int,
+                          duplicates: int, surface: str) -> None:
+        for name, n in sent.items():
+            still = ", ".join(destinations[name]) or "nobody"
+            self.say(f"          {name}: {n} values sent acoustically while up "
+                     f"(acoustic destinations left: {still})")
+        self.say(f"          {published} acoustic values of {vehicle} published at {surface} "
+                 "while up")
+        if duplicates:
+            self.say(f"          {surface} dropped {duplicates} acoustic copies heard anyway "
+                     "(the IP copy wins)")
+
+    def acoustic_again(self, key: str, value: Any, after_s: float) -> None:
+        self.say(f"          back over the water {after_s:.1f} s after the dive: {key} = "
+                 f"{value} (quantised, the latest value: no backlog)")
+
+    def not_seen(self, what: str) -> None:
+        self.say(f"  ({what} not seen before the tour moved on)")
 
     def summary(self, report: Mapping[str, Any], published: Mapping[str, int],
                 range_errors: list[float]) -> None:

@@ -49,14 +49,15 @@ def test_zab_demo_tells_the_tour_and_writes_the_report(tmp_path: Path) -> None:
     out = done.stdout
     assert done.returncode == 0, done.stderr + out
     assert "Traceback" not in done.stderr + out
-    assert 55 <= took <= 150, took  # ends by itself, in about a minute
+    assert 65 <= took <= 160, took  # ends by itself, in about a minute
 
     headings = ["1. Values crossing the water, quantised", "2. Latest value, not a queue",
                 "3. A reliable command over a lossy link",
-                "4. Position fixes from acoustic ranges", "5. Summary"]
+                "4. Position fixes from acoustic ranges", "5. A Zenoh get across the water",
+                "6. A vehicle surfaces, then dives", "7. Summary"]
     where = [out.find(h) for h in headings]
     assert all(i >= 0 for i in where) and where == sorted(where), out
-    intro, values, latest, command, fixes, summary = (
+    intro, values, latest, command, fixes, query, surfacing, summary = (
         out[:where[0]], *(out[a:b] for a, b in zip(where, [*where[1:], len(out)], strict=True)))
 
     assert "You will see, in order: 1. values crossing the water, quantised;" in \
@@ -78,7 +79,21 @@ def test_zab_demo_tells_the_tour_and_writes_the_report(tmp_path: Path) -> None:
     assert re.search(r"position \((tracking|coasting \d+ s), \w+ \+ \w+\): x -?[\d.]+ m, "
                      r"y -?[\d.]+ m, ±[\d.]+ m · truth x -?[\d.]+, y -?[\d.]+ · "
                      r"error [\d.]+ m", fixes), fixes  # each fix beside the simulator's truth
-    # 5: a summary a newcomer can read, and the report's path
+    # 5: a plain get at the surface answered by a queryable on a submerged vehicle
+    # (alone: the operators' gets, printed as they end, wait for it)
+    assert re.search(r"^  ssv get \w+/health → \{'battery': \d+, 'depth_m': [\d.]+\} "
+                     r"\([\d.]+ s round trip, the request sent \d+ times?\)$", query, re.M), query
+    # 6: the scripted surfacing, as the running system saw it
+    flat = " ".join(surfacing.split())
+    assert re.search(r"[\d.]+ s cv2 joined over IP \(its bridge token is visible at ssv\)",
+                     flat), surfacing
+    assert re.search(r"\d+ values arrived over IP, e\.g\. cv2/\w+ = ", flat), surfacing
+    assert re.search(r"status: 0 values sent acoustically while up", flat), surfacing
+    assert re.search(r"\b0 acoustic values of cv2 published at ssv while up", flat), surfacing
+    assert re.search(r"[\d.]+ s cv2 dived: its bridge token is gone from ssv", flat), surfacing
+    assert re.search(r"back over the water [\d.]+ s after the dive: cv2/\w+ = ", flat), \
+        surfacing
+    # 7: a summary a newcomer can read, and the report's path
     for words in ("published", "sent in frames", "received", "mean age",
                   "acoustic ranges measured"):
         assert words in summary, words
@@ -117,3 +132,24 @@ def test_synthetic_status_varies_slowly_and_plausibly() -> None:
     depth = FieldSpec(field="depth", min=0, max=100, resolution=0.1)
     values = [synthetic_value(depth, t, 0.5) for t in range(0, 120)]
     assert max(abs(a - b) for a, b in itertools.pairwise(values)) < 0.5
+
+
+def test_the_wait_after_a_dive_covers_enough_turns_for_the_loss() -> None:
+    from bridge.cli.demo_surfacing import turns_to_wait
+
+    assert turns_to_wait(0.0) == 1
+    assert turns_to_wait(0.1) == 3  # all three lost: 1 in 1000
+    assert turns_to_wait(0.3) == 6
+    assert 0.3 ** turns_to_wait(0.3) <= 1e-3 < 0.3 ** (turns_to_wait(0.3) - 1)
+
+
+def test_sends_while_up_come_from_the_vehicles_own_switches() -> None:
+    from bridge.cli.demo_surfacing import SentAtSwitches
+    from bridge.core.events import Surfaced
+
+    sent = SentAtSwitches("cv2", "ssv")
+    sent("cv2", Surfaced(1.0, "ssv", True), {"nav": 3, "status": 1})
+    assert sent.while_up() is None  # not dived yet
+    sent("ssv", Surfaced(2.0, "cv2", False), {"nav": 9})  # the surface's view: not these
+    sent("cv2", Surfaced(5.0, "ssv", False), {"nav": 5, "status": 1})
+    assert sent.while_up() == {"nav": 2, "status": 0}

@@ -1,0 +1,162 @@
+"""The surfacing part of ``zab demo``: a vehicle's scripted path brings it to the surface, where
+``zab sim``'s simulated WiFi joins its Zenoh to the surface's (:mod:`bridge.runtime.surface_wifi`,
+decided by :func:`bridge.sim.scenario.surface_script`), then it dives again.
+
+:func:`surfacing_for_tour` makes the mission do it (when it has no ``surfacing`` yet);
+:class:`SurfacingWatch` is a plain Zenoh application at the surface node that sees it happen:
+the vehicle's bridge token appearing and going, and what arrives from the vehicle meanwhile.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import msgpack
+import zenoh
+
+from bridge.core.events import Event, Surfaced
+from bridge.mission.loader import LoadedMission
+from bridge.runtime.session import origin_tag
+from bridge.sim.scenario import surface_script
+
+SURFACE_AT_S = 30.0  # path time at which the tour's vehicle reaches the surface
+SURFACED_S = 14.0  # how long it stays there
+ROUTER = {"mode": "router", "scouting/delay": 0, "scouting/gossip/enabled": False}
+
+
+def surfacing_for_tour(data: dict[str, Any]) -> str | None:
+    """Give the mission (raw YAML data, changed in place) a scripted surfacing: the last
+    submerged vehicle with a position rises to the surface, stays, dives; it and the surface
+    node run Zenoh routers, so the simulated WiFi joins them. Returns the change in words
+    (None: the mission has surfacing already, or no surface node or vehicle to use)."""
+    nodes = data.get("nodes") or {}
+    surface = next((n for n, v in nodes.items() if v.get("role") == "surface"), None)
+    vehicles = [n for n, v in nodes.items() if v.get("role", "submerged") != "surface"
+                and v.get("position") and not v.get("path")]
+    if data.get("surfacing") is not None or surface is None or not vehicles:
+        return None
+    name = vehicles[-1]
+    node = nodes[name]
+    x, y = float(node["position"].get("x", 0)), float(node["position"].get("y", 0))
+    depth = float(node["position"].get("depth", 0))
+    if depth <= 0:
+        return None
+    speed = depth / SURFACE_AT_S
+    along = round(y + speed * SURFACED_S, 2)
+    node["path"] = {"speed_mps": round(speed, 6), "waypoints": [
+        {"x": x, "y": y, "depth": depth}, {"x": x, "y": y, "depth": 0},
+        {"x": x, "y": along, "depth": 0}, {"x": x, "y": along, "depth": depth}]}
+    node.pop("nav_key", None)  # the path moves it, not its navigation
+    for who in (surface, name):
+        nodes[who].setdefault("zenoh", {}).update(ROUTER)
+    data["surfacing"] = {"republish": True}
+    return (f"{name} surfaces about {SURFACE_AT_S:.0f} s in for about {SURFACED_S:.0f} s (a "
+            f"scripted path); {surface}'s and {name}'s Zenoh run as routers, joined over the "
+            "simulated WiFi while it is up")
+
+
+def turns_to_wait(loss: float, miss: float = 1e-3) -> int:
+    """How many of a sender's turns to wait for one frame to get through water losing
+    ``loss`` of the frames, so that all of them being lost has odds below ``miss``."""
+    if loss <= 0:
+        return 1
+    if loss >= 1:
+        return 1  # nothing gets through: waiting longer shows nothing more
+    return max(1, math.ceil(math.log(miss) / math.log(loss) - 1e-9))
+
+
+class SentAtSwitches:
+    """The vehicle's own bridge, as it saw the surface node come and go over IP: its count of
+    values sent acoustically per channel at each switch (fed the fleet's events)."""
+
+    def __init__(self, vehicle: str, surface: str) -> None:
+        self.vehicle, self.surface = vehicle, surface
+        self.switches: list[tuple[bool, dict[str, int]]] = []
+        self._lock = threading.Lock()
+
+    def __call__(self, node: str, event: Event, sent: Mapping[str, int]) -> None:
+        if node == self.vehicle and isinstance(event, Surfaced) and event.peer == self.surface:
+            with self._lock:
+                self.switches.append((event.ip, dict(sent)))
+
+    def while_up(self) -> dict[str, int] | None:
+        """Values sent per channel between the vehicle's first up and the down after it (None:
+        its bridge has not seen both yet)."""
+        with self._lock:
+            up = next((i for i, (ip, _) in enumerate(self.switches) if ip), None)
+            if up is None:
+                return None
+            down = next((c for ip, c in self.switches[up + 1:] if not ip), None)
+            if down is None:
+                return None
+            before = self.switches[up][1]
+        return {name: n - before.get(name, 0) for name, n in down.items()}
+
+
+class SurfacingWatch:
+    """At the surface node: the vehicle's bridge token (up: joined over IP) and the values
+    arriving from the vehicle, with wall times and how each came: ``ip`` (relayed by the
+    vehicle's bridge) or ``acoustic`` (published by the surface's bridge from a frame)."""
+
+    def __init__(self, loaded: LoadedMission, session: zenoh.Session, surface: str,
+                 vehicle: str) -> None:
+        self.surface, self.vehicle = surface, vehicle
+        self.t0 = time.time()
+        self.switches: list[tuple[float, bool]] = []
+        self.arrivals: list[tuple[float, str, Any, str]] = []
+        mission = loaded.mission.mission
+        self._via = {origin_tag(mission, vehicle): "ip", origin_tag(mission, surface): "acoustic"}
+        self.changed = threading.Event()
+        self._lock = threading.Lock()
+        keys = sorted({e.output_key(vehicle, surface) for c in loaded.table.channels
+                       if c.sent_by(vehicle) and surface in c.destinations(vehicle)
+                       for e in c.elements})
+        self.keys = keys
+        self._entities = [session.declare_subscriber(k, self._arrived) for k in keys]
+        self._entities.append(session.liveliness().declare_subscriber(
+            f"@zab/{loaded.mission.mission}/{vehicle}/bridge", self._token, history=True))
+
+    def _token(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            self.switches.append((time.time(), sample.kind == zenoh.SampleKind.PUT))
+        self.changed.set()
+
+    def _arrived(self, sample: zenoh.Sample) -> None:
+        attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
+        via = self._via.get(attachment)
+        if via is None:  # not from either bridge
+            return
+        try:
+            value = msgpack.unpackb(sample.payload.to_bytes())
+        except ValueError:
+            return
+        with self._lock:
+            self.arrivals.append((time.time(), str(sample.key_expr), value, via))
+        self.changed.set()
+
+    def switch(self, up: bool, after: float = 0.0) -> float | None:
+        """When the token last came (``up``) or went, after wall time ``after``."""
+        with self._lock:
+            return next((t for t, u in reversed(self.switches) if u == up and t >= after), None)
+
+    def between(self, start: float, end: float, via: str) -> list[tuple[float, str, Any]]:
+        """Arrivals ``via`` ip or acoustic at wall times in [start, end)."""
+        with self._lock:
+            return [a[:3] for a in self.arrivals if start <= a[0] < end and a[3] == via]
+
+
+def surfaced_vehicle(loaded: LoadedMission) -> tuple[str, str, float, float] | None:
+    """(surface node, vehicle, surfacing, dive) of the mission's first scripted surfacing, in
+    seconds of path time (None: there is none)."""
+    script = surface_script(loaded)
+    if script is None or not script.surface_nodes:
+        return None
+    for vehicle, windows in script.windows.items():
+        for start, end in windows:
+            if start >= 0 and end < float("inf"):
+                return script.surface_nodes[0], vehicle, start, end
+    return None
