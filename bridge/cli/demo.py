@@ -372,11 +372,15 @@ class VehicleApps:
                         layout = compiled.elements[e_index].layout
                         value = layout.synthetic_value(  # type: ignore[attr-defined]
                             random.Random(hash((node, t))))
+                    sailed = self._sailed(node)
+                    if sailed is None and self.loaded.mission.nodes[node].path is not None:
+                        continue  # not in the water yet: nothing to navigate by
                     for f_index, spec in enumerate(element.fields):
                         if not spec.field:
                             continue
-                        moving = None if position is None else formation_value(
-                            spec.field, (position.x, position.y, position.depth), t)
+                        moving = sailed.get(spec.field) if sailed is not None else \
+                            None if position is None else formation_value(
+                                spec.field, (position.x, position.y, position.depth), t)
                         phase = _phase(node, channel.name, e_index, f_index)
                         _set(value, spec.field,
                              moving if moving is not None else synthetic_value(spec, t, phase))
@@ -390,6 +394,23 @@ class VehicleApps:
                             self.published[channel.name] += 1
                             self.history.setdefault((node, key), deque(maxlen=8)).append(
                                 (time.time(), value))
+
+    def _sailed(self, node: str) -> dict[str, float] | None:
+        """The navigation of a node moved by a scripted path: where the simulator has it, its
+        heading and speed over the last second (None: not on a path, or not in the water)."""
+        if self.loaded.mission.nodes[node].path is None or self.truth is None:
+            return None
+        now = time.time()
+        try:
+            here, before = self.truth(node, now), self.truth(node, now - 1.0)
+        except KeyError:  # its modem is not in the water yet
+            return None
+        if here is None or before is None:
+            return None
+        east, north = here[0] - before[0], here[1] - before[1]
+        return {"x": round(here[0], 3), "y": round(here[1], 3), "depth": round(here[2], 3),
+                "heading": round(math.degrees(math.atan2(east, north)) % 360, 3),
+                "speed": round(math.hypot(east, north), 3)}
 
     async def run(self) -> None:
         t0 = time.time()

@@ -25,6 +25,7 @@ from bridge.sim.scenario import surface_script
 
 SURFACE_AT_S = 30.0  # path time at which the tour's vehicle reaches the surface
 SURFACED_S = 14.0  # how long it stays there
+TRANSIT_MPS = 0.8  # the formation's speed (bridge.cli.demo), which it keeps
 ROUTER = {"mode": "router", "scouting/delay": 0, "scouting/gossip/enabled": False}
 
 
@@ -45,12 +46,17 @@ def surfacing_for_tour(data: dict[str, Any]) -> str | None:
     depth = float(node["position"].get("depth", 0))
     if depth <= 0:
         return None
-    speed = depth / SURFACE_AT_S
-    along = round(y + speed * SURFACED_S, 2)
-    node["path"] = {"speed_mps": round(speed, 6), "waypoints": [
-        {"x": x, "y": y, "depth": depth}, {"x": x, "y": y, "depth": 0},
-        {"x": x, "y": along, "depth": 0}, {"x": x, "y": along, "depth": depth}]}
-    node.pop("nav_key", None)  # the path moves it, not its navigation
+    # it keeps sailing north with the formation, rising to the surface and diving again on
+    # the way, so its navigation (and its position track) stays that of a transiting vehicle
+    run = TRANSIT_MPS * SURFACE_AT_S  # metres sailed (along the slope) until it surfaces
+    rise = math.sqrt(max(run**2 - depth**2, 0.0))  # northward while rising
+    north = [y + rise, y + rise + TRANSIT_MPS * SURFACED_S]
+    north.append(north[-1] + rise)
+    node["path"] = {"speed_mps": TRANSIT_MPS, "waypoints": [
+        {"x": x, "y": y, "depth": depth}, {"x": x, "y": round(north[0], 2), "depth": 0},
+        {"x": x, "y": round(north[1], 2), "depth": 0},
+        {"x": x, "y": round(north[2], 2), "depth": depth},
+        {"x": x, "y": round(north[2] + TRANSIT_MPS * 600, 2), "depth": depth}]}
     for who in (surface, name):
         nodes[who].setdefault("zenoh", {}).update(ROUTER)
     data["surfacing"] = {"republish": True}

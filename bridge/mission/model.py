@@ -91,8 +91,9 @@ class Node(Strict):
     position: Position | None = None
     nav_key: str | None = Field(
         None,
-        description="Zenoh key of this node's live position ({x, y, depth} in metres); the "
-        "simulated ocean moves the node with it.",
+        description="Zenoh key of this node's live position ({x, y, depth} in metres, with "
+        "heading and speed if it has them: they steer its position tracker); the simulated "
+        "ocean moves the node with it, unless a scripted path does.",
     )
     path: NodePath | None = Field(
         None,

@@ -273,9 +273,10 @@ class BridgeNode:
         self.core.positioning.set_heading(heading, speed, self.clock())
 
     def move(self, position: tuple[float, ...]) -> None:
-        """This node's live position: move the (simulated) modem and keep the depth."""
+        """This node's live position: move the (simulated) modem, unless a scripted path
+        moves it, and keep the depth."""
         x, y, depth = position
-        if self.backend is not None:
+        if self.backend is not None and self.mission.nodes[self.node].path is None:
             self.backend.set_position(x, y, depth)
         if self.core.positioning is not None:
             self.core.positioning.set_depth(depth)
