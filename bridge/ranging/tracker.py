@@ -125,7 +125,7 @@ class TrackerConfig:
     jump_window_s: float = 2.5  # how far back a manoeuvre (a jump of velocity) is looked for
     jump_steps: int = 6  # ... and at least so many ranges back
     jump_test_nis: float = 2.0  # a range this far out asks whether the vehicle manoeuvred
-    jump_min_llr: float = 3.0  # log-likelihood a manoeuvre must gain over none to be taken
+    jump_min_llr: float = 2.0  # log-likelihood a manoeuvre must gain over none to be taken
     jump_ring_deg: float = 45.0  # the turns a manoeuvre test tries: a ring, every so many °
     gate_nis: float = GATE_NIS_1DOF
     coast_after_s: float = 6.0

@@ -24,14 +24,17 @@ def test_three_anchors_and_a_compass(bench: ModuleType) -> None:
     assert row["p95"] <= 0.3 and row["corner95"] <= 0.35 and row["west95"] <= 0.3
     assert row["flips"] == 0 and row["nees_in"] >= 0.9 and row["finite"]
     assert row["snap95"] > 5 * row["p95"]  # what a snapshot fix published before
+    # by time since the last corner: every bin shares the whole, none far out with a compass
+    shares = [share for _, share, _, _ in row["after_turn"]]
+    assert len(shares) == 5 and math.isclose(sum(shares), 1.0)
+    assert all(p95 <= 0.35 for _, _, p95, _ in row["after_turn"])
 
 
-def test_three_anchors_a_1hz_compass_and_turns_a_vehicle_can_make(bench: ModuleType) -> None:
-    # corners as 2 m arcs (1.1 m/s² sideways): a 1 Hz compass is enough for issue #16's 0.3 m
-    row = bench.seed001_row("3r", ("left", "middle", "right"), 0.5, heading_hz=1.0,
-                            turn_radius_m=2.0, seed=11)
-    assert row["p95"] <= 0.3 and row["west95"] <= 0.3 and row["corner95"] <= 0.4
-    assert row["flips"] == 0 and row["nees_in"] >= 0.9 and row["finite"]
+def test_time_since_corner(bench: ModuleType) -> None:
+    lap = 80.0 / 1.5
+    assert bench.since_corner(0.0) == 0.0
+    assert math.isclose(bench.since_corner(10.0 / 1.5 + 0.25), 0.25)
+    assert math.isclose(bench.since_corner(lap - 0.5), lap - 0.5 - 50.0 / 1.5)  # west leg
 
 
 def test_two_anchors_an_hour_at_seed001_reception(bench: ModuleType) -> None:
