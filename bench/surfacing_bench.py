@@ -29,21 +29,12 @@ import zenoh
 
 from bridge.core.events import Event, Surfaced
 from bridge.mission.loader import parse_mission
+from bridge.runtime.surface_wifi import access_point
 from tests.conftest import MISSIONS, free_port
 from tests.harness import outside_session, running_fleet
 
 CYCLE_S = 3.0
 
-
-def router(endpoints: list[str]) -> zenoh.Session:
-    config = zenoh.Config()
-    config.insert_json5("mode", '"router"')
-    config.insert_json5("listen/endpoints", "[]")
-    config.insert_json5("connect/endpoints", json.dumps(endpoints))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    config.insert_json5("scouting/gossip/enabled", "false")
-    config.insert_json5("scouting/delay", "0")
-    return zenoh.open(config)
 
 
 def wait_for(condition: Any, timeout: float) -> float | None:
@@ -106,7 +97,7 @@ def main() -> None:
             for _ in range(args.cycles):
                 switched.clear()
                 joined = time.time()
-                wifi = router(loaded.mission.nodes["top"].zenoh.listen
+                wifi = access_point(loaded.mission.nodes["top"].zenoh.listen
                               + loaded.mission.nodes["auv1"].zenoh.listen)
                 both_up = wait_for(lambda: max(switched[(n, True)] for n in ("top", "auv1"))
                                    if all((n, True) in switched for n in ("top", "auv1"))

@@ -3,16 +3,15 @@ copies; after the dive acoustic bridging resumes within a cycle, latched state a
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import msgpack
 import yaml
-import zenoh
 
 from bridge.core.surfacing import Relay
 from bridge.mission.loader import load_mission
+from bridge.runtime.surface_wifi import access_point
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.payloads import encode_payload
 from tests.conftest import MISSIONS
@@ -77,17 +76,6 @@ def test_a_sender_that_has_not_noticed_is_not_published_twice() -> None:
     assert f.cores["top"].surfacing.duplicates >= 1
 
 
-def router(endpoints: list[str]) -> zenoh.Session:
-    """The surface WiFi: a router joining the surface's and the vehicle's routers."""
-    config = zenoh.Config()
-    config.insert_json5("mode", '"router"')
-    config.insert_json5("listen/endpoints", "[]")
-    config.insert_json5("connect/endpoints", json.dumps(endpoints))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    config.insert_json5("scouting/gossip/enabled", "false")
-    config.insert_json5("scouting/delay", "0")
-    return zenoh.open(config)
-
 
 def test_surfacing_and_diving_through_zab_sim(tmp_path: Path) -> None:
     data = yaml.safe_load(ZSPACE.read_text())
@@ -108,7 +96,7 @@ def test_surfacing_and_diving_through_zab_sim(tmp_path: Path) -> None:
             while not got and time.time() < deadline:
                 time.sleep(0.1)
             assert got and got[0][1] == {"battery": 77, "mode": "survey"}  # quantised
-            wifi = router(endpoints["top"] + endpoints["auv1"])
+            wifi = access_point(endpoints["top"] + endpoints["auv1"])
             time.sleep(2.0)  # the tokens cross; the bridges switch over
             got.clear()
             put(auv1, "status", {"battery": 66.6, "mode": "transit"})
