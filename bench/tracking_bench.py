@@ -14,7 +14,8 @@ the other rows turn instantly, which none can.
 Errors are horizontal, estimate against the truth at the estimate's time, after every range;
 NEES in 95 % bounds: the share of updates whose normalised estimation error squared lies in
 χ²₂'s 2.5–97.5 % interval (0.051–7.38; a consistent filter: 95 %); flips: times the estimate
-went over to the mirror side of the jetty.
+went over to the mirror side of the jetty; wrong: share of published positions more than 5 m
+off while claiming σ < 1 m ("confidently wrong").
 
 Table 2, MORPH (``deploy/missions/morph.yaml``) on the virtual clock
 (:class:`~bridge.runtime.virtual_fleet.FastFleet`): the formation transits north at 0.8 m/s
@@ -115,6 +116,10 @@ def snapshot_errors(stream: Sequence[seed001.Event], cycle_s: float = 1.6,
     return out
 
 
+WRONG_M, WRONG_SIGMA_M = 5.0, 1.0
+"""Confidently wrong: a published position more than WRONG_M off while its σ says < 1 m."""
+
+
 def seed001_row(name: str, anchors: tuple[str, ...], hours: float, *, reception: str = "all",
                 heading: bool = True, heading_hz: float = 5.0, outliers: float = 0.0,
                 seed: int = 1, turn_radius_m: float = 0.0) -> dict[str, Any]:
@@ -141,7 +146,10 @@ def seed001_row(name: str, anchors: tuple[str, ...], hours: float, *, reception:
         "west95": percentile(by_where.get("west", [0.0]), 0.95),
         "corner95": percentile(by_where.get("corner", [0.0]), 0.95),
         "nees_in": sum(low <= n <= high for n in nees) / max(len(nees), 1),
-        "flips": flips(samples), "snap95": percentile(snap, 0.95) if snap else math.nan,
+        "flips": flips(samples),
+        "wrong": sum(s.error_m is not None and s.error_m > WRONG_M
+                     and s.estimate.sigma_m < WRONG_SIGMA_M for s in samples) / max(len(err), 1),
+        "snap95": percentile(snap, 0.95) if snap else math.nan,
         "rejected": dict(tracker.rejected), "restarts": tracker.restarts, "finite": finite,
         "outliers": sum(e.outlier for e in stream), "took": took,
         "after_turn": after_turn(samples) if turn_radius_m <= 0 else [],
@@ -172,7 +180,7 @@ def seed001_table(hours: float) -> list[dict[str, Any]]:
     ]
     print(f"\nSeed 001's rectangle, {hours:g} h simulated per row (errors in m)")
     head = (f"{'run':<45} | {'p50':>5} {'p95':>5} {'west95':>6} {'corn95':>6} | "
-            f"{'NEES in':>7} | {'flips':>5} | {'snap95':>6} | rejected (by reason)")
+            f"{'NEES in':>7} | {'flips':>5} {'wrong':>5} | {'snap95':>6} | rejected (by reason)")
     print(head)
     print("-" * len(head))
     for r in rows:
@@ -182,7 +190,7 @@ def seed001_table(hours: float) -> list[dict[str, Any]]:
         if r["restarts"]:
             rejected += f"; {r['restarts']} restarts"
         print(f"{r['name']:<45} | {r['p50']:5.2f} {r['p95']:5.2f} {r['west95']:6.2f} "
-              f"{r['corner95']:6.2f} | {r['nees_in']:7.1%} | {r['flips']:5d} | "
+              f"{r['corner95']:6.2f} | {r['nees_in']:7.1%} | {r['flips']:5d} {r['wrong']:5.1%} | "
               f"{r['snap95']:6.2f} | {rejected}")
     print("\nInstant corners: errors by time since the last corner (share of all ranges, p95 m, "
           "share of all ranges > 0.3 m); p95 ≤ 0.3 m allows 5 % of all ranges above it")

@@ -33,7 +33,9 @@ horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`
   position) is dead-reckoned with the node's own heading and speed (1-σ growing by
   ``reckon_drift_mps``; without them by ``prior_speed_mps`` per second): in a formation that
   moves with a moving anchor the ranges' motion hardly tells the sides apart, the vehicle's
-  own navigation does.
+  own navigation does. Without a compass, ranges to anchors on one line cannot show the
+  vehicle crossing it (a trajectory and its image fit alike): a committed track that slides
+  over the line is reflected back to the side it committed to (:meth:`RangeTracker._hold_side`).
 - Starting. While the node dead-reckons and its prior alone tells the side of the anchors'
   line (``prior_side_sigmas``), the track starts from the prior and takes the recent ranges
   (up to two ``init_window_s`` old) into it, each with its anchor's uncertainty in its noise:
@@ -327,6 +329,8 @@ class RangeTracker:
         self.doubt = 0.0  # the share of weight the committed hypothesis's rivals held
         self._reckoning: _Reckoning | None = None
         self._provisional = False  # started on an anchor whose position was uncertain
+        self.folds = 0  # times a committed track slid over the anchors' line, reflected back
+        self._side: np.ndarray | None = None  # a point on the committed side of that line
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -601,6 +605,7 @@ class RangeTracker:
         hyp.log_w = 0.0
         self.hypotheses = [hyp]
         self.resolved = True
+        self._commit_side()
         self._provisional = False
         self._ambiguous_since = None
         self.last_range_time = t
@@ -691,6 +696,7 @@ class RangeTracker:
         self._provisional = False
         self._ambiguous_since = None
         self.doubt = 0.0
+        self._side = None
         self._refusals.clear()
         self._used.clear()
 
@@ -711,6 +717,8 @@ class RangeTracker:
             if all(math.dist(h.x[:2], k.x[:2]) > MERGE_M for k in kept):
                 kept.append(h)  # two that met (e.g. near the anchors' line) are one
         self.hypotheses = kept
+        if self.resolved and len(self.hypotheses) == 1:
+            self._hold_side()
         # two that met, or a first fix without a second candidate (circles that did not meet),
         # have not ruled out the mirror image: only weights may, so it is put back
         on_line = not self.resolved and self._keep_mirror()
@@ -724,6 +732,8 @@ class RangeTracker:
             self.hypotheses = self.hypotheses[:1]
             self.doubt = 1.0 - share
         if len(self.hypotheses) == 1 and (not on_line or waited >= cfg.commit_after_s):
+            if not self.resolved:
+                self._commit_side()
             self.resolved = True
             self._ambiguous_since = None
         elif self._ambiguous_since is None:
@@ -786,6 +796,51 @@ class RangeTracker:
                                            best.heading, best.heading_time, list(turns)))
         self.hypotheses.sort(key=lambda h: -h.log_w)
         return False
+
+    def _commit_side(self) -> None:
+        """Remember which side of the anchors' line (if they are on one) the track committed
+        to; on the line, or anchors off one line: none (:meth:`_hold_side`)."""
+        line = self._mirror_line()
+        self._side = None
+        if line is not None and self.hypotheses:
+            here = self.hypotheses[0].x[:2]
+            if abs(_cross(line[1], here - line[0])) > MERGE_M / 2:
+                self._side = here.copy()  # a point: the line's direction may turn round
+
+    def _hold_side(self) -> None:
+        """Without a compass, anchors on one line fit a trajectory and its mirror image alike,
+        so no range can show the vehicle crossing that line: the side the track committed to
+        (by its prior, :meth:`_normalise`) is the only evidence there is. An estimate that
+        slides over the line (sparse ranges, a turn not yet seen: its Gaussian straddles the
+        line and the EKF follows the ranges to either image) is reflected back, whole state and
+        covariance, recent steps and turns too: it fits every range as well, and it is on the
+        side the evidence says. (With a compass the image's motion does not fit: untouched.)"""
+        line = self._mirror_line()
+        if line is None or self._side is None or \
+                self._accel_sigma(self._now) == self.config.accel_sigma_steered:
+            return
+        a, u = line
+        hyp = self.hypotheses[0]
+        if _cross(u, hyp.x[:2] - a) * _cross(u, self._side - a) >= 0:
+            return
+        reflect = 2 * np.outer(u, u) - np.eye(2)
+        g = np.eye(4)
+        g[:2, :2] = g[2:, 2:] = reflect
+
+        def image(x: np.ndarray) -> np.ndarray:
+            y = g @ x
+            y[:2] = a + reflect @ (x[:2] - a)
+            return y
+
+        hyp.x, hyp.p = image(hyp.x), g @ hyp.p @ g.T
+        hyp.turns = [(w, reflect @ v) for w, v in hyp.turns]
+        for step in hyp.steps:
+            step.x, step.p = image(step.x), g @ step.p @ g.T
+            step.turns = [(w, reflect @ v) for w, v in step.turns]
+        if hyp.blend is not None:
+            when, share, bx, bp = hyp.blend
+            hyp.blend = (when, share, image(bx), g @ bp @ g.T)
+        self.folds += 1
 
     def _accel_sigma(self, t: float) -> float:
         """Process noise: smaller while a recent heading steers the velocity through turns."""

@@ -95,6 +95,19 @@ def test_without_a_compass_at_seed001_reception_the_track_holds() -> None:
     assert tracker.restarts == 0
 
 
+def test_without_a_compass_a_track_that_slides_over_the_anchors_line_keeps_its_side() -> None:
+    # seed 5, seed 001 reception: after a corner the estimate, uncertain across the jetty,
+    # slid over it and converged on the mirror side with a small covariance (confidently
+    # wrong for most of the hour); the image fits every range alike, so it is folded back
+    tracker = RangeTracker(TrackerConfig(range_sigma_m=0.12), prior=START)
+    samples = replay(tracker, events(900.0, heading=False, seed=5))
+    published = [s for s in samples if s.error_m is not None]
+    wrong = [s for s in published if s.error_m > 5.0 and s.estimate.sigma_m < 1.0]
+    assert tracker.folds >= 1
+    assert len(wrong) <= 0.005 * len(published)
+    assert not any(s.mirrored for s in published[-200:])
+
+
 def test_rounded_route_is_the_rectangle_sailed_through_arcs() -> None:
     sharp, round2 = seed001.route(), seed001.route(2.0)
     assert round2.length_m == pytest.approx(sharp.length_m - 8 * 2.0 + 2 * math.pi * 2.0, abs=0.05)
