@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from bridge.runtime.surface_wifi import access_point
 from tests.conftest import MISSIONS
-from tests.core.test_surfacing import router
 from tests.gui.test_browser import CHROMIUM, CHROMIUM_ARGS, WAIT_MS, gui_process
 from tests.zsim import app as plain_app
 from tests.zsim import mission_file, zab_sim
@@ -45,7 +45,7 @@ def test_wants_and_surfacing_show_on_the_page(tmp_path: Path) -> None:
         page.wait_for_function(f"document.querySelector('{own}')?.textContent"
                                ".includes('wants:')", timeout=WAIT_MS)
         assert "status" in page.inner_text(own)
-        wifi = router(endpoints["top"] + endpoints["auv1"])
+        wifi = access_point(endpoints["top"] + endpoints["auv1"])
         try:
             page.wait_for_selector('.vehicle-card[data-node="auv1"] .zspace',
                                    timeout=WAIT_MS)
