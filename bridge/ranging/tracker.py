@@ -289,6 +289,17 @@ def _cross(u: np.ndarray, v: np.ndarray) -> float:
     return float(u[0] * v[1] - u[1] * v[0])
 
 
+def _line_through(points: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
+    """(a point, a unit direction) of the line through the two points furthest apart; None
+    when fewer than two points are more than :data:`MERGE_M` apart."""
+    if len(points) < 2:
+        return None
+    a, b = max(((p, q) for i, p in enumerate(points) for q in points[i + 1:]),
+               key=lambda pq: float(np.linalg.norm(pq[1] - pq[0])))
+    length = float(np.linalg.norm(b - a))
+    return None if length < MERGE_M else (a, (b - a) / length)
+
+
 def _wrap(angle: float) -> float:
     return (angle + math.pi) % (2 * math.pi) - math.pi
 
@@ -588,12 +599,10 @@ class RangeTracker:
         x, y, sigma = reference
         spread = math.hypot(sigma, max(o.anchor_sigma_m for o in recent))
         points = [np.array(o.anchor_at[:2], dtype=float) for o in recent]
-        a, b = max(((p, q) for i, p in enumerate(points) for q in points[i + 1:]),
-                   key=lambda pq: float(np.linalg.norm(pq[1] - pq[0])))
-        length = float(np.linalg.norm(b - a))
-        if length < MERGE_M:
+        line = _line_through(points)
+        if line is None:
             return False
-        u = (b - a) / length
+        a, u = line
         here = np.array([x, y])
         if all(abs(_cross(u, p - a)) <= cfg.collinear_m + spread for p in points) and abs(
                 _cross(u, here - a)) < cfg.prior_side_sigmas * spread:
@@ -745,14 +754,10 @@ class RangeTracker:
         cfg = self.config
         points = [np.array(o.anchor_at[:2], dtype=float) for o in self._recent.values()
                   if self._now - o.time <= cfg.anchor_max_age_s]
-        if len(points) < 2:
+        line = _line_through(points)
+        if line is None:
             return None
-        a, b = max(((p, q) for i, p in enumerate(points) for q in points[i + 1:]),
-                   key=lambda pq: float(np.linalg.norm(pq[1] - pq[0])))
-        length = float(np.linalg.norm(b - a))
-        if length < MERGE_M:
-            return None
-        u = (b - a) / length
+        a, u = line
         if any(abs(_cross(u, p - a)) > cfg.collinear_m for p in points):
             return None  # anchors off one line: no mirror image fits every range
         return a, u
