@@ -126,7 +126,8 @@ def seed001_row(name: str, anchors: tuple[str, ...], hours: float, *, reception:
     stream = list(events(hours * 3600.0, anchors, seed=seed, reception=reception,
                          heading=heading, heading_hz=heading_hz, outliers=outliers,
                          turn_radius_m=turn_radius_m))
-    tracker = RangeTracker(TrackerConfig(range_sigma_m=0.12), prior=Prior(0.0, 5.0, 5.0, 2.0))
+    tracker = RangeTracker(TrackerConfig(range_sigma_at=seed001.tracker_noise()),
+                           prior=Prior(0.0, 5.0, 5.0, 2.0))
     started = time.perf_counter()
     samples = replay(tracker, stream, seed001.route(turn_radius_m))
     took = time.perf_counter() - started

@@ -61,6 +61,7 @@ Pure and clock-free: every time is an argument, in seconds on one clock.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import Counter, deque
 from collections.abc import Mapping
@@ -119,6 +120,9 @@ class TrackerConfig:
     """Noise figures and limits; defaults suit a small AUV at 0.5–2 m/s and DLBL ranges."""
 
     range_sigma_m: float = 0.1
+    range_sigma_at: tuple[tuple[float, float], ...] = ()  # (distance m, 1-σ m), rising
+    # distances, linear between and held beyond: a measured noise profile (seed 001 fig. 8);
+    # empty: ``range_sigma_m`` at every distance
     accel_sigma: float = 0.06
     accel_sigma_steered: float = 0.08
     heading_sigma_deg: float = 3.0
@@ -511,7 +515,7 @@ class RangeTracker:
         tried = [o for o, _ in recent] + [obs]
         if all(self._range_update(hyp, o)[1] for o in tried) and all(
                 (o.range_m - self._range_model(hyp, o)[0]) ** 2
-                <= 4 * cfg.range_sigma_m**2 + o.anchor_sigma_m**2 for o in tried):
+                <= 4 * self._range_sigma(o.range_m) ** 2 + o.anchor_sigma_m**2 for o in tried):
             for _, reason in recent:  # it was the track that was wrong, not those ranges
                 self.rejected[reason] -= 1
                 if self.rejected[reason] <= 0:
@@ -819,33 +823,39 @@ class RangeTracker:
         slides over the line (sparse ranges, a turn not yet seen: its Gaussian straddles the
         line and the EKF follows the ranges to either image) is reflected back, whole state and
         covariance, recent steps and turns too: it fits every range as well, and it is on the
-        side the evidence says. (With a compass the image's motion does not fit: untouched.)"""
-        line = self._mirror_line()
-        if line is None or self._side is None or \
-                self._accel_sigma(self._now) == self.config.accel_sigma_steered:
-            return
-        a, u = line
+        side the evidence says. (With a compass the image's motion does not fit: untouched.)
+        A manoeuvre's blend is held on its own (:meth:`_fold`)."""
         hyp = self.hypotheses[0]
-        if _cross(u, hyp.x[:2] - a) * _cross(u, self._side - a) >= 0:
-            return
-        reflect = 2 * np.outer(u, u) - np.eye(2)
-        g = np.eye(4)
-        g[:2, :2] = g[2:, 2:] = reflect
-
-        def image(x: np.ndarray) -> np.ndarray:
-            y = g @ x
-            y[:2] = a + reflect @ (x[:2] - a)
-            return y
-
-        hyp.x, hyp.p = image(hyp.x), g @ hyp.p @ g.T
-        hyp.turns = [(w, reflect @ v) for w, v in hyp.turns]
-        for step in hyp.steps:
-            step.x, step.p = image(step.x), g @ step.p @ g.T
-            step.turns = [(w, reflect @ v) for w, v in step.turns]
         if hyp.blend is not None:
             when, share, bx, bp = hyp.blend
-            hyp.blend = (when, share, image(bx), g @ bp @ g.T)
-        self.folds += 1
+            bx, bp, _ = self._fold(bx, bp)
+            hyp.blend = (when, share, bx, bp)
+        hyp.x, hyp.p, folded = self._fold(hyp.x, hyp.p)
+        if folded:
+            _reflect_history(hyp.turns, hyp.steps, self._fold_line())
+            self.folds += 1
+
+    def _fold_line(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The anchors' line a committed track without a compass is held on one side of
+        (:meth:`_hold_side`); None when there is none to hold."""
+        line = self._mirror_line()
+        if line is None or self._side is None or not self.resolved or \
+                self._accel_sigma(self._now) == self.config.accel_sigma_steered:
+            return None
+        return line
+
+    def _fold(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+        """``(x, p)``, reflected over the anchors' line if it lies on the side the track did
+        not commit to (:meth:`_hold_side`); and whether it was."""
+        line = self._fold_line()
+        if line is None:
+            return x, p, False
+        a, u = line
+        assert self._side is not None
+        if _cross(u, x[:2] - a) * _cross(u, self._side - a) >= 0:
+            return x, p, False
+        g = _reflection(u)
+        return _image(x, line), g @ p @ g.T, True
 
     def _accel_sigma(self, t: float) -> float:
         """Process noise: smaller while a recent heading steers the velocity through turns."""
@@ -879,11 +889,23 @@ class RangeTracker:
 
     def _range_update(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
         """EKF update with one range; (NIS, accepted). The weight takes the likelihood."""
-        cfg = self.config
         self._predict(hyp, obs.time)
         predicted, jac = self._range_model(hyp, obs)
-        r = cfg.range_sigma_m**2 + obs.anchor_sigma_m**2
+        r = self._range_sigma(obs.range_m) ** 2 + obs.anchor_sigma_m**2
         return self._update(hyp, obs.range_m - predicted, jac, r)
+
+    def _range_sigma(self, range_m: float) -> float:
+        """The range noise expected at ``range_m``: the profile's (``range_sigma_at``) if it
+        has one, else ``range_sigma_m``."""
+        profile = self.config.range_sigma_at
+        if not profile:
+            return self.config.range_sigma_m
+        if range_m <= profile[0][0]:
+            return profile[0][1]
+        for (d0, s0), (d1, s1) in itertools.pairwise(profile):
+            if range_m <= d1:
+                return s0 + (s1 - s0) * (range_m - d0) / (d1 - d0)
+        return profile[-1][1]
 
     def _take_range(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
         """Fuse ``obs`` into ``hyp``, remembering the step; without a compass, a range far out
@@ -915,20 +937,26 @@ class RangeTracker:
         broad change of speed besides), and refilter the ranges since under each. If the
         likeliest gap explains them better than no manoeuvre by ``jump_min_llr`` (the mixture's
         marginal likelihood, so a free velocity is not given for nothing), the hypothesis takes
-        it: the turns' posteriors merged by their weights, covariance spread included.
+        it: the turns' posteriors at every gap two anchors saw merged by their weights,
+        covariance spread included (when it turned is as uncertain as where to).
         (A vehicle's turns are abrupt next to a range cycle: white-noise acceleration either
         lags them or is noisy on the straights.) Returns the latest range's (NIS, accepted)."""
         cfg = self.config
         best: tuple[float, int, list[tuple[float, _Hypothesis, list[_Step]]]] | None = None
         ring = cfg.jump_ring_deg
         turns = [ring * k for k in range(1, round(360 / ring))]
+        pool: list[tuple[float, _Hypothesis]] = []  # every gap's turns, log-odds on none
         for j in range(len(hyp.steps)):
             tried = [self._refilter(hyp, j, turn) for turn in (*turns, None)]
             top = max(t[0] for t in tried)
             mixture = top + math.log(sum(math.exp(t[0] - top) for t in tried) / len(tried))
-            llr = mixture - sum(s.loglik for s in hyp.steps[j:])
+            none = sum(s.loglik for s in hyp.steps[j:])
+            llr = mixture - none
             # one anchor's ranges fit any turn (a circle): it takes two to see one
             seen = len({s.obs.anchor for s in hyp.steps[j:]}) >= 2
+            if seen:
+                pool += [(t[0] - none - math.log(len(tried)), t[1]) for t in tried
+                         if math.hypot(t[1].x[2], t[1].x[3]) <= cfg.max_speed_mps]
             if seen and (best is None or llr > best[0]):
                 best = (llr, j, tried)
         if best is None:
@@ -939,11 +967,19 @@ class RangeTracker:
             return None
         top = max(t[0] for t in tried)
         weights = [math.exp(t[0] - top) for t in tried]
-        total = sum(weights)
         _, trial, redone = tried[max(range(len(tried)), key=weights.__getitem__)]
-        mean = sum(w * t[1].x for w, t in zip(weights, tried, strict=True)) / total
-        cov = sum(w * (t[1].p + np.outer(t[1].x - mean, t[1].x - mean))
-                  for w, t in zip(weights, tried, strict=True)) / total
+        # the estimate: every gap's turns (and none), weighted by how well they explain the
+        # ranges; the turn's time is as uncertain as its direction, and the spread says so
+        # ... each on the side the track committed to (without a compass an image fits alike)
+        top = max(lw for lw, _ in pool)
+        weights = [math.exp(lw - top) for lw, _ in pool]
+        states = [self._fold(h.x, h.p)[:2] for _, h in pool]
+        total = sum(weights)
+        mean = sum(w * x for w, (x, _) in zip(weights, states, strict=True)) / total
+        cov = sum(w * (p + np.outer(x - mean, x - mean))
+                  for w, (x, p) in zip(weights, states, strict=True)) / total
+        if self._fold(trial.x, trial.p)[2]:  # the likeliest turn was the image: so its history
+            _reflect_history(trial.turns, redone, self._fold_line())
         if llr < cfg.jump_min_llr:
             # not taken, not ruled out: until the next range the estimate is the mixture of
             # both, weighted by the odds (even at the threshold), so its covariance says so
@@ -1043,6 +1079,36 @@ class RangeTracker:
         ikh = np.eye(4) - np.outer(gain, jac)
         hyp.p = ikh @ hyp.p @ ikh.T + r * np.outer(gain, gain)  # Joseph form: stays symmetric
         return nis, True
+
+
+def _reflection(u: np.ndarray) -> np.ndarray:
+    """The 4×4 reflection of a state ``[x, y, vx, vy]``'s axes over a line along ``u``."""
+    reflect = 2 * np.outer(u, u) - np.eye(2)
+    g = np.eye(4)
+    g[:2, :2] = g[2:, 2:] = reflect
+    return g
+
+
+def _image(x: np.ndarray, line: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """State ``x``'s mirror image over ``line`` (a point, a unit direction): position and
+    velocity reflected."""
+    a, u = line
+    y = _reflection(u) @ x
+    y[:2] = a + (2 * np.outer(u, u) - np.eye(2)) @ (x[:2] - a)
+    return y
+
+
+def _reflect_history(turns: list[tuple[float, np.ndarray]], steps: list[_Step],
+                     line: tuple[np.ndarray, np.ndarray] | None) -> None:
+    """Reflect recorded turns and steps over ``line`` in place (a folded track's history)."""
+    if line is None:
+        return
+    g = _reflection(line[1])
+    reflect = g[2:, 2:]
+    turns[:] = [(w, reflect @ v) for w, v in turns]
+    for step in steps:
+        step.x, step.p = _image(step.x, line), g @ step.p @ g.T
+        step.turns = [(w, reflect @ v) for w, v in step.turns]
 
 
 def _predicted(x: np.ndarray, p: np.ndarray, dt: float,
