@@ -295,7 +295,7 @@ def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
     for node, items in published.items():
         if not items:
             continue
-        errors, states, inside, first = [], Counter(), [], math.nan
+        errors, states, inside, first, above = [], Counter(), [], math.nan, 0
         finite, mirror = True, 0
         low, high = NEES_BOUNDS_2D
         for t, payload in items:
@@ -313,9 +313,11 @@ def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
                 det = a * d - b * b
                 nees = (d * ex * ex - 2 * b * ex * ey + a * ey * ey) / det if det > 0 else math.inf
                 inside.append(low <= nees <= high)
+                above += nees > high
         rows[node] = {"n": len(items), "states": states, "finite": finite, "mirror": mirror,
                       "fixes": len(errors), "errors": errors, "first_fix_s": first,
                       "nees_in": sum(inside) / len(inside) if inside else math.nan,
+                      "nees_above": above / len(inside) if inside else math.nan,
                       "p50": percentile(errors, 0.5) if errors else math.nan,
                       "p95": percentile(errors, 0.95) if errors else math.nan,
                       "mean_sigma": statistics.fmean(p["sigma_m"] for _, p in items
