@@ -426,6 +426,7 @@ class RangeTracker:
                           if obs.time - o.time <= 2 * cfg.coast_after_s]
         if refused and self._manoeuvred(obs):
             refused = False
+            self._normalise()  # the side held (:meth:`_hold_side`) after this update too
         if refused:  # refused by every hypothesis: a bad range (or a diverged track)
             reason = "long" if self._innovation_sign(obs) > 0 else "short"
             self._refusals.append((obs, reason))
@@ -730,8 +731,6 @@ class RangeTracker:
             if all(math.dist(h.x[:2], k.x[:2]) > MERGE_M for k in kept):
                 kept.append(h)  # two that met (e.g. near the anchors' line) are one
         self.hypotheses = kept
-        if self.resolved and len(self.hypotheses) == 1:
-            self._hold_side()
         # two that met, or a first fix without a second candidate (circles that did not meet),
         # have not ruled out the mirror image: only weights may, so it is put back
         on_line = not self.resolved and self._keep_mirror()
@@ -751,6 +750,8 @@ class RangeTracker:
             self._ambiguous_since = None
         elif self._ambiguous_since is None:
             self._ambiguous_since = self._now
+        if self.resolved and len(self.hypotheses) == 1:
+            self._hold_side()  # committed just now on the line, its side the prior's: held too
 
     def _mirror_line(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(a point, a unit direction) of the line the anchors heard lie on, if they do (two
@@ -808,13 +809,17 @@ class RangeTracker:
 
     def _commit_side(self) -> None:
         """Remember which side of the anchors' line (if they are on one) the track committed
-        to; on the line, or anchors off one line: none (:meth:`_hold_side`)."""
+        to (:meth:`_hold_side`): the estimate's, or, if that is on the line, the prior's (after
+        a restart, the old track's); neither off it, or anchors off one line: none yet."""
         line = self._mirror_line()
         self._side = None
         if line is not None and self.hypotheses:
             here = self.hypotheses[0].x[:2]
-            if abs(_cross(line[1], here - line[0])) > MERGE_M / 2:
-                self._side = here.copy()  # a point: the line's direction may turn round
+            reference = self._prior_at(self._now)
+            for point in (here, None if reference is None else np.array(reference[:2])):
+                if point is not None and abs(_cross(line[1], point - line[0])) > MERGE_M / 2:
+                    self._side = point.copy()  # a point: the line's direction may turn round
+                    return
 
     def _hold_side(self) -> None:
         """Without a compass, anchors on one line fit a trajectory and its mirror image alike,
@@ -826,6 +831,10 @@ class RangeTracker:
         side the evidence says. (With a compass the image's motion does not fit: untouched.)
         A manoeuvre's blend is held on its own (:meth:`_fold`)."""
         hyp = self.hypotheses[0]
+        line = self._mirror_line()
+        if self._side is None and line is not None and \
+                abs(_cross(line[1], hyp.x[:2] - line[0])) > MERGE_M / 2:
+            self._side = hyp.x[:2].copy()  # committed on the line: the side it left to
         if hyp.blend is not None:
             when, share, bx, bp = hyp.blend
             bx, bp, _ = self._fold(bx, bp)

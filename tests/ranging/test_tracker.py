@@ -302,3 +302,14 @@ def test_a_manoeuvre_that_takes_the_mirror_image_is_folded_back() -> None:
     samples = replay(tracker, events(900.0, heading=False, seed=1))
     assert flips(samples) == 0
     assert not any(s.mirrored for s in samples if s.error_m is not None)
+
+
+def test_a_track_restarted_on_the_anchors_line_keeps_the_old_tracks_side() -> None:
+    # seed 3, seed 001 reception, no compass: the track diverged at the south-east corner
+    # (~2200 s) and restarted; the new one committed 0.48 m from the jetty's line, so it held
+    # no side, and at 2226 s published the mirror image (a flip): the side is now the prior's
+    # (the old track's), and held from the commit on
+    tracker = RangeTracker(SEED001_NOISE, prior=START)
+    samples = replay(tracker, events(2300.0, heading=False, seed=3))
+    assert tracker.restarts >= 1
+    assert flips(samples) == 0
