@@ -132,6 +132,8 @@ class TrackerConfig:
     jump_steps: int = 6  # ... and at least so many ranges back
     jump_test_nis: float = 2.0  # a range this far out asks whether the vehicle manoeuvred
     jump_min_llr: float = 2.0  # log-likelihood a manoeuvre must gain over none to be taken
+    jump_even_llr: float = 1.0  # ... and one not taken is as likely as none in the estimate
+    # (prior odds e⁻¹: a turn within a test's window, every ~10 s of sailing)
     jump_ring_deg: float = 45.0  # the turns a manoeuvre test tries: a ring, every so many °
     gate_nis: float = GATE_NIS_1DOF
     coast_after_s: float = 6.0
@@ -991,8 +993,8 @@ class RangeTracker:
             _reflect_history(trial.turns, redone, self._fold_line())
         if llr < cfg.jump_min_llr:
             # not taken, not ruled out: until the next range the estimate is the mixture of
-            # both, weighted by the odds (even at the threshold), so its covariance says so
-            share = 1.0 / (1.0 + math.exp(min(cfg.jump_min_llr - llr, 50.0)))
+            # both, weighted by the odds (even at ``jump_even_llr``), so its covariance says so
+            share = 1.0 / (1.0 + math.exp(min(cfg.jump_even_llr - llr, 50.0)))
             if share >= 0.01 and trial.time == hyp.time:
                 hyp.blend = (hyp.time, share, mean, cov)
             return None
