@@ -292,9 +292,12 @@ def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
     fleet.run_until(duration_s)
     took = time.perf_counter() - started
     rows = {}
-    for node, items in published.items():
-        if not items:
-            continue
+    # every vehicle that localises has a row, whether or not it published (an empty table
+    # would hide a fleet that never ranged); the anchors (ssv, gcv) do not localise
+    localising = [n for n, core in fleet.cores.items()
+                  if core.positioning is not None and core.positioning.localises]
+    for node in localising:
+        items = published[node]
         errors, states, inside, first, above = [], Counter(), [], math.nan, 0
         finite, mirror = True, 0
         low, high = NEES_BOUNDS_2D
@@ -331,7 +334,8 @@ def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
     print(head)
     print("-" * len(head))
     for node, r in rows.items():
-        states = ", ".join(f"{k} {v}" for k, v in sorted(r["states"].items()))
+        states = ", ".join(f"{k} {v}" for k, v in sorted(r["states"].items())) or \
+            "NOTHING PUBLISHED"
         print(f"{node:<8} | {r['n']:7d} | {r['p50']:6.2f} {r['p95']:6.2f} "
               f"{r['mean_sigma']:6.2f} | {r['nees_in']:7.1%} | {states}"
               f"{'' if r['finite'] else '  NON-FINITE!'}")
