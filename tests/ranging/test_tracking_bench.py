@@ -41,7 +41,7 @@ def test_two_anchors_an_hour_at_seed001_reception(bench: ModuleType) -> None:
     row = bench.seed001_row("2", ("left", "right"), 1.0, heading_hz=1.0, reception="seed001",
                             seed=12)
     assert row["p95"] <= 1.0 and row["west95"] <= 1.0 and row["corner95"] <= 1.0
-    assert row["flips"] == 0 and row["nees_in"] >= 0.88 and row["finite"]
+    assert row["flips"] == 0 and row["nees_in"] >= 0.9 and row["finite"]  # 91.4 %
 
 
 def test_injected_outliers_are_all_refused(bench: ModuleType) -> None:
