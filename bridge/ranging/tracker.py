@@ -80,6 +80,8 @@ RESOLVED_SHARE = 0.999
 """Share of the hypotheses' weight the best must hold before the track commits to it."""
 MERGE_M = 1.0
 """Hypotheses nearer than this are one (the likelier is kept)."""
+FRESH_HEADING_S = 0.5
+"""A heading younger than this has seen any turn the ranges could suggest (no test then)."""
 GATE_NIS_1DOF = 10.83
 """χ² with one degree of freedom at 99.9 %: a range this far out is 1 in 1000 if all is well."""
 
@@ -134,6 +136,7 @@ class TrackerConfig:
     jump_min_llr: float = 2.0  # log-likelihood a manoeuvre must gain over none to be taken
     jump_even_llr: float = 1.0  # ... and one not taken is as likely as none in the estimate
     # (prior odds e⁻¹: a turn within a test's window, every ~10 s of sailing)
+    jump_steered_even_llr: float = 4.0  # with a compass (a turn since its last heading, ~2 %)
     jump_ring_deg: float = 45.0  # the turns a manoeuvre test tries: a ring, every so many °
     gate_nis: float = GATE_NIS_1DOF
     coast_after_s: float = 6.0
@@ -934,14 +937,18 @@ class RangeTracker:
         n = len(hyp.steps)
         hyp.steps = [s for k, s in enumerate(hyp.steps) if obs.time - s.obs.time <= cfg.max_lag_s
                      and (n - k <= cfg.jump_steps or obs.time - s.obs.time <= cfg.jump_window_s)]
-        if self._accel_sigma(obs.time) != cfg.accel_sigma_steered and max(
-                s.nis for s in hyp.steps[-3:]) > cfg.jump_test_nis:
-            jumped = self._jumped(hyp)
+        if max(s.nis for s in hyp.steps[-3:]) > cfg.jump_test_nis:
+            # with a compass the next heading turns the track; until it comes, a turn the
+            # ranges suggest is in the published covariance (never taken: it would turn twice)
+            steered = self._accel_sigma(obs.time) == cfg.accel_sigma_steered
+            fresh = steered and self._heading is not None and \
+                obs.time - self._heading[0] < FRESH_HEADING_S
+            jumped = None if fresh else self._jumped(hyp, take=not steered)
             if jumped is not None:
                 return jumped
         return nis, ok
 
-    def _jumped(self, hyp: _Hypothesis) -> tuple[float, bool] | None:
+    def _jumped(self, hyp: _Hypothesis, take: bool = True) -> tuple[float, bool] | None:
         """A generalised likelihood-ratio test for a manoeuvre. For every gap between recent
         ranges, suppose the vehicle turned there, keeping its speed, to a heading it does not
         say (a ring every ``jump_ring_deg``, each 1 σ wide enough to join the next, and a
@@ -951,7 +958,9 @@ class RangeTracker:
         it: the turns' posteriors at every gap two anchors saw merged by their weights,
         covariance spread included (when it turned is as uncertain as where to).
         (A vehicle's turns are abrupt next to a range cycle: white-noise acceleration either
-        lags them or is noisy on the straights.) Returns the latest range's (NIS, accepted)."""
+        lags them or is noisy on the straights.) With ``take`` false (a compass steers the
+        track) none is taken: the estimate stays and only its published covariance spreads
+        over the turns. Returns the latest range's (NIS, accepted) if one was taken."""
         cfg = self.config
         best: tuple[float, int, list[tuple[float, _Hypothesis, list[_Step]]]] | None = None
         ring = cfg.jump_ring_deg
@@ -991,10 +1000,14 @@ class RangeTracker:
                   for w, (x, p) in zip(weights, states, strict=True)) / total
         if self._fold(trial.x, trial.p)[2]:  # the likeliest turn was the image: so its history
             _reflect_history(trial.turns, redone, self._fold_line())
-        if llr < cfg.jump_min_llr:
+        if not take:  # the estimate stays, its covariance spread over the turns too
+            cov = cov + np.outer(mean - hyp.x, mean - hyp.x)
+            mean = hyp.x
+        if llr < cfg.jump_min_llr or not take:
             # not taken, not ruled out: until the next range the estimate is the mixture of
             # both, weighted by the odds (even at ``jump_even_llr``), so its covariance says so
-            share = 1.0 / (1.0 + math.exp(min(cfg.jump_even_llr - llr, 50.0)))
+            even = cfg.jump_even_llr if take else cfg.jump_steered_even_llr
+            share = 1.0 / (1.0 + math.exp(min(even - llr, 50.0)))
             if share >= 0.01 and trial.time == hyp.time:
                 hyp.blend = (hyp.time, share, mean, cov)
             return None
