@@ -39,6 +39,17 @@ SPEED_MPS = 1.5
 SOUND_SPEED_MPS = 1480.0
 NOISE_AT = ((12.6, 0.118), (20.9, 0.093), (33.5, 0.017))
 """(distance m, range standard deviation m) measured at the jetty, seed 001 fig. 8."""
+MODEL_SIGMA_M = 0.05
+"""What the tracker's range model adds to the measurement noise (the node's motion within a
+round trip, a turn in it): a floor under :data:`NOISE_AT`'s 1.7 cm."""
+
+
+def tracker_noise(model_sigma_m: float = MODEL_SIGMA_M) -> tuple[tuple[float, float], ...]:
+    """The range noise profile a tracker should expect here (``TrackerConfig.range_sigma_at``):
+    seed 001's measured noise, with ``model_sigma_m`` added in quadrature."""
+    return tuple((d, math.hypot(s, model_sigma_m)) for d, s in NOISE_AT)
+
+
 RECEPTION = {"middle": 0.86, "left": 0.41, "right": 0.36}
 """Share of ranging requests each anchor answered in the mobile case (86, 41, 36 of 100)."""
 PUBLISHED = {

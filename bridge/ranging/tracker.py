@@ -61,6 +61,7 @@ Pure and clock-free: every time is an argument, in seconds on one clock.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import Counter, deque
 from collections.abc import Mapping
@@ -79,6 +80,8 @@ RESOLVED_SHARE = 0.999
 """Share of the hypotheses' weight the best must hold before the track commits to it."""
 MERGE_M = 1.0
 """Hypotheses nearer than this are one (the likelier is kept)."""
+FRESH_HEADING_S = 0.5
+"""A heading younger than this has seen any turn the ranges could suggest (no test then)."""
 GATE_NIS_1DOF = 10.83
 """χ² with one degree of freedom at 99.9 %: a range this far out is 1 in 1000 if all is well."""
 
@@ -119,6 +122,9 @@ class TrackerConfig:
     """Noise figures and limits; defaults suit a small AUV at 0.5–2 m/s and DLBL ranges."""
 
     range_sigma_m: float = 0.1
+    range_sigma_at: tuple[tuple[float, float], ...] = ()  # (distance m, 1-σ m), rising
+    # distances, linear between and held beyond: a measured noise profile (seed 001 fig. 8);
+    # empty: ``range_sigma_m`` at every distance
     accel_sigma: float = 0.06
     accel_sigma_steered: float = 0.08
     heading_sigma_deg: float = 3.0
@@ -128,6 +134,9 @@ class TrackerConfig:
     jump_steps: int = 6  # ... and at least so many ranges back
     jump_test_nis: float = 2.0  # a range this far out asks whether the vehicle manoeuvred
     jump_min_llr: float = 2.0  # log-likelihood a manoeuvre must gain over none to be taken
+    jump_even_llr: float = 1.0  # ... and one not taken is as likely as none in the estimate
+    # (prior odds e⁻¹: a turn within a test's window, every ~10 s of sailing)
+    jump_steered_even_llr: float = 4.0  # with a compass (a turn since its last heading, ~2 %)
     jump_ring_deg: float = 45.0  # the turns a manoeuvre test tries: a ring, every so many °
     gate_nis: float = GATE_NIS_1DOF
     coast_after_s: float = 6.0
@@ -422,6 +431,7 @@ class RangeTracker:
                           if obs.time - o.time <= 2 * cfg.coast_after_s]
         if refused and self._manoeuvred(obs):
             refused = False
+            self._normalise()  # the side held (:meth:`_hold_side`) after this update too
         if refused:  # refused by every hypothesis: a bad range (or a diverged track)
             reason = "long" if self._innovation_sign(obs) > 0 else "short"
             self._refusals.append((obs, reason))
@@ -511,7 +521,7 @@ class RangeTracker:
         tried = [o for o, _ in recent] + [obs]
         if all(self._range_update(hyp, o)[1] for o in tried) and all(
                 (o.range_m - self._range_model(hyp, o)[0]) ** 2
-                <= 4 * cfg.range_sigma_m**2 + o.anchor_sigma_m**2 for o in tried):
+                <= 4 * self._range_sigma(o.range_m) ** 2 + o.anchor_sigma_m**2 for o in tried):
             for _, reason in recent:  # it was the track that was wrong, not those ranges
                 self.rejected[reason] -= 1
                 if self.rejected[reason] <= 0:
@@ -726,8 +736,6 @@ class RangeTracker:
             if all(math.dist(h.x[:2], k.x[:2]) > MERGE_M for k in kept):
                 kept.append(h)  # two that met (e.g. near the anchors' line) are one
         self.hypotheses = kept
-        if self.resolved and len(self.hypotheses) == 1:
-            self._hold_side()
         # two that met, or a first fix without a second candidate (circles that did not meet),
         # have not ruled out the mirror image: only weights may, so it is put back
         on_line = not self.resolved and self._keep_mirror()
@@ -747,6 +755,8 @@ class RangeTracker:
             self._ambiguous_since = None
         elif self._ambiguous_since is None:
             self._ambiguous_since = self._now
+        if self.resolved and len(self.hypotheses) == 1:
+            self._hold_side()  # committed just now on the line, its side the prior's: held too
 
     def _mirror_line(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(a point, a unit direction) of the line the anchors heard lie on, if they do (two
@@ -804,13 +814,17 @@ class RangeTracker:
 
     def _commit_side(self) -> None:
         """Remember which side of the anchors' line (if they are on one) the track committed
-        to; on the line, or anchors off one line: none (:meth:`_hold_side`)."""
+        to (:meth:`_hold_side`): the estimate's, or, if that is on the line, the prior's (after
+        a restart, the old track's); neither off it, or anchors off one line: none yet."""
         line = self._mirror_line()
         self._side = None
         if line is not None and self.hypotheses:
             here = self.hypotheses[0].x[:2]
-            if abs(_cross(line[1], here - line[0])) > MERGE_M / 2:
-                self._side = here.copy()  # a point: the line's direction may turn round
+            reference = self._prior_at(self._now)
+            for point in (here, None if reference is None else np.array(reference[:2])):
+                if point is not None and abs(_cross(line[1], point - line[0])) > MERGE_M / 2:
+                    self._side = point.copy()  # a point: the line's direction may turn round
+                    return
 
     def _hold_side(self) -> None:
         """Without a compass, anchors on one line fit a trajectory and its mirror image alike,
@@ -819,33 +833,43 @@ class RangeTracker:
         slides over the line (sparse ranges, a turn not yet seen: its Gaussian straddles the
         line and the EKF follows the ranges to either image) is reflected back, whole state and
         covariance, recent steps and turns too: it fits every range as well, and it is on the
-        side the evidence says. (With a compass the image's motion does not fit: untouched.)"""
-        line = self._mirror_line()
-        if line is None or self._side is None or \
-                self._accel_sigma(self._now) == self.config.accel_sigma_steered:
-            return
-        a, u = line
+        side the evidence says. (With a compass the image's motion does not fit: untouched.)
+        A manoeuvre's blend is held on its own (:meth:`_fold`)."""
         hyp = self.hypotheses[0]
-        if _cross(u, hyp.x[:2] - a) * _cross(u, self._side - a) >= 0:
-            return
-        reflect = 2 * np.outer(u, u) - np.eye(2)
-        g = np.eye(4)
-        g[:2, :2] = g[2:, 2:] = reflect
-
-        def image(x: np.ndarray) -> np.ndarray:
-            y = g @ x
-            y[:2] = a + reflect @ (x[:2] - a)
-            return y
-
-        hyp.x, hyp.p = image(hyp.x), g @ hyp.p @ g.T
-        hyp.turns = [(w, reflect @ v) for w, v in hyp.turns]
-        for step in hyp.steps:
-            step.x, step.p = image(step.x), g @ step.p @ g.T
-            step.turns = [(w, reflect @ v) for w, v in step.turns]
+        line = self._mirror_line()
+        if self._side is None and line is not None and \
+                abs(_cross(line[1], hyp.x[:2] - line[0])) > MERGE_M / 2:
+            self._side = hyp.x[:2].copy()  # committed on the line: the side it left to
         if hyp.blend is not None:
             when, share, bx, bp = hyp.blend
-            hyp.blend = (when, share, image(bx), g @ bp @ g.T)
-        self.folds += 1
+            bx, bp, _ = self._fold(bx, bp)
+            hyp.blend = (when, share, bx, bp)
+        hyp.x, hyp.p, folded = self._fold(hyp.x, hyp.p)
+        if folded:
+            _reflect_history(hyp.turns, hyp.steps, self._fold_line())
+            self.folds += 1
+
+    def _fold_line(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The anchors' line a committed track without a compass is held on one side of
+        (:meth:`_hold_side`); None when there is none to hold."""
+        line = self._mirror_line()
+        if line is None or self._side is None or not self.resolved or \
+                self._accel_sigma(self._now) == self.config.accel_sigma_steered:
+            return None
+        return line
+
+    def _fold(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+        """``(x, p)``, reflected over the anchors' line if it lies on the side the track did
+        not commit to (:meth:`_hold_side`); and whether it was."""
+        line = self._fold_line()
+        if line is None:
+            return x, p, False
+        a, u = line
+        assert self._side is not None
+        if _cross(u, x[:2] - a) * _cross(u, self._side - a) >= 0:
+            return x, p, False
+        g = _reflection(u)
+        return _image(x, line), g @ p @ g.T, True
 
     def _accel_sigma(self, t: float) -> float:
         """Process noise: smaller while a recent heading steers the velocity through turns."""
@@ -879,11 +903,23 @@ class RangeTracker:
 
     def _range_update(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
         """EKF update with one range; (NIS, accepted). The weight takes the likelihood."""
-        cfg = self.config
         self._predict(hyp, obs.time)
         predicted, jac = self._range_model(hyp, obs)
-        r = cfg.range_sigma_m**2 + obs.anchor_sigma_m**2
+        r = self._range_sigma(obs.range_m) ** 2 + obs.anchor_sigma_m**2
         return self._update(hyp, obs.range_m - predicted, jac, r)
+
+    def _range_sigma(self, range_m: float) -> float:
+        """The range noise expected at ``range_m``: the profile's (``range_sigma_at``) if it
+        has one, else ``range_sigma_m``."""
+        profile = self.config.range_sigma_at
+        if not profile:
+            return self.config.range_sigma_m
+        if range_m <= profile[0][0]:
+            return profile[0][1]
+        for (d0, s0), (d1, s1) in itertools.pairwise(profile):
+            if range_m <= d1:
+                return s0 + (s1 - s0) * (range_m - d0) / (d1 - d0)
+        return profile[-1][1]
 
     def _take_range(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
         """Fuse ``obs`` into ``hyp``, remembering the step; without a compass, a range far out
@@ -901,34 +937,46 @@ class RangeTracker:
         n = len(hyp.steps)
         hyp.steps = [s for k, s in enumerate(hyp.steps) if obs.time - s.obs.time <= cfg.max_lag_s
                      and (n - k <= cfg.jump_steps or obs.time - s.obs.time <= cfg.jump_window_s)]
-        if self._accel_sigma(obs.time) != cfg.accel_sigma_steered and max(
-                s.nis for s in hyp.steps[-3:]) > cfg.jump_test_nis:
-            jumped = self._jumped(hyp)
+        if max(s.nis for s in hyp.steps[-3:]) > cfg.jump_test_nis:
+            # with a compass the next heading turns the track; until it comes, a turn the
+            # ranges suggest is in the published covariance (never taken: it would turn twice)
+            steered = self._accel_sigma(obs.time) == cfg.accel_sigma_steered
+            fresh = steered and self._heading is not None and \
+                obs.time - self._heading[0] < FRESH_HEADING_S
+            jumped = None if fresh else self._jumped(hyp, take=not steered)
             if jumped is not None:
                 return jumped
         return nis, ok
 
-    def _jumped(self, hyp: _Hypothesis) -> tuple[float, bool] | None:
+    def _jumped(self, hyp: _Hypothesis, take: bool = True) -> tuple[float, bool] | None:
         """A generalised likelihood-ratio test for a manoeuvre. For every gap between recent
         ranges, suppose the vehicle turned there, keeping its speed, to a heading it does not
         say (a ring every ``jump_ring_deg``, each 1 σ wide enough to join the next, and a
         broad change of speed besides), and refilter the ranges since under each. If the
         likeliest gap explains them better than no manoeuvre by ``jump_min_llr`` (the mixture's
         marginal likelihood, so a free velocity is not given for nothing), the hypothesis takes
-        it: the turns' posteriors merged by their weights, covariance spread included.
+        it: the turns' posteriors at every gap two anchors saw merged by their weights,
+        covariance spread included (when it turned is as uncertain as where to).
         (A vehicle's turns are abrupt next to a range cycle: white-noise acceleration either
-        lags them or is noisy on the straights.) Returns the latest range's (NIS, accepted)."""
+        lags them or is noisy on the straights.) With ``take`` false (a compass steers the
+        track) none is taken: the estimate stays and only its published covariance spreads
+        over the turns. Returns the latest range's (NIS, accepted) if one was taken."""
         cfg = self.config
         best: tuple[float, int, list[tuple[float, _Hypothesis, list[_Step]]]] | None = None
         ring = cfg.jump_ring_deg
         turns = [ring * k for k in range(1, round(360 / ring))]
+        pool: list[tuple[float, _Hypothesis]] = []  # every gap's turns, log-odds on none
         for j in range(len(hyp.steps)):
             tried = [self._refilter(hyp, j, turn) for turn in (*turns, None)]
             top = max(t[0] for t in tried)
             mixture = top + math.log(sum(math.exp(t[0] - top) for t in tried) / len(tried))
-            llr = mixture - sum(s.loglik for s in hyp.steps[j:])
+            none = sum(s.loglik for s in hyp.steps[j:])
+            llr = mixture - none
             # one anchor's ranges fit any turn (a circle): it takes two to see one
             seen = len({s.obs.anchor for s in hyp.steps[j:]}) >= 2
+            if seen:
+                pool += [(t[0] - none - math.log(len(tried)), t[1]) for t in tried
+                         if math.hypot(t[1].x[2], t[1].x[3]) <= cfg.max_speed_mps]
             if seen and (best is None or llr > best[0]):
                 best = (llr, j, tried)
         if best is None:
@@ -939,15 +987,27 @@ class RangeTracker:
             return None
         top = max(t[0] for t in tried)
         weights = [math.exp(t[0] - top) for t in tried]
-        total = sum(weights)
         _, trial, redone = tried[max(range(len(tried)), key=weights.__getitem__)]
-        mean = sum(w * t[1].x for w, t in zip(weights, tried, strict=True)) / total
-        cov = sum(w * (t[1].p + np.outer(t[1].x - mean, t[1].x - mean))
-                  for w, t in zip(weights, tried, strict=True)) / total
-        if llr < cfg.jump_min_llr:
+        # the estimate: every gap's turns (and none), weighted by how well they explain the
+        # ranges; the turn's time is as uncertain as its direction, and the spread says so
+        # ... each on the side the track committed to (without a compass an image fits alike)
+        top = max(lw for lw, _ in pool)
+        weights = [math.exp(lw - top) for lw, _ in pool]
+        states = [self._fold(h.x, h.p)[:2] for _, h in pool]
+        total = sum(weights)
+        mean = sum(w * x for w, (x, _) in zip(weights, states, strict=True)) / total
+        cov = sum(w * (p + np.outer(x - mean, x - mean))
+                  for w, (x, p) in zip(weights, states, strict=True)) / total
+        if self._fold(trial.x, trial.p)[2]:  # the likeliest turn was the image: so its history
+            _reflect_history(trial.turns, redone, self._fold_line())
+        if not take:  # the estimate stays, its covariance spread over the turns too
+            cov = cov + np.outer(mean - hyp.x, mean - hyp.x)
+            mean = hyp.x
+        if llr < cfg.jump_min_llr or not take:
             # not taken, not ruled out: until the next range the estimate is the mixture of
-            # both, weighted by the odds (even at the threshold), so its covariance says so
-            share = 1.0 / (1.0 + math.exp(min(cfg.jump_min_llr - llr, 50.0)))
+            # both, weighted by the odds (even at ``jump_even_llr``), so its covariance says so
+            even = cfg.jump_even_llr if take else cfg.jump_steered_even_llr
+            share = 1.0 / (1.0 + math.exp(min(even - llr, 50.0)))
             if share >= 0.01 and trial.time == hyp.time:
                 hyp.blend = (hyp.time, share, mean, cov)
             return None
@@ -1043,6 +1103,36 @@ class RangeTracker:
         ikh = np.eye(4) - np.outer(gain, jac)
         hyp.p = ikh @ hyp.p @ ikh.T + r * np.outer(gain, gain)  # Joseph form: stays symmetric
         return nis, True
+
+
+def _reflection(u: np.ndarray) -> np.ndarray:
+    """The 4×4 reflection of a state ``[x, y, vx, vy]``'s axes over a line along ``u``."""
+    reflect = 2 * np.outer(u, u) - np.eye(2)
+    g = np.eye(4)
+    g[:2, :2] = g[2:, 2:] = reflect
+    return g
+
+
+def _image(x: np.ndarray, line: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """State ``x``'s mirror image over ``line`` (a point, a unit direction): position and
+    velocity reflected."""
+    a, u = line
+    y = _reflection(u) @ x
+    y[:2] = a + (2 * np.outer(u, u) - np.eye(2)) @ (x[:2] - a)
+    return y
+
+
+def _reflect_history(turns: list[tuple[float, np.ndarray]], steps: list[_Step],
+                     line: tuple[np.ndarray, np.ndarray] | None) -> None:
+    """Reflect recorded turns and steps over ``line`` in place (a folded track's history)."""
+    if line is None:
+        return
+    g = _reflection(line[1])
+    reflect = g[2:, 2:]
+    turns[:] = [(w, reflect @ v) for w, v in turns]
+    for step in steps:
+        step.x, step.p = _image(step.x, line), g @ step.p @ g.T
+        step.turns = [(w, reflect @ v) for w, v in step.turns]
 
 
 def _predicted(x: np.ndarray, p: np.ndarray, dt: float,
