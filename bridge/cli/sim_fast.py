@@ -46,18 +46,29 @@ def synthetic_value(layout: Layout, rng: random.Random) -> Any:
     (:func:`code_drawer`), the same distribution as drawing whole random codes until one
     decodes, without the failed draws; the all-zero codes if even that fails. Layouts with
     a header of their own (DCCL) make their own values."""
+    return synthetic(layout)(rng)
+
+
+def synthetic(layout: Layout) -> Callable[[random.Random], Any]:
+    """:func:`synthetic_value` for one layout, its field drawers looked up once (a synthetic
+    application draws a value of the same layout at every put)."""
     own = getattr(layout, "synthetic_value", None)
     if own is not None:
-        return own(rng)
-    n = 0
-    for codec, draw in _drawers(layout):
-        n = (n << codec.bits) | draw(rng)
-    try:
-        value = layout.unpack(n)
-        layout.pack(value)
-        return value
-    except (DecodeError, EncodeError):
-        return layout.unpack(0)
+        return own
+    drawers = [(codec.bits, draw) for codec, draw in _drawers(layout)]
+
+    def make(rng: random.Random) -> Any:
+        n = 0
+        for bits, draw in drawers:
+            n = (n << bits) | draw(rng)
+        try:
+            value = layout.unpack(n)
+            layout.pack(value)
+            return value
+        except (DecodeError, EncodeError):
+            return layout.unpack(0)
+
+    return make
 
 
 def code_drawer(codec: FieldCodec) -> Drawer:
@@ -139,9 +150,10 @@ def feed(fleet: FastFleet, rng: random.Random, until: float) -> int:
 def _publisher(fleet: FastFleet, rng: random.Random, node: str, key: str, layout: Layout,
                period: float, until: float) -> Callable[[], None]:
     """A synthetic application putting a value on ``key`` every ``period`` until ``until``."""
+    make = synthetic(layout)
 
     def publish() -> None:
-        fleet.put(node, key, synthetic_value(layout, rng))
+        fleet.put(node, key, make(rng))
         if fleet.now + period <= until:
             fleet.call_at(fleet.now + period, publish)
 

@@ -315,7 +315,7 @@ class NodeCore:
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
         ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
         bindings = self.bindings.get(key, ())
-        ros2 = next((e.ros2 for _, _, e in bindings if e.ros2 is not None), None)
+        ros2 = self.ros2_input(key)
         try:
             value = (ros2.decode(data, sample_key or key) if ros2 is not None
                      else decode_payload(data, encoding))
@@ -344,6 +344,14 @@ class NodeCore:
                     for d in channel.destinations(self.node)]
             self._outputs.extend(self.surfacing.relays(
                 key, outs + self.families.outputs_for(key), data, encoding))
+
+    def ros2_input(self, key: str) -> Ros2Element | None:
+        """The ROS 2 topic read on input ``key``, or None (asked per sample: a loop, not a
+        generator)."""
+        for _, _, element in self.bindings.get(key, ()):
+            if element.ros2 is not None:
+                return element.ros2
+        return None
 
     def drop_payload(self, key: str, reason: str, now: float) -> None:
         """Count a payload that cannot be used (warned once per key)."""

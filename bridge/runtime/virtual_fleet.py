@@ -161,8 +161,7 @@ class FastFleet:
         ``at``); ``ref`` is its correlation text, echoed in delivery reports."""
         data, enc = encode_payload(value, encoding)
         sample_key = None
-        bindings = self.cores[node].bindings.get(key, ())
-        ros2 = next((e.ros2 for _, _, e in bindings if e.ros2 is not None), None)
+        ros2 = self.cores[node].ros2_input(key)
         if ros2 is not None:  # a ROS 2 node: CDR on its exact rmw_zenoh key
             try:
                 data, enc = ros2.encode(value, self.now), ""
