@@ -372,12 +372,18 @@ class FastFleet:
             self.saved[name] = msgpack.unpackb(msgpack.packb(core.state(), use_bin_type=True),
                                                raw=False, strict_map_key=False)
             core.saved()
-        for output in core.take():
-            self.queries.handle(name, output)
-            if not isinstance(output, self.kinds):
+        outputs = core.take()
+        if not outputs:
+            return
+        handle = self.queries.handle if core.queries is not None else None  # its query outputs
+        kinds, keep, on_output, now = self.kinds, self.keep_outputs, self.on_output, self.now
+        for output in outputs:
+            if handle is not None:
+                handle(name, output)
+            if not isinstance(output, kinds):
                 continue
-            timed = Timed(self.now, name, output)
-            if self.keep_outputs:
+            timed = Timed(now, name, output)
+            if keep:
                 self.outputs.append(timed)
-            if self.on_output is not None:
-                self.on_output(timed)
+            if on_output is not None:
+                on_output(timed)
