@@ -620,7 +620,7 @@ class NodeCore:
             self._dirty = True  # the replay window moved: saved before anything is published
         if frame.epoch is not None:
             self._peer_epoch(src, frame.epoch, now)
-        self._link_watch.heard(src)
+        self._link_watch.heard(src, now)
         if self.link_states.get(src) is not LinkState.UP:
             self.update_links(now)
         if self.positioning is not None and self.table.dlbl:
