@@ -190,6 +190,7 @@ class NodeCore:
         self._dirty = True  # a new run's epoch must be saved before its first frame
         self.codec = frame_codec_for(self.table, auth)
         self.frame_bytes = mission.node_modem(node).frame_bytes
+        self.address = mission.address_of(node)
         self.store = OutboundStore.for_node(self.table.channels, node)
         self.stats = NodeStats()
         self.thresholds = LinkThresholds.for_mission(mission)
@@ -613,7 +614,7 @@ class NodeCore:
             self._event(FrameDropped(now, src, exc.reason, str(exc), rx.data))
             return
         self.stats.frames_received += 1
-        self.schedule.on_heard(src, rx.dest == self.mission.address_of(self.node), now)
+        self.schedule.on_heard(src, rx.dest == self.address, now)
         self._foreign.pop(src, None)
         self.last_heard[src] = now
         if self.auth is not None:
@@ -631,11 +632,12 @@ class NodeCore:
         members: dict[str, dict[str, list[dict]]] = {}  # key families: per member
         for entry in frame.entries:
             channel = entry.channel
-            if isinstance(channel, AckCodec):
-                self._on_ack(src, entry.header, now)
-                continue
-            if self._on_system(src, entry, now):
-                continue
+            if channel.__class__ is not ChannelCodec:  # an acknowledgement or a system entry
+                if isinstance(channel, AckCodec):
+                    self._on_ack(src, entry.header, now)
+                    continue
+                if self._on_system(src, entry, now):
+                    continue
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
                 continue
@@ -924,6 +926,13 @@ class NodeCore:
 _SCALARS = (int, float, str, bool, type(None))
 
 
+_PLAIN_TYPES = frozenset(_SCALARS)
+
+
 def plain(meta: Mapping[str, Any]) -> dict[str, Any]:
-    """Link metadata reduced to msgpack-able scalars."""
-    return {str(k): v for k, v in meta.items() if isinstance(v, _SCALARS)}
+    """Link metadata reduced to msgpack-able scalars (a copy when it is plain already, as a
+    simulator's is: its types are checked first)."""
+    for k, v in meta.items():
+        if k.__class__ is not str or v.__class__ not in _PLAIN_TYPES:
+            return {str(k): v for k, v in meta.items() if isinstance(v, _SCALARS)}
+    return dict(meta)
