@@ -258,18 +258,20 @@ class FastFleet:
 
     def run_until(self, t_end: float) -> None:
         """Advance the virtual clock to ``t_end``, handling every event on the way."""
+        ocean, timers = self.ocean, self._timers
         while True:
             t = self._next_tick
-            if (water := self.ocean.next_event_time()) is not None and water < t:
+            if (water := ocean.next_event_time()) is not None and water < t:
                 t = water
-            if self._timers and self._timers[0][0] < t:
-                t = self._timers[0][0]
+            if timers and timers[0][0] < t:
+                t = timers[0][0]
             if (tx := self._next_transmit()) is not None and tx < t:
                 t = tx
             if t > t_end:
                 self.now = t_end
                 return
-            self.now = max(self.now, t)
+            if t > self.now:
+                self.now = t
             self._step()
 
     def _set_next_tx(self, name: str, t: float | None) -> None:
