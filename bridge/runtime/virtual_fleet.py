@@ -302,12 +302,13 @@ class FastFleet:
         return [due[k] for k in sorted(due)]
 
     def _step(self) -> None:
-        now = self.now
-        for event in self.ocean.advance(now):
-            if isinstance(event, Delivery):
-                self._deliver(event)
-            elif isinstance(event, TxDone):
-                self._pending.pop(event.frame_id, None)
+        now, ocean = self.now, self.ocean
+        if (water := ocean.next_event_time()) is not None and water <= now:
+            for event in ocean.advance(now):  # (the ocean's clock moves when it is asked)
+                if isinstance(event, Delivery):
+                    self._deliver(event)
+                elif isinstance(event, TxDone):
+                    self._pending.pop(event.frame_id, None)
         while self._timers and self._timers[0][0] <= now:
             _, _, fn = heapq.heappop(self._timers)
             fn()
