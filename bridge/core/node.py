@@ -663,19 +663,20 @@ class NodeCore:
                     self.stats.frames_dropped["unknown_member"] += 1
                     continue
                 member = name
+            cname, family, latching = channel.name, channel.family, channel.latching
             for elements in delivered:
-                values[channel.name] = elements
-                if channel.family is not None:
-                    members.setdefault(channel.name, {})[member] = elements
-                self.stats.received_per_channel[channel.name] += 1
-                self.received_at[channel.name] = now
+                values[cname] = elements
+                if family is not None:
+                    members.setdefault(cname, {})[member] = elements
+                self.stats.received_per_channel[cname] += 1
+                self.received_at[cname] = now
                 for element, value in zip(channel.elements, elements, strict=True):
                     key = element.output_key(src, self.node, member)
-                    if channel.family is not None:
+                    if family is not None:
                         self.families.arrived(key, now)
-                    if self.queries is not None and channel.latching:
+                    if latching and self.queries is not None:
                         self.queries.remember(key, value, element.encoding, now)
-                    self._publish(key, value, element.encoding, channel.latching, element.ros2)
+                    self._publish(key, value, element.encoding, latching, element.ros2)
         meta = plain(rx.meta)
         if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             self._peer_status[src] = now
