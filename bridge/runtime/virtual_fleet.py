@@ -48,11 +48,26 @@ a few seconds of each other)."""
 class SharedDecoder:
     """Decodes each frame once for all its receivers, for missions without authentication
     (decoding is then a pure function of the bytes and the sender). Receivers share the
-    decoded values, as they share the frame's bytes: read-only."""
+    decoded values, as they share the frame's bytes: read-only. :meth:`fingerprint` shares
+    the frame's sender fingerprint (a function of the bytes) the same way."""
 
-    def __init__(self, decode: Callable[[bytes, int | None], DecodedFrame]) -> None:
+    def __init__(self, decode: Callable[[bytes, int | None], DecodedFrame],
+                 fingerprint: Callable[[bytes], int | None] | None = None) -> None:
         self._decode = decode
+        self._fingerprint = fingerprint
         self._kept: dict[tuple[bytes, int | None], DecodedFrame | FrameError] = {}
+        self._prints: dict[bytes, int | None] = {}
+
+    def fingerprint(self, frame: bytes) -> int | None:
+        """The codec's ``sender_fingerprint(frame)``, computed once per frame."""
+        found = self._prints.get(frame, -1)  # (-1: not yet; a fingerprint is 16 bits or None)
+        if found == -1:
+            assert self._fingerprint is not None
+            found = self._fingerprint(frame)
+            if len(self._prints) >= DECODED_KEPT:
+                self._prints.clear()
+            self._prints[frame] = found
+        return found
 
     def __call__(self, frame: bytes, src: int | None = None) -> DecodedFrame:
         key = (frame, src)
@@ -117,9 +132,10 @@ class FastFleet:
                       for name in mission.nodes}
         self._shared: SharedDecoder | None = None
         if mission.wire.auth is None:  # every core's codec is the same pure function
-            self._shared = SharedDecoder(next(iter(self.cores.values())).codec.decode)
+            codec = next(iter(self.cores.values())).codec
+            self._shared = SharedDecoder(codec.decode, codec.sender_fingerprint)
             for core in self.cores.values():
-                core.codec.decode = self._shared  # type: ignore[method-assign]
+                self._share(core)
         self.now = start
         self.outputs: list[Timed] = []
         self.on_output = on_output
@@ -213,6 +229,12 @@ class FastFleet:
         if (at := self.surface.next_any(self.now)) is not None:
             self.call_at(at, self._surface_step)
 
+    def _share(self, core: NodeCore) -> None:
+        """``core`` decodes through the fleet's :class:`SharedDecoder`."""
+        assert self._shared is not None
+        core.codec.decode = self._shared  # type: ignore[method-assign]
+        core.codec.sender_fingerprint = self._shared.fingerprint  # type: ignore[method-assign]
+
     def collect_and_replan(self, node: str) -> None:
         """Carry out ``node``'s outputs and plan its next transmission again."""
         self._collect(node)
@@ -243,7 +265,7 @@ class FastFleet:
                                     rng=random.Random(f"{self.seed}/{node}/{self.restarts}"),
                                     seed=self.seed + self.restarts)
         if self._shared is not None:
-            self.cores[node].codec.decode = self._shared  # type: ignore[method-assign]
+            self._share(self.cores[node])
         self.stopped.discard(node)
         self._collect(node)
         self._plan(node)
