@@ -75,14 +75,14 @@ class LinkWatch:
 
     A state changes only when the peer is heard (:meth:`heard`) or when its silence crosses a
     threshold: after each look at a peer, its next crossing goes in a heap (an entry counts
-    while it is the peer's latest). A peer that was up at its last look stays up when heard
-    no earlier than the hearing that look saw, so such a hearing (given its time) is not a
-    reason to look (a node hears its peers far more often than their states change): the
-    crossing filed, now early, is looked at when it comes, and that look files the next one
-    from the latest hearing. :meth:`due` returns the peers to re-evaluate,
-    in the order given at construction; with no time going backwards this covers every peer
-    whose state can differ from the one last reported (and, at such a crossing, an up peer
-    heard since, which is still up).
+    while it is the peer's latest). A node hears its peers far more often than their states
+    change, so a hearing is no reason to look at a peer that was up at its last look (and is
+    heard no earlier than the hearing that look saw): it stays up, its filed crossing comes
+    early, and the look then files the next one from the latest hearing.
+
+    :meth:`due` returns the peers to re-evaluate, in the order given at construction; with no
+    time going backwards this covers every peer whose state can differ from the one last
+    reported (and, at such an early crossing, a peer still up).
     """
 
     SLACK_S = 1e-6

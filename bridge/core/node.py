@@ -925,9 +925,7 @@ class NodeCore:
 
 
 _SCALARS = (int, float, str, bool, type(None))
-
-
-_PLAIN_TYPES = frozenset(_SCALARS)
+_PLAIN_TYPES = frozenset(_SCALARS)  # exactly these (not subclasses): plain already
 
 
 def plain(meta: Mapping[str, Any]) -> dict[str, Any]:
