@@ -74,10 +74,15 @@ class LinkWatch:
     re-evaluates only those, not every peer at every tick.
 
     A state changes only when the peer is heard (:meth:`heard`) or when its silence crosses a
-    threshold: after each look at a peer, the next crossing goes in a heap (stale entries, left
-    by a later hearing, are skipped). :meth:`due` returns the peers to re-evaluate, in the
-    order given at construction; with no time going backwards this is exactly the set of peers
-    whose state can differ from the one last reported.
+    threshold: after each look at a peer, its next crossing goes in a heap (an entry counts
+    while it is the peer's latest). A node hears its peers far more often than their states
+    change, so a hearing is no reason to look at a peer that was up at its last look (and is
+    heard no earlier than the hearing that look saw): it stays up, its filed crossing comes
+    early, and the look then files the next one from the latest hearing.
+
+    :meth:`due` returns the peers to re-evaluate, in the order given at construction; with no
+    time going backwards this covers every peer whose state can differ from the one last
+    reported (and, at such an early crossing, a peer still up).
     """
 
     SLACK_S = 1e-6
@@ -88,13 +93,18 @@ class LinkWatch:
         self.thresholds = thresholds
         self.order = {peer: i for i, peer in enumerate(peers)}
         self._dirty: set[str] = set(self.order)  # the first look covers every peer
-        self._heap: list[tuple[float, int, str, float]] = []  # (crossing, order, peer, heard)
+        self._heap: list[tuple[float, int, str]] = []  # (crossing, order, peer)
+        self._crossing: dict[str, float] = {}  # each watched peer's latest crossing
+        self._up: dict[str, float] = {}  # peers up at their last look: the hearing it saw
         self._last = -math.inf
 
-    def heard(self, peer: str) -> None:
-        """``peer`` was heard: its state may change at the next look."""
+    def heard(self, peer: str, at: float | None = None) -> None:
+        """``peer`` was heard (at time ``at``, if given): its state may change at the next
+        look, unless it was up then and ``at`` is no earlier than the hearing seen."""
         if peer in self.order:
-            self._dirty.add(peer)
+            seen = self._up.get(peer)
+            if at is None or seen is None or at < seen:
+                self._dirty.add(peer)
 
     def due(self, now: float, last_heard: Mapping[str, float]) -> list[str]:
         """The peers whose state may differ at ``now`` from the last look at them; each is
@@ -107,18 +117,27 @@ class LinkWatch:
         if now < self._last:  # time went backwards: a state may go back too, look at everyone
             peers = set(self.order)
         self._last = now
+        crossing = self._crossing
         while heap and heap[0][0] <= now + self.SLACK_S:
-            _, _, peer, heard = heapq.heappop(heap)
-            if last_heard.get(peer) == heard:
+            at, _, peer = heapq.heappop(heap)
+            if crossing.get(peer) == at:
                 peers.add(peer)
         out = sorted(peers, key=self.order.__getitem__)
         t = self.thresholds
         for peer in out:
             heard = last_heard.get(peer)
+            crossing.pop(peer, None)
+            self._up.pop(peer, None)
             if heard is None:
                 continue  # down until heard
-            for threshold in (t.degraded_after_s, t.down_after_s):
-                if now - heard < threshold:
-                    heapq.heappush(heap, (heard + threshold, self.order[peer], peer, heard))
-                    break
+            silent = now - heard
+            if silent < t.degraded_after_s:
+                self._up[peer] = heard
+                at = heard + t.degraded_after_s
+            elif silent < t.down_after_s:
+                at = heard + t.down_after_s
+            else:
+                continue  # down: the next hearing is the next change
+            crossing[peer] = at
+            heapq.heappush(heap, (at, self.order[peer], peer))
         return out

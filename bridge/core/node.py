@@ -190,6 +190,7 @@ class NodeCore:
         self._dirty = True  # a new run's epoch must be saved before its first frame
         self.codec = frame_codec_for(self.table, auth)
         self.frame_bytes = mission.node_modem(node).frame_bytes
+        self.address = mission.address_of(node)
         self.store = OutboundStore.for_node(self.table.channels, node)
         self.stats = NodeStats()
         self.thresholds = LinkThresholds.for_mission(mission)
@@ -315,7 +316,7 @@ class NodeCore:
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
         ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
         bindings = self.bindings.get(key, ())
-        ros2 = next((e.ros2 for _, _, e in bindings if e.ros2 is not None), None)
+        ros2 = self.ros2_input(key)
         try:
             value = (ros2.decode(data, sample_key or key) if ros2 is not None
                      else decode_payload(data, encoding))
@@ -344,6 +345,14 @@ class NodeCore:
                     for d in channel.destinations(self.node)]
             self._outputs.extend(self.surfacing.relays(
                 key, outs + self.families.outputs_for(key), data, encoding))
+
+    def ros2_input(self, key: str) -> Ros2Element | None:
+        """The ROS 2 topic read on input ``key``, or None (asked per sample: a loop, not a
+        generator)."""
+        for _, _, element in self.bindings.get(key, ()):
+            if element.ros2 is not None:
+                return element.ros2
+        return None
 
     def drop_payload(self, key: str, reason: str, now: float) -> None:
         """Count a payload that cannot be used (warned once per key)."""
@@ -605,14 +614,14 @@ class NodeCore:
             self._event(FrameDropped(now, src, exc.reason, str(exc), rx.data))
             return
         self.stats.frames_received += 1
-        self.schedule.on_heard(src, rx.dest == self.mission.address_of(self.node), now)
+        self.schedule.on_heard(src, rx.dest == self.address, now)
         self._foreign.pop(src, None)
         self.last_heard[src] = now
         if self.auth is not None:
             self._dirty = True  # the replay window moved: saved before anything is published
         if frame.epoch is not None:
             self._peer_epoch(src, frame.epoch, now)
-        self._link_watch.heard(src)
+        self._link_watch.heard(src, now)
         if self.link_states.get(src) is not LinkState.UP:
             self.update_links(now)
         if self.positioning is not None and self.table.dlbl:
@@ -623,11 +632,12 @@ class NodeCore:
         members: dict[str, dict[str, list[dict]]] = {}  # key families: per member
         for entry in frame.entries:
             channel = entry.channel
-            if isinstance(channel, AckCodec):
-                self._on_ack(src, entry.header, now)
-                continue
-            if self._on_system(src, entry, now):
-                continue
+            if channel.__class__ is not ChannelCodec:  # an acknowledgement or a system entry
+                if isinstance(channel, AckCodec):
+                    self._on_ack(src, entry.header, now)
+                    continue
+                if self._on_system(src, entry, now):
+                    continue
             if src not in channel.senders:
                 self.stats.frames_dropped["unexpected_sender"] += 1
                 continue
@@ -653,19 +663,20 @@ class NodeCore:
                     self.stats.frames_dropped["unknown_member"] += 1
                     continue
                 member = name
+            cname, family, latching = channel.name, channel.family, channel.latching
             for elements in delivered:
-                values[channel.name] = elements
-                if channel.family is not None:
-                    members.setdefault(channel.name, {})[member] = elements
-                self.stats.received_per_channel[channel.name] += 1
-                self.received_at[channel.name] = now
+                values[cname] = elements
+                if family is not None:
+                    members.setdefault(cname, {})[member] = elements
+                self.stats.received_per_channel[cname] += 1
+                self.received_at[cname] = now
                 for element, value in zip(channel.elements, elements, strict=True):
                     key = element.output_key(src, self.node, member)
-                    if channel.family is not None:
+                    if family is not None:
                         self.families.arrived(key, now)
-                    if self.queries is not None and channel.latching:
+                    if latching and self.queries is not None:
                         self.queries.remember(key, value, element.encoding, now)
-                    self._publish(key, value, element.encoding, channel.latching, element.ros2)
+                    self._publish(key, value, element.encoding, latching, element.ros2)
         meta = plain(rx.meta)
         if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             self._peer_status[src] = now
@@ -914,8 +925,13 @@ class NodeCore:
 
 
 _SCALARS = (int, float, str, bool, type(None))
+_PLAIN_TYPES = frozenset(_SCALARS)  # exactly these (not subclasses): plain already
 
 
 def plain(meta: Mapping[str, Any]) -> dict[str, Any]:
-    """Link metadata reduced to msgpack-able scalars."""
-    return {str(k): v for k, v in meta.items() if isinstance(v, _SCALARS)}
+    """Link metadata reduced to msgpack-able scalars (a copy when it is plain already, as a
+    simulator's is: its types are checked first)."""
+    for k, v in meta.items():
+        if k.__class__ is not str or v.__class__ not in _PLAIN_TYPES:
+            return {str(k): v for k, v in meta.items() if isinstance(v, _SCALARS)}
+    return dict(meta)

@@ -19,13 +19,18 @@ import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bridge.mission.model import Mission, TdmaMac
 from bridge.mission.path import Path
 from bridge.modems.presets import Preset, get_preset
 from bridge.ranging import DlblRanger, Fix, NoFix, Range, SoundSpeed, Track, attempt
-from bridge.ranging.tracker import Estimate, Prior, RangeObs, RangeTracker, TrackerConfig
+
+if TYPE_CHECKING:
+    from bridge.ranging.tracker import Estimate
+
+# The range-domain tracker (and numpy with it) is imported when a node's positioning starts:
+# a mission without ranging runs without numpy.
 
 DEFAULT_SOUND_SPEED_MPS = 1500.0
 MODEM_METHODS = ("ping", "propagation")
@@ -193,6 +198,8 @@ class Positioning:
         except (KeyError, ValueError):
             airtime = 0.0
         self.report_latency_s = airtime + ANCHOR_SAMPLE_AGE_S
+        from bridge.ranging.tracker import RangeTracker, TrackerConfig
+
         config = TrackerConfig(range_sigma_m=RANGE_SIGMA_M, speed_sigma_mps=NAV_SPEED_SIGMA_MPS)
         if cycle is not None:  # a range per anchor per TDMA cycle: no news within one is normal
             config = replace(config, coast_after_s=max(config.coast_after_s, 1.5 * cycle),
@@ -232,6 +239,8 @@ class Positioning:
         if self._first_time is None:
             self._first_time = now
         if self.tracker is not None and self.tracker.prior is None and self.start is not None:
+            from bridge.ranging.tracker import Prior
+
             self.tracker.prior = Prior(min(self._first_time, now), self.start[0],
                                        self.start[1], START_SIGMA_M)
 
@@ -348,6 +357,8 @@ class Positioning:
         self._set_prior(t)
         now_at, sigma, age = self.anchor_at(rng.peer, t)
         before, _, _ = self.anchor_at(rng.peer, t - span_s)
+        from bridge.ranging.tracker import RangeObs
+
         self.tracker.on_range(RangeObs(
             rng.peer, rng.range_m(self.sound_speed_for(rng.peer).mps), t, now_at,
             span_s=span_s, anchor_before=before, anchor_sigma_m=sigma, anchor_age_s=age))

@@ -29,7 +29,7 @@ class ChannelState:
 
     @property
     def complete(self) -> bool:
-        return all(p is not None for p in self.packed)
+        return None not in self.packed
 
     def payload(self) -> int:
         """The channel's bits: every element's packed value, first element most significant."""

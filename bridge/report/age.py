@@ -22,10 +22,12 @@ class AgeOfInformation:
 
     def arrived(self, channel: str, node: str, t: float) -> None:
         key = (channel, node)
-        if key in self.last:
-            gap = t - self.last[key]
+        last = self.last.get(key)
+        if last is not None:
+            gap = t - last
             self.area[key] += gap * gap / 2
-            self.worst[key] = max(self.worst[key], gap)
+            if gap > self.worst[key]:
+                self.worst[key] = gap
         else:
             self.first[key], self.area[key], self.worst[key] = t, 0.0, 0.0
         self.last[key] = t

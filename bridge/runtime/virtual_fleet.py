@@ -48,11 +48,26 @@ a few seconds of each other)."""
 class SharedDecoder:
     """Decodes each frame once for all its receivers, for missions without authentication
     (decoding is then a pure function of the bytes and the sender). Receivers share the
-    decoded values, as they share the frame's bytes: read-only."""
+    decoded values, as they share the frame's bytes: read-only. :meth:`fingerprint` shares
+    the frame's sender fingerprint (a function of the bytes) the same way."""
 
-    def __init__(self, decode: Callable[[bytes, int | None], DecodedFrame]) -> None:
+    def __init__(self, decode: Callable[[bytes, int | None], DecodedFrame],
+                 fingerprint: Callable[[bytes], int | None] | None = None) -> None:
         self._decode = decode
+        self._fingerprint = fingerprint
         self._kept: dict[tuple[bytes, int | None], DecodedFrame | FrameError] = {}
+        self._prints: dict[bytes, int | None] = {}
+
+    def fingerprint(self, frame: bytes) -> int | None:
+        """The codec's ``sender_fingerprint(frame)``, computed once per frame."""
+        found = self._prints.get(frame, -1)  # (-1: not yet; a fingerprint is 16 bits or None)
+        if found == -1:
+            assert self._fingerprint is not None
+            found = self._fingerprint(frame)
+            if len(self._prints) >= DECODED_KEPT:
+                self._prints.clear()
+            self._prints[frame] = found
+        return found
 
     def __call__(self, frame: bytes, src: int | None = None) -> DecodedFrame:
         key = (frame, src)
@@ -117,9 +132,10 @@ class FastFleet:
                       for name in mission.nodes}
         self._shared: SharedDecoder | None = None
         if mission.wire.auth is None:  # every core's codec is the same pure function
-            self._shared = SharedDecoder(next(iter(self.cores.values())).codec.decode)
+            codec = next(iter(self.cores.values())).codec
+            self._shared = SharedDecoder(codec.decode, codec.sender_fingerprint)
             for core in self.cores.values():
-                core.codec.decode = self._shared  # type: ignore[method-assign]
+                self._share(core)
         self.now = start
         self.outputs: list[Timed] = []
         self.on_output = on_output
@@ -161,8 +177,7 @@ class FastFleet:
         ``at``); ``ref`` is its correlation text, echoed in delivery reports."""
         data, enc = encode_payload(value, encoding)
         sample_key = None
-        bindings = self.cores[node].bindings.get(key, ())
-        ros2 = next((e.ros2 for _, _, e in bindings if e.ros2 is not None), None)
+        ros2 = self.cores[node].ros2_input(key)
         if ros2 is not None:  # a ROS 2 node: CDR on its exact rmw_zenoh key
             try:
                 data, enc = ros2.encode(value, self.now), ""
@@ -214,6 +229,12 @@ class FastFleet:
         if (at := self.surface.next_any(self.now)) is not None:
             self.call_at(at, self._surface_step)
 
+    def _share(self, core: NodeCore) -> None:
+        """``core`` decodes through the fleet's :class:`SharedDecoder`."""
+        assert self._shared is not None
+        core.codec.decode = self._shared  # type: ignore[method-assign]
+        core.codec.sender_fingerprint = self._shared.fingerprint  # type: ignore[method-assign]
+
     def collect_and_replan(self, node: str) -> None:
         """Carry out ``node``'s outputs and plan its next transmission again."""
         self._collect(node)
@@ -244,7 +265,7 @@ class FastFleet:
                                     rng=random.Random(f"{self.seed}/{node}/{self.restarts}"),
                                     seed=self.seed + self.restarts)
         if self._shared is not None:
-            self.cores[node].codec.decode = self._shared  # type: ignore[method-assign]
+            self._share(self.cores[node])
         self.stopped.discard(node)
         self._collect(node)
         self._plan(node)
@@ -259,18 +280,20 @@ class FastFleet:
 
     def run_until(self, t_end: float) -> None:
         """Advance the virtual clock to ``t_end``, handling every event on the way."""
+        ocean, timers = self.ocean, self._timers
         while True:
             t = self._next_tick
-            if (water := self.ocean.next_event_time()) is not None and water < t:
+            if (water := ocean.next_event_time()) is not None and water < t:
                 t = water
-            if self._timers and self._timers[0][0] < t:
-                t = self._timers[0][0]
+            if timers and timers[0][0] < t:
+                t = timers[0][0]
             if (tx := self._next_transmit()) is not None and tx < t:
                 t = tx
             if t > t_end:
                 self.now = t_end
                 return
-            self.now = max(self.now, t)
+            if t > self.now:
+                self.now = t
             self._step()
 
     def _set_next_tx(self, name: str, t: float | None) -> None:
@@ -301,12 +324,13 @@ class FastFleet:
         return [due[k] for k in sorted(due)]
 
     def _step(self) -> None:
-        now = self.now
-        for event in self.ocean.advance(now):
-            if isinstance(event, Delivery):
-                self._deliver(event)
-            elif isinstance(event, TxDone):
-                self._pending.pop(event.frame_id, None)
+        now, ocean = self.now, self.ocean
+        if (water := ocean.next_event_time()) is not None and water <= now:
+            for event in ocean.advance(now):  # (the ocean's clock moves when it is asked)
+                if isinstance(event, Delivery):
+                    self._deliver(event)
+                elif isinstance(event, TxDone):
+                    self._pending.pop(event.frame_id, None)
         while self._timers and self._timers[0][0] <= now:
             _, _, fn = heapq.heappop(self._timers)
             fn()
@@ -373,12 +397,18 @@ class FastFleet:
             self.saved[name] = msgpack.unpackb(msgpack.packb(core.state(), use_bin_type=True),
                                                raw=False, strict_map_key=False)
             core.saved()
-        for output in core.take():
-            self.queries.handle(name, output)
-            if not isinstance(output, self.kinds):
+        outputs = core.take()
+        if not outputs:
+            return
+        handle = self.queries.handle if core.queries is not None else None  # its query outputs
+        kinds, keep, on_output, now = self.kinds, self.keep_outputs, self.on_output, self.now
+        for output in outputs:
+            if handle is not None:
+                handle(name, output)
+            if not isinstance(output, kinds):
                 continue
-            timed = Timed(self.now, name, output)
-            if self.keep_outputs:
+            timed = Timed(now, name, output)
+            if keep:
                 self.outputs.append(timed)
-            if self.on_output is not None:
-                self.on_output(timed)
+            if on_output is not None:
+                on_output(timed)

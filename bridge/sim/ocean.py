@@ -325,21 +325,28 @@ class Ocean:
         data = bytes(data)
         here = self.position(src)
         min_range, max_range = p.min_range_m, p.max_range_m
-        queue, open_ = self._queue, self._open
-        for dst in sorted(self._positions):
+        queue, open_, seq = self._queue, self._open, self._seq
+        positions, paths, links, filed = self._positions, self._paths, self._links, \
+            self._rx_intervals
+        for dst in sorted(positions):
             if dst == src:
                 continue
-            dist = math.dist(here, self.position(dst))
+            there = positions[dst] if dst not in paths else self.position(dst)
+            dist = math.dist(here, there)
             travel = p.propagation_s(max(dist, min_range))
-            link = self._link(src, dst)
-            rx = _Rx(frame_id, src, dst, data, dest, now, tx_start, tx_start + travel,
-                     tx_end + travel, dist, travel, dist <= max_range, link)
+            link = links.get((src, dst))
+            if link is None:
+                link = links[(src, dst)] = LinkStats()
+            start = tx_start + travel
+            rx = _Rx(frame_id, src, dst, data, dest, now, tx_start, start, tx_end + travel,
+                     dist, travel, dist <= max_range, link)
             link.sent += 1
-            self._seq += 1
-            heapq.heappush(queue, (rx.end, self._seq, rx))
+            seq += 1
+            heapq.heappush(queue, (rx.end, seq, rx))
             if rx.audible:
-                self._rx_intervals.setdefault(dst, []).append(rx)
-                heapq.heappush(open_, (rx.start, self._seq, rx))
+                filed.setdefault(dst, []).append(rx)
+                heapq.heappush(open_, (start, seq, rx))
+        self._seq = seq
         self._push(tx_end, TxDone(src=src, time=tx_end, frame_id=frame_id))
         return tx_end
 
@@ -365,12 +372,14 @@ class Ocean:
         """All counters as a JSON-able dict: per link, per node and in total."""
         total = LinkStats()
         links = []
-        for (src, dst), ls in sorted(self._links.items()):
-            links.append({"src": src, "dst": dst, **ls.as_dict()})
+        lost = total.lost
+        for (src, dst), ls in sorted(self._links.items()):  # (LinkStats.as_dict, inline)
+            links.append({"src": src, "dst": dst, "sent": ls.sent, "delivered": ls.delivered,
+                          "lost": dict(ls.lost)})
             total.sent += ls.sent
             total.delivered += ls.delivered
             for reason, n in ls.lost.items():
-                total.lost[reason] = total.lost.get(reason, 0) + n
+                lost[reason] = lost.get(reason, 0) + n
         addrs = sorted(set(self._tx_count) | set(self._refused))
         nodes = {
             str(a): {"tx": self._tx_count.get(a, 0), "refused": self._refused.get(a, 0)}

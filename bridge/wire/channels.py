@@ -86,7 +86,19 @@ class ElementCodec:
 
     def output_key(self, src: str, dst: str, key: str = "*") -> str:
         """The key published at ``dst``; a family member's, or with ``*`` all members'."""
-        return self.out_key.format(node=dst, src=src, dst=dst, key=key)
+        if key != "*":  # a member's (names may be learned: not kept)
+            return self.out_key.format(node=dst, src=src, dst=dst, key=key)
+        found = self._output_keys.get((src, dst))
+        if found is None:
+            found = self._output_keys[(src, dst)] = self.out_key.format(
+                node=dst, src=src, dst=dst, key=key)
+        return found
+
+    @cached_property
+    def _output_keys(self) -> dict[tuple[str, str], str]:
+        """:meth:`output_key` by (sender, receiver), filled as asked (once per received
+        value)."""
+        return {}
 
 
 @dataclass(frozen=True)

@@ -48,20 +48,25 @@ def _json_text(data: bytes) -> str:
     return text
 
 
+_CONTAINERS = (dict, list, tuple)
+
+
 def _check_depth(value: Any) -> Any:
-    """``value`` unchanged, or :class:`DecodeError` if it nests deeper than :data:`MAX_DEPTH`."""
-    stack: list[tuple[Any, int]] = [(value, 0)]
-    while stack:
-        item, depth = stack.pop()
-        if isinstance(item, dict):
-            children: Any = item.values()
-        elif isinstance(item, list | tuple):
-            children = item
-        else:
-            continue
+    """``value`` unchanged, or :class:`DecodeError` if it nests deeper than :data:`MAX_DEPTH`.
+
+    Walks one level of containers at a time (scalars are looked at once, never stacked)."""
+    level = [value] if isinstance(value, _CONTAINERS) else []
+    depth = 0
+    while level:
         if depth >= MAX_DEPTH:
             raise DecodeError(f"nested deeper than {MAX_DEPTH} levels")
-        stack.extend((child, depth + 1) for child in children)
+        depth += 1
+        inner = []
+        for item in level:
+            for child in item.values() if isinstance(item, dict) else item:
+                if isinstance(child, _CONTAINERS):
+                    inner.append(child)
+        level = inner
     return value
 
 

@@ -161,3 +161,39 @@ def test_link_watch_finds_every_link_change() -> None:
         for peer in watch.due(now, heard):
             seen[peer] = thresholds.state(heard.get(peer), now)
         assert seen == {p: thresholds.state(heard.get(p), now) for p in peers}
+
+
+def _look(watch: object, thresholds: object, heard: dict[str, float],
+          seen: dict[str, object], now: float) -> None:
+    """Re-evaluate the peers LinkWatch names, as NodeCore.update_links does."""
+    for peer in watch.due(now, heard):  # type: ignore[attr-defined]
+        seen[peer] = thresholds.state(heard.get(peer), now)  # type: ignore[attr-defined]
+
+
+def test_link_watch_told_the_hearing_times_finds_every_link_change() -> None:
+    """As NodeCore uses it (each hearing with its time, a look at once when the peer was not
+    up), through clock steps back of every size: the states a look at every peer gives."""
+    import random
+
+    from bridge.core.link import LinkState, LinkThresholds, LinkWatch
+
+    for seed in range(40):
+        rng = random.Random(seed)
+        degraded = rng.choice((1.0, 2.0, 3.0))
+        thresholds = LinkThresholds(degraded, degraded + rng.choice((0.0, 1.0, 1.0 / 3)))
+        peers = [f"p{i}" for i in range(rng.randint(1, 12))]
+        watch = LinkWatch(thresholds, peers)
+        heard: dict[str, float] = {}
+        seen: dict[str, object] = {}
+        now = 0.0
+        for _ in range(400):
+            now += rng.choice((0.0, 0.1, 1.0, 1.0 / 3, 0.7, 2.0, 3.0))
+            if rng.random() < 0.02:
+                now -= rng.choice((0.5, 4.0))  # the clock steps back
+            for peer in rng.sample(peers, rng.randrange(min(4, len(peers) + 1))):
+                heard[peer] = now
+                watch.heard(peer, now)
+                if seen.get(peer) is not LinkState.UP:
+                    _look(watch, thresholds, heard, seen, now)
+            _look(watch, thresholds, heard, seen, now)
+            assert seen == {p: thresholds.state(heard.get(p), now) for p in peers}
