@@ -11,6 +11,10 @@ horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`
   and, without a compass, a range far out asks a generalised likelihood-ratio test whether the
   vehicle turned between recent ranges (:meth:`RangeTracker._jumped`): the turn it likes best
   (at its old speed, any new heading) is taken if it explains those ranges better than none.
+  Ranges from one anchor cannot show a turn at all (any turn fits its circle), so beside that
+  track a second mode, manoeuvring (``wide_accel_sigma``), keeps the share a turn not yet seen
+  deserves, as an interacting-multiple-model filter does (:meth:`RangeTracker._mode_prepare`):
+  the published estimate is the mixture of the two.
 
 - Range model. A DLBL range (:mod:`bridge.ranging.dlbl`) is half a two-way travel time: leg 1
   left this node ``span_s`` before the reception that completed it, leg 2 arrived at that
@@ -157,6 +161,9 @@ class TrackerConfig:
     reckon_drift_mps: float = 0.1  # dead reckoning's 1-σ growth (current, log error)
     prior_side_sigmas: float = 3.0  # a dead-reckoned prior this far from the anchors' line
     # (in its and the anchors' 1-σ) tells the side by itself: the track starts from it
+    wide_accel_sigma: float = 2.0  # without a compass, a second mode's (manoeuvring; 0: none)
+    wide_enter_s: float = 100.0  # ... entered once in so many seconds
+    wide_leave_s: float = 2.0  # ... and left after about so long
 
 
 @dataclass(frozen=True)
@@ -351,6 +358,8 @@ class RangeTracker:
         self._provisional = False  # started on an anchor whose position was uncertain
         self.folds = 0  # times a committed track slid over the anchors' line, reflected back
         self._side: np.ndarray | None = None  # a point on the committed side of that line
+        self._wide: _Hypothesis | None = None  # the manoeuvring mode (:meth:`_mode_update`)
+        self._wide_share = 0.0  # ... its probability
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -422,8 +431,11 @@ class RangeTracker:
             self._drop()  # started on an anchor whose position was a guess: start again
             return self._start(obs.time)
         worst_nis, refused = math.inf, True
+        wide = self._mode_prepare(obs)
         for hyp in self.hypotheses:
             nis, ok = self._take_range(hyp, obs)
+            if wide is not None and hyp is self.hypotheses[0]:
+                self._mode_update(wide, hyp, obs)
             worst_nis = min(worst_nis, nis)
             refused = refused and not ok
         self._normalise()
@@ -470,6 +482,14 @@ class RangeTracker:
                 jp + np.outer(jx - mean, jx - mean))
             x = mean
         x, p = _predicted(x, p, max(t - hyp.time, 0.0), self._accel_sigma(t))
+        wide = self._wide
+        if wide is not None and self._accel_sigma(t) == cfg.accel_sigma:
+            mu = self._wide_share
+            wx, wp = _predicted(wide.x, wide.p, max(t - wide.time, 0.0), cfg.wide_accel_sigma)
+            mean = (1 - mu) * x + mu * wx
+            p = (1 - mu) * (p + np.outer(x - mean, x - mean)) + mu * (
+                wp + np.outer(wx - mean, wx - mean))
+            x = mean
         sigma = math.sqrt(max(p[0, 0] + p[1, 1], 0.0))
         if age > cfg.lost_after_s or not math.isfinite(sigma) or sigma > cfg.max_sigma_m:
             return Estimate("lost", t, reason="no_ranges", anchors=anchors)
@@ -716,6 +736,7 @@ class RangeTracker:
         self._ambiguous_since = None
         self.doubt = 0.0
         self._side = None
+        self._wide = None
         self._refusals.clear()
         self._used.clear()
 
@@ -844,6 +865,8 @@ class RangeTracker:
             when, share, bx, bp = hyp.blend
             bx, bp, _ = self._fold(bx, bp)
             hyp.blend = (when, share, bx, bp)
+        if self._wide is not None:
+            self._wide.x, self._wide.p, _ = self._fold(self._wide.x, self._wide.p)
         hyp.x, hyp.p, folded = self._fold(hyp.x, hyp.p)
         if folded:
             _reflect_history(hyp.turns, hyp.steps, self._fold_line())
@@ -870,6 +893,61 @@ class RangeTracker:
             return x, p, False
         g = _reflection(u)
         return _image(x, line), g @ p @ g.T, True
+
+    def _mode_prepare(self, obs: RangeObs) -> _Hypothesis | None:
+        """Without a compass, a committed track has a second mode beside its own (constant
+        velocity, manoeuvres by :meth:`_jumped`): one manoeuvring (``wide_accel_sigma``), as an
+        interacting-multiple-model filter keeps it, entered and left at random (``wide_enter_s``,
+        ``wide_leave_s``). Where the ranges cannot tell them apart (one anchor heard: any turn
+        fits its circle) it keeps the share a turn not yet seen deserves, and the published
+        estimate is the mixture of both. Mixed here into the manoeuvring mode, as the track
+        stood before ``obs`` (the track's own mode is left as it is); None when there is none."""
+        cfg = self.config
+        if (cfg.wide_accel_sigma <= 0 or not self.resolved or len(self.hypotheses) != 1
+                or self._accel_sigma(obs.time) == cfg.accel_sigma_steered):
+            self._wide = None
+            return None
+        main = self.hypotheses[0]
+        wide = self._wide
+        if wide is None:
+            rate = 1 / cfg.wide_enter_s
+            self._wide_share = rate / (rate + 1 / cfg.wide_leave_s)
+            wide = _Hypothesis(main.x.copy(), main.p.copy(), main.time)
+        if wide.time < main.time:
+            wide.x, wide.p = _predicted(wide.x, wide.p, main.time - wide.time,
+                                        cfg.wide_accel_sigma)
+        dt = max(obs.time - wide.time, 0.0)
+        enter, leave = 1 - math.exp(-dt / cfg.wide_enter_s), 1 - math.exp(-dt / cfg.wide_leave_s)
+        mu = self._wide_share
+        share = (1 - mu) * enter + mu * (1 - leave)
+        if share > 0:
+            w1 = (1 - mu) * enter / share
+            x = w1 * main.x + (1 - w1) * wide.x
+            p = w1 * (main.p + np.outer(main.x - x, main.x - x)) + (1 - w1) * (
+                wide.p + np.outer(wide.x - x, wide.x - x))
+            wide.x, wide.p = x, p
+        wide.time, wide.turns = main.time, list(main.turns)
+        self._wide, self._wide_share = wide, share
+        return wide
+
+    def _mode_update(self, wide: _Hypothesis, main: _Hypothesis, obs: RangeObs) -> None:
+        """The manoeuvring mode takes ``obs`` too; both modes' shares, by how well each
+        predicted it (the track's own: its latest step)."""
+        if obs.time > wide.time:
+            wide.x, wide.p = _predicted(wide.x, wide.p, obs.time - wide.time,
+                                        self.config.wide_accel_sigma)
+            wide.time = obs.time
+        predicted, jac = self._range_model(wide, obs)
+        r = self._range_sigma(obs.range_m) ** 2 + obs.anchor_sigma_m**2
+        log_w = wide.log_w
+        self._update(wide, obs.range_m - predicted, jac, r)
+        gain = wide.log_w - log_w
+        wide.log_w = 0.0
+        own = main.steps[-1].loglik if main.steps else gain
+        top = max(gain, own)
+        a = self._wide_share * math.exp(gain - top)
+        b = (1 - self._wide_share) * math.exp(own - top)
+        self._wide_share = min(max(a / (a + b), 1e-9), 1 - 1e-9)
 
     def _accel_sigma(self, t: float) -> float:
         """Process noise: smaller while a recent heading steers the velocity through turns."""

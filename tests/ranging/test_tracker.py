@@ -277,10 +277,11 @@ def test_range_noise_profile_is_interpolated_and_held_beyond() -> None:
 
 def test_without_a_compass_with_seed001_noise_the_covariance_is_consistent() -> None:
     # with range_sigma_m = 0.12 everywhere (seed 001 measured 1.7-11.8 cm) the straights were
-    # underconfident: 8 % of NEES below χ²₂'s 2.5 % bound, 89 % inside over the hour
+    # underconfident: 8 % of NEES below χ²₂'s 2.5 % bound, 89 % inside over the hour; the
+    # manoeuvring mode (a turn not yet seen) costs these 900 s 90.4 -> 90.0 % (the hour: 90.6 %)
     samples = replay(RangeTracker(SEED001_NOISE, prior=START),
                      events(900.0, ("left", "right"), reception="all", heading=False, seed=1))
-    assert inside(samples) >= 0.9 and flips(samples) == 0
+    assert inside(samples) >= 0.895 and flips(samples) == 0
     assert percentile(errors(samples), 0.95) <= 0.8
 
 
@@ -332,3 +333,17 @@ def test_with_a_1hz_compass_a_turn_the_ranges_suggest_widens_the_covariance() ->
     samples = replay(tracker, events(1200.0, reception="all", heading_hz=1.0, seed=2))
     assert inside(samples) >= 0.91 and tracker.manoeuvres <= 3  # none taken from the ranges
     assert percentile(errors(samples), 0.95) <= 0.36
+
+
+def test_without_a_compass_a_manoeuvring_mode_keeps_a_turn_not_yet_seen_in_the_covariance() -> None:
+    # seed 001 reception, no compass: one anchor heard for seconds cannot show a corner (any
+    # turn fits its circle), so the track sailed on, metres off, its covariance that of a
+    # straight; over the hour (bench) 87.2 -> 88.4 % in bounds, p95 2.69 -> 2.55 m
+    stream = list(events(900.0, heading=False, seed=4))
+    one = TrackerConfig(range_sigma_at=seed001.tracker_noise(), wide_accel_sigma=0.0)
+    alone = replay(RangeTracker(one, prior=START), stream)
+    tracker = RangeTracker(SEED001_NOISE, prior=START)
+    mixed = replay(tracker, stream)
+    assert inside(alone) <= 0.88 and inside(mixed) >= 0.89 and flips(mixed) == 0  # 87.6 / 89.9 %
+    assert percentile(errors(mixed), 0.95) <= percentile(errors(alone), 0.95) - 0.05  # 2.50 m
+    assert 0.0 < tracker._wide_share < 1.0
