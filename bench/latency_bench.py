@@ -9,14 +9,21 @@ overlap), with the send time (CLOCK_MONOTONIC ns, shared by all processes) insid
 - relayed: an application puts on that peer and another application, a client of the same
   peer, samples it (two Zenoh hops: the bridged path's Zenoh hops, without the water);
 - bridged: an application puts on node ``a``'s endpoint; ``zab sim`` (another process) carries
-  it over the ``udp`` backend with ``mac: none`` to node ``b``; an application at ``b`` samples.
+  it over the ``udp`` backend with ``mac: none`` to node ``b``; an application at ``b`` samples;
+- floor (thread) and floor (asyncio): the bridged path with the least Python possible between
+  its two Zenoh hops, in a process of its own that imports nothing of ours: a subscriber at
+  peer ``a`` sends each payload as a UDP datagram, which is put at peer ``b``. *thread*: the
+  Zenoh callback sends, a thread blocked on the socket puts (no event loop); *asyncio*: the
+  callback hands the payload to an event loop (``call_soon_threadsafe``), which sends, and the
+  loop's datagram callback puts. What a Python bridge of either shape cannot go below.
 
-Run: ``uv run python bench/latency_bench.py [--count 2000] [--rate 100]``.
+Run: ``uv run python bench/latency_bench.py [--count 2000] [--rate 60]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import os
 import socket
@@ -33,6 +40,7 @@ import yaml
 import zenoh
 
 MAX_NS = (1 << 62) - 1
+FLOORS = ("floor (thread)", "floor (asyncio)")
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -82,6 +90,43 @@ def peer_process(endpoint: str, count: int) -> None:
     print(json.dumps(latencies.values), flush=True)
 
 
+def floor_process(kind: str, listen_a: str, listen_b: str) -> None:
+    """Child: the least Python between two Zenoh hops (see the module's docstring)."""
+    with zenoh.open(config("peer", [listen_a], [])) as a, \
+            zenoh.open(config("peer", [listen_b], [])) as b, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+        rx.bind(("127.0.0.1", 0))
+        target = rx.getsockname()
+        publisher = b.declare_publisher("bench/floor",
+                                        encoding=zenoh.Encoding("application/msgpack"))
+        if kind == "thread":
+            a.declare_subscriber("bench/floor", lambda s: tx.sendto(s.payload.to_bytes(), target))
+
+            def carry() -> None:
+                while True:
+                    publisher.put(rx.recv(2048))
+
+            threading.Thread(target=carry, daemon=True).start()
+            print("ready", flush=True)
+            sys.stdin.read()  # until the parent closes our stdin
+            return
+
+        class Put(asyncio.DatagramProtocol):
+            def datagram_received(self, data: bytes, addr: object) -> None:
+                publisher.put(data)
+
+        async def serve() -> None:
+            loop = asyncio.get_running_loop()
+            a.declare_subscriber("bench/floor", lambda s: loop.call_soon_threadsafe(
+                tx.sendto, s.payload.to_bytes(), target))
+            await loop.create_datagram_endpoint(Put, sock=rx)
+            print("ready", flush=True)
+            await loop.run_in_executor(None, sys.stdin.read)
+
+        asyncio.run(serve())
+
+
 def bridge_mission(ports: dict[str, int], udp: dict[str, int]) -> dict:
     """Two nodes over UDP, no MAC, one channel carrying the send time."""
     return {
@@ -113,15 +158,20 @@ def client(endpoint: str, deadline: float) -> zenoh.Session:
 
 
 def measure(count: int, rate: float) -> dict[str, list[float]]:
-    """Latencies (µs) of the direct, relayed and bridged paths, from one interleaved run."""
+    """Latencies (µs) of every path, from one interleaved run."""
     peer = f"tcp/127.0.0.1:{free_port()}"
     ports = {n: free_port() for n in "ab"}
     udp = {n: free_port(socket.SOCK_DGRAM) for n in "ab"}
+    floors = {kind: [f"tcp/127.0.0.1:{free_port()}" for _ in "ab"] for kind in FLOORS}
     child = subprocess.Popen([sys.executable, __file__, "--child", peer, str(count)],
                              stdout=subprocess.PIPE, text=True)
-    assert child.stdout is not None
-    assert child.stdout.readline().strip() == "ready"
-    relayed, bridged = Latencies(count), Latencies(count)
+    floor_children = [subprocess.Popen([sys.executable, __file__, "--floor", kind, *ends],
+                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+                      for kind, ends in floors.items()]
+    for process in (child, *floor_children):
+        assert process.stdout is not None
+        assert process.stdout.readline().strip() == "ready"
+    got = {name: Latencies(count) for name in ("relayed", "bridged", *FLOORS)}
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "latency.yaml"
         path.write_text(yaml.safe_dump(bridge_mission(ports, udp)))
@@ -133,36 +183,43 @@ def measure(count: int, rate: float) -> dict[str, list[float]]:
         sessions: list[zenoh.Session] = []
         try:
             deadline = time.time() + 20
-            sessions = [client(e, deadline) for e in
-                        (peer, peer, f"tcp/127.0.0.1:{ports['a']}",
-                         f"tcp/127.0.0.1:{ports['b']}")]
-            put_peer, get_peer, put_a, get_b = sessions
-            get_peer.declare_subscriber("bench/relayed", relayed)
-            get_b.declare_subscriber("bench/bridged", bridged)
-            time.sleep(1.0)
+            put_peer, get_peer, put_a, get_b = (client(e, deadline) for e in (
+                peer, peer, f"tcp/127.0.0.1:{ports['a']}", f"tcp/127.0.0.1:{ports['b']}"))
+            sessions = [put_peer, get_peer, put_a, get_b]
+            get_peer.declare_subscriber("bench/relayed", got["relayed"])
+            get_b.declare_subscriber("bench/bridged", got["bridged"])
             paths = [(put_peer, "bench/direct"), (put_peer, "bench/relayed"),
                      (put_a, "bench/bridged")]
+            for kind, (end_a, end_b) in floors.items():
+                put_f, get_f = client(end_a, deadline), client(end_b, deadline)
+                sessions += [put_f, get_f]
+                get_f.declare_subscriber("bench/floor", got[kind])
+                paths.append((put_f, "bench/floor"))
+            time.sleep(1.0)
             encoding = zenoh.Encoding("application/msgpack")
-            for i in range(count):  # a third of a tick apart: the paths never overlap
-                for session, key in paths[i % 3:] + paths[: i % 3]:
+            n = len(paths)
+            for i in range(count):  # 1/n of a tick apart, in rotating order: no overlap
+                for session, key in paths[i % n:] + paths[: i % n]:
                     session.put(key, msgpack.packb({"t": time.monotonic_ns()}),
                                 encoding=encoding)
-                    time.sleep(1 / rate / len(paths))
-            relayed.done.wait(10)
-            bridged.done.wait(10)
+                    time.sleep(1 / rate / n)
+            for latencies in got.values():
+                latencies.done.wait(10)
         finally:
             for session in sessions:
                 session.close()
             fleet.terminate()
             fleet.wait(20)
+            for process in floor_children:
+                process.communicate(timeout=20)
     out = child.stdout.readline()
     child.wait(30)
-    return {"direct": json.loads(out), "relayed": relayed.values, "bridged": bridged.values}
+    return {"direct": json.loads(out), **{name: v.values for name, v in got.items()}}
 
 
 def summary(name: str, values: list[float]) -> tuple[float, float]:
     med, p99 = statistics.median(values), percentile(values, 0.99)
-    print(f"{name:<8} n={len(values):>5}  median {med:8.0f} µs   p99 {p99:8.0f} µs")
+    print(f"{name:<15} n={len(values):>5}  median {med:8.0f} µs   p99 {p99:8.0f} µs")
     return med, p99
 
 
@@ -170,19 +227,24 @@ def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
         peer_process(sys.argv[2], int(sys.argv[3]))
         return
+    if len(sys.argv) > 1 and sys.argv[1] == "--floor":
+        floor_process(sys.argv[2].split()[1].strip("()"), sys.argv[3], sys.argv[4])
+        return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--count", type=int, default=2000)
-    parser.add_argument("--rate", type=float, default=100.0, help="puts per second per path")
+    parser.add_argument("--rate", type=float, default=60.0, help="puts per second per path")
     args = parser.parse_args()
     runs = measure(args.count, args.rate)
     figures = {name: summary(name, values) for name, values in runs.items()}
     if len(runs["bridged"]) < args.count:
         print(f"bridge delivered {len(runs['bridged'])} of {args.count}")
-    med, p99 = figures["bridged"]
-    for base in ("direct", "relayed"):
-        base_med, base_p99 = figures[base]
-        print(f"added over {base:<8}: median {(med - base_med) / 1000:.2f} ms, "
-              f"p99 {(p99 - base_p99) / 1000:.2f} ms (goal ≤ 0.5 ms at p99)")
+    for path in ("bridged", *FLOORS):
+        med, p99 = figures[path]
+        for base in ("direct", "relayed"):
+            base_med, base_p99 = figures[base]
+            goal = " (goal ≤ 0.5 ms at p99)" if path == "bridged" else ""
+            print(f"{path:<15} added over {base:<8}: median {(med - base_med) / 1000:.2f} ms, "
+                  f"p99 {(p99 - base_p99) / 1000:.2f} ms{goal}")
 
 
 if __name__ == "__main__":
