@@ -1,8 +1,8 @@
 """Latency the bridge adds: put at one node → sample at another, against plain Zenoh.
 
-Three paths are measured side by side in one run, each tick putting once on each, a third
-of a tick apart and in rotating order (so load falls on all three alike and they never
-overlap), with the send time (CLOCK_MONOTONIC ns, shared by all processes) inside the payload:
+Five paths are measured side by side in one run, each tick putting once on each, a fifth
+of a tick apart and in rotating order (so load falls on all alike and they never overlap),
+with the send time (CLOCK_MONOTONIC ns, shared by all processes) inside the payload:
 
 - direct: an application puts on a Zenoh peer in another process, whose own subscriber
   samples it (one Zenoh hop);
@@ -16,6 +16,13 @@ overlap), with the send time (CLOCK_MONOTONIC ns, shared by all processes) insid
   Zenoh callback sends, a thread blocked on the socket puts (no event loop); *asyncio*: the
   callback hands the payload to an event loop (``call_soon_threadsafe``), which sends, and the
   loop's datagram callback puts. What a Python bridge of either shape cannot go below.
+
+Compare paths within one run, never figures of runs at another ``--rate``: where the cores
+idle between samples (a VM's vCPUs are descheduled), Python runs several times slower than
+back to back. On the 2-core VM of issue #14, the core's whole path from one node to the other
+took 35 µs back to back and ~360 µs when run every 10 ms, so what the bridge adds follows
+how much Python a sample runs; at ``--rate 300`` every path here took about half as long as
+at 60.
 
 Run: ``uv run python bench/latency_bench.py [--count 2000] [--rate 60]``.
 """
