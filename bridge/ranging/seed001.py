@@ -20,7 +20,6 @@ the moving vehicle. The vehicle's compass gives its heading (``heading_sigma_deg
 from __future__ import annotations
 
 import bisect
-import itertools
 import math
 import random
 from collections.abc import Iterator, Sequence
@@ -29,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bridge.mission.path import Path, rectangle
-from bridge.ranging.tracker import Estimate, RangeObs, RangeTracker
+from bridge.ranging.tracker import Estimate, RangeObs, RangeTracker, profile_at
 
 DEPTH_M = 0.9
 ANCHORS: dict[str, tuple[float, float, float]] = {
@@ -88,13 +87,7 @@ def route(turn_radius_m: float = 0.0) -> Path:
 
 def range_sigma(distance_m: float) -> float:
     """Seed 001's range standard deviation at ``distance_m``."""
-    points = NOISE_AT
-    if distance_m <= points[0][0]:
-        return points[0][1]
-    for (d0, s0), (d1, s1) in itertools.pairwise(points):
-        if distance_m <= d1:
-            return s0 + (s1 - s0) * (distance_m - d0) / (d1 - d0)
-    return points[-1][1]
+    return profile_at(NOISE_AT, distance_m)
 
 
 def heading_at(path: Path, t: float) -> float:

@@ -121,6 +121,17 @@ class RangeObs:
     anchor_age_s: float = 0.0
 
 
+def profile_at(points: tuple[tuple[float, float], ...], x: float) -> float:
+    """A profile of (x, value) points at rising x, at ``x``: linear between points, held
+    beyond the first and the last."""
+    if x <= points[0][0]:
+        return points[0][1]
+    for (x0, v0), (x1, v1) in itertools.pairwise(points):
+        if x <= x1:
+            return v0 + (v1 - v0) * (x - x0) / (x1 - x0)
+    return points[-1][1]
+
+
 @dataclass(frozen=True)
 class TrackerConfig:
     """Noise figures and limits; defaults suit a small AUV at 0.5–2 m/s and DLBL ranges."""
@@ -990,14 +1001,7 @@ class RangeTracker:
         """The range noise expected at ``range_m``: the profile's (``range_sigma_at``) if it
         has one, else ``range_sigma_m``."""
         profile = self.config.range_sigma_at
-        if not profile:
-            return self.config.range_sigma_m
-        if range_m <= profile[0][0]:
-            return profile[0][1]
-        for (d0, s0), (d1, s1) in itertools.pairwise(profile):
-            if range_m <= d1:
-                return s0 + (s1 - s0) * (range_m - d0) / (d1 - d0)
-        return profile[-1][1]
+        return profile_at(profile, range_m) if profile else self.config.range_sigma_m
 
     def _take_range(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
         """Fuse ``obs`` into ``hyp``, remembering the step; without a compass, a range far out

@@ -334,9 +334,7 @@ class Ocean:
             there = positions[dst] if dst not in paths else self.position(dst)
             dist = math.dist(here, there)
             travel = p.propagation_s(max(dist, min_range))
-            link = links.get((src, dst))
-            if link is None:
-                link = links[(src, dst)] = LinkStats()
+            link = links.get((src, dst)) or self._link(src, dst)
             start = tx_start + travel
             rx = _Rx(frame_id, src, dst, data, dest, now, tx_start, start, tx_end + travel,
                      dist, travel, dist <= max_range, link)
@@ -372,14 +370,12 @@ class Ocean:
         """All counters as a JSON-able dict: per link, per node and in total."""
         total = LinkStats()
         links = []
-        lost = total.lost
-        for (src, dst), ls in sorted(self._links.items()):  # (LinkStats.as_dict, inline)
-            links.append({"src": src, "dst": dst, "sent": ls.sent, "delivered": ls.delivered,
-                          "lost": dict(ls.lost)})
+        for (src, dst), ls in sorted(self._links.items()):
+            links.append({"src": src, "dst": dst, **ls.as_dict()})
             total.sent += ls.sent
             total.delivered += ls.delivered
             for reason, n in ls.lost.items():
-                lost[reason] = lost.get(reason, 0) + n
+                total.lost[reason] = total.lost.get(reason, 0) + n
         addrs = sorted(set(self._tx_count) | set(self._refused))
         nodes = {
             str(a): {"tx": self._tx_count.get(a, 0), "refused": self._refused.get(a, 0)}
