@@ -663,8 +663,8 @@ async def run_demo(
     def on_event(node: str, event: Event) -> None:
         events(node, event)
         recorder(node, event)
-        if sent is not None:  # the vehicle's counters as its bridge switches
-            sent(node, event, fleet.nodes[node].core.stats.sent_per_channel)
+        if sent is not None:  # the vehicle's frames and switches, as its bridge saw them
+            sent(node, event)
 
     fleet = Fleet(loaded, on_event=on_event)
     if fleet.throwaway_key:

@@ -12,13 +12,13 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Mapping
+from collections import Counter
 from typing import Any
 
 import msgpack
 import zenoh
 
-from bridge.core.events import Event, Surfaced
+from bridge.core.events import Event, FrameSent, Surfaced
 from bridge.mission.loader import LoadedMission
 from bridge.runtime.session import origin_tag
 from bridge.sim.scenario import surface_script
@@ -76,31 +76,39 @@ def turns_to_wait(loss: float, miss: float = 1e-3) -> int:
 
 
 class SentAtSwitches:
-    """The vehicle's own bridge, as it saw the surface node come and go over IP: its count of
-    values sent acoustically per channel at each switch (fed the fleet's events)."""
+    """The vehicle's own bridge, as it saw the surface node come and go over IP: when it saw
+    each switch, and which channels each of its frames carried, by the time the frame began
+    (fed the fleet's events). A frame built just before the switch and reported after it
+    counts as sent before: what matters is when the bridge chose its contents."""
 
     def __init__(self, vehicle: str, surface: str) -> None:
         self.vehicle, self.surface = vehicle, surface
-        self.switches: list[tuple[bool, dict[str, int]]] = []
+        self.switches: list[tuple[bool, float]] = []
+        self.frames: list[tuple[float, list[str]]] = []
         self._lock = threading.Lock()
 
-    def __call__(self, node: str, event: Event, sent: Mapping[str, int]) -> None:
-        if node == self.vehicle and isinstance(event, Surfaced) and event.peer == self.surface:
-            with self._lock:
-                self.switches.append((event.ip, dict(sent)))
+    def __call__(self, node: str, event: Event) -> None:
+        if node != self.vehicle:
+            return
+        with self._lock:
+            if isinstance(event, Surfaced) and event.peer == self.surface:
+                self.switches.append((event.ip, event.time))
+            elif isinstance(event, FrameSent):
+                self.frames.append((event.time, event.channels))
 
     def while_up(self) -> dict[str, int] | None:
-        """Values sent per channel between the vehicle's first up and the down after it (None:
-        its bridge has not seen both yet)."""
+        """Values sent per channel in frames begun between the vehicle's first up and the down
+        after it (None: its bridge has not seen both yet)."""
         with self._lock:
             up = next((i for i, (ip, _) in enumerate(self.switches) if ip), None)
             if up is None:
                 return None
-            down = next((c for ip, c in self.switches[up + 1:] if not ip), None)
+            down = next((t for ip, t in self.switches[up + 1:] if not ip), None)
             if down is None:
                 return None
-            before = self.switches[up][1]
-        return {name: n - before.get(name, 0) for name, n in down.items()}
+            start = self.switches[up][1]
+            return dict(Counter(name for t, names in self.frames if start <= t < down
+                                for name in names))
 
 
 class SurfacingWatch:

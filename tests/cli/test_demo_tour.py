@@ -143,13 +143,23 @@ def test_the_wait_after_a_dive_covers_enough_turns_for_the_loss() -> None:
     assert 0.3 ** turns_to_wait(0.3) <= 1e-3 < 0.3 ** (turns_to_wait(0.3) - 1)
 
 
-def test_sends_while_up_come_from_the_vehicles_own_switches() -> None:
+def test_sends_while_up_count_frames_begun_between_the_vehicles_own_switches() -> None:
     from bridge.cli.demo_surfacing import SentAtSwitches
-    from bridge.core.events import Surfaced
+    from bridge.core.events import FrameSent, Surfaced
+
+    def frame(at: float, *names: str) -> FrameSent:
+        return FrameSent(at, 8, list(names), None, b"")
 
     sent = SentAtSwitches("cv2", "ssv")
-    sent("cv2", Surfaced(1.0, "ssv", True), {"nav": 3, "status": 1})
+    sent("cv2", frame(0.5, "nav", "status"))
+    sent("cv2", Surfaced(1.0, "ssv", True))
+    # begun before the switch (its contents chosen then), reported once on the water: before
+    sent("cv2", frame(0.9, "nav", "status"))
+    sent("cv2", frame(1.5, "nav"))
     assert sent.while_up() is None  # not dived yet
-    sent("ssv", Surfaced(2.0, "cv2", False), {"nav": 9})  # the surface's view: not these
-    sent("cv2", Surfaced(5.0, "ssv", False), {"nav": 5, "status": 1})
-    assert sent.while_up() == {"nav": 2, "status": 0}
+    sent("ssv", Surfaced(2.0, "cv2", False))  # the surface's view: not these
+    sent("ssv", frame(2.5, "status"))  # nor the surface's frames
+    sent("cv2", frame(3.0, "nav"))
+    sent("cv2", Surfaced(5.0, "ssv", False))
+    sent("cv2", frame(5.0, "nav", "status"))  # after the dive
+    assert sent.while_up() == {"nav": 2}
