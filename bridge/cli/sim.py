@@ -33,25 +33,33 @@ REFRESH_S = 0.5
 
 
 class EventLog:
-    """The last few frame events, for the live view."""
+    """The last few frame events, for the live view (kept as they come, worded when shown)."""
+
+    KINDS = (FrameSent, FrameReceived, FrameDropped, PayloadDropped, SendFailed, ModemDown)
 
     def __init__(self, size: int = 10) -> None:
-        self.lines: deque[str] = deque(maxlen=size)
+        self._last: deque[tuple[float, str, Event]] = deque(maxlen=size)
         self.t0 = time.time()
 
     def __call__(self, node: str, event: Event) -> None:
-        t = time.time() - self.t0
-        match event:
-            case FrameSent(size=size, channels=channels):
-                text = f"{node} sent {size} B [{', '.join(channels) or 'empty'}]"
-            case FrameReceived(src=src, size=size):
-                text = f"{node} heard {src} ({size} B)"
-            case FrameDropped(reason=why) | PayloadDropped(reason=why) | SendFailed(error=why) \
-                    | ModemDown(error=why):
-                text = f"{node} {event.kind.replace('_', ' ')}: {why}"
-            case _:
-                return
-        self.lines.append(f"{t:7.1f} s  {text}")
+        if isinstance(event, self.KINDS):
+            self._last.append((time.time() - self.t0, node, event))
+
+    @property
+    def lines(self) -> list[str]:
+        return [f"{t:7.1f} s  {_wording(node, event)}" for t, node, event in self._last]
+
+
+def _wording(node: str, event: Event) -> str:
+    match event:
+        case FrameSent(size=size, channels=channels):
+            return f"{node} sent {size} B [{', '.join(channels) or 'empty'}]"
+        case FrameReceived(src=src, size=size):
+            return f"{node} heard {src} ({size} B)"
+        case FrameDropped(reason=why) | PayloadDropped(reason=why) | SendFailed(error=why) \
+                | ModemDown(error=why):
+            return f"{node} {event.kind.replace('_', ' ')}: {why}"
+    return f"{node} {event.kind}"
 
 
 def fleet_view(fleet: Fleet, events: EventLog) -> Group:

@@ -70,6 +70,9 @@ class ModemBackend(ABC):
     """
 
     name: ClassVar[str] = "abstract"
+    _inbox: Inbox
+    """Where a backend keeps what :meth:`_recv` returns; it hands each reception to
+    :meth:`_deliver`, which puts it there unless :attr:`on_reception` takes it."""
     timed_send: ClassVar[bool] = False
     """Whether :meth:`send` honours ``at`` (a scheduled emission start)."""
     ranging: ClassVar[str | None] = None
@@ -86,6 +89,10 @@ class ModemBackend(ABC):
         """How far ahead of :meth:`clock` a timed emission is scheduled (``timed_send``)."""
         self.on_range: Callable[[ModemRange], None] | None = None
         """Called with every range the modem measures (the runtime sets it)."""
+        self.on_reception: Callable[[Reception], None] | None = None
+        """Called with every reception as it arrives, on the event loop, instead of queueing it
+        for :meth:`recv` (the runtime sets it: a frame heard is decoded at once, with no task
+        to wake in between); errors still reach :meth:`recv`."""
         self._opened = False
         self._closed = False
 
@@ -178,6 +185,14 @@ class ModemBackend(ABC):
         rng = await self._ping(dest)
         self._report_range(rng)
         return rng
+
+    def _deliver(self, rx: Reception) -> None:
+        """A reception arrived: to :attr:`on_reception` at once, else queued for :meth:`recv`."""
+        if self.on_reception is None:
+            self._inbox.put(rx)
+            return
+        self.stats["received"] += 1
+        self.on_reception(rx)
 
     def _report_range(self, rng: ModemRange) -> None:
         """Hand a range the modem measured to :attr:`on_range`."""

@@ -230,7 +230,7 @@ class SimBackend(ModemBackend):
                 end = meta["start"] + (end - float(msg["meta"]["start"]))
             else:
                 end = self._stamp(end)
-            self._inbox.put(Reception(data=bytes(msg["data"]), src=int(msg["src"]), time=end,
+            self._deliver(Reception(data=bytes(msg["data"]), src=int(msg["src"]), time=end,
                                 meta=meta))
         elif kind in ("txdone", "txerr"):
             fut = self._pending.get(msg.get("id", -1))

@@ -141,7 +141,7 @@ class UdpBackend(ModemBackend):
                 "from": f"{addr[0]}:{addr[1]}",
             },
         )
-        self._inbox.put(rx)
+        self._deliver(rx)
 
 
 def _port(value: Any, who: object) -> int:

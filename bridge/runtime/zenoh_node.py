@@ -380,11 +380,12 @@ class BridgeNode:
         while True:
             backend = self.backend = self._make_backend()
             backend.on_range = self._modem_range
+            backend.on_reception = self.receive  # at once, as the frame arrives
             try:
                 await backend.open()
                 self._modem_up.set()
                 backoff = RETRY_MIN_S
-                while True:
+                while True:  # what came before on_reception took over, then its errors
                     self.receive(await backend.recv())
             except BackendError as exc:
                 self._modem_up.clear()

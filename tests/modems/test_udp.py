@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 from bridge.errors import BackendError
-from bridge.modems.base import ModemSetup
+from bridge.modems.base import ModemSetup, Reception
 from bridge.modems.udp import UdpBackend
 
 
@@ -111,6 +111,29 @@ def test_malformed_datagram_counted_not_delivered() -> None:
                 s.sendto(b"\xa5", ("127.0.0.1", a.port))
             assert await nothing_within(a, 0.1)
             assert a.stats["malformed"] == 2
+
+    arun(main)
+
+
+def test_on_reception_takes_each_frame_as_it_arrives_and_errors_still_reach_recv() -> None:
+    async def main() -> None:
+        async with nodes(2) as (a, b):
+            await a.send(b"queued", 2)
+            assert (await asyncio.wait_for(b.recv(), 2)).data == b"queued"  # none set: queued
+            heard: list[Reception] = []
+            b.on_reception = heard.append
+            waiter = asyncio.create_task(b.recv())
+            await a.send(b"first", 2)
+            await a.send(b"second")
+            for _ in range(200):
+                if len(heard) == 2:
+                    break
+                await asyncio.sleep(0.005)
+            assert [(rx.data, rx.src) for rx in heard] == [(b"first", 1), (b"second", 1)]
+            assert b.stats["received"] == 3 and not waiter.done()  # recv saw none of them
+            await b.close()
+            with pytest.raises(BackendError, match="closed"):
+                await waiter
 
     arun(main)
 

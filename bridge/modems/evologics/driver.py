@@ -440,7 +440,7 @@ class EvologicsBackend(ModemBackend):
             self.stats["modem_errors"] += 1
             log.warning("%s: modem reports %s", self._who, _text(event))
         elif isinstance(event, RecvIm | RecvImLegacy | RecvIms | RecvPbm):
-            self._inbox.put(self._reception(event, now))
+            self._deliver(self._reception(event, now))
         elif isinstance(event, RecvEnd):
             self._last_end = (now, event)
         elif isinstance(event, UsblLong):

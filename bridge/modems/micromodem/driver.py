@@ -346,7 +346,7 @@ class MicromodemBackend(ModemBackend):
             "frames": packet.frames,
             "start": start if start is not None else now,
         }
-        self._inbox.put(Reception(data=packet.data, src=packet.src, time=now, meta=meta))
+        self._deliver(Reception(data=packet.data, src=packet.src, time=now, meta=meta))
 
     def _fail(self, error: BackendError) -> None:
         """Enter the failed state once: wake every waiter with ``error``."""
