@@ -78,6 +78,7 @@ from typing import Any
 import numpy as np
 
 from bridge.ranging.localise import Fix, attempt
+from bridge.ranging.turns import TurnMixture
 
 Anchor = tuple[float, float, float]  # x, y, depth
 
@@ -143,7 +144,7 @@ class TrackerConfig:
     range_sigma_at: tuple[tuple[float, float], ...] = ()  # (distance m, 1-σ m), rising
     # distances, linear between and held beyond: a measured noise profile (seed 001 fig. 8);
     # empty: ``range_sigma_m`` at every distance
-    accel_sigma: float = 0.06
+    accel_sigma: float = 0.03
     accel_sigma_steered: float = 0.08
     heading_sigma_deg: float = 3.0
     speed_sigma_mps: float = 0.1
@@ -178,6 +179,10 @@ class TrackerConfig:
     wide_accel_sigma: float = 2.0  # without a compass, a second mode's (manoeuvring; 0: none)
     wide_enter_s: float = 100.0  # ... entered once in so many seconds
     wide_leave_s: float = 2.0  # ... and left after about so long
+    turn_every_s: float = 10.0  # without a compass, a turn's prior: once in so long (0: no
+    # turned components, :mod:`bridge.ranging.turns`; the manoeuvring mode instead)
+    turn_ring_deg: float = 45.0  # ... the turns each gap may hide: a ring, every so many °
+    turn_prune_share: float = 1e-2  # ... a turned component less likely than this is dropped
     turn_settle_s: float = 1.5  # a turn the compass shows: when it came is open so long
     # (a DLBL range that follows spans it); 0: merged at the heading
 
@@ -378,6 +383,7 @@ class RangeTracker:
         self._side: np.ndarray | None = None  # a point on the committed side of that line
         self._wide: _Hypothesis | None = None  # the manoeuvring mode (:meth:`_mode_update`)
         self._wide_share = 0.0  # ... its probability
+        self._turns: TurnMixture | None = None  # turned components (:meth:`_turns_prepare`)
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -449,10 +455,14 @@ class RangeTracker:
             return self._start(obs.time)
         worst_nis, refused = math.inf, True
         wide = self._mode_prepare(obs)
+        turns = self._turns_prepare(obs)
         for hyp in self.hypotheses:
+            log_w = hyp.log_w
             nis, ok = self._take_range(hyp, obs)
             if wide is not None and hyp is self.hypotheses[0]:
                 self._mode_update(wide, hyp, obs)
+            if turns is not None and hyp is self.hypotheses[0]:
+                self._turns_update(turns, hyp, obs, hyp.log_w - log_w)
             worst_nis = min(worst_nis, nis)
             refused = refused and not ok
         self._normalise()
@@ -499,6 +509,9 @@ class RangeTracker:
                 jp + np.outer(jx - mean, jx - mean))
             x = mean
         x, p = _predicted(x, p, max(t - hyp.time, 0.0), self._accel_sigma(t))
+        if self._turns is not None and self._accel_sigma(t) == cfg.accel_sigma:
+            x, p = self._turns.moments(x, p, t, lambda cx, cp, dt: _predicted(
+                cx, cp, dt, cfg.accel_sigma))
         wide = self._wide
         if wide is not None and self._accel_sigma(t) == cfg.accel_sigma:
             mu = self._wide_share
@@ -754,6 +767,7 @@ class RangeTracker:
         self.doubt = 0.0
         self._side = None
         self._wide = None
+        self._turns = None
         self._refusals.clear()
         self._used.clear()
 
@@ -884,6 +898,10 @@ class RangeTracker:
             hyp.blend = (when, share, bx, bp)
         if self._wide is not None:
             self._wide.x, self._wide.p, _ = self._fold(self._wide.x, self._wide.p)
+        for comp in self._turns.components if self._turns is not None else []:
+            comp.x, comp.p, folded = self._fold(comp.x, comp.p)
+            if folded:
+                _reflect_history(comp.turns, comp.steps, self._fold_line())
         hyp.x, hyp.p, folded = self._fold(hyp.x, hyp.p)
         if folded:
             _reflect_history(hyp.turns, hyp.steps, self._fold_line())
@@ -920,7 +938,8 @@ class RangeTracker:
         estimate is the mixture of both. Mixed here into the manoeuvring mode, as the track
         stood before ``obs`` (the track's own mode is left as it is); None when there is none."""
         cfg = self.config
-        if (cfg.wide_accel_sigma <= 0 or not self.resolved or len(self.hypotheses) != 1
+        if (cfg.wide_accel_sigma <= 0 or cfg.turn_every_s > 0 or not self.resolved
+                or len(self.hypotheses) != 1
                 or self._accel_sigma(obs.time) == cfg.accel_sigma_steered):
             self._wide = None
             return None
@@ -946,6 +965,45 @@ class RangeTracker:
         wide.time, wide.turns = main.time, list(main.turns)
         self._wide, self._wide_share = wide, share
         return wide
+
+    def _turns_prepare(self, obs: RangeObs) -> TurnMixture | None:
+        """Without a compass, a committed track keeps turned components beside it
+        (:mod:`bridge.ranging.turns`): the track may have turned since its last range, each
+        way of the ring. None when there are none (a compass, or no committed track)."""
+        cfg = self.config
+        if (cfg.turn_every_s <= 0 or not self.resolved or len(self.hypotheses) != 1
+                or self._accel_sigma(obs.time) == cfg.accel_sigma_steered):
+            self._turns = None
+            return None
+        if self._turns is None:
+            self._turns = TurnMixture(cfg.turn_every_s, cfg.turn_ring_deg,
+                                      floor=cfg.turn_prune_share,
+                                      min_speed_mps=cfg.min_heading_speed_mps)
+        track = self.hypotheses[0]
+        if obs.time > track.time:
+            self._turns.spawn(track, obs.time, self._predict, lambda c, when, v: _remember_turn(
+                c, when, v, cfg.max_lag_s))
+        return self._turns
+
+    def _turns_update(self, turns: TurnMixture, track: _Hypothesis, obs: RangeObs,
+                      gain: float) -> None:
+        """The turned components take ``obs`` (the track gained ``gain`` from it); the
+        alike merged, and the likeliest, if more likely than the track, becomes it."""
+        def take(comp: _Hypothesis) -> float:
+            step = _Step(obs, comp.x.copy(), comp.p.copy(), comp.time, list(comp.turns), 0.0,
+                         0.0, False)
+            log_w = comp.log_w
+            step.nis, step.accepted = self._range_update(comp, obs)
+            step.loglik, comp.log_w = comp.log_w - log_w, log_w
+            comp.steps.append(step)
+            self._trim_steps(comp, obs.time)
+            return step.loglik
+
+        turns.update(gain, take)
+        turns.merge(track)
+        best = turns.likeliest()
+        if best is not None:
+            turns.swap(track, best)
 
     def _mode_update(self, wide: _Hypothesis, main: _Hypothesis, obs: RangeObs) -> None:
         """The manoeuvring mode takes ``obs`` too; both modes' shares, by how well each
@@ -1024,11 +1082,7 @@ class RangeTracker:
         nis, ok = self._range_update(hyp, obs)
         before.loglik, before.nis, before.accepted = hyp.log_w - log_w, nis, ok
         hyp.steps.append(before)
-        # the last few ranges, however sparse (seed 001 often heard one anchor a cycle), and
-        # all of ``jump_window_s``; never beyond ``max_lag_s``
-        n = len(hyp.steps)
-        hyp.steps = [s for k, s in enumerate(hyp.steps) if obs.time - s.obs.time <= cfg.max_lag_s
-                     and (n - k <= cfg.jump_steps or obs.time - s.obs.time <= cfg.jump_window_s)]
+        self._trim_steps(hyp, obs.time)
         if max(s.nis for s in hyp.steps[-3:]) > cfg.jump_test_nis:
             # with a compass the next heading turns the track; until it comes, a turn the
             # ranges suggest is in the published covariance (never taken: it would turn twice)
@@ -1039,6 +1093,14 @@ class RangeTracker:
             if jumped is not None:
                 return jumped
         return nis, ok
+
+    def _trim_steps(self, hyp: _Hypothesis, t: float) -> None:
+        """Keep the last few ranges, however sparse (seed 001 often heard one anchor a cycle),
+        and all of ``jump_window_s``; never beyond ``max_lag_s``."""
+        cfg = self.config
+        n = len(hyp.steps)
+        hyp.steps = [s for k, s in enumerate(hyp.steps) if t - s.obs.time <= cfg.max_lag_s
+                     and (n - k <= cfg.jump_steps or t - s.obs.time <= cfg.jump_window_s)]
 
     def _jumped(self, hyp: _Hypothesis, take: bool = True) -> tuple[float, bool] | None:
         """A generalised likelihood-ratio test for a manoeuvre. For every gap between recent

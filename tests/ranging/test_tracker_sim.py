@@ -41,8 +41,10 @@ def test_zab_sim_fast_tracks_the_hippocampus_rectangle() -> None:
             nees.append(float(e @ np.linalg.solve(np.array(est.cov), e)))
     assert len(published) >= 590 and len(errors) >= 0.99 * len(published)
     # the virtual ocean's ranges are exact: straights to millimetres, corners (0.5 m/s, one
-    # round of ranges every 3 s, no compass) to half a metre
-    assert percentile(errors, 0.5) <= 0.02 and percentile(errors, 0.95) <= 0.6
+    # round of ranges every 3 s, no compass) to half a metre; a gap of 3 s may hide a turn
+    # (prior 0.3), so the turned components widen the straights (p50 4 -> 21 mm, p95 0.55 ->
+    # 0.47 m)
+    assert percentile(errors, 0.5) <= 0.025 and percentile(errors, 0.95) <= 0.5
     # never overconfident (2.3 % above χ²₂'s 97.5 % bound); far too cautious for exact ranges
     # (86 % below its 2.5 %): Positioning expects 0.15 m, what DLBL clocks give at sea
     assert np.mean([n > NEES_BOUNDS_2D[1] for n in nees]) <= 0.05
