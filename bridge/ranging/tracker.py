@@ -23,8 +23,11 @@ horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`
   With ``span_s = 0`` it is a plain range.
 - Heading (and speed), when the node's navigation gives them, are the direction (and length) of
   the velocity; a change of heading also turns the velocity state by the same angle (the
-  vehicle turned), so a corner does not need the ranges to discover it. Heading is taken as
-  course over ground (no current is modelled).
+  vehicle turned), so a corner does not need the ranges to discover it. When it turned since
+  the last heading, the ranges taken meanwhile (and for ``turn_settle_s`` after) tell: each
+  gap between them is a candidate, kept apart and weighted by its length and the ranges'
+  likelihood (:meth:`RangeTracker._turned_since`). Heading is taken as course over ground (no
+  current is modelled).
 - Ambiguity. Ranges alone cannot tell a position from its mirror image across a line of
   anchors. Initialisation takes a least-squares / circle fix (:func:`~bridge.ranging.localise.
   attempt`) and its mirror alternative as hypotheses, weighted by the prior and then by the
@@ -175,6 +178,8 @@ class TrackerConfig:
     wide_accel_sigma: float = 2.0  # without a compass, a second mode's (manoeuvring; 0: none)
     wide_enter_s: float = 100.0  # ... entered once in so many seconds
     wide_leave_s: float = 2.0  # ... and left after about so long
+    turn_settle_s: float = 1.5  # a turn the compass shows: when it came is open so long
+    # (a DLBL range that follows spans it); 0: merged at the heading
 
 
 @dataclass(frozen=True)
@@ -223,6 +228,8 @@ class _Hypothesis:
     turns: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (when, v before)
     steps: list[_Step] = field(default_factory=list)  # recent ranges, for a manoeuvre test
     blend: tuple[float, float, np.ndarray, np.ndarray] | None = None  # time, share, x, p
+    pending: list[tuple[float, _Hypothesis]] = field(default_factory=list)  # turn times
+    pending_until: float = 0.0  # ... kept apart until then (:meth:`RangeTracker._turned_since`)
 
 
 @dataclass
@@ -399,14 +406,13 @@ class RangeTracker:
         for hyp in self.hypotheses:
             if t < hyp.time - cfg.max_lag_s:
                 continue
+            self._settle(hyp)
             self._predict(hyp, max(t, hyp.time))
             turned = _wrap(theta - hyp.heading) if hyp.heading is not None else 0.0
             noise = math.radians(cfg.heading_sigma_deg)
             if hyp.heading is None or abs(turned) > 3 * noise:
                 if turned:  # the vehicle turned, so did its velocity; compass noise does not
-                    before = hyp.x[2:].copy()
-                    _turn(hyp, turned, t - hyp.heading_time)
-                    _remember_turn(hyp, (t + hyp.heading_time) / 2, before, cfg.max_lag_s)
+                    self._turned_since(hyp, turned, t)
                 hyp.heading = theta
             hyp.heading_time = t
             if speed_mps is not None:
@@ -1008,6 +1014,10 @@ class RangeTracker:
         (this one or one of the last few) asks whether the vehicle manoeuvred (:meth:`_jumped`)."""
         cfg = self.config
         hyp.blend = None
+        if hyp.pending:
+            if obs.time <= hyp.pending_until:
+                return self._pending_range(hyp, obs)
+            self._settle(hyp)
         before = _Step(obs, hyp.x.copy(), hyp.p.copy(), hyp.time, list(hyp.turns), 0.0, 0.0,
                        False)
         log_w = hyp.log_w
@@ -1149,6 +1159,111 @@ class RangeTracker:
             again.loglik = trial.log_w - log_w
             redone.append(again)
         return trial.log_w, trial, redone
+
+    def _turned_since(self, hyp: _Hypothesis, angle: float, t: float) -> None:
+        """The compass says the vehicle turned clockwise by ``angle`` since its last heading:
+        when, the ranges taken meanwhile tell. Each gap between them (and the last, up to
+        ``t``) is a candidate, its prior share its length; from the state before that gap
+        the velocity turns halfway through it (the variance of not knowing when within it
+        added) and the ranges since are refiltered. The candidates are merged by prior and
+        likelihood (the spread between them included); the likeliest one's history is kept."""
+        cfg = self.config
+        since = hyp.heading_time
+        window = [j for j, s in enumerate(hyp.steps) if s.obs.time > since]
+        last = hyp.steps[window[-1]].obs.time if window else since
+        # the last gap: after every range, as the state stands (the ranges fitted no turn)
+        end = _Hypothesis(hyp.x.copy(), hyp.p.copy(), hyp.time, 0.0, hyp.heading,
+                          hyp.heading_time, list(hyp.turns), list(hyp.steps))
+        before = end.x[2:].copy()
+        _turn(end, angle, t - last)
+        _remember_turn(end, (t + last) / 2, before, cfg.max_lag_s)
+        kept = sum(hyp.steps[j].loglik for j in window)
+        tried = [(math.log(max(t - last, 1e-3)) + kept, end)]
+        for j in window:
+            step = hyp.steps[j]
+            start = max(step.time, since)
+            trial = _Hypothesis(step.x.copy(), step.p.copy(), step.time, 0.0, hyp.heading,
+                                hyp.heading_time, list(step.turns))
+            self._predict(trial, start)
+            gap = max(step.obs.time - start, 1e-3)
+            self._predict(trial, start + gap / 2)
+            before = trial.x[2:].copy()
+            _turn(trial, angle, 0.0)
+            change = trial.x[2:] - before
+            trial.p[:2, :2] += np.outer(change, change) * gap**2 / 12  # when in the gap
+            _remember_turn(trial, trial.time, before, cfg.max_lag_s)
+            redone = []
+            for old in hyp.steps[j:]:
+                again = _Step(old.obs, trial.x.copy(), trial.p.copy(), trial.time,
+                              list(trial.turns), 0.0, 0.0, False)
+                log_w = trial.log_w
+                again.nis, again.accepted = self._range_update(trial, old.obs)
+                again.loglik = trial.log_w - log_w
+                redone.append(again)
+            self._predict(trial, t)
+            trial.steps = hyp.steps[:j] + redone
+            earlier = sum(hyp.steps[k].loglik for k in window if k < j)
+            tried.append((math.log(gap) + earlier + trial.log_w, trial))
+        hyp.pending, hyp.pending_until = tried, t + cfg.turn_settle_s
+        self._pending_mix(hyp)
+
+    def _pending_mix(self, hyp: _Hypothesis) -> _Hypothesis:
+        """``hyp``'s state: its pending turn times (:meth:`_turned_since`) merged by weight,
+        the spread between them included; returns the likeliest."""
+        top = max(lw for lw, _ in hyp.pending)
+        weights = [math.exp(lw - top) for lw, _ in hyp.pending]
+        total = sum(weights)
+        mean = sum(w * h.x for w, (_, h) in zip(weights, hyp.pending, strict=True)) / total
+        hyp.p = sum(w * (h.p + np.outer(h.x - mean, h.x - mean))
+                    for w, (_, h) in zip(weights, hyp.pending, strict=True)) / total
+        hyp.x, hyp.time = mean, max(h.time for _, h in hyp.pending)
+        return hyp.pending[max(range(len(weights)), key=weights.__getitem__)][1]
+
+    def _pending_range(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
+        """A range while a turn's time is pending: every candidate takes it, and its
+        likelihood; the hypothesis's weight takes the mixture's."""
+        results, logliks = [], []
+        for k, (lw, cand) in enumerate(hyp.pending):
+            step = _Step(obs, cand.x.copy(), cand.p.copy(), cand.time, list(cand.turns), 0.0,
+                         0.0, False)
+            log_w = cand.log_w
+            step.nis, step.accepted = self._range_update(cand, obs)
+            step.loglik = cand.log_w - log_w
+            cand.steps.append(step)
+            hyp.pending[k] = (lw + step.loglik, cand)
+            results.append((step.nis, step.accepted))
+            logliks.append(lw)
+        top = max(logliks)
+        prior = math.log(sum(math.exp(lw - top) for lw in logliks))
+        after = max(lw for lw, _ in hyp.pending)
+        gain = after + math.log(sum(math.exp(lw - after) for lw, _ in hyp.pending)) - top - prior
+        hyp.log_w += gain
+        self._pending_mix(hyp)
+        return min(n for n, _ in results), any(ok for _, ok in results)
+
+    def _settle(self, hyp: _Hypothesis) -> None:
+        """A pending turn's time is as known as it will be: the merged state stays, with the
+        likeliest candidate's history (refused ranges it accepted no longer counted)."""
+        if not hyp.pending:
+            return
+        best = self._pending_mix(hyp)
+        if len(self.hypotheses) == 1:
+            self._unrefuse(hyp.steps, best.steps[:len(hyp.steps)])
+        hyp.turns, hyp.steps = best.turns, best.steps
+        hyp.pending = []
+
+    def _unrefuse(self, old: list[_Step], new: list[_Step]) -> None:
+        """Ranges refused for want of a manoeuvre (``old``) but accepted with it (``new``,
+        the same ranges refiltered): not bad ranges, so no longer counted as refused."""
+        for was, now in zip(old[-len(new):] if new else [], new, strict=True):
+            if now.accepted and not was.accepted:
+                for k, (o, reason) in enumerate(self._refusals):
+                    if o is was.obs:
+                        self.rejected[reason] -= 1
+                        if self.rejected[reason] <= 0:
+                            del self.rejected[reason]
+                        del self._refusals[k]
+                        break
 
     def _heading_update(self, hyp: _Hypothesis, theta: float, speed: float) -> float:
         vx, vy = hyp.x[2], hyp.x[3]
