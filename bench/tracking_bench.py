@@ -27,9 +27,11 @@ gcv's position reaches the others over the acoustic nav channel (gcv is a moving
 ``ranging.anchor_keys`` says). p95 error per vehicle, states, and any non-finite number.
 
 Table 3, the same as ``zab demo`` runs it: 10 % of frames lost, the applications (nav, and with
-it the formation's motion) starting 0–6 s after the fleet, 90 s, ``--demo-seeds`` seeds × 5
-starts: per vehicle, runs with a position published on the mirror side (across the line
-through ssv and gcv), runs without any position, and the errors of every position published.
+it the formation's motion) starting 0–6 s after the fleet, cv2 on the tour's scripted path
+(rising to the surface from the start, there 30–44 s, diving again), 90 s, ``--demo-seeds``
+seeds × 5 starts: per vehicle, runs with a position published on the mirror side (across the
+line through ssv and gcv), runs without any position, and the errors of every position
+published.
 
 Run: ``uv run python bench/tracking_bench.py [--hours 1] [--morph-s 600] [--demo-seeds 10]``.
 """
@@ -45,8 +47,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from bridge.cli.demo import formation_value
-from bridge.core.node import Publish, Status
+from bridge.cli.demo import formation_value, tour_mission
+from bridge.core.node import Status
 from bridge.mission.loader import load_mission
 from bridge.ranging import seed001
 from bridge.ranging.localise import Fix, attempt
@@ -241,22 +243,32 @@ the line through the two anchors, ssv and gcv, at that moment) is on the mirror 
 
 
 def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
-              apps_start_s: float = 0.0, quiet: bool = False) -> dict[str, Any]:
+              apps_start_s: float = 0.0, quiet: bool = False,
+              tour: bool = False) -> dict[str, Any]:
     """The MORPH formation on the virtual clock; per vehicle, its published positions.
 
     ``loss``: share of frames the water loses (default: the mission's); ``apps_start_s``: when
     the vehicles' applications start publishing nav and the formation starts moving (``zab
     demo`` starts them once the fleet is up: the vehicles wait at their mission positions until
-    then). ``mirror``: positions published on the mirror side (:data:`MIRROR_M`)."""
-    loaded = load_mission(MORPH)
+    then). ``tour``: the mission as ``zab demo`` changes it (:func:`~bridge.cli.demo.
+    tour_mission`): cv2 sails a scripted path from the start, rising to the surface and diving
+    again, its nav (depth, heading, speed over the last second) taken from that path, as the
+    demo's application does. ``mirror``: positions published on the mirror side
+    (:data:`MIRROR_M`). The gcv's live position reaches the others as it does in ``zab demo``:
+    each bridge takes it from the frames it decodes (``ranging.anchor_keys``)."""
+    loaded = tour_mission(MORPH, 0.0)[0] if tour else load_mission(MORPH)
     mission = loaded.mission
     start_pos = {n: (node.position.x, node.position.y, node.position.depth)
                  for n, node in mission.nodes.items() if node.position is not None}
-    moving = [n for n, node in mission.nodes.items() if node.nav_key is not None]
+    pathed = [n for n, node in mission.nodes.items() if node.path is not None]
+    moving = [n for n, node in mission.nodes.items()
+              if node.nav_key is not None and n not in pathed]
     published: dict[str, list[tuple[float, dict[str, Any]]]] = {n: [] for n in mission.nodes}
     fleet: FastFleet
 
     def truth(node: str, t: float) -> tuple[float, float, float]:
+        if node in pathed:
+            return fleet.ocean.position(mission.address_of(node), t)
         if node not in moving or t < apps_start_s:
             return start_pos[node]
         vals = [formation_value(k, start_pos[node], t - apps_start_s)
@@ -267,12 +279,6 @@ def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
         out = timed.output
         if isinstance(out, Status) and out.topic == "position":
             published[timed.node].append((timed.time, out.payload))
-        elif isinstance(out, Publish) and out.key == "gcv/nav":  # as node.py's anchor_keys
-            positioning = fleet.cores[timed.node].positioning
-            value = out.value
-            if positioning is not None and "gcv" in positioning.anchors:
-                positioning.set_anchor("gcv", (value["x"], value["y"], value["depth"]),
-                                       timed.time)
 
     fleet = FastFleet(loaded, seed=seed, loss=loss, on_output=on_output, keep_outputs=False)
 
@@ -281,11 +287,20 @@ def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
             fleet.ocean.set_position(mission.address_of(n), truth(n, fleet.now))
         fleet.call_at(fleet.now + 0.1, move)
 
+    def sailed(n: str, t: float) -> dict[str, float]:
+        """A scripted vehicle's nav, as zab demo's application makes it from the path."""
+        here, before = truth(n, t), truth(n, t - 1.0)
+        east, north = here[0] - before[0], here[1] - before[1]
+        return {"x": here[0], "y": here[1], "depth": here[2],
+                "heading": math.degrees(math.atan2(east, north)) % 360,
+                "speed": math.hypot(east, north)}
+
     def navigate() -> None:  # each vehicle's nav: to its own tracker, and on the nav channel
         t = fleet.now
-        for n in moving:
-            nav = {k: formation_value(k, start_pos[n], t - apps_start_s)
-                   for k in ("x", "y", "depth", "heading", "speed")}
+        for n in [*moving, *pathed]:
+            nav = sailed(n, t) if n in pathed else {
+                k: formation_value(k, start_pos[n], t - apps_start_s)
+                for k in ("x", "y", "depth", "heading", "speed")}
             positioning = fleet.cores[n].positioning
             if positioning is not None:
                 positioning.set_depth(float(nav["depth"] or 0.0))
@@ -357,15 +372,17 @@ DEMO_STARTS_S = (0.0, 1.5, 3.0, 4.5, 6.0)
 
 def morph_mirrors(seeds: Sequence[int], starts: Sequence[float] = DEMO_STARTS_S,
                   duration_s: float = 90.0, loss: float = 0.1,
-                  quiet: bool = False) -> dict[str, dict[str, Any]]:
+                  quiet: bool = False, tour: bool = True) -> dict[str, dict[str, Any]]:
     """``zab demo``'s first minute and a half, as it runs it (10 % of frames lost, the
-    applications starting a little after the fleet), for every seed and start: per vehicle,
+    applications starting a little after the fleet, ``tour``: cv2 surfacing and diving on its
+    scripted path), for every seed and start: per vehicle,
     runs with a position on the mirror side, runs with no position at all, when the first
     position came (worst run) and the p95 error of every position published."""
     out: dict[str, dict[str, Any]] = {}
     for seed in seeds:
         for start in starts:
-            rows = morph_run(duration_s, seed, loss=loss, apps_start_s=start, quiet=True)
+            rows = morph_run(duration_s, seed, loss=loss, apps_start_s=start, quiet=True,
+                             tour=tour)
             for node, row in rows.items():
                 agg = out.setdefault(node, {"runs": 0, "mirror_runs": 0, "mirror": 0,
                                             "no_fix_runs": 0, "errors": [], "first": []})

@@ -205,6 +205,10 @@ class NodeCore:
         self._started: float | None = None
         self.positioning = Positioning(mission, node) if needs_positioning(mission, node) \
             else None
+        # output key -> anchor: live anchor positions this bridge decodes from frames itself
+        self._anchor_keys = {key: anchor for anchor, key in mission.ranging.anchor_keys.items()
+                             if self.positioning is not None
+                             and anchor in self.positioning.anchors}
         self._ranged_last = False  # a range never takes two transmit opportunities in a row
         self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
         self.families = Families(self.table, node)
@@ -624,11 +628,8 @@ class NodeCore:
         self._link_watch.heard(src, now)
         if self.link_states.get(src) is not LinkState.UP:
             self.update_links(now)
-        if self.positioning is not None and self.table.dlbl:
-            t_start = float(rx.meta.get("start", rx.time))
-            self._ranging(src, t_start, frame.delays, modem_now if modem_now is not None else now,
-                          now)
         values: dict[str, list[dict]] = {}
+        anchors: dict[str, tuple[float, float, float]] = {}  # live anchor positions it carried
         members: dict[str, dict[str, list[dict]]] = {}  # key families: per member
         for entry in frame.entries:
             channel = entry.channel
@@ -676,7 +677,17 @@ class NodeCore:
                         self.families.arrived(key, now)
                     if latching and self.queries is not None:
                         self.queries.remember(key, value, element.encoding, now)
+                    if key in self._anchor_keys:
+                        self._anchor_value(self._anchor_keys[key], value, anchors, now)
                     self._publish(key, value, element.encoding, latching, element.ros2)
+        if self.positioning is not None and self.table.dlbl:
+            t_start = float(rx.meta.get("start", rx.time))
+            self._ranging(src, t_start, frame.delays, modem_now if modem_now is not None else now,
+                          now, anchors)
+        elif anchors and self.positioning is not None:
+            for anchor, position in anchors.items():
+                if anchor in self.positioning.anchors:
+                    self.positioning.set_anchor(anchor, position, now)
         meta = plain(rx.meta)
         if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             self._peer_status[src] = now
@@ -802,11 +813,27 @@ class NodeCore:
         self.stats.values_published += 1
 
     def _ranging(self, src: str, t_rx_start: float, delays: tuple[int | None, ...],
-                 modem_now: float, now: float) -> None:
-        """Ranges (and a fix) from a frame's DLBL delays."""
+                 modem_now: float, now: float,
+                 anchors: dict[str, tuple[float, float, float]] | None = None) -> None:
+        """Ranges (and a fix) from a frame's DLBL delays (``anchors``: the live anchor
+        positions the same frame carried)."""
         assert self.positioning is not None
-        self._positioned(self.positioning.on_receive(src, t_rx_start, delays, modem_now, now),
-                         now)
+        self._positioned(self.positioning.on_receive(src, t_rx_start, delays, modem_now, now,
+                                                     anchors), now)
+
+    def _anchor_value(self, anchor: str, value: Any, anchors: dict[str, tuple[float, ...]],
+                      now: float) -> None:
+        """An anchor's live position (``ranging.anchor_keys``) decoded from a frame: kept for
+        the frame's ranges (counted as a dropped payload if it has no finite x, y, depth)."""
+        try:
+            position = tuple(float(value[k]) for k in ("x", "y", "depth"))
+            if not all(map(math.isfinite, position)):
+                raise ValueError("not finite")
+        except (TypeError, KeyError, ValueError) as exc:
+            key = self.mission.ranging.anchor_keys[anchor]
+            self.drop_payload(key, f"needs numbers x, y, depth: {exc}", now)
+            return
+        anchors[anchor] = position  # type: ignore[assignment]
 
     def modem_range(self, rng: ModemRange, now: float) -> None:
         """The modem measured a range itself (a ping, a propagation time): publish it like a

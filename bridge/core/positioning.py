@@ -263,7 +263,8 @@ class Positioning:
 
     def anchor_at(self, anchor: str, t: float) -> tuple[tuple[float, float, float], float, float]:
         """Where ``anchor`` was at ``t``: (position, 1-σ metres, age of the report in seconds),
-        extrapolated from its last two live reports when it moves."""
+        extrapolated from its last two live reports when it moves (back in time too: a DLBL
+        range's first leg may predate the report its frame brought)."""
         reports = self.anchor_reports.get(anchor)
         position = self.anchor_positions[anchor]
         if not reports:  # the mission's: a moored anchor, or a live one not yet heard from
@@ -273,16 +274,17 @@ class Positioning:
             return position, START_SIGMA_M + ANCHOR_MAX_SPEED_MPS / 2 * since, 0.0
         t1, p1 = reports[-1]
         age = max(t - t1, 0.0)
+        span = abs(t - t1)  # how far from the report, either way
         if len(reports) == 2 and 0 < t1 - reports[0][0] <= 60.0:
             t0, p0 = reports[0]
             rate = [(b - a) / (t1 - t0) for a, b in zip(p0, p1, strict=True)]
-            position = (p1[0] + rate[0] * age, p1[1] + rate[1] * age, p1[2])
+            position = (p1[0] + rate[0] * (t - t1), p1[1] + rate[1] * (t - t1), p1[2])
             speed = math.hypot(rate[0], rate[1])
             # a report's resolution, the sample's unknown age (up to a nav period or two), a
             # manoeuvre since
-            return position, 0.05 + speed * 2 * ANCHOR_SAMPLE_AGE_S + 0.05 * age, age
-        # one report: where it has gone since is unknown
-        return position, 0.05 + ANCHOR_MAX_SPEED_MPS / 2 * (age + 2 * ANCHOR_SAMPLE_AGE_S), age
+            return position, 0.05 + speed * 2 * ANCHOR_SAMPLE_AGE_S + 0.05 * span, age
+        # one report: where it has gone since (or was before) is unknown
+        return position, 0.05 + ANCHOR_MAX_SPEED_MPS / 2 * (span + 2 * ANCHOR_SAMPLE_AGE_S), age
 
     def set_water(self, temperature_c: float, salinity_psu: float, depth_m: float) -> None:
         """A CTD reading at this node (``ranging.ctd_key``); ``ValueError`` if implausible."""
@@ -317,16 +319,25 @@ class Positioning:
     # -- measurements --------------------------------------------------------------------------
 
     def on_receive(self, src: str, t_rx_start: float, delays: Sequence[int | None],
-                   now: float, host_now: float | None = None) -> Update:
+                   now: float, host_now: float | None = None,
+                   anchors: Mapping[str, tuple[float, float, float]] | None = None) -> Update:
         """A frame from ``src`` with its DLBL ``delays`` started arriving at ``t_rx_start``
         (``now``: the modem's clock; ``host_now``: the same instant on the clock of the node's
-        other inputs, depth and heading, if it differs)."""
+        other inputs, depth and heading, if it differs). ``anchors``: live anchor positions
+        the same frame carried (``ranging.anchor_keys``), taken before its ranges are fused:
+        a moving anchor's range is then measured against where it was when it sent them, not
+        extrapolated from its reports in earlier frames (a cycle or more old)."""
         ranges = tuple(self.ranger.on_receive(src, t_rx_start, delays))
         for rng in ranges:
             self.latest[rng.peer] = rng
+        offset = 0.0 if host_now is None else host_now - now
+        if ranges:
+            self._clock_offset = offset
+        for anchor, position in (anchors or {}).items():
+            if anchor in self.anchors:
+                self.set_anchor(anchor, position, now + offset)
         if not (ranges and self.localises):
             return Update(ranges, None)
-        offset = self._clock_offset = 0.0 if host_now is None else host_now - now
         for rng in ranges:
             self._track(rng, rng.time + offset, rng.reply_s + 2 * rng.travel_time_s)
         return Update(ranges, self.locate(now), self.estimate(now + offset))

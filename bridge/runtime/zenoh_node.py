@@ -173,7 +173,10 @@ class BridgeNode:
         assert self.session is not None
 
         def listen(key: str, names: tuple[str, ...],
-                   handler: Callable[[tuple[float, ...]], None], bridged: bool = False) -> None:
+                   handler: Callable[[tuple[float, ...]], None], bridged: bool = False,
+                   own: bool = True) -> None:
+            """``bridged``: samples other bridges published count too; ``own`` false: not
+            those this bridge published (its core took them from the frames already)."""
             def numbers(data: bytes, encoding: str) -> None:
                 values = self.core.numbers(key, data, encoding, names, self.clock())
                 if values is not None:
@@ -184,9 +187,13 @@ class BridgeNode:
                 self._flush()
 
             def on_sample(sample: zenoh.Sample) -> None:
-                if sample.kind == zenoh.SampleKind.PUT and (bridged or not is_bridged(sample)):
-                    data, encoding = sample.payload.to_bytes(), str(sample.encoding)
-                    loop.call_soon_threadsafe(numbers, data, encoding)
+                if sample.kind != zenoh.SampleKind.PUT or (not bridged and is_bridged(sample)):
+                    return
+                if not own and sample.attachment is not None \
+                        and sample.attachment.to_bytes() == self._origin:
+                    return
+                data, encoding = sample.payload.to_bytes(), str(sample.encoding)
+                loop.call_soon_threadsafe(numbers, data, encoding)
 
             self.session.declare_subscriber(key, on_sample)  # type: ignore[union-attr]
 
@@ -204,10 +211,10 @@ class BridgeNode:
 
             self.session.declare_subscriber(nav_key, steer)
         for anchor, key in self.mission.ranging.anchor_keys.items():
-            if anchor in positioning.anchors:
+            if anchor in positioning.anchors:  # (what this bridge decodes, its core takes)
                 listen(key, ("x", "y", "depth"),
                        lambda v, a=anchor: positioning.set_anchor(  # type: ignore[misc]
-                           a, v, self.clock()), bridged=True)
+                           a, v, self.clock()), bridged=True, own=False)
         ctd_key = self.mission.ranging.ctd_key
         if ctd_key is not None:
             listen(ctd_key, ("temperature_c", "salinity_psu", "depth_m"),

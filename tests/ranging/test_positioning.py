@@ -165,3 +165,17 @@ def test_the_track_restarts_when_the_vehicle_is_not_where_it_predicts() -> None:
     assert all(isinstance(f, Fix) for f in fixes)  # published as measured all along
     assert p.track.refused >= 2
     assert p.track.position == pytest.approx(moved[:2], abs=0.5)  # then the track follows
+
+
+def test_a_moving_anchor_is_placed_back_in_time_too() -> None:
+    # a DLBL range's first leg may predate the anchor's latest report (the frame bringing the
+    # range brought the report too): the anchor was then where its motion puts it, not at the
+    # report (before: held at the report, 4.8 m off for lsv's 6 s spans in zab demo)
+    p = mission(anchors=["a1", "a2"], anchor_keys={"a2": "a2/nav"})
+    p.set_anchor("a2", (0.0, 20.0, 0.5), now=10.0)
+    p.set_anchor("a2", (0.0, 26.0, 0.5), now=17.5)  # 0.8 m/s north
+    (x, y, _), sigma, age = p.anchor_at("a2", 17.5 - p.report_latency_s - 3.0)
+    assert (x, y) == pytest.approx((0.0, 23.6), abs=1e-9) and age == 0.0
+    assert sigma == pytest.approx(p.anchor_at("a2", 17.5 - p.report_latency_s + 3.0)[1])
+    (x, y, _), _, age = p.anchor_at("a2", 17.5 - p.report_latency_s + 1.0)
+    assert (x, y) == pytest.approx((0.0, 26.8), abs=1e-9) and age == pytest.approx(1.0)
