@@ -216,11 +216,11 @@ def seed001_table(hours: float) -> list[dict[str, Any]]:
           "allows, so p95 ≤ 0.3 m needs the vehicle's heading. Anchors on one line leave the "
           "side of the jetty to the motion alone: a track holds the side it committed to (its "
           "image fits every range alike). With seed 001's losses (often one anchor heard per "
-          "cycle) a corner is seen seconds late and metres off: a second, manoeuvring mode "
-          "(white-noise acceleration 2 m/s², entered about every 100 s for ~2 s) keeps the "
-          "share a turn not yet seen deserves (87.2 -> 88.4 %, p95 2.69 -> 2.55 m), but a "
-          "mixture wide enough after a turn is too wide on the straights: NEES in bounds "
-          "~88 %, short of 90 %.")
+          "cycle) a corner is seen seconds late and metres off: beside the track, components "
+          "that turned in each gap since its last range (a ring of headings every 45°, at "
+          "its speed, a turn about every 10 s; bridge.ranging.turns) keep the share a turn "
+          "not yet seen deserves, and die at the next range that rules them out (seed 001 "
+          "reception row: NEES in bounds 88.4 -> 90.4 %, p95 2.55 -> 2.00 m).")
     print("Issue #16's targets: 3 anchors p95 ≤ 0.30 m; 2 anchors + depth + heading p95 ≤ 1.0 m "
           "(west leg and corners included), 0 flips in 1 h; NEES in bounds ≥ 90 %.")
     return rows

@@ -12,9 +12,11 @@ horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`
   vehicle turned between recent ranges (:meth:`RangeTracker._jumped`): the turn it likes best
   (at its old speed, any new heading) is taken if it explains those ranges better than none.
   Ranges from one anchor cannot show a turn at all (any turn fits its circle), so beside that
-  track a second mode, manoeuvring (``wide_accel_sigma``), keeps the share a turn not yet seen
-  deserves, as an interacting-multiple-model filter does (:meth:`RangeTracker._mode_prepare`):
-  the published estimate is the mixture of the two.
+  track components that turned in the gap before each range (a ring of headings, at its speed:
+  :mod:`bridge.ranging.turns`, ``turn_every_s``) keep the share a turn not yet seen deserves;
+  each filters the ranges itself, the likeliest becomes the track, and the published estimate
+  is the mixture. (``turn_every_s = 0``: a second, manoeuvring mode instead,
+  ``wide_accel_sigma``, as an interacting-multiple-model filter has it.)
 
 - Range model. A DLBL range (:mod:`bridge.ranging.dlbl`) is half a two-way travel time: leg 1
   left this node ``span_s`` before the reception that completed it, leg 2 arrived at that
@@ -462,7 +464,8 @@ class RangeTracker:
             if wide is not None and hyp is self.hypotheses[0]:
                 self._mode_update(wide, hyp, obs)
             if turns is not None and hyp is self.hypotheses[0]:
-                self._turns_update(turns, hyp, obs, hyp.log_w - log_w)
+                took = self._turns_update(turns, hyp, obs, hyp.log_w - log_w)
+                ok = ok if took is None else took
             worst_nis = min(worst_nis, nis)
             refused = refused and not ok
         self._normalise()
@@ -986,9 +989,11 @@ class RangeTracker:
         return self._turns
 
     def _turns_update(self, turns: TurnMixture, track: _Hypothesis, obs: RangeObs,
-                      gain: float) -> None:
+                      gain: float) -> bool | None:
         """The turned components take ``obs`` (the track gained ``gain`` from it); the
-        alike merged, and the likeliest, if more likely than the track, becomes it."""
+        alike merged, and the likeliest, if more likely than the track, becomes it. Returns
+        whether the new track accepted ``obs`` (None: the track stayed); ranges the old one
+        refused and the new one took are then no longer counted as refused."""
         def take(comp: _Hypothesis) -> float:
             step = _Step(obs, comp.x.copy(), comp.p.copy(), comp.time, list(comp.turns), 0.0,
                          0.0, False)
@@ -1002,8 +1007,12 @@ class RangeTracker:
         turns.update(gain, take)
         turns.merge(track)
         best = turns.likeliest()
-        if best is not None:
-            turns.swap(track, best)
+        if best is None:
+            return None
+        if len(self.hypotheses) == 1 and len(best.steps) > 1:
+            self._unrefuse(track.steps[:-1], best.steps[:-1])
+        turns.swap(track, best)
+        return best.steps[-1].accepted if best.steps else None
 
     def _mode_update(self, wide: _Hypothesis, main: _Hypothesis, obs: RangeObs) -> None:
         """The manoeuvring mode takes ``obs`` too; both modes' shares, by how well each
@@ -1317,8 +1326,9 @@ class RangeTracker:
     def _unrefuse(self, old: list[_Step], new: list[_Step]) -> None:
         """Ranges refused for want of a manoeuvre (``old``) but accepted with it (``new``,
         the same ranges refiltered): not bad ranges, so no longer counted as refused."""
-        for was, now in zip(old[-len(new):] if new else [], new, strict=True):
-            if now.accepted and not was.accepted:
+        taken = {id(step.obs) for step in new if step.accepted}
+        for was in old:
+            if id(was.obs) in taken and not was.accepted:
                 for k, (o, reason) in enumerate(self._refusals):
                     if o is was.obs:
                         self.rejected[reason] -= 1

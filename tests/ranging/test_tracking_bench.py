@@ -87,3 +87,12 @@ def test_the_demo_s_surfacing_vehicle_is_tracked_from_its_second_cycle(bench: Mo
     assert cv2["first_fix_s"] <= 10.0, cv2["first_fix_s"]  # before: 54.5 s
     assert cv2["states"]["lost"] <= 3 and cv2["fixes"] >= 30, cv2["states"]  # before: 22, 7
     assert cv2["p95"] <= 1.0 and cv2["mirror"] == 0, cv2["p95"]
+
+
+def test_no_compass_at_seed001_reception_refuses_no_good_range(bench: ModuleType) -> None:
+    # without a compass the ranges just after a corner fit no straight track; a component
+    # that turned takes them and becomes the track, so they are not counted as bad ranges
+    # (with the straight track's refusals kept: 5 "short" in these 6 minutes)
+    row = bench.seed001_row("3", ("left", "middle", "right"), 0.1, reception="seed001",
+                            heading=False, seed=1)
+    assert row["rejected"] == {} and row["flips"] == 0 and row["nees_in"] >= 0.9

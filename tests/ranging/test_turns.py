@@ -31,9 +31,10 @@ def _truth(t: float) -> np.ndarray:
     return np.array([4.0 + SPEED * TURN_S, 15.0 + SPEED * (t - TURN_S)])
 
 
-def _sail(config: TrackerConfig) -> list[tuple[float, str, Estimate, float]]:
+def _sail(config: TrackerConfig) -> tuple[list[tuple[float, str, Estimate, float]],
+                                         dict[str, int]]:
     """Ranges every 0.53 s from each anchor in turn, but for 2.5 s after the turn from the
-    middle one only; (time, anchor, estimate, NEES) after each."""
+    middle one only; (time, anchor, estimate, NEES) after each, and the ranges refused."""
     rnd = random.Random(3)
     tracker = RangeTracker(config, prior=Prior(0.0, 4.0, 15.0, 0.5), depth=0.9)
     order = list(ANCHORS)
@@ -50,11 +51,11 @@ def _sail(config: TrackerConfig) -> list[tuple[float, str, Estimate, float]]:
         assert est.has_position
         e = np.array([est.x, est.y]) - here
         out.append((t, name, est, float(e @ np.linalg.solve(np.array(est.cov), e))))
-    return out
+    return out, dict(tracker.rejected)
 
 
 def test_a_turn_one_anchor_cannot_show_is_in_the_covariance_and_the_speed_is_held() -> None:
-    samples = _sail(TrackerConfig())
+    samples, refused = _sail(TrackerConfig())
     unseen = [s for s in samples if TURN_S < s[0] < TURN_S + 2.5]
     assert len(unseen) == 5
     # one anchor fits a turn either way: the estimate is as wide as the candidates, not wrong
@@ -66,10 +67,12 @@ def test_a_turn_one_anchor_cannot_show_is_in_the_covariance_and_the_speed_is_hel
     for t, _, e, _ in seen:
         assert math.dist((e.x, e.y), _truth(t)) < 0.3
         assert abs(math.hypot(e.vx, e.vy) - SPEED) < 0.1
+    # the ranges the straight track refused, the turned one took: none is a bad range
+    assert refused == {}
 
 
 def test_without_turned_components_the_same_turn_is_overconfident() -> None:
-    samples = _sail(TrackerConfig(turn_every_s=0.0, wide_accel_sigma=0.0))
+    samples, _ = _sail(TrackerConfig(turn_every_s=0.0, wide_accel_sigma=0.0))
     unseen = [nees for t, _, _, nees in samples if TURN_S < t < TURN_S + 2.5]
     assert max(unseen) > 13.8  # χ²₂ at 99.9 %
 
