@@ -13,7 +13,9 @@ What it models, per frame:
 - airtime from the preset (:meth:`Preset.airtime`);
 - propagation ``distance / sound_speed`` from 3-D positions ``(x, y, depth)`` in metres, taken at
   the moment of transmission; distances under ``min_range_m`` count as ``min_range_m``; a node
-  is where it was put (:meth:`~Ocean.set_position`) or where its scripted
+  is where it was put (:meth:`~Ocean.set_position`; told the time, it moves on at the velocity
+  of its last two positions for up to :data:`GLIDE_S`, as a vehicle whose navigation reports it
+  now and then keeps going between reports) or where its scripted
   :class:`~bridge.mission.path.Path` has taken it (:meth:`~Ocean.set_path`);
 - a broadcast medium: every other node hears every frame (promiscuous); ``dest`` is metadata only;
 - a reception is decided when it ends, in this order of reasons:
@@ -57,6 +59,10 @@ __all__ = [
 
 Position = tuple[float, float, float]
 """``(x, y, depth)`` in metres."""
+
+GLIDE_S = 5.0
+"""How long a node put somewhere with the time moves on at its last velocity (and how far
+apart its last two positions may be for that velocity to count)."""
 
 LOSS_REASONS = (
     "out_of_range",
@@ -196,6 +202,8 @@ class Ocean:
         self._now = -math.inf
         self._positions: dict[int, Position] = {}
         self._paths: dict[int, tuple[Path, float]] = {}  # addr -> (path, start time)
+        # addr -> (time, position, velocity): put there then, moving on (:meth:`set_position`)
+        self._glides: dict[int, tuple[float, Position, Position]] = {}
         self._busy_until: dict[int, float] = {}
         self._tx_intervals: dict[int, list[tuple[float, float]]] = {}
         self._rx_intervals: dict[int, list[_Rx]] = {}
@@ -223,7 +231,12 @@ class Ocean:
             raise KeyError(f"unknown node {addr}")
         scripted = self._paths.get(addr)
         if scripted is None:
-            return self._positions[addr]
+            glide = self._glides.get(addr)
+            if glide is None:
+                return self._positions[addr]
+            since, (x, y, z), (vx, vy, vz) = glide
+            dt = min(max((self._now if t is None else t) - since, 0.0), GLIDE_S)
+            return (x + vx * dt, y + vy * dt, z + vz * dt)
         path, start = scripted
         elapsed = (self._now if t is None else t) - start
         return path.position_at(elapsed if math.isfinite(elapsed) else 0.0)
@@ -232,16 +245,29 @@ class Ocean:
         """Put a modem in the water (or move it, if it is already there, ending its path)."""
         self._positions[addr] = _position(position)
         self._paths.pop(addr, None)
+        self._glides.pop(addr, None)
         self._busy_until.setdefault(addr, -math.inf)
         self._tx_intervals.setdefault(addr, [])
         self._rx_intervals.setdefault(addr, [])
 
-    def set_position(self, addr: int, position: Position) -> None:
-        """Move a node (and end its path); frames already in the water keep their distance."""
+    def set_position(self, addr: int, position: Position, now: float | None = None) -> None:
+        """Move a node (and end its path); frames already in the water keep their distance.
+        With ``now`` (this ocean's clock) the node moves on from there at the velocity since
+        the position it was last put at, if that came within :data:`GLIDE_S`, for up to
+        :data:`GLIDE_S` (a vehicle's navigation samples its motion, the vehicle keeps going)."""
         if addr not in self._positions:
             raise KeyError(f"unknown node {addr}")
-        self._positions[addr] = _position(position)
+        here = _position(position)
+        before = self._glides.pop(addr, None)
+        self._positions[addr] = here
         self._paths.pop(addr, None)
+        if now is None:
+            return
+        velocity = (0.0, 0.0, 0.0)
+        if before is not None and 0.0 < now - before[0] <= GLIDE_S:
+            dt = now - before[0]
+            velocity = tuple((a - b) / dt for a, b in zip(here, before[1], strict=True))
+        self._glides[addr] = (now, here, velocity)  # type: ignore[assignment]
 
     def set_path(self, addr: int, path: Path, start: float) -> None:
         """Move ``addr`` along ``path`` from time ``start`` on (it waits at the first waypoint
@@ -251,12 +277,14 @@ class Ocean:
         if not math.isfinite(start):
             raise ValueError(f"path start must be a finite time, not {start}")
         self._paths[addr] = (path, float(start))
+        self._glides.pop(addr, None)
         self._positions[addr] = path.waypoints[0]
 
     def remove_node(self, addr: int) -> None:
         """Take a modem out: later frames are not heard by it (frames in flight still end)."""
         self._positions.pop(addr, None)
         self._paths.pop(addr, None)
+        self._glides.pop(addr, None)
 
     def distance(self, a: int, b: int) -> float:
         """Straight-line distance between two nodes in metres, now."""
@@ -326,12 +354,12 @@ class Ocean:
         here = self.position(src)
         min_range, max_range = p.min_range_m, p.max_range_m
         queue, open_, seq = self._queue, self._open, self._seq
-        positions, paths, links, filed = self._positions, self._paths, self._links, \
-            self._rx_intervals
+        positions, links, filed = self._positions, self._links, self._rx_intervals
+        moving = self._paths.keys() | self._glides.keys() if self._glides else self._paths
         for dst in sorted(positions):
             if dst == src:
                 continue
-            there = positions[dst] if dst not in paths else self.position(dst)
+            there = positions[dst] if dst not in moving else self.position(dst)
             dist = math.dist(here, there)
             travel = p.propagation_s(max(dist, min_range))
             link = links.get((src, dst)) or self._link(src, dst)

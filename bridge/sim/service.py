@@ -285,7 +285,8 @@ class WaterService:
             self._wake.set()
         elif kind == "pos":
             try:
-                self.ocean.set_position(addr, _as_position(msg.get("pos")))
+                self.ocean.set_position(addr, _as_position(msg.get("pos")),
+                                        max(self._now(), self.ocean.now))
             except (TypeError, ValueError) as exc:
                 raise ProtocolError(f"bad position {msg.get('pos')!r}") from exc
         else:

@@ -226,6 +226,23 @@ def test_moving_node_changes_travel_time_and_min_range() -> None:
     assert [e.reason for e in run(ocean) if isinstance(e, Loss)] == ["out_of_range"]
 
 
+def test_a_node_put_with_the_time_moves_on_at_its_last_velocity() -> None:
+    ocean = Ocean(FAST, seed=1, positions=line(0, 300), loss_curve=NO_RANGE_LOSS)
+    ocean.set_position(2, (300.0, 0.0, 10.0), now=0.0)
+    assert ocean.position(2, 3.0) == (300.0, 0.0, 10.0)  # one sample: no velocity yet
+    ocean.set_position(2, (301.0, 2.0, 10.0), now=1.0)  # its navigation, a second later
+    assert ocean.position(2, 1.5) == pytest.approx((301.5, 3.0, 10.0))
+    assert ocean.position(2, 60.0) == pytest.approx((306.0, 12.0, 10.0))  # 5 s on at most
+    # each frame takes the positions of the moment it is sent: 1.5 s of glide further
+    ocean.transmit(2.5, 1, b"x")
+    (rx,) = receptions(run(ocean))
+    assert rx.meta["distance_m"] == pytest.approx(math.dist((0, 0, 0), (302.5, 5.0, 10.0)))
+    ocean.set_position(2, (310.0, 5.0, 10.0), now=20.0)  # samples too far apart: it stops
+    assert ocean.position(2, 22.0) == (310.0, 5.0, 10.0)
+    ocean.set_position(2, (400.0, 0.0, 0.0))  # without the time: put there, and it stays
+    assert ocean.position(2, 30.0) == (400.0, 0.0, 0.0)
+
+
 def test_stats_are_json_able() -> None:
     ocean = Ocean(FAST, seed=1, positions=line(0, 1500, 3000), loss_curve=NO_RANGE_LOSS)
     ocean.transmit(0.0, 1, b"a")
