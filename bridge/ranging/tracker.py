@@ -3,7 +3,9 @@
 Every range is fused as it arrives, at its own time, against the anchor's position at that time
 (a moving anchor included); the node's own depth is known (a pressure sensor), so the state is
 horizontal only: ``[x, y, vx, vy]`` with white-noise acceleration ``accel_sigma`` (m/s²;
-``accel_sigma_steered`` while a heading is coming in, which turns the velocity itself).
+``accel_sigma_steered`` while a heading is coming in, which turns the velocity itself; a
+heading without a speed steers only across the velocity: along it, still ``accel_sigma``, as
+a compass tells turns, not the speed, which the vehicle holds with or without one).
 
 - Manoeuvres. A small vehicle holds its course and speed, then turns within a second or two:
   next to a range cycle of seconds that is a jump of velocity, which white-noise acceleration
@@ -147,7 +149,8 @@ class TrackerConfig:
     # distances, linear between and held beyond: a measured noise profile (seed 001 fig. 8);
     # empty: ``range_sigma_m`` at every distance
     accel_sigma: float = 0.03
-    accel_sigma_steered: float = 0.08
+    accel_sigma_steered: float = 0.08  # while a heading steers the velocity (without a
+    # speed: only across it, ``accel_sigma`` along it)
     heading_sigma_deg: float = 3.0
     speed_sigma_mps: float = 0.1
     max_speed_mps: float = 2.5
@@ -511,12 +514,12 @@ class RangeTracker:
             p = (1 - share) * (p + np.outer(x - mean, x - mean)) + share * (
                 jp + np.outer(jx - mean, jx - mean))
             x = mean
-        x, p = _predicted(x, p, max(t - hyp.time, 0.0), self._accel_sigma(t))
-        if self._turns is not None and self._accel_sigma(t) == cfg.accel_sigma:
+        x, p = _predicted(x, p, max(t - hyp.time, 0.0), *self._accel(t))
+        if self._turns is not None and not self._steered(t):
             x, p = self._turns.moments(x, p, t, lambda cx, cp, dt: _predicted(
                 cx, cp, dt, cfg.accel_sigma))
         wide = self._wide
-        if wide is not None and self._accel_sigma(t) == cfg.accel_sigma:
+        if wide is not None and not self._steered(t):
             mu = self._wide_share
             wx, wp = _predicted(wide.x, wide.p, max(t - wide.time, 0.0), cfg.wide_accel_sigma)
             mean = (1 - mu) * x + mu * wx
@@ -554,7 +557,7 @@ class RangeTracker:
         recent = [(o, r) for o, r in self._refusals
                   if obs.time - o.time <= cfg.manoeuvre_window_s]
         anchors = {o.anchor for o, _ in recent} | {obs.anchor}
-        steered = self._accel_sigma(obs.time) == cfg.accel_sigma_steered
+        steered = self._steered(obs.time)
         # with a compass, turns are known: it takes three refusals; without, turns are the
         # usual reason and two (one anchor's in a row) are enough
         if not self.resolved or len(recent) < (2 if steered else 1):
@@ -915,7 +918,7 @@ class RangeTracker:
         (:meth:`_hold_side`); None when there is none to hold."""
         line = self._mirror_line()
         if line is None or self._side is None or not self.resolved or \
-                self._accel_sigma(self._now) == self.config.accel_sigma_steered:
+                self._steered(self._now):
             return None
         return line
 
@@ -943,7 +946,7 @@ class RangeTracker:
         cfg = self.config
         if (cfg.wide_accel_sigma <= 0 or cfg.turn_every_s > 0 or not self.resolved
                 or len(self.hypotheses) != 1
-                or self._accel_sigma(obs.time) == cfg.accel_sigma_steered):
+                or self._steered(obs.time)):
             self._wide = None
             return None
         main = self.hypotheses[0]
@@ -975,7 +978,7 @@ class RangeTracker:
         way of the ring. None when there are none (a compass, or no committed track)."""
         cfg = self.config
         if (cfg.turn_every_s <= 0 or not self.resolved or len(self.hypotheses) != 1
-                or self._accel_sigma(obs.time) == cfg.accel_sigma_steered):
+                or self._steered(obs.time)):
             self._turns = None
             return None
         if self._turns is None:
@@ -1033,17 +1036,29 @@ class RangeTracker:
         b = (1 - self._wide_share) * math.exp(own - top)
         self._wide_share = min(max(a / (a + b), 1e-9), 1 - 1e-9)
 
-    def _accel_sigma(self, t: float) -> float:
-        """Process noise: smaller while a recent heading steers the velocity through turns."""
+    def _steered(self, t: float) -> bool:
+        """A recent heading steers the velocity through turns (within ``coast_after_s``)."""
+        return self._heading is not None and t - self._heading[0] <= self.config.coast_after_s
+
+    def _accel(self, t: float) -> tuple[float, float | None]:
+        """Process noise, (across the velocity or every way, along it or None): while a
+        heading steers the velocity, ``accel_sigma_steered``; if the heading came without a
+        speed, only across the velocity (turns between headings) and ``accel_sigma`` along it:
+        a compass says nothing of the speed, which the ranges alone then carry, and which the
+        vehicle holds as it does without one (seed 001 reception, 5 Hz compass: p95 0.34 ->
+        0.26 m). A speed log measures the speed itself, changes included (a formation
+        starting from rest, a vehicle surfacing): then every way alike, as before."""
         cfg = self.config
-        if self._heading is not None and t - self._heading[0] <= cfg.coast_after_s:
-            return cfg.accel_sigma_steered
-        return cfg.accel_sigma
+        if self._steered(t):
+            assert self._heading is not None
+            along = cfg.accel_sigma if self._heading[2] is None else None
+            return cfg.accel_sigma_steered, along
+        return cfg.accel_sigma, None
 
     def _predict(self, hyp: _Hypothesis, t: float) -> None:
         dt = t - hyp.time
         if dt > 0:
-            hyp.x, hyp.p = _predicted(hyp.x, hyp.p, dt, self._accel_sigma(t))
+            hyp.x, hyp.p = _predicted(hyp.x, hyp.p, dt, *self._accel(t))
             hyp.time = t
 
     def _range_model(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, np.ndarray]:
@@ -1095,7 +1110,7 @@ class RangeTracker:
         if max(s.nis for s in hyp.steps[-3:]) > cfg.jump_test_nis:
             # with a compass the next heading turns the track; until it comes, a turn the
             # ranges suggest is in the published covariance (never taken: it would turn twice)
-            steered = self._accel_sigma(obs.time) == cfg.accel_sigma_steered
+            steered = self._steered(obs.time)
             fresh = steered and self._heading is not None and \
                 obs.time - self._heading[0] < FRESH_HEADING_S
             jumped = None if fresh else self._jumped(hyp, take=not steered)
@@ -1404,16 +1419,22 @@ def _reflect_history(turns: list[tuple[float, np.ndarray]], steps: list[_Step],
         step.turns = [(w, reflect @ v) for w, v in step.turns]
 
 
-def _predicted(x: np.ndarray, p: np.ndarray, dt: float,
-               accel_sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """Constant velocity ``dt`` ahead with continuous white-noise acceleration."""
+def _predicted(x: np.ndarray, p: np.ndarray, dt: float, accel_sigma: float,
+               along_sigma: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Constant velocity ``dt`` ahead with continuous white-noise acceleration: 1-σ
+    ``accel_sigma`` every way, or, with ``along_sigma``, that along the velocity (a change of
+    speed) and ``accel_sigma`` across it (a turn)."""
     f = np.eye(4)
     f[0, 2] = f[1, 3] = dt
-    q = accel_sigma**2
+    q = np.eye(2) * accel_sigma**2
+    speed = math.hypot(x[2], x[3])
+    if along_sigma is not None and speed > 1e-6:
+        u = x[2:] / speed
+        q += np.outer(u, u) * (along_sigma**2 - accel_sigma**2)
     qq = np.zeros((4, 4))
-    qq[0, 0] = qq[1, 1] = q * dt**3 / 3
-    qq[0, 2] = qq[2, 0] = qq[1, 3] = qq[3, 1] = q * dt**2 / 2
-    qq[2, 2] = qq[3, 3] = q * dt
+    qq[:2, :2] = q * dt**3 / 3
+    qq[:2, 2:] = qq[2:, :2] = q * dt**2 / 2
+    qq[2:, 2:] = q * dt
     return f @ x, f @ p @ f.T + qq
 
 
