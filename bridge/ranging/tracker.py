@@ -24,7 +24,10 @@ a compass tells turns, not the speed, which the vehicle holds with or without on
   left this node ``span_s`` before the reception that completed it, leg 2 arrived at that
   reception. So ``h = ½(|p(t − span) − a₁| + |p(t) − a₂|)`` with slant (3-D) distances from the
   node's depth to the anchor's: the depth difference is in the model, not subtracted first.
-  With ``span_s = 0`` it is a plain range.
+  With ``span_s = 0`` it is a plain range. While the position is so wide (a start, a long
+  gap) that the range's circle curves off its tangent by more than the range's noise
+  across that width, the update is iterated (Gauss-Newton) to the posterior's
+  linearisation.
 - Heading (and speed), when the node's navigation gives them, are the direction (and length) of
   the velocity; a change of heading also turns the velocity state by the same angle (the
   vehicle turned), so a corner does not need the ranges to discover it. When it turned since
@@ -90,6 +93,9 @@ JUMP_SPEED_SHARE = 0.15
 """1-σ change of speed through a turn, as a share of the speed held before it."""
 RESOLVED_SHARE = 0.999
 """Share of the hypotheses' weight the best must hold before the track commits to it."""
+
+ITERATIONS = 5
+"""Most Gauss-Newton steps of an iterated range update (:meth:`RangeTracker._range_update`)."""
 MERGE_M = 1.0
 """Hypotheses nearer than this are one (the likelier is kept)."""
 FRESH_HEADING_S = 0.5
@@ -1083,7 +1089,26 @@ class RangeTracker:
         self._predict(hyp, obs.time)
         predicted, jac = self._range_model(hyp, obs)
         r = self._range_sigma(obs.range_m) ** 2 + obs.anchor_sigma_m**2
-        return self._update(hyp, obs.range_m - predicted, jac, r)
+        x0, p0 = hyp.x.copy(), hyp.p.copy()
+        nis, ok = self._update(hyp, obs.range_m - predicted, jac, r)
+        if ok and 2 * (p0[0, 0] + p0[1, 1]) / max(obs.range_m, 1.0) > math.sqrt(r):
+            # the position so wide (a start, a long gap) that the range's circle curves away
+            # from its tangent by more than the range's noise across that width: a step along
+            # the gradient at the prior lands off the circle, and the next range to the same
+            # anchor, linearised elsewhere, then reads as another anchor's (a position σ well
+            # under a metre that only one anchor was heard). Iterated (Gauss-Newton) to the
+            # posterior's linearisation; the gate and the weight keep the prior's
+            for _ in range(ITERATIONS):
+                xi = hyp.x
+                h_i, jac = self._range_model(hyp, obs)
+                s_i = float(jac @ p0 @ jac) + r
+                gain = p0 @ jac / s_i
+                x_next = x0 + gain * (obs.range_m - h_i - jac @ (x0 - xi))
+                ikh = np.eye(4) - np.outer(gain, jac)
+                hyp.x, hyp.p = x_next, ikh @ p0 @ ikh.T + r * np.outer(gain, gain)
+                if np.linalg.norm(x_next[:2] - xi[:2]) < 1e-3:
+                    break
+        return nis, ok
 
     def _range_sigma(self, range_m: float) -> float:
         """The range noise expected at ``range_m``: the profile's (``range_sigma_at``) if it
