@@ -684,10 +684,9 @@ class NodeCore:
             t_start = float(rx.meta.get("start", rx.time))
             self._ranging(src, t_start, frame.delays, modem_now if modem_now is not None else now,
                           now, anchors)
-        elif anchors and self.positioning is not None:
+        elif anchors and self.positioning is not None:  # (only its anchors: _anchor_keys)
             for anchor, position in anchors.items():
-                if anchor in self.positioning.anchors:
-                    self.positioning.set_anchor(anchor, position, now)
+                self.positioning.set_anchor(anchor, position, now)
         meta = plain(rx.meta)
         if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             self._peer_status[src] = now

@@ -1215,15 +1215,7 @@ class RangeTracker:
                 hyp.blend = (hyp.time, share, mean, cov)
             return None
         if len(self.hypotheses) == 1:  # ranges refused for want of the manoeuvre: not bad
-            for old, new in zip(hyp.steps[j:-1], redone[:-1], strict=True):
-                if new.accepted and not old.accepted:
-                    for k, (o, reason) in enumerate(self._refusals):
-                        if o is old.obs:
-                            self.rejected[reason] -= 1
-                            if self.rejected[reason] <= 0:
-                                del self.rejected[reason]
-                            del self._refusals[k]
-                            break
+            self._unrefuse(hyp.steps[j:-1], redone[:-1])
         hyp.x, hyp.p, hyp.time, hyp.turns = mean, cov, trial.time, trial.turns
         hyp.log_w += llr
         hyp.steps = hyp.steps[:j] + redone
