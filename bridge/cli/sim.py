@@ -67,6 +67,13 @@ def fleet_view(fleet: Fleet, events: EventLog) -> Group:
     nodes = Table("node", "sent", "received", "dropped", "left out", "published",
                   title="nodes", expand=False)
     ages = Table("channel", "bits", "sent", "delivered", "age at receivers", title="channels")
+    with contextlib.ExitStack() as held:  # a direct backend's threads change the cores
+        for node in fleet.nodes.values():
+            held.enter_context(node.lock)
+        return _fleet_view(fleet, events, nodes, ages)
+
+
+def _fleet_view(fleet: Fleet, events: EventLog, nodes: Table, ages: Table) -> Group:
     now = time.time()
     for name, node in fleet.nodes.items():
         s = node.stats

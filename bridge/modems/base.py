@@ -75,6 +75,11 @@ class ModemBackend(ABC):
     :meth:`_deliver`, which puts it there unless :attr:`on_reception` takes it."""
     timed_send: ClassVar[bool] = False
     """Whether :meth:`send` honours ``at`` (a scheduled emission start)."""
+    direct: ClassVar[bool] = False
+    """Whether the backend's I/O bypasses the event loop: :meth:`send_now` works from any
+    thread, and :attr:`on_reception` is called on the backend's own reader thread (so what
+    it calls must be thread-safe). A runtime then carries a frame from a Zenoh callback to
+    the wire, and from the wire to Zenoh, with no hop through its loop."""
     ranging: ClassVar[str | None] = None
     """How the modem measures ranges itself: ``"ping"`` (:meth:`ping`), ``"ack"`` (after an
     acknowledged unicast :meth:`send`), or None. Measurements go to :attr:`on_range`."""
@@ -90,9 +95,10 @@ class ModemBackend(ABC):
         self.on_range: Callable[[ModemRange], None] | None = None
         """Called with every range the modem measures (the runtime sets it)."""
         self.on_reception: Callable[[Reception], None] | None = None
-        """Called with every reception as it arrives, on the event loop, instead of queueing it
-        for :meth:`recv` (the runtime sets it: a frame heard is decoded at once, with no task
-        to wake in between); errors still reach :meth:`recv`."""
+        """Called with every reception as it arrives, instead of queueing it for :meth:`recv`
+        (the runtime sets it: a frame heard is decoded at once, with no task to wake in
+        between); on the event loop, or on the reader thread of a :attr:`direct` backend.
+        Errors still reach :meth:`recv`."""
         self._opened = False
         self._closed = False
 
@@ -139,14 +145,7 @@ class ModemBackend(ABC):
         When it returns is backend-specific and documented by each backend. Raises
         :class:`BackendError` if the frame is too long or empty, or the backend is not open.
         """
-        if not self.is_open:
-            raise BackendError(f"{self!r}: send on a backend that is not open")
-        if not data:
-            raise BackendError(f"{self!r}: cannot send an empty frame")
-        if len(data) > self.frame_bytes:
-            raise BackendError(
-                f"{self!r}: frame of {len(data)} B exceeds frame_bytes={self.frame_bytes}"
-            )
+        self._check_frame(data)
         try:
             ack = self.ack if ack is None else ack
             if at is not None and self.timed_send:
@@ -158,6 +157,30 @@ class ModemBackend(ABC):
             raise
         self.stats["sent"] += 1
         return confirmed
+
+    def send_now(self, data: bytes, dest: int | None = None, *,
+                 ack: bool | None = None) -> bool | None:
+        """:meth:`send` without waiting, from any thread: only :attr:`direct` backends."""
+        if not self.direct:
+            raise BackendError(f"{self!r}: this backend sends only from its event loop")
+        self._check_frame(data)
+        try:
+            confirmed = self._send_now(bytes(data), dest, self.ack if ack is None else ack)
+        except BackendError:
+            self.stats["errors"] += 1
+            raise
+        self.stats["sent"] += 1
+        return confirmed
+
+    def _check_frame(self, data: bytes) -> None:
+        if not self.is_open:
+            raise BackendError(f"{self!r}: send on a backend that is not open")
+        if not data:
+            raise BackendError(f"{self!r}: cannot send an empty frame")
+        if len(data) > self.frame_bytes:
+            raise BackendError(
+                f"{self!r}: frame of {len(data)} B exceeds frame_bytes={self.frame_bytes}"
+            )
 
     async def recv(self) -> Reception:
         """Wait for the next reception; raises :class:`BackendError` once the backend is down."""
@@ -208,6 +231,10 @@ class ModemBackend(ABC):
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
         """The largest frame this backend can send with ``options`` (None: no fixed limit)."""
         return None
+
+    def _send_now(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
+        """Hook for :attr:`direct` backends: transmit a checked frame without waiting."""
+        raise BackendError(f"{self!r}: this backend sends only from its event loop")
 
     async def _send_timed(self, data: bytes, dest: int | None, ack: bool,
                           at: float) -> bool | None:

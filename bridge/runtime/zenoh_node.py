@@ -1,15 +1,23 @@
 """The bridge runtime of one node: the asyncio + Zenoh adapter around :class:`NodeCore`.
 
-Zenoh callbacks run on Zenoh's own threads; they only hand samples to the event loop
-(``call_soon_threadsafe``), so nothing here blocks Zenoh. The loop feeds the pure core with
-samples, receptions and the time, asks it for frames at each MAC opportunity, and carries out
-what it outputs: publications, ``@zab`` status, liveliness tokens and events.
+Zenoh callbacks run on Zenoh's own threads; they hand samples to the event loop
+(``call_soon_threadsafe``). The loop feeds the pure core with samples, receptions and the
+time, asks it for frames at each MAC opportunity, and carries out what it outputs:
+publications, ``@zab`` status, liveliness tokens and events.
+
+With a :attr:`~bridge.modems.base.ModemBackend.direct` backend (``udp``) the data path skips
+the loop: the Zenoh callback itself ingests a sample and, when an opportunity is open, sends
+the frame; the backend's reader thread decodes a frame heard and publishes it. One lock
+(:attr:`BridgeNode.lock`) keeps the core to one caller at a time; events and query outputs
+are still carried out on the loop.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import threading
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -20,7 +28,7 @@ import zenoh
 from bridge.core.events import Event, ModemDown, notable
 from bridge.core.interest import output_keys
 from bridge.core.link import LinkState
-from bridge.core.node import NodeCore, NodeStats, Ping, Publish, Status
+from bridge.core.node import NodeCore, NodeStats, Ping, Publish, SendFrame, Status
 from bridge.core.positioning import Positioning
 from bridge.core.surfacing import Relay
 from bridge.errors import BackendError, DecodeError, EncodeError
@@ -87,6 +95,12 @@ class BridgeNode:
         self._data = asyncio.Event()
         self._modem_up = asyncio.Event()
         self._sending = False
+        self._planned: float | None = None  # when the transmit loop wakes by itself
+        self.lock = threading.RLock()
+        """Held while the core is used: the loop, Zenoh's threads and a direct backend's
+        reader all come in."""
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._loop_thread: int | None = None
         self.started = asyncio.Event()
         self.session: zenoh.Session | None = None
         self._ros2: Ros2Graph | None = None
@@ -116,7 +130,8 @@ class BridgeNode:
 
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set; always closes the session and the modem."""
-        loop = asyncio.get_running_loop()
+        loop = self._loop = asyncio.get_running_loop()
+        self._loop_thread = threading.get_ident()
         self.session = open_session(self.mission.nodes[self.node].zenoh, self.node)
         try:
             self._flush()  # this run's epoch saved; what a changed mission file ended, reported
@@ -147,7 +162,8 @@ class BridgeNode:
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
-            self._persist()
+            with self.lock:
+                self._persist()
         finally:
             if self._query_bridge is not None:
                 self._query_bridge.close()
@@ -160,13 +176,41 @@ class BridgeNode:
     # -- Zenoh → core ------------------------------------------------------------------------
 
     def _from_zenoh(self, loop: asyncio.AbstractEventLoop, key: str, sample: zenoh.Sample) -> None:
-        """Zenoh thread: copy what we need and hand it to the loop."""
+        """Zenoh thread: copy what we need; ingest it here with a direct backend, else hand
+        it to the loop."""
         if sample.kind != zenoh.SampleKind.PUT or is_bridged(sample):
             return
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
         ref = attachment[4:].decode("utf-8", "replace") if attachment[:4] == b"ref:" else None
-        loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref, str(sample.key_expr))
+        if self._direct() is not None:
+            self.ingest(key, data, encoding, ref, str(sample.key_expr))
+        else:
+            loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref,
+                                      str(sample.key_expr))
+
+    def _direct(self) -> ModemBackend | None:
+        """The open backend, if it is direct and sends what the core gives it at once (a
+        modem that pings must be awaited)."""
+        backend = self.backend
+        if backend is None or not backend.direct or backend.ranging == "ping":
+            return None
+        return backend
+
+    def _on_loop(self) -> bool:
+        return threading.get_ident() == self._loop_thread
+
+    def _soon(self, callback: Callable[..., object], *args: Any) -> None:
+        """Run ``callback`` on the loop: now if this is the loop's thread, else next."""
+        if self._on_loop() or self._loop is None:
+            callback(*args)
+        else:
+            with contextlib.suppress(RuntimeError):  # the loop has closed: the node is gone
+                self._loop.call_soon_threadsafe(callback, *args)
+
+    def _wake(self) -> None:
+        """The transmit loop asks the core again (from any thread)."""
+        self._soon(self._data.set)
 
     def _subscribe_positions(self, loop: asyncio.AbstractEventLoop) -> None:
         """Live positions: this node's own (``nav_key``), anchors' and the CTD's."""
@@ -178,13 +222,14 @@ class BridgeNode:
             """``bridged``: samples other bridges published count too; ``own`` false: not
             those this bridge published (its core took them from the frames already)."""
             def numbers(data: bytes, encoding: str) -> None:
-                values = self.core.numbers(key, data, encoding, names, self.clock())
-                if values is not None:
-                    try:
-                        handler(values)
-                    except ValueError as exc:  # e.g. an implausible CTD reading
-                        self.core.drop_payload(key, str(exc), self.clock())
-                self._flush()
+                with self.lock:
+                    values = self.core.numbers(key, data, encoding, names, self.clock())
+                    if values is not None:
+                        try:
+                            handler(values)
+                        except ValueError as exc:  # e.g. an implausible CTD reading
+                            self.core.drop_payload(key, str(exc), self.clock())
+                    self._flush()
 
             def on_sample(sample: zenoh.Sample) -> None:
                 if sample.kind != zenoh.SampleKind.PUT or (not bridged and is_bridged(sample)):
@@ -235,7 +280,9 @@ class BridgeNode:
             matched[key] = matching
             wanted = {i for i, ks in keys.items() if any(matched.get(k) for k in ks)}
             assert self.core.interest is not None
-            if self.core.interest.set_local(wanted):
+            with self.lock:
+                new = self.core.interest.set_local(wanted)
+            if new:
                 self._data.set()  # the new @want is due at the next opportunity
 
         for key in sorted({k for ks in keys.values() for k in ks}):
@@ -261,8 +308,9 @@ class BridgeNode:
             f"@zab/{self.mission.mission}/*/bridge", on_token, history=True))
 
     def _ip_changed(self, peer: str, up: bool) -> None:
-        self.core.ip_reachable(peer, up, self.clock())
-        self._flush()
+        with self.lock:
+            self.core.ip_reachable(peer, up, self.clock())
+            self._flush()
         self._data.set()  # a dive makes the peer's channels due again
 
     def _steer(self, data: bytes, encoding: str) -> None:
@@ -277,7 +325,8 @@ class BridgeNode:
             speed: float | None = float(value["speed"])
         except (TypeError, KeyError, ValueError):
             speed = None
-        self.core.positioning.set_heading(heading, speed, self.clock())
+        with self.lock:
+            self.core.positioning.set_heading(heading, speed, self.clock())
 
     def move(self, position: tuple[float, ...]) -> None:
         """This node's live position: move the (simulated) modem, unless a scripted path
@@ -286,19 +335,29 @@ class BridgeNode:
         if self.backend is not None and self.mission.nodes[self.node].path is None:
             self.backend.set_position(x, y, depth)
         if self.core.positioning is not None:
-            self.core.positioning.set_depth(depth)
+            with self.lock:
+                self.core.positioning.set_depth(depth)
 
     def ingest(self, key: str, data: bytes, encoding: str, ref: str | None = None,
                sample_key: str | None = None) -> None:
         """A sample arrived on an input key (``ref``: the publisher's correlation text;
-        ``sample_key``: the sample's own key, under a wildcard input key)."""
-        now = self.clock()
-        self.core.ingest(key, data, encoding, now, ref, sample_key)
-        self._flush()
-        if self._sending or not self._modem_up.is_set():
-            self._data.set()  # the transmit loop decides when
-            return
-        start_eagerly(self.transmit())  # an opportunity open now: the frame leaves from here
+        ``sample_key``: the sample's own key, under a wildcard input key). Any thread: with
+        a direct backend an open opportunity's frame leaves from here, else from the loop."""
+        with self.lock:
+            self.core.ingest(key, data, encoding, self.clock(), ref, sample_key)
+            self._flush()
+            if self._sending or not self._modem_up.is_set():
+                self._wake()  # the transmit loop decides when
+                return
+            backend = self._direct()
+            if backend is not None:
+                self._send_now(backend)
+                return
+        self._soon(self._transmit_eagerly)
+
+    def _transmit_eagerly(self) -> None:
+        """On the loop: an opportunity open now, the frame leaves from here."""
+        start_eagerly(self.transmit())
 
     # -- core → modem --------------------------------------------------------------------------
 
@@ -308,11 +367,13 @@ class BridgeNode:
         while True:
             await self._modem_up.wait()
             self._data.clear()
-            if self._sending:  # one in flight (from the ingest path): it wakes us after
+            with self.lock:
+                sending = self._sending
+                now = self.clock()
+                wake = self._planned = None if sending else self.core.wake_at(now)
+            if sending:  # one in flight (from the ingest path): it wakes us after
                 await self._wait_for_data(None)
                 continue
-            now = self.clock()
-            wake = self.core.wake_at(now)
             if wake is None or wake > now:
                 await self._wait_for_data(None if wake is None else wake - now)
                 continue
@@ -334,9 +395,10 @@ class BridgeNode:
         Returns whether something went out. One at a time: the transmit loop and the ingest
         path both come here."""
         backend = self.backend
-        if backend is None or self._sending:
-            return False
-        self._sending = True
+        with self.lock:
+            if backend is None or self._sending:
+                return False
+            self._sending = True
         try:
             return await self._transmit(backend)
         finally:
@@ -346,15 +408,10 @@ class BridgeNode:
             asyncio.get_running_loop().call_soon(self._data.set)
 
     async def _transmit(self, backend: ModemBackend) -> bool:
-        self.core.modem_ranging = backend.ranging
-        now = self.clock()
-        # with a timed modem the emission starts exactly at ``at``, so DLBL delays are exact
-        at = backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
-        action = self.core.act(now, at)
-        if action is None:
-            self._flush()
-            return False
-        self._persist()  # a counter reserved for this frame is saved before it leaves
+        with self.lock:
+            action, now = self._act(backend)
+            if action is None:
+                return False
         confirmed = None
         try:
             if isinstance(action, Ping):
@@ -365,19 +422,65 @@ class BridgeNode:
         except BackendError as exc:
             what = "ping" if isinstance(action, Ping) else "send"
             log.warning("%s: %s failed: %s", self.node, what, exc)
-            self.core.done(action, now, self.clock(), error=str(exc))
-            self._flush()
+            with self.lock:
+                self.core.done(action, now, self.clock(), error=str(exc))
+                self._flush()
             if not backend.is_open:  # the modem is gone: wait until the modem loop reopens it
                 self._modem_up.clear()
             return False
-        self.core.done(action, now, self.clock(), confirmed=confirmed)
-        self._flush()
+        with self.lock:
+            self.core.done(action, now, self.clock(), confirmed=confirmed)
+            self._flush()
         return True
+
+    def _act(self, backend: ModemBackend) -> tuple[Ping | SendFrame | None, float]:
+        """Ask the core what to do at this opportunity (holding the lock); a frame's counter
+        is saved before it leaves."""
+        self.core.modem_ranging = backend.ranging
+        now = self.clock()
+        # with a timed modem the emission starts exactly at ``at``, so DLBL delays are exact
+        at = backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
+        action = self.core.act(now, at)
+        if action is None:
+            self._flush()
+        else:
+            self._persist()
+        return action, now
+
+    def _send_now(self, backend: ModemBackend) -> None:
+        """Holding the lock, on any thread: carry out the core's action through a direct
+        backend, which does not wait."""
+        action, now = self._act(backend)
+        if action is not None:
+            assert isinstance(action, SendFrame)  # a direct backend has no ping
+            out = action.frame
+            try:
+                confirmed = backend.send_now(out.data, out.dest, ack=out.ack)
+            except BackendError as exc:
+                log.warning("%s: send failed: %s", self.node, exc)
+                self.core.done(action, now, self.clock(), error=str(exc))
+                self._flush()
+                if not backend.is_open:
+                    self._soon(self._modem_up.clear)
+                return
+            end = self.clock()
+            self.core.done(action, now, end, confirmed=confirmed)
+            self._flush()
+            now = end
+        self._wake_if_sooner(now)
+
+    def _wake_if_sooner(self, now: float) -> None:
+        """Holding the lock: wake the transmit loop if the core's next opportunity comes
+        before the loop would wake by itself."""
+        wake = self.core.wake_at(now)
+        if wake is not None and (self._planned is None or wake < self._planned):
+            self._wake()
 
     def _modem_range(self, rng: ModemRange) -> None:
         """The modem measured a range (called by the backend, on the loop)."""
-        self.core.modem_range(rng, self.clock())
-        self._flush()
+        with self.lock:
+            self.core.modem_range(rng, self.clock())
+            self._flush()
 
     # -- modem → core → Zenoh ------------------------------------------------------------------
 
@@ -403,13 +506,16 @@ class BridgeNode:
                 backoff = min(backoff * 2, RETRY_MAX_S)
 
     def receive(self, rx: Reception) -> None:
-        """Hand one received frame to the core and publish what it produced."""
+        """Hand one received frame to the core and publish what it produced (any thread:
+        a direct backend calls it from its reader)."""
         modem_now = self.backend.clock() if self.backend is not None else None
-        valid = self.core.stats.frames_received
-        self.core.receive(rx, self.clock(), modem_now)
-        if self.core.stats.frames_received > valid:
-            self._data.set()  # a poll or a ranging turn may open an opportunity
-        self._flush()
+        with self.lock:
+            valid = self.core.stats.frames_received
+            self.core.receive(rx, self.clock(), modem_now)
+            now = self.clock()
+            if self.core.stats.frames_received > valid:
+                self._wake_if_sooner(now)  # a poll or a ranging turn may open an opportunity
+            self._flush()
 
     def _persist(self) -> None:
         """Save the core's state if a restart must not lose what changed."""
@@ -419,9 +525,17 @@ class BridgeNode:
             self.core.saved()
 
     def _flush(self) -> None:
-        """Carry out the core's outputs, once what they depend on is saved."""
-        self._persist()
-        for output in self.core.take():
+        """Carry out the core's outputs, once what they depend on is saved. Off the loop,
+        events and query outputs go to the loop (their consumers live there)."""
+        with self.lock:
+            self._persist()
+            outputs = self.core.take()
+            if outputs:
+                self._carry_out(outputs)
+
+    def _carry_out(self, outputs: list[Any]) -> None:
+        later = [] if not self._on_loop() and self._loop is not None else None
+        for output in outputs:
             if isinstance(output, Publish) and output.ros2 is not None:
                 self._publish_ros2(output.key, output.value, output.ros2)
             elif isinstance(output, Publish):
@@ -430,6 +544,8 @@ class BridgeNode:
                 self._publish_raw(f"{self.prefix}/{output.topic}", output.payload)
                 if output.topic.startswith("link/"):
                     self._token(output.topic, output.payload["state"])
+            elif later is not None and not isinstance(output, Relay):
+                later.append(output)  # an event or a query output
             elif isinstance(output, Event):
                 self._event(output)
             elif isinstance(output, Relay):  # surfaced peer: the sample as it came, over IP
@@ -438,6 +554,8 @@ class BridgeNode:
                                  attachment=self._origin)
             elif self._query_bridge is not None:
                 self._query_bridge.handle(output)
+        if later:
+            self._soon(self._carry_out, later)
 
     def _event(self, event: Event) -> None:
         self.on_event(event)
@@ -498,18 +616,21 @@ class BridgeNode:
 
     def snapshot(self) -> dict[str, Any]:
         """Counters and channel ages as plain data."""
-        return self.core.snapshot(self.clock())
+        with self.lock:
+            return self.core.snapshot(self.clock())
 
     def update_links(self, now: float) -> None:
         """Re-evaluate every peer's link now."""
-        self.core.update_links(now)
-        self._flush()
+        with self.lock:
+            self.core.update_links(now)
+            self._flush()
 
     async def _health_loop(self) -> None:
         period = min(1.0, self.core.thresholds.degraded_after_s / 4)
         while True:
-            self.core.tick(self.clock())
-            self._flush()
+            with self.lock:
+                self.core.tick(self.clock())
+                self._flush()
             await asyncio.sleep(period)
 
     async def _stats_loop(self) -> None:

@@ -95,19 +95,20 @@ class QueryBridge:
 
     def _ask(self, query: zenoh.Query, key: str, params: Any) -> None:
         node = self.node
-        now = node.clock()
-        if isinstance(params, Exception):
-            spec = node.core.queries.spec_for(key) if node.core.queries else None
-            if spec is not None and node.core.queries is not None:
-                node.core.queries.dropped[spec[0].name] += 1
-            self._end([query], f"malformed parameters: {params}")
-            return
-        ticket = node.core.ask(key, params, now)
-        if isinstance(ticket, str):
-            self._end([query], ticket)
-        else:
-            self.waiting.setdefault(ticket, []).append(query)
-        node._flush()
+        with node.lock:
+            now = node.clock()
+            if isinstance(params, Exception):
+                spec = node.core.queries.spec_for(key) if node.core.queries else None
+                if spec is not None and node.core.queries is not None:
+                    node.core.queries.dropped[spec[0].name] += 1
+                self._end([query], f"malformed parameters: {params}")
+                return
+            ticket = node.core.ask(key, params, now)
+            if isinstance(ticket, str):
+                self._end([query], ticket)
+            else:
+                self.waiting.setdefault(ticket, []).append(query)
+            node._flush()
         node._data.set()  # a request is due at the next opportunity
 
     @staticmethod
@@ -164,8 +165,9 @@ class QueryBridge:
                     timeout=request.timeout_s)
 
     def _served(self, request: LocalGet, values: list[Any], error: str | None) -> None:
-        self.node.core.query_served(request.ticket, values, error)
-        self.node._flush()
+        with self.node.lock:
+            self.node.core.query_served(request.ticket, values, error)
+            self.node._flush()
         self.node._data.set()
 
     def close(self) -> None:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import socket
+import threading
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 
@@ -204,3 +206,44 @@ def test_remote_addresses_refused_unless_allowed() -> None:
     )
     with pytest.raises(BackendError, match="'port' is required"):
         UdpBackend(ModemSetup(node="x", address=1, frame_bytes=32))
+
+
+def test_direct_send_from_any_thread_and_receptions_on_the_reader_thread() -> None:
+    async def main() -> None:
+        async with nodes(2) as (a, b):
+            assert a.direct
+            heard: list[tuple[bytes, str]] = []
+            got = threading.Event()
+
+            def on_reception(rx: Reception) -> None:
+                heard.append((rx.data, threading.current_thread().name))
+                got.set()
+
+            b.on_reception = on_reception
+            sender = threading.Thread(target=a.send_now, args=(b"from a thread", 2))
+            sender.start()
+            sender.join(2)
+            assert await asyncio.to_thread(got.wait, 2)
+            assert heard == [(b"from a thread", "udp-n2")]
+            assert a.stats["sent"] == 1 and b.stats["received"] == 1
+            with pytest.raises(BackendError, match="exceeds frame_bytes=32"):
+                a.send_now(b"x" * 33)
+            reader = b._reader
+            started = time.monotonic()
+            await b.close()
+            assert reader is not None and not reader.is_alive()
+            assert time.monotonic() - started < 0.5  # the blocked reader is woken, not polled
+            with pytest.raises(BackendError, match="not open"):
+                b.send_now(b"late", 1)
+
+    arun(main)
+
+
+def test_a_backend_that_is_not_direct_refuses_send_now() -> None:
+    from bridge.modems.sim import SimBackend
+
+    modem = SimBackend(ModemSetup(node="n1", address=1, frame_bytes=32,
+                                  options={"water": "127.0.0.1:1"}))
+    assert not modem.direct
+    with pytest.raises(BackendError, match="only from its event loop"):
+        modem.send_now(b"x", 2)

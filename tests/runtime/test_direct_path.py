@@ -1,0 +1,68 @@
+"""A direct backend (``udp``) carries a sample from the Zenoh callback to the wire and from
+the wire to Zenoh with no hop through the event loop; what the loop's consumers get (events)
+still reaches them there."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+from bridge.core.events import Event, FrameReceived, FrameSent
+from tests.conftest import free_port, on_free_ports
+from tests.harness import Inbox, outside_session, put, running_fleet
+
+MISSION = """\
+mission: direct
+modem: {backend: udp, frame_bytes: 16}
+mac: {type: none}
+nodes:
+  a: {address: 1, modem: {options: {port: PORT_A}}}
+  b: {address: 2, modem: {options: {port: PORT_B}}}
+channels:
+  - name: cmd
+    from: a
+    to: b
+    elements: [{in: cmd, out: a/cmd, fields: [{field: n, type: int, min: 0, max: 255}]}]
+"""
+
+
+def mission():
+    text = MISSION.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
+        "PORT_B", str(free_port(socket.SOCK_DGRAM)))
+    return on_free_ports(text, "direct.yaml")
+
+
+def test_a_sample_crosses_while_the_event_loop_is_busy_and_events_follow_on_the_loop() -> None:
+    loaded = mission()
+    seen: list[tuple[str, Event, str]] = []
+
+    def on_event(node: str, event: Event) -> None:
+        seen.append((node, event, threading.current_thread().name))
+
+    with running_fleet(loaded, on_event=on_event) as fleet:
+        a, b = outside_session(loaded, "a"), outside_session(loaded, "b")
+        try:
+            inbox = Inbox()
+            b.declare_subscriber("a/cmd", inbox)
+            time.sleep(0.3)  # the declarations reach the bridges
+            put(a, "cmd", {"n": 1})
+            assert inbox.get(5)[1] == {"n": 1}  # the path works at all
+            loop = fleet.nodes["a"]._loop
+            assert loop is not None
+            busy = threading.Event()
+            loop.call_soon_threadsafe(lambda: (busy.set(), time.sleep(1.5)))
+            assert busy.wait(2)
+            blocked_at = time.time()
+            put(a, "cmd", {"n": 2})
+            key, value, at = inbox.get(5)
+            assert (key, value) == ("a/cmd", {"n": 2})
+            assert at - blocked_at < 1.0, "the sample waited for the blocked loop"
+            time.sleep(max(0.0, blocked_at + 2.0 - time.time()))  # the loop is back
+            kinds = [(node, type(event), where) for node, event, where in seen]
+            assert kinds.count(("a", FrameSent, "fleet")) == 2
+            assert kinds.count(("b", FrameReceived, "fleet")) == 2
+            assert fleet.nodes["b"].stats.values_published == 2
+        finally:
+            a.close()
+            b.close()
