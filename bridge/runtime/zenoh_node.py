@@ -19,6 +19,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -50,6 +51,7 @@ log = logging.getLogger("zab.node")
 STATS_PERIOD_S = 1.0
 RETRY_MIN_S, RETRY_MAX_S = 0.5, 10.0
 TX_LEAD_S = 0.01  # how far ahead a timed emission is scheduled
+EVENTS_S = 0.05  # how long events of the direct data path wait for the loop, at most
 
 
 class BridgeNode:
@@ -101,6 +103,7 @@ class BridgeNode:
         reader all come in."""
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread: int | None = None
+        self._events: deque[Event] = deque()  # from the direct data path, for the loop
         self.started = asyncio.Event()
         self.session: zenoh.Session | None = None
         self._ros2: Ros2Graph | None = None
@@ -162,6 +165,7 @@ class BridgeNode:
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
+            self._take_events()
             with self.lock:
                 self._persist()
         finally:
@@ -345,13 +349,14 @@ class BridgeNode:
         a direct backend an open opportunity's frame leaves from here, else from the loop."""
         with self.lock:
             self.core.ingest(key, data, encoding, self.clock(), ref, sample_key)
-            self._flush()
-            if self._sending or not self._modem_up.is_set():
-                self._wake()  # the transmit loop decides when
-                return
+            ready = not self._sending and self._modem_up.is_set()
             backend = self._direct()
-            if backend is not None:
-                self._send_now(backend)
+            if ready and backend is not None:
+                self._send_now(backend)  # (its outputs and the frame's, flushed together)
+                return
+            self._flush()
+            if not ready:
+                self._wake()  # the transmit loop decides when
                 return
         self._soon(self._transmit_eagerly)
 
@@ -512,10 +517,10 @@ class BridgeNode:
         with self.lock:
             valid = self.core.stats.frames_received
             self.core.receive(rx, self.clock(), modem_now)
-            now = self.clock()
+            self._flush()  # the values first: what follows is off their path
             if self.core.stats.frames_received > valid:
-                self._wake_if_sooner(now)  # a poll or a ranging turn may open an opportunity
-            self._flush()
+                # a poll or a ranging turn may open an opportunity
+                self._wake_if_sooner(self.clock())
 
     def _persist(self) -> None:
         """Save the core's state if a restart must not lose what changed."""
@@ -555,7 +560,29 @@ class BridgeNode:
             elif self._query_bridge is not None:
                 self._query_bridge.handle(output)
         if later:
-            self._soon(self._carry_out, later)
+            self._to_loop(later)
+
+    def _to_loop(self, outputs: list[Any]) -> None:
+        """Off the loop, holding the lock: query outputs go to the loop at once; events wait
+        there up to ``EVENTS_S``, so a busy data path wakes the loop a few times a second,
+        not once per frame, and never while the frame is on its way."""
+        if not all(isinstance(output, Event) for output in outputs):
+            self._soon(self._carry_out, outputs)
+            return
+        idle = not self._events
+        self._events.extend(outputs)
+        if idle:
+            self._soon(self._arm_events)
+
+    def _arm_events(self) -> None:
+        assert self._loop is not None
+        self._loop.call_later(EVENTS_S, self._take_events)
+
+    def _take_events(self) -> None:
+        with self.lock:
+            events = list(self._events)
+            self._events.clear()
+        self._carry_out(events)
 
     def _event(self, event: Event) -> None:
         self.on_event(event)
