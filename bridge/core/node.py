@@ -222,6 +222,8 @@ class NodeCore:
                 for i, element in enumerate(channel.elements):
                     key = element.input_key(node)
                     self.bindings.setdefault(key, []).append((channel, i, element))
+        self._ros2_inputs = {key: next((e.ros2 for _, _, e in found if e.ros2 is not None), None)
+                             for key, found in self.bindings.items()}
         self._warned_keys: set[str] = set()
         retry_s = default_retry_s(mission)
         self.senders: dict[int, ReliableSender | TransferSender] = {
@@ -351,12 +353,8 @@ class NodeCore:
                 key, outs + self.families.outputs_for(key), data, encoding))
 
     def ros2_input(self, key: str) -> Ros2Element | None:
-        """The ROS 2 topic read on input ``key``, or None (asked per sample: a loop, not a
-        generator)."""
-        for _, _, element in self.bindings.get(key, ()):
-            if element.ros2 is not None:
-                return element.ros2
-        return None
+        """The ROS 2 topic read on input ``key``, or None (asked per sample: looked up once)."""
+        return self._ros2_inputs.get(key)
 
     def drop_payload(self, key: str, reason: str, now: float) -> None:
         """Count a payload that cannot be used (warned once per key)."""

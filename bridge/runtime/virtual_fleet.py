@@ -186,17 +186,21 @@ class FastFleet:
                 return
             sample_key = ros2.publisher_key(node)
 
-        def deliver() -> None:
-            if node in self.stopped:
-                return
-            self.cores[node].ingest(key, data, enc, self.now, ref, sample_key=sample_key)
-            self._collect(node)
-            self._replan(node)
-
         if at is None or at <= self.now:
-            deliver()
+            self._ingest(node, key, data, enc, ref, sample_key)
         else:
-            self.call_at(at, deliver)
+            self.call_at(at, lambda: self._ingest(node, key, data, enc, ref, sample_key))
+
+    def _ingest(self, node: str, key: str, data: bytes, enc: str, ref: str | None,
+                sample_key: str | None) -> None:
+        """A sample :meth:`put` reaches ``node``'s bridge now."""
+        if node in self.stopped:
+            return
+        core = self.cores[node]
+        core.ingest(key, data, enc, self.now, ref, sample_key=sample_key)
+        self._collect(node, core)
+        if not core.schedule.fixed:
+            self._plan(node)
 
     def subscribe(self, node: str, key: str) -> None:
         """An application on ``node`` subscribes to ``key`` (demand-driven missions: the
@@ -237,7 +241,7 @@ class FastFleet:
 
     def collect_and_replan(self, node: str) -> None:
         """Carry out ``node``'s outputs and plan its next transmission again."""
-        self._collect(node)
+        self._collect(node, self.cores[node])
         self._replan(node)
 
     def _interest(self, node: str) -> None:
@@ -267,7 +271,7 @@ class FastFleet:
         if self._shared is not None:
             self._share(self.cores[node])
         self.stopped.discard(node)
-        self._collect(node)
+        self._collect(node, self.cores[node])
         self._plan(node)
 
     def published(self, node: str, key: str | None = None) -> list[tuple[float, Publish]]:
@@ -294,7 +298,7 @@ class FastFleet:
                 return
             if t > self.now:
                 self.now = t
-            self._step()
+            self._step(water)
 
     def _set_next_tx(self, name: str, t: float | None) -> None:
         self._next_tx[name] = t
@@ -315,32 +319,32 @@ class FastFleet:
     def _due_transmitters(self, now: float) -> list[str]:
         """Nodes whose planned transmission is due at ``now``, in mission order."""
         heap, due = self._tx_heap, {}
-        if not heap or heap[0][0] > now:
-            return []
         while heap and heap[0][0] <= now:
             t, order, name = heapq.heappop(heap)
             if self._next_tx.get(name) == t:
                 due[order] = name
         return [due[k] for k in sorted(due)]
 
-    def _step(self) -> None:
-        now, ocean = self.now, self.ocean
-        if (water := ocean.next_event_time()) is not None and water <= now:
-            for event in ocean.advance(now):  # (the ocean's clock moves when it is asked)
+    def _step(self, water: float | None) -> None:
+        """Handle everything due now; ``water``: the ocean's next event time."""
+        now, timers = self.now, self._timers
+        if water is not None and water <= now:
+            for event in self.ocean.advance(now):  # (the ocean's clock moves when it is asked)
                 if isinstance(event, Delivery):
                     self._deliver(event)
                 elif isinstance(event, TxDone):
                     self._pending.pop(event.frame_id, None)
-        while self._timers and self._timers[0][0] <= now:
-            _, _, fn = heapq.heappop(self._timers)
-            fn()
-        for name in self._due_transmitters(now):
-            self._transmit(name)
+        while timers and timers[0][0] <= now:
+            heapq.heappop(timers)[2]()
+        if self._tx_heap and self._tx_heap[0][0] <= now:
+            for name in self._due_transmitters(now):
+                self._transmit(name)
         if self._next_tick <= now:
+            stopped, collect = self.stopped, self._collect
             for name, core in self.cores.items():
-                if name not in self.stopped:
+                if name not in stopped:
                     core.tick(now)
-                    self._collect(name)
+                    collect(name, core)
             self._next_tick = now + TICK_S
 
     @property
@@ -378,7 +382,7 @@ class FastFleet:
                 core.done(action, now, end)
         elif action is not None:  # a ping: the simulated modem cannot
             core.done(action, now, now, error="the simulated modem does not ping")
-        self._collect(name)
+        self._collect(name, core)
         self._plan(name)
 
     def _deliver(self, event: Delivery) -> None:
@@ -386,13 +390,14 @@ class FastFleet:
         if name is None or name in self.stopped:
             return
         meta = {**event.meta, "start": event.start}
-        self.cores[name].receive(Reception(event.data, event.src, event.end, meta), self.now,
-                                 self.now)
-        self._collect(name)
-        self._replan(name)
+        core, now = self.cores[name], self.now
+        core.receive(Reception(event.data, event.src, event.end, meta), now, now)
+        self._collect(name, core)
+        if not core.schedule.fixed:
+            self._plan(name)
 
-    def _collect(self, name: str) -> None:
-        core = self.cores[name]
+    def _collect(self, name: str, core: NodeCore) -> None:
+        """Carry out the outputs of ``name``'s ``core``."""
         if core.needs_save:  # what a real node writes to its state file before the outputs
             self.saved[name] = msgpack.unpackb(msgpack.packb(core.state(), use_bin_type=True),
                                                raw=False, strict_map_key=False)

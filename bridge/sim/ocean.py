@@ -352,7 +352,7 @@ class Ocean:
         self._tx_count[src] = self._tx_count.get(src, 0) + 1
         data = bytes(data)
         here = self.position(src)
-        min_range, max_range = p.min_range_m, p.max_range_m
+        min_range, max_range, sound_speed = p.min_range_m, p.max_range_m, p.sound_speed_mps
         queue, open_, seq = self._queue, self._open, self._seq
         positions, links, filed = self._positions, self._links, self._rx_intervals
         moving = self._paths.keys() | self._glides.keys() if self._glides else self._paths
@@ -361,7 +361,7 @@ class Ocean:
                 continue
             there = positions[dst] if dst not in moving else self.position(dst)
             dist = math.dist(here, there)
-            travel = p.propagation_s(max(dist, min_range))
+            travel = max(dist, min_range) / sound_speed  # (p.propagation_s, inlined)
             link = links.get((src, dst)) or self._link(src, dst)
             start = tx_start + travel
             rx = _Rx(frame_id, src, dst, data, dest, now, tx_start, start, tx_end + travel,
