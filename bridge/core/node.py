@@ -62,6 +62,7 @@ from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
 from bridge.dccl.goby import frame_codec_for
 from bridge.errors import DecodeError, EncodeError, FrameError, MissionError
+from bridge.frozen import direct_init
 from bridge.mission.loader import LoadedMission
 from bridge.modems.reception import ModemRange, Reception
 from bridge.wire.auth import Authenticator
@@ -83,6 +84,7 @@ STATE_VERSION = 1
 EPOCHS = 256  # stream epochs, EPOCH_BITS wide
 
 
+@direct_init
 @dataclass(frozen=True)
 class Publish:
     """Put ``value`` on the application key ``key`` (bridged; latched keys answer queries)."""
@@ -94,6 +96,7 @@ class Publish:
     ros2: Ros2Element | None = None  # publish as this ROS 2 topic (CDR, rmw_zenoh attachment)
 
 
+@direct_init
 @dataclass(frozen=True)
 class Status:
     """Publish ``payload`` (msgpack) on ``@zab/<mission>/<node>/<topic>``."""

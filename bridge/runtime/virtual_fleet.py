@@ -28,6 +28,7 @@ from bridge.core.mac import Schedule
 from bridge.core.node import NodeCore, Output, Publish, SendFrame, Status
 from bridge.core.surfacing import Relay
 from bridge.errors import EncodeError, FrameError
+from bridge.frozen import direct_init
 from bridge.mission.loader import LoadedMission
 from bridge.modems.base import Reception
 from bridge.modems.presets import Preset
@@ -85,6 +86,7 @@ class SharedDecoder:
         return done
 
 
+@direct_init
 @dataclass(frozen=True, slots=True)
 class Timed:
     """An output of ``node`` at virtual time ``time``."""

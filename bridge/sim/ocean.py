@@ -41,6 +41,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.frozen import direct_init
 from bridge.mission.path import Path
 from bridge.modems.presets import Preset
 
@@ -102,6 +103,7 @@ class TransmitRefused(ValueError):
         self.reason = reason
 
 
+@direct_init
 @dataclass(frozen=True)
 class TxDone:
     """The transmission ``frame_id`` of ``src`` has left the modem: it may transmit again."""
@@ -111,6 +113,7 @@ class TxDone:
     frame_id: int
 
 
+@direct_init
 @dataclass(frozen=True)
 class Delivery:
     """Node ``dst`` received ``data`` from ``src``; ``end`` is when the reception ended.
@@ -131,6 +134,7 @@ class Delivery:
         return self.end
 
 
+@direct_init
 @dataclass(frozen=True)
 class Loss:
     """The frame ``frame_id`` from ``src`` was not received by ``dst`` (see ``LOSS_REASONS``)."""
