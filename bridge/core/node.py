@@ -624,8 +624,8 @@ class NodeCore:
         self.last_heard[src] = now
         if self.auth is not None:
             self._dirty = True  # the replay window moved: saved before anything is published
-        if frame.epoch is not None:
-            self._peer_epoch(src, frame.epoch, now)
+        if frame.epoch is not None and self.peer_epochs.get(src) != frame.epoch:
+            self._peer_epoch(src, frame.epoch, now)  # (new to us, or changed)
         self._link_watch.heard(src, now)
         if self.link_states.get(src) is not LinkState.UP:
             self.update_links(now)

@@ -37,7 +37,7 @@ from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
 from bridge.sim.scenario import surface_script, water_of
 from bridge.wire.auth import key_for_run
 from bridge.wire.frame import DecodedFrame
-from bridge.wire.payloads import encode_payload
+from bridge.wire.payloads import MSGPACK, encode_payload
 
 TICK_S = 1.0
 
@@ -158,6 +158,7 @@ class FastFleet:
         self._pending: dict[int, tuple[str, Any]] = {}
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
+        self._packer = msgpack.Packer(use_bin_type=True)
         for name in mission.nodes:
             self._interest(name)
             self._plan(name)
@@ -177,7 +178,10 @@ class FastFleet:
             encoding: str = "application/msgpack", ref: str | None = None) -> None:
         """An application on ``node`` puts ``value`` on ``key`` (now, or at virtual time
         ``at``); ``ref`` is its correlation text, echoed in delivery reports."""
-        data, enc = encode_payload(value, encoding)
+        if encoding == "json":
+            data, enc = encode_payload(value, encoding)
+        else:  # encode_payload's msgpack, by one packer for the run (one thread)
+            data, enc = self._packer.pack(value), MSGPACK
         sample_key = None
         ros2 = self.cores[node].ros2_input(key)
         if ros2 is not None:  # a ROS 2 node: CDR on its exact rmw_zenoh key
@@ -286,15 +290,18 @@ class FastFleet:
 
     def run_until(self, t_end: float) -> None:
         """Advance the virtual clock to ``t_end``, handling every event on the way."""
-        ocean, timers = self.ocean, self._timers
+        ocean, timers, next_tx = self.ocean, self._timers, self._next_tx
         while True:
             t = self._next_tick
             if (water := ocean.next_event_time()) is not None and water < t:
                 t = water
             if timers and timers[0][0] < t:
                 t = timers[0][0]
-            if (tx := self._next_transmit()) is not None and tx < t:
-                t = tx
+            heap = self._tx_heap  # the earliest planned transmission (rebuilt now and then)
+            while heap and next_tx.get(heap[0][2]) != heap[0][0]:
+                heapq.heappop(heap)  # stale: the node's plan changed since
+            if heap and heap[0][0] < t:
+                t = heap[0][0]
             if t > t_end:
                 self.now = t_end
                 return
@@ -310,13 +317,6 @@ class FastFleet:
                 self._tx_heap = [(at, self._order[n], n) for n, at in self._next_tx.items()
                                  if at is not None]
                 heapq.heapify(self._tx_heap)
-
-    def _next_transmit(self) -> float | None:
-        """The earliest planned transmission (stale heap entries dropped on the way)."""
-        heap = self._tx_heap
-        while heap and self._next_tx.get(heap[0][2]) != heap[0][0]:
-            heapq.heappop(heap)
-        return heap[0][0] if heap else None
 
     def _due_transmitters(self, now: float) -> list[str]:
         """Nodes whose planned transmission is due at ``now``, in mission order."""
