@@ -325,7 +325,7 @@ class NodeCore:
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
         ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
         bindings = self.bindings.get(key, ())
-        ros2 = self.ros2_input(key)
+        ros2 = self._ros2_inputs.get(key)  # (ros2_input, per sample)
         try:
             value = (ros2.decode(data, sample_key or key) if ros2 is not None
                      else decode_payload(data, encoding))

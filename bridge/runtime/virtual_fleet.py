@@ -289,7 +289,9 @@ class FastFleet:
     # -- the loop ------------------------------------------------------------------------------
 
     def run_until(self, t_end: float) -> None:
-        """Advance the virtual clock to ``t_end``, handling every event on the way."""
+        """Advance the virtual clock to ``t_end``, handling every event on the way: at each
+        step, in this order, what the water settles, the timers due, the transmissions due
+        and the health tick (one loop, no call per step: an hour of 64 nodes is ~4·10^5)."""
         ocean, timers, next_tx = self.ocean, self._timers, self._next_tx
         while True:
             t = self._next_tick
@@ -307,7 +309,20 @@ class FastFleet:
                 return
             if t > self.now:
                 self.now = t
-            self._step(water)
+            now = self.now
+            if water is not None and water <= now:
+                for event in ocean.advance(now):  # (the ocean's clock moves when it is asked)
+                    if isinstance(event, Delivery):
+                        self._deliver(event)
+                    elif isinstance(event, TxDone):
+                        self._pending.pop(event.frame_id, None)
+            while timers and timers[0][0] <= now:
+                heapq.heappop(timers)[2]()
+            if self._tx_heap and self._tx_heap[0][0] <= now:
+                for name in self._due_transmitters(now):
+                    self._transmit(name)
+            if self._next_tick <= now:
+                self._tick(now)
 
     def _set_next_tx(self, name: str, t: float | None) -> None:
         self._next_tx[name] = t
@@ -327,27 +342,14 @@ class FastFleet:
                 due[order] = name
         return [due[k] for k in sorted(due)]
 
-    def _step(self, water: float | None) -> None:
-        """Handle everything due now; ``water``: the ocean's next event time."""
-        now, timers = self.now, self._timers
-        if water is not None and water <= now:
-            for event in self.ocean.advance(now):  # (the ocean's clock moves when it is asked)
-                if isinstance(event, Delivery):
-                    self._deliver(event)
-                elif isinstance(event, TxDone):
-                    self._pending.pop(event.frame_id, None)
-        while timers and timers[0][0] <= now:
-            heapq.heappop(timers)[2]()
-        if self._tx_heap and self._tx_heap[0][0] <= now:
-            for name in self._due_transmitters(now):
-                self._transmit(name)
-        if self._next_tick <= now:
-            stopped, collect = self.stopped, self._collect
-            for name, core in self.cores.items():
-                if name not in stopped:
-                    core.tick(now)
-                    collect(name, core)
-            self._next_tick = now + TICK_S
+    def _tick(self, now: float) -> None:
+        """Every running core's periodic work, and the next tick planned."""
+        stopped, collect = self.stopped, self._collect
+        for name, core in self.cores.items():
+            if name not in stopped:
+                core.tick(now)
+                collect(name, core)
+        self._next_tick = now + TICK_S
 
     @property
     def schedules(self) -> dict[str, Schedule]:
