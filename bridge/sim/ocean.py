@@ -402,12 +402,14 @@ class Ocean:
         """All counters as a JSON-able dict: per link, per node and in total."""
         total = LinkStats()
         links = []
-        for (src, dst), ls in sorted(self._links.items()):
-            links.append({"src": src, "dst": dst, **ls.as_dict()})
+        lost = total.lost
+        for (src, dst), ls in sorted(self._links.items()):  # (as_dict's keys, spelt out)
+            links.append({"src": src, "dst": dst, "sent": ls.sent, "delivered": ls.delivered,
+                          "lost": dict(ls.lost)})
             total.sent += ls.sent
             total.delivered += ls.delivered
             for reason, n in ls.lost.items():
-                total.lost[reason] = total.lost.get(reason, 0) + n
+                lost[reason] = lost.get(reason, 0) + n
         addrs = sorted(set(self._tx_count) | set(self._refused))
         nodes = {
             str(a): {"tx": self._tx_count.get(a, 0), "refused": self._refused.get(a, 0)}
