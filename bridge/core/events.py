@@ -222,6 +222,7 @@ class Position(Event):
         return self.estimate.payload(self.time)
 
 
+@direct_init  # (built at every change of a link: often, in a big fleet)
 @dataclass(frozen=True, slots=True)
 class Link(Event):
     """The link to ``peer`` changed state (``up``, ``degraded``, ``down``)."""
