@@ -13,6 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from bridge.frozen import direct_init
+
 if TYPE_CHECKING:  # not imported at run time: the tracker pulls in numpy
     from bridge.ranging.localise import Fix, NoFix
     from bridge.ranging.tracker import Estimate
@@ -77,6 +79,7 @@ class SendFailed(Event):
         return {"time": self.time, "error": self.error}
 
 
+@direct_init
 @dataclass(frozen=True, slots=True)
 class FrameReceived(Event):
     """A frame from ``src`` decoded: the channels it carried for this node and their element
@@ -219,6 +222,7 @@ class Position(Event):
         return self.estimate.payload(self.time)
 
 
+@direct_init  # (built at every change of a link: often, in a big fleet)
 @dataclass(frozen=True, slots=True)
 class Link(Event):
     """The link to ``peer`` changed state (``up``, ``degraded``, ``down``)."""

@@ -62,6 +62,7 @@ from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
 from bridge.dccl.goby import frame_codec_for
 from bridge.errors import DecodeError, EncodeError, FrameError, MissionError
+from bridge.frozen import direct_init
 from bridge.mission.loader import LoadedMission
 from bridge.modems.reception import ModemRange, Reception
 from bridge.wire.auth import Authenticator
@@ -83,6 +84,7 @@ STATE_VERSION = 1
 EPOCHS = 256  # stream epochs, EPOCH_BITS wide
 
 
+@direct_init
 @dataclass(frozen=True)
 class Publish:
     """Put ``value`` on the application key ``key`` (bridged; latched keys answer queries)."""
@@ -94,6 +96,7 @@ class Publish:
     ros2: Ros2Element | None = None  # publish as this ROS 2 topic (CDR, rmw_zenoh attachment)
 
 
+@direct_init
 @dataclass(frozen=True)
 class Status:
     """Publish ``payload`` (msgpack) on ``@zab/<mission>/<node>/<topic>``."""
@@ -222,6 +225,8 @@ class NodeCore:
                 for i, element in enumerate(channel.elements):
                     key = element.input_key(node)
                     self.bindings.setdefault(key, []).append((channel, i, element))
+        self._ros2_inputs = {key: next((e.ros2 for _, _, e in found if e.ros2 is not None), None)
+                             for key, found in self.bindings.items()}
         self._warned_keys: set[str] = set()
         retry_s = default_retry_s(mission)
         self.senders: dict[int, ReliableSender | TransferSender] = {
@@ -320,7 +325,7 @@ class NodeCore:
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
         ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
         bindings = self.bindings.get(key, ())
-        ros2 = self.ros2_input(key)
+        ros2 = self._ros2_inputs.get(key)  # (ros2_input, per sample)
         try:
             value = (ros2.decode(data, sample_key or key) if ros2 is not None
                      else decode_payload(data, encoding))
@@ -351,12 +356,8 @@ class NodeCore:
                 key, outs + self.families.outputs_for(key), data, encoding))
 
     def ros2_input(self, key: str) -> Ros2Element | None:
-        """The ROS 2 topic read on input ``key``, or None (asked per sample: a loop, not a
-        generator)."""
-        for _, _, element in self.bindings.get(key, ()):
-            if element.ros2 is not None:
-                return element.ros2
-        return None
+        """The ROS 2 topic read on input ``key``, or None (asked per sample: looked up once)."""
+        return self._ros2_inputs.get(key)
 
     def drop_payload(self, key: str, reason: str, now: float) -> None:
         """Count a payload that cannot be used (warned once per key)."""
@@ -623,8 +624,8 @@ class NodeCore:
         self.last_heard[src] = now
         if self.auth is not None:
             self._dirty = True  # the replay window moved: saved before anything is published
-        if frame.epoch is not None:
-            self._peer_epoch(src, frame.epoch, now)
+        if frame.epoch is not None and self.peer_epochs.get(src) != frame.epoch:
+            self._peer_epoch(src, frame.epoch, now)  # (new to us, or changed)
         self._link_watch.heard(src, now)
         if self.link_states.get(src) is not LinkState.UP:
             self.update_links(now)

@@ -10,9 +10,12 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
+from bridge.frozen import direct_init
+
 _EMPTY: Mapping[str, Any] = MappingProxyType({})
 
 
+@direct_init
 @dataclass(frozen=True)
 class Reception:
     """One frame received by the modem.

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 from rich.console import Console
 from rich.table import Table
 
+from bridge.frozen import direct_init
 from bridge.report.age import AgeOfInformation
 
 if TYPE_CHECKING:
@@ -57,6 +58,7 @@ class ChannelFigures:
     age: Age | None
 
 
+@direct_init
 @dataclass(frozen=True, slots=True)
 class LinkFigures:
     """One directed link ``src -> dst`` of the simulated water (addresses, ``name`` with node
@@ -100,10 +102,12 @@ class MissionReport:
         """The report of ``cores`` run from ``start`` to ``end`` (their clock); ``water``: the
         simulated water's ``stats()`` when the run has one."""
         channels = channel_figures(loaded, cores, ages.summary(end))
-        name = loaded.mission.name_of
-        links = [LinkFigures(f"{name(link['src'])}->{name(link['dst'])}", link["src"],
+        found = (water or {}).get("links", ())
+        name = {a: loaded.mission.name_of(a)  # each address once, not twice per link
+                for a in {link["src"] for link in found} | {link["dst"] for link in found}}
+        links = [LinkFigures(f"{name[link['src']]}->{name[link['dst']]}", link["src"],
                              link["dst"], link["sent"], link["delivered"], dict(link["lost"]))
-                 for link in (water or {}).get("links", ())]
+                 for link in found]
         return cls(
             mission=loaded.mission.mission, clock=clock, duration_s=round(end - start, 3),
             channels=channels, nodes={n: core.snapshot(end) for n, core in cores.items()},

@@ -41,6 +41,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.frozen import direct_init
 from bridge.mission.path import Path
 from bridge.modems.presets import Preset
 
@@ -102,6 +103,7 @@ class TransmitRefused(ValueError):
         self.reason = reason
 
 
+@direct_init
 @dataclass(frozen=True)
 class TxDone:
     """The transmission ``frame_id`` of ``src`` has left the modem: it may transmit again."""
@@ -111,6 +113,7 @@ class TxDone:
     frame_id: int
 
 
+@direct_init
 @dataclass(frozen=True)
 class Delivery:
     """Node ``dst`` received ``data`` from ``src``; ``end`` is when the reception ended.
@@ -131,6 +134,7 @@ class Delivery:
         return self.end
 
 
+@direct_init
 @dataclass(frozen=True)
 class Loss:
     """The frame ``frame_id`` from ``src`` was not received by ``dst`` (see ``LOSS_REASONS``)."""
@@ -352,7 +356,7 @@ class Ocean:
         self._tx_count[src] = self._tx_count.get(src, 0) + 1
         data = bytes(data)
         here = self.position(src)
-        min_range, max_range = p.min_range_m, p.max_range_m
+        min_range, max_range, sound_speed = p.min_range_m, p.max_range_m, p.sound_speed_mps
         queue, open_, seq = self._queue, self._open, self._seq
         positions, links, filed = self._positions, self._links, self._rx_intervals
         moving = self._paths.keys() | self._glides.keys() if self._glides else self._paths
@@ -361,7 +365,7 @@ class Ocean:
                 continue
             there = positions[dst] if dst not in moving else self.position(dst)
             dist = math.dist(here, there)
-            travel = p.propagation_s(max(dist, min_range))
+            travel = max(dist, min_range) / sound_speed  # (p.propagation_s, inlined)
             link = links.get((src, dst)) or self._link(src, dst)
             start = tx_start + travel
             rx = _Rx(frame_id, src, dst, data, dest, now, tx_start, start, tx_end + travel,
@@ -398,12 +402,14 @@ class Ocean:
         """All counters as a JSON-able dict: per link, per node and in total."""
         total = LinkStats()
         links = []
-        for (src, dst), ls in sorted(self._links.items()):
-            links.append({"src": src, "dst": dst, **ls.as_dict()})
+        lost = total.lost
+        for (src, dst), ls in sorted(self._links.items()):  # (as_dict's keys, spelt out)
+            links.append({"src": src, "dst": dst, "sent": ls.sent, "delivered": ls.delivered,
+                          "lost": dict(ls.lost)})
             total.sent += ls.sent
             total.delivered += ls.delivered
             for reason, n in ls.lost.items():
-                total.lost[reason] = total.lost.get(reason, 0) + n
+                lost[reason] = lost.get(reason, 0) + n
         addrs = sorted(set(self._tx_count) | set(self._refused))
         nodes = {
             str(a): {"tx": self._tx_count.get(a, 0), "refused": self._refused.get(a, 0)}

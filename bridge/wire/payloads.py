@@ -55,6 +55,12 @@ def _check_depth(value: Any) -> Any:
     """``value`` unchanged, or :class:`DecodeError` if it nests deeper than :data:`MAX_DEPTH`.
 
     Walks one level of containers at a time (scalars are looked at once, never stacked)."""
+    if value.__class__ is dict:  # the usual payload, a flat map: one look at its values
+        for child in value.values():
+            if isinstance(child, _CONTAINERS):
+                break
+        else:
+            return value
     level = [value] if isinstance(value, _CONTAINERS) else []
     depth = 0
     while level:
@@ -87,7 +93,7 @@ def _msgpack(data: bytes) -> Any:
 def decode_payload(data: bytes, encoding: str) -> Any:
     """The value a sample carries. Raises :class:`DecodeError` when it is neither format, is not
     strict UTF-8, or nests deeper than :data:`MAX_DEPTH`."""
-    kind = encoding.split(";", 1)[0]
+    kind = encoding.partition(";")[0]
     try:
         if kind in (MSGPACK, "application/x-msgpack"):
             return _msgpack(data)
