@@ -9,7 +9,9 @@ with the send time (CLOCK_MONOTONIC ns, shared by all processes) inside the payl
 - relayed: an application puts on that peer and another application, a client of the same
   peer, samples it (two Zenoh hops: the bridged path's Zenoh hops, without the water);
 - bridged: an application puts on node ``a``'s endpoint; ``zab sim`` (another process) carries
-  it over the ``udp`` backend with ``mac: none`` to node ``b``; an application at ``b`` samples;
+  it over the ``udp`` backend with ``mac: none`` to node ``b``; an application at ``b`` samples
+  (``udp`` is a direct backend: node ``a``'s Zenoh callback sends the frame, node ``b``'s
+  reader thread publishes it; no event loop on the path, as in *floor (thread)*);
 - floor (thread) and floor (asyncio): the bridged path with the least Python possible between
   its two Zenoh hops, in a process of its own that imports nothing of ours: a subscriber at
   peer ``a`` sends each payload as a UDP datagram, which is put at peer ``b``. *thread*: the
