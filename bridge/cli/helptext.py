@@ -6,13 +6,13 @@ which reads as if the flag took a value. A flag takes none, so it shows none.
 
 from __future__ import annotations
 
-import click
+from typer import Context
 from typer.core import TyperOption
 
 _display_type_rich = TyperOption.display_type_rich
 
 
-def _flag_shows_no_type(self: TyperOption, ctx: click.Context) -> str | None:
+def _flag_shows_no_type(self: TyperOption, ctx: Context) -> str | None:
     if self.is_flag:
         return None
     return _display_type_rich(self, ctx)
