@@ -425,13 +425,8 @@ class BridgeNode:
                 out = action.frame
                 confirmed = await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
         except BackendError as exc:
-            what = "ping" if isinstance(action, Ping) else "send"
-            log.warning("%s: %s failed: %s", self.node, what, exc)
             with self.lock:
-                self.core.done(action, now, self.clock(), error=str(exc))
-                self._flush()
-            if not backend.is_open:  # the modem is gone: wait until the modem loop reopens it
-                self._modem_up.clear()
+                self._failed(backend, action, now, exc)
             return False
         with self.lock:
             self.core.done(action, now, self.clock(), confirmed=confirmed)
@@ -462,17 +457,24 @@ class BridgeNode:
             try:
                 confirmed = backend.send_now(out.data, out.dest, ack=out.ack)
             except BackendError as exc:
-                log.warning("%s: send failed: %s", self.node, exc)
-                self.core.done(action, now, self.clock(), error=str(exc))
-                self._flush()
-                if not backend.is_open:
-                    self._soon(self._modem_up.clear)
+                self._failed(backend, action, now, exc)
                 return
             end = self.clock()
             self.core.done(action, now, end, confirmed=confirmed)
             self._flush()
             now = end
         self._wake_if_sooner(now)
+
+    def _failed(self, backend: ModemBackend, action: Ping | SendFrame, start: float,
+                error: BackendError) -> None:
+        """Holding the lock: the modem refused ``action``; if the modem is gone, wait until
+        the modem loop reopens it."""
+        what = "ping" if isinstance(action, Ping) else "send"
+        log.warning("%s: %s failed: %s", self.node, what, error)
+        self.core.done(action, start, self.clock(), error=str(error))
+        self._flush()
+        if not backend.is_open:
+            self._soon(self._modem_up.clear)
 
     def _wake_if_sooner(self, now: float) -> None:
         """Holding the lock: wake the transmit loop if the core's next opportunity comes
