@@ -205,8 +205,7 @@ class FastFleet:
         core = self.cores[node]
         core.ingest(key, data, enc, self.now, ref, sample_key=sample_key)
         self._collect(node, core)
-        if not core.schedule.fixed:
-            self._plan(node)
+        self._replan(node, core)
 
     def subscribe(self, node: str, key: str) -> None:
         """An application on ``node`` subscribes to ``key`` (demand-driven missions: the
@@ -247,15 +246,16 @@ class FastFleet:
 
     def collect_and_replan(self, node: str) -> None:
         """Carry out ``node``'s outputs and plan its next transmission again."""
-        self._collect(node, self.cores[node])
-        self._replan(node)
+        core = self.cores[node]
+        self._collect(node, core)
+        self._replan(node, core)
 
     def _interest(self, node: str) -> None:
         core = self.cores[node]
         own = own_subscriptions(self.mission, [*core.bindings, *core.families.subscriptions()])
         if core.interest is not None and core.interest.set_local(
                 wanted_by(self.loaded.table, node, [*own, *self.subscriptions.get(node, [])])):
-            self._replan(node)
+            self._replan(node, core)
 
     def stop(self, node: str) -> None:
         """Silence ``node``: it neither sends nor hears from now on."""
@@ -365,10 +365,10 @@ class FastFleet:
         busy = self.ocean.busy_until(self._addresses[name])  # a busy modem refuses
         self._set_next_tx(name, None if wake is None else max(wake, self.now, busy))
 
-    def _replan(self, name: str) -> None:
-        """New data or a reception may change the next opportunity (a poll, a ranging turn),
-        unless the schedule is fixed (TDMA: time and own sends only)."""
-        if not self.cores[name].schedule.fixed:
+    def _replan(self, name: str, core: NodeCore) -> None:
+        """New data or a reception may change the next opportunity of ``name``'s ``core`` (a
+        poll, a ranging turn), unless the schedule is fixed (TDMA: time and own sends only)."""
+        if not core.schedule.fixed:
             self._plan(name)
 
     def _transmit(self, name: str) -> None:
@@ -397,8 +397,7 @@ class FastFleet:
         core, now = self.cores[name], self.now
         core.receive(Reception(event.data, event.src, event.end, meta), now, now)
         self._collect(name, core)
-        if not core.schedule.fixed:
-            self._plan(name)
+        self._replan(name, core)
 
     def _collect(self, name: str, core: NodeCore) -> None:
         """Carry out the outputs of ``name``'s ``core``."""
