@@ -7,10 +7,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from bridge.core.store import ChannelState
+from bridge.frozen import direct_init
 from bridge.wire.channels import ChannelCodec
 from bridge.wire.frame import FrameCodec
 
 
+@direct_init
 @dataclass(frozen=True)
 class FramePlan:
     """The channels chosen for a frame, and those that were due but did not fit."""
@@ -19,6 +21,7 @@ class FramePlan:
     left_out: tuple[ChannelState, ...]
 
 
+@direct_init
 @dataclass(frozen=True)
 class Candidate:
     """Something that could go in a frame as one entry of ``channel``: a latest-value channel

@@ -52,6 +52,7 @@ class PayloadDropped(Event):
         return {"time": self.time, "key": self.key, "reason": self.reason}
 
 
+@direct_init
 @dataclass(frozen=True, slots=True)
 class FrameSent(Event):
     """The modem accepted a frame of ``size`` bytes carrying ``channels`` (``dest``: its

@@ -42,6 +42,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
+from bridge.frozen import direct_init
 from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, RangingSlots, TdmaMac
 from bridge.modems.presets import Preset, UnknownPresetError, get_preset
 from bridge.ranging.twr import AnchorReplier, round_timeout, tmax
@@ -73,6 +74,7 @@ SLOW_SOUND = 1400.0 / 1500.0
 the slowest speed it expects, against the nominal 1500 m/s)."""
 
 
+@direct_init
 @dataclass(frozen=True)
 class Opportunity:
     """A transmit opportunity: start at ``start`` (now if already past), never after ``latest``."""

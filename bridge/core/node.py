@@ -108,6 +108,7 @@ class Status:
 Output = Publish | Status | Event
 
 
+@direct_init
 @dataclass(frozen=True)
 class OutFrame:
     """A frame ready for the modem: bytes, unicast address (None = broadcast), ack request,
@@ -124,6 +125,7 @@ class OutFrame:
     extras: tuple[Extra, ...] = ()
 
 
+@direct_init
 @dataclass(frozen=True)
 class SendFrame:
     """What to do at an open opportunity: send ``frame`` (to ``frame.dest``, asking the modem
@@ -388,15 +390,20 @@ class NodeCore:
         due; None while nothing is pending."""
         if self._started is None and now is not None:
             self._started = now  # the first heartbeat is due one period after the start
-        times = [self._store_next_due(now), self.next_heartbeat(),
-                 self.families.next_due(now, self.wants),
-                 self.interest.next_due() if self.interest is not None else None,
-                 self.queries.next_due() if self.queries is not None else None,
-                 *(s.next_time() for s in self.senders.values()),
-                 self.positioning.next_ping() if self.positioning is not None else None]
         if self._acks:
-            times.append(float("-inf"))
-        return min((t for t in times if t is not None), default=None)
+            return float("-inf")
+        times = [self._store_next_due(now), self.next_heartbeat()]
+        if self.families.senders:
+            times.append(self.families.next_due(now, self.wants))
+        if self.interest is not None:
+            times.append(self.interest.next_due())
+        if self.queries is not None:
+            times.append(self.queries.next_due())
+        if self.senders:
+            times += [s.next_time() for s in self.senders.values()]
+        if self.positioning is not None:
+            times.append(self.positioning.next_ping())
+        return min([t for t in times if t is not None], default=None)
 
     def next_heartbeat(self) -> float | None:
         if self.heartbeat_s is None:
@@ -465,47 +472,49 @@ class NodeCore:
         items: list[tuple[ChannelCodec | AckCodec, int]] = []
         targets: set[str] = set()
         acks: list[tuple[str, int]] = []
-        ack_codec = self.table.ack
-        owed = {**self._acks, **dict.fromkeys(self._ack_repeats)}
-        for src, index in owed:  # acknowledgements first: they unblock the peer
+        if self._acks or self._ack_repeats:  # acknowledgements first: they unblock the peer
+            ack_codec = self.table.ack
             assert ack_codec is not None
             cost = codec.channel_cost_bits(ack_codec)
-            if cost > budget or len(items) >= room:
-                break
-            items.append((ack_codec, self._ack_bits(src, index)))
-            budget -= cost
-            acks.append((src, index))
-            targets.add(src)
+            for src, index in {**self._acks, **dict.fromkeys(self._ack_repeats)}:
+                if cost > budget or len(items) >= room:
+                    break
+                items.append((ack_codec, self._ack_bits(src, index)))
+                budget -= cost
+                acks.append((src, index))
+                targets.add(src)
         picked, left = fill(codec, self._candidates(now), budget, room - len(items))
         chosen: list[ChannelState] = []
         streams: list[tuple[ReliableSender | TransferSender, Any]] = []
         extras: list[Extra] = []
+        ack = None  # the modem's acknowledgement, asked when a unicast frame carries a channel
+        node = self.node  # that asks for it
         for candidate in picked:
-            what = candidate.what
-            if isinstance(what, Extra):
+            what, channel = candidate.what, candidate.channel
+            if isinstance(what, ChannelState):
+                chosen.append(what)
+                items.append((channel, what.payload()))
+            elif isinstance(what, Extra):
                 extras.append(what)
                 items.append((what.channel, what.bits))
                 continue
-            targets.update(candidate.channel.destinations(self.node))
-            if isinstance(what, ChannelState):
-                chosen.append(what)
-                items.append((candidate.channel, what.payload()))
             else:
                 sender, item = what
                 streams.append((sender, item))
-                items.append((candidate.channel, sender.entry(item)))
-        left_out = [c.what for c in left if isinstance(c.what, ChannelState)]
+                items.append((channel, sender.entry(item)))
+            targets.update(channel.destinations(node))
+            ack = ack or channel.ack or None
+        left_out = tuple(c.what for c in left if isinstance(c.what, ChannelState))
         self.stats.left_out += len(left_out)
         if not items and not always:
             return None
         delays = self.positioning.on_transmit(at) if self.positioning and self.table.dlbl \
-            else []
+            else ()
         data = codec.encode(items, delays, self.epoch)
         dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
-        asks = [s.channel for s in chosen] + [s.channel for s, _ in streams]
-        ack = True if dest is not None and any(c.ack for c in asks) else None
-        return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), tuple(left_out)), now,
-                        tuple(streams), tuple(acks), tuple(extras))
+        return OutFrame(data, dest, ack if dest is not None else None, at,
+                        FramePlan(tuple(chosen), left_out), now, tuple(streams), tuple(acks),
+                        tuple(extras))
 
     def _store_next_due(self, now: float | None) -> float | None:
         """When a latest-value channel somebody wants becomes due."""
@@ -517,8 +526,10 @@ class NodeCore:
 
     def _candidates(self, now: float) -> list[Candidate]:
         """Everything that could go in a frame sent at ``now``."""
-        out = [Candidate(s.channel, s.last_sent, s) for s in self.store.due(now)
-               if self.wants(s.channel)]
+        due = self.store.due(now)
+        if self.interest is not None or self.surfacing is not None:
+            due = [s for s in due if self.wants(s.channel)]
+        out = [Candidate(s.channel, s.last_sent, s) for s in due]
         if self.interest is not None and (want := self.interest.candidate(now)) is not None:
             out.append(want)
         if self.queries is not None:
@@ -526,7 +537,9 @@ class NodeCore:
         for sender in self.senders.values():
             out += [Candidate(sender.channel, getattr(item, "last_sent", None), (sender, item), n)
                     for n, item in enumerate(sender.due(now))]
-        return out + self.families.candidates(now, self.wants)
+        if self.families.senders:
+            out += self.families.candidates(now, self.wants)
+        return out
 
     def wants(self, channel: ChannelCodec) -> bool:
         """Whether some destination reached acoustically wants ``channel`` now (always,
@@ -583,7 +596,9 @@ class NodeCore:
             extra.on_sent(out.built)
         self.last_tx = out.built
         self.stats.frames_sent += 1
-        names = [s.channel.name for s in out.plan.chosen] + [s.channel.name for s, _ in out.streams]
+        names = [s.channel.name for s in out.plan.chosen]
+        if out.streams:
+            names += [s.channel.name for s, _ in out.streams]
         for name in names:
             self.stats.sent_per_channel[name] += 1
         self._event(FrameSent(now, len(out.data), names, dest, out.data))
@@ -691,8 +706,8 @@ class NodeCore:
         meta = plain(rx.meta)
         if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             self._peer_status[src] = now
-            self._status(f"peers/{src}", {"last_heard": now, "meta": meta})
-        self._event(FrameReceived(now, src, len(rx.data), list(values), rx.data, dict(meta),
+            self._status(f"peers/{src}", {"last_heard": now, "meta": dict(meta)})
+        self._event(FrameReceived(now, src, len(rx.data), list(values), rx.data, meta,
                                   values, members or None))
 
     def _receiver(self, src: str, channel: ChannelCodec) -> ReliableReceiver | TransferReceiver:

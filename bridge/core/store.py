@@ -143,7 +143,10 @@ class OutboundStore:
         """The frame built at ``built`` carried these channels. A value that arrived after
         the frame was built (while the modem was sending it) stays fresh, to go next time."""
         for state in sent:
-            if all(t is None or t <= built for t in state.updated):
+            for t in state.updated:
+                if t is not None and t > built:
+                    break
+            else:
                 state.fresh = False
             state.last_sent = built
             state.sends += 1

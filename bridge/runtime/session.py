@@ -78,7 +78,9 @@ def is_bridged(sample: zenoh.Sample) -> bool:
     """True when a bridge published this sample (loop safety): its origin tag, or a ROS 2
     attachment naming a bridge publisher (see :mod:`bridge.ros2.attachment`)."""
     attachment = sample.attachment
-    if attachment is None:
-        return False
-    data = attachment.to_bytes()
+    return attachment is not None and bridged_attachment(attachment.to_bytes())
+
+
+def bridged_attachment(data: bytes) -> bool:
+    """:func:`is_bridged`, given the sample's attachment bytes."""
     return data.startswith(ORIGIN_PREFIX) or from_bridge(data)

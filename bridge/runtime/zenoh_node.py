@@ -37,7 +37,13 @@ from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
 from bridge.ros2.graph import Ros2Graph
 from bridge.runtime.eager import start_eagerly
-from bridge.runtime.session import close_quietly, is_bridged, open_session, origin_tag
+from bridge.runtime.session import (
+    bridged_attachment,
+    close_quietly,
+    is_bridged,
+    open_session,
+    origin_tag,
+)
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_queries import QueryBridge
 from bridge.wire.auth import load_key
@@ -182,16 +188,19 @@ class BridgeNode:
     def _from_zenoh(self, loop: asyncio.AbstractEventLoop, key: str, sample: zenoh.Sample) -> None:
         """Zenoh thread: copy what we need; ingest it here with a direct backend, else hand
         it to the loop."""
-        if sample.kind != zenoh.SampleKind.PUT or is_bridged(sample):
+        if sample.kind != zenoh.SampleKind.PUT:
+            return
+        attachment = sample.attachment  # (each read of a sample's field builds an object)
+        extra = attachment.to_bytes() if attachment is not None else b""
+        if extra and bridged_attachment(extra):
             return
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
-        attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
-        ref = attachment[4:].decode("utf-8", "replace") if attachment[:4] == b"ref:" else None
+        ref = extra[4:].decode("utf-8", "replace") if extra[:4] == b"ref:" else None
+        sample_key = str(sample.key_expr) if "*" in key else None  # (else it is ``key``)
         if self._direct() is not None:
-            self.ingest(key, data, encoding, ref, str(sample.key_expr))
+            self.ingest(key, data, encoding, ref, sample_key)
         else:
-            loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref,
-                                      str(sample.key_expr))
+            loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref, sample_key)
 
     def _direct(self) -> ModemBackend | None:
         """The open backend, if it is direct and sends what the core gives it at once (a
@@ -542,6 +551,7 @@ class BridgeNode:
 
     def _carry_out(self, outputs: list[Any]) -> None:
         later = [] if not self._on_loop() and self._loop is not None else None
+        queries = False  # among ``later``
         for output in outputs:
             if isinstance(output, Publish) and output.ros2 is not None:
                 self._publish_ros2(output.key, output.value, output.ros2)
@@ -553,6 +563,7 @@ class BridgeNode:
                     self._token(output.topic, output.payload["state"])
             elif later is not None and not isinstance(output, Relay):
                 later.append(output)  # an event or a query output
+                queries = queries or not isinstance(output, Event)
             elif isinstance(output, Event):
                 self._event(output)
             elif isinstance(output, Relay):  # surfaced peer: the sample as it came, over IP
@@ -562,13 +573,13 @@ class BridgeNode:
             elif self._query_bridge is not None:
                 self._query_bridge.handle(output)
         if later:
-            self._to_loop(later)
+            self._to_loop(later, queries)
 
-    def _to_loop(self, outputs: list[Any]) -> None:
+    def _to_loop(self, outputs: list[Any], queries: bool) -> None:
         """Off the loop, holding the lock: query outputs go to the loop at once; events wait
         there up to ``EVENTS_S``, so a busy data path wakes the loop a few times a second,
         not once per frame, and never while the frame is on its way."""
-        if not all(isinstance(output, Event) for output in outputs):
+        if queries:
             self._soon(self._carry_out, outputs)
             return
         idle = not self._events

@@ -145,6 +145,11 @@ class ChannelCodec:
         return self.reliable or self.fragmented
 
     @cached_property
+    def plain(self) -> bool:
+        """A latest-value channel of its own: an entry is the value alone (no header)."""
+        return not (self.reliable or self.fragmented or self.family is not None)
+
+    @cached_property
     def header_bits(self) -> int:
         """Bits before the data of each entry: seq + lag, or transfer id + index + count."""
         if self.fragmented:

@@ -38,6 +38,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from bridge.errors import DecodeError, FrameError
+from bridge.frozen import direct_init
 from bridge.wire.auth import COUNTER_BYTES, Authenticator
 from bridge.wire.channels import (
     COUNT_BITS_REPEATABLE,
@@ -57,6 +58,11 @@ NO_DELAY = (1 << 24) - 1  # "no reception from that node yet"
 CHECK_BYTES = 2
 
 
+def _runs_past() -> FrameError:
+    return FrameError("truncated frame: a channel runs past the end")
+
+
+@direct_init
 @dataclass(frozen=True)
 class Entry:
     """One entry of a frame.
@@ -72,6 +78,7 @@ class Entry:
     chunk: bytes = b""
 
 
+@direct_init
 @dataclass(frozen=True)
 class DecodedFrame:
     """What a frame carried: DLBL delays (µs or None), its entries in order, and the sender's
@@ -114,6 +121,9 @@ class FrameCodec:
         self.delay_bytes = DELAY_BYTES * self.delay_count
         self.epoch_bits = EPOCH_BITS if table.streams else 0
         self.fingerprint16 = int.from_bytes(table.fingerprint[:2], "big")
+        self.min_frame_bytes = self.overhead_bytes() + (
+            self.epoch_bits + self.count_bits + 7) // 8
+        """The shortest frame: no entry."""
 
     # -- sizes ---------------------------------------------------------------------------------
 
@@ -186,57 +196,76 @@ class FrameCodec:
 
         Authenticated missions need ``src``, the sender's modem address.
         """
-        if not isinstance(frame, bytes | bytearray | memoryview):
-            raise FrameError(f"a frame is bytes, not {type(frame).__name__}")
-        frame = bytes(frame)
-        minimum = self.overhead_bytes() + (self.epoch_bits + self.count_bits + 7) // 8
-        if len(frame) < minimum:
-            raise FrameError(f"truncated frame: {len(frame)} bytes, at least {minimum} needed")
+        if frame.__class__ is not bytes:
+            if not isinstance(frame, bytes | bytearray | memoryview):
+                raise FrameError(f"a frame is bytes, not {type(frame).__name__}")
+            frame = bytes(frame)
+        if len(frame) < self.min_frame_bytes:
+            raise FrameError(f"truncated frame: {len(frame)} bytes, at least "
+                             f"{self.min_frame_bytes} needed")
         body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
         fingerprint = binascii.crc_hqx(body, 0xFFFF) ^ int.from_bytes(check, "big")
         if fingerprint != self.fingerprint16:
             raise FrameError("check failed: corrupt frame, or sent with another mission file "
                              f"(fingerprint {fingerprint:04x})", "check", fingerprint)
-        if self.table.auth_tag_bytes:
+        if self.auth_bytes:
             if self.auth is None or src is None:
                 raise FrameError("cannot authenticate: no key or no sender address", "forged")
             body = self.auth.open(body, src)
         acc = int.from_bytes(body, "big")
-        left = len(body) * 8
-
-        def take(bits: int) -> int:
-            nonlocal left
-            if bits > left:
-                raise FrameError("truncated frame: a channel runs past the end")
-            left -= bits
-            return (acc >> left) & ((1 << bits) - 1)
-
-        raw = [take(24) for _ in range(self.delay_count)]
-        delays = tuple(None if d == NO_DELAY else d for d in raw)
-        epoch = take(EPOCH_BITS) if self.epoch_bits else None
-        count = take(self.count_bits)
+        left = len(body) * 8  # bits not read yet; each field is read from the top down
+        if self.delay_count:
+            if left < 24 * self.delay_count:
+                raise _runs_past()
+            raw = []
+            for _ in range(self.delay_count):
+                left -= 24
+                raw.append((acc >> left) & 0xFFFFFF)
+            delays = tuple(None if d == NO_DELAY else d for d in raw)
+        else:
+            delays = ()
+        epoch = None
+        if self.epoch_bits:
+            if left < EPOCH_BITS:
+                raise _runs_past()
+            left -= EPOCH_BITS
+            epoch = (acc >> left) & ((1 << EPOCH_BITS) - 1)
+        if left < self.count_bits:
+            raise _runs_past()
+        left -= self.count_bits
+        count = (acc >> left) & ((1 << self.count_bits) - 1)
         wire = self.wire
         if not self.repeats and count > len(wire):
             raise FrameError(f"frame claims {count} channels, the mission has {len(wire)}")
         entries: list[Entry] = []
         seen: set[int] = set()
+        index_bits, index_mask = self.index_bits, (1 << self.index_bits) - 1
         for _ in range(count):
-            index = take(self.index_bits)
+            if left < index_bits:
+                raise _runs_past()
+            left -= index_bits
+            index = (acc >> left) & index_mask
             if index >= len(wire) or (index in seen and not wire[index].repeatable):
                 raise FrameError(f"bad or repeated channel index {index}")
             seen.add(index)
             channel = wire[index]
-            payload = take(channel.wire_bits)
+            bits = channel.wire_bits
+            if left < bits:
+                raise _runs_past()
+            left -= bits
+            payload = (acc >> left) & ((1 << bits) - 1)
             try:
                 entries.append(self._entry(channel, payload))
             except DecodeError as exc:
                 raise FrameError(f"channel {channel.name!r}: {exc}") from None
-        if left >= 8 or take(left) != 0:
+        if left >= 8 or acc & ((1 << left) - 1):
             raise FrameError("trailing data after the last channel")
         return DecodedFrame(delays, tuple(entries), epoch)
 
     def _entry(self, channel: ChannelCodec | AckCodec | NameCodec, payload: int) -> Entry:
         """One entry's fields, checked; raises :class:`DecodeError` when malformed."""
+        if channel.__class__ is ChannelCodec and channel.plain:  # the usual entry
+            return Entry(channel, channel.unpack(payload))
         if isinstance(channel, QueryCodec):
             qid, node, status, index, packed = channel.unpack(payload)
             if node >= len(self.table.nodes):
