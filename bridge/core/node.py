@@ -487,8 +487,8 @@ class NodeCore:
         chosen: list[ChannelState] = []
         streams: list[tuple[ReliableSender | TransferSender, Any]] = []
         extras: list[Extra] = []
-        ack = None  # the modem's acknowledgement, asked when a unicast frame carries a channel
-        node = self.node  # that asks for it
+        asks_ack = False  # a channel in the frame asks for the modem's acknowledgement
+        node = self.node
         for candidate in picked:
             what, channel = candidate.what, candidate.channel
             if isinstance(what, ChannelState):
@@ -503,7 +503,7 @@ class NodeCore:
                 streams.append((sender, item))
                 items.append((channel, sender.entry(item)))
             targets.update(channel.destinations(node))
-            ack = ack or channel.ack or None
+            asks_ack = asks_ack or channel.ack
         left_out = tuple(c.what for c in left if isinstance(c.what, ChannelState))
         self.stats.left_out += len(left_out)
         if not items and not always:
@@ -512,7 +512,7 @@ class NodeCore:
             else ()
         data = codec.encode(items, delays, self.epoch)
         dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
-        return OutFrame(data, dest, ack if dest is not None else None, at,
+        return OutFrame(data, dest, True if dest is not None and asks_ack else None, at,
                         FramePlan(tuple(chosen), left_out), now, tuple(streams), tuple(acks),
                         tuple(extras))
 

@@ -146,8 +146,9 @@ class ChannelCodec:
 
     @cached_property
     def plain(self) -> bool:
-        """A latest-value channel of its own: an entry is the value alone (no header)."""
-        return not (self.reliable or self.fragmented or self.family is not None)
+        """Not :attr:`repeatable`: its entry is the value alone, with no header (cached: asked
+        for every entry received)."""
+        return not self.repeatable
 
     @cached_property
     def header_bits(self) -> int:
