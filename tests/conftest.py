@@ -22,6 +22,13 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
         return s.getsockname()[1]
 
 
+def udp_ports(text: str) -> str:
+    """``text`` with its ``PORT_A`` and ``PORT_B`` replaced by free loopback UDP ports."""
+    for name in ("PORT_A", "PORT_B"):
+        text = text.replace(name, str(free_port(socket.SOCK_DGRAM)))
+    return text
+
+
 def on_free_ports(text: str, name: str | Path = "test.yaml") -> LoadedMission:
     """Load mission ``text`` with every node listening on a fresh loopback port."""
     data = yaml.safe_load(text)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import socket
 import time
 from pathlib import Path
 
@@ -13,7 +12,7 @@ from bridge.dccl.goby import GobyFrameCodec, decode_repeated, encode_repeated, f
 from bridge.errors import DecodeError, FrameError, MissionError
 from bridge.mission.check import check_mission
 from bridge.mission.loader import load_mission, parse_mission
-from tests.conftest import free_port, on_free_ports
+from tests.conftest import on_free_ports, udp_ports
 from tests.dccl.test_mission import EXAMPLE, NAV
 from tests.harness import Inbox, outside_session, put, running_fleet
 
@@ -100,8 +99,7 @@ def test_goby_missions_refuse_what_goby_frames_cannot_carry(change: str, expecte
 
 def test_goby_frames_cross_end_to_end(tmp_path: Path) -> None:
     """A plain Zenoh app puts a NavStatus at a; b's app gets it as DCCL decoded it."""
-    text = GOBY_LAB.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
-        "PORT_B", str(free_port(socket.SOCK_DGRAM)))
+    text = udp_ports(GOBY_LAB)
     loaded = on_free_ports(text, tmp_path / "lab.yaml")
     nav = load_message(AUV, "NavStatus")
     with running_fleet(loaded) as fleet:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import json
 import queue
-import socket
 from pathlib import Path
 
 import jsonschema
@@ -13,7 +12,7 @@ from typer.testing import CliRunner
 
 from bridge.cli.app import app
 from bridge.mission.payload_schema import json_view, key_schemas, write_payload_schemas
-from tests.conftest import MISSIONS, free_port, on_free_ports
+from tests.conftest import MISSIONS, on_free_ports, udp_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 
 RUNNER = CliRunner()
@@ -48,8 +47,7 @@ VALUE = {"pose": {"x": 12.5, "depth": 42.0}, "battery": 77, "ok": True, "mode": 
 
 
 def _rich():
-    text = RICH.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
-        "PORT_B", str(free_port(socket.SOCK_DGRAM)))
+    text = udp_ports(RICH)
     return on_free_ports(text, "rich.yaml")
 
 

@@ -8,7 +8,6 @@ design document, written out here by hand.
 from __future__ import annotations
 
 import queue
-import socket
 import struct
 import time
 from typing import Any
@@ -18,7 +17,7 @@ import pytest
 import zenoh
 from rosbags.typesys import Stores, get_typestore
 
-from tests.conftest import MISSIONS, free_port, mission_on_free_ports, on_free_ports
+from tests.conftest import MISSIONS, mission_on_free_ports, on_free_ports, udp_ports
 from tests.harness import outside_session, running_fleet
 
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
@@ -184,8 +183,7 @@ channels:
 
 
 def test_a_bridge_never_re_bridges_its_own_ros2_publication() -> None:
-    text = ECHO.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
-        "PORT_B", str(free_port(socket.SOCK_DGRAM)))
+    text = udp_ports(ECHO)
     loaded = on_free_ports(text, "rosecho.yaml")
     key = "0/{}/std_msgs::msg::dds_::Float64_/" + _hash("std_msgs/msg/Float64")
     with running_fleet(loaded) as fleet:

@@ -8,7 +8,6 @@ import asyncio
 import contextlib
 import json
 import logging
-import socket
 import time
 
 import msgpack
@@ -23,7 +22,7 @@ from bridge.modems.base import ModemSetup
 from bridge.modems.udp import UdpBackend
 from bridge.wire.frame import FrameCodec
 from bridge.wire.payloads import MAX_DEPTH, decode_payload
-from tests.conftest import free_port, on_free_ports
+from tests.conftest import on_free_ports, udp_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 
 JSON = "application/json"
@@ -176,8 +175,7 @@ def test_bad_payloads_and_frames_are_counted_drops_in_a_running_fleet(
     """Over real Zenoh and a real UDP link: each bad payload is counted once and logged without
     a traceback, a frame with a string that is not UTF-8 is a malformed frame, and the channel
     carries the next good value."""
-    text = LAB.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
-        "PORT_B", str(free_port(socket.SOCK_DGRAM)))
+    text = udp_ports(LAB)
     loaded = on_free_ports(text, "bad-input.yaml")
     caplog.set_level(logging.WARNING)
     with running_fleet(loaded) as fleet:

@@ -4,12 +4,11 @@ still reaches them there."""
 
 from __future__ import annotations
 
-import socket
 import threading
 import time
 
 from bridge.core.events import Event, FrameReceived, FrameSent
-from tests.conftest import free_port, on_free_ports
+from tests.conftest import on_free_ports, udp_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 
 MISSION = """\
@@ -28,8 +27,7 @@ channels:
 
 
 def mission():
-    text = MISSION.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
-        "PORT_B", str(free_port(socket.SOCK_DGRAM)))
+    text = udp_ports(MISSION)
     return on_free_ports(text, "direct.yaml")
 
 

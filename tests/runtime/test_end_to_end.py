@@ -7,7 +7,6 @@ an application written in any language.
 from __future__ import annotations
 
 import asyncio
-import socket
 import time
 
 import msgpack
@@ -17,7 +16,7 @@ from bridge.modems.base import ModemSetup
 from bridge.modems.udp import UdpBackend
 from bridge.wire.auth import Authenticator
 from bridge.wire.frame import FrameCodec
-from tests.conftest import MISSIONS, free_port, mission_on_free_ports, on_free_ports
+from tests.conftest import MISSIONS, mission_on_free_ports, on_free_ports, udp_ports
 from tests.harness import (
     Inbox,
     listing1_crosses_in_the_next_slot,
@@ -75,8 +74,7 @@ channels:
 
 @pytest.fixture(scope="module")
 def lab():
-    text = LAB.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
-        "PORT_B", str(free_port(socket.SOCK_DGRAM)))
+    text = udp_ports(LAB)
     loaded = on_free_ports(text, "lab.yaml")
     with running_fleet(loaded) as fleet:
         a, b = outside_session(loaded, "a"), outside_session(loaded, "b")
@@ -246,8 +244,7 @@ def test_stats_and_peers_under_the_reserved_prefix(lab) -> None:
 
 def test_authenticated_mission_delivers_and_refuses_forgeries(monkeypatch) -> None:
     monkeypatch.setenv("ZAB_KEY", "lab-key-0123456789abcdef")
-    text = LAB.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
-        "PORT_B", str(free_port(socket.SOCK_DGRAM))).replace(
+    text = udp_ports(LAB).replace(
         "mac: {type: none", "wire: {auth: {tag_bytes: 6}}\nmac: {type: none")
     loaded = on_free_ports(text, "lab-auth.yaml")
     with running_fleet(loaded) as fleet:
@@ -277,8 +274,7 @@ def test_authenticated_mission_delivers_and_refuses_forgeries(monkeypatch) -> No
 
 
 def test_link_goes_down_when_a_node_stops_and_up_when_it_returns() -> None:
-    text = LAB.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
-        "PORT_B", str(free_port(socket.SOCK_DGRAM))).replace(
+    text = udp_ports(LAB).replace(
         "mac: {type: none", "link: {degraded_after_s: 0.6, down_after_s: 1.2, heartbeat_s: 0.3}\n"
         "mac: {type: none")
     loaded = on_free_ports(text, "lab-link.yaml")

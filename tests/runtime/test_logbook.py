@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 import time
@@ -17,7 +16,7 @@ from typer.testing import CliRunner
 
 from bridge.cli.app import app
 from bridge.runtime.logbook import FleetLogs, LogError, read_log, summarise
-from tests.conftest import REPO, free_port, on_free_ports
+from tests.conftest import REPO, free_port, on_free_ports, udp_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 
 RUNNER = CliRunner()
@@ -54,8 +53,7 @@ VALUES = [{"depth": 10.0 + i, "mode": "survey", "tag": bytes([i, 255 - i])} for 
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """Run a two-node fleet with logs on: four status values a→b, one command b→a."""
     folder = tmp_path_factory.mktemp("logs")
-    text = LAB.replace("PORT_A", str(free_port(socket.SOCK_DGRAM))).replace(
-        "PORT_B", str(free_port(socket.SOCK_DGRAM)))
+    text = udp_ports(LAB)
     loaded = on_free_ports(text, "loglab.yaml")
     logs = FleetLogs(folder, loaded)
     with running_fleet(loaded, on_event=logs) as fleet:
