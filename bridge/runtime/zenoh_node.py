@@ -110,6 +110,7 @@ class BridgeNode:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread: int | None = None
         self._events: deque[Event] = deque()  # from the direct data path, for the loop
+        self._events_timer = False  # the loop takes them by a timer of its own: no wake needed
         self.started = asyncio.Event()
         self.session: zenoh.Session | None = None
         self._ros2: Ros2Graph | None = None
@@ -577,25 +578,36 @@ class BridgeNode:
 
     def _to_loop(self, outputs: list[Any], queries: bool) -> None:
         """Off the loop, holding the lock: query outputs go to the loop at once; events wait
-        there up to ``EVENTS_S``, so a busy data path wakes the loop a few times a second,
-        not once per frame, and never while the frame is on its way."""
+        there up to ``EVENTS_S``. While data flows the loop takes them by a timer of its
+        own, so the data path never wakes the loop: a wake would compete with the frame for
+        the interpreter while the frame is on its way."""
         if queries:
             self._soon(self._carry_out, outputs)
             return
-        idle = not self._events
         self._events.extend(outputs)
-        if idle:
+        if not self._events_timer:  # the first events after a quiet spell: start the timer
+            self._events_timer = True
             self._soon(self._arm_events)
 
     def _arm_events(self) -> None:
         assert self._loop is not None
-        self._loop.call_later(EVENTS_S, self._take_events)
+        self._loop.call_later(EVENTS_S, self._events_due)
 
-    def _take_events(self) -> None:
+    def _events_due(self) -> None:
+        """The loop's timer: carry out the events; again in ``EVENTS_S`` while they come."""
+        took = self._take_events()
+        with self.lock:  # (events that came meanwhile found the timer still on)
+            self._events_timer = took or bool(self._events)
+        if self._events_timer:
+            self._arm_events()
+
+    def _take_events(self) -> bool:
+        """Carry out the events waiting for the loop; returns whether there were any."""
         with self.lock:
             events = list(self._events)
             self._events.clear()
         self._carry_out(events)
+        return bool(events)
 
     def _event(self, event: Event) -> None:
         self.on_event(event)

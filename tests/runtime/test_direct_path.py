@@ -8,6 +8,7 @@ import threading
 import time
 
 from bridge.core.events import Event, FrameReceived, FrameSent
+from bridge.runtime.zenoh_node import EVENTS_S
 from tests.conftest import on_free_ports, udp_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 
@@ -61,6 +62,50 @@ def test_a_sample_crosses_while_the_event_loop_is_busy_and_events_follow_on_the_
             assert kinds.count(("a", FrameSent, "fleet")) == 2
             assert kinds.count(("b", FrameReceived, "fleet")) == 2
             assert fleet.nodes["b"].stats.values_published == 2
+        finally:
+            a.close()
+            b.close()
+
+
+def test_steady_traffic_does_not_wake_the_loop_per_frame() -> None:
+    """The events of a steady data path reach the loop by the loop's own timer: one wake from
+    the data path starts it, not one per batch (a wake competes with the frame in flight)."""
+    loaded = mission()
+    seen: list[tuple[str, type, str]] = []
+
+    def on_event(node: str, event: Event) -> None:
+        seen.append((node, type(event), threading.current_thread().name))
+
+    with running_fleet(loaded, on_event=on_event) as fleet:
+        a, b = outside_session(loaded, "a"), outside_session(loaded, "b")
+        try:
+            inbox = Inbox()
+            b.declare_subscriber("a/cmd", inbox)
+            time.sleep(0.3)  # the declarations reach the bridges
+            put(a, "cmd", {"n": 0})
+            assert inbox.get(5)[1] == {"n": 0}
+            time.sleep(3 * EVENTS_S)  # quiet: the timer has stopped
+            node = fleet.nodes["a"]
+            loop = node._loop
+            assert loop is not None
+            wakes: list[str] = []
+            plain = loop.call_soon_threadsafe
+
+            def counted(callback, *args):  # type: ignore[no-untyped-def]
+                wakes.append(getattr(callback, "__name__", repr(callback)))
+                return plain(callback, *args)
+
+            loop.call_soon_threadsafe = counted  # type: ignore[method-assign]
+            sent = 12
+            for n in range(1, sent + 1):  # ~0.3 s of traffic: six batches of events
+                put(a, "cmd", {"n": n})
+                assert inbox.get(5)[1] == {"n": n}
+                time.sleep(EVENTS_S / 2)
+            time.sleep(3 * EVENTS_S)
+            del loop.call_soon_threadsafe
+            assert len(wakes) <= 2, f"the data path woke a's loop {len(wakes)} times: {wakes}"
+            frames = [where for who, kind, where in seen if who == "a" and kind is FrameSent]
+            assert frames == ["fleet"] * (sent + 1)  # every event arrived, on the loop
         finally:
             a.close()
             b.close()
