@@ -166,6 +166,17 @@ def client(endpoint: str, deadline: float) -> zenoh.Session:
             time.sleep(0.2)
 
 
+def put_in_rotation(paths: list[tuple[zenoh.Session, str]], count: int, rate: float) -> None:
+    """``count`` ticks at ``rate`` per second, each putting the send time once on every path,
+    1/n of a tick apart and in rotating order (so load falls on all alike, never overlapping)."""
+    encoding = zenoh.Encoding("application/msgpack")
+    n = len(paths)
+    for i in range(count):
+        for session, key in paths[i % n:] + paths[: i % n]:
+            session.put(key, msgpack.packb({"t": time.monotonic_ns()}), encoding=encoding)
+            time.sleep(1 / rate / n)
+
+
 def measure(count: int, rate: float) -> dict[str, list[float]]:
     """Latencies (µs) of every path, from one interleaved run."""
     peer = f"tcp/127.0.0.1:{free_port()}"
@@ -205,13 +216,7 @@ def measure(count: int, rate: float) -> dict[str, list[float]]:
                 get_f.declare_subscriber("bench/floor", got[kind])
                 paths.append((put_f, "bench/floor"))
             time.sleep(1.0)
-            encoding = zenoh.Encoding("application/msgpack")
-            n = len(paths)
-            for i in range(count):  # 1/n of a tick apart, in rotating order: no overlap
-                for session, key in paths[i % n:] + paths[: i % n]:
-                    session.put(key, msgpack.packb({"t": time.monotonic_ns()}),
-                                encoding=encoding)
-                    time.sleep(1 / rate / n)
+            put_in_rotation(paths, count, rate)
             for latencies in got.values():
                 latencies.done.wait(10)
         finally:

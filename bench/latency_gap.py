@@ -31,10 +31,17 @@ import threading
 import time
 from pathlib import Path
 
-import msgpack
 import yaml
 import zenoh
-from latency_bench import Latencies, bridge_mission, client, config, free_port, percentile
+from latency_bench import (
+    Latencies,
+    bridge_mission,
+    client,
+    config,
+    free_port,
+    percentile,
+    put_in_rotation,
+)
 
 from bridge.core.node import NodeCore
 from bridge.mission.loader import parse_mission
@@ -116,13 +123,7 @@ def measure(count: int) -> dict[str, list[float]]:
             get_lean.declare_subscriber(KEY, got["lean"])
             paths = [(put_peer, "bench/direct"), (put_a, KEY), (put_lean, KEY)]
             time.sleep(1.0)
-            encoding = zenoh.Encoding("application/msgpack")
-            n = len(paths)
-            for i in range(count):
-                for session, key in paths[i % n:] + paths[: i % n]:
-                    session.put(key, msgpack.packb({"t": time.monotonic_ns()}),
-                                encoding=encoding)
-                    time.sleep(1 / RATE / n)
+            put_in_rotation(paths, count, RATE)
             for latencies in got.values():
                 latencies.done.wait(10)
         finally:
