@@ -6,8 +6,14 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import zenoh
 
 from bridge.core.events import Event, FrameReceived, FrameSent
+from bridge.runtime.fleet import Fleet
 from bridge.runtime.zenoh_node import EVENTS_S
 from tests.conftest import on_free_ports, udp_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
@@ -32,44 +38,23 @@ def mission():
     return on_free_ports(text, "direct.yaml")
 
 
-def test_a_sample_crosses_while_the_event_loop_is_busy_and_events_follow_on_the_loop() -> None:
-    loaded = mission()
-    seen: list[tuple[str, Event, str]] = []
+@dataclass
+class Crossing:
+    """A running fleet, an application at ``a`` that puts ``cmd``, ``inbox`` of ``a/cmd`` at
+    ``b``, and ``seen``: every event as (node, kind, thread carrying it out)."""
 
-    def on_event(node: str, event: Event) -> None:
-        seen.append((node, event, threading.current_thread().name))
+    fleet: Fleet
+    app: zenoh.Session
+    inbox: Inbox
+    seen: list[tuple[str, type, str]]
 
-    with running_fleet(loaded, on_event=on_event) as fleet:
-        a, b = outside_session(loaded, "a"), outside_session(loaded, "b")
-        try:
-            inbox = Inbox()
-            b.declare_subscriber("a/cmd", inbox)
-            time.sleep(0.3)  # the declarations reach the bridges
-            put(a, "cmd", {"n": 1})
-            assert inbox.get(5)[1] == {"n": 1}  # the path works at all
-            loop = fleet.nodes["a"]._loop
-            assert loop is not None
-            busy = threading.Event()
-            loop.call_soon_threadsafe(lambda: (busy.set(), time.sleep(1.5)))
-            assert busy.wait(2)
-            blocked_at = time.time()
-            put(a, "cmd", {"n": 2})
-            key, value, at = inbox.get(5)
-            assert (key, value) == ("a/cmd", {"n": 2})
-            assert at - blocked_at < 1.0, "the sample waited for the blocked loop"
-            time.sleep(max(0.0, blocked_at + 2.0 - time.time()))  # the loop is back
-            kinds = [(node, type(event), where) for node, event, where in seen]
-            assert kinds.count(("a", FrameSent, "fleet")) == 2
-            assert kinds.count(("b", FrameReceived, "fleet")) == 2
-            assert fleet.nodes["b"].stats.values_published == 2
-        finally:
-            a.close()
-            b.close()
+    def frames_sent(self) -> list[str]:
+        """The thread each of ``a``'s ``FrameSent`` events was carried out on."""
+        return [where for who, kind, where in self.seen if who == "a" and kind is FrameSent]
 
 
-def test_steady_traffic_does_not_wake_the_loop_per_frame() -> None:
-    """The events of a steady data path reach the loop by the loop's own timer: one wake from
-    the data path starts it, not one per batch (a wake competes with the frame in flight)."""
+@contextmanager
+def crossing() -> Iterator[Crossing]:
     loaded = mission()
     seen: list[tuple[str, type, str]] = []
 
@@ -82,30 +67,56 @@ def test_steady_traffic_does_not_wake_the_loop_per_frame() -> None:
             inbox = Inbox()
             b.declare_subscriber("a/cmd", inbox)
             time.sleep(0.3)  # the declarations reach the bridges
-            put(a, "cmd", {"n": 0})
-            assert inbox.get(5)[1] == {"n": 0}
-            time.sleep(3 * EVENTS_S)  # quiet: the timer has stopped
-            node = fleet.nodes["a"]
-            loop = node._loop
-            assert loop is not None
-            wakes: list[str] = []
-            plain = loop.call_soon_threadsafe
-
-            def counted(callback, *args):  # type: ignore[no-untyped-def]
-                wakes.append(getattr(callback, "__name__", repr(callback)))
-                return plain(callback, *args)
-
-            loop.call_soon_threadsafe = counted  # type: ignore[method-assign]
-            sent = 12
-            for n in range(1, sent + 1):  # ~0.3 s of traffic: six batches of events
-                put(a, "cmd", {"n": n})
-                assert inbox.get(5)[1] == {"n": n}
-                time.sleep(EVENTS_S / 2)
-            time.sleep(3 * EVENTS_S)
-            del loop.call_soon_threadsafe
-            assert len(wakes) <= 2, f"the data path woke a's loop {len(wakes)} times: {wakes}"
-            frames = [where for who, kind, where in seen if who == "a" and kind is FrameSent]
-            assert frames == ["fleet"] * (sent + 1)  # every event arrived, on the loop
+            yield Crossing(fleet, a, inbox, seen)
         finally:
             a.close()
             b.close()
+
+
+def test_a_sample_crosses_while_the_event_loop_is_busy_and_events_follow_on_the_loop() -> None:
+    with crossing() as c:
+        put(c.app, "cmd", {"n": 1})
+        assert c.inbox.get(5)[1] == {"n": 1}  # the path works at all
+        loop = c.fleet.nodes["a"]._loop
+        assert loop is not None
+        busy = threading.Event()
+        loop.call_soon_threadsafe(lambda: (busy.set(), time.sleep(1.5)))
+        assert busy.wait(2)
+        blocked_at = time.time()
+        put(c.app, "cmd", {"n": 2})
+        key, value, at = c.inbox.get(5)
+        assert (key, value) == ("a/cmd", {"n": 2})
+        assert at - blocked_at < 1.0, "the sample waited for the blocked loop"
+        time.sleep(max(0.0, blocked_at + 2.0 - time.time()))  # the loop is back
+        assert c.frames_sent() == ["fleet"] * 2
+        received = [where for who, kind, where in c.seen if who == "b" and kind is FrameReceived]
+        assert received == ["fleet"] * 2
+        assert c.fleet.nodes["b"].stats.values_published == 2
+
+
+def test_steady_traffic_does_not_wake_the_loop_per_frame() -> None:
+    """The events of a steady data path reach the loop by the loop's own timer: one wake from
+    the data path starts it, not one per batch."""
+    with crossing() as c:
+        put(c.app, "cmd", {"n": 0})
+        assert c.inbox.get(5)[1] == {"n": 0}
+        time.sleep(3 * EVENTS_S)  # quiet: the timer has stopped
+        loop = c.fleet.nodes["a"]._loop
+        assert loop is not None
+        wakes: list[str] = []
+        plain = loop.call_soon_threadsafe
+
+        def counted(callback, *args):  # type: ignore[no-untyped-def]
+            wakes.append(getattr(callback, "__name__", repr(callback)))
+            return plain(callback, *args)
+
+        loop.call_soon_threadsafe = counted  # type: ignore[method-assign]
+        sent = 12
+        for n in range(1, sent + 1):  # ~0.3 s of traffic: six batches of events
+            put(c.app, "cmd", {"n": n})
+            assert c.inbox.get(5)[1] == {"n": n}
+            time.sleep(EVENTS_S / 2)
+        time.sleep(3 * EVENTS_S)
+        del loop.call_soon_threadsafe
+        assert len(wakes) <= 2, f"the data path woke a's loop {len(wakes)} times: {wakes}"
+        assert c.frames_sent() == ["fleet"] * (sent + 1)  # every event arrived, on the loop
