@@ -8,6 +8,7 @@ import ast
 import re
 import sys
 import tomllib
+from collections.abc import Callable
 from importlib.metadata import packages_distributions
 from pathlib import Path
 
@@ -20,15 +21,26 @@ def declared() -> set[str]:
     return {name.lower().replace("_", "-") for name in names}
 
 
-def optional(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> bool:
-    """Inside ``try: ... except ImportError`` (an optional extra)."""
+def _inside(node: ast.AST, parents: dict[ast.AST, ast.AST],
+            encloses: Callable[[ast.AST], bool]) -> bool:
+    """Whether some statement around ``node`` is one ``encloses`` accepts."""
     while node in parents:
         node = parents[node]
-        if isinstance(node, ast.Try) and any(
-                isinstance(h.type, ast.Name) and h.type.id in {"ImportError", "ModuleNotFoundError"}
-                for h in node.handlers):
+        if encloses(node):
             return True
     return False
+
+
+def optional(node: ast.AST) -> bool:
+    """``try: ... except ImportError`` (an optional extra)."""
+    return isinstance(node, ast.Try) and any(
+        isinstance(h.type, ast.Name) and h.type.id in {"ImportError", "ModuleNotFoundError"}
+        for h in node.handlers)
+
+
+def type_checking_only(node: ast.AST) -> bool:
+    """``if TYPE_CHECKING:``."""
+    return isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
 
 
 def imported_roots() -> dict[str, str]:
@@ -44,19 +56,11 @@ def imported_roots() -> dict[str, str]:
                 names = [node.module]
             else:
                 continue
-            if optional(node, parents) or _type_checking_only(node, parents):
+            if _inside(node, parents, optional) or _inside(node, parents, type_checking_only):
                 continue
             for name in names:
                 roots.setdefault(name.split(".")[0], str(path.relative_to(ROOT)))
     return roots
-
-
-def _type_checking_only(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> bool:
-    while node in parents:
-        node = parents[node]
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            return True
-    return False
 
 
 def test_every_import_is_the_standard_library_or_a_declared_dependency() -> None:
