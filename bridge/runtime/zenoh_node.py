@@ -110,7 +110,7 @@ class BridgeNode:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread: int | None = None
         self._events: deque[Event] = deque()  # from the direct data path, for the loop
-        self._events_timer = False  # the loop takes them by a timer of its own: no wake needed
+        self._events_timer = False  # the loop's timer that takes them is armed
         self.started = asyncio.Event()
         self.session: zenoh.Session | None = None
         self._ros2: Ros2Graph | None = None
@@ -578,9 +578,8 @@ class BridgeNode:
 
     def _to_loop(self, outputs: list[Any], queries: bool) -> None:
         """Off the loop, holding the lock: query outputs go to the loop at once; events wait
-        there up to ``EVENTS_S``. While data flows the loop takes them by a timer of its
-        own, so the data path never wakes the loop: a wake would compete with the frame for
-        the interpreter while the frame is on its way."""
+        there up to ``EVENTS_S``. The loop takes them by a timer of its own, re-armed while
+        they keep coming, so the data path wakes the loop once when traffic starts."""
         if queries:
             self._soon(self._carry_out, outputs)
             return
