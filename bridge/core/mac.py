@@ -106,6 +106,12 @@ class Schedule(ABC):
     def next_opportunity(self, now: float, due: float | None) -> Opportunity | None:
         """The next opportunity not yet used, or None (wait for data or a reception)."""
 
+    def open_now(self, now: float) -> bool | None:
+        """Whether :meth:`next_opportunity` offers a plain opportunity (no poll, nothing it
+        must send) open at ``now`` for anything due by ``now``, when a schedule can tell
+        without drawing or planning; None: ask :meth:`next_opportunity`."""
+        return None
+
     def on_sent(self, start: float, end: float) -> None:  # noqa: B027 - optional hook
         """A frame started at ``start``; the modem was done at ``end``."""
 
@@ -189,6 +195,9 @@ class FreeSchedule(Schedule):
         if due is None:
             return None
         return Opportunity(max(self.earliest(now, self._last), due))
+
+    def open_now(self, now: float) -> bool:
+        return self.earliest(now, self._last) <= now + EPS
 
     def on_sent(self, start: float, end: float) -> None:
         self._last = start

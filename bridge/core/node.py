@@ -52,6 +52,7 @@ from bridge.core.events import (
 )
 from bridge.core.families import Extra, Families
 from bridge.core.interest import Interest
+from bridge.core.lanes import Lane, lanes_for
 from bridge.core.link import LinkState, LinkThresholds, LinkWatch, heartbeat_s
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
@@ -242,6 +243,7 @@ class NodeCore:
         self._foreign: dict[str, int] = {}  # a peer's last fingerprint not ours
         self._peer_status: dict[str, float] = {}  # when each peer's status was last put
         self.mismatched: dict[str, str] = {}  # peers known to run another mission file
+        self.lanes = lanes_for(self)  # input keys with a short way to their frame
 
     # -- state across restarts -----------------------------------------------------------------
 
@@ -427,14 +429,21 @@ class NodeCore:
         """What to do now, if an opportunity is open: a frame built to start at modem time
         ``at``, or a ping (``ranging.ping`` with a modem that pings); None: nothing (the
         opportunity, if any, is given up). Report how it went with :meth:`done`."""
+        return self._act(now, at, None)
+
+    def _act(self, now: float, at: float, lone: Lane | None) -> Action | None:
+        """:meth:`act`; ``lone``: the lane of the one channel due (:meth:`ingest_and_act`)."""
         opp = self.schedule.next_opportunity(now, self.next_due(now))
         if opp is None or opp.start > now + 1e-9:
             return None
         peer = self.range_due(now) if self.modem_ranging and opp.poll is None else None
         if peer is not None and self.modem_ranging == "ping":
             return Ping(peer)
-        always = opp.must_send or self.heartbeat_due(now) or peer is not None
-        out = self.build_frame(now, at, always=always)
+        if lone is not None and peer is None:
+            out: OutFrame | None = self._lone_frame(lone, now, at)
+        else:
+            always = opp.must_send or self.heartbeat_due(now) or peer is not None
+            out = self.build_frame(now, at, always=always)
         if out is None:
             self.schedule.on_skipped(now)
             return None
@@ -443,6 +452,36 @@ class NodeCore:
         if peer is not None:  # the modem measures the range when the peer acknowledges
             out = replace(out, dest=peer, ack=True)
         return SendFrame(out, ranged=peer is not None)
+
+    def ingest_and_act(self, key: str, data: bytes, encoding: str, now: float, at: float,
+                       ref: str | None = None, sample_key: str | None = None) -> Action | None:
+        """:meth:`ingest`, then :meth:`act`: the same outcome, in fewer steps when the key has
+        a lane and its channel is the one thing due (:mod:`bridge.core.lanes`)."""
+        lane = self.lanes.get(key)
+        if lane is not None and not (self._acks or self._ack_repeats):
+            try:
+                packed = lane.element.layout.pack(decode_payload(data, encoding))
+            except (DecodeError, EncodeError):
+                pass  # ingest counts it
+            else:
+                state = lane.state
+                self.store.update(state.channel.index, lane.index, packed, now)
+                if self.store.lone_due(now) is not state:
+                    return self.act(now, at)
+                if not self.schedule.open_now(now):  # (False: closed; None: ask it)
+                    return self._act(now, at, lane)
+                if self._started is None:  # (as next_due would)
+                    self._started = now
+                return SendFrame(self._lone_frame(lane, now, at))
+        self.ingest(key, data, encoding, now, ref, sample_key)
+        return self.act(now, at)
+
+    def _lone_frame(self, lane: Lane, now: float, at: float) -> OutFrame:
+        """:meth:`build_frame`'s frame when ``lane``'s channel alone is due (and the node is
+        plain: nothing else could go in it)."""
+        state = lane.state
+        data = self.codec.encode([(state.channel, state.payload())], (), self.epoch)
+        return OutFrame(data, lane.dest, lane.ack, at, FramePlan((state,), ()), now)
 
     def done(self, action: Action, start: float, end: float, *,
              confirmed: bool | None = None, error: str | None = None) -> None:

@@ -127,6 +127,37 @@ class OutboundStore:
                 out.append(state)
         return out
 
+    def lone_due(self, now: float) -> ChannelState | None:
+        """The channel :meth:`due` would return alone at ``now``, or None (none, or several).
+        Looks only at the heap's entries due by ``now`` (a subtree at its root) and at the
+        channels with a ``ttl_s``, not at every channel."""
+        heap, filed, limit = self._heap, self._filed, now + 1e-9
+        while heap and filed[heap[0][1]] != heap[0][0]:
+            heapq.heappop(heap)  # stale, as in next_due
+        found: int | None = None
+        stack = [0] if heap else []
+        size = len(heap)
+        while stack:
+            i = stack.pop()
+            ready, index = heap[i]
+            if ready > limit:
+                continue  # (and so is all below it)
+            if filed[index] == ready and index != found:
+                if found is not None:
+                    return None
+                found = index
+            if 2 * i + 1 < size:
+                stack.append(2 * i + 1)
+                if 2 * i + 2 < size:
+                    stack.append(2 * i + 2)
+        for state in self._ttl:
+            ready = state.ready_at(now)
+            if ready is not None and ready <= limit:
+                if found is not None:
+                    return None
+                found = state.channel.index
+        return None if found is None else self.states[found]
+
     def next_due(self, now: float | None = None) -> float | None:
         """The earliest time a channel becomes due (may be in the past), or None."""
         heap, filed = self._heap, self._filed

@@ -59,6 +59,9 @@ RETRY_MIN_S, RETRY_MAX_S = 0.5, 10.0
 TX_LEAD_S = 0.01  # how far ahead a timed emission is scheduled
 EVENTS_S = 0.05  # how long events of the direct data path wait for the loop, at most
 
+InputSample = tuple[str, bytes, str, "str | None", "str | None"]
+"""A sample for the core's ingest: key, payload, encoding, ref and the sample's own key."""
+
 
 class BridgeNode:
     """Everything one vehicle runs: its Zenoh session, the core, the MAC loop and the modem."""
@@ -358,12 +361,12 @@ class BridgeNode:
         ``sample_key``: the sample's own key, under a wildcard input key). Any thread: with
         a direct backend an open opportunity's frame leaves from here, else from the loop."""
         with self.lock:
-            self.core.ingest(key, data, encoding, self.clock(), ref, sample_key)
             ready = not self._sending and self._modem_up.is_set()
             backend = self._direct()
-            if ready and backend is not None:
-                self._send_now(backend)  # (its outputs and the frame's, flushed together)
+            if ready and backend is not None:  # (its outputs and the frame's, flushed together)
+                self._send_now(backend, (key, data, encoding, ref, sample_key))
                 return
+            self.core.ingest(key, data, encoding, self.clock(), ref, sample_key)
             self._flush()
             if not ready:
                 self._wake()  # the transmit loop decides when
@@ -443,24 +446,29 @@ class BridgeNode:
             self._flush()
         return True
 
-    def _act(self, backend: ModemBackend) -> tuple[Ping | SendFrame | None, float]:
-        """Ask the core what to do at this opportunity (holding the lock); a frame's counter
-        is saved before it leaves."""
+    def _act(self, backend: ModemBackend, sample: InputSample | None = None
+             ) -> tuple[Ping | SendFrame | None, float]:
+        """Ask the core what to do at this opportunity (holding the lock), once it has taken
+        ``sample`` if one just came; a frame's counter is saved before it leaves."""
         self.core.modem_ranging = backend.ranging
         now = self.clock()
         # with a timed modem the emission starts exactly at ``at``, so DLBL delays are exact
         at = backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
-        action = self.core.act(now, at)
+        if sample is None:
+            action = self.core.act(now, at)
+        else:
+            key, data, encoding, ref, sample_key = sample
+            action = self.core.ingest_and_act(key, data, encoding, now, at, ref, sample_key)
         if action is None:
             self._flush()
         else:
             self._persist()
         return action, now
 
-    def _send_now(self, backend: ModemBackend) -> None:
-        """Holding the lock, on any thread: carry out the core's action through a direct
-        backend, which does not wait."""
-        action, now = self._act(backend)
+    def _send_now(self, backend: ModemBackend, sample: InputSample | None = None) -> None:
+        """Holding the lock, on any thread: the core takes ``sample`` (if given) and its
+        action is carried out through a direct backend, which does not wait."""
+        action, now = self._act(backend, sample)
         if action is not None:
             assert isinstance(action, SendFrame)  # a direct backend has no ping
             out = action.frame
