@@ -1,11 +1,12 @@
 """Lanes (#14): ``ingest_and_act`` takes a short way, and ends where ``ingest`` + ``act`` do.
 
 Two cores of one mission, one seed: one takes each sample the general way, the other through
-its lanes; every action, output and counter must be the same, sample by sample, over generated
-missions (several channels and keys, intervals, latching, ``ttl_s``, shared keys, frames too
-small for all, each MAC) and generated traffic (payloads that do not decode or do not fit,
-transmit opportunities between samples). A channel too big for the frame is fragmented by the
-loader, and its node has no lanes: the general way is checked against itself there.
+its lanes; every action, output, counter and saved state must be the same, sample by sample,
+over generated missions (several channels and keys, intervals, latching, ``ttl_s``, shared
+keys, frames too small for all, each MAC, authenticated or not) and generated traffic
+(payloads that do not decode or do not fit, transmit opportunities between samples). A channel
+too big for the frame is fragmented by the loader, and its node has no lanes: the general way
+is checked against itself there.
 """
 
 from __future__ import annotations
@@ -31,9 +32,11 @@ MACS = [
 ]
 
 
-def mission(channels: list[dict[str, Any]], mac: dict[str, Any], frame_bytes: int) -> dict:
+def mission(channels: list[dict[str, Any]], mac: dict[str, Any], frame_bytes: int,
+            auth: bool = False) -> dict:
     return {
         "mission": "lanes",
+        "wire": {"auth": {"tag_bytes": 4}} if auth else {},
         "modem": {"backend": "udp", "frame_bytes": frame_bytes},
         "mac": mac,
         "nodes": {n: {"address": i + 1} for i, n in enumerate("abc")},
@@ -67,13 +70,15 @@ def missions(draw: st.DrawFn) -> LoadedMission:
             i, keys, [draw(st.integers(4, 40)) for _ in keys], draw(st.sampled_from(["b", "b|c"])),
             draw(st.sampled_from([0.1, 1.0, 5.0])), draw(st.booleans()),
             draw(st.sampled_from([None, 2.0]))))
-    text = yaml.safe_dump(mission(channels, draw(st.sampled_from(MACS)),
-                                  draw(st.sampled_from([8, 12, 24, 64]))))
+    auth = draw(st.booleans())  # (its counter and tag take 12 more bytes a frame)
+    frame_bytes = draw(st.sampled_from([8, 12, 24, 64])) + (12 if auth else 0)
+    text = yaml.safe_dump(mission(channels, draw(st.sampled_from(MACS)), frame_bytes, auth))
     return parse_mission(text)
 
 
 def pair(loaded: LoadedMission) -> tuple[NodeCore, NodeCore]:
-    return tuple(NodeCore(loaded, "a", rng=random.Random(7), seed=3)  # type: ignore[return-value]
+    return tuple(NodeCore(loaded, "a", rng=random.Random(7), seed=3,  # type: ignore[return-value]
+                          key=b"lanes test key 16")
                  for _ in range(2))
 
 
@@ -122,6 +127,7 @@ def test_a_lane_ends_where_ingest_then_act_ends(loaded: LoadedMission, steps: li
         assert laned.take() == general.take()
         assert laned.stats == general.stats
         assert laned.wake_at(now) == general.wake_at(now)
+        assert laned.state() == general.state()  # (the auth counter, if on, included)
 
 
 def test_a_plain_node_sends_its_lone_channel_without_the_general_build(
