@@ -38,7 +38,7 @@ class Lane:
     dest: int | None
     """The unicast address of the channel's one destination (None: broadcast)."""
     ack: bool | None
-    """The modem's acknowledgement, asked as :meth:`NodeCore.build_frame` asks it."""
+    """The modem's acknowledgement (:meth:`NodeCore.addressing`)."""
 
 
 def lanes_for(core: NodeCore) -> dict[str, Lane]:
@@ -55,8 +55,6 @@ def lanes_for(core: NodeCore) -> dict[str, Lane]:
         ((channel, index, element),) = bound
         if channel.stream or codec.channel_cost_bits(channel) > budget:
             continue
-        targets = set(channel.destinations(core.node))
-        dest = core.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
-        lanes[key] = Lane(core.store.states[channel.index], index, element, dest,
-                          True if dest is not None and channel.ack else None)
+        dest, ack = core.addressing(set(channel.destinations(core.node)), channel.ack)
+        lanes[key] = Lane(core.store.states[channel.index], index, element, dest, ack)
     return lanes

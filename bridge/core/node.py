@@ -29,7 +29,7 @@ import logging
 import math
 import random
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -390,8 +390,8 @@ class NodeCore:
     def next_due(self, now: float | None = None) -> float | None:
         """When something (data, an acknowledgement, a retransmission or a heartbeat) is next
         due; None while nothing is pending."""
-        if self._started is None and now is not None:
-            self._started = now  # the first heartbeat is due one period after the start
+        if now is not None:
+            self._begin(now)
         if self._acks:
             return float("-inf")
         times = [self._store_next_due(now), self.next_heartbeat()]
@@ -406,6 +406,11 @@ class NodeCore:
         if self.positioning is not None:
             times.append(self.positioning.next_ping())
         return min([t for t in times if t is not None], default=None)
+
+    def _begin(self, now: float) -> None:
+        """The node first plans at ``now``: its first heartbeat is due one period later."""
+        if self._started is None:
+            self._started = now
 
     def next_heartbeat(self) -> float | None:
         if self.heartbeat_s is None:
@@ -470,8 +475,7 @@ class NodeCore:
                     return self.act(now, at)
                 if not self.schedule.open_now(now):  # (False: closed; None: ask it)
                     return self._act(now, at, lane)
-                if self._started is None:  # (as next_due would)
-                    self._started = now
+                self._begin(now)  # (as next_due would)
                 return SendFrame(self._lone_frame(lane, now, at))
         self.ingest(key, data, encoding, now, ref, sample_key)
         return self.act(now, at)
@@ -550,10 +554,16 @@ class NodeCore:
         delays = self.positioning.on_transmit(at) if self.positioning and self.table.dlbl \
             else ()
         data = codec.encode(items, delays, self.epoch)
+        dest, ack = self.addressing(targets, asks_ack)
+        return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), left_out), now,
+                        tuple(streams), tuple(acks), tuple(extras))
+
+    def addressing(self, targets: Collection[str],
+                   asks_ack: bool) -> tuple[int | None, bool | None]:
+        """Where a frame for ``targets`` goes: the unicast address when they are one node
+        (else None, broadcast), and the modem's acknowledgement, asked only of a unicast."""
         dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
-        return OutFrame(data, dest, True if dest is not None and asks_ack else None, at,
-                        FramePlan(tuple(chosen), left_out), now, tuple(streams), tuple(acks),
-                        tuple(extras))
+        return dest, (True if dest is not None and asks_ack else None)
 
     def _store_next_due(self, now: float | None) -> float | None:
         """When a latest-value channel somebody wants becomes due."""

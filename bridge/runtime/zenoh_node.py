@@ -465,9 +465,9 @@ class BridgeNode:
             self._persist()
         return action, now
 
-    def _send_now(self, backend: ModemBackend, sample: InputSample | None = None) -> None:
-        """Holding the lock, on any thread: the core takes ``sample`` (if given) and its
-        action is carried out through a direct backend, which does not wait."""
+    def _send_now(self, backend: ModemBackend, sample: InputSample) -> None:
+        """Holding the lock, on any thread: the core takes ``sample`` and its action is
+        carried out through a direct backend, which does not wait."""
         action, now = self._act(backend, sample)
         if action is not None:
             assert isinstance(action, SendFrame)  # a direct backend has no ping
