@@ -177,6 +177,27 @@ def put_in_rotation(paths: list[tuple[zenoh.Session, str]], count: int, rate: fl
             time.sleep(1 / rate / n)
 
 
+def run_paths(paths: list[tuple[zenoh.Session, str]], got: dict[str, Latencies], count: int,
+              rate: float) -> None:
+    """Let the links settle, put in rotation on ``paths``, then wait for every path's
+    samples (10 s at most each)."""
+    time.sleep(1.0)
+    put_in_rotation(paths, count, rate)
+    for latencies in got.values():
+        latencies.done.wait(10)
+
+
+def stop(sessions: list[zenoh.Session], fleet: subprocess.Popen,
+         helpers: list[subprocess.Popen]) -> None:
+    """Close the sessions, stop ``zab sim``, and end the helper processes (stdin closed)."""
+    for session in sessions:
+        session.close()
+    fleet.terminate()
+    fleet.wait(20)
+    for process in helpers:
+        process.communicate(timeout=20)
+
+
 def measure(count: int, rate: float) -> dict[str, list[float]]:
     """Latencies (µs) of every path, from one interleaved run."""
     peer = f"tcp/127.0.0.1:{free_port()}"
@@ -215,17 +236,9 @@ def measure(count: int, rate: float) -> dict[str, list[float]]:
                 sessions += [put_f, get_f]
                 get_f.declare_subscriber("bench/floor", got[kind])
                 paths.append((put_f, "bench/floor"))
-            time.sleep(1.0)
-            put_in_rotation(paths, count, rate)
-            for latencies in got.values():
-                latencies.done.wait(10)
+            run_paths(paths, got, count, rate)
         finally:
-            for session in sessions:
-                session.close()
-            fleet.terminate()
-            fleet.wait(20)
-            for process in floor_children:
-                process.communicate(timeout=20)
+            stop(sessions, fleet, floor_children)
     out = child.stdout.readline()
     child.wait(30)
     return {"direct": json.loads(out), **{name: v.values for name, v in got.items()}}

@@ -40,7 +40,8 @@ from latency_bench import (
     config,
     free_port,
     percentile,
-    put_in_rotation,
+    run_paths,
+    stop,
 )
 
 from bridge.core.node import NodeCore
@@ -122,16 +123,9 @@ def measure(count: int) -> dict[str, list[float]]:
             get_b.declare_subscriber(KEY, got["bridged"])
             get_lean.declare_subscriber(KEY, got["lean"])
             paths = [(put_peer, "bench/direct"), (put_a, KEY), (put_lean, KEY)]
-            time.sleep(1.0)
-            put_in_rotation(paths, count, RATE)
-            for latencies in got.values():
-                latencies.done.wait(10)
+            run_paths(paths, got, count, RATE)
         finally:
-            for session in sessions:
-                session.close()
-            fleet.terminate()
-            fleet.wait(20)
-            lean.communicate(timeout=20)
+            stop(sessions, fleet, [lean])
     assert child.stdout is not None
     direct = json.loads(child.stdout.readline())
     child.wait(30)
