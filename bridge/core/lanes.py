@@ -11,6 +11,13 @@ A key has a lane on a *plain* node (nothing but latest-value channels to send: n
 fragmented streams, key families, demand, queries, surfacing or positioning) when it feeds
 exactly one channel that fits a frame by itself. The frames are the same either way
 (``tests/core/test_lanes.py`` builds both, sample by sample).
+
+Frames heard have a short way too: :meth:`~bridge.core.node.NodeCore.hear` outputs a plain
+frame's values at once and leaves the rest of its reception (counters, link and MAC records,
+ranging, status, the event) to :meth:`~bridge.core.node.NodeCore.settle`, which the runtime
+runs off the data path and every other method of the core runs first. It needs a node whose
+MAC ignores what it hears and that decodes nothing beyond values for Zenoh (no queries,
+surfacing or anchor positions): :func:`hears_plainly`.
 """
 
 from __future__ import annotations
@@ -18,13 +25,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from bridge.core.mac import Schedule
 from bridge.core.store import ChannelState
 from bridge.wire.channels import ElementCodec
 
 if TYPE_CHECKING:
     from bridge.core.node import NodeCore
 
-__all__ = ["Lane", "lanes_for"]
+__all__ = ["Lane", "hears_plainly", "lanes_for"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,3 +66,9 @@ def lanes_for(core: NodeCore) -> dict[str, Lane]:
         dest, ack = core.addressing(set(channel.destinations(core.node)), channel.ack)
         lanes[key] = Lane(core.store.states[channel.index], index, element, dest, ack)
     return lanes
+
+
+def hears_plainly(core: NodeCore) -> bool:
+    """Whether :meth:`~bridge.core.node.NodeCore.hear` may keep a frame's books for later."""
+    return type(core.schedule).on_heard is Schedule.on_heard and core.queries is None \
+        and core.surfacing is None and not core.anchor_keys

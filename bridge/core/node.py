@@ -52,7 +52,7 @@ from bridge.core.events import (
 )
 from bridge.core.families import Extra, Families
 from bridge.core.interest import Interest
-from bridge.core.lanes import Lane, lanes_for
+from bridge.core.lanes import Lane, hears_plainly, lanes_for
 from bridge.core.link import LinkState, LinkThresholds, LinkWatch, heartbeat_s
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
@@ -69,7 +69,7 @@ from bridge.modems.reception import ModemRange, Reception
 from bridge.wire.auth import Authenticator
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.wire.families import NameCodec
-from bridge.wire.frame import Entry
+from bridge.wire.frame import DecodedFrame, Entry
 from bridge.wire.interest import InterestCodec
 from bridge.wire.payloads import decode_payload
 from bridge.wire.queries import QueryCodec
@@ -77,6 +77,9 @@ from bridge.wire.queries import QueryCodec
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
 
+HearPlan = tuple[tuple[str, str, bool, "Ros2Element | None"], ...]
+"""What :meth:`NodeCore.hear` outputs for one entry: per element, its key, encoding, latching
+and ROS 2 type."""
 log = logging.getLogger("zab.core")
 
 PEER_STATUS_S = 1.0  # least time between two ``peers/<peer>`` status puts of one peer
@@ -212,7 +215,7 @@ class NodeCore:
         self.positioning = Positioning(mission, node) if needs_positioning(mission, node) \
             else None
         # output key -> anchor: live anchor positions this bridge decodes from frames itself
-        self._anchor_keys = {key: anchor for anchor, key in mission.ranging.anchor_keys.items()
+        self.anchor_keys = {key: anchor for anchor, key in mission.ranging.anchor_keys.items()
                              if self.positioning is not None
                              and anchor in self.positioning.anchors}
         self._ranged_last = False  # a range never takes two transmit opportunities in a row
@@ -244,6 +247,11 @@ class NodeCore:
         self._peer_status: dict[str, float] = {}  # when each peer's status was last put
         self.mismatched: dict[str, str] = {}  # peers known to run another mission file
         self.lanes = lanes_for(self)  # input keys with a short way to their frame
+        # frames hear() took, their books not kept yet: (rx, src, delays, now, modem_now, values)
+        self._unsettled: list[tuple[Reception, str, tuple[int | None, ...], float,
+                                    float | None, dict[str, list[dict]]]] = []
+        self._plain_rx = hears_plainly(self)
+        self._hear_plans: dict[tuple[str, Any], HearPlan] = {}  # by (sender, entry's channel)
 
     # -- state across restarts -----------------------------------------------------------------
 
@@ -328,6 +336,7 @@ class NodeCore:
 
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
         ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
+        self.settle()
         bindings = self.bindings.get(key, ())
         ros2 = self._ros2_inputs.get(key)  # (ros2_input, per sample)
         try:
@@ -365,6 +374,7 @@ class NodeCore:
 
     def drop_payload(self, key: str, reason: str, now: float) -> None:
         """Count a payload that cannot be used (warned once per key)."""
+        self.settle()
         self.stats.payloads_dropped[key] += 1
         if key not in self._warned_keys:
             self._warned_keys.add(key)
@@ -375,6 +385,7 @@ class NodeCore:
     def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
                 now: float) -> tuple[float, ...] | None:
         """The finite numbers ``names`` of a payload, or None (counted as a dropped payload)."""
+        self.settle()
         try:
             value = decode_payload(data, encoding)
             numbers = tuple(float(value[k]) for k in names)
@@ -390,6 +401,7 @@ class NodeCore:
     def next_due(self, now: float | None = None) -> float | None:
         """When something (data, an acknowledgement, a retransmission or a heartbeat) is next
         due; None while nothing is pending."""
+        self.settle()
         if now is not None:
             self._begin(now)
         if self._acks:
@@ -434,6 +446,7 @@ class NodeCore:
         """What to do now, if an opportunity is open: a frame built to start at modem time
         ``at``, or a ping (``ranging.ping`` with a modem that pings); None: nothing (the
         opportunity, if any, is given up). Report how it went with :meth:`done`."""
+        self.settle()
         return self._act(now, at, None)
 
     def _act(self, now: float, at: float, lone: Lane | None) -> Action | None:
@@ -462,6 +475,7 @@ class NodeCore:
                        ref: str | None = None, sample_key: str | None = None) -> Action | None:
         """:meth:`ingest`, then :meth:`act`: the same outcome, in fewer steps when the key has
         a lane and its channel is the one thing due (:mod:`bridge.core.lanes`)."""
+        self.settle()
         lane = self.lanes.get(key)
         if lane is not None and not (self._acks or self._ack_repeats):
             try:
@@ -491,6 +505,7 @@ class NodeCore:
              confirmed: bool | None = None, error: str | None = None) -> None:
         """``action`` was carried out from ``start`` to ``end`` (runtime clock); ``error``:
         it failed (a frame's data stays due); ``confirmed``: the modem's acknowledgement."""
+        self.settle()
         peer = action.peer if isinstance(action, Ping) else (
             action.frame.dest if action.ranged else None)
         if peer is not None:
@@ -509,6 +524,7 @@ class NodeCore:
         """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
         nothing to send and ``always`` is false. Pair with :meth:`frame_sent` or
         :meth:`frame_failed`."""
+        self.settle()
         codec = self.codec
         budget = codec.body_capacity_bits(self.frame_bytes) - codec.count_bits
         room = (1 << codec.count_bits) - 1
@@ -603,6 +619,7 @@ class NodeCore:
 
     def ip_reachable(self, peer: str, up: bool, now: float) -> None:
         """The peer's bridge became reachable over IP (``up``) or stopped being so."""
+        self.settle()
         if self.surfacing is not None and self.surfacing.changed(peer, up, now):
             event = Surfaced(now, peer, up)
             self._status(f"surfaced/{peer}", event.to_dict())
@@ -623,6 +640,7 @@ class NodeCore:
     def frame_sent(self, out: OutFrame, now: float, confirmed: bool | None = None) -> None:
         """The modem accepted ``out``; ``confirmed``: its own acknowledgement said the frame
         reached ``out.dest`` (reliable entries in it are then not re-sent, only awaited)."""
+        self.settle()
         self.store.mark_sent(out.plan.chosen, out.built)
         by_sender: dict[int, tuple[ReliableSender | TransferSender, list[Any]]] = {}
         for sender, item in out.streams:
@@ -654,6 +672,7 @@ class NodeCore:
 
     def frame_failed(self, out: OutFrame, error: str, now: float) -> None:
         """The modem refused ``out``: its data stays due."""
+        self.settle()
         if self.positioning is not None:
             self.positioning.forget_transmit(out.at)
         self.stats.send_errors += 1
@@ -666,31 +685,133 @@ class NodeCore:
 
         ``modem_now`` is the modem clock at the call (DLBL times are in the modem's clock).
         """
+        self.settle()
+        src = self._source(rx, now)
+        if src is None:
+            return
+        frame = self._decode(rx, src, now)
+        if frame is not None:
+            self._accept(rx, src, frame, now, modem_now)
+
+    def hear(self, rx: Reception, now: float, modem_now: float | None = None) -> bool:
+        """:meth:`receive`, keeping the books of a plain frame for :meth:`settle`.
+
+        A *plain* frame (from a peer whose link is up, in its known epoch, holding only
+        latest-value channels, to a node whose MAC ignores what it hears and that has no
+        queries, surfacing or anchors to decode) has its values output at once; counters, link
+        and MAC records, ranging, status and its :class:`FrameReceived` wait for
+        :meth:`settle`, which every other method runs first. Returns whether books wait; any
+        other frame takes :meth:`receive`'s way whole."""
+        src = self.mission.name_of(rx.src)
+        if not self._plain_rx or src is None or self.link_states.get(src) is not LinkState.UP \
+                or self.codec.sender_fingerprint(rx.data) not in (None, self.codec.fingerprint16):
+            self.receive(rx, now, modem_now)
+            return False
+        frame = self._decode(rx, src, now)
+        if frame is None:
+            return False
+        delivered = self._plain_entries(src, frame)
+        if delivered is None:
+            self.settle()
+            self._accept(rx, src, frame, now, modem_now)
+            return False
+        if self.auth is not None:
+            self._dirty = True  # the replay window moved: saved before anything is published
+        values: dict[str, list[dict]] = {}
+        outputs = self._outputs
+        for plan, entry in delivered:
+            if plan:
+                values[entry.channel.name] = elements = entry.values
+                for (key, encoding, latching, ros2), value in zip(plan, elements, strict=True):
+                    outputs.append(Publish(key, value, encoding, latching, ros2))
+                self.stats.values_published += len(plan)
+        self._unsettled.append((rx, src, frame.delays, now, modem_now, values))
+        return True
+
+    def _plain_entries(self, src: str, frame: DecodedFrame) -> list[tuple[HearPlan, Entry]] | None:
+        """Each entry of ``frame`` with what :meth:`hear` outputs for it; None if the frame is
+        not plain."""
+        if frame.epoch is not None and self.peer_epochs.get(src) != frame.epoch:
+            return None
+        plans = self._hear_plans
+        delivered = []
+        for entry in frame.entries:
+            plan = plans.get((src, entry.channel))
+            if plan is None:
+                plan = self._hear_plan(src, entry.channel)
+                if plan is None:
+                    return None
+                plans[(src, entry.channel)] = plan
+            delivered.append((plan, entry))
+        return delivered
+
+    def _hear_plan(self, src: str, channel: Any) -> HearPlan | None:
+        """What :meth:`hear` outputs for an entry of ``channel`` from ``src``: each element's
+        key, encoding, latching and ROS 2 type (none if it is not for this node); None if the
+        entry is not a latest-value channel ``src`` sends."""
+        if channel.__class__ is not ChannelCodec or channel.stream or channel.family is not None \
+                or src not in channel.senders:
+            return None
+        if not channel.reaches(src, self.node):
+            return ()
+        return tuple((e.output_key(src, self.node), e.encoding, channel.latching, e.ros2)
+                     for e in channel.elements)
+
+    def settle(self) -> bool:
+        """Keep the books of the frames :meth:`hear` left (every other method runs this
+        first, so none sees them missing); whether there were any."""
+        if not self._unsettled:
+            return False
+        heard, self._unsettled = self._unsettled, []
+        for rx, src, delays, now, modem_now, values in heard:
+            self._heard_from(rx, src, now)
+            for name in values:
+                self.stats.received_per_channel[name] += 1
+                self.received_at[name] = now
+            self._heard_tail(rx, src, delays, now, modem_now, {}, values, {})
+        return True
+
+    def _source(self, rx: Reception, now: float) -> str | None:
+        """The sender of ``rx`` if it is a peer under this mission file; else the frame is
+        counted dropped (or foreign) and None."""
         src = self.mission.name_of(rx.src)
         sender_print = self.codec.sender_fingerprint(rx.data)
         if sender_print is not None and sender_print != self.codec.fingerprint16 \
                 and src != self.node:
             self._foreign_frame(src or f"address {rx.src}", sender_print, rx, now)
-            return
+            return None
         if src is None or src == self.node:
             self.stats.frames_dropped["unknown_source"] += 1
             self._event(FrameDropped(now, src, "unknown_source", data=rx.data))
-            return
+            return None
+        return src
+
+    def _decode(self, rx: Reception, src: str, now: float) -> DecodedFrame | None:
+        """The frame ``rx`` carries, or None (counted dropped, books kept first)."""
         try:
-            frame = self.codec.decode(rx.data, rx.src)
+            return self.codec.decode(rx.data, rx.src)
         except FrameError as exc:
+            self.settle()
             self.stats.frames_dropped[exc.reason] += 1
             self._event(FrameDropped(now, src, exc.reason, str(exc), rx.data))
-            return
+            return None
+
+    def _heard_from(self, rx: Reception, src: str, now: float) -> None:
+        """A valid frame from ``src``: counters, the MAC and the link record it."""
         self.stats.frames_received += 1
         self.schedule.on_heard(src, rx.dest == self.address, now)
         self._foreign.pop(src, None)
         self.last_heard[src] = now
+        self._link_watch.heard(src, now)
+
+    def _accept(self, rx: Reception, src: str, frame: DecodedFrame, now: float,
+                modem_now: float | None) -> None:
+        """The rest of :meth:`receive`, for a frame that decoded."""
+        self._heard_from(rx, src, now)
         if self.auth is not None:
             self._dirty = True  # the replay window moved: saved before anything is published
         if frame.epoch is not None and self.peer_epochs.get(src) != frame.epoch:
             self._peer_epoch(src, frame.epoch, now)  # (new to us, or changed)
-        self._link_watch.heard(src, now)
         if self.link_states.get(src) is not LinkState.UP:
             self.update_links(now)
         values: dict[str, list[dict]] = {}
@@ -742,14 +863,21 @@ class NodeCore:
                         self.families.arrived(key, now)
                     if latching and self.queries is not None:
                         self.queries.remember(key, value, element.encoding, now)
-                    if key in self._anchor_keys:
-                        self._anchor_value(self._anchor_keys[key], value, anchors, now)
+                    if key in self.anchor_keys:
+                        self._anchor_value(self.anchor_keys[key], value, anchors, now)
                     self._publish(key, value, element.encoding, latching, element.ros2)
+        self._heard_tail(rx, src, frame.delays, now, modem_now, anchors, values, members)
+
+    def _heard_tail(self, rx: Reception, src: str, delays: tuple[int | None, ...], now: float,
+                    modem_now: float | None, anchors: dict[str, tuple[float, float, float]],
+                    values: dict[str, list[dict]],
+                    members: dict[str, dict[str, list[dict]]]) -> None:
+        """After a frame's values: its ranges, its peer's status and its event."""
         if self.positioning is not None and self.table.dlbl:
             t_start = float(rx.meta.get("start", rx.time))
-            self._ranging(src, t_start, frame.delays, modem_now if modem_now is not None else now,
+            self._ranging(src, t_start, delays, modem_now if modem_now is not None else now,
                           now, anchors)
-        elif anchors and self.positioning is not None:  # (only its anchors: _anchor_keys)
+        elif anchors and self.positioning is not None:  # (only its anchors: anchor_keys)
             for anchor, position in anchors.items():
                 self.positioning.set_anchor(anchor, position, now)
         meta = plain(rx.meta)
@@ -902,6 +1030,7 @@ class NodeCore:
     def modem_range(self, rng: ModemRange, now: float) -> None:
         """The modem measured a range itself (a ping, a propagation time): publish it like a
         DLBL range, and the fix attempted with it."""
+        self.settle()
         peer = self.mission.name_of(rng.peer)
         if self.positioning is None or peer is None:
             return
@@ -911,6 +1040,7 @@ class NodeCore:
     def range_due(self, now: float) -> int | None:
         """The address this node should ask its modem to range to at this transmit opportunity
         (``ranging.ping``); never at two opportunities in a row, so frames still go out."""
+        self.settle()
         if self.positioning is None or self._ranged_last:
             self._ranged_last = False
             return None
@@ -919,6 +1049,7 @@ class NodeCore:
 
     def range_asked(self, dest: int, now: float, error: str | None = None) -> None:
         """A range to ``dest`` was asked of the modem; ``error`` says why it failed."""
+        self.settle()
         peer = self.mission.name_of(dest)
         if self.positioning is None or peer is None:
             return
@@ -944,6 +1075,7 @@ class NodeCore:
 
     def tick(self, now: float) -> None:
         """Periodic work: link states, and reliable values past their TTL or retries."""
+        self.settle()
         self.update_links(now)
         for sender in self.senders.values():
             self._reports(sender.expire(now))
@@ -955,6 +1087,7 @@ class NodeCore:
     def ask(self, key: str, parameters: Any, now: float) -> Ticket | str:
         """A Zenoh get on ``key`` with ``parameters`` (a dict): the acoustic query's ticket it
         waits on (replies come as QueryAnswer / QueryEnd outputs), or why it ends at once."""
+        self.settle()
         found = self.queries.spec_for(key) if self.queries is not None else None
         if found is None:
             return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
@@ -966,11 +1099,13 @@ class NodeCore:
     def query_served(self, ticket: tuple[int, str, int], values: list[Any],
                      error: str | None = None) -> None:
         """The local get of a request ended: queue its replies for the asker."""
+        self.settle()
         if self.queries is not None:
             self.queries.served(ticket, values, error)
 
     def update_links(self, now: float) -> None:
         """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
+        self.settle()
         for peer in self._link_watch.due(now, self.last_heard):
             heard = self.last_heard.get(peer)
             state = self.thresholds.state(heard, now)
@@ -988,6 +1123,7 @@ class NodeCore:
 
     def snapshot(self, now: float) -> dict[str, Any]:
         """Counters and channel ages as plain data."""
+        self.settle()
         ages = {s.channel.name: s.age(now) for s in self.store.states.values()}
         return {
             "node": self.node,

@@ -118,22 +118,29 @@ class BridgeNode:
         self.session: zenoh.Session | None = None
         self._ros2: Ros2Graph | None = None
 
-    # the core's state, for observers (fleet reports, tests)
+    # the core's state, for observers (fleet reports, tests), its books kept
     @property
     def stats(self) -> NodeStats:
-        return self.core.stats
+        return self._settled().stats
 
     @property
     def received_at(self) -> dict[str, float]:
-        return self.core.received_at
+        return self._settled().received_at
 
     @property
     def last_heard(self) -> dict[str, float]:
-        return self.core.last_heard
+        return self._settled().last_heard
 
     @property
     def link_states(self) -> dict[str, LinkState]:
-        return self.core.link_states
+        return self._settled().link_states
+
+    def _settled(self) -> NodeCore:
+        """The core, the books of the frames it heard kept (:meth:`NodeCore.settle`)."""
+        with self.lock:
+            if self.core.settle():
+                self._flush()
+        return self.core
 
     @property
     def positioning(self) -> Positioning | None:
@@ -175,6 +182,7 @@ class BridgeNode:
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
+            self._settled()
             self._take_events()
             with self.lock:
                 self._persist()
@@ -536,9 +544,15 @@ class BridgeNode:
         modem_now = self.backend.clock() if self.backend is not None else None
         with self.lock:
             valid = self.core.stats.frames_received
-            self.core.receive(rx, self.clock(), modem_now)
+            if self._loop is None:  # (not running: nothing to keep the books later)
+                self.core.receive(rx, self.clock(), modem_now)
+                books = False
+            else:
+                books = self.core.hear(rx, self.clock(), modem_now)
             self._flush()  # the values first: what follows is off their path
-            if self.core.stats.frames_received > valid:
+            if books:  # kept by the loop's timer, after the values are on their way
+                self._loop_later()
+            elif self.core.stats.frames_received > valid:
                 # a poll or a ranging turn may open an opportunity
                 self._wake_if_sooner(self.clock())
 
@@ -592,7 +606,12 @@ class BridgeNode:
             self._soon(self._carry_out, outputs)
             return
         self._events.extend(outputs)
-        if not self._events_timer:  # the first events after a quiet spell: start the timer
+        self._loop_later()
+
+    def _loop_later(self) -> None:
+        """Holding the lock: the loop's timer takes the events and the books, within
+        ``EVENTS_S`` (the first after a quiet spell starts it)."""
+        if not self._events_timer:
             self._events_timer = True
             self._soon(self._arm_events)
 
@@ -601,10 +620,15 @@ class BridgeNode:
         self._loop.call_later(EVENTS_S, self._events_due)
 
     def _events_due(self) -> None:
-        """The loop's timer: carry out the events; again in ``EVENTS_S`` while they come."""
+        """The loop's timer: carry out the events and keep the books of the frames heard;
+        again in ``EVENTS_S`` while they come."""
         took = self._take_events()
-        with self.lock:  # (events that came meanwhile found the timer still on)
-            self._events_timer = took or bool(self._events)
+        with self.lock:  # (events and frames that came meanwhile found the timer still on)
+            kept = self.core.settle()
+            if kept:
+                self._flush()
+                self._wake_if_sooner(self.clock())
+            self._events_timer = took or kept or bool(self._events)
         if self._events_timer:
             self._arm_events()
 
