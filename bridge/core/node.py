@@ -29,8 +29,9 @@ import logging
 import math
 import random
 from collections import Counter
-from collections.abc import Collection, Mapping
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
@@ -247,9 +248,7 @@ class NodeCore:
         self._peer_status: dict[str, float] = {}  # when each peer's status was last put
         self.mismatched: dict[str, str] = {}  # peers known to run another mission file
         self.lanes = lanes_for(self)  # input keys with a short way to their frame
-        # frames hear() took, their books not kept yet: (rx, src, delays, now, modem_now, values)
-        self._unsettled: list[tuple[Reception, str, tuple[int | None, ...], float,
-                                    float | None, dict[str, list[dict]]]] = []
+        self._unsettled: list[Callable[[], None]] = []  # books hear() and sent() left, in order
         self._plain_rx = hears_plainly(self)
         self._hear_plans: dict[tuple[str, Any], HearPlan] = {}  # by (sender, entry's channel)
 
@@ -474,8 +473,9 @@ class NodeCore:
     def ingest_and_act(self, key: str, data: bytes, encoding: str, now: float, at: float,
                        ref: str | None = None, sample_key: str | None = None) -> Action | None:
         """:meth:`ingest`, then :meth:`act`: the same outcome, in fewer steps when the key has
-        a lane and its channel is the one thing due (:mod:`bridge.core.lanes`)."""
-        self.settle()
+        a lane and its channel is the one thing due (:mod:`bridge.core.lanes`). A lane's frame
+        leaves the books :meth:`hear` and :meth:`sent` left waiting: a plain node's books
+        touch nothing it reads, and it outputs nothing of its own on the way."""
         lane = self.lanes.get(key)
         if lane is not None and not (self._acks or self._ack_repeats):
             try:
@@ -488,6 +488,7 @@ class NodeCore:
                 if self.store.lone_due(now) is not state:
                     return self.act(now, at)
                 if not self.schedule.open_now(now):  # (False: closed; None: ask it)
+                    self.settle()
                     return self._act(now, at, lane)
                 self._begin(now)  # (as next_due would)
                 return SendFrame(self._lone_frame(lane, now, at))
@@ -519,6 +520,21 @@ class NodeCore:
             self.schedule.on_sent(start, end)
         else:
             self.schedule.on_skipped(start)
+
+    def sent(self, action: SendFrame, start: float, end: float) -> bool:
+        """:meth:`done` for a frame the modem took, keeping the books of a frame of
+        latest values alone (its counters and :class:`FrameSent`, as a lane sends) for
+        :meth:`settle`: what decides the next frame (the store, the MAC, the last send) is
+        done at once. Returns whether books wait."""
+        out = action.frame
+        if action.ranged or out.streams or out.acks or out.extras:
+            self.done(action, start, end)
+            return False
+        self.store.mark_sent(out.plan.chosen, out.built)
+        self.last_tx = out.built
+        self.schedule.on_sent(start, end)
+        self._unsettled.append(partial(self._count_sent, out, start))
+        return True
 
     def build_frame(self, now: float, at: float, *, always: bool = False) -> OutFrame | None:
         """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
@@ -662,12 +678,17 @@ class NodeCore:
         for extra in out.extras:
             extra.on_sent(out.built)
         self.last_tx = out.built
+        self._count_sent(out, now)
+
+    def _count_sent(self, out: OutFrame, now: float) -> None:
+        """A frame sent: its counters and its event."""
         self.stats.frames_sent += 1
         names = [s.channel.name for s in out.plan.chosen]
         if out.streams:
             names += [s.channel.name for s, _ in out.streams]
         for name in names:
             self.stats.sent_per_channel[name] += 1
+        dest = self.mission.name_of(out.dest) if out.dest is not None else None
         self._event(FrameSent(now, len(out.data), names, dest, out.data))
 
     def frame_failed(self, out: OutFrame, error: str, now: float) -> None:
@@ -725,7 +746,8 @@ class NodeCore:
                 for (key, encoding, latching, ros2), value in zip(plan, elements, strict=True):
                     outputs.append(Publish(key, value, encoding, latching, ros2))
                 self.stats.values_published += len(plan)
-        self._unsettled.append((rx, src, frame.delays, now, modem_now, values))
+        self._unsettled.append(partial(self._heard_books, rx, src, frame.delays, now, modem_now,
+                                       values))
         return True
 
     def _plain_entries(self, src: str, frame: DecodedFrame) -> list[tuple[HearPlan, Entry]] | None:
@@ -758,18 +780,23 @@ class NodeCore:
                      for e in channel.elements)
 
     def settle(self) -> bool:
-        """Keep the books of the frames :meth:`hear` left (every other method runs this
-        first, so none sees them missing); whether there were any."""
+        """Keep the books :meth:`hear` and :meth:`sent` left, in order (every other method
+        runs this first, so none sees them missing); whether there were any."""
         if not self._unsettled:
             return False
-        heard, self._unsettled = self._unsettled, []
-        for rx, src, delays, now, modem_now, values in heard:
-            self._heard_from(rx, src, now)
-            for name in values:
-                self.stats.received_per_channel[name] += 1
-                self.received_at[name] = now
-            self._heard_tail(rx, src, delays, now, modem_now, {}, values, {})
+        books, self._unsettled = self._unsettled, []
+        for keep in books:
+            keep()
         return True
+
+    def _heard_books(self, rx: Reception, src: str, delays: tuple[int | None, ...], now: float,
+                     modem_now: float | None, values: dict[str, list[dict]]) -> None:
+        """What :meth:`hear` left of a plain frame's reception."""
+        self._heard_from(rx, src, now)
+        for name in values:
+            self.stats.received_per_channel[name] += 1
+            self.received_at[name] = now
+        self._heard_tail(rx, src, delays, now, modem_now, {}, values, {})
 
     def _source(self, rx: Reception, now: float) -> str | None:
         """The sender of ``rx`` if it is a peer under this mission file; else the frame is

@@ -114,6 +114,7 @@ class BridgeNode:
         self._loop_thread: int | None = None
         self._events: deque[Event] = deque()  # from the direct data path, for the loop
         self._events_timer = False  # the loop's timer that takes them is armed
+        self._replan = False  # books wait and nobody asked the core when next: the timer asks
         self.started = asyncio.Event()
         self.session: zenoh.Session | None = None
         self._ros2: Ros2Graph | None = None
@@ -486,7 +487,12 @@ class BridgeNode:
                 self._failed(backend, action, now, exc)
                 return
             end = self.clock()
-            self.core.done(action, now, end, confirmed=confirmed)
+            if confirmed is not None:  # (the modem's acknowledgement: reliable entries wait)
+                self.core.done(action, now, end, confirmed=confirmed)
+            elif self.core.sent(action, now, end):  # its books, kept by the loop's timer
+                self._replan = True
+                self._loop_later()
+                return
             self._flush()
             now = end
         self._wake_if_sooner(now)
@@ -551,6 +557,7 @@ class BridgeNode:
                 books = self.core.hear(rx, self.clock(), modem_now)
             self._flush()  # the values first: what follows is off their path
             if books:  # kept by the loop's timer, after the values are on their way
+                self._replan = True
                 self._loop_later()
             elif self.core.stats.frames_received > valid:
                 # a poll or a ranging turn may open an opportunity
@@ -624,8 +631,9 @@ class BridgeNode:
         again in ``EVENTS_S`` while they come."""
         took = self._take_events()
         with self.lock:  # (events and frames that came meanwhile found the timer still on)
-            kept = self.core.settle()
+            kept = self.core.settle() or self._replan
             if kept:
+                self._replan = False
                 self._flush()
                 self._wake_if_sooner(self.clock())
             self._events_timer = took or kept or bool(self._events)
