@@ -522,12 +522,12 @@ class NodeCore:
             self.schedule.on_skipped(start)
 
     def sent(self, action: SendFrame, start: float, end: float) -> bool:
-        """:meth:`done` for a frame the modem took, keeping the books of a frame of
-        latest values alone (its counters and :class:`FrameSent`, as a lane sends) for
+        """:meth:`done` for a frame the modem took, keeping the books of a plain node's frame
+        of latest values alone (its counters and :class:`FrameSent`, as a lane sends) for
         :meth:`settle`: what decides the next frame (the store, the MAC, the last send) is
         done at once. Returns whether books wait."""
         out = action.frame
-        if action.ranged or out.streams or out.acks or out.extras:
+        if not self.lanes or action.ranged or out.streams or out.acks or out.extras:
             self.done(action, start, end)
             return False
         self.store.mark_sent(out.plan.chosen, out.built)
