@@ -137,7 +137,7 @@ class BridgeNode:
         return self._settled().link_states
 
     def _settled(self) -> NodeCore:
-        """The core, the books of the frames it heard kept (:meth:`NodeCore.settle`)."""
+        """The core, the books it left waiting kept (:meth:`NodeCore.settle`)."""
         with self.lock:
             if self.core.settle():
                 self._flush()
@@ -627,8 +627,8 @@ class BridgeNode:
         self._loop.call_later(EVENTS_S, self._events_due)
 
     def _events_due(self) -> None:
-        """The loop's timer: carry out the events and keep the books of the frames heard;
-        again in ``EVENTS_S`` while they come."""
+        """The loop's timer: carry out the events, keep the books of the frames heard and
+        sent and ask the core when next; again in ``EVENTS_S`` while they come."""
         took = self._take_events()
         with self.lock:  # (events and frames that came meanwhile found the timer still on)
             kept = self.core.settle() or self._replan
