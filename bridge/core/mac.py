@@ -112,6 +112,11 @@ class Schedule(ABC):
         without drawing or planning; None: ask :meth:`next_opportunity`."""
         return None
 
+    def reopens_s(self) -> float | None:
+        """Seconds after a frame's start from which :meth:`open_now` is True until the next
+        frame, where nothing else decides it (None: ask :meth:`open_now`)."""
+        return None
+
     def on_sent(self, start: float, end: float) -> None:  # noqa: B027 - optional hook
         """A frame started at ``start``; the modem was done at ``end``."""
 
@@ -198,6 +203,9 @@ class FreeSchedule(Schedule):
 
     def open_now(self, now: float) -> bool:
         return self.earliest(now, self._last) <= now + EPS
+
+    def reopens_s(self) -> float:
+        return self.min_gap_s
 
     def on_sent(self, start: float, end: float) -> None:
         self._last = start

@@ -53,7 +53,7 @@ from bridge.core.events import (
 )
 from bridge.core.families import Extra, Families
 from bridge.core.interest import Interest
-from bridge.core.lanes import Lane, hears_plainly, lanes_for
+from bridge.core.lanes import Clearance, Lane, clearance_after, hears_plainly, lanes_for
 from bridge.core.link import LinkState, LinkThresholds, LinkWatch, heartbeat_s
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
@@ -248,9 +248,14 @@ class NodeCore:
         self._peer_status: dict[str, float] = {}  # when each peer's status was last put
         self.mismatched: dict[str, str] = {}  # peers known to run another mission file
         self.lanes = lanes_for(self)  # input keys with a short way to their frame
+        self.expressible = frozenset(  # channels whose lane's frame may go by express
+            lane.state.channel.index for lane in self.lanes.values()
+            if lane.frame is not None and len(lane.state.channel.elements) == 1)
+        self._clearance: Clearance | None = None  # the last lane frame's (bridge.core.lanes)
+        self._express_books_wait = False  # among the books: what a lane reads (the store, MAC)
         self._unsettled: list[Callable[[], None]] = []  # books hear() and sent() left, in order
         self._plain_rx = hears_plainly(self)
-        self._hear_plans: dict[tuple[str, Any], HearPlan] = {}  # by (sender, entry's channel)
+        self._hear_plans: dict[tuple[str, int], HearPlan] = {}  # (sender, entry's wire index)
 
     # -- state across restarts -----------------------------------------------------------------
 
@@ -475,9 +480,12 @@ class NodeCore:
         """:meth:`ingest`, then :meth:`act`: the same outcome, in fewer steps when the key has
         a lane and its channel is the one thing due (:mod:`bridge.core.lanes`). A lane's frame
         leaves the books :meth:`hear` and :meth:`sent` left waiting: a plain node's books
-        touch nothing it reads, and it outputs nothing of its own on the way."""
+        touch nothing it reads, and it outputs nothing of its own on the way. An express's
+        books hold the store and the MAC: those are kept first."""
         lane = self.lanes.get(key)
         if lane is not None and not (self._acks or self._ack_repeats):
+            if self._express_books_wait:
+                self.settle()
             try:
                 packed = lane.element.layout.pack(decode_payload(data, encoding))
             except (DecodeError, EncodeError):
@@ -490,7 +498,8 @@ class NodeCore:
                 if not self.schedule.open_now(now):  # (False: closed; None: ask it)
                     self.settle()
                     return self._act(now, at, lane)
-                self._begin(now)  # (as next_due would)
+                if self._started is None:  # (as next_due would: _begin)
+                    self._started = now
                 return SendFrame(self._lone_frame(lane, now, at))
         self.ingest(key, data, encoding, now, ref, sample_key)
         return self.act(now, at)
@@ -499,7 +508,8 @@ class NodeCore:
         """:meth:`build_frame`'s frame when ``lane``'s channel alone is due (and the node is
         plain: nothing else could go in it)."""
         state = lane.state
-        data = self.codec.encode([(state.channel, state.payload())], (), self.epoch)
+        data = self.codec.encode([(state.channel, state.payload())], (), self.epoch) \
+            if lane.frame is None else lane.frame(state.payload())
         return OutFrame(data, lane.dest, lane.ack, at, FramePlan((state,), ()), now)
 
     def done(self, action: Action, start: float, end: float, *,
@@ -534,7 +544,66 @@ class NodeCore:
         self.last_tx = out.built
         self.schedule.on_sent(start, end)
         self._unsettled.append(partial(self._count_sent, out, start))
+        self._clearance = clearance_after(self, out.plan.chosen, out.built, start)
         return True
+
+    def express(self, key: str, data: bytes, encoding: str, now: float
+                ) -> tuple[Lane, int, bytes] | None:
+        """:meth:`ingest_and_act` for a sample on ``key`` at ``now`` that the last lane frame's
+        clearance admits (:mod:`bridge.core.lanes`): its lane, packed value and frame, worked out
+        without reading or changing anything else. Report with :meth:`expressed` or
+        :meth:`unexpressed`. None: take :meth:`ingest_and_act`."""
+        clearance, lane = self._clearance, self.lanes.get(key)
+        if clearance is None or lane is None or self._acks or self._ack_repeats or self._dirty \
+                or not clearance.admits(lane.state, now, self.store.changes):
+            return None
+        try:
+            packed = lane.element.layout.pack(decode_payload(data, encoding))
+        except (DecodeError, EncodeError):
+            return None  # ingest_and_act counts it
+        assert lane.frame is not None  # (a clearance's channel is expressible)
+        return lane, packed, lane.frame(packed)
+
+    def expressed(self, lane: Lane, packed: int, data: bytes, now: float, end: float,
+                  at: float) -> None:
+        """The express frame ``data`` of ``packed`` left at ``now`` (runtime clock; modem time
+        ``at``), the modem done at ``end``: the clearance moves on; the store, the MAC, the last
+        send and the counters are kept with the books."""
+        assert self._clearance is not None
+        self._clearance.moved_on(now)
+        self._unsettled.append(partial(self._express_books, lane, packed, data, now, end, at))
+        self._express_books_wait = True
+
+    def unexpressed(self, lane: Lane, packed: int, data: bytes, now: float, at: float
+                    ) -> SendFrame:
+        """The express frame did not leave (the modem refused it): the value is taken as
+        :meth:`ingest_and_act` takes it, and the lane's action returned, for :meth:`done` to
+        report how it failed (the value stays due)."""
+        self.settle()
+        self._take_value(lane, packed, now)
+        return SendFrame(self._express_frame(lane, data, now, at))
+
+    def _express_books(self, lane: Lane, packed: int, data: bytes, now: float, end: float,
+                       at: float) -> None:
+        """What :meth:`expressed` left: as :meth:`ingest_and_act` and :meth:`sent` keep it."""
+        clearance = self._clearance
+        current = clearance is not None and clearance.stamp == self.store.changes
+        self._take_value(lane, packed, now)
+        out = self._express_frame(lane, data, now, at)
+        self.store.mark_sent(out.plan.chosen, now)
+        self.last_tx = now
+        self.schedule.on_sent(now, end)
+        self._count_sent(out, now)
+        if current:  # (nothing else changed the store meanwhile: the clearance still holds)
+            clearance.stamp = self.store.changes
+
+    def _take_value(self, lane: Lane, packed: int, now: float) -> None:
+        self.store.update(lane.state.channel.index, lane.index, packed, now)
+        if self._started is None:  # (as next_due would: _begin)
+            self._started = now
+
+    def _express_frame(self, lane: Lane, data: bytes, now: float, at: float) -> OutFrame:
+        return OutFrame(data, lane.dest, lane.ack, at, FramePlan((lane.state,), ()), now)
 
     def build_frame(self, now: float, at: float, *, always: bool = False) -> OutFrame | None:
         """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
@@ -725,11 +794,17 @@ class NodeCore:
         other frame takes :meth:`receive`'s way whole."""
         src = self.mission.name_of(rx.src)
         if not self._plain_rx or src is None or self.link_states.get(src) is not LinkState.UP \
-                or self.codec.sender_fingerprint(rx.data) not in (None, self.codec.fingerprint16):
+                or (self.auth is not None and self.codec.sender_fingerprint(rx.data) not in (
+                    None, self.codec.fingerprint16)):
             self.receive(rx, now, modem_now)
             return False
-        frame = self._decode(rx, src, now)
-        if frame is None:
+        try:
+            frame = self.codec.decode(rx.data, rx.src)
+        except FrameError as exc:
+            if self.auth is None:  # (decoding is pure: receive decodes it again, says why)
+                self.receive(rx, now, modem_now)
+            else:  # (its fingerprint is ours, and its replay window moved: no second look)
+                self._refused(rx, src, exc, now)
             return False
         delivered = self._plain_entries(src, frame)
         if delivered is None:
@@ -758,12 +833,13 @@ class NodeCore:
         plans = self._hear_plans
         delivered = []
         for entry in frame.entries:
-            plan = plans.get((src, entry.channel))
+            key = (src, entry.channel.index)  # (a channel's own hash would look at every field)
+            plan = plans.get(key)
             if plan is None:
                 plan = self._hear_plan(src, entry.channel)
                 if plan is None:
                     return None
-                plans[(src, entry.channel)] = plan
+                plans[key] = plan
             delivered.append((plan, entry))
         return delivered
 
@@ -785,6 +861,7 @@ class NodeCore:
         if not self._unsettled:
             return False
         books, self._unsettled = self._unsettled, []
+        self._express_books_wait = False
         for keep in books:
             keep()
         return True
@@ -818,10 +895,14 @@ class NodeCore:
         try:
             return self.codec.decode(rx.data, rx.src)
         except FrameError as exc:
-            self.settle()
-            self.stats.frames_dropped[exc.reason] += 1
-            self._event(FrameDropped(now, src, exc.reason, str(exc), rx.data))
+            self._refused(rx, src, exc, now)
             return None
+
+    def _refused(self, rx: Reception, src: str, error: FrameError, now: float) -> None:
+        """``rx`` from ``src`` did not decode: counted dropped (books kept first)."""
+        self.settle()
+        self.stats.frames_dropped[error.reason] += 1
+        self._event(FrameDropped(now, src, error.reason, str(error), rx.data))
 
     def _heard_from(self, rx: Reception, src: str, now: float) -> None:
         """A valid frame from ``src``: counters, the MAC and the link record it."""

@@ -70,6 +70,9 @@ class OutboundStore:
     _heap: list[tuple[float, int]] = field(default_factory=list, init=False, repr=False)
     _filed: dict[int, float | None] = field(default_factory=dict, init=False, repr=False)
     _ttl: list[ChannelState] = field(default_factory=list, init=False, repr=False)
+    changes: int = field(default=0, init=False)
+    """How many times a value was stored or a frame marked sent (what a lane's ticket
+    checks: :mod:`bridge.core.lanes`)."""
 
     def __post_init__(self) -> None:
         self._ttl = [s for s in self.states.values() if s.channel.ttl_s is not None]
@@ -107,6 +110,7 @@ class OutboundStore:
         state = self.states[index]
         state.packed[element] = packed
         state.updated[element] = now
+        self.changes += 1
         self._changed(state)
         return state.complete
 
@@ -116,6 +120,7 @@ class OutboundStore:
         state.packed[element] = packed
         state.updated[element] = now
         state.fresh = True
+        self.changes += 1
         self._changed(state)
 
     def due(self, now: float) -> list[ChannelState]:
@@ -173,6 +178,7 @@ class OutboundStore:
     def mark_sent(self, sent: Iterable[ChannelState], built: float) -> None:
         """The frame built at ``built`` carried these channels. A value that arrived after
         the frame was built (while the modem was sending it) stays fresh, to go next time."""
+        self.changes += 1
         for state in sent:
             for t in state.updated:
                 if t is not None and t > built:

@@ -210,8 +210,9 @@ class BridgeNode:
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
         ref = extra[4:].decode("utf-8", "replace") if extra[:4] == b"ref:" else None
         sample_key = str(sample.key_expr) if "*" in key else None  # (else it is ``key``)
-        if self._direct() is not None:
-            self.ingest(key, data, encoding, ref, sample_key)
+        backend = self._direct()
+        if backend is not None:
+            self._ingest(backend, (key, data, encoding, ref, sample_key))
         else:
             loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref, sample_key)
 
@@ -369,12 +370,17 @@ class BridgeNode:
         """A sample arrived on an input key (``ref``: the publisher's correlation text;
         ``sample_key``: the sample's own key, under a wildcard input key). Any thread: with
         a direct backend an open opportunity's frame leaves from here, else from the loop."""
+        self._ingest(self._direct(), (key, data, encoding, ref, sample_key))
+
+    def _ingest(self, backend: ModemBackend | None, sample: InputSample) -> None:
+        """:meth:`ingest`, given :meth:`_direct`."""
         with self.lock:
             ready = not self._sending and self._modem_up.is_set()
-            backend = self._direct()
             if ready and backend is not None:  # (its outputs and the frame's, flushed together)
-                self._send_now(backend, (key, data, encoding, ref, sample_key))
+                if not self._express(backend, sample):
+                    self._send_now(backend, sample)
                 return
+            key, data, encoding, ref, sample_key = sample
             self.core.ingest(key, data, encoding, self.clock(), ref, sample_key)
             self._flush()
             if not ready:
@@ -473,6 +479,25 @@ class BridgeNode:
         else:
             self._persist()
         return action, now
+
+    def _express(self, backend: ModemBackend, sample: InputSample) -> bool:
+        """Holding the lock: the sample leaves at once if the core's clearance admits it
+        (:meth:`NodeCore.express`); the rest is kept with the books. False: it did not."""
+        now = self.clock()
+        express = self.core.express(sample[0], sample[1], sample[2], now)
+        if express is None:
+            return False
+        lane, packed, data = express
+        at = backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
+        try:
+            backend.send_now(data, lane.dest, ack=lane.ack)
+        except BackendError as exc:
+            self._failed(backend, self.core.unexpressed(lane, packed, data, now, at), now, exc)
+            return True
+        self.core.expressed(lane, packed, data, now, self.clock(), at)
+        self._replan = True  # (the loop's timer keeps the books and asks the core when next)
+        self._loop_later()
+        return True
 
     def _send_now(self, backend: ModemBackend, sample: InputSample) -> None:
         """Holding the lock, on any thread: the core takes ``sample`` and its action is
@@ -580,14 +605,21 @@ class BridgeNode:
                 self._carry_out(outputs)
 
     def _carry_out(self, outputs: list[Any]) -> None:
-        later = [] if not self._on_loop() and self._loop is not None else None
+        later: list[Any] | None = None  # events and query outputs for the loop, off it
+        asked = False  # (whether this is the loop's thread: asked once, past the publications)
         queries = False  # among ``later``
         for output in outputs:
-            if isinstance(output, Publish) and output.ros2 is not None:
-                self._publish_ros2(output.key, output.value, output.ros2)
-            elif isinstance(output, Publish):
-                self.publish(output.key, output.value, output.encoding, latched=output.latched)
-            elif isinstance(output, Status):
+            if output.__class__ is Publish:  # (the usual output: asked first)
+                if output.ros2 is None:
+                    self.publish(output.key, output.value, output.encoding,
+                                 latched=output.latched)
+                else:
+                    self._publish_ros2(output.key, output.value, output.ros2)
+                continue
+            if not asked:
+                asked = True
+                later = [] if not self._on_loop() and self._loop is not None else None
+            if isinstance(output, Status):
                 self._publish_raw(f"{self.prefix}/{output.topic}", output.payload)
                 if output.topic.startswith("link/"):
                     self._token(output.topic, output.payload["state"])

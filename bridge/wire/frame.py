@@ -34,7 +34,7 @@ Layout, most significant bit first::
 from __future__ import annotations
 
 import binascii
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from bridge.errors import DecodeError, FrameError
@@ -181,6 +181,24 @@ class FrameCodec:
             data = self.auth.seal(data)
         return data + check_value(data, self.table.fingerprint)
 
+    def lone(self, channel: ChannelCodec, epoch: int = 0) -> Callable[[int], bytes] | None:
+        """``payload -> encode([(channel, payload)], (), epoch)``, worked out once: the frame of
+        ``channel`` alone, for the direct data path (:mod:`bridge.core.lanes`). None where a
+        frame needs more than its entry (DLBL delays, authentication)."""
+        if self.delay_count or self.auth_bytes:
+            return None
+        head = (((epoch & ((1 << EPOCH_BITS) - 1)) << self.count_bits) if self.epoch_bits else 0)
+        head = (((head | 1) << self.index_bits) | channel.index) << channel.wire_bits
+        bits = self.epoch_bits + self.count_bits + self.index_bits + channel.wire_bits
+        pad, size, fingerprint, crc = -bits % 8, (bits + 7) // 8, self.fingerprint16, \
+            binascii.crc_hqx
+
+        def frame(payload: int) -> bytes:
+            body = ((head | payload) << pad).to_bytes(size, "big")
+            return body + (crc(body, 0xFFFF) ^ fingerprint).to_bytes(CHECK_BYTES, "big")
+
+        return frame
+
     # -- decode --------------------------------------------------------------------------------
 
     def sender_fingerprint(self, frame: bytes) -> int | None:
@@ -255,7 +273,9 @@ class FrameCodec:
             left -= bits
             payload = (acc >> left) & ((1 << bits) - 1)
             try:
-                entries.append(self._entry(channel, payload))
+                entries.append(Entry(channel, channel.unpack(payload))  # the usual entry
+                               if channel.__class__ is ChannelCodec and channel.plain
+                               else self._entry(channel, payload))
             except DecodeError as exc:
                 raise FrameError(f"channel {channel.name!r}: {exc}") from None
         if left >= 8 or acc & ((1 << left) - 1):
@@ -263,9 +283,8 @@ class FrameCodec:
         return DecodedFrame(delays, tuple(entries), epoch)
 
     def _entry(self, channel: ChannelCodec | AckCodec | NameCodec, payload: int) -> Entry:
-        """One entry's fields, checked; raises :class:`DecodeError` when malformed."""
-        if channel.__class__ is ChannelCodec and channel.plain:  # the usual entry
-            return Entry(channel, channel.unpack(payload))
+        """One entry's fields, checked (but a plain channel's: :meth:`decode` unpacks those
+        itself); raises :class:`DecodeError` when malformed."""
         if isinstance(channel, QueryCodec):
             qid, node, status, index, packed = channel.unpack(payload)
             if node >= len(self.table.nodes):
