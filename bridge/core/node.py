@@ -783,21 +783,24 @@ class NodeCore:
         if frame is not None:
             self._accept(rx, src, frame, now, modem_now)
 
-    def hear(self, rx: Reception, now: float, modem_now: float | None = None) -> bool:
+    def hear(self, rx: Reception, now: float, modem_now: float | None = None
+             ) -> list[tuple[HearPlan, list[dict]]] | None:
         """:meth:`receive`, keeping the books of a plain frame for :meth:`settle`.
 
         A *plain* frame (from a peer whose link is up, in its known epoch, holding only
         latest-value channels, to a node whose MAC ignores what it hears and that has no
-        queries, surfacing or anchors to decode) has its values output at once; counters, link
-        and MAC records, ranging, status and its :class:`FrameReceived` wait for
-        :meth:`settle`, which every other method runs first. Returns whether books wait; any
-        other frame takes :meth:`receive`'s way whole."""
+        queries, surfacing or anchors to decode) has its values returned, for the caller to
+        publish at once (the :class:`Publish` outputs :meth:`receive` would give, as a plan and
+        the element values per entry: see :func:`publications`); counters, link and MAC
+        records, ranging, status and its :class:`FrameReceived` wait for :meth:`settle`, which
+        every other method runs first. Any other frame takes :meth:`receive`'s way whole
+        (None: see :meth:`take`)."""
         src = self.mission.name_of(rx.src)
         if not self._plain_rx or src is None or self.link_states.get(src) is not LinkState.UP \
                 or (self.auth is not None and self.codec.sender_fingerprint(rx.data) not in (
                     None, self.codec.fingerprint16)):
             self.receive(rx, now, modem_now)
-            return False
+            return None
         try:
             frame = self.codec.decode(rx.data, rx.src)
         except FrameError as exc:
@@ -805,25 +808,24 @@ class NodeCore:
                 self.receive(rx, now, modem_now)
             else:  # (its fingerprint is ours, and its replay window moved: no second look)
                 self._refused(rx, src, exc, now)
-            return False
+            return None
         delivered = self._plain_entries(src, frame)
         if delivered is None:
             self.settle()
             self._accept(rx, src, frame, now, modem_now)
-            return False
+            return None
         if self.auth is not None:
             self._dirty = True  # the replay window moved: saved before anything is published
         values: dict[str, list[dict]] = {}
-        outputs = self._outputs
+        published = []
         for plan, entry in delivered:
             if plan:
                 values[entry.channel.name] = elements = entry.values
-                for (key, encoding, latching, ros2), value in zip(plan, elements, strict=True):
-                    outputs.append(Publish(key, value, encoding, latching, ros2))
+                published.append((plan, elements))
                 self.stats.values_published += len(plan)
         self._unsettled.append(partial(self._heard_books, rx, src, frame.delays, now, modem_now,
                                        values))
-        return True
+        return published
 
     def _plain_entries(self, src: str, frame: DecodedFrame) -> list[tuple[HearPlan, Entry]] | None:
         """Each entry of ``frame`` with what :meth:`hear` outputs for it; None if the frame is
@@ -1261,6 +1263,13 @@ class NodeCore:
 
 _SCALARS = (int, float, str, bool, type(None))
 _PLAIN_TYPES = frozenset(_SCALARS)  # exactly these (not subclasses): plain already
+
+
+def publications(heard: list[tuple[HearPlan, list[dict]]]) -> list[Publish]:
+    """:meth:`NodeCore.hear`'s values as the :class:`Publish` outputs :meth:`receive` gives."""
+    return [Publish(key, value, encoding, latching, ros2)
+            for plan, values in heard
+            for (key, encoding, latching, ros2), value in zip(plan, values, strict=True)]
 
 
 def plain(meta: Mapping[str, Any]) -> dict[str, Any]:

@@ -577,14 +577,19 @@ class BridgeNode:
             valid = self.core.stats.frames_received
             if self._loop is None:  # (not running: nothing to keep the books later)
                 self.core.receive(rx, self.clock(), modem_now)
-                books = False
+                heard = None
             else:
-                books = self.core.hear(rx, self.clock(), modem_now)
-            self._flush()  # the values first: what follows is off their path
-            if books:  # kept by the loop's timer, after the values are on their way
+                heard = self.core.hear(rx, self.clock(), modem_now)
+            if heard is not None:  # the values at once; the books by the loop's timer, after
+                self._persist()  # (with auth, the replay window first)
+                for plan, values in heard:
+                    for (key, encoding, latched, ros2), value in zip(plan, values, strict=True):
+                        self._put(key, value, encoding, latched, ros2)
                 self._replan = True
                 self._loop_later()
-            elif self.core.stats.frames_received > valid:
+                return
+            self._flush()
+            if self.core.stats.frames_received > valid:
                 # a poll or a ranging turn may open an opportunity
                 self._wake_if_sooner(self.clock())
 
@@ -610,11 +615,7 @@ class BridgeNode:
         queries = False  # among ``later``
         for output in outputs:
             if output.__class__ is Publish:  # (the usual output: asked first)
-                if output.ros2 is None:
-                    self.publish(output.key, output.value, output.encoding,
-                                 latched=output.latched)
-                else:
-                    self._publish_ros2(output.key, output.value, output.ros2)
+                self._put(output.key, output.value, output.encoding, output.latched, output.ros2)
                 continue
             if not asked:
                 asked = True
@@ -697,6 +698,14 @@ class BridgeNode:
         elif state != LinkState.DOWN.value and token is None:
             self._tokens[topic] = self.session.liveliness().declare_token(
                 f"{self.prefix}/{topic}")
+
+    def _put(self, key: str, value: Any, encoding: str, latched: bool,
+             ros2: Ros2Element | None) -> None:
+        """A decoded value out on Zenoh (a :class:`Publish`'s fields)."""
+        if ros2 is None:
+            self.publish(key, value, encoding, latched=latched)
+        else:
+            self._publish_ros2(key, value, ros2)
 
     def publish(self, key: str, value: Any, encoding: str, *, latched: bool = False) -> None:
         """Put a decoded value on Zenoh, marked as bridged so no bridge sends it back."""
