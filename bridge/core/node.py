@@ -498,8 +498,7 @@ class NodeCore:
                 if not self.schedule.open_now(now):  # (False: closed; None: ask it)
                     self.settle()
                     return self._act(now, at, lane)
-                if self._started is None:  # (as next_due would: _begin)
-                    self._started = now
+                self._begin(now)  # (as next_due would)
                 return SendFrame(self._lone_frame(lane, now, at))
         self.ingest(key, data, encoding, now, ref, sample_key)
         return self.act(now, at)
@@ -510,7 +509,12 @@ class NodeCore:
         state = lane.state
         data = self.codec.encode([(state.channel, state.payload())], (), self.epoch) \
             if lane.frame is None else lane.frame(state.payload())
-        return OutFrame(data, lane.dest, lane.ack, at, FramePlan((state,), ()), now)
+        return self._lane_frame(lane, data, now, at)
+
+    def _lane_frame(self, lane: Lane, data: bytes, now: float, at: float) -> OutFrame:
+        """The frame ``data`` of ``lane``'s channel alone, built at ``now`` for modem time
+        ``at``."""
+        return OutFrame(data, lane.dest, lane.ack, at, FramePlan((lane.state,), ()), now)
 
     def done(self, action: Action, start: float, end: float, *,
              confirmed: bool | None = None, error: str | None = None) -> None:
@@ -540,9 +544,7 @@ class NodeCore:
         if not self.lanes or action.ranged or out.streams or out.acks or out.extras:
             self.done(action, start, end)
             return False
-        self.store.mark_sent(out.plan.chosen, out.built)
-        self.last_tx = out.built
-        self.schedule.on_sent(start, end)
+        self._recorded(out, start, end)
         self._unsettled.append(partial(self._count_sent, out, start))
         self._clearance = clearance_after(self, out.plan.chosen, out.built, start)
         return True
@@ -581,7 +583,7 @@ class NodeCore:
         report how it failed (the value stays due)."""
         self.settle()
         self._take_value(lane, packed, now)
-        return SendFrame(self._express_frame(lane, data, now, at))
+        return SendFrame(self._lane_frame(lane, data, now, at))
 
     def _express_books(self, lane: Lane, packed: int, data: bytes, now: float, end: float,
                        at: float) -> None:
@@ -589,21 +591,23 @@ class NodeCore:
         clearance = self._clearance
         current = clearance is not None and clearance.stamp == self.store.changes
         self._take_value(lane, packed, now)
-        out = self._express_frame(lane, data, now, at)
-        self.store.mark_sent(out.plan.chosen, now)
-        self.last_tx = now
-        self.schedule.on_sent(now, end)
+        out = self._lane_frame(lane, data, now, at)
+        self._recorded(out, now, end)
         self._count_sent(out, now)
         if current:  # (nothing else changed the store meanwhile: the clearance still holds)
             clearance.stamp = self.store.changes
 
     def _take_value(self, lane: Lane, packed: int, now: float) -> None:
+        """``packed`` stored on ``lane``, as :meth:`ingest_and_act` stores it for its frame."""
         self.store.update(lane.state.channel.index, lane.index, packed, now)
-        if self._started is None:  # (as next_due would: _begin)
-            self._started = now
+        self._begin(now)  # (as next_due would)
 
-    def _express_frame(self, lane: Lane, data: bytes, now: float, at: float) -> OutFrame:
-        return OutFrame(data, lane.dest, lane.ack, at, FramePlan((lane.state,), ()), now)
+    def _recorded(self, out: OutFrame, start: float, end: float) -> None:
+        """What decides the next frame, after a lane's frame ``out`` (the modem busy from
+        ``start`` to ``end``): the store, the last send and the MAC."""
+        self.store.mark_sent(out.plan.chosen, out.built)
+        self.last_tx = out.built
+        self.schedule.on_sent(start, end)
 
     def build_frame(self, now: float, at: float, *, always: bool = False) -> OutFrame | None:
         """A frame of what is due at ``now``, to start at modem time ``at``; None when there is

@@ -71,7 +71,7 @@ class OutboundStore:
     _filed: dict[int, float | None] = field(default_factory=dict, init=False, repr=False)
     _ttl: list[ChannelState] = field(default_factory=list, init=False, repr=False)
     changes: int = field(default=0, init=False)
-    """How many times a value was stored or a frame marked sent (what a lane's ticket
+    """How many times a value was stored or a frame marked sent (what a lane's clearance
     checks: :mod:`bridge.core.lanes`)."""
 
     def __post_init__(self) -> None:

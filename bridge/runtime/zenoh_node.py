@@ -63,6 +63,13 @@ InputSample = tuple[str, bytes, str, "str | None", "str | None"]
 """A sample for the core's ingest: key, payload, encoding, ref and the sample's own key."""
 
 
+
+def modem_start(backend: ModemBackend) -> float:
+    """The modem time a frame handed to ``backend`` now starts at: with a timed modem the
+    emission starts exactly then, so DLBL delays are exact."""
+    return backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
+
+
 class BridgeNode:
     """Everything one vehicle runs: its Zenoh session, the core, the MAC loop and the modem."""
 
@@ -466,9 +473,7 @@ class BridgeNode:
         """Ask the core what to do at this opportunity (holding the lock), once it has taken
         ``sample`` if one just came; a frame's counter is saved before it leaves."""
         self.core.modem_ranging = backend.ranging
-        now = self.clock()
-        # with a timed modem the emission starts exactly at ``at``, so DLBL delays are exact
-        at = backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
+        now, at = self.clock(), modem_start(backend)
         if sample is None:
             action = self.core.act(now, at)
         else:
@@ -488,7 +493,7 @@ class BridgeNode:
         if express is None:
             return False
         lane, packed, data = express
-        at = backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
+        at = modem_start(backend)
         try:
             backend.send_now(data, lane.dest, ack=lane.ack)
         except BackendError as exc:
