@@ -120,3 +120,34 @@ def test_steady_traffic_does_not_wake_the_loop_per_frame() -> None:
         del loop.call_soon_threadsafe
         assert len(wakes) <= 2, f"the data path woke a's loop {len(wakes)} times: {wakes}"
         assert c.frames_sent() == ["fleet"] * (sent + 1)  # every event arrived, on the loop
+
+
+def test_after_the_first_frame_samples_go_by_express_and_their_books_follow() -> None:
+    """From the Zenoh callback, a sample the last frame's clearance admits goes by express
+    (the store, the MAC and the counters later, with the books): every value arrives, in
+    order, and the counters, the store and the events end where the lane would leave them."""
+    with crossing() as c:
+        node = c.fleet.nodes["a"]
+        core = node.core
+        expressed: list[int] = []
+        plain = core.express
+
+        def counted(*args):  # type: ignore[no-untyped-def]
+            express = plain(*args)
+            if express is not None:
+                expressed.append(express[1])
+            return express
+
+        core.express = counted  # type: ignore[method-assign]
+        sent = 20
+        for n in range(sent):
+            put(c.app, "cmd", {"n": n})
+            assert c.inbox.get(5)[1] == {"n": n}
+            time.sleep(0.02)
+        assert expressed == list(range(1, sent))  # all but the first, which takes the lane
+        time.sleep(3 * EVENTS_S)  # the loop's timer keeps the books
+        assert node.stats.frames_sent == sent
+        state = core.store.states[0]
+        assert state.sends == sent and state.packed == [sent - 1] and not state.fresh
+        assert c.frames_sent() == ["fleet"] * sent
+        assert c.fleet.nodes["b"].stats.values_published == sent
