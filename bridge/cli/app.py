@@ -108,9 +108,12 @@ def check(
 ) -> None:
     """Validate a mission; show channel sizes, frame fill and airtime.
 
-    Exit 1 if a channel can never fit, 2 if the file is invalid (with --json: a JSON object
-    with the errors on stdout) or its wire.auth disagrees with the frame keys here
-    (authenticated without a key, or a key present and wire.auth not said).
+    Exit 1 if something can never be sent (an entry too large for a frame even in
+    fragments, a frame larger than the modem sends; a value larger than a frame travels in
+    fragments and is only a warning), 2 if the file is invalid (with --json: a JSON object
+    with the errors on stdout) or a frame key here disagrees with its wire.auth (a key too
+    short, or a key present and wire.auth not said). No key at all is fine: checking a file
+    is not running a vehicle, and it says that `zab run` will need one.
     """
     if as_json:
         try:
@@ -122,9 +125,14 @@ def check(
         loaded = _load(mission)
     report = check_mission(loaded)
     key = frame_key(loaded.mission, look=not no_key)
-    code = 2 if key.problem else 0 if report.ok else 1
+    note = _run_needs_key(loaded) if key.throwaway else None
+    problem = None if note else key.problem  # no key here at all: zab run's concern
+    code = 2 if problem else 0 if report.ok else 1
     if as_json:
-        print(json.dumps({**report.data, "frame_key": key.as_json()}, indent=2))
+        errors = [*report.errors, *([problem] if problem else [])]
+        print(json.dumps({**report.data, "errors": errors, "ok": code == 0,
+                          "frame_key": {**key.as_json(), "problem": problem, "note": note}},
+                         indent=2))
         raise typer.Exit(code)
     data = report.data
     console.print(
@@ -179,12 +187,22 @@ def check(
             highlight=False)
     for warning in report.warnings:
         console.print(f"[yellow]warning:[/] {warning}", highlight=False)
-    console.print(key.describe(), highlight=False)
+    console.print(key.describe() + (f": {note}" if note else ""), highlight=False)
     for error in report.errors:
         console.print(f"[red]error:[/] {error}", highlight=False)
-    if key.problem:
-        err.print(f"[bold red]error:[/] {key.problem}", highlight=False, soft_wrap=True)
+    if problem:
+        err.print(f"[bold red]error:[/] {problem}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def _run_needs_key(loaded: LoadedMission) -> str | None:
+    """What ``zab check`` says when an authenticated mission finds no key here (None: a key
+    file is there but unreadable or empty, a problem of this machine's key)."""
+    auth = loaded.mission.wire.auth
+    if auth is None or (auth.key_file is not None and auth.key_file.exists()):
+        return None
+    where = f"${auth.key_env}" + (f" or {auth.key_file}" if auth.key_file else "")
+    return f"`zab run` and `zab doctor` will need the mission key in {where}"
 
 
 def _problems(exc: MissionError) -> list[dict[str, Any]]:
