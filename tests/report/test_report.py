@@ -61,7 +61,11 @@ def open_offline(path: Path) -> dict[str, Any]:
                   points: plot.data.reduce((n, t) => n + (t.x ? t.x.length : 0), 0),
                   title: plot.layout.title.text,
                   svg: plot.querySelectorAll(".main-svg").length,
-                  annotations: (plot.layout.annotations || []).map((a) => a.text)}];
+                  annotations: (plot.layout.annotations || []).map((a) => a.text),
+                  legend: plot.layout.showlegend,
+                  names: plot.data.map((t) => t.name),
+                  colours: plot.data.map((t) => t.marker && t.marker.color),
+                  caption: s.querySelector("p.caption")?.textContent || null}];
               }))""")
             return {"plots": drawn, "asked": asked, "errors": errors,
                     "text": page.inner_text("body")}
@@ -130,6 +134,17 @@ def test_fast_sim_writes_a_report_that_opens_offline(tmp_path: Path) -> None:
     assert plots["age"]["traces"] >= 5 and plots["age"]["points"] > 100
     assert plots["slots"]["points"] >= 5
     assert plots["losses"]["traces"] >= 1 and plots["losses"]["annotations"] == []  # lost: loss
+    # every cause has its own colour and a legend says which, even when there is one cause
+    losses = plots["losses"]
+    assert losses["legend"] is True and "loss" in losses["names"]
+    assert len(set(losses["colours"])) == len(losses["names"]) and None not in losses["colours"]
+    # each age plot says when its bound holds: latched channels are re-sent without news, one
+    # sent on news only ages from its last value on; the caption says why ages pass a bound
+    titles = plots["age"]["annotations"]
+    assert "surface_fix: latched, re-sent without news (bound 13.0 s)" in titles, titles
+    assert any(t.startswith("nav: sent on news only (bound ") for t in titles), titles
+    assert "each lost frame adds a turn" in plots["age"]["caption"]
+    assert "a command published once" in plots["age"]["caption"]
     assert plots["ranges"]["points"] > 10
     assert "mission report: morph" in page["text"]
     assert "300 s simulated (virtual clock)" in page["text"]
