@@ -54,6 +54,19 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
         return LogLine("error", "driver", f"{node}: modem send failed: {event.get('error')}")
     if kind == "modem_down":
         return LogLine("error", "driver", f"{node}: modem unavailable: {event.get('error')}")
+    if kind == "surfaced":
+        peer = event.get("peer")
+        if event.get("ip"):
+            return LogLine("info", kind, f"{node}: {peer} surfaced: reached over IP, its "
+                           "channels no longer carried acoustically")
+        return LogLine("info", kind, f"{node}: {peer} dived: its channels cross the water "
+                       "again")
+    if kind == "peer_restarted":
+        return LogLine("warn", kind, f"{node}: {event.get('peer')} restarted without its "
+                       f"saved state (epoch {event.get('was')} → {event.get('epoch')})")
+    if kind == "mission_mismatch":
+        return LogLine("error", kind, f"{node}: {event.get('peer')} runs another mission "
+                       "file: its frames are not decoded (load the same file on both)")
     extra = {k: v for k, v in event.items() if k not in ("kind", "time", "node", "data")}
     details = ", ".join(f"{k} {v}" for k, v in extra.items())
     return LogLine("info", kind, f"{node}: {kind}" + (f" ({details})" if details else ""))

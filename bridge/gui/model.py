@@ -35,6 +35,7 @@ from bridge.gui.eventlog import (
 )
 from bridge.gui.keys import ChannelSource, StatusKey, SurfaceKeys
 from bridge.mission.loader import LoadedMission
+from bridge.runtime.session import origin_tag
 from bridge.wire.payloads import decode_payload
 
 #: Points of track kept per vehicle and source (about 10 min of 1 Hz navigation).
@@ -141,6 +142,7 @@ class GuiModel:
         self.loaded = loaded
         self.node = node
         self.keys = SurfaceKeys(loaded, node)
+        self._bridges = {origin_tag(loaded.mission.mission, n): n for n in loaded.mission.nodes}
         self.track_points = track_points
         self.commands = {c.channel: c for c in command_channels(loaded, node)}
         self.book = CommandBook()
@@ -220,8 +222,10 @@ class GuiModel:
 
     # -- input -------------------------------------------------------------------------------
 
-    def ingest(self, key: str, data: bytes, encoding: str, now: float) -> None:
-        """One sample the GUI's session received."""
+    def ingest(self, key: str, data: bytes, encoding: str, now: float,
+               origin: bytes | None = None) -> None:
+        """One sample the GUI's session received; ``origin``: its attachment (a bridge's
+        origin tag says which bridge published it)."""
         status = self.keys.status(key)
         sources = self.keys.lookup(key)
         if status is None and sources is None:
@@ -234,7 +238,15 @@ class GuiModel:
         if status is not None:
             self._status(status, value, now)
         for source in sources or ():
-            self._value(source, value, now)
+            if not self._copy(source, origin):
+                self._value(source, value, now)
+
+    def _copy(self, source: ChannelSource, origin: bytes | None) -> bool:
+        """Whether a value was published by a third vehicle's bridge: what it heard
+        acoustically, seen here because it surfaced and its Zenoh joined this node's. This
+        node's bridge brings the same value (the sender's own bridge, over IP, may too)."""
+        publisher = self._bridges.get(origin) if origin is not None else None
+        return publisher is not None and publisher not in (self.node, source.src)
 
     def _drop(self, key: str, reason: str, now: float) -> None:
         self.dropped[key] += 1
