@@ -166,3 +166,23 @@ def test_real_time_sim_report_has_truth_and_json_stays_json(tmp_path: Path) -> N
     done = zab("sim", str(mission), "--fast", "--duration", "60", "--report", str(as_json))
     assert done.returncode == 0, done.stderr
     assert set(json.loads(as_json.read_text())["channels"]) >= {"nav", "mission_command"}
+
+
+def test_frames_still_in_the_water_at_the_end_are_shown_as_such() -> None:
+    import io
+
+    from rich.console import Console
+
+    from bridge.report.model import LinkFigures, MissionReport, print_report
+
+    links = [LinkFigures("ssv->gcv", 1, 2, 481, 480, {"loss": 0}),
+             LinkFigures("gcv->ssv", 2, 1, 80, 78, {"loss": 2})]
+    assert [link.in_flight for link in links] == [1, 0]
+    report = MissionReport("m", "virtual", 600.0, {}, {}, links, 561, 558)
+    out = io.StringIO()
+    print_report(Console(file=out, width=120), report)
+    rows = [line.split("│")[1:-1] for line in out.getvalue().splitlines() if "->" in line]
+    assert [[cell.strip() for cell in row] for row in rows] == [
+        ["ssv->gcv", "481", "480", "0", "1"], ["gcv->ssv", "80", "78", "loss 2", "0"]]
+    assert "in flight at the end" in out.getvalue()
+    assert report.to_dict()["links"][0]["in_flight"] == 1
