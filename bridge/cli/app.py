@@ -20,6 +20,7 @@ from rich.logging import RichHandler
 from rich.table import Table
 
 from bridge.cli import helptext
+from bridge.cli.words import counted
 from bridge.errors import BackendError, MissionError, SessionError
 from bridge.mission.check import check_mission
 from bridge.mission.keys import frame_key, throwaway_note
@@ -57,7 +58,7 @@ def _version(value: bool) -> None:
 @app.callback()
 def _main(
     show_version: Annotated[bool, typer.Option(
-        "--version", help="Print the version and exit.", callback=_version,
+        "--version", "-V", help="Print the version and exit.", callback=_version,
         is_eager=True)] = False,
 ) -> None:
     """zenoh-acoustic-bridge: one Zenoh pub/sub space across WiFi and water."""
@@ -160,12 +161,13 @@ def check(
         console.print(queries)
     if data.get("demand"):
         always = [c["name"] for c in data["channels"] if c.get("always")]
-        console.print(f"demand: @want entry {data['demand']['want_entry_bits']} bits, re-sent "
+        want = counted(data["demand"]["want_entry_bits"], "bit")
+        console.print(f"demand: @want entry {want}, re-sent "
                       f"every {data['demand']['refresh_s']:g} s; always sent: "
                       f"{', '.join(always) or 'none'}", highlight=False)
     if data.get("key_entry_bits"):
-        console.print(f"@key entry (names a learned member): {data['key_entry_bits']} bits",
-                      highlight=False)
+        console.print("@key entry (names a learned member): "
+                      f"{counted(data['key_entry_bits'], 'bit')}", highlight=False)
     for d in data["dccl"]:  # like dccl --analyze
         console.print(f"DCCL message of channel {d['channel']!r}:\n{d['analysis']}",
                       highlight=False, markup=False)
@@ -222,7 +224,7 @@ def _keys_text(keys: dict[str, Any] | None) -> str:
     if keys is None:
         return "—"
     members = f"learned ≤ {keys['bound']}" if keys["learned"] else f"{keys['bound']} keys"
-    return f"+{keys['index_bits']} bits ({members})"
+    return f"+{counted(keys['index_bits'], 'bit')} ({members})"
 
 
 def _print_mac(data: dict[str, Any]) -> None:
@@ -614,17 +616,24 @@ def listen(
     = None,
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.",
                                                    min=0)] = None,
+    mission: Annotated[Path | None, typer.Option(
+        "--mission", "-m", help="The fleet's mission: bridged values print to their "
+        "channel's step (3.252 at a 0.0246 step, not 3.25242824).", show_default=False)]
+    = None,
 ) -> None:
     """Print the values arriving at a Zenoh endpoint, decoded, one line each (Ctrl-C stops)."""
     from bridge.cli.poke import PokeError
     from bridge.cli.poke import listen as run_listen
+    from bridge.cli.rounding import Steps
+
+    steps = None if mission is None else Steps(_load(mission))
 
     def ready() -> None:
         err.print(f"listening on {keyexpr} at {endpoint}; Ctrl-C to stop", highlight=False)
 
     try:
         run_listen(endpoint, keyexpr, lambda line: print(line, flush=True), count=count,
-                   duration=duration, ready=ready)
+                   duration=duration, ready=ready, steps=steps)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(1) from None
@@ -637,21 +646,30 @@ def put(
     endpoint: EndpointArg,
     key: Annotated[str, typer.Argument(help="Key to publish on, e.g. target_reference.",
                                        show_default=False)],
-    value: Annotated[str, typer.Argument(help='The value as JSON, e.g. \'{"x": 10, "y": 5}\'.',
-                                         show_default=False)],
+    value: Annotated[str, typer.Argument(
+        help='The value as JSON, e.g. \'{"vector": {"x": 1.5, "y": 0.01}}\'.',
+        show_default=False)],
 ) -> None:
-    """Publish one value (JSON on the command line, msgpack on Zenoh) at a Zenoh endpoint."""
+    """Publish one value (JSON on the command line, msgpack on Zenoh) at a Zenoh endpoint.
+
+    It goes as an operator's command, as the GUI's do: with a reference (`ref:put-…`) that
+    an acknowledged channel's delivery reports echo.
+    """
+    import secrets
+
     from bridge.cli.poke import PokeError
     from bridge.cli.poke import put as run_put
 
+    ref = f"put-{secrets.token_hex(4)}"
     try:
-        payload = run_put(endpoint, key, value)
+        payload = run_put(endpoint, key, value, ref)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(1 if str(exc).startswith("cannot connect") else 2) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
-    console.print(f"put {key} ({len(payload)} B msgpack) at {endpoint}", highlight=False)
+    console.print(f"put {key} ({len(payload)} B msgpack, ref {ref}) at {endpoint}",
+                  highlight=False)
 
 
 @app.command()
@@ -691,6 +709,17 @@ def _mission_log(path: Path, loaded: LoadedMission, node: str) -> Any:
     except OSError as exc:
         err.print(f"[red]cannot write the mission log:[/] {exc}", highlight=False)
         raise typer.Exit(2) from None
+
+
+@app.command("help")
+def help_(
+    ctx: typer.Context,
+    command: Annotated[list[str] | None, typer.Argument(
+        help="A command (and a subcommand: log summary).", show_default=False)] = None,
+) -> None:
+    """Show this help, or a command's: `zab help sim` is `zab sim -h`."""
+    typer.main.get_command(app).main([*(command or []), "--help"],
+                                     prog_name=ctx.find_root().info_name)
 
 
 log_app = typer.Typer(help="Read mission logs (MCAP) written with --log.", no_args_is_help=True,
@@ -792,7 +821,7 @@ def log_replay(
         raise typer.Exit(130) from None
     finally:
         close_quietly(session)
-    console.print(f"published {count} values")
+    console.print(f"published {counted(count, 'value')}")
 
 
 def main() -> None:

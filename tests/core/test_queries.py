@@ -221,16 +221,6 @@ def test_a_query_under_the_polled_mac_is_answered_in_the_reply_to_its_poll() -> 
     assert result.ended_at is not None and result.ended_at - result.asked_at <= bound
 
 
-def test_zab_demo_shows_answered_gets(tmp_path: Path) -> None:
-    mission, _ = mission_file(ZSPACE.read_text(), tmp_path)
-    done = subprocess.run([sys.executable, "-m", "bridge", "demo", "--mission", str(mission),
-                           "--duration", "16", "--no-live", "--no-gui"], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=90,
-                          env={**os.environ, "COLUMNS": "200"})
-    assert done.returncode == 0, done.stderr
-    assert "top get auv1/info?detail=0 → {'depth_m'" in done.stdout
-
-
 def test_a_fresh_latched_value_answers_at_once_without_a_request() -> None:
     data = yaml.safe_load(ZSPACE.read_text())
     data["queries"].append({"name": "state", "key": "{node}/status", "serve": "auv.*",
