@@ -35,7 +35,6 @@ from bridge.gui.eventlog import (
 )
 from bridge.gui.keys import ChannelSource, StatusKey, SurfaceKeys
 from bridge.mission.loader import LoadedMission
-from bridge.runtime.session import origin_tag
 from bridge.wire.payloads import decode_payload
 
 #: Points of track kept per vehicle and source (about 10 min of 1 Hz navigation).
@@ -142,7 +141,6 @@ class GuiModel:
         self.loaded = loaded
         self.node = node
         self.keys = SurfaceKeys(loaded, node)
-        self._bridges = {origin_tag(loaded.mission.mission, n): n for n in loaded.mission.nodes}
         self.track_points = track_points
         self.commands = {c.channel: c for c in command_channels(loaded, node)}
         self.book = CommandBook()
@@ -223,9 +221,9 @@ class GuiModel:
     # -- input -------------------------------------------------------------------------------
 
     def ingest(self, key: str, data: bytes, encoding: str, now: float,
-               origin: bytes | None = None) -> None:
-        """One sample the GUI's session received; ``origin``: its attachment (a bridge's
-        origin tag says which bridge published it)."""
+               publisher: str | None = None) -> None:
+        """One sample the GUI's session received; ``publisher``: the node whose bridge
+        published it (from its origin tag; None: an application)."""
         status = self.keys.status(key)
         sources = self.keys.lookup(key)
         if status is None and sources is None:
@@ -238,15 +236,11 @@ class GuiModel:
         if status is not None:
             self._status(status, value, now)
         for source in sources or ():
-            if not self._copy(source, origin):
+            if publisher is None or publisher in (self.node, source.src):
                 self._value(source, value, now)
-
-    def _copy(self, source: ChannelSource, origin: bytes | None) -> bool:
-        """Whether a value was published by a third vehicle's bridge: what it heard
-        acoustically, seen here because it surfaced and its Zenoh joined this node's. This
-        node's bridge brings the same value (the sender's own bridge, over IP, may too)."""
-        publisher = self._bridges.get(origin) if origin is not None else None
-        return publisher is not None and publisher not in (self.node, source.src)
+            # else a third vehicle's bridge published what it heard acoustically, seen here
+            # because it surfaced and its Zenoh joined this node's: this node's bridge brings
+            # the same value (the sender's own bridge, over IP, may too), so it is no arrival
 
     def _drop(self, key: str, reason: str, now: float) -> None:
         self.dropped[key] += 1

@@ -27,6 +27,7 @@ from bridge.gui.feed import ZenohFeed
 from bridge.gui.model import GuiModel, shown
 from bridge.mission.loader import LoadedMission
 from bridge.mission.model import Mission
+from bridge.runtime.session import origin_tag
 
 log = logging.getLogger("zab.gui")
 
@@ -105,6 +106,8 @@ class GuiServer:
         if not self.endpoints:
             raise ValueError(f"node {self.node!r} has no zenoh.listen endpoint in the mission; "
                              "give one with --connect")
+        self._bridges = {origin_tag(loaded.mission.mission, n): n  # who published a sample
+                         for n in loaded.mission.nodes}
         self.feed = ZenohFeed(
             self.endpoints,
             self.model.keys.subscriptions(),
@@ -125,7 +128,8 @@ class GuiServer:
     # -- Zenoh side (on the event loop) --------------------------------------------------------
 
     def _sample(self, key: str, data: bytes, encoding: str, origin: bytes | None) -> None:
-        self.model.ingest(key, data, encoding, self.clock(), origin)
+        publisher = None if origin is None else self._bridges.get(origin)
+        self.model.ingest(key, data, encoding, self.clock(), publisher)
 
     def _token(self, key: str, alive: bool) -> None:
         self.model.liveliness(key, alive, self.clock())

@@ -212,14 +212,12 @@ def test_shown_values_are_small_and_json_safe():
 def test_a_third_bridge_s_copy_of_a_value_is_not_an_arrival(morph):
     """cv2 surfaced: its Zenoh joined ssv's, so what cv2's bridge heard and published (the
     gcv's nav) reaches the GUI too, beside ssv's own copy; cv2's own values over IP count."""
-    from bridge.runtime.session import origin_tag
-
     model = GuiModel(morph, "ssv")
     nav = pack({"x": 20.0, "y": 30.0, "depth": 12.0, "heading": 0, "speed": 1.0})
-    model.ingest("gcv/nav", nav, MSGPACK, 100.0, origin_tag("morph", "ssv"))
-    model.ingest("gcv/nav", nav, MSGPACK, 100.01, origin_tag("morph", "cv2"))  # cv2's copy
-    model.ingest("cv2/nav", nav, MSGPACK, 100.02, origin_tag("morph", "cv2"))  # over IP
-    model.ingest("gcv/nav", nav, MSGPACK, 107.5, origin_tag("morph", "ssv"))
+    model.ingest("gcv/nav", nav, MSGPACK, 100.0, "ssv")
+    model.ingest("gcv/nav", nav, MSGPACK, 100.01, "cv2")  # cv2's copy
+    model.ingest("cv2/nav", nav, MSGPACK, 100.02, "cv2")  # over IP
+    model.ingest("gcv/nav", nav, MSGPACK, 107.5, "ssv")
     channels = [i for i in model.take() if i["kind"] == "channel"]
     gcv = [c for c in channels if c["node"] == "gcv"]
     assert [c["interval_s"] for c in gcv] == [None, 7.5] and gcv[-1]["count"] == 2
