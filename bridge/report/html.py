@@ -53,6 +53,12 @@ CAPTIONS = {
            "re-sent without news, so it comes back under; one sent on news only (a command "
            "published once) ages from its last value on, by design; a vehicle reached over "
            "IP while surfaced gets no acoustic copy meanwhile.",
+    "ranges": "Measured minus true distance when each range completed. A DLBL range is "
+              "two-way: it averages the distance over an exchange of frames, up to a TDMA "
+              "cycle apart, so where the distance changes meanwhile (a vehicle sailing away "
+              "from a moored node) it reads off by up to half that change; between nodes "
+              "that keep their distance the error is the ranging's own, centimetres "
+              "(bench/ranging_bench.py).",
 }
 """Words under a plot's heading, where the plot alone would mislead."""
 

@@ -15,8 +15,8 @@ from bridge.core.events import FrameReceived, FrameSent, Position, Range
 from bridge.ranging.localise import Fix, NoFix
 from bridge.report.html import channel_bounds
 from bridge.report.recorder import MissionRecorder, age_series
-from tests.conftest import MISSIONS, free_port, mission_on_free_ports
-from tests.gui.test_browser import CHROMIUM, CHROMIUM_ARGS
+from tests.conftest import CHROMIUM, MISSIONS, free_port, mission_on_free_ports, needs_browser
+from tests.gui.test_browser import CHROMIUM_ARGS
 
 PLOTS = ["tracks", "age", "slots", "losses", "ranges"]
 
@@ -116,7 +116,7 @@ def test_recorder_keeps_range_errors_against_the_truth() -> None:
     assert rec.tracks["b"] == [(0.0, 30.0, 40.0)]
 
 
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium")
+@needs_browser
 def test_fast_sim_writes_a_report_that_opens_offline(tmp_path: Path) -> None:
     mission = morph_on_free_ports(tmp_path, loss=0.2)  # some frames lost, so losses show
     report = tmp_path / "report.html"
@@ -145,12 +145,13 @@ def test_fast_sim_writes_a_report_that_opens_offline(tmp_path: Path) -> None:
     assert any(t.startswith("nav: sent on news only (bound ") for t in titles), titles
     assert "each lost frame adds a turn" in plots["age"]["caption"]
     assert "a command published once" in plots["age"]["caption"]
+    assert "A DLBL range is two-way" in plots["ranges"]["caption"]
     assert plots["ranges"]["points"] > 10
     assert "mission report: morph" in page["text"]
     assert "300 s simulated (virtual clock)" in page["text"]
 
 
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium")
+@needs_browser
 def test_real_time_sim_report_has_truth_and_json_stays_json(tmp_path: Path) -> None:
     mission = morph_on_free_ports(tmp_path)
     report = tmp_path / "report.html"
