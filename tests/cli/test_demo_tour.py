@@ -6,7 +6,7 @@ writes them (`uv run` is the venv this suite runs in; when someone else's demo h
 ports, the same mission on free ports, and the README's endpoints follow). While they run,
 the README's `listen` and `put` lines and its program run verbatim against the first, and a
 browser watches its GUI; then each tour's text is read whole. One demo serves every test of
-this module (they run in file order: the live ones first)."""
+this module (they run in file order, on one worker: the live ones first)."""
 
 from __future__ import annotations
 
@@ -37,9 +37,6 @@ from tests.conftest import MISSIONS, REPO, free_port
 BIN = Path(sys.executable).parent  # what `uv run` runs: this venv's programs
 ZSPACE = MISSIONS / "zspace.yaml"
 WAIT_S = 40.0  # a few TDMA cycles of the MORPH fleet (7.5 s each) and a margin for load
-
-pytestmark = pytest.mark.xdist_group("demo")  # one worker runs the shared demos
-
 
 def readme() -> str:
     return (REPO / "README.md").read_text(encoding="utf-8")
@@ -107,18 +104,33 @@ class Demo:
 
     @classmethod
     def of(cls, mission: Path, folder: Path, *args: str) -> Demo:
-        """`zab demo` of ``mission`` (as given in ``args``), on free ports if its are taken."""
+        """`zab demo` of ``mission`` (as given in ``args``); on free ports if its are taken,
+        now or by the time it binds them (another suite's demo on this machine)."""
+        if ports_free(mission):
+            demo = cls([str(BIN / "zab"), "demo", *args], folder, {})
+            if not demo.refused():
+                return demo
         endpoints = {}
-        if not ports_free(mission):
-            data = yaml.safe_load(mission.read_text())
-            for node in data["nodes"].values():
-                was = node["zenoh"]["listen"][0]
-                node["zenoh"]["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
-                endpoints[was] = node["zenoh"]["listen"][0]
-            mission = folder / mission.name
-            mission.write_text(yaml.safe_dump(data, sort_keys=False))
-            args = ("--mission", str(mission))
-        return cls([str(BIN / "zab"), "demo", *args], folder, endpoints)
+        data = yaml.safe_load(mission.read_text())
+        for node in data["nodes"].values():
+            was = node["zenoh"]["listen"][0]
+            node["zenoh"]["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
+            endpoints[was] = node["zenoh"]["listen"][0]
+        moved = folder / mission.name
+        moved.write_text(yaml.safe_dump(data, sort_keys=False))
+        return cls([str(BIN / "zab"), "demo", "--mission", str(moved)], folder, endpoints)
+
+    def refused(self) -> bool:
+        """Whether it stopped at once because one of its ports was taken meanwhile (else it
+        runs: its GUI line comes once every node listens)."""
+        deadline = time.monotonic() + 30
+        while self.proc.poll() is None and time.monotonic() < deadline \
+                and not re.search(r"^(GUI: |1\. Values)", self.text, re.M):
+            time.sleep(0.2)
+        if self.proc.poll() is None:
+            return False
+        time.sleep(0.2)  # the readers' last lines
+        return self.proc.returncode == 2 and "is already in use" in "".join(self.errors)
 
     @property
     def text(self) -> str:
@@ -264,12 +276,12 @@ LABELS = """() => {
 @pytest.fixture(scope="module")
 def page(morph: Demo) -> Iterator[Any]:
     """A browser tab on the demo's GUI (Debian's Chromium, driven by Playwright)."""
-    from tests.gui.test_browser import CHROMIUM, CHROMIUM_ARGS
+    from tests.conftest import CHROMIUM, browser_missing
+    from tests.gui.test_browser import CHROMIUM_ARGS
 
-    if not CHROMIUM.exists():
-        pytest.skip("needs Debian's chromium (apt-get install chromium)")
-    sync_api = pytest.importorskip("playwright.sync_api",
-                                   reason="needs Playwright: uv run --all-groups pytest")
+    if reason := browser_missing():
+        pytest.skip(reason)
+    from playwright import sync_api
     url = morph.wait_for(r"open (http://127\.0\.0\.1:\d+/) in a browser").group(1)
     with sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)

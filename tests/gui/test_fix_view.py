@@ -14,8 +14,7 @@ import pytest
 from bridge.gui.model import GuiModel
 from bridge.mission.loader import LoadedMission, load_mission
 from bridge.ranging.tracker import Estimate
-from tests.conftest import MISSIONS
-from tests.gui.test_browser import CHROMIUM
+from tests.conftest import MISSIONS, browser_missing
 from tests.gui.test_map_view import browser_and_url, open_page
 
 if TYPE_CHECKING:
@@ -61,8 +60,8 @@ def test_model_keeps_state_age_and_ellipse_and_a_lost_reason(morph: LoadedMissio
 
 @pytest.fixture(scope="module")
 def page(browser_and_url: tuple[Browser, str]) -> Iterator[Page]:
-    if not CHROMIUM.exists():
-        pytest.skip("needs Debian's chromium (apt-get install chromium)")
+    if reason := browser_missing():
+        pytest.skip(reason)
     yield from open_page(*browser_and_url)
 
 

@@ -28,6 +28,8 @@ from tests.zsim import app as plain_app
 
 ZSPACE = MISSIONS / "zspace.yaml"
 CYCLE_S = 3.0  # the example's TDMA cycle
+INDEPENDENT = True  # each test waits on real time: xdist may spread them (the shared zab sim
+# then starts once per worker that runs a test of it)
 
 
 @pytest.fixture(scope="module")
