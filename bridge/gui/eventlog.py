@@ -54,13 +54,13 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
         return LogLine("error", "driver", f"{node}: modem send failed: {event.get('error')}")
     if kind == "modem_down":
         return LogLine("error", "driver", f"{node}: modem unavailable: {event.get('error')}")
-    if kind == "surfaced":
+    if kind == "surfaced":  # told by each side, the surface's bridge and the vehicle's
         peer = event.get("peer")
         if event.get("ip"):
-            return LogLine("info", kind, f"{node}: {peer} surfaced: reached over IP, its "
-                           "channels no longer carried acoustically")
-        return LogLine("info", kind, f"{node}: {peer} dived: its channels cross the water "
-                       "again")
+            return LogLine("info", kind, f"{node}: {peer} reached over IP (one of them "
+                           "surfaced): channels between them no longer cross the water")
+        return LogLine("info", kind, f"{node}: {peer} no longer reached over IP (dived): "
+                       "channels between them cross the water again")
     if kind == "peer_restarted":
         return LogLine("warn", kind, f"{node}: {event.get('peer')} restarted without its "
                        f"saved state (epoch {event.get('was')} → {event.get('epoch')})")
@@ -75,9 +75,9 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
 def link_line(observer: str, peer: str, state: str, silent_s: float | None,
               never_heard: bool = False) -> LogLine:
     """A link changed state."""
+    if never_heard and state != "up":  # at the start, before the peer's first turn: no fault
+        return LogLine("info", "link", f"link {observer} ↔ {peer}: not heard yet")
     silent = f" (silent {silent_s:.0f} s)" if silent_s is not None and state != "up" else ""
-    if never_heard and state != "up":
-        silent = " (not heard yet)"
     level = {"up": "info", "degraded": "warn"}.get(state, "error")
     return LogLine(level, "link", f"link {observer} ↔ {peer}: {state}{silent}")
 

@@ -375,11 +375,16 @@ def test_a_surfaced_vehicle_is_logged_in_words_and_adds_no_copies(page: Any) -> 
     (the gcv's nav it heard, ...) reaches the GUI too; those copies are not arrivals."""
     page.wait_for_function(
         "[...document.querySelectorAll('#events li')].some("
-        "(li) => li.textContent.includes('ssv: cv2 surfaced: reached over IP'))",
+        "(li) => li.textContent.includes('ssv: cv2 reached over IP (one of them surfaced)'))",
         timeout=60_000)
     page.wait_for_timeout(9_000)  # more than a TDMA cycle of values while it is up
     events = page.inner_text("#events")
     assert "(peer cv2, ip True)" not in events
+    # the start of a healthy demo has no red line: peers not heard yet are no fault
+    first = page.eval_on_selector_all(
+        "#events li", "(es) => es.filter((e) => e.textContent.includes('not heard yet'))"
+        ".map((e) => e.className)")
+    assert first and set(first) == {"info"}, events
     intervals = page.eval_on_selector_all(
         '.vehicle-card:not([data-node="ssv"]) td.interval', "(es) => es.map((e) => e.textContent)")
     assert intervals and "0.0 s" not in intervals, intervals
