@@ -106,17 +106,6 @@ class Schedule(ABC):
     def next_opportunity(self, now: float, due: float | None) -> Opportunity | None:
         """The next opportunity not yet used, or None (wait for data or a reception)."""
 
-    def open_now(self, now: float) -> bool | None:
-        """Whether :meth:`next_opportunity` offers a plain opportunity (no poll, nothing it
-        must send) open at ``now`` for anything due by ``now``, when a schedule can tell
-        without drawing or planning; None: ask :meth:`next_opportunity`."""
-        return None
-
-    def reopens_s(self) -> float | None:
-        """Seconds after a frame's start from which :meth:`open_now` is True until the next
-        frame, where nothing else decides it (None: ask :meth:`open_now`)."""
-        return None
-
     def on_sent(self, start: float, end: float) -> None:  # noqa: B027 - optional hook
         """A frame started at ``start``; the modem was done at ``end``."""
 
@@ -200,12 +189,6 @@ class FreeSchedule(Schedule):
         if due is None:
             return None
         return Opportunity(max(self.earliest(now, self._last), due))
-
-    def open_now(self, now: float) -> bool:
-        return self.earliest(now, self._last) <= now + EPS
-
-    def reopens_s(self) -> float:
-        return self.min_gap_s
 
     def on_sent(self, start: float, end: float) -> None:
         self._last = start

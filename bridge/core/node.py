@@ -29,9 +29,8 @@ import logging
 import math
 import random
 from collections import Counter
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field, replace
-from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
@@ -53,7 +52,6 @@ from bridge.core.events import (
 )
 from bridge.core.families import Extra, Families
 from bridge.core.interest import Interest
-from bridge.core.lanes import Clearance, Lane, clearance_after, hears_plainly, lanes_for
 from bridge.core.link import LinkState, LinkThresholds, LinkWatch, heartbeat_s
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
@@ -78,9 +76,6 @@ from bridge.wire.queries import QueryCodec
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
 
-HearPlan = tuple[tuple[str, str, bool, "Ros2Element | None"], ...]
-"""What :meth:`NodeCore.hear` outputs for one entry: per element, its key, encoding, latching
-and ROS 2 type."""
 log = logging.getLogger("zab.core")
 
 PEER_STATUS_S = 1.0  # least time between two ``peers/<peer>`` status puts of one peer
@@ -247,15 +242,6 @@ class NodeCore:
         self._foreign: dict[str, int] = {}  # a peer's last fingerprint not ours
         self._peer_status: dict[str, float] = {}  # when each peer's status was last put
         self.mismatched: dict[str, str] = {}  # peers known to run another mission file
-        self.lanes = lanes_for(self)  # input keys with a short way to their frame
-        self.expressible = frozenset(  # channels whose lane's frame may go by express
-            lane.state.channel.index for lane in self.lanes.values()
-            if lane.frame is not None and len(lane.state.channel.elements) == 1)
-        self._clearance: Clearance | None = None  # the last lane frame's (bridge.core.lanes)
-        self._express_books_wait = False  # among the books: what a lane reads (the store, MAC)
-        self._unsettled: list[Callable[[], None]] = []  # books hear() and sent() left, in order
-        self._plain_rx = hears_plainly(self)
-        self._hear_plans: dict[tuple[str, int], HearPlan] = {}  # (sender, entry's wire index)
 
     # -- state across restarts -----------------------------------------------------------------
 
@@ -340,7 +326,6 @@ class NodeCore:
 
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
         ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
-        self.settle()
         bindings = self.bindings.get(key, ())
         ros2 = self._ros2_inputs.get(key)  # (ros2_input, per sample)
         try:
@@ -378,7 +363,6 @@ class NodeCore:
 
     def drop_payload(self, key: str, reason: str, now: float) -> None:
         """Count a payload that cannot be used (warned once per key)."""
-        self.settle()
         self.stats.payloads_dropped[key] += 1
         if key not in self._warned_keys:
             self._warned_keys.add(key)
@@ -389,7 +373,6 @@ class NodeCore:
     def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
                 now: float) -> tuple[float, ...] | None:
         """The finite numbers ``names`` of a payload, or None (counted as a dropped payload)."""
-        self.settle()
         try:
             value = decode_payload(data, encoding)
             numbers = tuple(float(value[k]) for k in names)
@@ -405,7 +388,6 @@ class NodeCore:
     def next_due(self, now: float | None = None) -> float | None:
         """When something (data, an acknowledgement, a retransmission or a heartbeat) is next
         due; None while nothing is pending."""
-        self.settle()
         if now is not None:
             self._begin(now)
         if self._acks:
@@ -450,22 +432,14 @@ class NodeCore:
         """What to do now, if an opportunity is open: a frame built to start at modem time
         ``at``, or a ping (``ranging.ping`` with a modem that pings); None: nothing (the
         opportunity, if any, is given up). Report how it went with :meth:`done`."""
-        self.settle()
-        return self._act(now, at, None)
-
-    def _act(self, now: float, at: float, lone: Lane | None) -> Action | None:
-        """:meth:`act`; ``lone``: the lane of the one channel due (:meth:`ingest_and_act`)."""
         opp = self.schedule.next_opportunity(now, self.next_due(now))
         if opp is None or opp.start > now + 1e-9:
             return None
         peer = self.range_due(now) if self.modem_ranging and opp.poll is None else None
         if peer is not None and self.modem_ranging == "ping":
             return Ping(peer)
-        if lone is not None and peer is None:
-            out: OutFrame | None = self._lone_frame(lone, now, at)
-        else:
-            always = opp.must_send or self.heartbeat_due(now) or peer is not None
-            out = self.build_frame(now, at, always=always)
+        always = opp.must_send or self.heartbeat_due(now) or peer is not None
+        out = self.build_frame(now, at, always=always)
         if out is None:
             self.schedule.on_skipped(now)
             return None
@@ -475,52 +449,10 @@ class NodeCore:
             out = replace(out, dest=peer, ack=True)
         return SendFrame(out, ranged=peer is not None)
 
-    def ingest_and_act(self, key: str, data: bytes, encoding: str, now: float, at: float,
-                       ref: str | None = None, sample_key: str | None = None) -> Action | None:
-        """:meth:`ingest`, then :meth:`act`: the same outcome, in fewer steps when the key has
-        a lane and its channel is the one thing due (:mod:`bridge.core.lanes`). A lane's frame
-        leaves the books :meth:`hear` and :meth:`sent` left waiting: a plain node's books
-        touch nothing it reads, and it outputs nothing of its own on the way. An express's
-        books hold the store and the MAC: those are kept first."""
-        lane = self.lanes.get(key)
-        if lane is not None and not (self._acks or self._ack_repeats):
-            if self._express_books_wait:
-                self.settle()
-            try:
-                packed = lane.element.layout.pack(decode_payload(data, encoding))
-            except (DecodeError, EncodeError):
-                pass  # ingest counts it
-            else:
-                state = lane.state
-                self.store.update(state.channel.index, lane.index, packed, now)
-                if self.store.lone_due(now) is not state:
-                    return self.act(now, at)
-                if not self.schedule.open_now(now):  # (False: closed; None: ask it)
-                    self.settle()
-                    return self._act(now, at, lane)
-                self._begin(now)  # (as next_due would)
-                return SendFrame(self._lone_frame(lane, now, at))
-        self.ingest(key, data, encoding, now, ref, sample_key)
-        return self.act(now, at)
-
-    def _lone_frame(self, lane: Lane, now: float, at: float) -> OutFrame:
-        """:meth:`build_frame`'s frame when ``lane``'s channel alone is due (and the node is
-        plain: nothing else could go in it)."""
-        state = lane.state
-        data = self.codec.encode([(state.channel, state.payload())], (), self.epoch) \
-            if lane.frame is None else lane.frame(state.payload())
-        return self._lane_frame(lane, data, now, at)
-
-    def _lane_frame(self, lane: Lane, data: bytes, now: float, at: float) -> OutFrame:
-        """The frame ``data`` of ``lane``'s channel alone, built at ``now`` for modem time
-        ``at``."""
-        return OutFrame(data, lane.dest, lane.ack, at, FramePlan((lane.state,), ()), now)
-
     def done(self, action: Action, start: float, end: float, *,
              confirmed: bool | None = None, error: str | None = None) -> None:
         """``action`` was carried out from ``start`` to ``end`` (runtime clock); ``error``:
         it failed (a frame's data stays due); ``confirmed``: the modem's acknowledgement."""
-        self.settle()
         peer = action.peer if isinstance(action, Ping) else (
             action.frame.dest if action.ranged else None)
         if peer is not None:
@@ -535,85 +467,10 @@ class NodeCore:
         else:
             self.schedule.on_skipped(start)
 
-    def sent(self, action: SendFrame, start: float, end: float) -> bool:
-        """:meth:`done` for a frame the modem took, keeping the books of a plain node's frame
-        of latest values alone (its counters and :class:`FrameSent`, as a lane sends) for
-        :meth:`settle`: what decides the next frame (the store, the MAC, the last send) is
-        done at once. Returns whether books wait."""
-        out = action.frame
-        if not self.lanes or action.ranged or out.streams or out.acks or out.extras:
-            self.done(action, start, end)
-            return False
-        self._recorded(out, start, end)
-        self._unsettled.append(partial(self._count_sent, out, start))
-        self._clearance = clearance_after(self, out.plan.chosen, out.built, start)
-        return True
-
-    def express(self, key: str, data: bytes, encoding: str, now: float
-                ) -> tuple[Lane, int, bytes] | None:
-        """:meth:`ingest_and_act` for a sample on ``key`` at ``now`` that the last lane frame's
-        clearance admits (:mod:`bridge.core.lanes`): its lane, packed value and frame, worked out
-        without reading or changing anything else. Report with :meth:`expressed` or
-        :meth:`unexpressed`. None: take :meth:`ingest_and_act`."""
-        clearance, lane = self._clearance, self.lanes.get(key)
-        if clearance is None or lane is None or self._acks or self._ack_repeats or self._dirty \
-                or not clearance.admits(lane.state, now, self.store.changes):
-            return None
-        try:
-            packed = lane.element.layout.pack(decode_payload(data, encoding))
-        except (DecodeError, EncodeError):
-            return None  # ingest_and_act counts it
-        assert lane.frame is not None  # (a clearance's channel is expressible)
-        return lane, packed, lane.frame(packed)
-
-    def expressed(self, lane: Lane, packed: int, data: bytes, now: float, end: float,
-                  at: float) -> None:
-        """The express frame ``data`` of ``packed`` left at ``now`` (runtime clock; modem time
-        ``at``), the modem done at ``end``: the clearance moves on; the store, the MAC, the last
-        send and the counters are kept with the books."""
-        assert self._clearance is not None
-        self._clearance.moved_on(now)
-        self._unsettled.append(partial(self._express_books, lane, packed, data, now, end, at))
-        self._express_books_wait = True
-
-    def unexpressed(self, lane: Lane, packed: int, data: bytes, now: float, at: float
-                    ) -> SendFrame:
-        """The express frame did not leave (the modem refused it): the value is taken as
-        :meth:`ingest_and_act` takes it, and the lane's action returned, for :meth:`done` to
-        report how it failed (the value stays due)."""
-        self.settle()
-        self._take_value(lane, packed, now)
-        return SendFrame(self._lane_frame(lane, data, now, at))
-
-    def _express_books(self, lane: Lane, packed: int, data: bytes, now: float, end: float,
-                       at: float) -> None:
-        """What :meth:`expressed` left: as :meth:`ingest_and_act` and :meth:`sent` keep it."""
-        clearance = self._clearance
-        current = clearance is not None and clearance.stamp == self.store.changes
-        self._take_value(lane, packed, now)
-        out = self._lane_frame(lane, data, now, at)
-        self._recorded(out, now, end)
-        self._count_sent(out, now)
-        if current:  # (nothing else changed the store meanwhile: the clearance still holds)
-            clearance.stamp = self.store.changes
-
-    def _take_value(self, lane: Lane, packed: int, now: float) -> None:
-        """``packed`` stored on ``lane``, as :meth:`ingest_and_act` stores it for its frame."""
-        self.store.update(lane.state.channel.index, lane.index, packed, now)
-        self._begin(now)  # (as next_due would)
-
-    def _recorded(self, out: OutFrame, start: float, end: float) -> None:
-        """What decides the next frame, after a lane's frame ``out`` (the modem busy from
-        ``start`` to ``end``): the store, the last send and the MAC."""
-        self.store.mark_sent(out.plan.chosen, out.built)
-        self.last_tx = out.built
-        self.schedule.on_sent(start, end)
-
     def build_frame(self, now: float, at: float, *, always: bool = False) -> OutFrame | None:
         """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
         nothing to send and ``always`` is false. Pair with :meth:`frame_sent` or
         :meth:`frame_failed`."""
-        self.settle()
         codec = self.codec
         budget = codec.body_capacity_bits(self.frame_bytes) - codec.count_bits
         room = (1 << codec.count_bits) - 1
@@ -708,7 +565,6 @@ class NodeCore:
 
     def ip_reachable(self, peer: str, up: bool, now: float) -> None:
         """The peer's bridge became reachable over IP (``up``) or stopped being so."""
-        self.settle()
         if self.surfacing is not None and self.surfacing.changed(peer, up, now):
             event = Surfaced(now, peer, up)
             self._status(f"surfaced/{peer}", event.to_dict())
@@ -729,7 +585,6 @@ class NodeCore:
     def frame_sent(self, out: OutFrame, now: float, confirmed: bool | None = None) -> None:
         """The modem accepted ``out``; ``confirmed``: its own acknowledgement said the frame
         reached ``out.dest`` (reliable entries in it are then not re-sent, only awaited)."""
-        self.settle()
         self.store.mark_sent(out.plan.chosen, out.built)
         by_sender: dict[int, tuple[ReliableSender | TransferSender, list[Any]]] = {}
         for sender, item in out.streams:
@@ -766,7 +621,6 @@ class NodeCore:
 
     def frame_failed(self, out: OutFrame, error: str, now: float) -> None:
         """The modem refused ``out``: its data stays due."""
-        self.settle()
         if self.positioning is not None:
             self.positioning.forget_transmit(out.at)
         self.stats.send_errors += 1
@@ -779,107 +633,12 @@ class NodeCore:
 
         ``modem_now`` is the modem clock at the call (DLBL times are in the modem's clock).
         """
-        self.settle()
         src = self._source(rx, now)
         if src is None:
             return
         frame = self._decode(rx, src, now)
         if frame is not None:
             self._accept(rx, src, frame, now, modem_now)
-
-    def hear(self, rx: Reception, now: float, modem_now: float | None = None
-             ) -> list[tuple[HearPlan, list[dict]]] | None:
-        """:meth:`receive`, keeping the books of a plain frame for :meth:`settle`.
-
-        A *plain* frame (from a peer whose link is up, in its known epoch, holding only
-        latest-value channels, to a node whose MAC ignores what it hears and that has no
-        queries, surfacing or anchors to decode) has its values returned, for the caller to
-        publish at once (the :class:`Publish` outputs :meth:`receive` would give, as a plan and
-        the element values per entry: see :func:`publications`); counters, link and MAC
-        records, ranging, status and its :class:`FrameReceived` wait for :meth:`settle`, which
-        every other method runs first. Any other frame takes :meth:`receive`'s way whole
-        (None: see :meth:`take`)."""
-        src = self.mission.name_of(rx.src)
-        if not self._plain_rx or src is None or self.link_states.get(src) is not LinkState.UP \
-                or (self.auth is not None and self.codec.sender_fingerprint(rx.data) not in (
-                    None, self.codec.fingerprint16)):
-            self.receive(rx, now, modem_now)
-            return None
-        try:
-            frame = self.codec.decode(rx.data, rx.src)
-        except FrameError as exc:
-            if self.auth is None:  # (decoding is pure: receive decodes it again, says why)
-                self.receive(rx, now, modem_now)
-            else:  # (its fingerprint is ours, and its replay window moved: no second look)
-                self._refused(rx, src, exc, now)
-            return None
-        delivered = self._plain_entries(src, frame)
-        if delivered is None:
-            self.settle()
-            self._accept(rx, src, frame, now, modem_now)
-            return None
-        if self.auth is not None:
-            self._dirty = True  # the replay window moved: saved before anything is published
-        values: dict[str, list[dict]] = {}
-        published = []
-        for plan, entry in delivered:
-            if plan:
-                values[entry.channel.name] = elements = entry.values
-                published.append((plan, elements))
-                self.stats.values_published += len(plan)
-        self._unsettled.append(partial(self._heard_books, rx, src, frame.delays, now, modem_now,
-                                       values))
-        return published
-
-    def _plain_entries(self, src: str, frame: DecodedFrame) -> list[tuple[HearPlan, Entry]] | None:
-        """Each entry of ``frame`` with what :meth:`hear` outputs for it; None if the frame is
-        not plain."""
-        if frame.epoch is not None and self.peer_epochs.get(src) != frame.epoch:
-            return None
-        plans = self._hear_plans
-        delivered = []
-        for entry in frame.entries:
-            key = (src, entry.channel.index)  # (a channel's own hash would look at every field)
-            plan = plans.get(key)
-            if plan is None:
-                plan = self._hear_plan(src, entry.channel)
-                if plan is None:
-                    return None
-                plans[key] = plan
-            delivered.append((plan, entry))
-        return delivered
-
-    def _hear_plan(self, src: str, channel: Any) -> HearPlan | None:
-        """What :meth:`hear` outputs for an entry of ``channel`` from ``src``: each element's
-        key, encoding, latching and ROS 2 type (none if it is not for this node); None if the
-        entry is not a latest-value channel ``src`` sends."""
-        if channel.__class__ is not ChannelCodec or channel.stream or channel.family is not None \
-                or src not in channel.senders:
-            return None
-        if not channel.reaches(src, self.node):
-            return ()
-        return tuple((e.output_key(src, self.node), e.encoding, channel.latching, e.ros2)
-                     for e in channel.elements)
-
-    def settle(self) -> bool:
-        """Keep the books :meth:`hear` and :meth:`sent` left, in order (every other method
-        runs this first, so none sees them missing); whether there were any."""
-        if not self._unsettled:
-            return False
-        books, self._unsettled = self._unsettled, []
-        self._express_books_wait = False
-        for keep in books:
-            keep()
-        return True
-
-    def _heard_books(self, rx: Reception, src: str, delays: tuple[int | None, ...], now: float,
-                     modem_now: float | None, values: dict[str, list[dict]]) -> None:
-        """What :meth:`hear` left of a plain frame's reception."""
-        self._heard_from(rx, src, now)
-        for name in values:
-            self.stats.received_per_channel[name] += 1
-            self.received_at[name] = now
-        self._heard_tail(rx, src, delays, now, modem_now, {}, values, {})
 
     def _source(self, rx: Reception, now: float) -> str | None:
         """The sender of ``rx`` if it is a peer under this mission file; else the frame is
@@ -906,7 +665,6 @@ class NodeCore:
 
     def _refused(self, rx: Reception, src: str, error: FrameError, now: float) -> None:
         """``rx`` from ``src`` did not decode: counted dropped (books kept first)."""
-        self.settle()
         self.stats.frames_dropped[error.reason] += 1
         self._event(FrameDropped(now, src, error.reason, str(error), rx.data))
 
@@ -1144,7 +902,6 @@ class NodeCore:
     def modem_range(self, rng: ModemRange, now: float) -> None:
         """The modem measured a range itself (a ping, a propagation time): publish it like a
         DLBL range, and the fix attempted with it."""
-        self.settle()
         peer = self.mission.name_of(rng.peer)
         if self.positioning is None or peer is None:
             return
@@ -1154,7 +911,6 @@ class NodeCore:
     def range_due(self, now: float) -> int | None:
         """The address this node should ask its modem to range to at this transmit opportunity
         (``ranging.ping``); never at two opportunities in a row, so frames still go out."""
-        self.settle()
         if self.positioning is None or self._ranged_last:
             self._ranged_last = False
             return None
@@ -1163,7 +919,6 @@ class NodeCore:
 
     def range_asked(self, dest: int, now: float, error: str | None = None) -> None:
         """A range to ``dest`` was asked of the modem; ``error`` says why it failed."""
-        self.settle()
         peer = self.mission.name_of(dest)
         if self.positioning is None or peer is None:
             return
@@ -1189,7 +944,6 @@ class NodeCore:
 
     def tick(self, now: float) -> None:
         """Periodic work: link states, and reliable values past their TTL or retries."""
-        self.settle()
         self.update_links(now)
         for sender in self.senders.values():
             self._reports(sender.expire(now))
@@ -1201,7 +955,6 @@ class NodeCore:
     def ask(self, key: str, parameters: Any, now: float) -> Ticket | str:
         """A Zenoh get on ``key`` with ``parameters`` (a dict): the acoustic query's ticket it
         waits on (replies come as QueryAnswer / QueryEnd outputs), or why it ends at once."""
-        self.settle()
         found = self.queries.spec_for(key) if self.queries is not None else None
         if found is None:
             return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
@@ -1213,13 +966,11 @@ class NodeCore:
     def query_served(self, ticket: tuple[int, str, int], values: list[Any],
                      error: str | None = None) -> None:
         """The local get of a request ended: queue its replies for the asker."""
-        self.settle()
         if self.queries is not None:
             self.queries.served(ticket, values, error)
 
     def update_links(self, now: float) -> None:
         """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
-        self.settle()
         for peer in self._link_watch.due(now, self.last_heard):
             heard = self.last_heard.get(peer)
             state = self.thresholds.state(heard, now)
@@ -1237,7 +988,6 @@ class NodeCore:
 
     def snapshot(self, now: float) -> dict[str, Any]:
         """Counters and channel ages as plain data."""
-        self.settle()
         ages = {s.channel.name: s.age(now) for s in self.store.states.values()}
         return {
             "node": self.node,
@@ -1267,13 +1017,6 @@ class NodeCore:
 
 _SCALARS = (int, float, str, bool, type(None))
 _PLAIN_TYPES = frozenset(_SCALARS)  # exactly these (not subclasses): plain already
-
-
-def publications(heard: list[tuple[HearPlan, list[dict]]]) -> list[Publish]:
-    """:meth:`NodeCore.hear`'s values as the :class:`Publish` outputs :meth:`receive` gives."""
-    return [Publish(key, value, encoding, latching, ros2)
-            for plan, values in heard
-            for (key, encoding, latching, ros2), value in zip(plan, values, strict=True)]
 
 
 def plain(meta: Mapping[str, Any]) -> dict[str, Any]:
