@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 
+from bridge.core.events import Link
+from bridge.core.outputs import Outbox
 from bridge.mission.model import Mission, PolledMac, TdmaMac
 
 FREE_HEARTBEAT_S = 10.0
@@ -141,3 +143,40 @@ class LinkWatch:
             crossing[peer] = at
             heapq.heappush(heap, (at, self.order[peer], peer))
         return out
+
+
+class Links:
+    """Each peer's link state, from when it was last heard; every change reported as the
+    ``link/<peer>`` status and a :class:`~bridge.core.events.Link` event."""
+
+    def __init__(self, thresholds: LinkThresholds, peers: Iterable[str], outbox: Outbox,
+                 on_up: Callable[[], None] | None = None) -> None:
+        """``on_up``: called when a peer comes up from silence (down or never heard)."""
+        self.thresholds = thresholds
+        self.outbox = outbox
+        self.on_up = on_up
+        self.states: dict[str, LinkState] = {}
+        self.last_heard: dict[str, float] = {}
+        self._watch = LinkWatch(thresholds, peers)
+
+    def heard(self, peer: str, now: float) -> None:
+        """A valid frame from ``peer`` at ``now``; its state changes at :meth:`update`."""
+        self.last_heard[peer] = now
+        self._watch.heard(peer, now)
+
+    def update(self, now: float) -> None:
+        """Re-evaluate the peers whose state may have changed, reporting changes."""
+        for peer in self._watch.due(now, self.last_heard):
+            heard = self.last_heard.get(peer)
+            state = self.thresholds.state(heard, now)
+            previous = self.states.get(peer)
+            if previous is state:
+                continue
+            self.states[peer] = state
+            if self.on_up is not None and state is LinkState.UP \
+                    and previous in (None, LinkState.DOWN):
+                self.on_up()
+            payload = {"peer": peer, "state": state.value, "last_heard": heard,
+                       "silent_s": None if heard is None else now - heard}
+            self.outbox.status(f"link/{peer}", payload)
+            self.outbox.event(Link(now, **payload))
