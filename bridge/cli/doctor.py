@@ -25,12 +25,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+from bridge.core.loaded import LoadedMission
 from bridge.core.mac import mac_for
 from bridge.errors import BackendError
-from bridge.mission.check import check_mission
-from bridge.mission.keys import frame_key
-from bridge.mission.loader import LoadedMission
 from bridge.modems.setup import backend_factory
+from bridge.report.check import check_mission
+from bridge.runtime.keys import frame_key
 
 __all__ = [
     "ClockState",

@@ -25,10 +25,10 @@ from bridge.core.outputs import Outbox
 from bridge.core.queries import Queries
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
+from bridge.core.reception import Reception
 from bridge.core.transfer import from_bytes
 from bridge.errors import DecodeError, FrameError
 from bridge.mission.model import Mission
-from bridge.modems.reception import Reception
 from bridge.wire.channels import AckCodec, ChannelCodec
 from bridge.wire.families import NameCodec
 from bridge.wire.frame import DecodedFrame, Entry, FrameCodec

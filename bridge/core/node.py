@@ -47,6 +47,7 @@ from typing import Any
 from bridge.core.events import Delivery
 from bridge.core.inbound import Inbound
 from bridge.core.link import Links, LinkThresholds
+from bridge.core.loaded import LoadedMission
 from bridge.core.mac import Schedule, schedule_for
 from bridge.core.outbound import Outbound, OutFrame
 from bridge.core.outputs import NodeStats, Outbox, Output, Publish, Status
@@ -54,12 +55,11 @@ from bridge.core.positioning import Positioning, needs_positioning
 from bridge.core.queries import Queries, Ticket
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
-from bridge.dccl.goby import frame_codec_for
+from bridge.core.reception import ModemRange, RangingMode, Reception
 from bridge.errors import DecodeError, MissionError
 from bridge.frozen import direct_init
-from bridge.mission.loader import LoadedMission
-from bridge.modems.reception import ModemRange, Reception
 from bridge.wire.auth import Authenticator
+from bridge.wire.goby import frame_codec_for
 from bridge.wire.payloads import decode_payload
 
 __all__ = ["Action", "NodeCore", "NodeStats", "OutFrame", "Output", "Ping", "Publish",
@@ -117,7 +117,7 @@ class NodeCore:
         if wire_auth is not None and auth is None:
             if key is None:
                 raise MissionError(f"{node}: wire.auth is on: give the frame key "
-                                   "(the runtime loads it, see bridge.mission.keys)")
+                                   "(the runtime loads it, see bridge.runtime.keys)")
             auth = Authenticator(key, table.fingerprint, mission.address_of(node),
                                  wire_auth.tag_bytes, state.get("auth"))
         self.auth = auth
@@ -125,7 +125,7 @@ class NodeCore:
         self.epoch: int = state.get("epoch", drawn)
         self.codec = frame_codec_for(table, auth)
         self.schedule: Schedule = schedule_for(mission, node, seed=seed)
-        self.modem_ranging: str | None = None  # how the modem ranges (set by the runtime)
+        self.modem_ranging: RangingMode | None = None  # how the modem ranges (the runtime says)
         self.queries = Queries(mission, table, node) if table.queries else None
         self.receivers = Receivers(table, outbox, state)
         self.outbound = Outbound(mission, table, node, self.codec, self.epoch, outbox,
@@ -270,7 +270,7 @@ class NodeCore:
         ranges = self.ranges
         peer = ranges.due(now) if ranges is not None and self.modem_ranging \
             and opp.poll is None else None
-        if peer is not None and self.modem_ranging == "ping":
+        if peer is not None and self.modem_ranging is RangingMode.PING:
             return Ping(peer)
         always = opp.must_send or self.outbound.heartbeat_due(now) or peer is not None
         out = self.outbound.build(now, at, always=always)

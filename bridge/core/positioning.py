@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 from bridge.core.mac import mac_for
 from bridge.mission.model import Mission
 from bridge.mission.path import Path
-from bridge.modems.presets import Preset, get_preset
+from bridge.mission.presets import Preset, get_preset
 from bridge.ranging import DlblRanger, Fix, NoFix, Range, SoundSpeed, Track, attempt
 
 if TYPE_CHECKING:

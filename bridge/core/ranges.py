@@ -15,8 +15,8 @@ from typing import Any
 from bridge.core.events import Position, Range, RangeFailed
 from bridge.core.outputs import Outbox
 from bridge.core.positioning import Positioning, Update
+from bridge.core.reception import Reception
 from bridge.mission.model import Mission
-from bridge.modems.reception import Reception
 
 __all__ = ["Ranges"]
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from bridge.dccl import numeric
 from bridge.dccl.codecs import (
@@ -31,10 +31,27 @@ from bridge.dccl.codecs import (
     RepeatedCodec,
 )
 
-if TYPE_CHECKING:
-    from bridge.dccl.message import DcclMessage
+__all__ = ["Compiled", "DcclMessage", "compile_message"]
 
-__all__ = ["Compiled", "compile_message"]
+
+class DcclMessage(Protocol):
+    """What compiling reads of a :class:`bridge.dccl.message.DcclMessage` (which compiles
+    itself when built: a protocol here, so the two files do not import each other)."""
+
+    name: str
+    id: int
+    omit_id: bool
+    id_bits: int
+    head: list[tuple[str, FieldCodec]]
+    head_bytes: int
+    body: list[tuple[str, FieldCodec]]
+    body_codec: MessageCodec
+
+    def encode_head(self, value: Any, strict: bool = False) -> bytes: ...
+
+    def encode_reference(self, value: Any, strict: bool = False) -> bytes: ...
+
+    def decode_reference(self, data: Any) -> tuple[dict[str, Any], int]: ...
 
 #: Largest margin around a half (quotient units) sent to the exact reference division; a
 #: field whose double quotient may be further off than this is never inlined.

@@ -15,6 +15,7 @@ from typing import Any
 
 from bridge.dccl.build import build_fields, build_message, check_message_options
 from bridge.dccl.codecs import ABSENT, BitReader, FieldCodec, RepeatedCodec
+from bridge.dccl.compile import compile_message
 from bridge.dccl.schema import DcclSchemaError, MessageDef, ProtoFile
 from bridge.errors import DecodeError, EncodeError
 
@@ -73,8 +74,6 @@ class DcclMessage:
                 f"(dccl.max_bytes = {self.max_bytes}). Tighten bounds, remove fields, improve "
                 "codecs, or increase the allowed dccl.max_bytes", mdef.file, mdef.line)
         self.fixed = self.body_min_bits == self.body_max_bits
-        from bridge.dccl.compile import compile_message
-
         compiled = compile_message(self)
         self.source = compiled.source
         self._encode_fast = compiled.encode

@@ -25,8 +25,8 @@ from pydantic import (
     model_validator,
 )
 
-from bridge.codec import FieldSpec
-from bridge.ros2.spec import Ros2Topic
+from bridge.mission.fields import FieldSpec
+from bridge.mission.ros2 import Ros2Topic
 
 NodeName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)]
 NodePattern = Annotated[

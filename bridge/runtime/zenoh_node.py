@@ -29,14 +29,16 @@ import zenoh
 from bridge.core.events import Event, ModemDown, notable
 from bridge.core.interest import output_keys
 from bridge.core.link import LinkState
+from bridge.core.loaded import LoadedMission
 from bridge.core.node import NodeCore, NodeStats, Ping, Publish, SendFrame, Status
 from bridge.core.positioning import Positioning
+from bridge.core.reception import RangingMode
 from bridge.core.surfacing import Relay
 from bridge.errors import BackendError, DecodeError, EncodeError
-from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemBackend, ModemRange, Reception
-from bridge.ros2.graph import Ros2Graph
 from bridge.runtime.eager import start_eagerly
+from bridge.runtime.keys import load_key
+from bridge.runtime.ros2_graph import Ros2Graph
 from bridge.runtime.session import (
     bridged_attachment,
     close_quietly,
@@ -46,7 +48,6 @@ from bridge.runtime.session import (
 )
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_queries import QueryBridge
-from bridge.wire.auth import load_key
 from bridge.wire.payloads import decode_payload, encode_payload
 
 if TYPE_CHECKING:
@@ -166,7 +167,8 @@ class BridgeNode:
             if self.core.interest is not None:
                 self._watch_interest(loop)
             if self.core.queries is not None:
-                self._query_bridge = QueryBridge(self, loop)
+                self._query_bridge = QueryBridge(self.session, self.core, self.lock,
+                                                 self.clock, self._changed, loop)
             if self.core.surfacing is not None:
                 self._watch_ip(loop)
             self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
@@ -218,7 +220,7 @@ class BridgeNode:
         """The open backend, if it is direct and sends what the core gives it at once (a
         modem that pings must be awaited)."""
         backend = self.backend
-        if backend is None or not backend.direct or backend.ranging == "ping":
+        if backend is None or not backend.direct or backend.ranging is RangingMode.PING:
             return None
         return backend
 
@@ -232,6 +234,11 @@ class BridgeNode:
         else:
             with contextlib.suppress(RuntimeError):  # the loop has closed: the node is gone
                 self._loop.call_soon_threadsafe(callback, *args)
+
+    def _changed(self) -> None:
+        """On the loop: the core has outputs to carry out and may have something due."""
+        self._flush()
+        self._data.set()
 
     def _wake(self) -> None:
         """The transmit loop asks the core again (from any thread)."""

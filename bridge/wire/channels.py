@@ -454,7 +454,7 @@ class ChannelTable:
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
     demand: bool = False  # frames may carry the @want interest bitmap
     queries: tuple[QuerySpec, ...] = ()  # queries across the water
-    wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.dccl.goby)
+    wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.wire.goby)
 
     @classmethod
     def from_mission(cls, mission: Mission) -> ChannelTable:

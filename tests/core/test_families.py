@@ -12,9 +12,9 @@ from typer.testing import CliRunner
 
 from bridge.cli.app import app
 from bridge.cli.sim_fast import run_fast
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.core.node import NodeCore
 from bridge.errors import FrameError, MissionError
-from bridge.mission.loader import load_mission, parse_mission
 from bridge.modems.base import Reception
 from bridge.runtime.logbook import FleetLogs, read_log, received_values
 from bridge.runtime.virtual_fleet import FastFleet

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+from bridge.core.loaded import load_mission
 from bridge.core.mac import FreeSchedule, TdmaSchedule
 from bridge.core.store import OutboundStore
-from bridge.mission.loader import load_mission
 from bridge.mission.model import NoMac, TdmaMac
 from tests.conftest import MISSIONS
 
@@ -99,7 +99,7 @@ def test_free_schedule_min_gap() -> None:
 
 
 def test_a_value_arriving_while_its_frame_is_sent_stays_due() -> None:
-    from bridge.mission.loader import load_mission
+    from bridge.core.loaded import load_mission
     from tests.conftest import MISSIONS
 
     table = load_mission(MISSIONS / "morph.yaml").table

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import pytest
 
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.dccl import load_message
 from bridge.dccl.layout import DcclLayout
 from bridge.errors import MissionError
-from bridge.mission.check import check_mission
-from bridge.mission.loader import load_mission, parse_mission
+from bridge.report.check import check_mission
 from tests.dccl.conftest import PROTOS
 
 EXAMPLE = Path(__file__).parents[2] / "deploy" / "missions" / "goby_dccl.yaml"
@@ -98,7 +98,7 @@ def test_synthetic_values_for_simulations_are_valid() -> None:
 def test_payload_schema_accepts_what_the_message_encodes() -> None:
     import jsonschema
 
-    from bridge.mission.payload_schema import adapt_schema
+    from bridge.wire.payload_schema import adapt_schema
 
     table = load_mission(EXAMPLE).table
     nav = adapt_schema(table.by_name("nav").elements[0].layout.json_schema(), "in")

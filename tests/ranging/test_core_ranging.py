@@ -7,8 +7,8 @@ import math
 import yaml
 
 from bridge.core.events import Event, Position, Range, RangeFailed
+from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore, Status
-from bridge.mission.loader import parse_mission
 from bridge.modems.base import ModemRange, Reception
 
 MISSION = {

@@ -6,9 +6,9 @@ import pytest
 from rosbags.typesys import Stores, get_typestore
 
 from bridge.core.events import PayloadDropped
+from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore, Publish
 from bridge.errors import MissionError
-from bridge.mission.loader import parse_mission
 from bridge.modems.base import Reception
 from tests.conftest import MISSIONS
 from tests.ros2.test_messages import GOLDEN, ODOM, odometry

@@ -9,9 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bridge.core.builder import plan_frame
+from bridge.core.loaded import parse_mission
 from bridge.core.store import OutboundStore
 from bridge.errors import DecodeError, FrameError
-from bridge.mission.loader import parse_mission
 from bridge.wire.frame import NO_DELAY, FrameCodec, check_value
 from tests.conftest import MISSIONS
 

@@ -9,9 +9,9 @@ import contextlib
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bridge.core.loaded import load_mission
 from bridge.core.node import NodeCore
 from bridge.errors import FrameError
-from bridge.mission.loader import load_mission
 from bridge.modems.base import Reception
 from bridge.wire.frame import FrameCodec, check_value
 from tests.conftest import MISSIONS

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 from bridge.mission.model import Mission
-from bridge.modems.presets import Preset, UnknownPresetError, get_preset
+from bridge.mission.presets import Preset, UnknownPresetError, get_preset
 
 __all__ = ["busy_s", "frame_time_s", "max_distance_m", "node_preset"]
 

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from bridge.core.loaded import parse_mission
 from bridge.core.reliable import ReliableReceiver, ReliableSender, seq_after
-from bridge.mission.loader import parse_mission
 from bridge.wire.channels import ChannelTable
 
 MISSION = """\

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from bridge.core.events import Link, MissionMismatch, PeerRestarted
+from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore, Status
-from bridge.mission.loader import parse_mission
 from bridge.modems.base import Reception
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.virtual_fleet import FastFleet
@@ -170,7 +170,7 @@ def test_links_do_not_go_down_while_frames_keep_arriving_at_30_percent_loss() ->
 
 def test_check_prints_each_streams_retries_ttl_and_bound() -> None:
     from bridge.core.reliable import stream_ttl_s
-    from bridge.mission.check import check_mission
+    from bridge.report.check import check_mission
 
     (limits,) = check_mission(LOADED).data["streams"]
     cycle = 4.0  # two 2 s TDMA slots

@@ -6,19 +6,19 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.core.loaded import LoadedMission
 from bridge.core.mac import mac_for, max_distance_m, node_preset
 from bridge.core.queries import deadline_s
 from bridge.core.reliable import default_retry_s, stream_ttl_s
 from bridge.core.transfer import transfer_ttl_s
-from bridge.dccl.goby import frame_codec_for
 from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
-from bridge.mission.loader import LoadedMission
 from bridge.mission.model import Mission
 from bridge.modems.registry import load_backend
 from bridge.wire.channels import ChannelCodec
 from bridge.wire.families import has_wildcard
 from bridge.wire.frame import FrameCodec
+from bridge.wire.goby import frame_codec_for
 from bridge.wire.queries import QueryCodec
 
 TICK_S = 1.0  # runtimes look at TTLs at least this often (zab run's health loop)
