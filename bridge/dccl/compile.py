@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 from bridge.dccl import numeric
 from bridge.dccl.codecs import (
     ABSENT,
+    INT_RANGES,
     BitReader,
     BoolCodec,
     EnumCodec,
@@ -47,6 +48,14 @@ def _guard(c: NumericCodec) -> float:
     return (max(abs(c.lo), abs(c.hi)) / c.res + 2) * 2.0**-50 + 1e-12
 
 
+def _minus(x: str, c: float) -> str:
+    """Code for the double ``x - c``: the same double as C's (``x - 0.0`` is ``x``, and
+    subtracting a negative is adding its magnitude)."""
+    if c == 0:
+        return x
+    return f"({x} - {c!r})" if c > 0 else f"({x} + {-c!r})"
+
+
 class _Fallback(Exception):
     """Internal: leave the fast path."""
 
@@ -67,9 +76,12 @@ def _inline_numeric(c: FieldCodec) -> bool:
         return True
     if not isinstance(c, NumericCodec) or c.single or c.bits > 53:
         return False
-    if c.is_float:  # the double quotient must be within the guard of the exact one
-        return _guard(c) < _MAX_GUARD
-    return c.res == 1.0 and c.lo == int(c.lo)
+    if c.is_float:  # dccl-2026: the double quotient must be within the guard of the exact one
+        return c.rule == "dccl-4.2" or _guard(c) < _MAX_GUARD
+    # integers in steps of 1 whose codes and values are exact doubles and never wrap
+    low, high = INT_RANGES[c.kind]
+    return (c.res == 1.0 and c.lo == int(c.lo) and max(abs(c.lo), abs(c.hi)) < 2.0**53
+            and low <= c.lo and c.lo + (1 << c.bits) - 1 <= high)
 
 
 def _fixed(c: FieldCodec) -> bool:
@@ -79,9 +91,15 @@ def _fixed(c: FieldCodec) -> bool:
     if isinstance(c, RepeatedCodec):
         return c.min_repeat == c.max_repeat and _fixed(c.element)
     if isinstance(c, MessageCodec):
-        return (c.required and not c.oneofs and not c.clear_empty
+        return (c.required and not c.oneofs
                 and all(_fixed(f) for _, f in c.fields))
     return False
+
+
+def _certain(c: FieldCodec) -> bool:
+    """Decoded by the generated code into a value, never ``ABSENT`` (a required field that
+    is inlined, or a list)."""
+    return isinstance(c, RepeatedCodec) or (c.required and _fixed(c))
 
 
 class _Gen:
@@ -143,7 +161,9 @@ class _Enc:
                      for i, (n, num) in enumerate(zip(c.names, c.numbers, strict=True))}
             lines.append(f"{ind}{k} = {g.const('_E', table)}[{x}]")
             return k
-        lo_t, hi_t = c.lo - c.tol, c.hi + c.tol
+        lo_t, hi_t = c.lo - c.res / 2, c.hi + c.res / 2
+        if c.is_float and c.rule == "dccl-4.2":  # libdccl's own double arithmetic
+            return self._release_float(c, x, ind)
         if c.is_float:  # an int divides as float(int) would, as the reference converts it
             lines.append(f"{ind}if {x}.__class__ is not float and {x}.__class__ is not int or "
                          f"not {lo_t!r} <= {x} < {hi_t!r}: raise _F")
@@ -154,7 +174,7 @@ class _Enc:
             else:
                 lines.append(f"{ind}{k} = int({a} + 0.5) if {a} >= 0 else -int(0.5 - {a})")
             guard = _guard(c)
-            shift = c.offset - numeric.round_div(c.enc_lo, c.enc_res)
+            shift = c.offset - numeric.round_div(c.lo, c.res)
             lines.append(f"{ind}if not {-0.5 + guard!r} < {a} - {k} < {0.5 - guard!r} or not "
                          f"{-shift} <= {k} <= {(1 << c.bits) - 1 - shift}: raise _F")
         else:
@@ -163,6 +183,24 @@ class _Enc:
             k = x
             shift = c.offset - int(c.lo)
         return f"({k} + {shift})" if shift > 0 else f"({k} - {-shift})" if shift else k
+
+    def _release_float(self, c: NumericCodec, x: str, ind: str) -> str:
+        """dccl-4.2: quantise, check the bounds on the quantised value, scale the difference
+        from the quantised minimum and round, all in doubles (a negative or too large code,
+        NaN and infinities go to the reference path)."""
+        lines, q, a = self.g.lines, self.g.name("q"), self.g.name("a")
+        diff = _minus(q, numeric.quantize_float(c.lo, c.res))
+        lines.append(f"{ind}if {x}.__class__ is not float and {x}.__class__ is not int: raise _F")
+        if c.res >= 1:
+            lines.append(f"{ind}{q} = _floor({x} / {c.res!r} + 0.5) * {c.res!r}")
+            lines.append(f"{ind}{a} = {diff} / {c.res!r} + 0.5")
+        else:
+            inv = 1.0 / c.res
+            lines.append(f"{ind}{q} = _floor({x} * {inv!r} + 0.5) / {inv!r}")
+            lines.append(f"{ind}{a} = {diff} * {inv!r} + 0.5")
+        lines.append(f"{ind}if not ({c.lo!r} <= {q} <= {c.hi!r} and "
+                     f"0.0 <= {a} < {float((1 << c.bits) - c.offset)!r}): raise _F")
+        return f"(int({a}) + {c.offset})" if c.offset else f"int({a})"
 
     def field(self, c: FieldCodec, x: str, ind: str) -> None:
         """Encode the value named ``x`` (already looked up; ``None`` = absent) with ``c``."""
@@ -310,13 +348,18 @@ class _Dec:
         if not c.is_float:
             lo = int(c.lo)
             return f"({k} + {lo})" if lo > 0 else f"({k} - {-lo})" if lo else k
+        inv = 1.0 / c.res
+        if c.rule == "dccl-4.2":  # k * res (or k / (1/res)) plus the quantised minimum
+            qlo = numeric.quantize_float(c.lo, c.res)
+            if c.res >= 1:
+                return f"_floor({_minus(f'{k} * {c.res!r}', -qlo)} / {c.res!r} + 0.5) * {c.res!r}"
+            return f"_floor({_minus(f'{k} / {inv!r}', -qlo)} * {inv!r} + 0.5) / {inv!r}"
         # (k + qm) * res: negating before or after a rounded product gives the same double, so
         # this is the reference's sign-magnitude product; then dccl::quantize.
-        qm = numeric.round_div(c.enc_lo, c.enc_res)
+        qm = numeric.round_div(c.lo, c.res)
         t = f"({k} + {qm})" if qm else k
         if c.res >= 1:
             return f"_floor({t} * {c.res!r} / {c.res!r} + 0.5) * {c.res!r}"
-        inv = 1.0 / c.res
         return f"_floor({t} * {c.res!r} * {inv!r} + 0.5) / {inv!r}"
 
     def field(self, c: FieldCodec, ind: str) -> str:
@@ -390,10 +433,8 @@ def _decode_source(msg: DcclMessage, g: _Gen) -> list[str]:
         fn = g.const("_dec", msg.body_codec.decode_fields)
         lines += [f"{ind}r = _BR(n, limit, 0)", f"{ind}out = {fn}(r)"]
         for n, v, c in values:
-            lines.append(f"{ind}if {v} is _ABSENT: raise _F" if c.required
+            lines.append(f"{ind}out[{n!r}] = {v}" if _certain(c)
                          else f"{ind}if {v} is not _ABSENT: out[{n!r}] = {v}")
-            if c.required:
-                lines.append(f"{ind}out[{n!r}] = {v}")
         lines.append(f"{ind}return out, {hb} + ((r.pos + 7) >> 3)")
         lines += ["    except Exception:", "        return _decode_ref(data)"]
         return lines
@@ -401,12 +442,10 @@ def _decode_source(msg: DcclMessage, g: _Gen) -> list[str]:
     values += [(n, body.field(c, ind), c) for n, c in msg.body]
     lines.append(f"{ind}end = {body.end()}")
     lines.append(f"{ind}if end > limit: raise _F")
-    required = [f"{n!r}: {v}" for n, v, c in values if c.required]
-    lines.append(f"{ind}out = {{{', '.join(required)}}}")
-    for n, v, c in values:
-        if c.required:
-            lines.append(f"{ind}if {v} is _ABSENT: raise _F")
-        else:
+    certain = [f"{n!r}: {v}" for n, v, c in values if _certain(c)]
+    lines.append(f"{ind}out = {{{', '.join(certain)}}}")
+    for n, v, c in values:  # an optional field, or a required one libdccl may leave unset
+        if not _certain(c):
             lines.append(f"{ind}if {v} is not _ABSENT: out[{n!r}] = {v}")
     lines.append(f"{ind}return out, {hb} + ((end + 7) >> 3)")
     lines += ["    except Exception:", "        return _decode_ref(data)"]

@@ -77,6 +77,8 @@ def _wire_facts(codec: FieldCodec) -> list[Any]:
     facts: list[Any] = [type(codec).__name__, codec.required, codec.min_bits, codec.max_bits]
     if isinstance(codec, NumericCodec):
         facts += [codec.kind, codec.lo, codec.hi, codec.res]
+        if codec.is_float:  # the numeric rule decides a float's bits, not an integer's
+            facts.append(codec.rule)
     if isinstance(codec, EnumCodec):
         facts += [codec.names, codec.numbers, codec.packed]
     if isinstance(codec, BytesCodec | StringCodecV3 | FixedBytesCodec):
@@ -84,8 +86,7 @@ def _wire_facts(codec: FieldCodec) -> list[Any]:
     if isinstance(codec, RepeatedCodec):
         facts += [codec.min_repeat, codec.max_repeat, _wire_facts(codec.element)]
     if isinstance(codec, MessageCodec):
-        facts += [[[n, _wire_facts(c)] for n, c in codec.fields], codec.oneofs,
-                  codec.clear_empty]
+        facts += [[[n, _wire_facts(c)] for n, c in codec.fields], codec.oneofs]
     return facts
 
 
