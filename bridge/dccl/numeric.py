@@ -31,12 +31,10 @@ __all__ = ["DEFAULT_RULE", "RULES", "ceil_log2", "decode_float", "decode_int", "
            "encode_int", "f32", "fits_double", "in_range", "quantize_float", "round_div",
            "size_bits", "wire_kind"]
 
-#: The numeric rules and the libdccl each matches.
+#: The numeric rules and the libdccl each matches (docs/dccl.md gives the commits).
 RULES: dict[str, str] = {
-    "dccl-4.2": "libdccl 4.2.0, the latest release (GobySoft/dccl tag 4.2.0; its numeric code "
-                "is unchanged up to commit d0358a1c, 4.2.0+3)",
-    "dccl-2026": "libdccl after pull request #152 'Fix precise floats' (January 2026, commit "
-                 "0311fe64), not yet in a release",
+    "dccl-4.2": "libdccl 4.2.0, the latest release",
+    "dccl-2026": "libdccl since pull request #152 (January 2026, not yet released)",
 }
 #: The rule of the latest libdccl release.
 DEFAULT_RULE = "dccl-4.2"

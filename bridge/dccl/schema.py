@@ -9,6 +9,7 @@ syntax errors, unknown types and unknown ``(dccl.*)`` options are refused with p
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -97,14 +98,16 @@ def _protobuf_include() -> str:
 def _run_protoc(path: Path, proto_path: tuple[str, ...]) -> bytes:
     with tempfile.TemporaryDirectory(prefix="zab-dccl-") as tmp:
         out = Path(tmp) / "set.pb"
-        # zab's dccl/option_extensions.proto first: the option schema zab reads
+        # zab's statement of DCCL's options before the include path: the schema zab reads
         includes = [f"-I{d}" for d in (path.parent, INCLUDE_DIR, *proto_path, _protobuf_include())]
         cmd = [sys.executable, "-m", "grpc_tools.protoc", *includes, "--include_imports",
                "--include_source_info", f"--descriptor_set_out={out}", str(path)]
         run = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if run.returncode != 0 or not out.is_file():
-            first = (run.stderr.strip() or "protoc failed").splitlines()[0]
-            raise _protoc_error(first, path)
+            lines = (run.stderr.strip() or "protoc failed").splitlines()
+            # a located line first ("m.proto:3:1: Import ... was not found"), then the rest
+            located = [line for line in lines if re.match(r"[^:]+:\d+:", line)]
+            raise _protoc_error((located or lines)[0], path)
         return out.read_bytes()
 
 
