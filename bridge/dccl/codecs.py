@@ -1,18 +1,24 @@
-"""libdccl 4's default field codecs (``dccl.default4``), the readable reference path.
+"""libdccl's default field codecs (``dccl.default4``, and 3 and 5), the readable reference path.
 
 Every codec turns one value into ``(code, width)``: ``code`` holds ``width`` bits, least
 significant bit first on the wire (DCCL's Bitset grows toward the most significant end and is
 written out least significant byte first). Absent optional values are ``None``.
 
 * numeric (int*/uint*/float/double/enum): ``ceil_log2((max-min)/res + 1 [+1 if optional])``
-  bits; optional fields reserve code 0 for "not present". Out of range: strict → error,
-  otherwise all-zero bits (so an optional field arrives absent, a required one as ``min``).
+  bits; optional fields reserve code 0 for "not present"; the code is computed by the
+  mission's numeric rule (:mod:`bridge.dccl.numeric`). Out of range: strict → error, otherwise
+  all-zero bits (so an optional field arrives absent, a required one as ``min``).
 * bool: 1 bit required, 2 bits optional (0 absent, 1 false, 2 true).
 * string / bytes (``VarBytesCodec``): [presence bit if optional][length:
   ``ceil_log2(max_length+1)`` bits][bytes]; too long: strict → error, otherwise truncated.
 * embedded message: [presence bit if optional][fields]; absent: the single 0 bit.
 * repeated: [count - min_repeat: ``ceil_log2(max_repeat-min_repeat+1)`` bits][elements];
   elements use the required encoding.
+
+Decoding keeps what libdccl keeps: a required field whose code means "none" (an enum code past
+the values, a version 3 empty string) is left unset, a string that is not UTF-8 comes back as
+its bytes, a length or count past ``max_length``/``max_repeat`` is decoded whole (but more
+embedded messages than ``max_repeat`` is refused, as libdccl has only that many to fill).
 
 "Optional" means codec version 4's ``use_required() == False``: an ``optional`` field that is
 neither repeated nor part of a ``oneof``.
@@ -222,7 +228,7 @@ class BoolCodec(FieldCodec):
 
 def text(data: bytes) -> str | bytes:
     """A decoded string: ``str`` when its bytes are UTF-8, else the bytes as libdccl holds them
-    (a protobuf ``string`` field is not checked)."""
+    (a protobuf ``string`` field is not checked); string fields encode such bytes back."""
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError:
@@ -243,14 +249,13 @@ class BytesCodec(FieldCodec):
     def encode(self, value: Any, strict: bool) -> tuple[int, int]:
         if value is None:
             return 0, self.min_bits
-        if self.text:
-            if not isinstance(value, str):
-                raise EncodeError(f"{self.path}: expected a string, got {type(value).__name__}")
+        if self.text and isinstance(value, str):
             data = value.encode("utf-8")
         elif isinstance(value, bytes | bytearray | memoryview):
-            data = bytes(value)
+            data = bytes(value)  # a string field's bytes that are not UTF-8, as decoded
         else:
-            raise EncodeError(f"{self.path}: expected bytes, got {type(value).__name__}")
+            kind = "a string" if self.text else "bytes"
+            raise EncodeError(f"{self.path}: expected {kind}, got {type(value).__name__}")
         if len(data) > self.max_length:
             if strict:
                 raise DcclRangeError(f"{self.path}: {len(data)} bytes exceed max_length "
@@ -283,9 +288,12 @@ class StringCodecV3(FieldCodec):
     def encode(self, value: Any, strict: bool) -> tuple[int, int]:
         if value is None:
             return 0, self.prefix
-        if not isinstance(value, str):
+        if isinstance(value, str):
+            data = value.encode("utf-8")
+        elif isinstance(value, bytes | bytearray | memoryview):
+            data = bytes(value)  # bytes that are not UTF-8, as decoded
+        else:
             raise EncodeError(f"{self.path}: expected a string, got {type(value).__name__}")
-        data = value.encode("utf-8")
         if len(data) > self.max_length:
             if strict:
                 raise DcclRangeError(f"{self.path}: {len(data)} bytes exceed max_length "

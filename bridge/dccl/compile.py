@@ -48,6 +48,20 @@ def _guard(c: NumericCodec) -> float:
     return (max(abs(c.lo), abs(c.hi)) / c.res + 2) * 2.0**-50 + 1e-12
 
 
+def _small(c: NumericCodec) -> bool:
+    """Fewer than 2**47 steps from zero to either bound: then, for an integer ``n`` of the
+    field, ``((n / inv) * inv`` and the like are within 0.25 of ``n`` (a few roundings of at
+    most 2**-53 each, relative), so libdccl's ``floor(... + 0.5)`` gives ``n`` itself and the
+    generated code may use ``n`` without computing the roundings."""
+    return max(abs(c.lo), abs(c.hi)) / c.res < 2.0**47 and c.bits <= 47
+
+
+def _steps(value: float, res: float) -> int:
+    """dccl-4.2's quantisation of ``value`` in steps: ``floor(value / res + 0.5)`` as libdccl
+    computes it (multiplying by ``1 / res`` below 1)."""
+    return math.floor(value / res + 0.5) if res >= 1 else math.floor(value * (1.0 / res) + 0.5)
+
+
 def _minus(x: str, c: float) -> str:
     """Code for the double ``x - c``: the same double as C's (``x - 0.0`` is ``x``, and
     subtracting a negative is adding its magnitude)."""
@@ -185,19 +199,31 @@ class _Enc:
         return f"({k} + {shift})" if shift > 0 else f"({k} - {-shift})" if shift else k
 
     def _release_float(self, c: NumericCodec, x: str, ind: str) -> str:
-        """dccl-4.2: quantise, check the bounds on the quantised value, scale the difference
-        from the quantised minimum and round, all in doubles (a negative or too large code,
-        NaN and infinities go to the reference path)."""
-        lines, q, a = self.g.lines, self.g.name("q"), self.g.name("a")
-        diff = _minus(q, numeric.quantize_float(c.lo, c.res))
+        """dccl-4.2: quantise (``F = floor(x / res + 0.5)``, the quantised value ``F * res``),
+        check the bounds on the quantised value, and the code: the rounded scaled difference from
+        the quantised minimum, which for a field of fewer than 2**47 steps is exactly ``F - Q``
+        (``Q`` the minimum's ``F``; see :func:`_small`). NaN, infinities and codes out of the
+        field go to the reference path."""
+        lines, f, q = self.g.lines, self.g.name("f"), self.g.name("q")
         lines.append(f"{ind}if {x}.__class__ is not float and {x}.__class__ is not int: raise _F")
         if c.res >= 1:
-            lines.append(f"{ind}{q} = _floor({x} / {c.res!r} + 0.5) * {c.res!r}")
-            lines.append(f"{ind}{a} = {diff} / {c.res!r} + 0.5")
+            lines.append(f"{ind}{f} = _floor({x} / {c.res!r} + 0.5)")
+            lines.append(f"{ind}{q} = {f} * {c.res!r}")
         else:
             inv = 1.0 / c.res
-            lines.append(f"{ind}{q} = _floor({x} * {inv!r} + 0.5) / {inv!r}")
-            lines.append(f"{ind}{a} = {diff} * {inv!r} + 0.5")
+            lines.append(f"{ind}{f} = _floor({x} * {inv!r} + 0.5)")
+            lines.append(f"{ind}{q} = {f} / {inv!r}")
+        if _small(c):
+            first = _steps(c.lo, c.res)
+            last = first + (1 << c.bits) - 1 - c.offset
+            lines.append(f"{ind}if not ({c.lo!r} <= {q} <= {c.hi!r} and "
+                         f"{first} <= {f} <= {last}): raise _F")
+            shift = c.offset - first
+            return f"({f} + {shift})" if shift > 0 else f"({f} - {-shift})" if shift else f
+        a = self.g.name("a")
+        diff = _minus(q, numeric.quantize_float(c.lo, c.res))
+        scaled = f"{diff} / {c.res!r}" if c.res >= 1 else f"{diff} * {1.0 / c.res!r}"
+        lines.append(f"{ind}{a} = {scaled} + 0.5")
         lines.append(f"{ind}if not ({c.lo!r} <= {q} <= {c.hi!r} and "
                      f"0.0 <= {a} < {float((1 << c.bits) - c.offset)!r}): raise _F")
         return f"(int({a}) + {c.offset})" if c.offset else f"int({a})"
@@ -349,15 +375,19 @@ class _Dec:
             lo = int(c.lo)
             return f"({k} + {lo})" if lo > 0 else f"({k} - {-lo})" if lo else k
         inv = 1.0 / c.res
-        if c.rule == "dccl-4.2":  # k * res (or k / (1/res)) plus the quantised minimum
+        # dccl-4.2: k * res plus the quantised minimum Q * res, re-quantised; dccl-2026:
+        # (k + qm) * res (negating before or after a rounded product gives the same double, so
+        # this is the reference's sign-magnitude product), re-quantised. For a field of fewer
+        # than 2**47 steps the re-quantisation lands on the integer exactly (see _small).
+        qm = _steps(c.lo, c.res) if c.rule == "dccl-4.2" else numeric.round_div(c.lo, c.res)
+        t = f"({k} + {qm})" if qm > 0 else f"({k} - {-qm})" if qm else k
+        if _small(c):
+            return f"{t} * {c.res!r}" if c.res >= 1 else f"{t} / {inv!r}"
+        if c.rule == "dccl-4.2":
             qlo = numeric.quantize_float(c.lo, c.res)
             if c.res >= 1:
                 return f"_floor({_minus(f'{k} * {c.res!r}', -qlo)} / {c.res!r} + 0.5) * {c.res!r}"
             return f"_floor({_minus(f'{k} / {inv!r}', -qlo)} * {inv!r} + 0.5) / {inv!r}"
-        # (k + qm) * res: negating before or after a rounded product gives the same double, so
-        # this is the reference's sign-magnitude product; then dccl::quantize.
-        qm = numeric.round_div(c.lo, c.res)
-        t = f"({k} + {qm})" if qm else k
         if c.res >= 1:
             return f"_floor({t} * {c.res!r} / {c.res!r} + 0.5) * {c.res!r}"
         return f"_floor({t} * {c.res!r} * {inv!r} + 0.5) / {inv!r}"

@@ -3,7 +3,9 @@
 Wire layout: ``[id][in_head fields][pad to a byte] [body fields][pad to a byte]``. The id is
 DCCL's default identifier codec: one byte ``id << 1`` for ids below 128, else two bytes
 ``(id << 1) | 1`` (little-endian); ``omit_id`` messages have none. Bits fill each byte from
-its least significant bit, fields in declaration order.
+its least significant bit, fields in declaration order. Before anything else ``encode`` checks
+that every required field is set (protobuf's ``IsInitialized``, list elements past
+``max_repeat`` included), as libdccl does before any bound.
 
 ``encode``/``decode`` are generated per message (:mod:`bridge.dccl.compile`) and fall back to
 the ``*_reference`` methods here for anything unusual, which raise the precise errors.

@@ -157,3 +157,21 @@ def test_codec_version_3_refuses_oneof() -> None:
     """libdccl: "Version 3 does not support 'oneof'", at the first member's line."""
     with pytest.raises(DcclSchemaError, match=r"golden.proto:73: Version 3 does not support"):
         load_message(PROTOS / "golden.proto", "ChoiceV3")
+
+
+@pytest.mark.parametrize(("name", "hex_", "raw"), [
+    # Golden{d: -100, s: 0xff 0xfe}: d 0 (15 bits) | i 0 (12) | b 0 (2) | s: presence 1 at bit
+    # 29, length 2 (4 bits), then 0xff, 0xfe | e 0 (2) | r count 0 (3): 55 bits
+    ("Golden", "0a000000a0fcfb03", b"\xff\xfe"),
+    # V3Msg{s: 0xc3, raw: "xy"}: s length 1 (3 bits), 0xc3 | raw 'x' 'y' | opt 0 | inner 0
+    ("V3Msg", "1419c6cb03", b"\xc3"),
+])
+def test_a_string_that_is_not_utf8_comes_back_as_its_bytes(golden: dict[str, DcclMessage],
+                                                            name: str, hex_: str,
+                                                            raw: bytes) -> None:
+    """libdccl holds a string field's bytes unchecked; zab decodes them as bytes when they are
+    not UTF-8 and encodes such bytes back unchanged."""
+    msg = golden.get(name) or load_message(PROTOS / "golden.proto", name)
+    decoded = msg.decode(bytes.fromhex(hex_))
+    assert decoded["s"] == raw
+    assert msg.encode(decoded).hex() == hex_
