@@ -50,7 +50,7 @@ def _guard(c: NumericCodec) -> float:
 
 def _small(c: NumericCodec) -> bool:
     """Fewer than 2**47 steps from zero to either bound: then, for an integer ``n`` of the
-    field, ``((n / inv) * inv`` and the like are within 0.25 of ``n`` (a few roundings of at
+    field, ``(n / inv) * inv`` and the like are within 0.25 of ``n`` (a few roundings of at
     most 2**-53 each, relative), so libdccl's ``floor(... + 0.5)`` gives ``n`` itself and the
     generated code may use ``n`` without computing the roundings."""
     return max(abs(c.lo), abs(c.hi)) / c.res < 2.0**47 and c.bits <= 47
