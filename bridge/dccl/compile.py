@@ -183,10 +183,11 @@ class _Enc:
                          f"not {lo_t!r} <= {x} < {hi_t!r}: raise _F")
             a = g.name("a")
             lines.append(f"{ind}{a} = {x} / {c.res!r}")
+            # rounding half up, not away from zero: the guard below sends every half away
             if c.lo >= 0:  # then a >= -1/2 and int() is floor
                 lines.append(f"{ind}{k} = int({a} + 0.5)")
             else:
-                lines.append(f"{ind}{k} = int({a} + 0.5) if {a} >= 0 else -int(0.5 - {a})")
+                lines.append(f"{ind}{k} = _floor({a} + 0.5)")
             guard = _guard(c)
             shift = c.offset - numeric.round_div(c.lo, c.res)
             lines.append(f"{ind}if not {-0.5 + guard!r} < {a} - {k} < {0.5 - guard!r} or not "
