@@ -158,6 +158,10 @@ def check(
     if data.get("key_entry_bits"):
         console.print(f"@key entry (names a learned member): {data['key_entry_bits']} bits",
                       highlight=False)
+    if data["dccl"]:
+        numeric = data["dccl_numeric"]
+        console.print(f"DCCL numeric rule: {numeric['rule']}, as {numeric['libdccl']}",
+                      highlight=False)
     for d in data["dccl"]:  # like dccl --analyze
         console.print(f"DCCL message of channel {d['channel']!r}:\n{d['analysis']}",
                       highlight=False, markup=False)

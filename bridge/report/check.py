@@ -11,6 +11,7 @@ from bridge.core.mac import mac_for, max_distance_m, node_preset
 from bridge.core.queries import deadline_s
 from bridge.core.reliable import default_retry_s, stream_ttl_s
 from bridge.core.transfer import transfer_ttl_s
+from bridge.dccl.numeric import RULES
 from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
 from bridge.mission.model import Mission
@@ -156,6 +157,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "key_entry_bits": None if table.names is None else codec.channel_cost_bits(table.names),
         "channels": channels,
         "dccl": dccl_reports(table),
+        "dccl_numeric": {"rule": mission.dccl.numeric, "libdccl": RULES[mission.dccl.numeric]},
         "nodes": nodes,
         "warnings": report.warnings,
         "errors": report.errors,
