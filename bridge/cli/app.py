@@ -21,10 +21,10 @@ from rich.table import Table
 
 from bridge.cli import helptext
 from bridge.cli.words import counted
+from bridge.core.loaded import LoadedMission, load_mission
 from bridge.errors import BackendError, MissionError, SessionError
-from bridge.mission.check import check_mission
-from bridge.mission.keys import frame_key, throwaway_note
-from bridge.mission.loader import LoadedMission, load_mission
+from bridge.report.check import check_mission
+from bridge.runtime.keys import frame_key, throwaway_note
 
 if TYPE_CHECKING:
     from bridge.report.model import MissionReport
@@ -168,6 +168,10 @@ def check(
     if data.get("key_entry_bits"):
         console.print("@key entry (names a learned member): "
                       f"{counted(data['key_entry_bits'], 'bit')}", highlight=False)
+    if data["dccl"]:
+        numeric = data["dccl_numeric"]
+        console.print(f"DCCL numeric rule: {numeric['rule']}, as {numeric['libdccl']}",
+                      highlight=False)
     for d in data["dccl"]:  # like dccl --analyze
         console.print(f"DCCL message of channel {d['channel']!r}:\n{d['analysis']}",
                       highlight=False, markup=False)
@@ -258,12 +262,12 @@ def schema(
     from bridge.mission.schema import default_schema_path, schema_text
 
     if payloads is not None:
-        from bridge.mission.payload_schema import write_payload_schemas
+        from bridge.wire.payload_schema import write_payload_schemas
 
         loaded = _load(payloads)
         folder = out or Path("schemas") / "payloads" / loaded.mission.mission
         try:
-            written = write_payload_schemas(loaded, folder)
+            written = write_payload_schemas(loaded.table, loaded.mission.mission, folder)
         except (OSError, ValueError) as exc:
             err.print(f"[red]cannot write payload schemas:[/] {exc}", highlight=False)
             raise typer.Exit(1) from None

@@ -12,7 +12,7 @@ from typing import Any
 
 import zenoh
 
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
 
 
 def decimals(step: float) -> int:

@@ -16,8 +16,8 @@ from rich.table import Table
 
 from bridge.cli.rounding import number, significant
 from bridge.cli.words import counted
-from bridge.mission.check import check_mission
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
+from bridge.report.check import check_mission
 from bridge.wire.channels import ChannelCodec
 
 PARTS = {

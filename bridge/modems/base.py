@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, ClassVar
 
+from bridge.core.reception import ModemRange, RangingMode, Reception
 from bridge.errors import BackendError
-from bridge.modems.reception import ModemRange, Reception
 
 __all__ = ["Inbox", "ModemBackend", "ModemRange", "ModemSetup", "Reception"]
 
@@ -80,9 +80,9 @@ class ModemBackend(ABC):
     thread, and :attr:`on_reception` is called on the backend's own reader thread (so what
     it calls must be thread-safe). A runtime then carries a frame from a Zenoh callback to
     the wire, and from the wire to Zenoh, with no hop through its loop."""
-    ranging: ClassVar[str | None] = None
-    """How the modem measures ranges itself: ``"ping"`` (:meth:`ping`), ``"ack"`` (after an
-    acknowledged unicast :meth:`send`), or None. Measurements go to :attr:`on_range`."""
+    ranging: ClassVar[RangingMode | None] = None
+    """How the modem measures ranges itself (:class:`RangingMode`), or None. Measurements go
+    to :attr:`on_range`."""
 
     def __init__(self, setup: ModemSetup) -> None:
         self.setup = setup

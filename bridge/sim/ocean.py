@@ -43,7 +43,7 @@ from typing import Any
 
 from bridge.frozen import direct_init
 from bridge.mission.path import Path
-from bridge.modems.presets import Preset
+from bridge.mission.presets import Preset
 
 __all__ = [
     "LOSS_REASONS",

@@ -18,7 +18,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from bridge.mission.path import Path
-from bridge.modems.presets import Preset, get_preset
+from bridge.mission.presets import Preset, get_preset
 from bridge.sim.ocean import Delivery, Loss, Ocean, Position, TransmitRefused, TxDone
 from bridge.sim.protocol import PROTOCOL_VERSION, ProtocolError, pack, read_message
 

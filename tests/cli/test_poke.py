@@ -92,7 +92,7 @@ def test_listen_decodes_json_and_rounds_float_noise() -> None:
 
 def test_listen_with_the_mission_prints_each_field_to_its_channel_s_step() -> None:
     from bridge.cli.rounding import Steps
-    from bridge.mission.loader import load_mission
+    from bridge.core.loaded import load_mission
     from tests.conftest import MISSIONS
 
     steps = Steps(load_mission(MISSIONS / "morph.yaml"))

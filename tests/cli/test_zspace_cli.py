@@ -11,8 +11,8 @@ from pathlib import Path
 
 import yaml
 
+from bridge.core.loaded import load_mission
 from bridge.core.queries import deadline_s
-from bridge.mission.loader import load_mission
 from tests.conftest import MISSIONS, REPO
 
 ZSPACE = MISSIONS / "zspace.yaml"

@@ -3,8 +3,8 @@ copies; after the dive acoustic bridging resumes within a cycle, latched state a
 
 from __future__ import annotations
 
+from bridge.core.loaded import load_mission
 from bridge.core.surfacing import Relay
-from bridge.mission.loader import load_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.payloads import encode_payload
 from tests.conftest import MISSIONS

@@ -53,6 +53,7 @@ from collections.abc import Mapping
 from dataclasses import asdict
 from typing import Any, ClassVar
 
+from bridge.core.reception import RangingMode
 from bridge.errors import BackendError
 from bridge.modems.base import Inbox, ModemBackend, ModemRange, ModemSetup, Reception
 from bridge.modems.evologics.clock import ModemClock
@@ -95,7 +96,7 @@ class EvologicsBackend(ModemBackend):
     """An EvoLogics S2C modem through pyserial (serial port or TCP)."""
 
     name: ClassVar[str] = "evologics"
-    ranging: ClassVar[str | None] = "ack"
+    ranging: ClassVar[RangingMode | None] = RangingMode.ACK
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:

@@ -34,12 +34,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bridge.core.loaded import LoadedMission
 from bridge.errors import BackendError
-from bridge.mission.loader import LoadedMission
+from bridge.mission.presets import UnknownPresetError, get_preset
 from bridge.modems.base import ModemSetup, Reception
 from bridge.modems.evologics.commands import CommandReader, HostBurst, HostCommand, SendRequest
 from bridge.modems.evologics.protocol import BROADCAST, Mode, wrap
-from bridge.modems.presets import UnknownPresetError, get_preset
 from bridge.modems.pty_host import PtyHost, TcpHost
 from bridge.modems.setup import modem_setup
 from bridge.modems.sim import SimBackend

@@ -35,6 +35,7 @@ import time
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+from bridge.core.reception import RangingMode
 from bridge.errors import BackendError
 from bridge.modems.base import Inbox, ModemBackend, ModemRange, ModemSetup, Reception
 from bridge.modems.micromodem.protocol import (
@@ -71,7 +72,7 @@ class MicromodemBackend(ModemBackend):
     """A WHOI Micro-Modem (MM1/MM2) driven over NMEA."""
 
     name: ClassVar[str] = "micromodem"
-    ranging: ClassVar[str | None] = "ping"
+    ranging: ClassVar[RangingMode | None] = RangingMode.PING
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:

@@ -30,8 +30,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from bridge.core.loaded import LoadedMission
 from bridge.errors import BackendError
-from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemSetup, Reception
 from bridge.modems.micromodem.nmea import LineBuffer, NmeaError, Sentence, parse_sentence
 from bridge.modems.micromodem.rates import get_rate

@@ -12,10 +12,10 @@ from typing import Any
 import pytest
 
 from bridge.errors import BackendError
+from bridge.mission.presets import get_preset
 from bridge.modems.base import ModemRange, ModemSetup
 from bridge.modems.evologics.driver import EvologicsBackend
 from bridge.modems.evologics.emulator import EvologicsEmulator
-from bridge.modems.presets import get_preset
 from bridge.modems.pty_host import PtyHost
 from bridge.modems.transport import ByteTransport
 from bridge.sim.ocean import LossCurve

@@ -13,10 +13,10 @@ import pytest
 import serial
 
 from bridge.errors import BackendError
+from bridge.mission.presets import get_preset
 from bridge.modems.base import ModemRange, ModemSetup
 from bridge.modems.micromodem.driver import MicromodemBackend
 from bridge.modems.micromodem.emulator import MicromodemEmulator
-from bridge.modems.presets import get_preset
 from bridge.modems.pty_host import PtyHost
 from bridge.sim.service import WaterService
 

@@ -1,18 +1,29 @@
-"""What a modem hands the bridge: received frames and ranges it measured (pure data).
-
-Kept apart from :mod:`bridge.modems.base` (asyncio) so that the sans-I/O core can take them.
+"""What a modem hands the bridge: received frames and ranges it measured, and how it ranges
+(pure data). The modem backends (:mod:`bridge.modems.base`, asyncio) build them; the core
+takes them.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from enum import StrEnum
 from types import MappingProxyType
 from typing import Any
 
 from bridge.frozen import direct_init
 
 _EMPTY: Mapping[str, Any] = MappingProxyType({})
+
+
+class RangingMode(StrEnum):
+    """How a modem measures ranges itself."""
+
+    PING = "ping"
+    """When asked (:meth:`~bridge.modems.base.ModemBackend.ping`): a range takes a transmit
+    opportunity of its own."""
+    ACK = "ack"
+    """From the acknowledgement of a unicast frame: a frame sent to the peer asks for it."""
 
 
 @direct_init
