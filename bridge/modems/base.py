@@ -16,9 +16,9 @@ from types import MappingProxyType
 from typing import Any, ClassVar
 
 from bridge.errors import BackendError
-from bridge.modems.reception import ModemRange, Reception
+from bridge.modems.reception import ModemFix, ModemRange, Reception
 
-__all__ = ["Inbox", "ModemBackend", "ModemRange", "ModemSetup", "Reception"]
+__all__ = ["Inbox", "ModemBackend", "ModemFix", "ModemRange", "ModemSetup", "Reception"]
 
 _EMPTY: Mapping[str, Any] = MappingProxyType({})
 
@@ -94,6 +94,8 @@ class ModemBackend(ABC):
         """How far ahead of :meth:`clock` a timed emission is scheduled (``timed_send``)."""
         self.on_range: Callable[[ModemRange], None] | None = None
         """Called with every range the modem measures (the runtime sets it)."""
+        self.on_fix: Callable[[ModemFix], None] | None = None
+        """Called with every position the modem's USBL head measures (the runtime sets it)."""
         self.on_reception: Callable[[Reception], None] | None = None
         """Called with every reception as it arrives, instead of queueing it for :meth:`recv`
         (the runtime sets it: a frame heard is decoded at once, with no task to wake in
@@ -222,6 +224,12 @@ class ModemBackend(ABC):
         self.stats["ranges"] = self.stats.get("ranges", 0) + 1
         if self.on_range is not None:
             self.on_range(rng)
+
+    def _report_fix(self, fix: ModemFix) -> None:
+        """Hand a USBL fix the modem measured to :attr:`on_fix`."""
+        self.stats["fixes"] = self.stats.get("fixes", 0) + 1
+        if self.on_fix is not None:
+            self.on_fix(fix)
 
     async def _ping(self, dest: int) -> ModemRange:
         """Hook for backends with a ping."""

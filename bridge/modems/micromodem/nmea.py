@@ -33,7 +33,8 @@ MAX_SENTENCE_BYTES = 8192
 """Longest line accepted. A rate-5 ``$CARXD`` carries 256 B as 512 hex digits and an MM2
 ``$CARDP`` up to 2048 B as 4096; anything far longer is line noise, not a sentence."""
 
-_ADDRESS = re.compile(r"[A-Z]{2}[A-Z0-9]{3}")
+_ADDRESS = re.compile(r"[A-Z]{2}[A-Z0-9]{3,4}")
+"""Talker and type: ``CACYC``, and MM2's four-letter ``CAUSB2``."""
 _HEX = re.compile(r"[0-9A-Fa-f]{2}|[0-9A-Fa-f]{8}")
 
 CRC32_POLY_REVERSED = 0xD663B05D
@@ -148,7 +149,7 @@ def parse_sentence(line: bytes | str) -> Sentence:
         raise NmeaError(f"unprintable or reserved characters in sentence {body[:40]!r}")
     address, *fields = body.split(",")
     if not _ADDRESS.fullmatch(address):
-        raise NmeaError(f"bad talker/type {address[:12]!r} (want 5 characters like CACYC)")
+        raise NmeaError(f"bad talker/type {address[:12]!r} (want CACYC or CAUSB2)")
     return Sentence(address[:2], address[2:], tuple(fields))
 
 

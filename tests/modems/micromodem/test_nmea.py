@@ -127,7 +127,7 @@ def test_wrong_checksum(line: str) -> None:
         b"CACFG,SRC,1*33",  # no $
         b"$CA,1*00",  # talker too short
         b"$cacfg,SRC,1",  # lower-case address
-        b"$CACFGX,1",
+        b"$CACFGXY,1",
         b"$CACFG,SRC,1*3",  # truncated checksum
         b"$CACFG,SRC,1*",
         b"$CACFG,SRC,1*GG",
