@@ -7,6 +7,10 @@ start is scheduled. Like a timed modem, the water refuses a frame whose start ha
 arrives ("expired"), so DLBL delays are never stamped for a start that did not happen; a
 loaded host is easily 10 ms late.
 
+A caller that sets :attr:`SimBackend.on_loss` before ``open`` also hears of the frames the
+water lost at this modem after their signal reached it (``on_loss(src, reason, dest)``): an
+emulated modem prints them as its CRC failures.
+
 ``send`` returns when the water reports the transmission DONE (the modem is free again), so it
 takes the frame's airtime plus the preset's intrinsic delay.
 """
@@ -18,6 +22,7 @@ import contextlib
 import itertools
 import random
 import time
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 from bridge.errors import BackendError
@@ -79,6 +84,8 @@ class SimBackend(ModemBackend):
         self._stamp_jitter = float(opts.get("timestamp_jitter_s", 0.0))
         self._stamp_rng = random.Random(f"{opts.get('seed', 0)}/{setup.address}")
         self.tx_lead_s = float(opts.get("tx_lead_s", DEFAULT_TX_LEAD_S))
+        self.on_loss: Callable[[int, str, Any], None] | None = None
+        """Told of each frame lost here after its signal arrived: ``(src, reason, dest)``."""
 
     # -- hooks ---------------------------------------------------------------------------------
 
@@ -103,6 +110,7 @@ class SimBackend(ModemBackend):
                 "addr": self.address,
                 "name": self.setup.node,
                 "pos": list(self._position) if self._position is not None else None,
+                "losses": self.on_loss is not None,
             }
         )
         try:
@@ -232,6 +240,9 @@ class SimBackend(ModemBackend):
                 end = self._stamp(end)
             self._deliver(Reception(data=bytes(msg["data"]), src=int(msg["src"]), time=end,
                                 meta=meta))
+        elif kind == "lost":
+            if self.on_loss is not None:
+                self.on_loss(int(msg["src"]), str(msg.get("reason")), msg.get("dest"))
         elif kind in ("txdone", "txerr"):
             fut = self._pending.get(msg.get("id", -1))
             if fut is None or fut.done():

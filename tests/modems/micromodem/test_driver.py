@@ -242,9 +242,14 @@ def test_start_up_faults(tmp_path: Path) -> None:
         finally:
             await silent.close()
         async with bench(tmp_path, (1,)) as b:
-            wrong = b.backend(1)
-            object.__setattr__(wrong, "address", 5)  # the modem refuses another SRC
-            with pytest.raises(BackendError):
-                await wrong.open()
+            other = b.backend(1)
+            object.__setattr__(other, "address", 5)  # $CCCFG,SRC,5: the modem renumbers
+            await other.open()
+            assert b.emulators[1].address == 5 and b.emulators[1].nvram["SRC"] == "5"
+            for _ in range(100):  # it rejoins the water under its new address
+                if 5 in b.water.stats()["clients"]:
+                    break
+                await asyncio.sleep(0.02)
+            assert b.water.stats()["clients"] == [5]
 
     run(main)
