@@ -364,6 +364,11 @@ def emulate(
                                                  "loopback TCP port.")] = None,
     water: Annotated[str | None, typer.Option(help="host:port of `zab water` (default: the "
                                               "mission's).")] = None,
+    firmware: Annotated[str | None, typer.Option(help="EvoLogics only: the firmware it "
+                                                 "reports and speaks (1.6 prints the older "
+                                                 "RECVIM/RECVPBM layout; default 1.9).")] = None,
+    crc32: Annotated[bool, typer.Option("--crc32", help="Micro-Modem only: end every line "
+                                        "with MM2's 8-digit CRC-32 checksum.")] = False,
 ) -> None:
     """Emulate a node's modem on a pseudo-terminal, its frames crossing `zab water`."""
     loaded = _load(mission)
@@ -387,13 +392,14 @@ def emulate(
         if kind is ModemKind.evologics:
             from bridge.modems.evologics.emulator import run_emulator as evologics
 
+            extra = {} if firmware is None else {"firmware": firmware}
             task = asyncio.create_task(evologics(loaded, node, water=address, link=link,
-                                                 tcp_port=tcp_port, ready=ready))
+                                                 tcp_port=tcp_port, ready=ready, **extra))
         else:
             from bridge.modems.micromodem.emulator import run_emulator as micromodem
 
             task = asyncio.create_task(micromodem(loaded, node, water=address, link=link,
-                                                  ready=ready))
+                                                  ready=ready, crc32=crc32))
         await asyncio.wait([task, asyncio.create_task(stop.wait())],
                            return_when=asyncio.FIRST_COMPLETED)
         task.cancel()

@@ -497,6 +497,7 @@ class MicromodemEmulator:
             if not chunk:
                 break  # a blank TXD: nothing (more) to send
             data.append(chunk)
+            ack = ack or txd.fields[2] == "1"  # each frame carries its own ack bit [V]
         if not data:
             return
         total = sum(map(len, data))
