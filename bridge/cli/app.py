@@ -375,6 +375,14 @@ def emulate(
     if node not in loaded.mission.nodes:
         err.print(f"no node {node!r} in {mission}; nodes: {', '.join(loaded.mission.nodes)}")
         raise typer.Exit(2)
+    if firmware is not None:
+        from bridge.modems.evologics.protocol import firmware_is_legacy
+
+        try:
+            firmware_is_legacy(firmware)
+        except ValueError as exc:
+            err.print(f"--firmware: {exc}")
+            raise typer.Exit(2) from None
     options = loaded.mission.node_modem(node).options
     device = options.get("device")
     if link is None and isinstance(device, str) and not device.startswith("socket://"):

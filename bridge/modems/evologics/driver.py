@@ -16,6 +16,11 @@ Options (``modem.options`` in the mission):
   frame is scheduled (the command must reach the modem first: 64 B at 19200 baud take 44 ms);
   ``clock_sync_s`` (30): how often ``AT?CLOCK`` is read again to follow host–modem drift.
 
+At start-up the backend asks ``ATI0`` for the firmware version (``stats`` keeps it as
+``firmware``): firmware before 1.7 prints ``RECVIM``/``RECVPBM`` with bitrate and propagation
+time in place of the duration [V DUNE], and is parsed so. A modem that does not answer ``ATI0``
+with a version is taken as 1.7 or later (logged).
+
 Timed sends (``timed_send`` is then True for the runtime): :meth:`clock` is the modem's µs clock
 (:class:`~bridge.modems.evologics.clock.ModemClock`), ``send(at=...)`` becomes
 ``AT*SENDIMS,<len>,<dst>,<usec>,<data>`` so the emission starts exactly at ``at``, and each
@@ -77,9 +82,11 @@ from bridge.modems.evologics.protocol import (
     RecvImLegacy,
     RecvIms,
     RecvPbm,
+    RecvPbmLegacy,
     SendEnd,
     UsblLong,
     Value,
+    firmware_is_legacy,
 )
 from bridge.modems.transport import ByteTransport
 
@@ -154,6 +161,8 @@ class EvologicsBackend(ModemBackend):
         self._failure: BackendError | None = None
         self._extended = True
         self._last_io = 0.0
+        self.firmware: str | None = None
+        """What ``ATI0`` answered at start-up (None before, or when it named no version)."""
 
     @property  # type: ignore[override]
     def timed_send(self) -> bool:
@@ -220,6 +229,7 @@ class EvologicsBackend(ModemBackend):
             reply = await self._command("C")  # +++ATC -> OK [V BIR]
             self.protocol.mode = Mode.COMMAND
             self._expect_ok(reply, "+++ATC")
+        await self._firmware()
         await self._command_ok(f"!AL{self.address}")
         reply = await self._command("?AL")
         if not isinstance(reply, Value) or reply.text.strip() != str(self.address):
@@ -239,6 +249,21 @@ class EvologicsBackend(ModemBackend):
             if not self._timed:
                 log.warning("%s: AT?CLOCK unanswered: frames are sent untimed (AT*SENDIM)",
                             self._who)
+
+    async def _firmware(self) -> None:
+        """``ATI0``: the firmware version, and with it the ``RECVIM``/``RECVPBM`` layout."""
+        reply = await self._command("I0")
+        text = reply.text.strip() if isinstance(reply, Value) else ""
+        try:
+            legacy = firmware_is_legacy(text)
+        except ValueError:
+            log.warning("%s: ATI0 answered %s, not a firmware version: taking 1.7+ layouts",
+                        self._who, _text(reply))
+            legacy = False
+        self.firmware = text or None
+        self.protocol.legacy_recvim = legacy
+        log.info("%s: firmware %s (%s RECVIM layout)", self._who, text or "?",
+                 "1.6" if legacy else "1.7+")
 
     async def _sync_clock(self, readings: int = 3) -> bool:
         """Read ``AT?CLOCK`` a few times and keep the reading with the shortest round trip."""
@@ -439,7 +464,7 @@ class EvologicsBackend(ModemBackend):
         if isinstance(event, Error | Busy):  # asynchronous: ERROR EFAULT, ERROR OVERLOAD
             self.stats["modem_errors"] += 1
             log.warning("%s: modem reports %s", self._who, _text(event))
-        elif isinstance(event, RecvIm | RecvImLegacy | RecvIms | RecvPbm):
+        elif isinstance(event, RecvIm | RecvImLegacy | RecvIms | RecvPbm | RecvPbmLegacy):
             self._deliver(self._reception(event, now))
         elif isinstance(event, RecvEnd):
             self._last_end = (now, event)
@@ -461,8 +486,11 @@ class EvologicsBackend(ModemBackend):
             log.warning("%s: unparsable modem output %r (%s)", self._who, event.data[:80],
                         event.reason)
 
-    def _reception(self, ev: RecvIm | RecvImLegacy | RecvIms | RecvPbm, now: float) -> Reception:
+    def _reception(self, ev: RecvIm | RecvImLegacy | RecvIms | RecvPbm | RecvPbmLegacy,
+                   now: float) -> Reception:
         duration = getattr(ev, "duration_us", 0) * 1e-6
+        if isinstance(ev, RecvImLegacy | RecvPbmLegacy) and ev.bitrate > 0:
+            duration = len(ev.data) * 8 / ev.bitrate  # 1.6 gives the bit rate, not the time
         meta: dict[str, Any] = {
             "dest": None if ev.dst == BROADCAST else ev.dst,
             "start": now - duration,
@@ -483,7 +511,7 @@ class EvologicsBackend(ModemBackend):
                 meta["start"] = self.modem_clock.seconds(meta["rx_timestamp_us"],
                                                          modem_now - duration)
             now = meta["start"] + duration
-        if isinstance(ev, RecvImLegacy):
+        if isinstance(ev, RecvImLegacy | RecvPbmLegacy):
             meta["propagation_s"] = ev.ptime_us * 1e-6
         elif ev.src in self.propagation:
             meta["propagation_s"] = self.propagation[ev.src][1]

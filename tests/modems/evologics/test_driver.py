@@ -329,3 +329,40 @@ def test_pty_host_and_transport_close_cleanly(tmp_path: Path) -> None:
         assert not (tmp_path / "link").exists()
 
     arun(main)
+
+
+@pytest.mark.parametrize("firmware", ["1.6", "1.7", "1.9"])
+def test_the_driver_asks_ati0_and_reads_each_firmwares_recvim(tmp_path: Path,
+                                                              firmware: str) -> None:
+    """A modem started as firmware 1.6 prints the older RECVIM layout (bitrate, ptime); the
+    driver asks ATI0 and parses it, so instant messages arrive from either firmware."""
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2, firmware=firmware) as (_, emu), \
+                driver(emu[1]) as a, driver(emu[2]) as b:
+            assert (a.firmware, a.protocol.legacy_recvim) == (firmware, firmware == "1.6")
+            await a.send(PAYLOAD, 2)
+            rx = await asyncio.wait_for(b.recv(), 2)
+            assert (rx.data, rx.src, rx.dest) == (PAYLOAD, 1, 2)
+            if firmware == "1.6":  # the propagation time rides in the line itself
+                assert rx.meta["propagation_s"] == pytest.approx(150 / 1500, abs=1e-5)
+            assert b.stats["malformed"] == 0
+
+    arun(main)
+
+
+@pytest.mark.parametrize(("firmware", "label"), [("1.7", "IM Rerty Count"),
+                                                 ("1.9", "IM Retry Count")])
+def test_settings_dump_as_a_real_one_shows_it(tmp_path: Path, firmware: str, label: str
+                                              ) -> None:
+    """AT&V lists what the real dump (BIR) lists, in its order, with its 1.7 misspelling."""
+    async def main() -> None:
+        async with modems(tmp_path, 1, firmware=firmware) as (_, emu), driver(emu[1]) as a:
+            reply = await a._command("&V")
+            keys = [line.split(":")[0] for line in reply.text.splitlines() if line]  # type: ignore[union-attr]
+            assert keys == ["Source Level", "Source Level Control", "Gain",
+                            "Carrier Waveform ID", "Local Address", "Highest Address",
+                            "Cluster Size", "Packet Time", "Retry Count", "Retry Timeout",
+                            "Wake Up Active Time", "Wake Up Period", "Promiscuous Mode",
+                            "Sound Speed", label, "Pool Size", "Hold Timeout", "Idle Timeout"]
+
+    arun(main)
