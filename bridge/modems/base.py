@@ -240,6 +240,23 @@ class ModemBackend(ABC):
         """The largest frame this backend can send with ``options`` (None: no fixed limit)."""
         return None
 
+    @classmethod
+    def broadcast_address(cls, options: Mapping[str, Any]) -> int | None:
+        """The address that means every node with ``options`` (None: the backend has none)."""
+        value = options.get("broadcast")
+        return None if value is None else int(value)
+
+    @classmethod
+    def setup_problems(cls, options: Mapping[str, Any], address: int) -> tuple[list[str],
+                                                                               list[str]]:
+        """What ``zab check`` should say of a node with ``options`` at ``address``: (errors,
+        warnings). The default: a node whose address is the broadcast address is an error."""
+        broadcast = cls.broadcast_address(options)
+        if broadcast is not None and address == broadcast:
+            return [f"address {address} is the {cls.name} broadcast address (modem.broadcast):"
+                    " frames to it would go to every node"], []
+        return [], []
+
     def _send_now(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
         """Hook for :attr:`direct` backends: transmit a checked frame without waiting."""
         raise BackendError(f"{self!r}: this backend sends only from its event loop")

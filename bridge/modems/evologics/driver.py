@@ -109,6 +109,12 @@ class EvologicsBackend(ModemBackend):
         """Instant messages carry at most 64 bytes."""
         return IM_MAX_BYTES
 
+    @classmethod
+    def broadcast_address(cls, options: Mapping[str, Any]) -> int | None:
+        """255 (driver practice [V BIR]) unless the mission says otherwise."""
+        value = options.get("broadcast")
+        return BROADCAST if value is None else int(value)
+
     def __init__(self, setup: ModemSetup) -> None:
         super().__init__(setup)
         opts = setup.options
@@ -120,6 +126,7 @@ class EvologicsBackend(ModemBackend):
         if not 1 <= setup.address <= 254:
             raise BackendError(f"evologics backend: address {setup.address} outside 1..254")
         self.device = str(opts["device"])
+        self.broadcast = self.broadcast_address(opts)
         self.frame_bytes = min(self.frame_bytes, IM_MAX_BYTES)
         tcp = self.device.startswith("socket://")
         mode = str(opts.get("mode", "data"))
@@ -189,8 +196,8 @@ class EvologicsBackend(ModemBackend):
                  self.address, self.mode.value)
 
     async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
-        dst = BROADCAST if dest is None else dest
-        ack = ack and dst != BROADCAST  # broadcast requires noack [V driver practice]
+        dst = self.broadcast if dest is None else dest
+        ack = ack and dst != self.broadcast  # broadcast requires noack [V driver practice]
         async with self._lock:
             self._check()
             while not self._tx_events.empty():
@@ -317,8 +324,8 @@ class EvologicsBackend(ModemBackend):
 
     async def _send_timed(self, data: bytes, dest: int | None, ack: bool,
                           at: float) -> bool | None:
-        dst = BROADCAST if dest is None else dest
-        if ack and dst != BROADCAST:  # SENDIMS has no ack flag: an acked IM at about ``at``
+        dst = self.broadcast if dest is None else dest
+        if ack and dst != self.broadcast:  # SENDIMS has no ack flag: an acked IM at about ``at``
             await asyncio.sleep(max(0.0, at - self.clock()))
             return await self._send(data, dest, ack)
         async with self._lock:
@@ -492,7 +499,7 @@ class EvologicsBackend(ModemBackend):
         if isinstance(ev, RecvImLegacy | RecvPbmLegacy) and ev.bitrate > 0:
             duration = len(ev.data) * 8 / ev.bitrate  # 1.6 gives the bit rate, not the time
         meta: dict[str, Any] = {
-            "dest": None if ev.dst == BROADCAST else ev.dst,
+            "dest": None if ev.dst == self.broadcast else ev.dst,
             "start": now - duration,
             "duration_s": duration,
             "rssi_db": ev.rssi,

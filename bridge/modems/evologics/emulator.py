@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import math
 import time
@@ -211,6 +212,9 @@ class EvologicsEmulator:
     ) -> None:
         self.setup = setup
         self.firmware = firmware
+        # the water's dest carries the emulators' flags beside the address: no broadcast there
+        setup = dataclasses.replace(setup, options={k: v for k, v in setup.options.items()
+                                                    if k != "broadcast"})
         self.legacy = firmware_is_legacy(firmware)  # ValueError for a non-version
         self.sim = SimBackend(setup)
         self.pty = PtyHost(self._pty_data, link=link)

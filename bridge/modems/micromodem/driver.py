@@ -71,6 +71,7 @@ from bridge.modems.micromodem.protocol import (
     UsblFix,
 )
 from bridge.modems.micromodem.rates import FDP_RATES, get_rate
+from bridge.modems.presets import UnknownPresetError, get_preset
 from bridge.modems.transport import ByteTransport
 
 __all__ = ["MicromodemBackend"]
@@ -103,6 +104,34 @@ class MicromodemBackend(ModemBackend):
             return get_rate(options.get("rate", 0)).max_bytes
         except ValueError:
             return None
+
+    @classmethod
+    def broadcast_address(cls, options: Mapping[str, Any]) -> int | None:
+        """Goby's ``BROADCAST_ID`` 0 unless the mission says otherwise."""
+        value = options.get("broadcast")
+        return DEFAULT_BROADCAST if value is None else int(value)
+
+    @classmethod
+    def setup_problems(cls, options: Mapping[str, Any], address: int) -> tuple[list[str],
+                                                                               list[str]]:
+        """Besides the broadcast address: a water preset whose packets are smaller than the
+        rate's (``zab water`` would refuse the frames), or made for another rate."""
+        errors, warnings = super().setup_problems(options, address)
+        try:
+            rate = get_rate(options.get("rate", 0))
+            preset = get_preset(str(options["preset"])) if "preset" in options else None
+        except (ValueError, UnknownPresetError):
+            return errors, warnings
+        if preset is None or not preset.name.startswith("micromodem-rate"):
+            return errors, warnings
+        if preset.frame_bytes < rate.max_bytes:
+            warnings.append(f"rate {rate.number} sends packets of up to {rate.max_bytes} B, "
+                            f"the water's preset {preset.name} carries {preset.frame_bytes} B: "
+                            f"larger frames are refused (use micromodem-rate{rate.number})")
+        elif preset.name != f"micromodem-rate{rate.number}":
+            warnings.append(f"the water's preset {preset.name} times packets at another rate "
+                            f"than rate {rate.number} (use micromodem-rate{rate.number})")
+        return errors, warnings
 
     def __init__(self, setup: ModemSetup) -> None:
         super().__init__(setup)

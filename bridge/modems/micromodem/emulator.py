@@ -178,7 +178,9 @@ class MicromodemEmulator:
         pto_s: float = 10.0,
         crc32: bool = False,
     ) -> None:
-        self.setup = dataclasses.replace(setup, frame_bytes=4096)  # the water sets the limit
+        # the water sets the size limit; its dest carries packed headers, never a broadcast
+        self.setup = dataclasses.replace(setup, frame_bytes=4096, options={
+            k: v for k, v in setup.options.items() if k != "broadcast"})
         self.address = setup.address
         self.rev_period_s = rev_period_s
         self.boot_s = boot_s
