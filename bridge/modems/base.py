@@ -240,11 +240,15 @@ class ModemBackend(ABC):
         """The largest frame this backend can send with ``options`` (None: no fixed limit)."""
         return None
 
+    default_broadcast: ClassVar[int | None] = None
+    """The backend's own convention for the address that means every node (None: none)."""
+
     @classmethod
     def broadcast_address(cls, options: Mapping[str, Any]) -> int | None:
-        """The address that means every node with ``options`` (None: the backend has none)."""
+        """The address that means every node: the ``broadcast`` option (the mission's
+        ``modem.broadcast``), else :attr:`default_broadcast`."""
         value = options.get("broadcast")
-        return None if value is None else int(value)
+        return cls.default_broadcast if value is None else int(value)
 
     @classmethod
     def setup_problems(cls, options: Mapping[str, Any], address: int) -> tuple[list[str],

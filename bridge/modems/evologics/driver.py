@@ -103,17 +103,12 @@ class EvologicsBackend(ModemBackend):
 
     name: ClassVar[str] = "evologics"
     ranging: ClassVar[str | None] = "ack"
+    default_broadcast: ClassVar[int | None] = BROADCAST  # driver practice [V BIR]
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
         """Instant messages carry at most 64 bytes."""
         return IM_MAX_BYTES
-
-    @classmethod
-    def broadcast_address(cls, options: Mapping[str, Any]) -> int | None:
-        """255 (driver practice [V BIR]) unless the mission says otherwise."""
-        value = options.get("broadcast")
-        return BROADCAST if value is None else int(value)
 
     def __init__(self, setup: ModemSetup) -> None:
         super().__init__(setup)

@@ -96,6 +96,7 @@ class MicromodemBackend(ModemBackend):
 
     name: ClassVar[str] = "micromodem"
     ranging: ClassVar[str | None] = "ping"
+    default_broadcast: ClassVar[int | None] = DEFAULT_BROADCAST
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
@@ -104,12 +105,6 @@ class MicromodemBackend(ModemBackend):
             return get_rate(options.get("rate", 0)).max_bytes
         except ValueError:
             return None
-
-    @classmethod
-    def broadcast_address(cls, options: Mapping[str, Any]) -> int | None:
-        """Goby's ``BROADCAST_ID`` 0 unless the mission says otherwise."""
-        value = options.get("broadcast")
-        return DEFAULT_BROADCAST if value is None else int(value)
 
     @classmethod
     def setup_problems(cls, options: Mapping[str, Any], address: int) -> tuple[list[str],
@@ -146,7 +141,7 @@ class MicromodemBackend(ModemBackend):
             self.retries = int(opts.get("retries", DEFAULT_RETRIES))
             self.send_retries = int(opts.get("send_retries", DEFAULT_SEND_RETRIES))
             self.ping_timeout_s = float(opts.get("ping_timeout_s", DEFAULT_PING_TIMEOUT_S))
-            self.broadcast = int(opts.get("broadcast", DEFAULT_BROADCAST))
+            self.broadcast = self.broadcast_address(opts)
             self.fdp = bool(opts.get("fdp", False))
             self.set_clock = str(opts.get("set_clock", "none"))
             self.sound_speed = float(opts.get("sound_speed_mps", 1500.0))
