@@ -66,7 +66,7 @@ from bridge.dccl.goby import frame_codec_for
 from bridge.errors import DecodeError, EncodeError, FrameError, MissionError
 from bridge.frozen import direct_init
 from bridge.mission.loader import LoadedMission
-from bridge.modems.reception import ModemRange, Reception
+from bridge.modems.reception import ModemFix, ModemRange, Reception
 from bridge.wire.auth import Authenticator
 from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.wire.families import NameCodec
@@ -1150,6 +1150,13 @@ class NodeCore:
             return
         self._positioned(self.positioning.on_modem_range(peer, rng.travel_time_s, rng.method,
                                                          rng.time), now)
+
+    def modem_fix(self, fix: ModemFix, now: float) -> None:
+        """The modem's USBL head located a peer: published on ``usbl/<peer>`` as it is."""
+        self.settle()
+        peer = self.mission.name_of(fix.peer)
+        if peer is not None:
+            self._status(f"usbl/{peer}", fix.payload())
 
     def range_due(self, now: float) -> int | None:
         """The address this node should ask its modem to range to at this transmit opportunity

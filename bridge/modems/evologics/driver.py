@@ -45,7 +45,9 @@ Each :class:`Reception` carries in ``meta``: ``dest`` (``None`` for broadcast), 
 clock), ``duration_s``, ``rssi_db``, ``integrity``, ``velocity_mps``, ``flag``, and when known
 ``rx_timestamp_us`` (modem clock at the start of reception, from ``RECVEND``/``RECVIMS``),
 ``propagation_s`` (one-way, from ``AT?T`` after our last delivered IM to that node) and ``usbl``
-(the latest ``USBLLONG`` fix of the sender).
+(the latest ``USBLLONG`` fix of the sender). Each ``USBLLONG`` also goes to ``on_fix`` as a
+:class:`~bridge.modems.base.ModemFix` with a covariance from its accuracy (the runtime
+publishes it on ``@zab/<mission>/<node>/usbl/<peer>``).
 """
 
 from __future__ import annotations
@@ -53,13 +55,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import time
 from collections.abc import Mapping
 from dataclasses import asdict
 from typing import Any, ClassVar
 
 from bridge.errors import BackendError
-from bridge.modems.base import Inbox, ModemBackend, ModemRange, ModemSetup, Reception
+from bridge.modems.base import Inbox, ModemBackend, ModemFix, ModemRange, ModemSetup, Reception
 from bridge.modems.evologics.clock import ModemClock
 from bridge.modems.evologics.commands import send_im, send_ims
 from bridge.modems.evologics.protocol import (
@@ -472,6 +475,7 @@ class EvologicsBackend(ModemBackend):
             self._last_end = (now, event)
         elif isinstance(event, UsblLong):
             self.fixes[event.remote_addr] = {"time": now, **asdict(event)}
+            self._report_fix(_fix(event, self.clock()))
         elif isinstance(event, SendEnd | DeliveredIm | FailedIm | ExpiredIms | CanceledIm):
             self._tx_events.put_nowait(event)
         elif isinstance(event, BurstData):
@@ -567,6 +571,17 @@ class EvologicsBackend(ModemBackend):
             self._reply.set_exception(error)
         self._tx_events.put_nowait(Malformed(b"", "failed"))  # wakes _wait_tx, which checks
         self._inbox.put(error)
+
+
+def _fix(ev: UsblLong, now: float) -> ModemFix:
+    """A ``USBLLONG`` as a :class:`ModemFix`: its ENU offset; its ``accuracy`` taken as the
+    standard deviation (m) of each axis [U: the unit is not in a stored source]."""
+    level = math.hypot(ev.e, ev.n)
+    variance = ev.accuracy ** 2
+    return ModemFix(ev.remote_addr, now, math.hypot(level, ev.u),
+                    math.degrees(math.atan2(ev.e, ev.n)) % 360.0,
+                    math.degrees(math.atan2(-ev.u, level)), ev.e, ev.n, -ev.u,
+                    (variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, variance))
 
 
 class _NoReply(Exception):

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from bridge.errors import BackendError
-from bridge.modems.base import ModemRange, ModemSetup
+from bridge.modems.base import ModemFix, ModemRange, ModemSetup
 from bridge.modems.evologics.driver import EvologicsBackend
 from bridge.modems.evologics.emulator import EvologicsEmulator
 from bridge.modems.presets import get_preset
@@ -112,6 +112,8 @@ def test_ack_delivered_with_range_and_failed(tmp_path: Path) -> None:
                 driver(emu[1], ack=True, usbl=True) as a, driver(emu[2]) as b:
             heard: list[ModemRange] = []
             a.on_range = heard.append
+            fixes: list[ModemFix] = []
+            a.on_fix = fixes.append
             assert a.ranging == "ack"
             await a.send(b"ping", 2)
             assert a.stats["delivered"] == 1
@@ -120,6 +122,9 @@ def test_ack_delivered_with_range_and_failed(tmp_path: Path) -> None:
             assert (rng.peer, rng.method) == (2, "propagation")
             assert rng.travel_time_s == pytest.approx(0.1, abs=1e-3)
             assert a.fixes[2]["e"] == pytest.approx(150.0)  # USBLLONG from the ack
+            (fix,) = fixes  # ... handed on, published by the runtime as usbl/<peer>
+            assert (fix.peer, fix.range_m, fix.azimuth_deg) == (2, pytest.approx(150.0), 90.0)
+            assert fix.covariance == pytest.approx((0.01, 0, 0, 0, 0.01, 0, 0, 0, 0.01))
             await asyncio.wait_for(b.recv(), 2)
             await b.close()
             await emu[2].stop()  # nobody answers any more
