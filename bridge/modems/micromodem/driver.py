@@ -350,12 +350,14 @@ class MicromodemBackend(ModemBackend):
         reply = await self._clock_command(Sentence("CC", "TMS", (stamp, "0")), self.timeout_s)
         if isinstance(reply, ClockReply) and reply.timed_out:
             raise BackendError(f"micromodem {self.setup.node!r}: $CCTMS timed out")
-        asked = time.time()
         reply = await self._clock_command(Sentence("CC", "TMQ", ("0",)), self.timeout_s + 0.5)
+        heard = time.time()  # the reply's time is when the modem printed it, ~0.5 s on
         if isinstance(reply, ClockReply):
             with contextlib.suppress(ValueError):
                 read = datetime.datetime.fromisoformat(reply.time.replace("Z", "+00:00"))
-                self.stats["clock_offset_ms"] = round((read.timestamp() - asked) * 1000)
+                if read.tzinfo is None:
+                    read = read.replace(tzinfo=datetime.UTC)
+                self.stats["clock_offset_ms"] = round((read.timestamp() - heard) * 1000)
 
     async def _reinitialise(self) -> None:
         try:

@@ -42,6 +42,7 @@ import dataclasses
 import datetime
 import enum
 import logging
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -416,18 +417,22 @@ class MicromodemEmulator:
         self._spawn(self._transmit(Header(AirKind.MINI, self.address, dest),
                                    value.to_bytes(2, "big")))
 
+    def _set_clock(self, when: float) -> None:
+        """The clock reads ``when`` at the top of the next second, as goby times ``$CCCLK``
+        (sent 50-100 ms into a second, naming the next one) [C: when MM2 applies it]."""
+        self.clock_offset_s = when - math.ceil(time.time())
+
     def _cc_clk(self, f: tuple[str, ...]) -> None:
-        """``$CCCLK,YYYY,MM,DD,hh,mm,ss``: the clock reads that now [C: the modem may wait for
-        the next second]."""
-        when = datetime.datetime(*(int(x) for x in f[:6]), tzinfo=datetime.UTC)
-        self.clock_offset_s = when.timestamp() - time.time()
+        """``$CCCLK,YYYY,MM,DD,hh,mm,ss``."""
+        self._set_clock(datetime.datetime(*(int(x) for x in f[:6]),
+                                          tzinfo=datetime.UTC).timestamp())
         self._print("CLK", *f[:6])
 
     def _cc_tms(self, f: tuple[str, ...]) -> None:
         """``$CCTMS,<ISO 8601>Z,mode`` → ``$CATMS,timed_out,time`` [V layout]."""
         when = datetime.datetime.fromisoformat(f[0].replace("Z", "+00:00"))
         int(f[1])
-        self.clock_offset_s = when.timestamp() - time.time()
+        self._set_clock(when.timestamp())
         self._print("TMS", 0, _iso(when.timestamp()))
 
     def _cc_tmq(self, f: tuple[str, ...]) -> None:
