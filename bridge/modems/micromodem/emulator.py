@@ -79,6 +79,7 @@ API_LEVEL = 11
 """What ``$CAALQ`` reports (pyacomms' default level) [U: a real MM2's name and level]."""
 
 MAX_ADDRESS = 127
+"""Highest address the emulator takes (the driver's range; its water header has 7 bits)."""
 
 
 class AirKind(enum.IntEnum):
