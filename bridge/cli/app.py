@@ -368,12 +368,25 @@ def emulate(
                                                  "loopback TCP port.")] = None,
     water: Annotated[str | None, typer.Option(help="host:port of `zab water` (default: the "
                                               "mission's).")] = None,
+    firmware: Annotated[str | None, typer.Option(help="EvoLogics only: the firmware it "
+                                                 "reports and speaks (1.6 prints the older "
+                                                 "RECVIM/RECVPBM layout; default 1.9).")] = None,
+    crc32: Annotated[bool, typer.Option("--crc32", help="Micro-Modem only: end every line "
+                                        "with MM2's 8-digit CRC-32 checksum.")] = False,
 ) -> None:
     """Emulate a node's modem on a pseudo-terminal, its frames crossing `zab water`."""
     loaded = _load(mission)
     if node not in loaded.mission.nodes:
         err.print(f"no node {node!r} in {mission}; nodes: {', '.join(loaded.mission.nodes)}")
         raise typer.Exit(2)
+    if firmware is not None:
+        from bridge.modems.evologics.protocol import firmware_is_legacy
+
+        try:
+            firmware_is_legacy(firmware)
+        except ValueError as exc:
+            err.print(f"--firmware: {exc}")
+            raise typer.Exit(2) from None
     options = loaded.mission.node_modem(node).options
     device = options.get("device")
     if link is None and isinstance(device, str) and not device.startswith("socket://"):
@@ -391,13 +404,14 @@ def emulate(
         if kind is ModemKind.evologics:
             from bridge.modems.evologics.emulator import run_emulator as evologics
 
+            extra = {} if firmware is None else {"firmware": firmware}
             task = asyncio.create_task(evologics(loaded, node, water=address, link=link,
-                                                 tcp_port=tcp_port, ready=ready))
+                                                 tcp_port=tcp_port, ready=ready, **extra))
         else:
             from bridge.modems.micromodem.emulator import run_emulator as micromodem
 
             task = asyncio.create_task(micromodem(loaded, node, water=address, link=link,
-                                                  ready=ready))
+                                                  ready=ready, crc32=crc32))
         await asyncio.wait([task, asyncio.create_task(stop.wait())],
                            return_when=asyncio.FIRST_COMPLETED)
         task.cancel()

@@ -55,7 +55,7 @@ from bridge.core.positioning import Positioning, needs_positioning
 from bridge.core.queries import Queries, Ticket
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
-from bridge.core.reception import ModemRange, RangingMode, Reception
+from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
 from bridge.errors import DecodeError, MissionError
 from bridge.frozen import direct_init
 from bridge.wire.auth import Authenticator
@@ -319,6 +319,12 @@ class NodeCore:
         peer = self.mission.name_of(rng.peer)
         if self.ranges is not None and peer is not None:
             self.ranges.modem_range(peer, rng.travel_time_s, rng.method, rng.time, now)
+
+    def modem_fix(self, fix: ModemFix, now: float) -> None:
+        """The modem's USBL head located a peer: published on ``usbl/<peer>`` as it is."""
+        peer = self.mission.name_of(fix.peer)
+        if peer is not None:
+            self._outbox.status(f"usbl/{peer}", fix.payload())
 
     # -- time and queries ----------------------------------------------------------------------
 

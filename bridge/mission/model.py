@@ -74,11 +74,18 @@ class NodePath(Strict):
                        "otherwise stop at the last.")
 
 
+BROADCAST_DESCRIPTION = (
+    "The address that means every node, on the modem and in what it hears; default: the "
+    "backend's convention (micromodem 0, Goby's BROADCAST_ID; evologics 255; sim none). "
+    "Every node must agree on it, and no node may have it as its address (zab check).")
+
+
 class ModemOverride(Strict):
     """Per-node modem settings; unset values come from the mission's ``modem`` defaults."""
 
     backend: str | None = None
     frame_bytes: int | None = Field(None, ge=4, le=4096)
+    broadcast: int | None = Field(None, ge=0, le=65535, description=BROADCAST_DESCRIPTION)
     options: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -108,6 +115,7 @@ class Modem(Strict):
 
     backend: str = Field("sim", description="sim, udp, or a backend from the zab.backends group.")
     frame_bytes: int = Field(64, ge=4, le=4096, description="Largest frame the modem sends.")
+    broadcast: int | None = Field(None, ge=0, le=65535, description=BROADCAST_DESCRIPTION)
     options: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -535,6 +543,7 @@ class Mission(Strict):
         return Modem(
             backend=override.backend or self.modem.backend,
             frame_bytes=override.frame_bytes or self.modem.frame_bytes,
+            broadcast=self.modem.broadcast if override.broadcast is None else override.broadcast,
             options={**self.modem.options, **override.options},
         )
 

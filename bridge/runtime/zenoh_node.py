@@ -35,7 +35,7 @@ from bridge.core.positioning import Positioning
 from bridge.core.reception import RangingMode
 from bridge.core.surfacing import Relay
 from bridge.errors import BackendError, DecodeError, EncodeError
-from bridge.modems.base import ModemBackend, ModemRange, Reception
+from bridge.modems.base import ModemBackend, ModemFix, ModemRange, Reception
 from bridge.runtime.eager import start_eagerly
 from bridge.runtime.keys import load_key
 from bridge.runtime.ros2_graph import Ros2Graph
@@ -523,6 +523,12 @@ class BridgeNode:
             self.core.modem_range(rng, self.clock())
             self._flush()
 
+    def _modem_fix(self, fix: ModemFix) -> None:
+        """The modem's USBL head located a peer (called by the backend, on the loop)."""
+        with self.lock:
+            self.core.modem_fix(fix, self.clock())
+            self._flush()
+
     # -- modem → core → Zenoh ------------------------------------------------------------------
 
     async def _modem_loop(self) -> None:
@@ -531,6 +537,7 @@ class BridgeNode:
         while True:
             backend = self.backend = self._make_backend()
             backend.on_range = self._modem_range
+            backend.on_fix = self._modem_fix
             backend.on_reception = self.receive  # at once, as the frame arrives
             try:
                 await backend.open()
