@@ -402,11 +402,12 @@ def emulate(
         stop = asyncio.Event()
         _install_stop(stop)
         if kind is ModemKind.evologics:
+            from bridge.modems.evologics.emulator import FIRMWARE as EVOLOGICS_FIRMWARE
             from bridge.modems.evologics.emulator import run_emulator as evologics
 
-            extra = {} if firmware is None else {"firmware": firmware}
             task = asyncio.create_task(evologics(loaded, node, water=address, link=link,
-                                                 tcp_port=tcp_port, ready=ready, **extra))
+                                                 tcp_port=tcp_port, ready=ready,
+                                                 firmware=firmware or EVOLOGICS_FIRMWARE))
         else:
             from bridge.modems.micromodem.emulator import run_emulator as micromodem
 

@@ -92,8 +92,8 @@ class FrameReceived(Event):
     channels: list[str]
     data: bytes
     meta: dict[str, Any]
-    values: dict[str, list[dict]]
-    members: dict[str, dict[str, list[dict]]] | None = None
+    values: dict[str, list[dict[str, Any]]]
+    members: dict[str, dict[str, list[dict[str, Any]]]] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out = {"time": self.time, "src": self.src, "bytes": self.size, "channels": self.channels,

@@ -29,7 +29,7 @@ from bridge.core.reception import Reception
 from bridge.core.transfer import from_bytes
 from bridge.errors import DecodeError, FrameError
 from bridge.mission.model import Mission
-from bridge.wire.channels import AckCodec, ChannelCodec
+from bridge.wire.channels import AckCodec, ChannelCodec, Values
 from bridge.wire.families import NameCodec
 from bridge.wire.frame import DecodedFrame, Entry, FrameCodec
 from bridge.wire.interest import InterestCodec
@@ -85,9 +85,9 @@ class Inbound:
             self.outbox.event(FrameDropped(now, src, exc.reason, str(exc), rx.data))
             return
         self._heard(rx, src, frame, now)
-        values: dict[str, list[dict]] = {}
+        values: dict[str, Values] = {}
         anchors: Anchors = {}  # live anchor positions the frame carried
-        members: dict[str, dict[str, list[dict]]] = {}  # key families: per member
+        members: dict[str, dict[str, Values]] = {}  # key families: per member
         for entry in frame.entries:
             self._entry(src, entry, now, values, anchors, members)
         if self.ranges is not None:
@@ -134,16 +134,16 @@ class Inbound:
         if self.links.states.get(src) is not LinkState.UP:
             self.links.update(now)
 
-    def _entry(self, src: str, entry: Entry, now: float, values: dict[str, list[dict]],
-               anchors: Anchors, members: dict[str, dict[str, list[dict]]]) -> None:
+    def _entry(self, src: str, entry: Entry, now: float, values: dict[str, Values],
+               anchors: Anchors, members: dict[str, dict[str, Values]]) -> None:
         """One entry of a frame from ``src``: its values published and gathered."""
         channel = entry.channel
-        if channel.__class__ is not ChannelCodec:  # an acknowledgement or a system entry
+        if not isinstance(channel, ChannelCodec):  # an acknowledgement or a system entry
             if isinstance(channel, AckCodec):
                 self.outbound.on_ack(src, entry.header, now)
-                return
-            if self._system(src, entry, now):
-                return
+            else:
+                self._system(src, channel, entry, now)
+            return
         if src not in channel.senders:
             self.stats.frames_dropped["unexpected_sender"] += 1
             return
@@ -158,6 +158,7 @@ class Inbound:
         elif channel.reliable:
             delivered = self.receivers.entry(src, channel, entry.header, entry.values)
         else:
+            assert entry.values is not None  # (a latest value always has its values)
             delivered = [entry.values]
         member = "*"
         if channel.family is not None:
@@ -169,9 +170,9 @@ class Inbound:
         for elements in delivered:
             self._deliver(src, channel, member, elements, now, values, anchors, members)
 
-    def _deliver(self, src: str, channel: ChannelCodec, member: str, elements: list[Any],
-                 now: float, values: dict[str, list[dict]], anchors: Anchors,
-                 members: dict[str, dict[str, list[dict]]]) -> None:
+    def _deliver(self, src: str, channel: ChannelCodec, member: str, elements: Values,
+                 now: float, values: dict[str, Values], anchors: Anchors,
+                 members: dict[str, dict[str, Values]]) -> None:
         """One value of ``channel`` from ``src`` (``member`` of its family): published."""
         cname, family, latching = channel.name, channel.family, channel.latching
         values[cname] = elements
@@ -190,7 +191,7 @@ class Inbound:
             self.outbox.publish(key, value, element.encoding, latching, element.ros2)
 
     def _fragment(self, src: str, channel: ChannelCodec, entry: Entry,
-                  now: float) -> list[list[Any]]:
+                  now: float) -> list[Values]:
         """A fragment: the value it completes, if any, with the transfer's progress out."""
         data, progress = self.receivers.fragment(src, channel, entry.header, entry.chunk)
         self.outbox.status(f"transfer/{channel.name}", {**progress, "peer": src, "time": now})
@@ -204,21 +205,17 @@ class Inbound:
                                            f"transfer on {channel.name!r}: {exc}"))
             return []
 
-    def _system(self, src: str, entry: Entry, now: float) -> bool:
-        """An ``@key``, ``@want`` or query entry from ``src``; False for anything else."""
-        channel = entry.channel
+    def _system(self, src: str, channel: NameCodec | InterestCodec | QueryCodec, entry: Entry,
+                now: float) -> None:
+        """An ``@key``, ``@want`` or query entry from ``src``."""
         if isinstance(channel, NameCodec):
             self.families.on_name(src, entry.header)
         elif isinstance(channel, InterestCodec):
             if self.interest is not None:
                 self.interest.on_heard(src, entry.header, now)
-        elif isinstance(channel, QueryCodec):
-            if self.queries is not None:
-                handle = self.queries.on_reply if channel.reply else self.queries.on_request
-                handle(src, channel, entry.header, entry.values, now)
-        else:
-            return False
-        return True
+        elif self.queries is not None:
+            handle = self.queries.on_reply if channel.reply else self.queries.on_request
+            handle(src, channel, entry.header, entry.values, now)
 
     def _foreign_frame(self, src: str, fingerprint: int, rx: Reception, now: float) -> None:
         """A frame whose check gives another fingerprint: corrupt, or sent with another

@@ -52,7 +52,7 @@ from bridge.core.mac import Schedule, schedule_for
 from bridge.core.outbound import Outbound, OutFrame
 from bridge.core.outputs import NodeStats, Outbox, Output, Publish, Status
 from bridge.core.positioning import Positioning, needs_positioning
-from bridge.core.queries import Queries, Ticket
+from bridge.core.queries import LocalGet, Queries, QueryAnswer, QueryEnd, Ticket
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
 from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
@@ -63,7 +63,7 @@ from bridge.wire.goby import frame_codec_for
 from bridge.wire.payloads import decode_payload
 
 __all__ = ["Action", "NodeCore", "NodeStats", "OutFrame", "Output", "Ping", "Publish",
-           "SendFrame", "Status"]
+           "SendFrame", "Status", "Taken"]
 
 log = logging.getLogger("zab.core")
 
@@ -90,6 +90,10 @@ class Ping:
 
 
 Action = SendFrame | Ping
+
+Taken = Output | LocalGet | QueryAnswer | QueryEnd
+"""What :meth:`NodeCore.take` gives: the parts' outputs, then what the queries ask of the
+runtime (a local get) or answer (replies, ends)."""
 
 
 class NodeCore:
@@ -200,11 +204,12 @@ class NodeCore:
 
     # -- the one way out -----------------------------------------------------------------------
 
-    def take(self) -> list[Output]:
-        """Everything produced since the last call, in order."""
+    def take(self) -> list[Taken]:
+        """Everything produced since the last call, in order (the queries' last)."""
+        out: list[Taken] = [*self._outbox.take()]
         if self.queries is not None:
-            self._outbox.items.extend(self.queries.take())
-        return self._outbox.take()
+            out += self.queries.take()
+        return out
 
     # -- samples in ----------------------------------------------------------------------------
 

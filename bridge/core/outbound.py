@@ -32,8 +32,8 @@ from bridge.core.transfer import TransferSender
 from bridge.errors import DecodeError, EncodeError
 from bridge.frozen import direct_init
 from bridge.mission.model import Mission
-from bridge.wire.channels import AckCodec, ChannelCodec, ChannelTable, ElementCodec
-from bridge.wire.frame import FrameCodec
+from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
+from bridge.wire.frame import FrameCodec, WireCodec
 from bridge.wire.payloads import decode_payload
 
 if TYPE_CHECKING:
@@ -246,7 +246,7 @@ class Outbound:
         codec = self.codec
         budget = codec.body_capacity_bits(self.frame_bytes) - codec.count_bits
         room = (1 << codec.count_bits) - 1
-        items: list[tuple[ChannelCodec | AckCodec, int]] = []
+        items: list[tuple[WireCodec, int]] = []
         targets: set[str] = set()
         acks: list[tuple[str, int]] = []
         receivers = self.receivers
@@ -268,16 +268,18 @@ class Outbound:
         asks_ack = False  # a channel in the frame asks for the modem's acknowledgement
         node = self.node
         for candidate in picked:
-            what, channel = candidate.what, candidate.channel
-            if isinstance(what, ChannelState):
-                chosen.append(what)
-                items.append((channel, what.payload()))
-            elif isinstance(what, Extra):
+            what = candidate.what
+            if isinstance(what, Extra):
                 extras.append(what)
                 items.append((what.channel, what.bits))
                 continue
+            if isinstance(what, ChannelState):
+                channel = what.channel
+                chosen.append(what)
+                items.append((channel, what.payload()))
             else:
                 sender, item = what
+                channel = sender.channel
                 streams.append((sender, item))
                 items.append((channel, sender.entry(item)))
             targets.update(channel.destinations(node))
@@ -309,9 +311,9 @@ class Outbound:
             by_sender.setdefault(id(sender), (sender, []))[1].append(item)
         dest = self.mission.name_of(out.dest) if out.dest is not None else None
         for sender, group in by_sender.values():
-            self.outbox.reports(sender.sent(group, out.built))  # type: ignore[arg-type]
+            self.outbox.reports(sender.sent(group, out.built))
             if confirmed and dest is not None:
-                sender.confirmed(group, dest)  # type: ignore[arg-type]
+                sender.confirmed(group, dest)
         self.receivers.acked(out.acks)
         if out.streams:
             self.outbox.unsaved = True

@@ -415,7 +415,7 @@ class Wire(Strict):
 
     @model_serializer(mode="wrap")
     def _dump_off(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        data = handler(self)
+        data: dict[str, Any] = handler(self)
         if self._auth_off:
             data["auth"] = "off"  # a dump reads back as the same mission
         return data

@@ -104,7 +104,7 @@ def _channel_schema(channel: ChannelCodec) -> dict[str, Any]:
 
 def json_view_schema(layout: Layout) -> dict[str, Any]:
     """A layout's schema as the log stores it (bytes fields as hex strings)."""
-    schema = adapt_schema(layout.json_schema(), "out")
+    schema: dict[str, Any] = adapt_schema(layout.json_schema(), "out")
     schema.pop("$schema", None)
     return schema
 

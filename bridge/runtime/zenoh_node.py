@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import threading
 import time
@@ -69,6 +70,18 @@ def modem_start(backend: ModemBackend) -> float:
     """The modem time a frame handed to ``backend`` now starts at: with a timed modem the
     emission starts exactly then, so DLBL delays are exact."""
     return backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
+
+
+def _peer_water(positioning: Positioning, peer: str, values: tuple[float, ...]) -> None:
+    """A peer's CTD reading (``sound_speed_mode: mean_of_ends``)."""
+    temperature, salinity, depth = values
+    positioning.set_peer_water(peer, temperature, salinity, depth)
+
+
+def _matching(loop: asyncio.AbstractEventLoop, changed: Callable[[str, bool], None], key: str,
+              status: zenoh.MatchingStatus) -> None:
+    """Zenoh thread: whether some subscriber matches ``key`` now, told to the loop."""
+    loop.call_soon_threadsafe(changed, key, status.matching)
 
 
 class BridgeNode:
@@ -158,7 +171,7 @@ class BridgeNode:
             self._flush()  # this run's epoch saved; what a changed mission file ended, reported
             for key in self.core.bindings:
                 self.session.declare_subscriber(
-                    key, lambda s, k=key: self._from_zenoh(loop, k, s)
+                    key, functools.partial(self._from_zenoh, loop, key)
                 )
             for key in self.core.families.subscriptions():  # key families: concrete keys
                 self.session.declare_subscriber(
@@ -290,16 +303,21 @@ class BridgeNode:
         for anchor, key in self.mission.ranging.anchor_keys.items():
             if anchor in positioning.anchors:  # (what this bridge decodes, its core takes)
                 listen(key, ("x", "y", "depth"),
-                       lambda v, a=anchor: positioning.set_anchor(  # type: ignore[misc]
-                           a, v, self.clock()), bridged=True, own=False)
+                       functools.partial(self._anchor_at, positioning, anchor),
+                       bridged=True, own=False)
         ctd_key = self.mission.ranging.ctd_key
         if ctd_key is not None:
             listen(ctd_key, ("temperature_c", "salinity_psu", "depth_m"),
                    lambda v: positioning.set_water(*v), bridged=True)
         for peer, key in positioning.peer_ctd_keys().items():  # sound_speed_mode: mean_of_ends
             listen(key, ("temperature_c", "salinity_psu", "depth_m"),
-                   lambda v, p=peer: positioning.set_peer_water(p, *v),  # type: ignore[misc]
-                   bridged=True)
+                   functools.partial(_peer_water, positioning, peer), bridged=True)
+
+    def _anchor_at(self, positioning: Positioning, anchor: str,
+                   position: tuple[float, ...]) -> None:
+        """An anchor's live position, as another bridge published it."""
+        x, y, depth = position
+        positioning.set_anchor(anchor, (x, y, depth), self.clock())
 
     def _watch_interest(self, loop: asyncio.AbstractEventLoop) -> None:
         """Demand-driven missions: a matching listener on every output key this node publishes
@@ -321,8 +339,9 @@ class BridgeNode:
             publisher = self.session.declare_publisher(key)
             self._interest_entities.append(publisher)
             self._interest_entities.append(publisher.declare_matching_listener(
-                lambda status, k=key: loop.call_soon_threadsafe(changed, k, status.matching)))
-            changed(key, publisher.matching_status.matching)
+                functools.partial(_matching, loop, changed, key)))
+            # (the stub says bool; the binding gives a MatchingStatus, as the listener does)
+            changed(key, publisher.matching_status.matching)  # type: ignore[attr-defined]
 
     def _watch_ip(self, loop: asyncio.AbstractEventLoop) -> None:
         """Surfacing: this bridge's liveliness token, and the peers' tokens seen over IP."""
@@ -685,7 +704,7 @@ class BridgeNode:
         if latched and key not in self._latched_keys:
             self._latched_keys.add(key)
             self._queryables.append(
-                self.session.declare_queryable(key, lambda q, k=key: self._answer(q, k))
+                self.session.declare_queryable(key, functools.partial(self._answer, key=key))
             )
         publisher.put(payload, attachment=self._origin)
 
