@@ -35,6 +35,7 @@ from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
+from bridge.core.drops import DropLedger, clamps
 from bridge.core.events import (
     Delivery,
     Event,
@@ -43,7 +44,6 @@ from bridge.core.events import (
     FrameSent,
     Link,
     MissionMismatch,
-    PayloadDropped,
     PeerRestarted,
     Position,
     Range,
@@ -59,6 +59,7 @@ from bridge.core.mac import Schedule, schedule_for
 from bridge.core.positioning import Positioning, Update, needs_positioning
 from bridge.core.queries import Queries, Ticket
 from bridge.core.reliable import SEQ_MOD, ReliableReceiver, ReliableSender, default_retry_s
+from bridge.core.saving import Saving
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferReceiver, TransferSender, from_bytes
@@ -72,7 +73,7 @@ from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.wire.families import NameCodec
 from bridge.wire.frame import DecodedFrame, Entry
 from bridge.wire.interest import InterestCodec
-from bridge.wire.payloads import decode_payload
+from bridge.wire.payloads import decode_payload, payload_cap
 from bridge.wire.queries import QueryCodec
 
 if TYPE_CHECKING:
@@ -198,11 +199,13 @@ class NodeCore:
         self.epoch: int = state.get("epoch", rng.randrange(EPOCHS))
         self.peer_epochs: dict[str, int] = dict(state.get("peer_epochs", {}))
         self._dirty = True  # a new run's epoch must be saved before its first frame
+        self.saving = Saving()  # whether the runtime can save it (bridge.core.saving)
         self.codec = frame_codec_for(self.table, auth)
         self.frame_bytes = mission.node_modem(node).frame_bytes
         self.address = mission.address_of(node)
         self.store = OutboundStore.for_node(self.table.channels, node)
-        self.stats = NodeStats()
+        self.drops = DropLedger(node)  # payloads dropped: counted, told at a bounded rate
+        self.stats = NodeStats(payloads_dropped=self.drops.by_key)
         self.thresholds = LinkThresholds.for_mission(mission)
         self.heartbeat_s = heartbeat_s(mission)
         self.schedule: Schedule = schedule_for(mission, node, seed=seed)
@@ -234,7 +237,10 @@ class NodeCore:
                     self.bindings.setdefault(key, []).append((channel, i, element))
         self._ros2_inputs = {key: next((e.ros2 for _, _, e in found if e.ros2 is not None), None)
                              for key, found in self.bindings.items()}
-        self._warned_keys: set[str] = set()
+        self._caps = {key: payload_cap(max(e.layout.bits for _, _, e in found))
+                      for key, found in self.bindings.items()}
+        self._cap = payload_cap(max((e.layout.bits for c in self.table.channels
+                                     for e in c.elements), default=0))
         retry_s = default_retry_s(mission)
         self.senders: dict[int, ReliableSender | TransferSender] = {
             c.index: (TransferSender if c.fragmented else ReliableSender)(
@@ -264,6 +270,14 @@ class NodeCore:
         """:meth:`state` changed in a way a restart must not lose: save it before carrying out
         the outputs or sending the frame just built."""
         return self._dirty or (self.auth is not None and self.auth.changed)
+
+    def storage(self, error: str | None, now: float) -> None:
+        """The runtime's saves of :meth:`state` fail (``error``: why) or work (None); while
+        they fail, new reliable values are refused (:mod:`bridge.core.saving`)."""
+        event = self.saving.changed(error, now)
+        if event is not None:
+            self._status("state", event.to_dict())
+            self._event(event)
 
     def saved(self) -> None:
         """The runtime saved :meth:`state`."""
@@ -341,13 +355,17 @@ class NodeCore:
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
         ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
         self.settle()
+        if len(data) > (cap := self.payload_cap(key)):
+            self.drop_payload(key, f"{len(data)} bytes, over this key's cap of {cap}", now,
+                              "too_large")
+            return
         bindings = self.bindings.get(key, ())
         ros2 = self._ros2_inputs.get(key)  # (ros2_input, per sample)
         try:
             value = (ros2.decode(data, sample_key or key) if ros2 is not None
                      else decode_payload(data, encoding))
         except DecodeError as exc:
-            self.drop_payload(key, str(exc), now)
+            self.drop_payload(key, str(exc), now, "undecodable")
             return
         for channel, index, element in bindings:
             try:
@@ -360,7 +378,9 @@ class NodeCore:
                 self.store.update(channel.index, index, packed, now)
             elif self.store.update_value(channel.index, index, packed, now):
                 payload = self.store.states[channel.index].payload()
-                self._reports(sender.offer(payload, now, key, ref))
+                refused = self.saving.refusal()
+                self._reports(sender.offer(payload, now, key, ref) if refused is None
+                              else sender.refuse(now, key, ref, refused))
                 self._dirty = True
         if self.families.senders:
             for problem in self.families.ingest(key, value, now):
@@ -376,21 +396,26 @@ class NodeCore:
         """The ROS 2 topic read on input ``key``, or None (asked per sample: looked up once)."""
         return self._ros2_inputs.get(key)
 
-    def drop_payload(self, key: str, reason: str, now: float) -> None:
-        """Count a payload that cannot be used (warned once per key)."""
+    def payload_cap(self, key: str) -> int:
+        """The longest payload input ``key`` takes (:func:`~bridge.wire.payloads.payload_cap`
+        of the bits its channels keep): a longer one is dropped before it is decoded."""
+        return self._caps.get(key, self._cap)
+
+    def drop_payload(self, key: str, reason: str, now: float, cause: str = "unfit") -> None:
+        """Count a payload that cannot be used, by key and ``cause`` (logged and summarised at
+        a bounded rate: :mod:`bridge.core.drops`)."""
         self.settle()
-        self.stats.payloads_dropped[key] += 1
-        if key not in self._warned_keys:
-            self._warned_keys.add(key)
-            log.warning("%s: dropped a payload on %r: %s (counted; warned once)",
-                        self.node, key, reason)
-        self._event(PayloadDropped(now, key, reason))
+        summary = self.drops.drop(key, cause, reason, now)
+        if summary is not None:
+            self._event(summary)
 
     def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
                 now: float) -> tuple[float, ...] | None:
         """The finite numbers ``names`` of a payload, or None (counted as a dropped payload)."""
         self.settle()
         try:
+            if len(data) > self._cap:
+                raise DecodeError(f"{len(data)} bytes, over the cap of {self._cap}")
             value = decode_payload(data, encoding)
             numbers = tuple(float(value[k]) for k in names)
             if not all(map(math.isfinite, numbers)):
@@ -1197,6 +1222,8 @@ class NodeCore:
             self._positioned(Update((), None, estimate), now)  # coasting, or lost, is news
         if self.queries is not None:
             self.queries.expire(now)
+        if (summary := self.drops.due(now)) is not None:
+            self._event(summary)
 
     def ask(self, key: str, parameters: Any, now: float) -> Ticket | str:
         """A Zenoh get on ``key`` with ``parameters`` (a dict): the acoustic query's ticket it
@@ -1246,6 +1273,8 @@ class NodeCore:
             "frames_received": self.stats.frames_received,
             "frames_dropped": dict(self.stats.frames_dropped),
             "payloads_dropped": dict(self.stats.payloads_dropped),
+            "payload_drop_causes": self.drops.causes(),
+            "clamped": clamps(self.bindings),
             "values_published": self.stats.values_published,
             "send_errors": self.stats.send_errors,
             "left_out": self.stats.left_out,
@@ -1254,6 +1283,7 @@ class NodeCore:
             "last_heard": dict(self.last_heard),
             "links": {peer: state.value for peer, state in self.link_states.items()},
             "epoch": self.epoch,
+            "state": self.saving.snapshot(),
             "mismatched_peers": dict(self.mismatched),
             "unfinished": {s.channel.name: s.pending() for s in self.senders.values()},
             "sent_per_channel": dict(self.stats.sent_per_channel),
