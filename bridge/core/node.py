@@ -73,6 +73,7 @@ from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec
 from bridge.wire.families import NameCodec
 from bridge.wire.frame import DecodedFrame, Entry
 from bridge.wire.interest import InterestCodec
+from bridge.wire.marks import MarkCodec
 from bridge.wire.payloads import decode_payload, payload_cap
 from bridge.wire.queries import QueryCodec
 
@@ -433,8 +434,8 @@ class NodeCore:
         self.settle()
         if now is not None:
             self._begin(now)
-        if self._acks:
-            return float("-inf")
+        if self._acks or (self.auth is not None and self.auth.owed):
+            return float("-inf")  # (a peer waits for an acknowledgement, or for its @mark)
         times = [self._store_next_due(now), self.next_heartbeat()]
         if self.families.senders:
             times.append(self.families.next_due(now, self.wants))
@@ -718,6 +719,22 @@ class NodeCore:
                     for n, item in enumerate(sender.due(now))]
         if self.families.senders:
             out += self.families.candidates(now, self.wants)
+        if self.auth is not None and self.auth.owed:
+            out += self._marks()
+        return out
+
+    def _marks(self) -> list[Candidate]:
+        """The ``@mark`` entries owed to senders whose frames were refused as replayed
+        (:mod:`bridge.wire.marks`)."""
+        codec, auth = self.table.marks, self.auth
+        assert codec is not None and auth is not None
+        out = []
+        for address, mark in auth.hints():
+            peer = self.mission.name_of(address)
+            if peer is not None:
+                out.append(Candidate(codec, None, Extra(  # type: ignore[arg-type]
+                    codec, codec.pack(self.table.nodes.index(peer), mark),
+                    lambda _built, a=address: auth.hinted(a))))
         return out
 
     def wants(self, channel: ChannelCodec) -> bool:
@@ -940,6 +957,8 @@ class NodeCore:
         self.stats.frames_received += 1
         self.schedule.on_heard(src, rx.dest == self.address, now)
         self._foreign.pop(src, None)
+        if self.mismatched:
+            self._matched(src, now)
         self.last_heard[src] = now
         self._link_watch.heard(src, now)
 
@@ -1065,6 +1084,12 @@ class NodeCore:
             if self.queries is not None:
                 handle = self.queries.on_reply if channel.reply else self.queries.on_request
                 handle(src, channel, entry.header, entry.values, now)
+        elif isinstance(channel, MarkCodec):
+            peer, mark = entry.header
+            if self.table.nodes[peer] == self.node and self.auth is not None \
+                    and self.auth.resume_past(mark):
+                log.info("%s: %s refused its frames as replayed: its counter resumes past %d",
+                         self.node, src, mark)
         else:
             return False
         return True
@@ -1096,9 +1121,13 @@ class NodeCore:
 
     def _foreign_frame(self, src: str, fingerprint: int, rx: Reception, now: float) -> None:
         """A frame whose check gives another fingerprint: corrupt, or sent with another
-        mission file — the same fingerprint twice in a row from one sender says which."""
-        mismatch = self._foreign.get(src) == fingerprint
-        self._foreign[src] = fingerprint
+        mission file — the same fingerprint twice in a row from one sender says which; in an
+        authenticated mission, only a tag a key holder made under that fingerprint does."""
+        if self.auth is not None:
+            mismatch = self.codec.vouch(rx.data, rx.src, fingerprint) is not None
+        else:
+            mismatch = self._foreign.get(src) == fingerprint
+            self._foreign[src] = fingerprint
         reason = "mission_mismatch" if mismatch else "check"
         self.stats.frames_dropped[reason] += 1
         self._event(FrameDropped(now, src, reason,
@@ -1112,6 +1141,13 @@ class NodeCore:
             event = MissionMismatch(now, src, text, ours)
             self._status(f"mismatch/{src}", event.to_dict())
             self._event(event)
+
+    def _matched(self, src: str, now: float) -> None:
+        """A frame of this mission file from ``src``: it no longer runs another one."""
+        if self.mismatched.pop(src, None) is not None:
+            log.warning("%s: peer %s runs this mission file again", self.node, src)
+            self._status(f"mismatch/{src}", {"time": now, "peer": src, "fingerprint": None,
+                                             "ours": f"{self.codec.fingerprint16:04x}"})
 
     def _on_ack(self, src: str, header: tuple[int, ...], now: float) -> None:
         peer, stream, epoch, tid, base, bitmap = header
