@@ -12,6 +12,7 @@ import zenoh
 from bridge.errors import SessionError
 from bridge.mission.model import ZenohSettings
 from bridge.ros2.attachment import from_bridge
+from bridge.wire.proofs import SIGNATURE
 
 # Every sample a bridge publishes carries this attachment prefix; bridges never re-bridge it.
 ORIGIN_PREFIX = b"zab/1 "
@@ -72,6 +73,11 @@ def close_quietly(session: Any) -> None:
 
 def origin_tag(mission: str, node: str) -> bytes:
     return ORIGIN_PREFIX + f"{mission}/{node}".encode()
+
+
+def origin_of(attachment: bytes) -> bytes:
+    """A bridge's attachment without its signature (:mod:`bridge.wire.proofs`), if any."""
+    return attachment.partition(SIGNATURE)[0]
 
 
 def is_bridged(sample: zenoh.Sample) -> bool:

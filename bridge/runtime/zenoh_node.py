@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import logging
 import threading
 import time
@@ -40,18 +41,21 @@ from bridge.ros2.graph import Ros2Graph
 from bridge.runtime.eager import start_eagerly
 from bridge.runtime.gate import EventGate
 from bridge.runtime.intake import Intake
+from bridge.runtime.ip_watch import IpWatch
 from bridge.runtime.persistence import Persistence
 from bridge.runtime.session import (
     bridged_attachment,
     close_quietly,
     is_bridged,
     open_session,
+    origin_of,
     origin_tag,
 )
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_queries import QueryBridge
 from bridge.wire.auth import load_key
 from bridge.wire.payloads import decode_payload, encode_payload
+from bridge.wire.proofs import sign_output
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -98,6 +102,10 @@ class BridgeNode:
         auth = loaded.mission.wire.auth
         if key is None and auth is not None:
             key = load_key(auth.key_env, auth.key_file)
+        self._key = key  # (proofs on the Zenoh side: bridge.wire.proofs)
+        self._sign = key is not None and auth is not None and auth.sign_outputs
+        self._signed = itertools.count(time.time_ns())  # signed samples' counters
+        self.ip_watch: IpWatch | None = None
         self.core = NodeCore(loaded, node, key=key,
                              state=state_file.load() if state_file is not None else None)
         self.mission = loaded.mission
@@ -193,6 +201,8 @@ class BridgeNode:
             self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
             self._ros2.announce(self.table, self.node)  # ROS 2 topics join the ROS 2 graph
             tasks = [
+                *([] if self.ip_watch is None else [asyncio.create_task(
+                    self.ip_watch.run(), name=f"{self.node}-surfacing")]),
                 asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
                 asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
                 asyncio.create_task(self._stats_loop(), name=f"{self.node}-stats"),
@@ -323,7 +333,7 @@ class BridgeNode:
                 if sample.kind != zenoh.SampleKind.PUT or (not bridged and is_bridged(sample)):
                     return
                 if not own and sample.attachment is not None \
-                        and sample.attachment.to_bytes() == self._origin:
+                        and origin_of(sample.attachment.to_bytes()) == self._origin:
                     return
                 if not self._oversized(key, sample):
                     data, encoding = sample.payload.to_bytes(), str(sample.encoding)
@@ -383,19 +393,13 @@ class BridgeNode:
             changed(key, publisher.matching_status.matching)
 
     def _watch_ip(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Surfacing: this bridge's liveliness token, and the peers' tokens seen over IP."""
+        """Surfacing: this bridge's liveliness token, and the peers' seen over IP, each proven
+        with the mission key (:mod:`bridge.runtime.ip_watch`)."""
         assert self.session is not None
-        liveliness = self.session.liveliness()
-        self._interest_entities.append(liveliness.declare_token(f"{self.prefix}/bridge"))
-
-        def on_token(sample: zenoh.Sample) -> None:  # Zenoh thread
-            parts = str(sample.key_expr).split("/")
-            up = sample.kind == zenoh.SampleKind.PUT
-            if len(parts) == 4 and parts[2] in self.mission.nodes:
-                loop.call_soon_threadsafe(self._ip_changed, parts[2], up)
-
-        self._interest_entities.append(liveliness.declare_subscriber(
-            f"@zab/{self.mission.mission}/*/bridge", on_token, history=True))
+        self.ip_watch = IpWatch(self.session, self.mission.mission, self.node,
+                                set(self.mission.nodes), self._key, self._ip_changed)
+        self.ip_watch.start(loop)
+        self._interest_entities.extend(self.ip_watch.entities)
 
     def _ip_changed(self, peer: str, up: bool) -> None:
         with self.lock:
@@ -706,7 +710,7 @@ class BridgeNode:
             elif isinstance(output, Relay):  # surfaced peer: the sample as it came, over IP
                 assert self.session is not None
                 self.session.put(output.key, output.data, encoding=zenoh.Encoding(output.encoding),
-                                 attachment=self._origin)
+                                 attachment=self._attachment(output.key, output.data))
             elif self._query_bridge is not None:
                 self._query_bridge.handle(output)
         if later:
@@ -800,7 +804,7 @@ class BridgeNode:
             self._queryables.append(
                 self.session.declare_queryable(key, lambda q, k=key: self._answer(q, k))
             )
-        publisher.put(payload, attachment=self._origin)
+        publisher.put(payload, attachment=self._attachment(key, payload))
 
     def _publish_ros2(self, key: str, value: Any, ros2: Ros2Element) -> None:
         """Publish a decoded value as a ROS 2 message (rmw_zenoh's key, attachment, tokens)."""
@@ -815,13 +819,22 @@ class BridgeNode:
         latest = self._latest.get(key)
         if latest is not None:
             query.reply(key, latest[0], encoding=zenoh.Encoding(latest[1]),
-                        attachment=self._origin)
+                        attachment=self._attachment(key, latest[0]))
         query.drop()
 
     def _publish_raw(self, key: str, value: dict[str, Any]) -> None:
         assert self.session is not None
-        self.session.put(key, msgpack.packb(value, use_bin_type=True),
-                         encoding=zenoh.Encoding("application/msgpack"), attachment=self._origin)
+        payload = msgpack.packb(value, use_bin_type=True)
+        self.session.put(key, payload, encoding=zenoh.Encoding("application/msgpack"),
+                         attachment=self._attachment(key, payload))
+
+    def _attachment(self, key: str, payload: bytes) -> bytes:
+        """What a sample this bridge puts on ``key`` carries: its origin tag (no bridge sends
+        it back), signed where the mission asks (:func:`~bridge.wire.proofs.sign_output`)."""
+        if not self._sign:
+            return self._origin
+        assert self._key is not None
+        return sign_output(self._key, self._origin, key, next(self._signed), payload)
 
     # -- health --------------------------------------------------------------------------------
 
@@ -830,6 +843,8 @@ class BridgeNode:
         with self.lock:
             snapshot = self.core.snapshot(self.clock())
         snapshot["state"].update(self.persistence.snapshot())
+        if self.ip_watch is not None and "surfacing" in snapshot:
+            snapshot["surfacing"]["unproven"] = self.ip_watch.unproven
         if self.intake is not None:
             snapshot["intake"] = {**self.intake.snapshot(), "events_dropped": self.events_dropped,
                                   "events_held_back": self._gate.held_back}
