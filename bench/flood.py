@@ -186,8 +186,8 @@ class Watch:
         what = event.get("kind", "?")
         if what == "frame_dropped":
             what += f":{event.get('reason')}"
-        with self.lock:
-            self.events[(self.phase, what, int(time.time()))] += 1
+        with self.lock:  # (by the node's own clock: a summary a second never shares one)
+            self.events[(self.phase, what, int(event.get("time", time.time())))] += 1
             self.event_total[self.phase] += 1
 
 
@@ -259,7 +259,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return summarise(watch, a_lines, lines_before, args)
 
 
-DROPPED = re.compile(r"dropped (?:a payload|\d+ more payloads) on '([^']*)'.*?\((\w+)[;)]")
+CAUSES = "too_large|undecodable|unfit|implausible|unpublishable"
+DROPPED = re.compile(rf"dropped (?:a payload|\d+ more payloads) on '([^']*)'.*?\(({CAUSES})[;)]")
 
 
 def summarise(watch: Watch, lines: list[str], before: dict[str, int],
@@ -289,8 +290,8 @@ def summarise(watch: Watch, lines: list[str], before: dict[str, int],
         "tracebacks": sum("Traceback" in line for line in flood_lines),
         "latency_median_s": {"idle": median_idle, "flood": median_during},
         "latency_p90_s": {"idle": _p90(lat["idle"]), "flood": _p90(during)},
-        "nav_sent_lost": {p: sum(1 for _, ph in watch.sent.values() if ph == p)
-                          for p in ("idle", "flood 1", "flood 2")},
+        "nav_superseded_or_lost": {p: sum(1 for _, ph in watch.sent.values() if ph == p)
+                                   for p in ("idle", "flood 1", "flood 2")},
         "goals": {
             "rss after <= idle + 20 MB": all(a <= idle + 20 for a in after),
             "rss during <= idle + 60 MB": peak <= idle + 60,

@@ -4,9 +4,11 @@ Anyone on a vehicle's Zenoh network can publish on the bridge's input keys, as f
 as they like. Three places could hold what they send, and each is bounded here:
 
 - *Zenoh's queue.* A plain callback subscriber hands each sample to a Python thread through a
-  queue of Zenoh's own that holds whole samples: twenty 1 MB puts a millisecond apart held
-  about 450 MB there (``RingChannel`` below: 46 MB, measured with one slow subscriber on
-  eclipse-zenoh 1.10). Each subscription here is a ``RingChannel`` of :data:`RING` samples:
+  queue of Zenoh's own that holds whole samples: one application putting 1 MB samples as fast
+  as it could held ~460 MB there (a ``RingChannel`` of 8: ~45 MB with six such applications,
+  with shared memory off as :func:`~bridge.runtime.session.zenoh_config` sets it; a
+  subscriber that sleeps 1 ms a sample, eclipse-zenoh 1.10). Each subscription here is a
+  ``RingChannel`` of :data:`RING` samples:
   Zenoh drops the oldest, in Rust, without waiting for the GIL, so one flooded key never
   holds back another's samples (Zenoh does not say how many it dropped).
 - *The hand-off to the event loop.* A thread of ours per subscription takes the samples out
