@@ -26,7 +26,7 @@ import yaml
 import zenoh
 
 from bridge.core.events import Event, FrameSent
-from bridge.mission.loader import parse_mission
+from bridge.core.loaded import parse_mission
 from bridge.runtime.fleet import Fleet
 
 NODES = ("n1", "n2", "n3")

@@ -140,8 +140,8 @@ def run_virtual(commands: int, restarts: int, loss: float, seed: int,
     """``commands`` at ``interval_s``; ``restarts`` kills at random times, each node staying
     down ``downtime_s`` (the ``ops`` application's puts are lost meanwhile). ``forgetful``: a
     node that restarts without its saved state (a new epoch) each time."""
+    from bridge.core.loaded import parse_mission
     from bridge.core.node import Publish, Status
-    from bridge.mission.loader import parse_mission
     from bridge.runtime.virtual_fleet import FastFleet, Timed
 
     tally = Tally()

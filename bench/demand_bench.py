@@ -36,8 +36,8 @@ import yaml
 from bridge.cli.sim_fast import feed
 from bridge.core.events import FrameSent
 from bridge.core.interest import output_keys
+from bridge.core.loaded import LoadedMission, parse_mission
 from bridge.core.positioning import simulated_preset
-from bridge.mission.loader import LoadedMission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet, Timed
 from bridge.wire.frame import FrameCodec
 from tests.conftest import MISSIONS

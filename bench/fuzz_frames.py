@@ -21,8 +21,8 @@ import time
 from collections import Counter
 from collections.abc import Callable
 
+from bridge.core.loaded import parse_mission
 from bridge.errors import FrameError
-from bridge.mission.loader import parse_mission
 from bridge.wire.auth import Authenticator
 from bridge.wire.frame import FrameCodec
 

@@ -26,7 +26,11 @@ took 35 µs back to back and ~360 µs when run every 10 ms, so what the bridge a
 how much Python a sample runs; at ``--rate 300`` every path here took about half as long as
 at 60.
 
-Run: ``uv run python bench/latency_bench.py [--count 2000] [--rate 60]``.
+With ``--against DIR`` (another checkout with its own ``uv sync``ed ``.venv``, say today's
+main in a worktree), a sixth path, *bridged (DIR)*, runs that checkout's ``zab sim`` beside
+this one's in the same interleaved run, so the two bridges are compared under the same load.
+
+Run: ``uv run python bench/latency_bench.py [--count 2000] [--rate 60] [--against DIR]``.
 """
 
 from __future__ import annotations
@@ -50,6 +54,8 @@ import zenoh
 
 MAX_NS = (1 << 62) - 1
 FLOORS = ("floor (thread)", "floor (asyncio)")
+BASELINE = "bridged (other)"
+"""The path of ``--against``'s checkout."""
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -187,22 +193,39 @@ def run_paths(paths: list[tuple[zenoh.Session, str]], got: dict[str, Latencies],
         latencies.done.wait(10)
 
 
-def stop(sessions: list[zenoh.Session], fleet: subprocess.Popen,
+def stop(sessions: list[zenoh.Session], fleets: list[subprocess.Popen],
          helpers: list[subprocess.Popen]) -> None:
-    """Close the sessions, stop ``zab sim``, and end the helper processes (stdin closed)."""
+    """Close the sessions, stop each ``zab sim``, and end the helper processes (stdin
+    closed)."""
     for session in sessions:
         session.close()
-    fleet.terminate()
-    fleet.wait(20)
+    for fleet in fleets:
+        fleet.terminate()
+        fleet.wait(20)
     for process in helpers:
         process.communicate(timeout=20)
 
 
-def measure(count: int, rate: float) -> dict[str, list[float]]:
-    """Latencies (µs) of every path, from one interleaved run."""
-    peer = f"tcp/127.0.0.1:{free_port()}"
+def start_fleet(tmp: Path, name: str, checkout: Path | None) -> tuple[subprocess.Popen, str, str]:
+    """``zab sim`` of a two-node udp mission on free ports, from this checkout or from
+    ``checkout`` (its own ``.venv``): the process and its nodes' endpoints."""
     ports = {n: free_port() for n in "ab"}
     udp = {n: free_port(socket.SOCK_DGRAM) for n in "ab"}
+    path = tmp / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(bridge_mission(ports, udp)))
+    python = sys.executable if checkout is None else str(checkout / ".venv" / "bin" / "python")
+    fleet = subprocess.Popen(
+        [python, "-m", "bridge", "sim", str(path), "--no-live"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=checkout,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    return fleet, f"tcp/127.0.0.1:{ports['a']}", f"tcp/127.0.0.1:{ports['b']}"
+
+
+def measure(count: int, rate: float, against: Path | None = None) -> dict[str, list[float]]:
+    """Latencies (µs) of every path, from one interleaved run (``against``: a second bridged
+    path from that checkout)."""
+    peer = f"tcp/127.0.0.1:{free_port()}"
     floors = {kind: [f"tcp/127.0.0.1:{free_port()}" for _ in "ab"] for kind in FLOORS}
     child = subprocess.Popen([sys.executable, __file__, "--child", peer, str(count)],
                              stdout=subprocess.PIPE, text=True)
@@ -212,25 +235,23 @@ def measure(count: int, rate: float) -> dict[str, list[float]]:
     for process in (child, *floor_children):
         assert process.stdout is not None
         assert process.stdout.readline().strip() == "ready"
-    got = {name: Latencies(count) for name in ("relayed", "bridged", *FLOORS)}
+    bridges = {"bridged": None, **({BASELINE: against} if against is not None else {})}
+    got = {name: Latencies(count) for name in ("relayed", *bridges, *FLOORS)}
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "latency.yaml"
-        path.write_text(yaml.safe_dump(bridge_mission(ports, udp)))
-        fleet = subprocess.Popen(
-            [sys.executable, "-m", "bridge", "sim", str(path), "--no-live"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        )
+        fleets = {name: start_fleet(Path(tmp), f"fleet{i}", checkout)
+                  for i, (name, checkout) in enumerate(bridges.items())}
         sessions: list[zenoh.Session] = []
         try:
             deadline = time.time() + 20
-            put_peer, get_peer, put_a, get_b = (client(e, deadline) for e in (
-                peer, peer, f"tcp/127.0.0.1:{ports['a']}", f"tcp/127.0.0.1:{ports['b']}"))
-            sessions = [put_peer, get_peer, put_a, get_b]
+            put_peer, get_peer = client(peer, deadline), client(peer, deadline)
+            sessions = [put_peer, get_peer]
             get_peer.declare_subscriber("bench/relayed", got["relayed"])
-            get_b.declare_subscriber("bench/bridged", got["bridged"])
-            paths = [(put_peer, "bench/direct"), (put_peer, "bench/relayed"),
-                     (put_a, "bench/bridged")]
+            paths = [(put_peer, "bench/direct"), (put_peer, "bench/relayed")]
+            for name, (_, end_a, end_b) in fleets.items():
+                put_a, get_b = client(end_a, deadline), client(end_b, deadline)
+                sessions += [put_a, get_b]
+                get_b.declare_subscriber("bench/bridged", got[name])
+                paths.append((put_a, "bench/bridged"))
             for kind, (end_a, end_b) in floors.items():
                 put_f, get_f = client(end_a, deadline), client(end_b, deadline)
                 sessions += [put_f, get_f]
@@ -238,7 +259,7 @@ def measure(count: int, rate: float) -> dict[str, list[float]]:
                 paths.append((put_f, "bench/floor"))
             run_paths(paths, got, count, rate)
         finally:
-            stop(sessions, fleet, floor_children)
+            stop(sessions, [fleet for fleet, _, _ in fleets.values()], floor_children)
     out = child.stdout.readline()
     child.wait(30)
     return {"direct": json.loads(out), **{name: v.values for name, v in got.items()}}
@@ -246,7 +267,7 @@ def measure(count: int, rate: float) -> dict[str, list[float]]:
 
 def summary(name: str, values: list[float]) -> tuple[float, float]:
     med, p99 = statistics.median(values), percentile(values, 0.99)
-    print(f"{name:<15} n={len(values):>5}  median {med:8.0f} µs   p99 {p99:8.0f} µs")
+    print(f"{name:<16} n={len(values):>5}  median {med:8.0f} µs   p99 {p99:8.0f} µs")
     return med, p99
 
 
@@ -260,17 +281,21 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--count", type=int, default=2000)
     parser.add_argument("--rate", type=float, default=60.0, help="puts per second per path")
+    parser.add_argument("--against", type=Path, default=None,
+                        help="another checkout (with its .venv) whose bridge runs beside")
     args = parser.parse_args()
-    runs = measure(args.count, args.rate)
+    runs = measure(args.count, args.rate, args.against)
     figures = {name: summary(name, values) for name, values in runs.items()}
-    if len(runs["bridged"]) < args.count:
-        print(f"bridge delivered {len(runs['bridged'])} of {args.count}")
-    for path in ("bridged", *FLOORS):
+    bridges = ["bridged", *([BASELINE] if args.against is not None else [])]
+    for name in bridges:
+        if len(runs[name]) < args.count:
+            print(f"{name} delivered {len(runs[name])} of {args.count}")
+    for path in (*bridges, *FLOORS):
         med, p99 = figures[path]
         for base in ("direct", "relayed"):
             base_med, base_p99 = figures[base]
-            goal = " (goal ≤ 0.5 ms at p99)" if path == "bridged" else ""
-            print(f"{path:<15} added over {base:<8}: median {(med - base_med) / 1000:.2f} ms, "
+            goal = " (goal ≤ 1 ms at p99)" if path in bridges else ""
+            print(f"{path:<16} added over {base:<8}: median {(med - base_med) / 1000:.2f} ms, "
                   f"p99 {(p99 - base_p99) / 1000:.2f} ms{goal}")
 
 

@@ -44,8 +44,8 @@ from latency_bench import (
     stop,
 )
 
+from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore
-from bridge.mission.loader import parse_mission
 from bridge.modems.udp import HEADER, MAGIC
 from bridge.runtime.session import origin_tag
 from bridge.wire.payloads import decode_payload, encode_payload

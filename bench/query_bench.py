@@ -26,8 +26,8 @@ from typing import Any
 
 import yaml
 
+from bridge.core.loaded import LoadedMission, parse_mission
 from bridge.core.queries import deadline_s
-from bridge.mission.loader import LoadedMission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 

@@ -195,10 +195,10 @@ MODEM_DISTANCE_M = 150.0
 
 async def _evologics_errors(runs: int, folder: Path) -> dict[str, list[float]]:
     """Travel-time errors (s) through the EvoLogics driver: DLBL host- and modem-timed, AT?T."""
+    from bridge.mission.presets import get_preset
     from bridge.modems.base import ModemSetup
     from bridge.modems.evologics.driver import EvologicsBackend
     from bridge.modems.evologics.emulator import EvologicsEmulator
-    from bridge.modems.presets import get_preset
     from bridge.sim.ocean import LossCurve
     from bridge.sim.service import WaterService
 
@@ -251,10 +251,10 @@ async def _evologics_errors(runs: int, folder: Path) -> dict[str, list[float]]:
 
 async def _micromodem_errors(runs: int, folder: Path) -> list[float]:
     """Travel-time errors (s) of the Micro-Modem ping through its driver."""
+    from bridge.mission.presets import get_preset
     from bridge.modems.base import ModemSetup
     from bridge.modems.micromodem.driver import MicromodemBackend
     from bridge.modems.micromodem.emulator import MicromodemEmulator
-    from bridge.modems.presets import get_preset
     from bridge.sim.service import WaterService
 
     preset = get_preset("micromodem-rate0").replace(bitrate_bps=3200.0, overhead_s=0.05)

@@ -28,7 +28,7 @@ import yaml
 import zenoh
 
 from bridge.core.events import Event, Surfaced
-from bridge.mission.loader import parse_mission
+from bridge.core.loaded import parse_mission
 from bridge.runtime.surface_wifi import access_point
 from tests.conftest import MISSIONS, free_port
 from tests.harness import outside_session, running_fleet

@@ -48,8 +48,8 @@ from pathlib import Path
 from typing import Any
 
 from bridge.cli.demo import formation_value, tour_mission
+from bridge.core.loaded import load_mission
 from bridge.core.node import Status
-from bridge.mission.loader import load_mission
 from bridge.ranging import seed001
 from bridge.ranging.localise import Fix, attempt
 from bridge.ranging.seed001 import NEES_BOUNDS_2D, Sample, events, flips, percentile, replay

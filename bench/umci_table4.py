@@ -55,8 +55,8 @@ import yaml
 import zenoh
 
 from bridge.core.events import Event, FrameReceived
-from bridge.mission.loader import LoadedMission, load_mission, parse_mission
-from bridge.modems.presets import get_preset
+from bridge.core.loaded import LoadedMission, load_mission, parse_mission
+from bridge.mission.presets import get_preset
 from bridge.runtime.fleet import Fleet
 from bridge.runtime.virtual_fleet import FastFleet, Timed
 from bridge.sim.ocean import Loss

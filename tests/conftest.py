@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from bridge.mission.loader import LoadedMission, parse_mission
+from bridge.core.loaded import LoadedMission, parse_mission
 
 REPO = Path(__file__).resolve().parent.parent
 MISSIONS = REPO / "deploy" / "missions"

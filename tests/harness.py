@@ -21,7 +21,7 @@ from typing import Any
 import msgpack
 import zenoh
 
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
 from bridge.runtime.fleet import Fleet
 
 REPO = Path(__file__).resolve().parent.parent

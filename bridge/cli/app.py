@@ -21,10 +21,10 @@ from rich.logging import RichHandler
 from rich.table import Table
 
 from bridge.cli import helptext
+from bridge.core.loaded import LoadedMission, load_mission
 from bridge.errors import BackendError, MissionError, NodeFailure, SessionError
-from bridge.mission.check import check_mission
-from bridge.mission.keys import frame_key, throwaway_note
-from bridge.mission.loader import LoadedMission, load_mission
+from bridge.report.check import check_mission
+from bridge.runtime.keys import frame_key, throwaway_note
 
 if TYPE_CHECKING:
     from bridge.report.model import MissionReport
@@ -165,6 +165,10 @@ def check(
     if data.get("key_entry_bits"):
         console.print(f"@key entry (names a learned member): {data['key_entry_bits']} bits",
                       highlight=False)
+    if data["dccl"]:
+        numeric = data["dccl_numeric"]
+        console.print(f"DCCL numeric rule: {numeric['rule']}, as {numeric['libdccl']}",
+                      highlight=False)
     for d in data["dccl"]:  # like dccl --analyze
         console.print(f"DCCL message of channel {d['channel']!r}:\n{d['analysis']}",
                       highlight=False, markup=False)
@@ -245,12 +249,12 @@ def schema(
     from bridge.mission.schema import default_schema_path, schema_text
 
     if payloads is not None:
-        from bridge.mission.payload_schema import write_payload_schemas
+        from bridge.wire.payload_schema import write_payload_schemas
 
         loaded = _load(payloads)
         folder = out or Path("schemas") / "payloads" / loaded.mission.mission
         try:
-            written = write_payload_schemas(loaded, folder)
+            written = write_payload_schemas(loaded.table, loaded.mission.mission, folder)
         except (OSError, ValueError) as exc:
             err.print(f"[red]cannot write payload schemas:[/] {exc}", highlight=False)
             raise typer.Exit(1) from None
@@ -374,12 +378,25 @@ def emulate(
                                                  "loopback TCP port.")] = None,
     water: Annotated[str | None, typer.Option(help="host:port of `zab water` (default: the "
                                               "mission's).")] = None,
+    firmware: Annotated[str | None, typer.Option(help="EvoLogics only: the firmware it "
+                                                 "reports and speaks (1.6 prints the older "
+                                                 "RECVIM/RECVPBM layout; default 1.9).")] = None,
+    crc32: Annotated[bool, typer.Option("--crc32", help="Micro-Modem only: end every line "
+                                        "with MM2's 8-digit CRC-32 checksum.")] = False,
 ) -> None:
     """Emulate a node's modem on a pseudo-terminal, its frames crossing `zab water`."""
     loaded = _load(mission)
     if node not in loaded.mission.nodes:
         err.print(f"no node {node!r} in {mission}; nodes: {', '.join(loaded.mission.nodes)}")
         raise typer.Exit(2)
+    if firmware is not None:
+        from bridge.modems.evologics.protocol import firmware_is_legacy
+
+        try:
+            firmware_is_legacy(firmware)
+        except ValueError as exc:
+            err.print(f"--firmware: {exc}")
+            raise typer.Exit(2) from None
     options = loaded.mission.node_modem(node).options
     device = options.get("device")
     if link is None and isinstance(device, str) and not device.startswith("socket://"):
@@ -397,13 +414,14 @@ def emulate(
         if kind is ModemKind.evologics:
             from bridge.modems.evologics.emulator import run_emulator as evologics
 
+            extra = {} if firmware is None else {"firmware": firmware}
             task = asyncio.create_task(evologics(loaded, node, water=address, link=link,
-                                                 tcp_port=tcp_port, ready=ready))
+                                                 tcp_port=tcp_port, ready=ready, **extra))
         else:
             from bridge.modems.micromodem.emulator import run_emulator as micromodem
 
             task = asyncio.create_task(micromodem(loaded, node, water=address, link=link,
-                                                  ready=ready))
+                                                  ready=ready, crc32=crc32))
         await asyncio.wait([task, asyncio.create_task(stop.wait())],
                            return_when=asyncio.FIRST_COMPLETED)
         task.cancel()

@@ -39,19 +39,19 @@ from bridge.cli.demo_surfacing import (
 )
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
 from bridge.cli.tour import Tour, turn_waits
-from bridge.codec import FieldSpec
 from bridge.core.events import Event
+from bridge.core.loaded import LoadedMission, parse_mission
 from bridge.core.mac import frame_time_s
 from bridge.core.queries import UNBOUNDED_TURN_S, deadline_s
 from bridge.errors import MissionError
 from bridge.gui.commands import named_as_command
 from bridge.gui.server import GuiServer
-from bridge.mission.keys import throwaway_note
-from bridge.mission.loader import LoadedMission, parse_mission
+from bridge.mission.fields import FieldSpec
 from bridge.report import MissionRecorder, write_report
 from bridge.report.model import MissionReport
 from bridge.resources import data_dir
 from bridge.runtime.fleet import Fleet
+from bridge.runtime.keys import throwaway_note
 from bridge.runtime.session import close_quietly
 from bridge.wire.channels import ChannelCodec
 

@@ -17,8 +17,8 @@ from typing import Any
 import msgpack
 import zenoh
 
+from bridge.core.loaded import LoadedMission
 from bridge.errors import DecodeError
-from bridge.mission.loader import LoadedMission
 from bridge.wire.channels import ChannelCodec
 from bridge.wire.queries import QuerySpec
 

@@ -19,7 +19,7 @@ import msgpack
 import zenoh
 
 from bridge.core.events import Event, FrameSent, Surfaced
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
 from bridge.runtime.session import origin_of, origin_tag
 from bridge.sim.scenario import surface_script
 

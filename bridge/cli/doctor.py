@@ -26,12 +26,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+from bridge.core.loaded import LoadedMission
+from bridge.core.mac import mac_for
 from bridge.errors import BackendError
-from bridge.mission.check import check_mission
-from bridge.mission.keys import frame_key
-from bridge.mission.loader import LoadedMission
-from bridge.mission.model import TdmaMac
 from bridge.modems.setup import backend_factory
+from bridge.report.check import check_mission
+from bridge.runtime.keys import frame_key
 
 __all__ = [
     "ClockState",
@@ -102,11 +102,10 @@ def parse_timedatectl(text: str) -> ClockState | None:
 def clock_findings(loaded: LoadedMission, state: ClockState | None,
                    pps: Sequence[str] = ()) -> list[Finding]:
     """Judge a clock state against the mission: TDMA needs offsets well inside the guard."""
-    mac = loaded.mission.mac
-    if not isinstance(mac, TdmaMac):
+    limits = mac_for(loaded.mission).clock_limits()
+    if limits is None:
         return [Finding("clock", "ok", "no TDMA: the bridge does not depend on the wall clock")]
-    guard = mac.guard_s
-    limit = guard / 2 if guard > 0 else mac.slot_s / 20
+    limit, guard = limits
     install = ("install chrony (apt install chrony) and point it at the surface station's NTP "
                "server, or a GPS/PPS source")
     if state is None:

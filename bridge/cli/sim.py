@@ -23,11 +23,11 @@ from bridge.core.events import (
     PayloadDrops,
     SendFailed,
 )
-from bridge.mission.keys import throwaway_note
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
 from bridge.report.model import MissionReport, channel_figures, print_report
 from bridge.report.recorder import MissionRecorder, truth_from
 from bridge.runtime.fleet import Fleet
+from bridge.runtime.keys import throwaway_note
 
 REFRESH_S = 0.5
 

@@ -23,8 +23,8 @@ from typing import Any
 from bridge.codec import Layout
 from bridge.codec.fields import ArrayCodec, BoolCodec, EnumCodec, FieldCodec, FloatCodec, IntCodec
 from bridge.core.events import Event, FrameReceived
+from bridge.core.loaded import LoadedMission
 from bridge.errors import DecodeError, EncodeError
-from bridge.mission.loader import LoadedMission
 from bridge.report.age import AgeOfInformation
 from bridge.report.model import MissionReport
 from bridge.report.recorder import MissionRecorder, truth_from

@@ -14,8 +14,8 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from bridge.mission.check import check_mission
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
+from bridge.report.check import check_mission
 from bridge.wire.channels import ChannelCodec
 
 PARTS = {

@@ -17,7 +17,7 @@ from bridge.codec.fields import (
 )
 from bridge.codec.layout import Layout, LayoutFile, find_layout_file
 from bridge.codec.plugins import ENTRY_POINT_GROUP, known_codecs, register_codec, resolve_codec
-from bridge.codec.spec import FieldSpec, FieldType, OutOfRange
+from bridge.mission.fields import FieldSpec, FieldType, OutOfRange
 
 __all__ = [
     "ENTRY_POINT_GROUP",

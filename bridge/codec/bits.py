@@ -7,15 +7,9 @@ Everything here is pure and clock-free. A layout packs its fields into one Pytho
 from __future__ import annotations
 
 from bridge.errors import DecodeError, EncodeError
+from bridge.mission.fields import bits_for
 
 __all__ = ["BitReader", "BitWriter", "bits_for", "bytes_to_int", "int_to_bytes", "nbytes_for"]
-
-
-def bits_for(levels: int) -> int:
-    """Bits needed to tell ``levels`` values apart: ``ceil(log2(levels))`` (0 for one level)."""
-    if levels < 1:
-        raise ValueError(f"levels must be >= 1, got {levels}")
-    return (levels - 1).bit_length()
 
 
 def nbytes_for(bits: int) -> int:

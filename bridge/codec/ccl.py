@@ -14,7 +14,7 @@ from typing import Any
 
 from bridge.codec.bits import bits_for
 from bridge.codec.fields import FieldCodec, FloatCodec, Namespace, _num
-from bridge.codec.spec import FieldSpec
+from bridge.mission.fields import FieldSpec
 
 __all__ = ["CCL_CODECS", "CclAltitude", "CclDepth", "CclLatitude", "CclLongitude"]
 

@@ -19,8 +19,8 @@ from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
 from bridge.codec.bits import bits_for
-from bridge.codec.spec import FieldSpec, decimals_of, resolution_levels
 from bridge.errors import DecodeError, EncodeError
+from bridge.mission.fields import FieldSpec, decimals_of, resolution_levels
 
 __all__ = [
     "ArrayCodec",

@@ -20,8 +20,8 @@ from bridge.codec.compile import compile_layout
 from bridge.codec.fields import ArrayCodec, FieldCodec, checked_decode, checked_encode
 from bridge.codec.fields import codec_for_type as _codec_for_type
 from bridge.codec.plugins import resolve_codec
-from bridge.codec.spec import FieldSpec, OutOfRange
 from bridge.errors import DecodeError, EncodeError, LayoutError
+from bridge.mission.fields import FieldSpec, OutOfRange
 from bridge.resources import data_dir
 
 __all__ = ["Layout", "LayoutFile", "find_layout_file", "validation_message"]

@@ -1,10 +1,11 @@
 """Link health: is each peer up, degraded or down, from when it was last heard (pure).
 
 A node that has nothing to send still sends a *heartbeat* (an empty frame) at least every
-``heartbeat_s``, so its peers can tell silence from absence. By default that is one TDMA cycle
-(every slot carries a frame), or :data:`FREE_HEARTBEAT_S` with random access; the polled MAC
-needs none (every poll and every reply is a frame). A peer is *degraded* after
-:data:`DEGRADED_PERIODS` and *down* after :data:`DOWN_PERIODS` of its periods without a frame,
+``heartbeat_s``, so its peers can tell silence from absence. By default the MAC says how often
+(:meth:`~bridge.core.mac.Mac.heartbeat_s`): one TDMA cycle (every slot carries a frame), ten
+seconds with random access, none when polled (every poll and every reply is a frame). A peer
+is *degraded* after :data:`DEGRADED_PERIODS` and *down* after :data:`DOWN_PERIODS` of its
+periods without a frame,
 its period being the longer of its heartbeat and the MAC's cycle: at 40 % frame loss a peer
 that keeps sending looks down once in about 2 500 periods (0.4 ** 8 per period), where the
 former 4 cycles without a heartbeat went down while a sender waited out its retransmissions.
@@ -14,13 +15,16 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 
-from bridge.mission.model import Mission, PolledMac, TdmaMac
+from bridge.core.events import Link
+from bridge.core.mac import mac_for
+from bridge.core.mac.base import FREE_HEARTBEAT_S
+from bridge.core.outputs import Outbox
+from bridge.mission.model import Mission
 
-FREE_HEARTBEAT_S = 10.0
 DEGRADED_PERIODS = 3
 DOWN_PERIODS = 8
 
@@ -36,12 +40,7 @@ def heartbeat_s(mission: Mission) -> float | None:
     default from the MAC (None: the MAC makes every node send anyway)."""
     if mission.link.heartbeat_s is not None:
         return mission.link.heartbeat_s
-    mac = mission.mac
-    if isinstance(mac, TdmaMac):
-        return mac.slot_s * len(mac.order)
-    if isinstance(mac, PolledMac):
-        return None
-    return FREE_HEARTBEAT_S
+    return mac_for(mission).heartbeat_s()
 
 
 @dataclass(frozen=True)
@@ -53,8 +52,7 @@ class LinkThresholds:
 
     @classmethod
     def for_mission(cls, mission: Mission) -> LinkThresholds:
-        mac = mission.mac
-        cycle = mac.slot_s * len(mac.order) if isinstance(mac, TdmaMac) else 0.0
+        cycle = mac_for(mission).cycle_s() or 0.0
         period = max(heartbeat_s(mission) or 0.0, cycle) or FREE_HEARTBEAT_S
         link = mission.link
         degraded = link.degraded_after_s or DEGRADED_PERIODS * period
@@ -141,3 +139,40 @@ class LinkWatch:
             crossing[peer] = at
             heapq.heappush(heap, (at, self.order[peer], peer))
         return out
+
+
+class Links:
+    """Each peer's link state, from when it was last heard; every change reported as the
+    ``link/<peer>`` status and a :class:`~bridge.core.events.Link` event."""
+
+    def __init__(self, thresholds: LinkThresholds, peers: Iterable[str], outbox: Outbox,
+                 on_up: Callable[[], None] | None = None) -> None:
+        """``on_up``: called when a peer comes up from silence (down or never heard)."""
+        self.thresholds = thresholds
+        self.outbox = outbox
+        self.on_up = on_up
+        self.states: dict[str, LinkState] = {}
+        self.last_heard: dict[str, float] = {}
+        self._watch = LinkWatch(thresholds, peers)
+
+    def heard(self, peer: str, now: float) -> None:
+        """A valid frame from ``peer`` at ``now``; its state changes at :meth:`update`."""
+        self.last_heard[peer] = now
+        self._watch.heard(peer, now)
+
+    def update(self, now: float) -> None:
+        """Re-evaluate the peers whose state may have changed, reporting changes."""
+        for peer in self._watch.due(now, self.last_heard):
+            heard = self.last_heard.get(peer)
+            state = self.thresholds.state(heard, now)
+            previous = self.states.get(peer)
+            if previous is state:
+                continue
+            self.states[peer] = state
+            if self.on_up is not None and state is LinkState.UP \
+                    and previous in (None, LinkState.DOWN):
+                self.on_up()
+            payload = {"peer": peer, "state": state.value, "last_heard": heard,
+                       "silent_s": None if heard is None else now - heard}
+            self.outbox.status(f"link/{peer}", payload)
+            self.outbox.event(Link(now, **payload))

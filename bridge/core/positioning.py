@@ -21,9 +21,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
-from bridge.mission.model import Mission, TdmaMac
+from bridge.core.mac import mac_for
+from bridge.mission.model import Mission
 from bridge.mission.path import Path
-from bridge.modems.presets import Preset, get_preset
+from bridge.mission.presets import Preset, get_preset
 from bridge.ranging import DlblRanger, Fix, NoFix, Range, SoundSpeed, Track, attempt
 
 if TYPE_CHECKING:
@@ -159,16 +160,9 @@ class Positioning:
         self.sound_speed = mission_sound_speed(mission)
         self.mode = ranging.sound_speed_mode
         self.peer_sound_speed: dict[str, SoundSpeed] = {}
-        cycle = None
-        max_travel = 1.0
-        if isinstance(mission.mac, TdmaMac):
-            order = mission.mac.order
-            cycle = mission.mac.slot_s * len(order)
-            owned = [i for i, n in enumerate(order) if n == node]
-            if owned:  # a reply must not match two of our own transmissions
-                gaps = [(b - a) % len(order) or len(order)
-                        for a, b in zip(owned, [*owned[1:], owned[0]], strict=True)]
-                max_travel = min(max_travel, 0.45 * min(gaps) * mission.mac.slot_s)
+        mac = mac_for(mission)
+        cycle = mac.cycle_s()
+        max_travel = mac.dlbl_travel_s(node)  # a reply must not match two of our transmissions
         self.ranger = DlblRanger(node, tuple(mission.nodes), tx_latency_s=ranging.tx_latency_s,
                                  rx_latency_s=ranging.rx_latency_s, max_travel_s=max_travel,
                                  cycle_s=cycle)

@@ -31,8 +31,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.core.events import Delivery
+from bridge.core.mac import mac_for
 from bridge.core.persist import int_from_state, int_to_state
-from bridge.mission.model import Mission, TdmaMac
+from bridge.mission.model import Mission
 from bridge.wire.channels import LAG_BITS, SEQ_BITS, WINDOW, ChannelCodec
 
 SEQ_MOD = 1 << SEQ_BITS
@@ -47,14 +48,10 @@ def retry_wait(retry_s: float, attempts: int) -> float:
     return retry_s * min(2.0 ** (attempts - 1), BACKOFF_CAP)
 
 
-DEFAULT_RETRY_S = 10.0  # first retransmission without TDMA (with TDMA: one cycle)
-
-
 def default_retry_s(mission: Mission) -> float:
-    """The first retransmission's wait when a channel sets no ``retry_s``: one TDMA cycle,
-    else :data:`DEFAULT_RETRY_S`."""
-    mac = mission.mac
-    return mac.slot_s * len(mac.order) if isinstance(mac, TdmaMac) else DEFAULT_RETRY_S
+    """The first retransmission's wait when a channel sets no ``retry_s``: the MAC's
+    (:meth:`~bridge.core.mac.Mac.retry_s`: one TDMA cycle, else ten seconds)."""
+    return mac_for(mission).retry_s()
 
 
 def stream_ttl_s(retry_s: float, retries: int | None, queue: int = WINDOW) -> float:

@@ -70,9 +70,6 @@ class OutboundStore:
     _heap: list[tuple[float, int]] = field(default_factory=list, init=False, repr=False)
     _filed: dict[int, float | None] = field(default_factory=dict, init=False, repr=False)
     _ttl: list[ChannelState] = field(default_factory=list, init=False, repr=False)
-    changes: int = field(default=0, init=False)
-    """How many times a value was stored or a frame marked sent (what a lane's clearance
-    checks: :mod:`bridge.core.lanes`)."""
 
     def __post_init__(self) -> None:
         self._ttl = [s for s in self.states.values() if s.channel.ttl_s is not None]
@@ -110,7 +107,6 @@ class OutboundStore:
         state = self.states[index]
         state.packed[element] = packed
         state.updated[element] = now
-        self.changes += 1
         self._changed(state)
         return state.complete
 
@@ -120,7 +116,6 @@ class OutboundStore:
         state.packed[element] = packed
         state.updated[element] = now
         state.fresh = True
-        self.changes += 1
         self._changed(state)
 
     def due(self, now: float) -> list[ChannelState]:
@@ -131,37 +126,6 @@ class OutboundStore:
             if ready is not None and ready <= now + 1e-9:
                 out.append(state)
         return out
-
-    def lone_due(self, now: float) -> ChannelState | None:
-        """The channel :meth:`due` would return alone at ``now``, or None (none, or several).
-        Looks only at the heap's entries due by ``now`` (a subtree at its root) and at the
-        channels with a ``ttl_s``, not at every channel."""
-        heap, filed, limit = self._heap, self._filed, now + 1e-9
-        while heap and filed[heap[0][1]] != heap[0][0]:
-            heapq.heappop(heap)  # stale, as in next_due
-        found: int | None = None
-        stack = [0] if heap else []
-        size = len(heap)
-        while stack:
-            i = stack.pop()
-            ready, index = heap[i]
-            if ready > limit:
-                continue  # (and so is all below it)
-            if filed[index] == ready and index != found:
-                if found is not None:
-                    return None
-                found = index
-            if 2 * i + 1 < size:
-                stack.append(2 * i + 1)
-                if 2 * i + 2 < size:
-                    stack.append(2 * i + 2)
-        for state in self._ttl:
-            ready = state.ready_at(now)
-            if ready is not None and ready <= limit:
-                if found is not None:
-                    return None
-                found = state.channel.index
-        return None if found is None else self.states[found]
 
     def next_due(self, now: float | None = None) -> float | None:
         """The earliest time a channel becomes due (may be in the past), or None."""
@@ -178,7 +142,6 @@ class OutboundStore:
     def mark_sent(self, sent: Iterable[ChannelState], built: float) -> None:
         """The frame built at ``built`` carried these channels. A value that arrived after
         the frame was built (while the modem was sending it) stays fresh, to go next time."""
-        self.changes += 1
         for state in sent:
             for t in state.updated:
                 if t is not None and t > built:

@@ -9,17 +9,21 @@ path), ``layout`` (a channel element), ``goby`` (Goby-compatible frames), ``anal
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 from bridge.dccl.analyze import analyze
 from bridge.dccl.codecs import DcclRangeError
 from bridge.dccl.message import DcclMessage, peek_id
+from bridge.dccl.numeric import DEFAULT_RULE, RULES
 from bridge.dccl.schema import DcclSchemaError, ProtoFile, load_proto
 
-__all__ = ["DcclMessage", "DcclRangeError", "DcclSchemaError", "ProtoFile", "analyze",
-           "load_message", "load_proto", "peek_id"]
+__all__ = ["DEFAULT_RULE", "RULES", "DcclMessage", "DcclRangeError", "DcclSchemaError",
+           "ProtoFile", "analyze", "load_message", "load_proto", "peek_id"]
 
 
-def load_message(path: str | Path, name: str) -> DcclMessage:
-    """Message ``name`` of the ``.proto`` file at ``path``, checked as libdccl's load does."""
-    return DcclMessage.from_proto(load_proto(path), name)
+def load_message(path: str | Path, name: str, rule: str = DEFAULT_RULE,
+                 proto_path: Sequence[str | Path] = ()) -> DcclMessage:
+    """Message ``name`` of the ``.proto`` file at ``path`` (imports also looked up in the
+    ``proto_path`` folders), checked as libdccl's load does, under the numeric ``rule``."""
+    return DcclMessage.from_proto(load_proto(path, proto_path), name, rule)

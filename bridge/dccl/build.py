@@ -4,6 +4,8 @@ libdccl's reason (or, for what zab does not implement, zab's)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from bridge.dccl import numeric
 from bridge.dccl.codecs import (
     BoolCodec,
@@ -18,10 +20,11 @@ from bridge.dccl.codecs import (
 )
 from bridge.dccl.schema import DcclSchemaError, FieldDef, MessageDef, ProtoFile
 
-__all__ = ["VERSIONS", "build_fields", "build_message", "check_message_options"]
+__all__ = ["VERSIONS", "Scheme", "build_fields", "build_message", "check_message_options"]
 
-#: Codec versions whose default codecs zab implements.
-VERSIONS = (3, 4)
+#: Codec versions whose default codecs zab implements (version 5's field and message codecs
+#: are version 4's: GobySoft/dccl ``src/codecs5/`` aliases each of them).
+VERSIONS = (3, 4, 5)
 _DEFAULT_CODECS = {"_default", ""}
 _WIRE_LIMITS = {
     "int32": (-2.0**31, 2.0**31 - 1), "sint32": (-2.0**31, 2.0**31 - 1),
@@ -55,7 +58,7 @@ def check_message_options(m: MessageDef) -> None:
     version = o.get("codec_version", 2)
     if version not in VERSIONS:
         raise _fail(m, f"(dccl.msg).codec_version = {version}: zab implements the default "
-                    "codecs of codec versions 3 and 4 (set option (dccl.msg).codec_version)")
+                    "codecs of codec versions 3, 4 and 5 (set option (dccl.msg).codec_version)")
     for key in ("codec", "codec_group"):
         if o.get(key, f"dccl.default{version}") not in _DEFAULT_CODECS | {f"dccl.default{version}"}:
             raise _fail(m, f"(dccl.msg).{key} {o[key]!r} is not implemented by zab")
@@ -64,7 +67,7 @@ def check_message_options(m: MessageDef) -> None:
         raise _fail(m, f"dccl.id provided ({ident}) exceeds maximum: 32767")
 
 
-def _numeric(f: FieldDef, path: str, required: bool) -> NumericCodec:
+def _numeric(f: FieldDef, path: str, required: bool, rule: str) -> NumericCodec:
     o = f.options
     if "min" not in o:
         raise _fail(f, "missing (dccl.field).min")
@@ -89,16 +92,29 @@ def _numeric(f: FieldDef, path: str, required: bool) -> NumericCodec:
                             "(dccl.field).resolution")
     if hi < lo:
         raise _fail(f, "(dccl.field).max must be >= (dccl.field).min")
-    return NumericCodec(path, required, f.type, lo, hi, res)
+    if not numeric.fits_double(lo, hi, res):
+        raise _fail(f, "[(dccl.field).max-(dccl.field).min]/(dccl.field).resolution must fit in "
+                    "a double-precision floating point value. Please increase min, decrease "
+                    "max, or decrease precision.")
+    return NumericCodec(path, required, f.type, lo, hi, res, rule)
 
 
-def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...],
-           version: int) -> FieldCodec:
-    o = f.options
+@dataclass(frozen=True)
+class Scheme:
+    """What decides a message's codecs besides its definition: the ``.proto`` files it comes
+    from, its codec version and the numeric rule."""
+
+    proto: ProtoFile
+    version: int
+    rule: str = numeric.DEFAULT_RULE
+
+
+def _codec(f: FieldDef, path: str, scheme: Scheme, stack: tuple[str, ...]) -> FieldCodec:
+    o, version = f.options, scheme.version
     default = f"dccl.default{version}"
     codec_name = o.get("codec", default)
-    # dccl.var_bytes is version 4's default bytes codec under its own name
-    var_bytes = f.type == "bytes" and (version == 4 or codec_name == "dccl.var_bytes")
+    # dccl.var_bytes is version 4's (and 5's) default bytes codec under its own name
+    var_bytes = f.type == "bytes" and (version > 3 or codec_name == "dccl.var_bytes")
     if codec_name not in _DEFAULT_CODECS | {default} and not (codec_name == "dccl.var_bytes"
                                                                and f.type == "bytes"):
         raise _fail(f, f"(dccl.field).codec {codec_name!r} is not implemented by zab")
@@ -108,7 +124,7 @@ def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...],
     if f.oneof is not None and o.get("in_head"):
         raise _fail(f, "Oneof field used in header - oneof fields cannot be encoded in the "
                     "header.")
-    # use_required(): version 4 also encodes oneof members as required
+    # use_required(): versions 4 and 5 also encode oneof members as required
     required = f.label in ("required", "repeated") or (version > 3 and f.oneof is not None)
     if f.type == "bool":
         codec: FieldCodec = BoolCodec(path, required)
@@ -130,12 +146,12 @@ def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...],
         assert f.message_type is not None
         if f.message_type in stack:
             raise _fail(f, f"{f.message_type} contains itself: DCCL messages cannot recurse")
-        inner = proto.message(f.message_type)
-        codec = build_message(inner, proto, path, required, version, (*stack, f.message_type))
+        inner = scheme.proto.message(f.message_type)
+        codec = build_message(inner, scheme, path, required, (*stack, f.message_type))
     elif f.type == "group":
         raise _fail(f, "groups are not supported by DCCL")
     else:
-        codec = _numeric(f, path, required)
+        codec = _numeric(f, path, required, scheme.rule)
     codec.codec_name = codec_name if codec_name == "dccl.var_bytes" else default
     if f.label == "repeated":
         if "max_repeat" not in o:
@@ -149,7 +165,7 @@ def _codec(f: FieldDef, path: str, proto: ProtoFile, stack: tuple[str, ...],
     return codec
 
 
-def build_fields(m: MessageDef, proto: ProtoFile, version: int, prefix: str = "",
+def build_fields(m: MessageDef, scheme: Scheme, prefix: str = "",
                  stack: tuple[str, ...] = ()) -> list[tuple[str, FieldCodec]]:
     """``(name, codec)`` of every field DCCL encodes (``omit`` fields left out), in order."""
     stack = stack or (m.full_name,)
@@ -161,23 +177,25 @@ def build_fields(m: MessageDef, proto: ProtoFile, version: int, prefix: str = ""
         if f.options.get("in_head") and prefix:
             raise _fail(f, "in_head inside an embedded message is not implemented by zab "
                         "(set in_head on the top-level field)")
-        out.append((f.name, _codec(f, path, proto, stack, version)))
+        out.append((f.name, _codec(f, path, scheme, stack)))
     return out
 
 
-def build_message(m: MessageDef, proto: ProtoFile, path: str, required: bool, version: int,
+def build_message(m: MessageDef, scheme: Scheme, path: str, required: bool,
                   stack: tuple[str, ...] = (), names: set[str] | None = None) -> MessageCodec:
     """A :class:`MessageCodec` for ``m`` (only the fields in ``names``, if given); ``path``
     empty for the root message."""
-    fields = build_fields(m, proto, version, path, stack or (m.full_name,))
+    if scheme.version == 3 and m.oneofs:
+        first = next(f for f in m.fields if f.oneof is not None)
+        raise _fail(first, "Version 3 does not support 'oneof' (set (dccl.msg).codec_version "
+                    "to 4 or more)")
+    fields = build_fields(m, scheme, path, stack or (m.full_name,))
     if names is not None:
         fields = [(n, c) for n, c in fields if n in names]
-    # version 4: a oneof's case counts every member, omitted ones included (oneof_size);
-    # version 3 has no oneof cases (members are plain optional fields)
+    # a oneof's case counts every member, omitted ones included (oneof_size)
     oneofs = [(o, [f.name for f in m.fields if f.oneof == o]) for o in m.oneofs]
     if names is not None:
         oneofs = [(o, members) for o, members in oneofs if set(members) & names]
-    codec = MessageCodec(path, required, fields, {f.name: f.number for f in m.fields},
-                         oneofs if version > 3 else (), clear_empty=version == 3 and bool(path))
-    codec.codec_name = f"dccl.default{version}"
+    codec = MessageCodec(path, required, fields, {f.name: f.number for f in m.fields}, oneofs)
+    codec.codec_name = f"dccl.default{scheme.version}"
     return codec

@@ -1,12 +1,13 @@
-"""libdccl 4's default field codecs (``dccl.default4``), the readable reference path.
+"""libdccl's default field codecs (``dccl.default4``, and 3 and 5), the readable reference path.
 
 Every codec turns one value into ``(code, width)``: ``code`` holds ``width`` bits, least
 significant bit first on the wire (DCCL's Bitset grows toward the most significant end and is
 written out least significant byte first). Absent optional values are ``None``.
 
 * numeric (int*/uint*/float/double/enum): ``ceil_log2((max-min)/res + 1 [+1 if optional])``
-  bits; optional fields reserve code 0 for "not present". Out of range: strict → error,
-  otherwise all-zero bits (so an optional field arrives absent, a required one as ``min``).
+  bits; optional fields reserve code 0 for "not present"; the code is computed by the
+  mission's numeric rule (:mod:`bridge.dccl.numeric`). Out of range: strict → error, otherwise
+  all-zero bits (so an optional field arrives absent, a required one as ``min``).
 * bool: 1 bit required, 2 bits optional (0 absent, 1 false, 2 true).
 * string / bytes (``VarBytesCodec``): [presence bit if optional][length:
   ``ceil_log2(max_length+1)`` bits][bytes]; too long: strict → error, otherwise truncated.
@@ -14,13 +15,17 @@ written out least significant byte first). Absent optional values are ``None``.
 * repeated: [count - min_repeat: ``ceil_log2(max_repeat-min_repeat+1)`` bits][elements];
   elements use the required encoding.
 
+Decoding keeps what libdccl keeps: a required field whose code means "none" (an enum code past
+the values, a version 3 empty string) is left unset, a string that is not UTF-8 comes back as
+its bytes, a length or count past ``max_length``/``max_repeat`` is decoded whole (but more
+embedded messages than ``max_repeat`` is refused, as libdccl has only that many to fill).
+
 "Optional" means codec version 4's ``use_required() == False``: an ``optional`` field that is
 neither repeated nor part of a ``oneof``.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -87,7 +92,7 @@ class FieldCodec:
         return self.min_bits != self.max_bits
 
 
-_INT_RANGES = {
+INT_RANGES = {
     "int32": (-(1 << 31), (1 << 31) - 1), "sint32": (-(1 << 31), (1 << 31) - 1),
     "sfixed32": (-(1 << 31), (1 << 31) - 1), "int64": (-(1 << 63), (1 << 63) - 1),
     "sint64": (-(1 << 63), (1 << 63) - 1), "sfixed64": (-(1 << 63), (1 << 63) - 1),
@@ -97,25 +102,22 @@ _INT_RANGES = {
 
 
 class NumericCodec(FieldCodec):
-    """Bounded integer, float or double (``DefaultNumericFieldCodec``)."""
+    """Bounded integer, float or double (``DefaultNumericFieldCodec``) under a numeric rule
+    (:data:`bridge.dccl.numeric.RULES`)."""
 
     def __init__(self, path: str, required: bool, kind: str, lo: float, hi: float,
-                 res: float) -> None:
+                 res: float, rule: str = numeric.DEFAULT_RULE) -> None:
         super().__init__(path, required)
-        self.kind, self.lo, self.hi, self.res = kind, lo, hi, res
+        self.kind, self.lo, self.hi, self.res, self.rule = kind, lo, hi, res, rule
         self.is_float = kind in ("double", "float")
         self.single = kind == "float"
-        if self.single:  # libdccl casts min and resolution to the field's type
-            self.enc_lo, self.enc_res = numeric.f32(lo), numeric.f32(res)
-        else:
-            self.enc_lo, self.enc_res = lo, res
-        self.tol = res / 2
+        self.wire = kind if self.is_float else numeric.wire_kind(kind)
         self.bits = numeric.size_bits(lo, hi, res, required)
         self.min_bits = self.max_bits = self.bits
         self.offset = 0 if required else 1
 
-    def in_range(self, v: float) -> bool:
-        return self.lo - self.tol <= v < self.hi + self.tol
+    def in_range(self, v: Any) -> bool:
+        return numeric.in_range(v, self.lo, self.hi, self.res, self.wire, self.rule)
 
     def to_wire(self, value: Any) -> Any:
         """Check the Python type; the number the codec sees (float32-rounded for floats)."""
@@ -126,10 +128,10 @@ class NumericCodec(FieldCodec):
                 value = float(value)
             except OverflowError:
                 raise EncodeError(f"{self.path}: {value} is too large for a double") from None
-            return numeric.f32(value) if self.single and math.isfinite(value) else value
+            return numeric.f32(value) if self.single else value
         if isinstance(value, bool) or not isinstance(value, int):
             raise EncodeError(f"{self.path}: expected an int, got {type(value).__name__}")
-        lo, hi = _INT_RANGES[self.kind]
+        lo, hi = INT_RANGES[self.kind]
         if not lo <= value <= hi:
             raise EncodeError(f"{self.path}: {value} does not fit a {self.kind}")
         return value
@@ -142,9 +144,9 @@ class NumericCodec(FieldCodec):
                                      f"[{self.lo:g}, {self.hi:g}]")
             return 0
         if self.is_float:
-            k = numeric.encode_float(v, self.enc_lo, self.enc_res)
+            k = numeric.encode_float(v, self.lo, self.res, self.single, self.rule)
         else:
-            k = numeric.encode_int(v, self.lo, self.res)
+            k = numeric.encode_int(v, self.lo, self.res, self.wire)
         return (k + self.offset) & ((1 << self.bits) - 1)
 
     def encode(self, value: Any, strict: bool) -> tuple[int, int]:
@@ -159,8 +161,8 @@ class NumericCodec(FieldCodec):
                 return ABSENT
             k -= 1
         if self.is_float:
-            return numeric.decode_float(k, self.enc_lo, self.enc_res, self.single)
-        return numeric.decode_int(k, self.lo, self.res)
+            return numeric.decode_float(k, self.lo, self.res, self.single, self.rule)
+        return numeric.decode_int(k, self.lo, self.res, self.wire)
 
     def decode(self, reader: BitReader) -> Any:
         return self.value_of(reader.read(self.bits))
@@ -224,6 +226,15 @@ class BoolCodec(FieldCodec):
         return ABSENT if k == 0 else bool(k - 1)
 
 
+def text(data: bytes) -> str | bytes:
+    """A decoded string: ``str`` when its bytes are UTF-8, else the bytes as libdccl holds them
+    (a protobuf ``string`` field is not checked); string fields encode such bytes back."""
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data
+
+
 class BytesCodec(FieldCodec):
     """``VarBytesCodec`` (strings and bytes in codec version 4)."""
 
@@ -238,14 +249,13 @@ class BytesCodec(FieldCodec):
     def encode(self, value: Any, strict: bool) -> tuple[int, int]:
         if value is None:
             return 0, self.min_bits
-        if self.text:
-            if not isinstance(value, str):
-                raise EncodeError(f"{self.path}: expected a string, got {type(value).__name__}")
+        if self.text and isinstance(value, str):
             data = value.encode("utf-8")
         elif isinstance(value, bytes | bytearray | memoryview):
-            data = bytes(value)
+            data = bytes(value)  # a string field's bytes that are not UTF-8, as decoded
         else:
-            raise EncodeError(f"{self.path}: expected bytes, got {type(value).__name__}")
+            kind = "a string" if self.text else "bytes"
+            raise EncodeError(f"{self.path}: expected {kind}, got {type(value).__name__}")
         if len(data) > self.max_length:
             if strict:
                 raise DcclRangeError(f"{self.path}: {len(data)} bytes exceed max_length "
@@ -260,12 +270,13 @@ class BytesCodec(FieldCodec):
             return ABSENT
         length = reader.read(self.prefix)
         data = reader.read(8 * length).to_bytes(length, "little")
-        return data.decode("utf-8", errors="replace") if self.text else data
+        return text(data) if self.text else data
 
 
 class StringCodecV3(FieldCodec):
     """Codec version 3's string: [length: ``ceil_log2(max_length+1)`` bits][bytes], no presence
-    bit; an absent string is length 0, and length 0 decodes as absent (``""`` if required)."""
+    bit; an absent string is length 0, and length 0 decodes as absent (required or repeated
+    alike, as libdccl leaves the field unset)."""
 
     def __init__(self, path: str, required: bool, max_length: int) -> None:
         super().__init__(path, required)
@@ -277,9 +288,12 @@ class StringCodecV3(FieldCodec):
     def encode(self, value: Any, strict: bool) -> tuple[int, int]:
         if value is None:
             return 0, self.prefix
-        if not isinstance(value, str):
+        if isinstance(value, str):
+            data = value.encode("utf-8")
+        elif isinstance(value, bytes | bytearray | memoryview):
+            data = bytes(value)  # bytes that are not UTF-8, as decoded
+        else:
             raise EncodeError(f"{self.path}: expected a string, got {type(value).__name__}")
-        data = value.encode("utf-8")
         if len(data) > self.max_length:
             if strict:
                 raise DcclRangeError(f"{self.path}: {len(data)} bytes exceed max_length "
@@ -291,9 +305,8 @@ class StringCodecV3(FieldCodec):
     def decode(self, reader: BitReader) -> Any:
         length = reader.read(self.prefix)
         if not length:
-            return "" if self.required else ABSENT
-        data = reader.read(8 * length).to_bytes(length, "little")
-        return data.decode("utf-8", errors="replace")
+            return ABSENT
+        return text(reader.read(8 * length).to_bytes(length, "little"))
 
 
 class FixedBytesCodec(FieldCodec):
@@ -348,6 +361,11 @@ class RepeatedCodec(FieldCodec):
         if strict and n < self.min_repeat:
             raise DcclRangeError(f"{self.path}: {n} values are fewer than min_repeat "
                                  f"{self.min_repeat}")
+        if n > self.max_repeat and isinstance(self.element, MessageCodec):
+            for item in value[self.max_repeat:]:  # protobuf checks the dropped tail too
+                if isinstance(item, dict) and self.element.missing(item) is not None:
+                    raise EncodeError(f"{self.path}: required field missing past max_repeat "
+                                      "(DCCL: Message is not properly initialized)")
         count = max(self.min_repeat, min(self.max_repeat, n))
         code, width = count - self.min_repeat, self.prefix
         for i in range(count):
@@ -363,12 +381,15 @@ class RepeatedCodec(FieldCodec):
 
     def decode(self, reader: BitReader) -> Any:
         count = reader.read(self.prefix) + self.min_repeat
+        if count > self.max_repeat and isinstance(self.element, MessageCodec):
+            # libdccl decodes into max_repeat messages made beforehand, and refuses more; a
+            # longer list of other values, or a string past max_length, it decodes whole
+            raise DecodeError(f"{self.path}: {count} messages exceed max_repeat "
+                              f"{self.max_repeat}")
         out = []
         for _ in range(count):
             v = self.element.decode(reader)
-            if v is ABSENT and isinstance(self.element, MessageCodec):
-                v = {}  # version 3 clears an empty message; the repeated slot stays
-            if v is not ABSENT:
+            if v is not ABSENT:  # a v3 empty string, an enum code past the values
                 out.append(v)
         return out
 
@@ -380,10 +401,8 @@ class MessageCodec(FieldCodec):
 
     def __init__(self, path: str, required: bool, fields: Sequence[tuple[str, FieldCodec]],
                  numbers: dict[str, int] | None = None,
-                 oneofs: Sequence[tuple[str, Sequence[str]]] = (),
-                 clear_empty: bool = False) -> None:
+                 oneofs: Sequence[tuple[str, Sequence[str]]] = ()) -> None:
         super().__init__(path, required)
-        self.clear_empty = clear_empty  # version 3: an embedded message with no field set is unset
         self.fields = tuple(fields)
         self.numbers = numbers or {}  # field numbers, for analyze
         self.oneofs = tuple((name, tuple(members)) for name, members in oneofs)
@@ -428,6 +447,25 @@ class MessageCodec(FieldCodec):
     def encode_empty(self) -> tuple[int, int]:
         return 0, self.min_bits
 
+    def missing(self, value: dict[str, Any]) -> str | None:
+        """The path of a required field that ``value`` leaves unset, here or in an embedded
+        message (every element of a list, past ``max_repeat`` too), as protobuf's
+        ``IsInitialized`` finds it; None if there is none."""
+        for name, codec in self.fields:
+            item = value.get(name)
+            repeated = isinstance(codec, RepeatedCodec)
+            if item is None:
+                if codec.required and not repeated and name not in self.member_of:
+                    return codec.path
+                continue
+            inner = codec.element if repeated else codec
+            if isinstance(inner, MessageCodec):
+                for element in item if repeated and isinstance(item, list | tuple) else [item]:
+                    found = inner.missing(element) if isinstance(element, dict) else None
+                    if found is not None:
+                        return found
+        return None
+
     def decode_fields(self, reader: BitReader) -> dict[str, Any]:
         out: dict[str, Any] = {}
         cases = [reader.read(bits) for bits in self.case_bits]
@@ -437,16 +475,11 @@ class MessageCodec(FieldCodec):
                 if cases[i] != j + 1:
                     continue
             v = codec.decode(reader)
-            if v is ABSENT:
-                cleared = isinstance(codec, MessageCodec) and codec.clear_empty
-                if codec.required and not cleared:
-                    raise DecodeError(f"{codec.path}: required field decodes as not present")
-                continue
-            out[name] = v
+            if v is not ABSENT:  # a required field may come back unset, as from libdccl
+                out[name] = v
         return out
 
     def decode(self, reader: BitReader) -> Any:
         if self.presence and not reader.read(1):
             return ABSENT
-        out = self.decode_fields(reader)
-        return ABSENT if self.clear_empty and not out else out
+        return self.decode_fields(reader)

@@ -17,11 +17,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from bridge.dccl import numeric
 from bridge.dccl.codecs import (
     ABSENT,
+    INT_RANGES,
     BitReader,
     BoolCodec,
     EnumCodec,
@@ -31,10 +32,27 @@ from bridge.dccl.codecs import (
     RepeatedCodec,
 )
 
-if TYPE_CHECKING:
-    from bridge.dccl.message import DcclMessage
+__all__ = ["Compiled", "DcclMessage", "compile_message"]
 
-__all__ = ["Compiled", "compile_message"]
+
+class DcclMessage(Protocol):
+    """What compiling reads of a :class:`bridge.dccl.message.DcclMessage` (which compiles
+    itself when built: a protocol here, so the two files do not import each other)."""
+
+    name: str
+    id: int
+    omit_id: bool
+    id_bits: int
+    head: list[tuple[str, FieldCodec]]
+    head_bytes: int
+    body: list[tuple[str, FieldCodec]]
+    body_codec: MessageCodec
+
+    def encode_head(self, value: Any, strict: bool = False) -> bytes: ...
+
+    def encode_reference(self, value: Any, strict: bool = False) -> bytes: ...
+
+    def decode_reference(self, data: Any) -> tuple[dict[str, Any], int]: ...
 
 #: Largest margin around a half (quotient units) sent to the exact reference division; a
 #: field whose double quotient may be further off than this is never inlined.
@@ -45,6 +63,28 @@ def _guard(c: NumericCodec) -> float:
     """Bound on |double quotient - exact quotient| for ``c``'s in-range values, with room:
     a correctly rounded division is within half an ulp of the largest quotient (2**-53)."""
     return (max(abs(c.lo), abs(c.hi)) / c.res + 2) * 2.0**-50 + 1e-12
+
+
+def _small(c: NumericCodec) -> bool:
+    """Fewer than 2**47 steps from zero to either bound: then, for an integer ``n`` of the
+    field, ``(n / inv) * inv`` and the like are within 0.25 of ``n`` (a few roundings of at
+    most 2**-53 each, relative), so libdccl's ``floor(... + 0.5)`` gives ``n`` itself and the
+    generated code may use ``n`` without computing the roundings."""
+    return max(abs(c.lo), abs(c.hi)) / c.res < 2.0**47 and c.bits <= 47
+
+
+def _steps(value: float, res: float) -> int:
+    """dccl-4.2's quantisation of ``value`` in steps: ``floor(value / res + 0.5)`` as libdccl
+    computes it (multiplying by ``1 / res`` below 1)."""
+    return math.floor(value / res + 0.5) if res >= 1 else math.floor(value * (1.0 / res) + 0.5)
+
+
+def _minus(x: str, c: float) -> str:
+    """Code for the double ``x - c``: the same double as C's (``x - 0.0`` is ``x``, and
+    subtracting a negative is adding its magnitude)."""
+    if c == 0:
+        return x
+    return f"({x} - {c!r})" if c > 0 else f"({x} + {-c!r})"
 
 
 class _Fallback(Exception):
@@ -67,9 +107,12 @@ def _inline_numeric(c: FieldCodec) -> bool:
         return True
     if not isinstance(c, NumericCodec) or c.single or c.bits > 53:
         return False
-    if c.is_float:  # the double quotient must be within the guard of the exact one
-        return _guard(c) < _MAX_GUARD
-    return c.res == 1.0 and c.lo == int(c.lo)
+    if c.is_float:  # dccl-2026: the double quotient must be within the guard of the exact one
+        return c.rule == "dccl-4.2" or _guard(c) < _MAX_GUARD
+    # integers in steps of 1 whose codes and values are exact doubles and never wrap
+    low, high = INT_RANGES[c.kind]
+    return (c.res == 1.0 and c.lo == int(c.lo) and max(abs(c.lo), abs(c.hi)) < 2.0**53
+            and low <= c.lo and c.lo + (1 << c.bits) - 1 <= high)
 
 
 def _fixed(c: FieldCodec) -> bool:
@@ -79,9 +122,15 @@ def _fixed(c: FieldCodec) -> bool:
     if isinstance(c, RepeatedCodec):
         return c.min_repeat == c.max_repeat and _fixed(c.element)
     if isinstance(c, MessageCodec):
-        return (c.required and not c.oneofs and not c.clear_empty
+        return (c.required and not c.oneofs
                 and all(_fixed(f) for _, f in c.fields))
     return False
+
+
+def _certain(c: FieldCodec) -> bool:
+    """Decoded by the generated code into a value, never ``ABSENT`` (a required field that
+    is inlined, or a list)."""
+    return isinstance(c, RepeatedCodec) or (c.required and _fixed(c))
 
 
 class _Gen:
@@ -143,18 +192,21 @@ class _Enc:
                      for i, (n, num) in enumerate(zip(c.names, c.numbers, strict=True))}
             lines.append(f"{ind}{k} = {g.const('_E', table)}[{x}]")
             return k
-        lo_t, hi_t = c.lo - c.tol, c.hi + c.tol
+        lo_t, hi_t = c.lo - c.res / 2, c.hi + c.res / 2
+        if c.is_float and c.rule == "dccl-4.2":  # libdccl's own double arithmetic
+            return self._release_float(c, x, ind)
         if c.is_float:  # an int divides as float(int) would, as the reference converts it
             lines.append(f"{ind}if {x}.__class__ is not float and {x}.__class__ is not int or "
                          f"not {lo_t!r} <= {x} < {hi_t!r}: raise _F")
             a = g.name("a")
             lines.append(f"{ind}{a} = {x} / {c.res!r}")
+            # rounding half up, not away from zero: the guard below sends every half away
             if c.lo >= 0:  # then a >= -1/2 and int() is floor
                 lines.append(f"{ind}{k} = int({a} + 0.5)")
             else:
-                lines.append(f"{ind}{k} = int({a} + 0.5) if {a} >= 0 else -int(0.5 - {a})")
+                lines.append(f"{ind}{k} = _floor({a} + 0.5)")
             guard = _guard(c)
-            shift = c.offset - numeric.round_div(c.enc_lo, c.enc_res)
+            shift = c.offset - numeric.round_div(c.lo, c.res)
             lines.append(f"{ind}if not {-0.5 + guard!r} < {a} - {k} < {0.5 - guard!r} or not "
                          f"{-shift} <= {k} <= {(1 << c.bits) - 1 - shift}: raise _F")
         else:
@@ -163,6 +215,36 @@ class _Enc:
             k = x
             shift = c.offset - int(c.lo)
         return f"({k} + {shift})" if shift > 0 else f"({k} - {-shift})" if shift else k
+
+    def _release_float(self, c: NumericCodec, x: str, ind: str) -> str:
+        """dccl-4.2: quantise (``F = floor(x / res + 0.5)``, the quantised value ``F * res``),
+        check the bounds on the quantised value, and the code: the rounded scaled difference from
+        the quantised minimum, which for a field of fewer than 2**47 steps is exactly ``F - Q``
+        (``Q`` the minimum's ``F``; see :func:`_small`). NaN, infinities and codes out of the
+        field go to the reference path."""
+        lines, f, q = self.g.lines, self.g.name("f"), self.g.name("q")
+        lines.append(f"{ind}if {x}.__class__ is not float and {x}.__class__ is not int: raise _F")
+        if c.res >= 1:
+            lines.append(f"{ind}{f} = _floor({x} / {c.res!r} + 0.5)")
+            lines.append(f"{ind}{q} = {f} * {c.res!r}")
+        else:
+            inv = 1.0 / c.res
+            lines.append(f"{ind}{f} = _floor({x} * {inv!r} + 0.5)")
+            lines.append(f"{ind}{q} = {f} / {inv!r}")
+        if _small(c):
+            first = _steps(c.lo, c.res)
+            last = first + (1 << c.bits) - 1 - c.offset
+            lines.append(f"{ind}if not ({c.lo!r} <= {q} <= {c.hi!r} and "
+                         f"{first} <= {f} <= {last}): raise _F")
+            shift = c.offset - first
+            return f"({f} + {shift})" if shift > 0 else f"({f} - {-shift})" if shift else f
+        a = self.g.name("a")
+        diff = _minus(q, numeric.quantize_float(c.lo, c.res))
+        scaled = f"{diff} / {c.res!r}" if c.res >= 1 else f"{diff} * {1.0 / c.res!r}"
+        lines.append(f"{ind}{a} = {scaled} + 0.5")
+        lines.append(f"{ind}if not ({c.lo!r} <= {q} <= {c.hi!r} and "
+                     f"0.0 <= {a} < {float((1 << c.bits) - c.offset)!r}): raise _F")
+        return f"(int({a}) + {c.offset})" if c.offset else f"int({a})"
 
     def field(self, c: FieldCodec, x: str, ind: str) -> None:
         """Encode the value named ``x`` (already looked up; ``None`` = absent) with ``c``."""
@@ -310,13 +392,22 @@ class _Dec:
         if not c.is_float:
             lo = int(c.lo)
             return f"({k} + {lo})" if lo > 0 else f"({k} - {-lo})" if lo else k
-        # (k + qm) * res: negating before or after a rounded product gives the same double, so
-        # this is the reference's sign-magnitude product; then dccl::quantize.
-        qm = numeric.round_div(c.enc_lo, c.enc_res)
-        t = f"({k} + {qm})" if qm else k
+        inv = 1.0 / c.res
+        # dccl-4.2: k * res plus the quantised minimum Q * res, re-quantised; dccl-2026:
+        # (k + qm) * res (negating before or after a rounded product gives the same double, so
+        # this is the reference's sign-magnitude product), re-quantised. For a field of fewer
+        # than 2**47 steps the re-quantisation lands on the integer exactly (see _small).
+        qm = _steps(c.lo, c.res) if c.rule == "dccl-4.2" else numeric.round_div(c.lo, c.res)
+        t = f"({k} + {qm})" if qm > 0 else f"({k} - {-qm})" if qm else k
+        if _small(c):
+            return f"{t} * {c.res!r}" if c.res >= 1 else f"{t} / {inv!r}"
+        if c.rule == "dccl-4.2":
+            qlo = numeric.quantize_float(c.lo, c.res)
+            if c.res >= 1:
+                return f"_floor({_minus(f'{k} * {c.res!r}', -qlo)} / {c.res!r} + 0.5) * {c.res!r}"
+            return f"_floor({_minus(f'{k} / {inv!r}', -qlo)} * {inv!r} + 0.5) / {inv!r}"
         if c.res >= 1:
             return f"_floor({t} * {c.res!r} / {c.res!r} + 0.5) * {c.res!r}"
-        inv = 1.0 / c.res
         return f"_floor({t} * {c.res!r} * {inv!r} + 0.5) / {inv!r}"
 
     def field(self, c: FieldCodec, ind: str) -> str:
@@ -390,10 +481,8 @@ def _decode_source(msg: DcclMessage, g: _Gen) -> list[str]:
         fn = g.const("_dec", msg.body_codec.decode_fields)
         lines += [f"{ind}r = _BR(n, limit, 0)", f"{ind}out = {fn}(r)"]
         for n, v, c in values:
-            lines.append(f"{ind}if {v} is _ABSENT: raise _F" if c.required
+            lines.append(f"{ind}out[{n!r}] = {v}" if _certain(c)
                          else f"{ind}if {v} is not _ABSENT: out[{n!r}] = {v}")
-            if c.required:
-                lines.append(f"{ind}out[{n!r}] = {v}")
         lines.append(f"{ind}return out, {hb} + ((r.pos + 7) >> 3)")
         lines += ["    except Exception:", "        return _decode_ref(data)"]
         return lines
@@ -401,12 +490,10 @@ def _decode_source(msg: DcclMessage, g: _Gen) -> list[str]:
     values += [(n, body.field(c, ind), c) for n, c in msg.body]
     lines.append(f"{ind}end = {body.end()}")
     lines.append(f"{ind}if end > limit: raise _F")
-    required = [f"{n!r}: {v}" for n, v, c in values if c.required]
-    lines.append(f"{ind}out = {{{', '.join(required)}}}")
-    for n, v, c in values:
-        if c.required:
-            lines.append(f"{ind}if {v} is _ABSENT: raise _F")
-        else:
+    certain = [f"{n!r}: {v}" for n, v, c in values if _certain(c)]
+    lines.append(f"{ind}out = {{{', '.join(certain)}}}")
+    for n, v, c in values:  # an optional field, or a required one libdccl may leave unset
+        if not _certain(c):
             lines.append(f"{ind}if {v} is not _ABSENT: out[{n!r}] = {v}")
     lines.append(f"{ind}return out, {hb} + ((end + 7) >> 3)")
     lines += ["    except Exception:", "        return _decode_ref(data)"]

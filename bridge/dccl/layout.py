@@ -13,7 +13,7 @@ import json
 import random
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bridge.dccl.analyze import analyze
 from bridge.dccl.codecs import (
@@ -28,8 +28,12 @@ from bridge.dccl.codecs import (
     StringCodecV3,
 )
 from bridge.dccl.message import DcclMessage
+from bridge.dccl.numeric import DEFAULT_RULE
 from bridge.dccl.schema import DcclSchemaError, load_proto
 from bridge.errors import DecodeError, EncodeError
+
+if TYPE_CHECKING:
+    from bridge.mission.model import Dccl
 
 __all__ = ["DcclLayout", "parse_reference"]
 
@@ -77,6 +81,8 @@ def _wire_facts(codec: FieldCodec) -> list[Any]:
     facts: list[Any] = [type(codec).__name__, codec.required, codec.min_bits, codec.max_bits]
     if isinstance(codec, NumericCodec):
         facts += [codec.kind, codec.lo, codec.hi, codec.res]
+        if codec.is_float:  # the numeric rule decides a float's bits, not an integer's
+            facts.append(codec.rule)
     if isinstance(codec, EnumCodec):
         facts += [codec.names, codec.numbers, codec.packed]
     if isinstance(codec, BytesCodec | StringCodecV3 | FixedBytesCodec):
@@ -84,8 +90,7 @@ def _wire_facts(codec: FieldCodec) -> list[Any]:
     if isinstance(codec, RepeatedCodec):
         facts += [codec.min_repeat, codec.max_repeat, _wire_facts(codec.element)]
     if isinstance(codec, MessageCodec):
-        facts += [[[n, _wire_facts(c)] for n, c in codec.fields], codec.oneofs,
-                  codec.clear_empty]
+        facts += [[[n, _wire_facts(c)] for n, c in codec.fields], codec.oneofs]
     return facts
 
 
@@ -130,13 +135,17 @@ class DcclLayout:
         self.fields: tuple[Any, ...] = (_Payload(self),)
 
     @classmethod
-    def from_reference(cls, ref: str, base: Path | None = None, strict: bool = False) -> DcclLayout:
-        """``ref`` is ``file.proto:Message``; a relative file is taken from ``base``."""
+    def from_reference(cls, ref: str, base: Path | None = None, strict: bool = False,
+                       options: Dccl | None = None) -> DcclLayout:
+        """``ref`` is ``file.proto:Message``; a relative file is taken from ``base``.
+        ``options``: the mission's ``dccl`` settings (numeric rule, include path)."""
         path, name = parse_reference(ref)
         file = Path(path)
         if not file.is_absolute() and base is not None:
             file = base / file
-        return cls(DcclMessage.from_proto(load_proto(file), name), strict, path)
+        rule = options.numeric if options is not None else DEFAULT_RULE
+        proto = load_proto(file, options.proto_path if options is not None else ())
+        return cls(DcclMessage.from_proto(proto, name, rule), strict, path)
 
     @property
     def clamped(self) -> dict[str, int]:

@@ -3,7 +3,9 @@
 Wire layout: ``[id][in_head fields][pad to a byte] [body fields][pad to a byte]``. The id is
 DCCL's default identifier codec: one byte ``id << 1`` for ids below 128, else two bytes
 ``(id << 1) | 1`` (little-endian); ``omit_id`` messages have none. Bits fill each byte from
-its least significant bit, fields in declaration order.
+its least significant bit, fields in declaration order. Before anything else ``encode`` checks
+that every required field is set (protobuf's ``IsInitialized``, list elements past
+``max_repeat`` included), as libdccl does before any bound.
 
 ``encode``/``decode`` are generated per message (:mod:`bridge.dccl.compile`) and fall back to
 the ``*_reference`` methods here for anything unusual, which raise the precise errors.
@@ -13,8 +15,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from bridge.dccl.build import build_fields, build_message, check_message_options
-from bridge.dccl.codecs import ABSENT, BitReader, FieldCodec, RepeatedCodec
+from bridge.dccl import numeric
+from bridge.dccl.build import Scheme, build_fields, build_message, check_message_options
+from bridge.dccl.codecs import ABSENT, BitReader, FieldCodec, MessageCodec
+from bridge.dccl.compile import compile_message
 from bridge.dccl.schema import DcclSchemaError, MessageDef, ProtoFile
 from bridge.errors import DecodeError, EncodeError
 
@@ -38,22 +42,30 @@ def peek_id(data: bytes) -> int:
 
 
 class DcclMessage:
-    """Encoder/decoder of one DCCL message type (codec version 4 default codecs)."""
+    """Encoder/decoder of one DCCL message type (default codecs of codec version 3, 4 or 5)
+    under a numeric rule (:data:`bridge.dccl.numeric.RULES`)."""
 
-    def __init__(self, mdef: MessageDef, proto: ProtoFile) -> None:
+    def __init__(self, mdef: MessageDef, proto: ProtoFile,
+                 rule: str = numeric.DEFAULT_RULE) -> None:
         check_message_options(mdef)
+        if rule not in numeric.RULES:
+            raise DcclSchemaError(f"unknown numeric rule {rule!r} (one of "
+                                  f"{', '.join(numeric.RULES)})")
         self.definition = mdef
         self.name = mdef.full_name
+        self.rule = rule
         self.id: int = int(mdef.options.get("id", 0))
         self.max_bytes: int = int(mdef.options["max_bytes"])
         self.omit_id: bool = bool(mdef.options.get("omit_id", False))
         self.version: int = int(mdef.options.get("codec_version", 2))
-        fields = build_fields(mdef, proto, self.version)
+        scheme = Scheme(proto, self.version, rule)
+        fields = build_fields(mdef, scheme)
         head_names = {f.name for f in mdef.fields if f.options.get("in_head")}
         self.head = [(n, c) for n, c in fields if n in head_names]
         self.body = [(n, c) for n, c in fields if n not in head_names]
-        self.body_codec = build_message(mdef, proto, "", True, self.version,
-                                        names={n for n, _ in self.body})
+        self.body_codec = build_message(mdef, scheme, "", True, names={n for n, _ in self.body})
+        # head and body together, for the required-field check
+        self._whole = MessageCodec("", True, fields, oneofs=self.body_codec.oneofs)
         self.lines = {f.name: f.line for f in mdef.fields}
         for name, codec in self.head:
             if codec.variable:
@@ -73,8 +85,6 @@ class DcclMessage:
                 f"(dccl.max_bytes = {self.max_bytes}). Tighten bounds, remove fields, improve "
                 "codecs, or increase the allowed dccl.max_bytes", mdef.file, mdef.line)
         self.fixed = self.body_min_bits == self.body_max_bits
-        from bridge.dccl.compile import compile_message
-
         compiled = compile_message(self)
         self.source = compiled.source
         self._encode_fast = compiled.encode
@@ -82,8 +92,9 @@ class DcclMessage:
         self._encode_strict = compiled.encode_strict
 
     @classmethod
-    def from_proto(cls, proto: ProtoFile, name: str) -> DcclMessage:
-        return cls(proto.message(name), proto)
+    def from_proto(cls, proto: ProtoFile, name: str,
+                   rule: str = numeric.DEFAULT_RULE) -> DcclMessage:
+        return cls(proto.message(name), proto, rule)
 
     # -- public API ------------------------------------------------------------------------------
     def encode(self, value: dict[str, Any], strict: bool = False) -> bytes:
@@ -109,11 +120,7 @@ class DcclMessage:
     def _encode_part(self, fields: list[tuple[str, FieldCodec]], value: Any, strict: bool,
                      code: int, width: int) -> tuple[int, int]:
         for name, codec in fields:
-            item = value.get(name)
-            if item is None and codec.required and not isinstance(codec, RepeatedCodec):
-                raise EncodeError(f"{codec.path}: required field missing (DCCL: Message is not "
-                                  "properly initialized)")
-            k, w = codec.encode(item, strict)
+            k, w = codec.encode(value.get(name), strict)
             code |= k << width
             width += w
         return code, width
@@ -128,6 +135,10 @@ class DcclMessage:
         """Field by field through the codecs (the readable twin of the generated encoder)."""
         if not isinstance(value, dict):
             raise EncodeError(f"{self.name}: expected a mapping, got {type(value).__name__}")
+        missing = self._whole.missing(value)
+        if missing is not None:  # libdccl checks this first, before any bound
+            raise EncodeError(f"{missing}: required field missing (DCCL: Message is not "
+                              "properly initialized)")
         head = self.encode_head(value, strict)
         body, width = self.body_codec.encode(value, strict)
         return head + body.to_bytes((width + 7) // 8, "little")
@@ -158,8 +169,5 @@ class DcclMessage:
                      out: dict[str, Any]) -> None:
         for name, codec in fields:
             v = codec.decode(reader)
-            if v is ABSENT:
-                if codec.required:
-                    raise DecodeError(f"{codec.path}: required field decodes as not present")
-                continue
-            out[name] = v
+            if v is not ABSENT:  # a required field may come back unset, as from libdccl
+                out[name] = v

@@ -9,9 +9,11 @@ syntax errors, unknown types and unknown ``(dccl.*)`` options are refused with p
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -93,16 +95,19 @@ def _protobuf_include() -> str:
     return os.path.join(os.path.dirname(grpc_tools.__file__), "_proto")
 
 
-def _run_protoc(path: Path) -> bytes:
+def _run_protoc(path: Path, proto_path: tuple[str, ...]) -> bytes:
     with tempfile.TemporaryDirectory(prefix="zab-dccl-") as tmp:
         out = Path(tmp) / "set.pb"
-        cmd = [sys.executable, "-m", "grpc_tools.protoc", f"-I{path.parent}", f"-I{INCLUDE_DIR}",
-               f"-I{_protobuf_include()}", "--include_imports", "--include_source_info",
-               f"--descriptor_set_out={out}", str(path)]
+        # zab's statement of DCCL's options before the include path: the schema zab reads
+        includes = [f"-I{d}" for d in (path.parent, INCLUDE_DIR, *proto_path, _protobuf_include())]
+        cmd = [sys.executable, "-m", "grpc_tools.protoc", *includes, "--include_imports",
+               "--include_source_info", f"--descriptor_set_out={out}", str(path)]
         run = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if run.returncode != 0 or not out.is_file():
-            first = (run.stderr.strip() or "protoc failed").splitlines()[0]
-            raise _protoc_error(first, path)
+            lines = (run.stderr.strip() or "protoc failed").splitlines()
+            # a located line first ("m.proto:3:1: Import ... was not found"), then the rest
+            located = [line for line in lines if re.match(r"[^:]+:\d+:", line)]
+            raise _protoc_error((located or lines)[0], path)
         return out.read_bytes()
 
 
@@ -135,11 +140,11 @@ def _as_dict(msg: Any) -> dict[str, Any]:
 
 
 @lru_cache(maxsize=64)
-def _load_cached(path: str, mtime: float) -> ProtoFile:
+def _load_cached(path: str, mtime: float, proto_path: tuple[str, ...]) -> ProtoFile:
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
     file = Path(path)
-    fds = descriptor_pb2.FileDescriptorSet.FromString(_run_protoc(file))
+    fds = descriptor_pb2.FileDescriptorSet.FromString(_run_protoc(file, proto_path))
     pool = descriptor_pool.DescriptorPool()
     for fdp in fds.file:
         pool.Add(fdp)
@@ -198,9 +203,17 @@ def _collect_message(mdp: Any, prefix: str, path: tuple[int, ...], lines: dict, 
                          field_cls, msg_cls, out)
 
 
-def load_proto(path: str | Path) -> ProtoFile:
-    """Parse ``path`` (and its imports) with protoc; :class:`DcclSchemaError` if it is invalid."""
+def load_proto(path: str | Path, proto_path: Sequence[str | Path] = ()) -> ProtoFile:
+    """Parse ``path`` (and its imports) with protoc; :class:`DcclSchemaError` if it is invalid.
+
+    Imports are looked up in ``path``'s folder, then (``dccl/option_extensions.proto``) zab's
+    statement of DCCL's options, then in each ``proto_path`` folder in order (as ``protoc -I``
+    and ``dccl --proto_path`` take them)."""
     p = Path(path).resolve()
     if not p.is_file():
         raise DcclSchemaError("no such .proto file", str(path))
-    return _load_cached(str(p), p.stat().st_mtime)
+    folders = tuple(str(Path(d).resolve()) for d in proto_path)
+    for given, folder in zip(proto_path, folders, strict=True):
+        if not Path(folder).is_dir():
+            raise DcclSchemaError(f"proto_path {str(given)!r} is not a folder", str(path))
+    return _load_cached(str(p), p.stat().st_mtime, folders)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.codec.fields import FieldCodec
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
 
 #: A best-effort command with no delivery report after this long is shown as "sent".
 SENT_AFTER_S = 3.0

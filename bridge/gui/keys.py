@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.core.loaded import LoadedMission
 from bridge.errors import DecodeError
 from bridge.gui.commands import Command, CommandBook, CommandError, command_channels
 from bridge.gui.eventlog import (
@@ -34,7 +35,6 @@ from bridge.gui.eventlog import (
     transfer_line,
 )
 from bridge.gui.keys import ChannelSource, StatusKey, SurfaceKeys
-from bridge.mission.loader import LoadedMission
 from bridge.wire.payloads import decode_payload
 
 #: Points of track kept per vehicle and source (about 10 min of 1 Hz navigation).

@@ -22,10 +22,10 @@ from urllib.parse import urlsplit
 import zenoh
 from aiohttp import WSMsgType, web
 
+from bridge.core.loaded import LoadedMission
 from bridge.gui.commands import CommandError
 from bridge.gui.feed import ZenohFeed
 from bridge.gui.model import GuiModel, shown
-from bridge.mission.loader import LoadedMission
 from bridge.mission.model import Mission
 
 log = logging.getLogger("zab.gui")

@@ -1,4 +1,9 @@
-"""Read a mission file and explain every mistake with file, line, column and field path."""
+"""Read a mission file and explain every mistake with file, line, column and field path.
+
+The model and the cross-references between its parts are checked here; what needs the
+channel table or the MAC's timing is checked where a mission is loaded to run
+(:mod:`bridge.core.loaded`), and located through :func:`located`.
+"""
 
 from __future__ import annotations
 
@@ -10,11 +15,8 @@ from typing import Any
 import yaml
 from pydantic import ValidationError
 
-from bridge.core.mac import mac_problems
-from bridge.dccl.goby import frame_codec_for, goby_problems
 from bridge.errors import MissionError
 from bridge.mission.model import Mission
-from bridge.wire.channels import ChannelTable, ChannelTableError
 
 Loc = tuple[str | int, ...]
 Marks = dict[Loc, tuple[int, int]]
@@ -41,15 +43,6 @@ class MissionProblems(MissionError):
     def __init__(self, problems: list[Problem]) -> None:
         super().__init__("\n".join(dict.fromkeys(map(str, problems))))
         self.problems = list({str(p): p for p in problems}.values())
-
-
-@dataclass(frozen=True)
-class LoadedMission:
-    """A validated mission with its compiled channel table."""
-
-    path: Path
-    mission: Mission
-    table: ChannelTable
 
 
 def _build(node: yaml.Node, loc: Loc, marks: Marks, constructor: yaml.SafeLoader) -> Any:
@@ -131,8 +124,10 @@ def _compose(text: str) -> yaml.Node | None:
     return yaml.compose(text, Loader=yaml.SafeLoader)
 
 
-def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
-    """Validate mission ``text``; raise :class:`MissionError` listing every problem found."""
+def read_mission(text: str, path: str | Path = "<mission>") -> tuple[Mission, Marks]:
+    """Mission ``text`` as a validated model, with where each of its values is written (for
+    :func:`located`); raise :class:`MissionProblems` listing every problem of its YAML or of
+    its model (the cross-references between its parts: :func:`cross_problems`)."""
     name = str(path)
     marks: Marks = {}
     try:
@@ -161,34 +156,28 @@ def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
             loc = tuple(p for p in error["loc"] if not _is_union_tag(p))
             found.append(Problem(name, *_where(marks, loc), format_loc(loc), _describe(error)))
         raise MissionProblems(found) from None
+    return mission, marks
 
-    problems = list(_semantic_problems(mission))
-    if not problems:
-        try:
-            table = ChannelTable.from_mission(mission)
-        except ChannelTableError as exc:
-            problems.append((exc.loc, str(exc)))
-        else:
-            problems.extend(_frame_problems(mission, table))
-    if problems:
-        raise MissionProblems([Problem(name, *_where(marks, loc), format_loc(loc), msg)
-                               for loc, msg in problems])
-    return LoadedMission(Path(path), mission, table)
+
+def located(name: str, marks: Marks, problems: Iterable[tuple[Loc, str]]) -> MissionProblems:
+    """``problems`` (field path, message) of the mission file ``name``, with their lines."""
+    return MissionProblems([Problem(name, *_where(marks, loc), format_loc(loc), msg)
+                            for loc, msg in problems])
 
 
 def _is_union_tag(part: str | int) -> bool:
     return isinstance(part, str) and (part in ("tdma", "none", "polled", "aloha") or "[" in part)
 
 
-def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
-    """Cross-references that a single model cannot check."""
+def cross_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
+    """Cross-references that a single model cannot check (those of the MAC are its own:
+    :meth:`bridge.core.mac.Mac.problems`)."""
     seen: dict[int, str] = {}
     for name, node in mission.nodes.items():
         if node.address in seen:
             yield (("nodes", name, "address"),
                    f"address {node.address} already used by node {seen[node.address]!r}")
         seen.setdefault(node.address, name)
-    yield from mac_problems(mission)
     for i, anchor in enumerate(mission.ranging.anchors or ()):
         if anchor not in mission.nodes:
             yield (("ranging", "anchors", i), f"unknown node {anchor!r}")
@@ -202,29 +191,12 @@ def _semantic_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
                 yield (("ranging", "ping", field, i), f"unknown node {name!r}")
 
 
-def _frame_problems(mission: Mission, table: ChannelTable) -> Iterable[tuple[Loc, str]]:
-    """Frames too small for what every frame carries besides channels."""
-    if table.wire_format == "goby":
-        yield from goby_problems(table, mission.wire.dlbl, mission.wire.auth is not None)
-    overhead = frame_codec_for(table).overhead_bytes()
-    found: dict[Loc, int] = {}  # where each too-small size is set: once, at that line
-    for name, node in mission.nodes.items():
-        frame_bytes = mission.node_modem(name).frame_bytes
-        if frame_bytes <= overhead:
-            own = node.modem.frame_bytes is not None
-            found[("nodes", name, "modem", "frame_bytes") if own
-                  else ("modem", "frame_bytes")] = frame_bytes
-    for loc, frame_bytes in found.items():
-        yield (loc, f"{frame_bytes} bytes cannot hold the {overhead}-byte frame overhead")
-
-
-def load_mission(path: str | Path) -> LoadedMission:
-    """Read and validate the mission file at ``path``."""
+def read_mission_file(path: str | Path) -> str:
+    """The text of the mission file at ``path``; MissionError when it cannot be read."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        return p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise MissionError(f"{p}: no such mission file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise MissionError(f"{p}: cannot read the mission file: {exc}") from None
-    return parse_mission(text, p)

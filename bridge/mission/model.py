@@ -25,8 +25,8 @@ from pydantic import (
     model_validator,
 )
 
-from bridge.codec import FieldSpec
-from bridge.ros2.spec import Ros2Topic
+from bridge.mission.fields import FieldSpec
+from bridge.mission.ros2 import Ros2Topic
 
 NodeName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)]
 NodePattern = Annotated[
@@ -74,11 +74,18 @@ class NodePath(Strict):
                        "otherwise stop at the last.")
 
 
+BROADCAST_DESCRIPTION = (
+    "The address that means every node, on the modem and in what it hears; default: the "
+    "backend's convention (micromodem 0, Goby's BROADCAST_ID; evologics 255; sim none). "
+    "Every node must agree on it, and no node may have it as its address (zab check).")
+
+
 class ModemOverride(Strict):
     """Per-node modem settings; unset values come from the mission's ``modem`` defaults."""
 
     backend: str | None = None
     frame_bytes: int | None = Field(None, ge=4, le=4096)
+    broadcast: int | None = Field(None, ge=0, le=65535, description=BROADCAST_DESCRIPTION)
     options: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -108,6 +115,7 @@ class Modem(Strict):
 
     backend: str = Field("sim", description="sim, udp, or a backend from the zab.backends group.")
     frame_bytes: int = Field(64, ge=4, le=4096, description="Largest frame the modem sends.")
+    broadcast: int | None = Field(None, ge=0, le=65535, description=BROADCAST_DESCRIPTION)
     options: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -191,6 +199,25 @@ class AlohaMac(Strict):
 Mac = Annotated[TdmaMac | NoMac | PolledMac | AlohaMac, Field(discriminator="type")]
 
 
+class Dccl(Strict):
+    """How the mission's DCCL messages are read and encoded (see docs/dccl.md)."""
+
+    numeric: Literal["dccl-4.2", "dccl-2026"] = Field(
+        "dccl-4.2", description="The numeric rule of the fleet's libdccl: dccl-4.2 (the 4.2.0 "
+        "release, as packaged Goby3 has it) or dccl-2026 (libdccl after its January 2026 "
+        "precise-floats change); they write some float and double values differently.")
+    proto_path: list[Path] = Field(
+        default_factory=list, description="Folders where a .proto file's imports are looked "
+        "up, in order, after its own folder (protoc -I, dccl --proto_path); relative to the "
+        "mission file.")
+
+    @field_validator("proto_path")
+    @classmethod
+    def _from_mission_dir(cls, value: list[Path], info: ValidationInfo) -> list[Path]:
+        base = (info.context or {}).get("mission_dir")
+        return [Path(base) / p if base is not None and not p.is_absolute() else p for p in value]
+
+
 class Element(Strict):
     """One Zenoh key carried by a channel: read at the sender, published at each receiver.
 
@@ -208,6 +235,13 @@ class Element(Strict):
     dccl: str | None = Field(None, description="A DCCL message instead of fields: "
                              "'file.proto:Message', the file relative to the mission file; "
                              "the element's bytes are libdccl's (see docs/dccl.md).")
+
+    _dccl_options: Dccl | None = PrivateAttr(None)
+
+    @property
+    def dccl_options(self) -> Dccl:
+        """The mission's ``dccl`` settings this element's message is read with."""
+        return self._dccl_options or Dccl()
 
     @field_validator("dccl")
     @classmethod
@@ -494,10 +528,20 @@ class Mission(Strict):
     surfacing: Surfacing | None = Field(None, description="Stop carrying a peer's channels "
                                         "acoustically while it is reachable over IP.")
     ranging: Ranging = Field(default_factory=Ranging)
+    dccl: Dccl = Field(default_factory=Dccl, description="How DCCL messages are read and "
+                       "encoded: the numeric rule and the .proto include path.")
     channels: list[Channel] = Field(default_factory=list)
     queries: list[Query] = Field(default_factory=list, description="Queries across the water.")
     max_open_queries: int = Field(4, ge=1, le=16, description="Acoustic queries a node keeps "
                                   "open at once; a further get ends at once with an error.")
+
+    @model_validator(mode="after")
+    def _dccl_to_elements(self) -> Mission:
+        """Each DCCL element is read with the mission's ``dccl`` settings."""
+        for channel in self.channels:
+            for element in channel.elements:
+                element._dccl_options = self.dccl
+        return self
 
     def node_modem(self, name: str) -> Modem:
         """The modem settings of ``name``: mission defaults with the node's overrides."""
@@ -505,6 +549,7 @@ class Mission(Strict):
         return Modem(
             backend=override.backend or self.modem.backend,
             frame_bytes=override.frame_bytes or self.modem.frame_bytes,
+            broadcast=self.modem.broadcast if override.broadcast is None else override.broadcast,
             options={**self.modem.options, **override.options},
         )
 

@@ -17,8 +17,8 @@ import plotly.graph_objects as go
 from plotly.colors import qualitative
 from plotly.subplots import make_subplots
 
-from bridge.mission.check import check_mission
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
+from bridge.report.check import check_mission
 from bridge.report.model import MissionReport
 from bridge.report.recorder import Recording, age_series
 

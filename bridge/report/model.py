@@ -30,8 +30,8 @@ from bridge.frozen import direct_init
 from bridge.report.age import AgeOfInformation
 
 if TYPE_CHECKING:
+    from bridge.core.loaded import LoadedMission
     from bridge.core.node import NodeCore
-    from bridge.mission.loader import LoadedMission
 
 LINK_ROWS = 60
 """Links listed in the printed report at most: a fleet of n nodes has n × (n − 1) of them

@@ -15,17 +15,14 @@ from typing import Any
 
 from bridge.codec import Layout
 from bridge.errors import DecodeError, EncodeError
+from bridge.mission.ros2 import NameError_, Ros2Topic, check_topic, dds_type_name
 from bridge.ros2 import messages
 from bridge.ros2.names import (
-    NameError_,
     Qos,
-    check_topic,
-    dds_type_name,
     parse_topic_key,
     topic_key,
     topic_listen_key,
 )
-from bridge.ros2.spec import Ros2Topic
 
 SENDER_TEMPLATES = frozenset({"node", "src"})
 RECEIVER_TEMPLATES = frozenset({"node", "src", "dst"})

@@ -16,40 +16,15 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
+from bridge.mission.ros2 import NameError_, dds_type_name
+
 ADMIN_SPACE = "@ros2_lv"
 SLASH_REPLACEMENT = "%"
 
 EntityKind = Literal["NN", "MP", "MS"]
 
-_TYPE = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)/(msg)/([A-Z][A-Za-z0-9]*)$")
 _DDS_TYPE = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)::(msg)::dds_::([A-Z][A-Za-z0-9]*)_$")
-_TOKEN = re.compile(r"^[A-Za-z_{][A-Za-z0-9_{}]*$")  # one topic name token (templates allowed)
 _HASH = re.compile(r"^RIHS01_[0-9a-f]{64}$")
-
-
-class NameError_(ValueError):
-    """A ROS 2 topic or type name that rmw_zenoh could not carry."""
-
-
-def check_topic(topic: str) -> str:
-    """``topic`` if it is an absolute ROS 2 topic name (``/auv1/odom``; ``{src}`` allowed)."""
-    if not topic.startswith("/") or topic.endswith("/") or topic == "/":
-        raise NameError_(f"{topic!r}: a ROS 2 topic here is absolute, like /auv1/odom")
-    for token in topic[1:].split("/"):
-        if not _TOKEN.match(token) or "__" in token:
-            raise NameError_(f"{topic!r}: {token!r} is not a valid ROS 2 name token "
-                             "(letters, digits and single underscores, not starting with a "
-                             "digit)")
-    return topic
-
-
-def dds_type_name(msgtype: str) -> str:
-    """``nav_msgs/msg/Odometry`` -> ``nav_msgs::msg::dds_::Odometry_`` (the name in keys)."""
-    match = _TYPE.match(msgtype)
-    if match is None:
-        raise NameError_(f"{msgtype!r} is not a ROS 2 message type like nav_msgs/msg/Odometry")
-    package, kind, name = match.groups()
-    return f"{package}::{kind}::dds_::{name}_"
 
 
 def ros_type_name(dds_type: str) -> str | None:

@@ -11,16 +11,16 @@ from collections.abc import Callable, Collection
 from typing import Any
 
 from bridge.core.events import Event, FrameReceived
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
 from bridge.modems.setup import backend_factory
 from bridge.report.age import AgeOfInformation
 from bridge.report.model import MissionReport
+from bridge.runtime.keys import key_for_run
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.surface_wifi import SurfaceWifi
 from bridge.runtime.zenoh_node import BridgeNode
 from bridge.sim.scenario import surface_script, water_of
 from bridge.sim.service import WaterService
-from bridge.wire.auth import key_for_run
 
 log = logging.getLogger("zab.fleet")
 

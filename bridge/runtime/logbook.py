@@ -37,10 +37,10 @@ from mcap.writer import CompressionType, Writer
 
 from bridge.codec import ArrayCodec, BytesCodec, Layout
 from bridge.core.events import Event, FrameReceived
+from bridge.core.loaded import LoadedMission, parse_mission
 from bridge.errors import MissionError
-from bridge.mission.loader import LoadedMission, parse_mission
-from bridge.mission.payload_schema import adapt_schema
 from bridge.wire.channels import ChannelCodec
+from bridge.wire.payload_schema import adapt_schema
 from bridge.wire.payloads import encode_payload
 
 __all__ = [

@@ -24,18 +24,18 @@ import msgpack
 
 from bridge.core.events import Event
 from bridge.core.interest import own_subscriptions, wanted_by
+from bridge.core.loaded import LoadedMission
 from bridge.core.mac import Schedule
 from bridge.core.node import NodeCore, Output, Publish, SendFrame, Status
 from bridge.core.surfacing import Relay
 from bridge.errors import EncodeError, FrameError
 from bridge.frozen import direct_init
-from bridge.mission.loader import LoadedMission
+from bridge.mission.presets import Preset
 from bridge.modems.base import Reception
-from bridge.modems.presets import Preset
+from bridge.runtime.keys import key_for_run
 from bridge.runtime.virtual_queries import VirtualQueries
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
 from bridge.sim.scenario import surface_script, water_of
-from bridge.wire.auth import key_for_run
 from bridge.wire.frame import DecodedFrame
 from bridge.wire.payloads import MSGPACK, encode_payload
 

@@ -5,13 +5,25 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from bridge.core.interest import intersects
+from bridge.core.loaded import LoadedMission
+from bridge.core.node import NodeCore
 from bridge.core.queries import LocalGet, QueryAnswer, QueryEnd
 
-if TYPE_CHECKING:
-    from bridge.runtime.virtual_fleet import FastFleet
+
+class Fleet(Protocol):
+    """What the queries need of the fleet they play in
+    (:class:`~bridge.runtime.virtual_fleet.FastFleet`)."""
+
+    now: float
+    loaded: LoadedMission
+    cores: dict[str, NodeCore]
+
+    def call_at(self, t: float, fn: Callable[[], None]) -> None: ...
+
+    def collect_and_replan(self, node: str) -> None: ...
 
 Answer = Callable[[dict[str, Any]], list[Any]]
 
@@ -39,7 +51,7 @@ QUERY_PERIOD_S = 30.0
 class VirtualQueries:
     """Queryables and pending gets of the applications of a virtual fleet."""
 
-    def __init__(self, fleet: FastFleet) -> None:
+    def __init__(self, fleet: Fleet) -> None:
         self.fleet = fleet
         self.queryables: dict[str, list[tuple[str, Answer]]] = {}
         self.waiting: dict[tuple[str, tuple[int, str, int]], list[GetResult]] = {}

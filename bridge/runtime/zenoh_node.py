@@ -31,18 +31,20 @@ import zenoh
 from bridge.core.events import Event, ModemDown, notable
 from bridge.core.interest import output_keys
 from bridge.core.link import LinkState
+from bridge.core.loaded import LoadedMission
 from bridge.core.node import NodeCore, NodeStats, Ping, Publish, SendFrame, Status
 from bridge.core.positioning import Positioning
+from bridge.core.reception import RangingMode
 from bridge.core.surfacing import Relay
 from bridge.errors import BackendError, DecodeError, EncodeError, NodeFailure
-from bridge.mission.loader import LoadedMission
-from bridge.modems.base import ModemBackend, ModemRange, Reception
-from bridge.ros2.graph import Ros2Graph
+from bridge.modems.base import ModemBackend, ModemFix, ModemRange, Reception
 from bridge.runtime.eager import start_eagerly
 from bridge.runtime.gate import EventGate
 from bridge.runtime.intake import Intake
 from bridge.runtime.ip_watch import IpWatch
+from bridge.runtime.keys import load_key
 from bridge.runtime.persistence import Persistence
+from bridge.runtime.ros2_graph import Ros2Graph
 from bridge.runtime.session import (
     bridged_attachment,
     close_quietly,
@@ -53,7 +55,6 @@ from bridge.runtime.session import (
 )
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_queries import QueryBridge
-from bridge.wire.auth import load_key
 from bridge.wire.payloads import decode_payload, encode_payload
 from bridge.wire.proofs import sign_output
 
@@ -138,36 +139,28 @@ class BridgeNode:
         self._gate = EventGate()  # what goes out on …/events, at a bounded rate
         self.intake: Intake | None = None
         self._events_timer = False  # the loop's timer that takes them is armed
-        self._replan = False  # books wait and nobody asked the core when next: the timer asks
         self.started = asyncio.Event()
         self.failure: str | None = None  # why the node cannot go on (see fail)
         self._ended: asyncio.Event | None = None  # set on stop or failure
         self.session: zenoh.Session | None = None
         self._ros2: Ros2Graph | None = None
 
-    # the core's state, for observers (fleet reports, tests), its books kept
+    # the core's state, for observers (fleet reports, tests)
     @property
     def stats(self) -> NodeStats:
-        return self._settled().stats
+        return self.core.stats
 
     @property
     def received_at(self) -> dict[str, float]:
-        return self._settled().received_at
+        return self.core.received_at
 
     @property
     def last_heard(self) -> dict[str, float]:
-        return self._settled().last_heard
+        return self.core.last_heard
 
     @property
     def link_states(self) -> dict[str, LinkState]:
-        return self._settled().link_states
-
-    def _settled(self) -> NodeCore:
-        """The core, the books it left waiting kept (:meth:`NodeCore.settle`)."""
-        with self.lock:
-            if self.core.settle():
-                self._flush()
-        return self.core
+        return self.core.link_states
 
     @property
     def positioning(self) -> Positioning | None:
@@ -195,7 +188,8 @@ class BridgeNode:
             if self.core.interest is not None:
                 self._watch_interest(loop)
             if self.core.queries is not None:
-                self._query_bridge = QueryBridge(self, loop)
+                self._query_bridge = QueryBridge(self.session, self.core, self.lock,
+                                                 self.clock, self._changed, loop)
             if self.core.surfacing is not None:
                 self._watch_ip(loop)
             self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
@@ -216,7 +210,6 @@ class BridgeNode:
             for task in (*waits, *tasks):
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
-            self._settled()
             self._take_events()
             with self.lock:
                 self._persist()
@@ -289,7 +282,7 @@ class BridgeNode:
         """The open backend, if it is direct and sends what the core gives it at once (a
         modem that pings must be awaited)."""
         backend = self.backend
-        if backend is None or not backend.direct or backend.ranging == "ping":
+        if backend is None or not backend.direct or backend.ranging is RangingMode.PING:
             return None
         return backend
 
@@ -303,6 +296,11 @@ class BridgeNode:
         else:
             with contextlib.suppress(RuntimeError):  # the loop has closed: the node is gone
                 self._loop.call_soon_threadsafe(callback, *args)
+
+    def _changed(self) -> None:
+        """On the loop: the core has outputs to carry out and may have something due."""
+        self._flush()
+        self._data.set()
 
     def _wake(self) -> None:
         """The transmit loop asks the core again (from any thread)."""
@@ -444,8 +442,7 @@ class BridgeNode:
         with self.lock:
             ready = not self._sending and self._modem_up.is_set()
             if ready and backend is not None:  # (its outputs and the frame's, flushed together)
-                if not self._express(backend, sample):
-                    self._send_now(backend, sample)
+                self._send_now(backend, sample)
                 return
             key, data, encoding, ref, sample_key = sample
             self.core.ingest(key, data, encoding, self.clock(), ref, sample_key)
@@ -534,35 +531,15 @@ class BridgeNode:
         ``sample`` if one just came; a frame's counter is saved before it leaves."""
         self.core.modem_ranging = backend.ranging
         now, at = self.clock(), modem_start(backend)
-        if sample is None:
-            action = self.core.act(now, at)
-        else:
+        if sample is not None:
             key, data, encoding, ref, sample_key = sample
-            action = self.core.ingest_and_act(key, data, encoding, now, at, ref, sample_key)
+            self.core.ingest(key, data, encoding, now, ref, sample_key)
+        action = self.core.act(now, at)
         if action is None:
             self._flush()
         else:
             self._persist()
         return action, now
-
-    def _express(self, backend: ModemBackend, sample: InputSample) -> bool:
-        """Holding the lock: the sample leaves at once if the core's clearance admits it
-        (:meth:`NodeCore.express`); the rest is kept with the books. False: it did not."""
-        now = self.clock()
-        express = self.core.express(sample[0], sample[1], sample[2], now)
-        if express is None:
-            return False
-        lane, packed, data = express
-        at = modem_start(backend)
-        try:
-            backend.send_now(data, lane.dest, ack=lane.ack)
-        except BackendError as exc:
-            self._failed(backend, self.core.unexpressed(lane, packed, data, now, at), now, exc)
-            return True
-        self.core.expressed(lane, packed, data, now, self.clock(), at)
-        self._replan = True  # (the loop's timer keeps the books and asks the core when next)
-        self._loop_later()
-        return True
 
     def _send_now(self, backend: ModemBackend, sample: InputSample) -> None:
         """Holding the lock, on any thread: the core takes ``sample`` and its action is
@@ -577,12 +554,7 @@ class BridgeNode:
                 self._failed(backend, action, now, exc)
                 return
             end = self.clock()
-            if confirmed is not None:  # (the modem's acknowledgement: reliable entries wait)
-                self.core.done(action, now, end, confirmed=confirmed)
-            elif self.core.sent(action, now, end):  # its books, kept by the loop's timer
-                self._replan = True
-                self._loop_later()
-                return
+            self.core.done(action, now, end, confirmed=confirmed)
             self._flush()
             now = end
         self._wake_if_sooner(now)
@@ -611,6 +583,12 @@ class BridgeNode:
             self.core.modem_range(rng, self.clock())
             self._flush()
 
+    def _modem_fix(self, fix: ModemFix) -> None:
+        """The modem's USBL head located a peer (called by the backend, on the loop)."""
+        with self.lock:
+            self.core.modem_fix(fix, self.clock())
+            self._flush()
+
     # -- modem → core → Zenoh ------------------------------------------------------------------
 
     async def _modem_loop(self) -> None:
@@ -619,6 +597,7 @@ class BridgeNode:
         while True:
             backend = self.backend = self._make_backend()
             backend.on_range = self._modem_range
+            backend.on_fix = self._modem_fix
             backend.on_reception = self._on_reception  # at once, as the frame arrives
             try:
                 await backend.open()
@@ -650,19 +629,7 @@ class BridgeNode:
         modem_now = self.backend.clock() if self.backend is not None else None
         with self.lock:
             valid = self.core.stats.frames_received
-            if self._loop is None:  # (not running: nothing to keep the books later)
-                self.core.receive(rx, self.clock(), modem_now)
-                heard = None
-            else:
-                heard = self.core.hear(rx, self.clock(), modem_now)
-            if heard is not None:  # the values at once; the books by the loop's timer, after
-                self._persist()  # (with auth, the replay window first)
-                for plan, values in heard:
-                    for (key, encoding, latched, ros2), value in zip(plan, values, strict=True):
-                        self._put(key, value, encoding, latched, ros2)
-                self._replan = True
-                self._loop_later()
-                return
+            self.core.receive(rx, self.clock(), modem_now)
             self._flush()
             if self.core.stats.frames_received > valid:
                 # a poll or a ranging turn may open an opportunity
@@ -730,8 +697,8 @@ class BridgeNode:
         self._loop_later()
 
     def _loop_later(self) -> None:
-        """Holding the lock: the loop's timer takes the events and the books, within
-        ``EVENTS_S`` (the first after a quiet spell starts it)."""
+        """Holding the lock: the loop's timer takes the events within ``EVENTS_S`` (the first
+        after a quiet spell starts it)."""
         if not self._events_timer:
             self._events_timer = True
             self._soon(self._arm_events)
@@ -741,16 +708,10 @@ class BridgeNode:
         self._loop.call_later(EVENTS_S, self._events_due)
 
     def _events_due(self) -> None:
-        """The loop's timer: carry out the events, keep the books of the frames heard and
-        sent and ask the core when next; again in ``EVENTS_S`` while they come."""
+        """The loop's timer: carry out the events; again in ``EVENTS_S`` while they come."""
         took = self._take_events()
-        with self.lock:  # (events and frames that came meanwhile found the timer still on)
-            kept = self.core.settle() or self._replan
-            if kept:
-                self._replan = False
-                self._flush()
-                self._wake_if_sooner(self.clock())
-            self._events_timer = took or kept or bool(self._events)
+        with self.lock:  # (events that came meanwhile found the timer still on)
+            self._events_timer = took or bool(self._events)
         if self._events_timer:
             self._arm_events()
 

@@ -17,16 +17,16 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import TYPE_CHECKING, Any
+import threading
+from collections.abc import Callable
+from typing import Any
 
 import zenoh
 
+from bridge.core.node import NodeCore
 from bridge.core.queries import LocalGet, QueryAnswer, QueryEnd
 from bridge.errors import DecodeError
 from bridge.wire.payloads import decode_payload, encode_payload
-
-if TYPE_CHECKING:
-    from bridge.runtime.zenoh_node import BridgeNode
 
 log = logging.getLogger("zab.queries")
 
@@ -71,15 +71,22 @@ def format_parameters(values: dict[str, Any], prefix: str = "") -> str:
 class QueryBridge:
     """The Zenoh half of one node's queries."""
 
-    def __init__(self, node: BridgeNode, loop: asyncio.AbstractEventLoop) -> None:
-        self.node = node
+    def __init__(self, session: zenoh.Session, core: NodeCore, lock: threading.RLock,
+                 clock: Callable[[], float], changed: Callable[[], None],
+                 loop: asyncio.AbstractEventLoop) -> None:
+        """``core``, used under ``lock``, at the time ``clock`` tells; ``changed``: the core
+        has outputs to carry out and may have something due (on the loop)."""
+        self.session = session
+        self.core = core
+        self.lock = lock
+        self.clock = clock
+        self.changed = changed
         self.loop = loop
         self.waiting: dict[Any, list[zenoh.Query]] = {}
         self.entities: list[Any] = []
-        core = node.core
-        assert core.queries is not None and node.session is not None
+        assert core.queries is not None
         for key in core.queries.asked_keys():
-            self.entities.append(node.session.declare_queryable(
+            self.entities.append(session.declare_queryable(
                 key, lambda q, k=key: self._from_zenoh(q, k)))
 
     def _from_zenoh(self, query: zenoh.Query, key: str) -> None:
@@ -94,22 +101,21 @@ class QueryBridge:
         self.loop.call_soon_threadsafe(self._ask, query, key, params)
 
     def _ask(self, query: zenoh.Query, key: str, params: Any) -> None:
-        node = self.node
-        with node.lock:
-            now = node.clock()
+        core = self.core
+        with self.lock:
+            now = self.clock()
             if isinstance(params, Exception):
-                spec = node.core.queries.spec_for(key) if node.core.queries else None
-                if spec is not None and node.core.queries is not None:
-                    node.core.queries.dropped[spec[0].name] += 1
+                spec = core.queries.spec_for(key) if core.queries else None
+                if spec is not None and core.queries is not None:
+                    core.queries.dropped[spec[0].name] += 1
                 self._end([query], f"malformed parameters: {params}")
                 return
-            ticket = node.core.ask(key, params, now)
+            ticket = core.ask(key, params, now)
             if isinstance(ticket, str):
                 self._end([query], ticket)
             else:
                 self.waiting.setdefault(ticket, []).append(query)
-            node._flush()
-        node._data.set()  # a request is due at the next opportunity
+        self.changed()  # a request is due at the next opportunity
 
     @staticmethod
     def _end(queries: list[zenoh.Query], error: str | None) -> None:
@@ -140,8 +146,7 @@ class QueryBridge:
         return False
 
     def _local_get(self, request: LocalGet) -> None:
-        session = self.node.session
-        assert session is not None
+        session = self.session
         values: list[Any] = []
         errors: list[str] = []
 
@@ -165,10 +170,9 @@ class QueryBridge:
                     timeout=request.timeout_s)
 
     def _served(self, request: LocalGet, values: list[Any], error: str | None) -> None:
-        with self.node.lock:
-            self.node.core.query_served(request.ticket, values, error)
-            self.node._flush()
-        self.node._data.set()
+        with self.lock:
+            self.core.query_served(request.ticket, values, error)
+        self.changed()
 
     def close(self) -> None:
         """End every get still waiting (the bridge stops)."""

@@ -4,7 +4,7 @@ Only the pure parts are re-exported here; the asyncio server lives in
 :mod:`bridge.sim.service` and its wire format in :mod:`bridge.sim.protocol`.
 """
 
-from bridge.modems.presets import PRESETS, Preset, UnknownPresetError, get_preset
+from bridge.mission.presets import PRESETS, Preset, UnknownPresetError, get_preset
 from bridge.sim.ocean import (
     LOSS_REASONS,
     Delivery,

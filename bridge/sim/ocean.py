@@ -43,7 +43,7 @@ from typing import Any
 
 from bridge.frozen import direct_init
 from bridge.mission.path import Path
-from bridge.modems.presets import Preset
+from bridge.mission.presets import Preset
 
 __all__ = [
     "LOSS_REASONS",
@@ -137,13 +137,15 @@ class Delivery:
 @direct_init
 @dataclass(frozen=True)
 class Loss:
-    """The frame ``frame_id`` from ``src`` was not received by ``dst`` (see ``LOSS_REASONS``)."""
+    """The frame ``frame_id`` from ``src`` was not received by ``dst`` (see ``LOSS_REASONS``);
+    ``dest`` is the frame's destination metadata, as a :class:`Delivery` would have had it."""
 
     dst: int
     src: int
     reason: str
     time: float
     frame_id: int
+    dest: int | None = None
 
 
 Event = TxDone | Delivery | Loss
@@ -459,7 +461,8 @@ class Ocean:
         ls = rx.link
         if reason is not None:
             ls.lost[reason] = ls.lost.get(reason, 0) + 1
-            return Loss(dst=rx.dst, src=rx.src, reason=reason, time=rx.end, frame_id=rx.frame_id)
+            return Loss(dst=rx.dst, src=rx.src, reason=reason, time=rx.end, frame_id=rx.frame_id,
+                        dest=rx.dest)
         ls.delivered += 1
         meta = {
             "dest": rx.dest,

@@ -13,10 +13,10 @@ import itertools
 import math
 from dataclasses import dataclass
 
+from bridge.core.loaded import LoadedMission
 from bridge.core.positioning import simulated_preset
-from bridge.mission.loader import LoadedMission
 from bridge.mission.path import Path
-from bridge.modems.presets import Preset
+from bridge.mission.presets import Preset
 from bridge.sim.ocean import Position
 
 

@@ -217,7 +217,8 @@ def compile_element(element: Element, on_out_of_range: str) -> ElementCodec:
     if element.dccl:  # a DCCL message: the element's bytes are libdccl's
         from bridge.dccl.layout import DcclLayout
 
-        dccl = DcclLayout.from_reference(element.dccl, strict=on_out_of_range == "reject")
+        dccl = DcclLayout.from_reference(element.dccl, strict=on_out_of_range == "reject",
+                                         options=element.dccl_options)
         return ElementCodec(element.in_, element.out, element.encoding, dccl)  # type: ignore[arg-type]
     layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
     assert element.in_ is not None and element.out is not None
@@ -456,7 +457,7 @@ class ChannelTable:
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
     demand: bool = False  # frames may carry the @want interest bitmap
     queries: tuple[QuerySpec, ...] = ()  # queries across the water
-    wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.dccl.goby)
+    wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.wire.goby)
 
     @classmethod
     def from_mission(cls, mission: Mission) -> ChannelTable:

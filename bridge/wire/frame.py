@@ -35,7 +35,7 @@ Layout, most significant bit first::
 from __future__ import annotations
 
 import binascii
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from bridge.errors import DecodeError, FrameError
@@ -182,24 +182,6 @@ class FrameCodec:
                 raise ValueError("this mission authenticates frames: no Authenticator given")
             data = self.auth.seal(data)
         return data + check_value(data, self.table.fingerprint)
-
-    def lone(self, channel: ChannelCodec, epoch: int = 0) -> Callable[[int], bytes] | None:
-        """``payload -> encode([(channel, payload)], (), epoch)``, worked out once: the frame of
-        ``channel`` alone, for the direct data path (:mod:`bridge.core.lanes`). None where a
-        frame needs more than its entry (DLBL delays, authentication)."""
-        if self.delay_count or self.auth_bytes:
-            return None
-        head = (((epoch & ((1 << EPOCH_BITS) - 1)) << self.count_bits) if self.epoch_bits else 0)
-        head = (((head | 1) << self.index_bits) | channel.index) << channel.wire_bits
-        bits = self.epoch_bits + self.count_bits + self.index_bits + channel.wire_bits
-        pad, size, fingerprint, crc = -bits % 8, (bits + 7) // 8, self.fingerprint16, \
-            binascii.crc_hqx
-
-        def frame(payload: int) -> bytes:
-            body = ((head | payload) << pad).to_bytes(size, "big")
-            return body + (crc(body, 0xFFFF) ^ fingerprint).to_bytes(CHECK_BYTES, "big")
-
-        return frame
 
     # -- decode --------------------------------------------------------------------------------
 

@@ -145,7 +145,7 @@ def test_water_and_emulate_serve_a_real_driver(tmp_path: Path) -> None:
     """`zab water` + `zab emulate evologics` as processes; the driver opens the emulated pty."""
     import asyncio
 
-    from bridge.mission.loader import load_mission
+    from bridge.core.loaded import load_mission
     from bridge.modems.evologics.driver import EvologicsBackend
     from bridge.modems.setup import modem_setup
 

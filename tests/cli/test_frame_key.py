@@ -18,14 +18,13 @@ from typer.testing import CliRunner
 
 from bridge.cli.app import app
 from bridge.cli.doctor import mission_findings
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.errors import MissionError
-from bridge.mission.keys import frame_key
-from bridge.mission.loader import load_mission, parse_mission
 from bridge.mission.model import Mission
 from bridge.mission.schema import schema_text
 from bridge.runtime.fleet import Fleet
+from bridge.runtime.keys import frame_key, load_key, throwaway_key
 from bridge.runtime.virtual_fleet import FastFleet
-from bridge.wire.auth import load_key, throwaway_key
 from tests.conftest import MISSIONS, REPO, free_port
 from tests.harness import zab_run
 

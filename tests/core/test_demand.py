@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 from bridge.core.interest import intersects, wanted_by
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.errors import FrameError
-from bridge.mission.loader import load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.frame import FrameCodec
 from tests.conftest import MISSIONS

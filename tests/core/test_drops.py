@@ -13,8 +13,8 @@ import pytest
 
 from bridge.core.drops import LOG_EVERY_S, MAX_KEYS, OTHER_KEYS, DropLedger
 from bridge.core.events import PayloadDrops
+from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore
-from bridge.mission.loader import parse_mission
 from bridge.wire.payloads import MAX_DEPTH
 
 MISSION = """\
@@ -88,9 +88,9 @@ def test_every_payload_shape_is_a_counted_drop_by_cause(core: NodeCore,
                                                         caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.WARNING)
     for i, (name, data, encoding, cause) in enumerate(SHAPES):
-        before = dict(core.drops.by_cause)
+        before = dict(core.outbound.drops.by_cause)
         core.ingest("k", data, encoding, float(i))  # never raises
-        after = core.drops.by_cause
+        after = core.outbound.drops.by_cause
         assert after[("k", cause)] == before.get(("k", cause), 0) + 1, name
         assert sum(after.values()) == sum(before.values()) + 1, name
     assert core.stats.payloads_dropped["k"] == len(SHAPES)
@@ -106,7 +106,7 @@ def test_the_cap_comes_from_the_bits_and_refuses_before_decoding(core: NodeCore)
     cap = core.payload_cap("k")
     assert 16 * 1024 < cap < 32 * 1024
     core.ingest("k", b"[" * (cap + 1), "application/json", 1.0)  # would be a depth error
-    assert core.drops.by_cause == {("k", "too_large"): 1}
+    assert core.outbound.drops.by_cause == {("k", "too_large"): 1}
     fits = json.dumps({**GOOD, "pad": "x" * (cap - 200)}).encode()
     assert len(fits) <= cap
     core.ingest("k", fits, "application/json", 2.0)

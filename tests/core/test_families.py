@@ -12,9 +12,9 @@ from typer.testing import CliRunner
 
 from bridge.cli.app import app
 from bridge.cli.sim_fast import run_fast
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.core.node import NodeCore
 from bridge.errors import FrameError, MissionError
-from bridge.mission.loader import load_mission, parse_mission
 from bridge.modems.base import Reception
 from bridge.runtime.logbook import FleetLogs, read_log, received_values
 from bridge.runtime.virtual_fleet import FastFleet
@@ -97,9 +97,9 @@ def test_a_value_of_an_unnamed_member_is_dropped_until_its_name_arrives() -> Non
     assert auv1.interest is not None
     auv1.interest.on_heard("top", range(len(loaded.table)), 0.0)  # top wants everything
     auv1.ingest("contacts/buoy", b'{"range_m": 7, "bearing_deg": 4}', "application/json", 0.0)
-    first = auv1.build_frame(0.0, 0.0)
+    first = auv1.outbound.build(0.0, 0.0)
     assert first is not None and [x.channel.name for x in first.extras] == ["@want", "@key"]
-    auv1.frame_sent(first, 0.0)
+    auv1.outbound.sent(first, 0.0)
     # a receiver that missed the names: the member's values are refused, counted
     entry = FrameCodec(loaded.table).decode(first.data)
     bare = [e for e in entry.entries if e.channel.name == "contacts"]

@@ -8,9 +8,9 @@ import random
 from pathlib import Path
 
 from bridge.core.events import FrameDropped, FrameReceived, FrameSent
+from bridge.core.loaded import parse_mission
 from bridge.core.node import Publish
-from bridge.mission.loader import parse_mission
-from bridge.modems.reception import Reception
+from bridge.core.reception import Reception
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.virtual_fleet import FastFleet, Timed
 

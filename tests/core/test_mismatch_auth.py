@@ -7,9 +7,9 @@ from __future__ import annotations
 import os
 
 from bridge.core.events import MissionMismatch
+from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore, Status
-from bridge.mission.loader import parse_mission
-from bridge.modems.reception import Reception
+from bridge.core.reception import Reception
 from tests.conftest import MISSIONS
 
 KEY = b"0123456789abcdef-mission-key"
@@ -25,9 +25,9 @@ def heard(gcv: NodeCore, data: bytes, now: float) -> list[MissionMismatch]:
 
 
 def sealed(lsv: NodeCore, now: float) -> bytes:
-    out = lsv.build_frame(now, now, always=True)
+    out = lsv.outbound.build(now, now, always=True)
     assert out is not None
-    lsv.frame_sent(out, now)
+    lsv.outbound.sent(out, now)
     return out.data
 
 

@@ -11,7 +11,7 @@ PURE = ["bridge.core.node", "bridge.core.mac", "bridge.core.positioning", "bridg
         "bridge.core.link", "bridge.wire.frame", "bridge.wire.auth", "bridge.wire.channels",
         "bridge.mission.loader", "bridge.codec", "bridge.ranging", "bridge.sim.ocean",
         "bridge.gui.model", "bridge.modems.evologics.protocol",
-        "bridge.modems.micromodem.protocol", "bridge.modems.protocol", "bridge.modems.reception"]
+        "bridge.modems.micromodem.protocol", "bridge.modems.protocol", "bridge.core.reception"]
 IO = ("asyncio", "zenoh", "serial", "aiohttp")
 
 

@@ -16,9 +16,9 @@ import msgpack
 import pytest
 import yaml
 
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.core.queries import deadline_s
 from bridge.errors import MissionError
-from bridge.mission.loader import load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.runtime.zenoh_queries import format_parameters, parse_parameters
 from bridge.wire.frame import FrameCodec

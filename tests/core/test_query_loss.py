@@ -9,9 +9,9 @@ import random
 import pytest
 
 from bridge.core.link import LinkState
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.core.node import NodeCore
 from bridge.core.queries import ANSWERS_KEPT, LocalGet, QueryAnswer, QueryEnd, deadline_s
-from bridge.mission.loader import load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire import queries as wire_queries
 from bridge.wire.queries import QID_BITS, ReplyStatus

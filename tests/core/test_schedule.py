@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+from bridge.core.loaded import load_mission
 from bridge.core.mac import FreeSchedule, TdmaSchedule
 from bridge.core.store import OutboundStore
-from bridge.mission.loader import load_mission
 from bridge.mission.model import NoMac, TdmaMac
 from tests.conftest import MISSIONS
 
@@ -99,7 +99,7 @@ def test_free_schedule_min_gap() -> None:
 
 
 def test_a_value_arriving_while_its_frame_is_sent_stays_due() -> None:
-    from bridge.mission.loader import load_mission
+    from bridge.core.loaded import load_mission
     from tests.conftest import MISSIONS
 
     table = load_mission(MISSIONS / "morph.yaml").table
@@ -197,18 +197,3 @@ def test_link_watch_told_the_hearing_times_finds_every_link_change() -> None:
                     _look(watch, thresholds, heard, seen, now)
             _look(watch, thresholds, heard, seen, now)
             assert seen == {p: thresholds.state(heard.get(p), now) for p in peers}
-
-
-def test_lone_due_names_the_one_channel_due_and_only_it() -> None:
-    store = lsv_store()
-    target, nav = MORPH.table.by_name("target_reference"), MORPH.table.by_name("nav")
-    assert store.lone_due(0.0) is None  # nothing
-    store.update(target.index, 0, 1, now=0.0)
-    assert store.lone_due(0.0) is store.states[target.index]
-    for element in range(len(nav.elements)):
-        store.update(nav.index, element, 1, now=0.0)
-    assert store.lone_due(0.0) is None  # two due
-    store.mark_sent([store.states[nav.index]], 0.0)
-    assert store.lone_due(0.0) is store.states[target.index]
-    store.mark_sent([store.states[target.index]], 0.0)
-    assert store.lone_due(0.0) is None

@@ -16,8 +16,8 @@ import yaml
 import zenoh
 
 from bridge.cli.sim_fast import run_fast
+from bridge.core.loaded import parse_mission
 from bridge.core.surfacing import Relay
-from bridge.mission.loader import parse_mission
 from bridge.mission.path import Path
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.sim.scenario import surface_script, surface_windows

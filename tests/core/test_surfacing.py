@@ -9,8 +9,8 @@ from pathlib import Path
 import msgpack
 import yaml
 
+from bridge.core.loaded import load_mission
 from bridge.core.surfacing import Relay
-from bridge.mission.loader import load_mission
 from bridge.runtime.surface_wifi import access_point
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.payloads import encode_payload

@@ -27,10 +27,10 @@ from typing import Any
 import msgpack
 
 from bridge.core.events import Event
+from bridge.core.loaded import LoadedMission, load_mission, parse_mission
 from bridge.core.node import Publish, Status
 from bridge.core.surfacing import Relay
 from bridge.errors import DecodeError, EncodeError
-from bridge.mission.loader import LoadedMission, load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet, Timed
 
 HERE = Path(__file__).resolve().parent

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.dccl import load_message
-from bridge.dccl.goby import GobyFrameCodec, decode_repeated, encode_repeated, frame_codec_for
 from bridge.errors import DecodeError, FrameError, MissionError
-from bridge.mission.check import check_mission
-from bridge.mission.loader import load_mission, parse_mission
+from bridge.report.check import check_mission
+from bridge.wire.goby import GobyFrameCodec, decode_repeated, encode_repeated, frame_codec_for
 from tests.conftest import on_free_ports, udp_ports
 from tests.dccl.test_mission import EXAMPLE, NAV
 from tests.harness import Inbox, outside_session, put, running_fleet

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import get_args
 
 import pytest
 
-from bridge.dccl import load_message
+from bridge.core.loaded import load_mission, parse_mission
+from bridge.dccl import DEFAULT_RULE, RULES, load_message
 from bridge.dccl.layout import DcclLayout
 from bridge.errors import MissionError
-from bridge.mission.check import check_mission
-from bridge.mission.loader import load_mission, parse_mission
+from bridge.mission.model import Dccl
+from bridge.report.check import check_mission
 from tests.dccl.conftest import PROTOS
 
 EXAMPLE = Path(__file__).parents[2] / "deploy" / "missions" / "goby_dccl.yaml"
@@ -98,7 +100,7 @@ def test_synthetic_values_for_simulations_are_valid() -> None:
 def test_payload_schema_accepts_what_the_message_encodes() -> None:
     import jsonschema
 
-    from bridge.mission.payload_schema import adapt_schema
+    from bridge.wire.payload_schema import adapt_schema
 
     table = load_mission(EXAMPLE).table
     nav = adapt_schema(table.by_name("nav").elements[0].layout.json_schema(), "in")
@@ -145,3 +147,71 @@ def test_fingerprint_depends_on_the_bits_not_on_where_the_proto_is(tmp_path: Pat
                                "m.yaml")
         prints.append(loaded.table.fingerprint)
     assert prints[0] == prints[1] != prints[2]
+
+
+def _with_dccl(dccl: str, element: str) -> str:
+    """A mission whose `dccl:` section is ``dccl`` (YAML lines) and whose element is
+    ``element``."""
+    return _mission(element).replace("channels:", f"dccl:\n{dccl}\nchannels:", 1)
+
+
+def test_the_mission_picks_the_numeric_rule_and_check_says_it() -> None:
+    """dccl-4.2 (the latest release's rule) unless the mission says dccl-2026; the two write
+    Tie{x: 0.25} differently, so they are different wires (fingerprints)."""
+    element = f"        dccl: {PROTOS}/golden.proto:Tie"
+    default = parse_mission(_mission(element), "m.yaml")
+    chosen = parse_mission(_with_dccl("  numeric: dccl-2026", element), "m.yaml")
+    layouts = [m.table.channels[0].elements[0].layout for m in (default, chosen)]
+    assert [lay.message.rule for lay in layouts] == ["dccl-4.2", "dccl-2026"]
+    assert [lay.encode({"x": 0.25}).hex() for lay in layouts] == ["0c03", "0c02"]
+    assert default.table.fingerprint != chosen.table.fingerprint
+    numeric = check_mission(chosen).data["dccl_numeric"]
+    assert numeric == {"rule": "dccl-2026", "libdccl": RULES["dccl-2026"]}
+
+
+def test_the_cli_check_prints_the_rule() -> None:
+    from typer.testing import CliRunner
+
+    from bridge.cli.app import app
+
+    result = CliRunner().invoke(app, ["check", str(EXAMPLE), "--no-key"])
+    assert f"DCCL numeric rule: dccl-4.2, as {RULES['dccl-4.2']}" in result.output
+
+
+def test_an_unknown_rule_is_refused_with_the_choices() -> None:
+    with pytest.raises(MissionError) as info:
+        parse_mission(_with_dccl("  numeric: dccl-5", f"        dccl: {PROTOS}/golden.proto:Tie"),
+                      "m.yaml")
+    assert "m.yaml:" in str(info.value) and "dccl.numeric" in str(info.value)
+    assert "'dccl-4.2' or 'dccl-2026'" in str(info.value)
+
+
+def test_the_mission_model_offers_exactly_the_rules() -> None:
+    """The mission file's choices and default are bridge.dccl's rules (the model stays free of
+    DCCL imports)."""
+    field = Dccl.model_fields["numeric"]
+    assert set(get_args(field.annotation)) == set(RULES)
+    assert field.default == DEFAULT_RULE
+
+
+def test_proto_path_is_an_include_path_from_the_mission_file(tmp_path: Path) -> None:
+    """An import found only in a proto_path folder (relative to the mission file) loads; without
+    proto_path, protoc's own message at the importing line."""
+    (tmp_path / "defs").mkdir()
+    (tmp_path / "inc" / "lab").mkdir(parents=True)
+    (tmp_path / "inc" / "lab" / "units.proto").write_text(
+        'syntax = "proto2";\npackage lab;\nenum Unit { METRE = 0; FOOT = 1; }\n')
+    (tmp_path / "defs" / "m.proto").write_text(
+        'syntax = "proto2";\nimport "dccl/option_extensions.proto";\nimport "lab/units.proto";\n'
+        "message M {\n  option (dccl.msg) = { id: 3 max_bytes: 4 codec_version: 4 };\n"
+        "  required lab.Unit unit = 1;\n}\n")
+    element = "        dccl: defs/m.proto:M"
+    (tmp_path / "ok.yaml").write_text(_with_dccl("  proto_path: [inc]", element))
+    layout = load_mission(tmp_path / "ok.yaml").table.channels[0].elements[0].layout
+    assert layout.message.decode(layout.encode({"unit": "FOOT"})) == {"unit": "FOOT"}
+    (tmp_path / "bad.yaml").write_text(_mission(element))
+    with pytest.raises(MissionError, match=r'm.proto:3: Import "lab/units.proto" was not found'):
+        load_mission(tmp_path / "bad.yaml")
+    (tmp_path / "gone.yaml").write_text(_with_dccl("  proto_path: [nowhere]", element))
+    with pytest.raises(MissionError, match=r"proto_path .*nowhere.* is not a folder"):
+        load_mission(tmp_path / "gone.yaml")

@@ -1,7 +1,7 @@
 """libdccl's own test messages and the behaviour its tests assert, as zab's test data.
 
 GobySoft/dccl ``src/test/dccl_min_repeat`` (``test.cpp`` and ``test.proto``, restated in
-``protos/dccl_min_repeat.proto``): a list longer than ``max_repeat`` loses its tail (non-strict),
+``protos/libdccl/min_repeat.proto``): a list longer than ``max_repeat`` loses its tail (non-strict),
 one shorter than ``min_repeat`` is filled with the field's ``min``, and the three invalid
 messages are refused at load. The hex is derived by hand (see each docstring).
 """
@@ -13,7 +13,7 @@ import pytest
 from bridge.dccl import DcclRangeError, DcclSchemaError, load_message
 from tests.dccl.conftest import PROTOS
 
-FILE = PROTOS / "dccl_min_repeat.proto"
+FILE = PROTOS / "libdccl" / "min_repeat.proto"
 
 
 def test_min_and_max_repeat_golden() -> None:

@@ -24,7 +24,7 @@ from bridge.cli.doctor import (
     run_doctor,
     state_findings,
 )
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
 from bridge.modems.evologics.emulator import EvologicsEmulator
 from bridge.modems.micromodem.emulator import MicromodemEmulator
 from bridge.modems.setup import modem_setup

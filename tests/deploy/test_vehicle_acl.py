@@ -21,7 +21,7 @@ import pytest
 import zenoh
 
 from bridge.core.interest import output_keys
-from bridge.mission.loader import load_mission
+from bridge.core.loaded import load_mission
 from tests.conftest import MISSIONS, free_port
 from tests.deploy.test_deploy_kit import _on_loopback
 from tests.deploy.tls_kit import bridge_socket_config, close, local_config, wait

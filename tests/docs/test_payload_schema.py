@@ -11,7 +11,7 @@ import jsonschema
 from typer.testing import CliRunner
 
 from bridge.cli.app import app
-from bridge.mission.payload_schema import json_view, key_schemas, write_payload_schemas
+from bridge.wire.payload_schema import json_view, key_schemas, write_payload_schemas
 from tests.conftest import MISSIONS, on_free_ports, udp_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 
@@ -65,7 +65,7 @@ def test_schemas_of_every_example_mission_are_valid_2020_12(tmp_path: Path) -> N
 
 
 def test_keys_and_directions_follow_the_templates() -> None:
-    entries = {(e.direction, e.key): e for e in key_schemas(_rich())}
+    entries = {(e.direction, e.key): e for e in key_schemas(_rich().table)}
     assert set(entries) == {("in", "a/status"), ("out", "a/status_at_b")}
     out = entries[("out", "a/status_at_b")].schema
     assert out["properties"]["mode"] == {"enum": ["idle", "survey", "home"]}
@@ -79,7 +79,7 @@ def test_keys_and_directions_follow_the_templates() -> None:
 
 def test_a_real_decoded_payload_validates(tmp_path: Path) -> None:
     loaded = _rich()
-    files = write_payload_schemas(loaded, tmp_path)
+    files = write_payload_schemas(loaded.table, loaded.mission.mission, tmp_path)
     schemas = {json.loads(p.read_text())["$id"]: json.loads(p.read_text())
                for p in files if p.name != "index.json"}
     in_schema, out_schema = schemas["zab:rich/in/a/status"], schemas["zab:rich/out/a/status_at_b"]

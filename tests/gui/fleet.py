@@ -7,7 +7,7 @@ import time
 
 import yaml
 
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
 from tests.harness import outside_session, put
 
 # A small, quick fleet: a 2.1 s TDMA cycle, links down after 5 s of silence.

@@ -6,10 +6,10 @@ import msgpack
 import pytest
 import yaml
 
+from bridge.core.loaded import LoadedMission, load_mission, parse_mission
 from bridge.errors import MissionError
 from bridge.gui.commands import Command, CommandBook, CommandError, command_channels
 from bridge.gui.model import GuiModel
-from bridge.mission.loader import LoadedMission, load_mission, parse_mission
 from tests.conftest import MISSIONS
 
 

@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING
 import msgpack
 import pytest
 
+from bridge.core.loaded import LoadedMission, load_mission
 from bridge.gui.model import GuiModel
-from bridge.mission.loader import LoadedMission, load_mission
 from bridge.ranging.tracker import Estimate
 from tests.conftest import MISSIONS
 from tests.gui.test_browser import CHROMIUM

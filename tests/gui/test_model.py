@@ -7,9 +7,9 @@ import json
 import msgpack
 import pytest
 
+from bridge.core.loaded import LoadedMission, load_mission
 from bridge.gui.keys import SurfaceKeys
 from bridge.gui.model import GuiModel, shown
-from bridge.mission.loader import LoadedMission, load_mission
 from tests.conftest import MISSIONS
 
 MSGPACK = "application/msgpack"

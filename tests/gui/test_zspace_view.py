@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import msgpack
 
+from bridge.core.loaded import load_mission
 from bridge.gui.model import GuiModel
-from bridge.mission.loader import load_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 

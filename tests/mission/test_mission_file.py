@@ -9,8 +9,8 @@ import pytest
 from typer.testing import CliRunner
 
 from bridge.cli.app import app
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.errors import MissionError
-from bridge.mission.loader import load_mission, parse_mission
 
 GOOD = """\
 mission: tiny

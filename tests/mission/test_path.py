@@ -9,7 +9,7 @@ import time
 import pytest
 
 from bridge.mission.path import Path, rectangle
-from bridge.modems.presets import Preset
+from bridge.mission.presets import Preset
 from bridge.sim.ocean import Delivery, LossCurve, Ocean
 from bridge.sim.protocol import pack, read_message
 from bridge.sim.service import WaterService

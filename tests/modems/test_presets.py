@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bridge.modems.presets import PRESETS, Preset, UnknownPresetError, get_preset
+from bridge.mission.presets import PRESETS, Preset, UnknownPresetError, get_preset
 
 
 def test_evologics_matches_seed_000_timing() -> None:

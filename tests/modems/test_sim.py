@@ -13,8 +13,8 @@ from typing import Any
 import pytest
 
 from bridge.errors import BackendError
+from bridge.mission.presets import Preset
 from bridge.modems.base import ModemSetup, Reception
-from bridge.modems.presets import Preset
 from bridge.modems.sim import SimBackend
 from bridge.sim.ocean import LossCurve
 from bridge.sim.service import WaterService, serve_water

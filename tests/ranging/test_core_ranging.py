@@ -7,8 +7,8 @@ import math
 import yaml
 
 from bridge.core.events import Event, Position, Range, RangeFailed
+from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore, Status
-from bridge.mission.loader import parse_mission
 from bridge.modems.base import ModemRange, Reception
 
 MISSION = {
@@ -31,10 +31,12 @@ def test_ranges_turns_and_no_fix_without_dlbl() -> None:
     core = NodeCore(parse_mission(yaml.safe_dump(MISSION)), "auv")
     assert core.positioning is not None and not core.table.dlbl  # ranging.ping alone needs it
     assert core.next_due() == -math.inf  # a range is due at once, even with no data
-    assert core.range_due(100.0) == 1
-    core.range_asked(1, 100.0)
-    core.last_tx = 100.0  # the heartbeat is not what is due next
-    assert core.range_due(101.0) is None and core.next_due() == 105.0
+    ranges = core.ranges
+    assert ranges is not None
+    assert ranges.due(100.0) == 1
+    ranges.asked("a1", 100.0, None)
+    core.outbound.last_tx = 100.0  # the heartbeat is not what is due next
+    assert ranges.due(101.0) is None and core.next_due() == 105.0
     core.modem_range(ModemRange(1, math.dist((30, 20), (0, 0)) / 1500.0, "ping", 101.0), 101.5)
     out = core.take()
     status = {o.topic: o.payload for o in out if isinstance(o, Status)}
@@ -44,12 +46,12 @@ def test_ranges_turns_and_no_fix_without_dlbl() -> None:
                                   "anchors": ["a1"], "time": 101.5,
                                   "detail": status["position"]["detail"]}
     assert [type(o) for o in out if isinstance(o, Event)] == [Range, Position]
-    assert core.range_due(105.0) == 2  # the other anchor's turn
-    core.range_asked(2, 105.0, "no ping reply")
+    assert ranges.due(105.0) == 2  # the other anchor's turn
+    ranges.asked("a2", 105.0, "no ping reply")
     (failed,) = core.take()
     assert failed == RangeFailed(105.0, "a2", "no ping reply")
-    assert core.range_due(200.0) is None  # the opportunity after a range goes to frames
-    assert core.range_due(200.0) == 1
+    assert ranges.due(200.0) is None  # the opportunity after a range goes to frames
+    assert ranges.due(200.0) == 1
     core.modem_range(ModemRange(2, math.dist((30, 20), (0, 40)) / 1500.0, "ping", 106.0), 106.0)
     fix = next(o.payload for o in core.take() if isinstance(o, Status) and o.topic == "position")
     assert fix["fix"] is True and abs(fix["x"] - 30) < 1e-6 and abs(fix["y"] - 20) < 1e-6
@@ -60,7 +62,7 @@ def test_ranges_turns_and_no_fix_without_dlbl() -> None:
     assert peer.positioning is None  # a1 is only ranged to
     assert peer.next_due(100.0) == 3700.0  # its first heartbeat, one period after its start
     core.ingest("n", b'{"v": 4}', "application/json", 110.0)
-    frame = core.build_frame(110.0, 110.0)
+    frame = core.outbound.build(110.0, 110.0)
     assert frame is not None
     peer.receive(Reception(frame.data, 3, 111.0), 111.0)
     assert peer.stats.frames_received == 1

@@ -8,7 +8,7 @@ import math
 
 import yaml
 
-from bridge.mission.loader import parse_mission
+from bridge.core.loaded import parse_mission
 from bridge.mission.path import Path
 from bridge.ranging.tracker import RangeObs
 from bridge.runtime.virtual_fleet import FastFleet

@@ -12,8 +12,8 @@ import time
 import pytest
 import yaml
 
+from bridge.core.loaded import parse_mission
 from bridge.core.node import Status
-from bridge.mission.loader import parse_mission
 from bridge.mission.path import Path
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import on_free_ports

@@ -7,9 +7,9 @@ import math
 import pytest
 import yaml
 
+from bridge.core.loaded import parse_mission
 from bridge.core.positioning import Positioning, needs_positioning, ping_plan
 from bridge.errors import MissionError
-from bridge.mission.loader import parse_mission
 from bridge.mission.model import Mission
 from bridge.ranging import Fix, NoFix, SoundSpeed, mackenzie
 

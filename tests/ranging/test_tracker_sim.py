@@ -11,7 +11,7 @@ import numpy as np
 
 from bridge.cli.sim_fast import run_fast
 from bridge.core.events import Event, Position
-from bridge.mission.loader import load_mission
+from bridge.core.loaded import load_mission
 from bridge.mission.path import Path
 from bridge.ranging.seed001 import NEES_BOUNDS_2D, percentile
 from bridge.ranging.tracker import Estimate

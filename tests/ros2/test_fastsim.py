@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from bridge.mission.loader import load_mission
+from bridge.core.loaded import load_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 from tests.ros2.test_messages import GOLDEN, ODOM

@@ -10,9 +10,9 @@ from collections.abc import Iterator
 import pytest
 import zenoh
 
-from bridge.mission.loader import parse_mission
+from bridge.core.loaded import parse_mission
 from bridge.ros2.attachment import Attachment, from_bridge
-from bridge.ros2.graph import Ros2Graph
+from bridge.runtime.ros2_graph import Ros2Graph
 from tests.conftest import free_port
 from tests.ros2.test_mission import MISSION, ODOM_KEY
 

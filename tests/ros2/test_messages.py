@@ -8,9 +8,9 @@ from rosbags.typesys import Stores, get_typestore
 
 from bridge.codec import Layout
 from bridge.errors import DecodeError, EncodeError
+from bridge.mission.ros2 import Ros2Topic
 from bridge.ros2 import messages
 from bridge.ros2.element import compile_ros2
-from bridge.ros2.spec import Ros2Topic
 
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
 ODOM = "nav_msgs/msg/Odometry"

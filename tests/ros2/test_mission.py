@@ -6,9 +6,9 @@ import pytest
 from rosbags.typesys import Stores, get_typestore
 
 from bridge.core.events import PayloadDrops
+from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore, Publish
 from bridge.errors import MissionError
-from bridge.mission.loader import parse_mission
 from bridge.modems.base import Reception
 from tests.conftest import MISSIONS
 from tests.ros2.test_messages import GOLDEN, ODOM, odometry
@@ -118,7 +118,7 @@ def test_a_value_crosses_from_core_to_core_as_a_complete_message() -> None:
     loaded = load()
     auv, ship = NodeCore(loaded, "auv1"), NodeCore(loaded, "ship")
     auv.ingest("0/auv1/odom/*/*", odometry(x=-12.344), "", 1.0, sample_key=ODOM_KEY)
-    frame = auv.build_frame(1.0, 1.0)
+    frame = auv.outbound.build(1.0, 1.0)
     assert frame is not None
     ship.receive(Reception(frame.data, 2, 1.5), 1.5)
     (out,) = [o for o in ship.take() if isinstance(o, Publish)]

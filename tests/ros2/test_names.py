@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from bridge.mission.ros2 import NameError_, check_topic, dds_type_name
 from bridge.ros2.names import (
-    NameError_,
     Qos,
-    check_topic,
-    dds_type_name,
     entity_token,
     node_name_for,
     node_token,

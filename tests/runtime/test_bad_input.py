@@ -18,8 +18,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bridge.codec.layout import Layout
+from bridge.core.loaded import LoadedMission
 from bridge.errors import DecodeError, EncodeError, FrameError
-from bridge.mission.loader import LoadedMission
 from bridge.modems.base import ModemSetup
 from bridge.modems.udp import UdpBackend
 from bridge.runtime.fleet import Fleet

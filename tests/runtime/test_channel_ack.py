@@ -6,7 +6,7 @@ import asyncio
 
 import msgpack
 
-from bridge.mission.loader import parse_mission
+from bridge.core.loaded import parse_mission
 from bridge.modems.base import ModemBackend, ModemSetup, Reception
 from bridge.runtime.zenoh_node import BridgeNode
 

@@ -122,32 +122,31 @@ def test_steady_traffic_does_not_wake_the_loop_per_frame() -> None:
         assert c.frames_sent() == ["fleet"] * (sent + 1)  # every event arrived, on the loop
 
 
-def test_after_the_first_frame_samples_go_by_express_and_their_books_follow() -> None:
-    """From the Zenoh callback, a sample the last frame's clearance admits goes by express
-    (the store, the MAC and the counters later, with the books): every value arrives, in
-    order, and the counters, the store and the events end where the lane would leave them."""
+def test_each_sample_leaves_from_the_zenoh_callback_with_its_books_kept_at_once() -> None:
+    """The one path, called from the Zenoh callback: every sample's frame is sent on Zenoh's
+    thread, in order, and the node's counters and store are up to date as it leaves."""
     with crossing() as c:
         node = c.fleet.nodes["a"]
-        core = node.core
-        expressed: list[int] = []
-        plain = core.express
+        backend = node.backend
+        assert backend is not None
+        threads: list[str] = []
+        plain = backend.send_now
 
-        def counted(*args):  # type: ignore[no-untyped-def]
-            express = plain(*args)
-            if express is not None:
-                expressed.append(express[1])
-            return express
+        def counted(*args, **kwargs):  # type: ignore[no-untyped-def]
+            threads.append(threading.current_thread().name)
+            return plain(*args, **kwargs)
 
-        core.express = counted  # type: ignore[method-assign]
+        backend.send_now = counted  # type: ignore[method-assign]
         sent = 20
         for n in range(sent):
             put(c.app, "cmd", {"n": n})
             assert c.inbox.get(5)[1] == {"n": n}
+            with node.lock:
+                assert node.stats.frames_sent == n + 1  # kept as the frame left, not later
             time.sleep(0.02)
-        assert expressed == list(range(1, sent))  # all but the first, which takes the lane
-        time.sleep(3 * EVENTS_S)  # the loop's timer keeps the books
-        assert node.stats.frames_sent == sent
-        state = core.store.states[0]
+        assert len(threads) == sent and "fleet" not in threads  # never the loop's thread
+        state = node.core.store.states[0]
         assert state.sends == sent and state.packed == [sent - 1] and not state.fresh
+        time.sleep(3 * EVENTS_S)  # the events reach the loop
         assert c.frames_sent() == ["fleet"] * sent
         assert c.fleet.nodes["b"].stats.values_published == sent

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from bridge.core.loaded import LoadedMission, load_mission, parse_mission
 from bridge.core.node import Publish
-from bridge.mission.loader import LoadedMission, load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 

@@ -13,9 +13,9 @@ from typer.testing import CliRunner
 from bridge.cli.app import app
 from bridge.cli.sim_fast import run_fast
 from bridge.core.events import FrameSent
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.core.mac import PolledSchedule
 from bridge.core.node import Status
-from bridge.mission.loader import load_mission, parse_mission
 from bridge.runtime.virtual_fleet import FastFleet, Timed
 from tests.conftest import MISSIONS
 

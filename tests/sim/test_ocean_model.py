@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from bridge.modems.presets import Preset, get_preset
+from bridge.mission.presets import Preset, get_preset
 from bridge.sim.ocean import Delivery, Loss, LossCurve, Ocean, TransmitRefused, TxDone
 
 # 0.1 s overhead + 1 ms per byte; sound at 1500 m/s; heard up to 3 km.

@@ -8,13 +8,7 @@ import struct
 import msgpack
 import pytest
 
-from bridge.sim.protocol import (
-    MAX_MESSAGE_BYTES,
-    MessageReader,
-    ProtocolError,
-    pack,
-    read_message,
-)
+from bridge.sim.protocol import MAX_MESSAGE_BYTES, MessageReader, ProtocolError, pack, read_message
 
 MSGS = [
     {"t": "hello", "v": 1, "addr": 3, "name": "auv", "pos": [1.0, 2.0, 3.0]},

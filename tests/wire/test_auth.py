@@ -6,9 +6,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bridge.core.loaded import parse_mission
 from bridge.errors import FrameError, MissionError
-from bridge.mission.loader import parse_mission
-from bridge.wire.auth import Authenticator, load_key
+from bridge.runtime.keys import load_key
+from bridge.wire.auth import Authenticator
 from bridge.wire.frame import CHECK_BYTES, FrameCodec, check_value
 from tests.conftest import MISSIONS
 

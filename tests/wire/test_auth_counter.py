@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pytest
 
+from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore, Publish
+from bridge.core.reception import Reception
 from bridge.errors import FrameError
-from bridge.mission.loader import parse_mission
 from bridge.modems.base import ModemSetup
-from bridge.modems.reception import Reception
 from bridge.modems.udp import UdpBackend
 from bridge.runtime.state_file import StateFile
 from bridge.wire.auth import RESERVE_BLOCK, Authenticator

@@ -9,10 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bridge.core.builder import plan_frame
+from bridge.core.loaded import parse_mission
 from bridge.core.store import OutboundStore
 from bridge.errors import DecodeError, FrameError
-from bridge.mission.loader import parse_mission
-from bridge.wire.auth import Authenticator
 from bridge.wire.frame import NO_DELAY, FrameCodec, check_value
 from tests.conftest import MISSIONS
 
@@ -72,32 +71,6 @@ def test_random_bodies_with_valid_check_raise_only_frame_error(body: bytes) -> N
     check = check_value(body, MORPH.table.fingerprint)
     with contextlib.suppress(FrameError):
         CODEC.decode(body + check)
-
-
-PLAIN = parse_mission(MORPH_TEXT.replace("dlbl: true", "dlbl: false"), "plain.yaml").table
-STREAMS = parse_mission(MORPH_TEXT.replace("dlbl: true", "dlbl: false").replace(
-    "    latching: false", "    latching: false\n    reliable: true", 1), "streams.yaml").table
-
-
-@settings(max_examples=300, deadline=None)
-@given(st.sampled_from([PLAIN, STREAMS]), st.data(), st.integers(0, 255))
-def test_lone_frame_is_the_frame_encode_builds(table, data: st.DataObject, epoch: int) -> None:
-    """The direct path's frame of one channel is byte for byte :meth:`FrameCodec.encode`'s."""
-    codec = FrameCodec(table)
-    channel = data.draw(st.sampled_from(table.channels))
-    payload = data.draw(st.integers(0, (1 << channel.wire_bits) - 1))
-    lone = codec.lone(channel, epoch)
-    assert lone is not None
-    assert lone(payload) == codec.encode([(channel, payload)], (), epoch)
-
-
-def test_no_lone_frame_where_a_frame_needs_more_than_its_entry() -> None:
-    """DLBL delays and authentication are worked out per frame: encode builds those."""
-    assert CODEC.lone(MORPH.table.channels[0]) is None  # DLBL
-    sealed = parse_mission((MISSIONS / "morph.yaml").read_text().replace(
-        "dlbl: true", "dlbl: false"), "sealed.yaml").table
-    assert FrameCodec(sealed, Authenticator(b"k" * 16, sealed.fingerprint, 1, 4)).lone(
-        sealed.channels[0]) is None
 
 
 def test_minimum_overhead_and_one_channel_size() -> None:

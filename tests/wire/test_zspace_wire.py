@@ -9,9 +9,9 @@ import contextlib
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bridge.core.loaded import load_mission
 from bridge.core.node import NodeCore
 from bridge.errors import FrameError
-from bridge.mission.loader import load_mission
 from bridge.modems.base import Reception
 from bridge.wire.frame import FrameCodec, check_value
 from tests.conftest import MISSIONS
@@ -38,7 +38,7 @@ def test_a_core_survives_any_frame_that_passes_the_check(body: bytes, src: int,
     core = NodeCore(LOADED, node)
     core.receive(Reception(sealed(body), src, 0.0), 0.0)
     core.tick(100.0)  # open queries expire, links settle
-    core.build_frame(100.0, 100.0)
+    core.outbound.build(100.0, 100.0)
     core.take()
     stats = core.stats  # the frame was used or counted as dropped, never lost silently
     assert stats.frames_received + sum(stats.frames_dropped.values()) >= 1
@@ -67,7 +67,7 @@ def test_a_core_survives_random_entries_of_every_kind(frame: bytes, src: int,
     core = NodeCore(LOADED, node)
     core.receive(Reception(frame, src, 0.0), 0.0)
     core.tick(100.0)
-    core.build_frame(100.0, 100.0)
+    core.outbound.build(100.0, 100.0)
     core.take()
     stats = core.stats  # the frame was used or counted as dropped, never lost silently
     assert stats.frames_received + sum(stats.frames_dropped.values()) >= 1

@@ -63,6 +63,7 @@ __all__ = [
     "RecvImLegacy",
     "RecvIms",
     "RecvPbm",
+    "RecvPbmLegacy",
     "RecvStart",
     "SendEnd",
     "SendStart",
@@ -349,6 +350,39 @@ class RecvPbm(_Typed):
     velocity: float
     data: bytes = b""
     pid: int | None = None
+
+
+@dataclass(frozen=True)
+class RecvPbmLegacy(_Typed):
+    """``RECVPBM`` of firmware 1.6: bitrate and propagation time in place of duration, as in
+    its ``RECVIM`` [C: by analogy with the 1.6 ``RECVIM`` of DUNE; no 1.6 ``RECVPBM`` is in a
+    stored source]."""
+
+    NAME: ClassVar[str] = "RECVPBM"
+    PAYLOAD: ClassVar[bool] = True
+    src: int
+    dst: int
+    bitrate: int
+    rssi: int
+    integrity: int
+    ptime_us: int
+    velocity: float
+    data: bytes = b""
+    pid: int | None = None
+
+
+LEGACY: dict[bytes, type[_Typed]] = {b"RECVIM": RecvImLegacy, b"RECVPBM": RecvPbmLegacy}
+"""Firmware 1.6's layouts of the length-framed lines that changed in 1.7 (DUNE)."""
+
+
+def firmware_is_legacy(version: str) -> bool:
+    """Whether an ``ATI0`` reply (``1.6``, ``1.9``, ``2.0.1`` ...) names firmware older than
+    1.7, which prints ``RECVIM``/``RECVPBM`` in the 1.6 layout [V DUNE]; ``ValueError`` if it
+    is not a version."""
+    match = re.match(r"\s*(\d+)\.(\d+)", version)
+    if match is None:
+        raise ValueError(f"not a firmware version: {version!r}")
+    return (int(match[1]), int(match[2])) < (1, 7)
 
 
 @dataclass(frozen=True)
@@ -645,7 +679,8 @@ def _payload_event(
     """
     cls: type[_Typed] | None = None
     if name != b"NOISE":
-        cls = RecvImLegacy if name == b"RECVIM" and legacy_recvim else _TYPED[name.decode()]
+        cls = LEGACY.get(name) if legacy_recvim else None
+        cls = cls or _TYPED[name.decode()]
     header = _payload_header(rest, cls.n_fields() if cls is not None else 3)
     if header is None:
         if whole:
@@ -676,7 +711,7 @@ class HostProtocol:
     """The host's view of one modem port: feed bytes, read events, serialise commands.
 
     ``eol`` is what ends a host command: ``b"\\r"`` on serial, ``b"\\n"`` on Ethernet [V].
-    ``legacy_recvim`` parses ``RECVIM`` in the firmware-1.6 layout.
+    ``legacy_recvim`` parses ``RECVIM`` and ``RECVPBM`` in the firmware-1.6 layout.
     """
 
     mode: Mode = Mode.DATA

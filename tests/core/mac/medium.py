@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from bridge.core.mac import Schedule
-from bridge.modems.presets import Preset
+from bridge.mission.presets import Preset
 from bridge.sim.ocean import Delivery, Loss, Ocean, Position, TransmitRefused
 
 

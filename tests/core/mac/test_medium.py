@@ -9,7 +9,7 @@ import pytest
 
 from bridge.core.mac import AlohaSchedule, FreeSchedule, PolledSchedule, RangingSchedule
 from bridge.mission.model import AlohaMac, NoMac, RangingSlots
-from bridge.modems.presets import get_preset
+from bridge.mission.presets import get_preset
 from tests.core.mac.medium import Medium
 
 ACOUSTIC = get_preset("evologics-s2c-im")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
+from bridge.core.loaded import LoadedMission, load_mission, parse_mission
 from bridge.core.mac import (
     AlohaSchedule,
     FreeSchedule,
@@ -13,9 +14,8 @@ from bridge.core.mac import (
     schedule_for,
 )
 from bridge.errors import MissionError
-from bridge.mission.check import check_mission
-from bridge.mission.loader import LoadedMission, load_mission, parse_mission
-from bridge.modems.presets import get_preset
+from bridge.mission.presets import get_preset
+from bridge.report.check import check_mission
 from tests.conftest import MISSIONS
 
 BASE = """\

@@ -11,8 +11,8 @@ from collections import Counter
 import msgpack
 import zenoh
 
+from bridge.core.loaded import parse_mission
 from bridge.core.node import Publish, Status
-from bridge.mission.loader import parse_mission
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import on_free_ports
 from tests.harness import Inbox, outside_session, running_fleet

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from bridge.core.loaded import parse_mission
 from bridge.core.reliable import ReliableReceiver, ReliableSender, seq_after
-from bridge.mission.loader import parse_mission
 from bridge.wire.channels import ChannelTable
 
 MISSION = """\
@@ -173,10 +173,10 @@ def test_a_modem_confirmation_holds_back_retransmission_until_the_ack_entry() ->
     loaded = parse_mission(text)
     core = NodeCore(loaded, "ops")
     core.ingest("cmd", b'{"n": 3}', "application/json", 0.0)
-    out = core.build_frame(0.0, 0.0)
+    out = core.outbound.build(0.0, 0.0)
     assert out is not None and out.dest == 2 and out.ack is True  # unicast, modem ack asked
-    core.frame_sent(out, 0.0, confirmed=True)
-    assert core.build_frame(60.0, 60.0) is None  # confirmed by the modem: not sent again
-    core.frame_sent(core.build_frame(0.0, 0.0, always=True), 0.0)  # an empty frame is fine
+    core.outbound.sent(out, 0.0, confirmed=True)
+    assert core.outbound.build(60.0, 60.0) is None  # confirmed by the modem: not sent again
+    core.outbound.sent(core.outbound.build(0.0, 0.0, always=True), 0.0)  # an empty frame is fine
     sender = core.senders[0]
     assert isinstance(sender, ReliableSender) and sender.flight[0].held == {"auv"}

@@ -7,13 +7,14 @@ with SIGKILL while commands stream.
 
 from __future__ import annotations
 
+import random
 from pathlib import Path
 
 import pytest
 
 from bridge.core.events import Link, MissionMismatch, PeerRestarted
+from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore, Status
-from bridge.mission.loader import parse_mission
 from bridge.modems.base import Reception
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.virtual_fleet import FastFleet
@@ -58,22 +59,22 @@ def test_real_processes_killed_with_sigkill_lose_and_repeat_nothing() -> None:
 
 def frames_between(a: NodeCore, b: NodeCore, now: float) -> None:
     """``a`` sends one frame (if any) and ``b`` hears it."""
-    out = a.build_frame(now, now, always=True)
+    out = a.outbound.build(now, now, always=True)
     assert out is not None
-    a.frame_sent(out, now)
+    a.outbound.sent(out, now)
     b.receive(Reception(out.data, LOADED.mission.address_of(a.node), now, {}), now)
 
 
 def test_a_fresh_receiver_is_resent_what_it_acknowledged_selectively() -> None:
-    ops, auv = NodeCore(LOADED, "ops"), NodeCore(LOADED, "auv")
+    ops, auv = NodeCore(LOADED, "ops"), NodeCore(LOADED, "auv", rng=random.Random(1))
     for n in range(3):
         ops.ingest("cmd", b'{"n": %d}' % n, "application/json", 0.0)
-    first = ops.build_frame(0.0, 0.0)
+    first = ops.outbound.build(0.0, 0.0)
     assert first is not None
-    ops.frame_sent(first, 0.0)  # n=0..2 in flight; the frame is lost
+    ops.outbound.sent(first, 0.0)  # n=0..2 in flight; the frame is lost
     frames_between(auv, ops, 1.0)  # ops learns auv's epoch
     auv.take()
-    fresh = NodeCore(LOADED, "auv")  # auv restarted without its state: a new epoch
+    fresh = NodeCore(LOADED, "auv", rng=random.Random(2))  # restarted without its state
     assert fresh.epoch != auv.epoch
     frames_between(fresh, ops, 2.0)
     assert any(isinstance(o, PeerRestarted) for o in ops.take())
@@ -87,9 +88,9 @@ def test_a_receiver_restarted_from_its_state_file_publishes_nothing_twice(
     ops, auv = NodeCore(LOADED, "ops"), NodeCore(LOADED, "auv")
     state = StateFile(tmp_path, "chaos", "auv")
     ops.ingest("cmd", b'{"n": 7}', "application/json", 0.0)
-    out = ops.build_frame(0.0, 0.0)
+    out = ops.outbound.build(0.0, 0.0)
     assert out is not None
-    ops.frame_sent(out, 0.0)
+    ops.outbound.sent(out, 0.0)
     auv.receive(Reception(out.data, 1, 0.0, {}), 0.0)
     assert auv.needs_save
     state.save(auv.state())  # what the runtime does before publishing
@@ -98,7 +99,7 @@ def test_a_receiver_restarted_from_its_state_file_publishes_nothing_twice(
     assert again.epoch == auv.epoch
     again.receive(Reception(out.data, 1, 5.0, {}), 5.0)  # the sender had no ack: it resends
     assert not [o for o in again.take() if getattr(o, "key", None) == "ops/cmd"]
-    ack = again.build_frame(6.0, 6.0)
+    ack = again.outbound.build(6.0, 6.0)
     assert ack is not None and ack.acks
     ops.receive(Reception(ack.data, 2, 6.0, {}), 6.0)
     states = [o.payload["state"] for o in ops.take()
@@ -112,7 +113,7 @@ def test_a_sender_restarted_from_its_state_resumes_its_values(tmp_path: Path) ->
     state = StateFile(tmp_path, "chaos", "ops")
     state.save(ops.state())
     again = NodeCore(LOADED, "ops", state=state.load())
-    out = again.build_frame(1.0, 1.0)
+    out = again.outbound.build(1.0, 1.0)
     assert out is not None and out.streams
     auv = NodeCore(LOADED, "auv")
     auv.receive(Reception(out.data, 1, 1.0, {}), 1.0)
@@ -142,7 +143,7 @@ def test_a_peer_with_another_mission_file_is_reported_once() -> None:
     other = parse_mission(chaos.mission_text(0.0).replace("max: 65535", "max: 1023"), "o.yaml")
     foreign, ours = NodeCore(other, "ops"), NodeCore(LOADED, "auv")
     for t in (1.0, 2.0, 3.0):
-        out = foreign.build_frame(t, t, always=True)
+        out = foreign.outbound.build(t, t, always=True)
         assert out is not None
         ours.receive(Reception(out.data, 1, t, {}), t)
     dropped = ours.stats.frames_dropped
@@ -170,7 +171,7 @@ def test_links_do_not_go_down_while_frames_keep_arriving_at_30_percent_loss() ->
 
 def test_check_prints_each_streams_retries_ttl_and_bound() -> None:
     from bridge.core.reliable import stream_ttl_s
-    from bridge.mission.check import check_mission
+    from bridge.report.check import check_mission
 
     (limits,) = check_mission(LOADED).data["streams"]
     cycle = 4.0  # two 2 s TDMA slots

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import yaml
 
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
 from bridge.modems.evologics.emulator import run_emulator
 from bridge.sim.ocean import LossCurve
 from bridge.sim.service import WaterService

@@ -12,9 +12,9 @@ from typing import Any
 
 import yaml
 
-from bridge.mission.loader import LoadedMission
+from bridge.core.loaded import LoadedMission
+from bridge.mission.presets import get_preset
 from bridge.modems.micromodem.emulator import run_emulator
-from bridge.modems.presets import get_preset
 from bridge.sim.service import WaterService
 from tests.conftest import MISSIONS, on_free_ports
 from tests.harness import Inbox, outside_session, put, running_fleet

@@ -15,8 +15,6 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from bridge.codec.bits import bits_for
-
 __all__ = ["MAX_BITS", "MAX_BYTES", "MAX_COUNT", "FieldSpec", "FieldType", "OutOfRange"]
 
 FieldType = Literal["float", "int", "bool", "enum", "string", "bytes"]
@@ -28,6 +26,14 @@ MAX_BITS = 64
 MAX_BYTES = 1 << 20  # one value of a string or bytes field; big ones travel fragmented
 #: Longest fixed array (``count``).
 MAX_COUNT = 1024
+
+def bits_for(levels: int) -> int:
+    """Bits needed to tell ``levels`` values apart: ``ceil(log2(levels))`` (0 for one level)."""
+    if levels < 1:
+        raise ValueError(f"levels must be >= 1, got {levels}")
+    return (levels - 1).bit_length()
+
+
 
 _PATH = re.compile(r"^([A-Za-z0-9_\-]+(\.[A-Za-z0-9_\-]+)*)?$")
 _NUMERIC = {"float", "int"}

@@ -18,8 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Any, Literal
 
-from bridge.mission.loader import LoadedMission
-from bridge.wire.channels import ChannelCodec, ElementCodec
+from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 Direction = Literal["in", "out"]
@@ -94,13 +93,13 @@ def _uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, int, ElementC
                 yield "out", element.output_key(src, dst), i, element, dst
 
 
-def key_schemas(loaded: LoadedMission) -> list[KeySchema]:
+def key_schemas(table: ChannelTable) -> list[KeySchema]:
     """Every bridged key's schema, inputs first then outputs, each sorted by key.
 
     A key read (or published) by several channels gets one schema whose ``allOf`` holds each.
     """
     found: dict[tuple[Direction, str], KeySchema] = {}
-    for channel in loaded.table.channels:
+    for channel in table.channels:
         for direction, key, index, element, node in _uses(channel):
             entry = found.get((direction, key))
             schema = _element_schema(element, direction)
@@ -125,12 +124,12 @@ def schema_path(entry: KeySchema) -> PurePosixPath:
     return PurePosixPath(entry.direction, *parts[:-1], f"{parts[-1]}.schema.json")
 
 
-def write_payload_schemas(loaded: LoadedMission, out: Path) -> list[Path]:
-    """Write every key's schema under ``out`` plus ``index.json``; return the files written."""
-    mission = loaded.mission.mission
+def write_payload_schemas(table: ChannelTable, mission: str, out: Path) -> list[Path]:
+    """Write every key's schema of ``mission`` (its channel ``table``) under ``out`` plus
+    ``index.json``; return the files written."""
     written: list[Path] = []
     index = []
-    for entry in key_schemas(loaded):
+    for entry in key_schemas(table):
         relative = schema_path(entry)
         path = out.joinpath(*relative.parts)
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -3,33 +3,25 @@
 from __future__ import annotations
 
 import math
+from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge.core.mac import (
-    TdmaSchedule,
-    aloha_slot_s,
-    busy_s,
-    frame_time_s,
-    mac_report,
-    max_distance_m,
-    node_preset,
-    polled_ipg_s,
-    polled_slaves,
-    ranging_tmax_s,
-)
+from bridge.core.loaded import LoadedMission
+from bridge.core.mac import mac_for, max_distance_m, node_preset
 from bridge.core.queries import deadline_s
 from bridge.core.reliable import default_retry_s, stream_ttl_s
 from bridge.core.transfer import transfer_ttl_s
-from bridge.dccl.goby import frame_codec_for
+from bridge.dccl.numeric import RULES
 from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
-from bridge.mission.loader import LoadedMission
-from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac, TdmaMac
+from bridge.mission.model import Mission
 from bridge.modems.registry import load_backend
+from bridge.modems.setup import modem_options
 from bridge.wire.channels import ChannelCodec
 from bridge.wire.families import has_wildcard
 from bridge.wire.frame import FrameCodec
+from bridge.wire.goby import frame_codec_for
 from bridge.wire.queries import QueryCodec
 
 TICK_S = 1.0  # runtimes look at TTLs at least this often (zab run's health loop)
@@ -92,6 +84,8 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
                 f"channel {c.name!r}: a value ({c.bits} bits) is larger than a frame; it travels "
                 f"in up to {-(-c.value_bytes // c.chunk_bytes)} fragments of {c.chunk_bytes} B")
     nodes = []
+    rules = mac_for(mission)
+    broadcasts: dict[int | None, list[str]] = defaultdict(list)
     for name, node in mission.nodes.items():
         frame_bytes = mission.node_modem(name).frame_bytes
         capacity = codec.body_capacity_bits(frame_bytes) - codec.count_bits
@@ -99,8 +93,14 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         worst = sum(codec.channel_cost_bits(c) * (c.family.bound if c.family else 1)
                     for c in sent)  # every member of a key family at once
         modem = mission.node_modem(name)
+        options = modem_options(mission, name)
         try:
-            limit = load_backend(modem.backend).max_frame_bytes(modem.options)
+            backend = load_backend(modem.backend)
+            limit = backend.max_frame_bytes(options)
+            errors, warnings = backend.setup_problems(options, node.address)
+            report.errors += [f"{name}: {e}" for e in errors]
+            report.warnings += [f"{name}: {w}" for w in warnings]
+            broadcasts[backend.broadcast_address(options)].append(name)
         except BackendError as exc:
             report.errors.append(f"{name}: {exc}")
             limit = None
@@ -134,25 +134,24 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             "fill": round(min(largest, frame_bytes) / frame_bytes, 3),
             "airtime_s": None if airtime is None else round(airtime, 3),
         }
-        if isinstance(mission.mac, TdmaMac):
-            schedule = TdmaSchedule(mission.mac, name)
-            entry["slot_s"] = schedule.usable_s()
-            entry["worst_gap_s"] = schedule.worst_gap_s()
-            if preset is not None:
-                need = preset.frame_time_s(min(largest, frame_bytes),
-                                           max_distance_m(mission, preset))
-                if need > schedule.usable_s():
-                    report.warnings.append(
-                        f"{name}: TDMA slot leaves {schedule.usable_s():.3f} s but a full frame "
-                        f"needs {need:.3f} s (modem latency + airtime {airtime:.3f} s + "
-                        "propagation)"
-                    )
-        mac = mac_report(mission, name, airtime, _data_per_s(sent, mission.link.heartbeat_s))
+        need = None if preset is None else preset.frame_time_s(
+            min(largest, frame_bytes), max_distance_m(mission, preset))
+        extra, warnings = rules.check_node(name, need, airtime)
+        entry.update(extra)
+        report.warnings.extend(warnings)
+        mac = rules.report(name, airtime, _data_per_s(sent, mission.link.heartbeat_s))
         entry["mac"] = {"worst_interval_s": _round(mac.worst_interval_s),
                         "airtime_share": mac.airtime_share, "note": mac.note,
                         "random_access": mac.random_access}
         nodes.append(entry)
-    mac_data = _mac_summary(mission, nodes, report)
+    if len(broadcasts) > 1:  # one fleet, one convention (a Goby node takes 0 as broadcast)
+        said = "; ".join(f"{', '.join(names)}: {'none' if b is None else b}"
+                         for b, names in broadcasts.items())
+        report.warnings.append(f"nodes disagree on the broadcast address ({said}): a frame "
+                               "one sends to every node reaches the others as one to that "
+                               "address (set modem.broadcast once for the mission)")
+    mac_data, warnings = rules.check(nodes)
+    report.warnings.extend(warnings)
     report.data = {
         "streams": [stream_limits(c, mission) for c in table.streams],
         "mission": mission.mission,
@@ -173,6 +172,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "key_entry_bits": None if table.names is None else codec.channel_cost_bits(table.names),
         "channels": channels,
         "dccl": dccl_reports(table),
+        "dccl_numeric": {"rule": mission.dccl.numeric, "libdccl": RULES[mission.dccl.numeric]},
         "nodes": nodes,
         "warnings": report.warnings,
         "errors": report.errors,
@@ -247,55 +247,3 @@ def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 4)
 
 
-def _mac_summary(mission: Mission, nodes: list[dict[str, Any]],
-                 report: CheckReport) -> dict[str, Any]:
-    """Times the MAC uses (given or computed from the presets), with warnings when a given
-    time is shorter than a frame needs, or random access is likely to collide."""
-    mac = mission.mac
-    data: dict[str, Any] = {}
-    if isinstance(mac, PolledMac):
-        ipg = polled_ipg_s(mission, mac)
-        needed = polled_ipg_s(mission, mac.model_copy(update={"ipg_s": None, "guard_s": 0.0}))
-        data.update(ipg_s=_round(ipg), needed_ipg_s=_round(needed),
-                    sequence=list(polled_slaves(mission, mac)))
-        if ipg is not None and needed is not None and ipg < needed:
-            report.warnings.append(
-                f"polled: ipg_s {ipg:.3f} s is shorter than a poll plus the slowest reply "
-                f"({needed:.3f} s: latency + 3 sigma jitter, airtime, propagation); replies "
-                "may collide with the next poll")
-    if isinstance(mac, AlohaMac):
-        slot = aloha_slot_s(mission, mac) if mac.slotted else None
-        data.update(slotted=mac.slotted, slot_s=_round(slot))
-        if slot is not None:
-            for name in mission.nodes:
-                need = frame_time_s(mission, name)
-                if need is not None and need > slot:
-                    report.warnings.append(f"{name}: an aloha slot of {slot:.3f} s is shorter "
-                                           f"than its largest frame needs ({need:.3f} s)")
-    if isinstance(mac, AlohaMac | NoMac):
-        shares = [n["mac"]["airtime_share"] for n in nodes if n["mac"]["random_access"]]
-        if shares and all(x is not None for x in shares):
-            load = sum(shares)
-            data["offered_load"] = round(load, 4)
-            if load > 0.18 and len(shares) > 1:
-                report.warnings.append(
-                    f"{mac.type}: every node at full rate offers a load G = {load:.2f} of the "
-                    "channel; pure ALOHA delivers at most G·e^(-2G) "
-                    f"({load * math.exp(-2 * load):.0%} of the time carries a good frame)")
-        if mac.ranging is not None:
-            tmax_s = ranging_tmax_s(mission, mac.ranging)
-            data.update(ranging_tmax_s=_round(tmax_s))
-            if tmax_s is not None:
-                round_s = (len(mac.ranging.anchors) + 1) * tmax_s
-                data["ranging_round_s"] = round(round_s, 4)
-                if round_s > mac.ranging.interval_s:
-                    report.warnings.append(
-                        f"ranging: a round lasts up to {round_s:.2f} s, longer than "
-                        f"interval_s {mac.ranging.interval_s:g} s: requests follow rounds")
-                for anchor in mac.ranging.anchors:
-                    busy = busy_s(mission, anchor)
-                    if busy is not None and busy > tmax_s:
-                        report.warnings.append(
-                            f"ranging: {anchor}'s largest frame keeps its modem busy "
-                            f"{busy:.3f} s, more than one turn (tmax_s {tmax_s:.3f} s)")
-    return data

@@ -2,11 +2,38 @@
 
 from __future__ import annotations
 
+import re
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from bridge.ros2.names import NameError_, check_topic, dds_type_name
+_TYPE = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)/(msg)/([A-Z][A-Za-z0-9]*)$")
+_TOKEN = re.compile(r"^[A-Za-z_{][A-Za-z0-9_{}]*$")  # one topic name token (templates allowed)
+
+
+class NameError_(ValueError):
+    """A ROS 2 topic or type name that rmw_zenoh could not carry."""
+
+
+def check_topic(topic: str) -> str:
+    """``topic`` if it is an absolute ROS 2 topic name (``/auv1/odom``; ``{src}`` allowed)."""
+    if not topic.startswith("/") or topic.endswith("/") or topic == "/":
+        raise NameError_(f"{topic!r}: a ROS 2 topic here is absolute, like /auv1/odom")
+    for token in topic[1:].split("/"):
+        if not _TOKEN.match(token) or "__" in token:
+            raise NameError_(f"{topic!r}: {token!r} is not a valid ROS 2 name token "
+                             "(letters, digits and single underscores, not starting with a "
+                             "digit)")
+    return topic
+
+
+def dds_type_name(msgtype: str) -> str:
+    """``nav_msgs/msg/Odometry`` -> ``nav_msgs::msg::dds_::Odometry_`` (the name in keys)."""
+    match = _TYPE.match(msgtype)
+    if match is None:
+        raise NameError_(f"{msgtype!r} is not a ROS 2 message type like nav_msgs/msg/Odometry")
+    package, kind, name = match.groups()
+    return f"{package}::{kind}::dds_::{name}_"
 
 
 class Ros2Qos(BaseModel):

@@ -125,10 +125,6 @@ class GobyFrameCodec(FrameCodec):
     def frame_bytes_for(self, channels: Sequence[ChannelCodec | AckCodec]) -> int:
         return sum(c.wire_bits for c in channels) // 8
 
-    def lone(self, channel: ChannelCodec, epoch: int = 0) -> None:
-        """Goby frames are DCCL messages: :meth:`encode` builds each."""
-        return None
-
     def sender_fingerprint(self, frame: bytes) -> int | None:
         """Goby frames carry no check value: nothing tells another mission file apart."""
         return None

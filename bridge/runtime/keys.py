@@ -1,4 +1,5 @@
-"""Does the mission's ``wire.auth`` agree with the frame keys on this machine?
+"""The frame key: where a runtime finds it, and whether the mission's ``wire.auth`` agrees
+with the keys on this machine.
 
 Authentication must never be off by accident. Three states of a mission:
 
@@ -12,13 +13,58 @@ Authentication must never be off by accident. Three states of a mission:
 
 from __future__ import annotations
 
+import functools
 import os
+import secrets
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 from bridge.errors import MissionError
 from bridge.mission.model import Mission
-from bridge.wire.auth import DEFAULT_KEY_ENV, find_key
+
+DEFAULT_KEY_ENV = "ZAB_KEY"
+"""Where operators put the mission key (docs/deploy.md), and where a stray key is looked for."""
+
+
+def find_key(key_env: str, key_file: Path | None) -> bytes | None:
+    """The mission key from the environment variable, else the file (never from the mission);
+    None when neither holds one. A key file that exists but cannot be read is a MissionError."""
+    value = os.environ.get(key_env)
+    if value:
+        return value.encode()
+    if key_file is not None and key_file.exists():
+        try:
+            key = key_file.read_bytes().strip()
+        except OSError as exc:
+            raise MissionError(f"cannot read the frame key file {key_file}: {exc}") from None
+        if key:
+            return key
+    return None
+
+
+def load_key(key_env: str, key_file: Path | None) -> bytes:
+    """The mission key, as :func:`find_key`; MissionError when there is none."""
+    key = find_key(key_env, key_file)
+    if key is None:
+        where = f"${key_env}" + (f" or {key_file}" if key_file else "")
+        raise MissionError(f"wire.auth is on but no key was found in {where}")
+    return key
+
+
+@functools.cache
+def throwaway_key() -> bytes:
+    """A random key, the same for the whole process: what ``zab sim``, ``zab demo`` and test
+    fleets (every node in one process) authenticate with when no mission key is given."""
+    return secrets.token_hex(32).encode()
+
+
+def key_for_run(key_env: str, key_file: Path | None) -> tuple[bytes, bool]:
+    """The mission key if present, else the process's throwaway key; and whether it is the
+    throwaway one (say so: it cannot talk to nodes in other processes)."""
+    key = find_key(key_env, key_file)
+    return (throwaway_key(), True) if key is None else (key, False)
+
 
 MIN_KEY_BYTES = 16  # what the Authenticator accepts
 MAKE_KEY = "openssl rand -hex 32"  # one way to make a key (docs/deploy.md)

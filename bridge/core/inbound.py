@@ -1,0 +1,277 @@
+"""The receiving side of a node (pure): frames in, values and events out.
+
+:meth:`Inbound.receive` checks where a frame comes from (a peer under the same mission file;
+two frames in a row with the same foreign fingerprint say the peer runs another one, or in an
+authenticated mission one whose tag a key holder made under it), decodes
+it (authentication, replay window, check value), tells the MAC and the link what was heard,
+follows the peer's epoch, and hands each entry to what it is for: values to publish (latest,
+released by a reliable window, or reassembled from fragments), acknowledgements to the
+sending side, family names, demand bitmaps and queries to theirs. DLBL delays go to ranging.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from bridge.core.events import FrameDropped, FrameReceived, MissionMismatch, PeerRestarted
+from bridge.core.families import Families
+from bridge.core.interest import Interest
+from bridge.core.link import Links, LinkState
+from bridge.core.mac import Schedule
+from bridge.core.outbound import Outbound
+from bridge.core.outputs import Outbox
+from bridge.core.queries import Queries
+from bridge.core.ranges import Ranges
+from bridge.core.receivers import Receivers
+from bridge.core.reception import Reception
+from bridge.core.transfer import from_bytes
+from bridge.errors import DecodeError, FrameError
+from bridge.mission.model import Mission
+from bridge.wire.channels import AckCodec, ChannelCodec
+from bridge.wire.families import NameCodec
+from bridge.wire.frame import DecodedFrame, Entry, FrameCodec
+from bridge.wire.interest import InterestCodec
+from bridge.wire.marks import MarkCodec
+from bridge.wire.queries import QueryCodec
+
+__all__ = ["PEER_STATUS_S", "Inbound", "plain"]
+
+log = logging.getLogger("zab.core")
+
+PEER_STATUS_S = 1.0
+"""Least time between two ``peers/<peer>`` status puts of one peer."""
+
+Anchors = dict[str, tuple[float, float, float]]
+
+
+class Inbound:
+    """Decoding and acceptance of the frames one node hears."""
+
+    def __init__(self, mission: Mission, node: str, codec: FrameCodec, outbox: Outbox,
+                 schedule: Schedule, links: Links, receivers: Receivers, outbound: Outbound,
+                 queries: Queries | None, ranges: Ranges | None, sealed: bool) -> None:
+        """``sealed``: frames are authenticated (each moves a replay window)."""
+        self.mission = mission
+        self.sealed = sealed
+        self.node = node
+        self.address = mission.address_of(node)
+        self.codec = codec
+        self.outbox = outbox
+        self.stats = outbox.stats
+        self.schedule = schedule
+        self.links = links
+        self.receivers = receivers
+        self.outbound = outbound
+        self.families: Families = outbound.families
+        self.interest: Interest | None = outbound.interest
+        self.queries = queries
+        self.ranges = ranges
+        self.received_at: dict[str, float] = {}
+        self.mismatched: dict[str, str] = {}  # peers known to run another mission file
+        self._foreign: dict[str, int] = {}  # a peer's last fingerprint not ours
+        self._peer_status: dict[str, float] = {}  # when each peer's status was last put
+
+    def receive(self, rx: Reception, now: float, modem_now: float | None = None) -> None:
+        """Decode one received frame and publish what it carries for this node (``modem_now``:
+        the modem clock now, which DLBL times are in)."""
+        src = self._source(rx, now)
+        if src is None:
+            return
+        try:
+            frame = self.codec.decode(rx.data, rx.src)
+        except FrameError as exc:
+            self.stats.frames_dropped[exc.reason] += 1
+            self.outbox.event(FrameDropped(now, src, exc.reason, str(exc), rx.data))
+            return
+        self._heard(rx, src, frame, now)
+        values: dict[str, list[dict]] = {}
+        anchors: Anchors = {}  # live anchor positions the frame carried
+        members: dict[str, dict[str, list[dict]]] = {}  # key families: per member
+        for entry in frame.entries:
+            self._entry(src, entry, now, values, anchors, members)
+        if self.ranges is not None:
+            self.ranges.heard(src, rx, frame.delays, modem_now if modem_now is not None
+                              else now, now, anchors)
+        meta = plain(rx.meta)
+        if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
+            self._peer_status[src] = now
+            self.outbox.status(f"peers/{src}", {"last_heard": now, "meta": dict(meta)})
+        self.outbox.event(FrameReceived(now, src, len(rx.data), list(values), rx.data, meta,
+                                        values, members or None))
+
+    def _source(self, rx: Reception, now: float) -> str | None:
+        """The sender of ``rx`` if it is a peer under this mission file; else the frame is
+        counted dropped (or foreign) and None."""
+        src = self.mission.name_of(rx.src)
+        sender_print = self.codec.sender_fingerprint(rx.data)
+        if sender_print is not None and sender_print != self.codec.fingerprint16 \
+                and src != self.node:
+            self._foreign_frame(src or f"address {rx.src}", sender_print, rx, now)
+            return None
+        if src is None or src == self.node:
+            self.stats.frames_dropped["unknown_source"] += 1
+            self.outbox.event(FrameDropped(now, src, "unknown_source", data=rx.data))
+            return None
+        return src
+
+    def _heard(self, rx: Reception, src: str, frame: DecodedFrame, now: float) -> None:
+        """A valid frame from ``src``: the counters, the MAC, the link and the peer's epoch
+        record it."""
+        self.stats.frames_received += 1
+        self.schedule.on_heard(src, rx.dest == self.address, now)
+        self._foreign.pop(src, None)
+        if self.mismatched:
+            self._matched(src, now)
+        self.links.heard(src, now)
+        if self.sealed:
+            self.outbox.unsaved = True  # the replay window moved: saved before publishing
+        if frame.epoch is not None and self.receivers.peer_epochs.get(src) != frame.epoch:
+            known = self.receivers.epoch(src, frame.epoch)
+            if known is not None:  # src started without its saved state
+                self.outbound.resync(src)
+                log.info("%s: %s started afresh (epoch %d -> %d): streams resynchronised",
+                         self.node, src, known, frame.epoch)
+                self.outbox.event(PeerRestarted(now, src, frame.epoch, known))
+        if self.links.states.get(src) is not LinkState.UP:
+            self.links.update(now)
+
+    def _entry(self, src: str, entry: Entry, now: float, values: dict[str, list[dict]],
+               anchors: Anchors, members: dict[str, dict[str, list[dict]]]) -> None:
+        """One entry of a frame from ``src``: its values published and gathered."""
+        channel = entry.channel
+        if channel.__class__ is not ChannelCodec:  # an acknowledgement or a system entry
+            if isinstance(channel, AckCodec):
+                self.outbound.on_ack(src, entry.header, now)
+                return
+            if self._system(src, entry, now):
+                return
+        if src not in channel.senders:
+            self.stats.frames_dropped["unexpected_sender"] += 1
+            return
+        if not channel.reaches(src, self.node):
+            return  # overheard: addressed to others
+        surfacing = self.outbound.surfacing
+        if surfacing is not None and src in surfacing.reachable and not channel.stream:
+            surfacing.duplicates += 1  # it reaches us over IP at full fidelity
+            return
+        if channel.fragmented:
+            delivered = self._fragment(src, channel, entry, now)
+        elif channel.reliable:
+            delivered = self.receivers.entry(src, channel, entry.header, entry.values)
+        else:
+            delivered = [entry.values]
+        member = "*"
+        if channel.family is not None:
+            name = self.families.member_name(src, channel, entry.header[0])
+            if name is None:  # a learned member whose @key entry has not arrived yet
+                self.stats.frames_dropped["unknown_member"] += 1
+                return
+            member = name
+        for elements in delivered:
+            self._deliver(src, channel, member, elements, now, values, anchors, members)
+
+    def _deliver(self, src: str, channel: ChannelCodec, member: str, elements: list[Any],
+                 now: float, values: dict[str, list[dict]], anchors: Anchors,
+                 members: dict[str, dict[str, list[dict]]]) -> None:
+        """One value of ``channel`` from ``src`` (``member`` of its family): published."""
+        cname, family, latching = channel.name, channel.family, channel.latching
+        values[cname] = elements
+        if family is not None:
+            members.setdefault(cname, {})[member] = elements
+        self.stats.received_per_channel[cname] += 1
+        self.received_at[cname] = now
+        for element, value in zip(channel.elements, elements, strict=True):
+            key = element.output_key(src, self.node, member)
+            if family is not None:
+                self.families.arrived(key, now)
+            if latching and self.queries is not None:
+                self.queries.remember(key, value, element.encoding, now)
+            if self.ranges is not None:
+                self.ranges.anchor_value(key, value, anchors, now)
+            self.outbox.publish(key, value, element.encoding, latching, element.ros2)
+
+    def _fragment(self, src: str, channel: ChannelCodec, entry: Entry,
+                  now: float) -> list[list[Any]]:
+        """A fragment: the value it completes, if any, with the transfer's progress out."""
+        data, progress = self.receivers.fragment(src, channel, entry.header, entry.chunk)
+        self.outbox.status(f"transfer/{channel.name}", {**progress, "peer": src, "time": now})
+        if data is None:
+            return []
+        try:
+            return [channel.unpack(from_bytes(channel, data))]
+        except DecodeError as exc:
+            self.stats.frames_dropped["malformed"] += 1
+            self.outbox.event(FrameDropped(now, src, "malformed",
+                                           f"transfer on {channel.name!r}: {exc}"))
+            return []
+
+    def _system(self, src: str, entry: Entry, now: float) -> bool:
+        """An ``@key``, ``@want``, query or ``@mark`` entry from ``src``; False for anything
+        else."""
+        channel = entry.channel
+        if isinstance(channel, NameCodec):
+            self.families.on_name(src, entry.header)
+        elif isinstance(channel, InterestCodec):
+            if self.interest is not None:
+                self.interest.on_heard(src, entry.header, now)
+        elif isinstance(channel, QueryCodec):
+            if self.queries is not None:
+                handle = self.queries.on_reply if channel.reply else self.queries.on_request
+                handle(src, channel, entry.header, entry.values, now)
+        elif isinstance(channel, MarkCodec):
+            peer, mark = entry.header
+            auth = self.codec.auth
+            if self.codec.table.nodes[peer] == self.node and auth is not None \
+                    and auth.resume_past(mark):
+                log.info("%s: %s refused its frames as replayed: its counter resumes past %d",
+                         self.node, src, mark)
+        else:
+            return False
+        return True
+
+    def _foreign_frame(self, src: str, fingerprint: int, rx: Reception, now: float) -> None:
+        """A frame whose check gives another fingerprint: corrupt, or sent with another
+        mission file — the same fingerprint twice in a row from one sender says which; in an
+        authenticated mission, only a tag a key holder made under that fingerprint does."""
+        if self.sealed:
+            mismatch = self.codec.vouch(rx.data, rx.src, fingerprint) is not None
+        else:
+            mismatch = self._foreign.get(src) == fingerprint
+            self._foreign[src] = fingerprint
+        reason = "mission_mismatch" if mismatch else "check"
+        self.stats.frames_dropped[reason] += 1
+        self.outbox.event(FrameDropped(now, src, reason,
+                                       f"check failed (fingerprint {fingerprint:04x})", rx.data))
+        text = f"{fingerprint:04x}"
+        if mismatch and self.mismatched.get(src) != text:
+            self.mismatched[src] = text
+            ours = f"{self.codec.fingerprint16:04x}"
+            log.warning("%s: peer %s runs a different mission file (fingerprint %s, ours %s): "
+                        "its frames are dropped", self.node, src, text, ours)
+            event = MissionMismatch(now, src, text, ours)
+            self.outbox.status(f"mismatch/{src}", event.to_dict())
+            self.outbox.event(event)
+
+
+    def _matched(self, src: str, now: float) -> None:
+        """A frame of this mission file from ``src``: it no longer runs another one."""
+        if self.mismatched.pop(src, None) is not None:
+            log.warning("%s: peer %s runs this mission file again", self.node, src)
+            self.outbox.status(f"mismatch/{src}", {"time": now, "peer": src, "fingerprint": None,
+                                                   "ours": f"{self.codec.fingerprint16:04x}"})
+
+
+_SCALARS = (int, float, str, bool, type(None))
+_PLAIN_TYPES = frozenset(_SCALARS)  # exactly these (not subclasses): plain already
+
+
+def plain(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """Link metadata reduced to msgpack-able scalars (a copy when it is plain already, as a
+    simulator's is: its types are checked first)."""
+    for k, v in meta.items():
+        if k.__class__ is not str or v.__class__ not in _PLAIN_TYPES:
+            return {str(k): v for k, v in meta.items() if isinstance(v, _SCALARS)}
+    return dict(meta)

@@ -1,0 +1,407 @@
+"""The sending side of a node (pure): samples in, frames out.
+
+A sample on an input key is decoded and packed for every channel that reads the key: into the
+latest-value store, the queue of a reliable or fragmented stream, or a key family's member.
+At an opportunity :meth:`Outbound.build` fills a frame, priority then age, from what is due:
+acknowledgements owed first, then latest values somebody wants, queued values and fragments,
+family names and members, demand bitmaps and queries. :meth:`Outbound.sent` records the frame
+the modem took. Heartbeats keep a silent node audible.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+from collections.abc import Callable, Collection, Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from bridge.core.builder import Candidate, FramePlan, fill
+from bridge.core.drops import DropLedger
+from bridge.core.events import FrameSent, SendFailed, Surfaced
+from bridge.core.families import Extra, Families
+from bridge.core.interest import Interest
+from bridge.core.link import heartbeat_s
+from bridge.core.outputs import Outbox
+from bridge.core.queries import Queries
+from bridge.core.receivers import Receivers
+from bridge.core.reliable import SEQ_MOD, ReliableSender, default_retry_s
+from bridge.core.saving import Saving
+from bridge.core.store import ChannelState, OutboundStore
+from bridge.core.surfacing import Surfacing
+from bridge.core.transfer import TransferSender
+from bridge.errors import DecodeError, EncodeError
+from bridge.frozen import direct_init
+from bridge.mission.model import Mission
+from bridge.wire.channels import AckCodec, ChannelCodec, ChannelTable, ElementCodec
+from bridge.wire.frame import FrameCodec
+from bridge.wire.payloads import decode_payload, payload_cap
+
+if TYPE_CHECKING:
+    from bridge.ros2.element import Ros2Element
+
+__all__ = ["OutFrame", "Outbound", "Sender"]
+
+log = logging.getLogger("zab.core")
+
+Sender = ReliableSender | TransferSender
+Delays = Callable[[float], list[int | None]]
+"""The DLBL delays of a frame starting at a modem time."""
+
+
+@direct_init
+@dataclass(frozen=True)
+class OutFrame:
+    """A frame ready for the modem: bytes, unicast address (None = broadcast), ack request,
+    the modem-clock start it was built for, and what it carries."""
+
+    data: bytes
+    dest: int | None
+    ack: bool | None
+    at: float
+    plan: FramePlan
+    built: float
+    streams: tuple[tuple[Sender, Any], ...] = ()
+    acks: tuple[tuple[str, int], ...] = ()
+    extras: tuple[Extra, ...] = ()
+
+
+class Outbound:
+    """Store, streams, families, demand and heartbeats of one node, and its frames."""
+
+    def __init__(self, mission: Mission, table: ChannelTable, node: str, codec: FrameCodec,
+                 epoch: int, outbox: Outbox, receivers: Receivers, queries: Queries | None,
+                 rng: random.Random, state: Mapping[str, Any]) -> None:
+        self.mission = mission
+        self.table = table
+        self.node = node
+        self.codec = codec
+        self.epoch = epoch
+        self.outbox = outbox
+        self.stats = outbox.stats
+        self.drops = DropLedger(node)  # payloads dropped: counted, told at a bounded rate
+        self.stats.payloads_dropped = self.drops.by_key
+        self.saving = Saving()  # whether the runtime can save the state (bridge.core.saving)
+        self.receivers = receivers
+        self.queries = queries
+        self.delays: Delays | None = None
+        """The DLBL delays of each frame built (set by the node when it ranges)."""
+        self.frame_bytes = mission.node_modem(node).frame_bytes
+        self.heartbeat_s = heartbeat_s(mission)
+        self.last_tx: float | None = None
+        self._started: float | None = None
+        self.store = OutboundStore.for_node(table.channels, node)
+        self.families = Families(table, node)
+        self.surfacing = Surfacing(node, mission.surfacing.republish) \
+            if mission.surfacing is not None else None
+        self.interest = Interest(table.interest, mission.demand.refresh_s) \
+            if table.interest is not None and mission.demand is not None else None
+        self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
+        for channel in table.channels:
+            if channel.index in self.store.states and channel.family is None:
+                for i, element in enumerate(channel.elements):
+                    self.bindings.setdefault(element.input_key(node), []).append(
+                        (channel, i, element))
+        self._ros2_inputs = {key: next((e.ros2 for _, _, e in found if e.ros2 is not None), None)
+                             for key, found in self.bindings.items()}
+        self._caps = {key: payload_cap(max(e.layout.bits for _, _, e in found))
+                      for key, found in self.bindings.items()}
+        self._cap = payload_cap(max((e.layout.bits for c in table.channels
+                                     for e in c.elements), default=0))
+        retry_s = default_retry_s(mission)
+        self.senders: dict[int, Sender] = {
+            c.index: (TransferSender if c.fragmented else ReliableSender)(
+                c, c.destinations(node), retry_s, rng.randrange(SEQ_MOD))
+            for c in table.streams if c.index in self.store.states}
+        by_name = {s.channel.name: s for s in self.senders.values()}
+        for name, saved in (state.get("senders") or {}).items():
+            if name in by_name:
+                by_name[name].restore(saved)
+        self._filtered = self.interest is not None or self.surfacing is not None
+
+    # -- samples in ------------------------------------------------------------------------------
+
+    def ingest(self, key: str, data: bytes, encoding: str, now: float,
+               ref: str | None = None, sample_key: str | None = None) -> None:
+        """A sample arrived on an input key: pack it for every channel that reads the key.
+
+        ``ref`` (the publisher's correlation text) is echoed in delivery reports;
+        ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs). A
+        payload over the key's cap is dropped before it is decoded."""
+        if len(data) > (cap := self.payload_cap(key)):
+            self.drop_payload(key, f"{len(data)} bytes, over this key's cap of {cap}", now,
+                              "too_large")
+            return
+        bindings = self.bindings.get(key, ())
+        ros2 = self._ros2_inputs.get(key)
+        try:
+            value = (ros2.decode(data, sample_key or key) if ros2 is not None
+                     else decode_payload(data, encoding))
+        except DecodeError as exc:
+            self.drop_payload(key, str(exc), now, "undecodable")
+            return
+        store = self.store
+        for channel, index, element in bindings:
+            try:
+                packed = element.layout.pack(value)
+            except EncodeError as exc:
+                self.drop_payload(key, f"channel {channel.name!r}: {exc}", now)
+                continue
+            sender = self.senders.get(channel.index)
+            if sender is None:
+                store.update(channel.index, index, packed, now)
+            elif store.update_value(channel.index, index, packed, now):
+                payload = store.states[channel.index].payload()
+                refused = self.saving.refusal()  # (while the state cannot be saved)
+                self.outbox.reports(sender.offer(payload, now, key, ref) if refused is None
+                                    else sender.refuse(now, key, ref, refused))
+                self.outbox.unsaved = True
+        if self.families.senders:
+            for problem in self.families.ingest(key, value, now):
+                self.drop_payload(key, problem, now)
+        surfacing = self.surfacing
+        if surfacing is not None and surfacing.reachable:  # full fidelity over IP
+            outs = [(d, element.output_key(self.node, d))
+                    for channel, _, element in bindings if not channel.stream
+                    for d in channel.destinations(self.node)]
+            self.outbox.items.extend(surfacing.relays(
+                key, outs + self.families.outputs_for(key), data, encoding))
+
+    def ros2_input(self, key: str) -> Ros2Element | None:
+        """The ROS 2 topic read on input ``key``, or None."""
+        return self._ros2_inputs.get(key)
+
+    def payload_cap(self, key: str) -> int:
+        """The longest payload input ``key`` takes (:func:`~bridge.wire.payloads.payload_cap`
+        of the bits its channels keep)."""
+        return self._caps.get(key, self._cap)
+
+    def drop_payload(self, key: str, reason: str, now: float, cause: str = "unfit") -> None:
+        """Count a payload that cannot be used, by key and ``cause`` (logged and summarised at
+        a bounded rate: :mod:`bridge.core.drops`)."""
+        summary = self.drops.drop(key, cause, reason, now)
+        if summary is not None:
+            self.outbox.event(summary)
+
+    def summarise_drops(self, now: float) -> None:
+        """The drops not summarised yet, if it is time (a summary a second at most)."""
+        if (summary := self.drops.due(now)) is not None:
+            self.outbox.event(summary)
+
+    def ip_reachable(self, peer: str, up: bool, now: float) -> None:
+        """The peer's bridge became reachable over IP (``up``) or stopped being so."""
+        if self.surfacing is not None and self.surfacing.changed(peer, up, now):
+            event = Surfaced(now, peer, up)
+            self.outbox.status(f"surfaced/{peer}", event.to_dict())
+            self.outbox.event(event)
+
+    # -- what is due -----------------------------------------------------------------------------
+
+    def next_due(self, now: float | None) -> float | None:
+        """When data, an acknowledgement, a retransmission or a heartbeat is next due (without
+        queries and pings, which the node adds); None while nothing is pending."""
+        if now is not None and self._started is None:
+            self._started = now  # the node first plans: its first heartbeat one period later
+        if self.receivers.due or (self.codec.auth is not None and self.codec.auth.owed):
+            return -math.inf  # (a peer waits for an acknowledgement, or for its @mark)
+        times = [self._store_next_due(now), self.next_heartbeat()]
+        if self.families.senders:
+            times.append(self.families.next_due(now, self.wants))
+        if self.interest is not None:
+            times.append(self.interest.next_due())
+        if self.senders:
+            times += [s.next_time() for s in self.senders.values()]
+        return min([t for t in times if t is not None], default=None)
+
+    def next_heartbeat(self) -> float | None:
+        if self.heartbeat_s is None:
+            return None
+        since = self._started if self.last_tx is None else self.last_tx
+        return -math.inf if since is None else since + self.heartbeat_s
+
+    def heartbeat_due(self, now: float) -> bool:
+        beat = self.next_heartbeat()
+        return beat is not None and beat <= now + 1e-9
+
+    def _store_next_due(self, now: float | None) -> float | None:
+        """When a latest-value channel somebody wants becomes due."""
+        if not self._filtered:
+            return self.store.next_due(now)
+        times = [t for s in self.store.states.values()
+                 if self.wants(s.channel) and (t := s.ready_at(now)) is not None]
+        return min(times, default=None)
+
+    def wants(self, channel: ChannelCodec) -> bool:
+        """Whether some destination reached acoustically wants ``channel`` now (always,
+        without demand or surfacing)."""
+        if not self._filtered or channel.stream:
+            return True
+        destinations = channel.destinations(self.node)
+        if self.surfacing is not None:
+            destinations = self.surfacing.acoustic(destinations)
+        return bool(destinations) and (self.interest is None
+                                       or self.interest.wants(channel, destinations))
+
+    def _candidates(self, now: float) -> list[Candidate]:
+        """Everything that could go in a frame sent at ``now``."""
+        due = self.store.due(now)
+        if self._filtered:
+            due = [s for s in due if self.wants(s.channel)]
+        out = [Candidate(s.channel, s.last_sent, s) for s in due]
+        if self.interest is not None and (want := self.interest.candidate(now)) is not None:
+            out.append(want)
+        if self.queries is not None:
+            out += self.queries.candidates(now)
+        for sender in self.senders.values():
+            out += [Candidate(sender.channel, getattr(item, "last_sent", None), (sender, item), n)
+                    for n, item in enumerate(sender.due(now))]
+        if self.families.senders:
+            out += self.families.candidates(now, self.wants)
+        if self.codec.auth is not None and self.codec.auth.owed:
+            out += self._marks()
+        return out
+
+    def _marks(self) -> list[Candidate]:
+        """The ``@mark`` entries owed to senders whose frames were refused as replayed
+        (:mod:`bridge.wire.marks`)."""
+        codec, auth = self.table.marks, self.codec.auth
+        assert codec is not None and auth is not None
+        out = []
+        for address, mark in auth.hints():
+            peer = self.mission.name_of(address)
+            if peer is not None:
+                out.append(Candidate(codec, None, Extra(  # type: ignore[arg-type]
+                    codec, codec.pack(self.table.nodes.index(peer), mark),
+                    lambda _built, a=address: auth.hinted(a))))
+        return out
+
+    # -- frames out ------------------------------------------------------------------------------
+
+    def build(self, now: float, at: float, *, always: bool = False) -> OutFrame | None:
+        """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
+        nothing to send and ``always`` is false. Report it with :meth:`sent` or
+        :meth:`failed`."""
+        codec = self.codec
+        budget = codec.body_capacity_bits(self.frame_bytes) - codec.count_bits
+        room = (1 << codec.count_bits) - 1
+        items: list[tuple[ChannelCodec | AckCodec, int]] = []
+        targets: set[str] = set()
+        acks: list[tuple[str, int]] = []
+        receivers = self.receivers
+        if receivers.owing:  # acknowledgements first: they unblock the peer
+            ack_codec = self.table.ack
+            assert ack_codec is not None
+            cost = codec.channel_cost_bits(ack_codec)
+            for src, index in receivers.owed():
+                if cost > budget or len(items) >= room:
+                    break
+                items.append((ack_codec, receivers.ack_bits(src, index)))
+                budget -= cost
+                acks.append((src, index))
+                targets.add(src)
+        picked, left = fill(codec, self._candidates(now), budget, room - len(items))
+        chosen: list[ChannelState] = []
+        streams: list[tuple[Sender, Any]] = []
+        extras: list[Extra] = []
+        asks_ack = False  # a channel in the frame asks for the modem's acknowledgement
+        node = self.node
+        for candidate in picked:
+            what, channel = candidate.what, candidate.channel
+            if isinstance(what, ChannelState):
+                chosen.append(what)
+                items.append((channel, what.payload()))
+            elif isinstance(what, Extra):
+                extras.append(what)
+                items.append((what.channel, what.bits))
+                continue
+            else:
+                sender, item = what
+                streams.append((sender, item))
+                items.append((channel, sender.entry(item)))
+            targets.update(channel.destinations(node))
+            asks_ack = asks_ack or channel.ack
+        left_out = tuple(c.what for c in left if isinstance(c.what, ChannelState))
+        self.stats.left_out += len(left_out)
+        if not items and not always:
+            return None
+        delays = self.delays(at) if self.delays is not None and self.table.dlbl else ()
+        data = codec.encode(items, delays, self.epoch)
+        dest, ack = self.addressing(targets, asks_ack)
+        return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), left_out), now,
+                        tuple(streams), tuple(acks), tuple(extras))
+
+    def addressing(self, targets: Collection[str],
+                   asks_ack: bool) -> tuple[int | None, bool | None]:
+        """Where a frame for ``targets`` goes: the unicast address when they are one node
+        (else None, broadcast), and the modem's acknowledgement, asked only of a unicast."""
+        dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
+        return dest, (True if dest is not None and asks_ack else None)
+
+    def sent(self, out: OutFrame, now: float, confirmed: bool | None = None) -> None:
+        """The modem accepted ``out`` at ``now``; ``confirmed``: its own acknowledgement said
+        the frame reached ``out.dest`` (reliable entries in it are then not re-sent, only
+        awaited)."""
+        self.store.mark_sent(out.plan.chosen, out.built)
+        by_sender: dict[int, tuple[Sender, list[Any]]] = {}
+        for sender, item in out.streams:
+            by_sender.setdefault(id(sender), (sender, []))[1].append(item)
+        dest = self.mission.name_of(out.dest) if out.dest is not None else None
+        for sender, group in by_sender.values():
+            self.outbox.reports(sender.sent(group, out.built))  # type: ignore[arg-type]
+            if confirmed and dest is not None:
+                sender.confirmed(group, dest)  # type: ignore[arg-type]
+        self.receivers.acked(out.acks)
+        if out.streams:
+            self.outbox.unsaved = True
+        for extra in out.extras:
+            extra.on_sent(out.built)
+        self.last_tx = out.built
+        stats = self.stats
+        stats.frames_sent += 1
+        names = [s.channel.name for s in out.plan.chosen]
+        if out.streams:
+            names += [s.channel.name for s, _ in out.streams]
+        for name in names:
+            stats.sent_per_channel[name] += 1
+        self.outbox.event(FrameSent(now, len(out.data), names, dest, out.data))
+
+    def failed(self, error: str, now: float) -> None:
+        """The modem refused a frame: its data stays due."""
+        self.stats.send_errors += 1
+        self.outbox.event(SendFailed(now, error))
+
+    # -- the streams' other end ------------------------------------------------------------------
+
+    def on_ack(self, src: str, header: tuple[int, ...], now: float) -> None:
+        """An acknowledgement entry from ``src`` (for this node's streams, or another's)."""
+        peer, stream, epoch, tid, base, bitmap = header
+        if self.table.nodes[peer] != self.node:
+            return  # acknowledges someone else
+        if epoch != self.epoch:
+            return  # a window of an earlier run of this node
+        channel = self.table.streams[stream]
+        sender = self.senders.get(channel.index)
+        if sender is None or src not in sender.dests:
+            return
+        if isinstance(sender, TransferSender):
+            self.outbox.reports(sender.on_ack(src, tid, base, bitmap, now))
+            progress = sender.progress()
+            if progress is not None:
+                self.outbox.status(f"transfer/{channel.name}", {**progress, "time": now})
+        else:
+            self.outbox.reports(sender.on_ack(src, base, bitmap, now))
+
+    def resync(self, peer: str) -> None:
+        """``peer`` started afresh: send it again everything outstanding."""
+        for sender in self.senders.values():
+            if peer in sender.dests:
+                sender.resync(peer)
+
+    def expire(self, now: float) -> None:
+        """Reliable values past their TTL or retries are reported failed."""
+        for sender in self.senders.values():
+            self.outbox.reports(sender.expire(now))
+
+    def state(self) -> dict[str, Any]:
+        return {s.channel.name: s.state() for s in self.senders.values()}

@@ -1,0 +1,98 @@
+"""What a node's core outputs, and the outbox its parts put it in (pure).
+
+:class:`~bridge.core.node.NodeCore` has one way out: :meth:`Outbox.take` gives everything its
+parts produced since the last call, in order. An output is a :class:`Publish` (a decoded value
+for an application key), a :class:`Status` (bridge state under ``@zab/<mission>/<node>/…``) or
+an :class:`~bridge.core.events.Event`. The outbox also keeps the node's counters
+(:class:`NodeStats`) and whether what a restart must resume changed since it was last saved.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from bridge.core.events import Delivery, Event
+from bridge.frozen import direct_init
+
+if TYPE_CHECKING:
+    from bridge.ros2.element import Ros2Element
+
+__all__ = ["NodeStats", "Outbox", "Output", "Publish", "Status"]
+
+
+@direct_init
+@dataclass(frozen=True)
+class Publish:
+    """Put ``value`` on the application key ``key`` (bridged; latched keys answer queries)."""
+
+    key: str
+    value: Any
+    encoding: str
+    latched: bool = False
+    ros2: Ros2Element | None = None  # publish as this ROS 2 topic (CDR, rmw_zenoh attachment)
+
+
+@direct_init
+@dataclass(frozen=True)
+class Status:
+    """Publish ``payload`` (msgpack) on ``@zab/<mission>/<node>/<topic>``."""
+
+    topic: str
+    payload: dict[str, Any]
+
+
+Output = Publish | Status | Event
+
+
+@dataclass
+class NodeStats:
+    """Counters of one node, published on ``@zab/<mission>/<node>/stats``."""
+
+    frames_sent: int = 0
+    frames_received: int = 0
+    frames_dropped: Counter[str] = field(default_factory=Counter)
+    payloads_dropped: Counter[str] = field(default_factory=Counter)
+    values_published: int = 0
+    send_errors: int = 0
+    left_out: int = 0
+    sent_per_channel: Counter[str] = field(default_factory=Counter)
+    received_per_channel: Counter[str] = field(default_factory=Counter)
+
+
+class Outbox:
+    """Outputs in order, the node's counters, and whether its saved state is behind."""
+
+    __slots__ = ("items", "stats", "unsaved")
+
+    def __init__(self) -> None:
+        self.items: list[Output] = []
+        self.stats = NodeStats()
+        self.unsaved = True
+        """What a restart must resume changed since the runtime last saved it (a new run's
+        epoch, first of all)."""
+
+    def event(self, event: Event) -> None:
+        self.items.append(event)
+
+    def status(self, topic: str, payload: dict[str, Any]) -> None:
+        self.items.append(Status(topic, payload))
+
+    def publish(self, key: str, value: Any, encoding: str, latched: bool,
+                ros2: Ros2Element | None = None) -> None:
+        self.items.append(Publish(key, value, encoding, latched, ros2))
+        self.stats.values_published += 1
+
+    def reports(self, reports: list[Delivery]) -> None:
+        """Delivery reports of reliable values: each as status and event (state changed)."""
+        if reports:
+            self.unsaved = True
+        for report in reports:
+            self.status(f"delivery/{report.channel}", report.to_dict())
+            self.event(report)
+
+    def take(self) -> list[Output]:
+        """Everything put here since the last call, in order."""
+        out, self.items = self.items, []
+        return out
