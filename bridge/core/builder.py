@@ -12,9 +12,10 @@ from bridge.wire.channels import ChannelCodec
 from bridge.wire.families import NameCodec
 from bridge.wire.frame import FrameCodec
 from bridge.wire.interest import InterestCodec
+from bridge.wire.marks import MarkCodec
 from bridge.wire.queries import QueryCodec
 
-Offered = ChannelCodec | NameCodec | InterestCodec | QueryCodec
+Offered = ChannelCodec | NameCodec | InterestCodec | QueryCodec | MarkCodec
 """What a candidate offers a frame an entry of: a channel or a system entry."""
 
 

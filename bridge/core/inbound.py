@@ -1,7 +1,8 @@
 """The receiving side of a node (pure): frames in, values and events out.
 
 :meth:`Inbound.receive` checks where a frame comes from (a peer under the same mission file;
-two frames in a row with the same foreign fingerprint say the peer runs another one), decodes
+two frames in a row with the same foreign fingerprint say the peer runs another one, or in an
+authenticated mission one whose tag a key holder made under it), decodes
 it (authentication, replay window, check value), tells the MAC and the link what was heard,
 follows the peer's epoch, and hands each entry to what it is for: values to publish (latest,
 released by a reliable window, or reassembled from fragments), acknowledgements to the
@@ -33,6 +34,7 @@ from bridge.wire.channels import AckCodec, ChannelCodec, Values
 from bridge.wire.families import NameCodec
 from bridge.wire.frame import DecodedFrame, Entry, FrameCodec
 from bridge.wire.interest import InterestCodec
+from bridge.wire.marks import MarkCodec
 from bridge.wire.queries import QueryCodec
 
 __all__ = ["PEER_STATUS_S", "Inbound", "plain"]
@@ -121,6 +123,8 @@ class Inbound:
         self.stats.frames_received += 1
         self.schedule.on_heard(src, rx.dest == self.address, now)
         self._foreign.pop(src, None)
+        if self.mismatched:
+            self._matched(src, now)
         self.links.heard(src, now)
         if self.sealed:
             self.outbox.unsaved = True  # the replay window moved: saved before publishing
@@ -205,23 +209,35 @@ class Inbound:
                                            f"transfer on {channel.name!r}: {exc}"))
             return []
 
-    def _system(self, src: str, channel: NameCodec | InterestCodec | QueryCodec, entry: Entry,
-                now: float) -> None:
-        """An ``@key``, ``@want`` or query entry from ``src``."""
+    def _system(self, src: str, channel: NameCodec | InterestCodec | QueryCodec | MarkCodec,
+                entry: Entry, now: float) -> None:
+        """An ``@key``, ``@want``, query or ``@mark`` entry from ``src``."""
         if isinstance(channel, NameCodec):
             self.families.on_name(src, entry.header)
         elif isinstance(channel, InterestCodec):
             if self.interest is not None:
                 self.interest.on_heard(src, entry.header, now)
-        elif self.queries is not None:
-            handle = self.queries.on_reply if channel.reply else self.queries.on_request
-            handle(src, channel, entry.header, entry.values, now)
+        elif isinstance(channel, QueryCodec):
+            if self.queries is not None:
+                handle = self.queries.on_reply if channel.reply else self.queries.on_request
+                handle(src, channel, entry.header, entry.values, now)
+        else:  # an @mark: a peer refused our frames as replayed
+            peer, mark = entry.header
+            auth = self.codec.auth
+            if self.codec.table.nodes[peer] == self.node and auth is not None \
+                    and auth.resume_past(mark):
+                log.info("%s: %s refused its frames as replayed: its counter resumes past %d",
+                         self.node, src, mark)
 
     def _foreign_frame(self, src: str, fingerprint: int, rx: Reception, now: float) -> None:
         """A frame whose check gives another fingerprint: corrupt, or sent with another
-        mission file — the same fingerprint twice in a row from one sender says which."""
-        mismatch = self._foreign.get(src) == fingerprint
-        self._foreign[src] = fingerprint
+        mission file — the same fingerprint twice in a row from one sender says which; in an
+        authenticated mission, only a tag a key holder made under that fingerprint does."""
+        if self.sealed:
+            mismatch = self.codec.vouch(rx.data, rx.src, fingerprint) is not None
+        else:
+            mismatch = self._foreign.get(src) == fingerprint
+            self._foreign[src] = fingerprint
         reason = "mission_mismatch" if mismatch else "check"
         self.stats.frames_dropped[reason] += 1
         self.outbox.event(FrameDropped(now, src, reason,
@@ -235,6 +251,14 @@ class Inbound:
             event = MissionMismatch(now, src, text, ours)
             self.outbox.status(f"mismatch/{src}", event.to_dict())
             self.outbox.event(event)
+
+
+    def _matched(self, src: str, now: float) -> None:
+        """A frame of this mission file from ``src``: it no longer runs another one."""
+        if self.mismatched.pop(src, None) is not None:
+            log.warning("%s: peer %s runs this mission file again", self.node, src)
+            self.outbox.status(f"mismatch/{src}", {"time": now, "peer": src, "fingerprint": None,
+                                                   "ours": f"{self.codec.fingerprint16:04x}"})
 
 
 _SCALARS = (int, float, str, bool, type(None))

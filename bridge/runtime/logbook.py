@@ -10,7 +10,7 @@ them as they are. Topics:
 - ``/zab/<node>/channel/<channel>``: each received channel's decoded elements (its schema is
   the channel's element layouts), the easiest topic to plot;
 - ``/zab/<node>/<kind>`` for every other event: ``range``, ``position``, ``link``,
-  ``payload_dropped``, ``send_failed``, ``modem_down``, ``delivery``, ``transfer``, ...
+  ``payload_drops``, ``send_failed``, ``modem_down``, ``delivery``, ``transfer``, ...
 
 The mission itself is attached (``mission.yaml``, as validated) with metadata ``zab``
 (mission, node, fingerprint), so :func:`read_log` alone can replay the decoded data.

@@ -19,8 +19,10 @@ from bridge.codec import Layout
 from bridge.errors import LayoutError
 from bridge.mission.fields import OutOfRange
 from bridge.mission.model import Channel, Element, LearnedKeys, Mission, NodeKeys
+from bridge.wire.auth import AUTH_VERSION
 from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, name_codec
 from bridge.wire.interest import InterestCodec
+from bridge.wire.marks import MarkCodec
 from bridge.wire.queries import QueryCodec, QuerySpec, compile_query, query_codecs
 
 Values = list[dict[str, Any]]
@@ -528,12 +530,22 @@ class ChannelTable:
                                          for s in (self.ack, self.names, self.interest))
         return query_codecs(first, self.queries, len(self.nodes))
 
+    @cached_property
+    def marks(self) -> MarkCodec | None:
+        """The ``@mark`` entry, present in authenticated missions (after every other)."""
+        if not self.auth_tag_bytes or self.wire_format != "zab":
+            return None
+        return MarkCodec(len(self.channels) + sum(s is not None for s in (
+            self.ack, self.names, self.interest)) + len(self.query_codecs),
+            (len(self.nodes) - 1).bit_length())
+
     @property
-    def wire(self) -> tuple[ChannelCodec | AckCodec | NameCodec | InterestCodec | QueryCodec,
-                            ...]:
+    def wire(self) -> tuple[ChannelCodec | AckCodec | NameCodec | InterestCodec | QueryCodec
+                            | MarkCodec, ...]:
         """Every kind of entry a frame may hold: the mission's channels, then system ones."""
         system = tuple(s for s in (self.ack, self.names, self.interest) if s is not None)
-        return (*self.channels, *system, *self.query_codecs)
+        marks = () if self.marks is None else (self.marks,)
+        return (*self.channels, *system, *self.query_codecs, *marks)
 
     def by_name(self, name: str) -> ChannelCodec:
         return next(c for c in self.channels if c.name == name)
@@ -548,7 +560,7 @@ class ChannelTable:
         description: dict[str, object] = {
             "wire": WIRE_VERSION,
             "dlbl": self.dlbl,
-            "auth": self.auth_tag_bytes,
+            "auth": [self.auth_tag_bytes, AUTH_VERSION] if self.auth_tag_bytes else 0,
             "nodes": self.nodes,
             "channels": [
                 [c.name, [[f"{f.path}:{f.describe()}" for f in e.layout.fields]

@@ -17,7 +17,8 @@ Layout, most significant bit first::
                      key family: member index (ceil(log2 n) bits) + the value; ``@key``
                      (learned families): see bridge.wire.families.NameCodec; ``@want``
                      (demand missions): see bridge.wire.interest.InterestCodec; query
-                     request ``?name`` / reply ``!name``: see bridge.wire.queries.
+                     request ``?name`` / reply ``!name``: see bridge.wire.queries;
+                     ``@mark`` (authenticated missions): see bridge.wire.marks.
              Only reliable, fragmented, keyed and system entries may repeat in a frame.
     pad      zero bits up to the next byte
     [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.wire.auth)
@@ -52,6 +53,7 @@ from bridge.wire.channels import (
 )
 from bridge.wire.families import NameCodec
 from bridge.wire.interest import InterestCodec
+from bridge.wire.marks import MarkCodec
 from bridge.wire.queries import QueryCodec, ReplyStatus
 
 DELAY_BYTES = 3
@@ -60,7 +62,7 @@ NO_DELAY = (1 << 24) - 1  # "no reception from that node yet"
 CHECK_BYTES = 2
 
 
-WireCodec = ChannelCodec | AckCodec | NameCodec | InterestCodec | QueryCodec
+WireCodec = ChannelCodec | AckCodec | NameCodec | InterestCodec | QueryCodec | MarkCodec
 """Anything with an index on the wire: a channel or a system entry."""
 
 
@@ -197,6 +199,14 @@ class FrameCodec:
         body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
         return binascii.crc_hqx(body, 0xFFFF) ^ int.from_bytes(check, "big")
 
+    def vouch(self, frame: bytes, src: int, fingerprint: int) -> int | None:
+        """The counter ``frame`` was sealed with by a holder of the key, ``src``, under another
+        mission file whose 16-bit fingerprint is ``fingerprint``; None if it was not (corrupt,
+        forged) or this mission does not authenticate."""
+        if self.auth is None or len(frame) < CHECK_BYTES + self.auth_bytes:
+            return None
+        return self.auth.vouch(frame[:-CHECK_BYTES], src, fingerprint)
+
     def decode(self, frame: bytes, src: int | None = None) -> DecodedFrame:
         """Parse untrusted bytes; raise :class:`FrameError` for anything but a valid frame.
 
@@ -282,6 +292,11 @@ class FrameCodec:
             carries = not channel.reply or status <= ReplyStatus.LAST
             return Entry(channel, [channel.layout.unpack(packed)] if carries else None,
                          (qid, node, status, index))
+        if isinstance(channel, MarkCodec):
+            peer, mark = channel.unpack(payload)
+            if peer >= len(self.table.nodes):
+                raise DecodeError(f"names unknown node {peer}")
+            return Entry(channel, header=(peer, mark))
         if isinstance(channel, InterestCodec):
             return Entry(channel, header=tuple(sorted(channel.unpack(payload))))
         if isinstance(channel, NameCodec):
