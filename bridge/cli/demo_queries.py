@@ -2,12 +2,13 @@
 
 Plain Zenoh applications again (only ``zenoh`` and ``msgpack``): a queryable on each serving
 vehicle answering its query's key with plausible reply fields, and an operator at each asking
-node that gets every asked key now and then and prints the answer (or the reply error).
+node that gets every asked key now and then, counting the answers for the tour's summary.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 import threading
 import time
@@ -113,7 +114,7 @@ class QueryApps:
                 if session is not None:
                     session.declare_queryable(
                         spec.served_key(server),
-                        lambda q, s=spec, v=server: self._answer(q, s, v))
+                        functools.partial(self._answer, spec=spec, server=server))
 
     def _answer(self, query: zenoh.Query, spec: QuerySpec, server: str) -> None:
         params = {}
@@ -147,12 +148,16 @@ class QueryApps:
         def on_reply(reply: zenoh.Reply) -> None:  # Zenoh thread
             if reply.ok is not None:
                 values.append(msgpack.unpackb(reply.ok.payload.to_bytes()))
-            else:
+            elif reply.err is not None:
                 errors.append(reply.err.payload.to_string())
+
+        def resolve() -> None:
+            if not done.done():
+                done.set_result(None)
 
         def finished() -> None:
             ended.append(time.time())
-            loop.call_soon_threadsafe(lambda: done.done() or done.set_result(None))
+            loop.call_soon_threadsafe(resolve)
 
         asked = time.time()
         session.get(selector, zenoh.handlers.Callback(on_reply, finished), timeout=timeout)
@@ -180,7 +185,8 @@ class QueryApps:
             if reply.ok is not None:
                 self.answered += 1
             else:  # "gcv: acoustic link down", ...: the reason, without the vehicle
-                self.failed[reply.err.payload.to_string().split(": ", 1)[-1]] += 1
+                why = reply.err.payload.to_string() if reply.err is not None else "no reply"
+                self.failed[why.split(": ", 1)[-1]] += 1
 
     async def run(self, until: float = math.inf) -> None:
         """Ask every QUERY_PERIOD_S until the fleet stops at wall time ``until``."""

@@ -140,4 +140,4 @@ def put(endpoint: str, key: str, value_json: str, ref: str) -> bytes:
         session.put(key, payload, encoding=zenoh.Encoding(MSGPACK),
                     congestion_control=zenoh.CongestionControl.BLOCK,
                     attachment=f"ref:{ref}".encode())
-    return payload
+    return bytes(payload)

@@ -62,8 +62,8 @@ class Steps:
         self.patterns: list[tuple[zenoh.KeyExpr, dict[str, float]]] = []
         for channel in loaded.table.channels:
             for element in channel.elements:
-                steps = {f.path: float(f.step) for f in element.layout.fields
-                         if isinstance(getattr(f, "step", None), int | float)}
+                steps = {f.path: float(step) for f in element.layout.fields
+                         if isinstance(step := getattr(f, "step", None), int | float)}
                 if not steps:
                     continue
                 for src in channel.senders:

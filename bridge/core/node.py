@@ -44,7 +44,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from bridge.core.events import Delivery
+from bridge.core.drops import clamps
 from bridge.core.inbound import Inbound
 from bridge.core.link import Links, LinkThresholds
 from bridge.core.loaded import LoadedMission
@@ -52,10 +52,11 @@ from bridge.core.mac import Schedule, schedule_for
 from bridge.core.outbound import Outbound, OutFrame
 from bridge.core.outputs import NodeStats, Outbox, Output, Publish, Status
 from bridge.core.positioning import Positioning, needs_positioning
-from bridge.core.queries import Queries, Ticket
+from bridge.core.queries import LocalGet, Queries, QueryAnswer, QueryEnd, Ticket
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
-from bridge.core.reception import ModemRange, RangingMode, Reception
+from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
+from bridge.core.restarts import STATE_VERSION, resumable
 from bridge.errors import DecodeError, MissionError
 from bridge.frozen import direct_init
 from bridge.wire.auth import Authenticator
@@ -63,11 +64,10 @@ from bridge.wire.goby import frame_codec_for
 from bridge.wire.payloads import decode_payload
 
 __all__ = ["Action", "NodeCore", "NodeStats", "OutFrame", "Output", "Ping", "Publish",
-           "SendFrame", "Status"]
+           "SendFrame", "Status", "Taken"]
 
 log = logging.getLogger("zab.core")
 
-STATE_VERSION = 1
 EPOCHS = 256  # stream epochs, EPOCH_BITS wide
 
 
@@ -91,6 +91,10 @@ class Ping:
 
 Action = SendFrame | Ping
 
+Taken = Output | LocalGet | QueryAnswer | QueryEnd
+"""What :meth:`NodeCore.take` gives: the parts' outputs, then what the queries ask of the
+runtime (a local get) or answer (replies, ends)."""
+
 
 class NodeCore:
     """One node's bridge logic: a façade over the parts that own its state."""
@@ -112,7 +116,7 @@ class NodeCore:
         rng = rng or random.Random()
         outbox = self._outbox = Outbox()
         self.stats: NodeStats = outbox.stats
-        state = self._usable(state)
+        state = resumable(state, node, table.fingerprint.hex(), outbox)
         wire_auth = mission.wire.auth
         if wire_auth is not None and auth is None:
             if key is None:
@@ -158,6 +162,14 @@ class NodeCore:
         the outputs or sending the frame just built."""
         return self._outbox.unsaved or (self.auth is not None and self.auth.changed)
 
+    def storage(self, error: str | None, now: float) -> None:
+        """The runtime's saves of :meth:`state` fail (``error``: why) or work (None); while
+        they fail, new reliable values are refused (:mod:`bridge.core.saving`)."""
+        event = self.outbound.saving.changed(error, now)
+        if event is not None:
+            self._outbox.status("state", event.to_dict())
+            self._outbox.event(event)
+
     def saved(self) -> None:
         """The runtime saved :meth:`state`."""
         self._outbox.unsaved = False
@@ -175,36 +187,14 @@ class NodeCore:
             "auth": self.auth.state() if self.auth is not None else None,
         }
 
-    def _usable(self, state: Mapping[str, Any] | None) -> Mapping[str, Any]:
-        """``state`` if it is this node's under this mission file; else nothing (and every
-        value it left unfinished reported failed)."""
-        if not state:
-            return {}
-        same = (state.get("version") == STATE_VERSION and state.get("node") == self.node
-                and state.get("fingerprint") == self.table.fingerprint.hex())
-        if same:
-            return state
-        log.warning("%s: the saved state is from another mission file or version: starting "
-                    "afresh (its unfinished values are reported failed)", self.node)
-        for name, sender in (state.get("senders") or {}).items():
-            items = [*sender.get("queue", ()), *sender.get("flight", ()),
-                     *sender.get("items", ())]
-            for item in items:
-                for dst in item.get("waiting", item.get("dests", ())):
-                    self._outbox.reports([Delivery(
-                        0.0, name, item["id"], dst, "failed",
-                        reason="restarted with another mission file",
-                        attempts=item.get("attempts", 0), key=item.get("key"),
-                        ref=item.get("ref"))])
-        return {}
-
     # -- the one way out -----------------------------------------------------------------------
 
-    def take(self) -> list[Output]:
-        """Everything produced since the last call, in order."""
+    def take(self) -> list[Taken]:
+        """Everything produced since the last call, in order (the queries' last)."""
+        out: list[Taken] = [*self._outbox.take()]
         if self.queries is not None:
-            self._outbox.items.extend(self.queries.take())
-        return self._outbox.take()
+            out += self.queries.take()
+        return out
 
     # -- samples in ----------------------------------------------------------------------------
 
@@ -218,14 +208,22 @@ class NodeCore:
         """The ROS 2 topic read on input ``key``, or None."""
         return self.outbound.ros2_input(key)
 
-    def drop_payload(self, key: str, reason: str, now: float) -> None:
-        """Count a payload that cannot be used (warned once per key)."""
-        self.outbound.drop_payload(key, reason, now)
+    def payload_cap(self, key: str) -> int:
+        """The longest payload input ``key`` takes: a longer one is dropped before it is
+        decoded (:func:`~bridge.wire.payloads.payload_cap`)."""
+        return self.outbound.payload_cap(key)
+
+    def drop_payload(self, key: str, reason: str, now: float, cause: str = "unfit") -> None:
+        """Count a payload that cannot be used, by key and ``cause`` (logged and summarised at
+        a bounded rate: :mod:`bridge.core.drops`)."""
+        self.outbound.drop_payload(key, reason, now, cause)
 
     def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
                 now: float) -> tuple[float, ...] | None:
         """The finite numbers ``names`` of a payload, or None (counted as a dropped payload)."""
         try:
+            if len(data) > (cap := self.payload_cap(key)):
+                raise DecodeError(f"{len(data)} bytes, over the cap of {cap}")
             value = decode_payload(data, encoding)
             numbers = tuple(float(value[k]) for k in names)
             if not all(map(math.isfinite, numbers)):
@@ -320,6 +318,12 @@ class NodeCore:
         if self.ranges is not None and peer is not None:
             self.ranges.modem_range(peer, rng.travel_time_s, rng.method, rng.time, now)
 
+    def modem_fix(self, fix: ModemFix, now: float) -> None:
+        """The modem's USBL head located a peer: published on ``usbl/<peer>`` as it is."""
+        peer = self.mission.name_of(fix.peer)
+        if peer is not None:
+            self._outbox.status(f"usbl/{peer}", fix.payload())
+
     # -- time and queries ----------------------------------------------------------------------
 
     def tick(self, now: float) -> None:
@@ -331,6 +335,7 @@ class NodeCore:
             self.ranges.tick(now)
         if self.queries is not None:
             self.queries.expire(now)
+        self.outbound.summarise_drops(now)
 
     def update_links(self, now: float) -> None:
         """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
@@ -368,6 +373,8 @@ class NodeCore:
             "frames_received": stats.frames_received,
             "frames_dropped": dict(stats.frames_dropped),
             "payloads_dropped": dict(stats.payloads_dropped),
+            "payload_drop_causes": out.drops.causes(),
+            "clamped": clamps(out.bindings),
             "values_published": stats.values_published,
             "send_errors": stats.send_errors,
             "left_out": stats.left_out,
@@ -376,6 +383,7 @@ class NodeCore:
             "last_heard": dict(self.last_heard),
             "links": {peer: state.value for peer, state in self.link_states.items()},
             "epoch": self.epoch,
+            "state": out.saving.snapshot(),
             "mismatched_peers": dict(self.mismatched),
             "unfinished": {s.channel.name: s.pending() for s in out.senders.values()},
             "sent_per_channel": dict(stats.sent_per_channel),

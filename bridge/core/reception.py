@@ -59,3 +59,31 @@ class ModemRange:
     travel_time_s: float
     method: str
     time: float
+
+
+@dataclass(frozen=True)
+class ModemFix:
+    """Where the modem's own USBL head located ``peer`` (an address), relative to the head.
+
+    ``east_m``/``north_m``/``down_m`` come from ``range_m`` (one-way travel time × sound
+    speed), ``azimuth_deg`` (from north, clockwise) and ``elevation_deg`` (down positive);
+    ``covariance`` is the 3×3 ENU covariance in m² when the modem's line gives one (row by
+    row), else None. ``time`` is the backend's :meth:`~ModemBackend.clock`.
+    """
+
+    peer: int
+    time: float
+    range_m: float
+    azimuth_deg: float
+    elevation_deg: float
+    east_m: float
+    north_m: float
+    down_m: float
+    covariance: tuple[float, ...] | None = None
+
+    def payload(self) -> dict[str, Any]:
+        """As published on Zenoh (``@zab/<mission>/<node>/usbl/<peer>``)."""
+        return {"time": self.time, "range_m": self.range_m, "azimuth_deg": self.azimuth_deg,
+                "elevation_deg": self.elevation_deg, "east_m": self.east_m,
+                "north_m": self.north_m, "down_m": self.down_m,
+                "covariance": None if self.covariance is None else list(self.covariance)}

@@ -74,11 +74,18 @@ class NodePath(Strict):
                        "otherwise stop at the last.")
 
 
+BROADCAST_DESCRIPTION = (
+    "The address that means every node, on the modem and in what it hears; default: the "
+    "backend's convention (micromodem 0, Goby's BROADCAST_ID; evologics 255; sim none). "
+    "Every node must agree on it, and no node may have it as its address (zab check).")
+
+
 class ModemOverride(Strict):
     """Per-node modem settings; unset values come from the mission's ``modem`` defaults."""
 
     backend: str | None = None
     frame_bytes: int | None = Field(None, ge=4, le=4096)
+    broadcast: int | None = Field(None, ge=0, le=65535, description=BROADCAST_DESCRIPTION)
     options: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -108,6 +115,7 @@ class Modem(Strict):
 
     backend: str = Field("sim", description="sim, udp, or a backend from the zab.backends group.")
     frame_bytes: int = Field(64, ge=4, le=4096, description="Largest frame the modem sends.")
+    broadcast: int | None = Field(None, ge=0, le=65535, description=BROADCAST_DESCRIPTION)
     options: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -368,6 +376,10 @@ class Auth(Strict):
     key_env: str = Field("ZAB_KEY", description="Environment variable holding the key.")
     key_file: Path | None = Field(None, description="File holding the key (used if the "
                                   "variable is unset).")
+    sign_outputs: bool = Field(False, description="Sign what the bridge publishes on Zenoh "
+                               "(values, delivery reports, status, events) with the key: "
+                               "applications holding it can tell the bridge's samples from "
+                               "anyone else's (docs/developers.md).")
 
 
 def _auth_off_in_schema(schema: dict[str, Any]) -> None:
@@ -407,7 +419,7 @@ class Wire(Strict):
 
     @model_serializer(mode="wrap")
     def _dump_off(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        data = handler(self)
+        data: dict[str, Any] = handler(self)
         if self._auth_off:
             data["auth"] = "off"  # a dump reads back as the same mission
         return data
@@ -431,9 +443,11 @@ class Demand(Strict):
 class Surfacing(Strict):
     """Fidelity that follows the link: while a peer's bridge is reachable over IP (its
     liveliness token ``@zab/<mission>/<peer>/bridge`` is visible: it surfaced and its Zenoh
-    joined this node's), channels between the two are not carried acoustically; the sender's
-    bridge puts each input sample, unquantised, on the output key instead (``republish``). When
-    the token goes (the vehicle dives), acoustic bridging resumes at the next opportunity."""
+    joined this node's; with ``wire.auth``, it also answers a challenge with the mission key
+    every 2 s), channels between the two are not carried acoustically; the sender's bridge puts
+    each input sample, unquantised, on the output key instead (``republish``). When the token
+    goes or the proof stops (the vehicle dives), acoustic bridging resumes at the next
+    opportunity."""
 
     republish: bool = Field(True, description="Put full-fidelity copies of input samples on "
                             "the output keys of IP-reachable destinations (skipped when the "
@@ -535,6 +549,7 @@ class Mission(Strict):
         return Modem(
             backend=override.backend or self.modem.backend,
             frame_bytes=override.frame_bytes or self.modem.frame_bytes,
+            broadcast=self.modem.broadcast if override.broadcast is None else override.broadcast,
             options={**self.modem.options, **override.options},
         )
 

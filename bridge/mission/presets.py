@@ -12,6 +12,11 @@ Sources of the figures:
   ``0.149 s + 10.95 ms/byte``. S2C 18/34 modems are rated to about 3.5 km.
 - ``micromodem-rate0``: WHOI Micro-Modem FH-FSK, 80 bps, 32 B frames. Each packet is preceded by
   a cycle-initialisation mini-packet and a preamble, a few seconds of fixed overhead.
+- ``micromodem-rate1`` … ``micromodem-rate6``: the PSK rates, one preset each, whose
+  ``frame_bytes`` is a whole packet of the rate (192, 192, 512, 512, 2048, 192 B: all its WHOI
+  frames, which the emulated modem puts in the water as one transmission, as the modem sends
+  one PSK packet behind one probe), the rate's nominal bit rate (libumutil; rate 6 takes rate
+  2's, the same spreading [C]) and ~1 s of FM probe and header [C, reference 2.6].
 - ``s2cr-burst`` and ``s100-rf``: seed 002 (UMCI), Table 3, the statistical models of the
   EvoLogics S2CR in burst mode and the WFS S100 RF modem (bit rate, intrinsic delay and jitter,
   propagation per metre, minimum and maximum distance).
@@ -24,7 +29,14 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-__all__ = ["PRESETS", "Preset", "UnknownPresetError", "get_preset"]
+__all__ = ["MICROMODEM_PSK", "PRESETS", "Preset", "UnknownPresetError", "get_preset"]
+
+MICROMODEM_PSK: dict[int, tuple[int, float]] = {
+    1: (192, 250.0), 2: (192, 500.0), 3: (512, 1200.0), 4: (512, 1300.0), 5: (2048, 5300.0),
+    6: (192, 500.0),
+}
+"""Micro-Modem PSK rate -> (bytes of a whole packet, nominal bit/s): the rate table of
+:mod:`bridge.modems.micromodem.rates`, kept here as plain data for the presets."""
 
 
 @dataclass(frozen=True)
@@ -120,6 +132,19 @@ PRESETS: dict[str, Preset] = {
             sound_speed_mps=1500.0,
             max_range_m=5000.0,
             description="WHOI Micro-Modem rate 0, FH-FSK 80 bps, cycle-init + preamble overhead",
+        ),
+        *(
+            Preset(
+                name=f"micromodem-rate{rate}",
+                frame_bytes=packet,
+                bitrate_bps=bps,
+                overhead_s=1.0,
+                sound_speed_mps=1500.0,
+                max_range_m=5000.0,
+                description=f"WHOI Micro-Modem rate {rate}, PSK {bps:g} bps, {packet} B packets "
+                "behind an FM probe and header",
+            )
+            for rate, (packet, bps) in MICROMODEM_PSK.items()
         ),
         Preset(
             name="s2cr-burst",

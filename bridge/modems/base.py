@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, ClassVar
 
-from bridge.core.reception import ModemRange, RangingMode, Reception
+from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
 from bridge.errors import BackendError
 
-__all__ = ["Inbox", "ModemBackend", "ModemRange", "ModemSetup", "Reception"]
+__all__ = ["Inbox", "ModemBackend", "ModemFix", "ModemRange", "ModemSetup", "Reception"]
 
 _EMPTY: Mapping[str, Any] = MappingProxyType({})
 
@@ -94,6 +94,8 @@ class ModemBackend(ABC):
         """How far ahead of :meth:`clock` a timed emission is scheduled (``timed_send``)."""
         self.on_range: Callable[[ModemRange], None] | None = None
         """Called with every range the modem measures (the runtime sets it)."""
+        self.on_fix: Callable[[ModemFix], None] | None = None
+        """Called with every position the modem's USBL head measures (the runtime sets it)."""
         self.on_reception: Callable[[Reception], None] | None = None
         """Called with every reception as it arrives, instead of queueing it for :meth:`recv`
         (the runtime sets it: a frame heard is decoded at once, with no task to wake in
@@ -223,6 +225,12 @@ class ModemBackend(ABC):
         if self.on_range is not None:
             self.on_range(rng)
 
+    def _report_fix(self, fix: ModemFix) -> None:
+        """Hand a USBL fix the modem measured to :attr:`on_fix`."""
+        self.stats["fixes"] = self.stats.get("fixes", 0) + 1
+        if self.on_fix is not None:
+            self.on_fix(fix)
+
     async def _ping(self, dest: int) -> ModemRange:
         """Hook for backends with a ping."""
         raise BackendError(f"{self!r}: this modem has no ping")
@@ -232,6 +240,27 @@ class ModemBackend(ABC):
         """The largest frame this backend can send with ``options`` (None: no fixed limit)."""
         return None
 
+    default_broadcast: ClassVar[int | None] = None
+    """The backend's own convention for the address that means every node (None: none)."""
+
+    @classmethod
+    def broadcast_address(cls, options: Mapping[str, Any]) -> int | None:
+        """The address that means every node: the ``broadcast`` option (the mission's
+        ``modem.broadcast``), else :attr:`default_broadcast`."""
+        value = options.get("broadcast")
+        return cls.default_broadcast if value is None else int(value)
+
+    @classmethod
+    def setup_problems(cls, options: Mapping[str, Any], address: int) -> tuple[list[str],
+                                                                               list[str]]:
+        """What ``zab check`` should say of a node with ``options`` at ``address``: (errors,
+        warnings). The default: a node whose address is the broadcast address is an error."""
+        broadcast = cls.broadcast_address(options)
+        if broadcast is not None and address == broadcast:
+            return [f"address {address} is the {cls.name} broadcast address (modem.broadcast):"
+                    " frames to it would go to every node"], []
+        return [], []
+
     def _send_now(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
         """Hook for :attr:`direct` backends: transmit a checked frame without waiting."""
         raise BackendError(f"{self!r}: this backend sends only from its event loop")
@@ -239,7 +268,7 @@ class ModemBackend(ABC):
     async def _send_timed(self, data: bytes, dest: int | None, ack: bool,
                           at: float) -> bool | None:
         """Hook for backends with ``timed_send``: emit at ``at`` (modem clock)."""
-        await self._send(data, dest, ack)
+        return await self._send(data, dest, ack)
 
     def clock(self) -> float:
         """The modem's clock, in which it stamps receptions (default: the host's wall clock)."""

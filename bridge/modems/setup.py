@@ -10,6 +10,14 @@ from bridge.modems.base import ModemBackend, ModemSetup
 from bridge.modems.registry import load_backend
 
 
+def modem_options(mission: Mission, node: str) -> dict[str, Any]:
+    """The options a backend of ``node`` reads: the merged ``options``, with ``broadcast``
+    from the mission's modem settings when it gives one."""
+    modem = mission.node_modem(node)
+    broadcast = {} if modem.broadcast is None else {"broadcast": modem.broadcast}
+    return {**modem.options, **broadcast}
+
+
 def modem_setup(mission: Mission, node: str, extra: Mapping[str, Any] | None = None) -> ModemSetup:
     """The :class:`ModemSetup` of ``node``: merged options, peers' options, static position."""
     modem = mission.node_modem(node)
@@ -18,9 +26,9 @@ def modem_setup(mission: Mission, node: str, extra: Mapping[str, Any] | None = N
         node=node,
         address=mission.nodes[node].address,
         frame_bytes=modem.frame_bytes,
-        options={**modem.options, **(extra or {})},
+        options={**modem_options(mission, node), **(extra or {})},
         peers={
-            other.address: {**mission.node_modem(name).options, **(extra or {})}
+            other.address: {**modem_options(mission, name), **(extra or {})}
             for name, other in mission.nodes.items()
             if name != node
         },

@@ -1,11 +1,18 @@
 """``sim``: a simulated modem connected to the water service (:mod:`bridge.sim.service`).
 
-Options: ``water`` = ``"host:port"`` of the water (required), ``connect_timeout`` (s, default 3),
+Options: ``water`` = ``"host:port"`` of the water (required), ``broadcast`` (none): the
+address a frame for every node carries in the water, and that marks a frame heard as one
+(the mission's ``modem.broadcast``; without it the water carries no address for them),
+``connect_timeout`` (s, default 3),
 ``rx_queue`` (receptions kept while nobody calls ``recv``, default 256; the oldest are dropped
 and counted in ``stats["dropped"]``), ``tx_lead_s`` (default 0.05): how far ahead each frame's
 start is scheduled. Like a timed modem, the water refuses a frame whose start has passed when it
 arrives ("expired"), so DLBL delays are never stamped for a start that did not happen; a
 loaded host is easily 10 ms late.
+
+A caller that sets :attr:`SimBackend.on_loss` before ``open`` also hears of the frames the
+water lost at this modem after their signal reached it (``on_loss(src, reason, dest)``): an
+emulated modem prints them as its CRC failures.
 
 ``send`` returns when the water reports the transmission DONE (the modem is free again), so it
 takes the frame's airtime plus the preset's intrinsic delay.
@@ -18,6 +25,7 @@ import contextlib
 import itertools
 import random
 import time
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 from bridge.errors import BackendError
@@ -79,6 +87,9 @@ class SimBackend(ModemBackend):
         self._stamp_jitter = float(opts.get("timestamp_jitter_s", 0.0))
         self._stamp_rng = random.Random(f"{opts.get('seed', 0)}/{setup.address}")
         self.tx_lead_s = float(opts.get("tx_lead_s", DEFAULT_TX_LEAD_S))
+        self.broadcast = self.broadcast_address(opts)
+        self.on_loss: Callable[[int, str, Any], None] | None = None
+        """Told of each frame lost here after its signal arrived: ``(src, reason, dest)``."""
 
     # -- hooks ---------------------------------------------------------------------------------
 
@@ -103,9 +114,11 @@ class SimBackend(ModemBackend):
                 "addr": self.address,
                 "name": self.setup.node,
                 "pos": list(self._position) if self._position is not None else None,
+                "losses": self.on_loss is not None,
             }
         )
         try:
+            assert self._reader is not None  # (connected just above)
             msg = await asyncio.wait_for(read_message(self._reader), self._timeout)
         except (OSError, TimeoutError, ProtocolError, asyncio.IncompleteReadError) as exc:
             raise BackendError(
@@ -122,10 +135,11 @@ class SimBackend(ModemBackend):
 
     async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
         """Transmit now (the simulated water has no acknowledgements: ``ack`` is ignored)."""
-        await self._transmit({"data": data, "dest": dest})
+        await self._transmit({"data": data, "dest": self.broadcast if dest is None else dest})
 
     async def _send_timed(self, data: bytes, dest: int | None, ack: bool, at: float) -> None:
-        await self._transmit({"data": data, "dest": dest, "at": self._wall(at)})
+        await self._transmit({"data": data, "dest": self.broadcast if dest is None else dest,
+                              "at": self._wall(at)})
 
     async def _transmit(self, request: dict[str, Any]) -> None:
         async with self._lock:
@@ -224,6 +238,8 @@ class SimBackend(ModemBackend):
         kind = msg["t"]
         if kind == "rx":
             meta = dict(msg.get("meta") or {})
+            if self.broadcast is not None and meta.get("dest") == self.broadcast:
+                meta["dest"] = None  # a frame for every node
             end = float(msg["time"])
             if "start" in meta:
                 meta["start"] = self._stamp(float(meta["start"]))
@@ -232,6 +248,9 @@ class SimBackend(ModemBackend):
                 end = self._stamp(end)
             self._deliver(Reception(data=bytes(msg["data"]), src=int(msg["src"]), time=end,
                                 meta=meta))
+        elif kind == "lost":
+            if self.on_loss is not None:
+                self.on_loss(int(msg["src"]), str(msg.get("reason")), msg.get("dest"))
         elif kind in ("txdone", "txerr"):
             fut = self._pending.get(msg.get("id", -1))
             if fut is None or fut.done():

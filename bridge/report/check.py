@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -16,6 +17,7 @@ from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
 from bridge.mission.model import Mission
 from bridge.modems.registry import load_backend
+from bridge.modems.setup import modem_options
 from bridge.wire.channels import ChannelCodec
 from bridge.wire.families import has_wildcard
 from bridge.wire.frame import FrameCodec
@@ -83,6 +85,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
                 f"in up to {-(-c.value_bytes // c.chunk_bytes)} fragments of {c.chunk_bytes} B")
     nodes = []
     rules = mac_for(mission)
+    broadcasts: dict[int | None, list[str]] = defaultdict(list)
     for name, node in mission.nodes.items():
         frame_bytes = mission.node_modem(name).frame_bytes
         capacity = codec.body_capacity_bits(frame_bytes) - codec.count_bits
@@ -90,8 +93,14 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         worst = sum(codec.channel_cost_bits(c) * (c.family.bound if c.family else 1)
                     for c in sent)  # every member of a key family at once
         modem = mission.node_modem(name)
+        options = modem_options(mission, name)
         try:
-            limit = load_backend(modem.backend).max_frame_bytes(modem.options)
+            backend = load_backend(modem.backend)
+            limit = backend.max_frame_bytes(options)
+            errors, warnings = backend.setup_problems(options, node.address)
+            report.errors += [f"{name}: {e}" for e in errors]
+            report.warnings += [f"{name}: {w}" for w in warnings]
+            broadcasts[backend.broadcast_address(options)].append(name)
         except BackendError as exc:
             report.errors.append(f"{name}: {exc}")
             limit = None
@@ -135,6 +144,12 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
                         "airtime_share": mac.airtime_share, "note": mac.note,
                         "random_access": mac.random_access}
         nodes.append(entry)
+    if len(broadcasts) > 1:  # one fleet, one convention (a Goby node takes 0 as broadcast)
+        said = "; ".join(f"{', '.join(names)}: {'none' if b is None else b}"
+                         for b, names in broadcasts.items())
+        report.warnings.append(f"nodes disagree on the broadcast address ({said}): a frame "
+                               "one sends to every node reaches the others as one to that "
+                               "address (set modem.broadcast once for the mission)")
     mac_data, warnings = rules.check(nodes)
     report.warnings.extend(warnings)
     report.data = {

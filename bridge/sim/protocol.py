@@ -5,7 +5,8 @@ the message type. Times are wall-clock seconds (``time.time()``), data is msgpac
 
 Modem -> water::
 
-    {"t": "hello", "v": 1, "addr": int, "name": str, "pos": [x, y, depth] | None}
+    {"t": "hello", "v": 1, "addr": int, "name": str, "pos": [x, y, depth] | None,
+     "losses": bool}                      (optional: also tell this modem of frames it lost)
     {"t": "tx", "id": int, "data": bytes, "dest": int | None, "at": float | None}
                                           (``at``: start then; already past: txerr "expired")
     {"t": "pos", "pos": [x, y, depth]}
@@ -16,6 +17,9 @@ Water -> modem::
     {"t": "txdone", "id": int, "time": float}
     {"t": "txerr", "id": int, "reason": str, "error": str}
     {"t": "rx", "src": int, "data": bytes, "time": float, "meta": {...}}
+    {"t": "lost", "src": int, "reason": str, "time": float, "dest": int | None}
+                                          (only to a modem that asked: a frame it heard but
+                                           could not decode, see DETECTED_LOSSES)
     {"t": "error", "error": str}          (fatal; the water closes the connection)
 
 :class:`MessageReader` is the sans-I/O decoder; :func:`read_message` wraps it for asyncio streams.
@@ -30,6 +34,7 @@ from typing import Any
 import msgpack
 
 __all__ = [
+    "DETECTED_LOSSES",
     "MAX_MESSAGE_BYTES",
     "PROTOCOL_VERSION",
     "MessageReader",
@@ -39,6 +44,10 @@ __all__ = [
 ]
 
 PROTOCOL_VERSION = 1
+
+DETECTED_LOSSES = frozenset({"collision", "range_loss", "loss", "bit_errors"})
+"""Loss reasons of :mod:`bridge.sim.ocean` where the signal reached the receiver (it would see
+a packet start and fail its CRC); out of range and half-duplex, nothing reached it."""
 
 # Far above any frame plus metadata (frames are <= a few hundred bytes); caps what a broken or
 # hostile peer can make us buffer.
@@ -53,7 +62,7 @@ class ProtocolError(ValueError):
 
 def pack(msg: dict[str, Any]) -> bytes:
     """Serialise one message, length prefix included."""
-    body = msgpack.packb(msg, use_bin_type=True)
+    body: bytes = msgpack.packb(msg, use_bin_type=True)
     if len(body) > MAX_MESSAGE_BYTES:
         raise ProtocolError(f"message of {len(body)} B exceeds {MAX_MESSAGE_BYTES} B")
     return _LEN.pack(len(body)) + body

@@ -20,7 +20,13 @@ from typing import Any
 from bridge.mission.path import Path
 from bridge.mission.presets import Preset, get_preset
 from bridge.sim.ocean import Delivery, Loss, Ocean, Position, TransmitRefused, TxDone
-from bridge.sim.protocol import PROTOCOL_VERSION, ProtocolError, pack, read_message
+from bridge.sim.protocol import (
+    DETECTED_LOSSES,
+    PROTOCOL_VERSION,
+    ProtocolError,
+    pack,
+    read_message,
+)
 
 __all__ = ["WaterService", "serve_water"]
 
@@ -51,7 +57,8 @@ class WaterService:
         self.started_at: float | None = None
         """Wall-clock time at which the service started, the time 0 of every path."""
         self._clients: dict[int, asyncio.StreamWriter] = {}
-        self._pending_tx: dict[int, tuple[int, int]] = {}  # frame_id -> (addr, client tx id)
+        self._told_losses: set[int] = set()  # modems that asked to hear of their losses
+        self._pending_tx: dict[int, tuple[int, int | None]] = {}  # frame_id -> (addr, tx id)
         self._server: asyncio.Server | None = None
         self._driver: asyncio.Task[None] | None = None
         self._handlers: set[asyncio.Task[Any]] = set()
@@ -171,6 +178,9 @@ class WaterService:
                 self._counters["rx_sent"] += 1
             else:
                 self._counters["rx_no_client"] += 1
+        elif event.dst in self._told_losses and event.reason in DETECTED_LOSSES:
+            self._send(event.dst, {"t": "lost", "src": event.src, "reason": event.reason,
+                                   "time": self._wall(event.time), "dest": event.dest})
 
     def _send(self, addr: int, msg: dict[str, Any]) -> bool:
         writer = self._clients.get(addr)
@@ -201,6 +211,7 @@ class WaterService:
         finally:
             if addr is not None and self._clients.get(addr) is writer:
                 del self._clients[addr]
+                self._told_losses.discard(addr)
                 self.ocean.remove_node(addr)
             writer.close()
             self._handlers.discard(task)
@@ -238,6 +249,8 @@ class WaterService:
         if position is None:
             position = self._initial_positions.get(addr, (0.0, 0.0, 0.0))
         self._clients[addr] = writer
+        if msg.get("losses"):
+            self._told_losses.add(addr)
         self.ocean.add_node(addr, position)
         if addr in self._paths:
             self.ocean.set_path(addr, self._paths[addr], self._path_start)

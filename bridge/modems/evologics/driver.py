@@ -16,6 +16,11 @@ Options (``modem.options`` in the mission):
   frame is scheduled (the command must reach the modem first: 64 B at 19200 baud take 44 ms);
   ``clock_sync_s`` (30): how often ``AT?CLOCK`` is read again to follow host–modem drift.
 
+At start-up the backend asks ``ATI0`` for the firmware version (``stats`` keeps it as
+``firmware``): firmware before 1.7 prints ``RECVIM``/``RECVPBM`` with bitrate and propagation
+time in place of the duration [V DUNE], and is parsed so. A modem that does not answer ``ATI0``
+with a version is taken as 1.7 or later (logged).
+
 Timed sends (``timed_send`` is then True for the runtime): :meth:`clock` is the modem's µs clock
 (:class:`~bridge.modems.evologics.clock.ModemClock`), ``send(at=...)`` becomes
 ``AT*SENDIMS,<len>,<dst>,<usec>,<data>`` so the emission starts exactly at ``at``, and each
@@ -40,7 +45,9 @@ Each :class:`Reception` carries in ``meta``: ``dest`` (``None`` for broadcast), 
 clock), ``duration_s``, ``rssi_db``, ``integrity``, ``velocity_mps``, ``flag``, and when known
 ``rx_timestamp_us`` (modem clock at the start of reception, from ``RECVEND``/``RECVIMS``),
 ``propagation_s`` (one-way, from ``AT?T`` after our last delivered IM to that node) and ``usbl``
-(the latest ``USBLLONG`` fix of the sender).
+(the latest ``USBLLONG`` fix of the sender). Each ``USBLLONG`` also goes to ``on_fix`` as a
+:class:`~bridge.modems.base.ModemFix` with a covariance from its accuracy (the runtime
+publishes it on ``@zab/<mission>/<node>/usbl/<peer>``).
 """
 
 from __future__ import annotations
@@ -48,6 +55,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import time
 from collections.abc import Mapping
 from dataclasses import asdict
@@ -55,7 +63,7 @@ from typing import Any, ClassVar
 
 from bridge.core.reception import RangingMode
 from bridge.errors import BackendError
-from bridge.modems.base import Inbox, ModemBackend, ModemRange, ModemSetup, Reception
+from bridge.modems.base import Inbox, ModemBackend, ModemFix, ModemRange, ModemSetup, Reception
 from bridge.modems.evologics.clock import ModemClock
 from bridge.modems.evologics.commands import send_im, send_ims
 from bridge.modems.evologics.protocol import (
@@ -78,9 +86,11 @@ from bridge.modems.evologics.protocol import (
     RecvImLegacy,
     RecvIms,
     RecvPbm,
+    RecvPbmLegacy,
     SendEnd,
     UsblLong,
     Value,
+    firmware_is_legacy,
 )
 from bridge.modems.transport import ByteTransport
 
@@ -97,6 +107,7 @@ class EvologicsBackend(ModemBackend):
 
     name: ClassVar[str] = "evologics"
     ranging: ClassVar[RangingMode | None] = RangingMode.ACK
+    default_broadcast: ClassVar[int | None] = BROADCAST  # driver practice [V BIR]
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
@@ -114,6 +125,7 @@ class EvologicsBackend(ModemBackend):
         if not 1 <= setup.address <= 254:
             raise BackendError(f"evologics backend: address {setup.address} outside 1..254")
         self.device = str(opts["device"])
+        self.broadcast = self.broadcast_address(opts)
         self.frame_bytes = min(self.frame_bytes, IM_MAX_BYTES)
         tcp = self.device.startswith("socket://")
         mode = str(opts.get("mode", "data"))
@@ -155,9 +167,11 @@ class EvologicsBackend(ModemBackend):
         self._failure: BackendError | None = None
         self._extended = True
         self._last_io = 0.0
+        self.firmware: str | None = None
+        """What ``ATI0`` answered at start-up (None before, or when it named no version)."""
 
-    @property  # type: ignore[override]
-    def timed_send(self) -> bool:
+    @property
+    def timed_send(self) -> bool:  # type: ignore[override]
         """Whether ``send(at=...)`` is exact: the modem answered ``AT?CLOCK`` at start-up."""
         return self._timed
 
@@ -181,8 +195,10 @@ class EvologicsBackend(ModemBackend):
                  self.address, self.mode.value)
 
     async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
-        dst = BROADCAST if dest is None else dest
-        ack = ack and dst != BROADCAST  # broadcast requires noack [V driver practice]
+        dst = self.broadcast if dest is None else dest
+        if dst is None:
+            raise BackendError(f"{self}: a frame to every node, but no broadcast address")
+        ack = ack and dst != self.broadcast  # broadcast requires noack [V driver practice]
         async with self._lock:
             self._check()
             while not self._tx_events.empty():
@@ -221,6 +237,7 @@ class EvologicsBackend(ModemBackend):
             reply = await self._command("C")  # +++ATC -> OK [V BIR]
             self.protocol.mode = Mode.COMMAND
             self._expect_ok(reply, "+++ATC")
+        await self._firmware()
         await self._command_ok(f"!AL{self.address}")
         reply = await self._command("?AL")
         if not isinstance(reply, Value) or reply.text.strip() != str(self.address):
@@ -240,6 +257,21 @@ class EvologicsBackend(ModemBackend):
             if not self._timed:
                 log.warning("%s: AT?CLOCK unanswered: frames are sent untimed (AT*SENDIM)",
                             self._who)
+
+    async def _firmware(self) -> None:
+        """``ATI0``: the firmware version, and with it the ``RECVIM``/``RECVPBM`` layout."""
+        reply = await self._command("I0")
+        text = reply.text.strip() if isinstance(reply, Value) else ""
+        try:
+            legacy = firmware_is_legacy(text)
+        except ValueError:
+            log.warning("%s: ATI0 answered %s, not a firmware version: taking 1.7+ layouts",
+                        self._who, _text(reply))
+            legacy = False
+        self.firmware = text or None
+        self.protocol.legacy_recvim = legacy
+        log.info("%s: firmware %s (%s RECVIM layout)", self._who, text or "?",
+                 "1.6" if legacy else "1.7+")
 
     async def _sync_clock(self, readings: int = 3) -> bool:
         """Read ``AT?CLOCK`` a few times and keep the reading with the shortest round trip."""
@@ -293,8 +325,10 @@ class EvologicsBackend(ModemBackend):
 
     async def _send_timed(self, data: bytes, dest: int | None, ack: bool,
                           at: float) -> bool | None:
-        dst = BROADCAST if dest is None else dest
-        if ack and dst != BROADCAST:  # SENDIMS has no ack flag: an acked IM at about ``at``
+        dst = self.broadcast if dest is None else dest
+        if dst is None:
+            raise BackendError(f"{self}: a frame to every node, but no broadcast address")
+        if ack and dst != self.broadcast:  # SENDIMS has no ack flag: an acked IM at about ``at``
             await asyncio.sleep(max(0.0, at - self.clock()))
             return await self._send(data, dest, ack)
         async with self._lock:
@@ -440,12 +474,13 @@ class EvologicsBackend(ModemBackend):
         if isinstance(event, Error | Busy):  # asynchronous: ERROR EFAULT, ERROR OVERLOAD
             self.stats["modem_errors"] += 1
             log.warning("%s: modem reports %s", self._who, _text(event))
-        elif isinstance(event, RecvIm | RecvImLegacy | RecvIms | RecvPbm):
+        elif isinstance(event, RecvIm | RecvImLegacy | RecvIms | RecvPbm | RecvPbmLegacy):
             self._deliver(self._reception(event, now))
         elif isinstance(event, RecvEnd):
             self._last_end = (now, event)
         elif isinstance(event, UsblLong):
             self.fixes[event.remote_addr] = {"time": now, **asdict(event)}
+            self._report_fix(_fix(event, self.clock()))
         elif isinstance(event, SendEnd | DeliveredIm | FailedIm | ExpiredIms | CanceledIm):
             self._tx_events.put_nowait(event)
         elif isinstance(event, BurstData):
@@ -462,10 +497,13 @@ class EvologicsBackend(ModemBackend):
             log.warning("%s: unparsable modem output %r (%s)", self._who, event.data[:80],
                         event.reason)
 
-    def _reception(self, ev: RecvIm | RecvImLegacy | RecvIms | RecvPbm, now: float) -> Reception:
+    def _reception(self, ev: RecvIm | RecvImLegacy | RecvIms | RecvPbm | RecvPbmLegacy,
+                   now: float) -> Reception:
         duration = getattr(ev, "duration_us", 0) * 1e-6
+        if isinstance(ev, RecvImLegacy | RecvPbmLegacy) and ev.bitrate > 0:
+            duration = len(ev.data) * 8 / ev.bitrate  # 1.6 gives the bit rate, not the time
         meta: dict[str, Any] = {
-            "dest": None if ev.dst == BROADCAST else ev.dst,
+            "dest": None if ev.dst == self.broadcast else ev.dst,
             "start": now - duration,
             "duration_s": duration,
             "rssi_db": ev.rssi,
@@ -484,7 +522,7 @@ class EvologicsBackend(ModemBackend):
                 meta["start"] = self.modem_clock.seconds(meta["rx_timestamp_us"],
                                                          modem_now - duration)
             now = meta["start"] + duration
-        if isinstance(ev, RecvImLegacy):
+        if isinstance(ev, RecvImLegacy | RecvPbmLegacy):
             meta["propagation_s"] = ev.ptime_us * 1e-6
         elif ev.src in self.propagation:
             meta["propagation_s"] = self.propagation[ev.src][1]
@@ -538,6 +576,17 @@ class EvologicsBackend(ModemBackend):
             self._reply.set_exception(error)
         self._tx_events.put_nowait(Malformed(b"", "failed"))  # wakes _wait_tx, which checks
         self._inbox.put(error)
+
+
+def _fix(ev: UsblLong, now: float) -> ModemFix:
+    """A ``USBLLONG`` as a :class:`ModemFix`: its ENU offset; its ``accuracy`` taken as the
+    standard deviation (m) of each axis [U: the unit is not in a stored source]."""
+    level = math.hypot(ev.e, ev.n)
+    variance = ev.accuracy ** 2
+    return ModemFix(ev.remote_addr, now, math.hypot(level, ev.u),
+                    math.degrees(math.atan2(ev.e, ev.n)) % 360.0,
+                    math.degrees(math.atan2(-ev.u, level)), ev.e, ev.n, -ev.u,
+                    (variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, variance))
 
 
 class _NoReply(Exception):

@@ -16,6 +16,13 @@ through the water's ``dest`` metadata (bits 0-7 the destination address, :data:`
 :data:`AIR_ACK`, :data:`AIR_BURST`, :data:`AIR_PBM`, :data:`AIR_IMS`, a 4-bit sequence number from
 :data:`AIR_SEQ_SHIFT`); payload bytes cross unchanged, so airtime is that of the payload.
 
+``firmware`` is what ``ATI0`` reports and how the modem speaks: before 1.7, ``RECVIM`` and
+``RECVPBM`` carry bitrate and propagation time in place of the duration [V DUNE for
+``RECVIM``; C for ``RECVPBM``]; 1.7 and 1.8 spell ``IM Rerty Count`` in ``AT&V``, as the real
+dump of BIR does, fixed from 1.9 [V BIR note]. ``AT&V`` lists the settings in the order of
+that dump, with the three it shows that the emulator does not model (``Wake Up Active Time``,
+``Wake Up Period``, ``Hold Timeout``) at the dump's values.
+
 Simplifications (not modelled): ``RECVSTART`` is printed when the water reports the reception,
 at its end, just before ``RECVEND``; a piggy-back message travels as its own frame; burst data
 is sent in frames of up to 64 B without ``DELIVERED`` reports; the acoustic connection set-up
@@ -26,6 +33,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import math
 import time
@@ -39,7 +47,7 @@ from bridge.errors import BackendError
 from bridge.mission.presets import UnknownPresetError, get_preset
 from bridge.modems.base import ModemSetup, Reception
 from bridge.modems.evologics.commands import CommandReader, HostBurst, HostCommand, SendRequest
-from bridge.modems.evologics.protocol import BROADCAST, Mode, wrap
+from bridge.modems.evologics.protocol import BROADCAST, Mode, firmware_is_legacy, wrap
 from bridge.modems.pty_host import PtyHost, TcpHost
 from bridge.modems.setup import modem_setup
 from bridge.modems.sim import SimBackend
@@ -67,6 +75,7 @@ ACK_TURNAROUND_S = 0.110
 transcript: 293.9 ms send-to-ack minus the 182.3 ms IM and 2 × 0.8 ms propagation]."""
 
 FIRMWARE = "1.9"
+"""What ``ATI0`` reports by default (the firmware of the real transcript, reference 1.9)."""
 CLOCK_WRAP = 1 << 32
 MAX_TX_QUEUE = 16  # IMs waiting for the transmitter; beyond this: ERROR BUFFER FULL [U]
 IMS_MARGIN_S = 0.002
@@ -92,9 +101,16 @@ SETTING_RANGES: dict[str, tuple[int, int]] = {
 SETTING_NAMES = {
     "L": "Source Level", "LC": "Source Level Control", "G": "Gain", "C": "Carrier Waveform ID",
     "AL": "Local Address", "AM": "Highest Address", "ZC": "Cluster Size", "ZP": "Packet Time",
-    "RC": "Retry Count", "RT": "Retry Timeout", "RP": "Promiscuous Mode", "CA": "Sound Speed",
-    "RI": "IM Retry Count", "ZL": "Pool Size", "ZI": "Idle Timeout",
+    "RC": "Retry Count", "RT": "Retry Timeout", "Wake Up Active Time": "Wake Up Active Time",
+    "Wake Up Period": "Wake Up Period", "RP": "Promiscuous Mode", "CA": "Sound Speed",
+    "RI": "IM Retry Count", "ZL": "Pool Size", "Hold Timeout": "Hold Timeout",
+    "ZI": "Idle Timeout",
 }
+"""``AT&V``'s lines in the order of the real dump (BIR); a key that is a label is shown at
+:data:`DUMP_ONLY`'s value."""
+
+DUMP_ONLY = {"Wake Up Active Time": 12, "Wake Up Period": 12, "Hold Timeout": 0}
+"""Lines of the real ``AT&V`` dump (BIR) whose settings the emulator does not model."""
 
 
 @dataclass
@@ -192,8 +208,14 @@ class EvologicsEmulator:
         positions: Mapping[int, tuple[float, float, float]] | None = None,
         guard_s: float = 1.0,
         usbl: bool = False,
+        firmware: str = FIRMWARE,
     ) -> None:
         self.setup = setup
+        self.firmware = firmware
+        # the water's dest carries the emulators' flags beside the address: no broadcast there
+        setup = dataclasses.replace(setup, options={k: v for k, v in setup.options.items()
+                                                    if k != "broadcast"})
+        self.legacy = firmware_is_legacy(firmware)  # ValueError for a non-version
         self.sim = SimBackend(setup)
         self.pty = PtyHost(self._pty_data, link=link)
         self.tcp: TcpHost | None = None
@@ -379,7 +401,7 @@ class EvologicsEmulator:
         elif upper in ("H", "A", "N", "S"):
             reply("OK")
         elif upper.startswith("I") and upper[1:].isdigit():
-            reply({"0": FIRMWARE, "1": "phy: emulated, mac: emulated",
+            reply({"0": self.firmware, "1": "phy: emulated, mac: emulated",
                    "7": "EvoLogics GmbH (emulated)"}.get(upper[1:], "ERROR WRONG FORMAT"))
         elif upper.startswith("?"):
             reply(self._query(upper[1:]))
@@ -458,7 +480,12 @@ class EvologicsEmulator:
         return "ERROR WRONG FORMAT"
 
     def _settings_dump(self) -> str:
-        lines = [f"{label}: {self.settings[key]}" for key, label in SETTING_NAMES.items()]
+        def label(text: str) -> str:
+            early = self.firmware.split(".")[:2] in (["1", "7"], ["1", "8"])
+            return "IM Rerty Count" if text == "IM Retry Count" and early else text
+
+        lines = [f"{label(name)}: {DUMP_ONLY[key] if key in DUMP_ONLY else self.settings[key]}"
+                 for key, name in SETTING_NAMES.items()]
         return "\r\n".join(lines) + "\r\n"
 
     def _clear(self, which: str) -> None:
@@ -656,14 +683,18 @@ class EvologicsEmulator:
         dur_us = round(duration * 1e6)
         pid = f"p{self.settings['ZS']}," if self.flags["ZF"] else ""
         head = f"{len(rx.data)},{rx.src},{addr},"
+        # firmware 1.6: bitrate and propagation time in place of the duration
+        old = f"976,{rssi},{integrity},{round(travel * 1e6)},0.0000,"
         if dest & AIR_PBM:
-            line = f"RECVPBM,{pid}{head}{dur_us},{rssi},{integrity},0.0000,"
+            line = f"RECVPBM,{pid}{head}" + (old if self.legacy else
+                                             f"{dur_us},{rssi},{integrity},0.0000,")
         elif dest & AIR_IMS:
             line = (f"RECVIMS,{pid}{head}{self.modem_us(start)},{dur_us},{rssi},{integrity},"
                     "0.0000,")
         else:
             flag = "ack" if dest & AIR_ACK_REQUEST else "noack"
-            line = f"RECVIM,{pid}{head}{flag},{dur_us},{rssi},{integrity},0.0000,"
+            line = f"RECVIM,{pid}{head}{flag}," + (old if self.legacy else
+                                                   f"{dur_us},{rssi},{integrity},0.0000,")
         self.notify(line.encode() + rx.data)
         self._usbl(rx.src, travel, rssi, integrity)
 
@@ -703,8 +734,10 @@ async def run_emulator(
     tcp_port: int | None = None,
     ready: Callable[[dict[str, Any]], None] | None = None,
     usbl: bool = False,
+    firmware: str = FIRMWARE,
 ) -> None:
-    """Emulate ``node``'s S2C modem in the water at ``water`` until cancelled.
+    """Emulate ``node``'s S2C modem in the water at ``water`` until cancelled (as ``firmware``,
+    e.g. ``1.6`` for the older ``RECVIM`` layout).
 
     Calls ``ready({"device": pty_path, "tcp": port_or_None})`` once listening. Raises
     :class:`BackendError` if the water cannot be joined or is lost.
@@ -717,7 +750,7 @@ async def run_emulator(
         if n.position is not None
     }
     emulator = EvologicsEmulator(setup, link=link, tcp_port=tcp_port, positions=positions,
-                                 usbl=usbl)
+                                 usbl=usbl, firmware=firmware)
     try:
         info = await emulator.start()
         if ready is not None:

@@ -63,6 +63,7 @@ __all__ = [
     "RecvImLegacy",
     "RecvIms",
     "RecvPbm",
+    "RecvPbmLegacy",
     "RecvStart",
     "SendEnd",
     "SendStart",
@@ -255,7 +256,8 @@ class _Typed(Event):
 
 def _base_type(hint: Any) -> type:
     args = [a for a in typing.get_args(hint) if a is not type(None)]
-    return args[0] if args else hint
+    found: type = args[0] if args else hint
+    return found
 
 
 _INT = re.compile(rb"[+-]?\d{1,20}")
@@ -349,6 +351,39 @@ class RecvPbm(_Typed):
     velocity: float
     data: bytes = b""
     pid: int | None = None
+
+
+@dataclass(frozen=True)
+class RecvPbmLegacy(_Typed):
+    """``RECVPBM`` of firmware 1.6: bitrate and propagation time in place of duration, as in
+    its ``RECVIM`` [C: by analogy with the 1.6 ``RECVIM`` of DUNE; no 1.6 ``RECVPBM`` is in a
+    stored source]."""
+
+    NAME: ClassVar[str] = "RECVPBM"
+    PAYLOAD: ClassVar[bool] = True
+    src: int
+    dst: int
+    bitrate: int
+    rssi: int
+    integrity: int
+    ptime_us: int
+    velocity: float
+    data: bytes = b""
+    pid: int | None = None
+
+
+LEGACY: dict[bytes, type[_Typed]] = {b"RECVIM": RecvImLegacy, b"RECVPBM": RecvPbmLegacy}
+"""Firmware 1.6's layouts of the length-framed lines that changed in 1.7 (DUNE)."""
+
+
+def firmware_is_legacy(version: str) -> bool:
+    """Whether an ``ATI0`` reply (``1.6``, ``1.9``, ``2.0.1`` ...) names firmware older than
+    1.7, which prints ``RECVIM``/``RECVPBM`` in the 1.6 layout [V DUNE]; ``ValueError`` if it
+    is not a version."""
+    match = re.match(r"\s*(\d+)\.(\d+)", version)
+    if match is None:
+        raise ValueError(f"not a firmware version: {version!r}")
+    return (int(match[1]), int(match[2])) < (1, 7)
 
 
 @dataclass(frozen=True)
@@ -584,16 +619,18 @@ def _notification(body: bytes, legacy_recvim: bool) -> Event:
     name_raw, sep, rest = body.partition(b",")
     name = name_raw.decode("ascii")
     if name_raw in _PAYLOAD_NAMES:
-        return _payload_event(name_raw, rest if sep else b"", legacy_recvim, whole=True)[0]
+        event = _payload_event(name_raw, rest if sep else b"", legacy_recvim, whole=True)[0]
+        assert not isinstance(event, NeedData)  # (whole: the line is all there is)
+        return event
     if name.startswith("CANCELED") and name[8:] in ("IM", "IMS", "PBM"):
         return CanceledIm(name[8:], int(_convert(rest, int)))
     if name == "RECVEND":
         values = rest.split(b",")
         if len(values) not in (4, 5):
             raise ValueError(f"RECVEND needs 4 or 5 fields, got {len(values)}")
-        ints = [_convert(v, int) for v in values[:4]]
+        start, duration, rssi, integrity = (int(_convert(v, int)) for v in values[:4])
         velocity = _convert(values[4], float) if len(values) == 5 else None
-        return RecvEnd(*ints, velocity=velocity)
+        return RecvEnd(start, duration, rssi, integrity, velocity)
     cls = _TYPED.get(name)
     if cls is not None:
         values = rest.split(b",") if sep else []
@@ -645,7 +682,8 @@ def _payload_event(
     """
     cls: type[_Typed] | None = None
     if name != b"NOISE":
-        cls = RecvImLegacy if name == b"RECVIM" and legacy_recvim else _TYPED[name.decode()]
+        cls = LEGACY.get(name) if legacy_recvim else None
+        cls = cls or _TYPED[name.decode()]
     header = _payload_header(rest, cls.n_fields() if cls is not None else 3)
     if header is None:
         if whole:
@@ -676,7 +714,7 @@ class HostProtocol:
     """The host's view of one modem port: feed bytes, read events, serialise commands.
 
     ``eol`` is what ends a host command: ``b"\\r"`` on serial, ``b"\\n"`` on Ethernet [V].
-    ``legacy_recvim`` parses ``RECVIM`` in the firmware-1.6 layout.
+    ``legacy_recvim`` parses ``RECVIM`` and ``RECVPBM`` in the firmware-1.6 layout.
     """
 
     mode: Mode = Mode.DATA

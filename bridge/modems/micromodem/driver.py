@@ -3,14 +3,23 @@
 Options (``modem.options`` of the mission):
 
 - ``device`` (required): serial path (``/dev/ttyUSB0``, a pty) or pyserial URL.
-- ``baud`` (19200), ``rate`` (0–5, default 0), ``ack`` (false): ask the destination to
+- ``baud`` (19200), ``rate`` (0–6, default 0), ``ack`` (false): ask the destination to
   acknowledge every frame (only for frames with one destination).
+- ``fdp`` (false): send by MM2's flexible data protocol (``$CCTDP``, rates 1–6) instead of the
+  legacy cycle; packets of either kind are received all the same (``$CARXD``, ``$CARDP``,
+  ``$CARFP``). An FDP send returns at its ``$CATXF`` (no per-frame acknowledgement).
 - ``timeout_s`` (5): wait for a command's echo; ``retries`` (3): resends of a command
   (goby: 5 s, 3 tries, reference 2.4 E); ``tx_timeout_s`` (derived from the rate): one whole data
   cycle; ``send_retries`` (2): cycles retried after a failure; ``ping_timeout_s`` (10).
-- ``broadcast`` (127): the address used for frames without one destination. [U] the reference
-  does not name a broadcast address; every Micro-Modem passes every packet to its host anyway
-  (seed 003), so this only labels the frame.
+- ``broadcast`` (0, Goby's ``BROADCAST_ID``; the mission's ``modem.broadcast`` sets it): the
+  address of frames without one destination, and the one that marks a received frame as
+  broadcast. Every Micro-Modem passes every packet to its host anyway (seed 003), so it only
+  labels frames, but a fleet must agree on it: ``zab check`` says when a node's address is it.
+- ``set_clock`` (``none``): at start-up (and after a reboot) set the modem's clock from the
+  host's, ``clk`` with ``$CCCLK`` (MM1 and MM2, 50–100 ms after a second's top, naming the next
+  second as goby does) or ``tms`` with MM2's ``$CCTMS``, then read it back with ``$CCTMQ``;
+  ``stats["clock_offset_ms"]`` is modem minus host as read. ``sound_speed_mps`` (1500) turns a
+  ``$CAUSB2`` travel time into a range.
 - ``config``: extra ``$CCCFG`` keys set at start-up, e.g. ``{CTO: 10}``.
 
 Start-up sets ``SRC`` to the node's address (and ``config``) and waits for every echo. A bridge
@@ -19,7 +28,11 @@ bytes at most) and joined again by the receiving backend. ``send`` returns when 
 left the modem (``$CATXF``), or when every frame was acknowledged with ``ack``; it retries a
 failed cycle ``send_retries`` times, then raises :class:`BackendError`: a frame is sent, or the
 caller is told. A reboot (``$CAREV,…,INIT``) fails the running cycle and re-initialises the modem.
-A line with a bad checksum is counted in ``stats["bad_lines"]`` and dropped.
+A line with a bad checksum is counted in ``stats["bad_lines"]`` and dropped. ``$CAMSG``
+``BAD_CRC`` and ``PACKET_TIMEOUT`` are counted in ``stats["bad_crc"]`` and
+``stats["packet_timeout"]`` (the packet they spoil also in ``rx_lost``). A ``$CAUSB2`` (MM2
+USBL) becomes a :class:`~bridge.modems.base.ModemFix` of the node heard last, handed to
+``on_fix`` (the runtime publishes it; the line has no covariance, so none is given).
 
 :meth:`~bridge.modems.base.ModemBackend.ping` runs the two-way ping (``$CCMPC`` →
 ``$CAMPR``) and returns the one-way travel time as a
@@ -30,19 +43,26 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import datetime
 import logging
+import math
 import time
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
 from bridge.core.reception import RangingMode
 from bridge.errors import BackendError
-from bridge.modems.base import Inbox, ModemBackend, ModemRange, ModemSetup, Reception
+from bridge.mission.presets import UnknownPresetError, get_preset
+from bridge.modems.base import Inbox, ModemBackend, ModemFix, ModemRange, ModemSetup, Reception
+from bridge.modems.micromodem.nmea import Sentence
 from bridge.modems.micromodem.protocol import (
     BadSentence,
+    Clock,
+    ClockReply,
     Config,
     HostProtocol,
     ModemError,
+    ModemMessage,
     Packet,
     PacketLost,
     PingReply,
@@ -50,8 +70,9 @@ from bridge.modems.micromodem.protocol import (
     RxStart,
     TransferDone,
     TransferFailed,
+    UsblFix,
 )
-from bridge.modems.micromodem.rates import get_rate
+from bridge.modems.micromodem.rates import FDP_RATES, get_rate
 from bridge.modems.transport import ByteTransport
 
 __all__ = ["MicromodemBackend"]
@@ -63,7 +84,10 @@ DEFAULT_TIMEOUT_S = 5.0
 DEFAULT_RETRIES = 3
 DEFAULT_SEND_RETRIES = 2
 DEFAULT_PING_TIMEOUT_S = 10.0
-DEFAULT_BROADCAST = 127
+DEFAULT_BROADCAST = 0
+"""Goby's ``BROADCAST_ID`` (reference 2.x, goby ``mm_driver``): the convention of a mixed
+Goby/zab fleet unless the mission says otherwise."""
+CLOCK_MODES = ("none", "clk", "tms")
 RX_QUEUE = 256
 RETRY_BACKOFF_S = 0.5
 
@@ -73,6 +97,7 @@ class MicromodemBackend(ModemBackend):
 
     name: ClassVar[str] = "micromodem"
     ranging: ClassVar[RangingMode | None] = RangingMode.PING
+    default_broadcast: ClassVar[int | None] = DEFAULT_BROADCAST
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
@@ -81,6 +106,28 @@ class MicromodemBackend(ModemBackend):
             return get_rate(options.get("rate", 0)).max_bytes
         except ValueError:
             return None
+
+    @classmethod
+    def setup_problems(cls, options: Mapping[str, Any], address: int) -> tuple[list[str],
+                                                                               list[str]]:
+        """Besides the broadcast address: a water preset whose packets are smaller than the
+        rate's (``zab water`` would refuse the frames), or made for another rate."""
+        errors, warnings = super().setup_problems(options, address)
+        try:
+            rate = get_rate(options.get("rate", 0))
+            preset = get_preset(str(options["preset"])) if "preset" in options else None
+        except (ValueError, UnknownPresetError):
+            return errors, warnings
+        if preset is None or not preset.name.startswith("micromodem-rate"):
+            return errors, warnings
+        if preset.frame_bytes < rate.max_bytes:
+            warnings.append(f"rate {rate.number} sends packets of up to {rate.max_bytes} B, "
+                            f"the water's preset {preset.name} carries {preset.frame_bytes} B: "
+                            f"larger frames are refused (use micromodem-rate{rate.number})")
+        elif preset.name != f"micromodem-rate{rate.number}":
+            warnings.append(f"the water's preset {preset.name} times packets at another rate "
+                            f"than rate {rate.number} (use micromodem-rate{rate.number})")
+        return errors, warnings
 
     def __init__(self, setup: ModemSetup) -> None:
         super().__init__(setup)
@@ -95,10 +142,18 @@ class MicromodemBackend(ModemBackend):
             self.retries = int(opts.get("retries", DEFAULT_RETRIES))
             self.send_retries = int(opts.get("send_retries", DEFAULT_SEND_RETRIES))
             self.ping_timeout_s = float(opts.get("ping_timeout_s", DEFAULT_PING_TIMEOUT_S))
-            self.broadcast = int(opts.get("broadcast", DEFAULT_BROADCAST))
+            self.broadcast = self.broadcast_address(opts)
+            self.fdp = bool(opts.get("fdp", False))
+            self.set_clock = str(opts.get("set_clock", "none"))
+            self.sound_speed = float(opts.get("sound_speed_mps", 1500.0))
             self.protocol = HostProtocol(setup.address)
         except (TypeError, ValueError) as exc:
             raise BackendError(f"{where}: {exc}") from None
+        if self.fdp and self.rate.number not in FDP_RATES:
+            raise BackendError(f"{where}: FDP runs at rates {sorted(FDP_RATES)}, not "
+                               f"{self.rate.number}")
+        if self.set_clock not in CLOCK_MODES:
+            raise BackendError(f"{where}: set_clock must be one of {', '.join(CLOCK_MODES)}")
         self.device = str(opts["device"])
         self.config: dict[str, Any] = dict(opts.get("config") or {})
         # a packet's airtime, cycle-init and travel, with room: [C] estimates (reference 2.6)
@@ -109,7 +164,7 @@ class MicromodemBackend(ModemBackend):
             log.warning("%s: frame_bytes %d > %d B of a rate-%d packet; frames are capped",
                         where, setup.frame_bytes, self.rate.max_bytes, self.rate.number)
         self.stats.update(bad_lines=0, modem_errors=0, reboots=0, rx_lost=0, retries=0,
-                          dropped=0)
+                          dropped=0, bad_crc=0, packet_timeout=0, fixes=0)
         self._transport: ByteTransport | None = None
         self._reader: asyncio.Task[None] | None = None
         self._init_task: asyncio.Task[None] | None = None
@@ -120,6 +175,7 @@ class MicromodemBackend(ModemBackend):
         self._configs: dict[str, asyncio.Future[str]] = {}
         self._transfer: asyncio.Future[TransferDone] | None = None
         self._pinging: tuple[int, asyncio.Future[float]] | None = None
+        self._clock_reply: asyncio.Future[ClockReply | Clock] | None = None
         self._rx_start: float | None = None
 
     # -- hooks ---------------------------------------------------------------------------------
@@ -137,6 +193,8 @@ class MicromodemBackend(ModemBackend):
 
     async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
         to = self.broadcast if dest is None else dest
+        if to is None:
+            raise BackendError(f"{self}: a frame to every node, but no broadcast address")
         ack = ack and dest is not None
         last: BackendError | None = None
         for attempt in range(self.send_retries + 1):
@@ -211,7 +269,8 @@ class MicromodemBackend(ModemBackend):
             self._transfer = fut
             try:
                 try:
-                    self.protocol.start_transfer(dest, data, self.rate.number, ack)
+                    start = self.protocol.start_fdp if self.fdp else self.protocol.start_transfer
+                    start(dest, data, self.rate.number, ack)
                 except ValueError as exc:
                     raise BackendError(f"micromodem {self.setup.node!r}: {exc}") from None
                 await self._flush()
@@ -226,10 +285,13 @@ class MicromodemBackend(ModemBackend):
                 self._transfer = None
 
     async def _initialise(self) -> None:
-        """Set SRC and the configured keys, each confirmed by its ``$CACFG`` echo."""
+        """Set SRC and the configured keys, each confirmed by its ``$CACFG`` echo; then the
+        clock (``set_clock``)."""
         self._ready.clear()
         for key, value in (("SRC", self.address), *self.config.items()):
             await self._configure(str(key), value)
+        if self.set_clock != "none":
+            await self._set_modem_clock()
         self.protocol.needs_init = False
         self._ready.set()
         log.info("%s: initialised (rate %d, %s)", self, self.rate.number, self.device)
@@ -262,6 +324,43 @@ class MicromodemBackend(ModemBackend):
         raise BackendError(f"micromodem {self.setup.node!r}: no reply from the modem on "
                            f"{self.device} to $CCCFG,{key} ({self.retries + 1} tries of "
                            f"{self.timeout_s:g} s)")
+
+    async def _clock_command(self, sentence: Sentence, wait_s: float) -> ClockReply | Clock:
+        fut: asyncio.Future[ClockReply | Clock] = asyncio.get_running_loop().create_future()
+        self._clock_reply = fut
+        try:
+            self.protocol.send(sentence)
+            await self._flush()
+            return await asyncio.wait_for(fut, wait_s)
+        except TimeoutError:
+            raise BackendError(f"micromodem {self.setup.node!r}: no reply to ${sentence.name}"
+                               f" within {wait_s:g} s") from None
+        finally:
+            self._clock_reply = None
+
+    async def _set_modem_clock(self) -> None:
+        """Set the modem clock from the host's (``$CCCLK`` or ``$CCTMS``), then read it back
+        with ``$CCTMQ`` (MM2; the reply comes ~0.5 s late, goby) and keep the offset."""
+        now = time.time()
+        await asyncio.sleep(1.075 - now % 1.0 if now % 1.0 > 0.075 else 0.075 - now % 1.0)
+        second = datetime.datetime.fromtimestamp(math.floor(time.time()) + 1, datetime.UTC)
+        if self.set_clock == "clk":  # 50-100 ms into a second, naming the next one (goby)
+            fields = tuple(str(v) for v in (second.year, second.month, second.day,
+                                            second.hour, second.minute, second.second))
+            await self._clock_command(Sentence("CC", "CLK", fields), self.timeout_s)
+            return
+        stamp = second.strftime("%Y-%m-%dT%H:%M:%SZ")
+        reply = await self._clock_command(Sentence("CC", "TMS", (stamp, "0")), self.timeout_s)
+        if isinstance(reply, ClockReply) and reply.timed_out:
+            raise BackendError(f"micromodem {self.setup.node!r}: $CCTMS timed out")
+        reply = await self._clock_command(Sentence("CC", "TMQ", ("0",)), self.timeout_s + 0.5)
+        heard = time.time()  # the reply's time is when the modem printed it, ~0.5 s on
+        if isinstance(reply, ClockReply):
+            with contextlib.suppress(ValueError):
+                read = datetime.datetime.fromisoformat(reply.time.replace("Z", "+00:00"))
+                if read.tzinfo is None:
+                    read = read.replace(tzinfo=datetime.UTC)
+                self.stats["clock_offset_ms"] = round((read.timestamp() - heard) * 1000)
 
     async def _reinitialise(self) -> None:
         try:
@@ -330,12 +429,32 @@ class MicromodemBackend(ModemBackend):
                 if self._ready.is_set() and (self._init_task is None or self._init_task.done()):
                     self._ready.clear()
                     self._init_task = asyncio.create_task(self._reinitialise())
+            elif isinstance(event, ClockReply | Clock):
+                fut_clk = self._clock_reply
+                if fut_clk is not None and not fut_clk.done():
+                    fut_clk.set_result(event)
+            elif isinstance(event, ModemMessage):
+                if event.bad_crc or event.packet_timeout:
+                    self.stats["bad_crc" if event.bad_crc else "packet_timeout"] += 1
+            elif isinstance(event, UsblFix):
+                self._usbl(event)
             elif isinstance(event, BadSentence):
                 self.stats["bad_lines"] += 1
                 log.debug("%s: dropped line %r: %s", self, event.line[:60], event.reason)
             elif isinstance(event, PacketLost):
                 self.stats["rx_lost"] += 1
                 log.info("%s: lost a packet from %s: %s", self, event.src, event.reason)
+
+    def _usbl(self, fix: UsblFix) -> None:
+        """A ``$CAUSB2``: the node heard last, located from this modem's USBL head."""
+        if fix.src is None:
+            log.info("%s: $CAUSB2 before any node was heard; dropped", self)
+            return
+        r = fix.travel_time_s * self.sound_speed
+        az, el = math.radians(fix.azimuth_deg), math.radians(fix.elevation_deg)
+        level = r * math.cos(el)
+        self._report_fix(ModemFix(fix.src, self.clock(), r, fix.azimuth_deg, fix.elevation_deg,
+                                  level * math.sin(az), level * math.cos(az), r * math.sin(el)))
 
     def _received(self, packet: Packet) -> None:
         now = time.time()

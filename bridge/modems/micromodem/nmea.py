@@ -3,7 +3,11 @@
 A sentence is ``$TTXXX,f1,f2,...[*hh]\\r\\n``: a two-letter talker (``CC`` host → modem, ``CA``
 modem → host, also ``SN`` and ``GP``), a three-letter type, comma-separated fields and an
 optional checksum: the XOR of every byte after ``$`` up to ``*``, two upper-case hex digits
-(reference 2.1 [V]). :func:`parse_sentence` raises :class:`NmeaError` and nothing else.
+(reference 2.1 [V]), or on MM2 an eight-digit CRC-32 (:func:`checksum32`). Both are checked,
+and both must be upper case: NMEA 0183 writes the checksum with the characters 0-9 and A-F,
+and the modem prints it so; a lower-case checksum is refused as a line that did not come
+from a modem. Hex data fields may be either case (a real ``$CAMUA`` carries ``1fab``).
+:func:`parse_sentence` raises :class:`NmeaError` and nothing else.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ __all__ = [
     "NmeaError",
     "Sentence",
     "checksum",
+    "checksum32",
     "parse_sentence",
 ]
 
@@ -28,9 +33,27 @@ MAX_SENTENCE_BYTES = 8192
 """Longest line accepted. A rate-5 ``$CARXD`` carries 256 B as 512 hex digits and an MM2
 ``$CARDP`` up to 2048 B as 4096; anything far longer is line noise, not a sentence."""
 
-_ADDRESS = re.compile(r"[A-Z]{2}[A-Z0-9]{3}")
-_HEX2 = re.compile(r"[0-9A-Fa-f]{2}")
-_HEX8 = re.compile(r"[0-9A-Fa-f]{8}")
+_ADDRESS = re.compile(r"[A-Z]{2}[A-Z0-9]{3,4}")
+"""Talker and type: ``CACYC``, and MM2's four-letter ``CAUSB2``."""
+_HEX = re.compile(r"[0-9A-Fa-f]{2}|[0-9A-Fa-f]{8}")
+
+CRC32_POLY_REVERSED = 0xD663B05D
+"""The MM2's 32-bit NMEA checksum polynomial in reflected form (Koopman's 0xBA0DC66B), with
+initial value and final XOR 0xFFFFFFFF. Read from pyacomms' ``nmeaChecksum32`` table (entry
+128 of a reflected table is the reflected polynomial); the table here is computed from it."""
+
+
+def _crc32_table() -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ CRC32_POLY_REVERSED if crc & 1 else crc >> 1
+        table.append(crc)
+    return tuple(table)
+
+
+_CRC32 = _crc32_table()
 
 
 class NmeaError(DecodeError):
@@ -44,6 +67,14 @@ class ChecksumError(NmeaError):
 def checksum(body: str) -> str:
     """The NMEA XOR checksum of ``body`` (the text between ``$`` and ``*``), e.g. ``"5B"``."""
     return f"{reduce(lambda acc, ch: acc ^ ord(ch), body, 0):02X}"
+
+
+def checksum32(body: str) -> str:
+    """The MM2 CRC-32 checksum of ``body`` as eight upper-case hex digits."""
+    crc = 0xFFFFFFFF
+    for byte in body.encode("latin-1"):
+        crc = (crc >> 8) ^ _CRC32[(crc ^ byte) & 0xFF]
+    return f"{crc ^ 0xFFFFFFFF:08X}"
 
 
 @dataclass(frozen=True)
@@ -70,14 +101,17 @@ class Sentence:
         """The text between ``$`` and ``*``."""
         return ",".join((self.name, *self.fields))
 
-    def to_line(self, *, with_checksum: bool = True) -> str:
-        """The sentence as text, without the line end."""
+    def to_line(self, *, with_checksum: bool = True, crc32: bool = False) -> str:
+        """The sentence as text, without the line end (``crc32``: the MM2's 8-digit sum)."""
         body = self.body()
-        return f"${body}*{checksum(body)}" if with_checksum else f"${body}"
+        if not with_checksum:
+            return f"${body}"
+        return f"${body}*{checksum32(body) if crc32 else checksum(body)}"
 
-    def encode(self, *, with_checksum: bool = True) -> bytes:
+    def encode(self, *, with_checksum: bool = True, crc32: bool = False) -> bytes:
         """The sentence as bytes on the wire, ending in ``\\r\\n``."""
-        return (self.to_line(with_checksum=with_checksum) + "\r\n").encode("ascii")
+        line = self.to_line(with_checksum=with_checksum, crc32=crc32)
+        return (line + "\r\n").encode("ascii")
 
     def __str__(self) -> str:
         line = self.to_line()
@@ -87,8 +121,8 @@ class Sentence:
 def parse_sentence(line: bytes | str) -> Sentence:
     """Parse one line (line end optional). Raises :class:`NmeaError` (or :class:`ChecksumError`).
 
-    The checksum is optional, as on the modem's input [V]. Two hex digits are checked; an MM2
-    8-digit CRC-32 [V] is accepted unchecked (its polynomial is not in the reference).
+    The checksum is optional, as on the modem's input [V]. Two hex digits are the XOR sum,
+    eight the MM2's CRC-32 (:func:`checksum32`); either must match and be upper case.
     """
     if isinstance(line, bytes):
         try:
@@ -104,18 +138,18 @@ def parse_sentence(line: bytes | str) -> Sentence:
         raise NmeaError(f"sentence must start with '$': {text[:40]!r}")
     body, star, given = text[1:].partition("*")
     if star:
-        if _HEX2.fullmatch(given):
-            if given.upper() != checksum(body):
-                raise ChecksumError(
-                    f"checksum mismatch in ${body[:40]}: got {given}, computed {checksum(body)}"
-                )
-        elif not _HEX8.fullmatch(given):
-            raise NmeaError(f"bad checksum field {given[:12]!r}")
+        if not _HEX.fullmatch(given):
+            raise NmeaError(f"bad checksum field {given[:12]!r} (2 or 8 hex digits)")
+        if given != given.upper():
+            raise NmeaError(f"lower-case checksum {given!r}: the modem prints 0-9 and A-F")
+        want = checksum(body) if len(given) == 2 else checksum32(body)
+        if given != want:
+            raise ChecksumError(f"checksum mismatch in ${body[:40]}: got {given}, computed {want}")
     if not body.isascii() or not body.isprintable() or "$" in body:
         raise NmeaError(f"unprintable or reserved characters in sentence {body[:40]!r}")
     address, *fields = body.split(",")
     if not _ADDRESS.fullmatch(address):
-        raise NmeaError(f"bad talker/type {address[:12]!r} (want 5 characters like CACYC)")
+        raise NmeaError(f"bad talker/type {address[:12]!r} (want CACYC or CAUSB2)")
     return Sentence(address[:2], address[2:], tuple(fields))
 
 

@@ -15,31 +15,43 @@ Rules (reference section 2):
   ``$CATXF`` first) → one ``$CADRQ`` per frame, answered with ``$CCTXD`` → ``$CATXD`` echo →
   ``$CATXF`` at the end of the packet → (ack) one ``$CAACK`` per frame. It ends with
   :class:`TransferDone` or :class:`TransferFailed` (``$CAERR``, a reboot, or :meth:`abort`).
-* Incoming frames of one packet (``$CACYC`` from another node, then ``$CARXD`` 1..n) are joined
-  into one :class:`Packet`; a ``$CAMSG,BAD_CRC`` or an incomplete packet gives
-  :class:`PacketLost`.
+* MM2's flexible data protocol (FDP) runs beside it: :meth:`HostProtocol.start_fdp` sends
+  ``$CCTDP`` → echo ``$CATDP`` → ``$CATXF``, and an FDP packet received arrives whole in one
+  ``$CARDP`` or ``$CARFP``, each frame with its own CRC flag.
+* Incoming frames of one packet (``$CACYC`` from another node, then ``$CARXD`` 1..n), or one
+  ``$CARDP``/``$CARFP`` whose frames all passed their CRC, become one :class:`Packet`; a
+  ``$CAMSG,BAD_CRC``, a ``$CAMSG,PACKET_TIMEOUT``, a bad FDP frame or an incomplete packet
+  gives :class:`PacketLost`.
+* ``$CAUSB2`` (MM2 USBL: azimuth, elevation and one-way travel time of the last reception)
+  becomes :class:`UsblFix`, attributed to the sender heard last (the line names no address).
 * ``$CAREV,…,INIT`` means the modem rebooted: any transfer fails and ``needs_init`` is set.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 from bridge.modems.micromodem.nmea import LineBuffer, NmeaError, Sentence, parse_sentence
-from bridge.modems.micromodem.rates import get_rate
+from bridge.modems.micromodem.rates import FDP_RATES, get_rate
 from bridge.modems.protocol import NEED_DATA, NeedData
 
 __all__ = [
     "Ack",
+    "ApiLevel",
     "BadSentence",
     "Clock",
+    "ClockReply",
     "Config",
     "CycleInit",
     "DataRequest",
     "Event",
+    "FdpEcho",
+    "FdpFrame",
+    "FdpReceived",
     "HostProtocol",
     "MiniPacket",
     "ModemError",
@@ -62,6 +74,7 @@ __all__ = [
     "TxStart",
     "TxStats",
     "Unhandled",
+    "UsblFix",
     "parse_event",
 ]
 
@@ -180,6 +193,11 @@ class ModemMessage:
     def bad_crc(self) -> bool:
         return self.type.replace(" ", "_").upper() == "BAD_CRC"
 
+    @property
+    def packet_timeout(self) -> bool:
+        """A cycle-init was heard but its data never came (within the modem's ``PTO``)."""
+        return self.type.replace(" ", "_").upper() == "PACKET_TIMEOUT"
+
 
 @dataclass(frozen=True)
 class ModemError:
@@ -240,6 +258,78 @@ class Clock:
     """``$CACLK,...``: echo of ``$CCCLK`` (fields kept as text)."""
 
     fields: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ClockReply:
+    """``$CATMS,timed_out,time`` (clock set) or ``$CATMQ,time,clksrc,pps_src`` (clock read),
+    MM2: ``time`` is ISO 8601 UTC as the modem printed it."""
+
+    kind: str
+    time: str
+    timed_out: bool = False
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class ApiLevel:
+    """``$CAALQ,app_name,level``: the NMEA API level (MM2)."""
+
+    app: str
+    level: int
+
+
+@dataclass(frozen=True)
+class FdpEcho:
+    """``$CATDP,errflag,id,dest,rate,ack,reserved[,...]``: the modem took our ``$CCTDP``."""
+
+    error: int
+    ident: int
+    dest: int
+    rate: int
+    ack: bool
+
+
+@dataclass(frozen=True)
+class FdpFrame:
+    """One frame of an FDP packet: ``crc_ok;nbytes;hex``."""
+
+    crc_ok: bool
+    data: bytes
+
+
+@dataclass(frozen=True)
+class FdpReceived:
+    """``$CARDP`` / ``$CARFP``: an FDP packet as received, its user mini- and data frames."""
+
+    src: int
+    dest: int
+    rate: int
+    ack: bool
+    mini: tuple[FdpFrame, ...]
+    frames: tuple[FdpFrame, ...]
+
+    @property
+    def good(self) -> bool:
+        return all(f.crc_ok for f in (*self.mini, *self.frames))
+
+    @property
+    def data(self) -> bytes:
+        return b"".join(f.data for f in (*self.mini, *self.frames))
+
+
+@dataclass(frozen=True)
+class UsblFix:
+    """``$CAUSB2,df,time,azimuth_deg,elevation_deg,owtt_s,timing_mode,ire0_r,...,ndetects``
+    (15 fields, pyacomms' layout); ``src`` is the node heard last (None: nobody yet)."""
+
+    time: str
+    azimuth_deg: float
+    elevation_deg: float
+    travel_time_s: float
+    timing_mode: int
+    detections: int
+    src: int | None = None
 
 
 @dataclass(frozen=True)
@@ -313,8 +403,8 @@ class PacketLost:
 Event = (
     Revision | Config | CycleInit | DataRequest | TxData | TxStart | TxFrame | RxStart | RxData
     | Ack | ModemMessage | ModemError | PingSent | Pinged | PingReply | MiniPacket | Sleep | Clock
-    | TxStats | RxStats | Unhandled | BadSentence | TransferDone | TransferFailed | Packet
-    | PacketLost
+    | ClockReply | ApiLevel | FdpEcho | FdpReceived | UsblFix | TxStats | RxStats | Unhandled
+    | BadSentence | TransferDone | TransferFailed | Packet | PacketLost
 )
 
 
@@ -400,6 +490,57 @@ def _mini(kind: str) -> Callable[[tuple[str, ...]], MiniPacket]:
     return build
 
 
+def _fdp_frames(text: str) -> tuple[FdpFrame, ...]:
+    """``crc_ok;nbytes;hex;crc_ok;nbytes;hex...`` (empty: no frames)."""
+    if not text:
+        return ()
+    parts = text.split(";")
+    if len(parts) % 3:
+        raise ValueError(f"FDP frames need crc;nbytes;hex triples, got {len(parts)} parts")
+    frames = []
+    for i in range(0, len(parts), 3):
+        crc, n, hexdata = parts[i : i + 3]
+        data = bytes.fromhex(hexdata)
+        if _count(n, 0, 4096) != len(data) and _flag(crc):
+            raise ValueError(f"FDP frame says {n} B, holds {len(data)}")
+        frames.append(FdpFrame(_flag(crc), data))
+    return tuple(frames)
+
+
+def _rdp(f: tuple[str, ...]) -> FdpReceived:
+    """``src,dest,rate,ack,reserved,minidata,data`` (goby's layout); pyacomms reads the sixth
+    field as the data, so a six-field line is taken that way."""
+    _need(f, 6, at_least=True)
+    if len(f) > 7:
+        raise ValueError(f"expected 6 or 7 fields, got {len(f)}")
+    mini, data = (f[5], f[6]) if len(f) == 7 else ("", f[5])
+    return FdpReceived(_addr(f[0]), _addr(f[1]), _count(f[2], 0, 6), _flag(f[3]),
+                       _fdp_frames(mini), _fdp_frames(data))
+
+
+def _rfp(f: tuple[str, ...]) -> FdpReceived:
+    """``time,seq,src,dest,minirate,datarate,ack,reserved,modem_mini,user_mini,data[,...]``
+    (the real MM2 line of the reference, as pyacomms reads it); the modem's own mini-frames
+    (field 9) are not user data."""
+    _need(f, 11, at_least=True)
+    return FdpReceived(_addr(f[2]), _addr(f[3]), _count(f[5], -1, 6), _flag(f[6]),
+                       _fdp_frames(f[9]), _fdp_frames(f[10]))
+
+
+def _tdp(f: tuple[str, ...]) -> FdpEcho:
+    _need(f, 6, at_least=True)
+    return FdpEcho(int(f[0]), int(f[1]), _addr(f[2]), _count(f[3], 0, 6), _flag(f[4]))
+
+
+def _usb2(f: tuple[str, ...]) -> UsblFix:
+    _need(f, 15, at_least=True)
+    owtt = float(f[4])
+    azimuth, elevation = float(f[2]), float(f[3])
+    if not (0.0 <= owtt < 100.0 and -360.0 <= azimuth <= 360.0 and -90.0 <= elevation <= 90.0):
+        raise ValueError("azimuth, elevation or travel time out of range")
+    return UsblFix(f[1], azimuth, elevation, owtt, int(f[5]), int(f[14]))
+
+
 def _fixed(n: int, build: Callable[..., Event], *kinds: Callable[[str], object],
            at_least: bool = False) -> Callable[[tuple[str, ...]], Event]:
     """A parser for ``n`` fields converted by ``kinds`` (text when missing), then ``build``."""
@@ -432,6 +573,13 @@ _PARSERS: dict[str, Callable[[tuple[str, ...]], Event]] = {
     "CAMUR": _mini("reply"),
     "CAMSC": _fixed(3, Sleep, _addr, _addr, _count),
     "CACLK": Clock,
+    "CATMS": lambda f: ClockReply("TMS", f[1] if len(f) > 1 else "", _flag(f[0])),
+    "CATMQ": lambda f: ClockReply("TMQ", f[0], source=",".join(f[1:3])),
+    "CAALQ": _fixed(2, ApiLevel, str, int),
+    "CATDP": _tdp,
+    "CARDP": _rdp,
+    "CARFP": _rfp,
+    "CAUSB2": _usb2,
     "CAXST": TxStats,
     "CACST": RxStats,
 }
@@ -466,6 +614,7 @@ class _Transfer:
     ack: bool
     frames: list[bytes]
     state: TransferState = TransferState.WAIT_ECHO
+    fdp: bool = False
     handed: set[int] = field(default_factory=set)
     acked: set[int] = field(default_factory=set)
 
@@ -492,6 +641,7 @@ class HostProtocol:
         self._out = bytearray()
         self._transfer: _Transfer | None = None
         self._incoming: _Incoming | None = None
+        self._last_src: int | None = None  # the node heard last, whom a $CAUSB2 locates
 
     # -- input ---------------------------------------------------------------------------------
 
@@ -566,6 +716,24 @@ class HostProtocol:
         fields = ("0", str(self.address), str(dest), str(rate), _text(ack), str(len(frames)))
         self.send(Sentence("CC", "CYC", fields))
 
+    def start_fdp(self, dest: int, data: bytes, rate: int, ack: bool) -> None:
+        """Send ``data`` to ``dest`` as one MM2 FDP packet: ``$CCTDP,dest,rate,ack,0,hex``.
+
+        ``ValueError`` if a transfer is running, ``rate`` has no FDP or ``data`` does not fit.
+        """
+        if self._transfer is not None:
+            raise ValueError("a transfer is already in progress")
+        if rate not in FDP_RATES:
+            raise ValueError(f"FDP runs at rates {sorted(FDP_RATES)}, not {rate}")
+        spec = get_rate(rate)
+        if not data or len(data) > spec.max_bytes:
+            raise ValueError(f"{len(data)} B does not fit a rate-{rate} FDP packet "
+                             f"(1..{spec.max_bytes} B)")
+        dest = _addr(str(dest))
+        self._transfer = _Transfer(dest, rate, ack, [data], fdp=True)
+        self.send(Sentence("CC", "TDP", (str(dest), str(rate), _text(ack), "0",
+                                         data.hex().upper())))
+
     def abort(self, reason: str) -> None:
         """Give up the running transfer (the adapter's timeout); emits :class:`TransferFailed`."""
         if self._transfer is not None:
@@ -592,6 +760,11 @@ class HostProtocol:
         except (ValueError, IndexError) as exc:
             self._bad(line, f"bad fields: {exc}")
             return
+        if isinstance(event, UsblFix):
+            event = dataclasses.replace(event, src=self._last_src)
+        elif isinstance(event, CycleInit | RxData | FdpReceived | PingReply | Pinged
+                        | MiniPacket) and event.src != self.address:
+            self._last_src = event.src
         self._events.append(event)
         self._react(event)
 
@@ -607,6 +780,16 @@ class HostProtocol:
             self._on_cycle(event)
         elif isinstance(event, DataRequest):
             self._on_request(event)
+        elif isinstance(event, FdpEcho) and t is not None and t.fdp:
+            if event.error:
+                self.abort(f"modem refused the FDP packet ($CATDP error {event.error})")
+            elif t.state is TransferState.WAIT_ECHO:
+                t.state = TransferState.WAIT_SENT
+        elif isinstance(event, FdpReceived):
+            self._on_fdp(event)
+        elif isinstance(event, TxFrame) and t is not None and t.fdp:
+            if t.state is TransferState.WAIT_SENT:  # an FDP packet ends at its $CATXF
+                self._finish(acked=False)
         elif isinstance(event, TxFrame) and t is not None:
             if t.state is TransferState.WAIT_CYCLE_INIT:
                 t.state = TransferState.WAIT_REQUEST
@@ -628,12 +811,28 @@ class HostProtocol:
         elif isinstance(event, ModemMessage) and event.bad_crc and self._incoming is not None:
             lost, self._incoming = self._incoming, None
             self._events.append(PacketLost(lost.src, f"bad CRC ({event.value})"))
+        elif isinstance(event, ModemMessage) and event.packet_timeout:
+            timed_out, self._incoming = self._incoming, None
+            self._events.append(PacketLost(timed_out.src if timed_out else None,
+                                           f"packet timeout ({event.value})"))
 
     def _finish(self, acked: bool) -> None:
         t = self._transfer
         assert t is not None
         self._transfer = None
         self._events.append(TransferDone(t.dest, len(t.frames), acked))
+
+    def _on_fdp(self, event: FdpReceived) -> None:
+        if event.src == self.address:
+            return
+        n = len(event.mini) + len(event.frames)
+        if not n:
+            return  # only the modem's own mini-frames (an FDP ping): nothing for the host
+        if not event.good:
+            bad = [i for i, f in enumerate((*event.mini, *event.frames), 1) if not f.crc_ok]
+            self._events.append(PacketLost(event.src, f"FDP packet with bad CRC in frames {bad}"))
+            return
+        self._events.append(Packet(event.src, event.dest, event.ack, event.rate, n, event.data))
 
     def _on_cycle(self, event: CycleInit) -> None:
         t = self._transfer

@@ -1,16 +1,21 @@
-"""Micro-Modem packet rates 0–5: frame size, frames per packet, nominal bit rate (pure).
+"""Micro-Modem packet rates 0–6: frame size, frames per packet, nominal bit rate (pure).
 
 Figures from the reference, section 2.2 [V]: goby ``PACKET_SIZE`` / ``PACKET_FRAME_COUNT``,
-pyacomms ``Rates`` and libumutil's ``TXR_*`` names. A frame's air time is fixed: a partial frame
-costs as much as a full one. Rate 6 (MM2 only) is left out: the bridge supports MM1 and MM2
-rates 0–5.
+pyacomms ``Rates`` (which also lists rate 6, MM2's DSS 1/15 with 32-byte frames) and
+libumutil's ``TXR_*`` names. Rate 6's bit rate is not in a stored source: it takes rate 2's
+500 bit/s, the same DSS 1/15 spreading [C]. A frame's air time is fixed: a partial frame
+costs as much as a full one.
+
+MM2's flexible data protocol (FDP, ``$CCTDP``) carries the data of one packet in the same
+frames: pyacomms' ``FDPDataRates`` gives 3×64, 2×256 and 8×256 bytes at rates 1, 3 and 5
+[V], the legacy table's figures; rates 2, 4 and 6 take theirs likewise [C].
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["RATES", "Rate", "frame_bytes_for_rate", "get_rate"]
+__all__ = ["FDP_RATES", "RATES", "Rate", "frame_bytes_for_rate", "get_rate"]
 
 
 @dataclass(frozen=True)
@@ -47,20 +52,24 @@ RATES: dict[int, Rate] = {
         Rate(3, "PSK DSS 1/7", 1200, 256, 2),
         Rate(4, "PSK BCH 64:10", 1300, 256, 2),
         Rate(5, "PSK Hamming 14:9", 5300, 256, 8),
+        Rate(6, "PSK DSS 1/15 (32 B frames)", 500, 32, 6),
     )
 }
 
+FDP_RATES = frozenset(n for n in RATES if n > 0)
+"""Rates an FDP packet (``$CCTDP``) may use: the PSK ones (rate 0 is FH-FSK)."""
+
 
 def get_rate(number: int) -> Rate:
-    """The rate ``number`` (0–5); ``ValueError`` names the valid ones."""
+    """The rate ``number`` (0–6); ``ValueError`` names the valid ones."""
     try:
         return RATES[int(number)]
     except (KeyError, TypeError, ValueError):
-        raise ValueError(f"Micro-Modem rate must be one of 0-5, got {number!r}") from None
+        raise ValueError(f"Micro-Modem rate must be one of 0-6, got {number!r}") from None
 
 
 def frame_bytes_for_rate(rate: int) -> int:
-    """Largest bridge frame at ``rate``: all its WHOI frames (32, 192, 192, 512, 512, 2048 B).
+    """Largest bridge frame at ``rate``: all its WHOI frames (32, 192, 192, 512, 512, 2048, 192 B).
 
     The backend splits a bridge frame over the packet's frames and the receiving backend joins
     them again, so this is the bit budget ``zab check`` should use.

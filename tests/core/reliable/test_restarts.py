@@ -7,6 +7,7 @@ with SIGKILL while commands stream.
 
 from __future__ import annotations
 
+import random
 from pathlib import Path
 
 import pytest
@@ -65,7 +66,7 @@ def frames_between(a: NodeCore, b: NodeCore, now: float) -> None:
 
 
 def test_a_fresh_receiver_is_resent_what_it_acknowledged_selectively() -> None:
-    ops, auv = NodeCore(LOADED, "ops"), NodeCore(LOADED, "auv")
+    ops, auv = NodeCore(LOADED, "ops"), NodeCore(LOADED, "auv", rng=random.Random(1))
     for n in range(3):
         ops.ingest("cmd", b'{"n": %d}' % n, "application/json", 0.0)
     first = ops.outbound.build(0.0, 0.0)
@@ -73,7 +74,7 @@ def test_a_fresh_receiver_is_resent_what_it_acknowledged_selectively() -> None:
     ops.outbound.sent(first, 0.0)  # n=0..2 in flight; the frame is lost
     frames_between(auv, ops, 1.0)  # ops learns auv's epoch
     auv.take()
-    fresh = NodeCore(LOADED, "auv")  # auv restarted without its state: a new epoch
+    fresh = NodeCore(LOADED, "auv", rng=random.Random(2))  # restarted without its state
     assert fresh.epoch != auv.epoch
     frames_between(fresh, ops, 2.0)
     assert any(isinstance(o, PeerRestarted) for o in ops.take())

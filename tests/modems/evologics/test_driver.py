@@ -13,7 +13,7 @@ import pytest
 
 from bridge.errors import BackendError
 from bridge.mission.presets import get_preset
-from bridge.modems.base import ModemRange, ModemSetup
+from bridge.modems.base import ModemFix, ModemRange, ModemSetup
 from bridge.modems.evologics.driver import EvologicsBackend
 from bridge.modems.evologics.emulator import EvologicsEmulator
 from bridge.modems.pty_host import PtyHost
@@ -112,6 +112,8 @@ def test_ack_delivered_with_range_and_failed(tmp_path: Path) -> None:
                 driver(emu[1], ack=True, usbl=True) as a, driver(emu[2]) as b:
             heard: list[ModemRange] = []
             a.on_range = heard.append
+            fixes: list[ModemFix] = []
+            a.on_fix = fixes.append
             assert a.ranging == "ack"
             await a.send(b"ping", 2)
             assert a.stats["delivered"] == 1
@@ -120,6 +122,9 @@ def test_ack_delivered_with_range_and_failed(tmp_path: Path) -> None:
             assert (rng.peer, rng.method) == (2, "propagation")
             assert rng.travel_time_s == pytest.approx(0.1, abs=1e-3)
             assert a.fixes[2]["e"] == pytest.approx(150.0)  # USBLLONG from the ack
+            (fix,) = fixes  # ... handed on, published by the runtime as usbl/<peer>
+            assert (fix.peer, fix.range_m, fix.azimuth_deg) == (2, pytest.approx(150.0), 90.0)
+            assert fix.covariance == pytest.approx((0.01, 0, 0, 0, 0.01, 0, 0, 0, 0.01))
             await asyncio.wait_for(b.recv(), 2)
             await b.close()
             await emu[2].stop()  # nobody answers any more
@@ -327,5 +332,42 @@ def test_pty_host_and_transport_close_cleanly(tmp_path: Path) -> None:
         await host.close()
         await host.close()
         assert not (tmp_path / "link").exists()
+
+    arun(main)
+
+
+@pytest.mark.parametrize("firmware", ["1.6", "1.7", "1.9"])
+def test_the_driver_asks_ati0_and_reads_each_firmwares_recvim(tmp_path: Path,
+                                                              firmware: str) -> None:
+    """A modem started as firmware 1.6 prints the older RECVIM layout (bitrate, ptime); the
+    driver asks ATI0 and parses it, so instant messages arrive from either firmware."""
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2, firmware=firmware) as (_, emu), \
+                driver(emu[1]) as a, driver(emu[2]) as b:
+            assert (a.firmware, a.protocol.legacy_recvim) == (firmware, firmware == "1.6")
+            await a.send(PAYLOAD, 2)
+            rx = await asyncio.wait_for(b.recv(), 2)
+            assert (rx.data, rx.src, rx.dest) == (PAYLOAD, 1, 2)
+            if firmware == "1.6":  # the propagation time rides in the line itself
+                assert rx.meta["propagation_s"] == pytest.approx(150 / 1500, abs=1e-5)
+            assert b.stats["malformed"] == 0
+
+    arun(main)
+
+
+@pytest.mark.parametrize(("firmware", "label"), [("1.7", "IM Rerty Count"),
+                                                 ("1.9", "IM Retry Count")])
+def test_settings_dump_as_a_real_one_shows_it(tmp_path: Path, firmware: str, label: str
+                                              ) -> None:
+    """AT&V lists what the real dump (BIR) lists, in its order, with its 1.7 misspelling."""
+    async def main() -> None:
+        async with modems(tmp_path, 1, firmware=firmware) as (_, emu), driver(emu[1]) as a:
+            reply = await a._command("&V")
+            keys = [line.split(":")[0] for line in reply.text.splitlines() if line]  # type: ignore[union-attr]
+            assert keys == ["Source Level", "Source Level Control", "Gain",
+                            "Carrier Waveform ID", "Local Address", "Highest Address",
+                            "Cluster Size", "Packet Time", "Retry Count", "Retry Timeout",
+                            "Wake Up Active Time", "Wake Up Period", "Promiscuous Mode",
+                            "Sound Speed", label, "Pool Size", "Hold Timeout", "Idle Timeout"]
 
     arun(main)

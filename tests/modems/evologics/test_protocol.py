@@ -41,6 +41,7 @@ from bridge.modems.evologics.protocol import (
     RecvImLegacy,
     RecvIms,
     RecvPbm,
+    RecvPbmLegacy,
     RecvStart,
     SendEnd,
     SendStart,
@@ -48,6 +49,7 @@ from bridge.modems.evologics.protocol import (
     UsblLong,
     Value,
     command_name,
+    firmware_is_legacy,
     parse_body,
     wrap,
 )
@@ -200,6 +202,34 @@ def test_firmware_16_recvim_layout() -> None:
     p = HostProtocol(Mode.COMMAND, legacy_recvim=True)
     events = feed(p, b"RECVIM,3,1,2,ack,976,-40,120,9377,0.03,a\r\n\r\n", "whole")
     assert events == [RecvImLegacy(1, 2, "ack", 976, -40, 120, 9377, 0.03, b"a\r\n")]
+
+
+@pytest.mark.parametrize("legacy", [True, False])
+def test_recvim_and_recvpbm_of_firmware_16_and_17(legacy: bool) -> None:
+    """The same reception as firmware 1.6 (bitrate, ptime) and 1.7+ (duration) print it;
+    a parser set for the other firmware reports it Malformed, never garbage."""
+    old = (b"RECVIM,5,1,2,noack,976,-40,120,9377,0.0300,hello\r\n"
+           b"RECVPBM,2,1,2,976,-40,120,9377,0.0300,hi\r\n")
+    new = (b"RECVIM,5,1,2,noack,182272,-40,120,0.0300,hello\r\n"
+           b"RECVPBM,2,1,2,182272,-40,120,0.0300,hi\r\n")
+    p = HostProtocol(Mode.COMMAND, legacy_recvim=legacy)
+    events = feed(p, old if legacy else new, "whole")
+    if legacy:
+        assert events == [RecvImLegacy(1, 2, "noack", 976, -40, 120, 9377, 0.03, b"hello"),
+                          RecvPbmLegacy(1, 2, 976, -40, 120, 9377, 0.03, b"hi")]
+    else:
+        assert events == [RecvIm(1, 2, "noack", 182272, -40, 120, 0.03, b"hello"),
+                          RecvPbm(1, 2, 182272, -40, 120, 0.03, b"hi")]
+    wrong = HostProtocol(Mode.COMMAND, legacy_recvim=not legacy)
+    assert all(isinstance(e, Malformed) for e in feed(wrong, old if legacy else new, "whole"))
+
+
+@pytest.mark.parametrize(("reply", "legacy"), [("1.6", True), ("1.6.3", True), ("1.7", False),
+                                               ("1.9", False), ("2.0.1", False)])
+def test_firmware_version_from_ati0(reply: str, legacy: bool) -> None:
+    assert firmware_is_legacy(reply) is legacy
+    with pytest.raises(ValueError):
+        firmware_is_legacy("emulated")
 
 
 MALFORMED = [

@@ -242,9 +242,100 @@ def test_start_up_faults(tmp_path: Path) -> None:
         finally:
             await silent.close()
         async with bench(tmp_path, (1,)) as b:
-            wrong = b.backend(1)
-            object.__setattr__(wrong, "address", 5)  # the modem refuses another SRC
-            with pytest.raises(BackendError):
-                await wrong.open()
+            other = b.backend(1)
+            object.__setattr__(other, "address", 5)  # $CCCFG,SRC,5: the modem renumbers
+            await other.open()
+            assert b.emulators[1].address == 5 and b.emulators[1].nvram["SRC"] == "5"
+            for _ in range(100):  # it rejoins the water under its new address
+                if 5 in b.water.stats()["clients"]:
+                    break
+                await asyncio.sleep(0.02)
+            assert b.water.stats()["clients"] == [5]
+
+    run(main)
+
+
+def test_fdp_and_legacy_side_by_side_at_every_fdp_rate(tmp_path: Path) -> None:
+    """An MM2 sends by FDP at rates 1-6 (rate 6: 6 × 32 B) to a legacy sender's modem, and
+    each receives the other's packets whole: legacy and FDP side by side."""
+    async def main() -> None:
+        async with bench(tmp_path) as b:
+            legacy = await b.modem(2, rate=1, frame_bytes=192)
+            for rate in (1, 2, 3, 4, 5, 6):
+                fdp = await b.modem(1, rate=rate, fdp=True, frame_bytes=192)
+                data = bytes(range(rate, rate + 150))
+                await fdp.send(data, 2)
+                rx = await asyncio.wait_for(legacy.recv(), 2)
+                size = {1: 64, 2: 64, 3: 256, 4: 256, 5: 256, 6: 32}[rate]
+                assert (rx.data, rx.src, rx.meta["rate"]) == (data, 1, rate)
+                assert rx.meta["frames"] == -(-150 // size)
+                await legacy.send(data[::-1], 1)  # and back, by the legacy cycle
+                back = await asyncio.wait_for(fdp.recv(), 2)
+                assert (back.data, back.meta["rate"]) == (data[::-1], 1)
+                await fdp.close()
+            with pytest.raises(BackendError, match="FDP runs at rates"):
+                b.backend(1, rate=0, fdp=True)
+
+    run(main)
+
+
+def test_a_packet_lost_in_the_water_is_a_bad_crc(tmp_path: Path) -> None:
+    """The water loses every packet (its signal still arrives): the receiving modem prints
+    $CAMSG,BAD_CRC per frame, the driver counts them and the packet as lost."""
+    async def main() -> None:
+        async with bench(tmp_path) as b:
+            a = await b.modem(1, rate=1, frame_bytes=192)
+            c = await b.modem(2, rate=1, frame_bytes=192)
+            b.water.ocean.loss = 1.0
+            await a.send(bytes(100), 2)  # two frames
+            for _ in range(100):
+                if c.stats["rx_lost"]:
+                    break
+                await asyncio.sleep(0.02)
+            assert (c.stats["bad_crc"], c.stats["rx_lost"]) == (2, 1)
+            assert b.emulators[2].stats["bad_crc"] == 2 and c.stats["received"] == 0
+
+    run(main)
+
+
+def test_a_cycle_init_without_its_data_is_a_packet_timeout(tmp_path: Path) -> None:
+    """Node 2 hears node 1's rate-0 cycle-init, then sails out of range before the data:
+    after PTO its modem prints $CAMSG,PACKET_TIMEOUT and the driver counts it."""
+    async def main() -> None:
+        async with bench(tmp_path, pto_s=0.3) as b:
+            a, c = await b.modem(1), await b.modem(2)
+            sender = b.emulators[1]
+            transmit = sender._transmit
+
+            async def then_leave(header: Any, body: bytes, **kw: Any) -> bool:
+                sent = await transmit(header, body, **kw)
+                if header.kind.name == "CYCLE_INIT":  # the data goes after: out of range
+                    b.water.ocean.set_position(2, (1e6, 0.0, 10.0))
+                return sent
+
+            sender._transmit = then_leave  # type: ignore[method-assign]
+            await a.send(b"never heard", 2)
+            for _ in range(100):
+                if c.stats["packet_timeout"]:
+                    break
+                await asyncio.sleep(0.02)
+            assert (c.stats["packet_timeout"], c.stats["rx_lost"]) == (1, 1)
+            assert b.emulators[2].stats["packet_timeout"] == 1
+
+    run(main)
+
+
+@pytest.mark.parametrize("how", ["clk", "tms"])
+def test_the_driver_sets_and_reads_the_modem_clock(tmp_path: Path, how: str) -> None:
+    async def main() -> None:
+        async with bench(tmp_path, (1,)) as b:
+            b.emulators[1].clock_offset_s = 3600.0  # the modem's clock is an hour off
+            a = await b.modem(1, set_clock=how)
+            # set at the top of a second, naming it: the modem now keeps the host's time
+            assert abs(b.emulators[1].clock_offset_s) < 0.01
+            if how == "tms":  # read back with $CCTMQ
+                assert abs(a.stats["clock_offset_ms"]) < 100
+            with pytest.raises(BackendError, match="set_clock"):
+                b.backend(1, set_clock="gps")
 
     run(main)

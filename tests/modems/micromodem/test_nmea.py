@@ -14,9 +14,10 @@ from bridge.modems.micromodem.nmea import (
     NmeaError,
     Sentence,
     checksum,
+    checksum32,
     parse_sentence,
 )
-from bridge.modems.micromodem.rates import RATES, frame_bytes_for_rate, get_rate
+from bridge.modems.micromodem.rates import FDP_RATES, RATES, frame_bytes_for_rate, get_rate
 
 # real lines quoted in the reference (2.1, 2.3): their checksums must verify
 REAL = [
@@ -76,13 +77,34 @@ def test_fields_and_name() -> None:
     assert parse_sentence("$CAREV").fields == ()
 
 
-def test_checksum_is_optional_on_input_and_lower_case_accepted() -> None:
+def test_checksum_is_optional_on_input() -> None:
     assert parse_sentence("$CCCFG,SRC,1").fields == ("SRC", "1")
-    assert parse_sentence("$CAMPR,2,1,0.0101*7c").name == "CAMPR"
 
 
-def test_eight_digit_crc_is_accepted() -> None:
-    assert parse_sentence("$CACFG,SRC,1*0123ABCD").fields == ("SRC", "1")
+def test_a_lower_case_checksum_is_refused_but_hex_data_may_be_lower_case() -> None:
+    with pytest.raises(NmeaError, match="lower-case checksum"):
+        parse_sentence("$CAMPR,2,1,0.0101*7c")
+    assert parse_sentence("$CAMUA,1,2,1fab*20").fields[2] == "1fab"
+
+
+def test_eight_digit_crc32_is_checked() -> None:
+    good = Sentence("CA", "CFG", ("SRC", "1")).to_line(crc32=True)
+    assert len(good.rpartition("*")[2]) == 8
+    assert parse_sentence(good).fields == ("SRC", "1")
+    with pytest.raises(ChecksumError):
+        parse_sentence("$CACFG,SRC,1*DEADBEEF")  # any 8 hex digits no longer pass
+    with pytest.raises(NmeaError, match="lower-case"):
+        parse_sentence(good.lower().replace("$cacfg,src", "$CACFG,SRC"))
+
+
+@pytest.mark.parametrize("body", ["CACFG,SRC,1", "CAREV,181807,AUV,2.0.27087",
+                                  "CARXD,1,2,0,1," + "AB" * 64, "CCTDP,2,1,0,0,DEADBEEF"])
+def test_crc32_is_the_one_pyacomms_computes(body: str) -> None:
+    """pyacomms 3.1.1 (WHOI's host library) computes the same CRC, minus one bug: its
+    ``hex(...)[2:-1]`` (a Python 2 ``L`` strip) drops the last digit, and a leading zero."""
+    acomms = pytest.importorskip("acomms.micromodem")
+    ours = checksum32(body)
+    assert acomms.nmeaChecksum32(body) == ours.lstrip("0")[:-1]
 
 
 @pytest.mark.parametrize(
@@ -105,7 +127,7 @@ def test_wrong_checksum(line: str) -> None:
         b"CACFG,SRC,1*33",  # no $
         b"$CA,1*00",  # talker too short
         b"$cacfg,SRC,1",  # lower-case address
-        b"$CACFGX,1",
+        b"$CACFGXY,1",
         b"$CACFG,SRC,1*3",  # truncated checksum
         b"$CACFG,SRC,1*",
         b"$CACFG,SRC,1*GG",
@@ -152,11 +174,12 @@ def test_fuzz_format_parse_round_trip(fields: list[str]) -> None:
 
 
 def test_rate_table() -> None:
-    assert [frame_bytes_for_rate(r) for r in range(6)] == [32, 192, 192, 512, 512, 2048]
-    assert [RATES[r].frame_bytes for r in range(6)] == [32, 64, 64, 256, 256, 256]
-    assert [RATES[r].frames for r in range(6)] == [1, 3, 3, 2, 2, 8]
+    assert [frame_bytes_for_rate(r) for r in range(7)] == [32, 192, 192, 512, 512, 2048, 192]
+    assert [RATES[r].frame_bytes for r in range(7)] == [32, 64, 64, 256, 256, 256, 32]
+    assert [RATES[r].frames for r in range(7)] == [1, 3, 3, 2, 2, 8, 6]
     assert RATES[0].bitrate_bps == 80 and RATES[0].fsk and not RATES[1].fsk
     assert RATES[1].frames_for(65) == 2 and RATES[1].frames_for(1) == 1
-    for bad in (6, -1, "x", None):
+    assert sorted(FDP_RATES) == [1, 2, 3, 4, 5, 6]
+    for bad in (7, -1, "x", None):
         with pytest.raises(ValueError):
             get_rate(bad)  # type: ignore[arg-type]

@@ -9,11 +9,16 @@ from hypothesis import strategies as st
 from bridge.modems.micromodem.nmea import Sentence, parse_sentence
 from bridge.modems.micromodem.protocol import (
     Ack,
+    ApiLevel,
     BadSentence,
     Clock,
+    ClockReply,
     Config,
     CycleInit,
     DataRequest,
+    FdpEcho,
+    FdpFrame,
+    FdpReceived,
     HostProtocol,
     MiniPacket,
     ModemError,
@@ -36,6 +41,7 @@ from bridge.modems.micromodem.protocol import (
     TxStart,
     TxStats,
     Unhandled,
+    UsblFix,
 )
 from bridge.modems.protocol import NEED_DATA
 
@@ -59,6 +65,13 @@ def feed(proto: HostProtocol, data: bytes, how: str = "whole") -> list[object]:
 
 
 HOW = ["whole", "bytes", "trailing"]
+
+MM1_CST = ("$CACST,1,153026.0000,0,4105,30,0318,0193,10,00,00,01,01,2,004,004,3,3,3,1,154,09,08,"
+           "10,-6,000,0.0,4125000,5000*5B")
+MM2_CST = ("$CACST,8,0,20250606230123.348554,06,32767,45,0102,0123,07,00,00,00,00,1,001,000,0,5,"
+           "1,0,150,26.0,9.48,-100,-6.48,-01,0.01,51,25000,5000,0,-1,-1,00*4A")
+USB2 = ("$CAUSB2,0,2025-05-29T15:26:07.286444,45.5,-10.25,0.0125,2,0.1,0.0,0.2,0.0,0.3,0.0,"
+        "0.4,0.0,3")
 
 CASES = [
     ("$CAREV,181807,AUV,2.0.27087*12", Revision("181807", "AUV", "2.0.27087")),
@@ -90,6 +103,30 @@ CASES = [
     ("$CACST,8,0,20250606230123.348554,06", RxStats(("8", "0", "20250606230123.348554", "06"))),
     ("$SNTTA,0.1,0.2,,,120000.00", Unhandled(Sentence("SN", "TTA",
                                                       ("0.1", "0.2", "", "", "120000.00")))),
+    # recorded real lines (reference 2.1): MM1's 28-field $CACST, MM2's v8 $CACST and v7 $CAXST
+    (MM1_CST, RxStats(tuple(MM1_CST.split("*")[0].split(",")[1:]))),
+    (MM2_CST, RxStats(tuple(MM2_CST.split("*")[0].split(",")[1:]))),
+    ("$CAXST,7,20250606,230117.336548,3,0,200,5000,25000,1,0,0,0,0,8,5,28,25000*66",
+     TxStats(("7", "20250606", "230117.336548", "3", "0", "200", "5000", "25000", "1", "0",
+              "0", "0", "0", "8", "5", "28", "25000"))),
+    ("$CACMD,PNG,0,1,1,0,3*22", Unhandled(Sentence("CA", "CMD", ("PNG", "0", "1", "1", "0",
+                                                                  "3")))),
+    # MM2 FDP: the real $CARFP of a ping (only the modem's own mini-frame: no user data) and
+    # constructed lines in the layouts of goby ($CARDP) and pyacomms ($CATDP)
+    ("$CARFP,2025-05-29T15:26:07.286444,0,1,0,1,-1,0,0,1;6;0801000700ff,,*01",
+     FdpReceived(1, 0, -1, False, (), ())),
+    ("$CARDP,2,7,5,0,0,,1;2;BEEF;1;1;01", FdpReceived(2, 7, 5, False, (), (
+        FdpFrame(True, b"\xbe\xef"), FdpFrame(True, b"\x01")))),
+    ("$CATDP,0,12,7,5,0,0", FdpEcho(0, 12, 7, 5, False)),
+    ("$CAMSG,PACKET_TIMEOUT,1", ModemMessage("PACKET_TIMEOUT", "1")),
+    ("$CATMS,0,2024-05-01T12:00:01Z", ClockReply("TMS", "2024-05-01T12:00:01Z")),
+    ("$CATMQ,2024-05-01T12:00:01.500000Z,RTC,NONE",
+     ClockReply("TMQ", "2024-05-01T12:00:01.500000Z", source="RTC,NONE")),
+    ("$CAALQ,zab-emulator,11", ApiLevel("zab-emulator", 11)),
+    # MM2 USBL, pyacomms' 15-field layout [C line]; nobody heard yet, so no source
+    (USB2, UsblFix("2025-05-29T15:26:07.286444", 45.5, -10.25, 0.0125, 2, 3)),
+    # the MM2's 8-digit CRC-32 in place of the XOR sum
+    (Sentence("CA", "CFG", ("SRC", "1")).to_line(crc32=True), Config("SRC", "1")),
 ]
 
 
@@ -100,8 +137,14 @@ def test_every_sentence_type(text: str, event: object, how: str) -> None:
     got = feed(proto, text.encode() + b"\r\n", how)
     assert got[0] == event
     # a lone received frame is also a whole packet; nothing else follows
-    assert got[1:] == ([Packet(2, 7, False, None, 1, b"Hello")] if isinstance(event, RxData)
-                       else [])
+    follows: list[object] = []
+    if isinstance(event, RxData):
+        follows = [Packet(2, 7, False, None, 1, b"Hello")]
+    elif isinstance(event, FdpReceived) and event.frames:  # an FDP packet arrives whole
+        follows = [Packet(2, 7, False, 5, 2, b"\xbe\xef\x01")]
+    elif isinstance(event, ModemMessage) and event.packet_timeout:  # counted as a loss
+        follows = [PacketLost(None, "packet timeout (1)")]
+    assert got[1:] == follows
     assert proto.bad_lines == 0
 
 
@@ -278,6 +321,39 @@ def test_bad_crc_and_incomplete_packets_are_lost() -> None:
                            "$CARXD,8,2,0,1,02"])
     assert PacketLost(7, "incomplete packet (new cycle-init)") in events
     assert events[-1] == Packet(8, 2, False, 0, 1, b"\x02")
+
+
+def test_fdp_transfer_and_reception_beside_legacy() -> None:
+    proto = HostProtocol(1)
+    proto.start_fdp(2, b"\x01" * 100, 5, False)
+    assert sent(proto) == ["$CCTDP,2,5,0,0," + "01" * 100]
+    events = cycle(proto, ["$CATDP,0,3,2,5,0,0", "$CATXP,100", "$CATXF,100"])
+    assert events[-1] == TransferDone(2, 1, False)
+    with pytest.raises(ValueError, match="FDP runs at rates"):
+        proto.start_fdp(2, b"x", 0, False)
+    with pytest.raises(ValueError, match="does not fit"):
+        proto.start_fdp(2, b"x" * 193, 6, False)
+    # a legacy packet and an FDP packet, one after the other, both arrive
+    got = cycle(proto, ["$CACYC,0,3,1,1,0,1", "$CARXD,3,1,0,1,AA",
+                        "$CARFP,2025-05-29T15:26:07.286444,4,2,1,1,5,0,0,,1;1;BB,1;2;CCDD"])
+    packets = [e for e in got if isinstance(e, Packet)]
+    assert packets == [Packet(3, 1, False, 1, 1, b"\xaa"), Packet(2, 1, False, 5, 2,
+                                                                   b"\xbb\xcc\xdd")]
+    # a bad FDP frame loses the packet; the refusal of a $CCTDP fails the transfer
+    assert cycle(proto, ["$CARDP,2,1,5,0,0,,1;1;BB;0;2;CCDD"])[-1] == PacketLost(
+        2, "FDP packet with bad CRC in frames [2]")
+    proto.start_fdp(2, b"x", 1, True)
+    assert cycle(proto, ["$CATDP,1,4,2,1,1,0"])[-1] == TransferFailed(
+        "modem refused the FDP packet ($CATDP error 1)")
+
+
+def test_packet_timeout_loses_the_packet_and_usbl_names_the_last_sender() -> None:
+    proto = HostProtocol(1)
+    got = cycle(proto, ["$CACYC,0,4,1,0,0,1", "$CAMSG,PACKET_TIMEOUT,1", USB2])
+    assert PacketLost(4, "packet timeout (1)") in got
+    assert got[-1] == UsblFix("2025-05-29T15:26:07.286444", 45.5, -10.25, 0.0125, 2, 3, src=4)
+    assert cycle(proto, ["$CAMSG,PACKET_TIMEOUT,1"])[-1] == PacketLost(None,
+                                                                      "packet timeout (1)")
 
 
 def test_commands() -> None:
