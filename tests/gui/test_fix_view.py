@@ -101,3 +101,18 @@ def test_the_page_draws_the_ellipse_and_the_state(page: Page) -> None:
     show(page, {"kind": "lost", "node": "auv1", "reason": "no_ranges", "ago": -1.0})
     got = drawn(page)
     assert got["state"] == "lost" and got["text"] == "lost: no ranges" and got["rx"] is None
+
+
+def test_a_peer_never_heard_is_not_heard_yet_not_down(page: Page) -> None:
+    """At the start of a mission a link is 'down' until the peer's first frame: that is no
+    fault, so the page shows it grey ('not heard yet'), and red only once it was heard."""
+    states = page.evaluate("""() => {
+      const v = vehicle("ghost"), key = state.mission.node + "/ghost";
+      state.links[key] = { state: "down" };
+      const before = linkState("ghost");
+      v.heard = serverNow();
+      const after = linkState("ghost");
+      delete state.links[key]; delete state.nodes.ghost;
+      return [before, after];
+    }""")
+    assert states == ["unknown", "down"]

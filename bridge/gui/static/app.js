@@ -173,8 +173,11 @@ function linkOf(name) {
 }
 
 function linkState(name) {
+  // "down" before the peer was ever heard is the start of a mission, not a fault: unknown
   const link = linkOf(name);
-  return link ? link.state : "unknown";
+  if (!link) return "unknown";
+  const v = state.nodes[name];
+  return link.state === "down" && v && !v.heard ? "unknown" : link.state;
 }
 
 function where(v) {
@@ -427,8 +430,10 @@ function renderVehicles() {
       badge.dataset.state = stats && serverNow() - stats.time < 5 ? "up" : "unknown";
     } else {
       const link = linkOf(node.name);
-      badge.textContent = link ? "link " + link.state : "link not known yet";
-      badge.dataset.state = link ? link.state : "unknown";
+      const shown = linkState(node.name);
+      badge.textContent = !link ? "link not known yet"
+        : shown === "unknown" ? "not heard yet" : "link " + shown;
+      badge.dataset.state = shown;
     }
     card.dataset.state = badge.dataset.state;
     renderZspace(card, node.name, mission.node);
