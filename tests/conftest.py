@@ -23,7 +23,7 @@ def browser_missing() -> str | None:
     if not CHROMIUM.exists():
         return "needs Debian's chromium (apt-get install chromium)"
     if importlib.util.find_spec("playwright") is None:
-        return "needs Playwright, in the browser group: uv run --all-groups pytest"
+        return "needs Playwright (the browser group, a default one: uv run pytest installs it)"
     return None
 
 

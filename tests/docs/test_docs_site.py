@@ -20,7 +20,7 @@ from tests.conftest import REPO
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     if importlib.util.find_spec("mkdocs") is None:
-        pytest.skip("needs MkDocs, in the docs group: uv run --all-groups pytest")
+        pytest.skip("needs MkDocs (the docs group, a default one: uv run pytest installs it)")
     out = tmp_path_factory.mktemp("site")
     done = subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
