@@ -103,6 +103,9 @@ FRESH_HEADING_S = 0.5
 GATE_NIS_1DOF = 10.83
 """χ² with one degree of freedom at 99.9 %: a range this far out is 1 in 1000 if all is well."""
 
+_I4 = np.eye(4)
+_I4.flags.writeable = False
+
 LOST_REASONS = {
     "no_depth": "this node's depth is unknown",
     "too_few_anchors": "fewer than two anchors with a recent range and a known position",
@@ -395,6 +398,7 @@ class RangeTracker:
         self._wide: _Hypothesis | None = None  # the manoeuvring mode (:meth:`_mode_update`)
         self._wide_share = 0.0  # ... its probability
         self._turns: TurnMixture | None = None  # turned components (:meth:`_turns_prepare`)
+        self._line_memo: tuple[Any, tuple[np.ndarray, np.ndarray] | None] | None = None
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -825,16 +829,20 @@ class RangeTracker:
     def _mirror_line(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(a point, a unit direction) of the line the anchors heard lie on, if they do (two
         anchors always do): ranges cannot tell a position from its image across it."""
+        key = (self._now, tuple(self._recent.values()))
+        if self._line_memo is not None and self._line_memo[0] == key:
+            return self._line_memo[1]  # every trial of a manoeuvre test asks it again
         cfg = self.config
         points = [np.array(o.anchor_at[:2], dtype=float) for o in self._recent.values()
                   if self._now - o.time <= cfg.anchor_max_age_s]
         line = _line_through(points)
-        if line is None:
-            return None
-        a, u = line
-        if any(abs(_cross(u, p - a)) > cfg.collinear_m for p in points):
-            return None  # anchors off one line: no mirror image fits every range
-        return a, u
+        if line is not None:
+            a, u = line
+            a.flags.writeable = u.flags.writeable = False  # shared by every caller
+            if any(abs(_cross(u, p - a)) > cfg.collinear_m for p in points):
+                line = None  # anchors off one line: no mirror image fits every range
+        self._line_memo = (key, line)
+        return line
 
     def _keep_mirror(self) -> bool:
         """Put the best hypothesis's mirror image back in the bank if no hypothesis is on the
@@ -1068,28 +1076,29 @@ class RangeTracker:
             hyp.time = t
 
     def _range_model(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, np.ndarray]:
-        """Predicted range and its Jacobian (1×4) for hypothesis ``hyp``."""
+        """Predicted range and its Jacobian (1×4) for hypothesis ``hyp`` (plain floats: every
+        range of every trial takes it, and numpy's per-call cost is most of a 2-vector's)."""
         assert self.depth is not None
-        x = hyp.x
+        x0, x1, x2, x3 = hyp.x.tolist()
         legs = ((obs.time - obs.span_s, obs.anchor_before or obs.anchor_at),
                 (obs.time, obs.anchor_at))
-        h, jac = 0.0, np.zeros(4)
+        h, j0, j1, j2, j3 = 0.0, 0.0, 0.0, 0.0, 0.0
         for t_leg, (ax, ay, az) in legs:
-            m, offset = _displacement(hyp.time, t_leg, hyp.turns)  # p(t_leg) = p + m·v + o
-            px, py = x[:2] + m @ x[2:] + offset
+            m, ox, oy = _displacement(hyp.time, t_leg, hyp.turns)  # p(t_leg) = p + m·v + o
+            px, py = x0 + m * x2 + ox, x1 + m * x3 + oy
             ex, ey, ez = px - ax, py - ay, self.depth - az
             dist = math.sqrt(ex * ex + ey * ey + ez * ez) or 1e-9
             h += dist / 2
-            u = np.array([ex, ey]) / dist / 2
-            jac += np.concatenate([u, u @ m])
-        return h, jac
+            ux, uy = ex / dist / 2, ey / dist / 2
+            j0, j1, j2, j3 = j0 + ux, j1 + uy, j2 + ux * m, j3 + uy * m
+        return h, np.array((j0, j1, j2, j3))
 
     def _range_update(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
         """EKF update with one range; (NIS, accepted). The weight takes the likelihood."""
         self._predict(hyp, obs.time)
         predicted, jac = self._range_model(hyp, obs)
         r = self._range_sigma(obs.range_m) ** 2 + obs.anchor_sigma_m**2
-        x0, p0 = hyp.x.copy(), hyp.p.copy()
+        x0, p0 = hyp.x, hyp.p  # _update replaces them, never writes into them
         nis, ok = self._update(hyp, obs.range_m - predicted, jac, r)
         if ok and 2 * (p0[0, 0] + p0[1, 1]) / max(obs.range_m, 1.0) > math.sqrt(r):
             # the position so wide (a start, a long gap) that the range's circle curves away
@@ -1104,9 +1113,9 @@ class RangeTracker:
                 s_i = float(jac @ p0 @ jac) + r
                 gain = p0 @ jac / s_i
                 x_next = x0 + gain * (obs.range_m - h_i - jac @ (x0 - xi))
-                ikh = np.eye(4) - np.outer(gain, jac)
-                hyp.x, hyp.p = x_next, ikh @ p0 @ ikh.T + r * np.outer(gain, gain)
-                if np.linalg.norm(x_next[:2] - xi[:2]) < 1e-3:
+                hyp.x, hyp.p = x_next, _joseph(p0, gain, jac, r)
+                moved = x_next[:2] - xi[:2]
+                if math.sqrt(moved.dot(moved)) < 1e-3:  # np.linalg.norm's sum, without its cost
                     break
         return nis, ok
 
@@ -1170,17 +1179,19 @@ class RangeTracker:
         turns = [ring * k for k in range(1, round(360 / ring))]
         pool: list[tuple[float, _Hypothesis]] = []  # every gap's turns, log-odds on none
         for j in range(len(hyp.steps)):
-            tried = [self._refilter(hyp, j, turn) for turn in (*turns, None)]
+            # one anchor's ranges fit any turn (a circle): it takes two to see one (nor can
+            # the ranges after a gap that one anchor alone saw: no trial there)
+            if len({s.obs.anchor for s in hyp.steps[j:]}) < 2:
+                break
+            start = self._halfway(hyp, j)
+            tried = [self._refilter(hyp, j, turn, start) for turn in (*turns, None)]
             top = max(t[0] for t in tried)
             mixture = top + math.log(sum(math.exp(t[0] - top) for t in tried) / len(tried))
             none = sum(s.loglik for s in hyp.steps[j:])
             llr = mixture - none
-            # one anchor's ranges fit any turn (a circle): it takes two to see one
-            seen = len({s.obs.anchor for s in hyp.steps[j:]}) >= 2
-            if seen:
-                pool += [(t[0] - none - math.log(len(tried)), t[1]) for t in tried
-                         if math.hypot(t[1].x[2], t[1].x[3]) <= cfg.max_speed_mps]
-            if seen and (best is None or llr > best[0]):
+            pool += [(t[0] - none - math.log(len(tried)), t[1]) for t in tried
+                     if math.hypot(t[1].x[2], t[1].x[3]) <= cfg.max_speed_mps]
+            if best is None or llr > best[0]:
                 best = (llr, j, tried)
         if best is None:
             return None
@@ -1222,17 +1233,26 @@ class RangeTracker:
         self.manoeuvres += 1
         return redone[-1].nis, redone[-1].accepted
 
-    def _refilter(self, hyp: _Hypothesis, j: int,
-                  turn_deg: float | None) -> tuple[float, _Hypothesis, list[_Step]]:
+    def _halfway(self, hyp: _Hypothesis, j: int) -> _Hypothesis:
+        """The state before ``hyp.steps[j]``, predicted halfway to that range (where
+        :meth:`_refilter` turns it)."""
+        step = hyp.steps[j]
+        half = _Hypothesis(step.x, step.p, step.time, 0.0, hyp.heading, hyp.heading_time,
+                           step.turns)
+        self._predict(half, step.time + max(step.obs.time - step.time, 0.0) / 2)
+        return half
+
+    def _refilter(self, hyp: _Hypothesis, j: int, turn_deg: float | None,
+                  half: _Hypothesis) -> tuple[float, _Hypothesis, list[_Step]]:
         """The ranges from ``hyp.steps[j]`` on, refiltered as if the vehicle had turned by
         ``turn_deg`` (clockwise; None: changed its velocity by up to its speed, each axis)
-        halfway between the range before and that one: (log-likelihood, state, steps)."""
+        halfway between the range before and that one (``half``, :meth:`_halfway`):
+        (log-likelihood, state, steps)."""
         cfg = self.config
         step = hyp.steps[j]
-        trial = _Hypothesis(step.x.copy(), step.p.copy(), step.time, 0.0, hyp.heading,
+        trial = _Hypothesis(half.x.copy(), half.p.copy(), half.time, 0.0, hyp.heading,
                             hyp.heading_time, list(step.turns))
         gap = max(step.obs.time - step.time, 0.0)
-        self._predict(trial, step.time + gap / 2)
         v = trial.x[2:].copy()
         _remember_turn(trial, trial.time, v, cfg.max_lag_s)
         speed = max(float(np.hypot(*v)), cfg.min_heading_speed_mps)
@@ -1402,9 +1422,16 @@ class RangeTracker:
             return nis, False
         gain = hyp.p @ jac / s
         hyp.x = hyp.x + gain * innovation
-        ikh = np.eye(4) - np.outer(gain, jac)
-        hyp.p = ikh @ hyp.p @ ikh.T + r * np.outer(gain, gain)  # Joseph form: stays symmetric
+        hyp.p = _joseph(hyp.p, gain, jac, r)
         return nis, True
+
+
+def _joseph(p: np.ndarray, gain: np.ndarray, jac: np.ndarray, r: float) -> np.ndarray:
+    """The covariance after a scalar update, in Joseph form (stays symmetric and positive):
+    ``(I − K·H) P (I − K·H)ᵀ + r·K·Kᵀ``."""
+    column = gain[:, np.newaxis]
+    ikh = _I4 - column * jac
+    return ikh @ p @ ikh.T + r * (column * gain)
 
 
 def _reflection(u: np.ndarray) -> np.ndarray:
@@ -1442,25 +1469,29 @@ def _predicted(x: np.ndarray, p: np.ndarray, dt: float, accel_sigma: float,
     """Constant velocity ``dt`` ahead with continuous white-noise acceleration: 1-σ
     ``accel_sigma`` every way, or, with ``along_sigma``, that along the velocity (a change of
     speed) and ``accel_sigma`` across it (a turn)."""
-    f = np.eye(4)
+    f = _I4.copy()
     f[0, 2] = f[1, 3] = dt
-    q = np.eye(2) * accel_sigma**2
-    speed = math.hypot(x[2], x[3])
+    a2 = accel_sigma**2
+    qxx, qxy, qyy = a2, 0.0, a2
+    vx, vy = float(x[2]), float(x[3])
+    speed = math.hypot(vx, vy)
     if along_sigma is not None and speed > 1e-6:
-        u = x[2:] / speed
-        q += np.outer(u, u) * (along_sigma**2 - accel_sigma**2)
-    qq = np.zeros((4, 4))
-    qq[:2, :2] = q * dt**3 / 3
-    qq[:2, 2:] = qq[2:, :2] = q * dt**2 / 2
-    qq[2:, 2:] = q * dt
+        ux, uy, more = vx / speed, vy / speed, along_sigma**2 - a2
+        qxx, qxy, qyy = qxx + ux * ux * more, qxy + ux * uy * more, qyy + uy * uy * more
+    c3, c2 = dt**3, dt**2
+    a, b, c = qxx * c3 / 3, qxy * c3 / 3, qyy * c3 / 3
+    d, e, g = qxx * c2 / 2, qxy * c2 / 2, qyy * c2 / 2
+    k, m, n = qxx * dt, qxy * dt, qyy * dt
+    qq = np.array(((a, b, d, e), (b, c, e, g), (d, e, k, m), (e, g, m, n)))
     return f @ x, f @ p @ f.T + qq
 
 
 def _displacement(t_state: float, t_leg: float,
-                  turns: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
-    """``(m, offset)`` with ``p(t_leg) = p(t_state) + m·v(t_state) + offset``: straight lines,
-    except that going back past a recorded turn the velocity is the one held before it."""
-    m, offset, t = np.zeros((2, 2)), np.zeros(2), t_state
+                  turns: list[tuple[float, np.ndarray]]) -> tuple[float, float, float]:
+    """``(m, ox, oy)`` with ``p(t_leg) = p(t_state) + m·v(t_state) + (ox, oy)``: straight
+    lines, except that going back past a recorded turn the velocity is the one held before it.
+    (``m`` multiplies the identity: a scalar, in plain floats, as every range takes this.)"""
+    m, ox, oy, t = 0.0, 0.0, 0.0, t_state
     held: np.ndarray | None = None  # None: the state's own velocity
     for when, before in reversed(turns):
         if when >= t_state:
@@ -1468,13 +1499,14 @@ def _displacement(t_state: float, t_leg: float,
         if when <= t_leg:
             break
         if held is None:
-            m = -(t - when) * np.eye(2)
+            m = -(t - when)
         else:
-            offset -= (t - when) * held
+            ox, oy = ox - (t - when) * float(held[0]), oy - (t - when) * float(held[1])
         held, t = before, when
     if held is None:
-        return np.eye(2) * (t_leg - t_state), offset
-    return m, offset - (t - t_leg) * held
+        return t_leg - t_state, ox, oy
+    back = t - t_leg
+    return m, ox - back * float(held[0]), oy - back * float(held[1])
 
 
 def _remember_turn(hyp: _Hypothesis, when: float, before: np.ndarray, keep_s: float) -> None:
