@@ -84,6 +84,8 @@ from typing import Any
 
 import numpy as np
 
+from bridge.ranging import kalman
+from bridge.ranging.kalman import Matrix, Vector
 from bridge.ranging.localise import Fix, attempt
 from bridge.ranging.turns import TurnMixture
 
@@ -102,9 +104,6 @@ FRESH_HEADING_S = 0.5
 """A heading younger than this has seen any turn the ranges could suggest (no test then)."""
 GATE_NIS_1DOF = 10.83
 """χ² with one degree of freedom at 99.9 %: a range this far out is 1 in 1000 if all is well."""
-
-_I4 = np.eye(4)
-_I4.flags.writeable = False
 
 LOST_REASONS = {
     "no_depth": "this node's depth is unknown",
@@ -1075,32 +1074,41 @@ class RangeTracker:
             hyp.x, hyp.p = _predicted(hyp.x, hyp.p, dt, *self._accel(t))
             hyp.time = t
 
-    def _range_model(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, np.ndarray]:
-        """Predicted range and its Jacobian (1×4) for hypothesis ``hyp`` (plain floats: every
-        range of every trial takes it, and numpy's per-call cost is most of a 2-vector's)."""
+    def _range_model(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, Vector]:
+        """Predicted range and its Jacobian (1×4) for hypothesis ``hyp``."""
+        return self._range_at(hyp.x.tolist(), hyp.time, hyp.turns, obs)
+
+    def _range_at(self, x: Vector, time: float, turns: list[tuple[float, np.ndarray]],
+                  obs: RangeObs) -> tuple[float, Vector]:
+        """Predicted range and its Jacobian (1×4) for the state ``x`` at ``time`` whose
+        velocity was the ``turns``' before each (plain floats, :mod:`bridge.ranging.kalman`)."""
         assert self.depth is not None
-        x0, x1, x2, x3 = hyp.x.tolist()
+        x0, x1, x2, x3 = x
         legs = ((obs.time - obs.span_s, obs.anchor_before or obs.anchor_at),
                 (obs.time, obs.anchor_at))
         h, j0, j1, j2, j3 = 0.0, 0.0, 0.0, 0.0, 0.0
         for t_leg, (ax, ay, az) in legs:
-            m, ox, oy = _displacement(hyp.time, t_leg, hyp.turns)  # p(t_leg) = p + m·v + o
+            m, ox, oy = _displacement(time, t_leg, turns)  # p(t_leg) = p + m·v + o
             px, py = x0 + m * x2 + ox, x1 + m * x3 + oy
             ex, ey, ez = px - ax, py - ay, self.depth - az
             dist = math.sqrt(ex * ex + ey * ey + ez * ez) or 1e-9
             h += dist / 2
             ux, uy = ex / dist / 2, ey / dist / 2
             j0, j1, j2, j3 = j0 + ux, j1 + uy, j2 + ux * m, j3 + uy * m
-        return h, np.array((j0, j1, j2, j3))
+        return h, [j0, j1, j2, j3]
 
     def _range_update(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
-        """EKF update with one range; (NIS, accepted). The weight takes the likelihood."""
-        self._predict(hyp, obs.time)
-        predicted, jac = self._range_model(hyp, obs)
+        """EKF update with one range; (NIS, accepted). The weight takes the likelihood. In
+        plain floats from the prediction to the last iteration (every trial takes it)."""
+        x, p, t = hyp.x.tolist(), hyp.p.tolist(), hyp.time
+        if obs.time > t:
+            x, p = kalman.predicted(x, p, obs.time - t, *self._accel(obs.time))
+            t = obs.time
+        predicted, jac = self._range_at(x, t, hyp.turns, obs)
         r = self._range_sigma(obs.range_m) ** 2 + obs.anchor_sigma_m**2
-        x0, p0 = hyp.x, hyp.p  # _update replaces them, never writes into them
-        nis, ok = self._update(hyp, obs.range_m - predicted, jac, r)
-        if ok and 2 * (p0[0, 0] + p0[1, 1]) / max(obs.range_m, 1.0) > math.sqrt(r):
+        x0, p0 = x, p
+        x, p, nis, ok = self._fused(hyp, x, p, obs.range_m - predicted, jac, r)
+        if ok and 2 * (p0[0][0] + p0[1][1]) / max(obs.range_m, 1.0) > math.sqrt(r):
             # the position so wide (a start, a long gap) that the range's circle curves away
             # from its tangent by more than the range's noise across that width: a step along
             # the gradient at the prior lands off the circle, and the next range to the same
@@ -1108,15 +1116,14 @@ class RangeTracker:
             # under a metre that only one anchor was heard). Iterated (Gauss-Newton) to the
             # posterior's linearisation; the gate and the weight keep the prior's
             for _ in range(ITERATIONS):
-                xi = hyp.x
-                h_i, jac = self._range_model(hyp, obs)
-                s_i = float(jac @ p0 @ jac) + r
-                gain = p0 @ jac / s_i
-                x_next = x0 + gain * (obs.range_m - h_i - jac @ (x0 - xi))
-                hyp.x, hyp.p = x_next, _joseph(p0, gain, jac, r)
-                moved = x_next[:2] - xi[:2]
-                if math.sqrt(moved.dot(moved)) < 1e-3:  # np.linalg.norm's sum, without its cost
+                xi = x
+                h_i, (j0, j1, j2, j3) = self._range_at(xi, t, hyp.turns, obs)
+                lin = (j0 * (x0[0] - xi[0]) + j1 * (x0[1] - xi[1]) + j2 * (x0[2] - xi[2])
+                       + j3 * (x0[3] - xi[3]))  # the model linearised at xi, taken at x0
+                x, p, _ = kalman.updated(x0, p0, obs.range_m - h_i - lin, (j0, j1, j2, j3), r)
+                if math.hypot(x[0] - xi[0], x[1] - xi[1]) < 1e-3:
                     break
+        hyp.x, hyp.p, hyp.time = np.array(x), np.array(p), t
         return nis, ok
 
     def _range_sigma(self, range_m: float) -> float:
@@ -1250,29 +1257,33 @@ class RangeTracker:
         (log-likelihood, state, steps)."""
         cfg = self.config
         step = hyp.steps[j]
-        trial = _Hypothesis(half.x.copy(), half.p.copy(), half.time, 0.0, hyp.heading,
-                            hyp.heading_time, list(step.turns))
         gap = max(step.obs.time - step.time, 0.0)
-        v = trial.x[2:].copy()
-        _remember_turn(trial, trial.time, v, cfg.max_lag_s)
-        speed = max(float(np.hypot(*v)), cfg.min_heading_speed_mps)
+        x, p = half.x.tolist(), half.p.tolist()
+        vx, vy = x[2], x[3]
+        speed = max(math.hypot(vx, vy), cfg.min_heading_speed_mps)
         if turn_deg is None:
-            trial.p[2:, 2:] += np.eye(2) * speed**2
+            p[2][2] += speed**2
+            p[3][3] += speed**2
             change = speed**2 * 2
         else:
             a = math.radians(turn_deg)
             c, s = math.cos(a), math.sin(a)
-            rot = np.array([[c, s], [-s, c]])  # clockwise, as headings go
-            trial.x[2:] = rot @ v
-            along = trial.x[2:] / float(np.hypot(*trial.x[2:]) or 1.0)
-            across = np.array([-along[1], along[0]])
-            spread = (JUMP_SPEED_SHARE * speed) ** 2 * np.outer(along, along) + (
-                speed * math.tan(math.radians(cfg.jump_ring_deg / 2))) ** 2 * np.outer(across,
-                                                                                   across)
-            trial.p[2:, 2:] = spread
-            trial.p[:2, 2:] = trial.p[2:, :2] = 0.0
-            change = float(np.sum((trial.x[2:] - v) ** 2) + np.trace(spread))
-        trial.p[:2, :2] += np.eye(2) * change / 2 * gap * gap / 12  # when in the gap it turned
+            x[2], x[3] = c * vx + s * vy, c * vy - s * vx  # clockwise, as headings go
+            norm = math.hypot(x[2], x[3]) or 1.0
+            ax, ay = x[2] / norm, x[3] / norm  # along the new velocity (across: -ay, ax)
+            along = (JUMP_SPEED_SHARE * speed) ** 2
+            across = (speed * math.tan(math.radians(cfg.jump_ring_deg / 2))) ** 2
+            sxx, sxy = along * ax * ax + across * ay * ay, (along - across) * ax * ay
+            syy = along * ay * ay + across * ax * ax
+            p[0][2:] = p[1][2:] = p[2][:2] = p[3][:2] = [0.0, 0.0]
+            p[2][2:], p[3][2:] = [sxx, sxy], [sxy, syy]
+            change = (x[2] - vx) ** 2 + (x[3] - vy) ** 2 + sxx + syy
+        when = change / 2 * gap * gap / 12  # when in the gap it turned
+        p[0][0] += when
+        p[1][1] += when
+        trial = _Hypothesis(np.array(x), np.array(p), half.time, 0.0, hyp.heading,
+                            hyp.heading_time, list(step.turns))
+        _remember_turn(trial, trial.time, np.array((vx, vy)), cfg.max_lag_s)
         redone: list[_Step] = []
         for old in hyp.steps[j:]:
             again = _Step(old.obs, trial.x.copy(), trial.p.copy(), trial.time, list(trial.turns),
@@ -1391,47 +1402,44 @@ class RangeTracker:
                         break
 
     def _heading_update(self, hyp: _Hypothesis, theta: float, speed: float) -> float:
-        vx, vy = hyp.x[2], hyp.x[3]
+        vx, vy = float(hyp.x[2]), float(hyp.x[3])
         innovation = _wrap(theta - math.atan2(vx, vy))
         s2 = speed * speed
-        jac = np.array([0.0, 0.0, vy / s2, -vx / s2])
-        nis, _ = self._update(hyp, innovation, jac, math.radians(self.config.heading_sigma_deg)
-                              ** 2)
+        nis, _ = self._update(hyp, innovation, [0.0, 0.0, vy / s2, -vx / s2],
+                              math.radians(self.config.heading_sigma_deg) ** 2)
         return nis
 
     def _speed_update(self, hyp: _Hypothesis, speed_mps: float) -> float:
-        vx, vy = hyp.x[2], hyp.x[3]
+        vx, vy = float(hyp.x[2]), float(hyp.x[3])
         speed = math.hypot(vx, vy)
         if speed < 1e-3:
-            jac = np.zeros(4)
             heading = hyp.heading if hyp.heading is not None else 0.0
-            jac[2], jac[3] = math.sin(heading), math.cos(heading)
+            jac = [0.0, 0.0, math.sin(heading), math.cos(heading)]
         else:
-            jac = np.array([0.0, 0.0, vx / speed, vy / speed])
+            jac = [0.0, 0.0, vx / speed, vy / speed]
         nis, _ = self._update(hyp, speed_mps - speed, jac, self.config.speed_sigma_mps**2)
         return nis
 
-    def _update(self, hyp: _Hypothesis, innovation: float, jac: np.ndarray,
+    def _update(self, hyp: _Hypothesis, innovation: float, jac: Vector,
                 r: float) -> tuple[float, bool]:
-        s = float(jac @ hyp.p @ jac) + r
+        """EKF update of ``hyp`` with one scalar measurement; (NIS, accepted)."""
+        x, p, nis, ok = self._fused(hyp, hyp.x.tolist(), hyp.p.tolist(), innovation, jac, r)
+        if ok:
+            hyp.x, hyp.p = np.array(x), np.array(p)
+        return nis, ok
+
+    def _fused(self, hyp: _Hypothesis, x: Vector, p: Matrix, innovation: float, jac: Vector,
+               r: float) -> tuple[Vector, Matrix, float, bool]:
+        """``(x, p)`` after a scalar measurement, with its NIS and whether the gate let it in
+        (if not, ``(x, p)`` as they were); ``hyp``'s weight takes its likelihood."""
+        xn, pn, s = kalman.updated(x, p, innovation, jac, r)
         nis = innovation * innovation / s
         gate = self.config.gate_nis
         # the weight takes the likelihood, capped at the gate: one wild value cannot decide
         hyp.log_w += -0.5 * min(nis, gate) - 0.5 * math.log(2 * math.pi * s)
         if nis > gate:
-            return nis, False
-        gain = hyp.p @ jac / s
-        hyp.x = hyp.x + gain * innovation
-        hyp.p = _joseph(hyp.p, gain, jac, r)
-        return nis, True
-
-
-def _joseph(p: np.ndarray, gain: np.ndarray, jac: np.ndarray, r: float) -> np.ndarray:
-    """The covariance after a scalar update, in Joseph form (stays symmetric and positive):
-    ``(I − K·H) P (I − K·H)ᵀ + r·K·Kᵀ``."""
-    column = gain[:, np.newaxis]
-    ikh = _I4 - column * jac
-    return ikh @ p @ ikh.T + r * (column * gain)
+            return x, p, nis, False
+        return xn, pn, nis, True
 
 
 def _reflection(u: np.ndarray) -> np.ndarray:
@@ -1466,24 +1474,9 @@ def _reflect_history(turns: list[tuple[float, np.ndarray]], steps: list[_Step],
 
 def _predicted(x: np.ndarray, p: np.ndarray, dt: float, accel_sigma: float,
                along_sigma: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Constant velocity ``dt`` ahead with continuous white-noise acceleration: 1-σ
-    ``accel_sigma`` every way, or, with ``along_sigma``, that along the velocity (a change of
-    speed) and ``accel_sigma`` across it (a turn)."""
-    f = _I4.copy()
-    f[0, 2] = f[1, 3] = dt
-    a2 = accel_sigma**2
-    qxx, qxy, qyy = a2, 0.0, a2
-    vx, vy = float(x[2]), float(x[3])
-    speed = math.hypot(vx, vy)
-    if along_sigma is not None and speed > 1e-6:
-        ux, uy, more = vx / speed, vy / speed, along_sigma**2 - a2
-        qxx, qxy, qyy = qxx + ux * ux * more, qxy + ux * uy * more, qyy + uy * uy * more
-    c3, c2 = dt**3, dt**2
-    a, b, c = qxx * c3 / 3, qxy * c3 / 3, qyy * c3 / 3
-    d, e, g = qxx * c2 / 2, qxy * c2 / 2, qyy * c2 / 2
-    k, m, n = qxx * dt, qxy * dt, qyy * dt
-    qq = np.array(((a, b, d, e), (b, c, e, g), (d, e, k, m), (e, g, m, n)))
-    return f @ x, f @ p @ f.T + qq
+    """:func:`bridge.ranging.kalman.predicted` on numpy's arrays."""
+    fx, fp = kalman.predicted(x.tolist(), p.tolist(), dt, accel_sigma, along_sigma)
+    return np.array(fx), np.array(fp)
 
 
 def _displacement(t_state: float, t_leg: float,
@@ -1521,17 +1514,18 @@ def _turn(hyp: _Hypothesis, angle: float, since_s: float) -> None:
     came halfway, with the variance of not knowing when (uniform over the interval)."""
     if angle == 0.0:
         return
-    c, s = math.cos(angle), math.sin(angle)
-    g = np.eye(4)
-    g[2:, 2:] = [[c, s], [-s, c]]
-    before = hyp.x[2:].copy()
-    hyp.x = g @ hyp.x
-    hyp.p = g @ hyp.p @ g.T
+    vx, vy = float(hyp.x[2]), float(hyp.x[3])
+    x, p = kalman.turned(hyp.x.tolist(), hyp.p.tolist(), angle)
     since = max(since_s, 0.0)
-    change = hyp.x[2:] - before  # what the prediction since the turn missed, per second
-    hyp.x[:2] += change * since / 2
-    spread = np.outer(change, change) * since**2 / 12
-    hyp.p[:2, :2] += spread
+    cx, cy = x[2] - vx, x[3] - vy  # what the prediction since the turn missed, per second
+    x[0] += cx * since / 2
+    x[1] += cy * since / 2
+    when = since**2 / 12
+    p[0][0] += cx * cx * when
+    p[0][1] += cx * cy * when
+    p[1][0] += cx * cy * when
+    p[1][1] += cy * cy * when
+    hyp.x, hyp.p = np.array(x), np.array(p)
 
 
 __all__ = ["LOST_REASONS", "Estimate", "Outcome", "Prior", "RangeObs", "RangeTracker",
