@@ -397,7 +397,8 @@ class RangeTracker:
         self._wide: _Hypothesis | None = None  # the manoeuvring mode (:meth:`_mode_update`)
         self._wide_share = 0.0  # ... its probability
         self._turns: TurnMixture | None = None  # turned components (:meth:`_turns_prepare`)
-        self._line_memo: tuple[Any, tuple[np.ndarray, np.ndarray] | None] | None = None
+        self._line_memo: tuple[tuple[RangeObs, ...],
+                               tuple[np.ndarray, np.ndarray] | None] | None = None
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -828,19 +829,19 @@ class RangeTracker:
     def _mirror_line(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(a point, a unit direction) of the line the anchors heard lie on, if they do (two
         anchors always do): ranges cannot tell a position from its image across it."""
-        key = (self._now, tuple(self._recent.values()))
-        if self._line_memo is not None and self._line_memo[0] == key:
-            return self._line_memo[1]  # every trial of a manoeuvre test asks it again
         cfg = self.config
-        points = [np.array(o.anchor_at[:2], dtype=float) for o in self._recent.values()
-                  if self._now - o.time <= cfg.anchor_max_age_s]
+        heard = tuple(o for o in self._recent.values()
+                      if self._now - o.time <= cfg.anchor_max_age_s)
+        if self._line_memo is not None and self._line_memo[0] == heard:
+            return self._line_memo[1]  # every trial of a manoeuvre test, every heading asks
+        points = [np.array(o.anchor_at[:2], dtype=float) for o in heard]
         line = _line_through(points)
         if line is not None:
             a, u = line
             a.flags.writeable = u.flags.writeable = False  # shared by every caller
             if any(abs(_cross(u, p - a)) > cfg.collinear_m for p in points):
                 line = None  # anchors off one line: no mirror image fits every range
-        self._line_memo = (key, line)
+        self._line_memo = (heard, line)
         return line
 
     def _keep_mirror(self) -> bool:
