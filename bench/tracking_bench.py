@@ -33,6 +33,12 @@ seeds × 5 starts: per vehicle, runs with a position published on the mirror sid
 line through ssv and gcv), runs without any position, and the errors of every position
 published.
 
+Table 4, the whole runs of which ``tests/ranging/test_tracker.py`` replays the window where
+what it tests happens (seed 001's reception, no compass, from the start at (5, 5)): seed 3's
+restart on the jetty's line (2300 s) and seed 5's slide over it (900 s), each with the tuning
+before turned components (acceleration 0.06 m/s², none turned) and the defaults; restarts,
+folds, flips, positions on the mirror side (of all, and of the last 200) and confidently wrong.
+
 Run: ``uv run python bench/tracking_bench.py [--hours 1] [--morph-s 600] [--demo-seeds 10]``.
 """
 
@@ -414,6 +420,47 @@ def morph_mirrors(seeds: Sequence[int], starts: Sequence[float] = DEMO_STARTS_S,
     return out
 
 
+WHOLE_RUNS = (
+    ("restart on the line, seed 3", 2300.0, 3, "noise profile, accel 0.06, no turns",
+     TrackerConfig(range_sigma_at=seed001.tracker_noise(), accel_sigma=0.06, turn_every_s=0.0)),
+    ("restart on the line, seed 3", 2300.0, 3, "noise profile (the defaults)",
+     TrackerConfig(range_sigma_at=seed001.tracker_noise())),
+    ("slide over the line, seed 5", 900.0, 5, "0.12 m, accel 0.06, no turns",
+     TrackerConfig(range_sigma_m=0.12, accel_sigma=0.06, turn_every_s=0.0)),
+    ("slide over the line, seed 5", 900.0, 5, "0.12 m (else the defaults)",
+     TrackerConfig(range_sigma_m=0.12)),
+)
+"""(what, seconds, seed, tuning, config): the whole runs of Table 4."""
+
+
+def whole_runs(quiet: bool = False) -> list[dict[str, Any]]:
+    """Table 4: the whole runs of which the tests replay a window, with their figures."""
+    rows = []
+    for what, duration_s, seed, tuning, config in WHOLE_RUNS:
+        tracker = RangeTracker(config, prior=Prior(0.0, 5.0, 5.0, 2.0))
+        samples = replay(tracker, events(duration_s, heading=False, seed=seed))
+        published = [s for s in samples if s.error_m is not None]
+        rows.append({
+            "what": what, "s": duration_s, "tuning": tuning, "restarts": tracker.restarts,
+            "folds": tracker.folds, "flips": flips(samples),
+            "mirrored": sum(s.mirrored for s in published),
+            "mirrored_last": sum(s.mirrored for s in published[-200:]),
+            "wrong": sum(s.error_m > WRONG_M and s.estimate.sigma_m < WRONG_SIGMA_M
+                         for s in published) / max(len(published), 1)})
+    if not quiet:
+        print("\nThe tests' whole runs (tests/ranging/test_tracker.py replays a window of each): "
+              "seed 001 reception, no compass")
+        head = (f"{'run':<28} {'s':>5} | {'tuning':<36} | {'restarts':>8} {'folds':>5} "
+                f"{'flips':>5} | {'mirrored (last 200)':>19} {'wrong':>6}")
+        print(head)
+        print("-" * len(head))
+        for r in rows:
+            print(f"{r['what']:<28} {r['s']:5.0f} | {r['tuning']:<36} | {r['restarts']:8d} "
+                  f"{r['folds']:5d} {r['flips']:5d} | {r['mirrored']:12d} "
+                  f"({r['mirrored_last']:3d}) {r['wrong']:6.1%}")
+    return rows
+
+
 def _all_finite(value: Any) -> bool:
     if isinstance(value, float):
         return math.isfinite(value)
@@ -437,6 +484,7 @@ def main() -> None:
         morph_run(args.morph_s)
     if args.demo_seeds > 0:
         morph_mirrors(range(args.demo_seeds))
+    whole_runs()
 
 
 if __name__ == "__main__":
