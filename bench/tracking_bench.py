@@ -45,6 +45,7 @@ Run: ``uv run python bench/tracking_bench.py [--hours 1] [--morph-s 600] [--demo
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import statistics
 import time
@@ -54,7 +55,7 @@ from pathlib import Path
 from typing import Any
 
 from bridge.cli.demo import formation_value, tour_mission
-from bridge.core.loaded import load_mission
+from bridge.core.loaded import LoadedMission, load_mission
 from bridge.core.node import Status
 from bridge.ranging import seed001
 from bridge.ranging.localise import Fix, attempt
@@ -250,6 +251,12 @@ MIRROR_M = 3.0
 the line through the two anchors, ssv and gcv, at that moment) is on the mirror side."""
 
 
+@functools.cache
+def _morph(tour: bool) -> LoadedMission:
+    """MORPH as shipped, or as ``zab demo`` runs it (``tour``): parsed once, for every run."""
+    return tour_mission(MORPH, 0.0)[0] if tour else load_mission(MORPH)
+
+
 def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
               apps_start_s: float = 0.0, quiet: bool = False,
               tour: bool = False) -> dict[str, Any]:
@@ -264,7 +271,7 @@ def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
     demo's application does. ``mirror``: positions published on the mirror side
     (:data:`MIRROR_M`). The gcv's live position reaches the others as it does in ``zab demo``:
     each bridge takes it from the frames it decodes (``ranging.anchor_keys``)."""
-    loaded = tour_mission(MORPH, 0.0)[0] if tour else load_mission(MORPH)
+    loaded = _morph(tour)
     mission = loaded.mission
     start_pos = {n: (node.position.x, node.position.y, node.position.depth)
                  for n, node in mission.nodes.items() if node.position is not None}
