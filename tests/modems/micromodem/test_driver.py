@@ -51,6 +51,7 @@ class Bench:
 
 @contextlib.asynccontextmanager
 async def bench(tmp_path: Path, addresses: tuple[int, ...] = (1, 2),
+                transponders: dict[int, str] | None = None,
                 **emulator_options: Any) -> AsyncIterator[Bench]:
     water = WaterService(FAST, seed=1, positions={a: POSITIONS[a] for a in addresses})
     await water.start()
@@ -59,8 +60,10 @@ async def bench(tmp_path: Path, addresses: tuple[int, ...] = (1, 2),
     b = Bench(water, emulators, devices)
     try:
         for a in addresses:
-            setup = ModemSetup(node=f"n{a}", address=a, frame_bytes=32,
-                               options={"water": f"127.0.0.1:{water.port}"},
+            options = {"water": f"127.0.0.1:{water.port}"}
+            if transponders and a in transponders:  # the node stands for an LBL transponder
+                options["transponder"] = transponders[a]
+            setup = ModemSetup(node=f"n{a}", address=a, frame_bytes=32, options=options,
                                position=POSITIONS[a])
             emulators[a] = MicromodemEmulator(setup, link=tmp_path / f"mm{a}",
                                               dto_s=1.0, **emulator_options)
