@@ -140,10 +140,13 @@ def test_hardware_control(tmp_path: Path) -> None:
     run(main)
 
 
-def test_fm_sweep(tmp_path: Path) -> None:
-    """$CCRSP,0,txsig,0 sends an FM sweep and is echoed as $CARSP."""
+def test_fm_sweep_and_firmware_query(tmp_path: Path) -> None:
+    """$CCRSP,0,txsig,0 sends an FM sweep and is echoed as $CARSP; $CCCFQ,info answers the
+    firmware version under MM2's dotted key."""
     async def main() -> None:
         async with bench(tmp_path) as b, hosts(b) as h:
+            assert fields(await h[1].command("$CCCFQ,info", "CACFG")) == [
+                "info.firmware_version", "2.0.27087"]
             assert fields(await h[1].command("$CCRSP,0,2,0", "CARSP")) == ["0", "2", "0"]
             assert fields(await h[1].command("$CCRSP,0,3,0", "CAERR"))[1:3] == ["NMEA", "3"]
             for _ in range(50):  # the sweep went into the water
