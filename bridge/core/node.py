@@ -342,16 +342,18 @@ class NodeCore:
         """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
         self.links.update(now)
 
-    def ask(self, key: str, parameters: Any, now: float) -> Ticket | str:
-        """A Zenoh get on ``key`` with ``parameters`` (a dict): the acoustic query's ticket it
-        waits on (replies come as QueryAnswer / QueryEnd outputs), or why it ends at once."""
+    def ask(self, key: str, parameters: Any, now: float,
+            until: float | None = None) -> Ticket | str:
+        """A Zenoh get on ``key`` with ``parameters`` (a dict), its caller waiting ``until``:
+        the acoustic query's ticket it waits on (replies come as QueryAnswer / QueryEnd
+        outputs), or why it ends at once."""
         found = self.queries.spec_for(key) if self.queries is not None else None
         if found is None:
             return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
         spec, server = found
         self.links.update(now)
         return self.queries.ask(spec, server, parameters, now,  # type: ignore[union-attr]
-                                self.links.states.get(server))
+                                self.links.states.get(server), until)
 
     def query_served(self, ticket: tuple[int, str, int], values: list[Any],
                      error: str | None = None) -> None:

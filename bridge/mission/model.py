@@ -8,6 +8,7 @@ Zenoh JSON5 configuration (``"transport/link/tx/lease": 2000``).
 
 from __future__ import annotations
 
+import math
 from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -228,7 +229,10 @@ class Element(Strict):
                             "{node}/{src}.")
     out: str | None = Field(None, description="Output key at receivers; may use {src}, {dst} "
                             "and {node}.")
-    encoding: Literal["msgpack", "json"] = Field("msgpack", description="Published payload.")
+    encoding: Literal["msgpack", "json", "as_sent"] = Field(
+        "msgpack", description="Published payload: msgpack, json, or as_sent: the encoding the "
+        "sender's application used (msgpack, JSON, JSON as text/plain or untagged), carried in "
+        "2 bits per value.")
     ros2: Ros2Topic | None = Field(None, description="A ROS 2 topic instead of in/out.")
     fields: list[FieldSpec] = Field(default_factory=list, description="The field codecs "
                                     "(required unless ``dccl`` is given).")
@@ -257,6 +261,10 @@ class Element(Strict):
     def _fields_or_dccl(self) -> Element:
         if bool(self.fields) == bool(self.dccl):
             raise ValueError("give either fields (at least one) or dccl, not both")
+        if self.encoding == "as_sent" and self.dccl:
+            raise ValueError("encoding as_sent needs fields: a DCCL element's bytes are "
+                             "libdccl's")
+        _no_bridge_fields(self.fields)
         return self
 
     @model_validator(mode="after")
@@ -269,6 +277,27 @@ class Element(Strict):
         if self.ros2 is not None and "encoding" in self.model_fields_set:
             raise ValueError("a `ros2` element's payloads are CDR: leave out `encoding`")
         return self
+
+
+def _no_bridge_fields(fields: list[FieldSpec]) -> None:
+    """Field names starting with ``_zab`` are the bridge's own (deletes, encodings, ages)."""
+    for spec in fields:
+        if spec.field.split(".")[0].startswith("_zab"):
+            raise ValueError(f"field {spec.field!r}: names starting with _zab are the bridge's")
+
+
+class Age(Strict):
+    """The value's age carried beside it, so receivers stamp each sample with when its value
+    was taken at the source (see docs/concepts.md)."""
+
+    step_s: float = Field(gt=0, description="Resolution of the age, seconds.")
+    max_s: float = Field(gt=0, description="Longest age told; an older value says at least "
+                         "this old.")
+
+    @property
+    def steps(self) -> int:
+        """Most steps the age field holds."""
+        return max(1, math.ceil(self.max_s / self.step_s - 1e-9))
 
 
 class NodeKeys(Strict):
@@ -327,7 +356,26 @@ class Channel(Strict):
     keys: FamilyKeys | None = Field(None, description="Make the channel a key family: its "
                                     "input keys hold ``{key}`` (or one ``*`` chunk) and each "
                                     "member keeps its own value, age and output key.")
+    deletes: bool = Field(False, description="A Zenoh delete on an input key crosses as a "
+                          "tombstone (1 bit per element in every entry): receivers publish a "
+                          "delete and forget the latched value; the sender stops re-sending it.")
+    age: Age | None = Field(None, description="Carry each value's age (latest-value channels "
+                            "without keys): receivers stamp the sample with when it was "
+                            "taken at the source, to this resolution.")
+    attachment_bytes: int = Field(0, ge=0, le=64, description="Carry the application's Zenoh "
+                                  "attachment, up to this many bytes (a length and the bytes, "
+                                  "per element); 0: not carried.")
     elements: list[Element] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _zenoh_fidelity(self) -> Channel:
+        if (self.deletes or self.age or self.attachment_bytes) and any(
+                e.dccl or e.ros2 for e in self.elements):
+            raise ValueError("deletes, age and attachment_bytes need fields: not with dccl or "
+                             "ros2 elements")
+        if self.age is not None and (self.keys is not None or self.reliable):
+            raise ValueError("age is carried on latest-value channels without keys")
+        return self
 
     @model_validator(mode="after")
     def _policy(self) -> Channel:
@@ -366,6 +414,11 @@ class Query(Strict):
     cached_s: float | None = Field(None, gt=0, description="Answer at once, without an acoustic "
                                    "request, when the asked key holds a value this node's "
                                    "bridge published for a latched channel no older than this.")
+    deadline_bits: int = Field(0, ge=0, le=8, description="Carry the asker's remaining time in "
+                               "each request, in this many bits (steps of the query's longest "
+                               "deadline / (2**bits - 1)): the serving bridge drops a request "
+                               "whose caller gave up, and stops its replies then. 0: not "
+                               "carried (the request entry as before).")
 
 
 class Auth(Strict):
@@ -528,6 +581,13 @@ class Mission(Strict):
     queries: list[Query] = Field(default_factory=list, description="Queries across the water.")
     max_open_queries: int = Field(4, ge=1, le=16, description="Acoustic queries a node keeps "
                                   "open at once; a further get ends at once with an error.")
+
+    @model_validator(mode="after")
+    def _query_fields(self) -> Mission:
+        for query in self.queries:
+            _no_bridge_fields(query.request)
+            _no_bridge_fields(query.reply)
+        return self
 
     @model_validator(mode="after")
     def _dccl_to_elements(self) -> Mission:
