@@ -12,7 +12,7 @@ positioning (:class:`~bridge.core.ranges.Ranges`) and queries
 One way in per kind of event, one way out:
 
 =============================================  ============================================
-a sample on an input key                       :meth:`NodeCore.ingest`
+a sample on an input key, or its delete        :meth:`NodeCore.ingest`, :meth:`NodeCore.delete`
 the MAC's next opportunity, and what to do     :meth:`NodeCore.wake_at`, :meth:`NodeCore.act`
 the modem carried that out (or refused)        :meth:`NodeCore.done`
 a frame heard                                  :meth:`NodeCore.receive`
@@ -208,11 +208,15 @@ class NodeCore:
 
     # -- samples in ----------------------------------------------------------------------------
 
-    def ingest(self, key: str, data: bytes, encoding: str, now: float,
-               ref: str | None = None, sample_key: str | None = None) -> None:
+    def ingest(self, key: str, data: bytes, encoding: str, now: float, ref: str | None = None,
+               sample_key: str | None = None, attachment: bytes | None = None) -> None:
         """A sample arrived on an input key (``ref``: the publisher's correlation text, echoed
         in delivery reports; ``sample_key``: the sample's own key under a wildcard input)."""
-        self.outbound.ingest(key, data, encoding, now, ref, sample_key)
+        self.outbound.ingest(key, data, encoding, now, ref, sample_key, attachment)
+
+    def delete(self, key: str, now: float) -> None:
+        """A Zenoh delete on an input key: a tombstone for the channels with ``deletes``."""
+        self.outbound.delete(key, now)
 
     def ros2_input(self, key: str) -> Any:
         """The ROS 2 topic read on input ``key``, or None."""
@@ -386,7 +390,7 @@ class NodeCore:
             "epoch": self.epoch,
             "mismatched_peers": dict(self.mismatched),
             "unfinished": {s.channel.name: s.pending() for s in out.senders.values()},
-            "sent_per_channel": dict(stats.sent_per_channel),
+            "sent_per_channel": dict(stats.sent_per_channel), **stats.noticed(),
             **({"queries": self.queries.snapshot()} if self.queries else {}),
             **({"surfacing": out.surfacing.snapshot()} if out.surfacing else {}),
             **({"interest": out.interest.snapshot(self.table)} if out.interest else {}),

@@ -380,7 +380,9 @@ class Queries:
     # -- serving -----------------------------------------------------------------------------
 
     def on_request(self, src: str, codec: QueryCodec, header: tuple[int, ...],
-                   values: list[dict] | None, now: float) -> None:
+                   values: list[dict] | None, now: float, sent_at: float | None = None) -> None:
+        """A request heard at ``now``, its frame sent at ``sent_at`` (as well as this node
+        can tell: the time left it carries counts from then)."""
         qid, server = header[:2]
         spec = codec.spec
         if self.table.nodes[server] != self.node or src not in spec.askers:
@@ -390,12 +392,13 @@ class Queries:
         timeout = LOCAL_GET_S
         if spec.deadline_bits:
             request = dict(request)
-            left = request.pop(LEFT, 0) * self._steps[spec.index]
-            if left <= 0:
+            until = min(now, sent_at if sent_at is not None else now) \
+                + request.pop(LEFT, 0) * self._steps[spec.index]
+            if until <= now:
                 self.dropped["expired"] += 1  # the caller has given up: not served
                 return
-            self._serve_until[ticket] = now + left
-            timeout = min(timeout, left)
+            self._serve_until[ticket] = until
+            timeout = min(timeout, until - now)
         kept = self.answers.get(ticket)
         if kept is not None and kept.request == request and now < kept.expires:
             self.duplicates += 1
@@ -439,9 +442,13 @@ class Queries:
             if not any(r[2] == ticket and r[1] == bits for r in self.replies):
                 self.replies.append((codec, bits, ticket))
 
-    def remember(self, key: str, value: Any, encoding: str, now: float) -> None:
-        """A latched channel's value this node published on ``key``."""
-        self.cache[key] = (value, encoding, now)
+    def remember(self, key: str, value: Any, encoding: str, taken: float) -> None:
+        """A latched channel's value this node published on ``key``, taken at the source at
+        ``taken``; None: the key was deleted."""
+        if value is None:
+            self.cache.pop(key, None)
+        else:
+            self.cache[key] = (value, encoding, taken)
 
     def take(self) -> list[LocalGet | QueryAnswer | QueryEnd]:
         out, self.outputs = self.outputs, []

@@ -8,7 +8,6 @@ Zenoh JSON5 configuration (``"transport/link/tx/lease": 2000``).
 
 from __future__ import annotations
 
-import math
 from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -293,11 +292,6 @@ class Age(Strict):
     step_s: float = Field(gt=0, description="Resolution of the age, seconds.")
     max_s: float = Field(gt=0, description="Longest age told; an older value says at least "
                          "this old.")
-
-    @property
-    def steps(self) -> int:
-        """Most steps the age field holds."""
-        return max(1, math.ceil(self.max_s / self.step_s - 1e-9))
 
 
 class NodeKeys(Strict):

@@ -74,6 +74,21 @@ def origin_tag(mission: str, node: str) -> bytes:
     return ORIGIN_PREFIX + f"{mission}/{node}".encode()
 
 
+APPLICATION_SEPARATOR = b"\x00"
+"""Between the bridge's marker and the sending application's attachment, when a channel
+carries it: ``zab/1 <mission>/<node>`` NUL ``<the application's bytes>``."""
+
+
+def marked(origin: bytes, application: bytes | None) -> bytes:
+    """The attachment a bridge publishes with: its marker, then the application's, if any."""
+    return origin + APPLICATION_SEPARATOR + application if application else origin
+
+
+def from_origin(attachment: bytes, origin: bytes) -> bool:
+    """Whether the bridge marked ``origin`` published a sample with ``attachment``."""
+    return attachment == origin or attachment.startswith(origin + APPLICATION_SEPARATOR)
+
+
 def is_bridged(sample: zenoh.Sample) -> bool:
     """True when a bridge published this sample (loop safety): its origin tag, or a ROS 2
     attachment naming a bridge publisher (see :mod:`bridge.ros2.attachment`)."""

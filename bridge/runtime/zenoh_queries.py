@@ -105,10 +105,14 @@ class QueryBridge:
 
     def __init__(self, session: zenoh.Session, core: NodeCore, lock: threading.RLock,
                  clock: Callable[[], float], changed: Callable[[], None],
-                 loop: asyncio.AbstractEventLoop) -> None:
+                 loop: asyncio.AbstractEventLoop,
+                 taken_at: Callable[[str], zenoh.Timestamp | None] = lambda key: None) -> None:
         """``core``, used under ``lock``, at the time ``clock`` tells; ``changed``: the core
-        has outputs to carry out and may have something due (on the loop)."""
+        has outputs to carry out and may have something due (on the loop); ``taken_at``:
+        the timestamp of the latched value this node last published on a key (a reply from
+        the cache carries it)."""
         self.session = session
+        self.taken_at = taken_at
         self.core = core
         self.lock = lock
         self.clock = clock
@@ -193,9 +197,12 @@ class QueryBridge:
         """Carry out a query output of the core; False if it is not one."""
         if isinstance(output, QueryAnswer):
             payload, enc = encode_payload(output.value, output.encoding)
+            cached = output.ticket[2] < 0  # answered from the latched value
+            stamp = self.taken_at(output.key) if cached else self.session.new_timestamp()
             for waiting in self.waiting.get(output.ticket, []):
                 try:
-                    waiting.query.reply(output.key, payload, encoding=zenoh.Encoding(enc))
+                    waiting.query.reply(output.key, payload, encoding=zenoh.Encoding(enc),
+                                        timestamp=stamp)
                 except zenoh.ZError as exc:
                     log.debug("reply refused: %s", exc)
             return True

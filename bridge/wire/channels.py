@@ -13,7 +13,7 @@ import string
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from bridge.codec import Layout
 from bridge.errors import LayoutError
@@ -21,6 +21,7 @@ from bridge.mission.model import Channel, Element, LearnedKeys, Mission, NodeKey
 from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, name_codec
 from bridge.wire.interest import InterestCodec
 from bridge.wire.queries import QueryCodec, QuerySpec, compile_query, query_codecs
+from bridge.wire.sample_meta import SampleMeta
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -79,6 +80,7 @@ class ElementCodec:
     encoding: str
     layout: Layout
     ros2: Ros2Element | None = None  # a ROS 2 topic: CDR payloads on rmw_zenoh keys
+    meta: SampleMeta | None = None  # fields carried beside the value (bridge.wire.sample_meta)
 
     def input_key(self, node: str, key: str = "*") -> str:
         """The key read at ``node``; a family member's, or with ``*`` all members'."""
@@ -211,16 +213,29 @@ class ChannelCodec:
         return out
 
 
-def compile_element(element: Element, on_out_of_range: str) -> ElementCodec:
+def compile_element(element: Element, on_out_of_range: str,
+                    meta: SampleMeta | None = None) -> ElementCodec:
+    """``meta``: the fields carried beside the value, appended to the layout."""
     if element.dccl:  # a DCCL message: the element's bytes are libdccl's
         from bridge.dccl.layout import DcclLayout
 
         dccl = DcclLayout.from_reference(element.dccl, strict=on_out_of_range == "reject",
                                          options=element.dccl_options)
         return ElementCodec(element.in_, element.out, element.encoding, dccl)  # type: ignore[arg-type]
-    layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
+    fields: list[Any] = [*element.fields, *(meta.fields() if meta is not None else ())]
+    layout = Layout.from_fields(fields, on_out_of_range=on_out_of_range)
     assert element.in_ is not None and element.out is not None
-    return ElementCodec(element.in_, element.out, element.encoding, layout)
+    return ElementCodec(element.in_, element.out, element.encoding, layout, meta=meta)
+
+
+def sample_meta(channel: Channel, element: Element) -> SampleMeta | None:
+    """What ``element`` of ``channel`` carries beside its value, if anything."""
+    age = channel.age
+    meta = SampleMeta(deletes=channel.deletes, as_sent=element.encoding == "as_sent",
+                      attachment_bytes=channel.attachment_bytes,
+                      age_step_s=age.step_s if age is not None else None,
+                      age_max_s=age.max_s if age is not None else 0.0)
+    return meta if meta.fields() else None
 
 
 def compile_ros2_element(element: Element, on_out_of_range: str, senders: Sequence[str],
@@ -284,7 +299,8 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
                     (*eloc, where),
                 )
         try:
-            elements.append(compile_element(element, channel.on_out_of_range))
+            elements.append(compile_element(element, channel.on_out_of_range,
+                                            sample_meta(channel, element)))
         except LayoutError as exc:
             where = ("dccl",) if element.dccl else ("fields", *exc.loc)
             raise ChannelTableError(str(exc), (*eloc, *where)) from None

@@ -14,9 +14,9 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Any
 
 from bridge.codec import Layout
-from bridge.mission.fields import FieldSpec
 from bridge.mission.model import Mission, Query
 
 QID_BITS = 4
@@ -132,10 +132,10 @@ def compile_query(index: int, query: Query, mission: Mission, match: Match) -> Q
     askers = (match(query.ask, nodes) if query.ask is not None
               else tuple(n for n in nodes if n not in servers))
     askers = tuple(a for a in askers if any(s != a for s in servers))
-    request = list(query.request)
+    request: list[Any] = list(query.request)
     if query.deadline_bits:
-        request.append(FieldSpec(field=LEFT, type="int", min=0,
-                                 max=(1 << query.deadline_bits) - 1))
+        request.append({"field": LEFT, "type": "int", "min": 0,
+                        "max": (1 << query.deadline_bits) - 1})
     return QuerySpec(
         index=index, name=query.name, key=query.key, local_key=query.local_key or query.key,
         servers=servers, askers=askers,

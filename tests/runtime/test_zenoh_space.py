@@ -4,6 +4,8 @@ by every test of this module."""
 
 from __future__ import annotations
 
+import json
+import queue
 import threading
 import time
 from collections.abc import Iterator
@@ -48,11 +50,22 @@ channels:
     to: top
     latching: true
     interval_s: 2
+    deletes: true
+    age: {step_s: 0.5, max_s: 60}
+    attachment_bytes: 8
     elements:
       - in: status
         out: "{src}/status"
+        encoding: as_sent
         fields:
           - {field: battery, min: 0, max: 100, resolution: 1}
+  - name: depth
+    from: auv1
+    to: top
+    elements:
+      - in: depth
+        out: "{src}/depth"
+        fields: [{field: m, min: 0, max: 100, resolution: 0.5}]
 """
 
 
@@ -169,3 +182,159 @@ def test_concurrent_wildcard_and_plain_gets_each_get_their_replies(space: Space)
     values, errors = results["auv1/**?detail=0"]
     assert {k for k, _ in values} >= {"auv1/state", "auv1/info"} and not errors
 
+
+
+@dataclass(frozen=True)
+class Seen:
+    """One sample a subscriber got, as an application reads it."""
+
+    kind: str
+    key: str
+    payload: bytes
+    encoding: str
+    attachment: bytes | None
+    stamped: float | None  # its Zenoh timestamp, seconds since the epoch
+    at: float  # when it arrived
+
+
+class Watch:
+    """Every sample on a key expression at a node, in order."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.items: queue.Queue[Seen] = queue.Queue()
+        self.subscriber = session.declare_subscriber(key, self._got)
+
+    def _got(self, sample: zenoh.Sample) -> None:
+        stamp = sample.timestamp
+        self.items.put(Seen(
+            "delete" if sample.kind == zenoh.SampleKind.DELETE else "put",
+            str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding),
+            sample.attachment.to_bytes() if sample.attachment is not None else None,
+            stamp.get_time().timestamp() if stamp is not None else None, time.time()))
+
+    def next(self, timeout: float = 10.0) -> Seen:
+        return self.items.get(timeout=timeout)
+
+    def during(self, seconds: float) -> list[Seen]:
+        out, end = [], time.time() + seconds
+        while (left := end - time.time()) > 0:
+            try:
+                out.append(self.items.get(timeout=left))
+            except queue.Empty:
+                break
+        return out
+
+    def close(self) -> None:
+        self.subscriber.undeclare()
+
+
+@pytest.fixture
+def status(space: Space) -> Iterator[Watch]:
+    watch = Watch(space.top, "auv1/status")
+    try:
+        yield watch
+    finally:
+        watch.close()
+
+
+def test_json_in_json_out_msgpack_in_msgpack_out(space: Space, status: Watch) -> None:
+    for encoding, payload in (("application/json", b'{"battery": 41}'),
+                              ("text/plain", b'{"battery": 42}'),
+                              ("application/msgpack", msgpack.packb({"battery": 43}))):
+        space.auv1.put("status", payload, encoding=zenoh.Encoding(encoding))
+        seen = status.next()
+        while seen.kind != "put" or seen.encoding != encoding:  # a re-send of the one before
+            seen = status.next()
+        value = msgpack.unpackb(seen.payload) if "msgpack" in encoding \
+            else json.loads(seen.payload)
+        assert value == {"battery": int(payload[-3:-1]) if b"{" in payload else 43}
+
+
+def test_a_sample_carries_when_its_value_was_taken_even_when_latched(
+        space: Space, status: Watch) -> None:
+    taken = time.time()
+    space.auv1.put("status", msgpack.packb({"battery": 64}),
+                   encoding=zenoh.Encoding("application/msgpack"))
+    seen = [s for s in status.during(8.0) if s.kind == "put"
+            and msgpack.unpackb(s.payload) == {"battery": 64}]
+    assert len(seen) >= 2  # the value, then re-sends of it (latching, every 2 s)
+    step = 0.5
+    for sample in seen:
+        assert sample.stamped is not None and abs(sample.stamped - taken) <= step
+    assert seen[-1].at - seen[-1].stamped > 2.0  # a re-send: its age shows
+    replies = list(space.top.get("auv1/status", timeout=5.0))  # from the latched cache
+    assert [r.ok.timestamp.get_time().timestamp() for r in replies if r.ok] == \
+        [pytest.approx(seen[-1].stamped)]
+
+
+def test_a_plain_channels_sample_is_stamped_when_its_frame_left(space: Space) -> None:
+    watch = Watch(space.top, "auv1/depth")
+    try:
+        put_at = time.time()
+        space.auv1.put("depth", msgpack.packb({"m": 12.5}),
+                       encoding=zenoh.Encoding("application/msgpack"))
+        seen = watch.next()
+        assert seen.stamped is not None and put_at <= seen.stamped + 0.05 <= seen.at
+    finally:
+        watch.close()
+
+
+def test_the_applications_attachment_crosses_behind_the_bridge_marker(
+        space: Space, status: Watch) -> None:
+    space.auv1.put("status", msgpack.packb({"battery": 12}),
+                   encoding=zenoh.Encoding("application/msgpack"), attachment=b"trip-7")
+    seen = status.next()
+    while msgpack.unpackb(seen.payload) != {"battery": 12}:
+        seen = status.next()
+    assert seen.attachment == b"zab/1 zfid/top\x00trip-7"
+
+
+def test_a_delete_crosses_and_clears_the_latched_value_on_both_sides(
+        space: Space, status: Watch) -> None:
+    space.auv1.put("status", msgpack.packb({"battery": 77}),
+                   encoding=zenoh.Encoding("application/msgpack"))
+    seen = status.next()
+    while seen.kind != "put" or msgpack.unpackb(seen.payload) != {"battery": 77}:
+        seen = status.next()
+    assert [r.ok.key_expr for r in space.top.get("auv1/status", timeout=5.0) if r.ok]
+    space.auv1.delete("status")
+    seen = status.next()
+    while seen.kind != "delete":
+        seen = status.next()
+    assert seen.key == "auv1/status"
+    assert [r for r in space.top.get("auv1/status", timeout=5.0) if r.ok] == []
+    later = status.during(5.0)  # two intervals of the latching channel
+    assert [s.kind for s in later] == []  # neither the old value nor the delete again
+    space.auv1.put("status", msgpack.packb({"battery": 78}),
+                   encoding=zenoh.Encoding("application/msgpack"))
+    seen = status.next()
+    assert seen.kind == "put" and msgpack.unpackb(seen.payload) == {"battery": 78}
+
+
+def stats_of(session: zenoh.Session, node: str, until: Any, timeout: float = 10.0
+             ) -> dict[str, Any]:
+    """The first ``@zab/zfid/<node>/stats`` for which ``until(stats)`` holds."""
+    watch = Watch(session, f"@zab/zfid/{node}/stats")
+    try:
+        end = time.time() + timeout
+        while True:
+            stats = msgpack.unpackb(watch.next(max(0.1, end - time.time())).payload)
+            if until(stats) or time.time() > end:
+                return stats
+    finally:
+        watch.close()
+
+
+def test_fields_no_channel_carries_are_counted_and_said_once(space: Space) -> None:
+    events = Watch(space.auv1, "@zab/zfid/auv1/events")
+    try:
+        for n in range(3):
+            space.auv1.put("status", msgpack.packb({"battery": 50 + n, "note": "hi", "x": 1}),
+                           encoding=zenoh.Encoding("application/msgpack"))
+        stats = stats_of(space.auv1, "auv1", lambda s: s.get("fields_left_out"))
+        assert stats["fields_left_out"] == {"status": 3}
+        said = [msgpack.unpackb(e.payload) for e in events.during(2.0)]
+        left = [e for e in said if e["kind"] == "fields_left_out"]
+        assert [(e["key"], e["fields"]) for e in left] == [("status", ["note", "x"])]
+    finally:
+        events.close()
