@@ -86,11 +86,16 @@ class Inbox:
         self.items.put((str(sample.key_expr), msgpack.unpackb(sample.payload.to_bytes())))
 
     def drain(self, seconds: float) -> list[tuple[str, Any]]:
-        out, end = [], time.time() + seconds
-        while (left := end - time.time()) > 0:
-            try:
-                out.append(self.items.get(timeout=left))
-            except queue.Empty:
-                break
-        return out
+        return drain(self.items, seconds)
+
+
+def drain(items: queue.Queue[Any], seconds: float) -> list[Any]:
+    """Whatever ``items`` gets within ``seconds``."""
+    out, end = [], time.time() + seconds
+    while (left := end - time.time()) > 0:
+        try:
+            out.append(items.get(timeout=left))
+        except queue.Empty:
+            break
+    return out
 

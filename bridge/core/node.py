@@ -146,6 +146,7 @@ class NodeCore:
         # what observers read (the parts' own objects)
         out = self.outbound
         self.store, self.bindings, self.families = out.store, out.bindings, out.families
+        self.keyspace = out.keyspace  # (the keyspace's puts nothing reads)
         self.senders, self.interest, self.surfacing = out.senders, out.interest, out.surfacing
         self.link_states, self.last_heard = self.links.states, self.links.last_heard
         self.received_at, self.mismatched = self.inbound.received_at, self.inbound.mismatched

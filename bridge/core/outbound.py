@@ -22,6 +22,7 @@ from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.events import FieldsLeftOut, FrameSent, PayloadDropped, SendFailed, Surfaced
 from bridge.core.families import Extra, Families
 from bridge.core.interest import Interest
+from bridge.core.keyspace import Keyspace
 from bridge.core.link import heartbeat_s
 from bridge.core.outputs import Outbox
 from bridge.core.queries import Queries
@@ -104,6 +105,8 @@ class Outbound:
         self._ros2_inputs = {key: next((e.ros2 for _, _, e in found if e.ros2 is not None), None)
                              for key, found in self.bindings.items()}
         self._warned_keys: set[str] = set()
+        self.keyspace = Keyspace(mission, table, node,
+                                 [*self.bindings, *self.families.subscriptions()], outbox)
         metas = [(key, e.meta) for key, found in self.bindings.items() for _, _, e in found]
         metas += [(key, e.meta) for key, found in self.families.subscriptions().items()
                   for c, i in found for e in (c.elements[i],)]

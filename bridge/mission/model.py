@@ -108,6 +108,11 @@ class Node(Strict):
         "(replaces position there); the node's own fixes start from its first waypoint.",
     )
     modem: ModemOverride = Field(default_factory=ModemOverride)
+    keyspace: list[str] = Field(
+        default_factory=lambda: ["{node}/**"], description="Key expressions where this node's "
+        "applications put what is meant to cross ({node} = this node): a put there that no "
+        "channel reads is counted and logged once per key; a get there from another node that "
+        "maps to no query or latched channel gets a reply error saying so.")
 
 
 class Modem(Strict):

@@ -39,6 +39,7 @@ from bridge.errors import BackendError, DecodeError, EncodeError
 from bridge.modems.base import ModemBackend, ModemFix, ModemRange, Reception
 from bridge.runtime.eager import start_eagerly
 from bridge.runtime.keys import load_key
+from bridge.runtime.keyspace_watch import KeyspaceWatch
 from bridge.runtime.ros2_graph import Ros2Graph
 from bridge.runtime.session import (
     bridged_attachment,
@@ -173,6 +174,8 @@ class BridgeNode:
                 self.session.declare_subscriber(
                     key, lambda s: self._from_zenoh(loop, str(s.key_expr), s))
             self._subscribe_positions(loop)
+            self._interest_entities += KeyspaceWatch(self.session, self.core, self.lock,
+                                                     self.clock, self._flush, loop).entities
             if self.core.interest is not None:
                 self._watch_interest(loop)
             if self.core.queries is not None:

@@ -16,7 +16,7 @@ import msgpack
 import pytest
 import zenoh
 
-from tests.zsim import app, mission_file, zab_sim
+from tests.zsim import app, drain, mission_file, zab_sim
 
 MISSION = """
 mission: zfid
@@ -216,13 +216,7 @@ class Watch:
         return self.items.get(timeout=timeout)
 
     def during(self, seconds: float) -> list[Seen]:
-        out, end = [], time.time() + seconds
-        while (left := end - time.time()) > 0:
-            try:
-                out.append(self.items.get(timeout=left))
-            except queue.Empty:
-                break
-        return out
+        return drain(self.items, seconds)
 
     def close(self) -> None:
         self.subscriber.undeclare()
@@ -338,3 +332,29 @@ def test_fields_no_channel_carries_are_counted_and_said_once(space: Space) -> No
         assert [(e["key"], e["fields"]) for e in left] == [("status", ["note", "x"])]
     finally:
         events.close()
+
+
+def test_a_put_no_channel_reads_is_counted_and_said_once(space: Space) -> None:
+    events = Watch(space.auv1, "@zab/zfid/auv1/events")
+    try:
+        for _ in range(2):
+            space.auv1.put("auv1/statsu", msgpack.packb({"battery": 5}))  # a typo
+        space.auv1.put("status", msgpack.packb({"battery": 5}))  # read: not counted
+        stats = stats_of(space.auv1, "auv1", lambda s: s.get("unmapped_keys"))
+        assert stats["unmapped_keys"] == {"auv1/statsu": 2}
+        said = [msgpack.unpackb(e.payload) for e in events.during(2.0)]
+        assert [e["key"] for e in said if e["kind"] == "unmapped_key"] == ["auv1/statsu"]
+    finally:
+        events.close()
+
+
+def test_a_get_that_maps_to_nothing_says_so(space: Space) -> None:
+    values, errors = get(space.top, "auv1/nothing/here")
+    assert values == [] and len(errors) == 1
+    assert "no query and no channel of the mission maps this key at top" in errors[0]
+    values, errors = get(space.top, "auv1/depth")
+    assert values == [] and "auv1/depth (channel depth) at top not latched" in errors[0]
+    space.auv1.put("status", msgpack.packb({"battery": 9}))
+    stats_of(space.top, "top", lambda s: s.get("received_age_s", {}).get("status", 99) < 1)
+    values, errors = get(space.top, "auv1/status")
+    assert values and not errors  # the latched value; nothing else to say
