@@ -65,15 +65,20 @@ def zab_sim(mission: Path, endpoints: dict[str, list[str]], *args: str,
                     time.sleep(0.1)
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        interrupt(proc)
         if proc.stderr is not None:
             proc.stderr.close()
+
+
+def interrupt(proc: subprocess.Popen[Any], timeout: float = 15) -> None:
+    """Stop ``proc`` as Ctrl-C does (killed if it does not stop within ``timeout``)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 class Inbox:

@@ -87,7 +87,7 @@ class Inbound:
         if src is None:
             return
         try:
-            frame = self.codec.decode(rx.data, rx.src)
+            frame = self.codec.decode(rx.data, rx.src, now)
         except FrameError as exc:
             self.stats.frames_dropped[exc.reason] += 1
             self.outbox.event(FrameDropped(now, src, exc.reason, str(exc), rx.data))

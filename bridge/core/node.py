@@ -61,6 +61,7 @@ from bridge.frozen import direct_init
 from bridge.wire.auth import Authenticator
 from bridge.wire.goby import frame_codec_for
 from bridge.wire.payloads import decode_payload
+from bridge.wire.seal import KeyRing, frame_authenticator
 
 __all__ = ["Action", "NodeCore", "NodeStats", "OutFrame", "Output", "Ping", "Publish",
            "SendFrame", "Status"]
@@ -97,11 +98,11 @@ class NodeCore:
 
     def __init__(self, loaded: LoadedMission, node: str,
                  auth: Authenticator | None = None, rng: random.Random | None = None,
-                 state: Mapping[str, Any] | None = None, key: bytes | None = None,
+                 state: Mapping[str, Any] | None = None, key: bytes | KeyRing | None = None,
                  seed: int | None = None) -> None:
         """``rng`` draws this run's epoch when there is no ``state`` (a fresh one per run by
         default; seeded for a reproducible simulation); ``state``: what :meth:`state` returned
-        in the previous run, to resume from; ``key``: the frame key of an authenticated
+        in the previous run, to resume from; ``key``: the frame key(s) of an authenticated
         mission (the core reads no file and no environment: its runtime loads the key);
         ``seed``: the MAC's random draws (random access backoffs)."""
         mission = self.mission = loaded.mission
@@ -118,8 +119,7 @@ class NodeCore:
             if key is None:
                 raise MissionError(f"{node}: wire.auth is on: give the frame key "
                                    "(the runtime loads it, see bridge.runtime.keys)")
-            auth = Authenticator(key, table.fingerprint, mission.address_of(node),
-                                 wire_auth.tag_bytes, state.get("auth"))
+            auth = frame_authenticator(table, key, mission.address_of(node), state.get("auth"))
         self.auth = auth
         drawn = rng.randrange(EPOCHS)  # (drawn even when resumed: the draws that follow stay)
         self.epoch: int = state.get("epoch", drawn)

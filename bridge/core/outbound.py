@@ -348,7 +348,7 @@ class Outbound:
         if not items and not always:
             return None
         delays = self.delays(at) if self.delays is not None and self.table.dlbl else ()
-        data = codec.encode(items, delays, self.epoch)
+        data = codec.encode(items, delays, self.epoch, now)
         dest, ack = self.addressing(targets, asks_ack)
         return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), left_out), now,
                         tuple(streams), tuple(acks), tuple(extras))

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import (
+    AwareDatetime,
     BaseModel,
     ConfigDict,
     Field,
@@ -420,14 +421,44 @@ class Query(Strict):
                                "carried (the request entry as before).")
 
 
+class NextKey(Strict):
+    """The frame key that takes over from the mission key at ``at`` (key rotation): both are
+    accepted within ``overlap_s`` of the switch, so nothing is lost across it. Like the
+    mission key it is never in the mission file."""
+
+    key_env: str = Field("ZAB_NEXT_KEY", description="Environment variable holding the key.")
+    key_file: Path | None = Field(None, description="File holding the key (used if the "
+                                  "variable is unset).")
+    at: AwareDatetime = Field(description="When frames start being sealed with it (an ISO "
+                              "time with its zone, e.g. 2026-06-01T12:00:00Z).")
+    overlap_s: float = Field(600.0, gt=0, description="Either side of ``at``, frames sealed "
+                             "with either key are accepted (clocks differ; frames in flight).")
+
+
 class Auth(Strict):
     """Authenticated frames. The key is never in the mission: it comes from the environment
     variable ``key_env`` or else from ``key_file``."""
 
-    tag_bytes: int = Field(4, ge=2, le=16, description="Bytes of the truncated HMAC tag.")
+    tag_bytes: int = Field(4, ge=2, le=16, description="Bytes of the truncated tag.")
     key_env: str = Field("ZAB_KEY", description="Environment variable holding the key.")
     key_file: Path | None = Field(None, description="File holding the key (used if the "
                                   "variable is unset).")
+    encrypt: bool = Field(False, description="Confidential frames: the body encrypted and "
+                          "authenticated with AES-CCM (the same counter and tag sizes as the "
+                          "HMAC; tag_bytes even); the DLBL delays stay in the clear, "
+                          "authenticated (docs/wire-format.md).")
+    next_key: NextKey | None = Field(None, description="Key rotation: the key that takes "
+                                     "over, and when (encrypted frames).")
+
+    @model_validator(mode="after")
+    def _sealed(self) -> Auth:
+        if self.encrypt and self.tag_bytes % 2:
+            raise ValueError("an encrypted frame's tag_bytes is even (AES-CCM: 4 to 16)")
+        if self.encrypt and self.tag_bytes < 4:
+            raise ValueError("an encrypted frame's tag_bytes is at least 4 (AES-CCM)")
+        if self.next_key is not None and not self.encrypt:
+            raise ValueError("next_key rotates the key of encrypted frames: give encrypt: true")
+        return self
 
 
 def _auth_off_in_schema(schema: dict[str, Any]) -> None:

@@ -38,7 +38,7 @@ from bridge.core.surfacing import Relay
 from bridge.errors import BackendError, DecodeError, EncodeError
 from bridge.modems.base import ModemBackend, ModemFix, ModemRange, Reception
 from bridge.runtime.eager import start_eagerly
-from bridge.runtime.keys import load_key
+from bridge.runtime.keys import load_key, with_next_key
 from bridge.runtime.keyspace_watch import KeyspaceWatch
 from bridge.runtime.ros2_graph import Ros2Graph
 from bridge.runtime.session import (
@@ -54,6 +54,7 @@ from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_queries import QueryBridge
 from bridge.wire.payloads import decode_payload
 from bridge.wire.sample_meta import encode_as
+from bridge.wire.seal import KeyRing
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -89,7 +90,7 @@ class BridgeNode:
         clock: Callable[[], float] = time.time,
         on_event: Callable[[Event], None] | None = None,
         state_file: StateFile | None = None,
-        key: bytes | None = None,
+        key: bytes | KeyRing | None = None,
     ) -> None:
         """``state_file``: where this node keeps what a restart must resume (None: nothing
         survives a restart; peers then see a new epoch and resynchronise); ``key``: the frame
@@ -98,7 +99,7 @@ class BridgeNode:
         self.state_file = state_file
         auth = loaded.mission.wire.auth
         if key is None and auth is not None:
-            key = load_key(auth.key_env, auth.key_file)
+            key = with_next_key(auth, load_key(auth.key_env, auth.key_file))
         self.core = NodeCore(loaded, node, key=key,
                              state=state_file.load() if state_file is not None else None)
         self.mission = loaded.mission

@@ -82,14 +82,16 @@ class Authenticator:
         self.counter = counter + 1
         return counter
 
-    def seal(self, frame: bytes) -> bytes:
-        """``frame`` followed by the low half of this node's next counter and the tag."""
+    def seal(self, frame: bytes, now: float | None = None) -> bytes:
+        """``frame`` followed by the low half of this node's next counter and the tag
+        (``now``: unused here; :class:`~bridge.wire.seal.Sealer` chooses its key by it)."""
         counter = self.next_counter()
         data = frame + (counter % _LOW).to_bytes(COUNTER_BYTES, "big")
         return data + self._tag(self.address, counter, data)
 
-    def open(self, sealed: bytes, src: int) -> bytes:
-        """The frame inside ``sealed`` from ``src``; FrameError if forged, altered or replayed."""
+    def open(self, sealed: bytes, src: int, now: float | None = None) -> bytes:
+        """The frame inside ``sealed`` from ``src``; FrameError if forged, altered or replayed
+        (``now``: as for :meth:`seal`)."""
         if len(sealed) < self.overhead_bytes:
             raise FrameError("truncated frame: no room for the counter and tag")
         data, tag = sealed[: -self.tag_bytes], sealed[-self.tag_bytes:]

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
 
 WIRE_VERSION = 2  # 2: the check reveals the fingerprint; epochs in stream missions
+SEAL_VERSION = 1  # encrypted frames (bridge.wire.seal), in their missions' fingerprint
 
 # Reliable channels and fragmented transfers (see bridge.core.reliable and bridge.core.transfer).
 SEQ_BITS = 8  # a reliable value's sequence number, modulo 256
@@ -469,6 +470,7 @@ class ChannelTable:
     nodes: tuple[str, ...]
     dlbl: bool
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
+    sealed: bool = False  # frames are encrypted (bridge.wire.seal)
     demand: bool = False  # frames may carry the @want interest bitmap
     queries: tuple[QuerySpec, ...] = ()  # queries across the water
     wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.wire.goby)
@@ -492,6 +494,7 @@ class ChannelTable:
         auth = mission.wire.auth
         return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
                    auth_tag_bytes=auth.tag_bytes if auth else 0,
+                   sealed=auth is not None and auth.encrypt,
                    wire_format=mission.wire.format,
                    demand=mission.demand is not None, queries=compile_queries(mission))
 
@@ -567,6 +570,8 @@ class ChannelTable:
                 for c in self.channels
             ],
         }
+        if self.sealed:
+            description["sealed"] = SEAL_VERSION
         if self.demand:
             description["demand"] = [c.name for c in self.channels if c.always]
         if self.queries:
