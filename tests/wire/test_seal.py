@@ -12,6 +12,7 @@ from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.frame import FrameCodec, check_value
 from bridge.wire.seal import COUNTS_PER_S, KeyRing, Sealer, frame_authenticator
 from tests.conftest import MISSIONS
+from tests.harness import bench_module
 
 KEY, NEXT = b"k" * 32, b"n" * 32
 
@@ -152,3 +153,10 @@ def test_a_key_rotation_in_the_middle_of_a_run_loses_nothing() -> None:
     assert len(fleet.published("ops", "auv/nav")) >= 95  # each latest value, in turn
     for core in fleet.cores.values():
         assert dict(core.stats.frames_dropped) == {}
+
+
+def test_the_bench_rows_compare_sealed_frames_with_plain_and_authenticated_ones() -> None:
+    rows = {mode: (size, rate) for mode, size, rate in
+            bench_module("codec_bench").frame_rows(0.05)}
+    assert rows["sealed"][0] == rows["authenticated"][0] == rows["plain"][0] + 8
+    assert all(rate > 0 for _, rate in rows.values())
