@@ -10,6 +10,7 @@ import yaml
 
 from bridge.core.events import FieldsLeftOut
 from bridge.core.loaded import load_mission, parse_mission
+from bridge.core.surfacing import Relay
 from bridge.errors import MissionError
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.sample_meta import encoding_id
@@ -140,3 +141,19 @@ def test_the_fields_beside_a_value_need_fields_of_the_mission() -> None:
     data["channels"][3]["elements"][0]["fields"][0]["field"] = "_zab_x"
     with pytest.raises(MissionError, match="names starting with _zab are the bridge's"):
         parse_mission(yaml.safe_dump(data, sort_keys=False))
+
+
+def test_over_ip_a_relay_carries_the_attachment_and_a_delete_as_the_water_would() -> None:
+    data = yaml.safe_load(ZSPACE.read_text())
+    data["channels"][3].update(attachment_bytes=4, deletes=True)
+    data["channels"][3]["elements"][0]["out"] = "surface/{src}/status"  # not the input key
+    fleet = FastFleet(parse_mission(yaml.safe_dump(data, sort_keys=False), "z.yaml"), seed=1)
+    fleet.run_until(10.0)
+    fleet.ip_link("auv1", "top", True)
+    core = fleet.cores["auv1"]
+    core.ingest("status", msgpack.packb({"battery": 1, "mode": "idle"}),
+                "application/msgpack", fleet.now, attachment=b"tag1")
+    core.delete("status", fleet.now + 1)
+    relays = [o for o in core.take() if isinstance(o, Relay)]
+    assert [(r.key, r.attachment, r.delete, r.taken) for r in relays] == [
+        ("surface/auv1/status", b"tag1", False, 10.0), ("surface/auv1/status", None, True, 11.0)]
