@@ -308,7 +308,7 @@ class Queries:
                     and (self.repeats or item.sent_at is None)), default=None)
 
     def on_reply(self, src: str, codec: QueryCodec, header: tuple[int, ...],
-                 values: list[dict] | None, now: float) -> None:
+                 values: list[dict[str, Any]] | None, now: float) -> None:
         qid, asker, status, index = header
         if self.table.nodes[asker] != self.node:
             return  # a reply to somebody else
@@ -374,13 +374,11 @@ class Queries:
                 f"{deadline_s(self.mission, spec, self.node, item.ticket[1]):g} s "
                 + ("(its timeout_s)" if spec.timeout_s else "(the MAC's bound)"))
 
-    def next_deadline(self) -> float | None:
-        return min((item.deadline for item in self.open.values()), default=None)
-
     # -- serving -----------------------------------------------------------------------------
 
     def on_request(self, src: str, codec: QueryCodec, header: tuple[int, ...],
-                   values: list[dict] | None, now: float, sent_at: float | None = None) -> None:
+                   values: list[dict[str, Any]] | None, now: float,
+                   sent_at: float | None = None) -> None:
         """A request heard at ``now``, its frame sent at ``sent_at`` (as well as this node
         can tell: the time left it carries counts from then)."""
         qid, server = header[:2]

@@ -12,6 +12,8 @@ import zenoh
 from bridge.errors import SessionError
 from bridge.mission.model import ZenohSettings
 from bridge.ros2.attachment import from_bridge
+from bridge.wire.proofs import SIGNATURE
+from bridge.wire.sample_meta import APPLICATION_SEPARATOR
 
 # Every sample a bridge publishes carries this attachment prefix; bridges never re-bridge it.
 ORIGIN_PREFIX = b"zab/1 "
@@ -21,13 +23,18 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     """A Zenoh config listening and connecting only where the mission says.
 
     The default listen endpoint would be every interface; here it is none unless given.
-    Multicast scouting is off unless the node's ``zenoh`` section turns it on.
+    Multicast scouting is off unless the node's ``zenoh`` section turns it on. So is shared
+    memory: Zenoh 1.x maps each local publisher's shared-memory pool (16 MB) into a subscriber
+    it sends large samples to, and six applications flooding 1 MB puts on the bridge's inputs
+    held ~100 MB in it that way, never given back (40 MB with it off); the samples a bridge
+    takes are small.
     """
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps(settings.mode))
     config.insert_json5("listen/endpoints", json.dumps(settings.listen))
     config.insert_json5("connect/endpoints", json.dumps(settings.connect))
     config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("transport/shared_memory/enabled", "false")
     for key, value in settings.passthrough().items():
         config.insert_json5(key, json.dumps(value))
     return config
@@ -74,19 +81,16 @@ def origin_tag(mission: str, node: str) -> bytes:
     return ORIGIN_PREFIX + f"{mission}/{node}".encode()
 
 
-APPLICATION_SEPARATOR = b"\x00"
-"""Between the bridge's marker and the sending application's attachment, when a channel
-carries it: ``zab/1 <mission>/<node>`` NUL ``<the application's bytes>``."""
-
-
 def marked(origin: bytes, application: bytes | None) -> bytes:
-    """The attachment a bridge publishes with: its marker, then the application's, if any."""
+    """The bridge's attachment (``origin``) with the sending application's after it, where a
+    channel carries it: ``zab/1 <mission>/<node>`` NUL ``<the application's bytes>``."""
     return origin + APPLICATION_SEPARATOR + application if application else origin
 
 
-def from_origin(attachment: bytes, origin: bytes) -> bool:
-    """Whether the bridge marked ``origin`` published a sample with ``attachment``."""
-    return attachment == origin or attachment.startswith(origin + APPLICATION_SEPARATOR)
+def origin_of(attachment: bytes) -> bytes:
+    """A bridge's attachment without its signature (:mod:`bridge.wire.proofs`) and the
+    application's attachment it carries, if any."""
+    return attachment.partition(SIGNATURE)[0].partition(APPLICATION_SEPARATOR)[0]
 
 
 def is_bridged(sample: zenoh.Sample) -> bool:

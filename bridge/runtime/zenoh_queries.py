@@ -24,6 +24,7 @@ back to the core when the get ends.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import threading
 from collections.abc import Callable
@@ -124,7 +125,7 @@ class QueryBridge:
         self.asked = core.queries.asked_keys()
         for key in self.asked:
             self.entities.append(session.declare_queryable(
-                key, lambda q, k=key: self._from_zenoh(q, k)))
+                key, functools.partial(self._from_zenoh, key=key)))
 
     def _from_zenoh(self, query: zenoh.Query, key: str) -> None:
         """Zenoh thread: read the get's parameters, hand it to the loop (a wildcard get only
@@ -241,7 +242,7 @@ class QueryBridge:
         params = format_parameters(request.parameters)
         selector = request.key + (f"?{params}" if params else "")
         session.get(selector, zenoh.handlers.Callback(on_reply, done),
-                    consolidation=zenoh.QueryConsolidation(zenoh.ConsolidationMode.NONE),
+                    consolidation=zenoh.ConsolidationMode.NONE,
                     timeout=request.timeout_s)
 
     def _served(self, request: LocalGet, values: list[Any], error: str | None) -> None:

@@ -87,7 +87,8 @@ def _element_schema(element: ElementCodec, direction: Direction) -> dict[str, An
         schema["properties"] = {k: v for k, v in schema["properties"].items()
                                 if k not in HIDDEN}
         schema["required"] = [k for k in schema["required"] if k not in HIDDEN]
-    return adapt_schema(schema, direction)
+    adapted: dict[str, Any] = adapt_schema(schema, direction)
+    return adapted
 
 
 def _uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, int, ElementCodec, str]]:

@@ -41,6 +41,9 @@ ATTACHMENT = "_zab_att"
 AGE = "_zab_age"
 HIDDEN = frozenset({DELETED, ENCODING, ATTACHMENT, AGE})
 
+APPLICATION_SEPARATOR = b"\x00"
+"""In a bridge's attachment, before the sending application's (where a channel carries it)."""
+
 ENCODINGS = ("msgpack", "json", "text", "bytes")
 """The encodings ``as_sent`` tells apart, by id; ``text`` and ``bytes`` are JSON text published
 as ``text/plain`` and untagged (``zenoh/bytes``)."""

@@ -10,18 +10,21 @@ A sealed frame is::
     tag         tag_bytes × 8 bits (CCM's, truncated by the cipher itself: 4 to 16, even)
 
 and the usual 16-bit check value (``bridge.wire.frame``). The cipher's key is HKDF-SHA256 of
-the mission key, salted with the mission fingerprint; its 13-byte nonce is the sender's address
-(2 bytes), the 64-bit counter and ``zab``, so no two frames of one key share a nonce. The
-cleartext header (the delays and the counter) is authenticated with the body: a changed
-delay, counter, body or tag, or a frame from another sender address, fails the tag.
+the mission key (a label of its own: never the HMAC's key); its 13-byte nonce is the sender's
+address (2 bytes), the 64-bit counter and ``zab``, so no two frames of one key share a nonce.
+The cleartext header (the delays and the counter) is authenticated with the body, and so are
+the two fingerprint bytes the check carries (as the HMAC tag covers them: a node with another
+mission file and the key can still tell a key holder's frame from junk, :meth:`Sealer.vouch`):
+a changed delay, counter, body or tag, or a frame from another sender address, fails the tag.
 
-The counter, its reservation across restarts and the replay window are the
-:class:`~bridge.wire.auth.Authenticator`'s. A sender that starts without its saved state
-starts its counter at :data:`COUNTS_PER_S` per second of its clock since the Unix epoch
-(never a counter it used before, at up to that many frames a second on average), and a
-receiver that holds no counter from a sender accepts one within 2**30 of its own clock's
-count (about two years at that rate either way): an encrypted frame never reuses a nonce,
-even after a node lost its state.
+The counter, its reservation across restarts, the replay window and the ``@mark`` that tells a
+sender refused as replayed where to resume are the :class:`~bridge.wire.auth.Authenticator`'s.
+But a sender that starts without its saved state must not count from 0 again (its frames
+would reuse nonces before any ``@mark`` came back): it starts its counter at
+:data:`COUNTS_PER_S` per second of its clock since the Unix epoch (never a counter it used
+before, at up to that many frames a second on average), and a receiver that holds no counter
+from a sender accepts one within 2**30 of its own clock's count (about two years at that rate
+either way). So an encrypted frame never reuses a nonce, even after a node lost its state.
 
 Key rotation: a :class:`KeyRing` names the next key and when it takes over. A sender seals with
 the key of its clock; a receiver opens with that key and, within ``overlap_s`` of the switch,
@@ -75,10 +78,9 @@ class KeyRing:
         return order
 
 
-def cipher_key(key: bytes, fingerprint: bytes) -> bytes:
-    """The AES-256 key of a mission key, for one mission file."""
-    return HKDF(algorithm=hashes.SHA256(), length=32, salt=fingerprint,
-                info=_INFO).derive(key)
+def cipher_key(key: bytes) -> bytes:
+    """The AES-256 key of a mission key."""
+    return HKDF(algorithm=hashes.SHA256(), length=32, salt=None, info=_INFO).derive(key)
 
 
 class Sealer(Authenticator):
@@ -96,7 +98,7 @@ class Sealer(Authenticator):
             raise MissionError("the next frame key must be at least 16 bytes long")
         self.ring = ring
         self.clear_bytes = clear_bytes
-        self._ciphers = {k: AESCCM(cipher_key(k, fingerprint), tag_length=tag_bytes)
+        self._ciphers = {k: AESCCM(cipher_key(k), tag_length=tag_bytes)
                          for k in (ring.current, ring.next) if k is not None}
         self._resumed = bool(state and state.get("reserved"))
 
@@ -131,24 +133,45 @@ class Sealer(Authenticator):
                                                                    now)) is not None:
             self.seen[src] = counter
             self.changed = True
+            if self._answered:
+                self._answered.pop(src, None)
             return clear[:self.clear_bytes] + plain
         behind = counter - _LOW
         if self._decrypt(src, behind, clear, body, now) is not None:
+            self._owe(src, behind, mark)
             raise FrameError(f"replayed frame: counter {behind} from {src} is not past "
-                             f"{mark} (a replay, or a sender restarted without its state)",
-                             "replayed")
+                             f"{mark} (a replay, or a sender restarted without its state: "
+                             "told where to resume)", "replayed")
         raise FrameError("forged or altered frame: it does not decrypt with the mission key",
                          "forged")
 
-    def _decrypt(self, src: int, counter: int, clear: bytes, body: bytes,
-                 now: float | None) -> bytes | None:
+    def vouch(self, sealed: bytes, src: int, fingerprint: int) -> int | None:
+        """The counter of ``sealed`` if a holder of the key sealed it, as ``src``, under the
+        mission file of 16-bit ``fingerprint`` (another than this node's, its clear header as
+        long as this one's); None otherwise. The counter's high half is guessed as
+        :meth:`~bridge.wire.auth.Authenticator.vouch` guesses it."""
+        head = self.clear_bytes + COUNTER_BYTES
+        if len(sealed) < head + self.tag_bytes:
+            return None
+        clear, body = sealed[:head], sealed[head:]
+        low = int.from_bytes(clear[-COUNTER_BYTES:], "big")
+        mark = self.seen.get(src, -1)
+        past = (mark + 1) + ((low - (mark + 1)) % _LOW)
+        theirs = fingerprint.to_bytes(2, "big")
+        for counter in dict.fromkeys((low, past, past - _LOW)):
+            if self._decrypt(src, counter, clear, body, None, theirs) is not None:
+                return counter
+        return None
+
+    def _decrypt(self, src: int, counter: int, clear: bytes, body: bytes, now: float | None,
+                 fingerprint: bytes | None = None) -> bytes | None:
         """The body decrypted with the first key that opens it, or None."""
         if counter < 0:
             return None
         for key in self.ring.keys(now):
             try:
                 return self._ciphers[key].decrypt(self._nonce(src, counter), body,
-                                                  self._fingerprint + clear)
+                                                  (fingerprint or self._fingerprint) + clear)
             except InvalidTag:
                 continue
         return None

@@ -14,7 +14,7 @@ ZSPACE = MISSIONS / "zspace.yaml"
 
 def test_a_put_nothing_reads_is_counted_once_said_and_bounded() -> None:
     core = NodeCore(load_mission(ZSPACE), "auv1")
-    keyspace = core.keyspace
+    keyspace = core.outbound.keyspace
     assert keyspace.expressions == ["auv1/**"]
     assert keyspace.maps("status") and keyspace.maps("sensors/b/temp")
     assert not keyspace.maps("auv1/statsu")
@@ -29,7 +29,7 @@ def test_a_put_nothing_reads_is_counted_once_said_and_bounded() -> None:
 
 
 def test_a_get_on_a_peers_keyspace_is_answered_or_told_why_not() -> None:
-    keyspace = NodeCore(load_mission(ZSPACE), "top").keyspace
+    keyspace = NodeCore(load_mission(ZSPACE), "top").outbound.keyspace
     assert keyspace.peer_keyspaces() == ["auv1/**", "auv2/**"]
     assert keyspace.unanswered("auv1/info") is None  # a query
     assert keyspace.unanswered("auv1/status") is None  # a latched channel's output

@@ -41,7 +41,7 @@ def test_each_family_member_shows_as_its_own_row() -> None:
 def test_the_page_shows_the_puts_no_channel_reads_at_its_node() -> None:
     loaded = load_mission(MISSIONS / "zspace.yaml")
     core = NodeCore(loaded, "top")
-    core.keyspace.unmapped("top/cmd", 1.0)
+    core.outbound.keyspace.unmapped("top/cmd", 1.0)
     model = GuiModel(loaded, "top")
     model.ingest("@zab/zspace/top/stats", msgpack.packb(core.snapshot(2.0)),
                  "application/msgpack", 2.0)
