@@ -160,3 +160,22 @@ def test_the_bench_rows_compare_sealed_frames_with_plain_and_authenticated_ones(
             bench_module("codec_bench").frame_rows(0.05)}
     assert rows["sealed"][0] == rows["authenticated"][0] == rows["plain"][0] + 8
     assert all(rate > 0 for _, rate in rows.values())
+
+
+def test_a_key_holders_frame_under_another_mission_file_is_told_from_junk() -> None:
+    gcv, lsv, _ = morph(encrypt=True)
+    data = yaml.safe_load((MISSIONS / "morph.yaml").read_text())
+    data["wire"]["auth"] = {"tag_bytes": 4, "encrypt": True}
+    data["channels"][0]["interval_s"] = 99  # not on the wire: the same fingerprint
+    data["channels"][0]["name"] = "renamed"  # on the wire: another mission file
+    other = parse_mission(yaml.safe_dump(data, sort_keys=False), "o.yaml").table
+    theirs = FrameCodec(other, frame_authenticator(other, KEY, 1))
+    frame = theirs.encode([(other.channels[0], items(gcv)[0][1])], DELAYS, now=100.0)
+    with pytest.raises(FrameError) as refused:
+        lsv.decode(frame, 1, now=100.0)
+    assert refused.value.reason == "check"
+    fingerprint = lsv.sender_fingerprint(frame)
+    assert fingerprint is not None and lsv.vouch(frame, 1, fingerprint) is not None
+    junk = bytearray(frame)
+    junk[-4] ^= 1
+    assert lsv.vouch(bytes(junk), 1, fingerprint) is None
