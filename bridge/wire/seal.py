@@ -131,17 +131,11 @@ class Sealer(Authenticator):
         counter = (mark + 1) + ((low - (mark + 1)) % _LOW)  # the first value past the mark
         if counter - mark <= _LOW // 2 and (plain := self._decrypt(src, counter, clear, body,
                                                                    now)) is not None:
-            self.seen[src] = counter
-            self.changed = True
-            if self._answered:
-                self._answered.pop(src, None)
+            self._accepted(src, counter)
             return clear[:self.clear_bytes] + plain
         behind = counter - _LOW
         if self._decrypt(src, behind, clear, body, now) is not None:
-            self._owe(src, behind, mark)
-            raise FrameError(f"replayed frame: counter {behind} from {src} is not past "
-                             f"{mark} (a replay, or a sender restarted without its state: "
-                             "told where to resume)", "replayed")
+            raise self._replayed(src, behind, mark)
         raise FrameError("forged or altered frame: it does not decrypt with the mission key",
                          "forged")
 
