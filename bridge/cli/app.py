@@ -201,6 +201,14 @@ def check(
     for warning in report.warnings:
         console.print(f"[yellow]warning:[/] {warning}", highlight=False)
     console.print(key.describe() + (f": {note}" if note else ""), highlight=False)
+    if (auth := data.get("auth")) is not None:
+        console.print(
+            f"{'sealed' if auth['encrypted'] else 'authenticated'} frames ({auth['cipher']}): "
+            f"+{auth['bits_per_frame']} bits a frame ({auth['counter_bits']}-bit counter + "
+            f"{auth['tag_bits']}-bit tag)" + (f"; the next key takes over at "
+                                             f"{auth['next_key_at']} (both accepted "
+                                             f"±{auth['overlap_s']:g} s)"
+                                             if auth["next_key_at"] else ""), highlight=False)
     for error in report.errors:
         console.print(f"[red]error:[/] {error}", highlight=False)
     if problem:
@@ -475,6 +483,9 @@ def sim(
     = False,
     speed: Annotated[float | None, typer.Option(help="Like --fast, with the virtual clock at "
                                                 "this many times real time.", min=1e-3)] = None,
+    water: Annotated[str | None, typer.Option(metavar="HOST:PORT", help="Join a water already "
+                                              "running there (zab water: other modems, a "
+                                              "hydrophone) instead of starting one.")] = None,
 ) -> None:
     """Run every node of the mission plus the simulated ocean, each node on its own endpoint."""
     from bridge.cli.sim import run_sim
@@ -493,7 +504,8 @@ def sim(
                                             recorder))
         else:
             result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
-                                          console=console, record=logs, recorder=recorder))
+                                          console=console, record=logs, recorder=recorder,
+                                          water=water))
     finally:
         if logs is not None:
             logs.close()

@@ -12,7 +12,7 @@ positioning (:class:`~bridge.core.ranges.Ranges`) and queries
 One way in per kind of event, one way out:
 
 =============================================  ============================================
-a sample on an input key                       :meth:`NodeCore.ingest`
+a sample on an input key, or its delete        :meth:`NodeCore.ingest`, :meth:`NodeCore.delete`
 the MAC's next opportunity, and what to do     :meth:`NodeCore.wake_at`, :meth:`NodeCore.act`
 the modem carried that out (or refused)        :meth:`NodeCore.done`
 a frame heard                                  :meth:`NodeCore.receive`
@@ -62,6 +62,7 @@ from bridge.frozen import direct_init
 from bridge.wire.auth import Authenticator
 from bridge.wire.goby import frame_codec_for
 from bridge.wire.payloads import decode_payload
+from bridge.wire.seal import KeyRing, frame_authenticator
 
 __all__ = ["Action", "NodeCore", "NodeStats", "OutFrame", "Output", "Ping", "Publish",
            "SendFrame", "Status", "Taken"]
@@ -101,11 +102,11 @@ class NodeCore:
 
     def __init__(self, loaded: LoadedMission, node: str,
                  auth: Authenticator | None = None, rng: random.Random | None = None,
-                 state: Mapping[str, Any] | None = None, key: bytes | None = None,
+                 state: Mapping[str, Any] | None = None, key: bytes | KeyRing | None = None,
                  seed: int | None = None) -> None:
         """``rng`` draws this run's epoch when there is no ``state`` (a fresh one per run by
         default; seeded for a reproducible simulation); ``state``: what :meth:`state` returned
-        in the previous run, to resume from; ``key``: the frame key of an authenticated
+        in the previous run, to resume from; ``key``: the frame key(s) of an authenticated
         mission (the core reads no file and no environment: its runtime loads the key);
         ``seed``: the MAC's random draws (random access backoffs)."""
         mission = self.mission = loaded.mission
@@ -122,8 +123,7 @@ class NodeCore:
             if key is None:
                 raise MissionError(f"{node}: wire.auth is on: give the frame key "
                                    "(the runtime loads it, see bridge.runtime.keys)")
-            auth = Authenticator(key, table.fingerprint, mission.address_of(node),
-                                 wire_auth.tag_bytes, state.get("auth"))
+            auth = frame_authenticator(table, key, mission.address_of(node), state.get("auth"))
         self.auth = auth
         drawn = rng.randrange(EPOCHS)  # (drawn even when resumed: the draws that follow stay)
         self.epoch: int = state.get("epoch", drawn)
@@ -198,11 +198,15 @@ class NodeCore:
 
     # -- samples in ----------------------------------------------------------------------------
 
-    def ingest(self, key: str, data: bytes, encoding: str, now: float,
-               ref: str | None = None, sample_key: str | None = None) -> None:
+    def ingest(self, key: str, data: bytes, encoding: str, now: float, ref: str | None = None,
+               sample_key: str | None = None, attachment: bytes | None = None) -> None:
         """A sample arrived on an input key (``ref``: the publisher's correlation text, echoed
         in delivery reports; ``sample_key``: the sample's own key under a wildcard input)."""
-        self.outbound.ingest(key, data, encoding, now, ref, sample_key)
+        self.outbound.ingest(key, data, encoding, now, ref, sample_key, attachment)
+
+    def delete(self, key: str, now: float) -> None:
+        """A Zenoh delete on an input key: a tombstone for the channels with ``deletes``."""
+        self.outbound.delete(key, now)
 
     def ros2_input(self, key: str) -> Any:
         """The ROS 2 topic read on input ``key``, or None."""
@@ -341,16 +345,17 @@ class NodeCore:
         """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
         self.links.update(now)
 
-    def ask(self, key: str, parameters: Any, now: float) -> Ticket | str:
-        """A Zenoh get on ``key`` with ``parameters`` (a dict): the acoustic query's ticket it
-        waits on (replies come as QueryAnswer / QueryEnd outputs), or why it ends at once."""
+    def ask(self, key: str, parameters: Any, now: float,
+            until: float | None = None) -> Ticket | str:
+        """A Zenoh get on ``key`` with ``parameters`` (a dict), its caller waiting ``until``: the
+        ticket it waits on (replies: QueryAnswer / QueryEnd outputs), or why it ends at once."""
         found = self.queries.spec_for(key) if self.queries is not None else None
         if found is None:
             return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
         spec, server = found
         self.links.update(now)
         return self.queries.ask(spec, server, parameters, now,  # type: ignore[union-attr]
-                                self.links.states.get(server))
+                                self.links.states.get(server), until)
 
     def query_served(self, ticket: tuple[int, str, int], values: list[Any],
                      error: str | None = None) -> None:
@@ -386,7 +391,7 @@ class NodeCore:
             "state": out.saving.snapshot(),
             "mismatched_peers": dict(self.mismatched),
             "unfinished": {s.channel.name: s.pending() for s in out.senders.values()},
-            "sent_per_channel": dict(stats.sent_per_channel),
+            "sent_per_channel": dict(stats.sent_per_channel), **stats.noticed(),
             **({"queries": self.queries.snapshot()} if self.queries else {}),
             **({"surfacing": out.surfacing.snapshot()} if out.surfacing else {}),
             **({"interest": out.interest.snapshot(self.table)} if out.interest else {}),

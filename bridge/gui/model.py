@@ -108,7 +108,8 @@ def _xyz(value: Any) -> tuple[float, float, float] | None:
 
 def zspace_view(stats: Mapping[str, Any]) -> dict[str, Any]:
     """Issue 15's state in a node's stats, for the page: the channels its applications want
-    (demand missions), its open acoustic queries, and the peers it reaches over IP."""
+    (demand missions), its open acoustic queries, the peers it reaches over IP, and the keys
+    its applications put that no channel reads."""
     out: dict[str, Any] = {}
     interest, queries, surfacing = (stats.get(k) for k in ("interest", "queries", "surfacing"))
     if isinstance(interest, Mapping) and isinstance(interest.get("here"), list):
@@ -118,6 +119,9 @@ def zspace_view(stats: Mapping[str, Any]) -> dict[str, Any]:
                                for q in queries["open"] if isinstance(q, Mapping)]
     if isinstance(surfacing, Mapping) and isinstance(surfacing.get("ip_reachable"), list):
         out["ip_reachable"] = [str(p) for p in surfacing["ip_reachable"]]
+    unmapped = stats.get("unmapped_keys")
+    if isinstance(unmapped, Mapping):  # issue 32: puts no channel reads (a typo, often)
+        out["unmapped"] = [f"{k} ×{n}" for k, n in sorted(unmapped.items())]
     return out
 
 

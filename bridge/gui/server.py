@@ -27,7 +27,7 @@ from bridge.gui.commands import CommandError
 from bridge.gui.feed import ZenohFeed
 from bridge.gui.model import GuiModel, shown
 from bridge.mission.model import Mission
-from bridge.runtime.session import origin_tag
+from bridge.runtime.session import origin_of, origin_tag
 
 log = logging.getLogger("zab.gui")
 
@@ -128,7 +128,7 @@ class GuiServer:
     # -- Zenoh side (on the event loop) --------------------------------------------------------
 
     def _sample(self, key: str, data: bytes, encoding: str, origin: bytes | None) -> None:
-        publisher = None if origin is None else self._bridges.get(origin)
+        publisher = None if origin is None else self._bridges.get(origin_of(origin))
         self.model.ingest(key, data, encoding, self.clock(), publisher)
 
     def _token(self, key: str, alive: bool) -> None:

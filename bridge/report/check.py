@@ -18,6 +18,7 @@ from bridge.errors import BackendError
 from bridge.mission.model import Mission
 from bridge.modems.registry import load_backend
 from bridge.modems.setup import modem_options
+from bridge.wire.auth import COUNTER_BYTES
 from bridge.wire.channels import ChannelCodec
 from bridge.wire.families import has_wildcard
 from bridge.wire.frame import FrameCodec
@@ -161,6 +162,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "mac_timing": mac_data,
         "dlbl": mission.wire.dlbl,
         "overhead_bytes": codec.overhead_bytes(),
+        "auth": _auth(mission),
         "count_bits": sent_count_bits,
         "index_bits": codec.index_bits,
         "demand": None if mission.demand is None else {
@@ -179,6 +181,20 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "ok": report.ok,
     }
     return report
+
+
+def _auth(mission: Mission) -> dict[str, Any] | None:
+    """What authenticating (or sealing) frames costs: bits in every frame, and the key's
+    rotation if the mission names one."""
+    auth = mission.wire.auth
+    if auth is None:
+        return None
+    nxt = auth.next_key
+    return {"encrypted": auth.encrypt, "cipher": "AES-CCM" if auth.encrypt else "HMAC-SHA256",
+            "counter_bits": 8 * COUNTER_BYTES, "tag_bits": 8 * auth.tag_bytes,
+            "bits_per_frame": 8 * (COUNTER_BYTES + auth.tag_bytes),
+            "next_key_at": None if nxt is None else nxt.at.isoformat(),
+            "overlap_s": None if nxt is None else nxt.overlap_s}
 
 
 def _family(channel: ChannelCodec) -> dict[str, Any] | None:

@@ -24,6 +24,7 @@ from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, na
 from bridge.wire.interest import InterestCodec
 from bridge.wire.marks import MarkCodec
 from bridge.wire.queries import QueryCodec, QuerySpec, compile_query, query_codecs
+from bridge.wire.sample_meta import SampleMeta
 
 Values = list[dict[str, Any]]
 """One value of a channel: each element's fields, in element order."""
@@ -32,6 +33,7 @@ if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
 
 WIRE_VERSION = 2  # 2: the check reveals the fingerprint; epochs in stream missions
+SEAL_VERSION = 1  # encrypted frames (bridge.wire.seal), in their missions' fingerprint
 
 # Reliable channels and fragmented transfers (see bridge.core.reliable and bridge.core.transfer).
 SEQ_BITS = 8  # a reliable value's sequence number, modulo 256
@@ -85,6 +87,7 @@ class ElementCodec:
     encoding: str
     layout: Layout
     ros2: Ros2Element | None = None  # a ROS 2 topic: CDR payloads on rmw_zenoh keys
+    meta: SampleMeta | None = None  # fields carried beside the value (bridge.wire.sample_meta)
 
     def input_key(self, node: str, key: str = "*") -> str:
         """The key read at ``node``; a family member's, or with ``*`` all members'."""
@@ -217,16 +220,29 @@ class ChannelCodec:
         return out
 
 
-def compile_element(element: Element, on_out_of_range: OutOfRange) -> ElementCodec:
+def compile_element(element: Element, on_out_of_range: OutOfRange,
+                    meta: SampleMeta | None = None) -> ElementCodec:
+    """``meta``: the fields carried beside the value, appended to the layout."""
     if element.dccl:  # a DCCL message: the element's bytes are libdccl's
         from bridge.dccl.layout import DcclLayout
 
         dccl = DcclLayout.from_reference(element.dccl, strict=on_out_of_range == "reject",
                                          options=element.dccl_options)
         return ElementCodec(element.in_, element.out, element.encoding, dccl)  # type: ignore[arg-type]
-    layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
+    fields: list[Any] = [*element.fields, *(meta.fields() if meta is not None else ())]
+    layout = Layout.from_fields(fields, on_out_of_range=on_out_of_range)
     assert element.in_ is not None and element.out is not None
-    return ElementCodec(element.in_, element.out, element.encoding, layout)
+    return ElementCodec(element.in_, element.out, element.encoding, layout, meta=meta)
+
+
+def sample_meta(channel: Channel, element: Element) -> SampleMeta | None:
+    """What ``element`` of ``channel`` carries beside its value, if anything."""
+    age = channel.age
+    meta = SampleMeta(deletes=channel.deletes, as_sent=element.encoding == "as_sent",
+                      attachment_bytes=channel.attachment_bytes,
+                      age_step_s=age.step_s if age is not None else None,
+                      age_max_s=age.max_s if age is not None else 0.0)
+    return meta if meta.fields() else None
 
 
 def compile_ros2_element(element: Element, on_out_of_range: OutOfRange, senders: Sequence[str],
@@ -294,7 +310,8 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
                     (*eloc, where),
                 )
         try:
-            elements.append(compile_element(element, channel.on_out_of_range))
+            elements.append(compile_element(element, channel.on_out_of_range,
+                                            sample_meta(channel, element)))
         except LayoutError as exc:
             inside = ("dccl",) if element.dccl else ("fields", *exc.loc)
             raise ChannelTableError(str(exc), (*eloc, *inside)) from None
@@ -463,6 +480,7 @@ class ChannelTable:
     nodes: tuple[str, ...]
     dlbl: bool
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
+    sealed: bool = False  # frames are encrypted (bridge.wire.seal)
     demand: bool = False  # frames may carry the @want interest bitmap
     queries: tuple[QuerySpec, ...] = ()  # queries across the water
     wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.wire.goby)
@@ -486,6 +504,7 @@ class ChannelTable:
         auth = mission.wire.auth
         return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
                    auth_tag_bytes=auth.tag_bytes if auth else 0,
+                   sealed=auth is not None and auth.encrypt,
                    wire_format=mission.wire.format,
                    demand=mission.demand is not None, queries=compile_queries(mission))
 
@@ -571,6 +590,8 @@ class ChannelTable:
                 for c in self.channels
             ],
         }
+        if self.sealed:
+            description["sealed"] = SEAL_VERSION
         if self.demand:
             description["demand"] = [c.name for c in self.channels if c.always]
         if self.queries:

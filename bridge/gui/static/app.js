@@ -493,6 +493,7 @@ function renderZspace(card, name, self) {
   if (own && name === self) {
     if (own.wanted) parts.push("wants: " + (own.wanted.join(", ") || "nothing"));
     if (own.open_queries) parts.push("open queries: " + (own.open_queries.join(", ") || "none"));
+    if (own.unmapped) parts.push("unmapped puts: " + own.unmapped.join(", "));
   } else if (own && own.ip_reachable && own.ip_reachable.includes(name)) {
     parts.push("surfaced: over IP, not bridged acoustically");
   }
