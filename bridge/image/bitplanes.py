@@ -1,0 +1,303 @@
+"""Embedded bit-plane coding of quantised coefficients, every prefix decodable (pure).
+
+Coefficients (integers, in coding order: see :mod:`bridge.image.geometry`) are sent plane by
+plane from the top. In each plane the coefficients not yet significant are sorted into three
+classes by what the receiver already knows at the plane's start: a significant neighbour on
+the canvas (likely to become significant: sent first), else a significant parent, else neither
+(sent last); coefficients significant from earlier planes get their next bit (*refinement*)
+between the second and the third class — EBCOT's order of passes, most distortion removed per
+bit first.
+
+Each class of each band is a sequence of yes/no significance decisions, mostly no; it goes as
+*adaptive run lengths* (the run-length mode of RLGR / JPEG-LS): with parameter ``k``, ``0``
+says the next ``2**k`` decisions are all no (``k`` grows), ``1`` and ``k`` bits give the
+position of the next yes, then its sign (``k`` shrinks). ``k`` carries over from plane to
+plane for each class and band, so both ends adapt alike with no side information. Refinement
+bits and signs go as they are. Everything is decided for a whole pass from the state at the
+pass's start, so numpy does the bookkeeping and Python only walks the run codes.
+
+A stream cut anywhere decodes to everything before the cut (a run code or a sign cut in
+half is dropped), and a corrupt stream decodes to some image of the same shape: the decoder
+checks every position it reads against the pass it is in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bridge.image.geometry import Geometry
+
+__all__ = ["KMAX", "Planes", "decode_planes", "encode_planes"]
+
+KMAX = 15
+"""Largest run parameter: a ``0`` code covers at most 32768 decisions."""
+
+FIRST_OFFSET = 0.375
+"""Where in its interval a coefficient first found significant is put back (its magnitude is
+more often near the bottom); refined ones go to the middle."""
+
+Bools = NDArray[np.bool_]
+Ints = NDArray[np.int64]
+
+
+class Truncated(Exception):
+    """The stream ended (or went wrong) here: everything before stands."""
+
+
+class Context:
+    """What the classes of a plane are computed from: significance on the canvases, kept up
+    to date as coefficients become significant."""
+
+    def __init__(self, geometry: Geometry) -> None:
+        self.geometry = geometry
+        self.canvas = np.zeros(geometry.size, dtype=bool)
+        self.views = [self.canvas[a:b].reshape(shape) for a, b, shape in
+                      zip(geometry.offsets, geometry.offsets[1:], geometry.shapes,
+                          strict=False)]
+
+    def became(self, positions: Ints) -> None:
+        """Coefficients at coding ``positions`` became significant."""
+        self.canvas[self.geometry.order[positions]] = True
+
+    def classes(self, sig: Bools, only: Bools | None = None) -> list[Ints]:
+        """Coding positions not yet significant (and in ``only``, if given), by class: near
+        a significant neighbour, under a significant parent, neither."""
+        near = np.empty_like(self.canvas)
+        for view, (a, b) in zip(self.views, zip(self.geometry.offsets,
+                                                self.geometry.offsets[1:], strict=False),
+                                strict=True):
+            row = view.copy()
+            row[:, 1:] |= view[:, :-1]
+            row[:, :-1] |= view[:, 1:]
+            out = near[a:b].reshape(view.shape)
+            out[...] = row
+            out[1:] |= row[:-1]
+            out[:-1] |= row[1:]
+        near_o = near[self.geometry.order]
+        under = sig[self.geometry.parent]
+        rest = ~sig if only is None else ~sig & only
+        far = rest & ~near_o
+        return [np.flatnonzero(rest & near_o), np.flatnonzero(far & under),
+                np.flatnonzero(far & ~under)]
+
+
+@dataclass
+class Planes:
+    """The receiver's knowledge of every coefficient after a (possibly cut) stream."""
+
+    size: int
+    magnitude: Ints = field(init=False)  # known bits
+    plane: Ints = field(init=False)  # lowest known bit plane (significant ones)
+    negative: Bools = field(init=False)
+    significant: Bools = field(init=False)
+    refined: Bools = field(init=False)
+    below: Ints = field(init=False)  # an insignificant one's magnitude is below 2**below
+    threshold: int = 0  # the plane the stream stopped in
+    complete: bool = False
+
+    def __post_init__(self) -> None:
+        n = self.size
+        self.magnitude = np.zeros(n, dtype=np.int64)
+        self.plane = np.zeros(n, dtype=np.int64)
+        self.negative = np.zeros(n, dtype=bool)
+        self.significant = np.zeros(n, dtype=bool)
+        self.refined = np.zeros(n, dtype=bool)
+        self.below = np.full(n, 62, dtype=np.int64)
+
+    def values(self) -> NDArray[np.float64]:
+        """Each coefficient's best value (signed, in quantiser units)."""
+        offset = np.where(self.refined, 0.5, FIRST_OFFSET)
+        mag = np.where(self.significant,
+                       self.magnitude + offset * np.exp2(self.plane.astype(np.float64)), 0.0)
+        return np.where(self.negative, -mag, mag)
+
+
+def _run_encode(out: list[str], ones: list[int], signs: list[bool], length: int,
+                k: int) -> int:
+    """Append the run codes of ``length`` decisions whose yes are at ``ones``; returns the
+    final ``k``."""
+    pos = 0
+    step = 1 << k
+    append = out.append
+    for p, negative in zip(ones, signs, strict=True):
+        while p >= pos + step:
+            append("0")
+            pos += step
+            if k < KMAX:
+                k += 1
+                step <<= 1
+        sign = "1" if negative else "0"
+        if k:
+            append(f"1{p - pos:0{k}b}{sign}")
+            k -= 1
+            step >>= 1
+        else:
+            append("1" + sign)
+        pos = p + 1
+    while pos < length:
+        append("0")
+        pos += step
+        if k < KMAX:
+            k += 1
+            step <<= 1
+    return k
+
+
+def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
+                  budget_bits: int, raised: tuple[Bools, int] | None = None) -> str:
+    """The bit string (``'0'``/``'1'``) of ``q`` (magnitudes, coding order) from plane ``top``
+    down, stopping once it holds ``budget_bits`` bits (it may run over: cut it).
+    ``raised``: an ROI's mask and the highest plane of anything outside it: above that plane
+    only the ROI is coded."""
+    size = geometry.size
+    sig = np.zeros(size, dtype=bool)
+    starts = geometry.band_start
+    ks: dict[tuple[int, int], int] = {}
+    context = Context(geometry)
+    parts: list[str] = []
+    total = 0
+    for n in range(top, -1, -1):
+        t = 1 << n
+        only = raised[0] if raised is not None and n > raised[1] else None
+        classes = context.classes(sig, only)
+        was = np.flatnonzero(sig)
+        passes: list[Ints | None] = [classes[0], classes[1], None, classes[2]]
+        for cls, cand in enumerate(passes):
+            if cand is None:  # refinement
+                if was.size:
+                    bits = ((q[was] >> n) & 1).astype(np.uint8) + 48
+                    piece = bits.tobytes().decode("ascii")
+                    parts.append(piece)
+                    total += len(piece)
+                continue
+            if cand.size == 0:
+                continue
+            hits = q[cand] >= t
+            ones_at = np.flatnonzero(hits)
+            cut = np.searchsorted(cand, starts)
+            cut_ones = np.searchsorted(ones_at, cut)
+            neg = negative[cand[ones_at]].tolist()
+            ones_list = ones_at.tolist()
+            out: list[str] = []
+            for b in range(len(starts) - 1):
+                a, z = int(cut[b]), int(cut[b + 1])
+                if a == z:
+                    continue
+                oa, oz = int(cut_ones[b]), int(cut_ones[b + 1])
+                key = (cls, b)
+                ks[key] = _run_encode(out, [p - a for p in ones_list[oa:oz]], neg[oa:oz],
+                                      z - a, ks.get(key, 0))
+            piece = "".join(out)
+            parts.append(piece)
+            total += len(piece)
+            sig[cand[ones_at]] = True
+            context.became(cand[ones_at])
+            if total >= budget_bits:
+                return "".join(parts)
+        if total >= budget_bits:
+            break
+    return "".join(parts)
+
+
+def _run_decode(bits: str, i: int, length: int, k: int,
+                found: list[int], signs: list[bool]) -> tuple[int, int]:
+    """Read the run codes of ``length`` decisions from ``bits[i:]`` into ``found``/``signs``;
+    returns ``(i, k)`` after them. Raises :class:`Truncated` where the bits end or lie."""
+    end = len(bits)
+    pos = 0
+    step = 1 << k
+    while pos < length:
+        if i >= end:
+            raise Truncated
+        if bits[i] == "0":
+            i += 1
+            pos += step
+            if k < KMAX:
+                k += 1
+                step <<= 1
+            continue
+        if i + k + 2 > end:
+            raise Truncated
+        if k:
+            p = pos + int(bits[i + 1:i + 1 + k], 2)
+            if p >= length:
+                raise Truncated  # corrupt: a position past the pass
+            i += k + 2
+            k -= 1
+            step >>= 1
+        else:
+            p = pos
+            i += 2
+        found.append(p)
+        signs.append(bits[i - 1] == "1")
+        pos = p + 1
+    return i, k
+
+
+def decode_planes(geometry: Geometry, bits: str, top: int,
+                  raised: tuple[Bools, int] | None = None) -> Planes:
+    """What a (possibly cut) bit string from :func:`encode_planes` tells."""
+    size = geometry.size
+    state = Planes(size)
+    state.below[:] = top + 1
+    sig = state.significant
+    starts = geometry.band_start
+    ks: dict[tuple[int, int], int] = {}
+    context = Context(geometry)
+    i = 0
+    end = len(bits)
+    for n in range(top, -1, -1):
+        state.threshold = n
+        only = raised[0] if raised is not None and n > raised[1] else None
+        classes = context.classes(sig, only)
+        was = np.flatnonzero(sig)
+        passes: list[Ints | None] = [classes[0], classes[1], None, classes[2]]
+        for cls, cand in enumerate(passes):
+            if cand is None:
+                m = min(int(was.size), end - i)
+                if m > 0:
+                    got = np.frombuffer(bits[i:i + m].encode("ascii"), dtype=np.uint8) == 49
+                    idx = was[:m]
+                    state.magnitude[idx] |= got.astype(np.int64) << n
+                    state.plane[idx] = n
+                    state.refined[idx] = True
+                    i += m
+                if m < was.size:
+                    return state
+                continue
+            if cand.size == 0:
+                continue
+            cut = np.searchsorted(cand, starts)
+            found: list[int] = []
+            signs: list[bool] = []
+            stop = False
+            for b in range(len(starts) - 1):
+                a, z = int(cut[b]), int(cut[b + 1])
+                if a == z:
+                    continue
+                key = (cls, b)
+                before = len(found)
+                try:
+                    i, ks[key] = _run_decode(bits, i, z - a, ks.get(key, 0), found, signs)
+                except Truncated:
+                    stop = True
+                for j in range(before, len(found)):
+                    found[j] += a
+                if stop:
+                    break
+            if found:
+                idx = cand[np.array(found, dtype=np.int64)]
+                sig[idx] = True
+                context.became(idx)
+                state.magnitude[idx] = 1 << n
+                state.plane[idx] = n
+                state.negative[idx] = np.array(signs, dtype=bool)
+            if not stop:
+                state.below[cand] = n
+            if stop:
+                return state
+    state.complete = True
+    return state
