@@ -45,6 +45,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from bridge.core.events import Delivery
+from bridge.core.images import Images
 from bridge.core.inbound import Inbound
 from bridge.core.link import Links, LinkThresholds
 from bridge.core.loaded import LoadedMission
@@ -143,6 +144,12 @@ class NodeCore:
         self.inbound = Inbound(mission, node, self.codec, outbox, self.schedule, self.links,
                                self.receivers, self.outbound, self.queries, self.ranges,
                                sealed=auth is not None)
+        self.images = Images(table, node, outbox, self.receivers, self.outbound.senders,
+                             self.outbound.drop_payload) if mission.images else None
+        if self.images is not None:  # pictures and operators' controls come in as samples
+            self.outbound.images = self.inbound.images = self.images
+            for key in self.images.inputs:
+                self.outbound.bindings.setdefault(key, [])
         # what observers read (the parts' own objects)
         out = self.outbound
         self.store, self.bindings, self.families = out.store, out.bindings, out.families

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.events import FrameSent, PayloadDropped, SendFailed, Surfaced
 from bridge.core.families import Extra, Families
+from bridge.core.images import Images, ImageSender
 from bridge.core.interest import Interest
 from bridge.core.link import heartbeat_s
 from bridge.core.outputs import Outbox
@@ -82,6 +83,8 @@ class Outbound:
         self.queries = queries
         self.delays: Delays | None = None
         """The DLBL delays of each frame built (set by the node when it ranges)."""
+        self.images: Images | None = None
+        """The image channels' inputs and controls (set by the node when it has some)."""
         self.frame_bytes = mission.node_modem(node).frame_bytes
         self.heartbeat_s = heartbeat_s(mission)
         self.last_tx: float | None = None
@@ -103,7 +106,8 @@ class Outbound:
         self._warned_keys: set[str] = set()
         retry_s = default_retry_s(mission)
         self.senders: dict[int, Sender] = {
-            c.index: (TransferSender if c.fragmented else ReliableSender)(
+            c.index: (ImageSender if c.image is not None and not c.image.control
+                      else TransferSender if c.fragmented else ReliableSender)(
                 c, c.destinations(node), retry_s, rng.randrange(SEQ_MOD))
             for c in table.streams if c.index in self.store.states}
         by_name = {s.channel.name: s for s in self.senders.values()}
@@ -120,6 +124,8 @@ class Outbound:
 
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
         ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
+        if self.images is not None and self.images.ingest(key, data, encoding, now, ref):
+            return
         bindings = self.bindings.get(key, ())
         ros2 = self._ros2_inputs.get(key)
         try:

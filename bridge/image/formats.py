@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from PIL import Image, UnidentifiedImageError
 
 __all__ = ["KINDS", "ImageInputError", "fit", "kind_of", "read_image", "write_image"]
 
@@ -53,6 +52,8 @@ def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: 
     """The pixels of an image sample (``h × w`` grey, or ``h × w × 3`` RGB when ``colour``).
     Raises :class:`ImageInputError` for a type not in ``accept``, an image of more than
     ``max_pixels`` pixels, or bytes Pillow cannot decode."""
+    from PIL import Image, UnidentifiedImageError  # (Pillow loads with the first picture)
+
     kind = kind_of(data, encoding)
     if kind not in accept:
         raise ImageInputError(f"{kind} images are not enabled on this channel "
@@ -69,7 +70,9 @@ def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: 
             return np.asarray(image, dtype=np.uint8).copy()
     except ImageInputError:
         raise
-    except (OSError, UnidentifiedImageError, ValueError, SyntaxError,
+    except UnidentifiedImageError:
+        raise ImageInputError(f"not a decodable {kind} image ({len(data)} bytes)") from None
+    except (OSError, ValueError, SyntaxError,
             Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
         raise ImageInputError(f"cannot decode the {kind} image: {exc}") from None
 
@@ -77,6 +80,8 @@ def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: 
 def fit(pixels: U8, width: int, height: int) -> U8:
     """``pixels`` scaled to fit ``width × height``, keeping their shape's proportions
     (never enlarged)."""
+    from PIL import Image
+
     h, w = pixels.shape[:2]
     ratio = min(width / w, height / h, 1.0)
     size = (max(1, round(w * ratio)), max(1, round(h * ratio)))
@@ -90,6 +95,7 @@ def write_image(pixels: U8, kind: str = "png", quality: int = 90,
                 text: Mapping[str, Any] | None = None) -> bytes:
     """``pixels`` as a PNG (``text`` in ``tEXt`` chunks) or a JPEG at ``quality`` (``text``
     as JSON in its comment)."""
+    from PIL import Image
     from PIL.PngImagePlugin import PngInfo
 
     image = Image.fromarray(pixels)

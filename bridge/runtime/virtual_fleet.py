@@ -178,7 +178,7 @@ class FastFleet:
             encoding: str = "application/msgpack", ref: str | None = None) -> None:
         """An application on ``node`` puts ``value`` on ``key`` (now, or at virtual time
         ``at``); ``ref`` is its correlation text, echoed in delivery reports."""
-        if encoding == "json":
+        if encoding == "json" or encoding.startswith("image/"):  # (a picture: its bytes)
             data, enc = encode_payload(value, encoding)
         else:  # encode_payload's msgpack, by one packer for the run (one thread)
             data, enc = self._packer.pack(value), MSGPACK
