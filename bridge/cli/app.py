@@ -8,6 +8,7 @@ import json
 import logging
 import signal
 import sys
+import threading
 import time
 from collections.abc import Coroutine
 from enum import StrEnum
@@ -21,7 +22,7 @@ from rich.table import Table
 
 from bridge.cli import helptext
 from bridge.core.loaded import LoadedMission, load_mission
-from bridge.errors import BackendError, MissionError, SessionError
+from bridge.errors import BackendError, MissionError, NodeFailure, SessionError
 from bridge.report.check import check_mission
 from bridge.runtime.keys import frame_key, throwaway_note
 
@@ -74,12 +75,18 @@ def _load(path: Path) -> LoadedMission:
 
 def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
     """Run ``main``; a problem found at start (a missing key, a Zenoh port taken, a router that
-    does not answer) exits 2 with one line, never a traceback."""
+    does not answer, a state directory that cannot be written) exits 2 with one line, never a
+    traceback; a node that cannot go on (:class:`NodeFailure`) exits 1 with one line."""
+    from bridge.runtime.state_file import StateError
+
     try:
         return asyncio.run(main)
-    except (MissionError, SessionError) as exc:
+    except (MissionError, SessionError, StateError) as exc:
         err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2) from None
+    except NodeFailure as exc:
+        err.print(f"[bold red]stopped:[/] {exc}", highlight=False, soft_wrap=True)
+        raise typer.Exit(1) from None
 
 
 def _logging(verbose: bool) -> None:
@@ -313,6 +320,9 @@ def run(
         _install_stop(stop)
         recorder = None if log is None else _mission_log(log, loaded, node)
         bridge = BridgeNode(loaded, node, factory, on_event=recorder, state_file=state)
+        threading.excepthook = lambda hook: bridge.fail(  # no thread dies silently
+            f"the thread {hook.thread.name if hook.thread else '?'} failed: "
+            f"{hook.exc_type.__name__}: {hook.exc_value}")
 
         async def announce() -> None:  # once the Zenoh session is open
             await bridge.started.wait()
@@ -413,11 +423,12 @@ def emulate(
         stop = asyncio.Event()
         _install_stop(stop)
         if kind is ModemKind.evologics:
+            from bridge.modems.evologics.emulator import FIRMWARE as EVOLOGICS_FIRMWARE
             from bridge.modems.evologics.emulator import run_emulator as evologics
 
-            extra = {} if firmware is None else {"firmware": firmware}
             task = asyncio.create_task(evologics(loaded, node, water=address, link=link,
-                                                 tcp_port=tcp_port, ready=ready, **extra))
+                                                 tcp_port=tcp_port, ready=ready,
+                                                 firmware=firmware or EVOLOGICS_FIRMWARE))
         else:
             from bridge.modems.micromodem.emulator import run_emulator as micromodem
 
@@ -671,16 +682,20 @@ def doctor(
     node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the modem.", min=0.1)]
     = 15.0,
+    state_dir: Annotated[Path | None, typer.Option(
+        "--state-dir", help="Where the node keeps its state (as `zab run`).")] = None,
 ) -> None:
     """Check that this vehicle can run its bridge, and print what to fix.
 
-    Checks the mission, the modem port and its answer, the Zenoh endpoints and the clock;
-    exit 1 if something must be fixed.
+    Checks the mission, the modem port and its answer, the Zenoh endpoints, the state
+    directory and the clock; exit 1 if something must be fixed.
     """
     from bridge.cli.doctor import run_doctor
+    from bridge.runtime.state_file import default_state_dir
 
     loaded = _load(mission)
-    findings = asyncio.run(run_doctor(loaded, node, timeout_s=timeout))
+    findings = asyncio.run(run_doctor(loaded, node, timeout_s=timeout,
+                                      state_dir=state_dir or default_state_dir()))
     marks = {"ok": "[green]ok  [/]", "warn": "[yellow]warn[/]", "fail": "[red]FAIL[/]"}
     for f in findings:
         console.print(f"{marks[f.status]} {f.check:<8} {f.message}", highlight=False)

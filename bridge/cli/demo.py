@@ -11,6 +11,7 @@ words; this module runs the fleet and says them at the right moments.
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import math
 import queue
@@ -240,10 +241,10 @@ class VehicleApps:
             if session is None:
                 continue
             self.sessions[node] = session
-            session.declare_subscriber("**", lambda s, n=node: self._arrived(n, s))
+            session.declare_subscriber("**", functools.partial(self._arrived, node))
             prefix = f"@zab/{mission}/{node}"
             session.declare_subscriber(f"{prefix}/position",
-                                       lambda s, n=node: self._fix_arrived(n, s))
+                                       functools.partial(self._fix_arrived, node))
             session.declare_subscriber(f"{prefix}/delivery/*", self._delivered)
 
     # -- what arrives ------------------------------------------------------------------------

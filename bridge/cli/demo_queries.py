@@ -8,6 +8,7 @@ node that gets every asked key now and then and prints the answer (or the reply 
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 import threading
 import time
@@ -102,7 +103,7 @@ class QueryApps:
                 session = sessions.get(server)
                 if session is not None:
                     session.declare_queryable(spec.served_key(server),
-                                              lambda q, s=spec: self._answer(q, s))
+                                              functools.partial(self._answer, spec=spec))
 
     def _answer(self, query: zenoh.Query, spec: QuerySpec) -> None:
         params = {}
@@ -134,12 +135,16 @@ class QueryApps:
         def on_reply(reply: zenoh.Reply) -> None:  # Zenoh thread
             if reply.ok is not None:
                 values.append(msgpack.unpackb(reply.ok.payload.to_bytes()))
-            else:
+            elif reply.err is not None:
                 errors.append(reply.err.payload.to_string())
+
+        def resolve() -> None:
+            if not done.done():
+                done.set_result(None)
 
         def finished() -> None:
             ended.append(time.time())
-            loop.call_soon_threadsafe(lambda: done.done() or done.set_result(None))
+            loop.call_soon_threadsafe(resolve)
 
         asked = time.time()
         session.get(selector, zenoh.handlers.Callback(on_reply, finished), timeout=timeout)
@@ -161,7 +166,7 @@ class QueryApps:
                     with self._lock:
                         self.pending += 1
                     session.get(selector, zenoh.handlers.Callback(
-                        lambda r, a=asker, s=selector, t=asked: self._reply(a, s, t, r),
+                        functools.partial(self._reply, asker, selector, asked),
                         self._ended), timeout=60.0)
 
     def _ended(self) -> None:  # Zenoh thread: an operator's get is over
@@ -194,8 +199,8 @@ class QueryApps:
             self.show(f"[blue]{asker:>4}[/] get {selector} → {value} ({took:.1f} s)")
         else:
             self.failed += 1
-            self.show(f"[red]{asker:>4}[/] get {selector} failed after {took:.1f} s: "
-                      f"{reply.err.payload.to_string()}")
+            why = reply.err.payload.to_string() if reply.err is not None else "no reply"
+            self.show(f"[red]{asker:>4}[/] get {selector} failed after {took:.1f} s: {why}")
 
     async def run(self, first_s: float = FIRST_QUERY_S, until: float = math.inf) -> None:
         """Ask every QUERY_PERIOD_S from ``first_s`` on, the tour's get aside

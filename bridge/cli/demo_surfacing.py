@@ -20,7 +20,7 @@ import zenoh
 
 from bridge.core.events import Event, FrameSent, Surfaced
 from bridge.core.loaded import LoadedMission
-from bridge.runtime.session import origin_tag
+from bridge.runtime.session import origin_of, origin_tag
 from bridge.sim.scenario import surface_script
 
 SURFACE_AT_S = 30.0  # path time at which the tour's vehicle reaches the surface
@@ -141,7 +141,7 @@ class SurfacingWatch:
 
     def _arrived(self, sample: zenoh.Sample) -> None:
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
-        via = self._via.get(attachment)
+        via = self._via.get(origin_of(attachment))
         if via is None:  # not from either bridge
             return
         try:

@@ -130,4 +130,4 @@ def put(endpoint: str, key: str, value_json: str) -> bytes:
     with client(endpoint) as session:
         session.put(key, payload, encoding=zenoh.Encoding(MSGPACK),
                     congestion_control=zenoh.CongestionControl.BLOCK)
-    return payload
+    return bytes(payload)

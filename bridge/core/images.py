@@ -43,8 +43,11 @@ __all__ = ["ImageSender", "Images"]
 
 log = logging.getLogger("zab.core")
 
+MAX_PICTURE_BYTES = 64 << 20
+"""A picture sample longer than this is dropped unread (the pixel limit is the channel's)."""
+
 # bridge.image (numpy, Pillow) loads with a mission's first picture, not with every bridge
-Drop = Callable[[str, str, float], None]
+Drop = Callable[..., None]  # (key, reason, now[, cause]): a counted drop
 
 
 def _spec(channel: ChannelCodec) -> ImageSpec:
@@ -147,7 +150,9 @@ class Images:
     """A node's image channels: pictures and operators' controls in, refinements out."""
 
     def __init__(self, table: ChannelTable, node: str, outbox: Outbox, receivers: Receivers,
-                 senders: Mapping[int, Any], drop: Drop) -> None:
+                 senders: Mapping[int, Any], drop: Drop, bindings: dict[str, Any]) -> None:
+        """``bindings``: the sending side's input keys, which gain the pictures' (the runtime
+        subscribes to them)."""
         self.node = node
         self.outbox = outbox
         self.receivers = receivers
@@ -168,6 +173,8 @@ class Images:
                     channel, sender, {"width": spec.width, "height": spec.height,
                                       "budget_bytes": spec.budget_bytes, "roi": spec.roi})
         self.shown: dict[tuple[str, int], Shown] = {}
+        for key in self.inputs:
+            bindings.setdefault(key, [])
 
     # -- samples in ------------------------------------------------------------------------
 
@@ -179,11 +186,15 @@ class Images:
             from bridge.image.formats import ImageInputError, read_image
 
             spec = camera.spec
+            if len(data) > MAX_PICTURE_BYTES:
+                self.drop(key, f"image channel {spec.name!r}: {len(data)} bytes, over "
+                          f"{MAX_PICTURE_BYTES}", now, "too_large")
+                return True
             try:
                 pixels = read_image(data, encoding, spec.accept, spec.max_input_pixels,
                                     spec.colour)
             except ImageInputError as exc:
-                self.drop(key, f"image channel {spec.name!r}: {exc}", now)
+                self.drop(key, f"image channel {spec.name!r}: {exc}", now, exc.cause)
                 return True
             self.outbox.reports(camera.picture(pixels, now, key, ref))
             self.outbox.unsaved = True
@@ -196,7 +207,8 @@ class Images:
             request = self._merge(settings, decode_payload(data, encoding))
             payload = channel.pack([control_payload(settings, request)])
         except (DecodeError, EncodeError, TypeError, ValueError) as exc:
-            self.drop(key, f"image control {_spec(channel).name!r}: {exc}", now)
+            self.drop(key, f"image control {_spec(channel).name!r}: {exc}", now,
+                      "undecodable" if isinstance(exc, DecodeError) else "unfit")
             return True
         self.outbox.reports(sender.offer(payload, now, key, ref))
         self.outbox.unsaved = True

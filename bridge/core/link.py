@@ -172,7 +172,7 @@ class Links:
             if self.on_up is not None and state is LinkState.UP \
                     and previous in (None, LinkState.DOWN):
                 self.on_up()
-            payload = {"peer": peer, "state": state.value, "last_heard": heard,
-                       "silent_s": None if heard is None else now - heard}
-            self.outbox.status(f"link/{peer}", payload)
-            self.outbox.event(Link(now, **payload))
+            silent = None if heard is None else now - heard
+            self.outbox.status(f"link/{peer}", {"peer": peer, "state": state.value,
+                                                "last_heard": heard, "silent_s": silent})
+            self.outbox.event(Link(now, peer, state.value, heard, silent))

@@ -44,7 +44,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from bridge.core.events import Delivery
+from bridge.core.drops import clamps
 from bridge.core.images import Images
 from bridge.core.inbound import Inbound
 from bridge.core.link import Links, LinkThresholds
@@ -53,10 +53,11 @@ from bridge.core.mac import Schedule, schedule_for
 from bridge.core.outbound import Outbound, OutFrame
 from bridge.core.outputs import NodeStats, Outbox, Output, Publish, Status
 from bridge.core.positioning import Positioning, needs_positioning
-from bridge.core.queries import Queries, Ticket
+from bridge.core.queries import LocalGet, Queries, QueryAnswer, QueryEnd, Ticket
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
 from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
+from bridge.core.restarts import STATE_VERSION, resumable
 from bridge.errors import DecodeError, MissionError
 from bridge.frozen import direct_init
 from bridge.wire.auth import Authenticator
@@ -64,11 +65,10 @@ from bridge.wire.goby import frame_codec_for
 from bridge.wire.payloads import decode_payload
 
 __all__ = ["Action", "NodeCore", "NodeStats", "OutFrame", "Output", "Ping", "Publish",
-           "SendFrame", "Status"]
+           "SendFrame", "Status", "Taken"]
 
 log = logging.getLogger("zab.core")
 
-STATE_VERSION = 1
 EPOCHS = 256  # stream epochs, EPOCH_BITS wide
 
 
@@ -92,6 +92,10 @@ class Ping:
 
 Action = SendFrame | Ping
 
+Taken = Output | LocalGet | QueryAnswer | QueryEnd
+"""What :meth:`NodeCore.take` gives: the parts' outputs, then what the queries ask of the
+runtime (a local get) or answer (replies, ends)."""
+
 
 class NodeCore:
     """One node's bridge logic: a façade over the parts that own its state."""
@@ -113,7 +117,7 @@ class NodeCore:
         rng = rng or random.Random()
         outbox = self._outbox = Outbox()
         self.stats: NodeStats = outbox.stats
-        state = self._usable(state)
+        state = resumable(state, node, table.fingerprint.hex(), outbox)
         wire_auth = mission.wire.auth
         if wire_auth is not None and auth is None:
             if key is None:
@@ -144,12 +148,10 @@ class NodeCore:
         self.inbound = Inbound(mission, node, self.codec, outbox, self.schedule, self.links,
                                self.receivers, self.outbound, self.queries, self.ranges,
                                sealed=auth is not None)
-        self.images = Images(table, node, outbox, self.receivers, self.outbound.senders,
-                             self.outbound.drop_payload) if mission.images else None
-        if self.images is not None:  # pictures and operators' controls come in as samples
-            self.outbound.images = self.inbound.images = self.images
-            for key in self.images.inputs:
-                self.outbound.bindings.setdefault(key, [])
+        out = self.outbound  # pictures and operators' controls come in as its samples
+        self.images = out.images = self.inbound.images = Images(
+            table, node, outbox, self.receivers, out.senders, out.drop_payload,
+            out.bindings) if mission.images else None
         # what observers read (the parts' own objects)
         out = self.outbound
         self.store, self.bindings, self.families = out.store, out.bindings, out.families
@@ -164,6 +166,14 @@ class NodeCore:
         """:meth:`state` changed in a way a restart must not lose: save it before carrying out
         the outputs or sending the frame just built."""
         return self._outbox.unsaved or (self.auth is not None and self.auth.changed)
+
+    def storage(self, error: str | None, now: float) -> None:
+        """The runtime's saves of :meth:`state` fail (``error``: why) or work (None); while
+        they fail, new reliable values are refused (:mod:`bridge.core.saving`)."""
+        event = self.outbound.saving.changed(error, now)
+        if event is not None:
+            self._outbox.status("state", event.to_dict())
+            self._outbox.event(event)
 
     def saved(self) -> None:
         """The runtime saved :meth:`state`."""
@@ -182,36 +192,14 @@ class NodeCore:
             "auth": self.auth.state() if self.auth is not None else None,
         }
 
-    def _usable(self, state: Mapping[str, Any] | None) -> Mapping[str, Any]:
-        """``state`` if it is this node's under this mission file; else nothing (and every
-        value it left unfinished reported failed)."""
-        if not state:
-            return {}
-        same = (state.get("version") == STATE_VERSION and state.get("node") == self.node
-                and state.get("fingerprint") == self.table.fingerprint.hex())
-        if same:
-            return state
-        log.warning("%s: the saved state is from another mission file or version: starting "
-                    "afresh (its unfinished values are reported failed)", self.node)
-        for name, sender in (state.get("senders") or {}).items():
-            items = [*sender.get("queue", ()), *sender.get("flight", ()),
-                     *sender.get("items", ())]
-            for item in items:
-                for dst in item.get("waiting", item.get("dests", ())):
-                    self._outbox.reports([Delivery(
-                        0.0, name, item["id"], dst, "failed",
-                        reason="restarted with another mission file",
-                        attempts=item.get("attempts", 0), key=item.get("key"),
-                        ref=item.get("ref"))])
-        return {}
-
     # -- the one way out -----------------------------------------------------------------------
 
-    def take(self) -> list[Output]:
-        """Everything produced since the last call, in order."""
+    def take(self) -> list[Taken]:
+        """Everything produced since the last call, in order (the queries' last)."""
+        out: list[Taken] = [*self._outbox.take()]
         if self.queries is not None:
-            self._outbox.items.extend(self.queries.take())
-        return self._outbox.take()
+            out += self.queries.take()
+        return out
 
     # -- samples in ----------------------------------------------------------------------------
 
@@ -225,14 +213,22 @@ class NodeCore:
         """The ROS 2 topic read on input ``key``, or None."""
         return self.outbound.ros2_input(key)
 
-    def drop_payload(self, key: str, reason: str, now: float) -> None:
-        """Count a payload that cannot be used (warned once per key)."""
-        self.outbound.drop_payload(key, reason, now)
+    def payload_cap(self, key: str) -> int:
+        """The longest payload input ``key`` takes: a longer one is dropped before it is
+        decoded (:func:`~bridge.wire.payloads.payload_cap`)."""
+        return self.outbound.payload_cap(key)
+
+    def drop_payload(self, key: str, reason: str, now: float, cause: str = "unfit") -> None:
+        """Count a payload that cannot be used, by key and ``cause`` (logged and summarised at
+        a bounded rate: :mod:`bridge.core.drops`)."""
+        self.outbound.drop_payload(key, reason, now, cause)
 
     def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
                 now: float) -> tuple[float, ...] | None:
         """The finite numbers ``names`` of a payload, or None (counted as a dropped payload)."""
         try:
+            if len(data) > (cap := self.payload_cap(key)):
+                raise DecodeError(f"{len(data)} bytes, over the cap of {cap}")
             value = decode_payload(data, encoding)
             numbers = tuple(float(value[k]) for k in names)
             if not all(map(math.isfinite, numbers)):
@@ -344,6 +340,7 @@ class NodeCore:
             self.ranges.tick(now)
         if self.queries is not None:
             self.queries.expire(now)
+        self.outbound.summarise_drops(now)
 
     def update_links(self, now: float) -> None:
         """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
@@ -381,6 +378,8 @@ class NodeCore:
             "frames_received": stats.frames_received,
             "frames_dropped": dict(stats.frames_dropped),
             "payloads_dropped": dict(stats.payloads_dropped),
+            "payload_drop_causes": out.drops.causes(),
+            "clamped": clamps(out.bindings),
             "values_published": stats.values_published,
             "send_errors": stats.send_errors,
             "left_out": stats.left_out,
@@ -389,6 +388,7 @@ class NodeCore:
             "last_heard": dict(self.last_heard),
             "links": {peer: state.value for peer, state in self.link_states.items()},
             "epoch": self.epoch,
+            "state": out.saving.snapshot(),
             "mismatched_peers": dict(self.mismatched),
             "unfinished": {s.channel.name: s.pending() for s in out.senders.values()},
             "sent_per_channel": dict(stats.sent_per_channel),

@@ -10,6 +10,7 @@ the modem took. Heartbeats keep a silent node audible.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import random
@@ -18,7 +19,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
-from bridge.core.events import FrameSent, PayloadDropped, SendFailed, Surfaced
+from bridge.core.drops import DropLedger
+from bridge.core.events import FrameSent, SendFailed, Surfaced
 from bridge.core.families import Extra, Families
 from bridge.core.images import Images, ImageSender
 from bridge.core.interest import Interest
@@ -27,15 +29,17 @@ from bridge.core.outputs import Outbox
 from bridge.core.queries import Queries
 from bridge.core.receivers import Receivers
 from bridge.core.reliable import SEQ_MOD, ReliableSender, default_retry_s
+from bridge.core.saving import Saving
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferSender
 from bridge.errors import DecodeError, EncodeError
 from bridge.frozen import direct_init
 from bridge.mission.model import Mission
-from bridge.wire.channels import AckCodec, ChannelCodec, ChannelTable, ElementCodec
-from bridge.wire.frame import FrameCodec
-from bridge.wire.payloads import decode_payload
+from bridge.wire.auth import Authenticator
+from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
+from bridge.wire.frame import FrameCodec, WireCodec
+from bridge.wire.payloads import decode_payload, payload_cap
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -66,6 +70,12 @@ class OutFrame:
     extras: tuple[Extra, ...] = ()
 
 
+
+def _hinted(auth: Authenticator, address: int, built: float) -> None:
+    """A frame telling ``address`` its replay mark left (built at ``built``)."""
+    auth.hinted(address)
+
+
 class Outbound:
     """Store, streams, families, demand and heartbeats of one node, and its frames."""
 
@@ -79,6 +89,9 @@ class Outbound:
         self.epoch = epoch
         self.outbox = outbox
         self.stats = outbox.stats
+        self.drops = DropLedger(node)  # payloads dropped: counted, told at a bounded rate
+        self.stats.payloads_dropped = self.drops.by_key
+        self.saving = Saving()  # whether the runtime can save the state (bridge.core.saving)
         self.receivers = receivers
         self.queries = queries
         self.delays: Delays | None = None
@@ -103,7 +116,10 @@ class Outbound:
                         (channel, i, element))
         self._ros2_inputs = {key: next((e.ros2 for _, _, e in found if e.ros2 is not None), None)
                              for key, found in self.bindings.items()}
-        self._warned_keys: set[str] = set()
+        self._caps = {key: payload_cap(max(e.layout.bits for _, _, e in found))
+                      for key, found in self.bindings.items()}
+        self._cap = payload_cap(max((e.layout.bits for c in table.channels
+                                     for e in c.elements), default=0))
         retry_s = default_retry_s(mission)
         self.senders: dict[int, Sender] = {
             c.index: (ImageSender if c.image is not None and not c.image.control
@@ -123,8 +139,13 @@ class Outbound:
         """A sample arrived on an input key: pack it for every channel that reads the key.
 
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
-        ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
+        ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs). A
+        payload over the key's cap is dropped before it is decoded (pictures: see Images)."""
         if self.images is not None and self.images.ingest(key, data, encoding, now, ref):
+            return
+        if len(data) > (cap := self.payload_cap(key)):
+            self.drop_payload(key, f"{len(data)} bytes, over this key's cap of {cap}", now,
+                              "too_large")
             return
         bindings = self.bindings.get(key, ())
         ros2 = self._ros2_inputs.get(key)
@@ -132,7 +153,7 @@ class Outbound:
             value = (ros2.decode(data, sample_key or key) if ros2 is not None
                      else decode_payload(data, encoding))
         except DecodeError as exc:
-            self.drop_payload(key, str(exc), now)
+            self.drop_payload(key, str(exc), now, "undecodable")
             return
         store = self.store
         for channel, index, element in bindings:
@@ -146,7 +167,9 @@ class Outbound:
                 store.update(channel.index, index, packed, now)
             elif store.update_value(channel.index, index, packed, now):
                 payload = store.states[channel.index].payload()
-                self.outbox.reports(sender.offer(payload, now, key, ref))
+                refused = self.saving.refusal()  # (while the state cannot be saved)
+                self.outbox.reports(sender.offer(payload, now, key, ref) if refused is None
+                                    else sender.refuse(now, key, ref, refused))
                 self.outbox.unsaved = True
         if self.families.senders:
             for problem in self.families.ingest(key, value, now):
@@ -163,14 +186,22 @@ class Outbound:
         """The ROS 2 topic read on input ``key``, or None."""
         return self._ros2_inputs.get(key)
 
-    def drop_payload(self, key: str, reason: str, now: float) -> None:
-        """Count a payload that cannot be used (warned once per key)."""
-        self.stats.payloads_dropped[key] += 1
-        if key not in self._warned_keys:
-            self._warned_keys.add(key)
-            log.warning("%s: dropped a payload on %r: %s (counted; warned once)",
-                        self.node, key, reason)
-        self.outbox.event(PayloadDropped(now, key, reason))
+    def payload_cap(self, key: str) -> int:
+        """The longest payload input ``key`` takes (:func:`~bridge.wire.payloads.payload_cap`
+        of the bits its channels keep)."""
+        return self._caps.get(key, self._cap)
+
+    def drop_payload(self, key: str, reason: str, now: float, cause: str = "unfit") -> None:
+        """Count a payload that cannot be used, by key and ``cause`` (logged and summarised at
+        a bounded rate: :mod:`bridge.core.drops`)."""
+        summary = self.drops.drop(key, cause, reason, now)
+        if summary is not None:
+            self.outbox.event(summary)
+
+    def summarise_drops(self, now: float) -> None:
+        """The drops not summarised yet, if it is time (a summary a second at most)."""
+        if (summary := self.drops.due(now)) is not None:
+            self.outbox.event(summary)
 
     def ip_reachable(self, peer: str, up: bool, now: float) -> None:
         """The peer's bridge became reachable over IP (``up``) or stopped being so."""
@@ -186,8 +217,8 @@ class Outbound:
         queries and pings, which the node adds); None while nothing is pending."""
         if now is not None and self._started is None:
             self._started = now  # the node first plans: its first heartbeat one period later
-        if self.receivers.due:
-            return -math.inf
+        if self.receivers.due or (self.codec.auth is not None and self.codec.auth.owed):
+            return -math.inf  # (a peer waits for an acknowledgement, or for its @mark)
         times = [self._store_next_due(now), self.next_heartbeat()]
         if self.families.senders:
             times.append(self.families.next_due(now, self.wants))
@@ -241,6 +272,22 @@ class Outbound:
                     for n, item in enumerate(sender.due(now))]
         if self.families.senders:
             out += self.families.candidates(now, self.wants)
+        if self.codec.auth is not None and self.codec.auth.owed:
+            out += self._marks()
+        return out
+
+    def _marks(self) -> list[Candidate]:
+        """The ``@mark`` entries owed to senders whose frames were refused as replayed
+        (:mod:`bridge.wire.marks`)."""
+        codec, auth = self.table.marks, self.codec.auth
+        assert codec is not None and auth is not None
+        out = []
+        for address, mark in auth.hints():
+            peer = self.mission.name_of(address)
+            if peer is not None:
+                hinted = functools.partial(_hinted, auth, address)
+                out.append(Candidate(codec, None, Extra(
+                    codec, codec.pack(self.table.nodes.index(peer), mark), hinted)))
         return out
 
     # -- frames out ------------------------------------------------------------------------------
@@ -252,7 +299,7 @@ class Outbound:
         codec = self.codec
         budget = codec.body_capacity_bits(self.frame_bytes) - codec.count_bits
         room = (1 << codec.count_bits) - 1
-        items: list[tuple[ChannelCodec | AckCodec, int]] = []
+        items: list[tuple[WireCodec, int]] = []
         targets: set[str] = set()
         acks: list[tuple[str, int]] = []
         receivers = self.receivers
@@ -274,16 +321,18 @@ class Outbound:
         asks_ack = False  # a channel in the frame asks for the modem's acknowledgement
         node = self.node
         for candidate in picked:
-            what, channel = candidate.what, candidate.channel
-            if isinstance(what, ChannelState):
-                chosen.append(what)
-                items.append((channel, what.payload()))
-            elif isinstance(what, Extra):
+            what = candidate.what
+            if isinstance(what, Extra):
                 extras.append(what)
                 items.append((what.channel, what.bits))
                 continue
+            if isinstance(what, ChannelState):
+                channel = what.channel
+                chosen.append(what)
+                items.append((channel, what.payload()))
             else:
                 sender, item = what
+                channel = sender.channel
                 streams.append((sender, item))
                 items.append((channel, sender.entry(item)))
             targets.update(channel.destinations(node))
@@ -315,9 +364,9 @@ class Outbound:
             by_sender.setdefault(id(sender), (sender, []))[1].append(item)
         dest = self.mission.name_of(out.dest) if out.dest is not None else None
         for sender, group in by_sender.values():
-            self.outbox.reports(sender.sent(group, out.built))  # type: ignore[arg-type]
+            self.outbox.reports(sender.sent(group, out.built))
             if confirmed and dest is not None:
-                sender.confirmed(group, dest)  # type: ignore[arg-type]
+                sender.confirmed(group, dest)
         self.receivers.acked(out.acks)
         if out.streams:
             self.outbox.unsaved = True

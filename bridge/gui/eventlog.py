@@ -47,9 +47,14 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
         origin = f" from {src}" if src else ""
         return LogLine("warn", "frame", f"{node} dropped a frame{origin}: "
                        f"{_drop_text(str(event.get('reason', '?')))}")
-    if kind == "payload_dropped":
-        return LogLine("warn", "payload", f"{node} dropped a payload on "
-                       f"{event.get('key')!s}: {event.get('reason')}")
+    if kind == "payload_drops":
+        drops = event.get("drops")
+        drops = drops if isinstance(drops, list) else []
+        parts = [f"{d.get('count')} on {d.get('key')!s} ({d.get('reason')})"
+                 for d in drops[:3] if isinstance(d, Mapping)]
+        more = f"; and {len(drops) - 3} more keys or causes" if len(drops) > 3 else ""
+        return LogLine("warn", "payload", f"{node} dropped {event.get('total')} payloads: "
+                       + "; ".join(parts) + more)
     if kind == "send_failed":
         return LogLine("error", "driver", f"{node}: modem send failed: {event.get('error')}")
     if kind == "modem_down":

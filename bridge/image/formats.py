@@ -29,7 +29,12 @@ U8 = NDArray[np.uint8]
 
 
 class ImageInputError(ValueError):
-    """An input sample that is not a usable image (the message says why)."""
+    """An input sample that is not a usable image (the message says why; ``cause``:
+    ``undecodable``, ``too_large`` or ``unfit``: a type not taken)."""
+
+    def __init__(self, message: str, cause: str = "undecodable") -> None:
+        super().__init__(message)
+        self.cause = cause
 
 
 def kind_of(data: bytes, encoding: str) -> str:
@@ -40,7 +45,7 @@ def kind_of(data: bytes, encoding: str) -> str:
         if kind == mime or (name == "jpeg" and kind == "image/jpg"):
             return name
     if kind.startswith("image/"):
-        raise ImageInputError(f"image type {kind!r} is not one zab reads (jpeg, png)")
+        raise ImageInputError(f"image type {kind!r} is not one zab reads (jpeg, png)", "unfit")
     for signature, name in _SIGNATURES.items():
         if data.startswith(signature):
             return name
@@ -57,7 +62,7 @@ def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: 
     kind = kind_of(data, encoding)
     if kind not in accept:
         raise ImageInputError(f"{kind} images are not enabled on this channel "
-                              f"(accept: {', '.join(sorted(accept)) or 'none'})")
+                              f"(accept: {', '.join(sorted(accept)) or 'none'})", "unfit")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", Image.DecompressionBombWarning)
@@ -65,7 +70,7 @@ def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: 
             width, height = image.size
             if width * height > max_pixels:
                 raise ImageInputError(f"{width} × {height} pixels is more than the channel's "
-                                      f"{max_pixels}")
+                                      f"{max_pixels}", "too_large")
             image = image.convert("RGB" if colour else "L")
             return np.asarray(image, dtype=np.uint8).copy()
     except ImageInputError:

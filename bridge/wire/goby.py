@@ -24,8 +24,8 @@ from typing import Any
 from bridge.dccl.layout import DcclLayout
 from bridge.dccl.message import DcclMessage, peek_id
 from bridge.errors import DecodeError, FrameError
-from bridge.wire.channels import AckCodec, ChannelCodec, ChannelTable
-from bridge.wire.frame import DecodedFrame, Entry, FrameCodec
+from bridge.wire.channels import ChannelCodec, ChannelTable
+from bridge.wire.frame import DecodedFrame, Entry, FrameCodec, WireCodec
 
 #: At most 2**8 - 1 messages in one Goby frame (a frame of 1-byte messages is 255 bytes).
 _COUNT_BITS = 8
@@ -118,18 +118,18 @@ class GobyFrameCodec(FrameCodec):
     def body_capacity_bits(self, frame_bytes: int) -> int:
         return frame_bytes * 8 + self.count_bits
 
-    def channel_cost_bits(self, channel: ChannelCodec | AckCodec) -> int:
+    def channel_cost_bits(self, channel: WireCodec) -> int:
         """Bits the channel's message may take: its maximum size in whole bytes."""
-        return channel.wire_bits
+        return int(channel.wire_bits)
 
-    def frame_bytes_for(self, channels: Sequence[ChannelCodec | AckCodec]) -> int:
-        return sum(c.wire_bits for c in channels) // 8
+    def frame_bytes_for(self, channels: Sequence[WireCodec]) -> int:
+        return sum(int(c.wire_bits) for c in channels) // 8
 
     def sender_fingerprint(self, frame: bytes) -> int | None:
         """Goby frames carry no check value: nothing tells another mission file apart."""
         return None
 
-    def encode(self, items: Sequence[tuple[ChannelCodec | AckCodec, int]],
+    def encode(self, items: Sequence[tuple[WireCodec, int]],
                delays: Sequence[int | None] = (), epoch: int = 0) -> bytes:
         """The DCCL messages of ``items`` (payload ints as from ``ChannelCodec.pack``),
         concatenated without their padding."""
