@@ -268,7 +268,7 @@ def link_run(text: str, camera: str, receiver: str, in_key: str, out_key: str,
         shown = np.asarray(Image.open(io.BytesIO(publish.value)))
         if first is None and psnr(pixels, shown) >= 22.0:
             first = t - start
-        if Image.open(io.BytesIO(publish.value)).text.get("zab:final") == "True":
+        if Image.open(io.BytesIO(publish.value)).text.get("zab:final") == "true":
             whole = t - start
             break
     end = start + (whole or 1200.0)

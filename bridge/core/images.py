@@ -17,6 +17,7 @@ merged into the channel's settings and carried to the camera by the control chan
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from collections.abc import Callable, Iterable, Mapping
@@ -252,10 +253,11 @@ class Images:
                     self.outbox.reports(camera.control(values[0], now))
             return
         data, progress = self.receivers.fragment(src, channel, entry.header, entry.chunk)
-        self.outbox.status(f"transfer/{channel.name}", {**progress, "peer": src, "time": now})
         receiver = self.receivers.by_key[(src, channel.index)]
         assert isinstance(receiver, TransferReceiver)
         stream = data if data is not None else receiver.prefix()
+        self.outbox.status(f"transfer/{channel.name}", {**progress, "peer": src, "time": now,
+                                                        "bytes": len(stream)})
         self._show(src, channel, receiver, stream, data is not None, now)
 
     def _show(self, src: str, channel: ChannelCodec, receiver: TransferReceiver,
@@ -286,8 +288,8 @@ class Images:
                 "psnr_estimate": round(picture.psnr_estimate, 2),
                 "roi": list(picture.roi.fractions()) if picture.roi else None, "time": now}
         kind = spec.format
-        data = write_image(picture.pixels, kind, spec.jpeg_quality,
-                           {f"zab:{k}": v for k, v in meta.items()})
+        data = write_image(picture.pixels, kind, spec.jpeg_quality, {  # JSON but for text
+            f"zab:{k}": v if isinstance(v, str) else json.dumps(v) for k, v in meta.items()})
         key = spec.out_key.format(node=self.node, src=src, dst=self.node)
         self.outbox.publish(key, data, f"image/{kind}", True)
         self.outbox.status(f"images/{spec.name}/{src}", meta)

@@ -34,6 +34,17 @@ __all__ = ["KMAX", "Planes", "decode_planes", "encode_planes"]
 
 KMAX = 15
 """Largest run parameter: a ``0`` code covers at most 32768 decisions."""
+KPMAX = 4 * KMAX + 3
+UP, DOWN = 4, 6
+"""How the run parameter (in quarters) moves after a run of no (up) and after a yes (down)."""
+_UP = [min(kp + UP, KPMAX) for kp in range(KPMAX + 1)]  # (tables: the loops' hot path)
+_DOWN = [max(kp - DOWN, 0) for kp in range(KPMAX + 1)]
+_K = [kp >> 2 for kp in range(KPMAX + 1)]
+_STEP = [1 << k for k in _K]
+_CODE = ["1{0:0" + str(k) + "b}{1}" if k else "1{1}" for k in _K]
+
+PASSES = (0, 1, None, 2)
+"""The order of a plane's passes: the classes by number, None the refinement."""
 
 FIRST_OFFSET = 0.375
 """Where in its interval a coefficient first found significant is put back (its magnitude is
@@ -116,34 +127,29 @@ class Planes:
 
 
 def _run_encode(out: list[str], ones: list[int], signs: list[bool], length: int,
-                k: int) -> int:
-    """Append the run codes of ``length`` decisions whose yes are at ``ones``; returns the
-    final ``k``."""
+                kp: int) -> int:
+    """Append the run codes of ``length`` decisions whose yes are at ``ones``; ``kp`` is the
+    run parameter in quarters (``k = kp >> 2``); returns the final ``kp``."""
+    up, down, steps, codes = _UP, _DOWN, _STEP, _CODE
     pos = 0
-    step = 1 << k
+    step = steps[kp]
     append = out.append
     for p, negative in zip(ones, signs, strict=True):
         while p >= pos + step:
             append("0")
             pos += step
-            if k < KMAX:
-                k += 1
-                step <<= 1
-        sign = "1" if negative else "0"
-        if k:
-            append(f"1{p - pos:0{k}b}{sign}")
-            k -= 1
-            step >>= 1
-        else:
-            append("1" + sign)
+            kp = up[kp]
+            step = steps[kp]
+        append(codes[kp].format(p - pos, 1 if negative else 0))
+        kp = down[kp]
+        step = steps[kp]
         pos = p + 1
     while pos < length:
         append("0")
         pos += step
-        if k < KMAX:
-            k += 1
-            step <<= 1
-    return k
+        kp = up[kp]
+        step = steps[kp]
+    return kp
 
 
 def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
@@ -164,7 +170,7 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
         only = raised[0] if raised is not None and n > raised[1] else None
         classes = context.classes(sig, only)
         was = np.flatnonzero(sig)
-        passes: list[Ints | None] = [classes[0], classes[1], None, classes[2]]
+        passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
         for cls, cand in enumerate(passes):
             if cand is None:  # refinement
                 if was.size:
@@ -202,39 +208,36 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
     return "".join(parts)
 
 
-def _run_decode(bits: str, i: int, length: int, k: int,
+def _run_decode(bits: str, i: int, length: int, kp: int,
                 found: list[int], signs: list[bool]) -> tuple[int, int]:
     """Read the run codes of ``length`` decisions from ``bits[i:]`` into ``found``/``signs``;
-    returns ``(i, k)`` after them. Raises :class:`Truncated` where the bits end or lie."""
+    returns ``(i, kp)`` after them. Raises :class:`Truncated` where the bits end or lie."""
+    up, down, steps, widths = _UP, _DOWN, _STEP, _K
     end = len(bits)
     pos = 0
-    step = 1 << k
+    step = steps[kp]
     while pos < length:
         if i >= end:
             raise Truncated
         if bits[i] == "0":
             i += 1
             pos += step
-            if k < KMAX:
-                k += 1
-                step <<= 1
+            kp = up[kp]
+            step = steps[kp]
             continue
+        k = widths[kp]
         if i + k + 2 > end:
             raise Truncated
-        if k:
-            p = pos + int(bits[i + 1:i + 1 + k], 2)
-            if p >= length:
-                raise Truncated  # corrupt: a position past the pass
-            i += k + 2
-            k -= 1
-            step >>= 1
-        else:
-            p = pos
-            i += 2
+        p = pos + int(bits[i + 1:i + 1 + k], 2) if k else pos
+        if p >= length:
+            raise Truncated  # corrupt: a position past the pass
+        i += k + 2
         found.append(p)
         signs.append(bits[i - 1] == "1")
         pos = p + 1
-    return i, k
+        kp = down[kp]
+        step = steps[kp]
+    return i, kp
 
 
 def decode_planes(geometry: Geometry, bits: str, top: int,
@@ -254,7 +257,7 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
         only = raised[0] if raised is not None and n > raised[1] else None
         classes = context.classes(sig, only)
         was = np.flatnonzero(sig)
-        passes: list[Ints | None] = [classes[0], classes[1], None, classes[2]]
+        passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
         for cls, cand in enumerate(passes):
             if cand is None:
                 m = min(int(was.size), end - i)

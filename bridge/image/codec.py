@@ -37,6 +37,9 @@ VERSION = 0
 MAX_SIDE = 2048
 FRACTION_BITS = 2  # quantiser step: a quarter of a (weighted) grey level
 QUANTUM = float(1 << FRACTION_BITS)
+MSE_CEILING = 128.0 ** 2
+"""No picture is further off than every pixel by half the range (what the estimate of an
+almost empty stream gives at most)."""
 BODY = 0.25
 """Wavelet coefficients crowd nearer zero than the Laplacian their tail fits: the share of
 its energy below threshold the distortion estimate keeps (``bench/image_bench.py`` checks the
@@ -249,4 +252,4 @@ def _mse_estimate(geo: Geometry, state: Planes | None, scale: F64, pixels: int) 
         # E[x² | x < t] for a Laplacian of scale b
         mean_sq = 2 * b * b - (t * t + 2 * b * t) * r / np.maximum(1 - r, 1e-12)
         total += BODY * float((np.maximum(mean_sq, 0.0) / u[~s]).sum())
-    return total / pixels
+    return min(total / pixels, MSE_CEILING)

@@ -71,8 +71,8 @@ def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: 
             if width * height > max_pixels:
                 raise ImageInputError(f"{width} × {height} pixels is more than the channel's "
                                       f"{max_pixels}", "too_large")
-            image = image.convert("RGB" if colour else "L")
-            return np.asarray(image, dtype=np.uint8).copy()
+            converted = image.convert("RGB" if colour else "L")
+            return np.asarray(converted, dtype=np.uint8).copy()
     except ImageInputError:
         raise
     except UnidentifiedImageError:

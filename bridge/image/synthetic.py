@@ -52,6 +52,6 @@ def seabed(height: int = 240, width: int = 320, seed: int = 0,
     image += rng.normal(0, 2.0, image.shape)  # sensor noise
     pixels = np.clip(np.rint(image), 0, 255).astype(np.uint8)
     if colour:
-        return pixels
+        return pixels  # type: ignore[no-any-return]
     grey = pixels.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
-    return np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+    return np.clip(np.rint(grey), 0, 255).astype(np.uint8)  # type: ignore[no-any-return]

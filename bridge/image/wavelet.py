@@ -27,7 +27,7 @@ K = 1.230174104914001
 Array = NDArray[np.float64]
 
 
-def levels_for(height: int, width: int, smallest: int = 6) -> int:
+def levels_for(height: int, width: int, smallest: int = 4) -> int:
     """How many levels a ``height`` × ``width`` image takes: until the low band would be
     smaller than ``smallest`` samples on its shorter side (at least one level)."""
     levels, side = 0, min(height, width)
@@ -107,7 +107,8 @@ def forward(image: Array, levels: int) -> Array:
 def inverse(coefficients: Array, levels: int) -> Array:
     """Undo :func:`forward`."""
     out = np.array(coefficients, dtype=np.float64)
-    shapes = band_shapes(*out.shape, levels)
+    height, width = out.shape
+    shapes = band_shapes(height, width, levels)
     for level in range(levels, 0, -1):
         h, w = shapes[level - 1]
         lh, lw = shapes[level]

@@ -62,7 +62,8 @@ class ImageChannel(BaseModel):
     format: Literal["png", "jpeg"] = Field("png", description="What receivers publish.")
     jpeg_quality: int = Field(90, ge=1, le=100, description="Quality of published JPEGs.")
     accept: list[Literal["jpeg", "png"]] = Field(
-        default_factory=lambda: ["jpeg", "png"], description="Input types taken; others are "
+        default_factory=lambda: ["jpeg", "png"],  # type: ignore[arg-type]
+        description="Input types taken; others are "
         "dropped (counted).")
     max_input_pixels: int = Field(8_000_000, ge=64, description="Larger inputs are dropped "
                                   "(counted) before decoding.")

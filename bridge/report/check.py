@@ -153,10 +153,11 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
     images = [_image(c, codec) for c in table.channels
               if c.image is not None and not c.image.control]
     for image in images:  # one fragment per opportunity of the camera, at worst
-        waits = [n["mac"]["worst_interval_s"] for n in nodes if n["name"] in image["from"]]
-        worst = max((w for w in waits if w is not None), default=None)
-        image["seconds_per_picture"] = None if worst is None else round(
-            worst * image["fragments_per_picture"], 1)
+        waits = [n["mac"]["worst_interval_s"] for n in nodes  # type: ignore[index]
+                 if n["name"] in image["from"]]
+        slowest: float | None = max((w for w in waits if w is not None), default=None)
+        image["seconds_per_picture"] = None if slowest is None else round(
+            slowest * image["fragments_per_picture"], 1)
     mac_data, warnings = rules.check(nodes)
     report.warnings.extend(warnings)
     report.data = {

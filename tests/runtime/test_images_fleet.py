@@ -46,7 +46,7 @@ def test_a_jpeg_on_the_rov_sharpens_at_the_operator() -> None:
     small = np.asarray(Image.fromarray(PICTURE).resize((160, 120), Image.Resampling.LANCZOS))
     quality = [psnr(small, pixels) for _, _, pixels in got]
     assert quality[-1] > quality[0] + 6
-    assert got[-1][1]["zab:final"] == "True" and all(t["zab:final"] == "False"
+    assert got[-1][1]["zab:final"] == "true" and all(t["zab:final"] == "false"
                                                      for _, t, _ in got[:-1])
     assert got[-1][1]["zab:bytes"] == got[-1][1]["zab:budget"]
     statuses = [o.output for o in fleet.outputs if o.node == "operator"
@@ -76,7 +76,7 @@ def test_a_request_sends_the_newest_picture_again_and_cancel_stops_it() -> None:
     assert cancelled and "cancelled by the operator" in cancelled[0].payload["reason"]
     fleet.put("operator", "camera/control", {"request": "now", "budget_bytes": 300}, at=16.0)
     fleet.run_until(40.0)
-    finals = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "True"]
+    finals = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
     assert finals and int(finals[-1]["zab:budget"]) <= 300
 
 
@@ -85,7 +85,7 @@ def test_lost_fragments_are_repaired() -> None:
     fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
     fleet.run_until(120.0)
     got = pictures(fleet)
-    assert got and got[-1][1]["zab:final"] == "True"
+    assert got and got[-1][1]["zab:final"] == "true"
     fragments = int(got[-1][1]["zab:budget"]) // 37
     assert fleet.cores["rov"].stats.sent_per_channel["camera"] > fragments  # some sent again
 

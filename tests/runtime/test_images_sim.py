@@ -31,7 +31,7 @@ def refinements(inbox: queue.Queue[dict[str, str]], until: float) -> list[dict[s
         except queue.Empty:
             break
         got.append(text)
-        if text["zab:final"] == "True":
+        if text["zab:final"] == "true":
             break
     return got
 
@@ -62,13 +62,13 @@ def test_pictures_cross_zab_sim_and_sharpen(tmp_path: Path) -> None:
         first = refinements(inbox, time.time() + 60)
         sizes = [int(t["zab:bytes"]) for t in first]
         assert len(first) >= 3 and sizes == sorted(sizes)
-        assert first[-1]["zab:final"] == "True" and first[-1]["zab:roi"] == "None"
+        assert first[-1]["zab:final"] == "true" and first[-1]["zab:roi"] == "null"
 
         operator.put("camera/control", msgpack.packb({"roi": [0.25, 0.25, 0.75, 0.75],
                                                       "request": "now"}),
                      encoding=zenoh.Encoding("application/msgpack"))
         second = refinements(inbox, time.time() + 60)
-        assert second and second[-1]["zab:final"] == "True"
+        assert second and second[-1]["zab:final"] == "true"
         assert second[-1]["zab:roi"] == "[0.25, 0.25, 0.75, 0.75]"
         assert second[-1]["zab:sequence"] != first[-1]["zab:sequence"]
 
