@@ -192,8 +192,9 @@ class Images:
                           f"{MAX_PICTURE_BYTES}", now, "too_large")
                 return True
             try:
-                pixels = read_image(data, encoding, spec.accept, spec.max_input_pixels,
-                                    spec.colour)
+                pixels = (read_image(data, encoding, spec.accept, spec.max_input_pixels,
+                                     spec.colour) if spec.ros2 is None
+                          else self._ros2(spec, data))
             except ImageInputError as exc:
                 self.drop(key, f"image channel {spec.name!r}: {exc}", now, exc.cause)
                 return True
@@ -214,6 +215,24 @@ class Images:
         self.outbox.reports(sender.offer(payload, now, key, ref))
         self.outbox.unsaved = True
         return True
+
+    @staticmethod
+    def _ros2(spec: ImageSpec, data: bytes) -> Pixels:
+        """The picture of a ROS 2 CompressedImage or Image (CDR)."""
+        from bridge.image.formats import ImageInputError, read_image, read_raw
+        from bridge.ros2.messages import decode_cdr
+
+        assert spec.ros2 is not None
+        msgtype, distro = spec.ros2
+        try:
+            message = decode_cdr(distro, msgtype, data)
+        except DecodeError as exc:
+            raise ImageInputError(str(exc)) from None
+        if msgtype.endswith("/Image"):
+            return read_raw(message, spec.max_input_pixels, spec.colour)
+        kind = "image/png" if "png" in str(message.get("format", "")).lower() else ""
+        return read_image(bytes(message.get("data", b"")), kind, spec.accept,
+                          spec.max_input_pixels, spec.colour)
 
     @staticmethod
     def _merge(settings: dict[str, Any], value: Any) -> str:

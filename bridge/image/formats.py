@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["KINDS", "ImageInputError", "fit", "kind_of", "read_image", "write_image"]
+__all__ = ["KINDS", "ImageInputError", "fit", "kind_of", "read_image", "read_raw",
+           "write_image"]
 
 KINDS = {"jpeg": "image/jpeg", "png": "image/png"}
 """Image types an input may take, by name, with their Zenoh encodings."""
@@ -80,6 +81,46 @@ def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: 
     except (OSError, ValueError, SyntaxError,
             Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
         raise ImageInputError(f"cannot decode the {kind} image: {exc}") from None
+
+
+RAW = {"mono8": (1, 1), "mono16": (1, 2), "rgb8": (3, 1), "bgr8": (3, 1), "rgba8": (4, 1),
+       "bgra8": (4, 1), "8UC1": (1, 1), "8UC3": (3, 1)}
+"""Raw pixel encodings taken (sensor_msgs/Image): channels and bytes per channel."""
+
+
+def read_raw(message: Mapping[str, Any], max_pixels: int, colour: bool) -> U8:
+    """The pixels of a ``sensor_msgs/msg/Image`` as plain data (``height``, ``width``,
+    ``encoding``, ``is_bigendian``, ``step``, ``data``)."""
+    try:
+        height, width = int(message["height"]), int(message["width"])
+        encoding, step = str(message["encoding"]), int(message["step"])
+        data = bytes(message["data"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ImageInputError(f"not a sensor_msgs/Image: {exc}") from None
+    if encoding not in RAW:
+        raise ImageInputError(f"raw encoding {encoding!r} is not one zab reads "
+                              f"({', '.join(RAW)})", "unfit")
+    if height * width > max_pixels:
+        raise ImageInputError(f"{width} × {height} pixels is more than the channel's "
+                              f"{max_pixels}", "too_large")
+    channels, size = RAW[encoding]
+    if height < 1 or width < 1 or step < width * channels * size or len(data) < height * step:
+        raise ImageInputError(f"{width} × {height} {encoding} does not fit its {len(data)} "
+                              f"bytes (step {step})")
+    rows = np.frombuffer(data, dtype=np.uint8)[:height * step].reshape(height, step)
+    flat = rows[:, :width * channels * size]
+    if size == 2:  # mono16: keep the high byte
+        flat = flat[:, 0::2] if message.get("is_bigendian") else flat[:, 1::2]
+    pixels = flat.reshape(height, width, channels)
+    if encoding.startswith("bgr"):
+        pixels = pixels[..., 2::-1]
+    pixels = pixels[..., :3]
+    if channels == 1:
+        pixels = np.repeat(pixels, 3, axis=2) if colour else pixels[..., 0]
+    elif not colour:
+        grey = pixels.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+        pixels = np.clip(np.rint(grey), 0, 255)
+    return np.ascontiguousarray(pixels, dtype=np.uint8)
 
 
 def fit(pixels: U8, width: int, height: int) -> U8:

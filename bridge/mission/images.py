@@ -11,11 +11,32 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-__all__ = ["ImageChannel"]
+__all__ = ["ImageChannel", "Ros2Pictures"]
 
 Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
+
+
+class Ros2Pictures(BaseModel):
+    """Pictures from a ROS 2 camera topic over rmw_zenoh's keys, instead of ``in``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    topic: str = Field(description="Topic read at the sender, absolute (/rov/camera/image_raw/"
+                       "compressed); may use {node}.")
+    type: Literal["sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/Image"] = Field(
+        "sensor_msgs/msg/CompressedImage", description="CompressedImage (JPEG or PNG, as its "
+        "format says) or Image (mono8, mono16, rgb8, bgr8, rgba8, bgra8).")
+    distro: Literal["jazzy", "kilted"] = "jazzy"
+    domain: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID, the first key chunk.")
+
+    @field_validator("topic")
+    @classmethod
+    def _absolute(cls, v: str) -> str:
+        if not v.startswith("/") or "//" in v or v.endswith("/"):
+            raise ValueError(f"{v!r}: a ROS 2 topic here is absolute, like /rov/camera")
+        return v
 
 
 class ImageChannel(BaseModel):
@@ -26,8 +47,10 @@ class ImageChannel(BaseModel):
     name: str = Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)
     from_: str | list[str] = Field(alias="from", description="The node(s) with the camera.")
     to: str | list[str] = Field(description="The node(s) that receive the pictures.")
-    in_: str = Field(alias="in", description="Input key at the sender ({node}): JPEG or PNG "
-                     "bytes, the Zenoh encoding (image/jpeg, image/png) saying which.")
+    in_: str | None = Field(None, alias="in", description="Input key at the sender ({node}): "
+                            "JPEG or PNG bytes, the Zenoh encoding (image/jpeg, image/png) "
+                            "saying which.")
+    ros2: Ros2Pictures | None = Field(None, description="A ROS 2 camera topic instead of in.")
     out: str = Field(description="Output key at receivers ({src}, {dst}, {node}): a PNG (or "
                      "JPEG) after each fragment that sharpens the picture.")
     control: str | None = Field(None, description="Key at receivers where operators put "
@@ -74,6 +97,8 @@ class ImageChannel(BaseModel):
 
     @model_validator(mode="after")
     def _budgets(self) -> ImageChannel:
+        if (self.in_ is None) == (self.ros2 is None):
+            raise ValueError("give the pictures' input: either `in` or `ros2`")
         if self.max_budget_bytes is not None and self.max_budget_bytes < self.budget_bytes:
             raise ValueError("max_budget_bytes is below budget_bytes")
         roi = self.roi

@@ -437,14 +437,14 @@ def compile_images(mission: Mission) -> tuple[ChannelCodec, ...]:
         if not any(set(receivers) - {s} for s in senders):
             raise ChannelTableError("an image channel must reach a node other than its "
                                     "sender", (*loc, "to"))
-        for key, allowed, where in ((image.in_, SENDER_TEMPLATES, "in"),
+        spec = ImageSpec.from_mission(image)
+        for key, allowed, where in ((spec.in_key, SENDER_TEMPLATES, "in"),
                                     (image.out, RECEIVER_TEMPLATES, "out"),
                                     (image.control_key, {"node"}, "control")):
             bad = template_names(key) - allowed
             if bad:
                 raise ChannelTableError(f"unknown template {{{sorted(bad)[0]}}} in {key!r}",
                                         (*loc, where))
-        spec = ImageSpec.from_mission(image)
         capacity = min(entry_capacity_bits(mission, s, True) for s in senders)
         fragment_bits, chunk = 1, 0
         for _ in range(4):  # the header size depends on the number of fragments: settle it

@@ -18,6 +18,7 @@ from typing import Any
 from bridge.codec import Layout
 from bridge.mission.fields import FieldSpec
 from bridge.mission.images import ImageChannel
+from bridge.ros2.names import topic_listen_key
 
 __all__ = ["CONTROL_FIELDS", "REQUESTS", "ImageSpec", "control_layout", "control_payload"]
 
@@ -57,14 +58,19 @@ class ImageSpec:
     jpeg_quality: int
     accept: tuple[str, ...]
     max_input_pixels: int
+    ros2: tuple[str, str] | None = None  # (message type, distro) of a ROS 2 camera topic
     control: bool = False
 
     @classmethod
     def from_mission(cls, image: ImageChannel) -> ImageSpec:
-        return cls(image.name, image.in_, image.out, image.control_key, image.width,
+        ros2 = image.ros2
+        in_key = image.in_ if ros2 is None else topic_listen_key(ros2.domain, ros2.topic)
+        assert in_key is not None
+        return cls(image.name, in_key, image.out, image.control_key, image.width,
                    image.height, image.colour, image.budget_bytes, image.largest_budget,
                    image.roi, image.policy, image.send, image.publish_interval_s, image.format,
-                   image.jpeg_quality, tuple(image.accept), image.max_input_pixels)
+                   image.jpeg_quality, tuple(image.accept), image.max_input_pixels,
+                   None if ros2 is None else (ros2.type, ros2.distro))
 
     def describe(self) -> list[Any]:
         """What both ends must agree on (the fingerprint): the stream's format."""

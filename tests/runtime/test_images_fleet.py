@@ -102,3 +102,27 @@ def test_bad_pictures_are_counted_drops() -> None:
     assert fleet.cores["rov"].stats.payloads_dropped["rov/camera"] == 3
     assert fleet.cores["operator"].stats.payloads_dropped["camera/control"] == 1
     assert fleet.published("operator", "rov/camera") == []
+
+
+ROS2_MISSION = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+    "    in: rov/camera\n", "    ros2: {topic: /rov/camera, type: sensor_msgs/msg/%s}\n")
+
+
+def test_ros2_compressed_and_raw_pictures_cross() -> None:
+    from bridge.ros2.messages import encode_cdr
+
+    small = np.asarray(Image.fromarray(PICTURE).resize((160, 120), Image.Resampling.LANCZOS))
+    rgb = np.repeat(small[..., None], 3, axis=2)
+    raw = {"height": 120, "width": 160, "encoding": "bgr8", "is_bigendian": 0, "step": 480,
+           "data": rgb[..., ::-1].tobytes()}
+    for msgtype, tree in (("CompressedImage", {"format": "jpeg", "data": JPEG}),
+                          ("Image", raw)):
+        fleet = FastFleet(parse_mission(ROS2_MISSION % msgtype), seed=6)
+        cdr = encode_cdr("jazzy", f"sensor_msgs/msg/{msgtype}", tree)
+        fleet.put("rov", "0/rov/camera/*/*", cdr, encoding="", at=1.0)
+        fleet.put("rov", "0/rov/camera/*/*", cdr[:20], encoding="", at=2.0)  # cut: dropped
+        fleet.run_until(40.0)
+        got = pictures(fleet)
+        assert got and got[-1][1]["zab:final"] == "true", msgtype
+        assert psnr(small, got[-1][2]) > 30, msgtype
+        assert fleet.cores["rov"].stats.payloads_dropped["0/rov/camera/*/*"] == 1
