@@ -126,3 +126,23 @@ def test_ros2_compressed_and_raw_pictures_cross() -> None:
         assert got and got[-1][1]["zab:final"] == "true", msgtype
         assert psnr(small, got[-1][2]) > 30, msgtype
         assert fleet.cores["rov"].stats.payloads_dropped["0/rov/camera/*/*"] == 1
+
+
+def test_a_newer_picture_waits_or_cancels_as_the_policy_says() -> None:
+    other = write_image(seabed(240, 320, seed=9, colour=False), "jpeg", quality=92)
+    for policy in ("finish", "cancel"):
+        text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+            "policy: finish", f"policy: {policy}")
+        fleet = FastFleet(parse_mission(text), seed=7)
+        fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+        fleet.put("rov", "rov/camera", other, encoding="image/jpeg", at=6.0)
+        fleet.run_until(80.0)
+        finals = [t["zab:sequence"] for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+        reports = [o.output.payload for o in fleet.outputs if o.node == "rov"
+                   and isinstance(o.output, Status) and o.output.topic == "delivery/camera"]
+        failed = [r for r in reports if r["state"] == "failed"]
+        if policy == "finish":  # both pictures, one after the other
+            assert len(finals) == 2 and not failed
+        else:  # the first gave way to the second at once
+            assert len(finals) == 1
+            assert failed and "cancelled by a newer value" in failed[0]["reason"]
