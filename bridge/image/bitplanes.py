@@ -172,12 +172,14 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
         was = np.flatnonzero(sig)
         passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
         for cls, cand in enumerate(passes):
-            if cand is None:  # refinement
+            if cand is None:  # refinement (no more than the budget still takes)
                 if was.size:
-                    bits = ((q[was] >> n) & 1).astype(np.uint8) + 48
+                    bits = ((q[was[:budget_bits - total]] >> n) & 1).astype(np.uint8) + 48
                     piece = bits.tobytes().decode("ascii")
                     parts.append(piece)
                     total += len(piece)
+                    if total >= budget_bits:
+                        return "".join(parts)
                 continue
             if cand.size == 0:
                 continue
@@ -187,24 +189,22 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
             cut_ones = np.searchsorted(ones_at, cut)
             neg = negative[cand[ones_at]].tolist()
             ones_list = ones_at.tolist()
-            out: list[str] = []
+            sig[cand[ones_at]] = True
+            context.became(cand[ones_at])
             for b in range(len(starts) - 1):
                 a, z = int(cut[b]), int(cut[b + 1])
                 if a == z:
                     continue
                 oa, oz = int(cut_ones[b]), int(cut_ones[b + 1])
                 key = (cls, b)
+                out: list[str] = []
                 ks[key] = _run_encode(out, [p - a for p in ones_list[oa:oz]], neg[oa:oz],
                                       z - a, ks.get(key, 0))
-            piece = "".join(out)
-            parts.append(piece)
-            total += len(piece)
-            sig[cand[ones_at]] = True
-            context.became(cand[ones_at])
-            if total >= budget_bits:
-                return "".join(parts)
-        if total >= budget_bits:
-            break
+                piece = "".join(out)
+                parts.append(piece)
+                total += len(piece)
+                if total >= budget_bits:  # (what the state says past here is never sent)
+                    return "".join(parts)
     return "".join(parts)
 
 
