@@ -208,13 +208,13 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
     return "".join(parts)
 
 
-def _run_decode(bits: str, i: int, length: int, kp: int,
+def _run_decode(bits: str, i: int, pos: int, length: int, kp: int,
                 found: list[int], signs: list[bool]) -> tuple[int, int]:
-    """Read the run codes of ``length`` decisions from ``bits[i:]`` into ``found``/``signs``;
-    returns ``(i, kp)`` after them. Raises :class:`Truncated` where the bits end or lie."""
+    """Read the run codes of the decisions ``pos`` up to ``length`` of a pass from
+    ``bits[i:]`` into ``found``/``signs``; returns ``(i, kp)`` after them. Raises
+    :class:`Truncated` where the bits end or lie."""
     up, down, steps, widths = _UP, _DOWN, _STEP, _K
     end = len(bits)
-    pos = 0
     step = steps[kp]
     while pos < length:
         if i >= end:
@@ -273,23 +273,19 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
                 continue
             if cand.size == 0:
                 continue
-            cut = np.searchsorted(cand, starts)
+            cut = np.searchsorted(cand, starts).tolist()
             found: list[int] = []
             signs: list[bool] = []
             stop = False
-            for b in range(len(starts) - 1):
-                a, z = int(cut[b]), int(cut[b + 1])
+            for b in range(len(cut) - 1):
+                a, z = cut[b], cut[b + 1]
                 if a == z:
                     continue
                 key = (cls, b)
-                before = len(found)
                 try:
-                    i, ks[key] = _run_decode(bits, i, z - a, ks.get(key, 0), found, signs)
+                    i, ks[key] = _run_decode(bits, i, a, z, ks.get(key, 0), found, signs)
                 except Truncated:
                     stop = True
-                for j in range(before, len(found)):
-                    found[j] += a
-                if stop:
                     break
             if found:
                 idx = cand[np.array(found, dtype=np.int64)]

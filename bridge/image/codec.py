@@ -227,29 +227,34 @@ def _mse_estimate(geo: Geometry, state: Planes | None, scale: F64, pixels: int) 
     if state is None:
         return 0.0
     units = (scale / geo.weight) ** 2  # squared quantiser units per squared grey level
-    sig = state.significant
-    total = 0.0
+    luma, band_of = geo.luma, geo.band_of
+    known = state.significant & luma
+    width = np.exp2(state.plane[known].astype(np.float64))
+    total = float((width ** 2 / 12 / units[known]).sum())
+    if state.complete:
+        return min(total / pixels, MSE_CEILING)
+    unknown = ~state.significant & luma
+    below = state.below[unknown].astype(np.float64)
+    bands = len(geo.bands)
+    n_sig = np.bincount(band_of[known], minlength=bands)
+    n_not = np.bincount(band_of[unknown], minlength=bands)
+    mean_below = np.bincount(band_of[unknown], weights=below, minlength=bands) / np.maximum(
+        n_not, 1)
+    scales = np.ones(bands)
     coarser: dict[int, float] = {}  # each level's largest scale found
-    for band in geo.bands:
-        if band.component:
+    for i, band in enumerate(geo.bands):
+        if band.component or not n_not[i]:
             continue
-        part = slice(band.start, band.start + band.size)
-        s = sig[part]
-        u = units[part]
-        width = np.exp2(state.plane[part][s].astype(np.float64))
-        total += float((width ** 2 / 12 / u[s]).sum())
-        if state.complete:
-            continue
-        t = np.exp2(state.below[part][~s].astype(np.float64))
-        if t.size == 0:
-            continue
-        n_sig = max(float(s.sum()), 0.5)
-        b = float(np.median(t)) / np.log(band.size / n_sig) if n_sig < band.size else 1.0
-        if not s.any():  # nothing heard of this band yet: finer bands hold less
+        found = max(float(n_sig[i]), 0.5)
+        b = 2.0 ** mean_below[i] / np.log(band.size / found) if found < band.size else 1.0
+        if not n_sig[i]:  # nothing heard of this band yet: finer bands hold less
             b = min(b, coarser.get(band.level + 1, b) / 2)
         coarser[band.level] = max(coarser.get(band.level, 0.0), b)
-        r = np.exp(-t / b)
-        # E[x² | x < t] for a Laplacian of scale b
-        mean_sq = 2 * b * b - (t * t + 2 * b * t) * r / np.maximum(1 - r, 1e-12)
-        total += BODY * float((np.maximum(mean_sq, 0.0) / u[~s]).sum())
+        scales[i] = b
+    b_each = scales[band_of[unknown]]
+    t = np.exp2(below)
+    r = np.exp(-t / b_each)
+    # E[x² | x < t] for a Laplacian of scale b
+    mean_sq = 2 * b_each * b_each - (t * t + 2 * b_each * t) * r / np.maximum(1 - r, 1e-12)
+    total += BODY * float((np.maximum(mean_sq, 0.0) / units[unknown]).sum())
     return min(total / pixels, MSE_CEILING)

@@ -13,7 +13,7 @@ region of interest. Both ends build the same geometry from the stream's header.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -97,7 +97,7 @@ class Geometry:
     def size(self) -> int:
         return int(self.order.shape[0])
 
-    @property
+    @cached_property
     def luma(self) -> NDArray[np.bool_]:
         """Coding positions of the luma (or grey) coefficients."""
         mask = np.zeros(self.size, dtype=bool)
@@ -105,6 +105,11 @@ class Geometry:
             if band.component == 0:
                 mask[band.start:band.start + band.size] = True
         return mask
+
+    @cached_property
+    def band_of(self) -> Ints:
+        """Each coding position's band (its index in :attr:`bands`)."""
+        return np.repeat(np.arange(len(self.bands)), [b.size for b in self.bands])
 
     @property
     def offsets(self) -> list[int]:
