@@ -59,6 +59,19 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
         return LogLine("error", "driver", f"{node}: modem send failed: {event.get('error')}")
     if kind == "modem_down":
         return LogLine("error", "driver", f"{node}: modem unavailable: {event.get('error')}")
+    if kind == "surfaced":  # told by each side, the surface's bridge and the vehicle's
+        peer = event.get("peer")
+        if event.get("ip"):
+            return LogLine("info", kind, f"{node}: {peer} reached over IP (one of them "
+                           "surfaced): channels between them no longer cross the water")
+        return LogLine("info", kind, f"{node}: {peer} no longer reached over IP (dived): "
+                       "channels between them cross the water again")
+    if kind == "peer_restarted":
+        return LogLine("warn", kind, f"{node}: {event.get('peer')} restarted without its "
+                       f"saved state (epoch {event.get('was')} → {event.get('epoch')})")
+    if kind == "mission_mismatch":
+        return LogLine("error", kind, f"{node}: {event.get('peer')} runs another mission "
+                       "file: its frames are not decoded (load the same file on both)")
     extra = {k: v for k, v in event.items() if k not in ("kind", "time", "node", "data")}
     details = ", ".join(f"{k} {v}" for k, v in extra.items())
     return LogLine("info", kind, f"{node}: {kind}" + (f" ({details})" if details else ""))
@@ -67,9 +80,9 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
 def link_line(observer: str, peer: str, state: str, silent_s: float | None,
               never_heard: bool = False) -> LogLine:
     """A link changed state."""
+    if never_heard and state != "up":  # at the start, before the peer's first turn: no fault
+        return LogLine("info", "link", f"link {observer} ↔ {peer}: not heard yet")
     silent = f" (silent {silent_s:.0f} s)" if silent_s is not None and state != "up" else ""
-    if never_heard and state != "up":
-        silent = " (not heard yet)"
     level = {"up": "info", "degraded": "warn"}.get(state, "error")
     return LogLine(level, "link", f"link {observer} ↔ {peer}: {state}{silent}")
 

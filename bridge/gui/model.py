@@ -224,8 +224,10 @@ class GuiModel:
 
     # -- input -------------------------------------------------------------------------------
 
-    def ingest(self, key: str, data: bytes, encoding: str, now: float) -> None:
-        """One sample the GUI's session received."""
+    def ingest(self, key: str, data: bytes, encoding: str, now: float,
+               publisher: str | None = None) -> None:
+        """One sample the GUI's session received; ``publisher``: the node whose bridge
+        published it (from its origin tag; None: an application)."""
         picture = self.images.ingest(key, data, encoding, now)
         if picture is not None:
             self._out.append(picture)
@@ -242,7 +244,11 @@ class GuiModel:
         if status is not None:
             self._status(status, value, now)
         for source in sources or ():
-            self._value(source, value, now)
+            if publisher is None or publisher in (self.node, source.src):
+                self._value(source, value, now)
+            # else a third vehicle's bridge published what it heard acoustically, seen here
+            # because it surfaced and its Zenoh joined this node's: this node's bridge brings
+            # the same value (the sender's own bridge, over IP, may too), so it is no arrival
 
     def _drop(self, key: str, reason: str, now: float) -> None:
         self.dropped[key] += 1
