@@ -11,10 +11,10 @@ encoded for the budget by OpenJPEG (glymur, a raw ``.j2k`` codestream, the compr
 lowered until it fits); baseline JPEG at the best quality that fits (Pillow, optimized
 tables; ``—`` where none does). PSNR and SSIM (scikit-image) of the luma for colour. Then
 the region of interest (a centred quarter of the picture): its PSNR without ROI coding, with
-a plain shift (every coefficient under the ROI and its one-coefficient ring raised alike),
-with zab's (the ring raised less), and coded alone as its own picture (the most any ROI
-coding can give); the rest's PSNR beside. Then encode + decode time (best of N) against
-OpenJPEG's (through files in a temporary folder), and how far the stream's own distortion
+a plain shift (every coefficient whose footprint touches the ROI raised alike), with zab's
+(raised by the share of its footprint in the ROI), and coded alone as its own picture (the
+most any ROI coding can give); the rest's PSNR beside. Then encode + decode time (best of
+N) against OpenJPEG's (through files in a temporary folder), and how far the stream's own distortion
 estimate is from the truth.
 
 ``--links`` runs the image channel itself, on the virtual clock (``FastFleet``): seed 002's
@@ -173,17 +173,17 @@ def roi_table(images: list[np.ndarray]) -> dict[int, dict[str, float]]:
     out = {}
     for budget in (400, 800, 1600, 3200):
         cols: dict[str, tuple[float, float]] = {}
-        for key, ring in (("none", None), ("plain", 0), ("zab", geometry_module.RING)):
+        for key, full in (("none", None), ("plain", 1e-9), ("zab", geometry_module.FULL)):
             ins, outs = [], []
             for pixels in images:
-                if ring is None:
+                if full is None:
                     decoded = ours(pixels, budget)
                 else:
-                    saved, geometry_module.RING = geometry_module.RING, ring
+                    saved, geometry_module.FULL = geometry_module.FULL, full
                     try:
                         decoded = decode(encode(pixels, budget, roi)).pixels
                     finally:
-                        geometry_module.RING = saved
+                        geometry_module.FULL = saved
                 ins.append(psnr(pixels[inside], decoded[inside]))
                 outs.append(psnr(pixels[outside], decoded[outside]))
             cols[key] = (statistics.fmean(ins), statistics.fmean(outs))

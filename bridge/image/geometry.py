@@ -22,7 +22,12 @@ from bridge.image.wavelet import band_shapes, inverse, levels_for
 
 __all__ = ["CHROMA_WEIGHT", "Geometry", "Roi", "geometry"]
 
-RING = 2
+REACH = 1.0
+"""A coefficient's footprint, for the ROI: its own span widened by this many spacings each
+side (the 9/7 filters reach about that far)."""
+FULL = 0.49
+"""The share of its footprint in the ROI from which a coefficient gets the whole shift
+(``bench/image_bench.py`` compares this graded shift with a plain one)."""
 CHROMA_WEIGHT = 0.5
 """Chroma coefficients count this much of luma's: colour sharpens after brightness."""
 
@@ -120,23 +125,30 @@ class Geometry:
         return out
 
     def roi_shifts(self, roi: Roi, height: int, width: int) -> Ints:
-        """How many bit planes each coefficient is raised: ``roi.shift`` for those under
-        the ROI (its rectangle scaled to the band), ``RING`` fewer for the ring of one
-        coefficient around them (their filters reach into the ROI), none elsewhere."""
+        """How many bit planes each coefficient is raised: by the share of its footprint
+        (its place on the band, widened by ``REACH`` of its spacing each side for the
+        filter's reach) that lies in the ROI: ``roi.shift`` from ``FULL`` of it, one plane
+        less for each halving below that, none outside."""
         out = np.zeros(self.size, dtype=np.int64)
-        ring = max(0, roi.shift - RING)
         for band in self.bands:
             scale = 1 << (band.level + (band.component > 0))
             bh, bw = band.shape
-            r0 = int(np.floor(roi.y0 * height / 64 / scale))
-            r1 = int(np.ceil(roi.y1 * height / 64 / scale))
-            c0 = int(np.floor(roi.x0 * width / 64 / scale))
-            c1 = int(np.ceil(roi.x1 * width / 64 / scale))
-            shifts = np.zeros((bh, bw), dtype=np.int64)
-            shifts[max(0, r0 - 1):min(bh, r1 + 1), max(0, c0 - 1):min(bw, c1 + 1)] = ring
-            shifts[max(0, r0):min(bh, r1), max(0, c0):min(bw, c1)] = roi.shift
+            share = np.outer(_inside(bh, scale, roi.y0 * height / 64, roi.y1 * height / 64),
+                             _inside(bw, scale, roi.x0 * width / 64, roi.x1 * width / 64))
+            with np.errstate(divide="ignore"):
+                lower = np.floor(np.log2(np.minimum(share / FULL, 1.0)))
+            shifts = np.clip(roi.shift + lower, 0, roi.shift).astype(np.int64)
             out[band.start:band.start + band.size] = shifts.ravel()
         return out
+
+
+def _inside(n: int, spacing: int, lo: float, hi: float) -> NDArray[np.float64]:
+    """For ``n`` coefficients ``spacing`` pixels apart: the share of each one's footprint in
+    the pixel interval ``lo..hi``."""
+    start = (np.arange(n) - REACH) * spacing
+    end = (np.arange(n) + 1 + REACH) * spacing
+    overlap: NDArray[np.float64] = np.clip(np.minimum(end, hi) - np.maximum(start, lo), 0, None)
+    return overlap / (end - start)
 
 
 def _norms_1d(levels: int) -> list[tuple[float, float]]:
