@@ -59,39 +59,29 @@ class Truncated(Exception):
 
 
 class Context:
-    """What the classes of a plane are computed from: significance on the canvases, kept up
-    to date as coefficients become significant."""
+    """What the classes of a plane are computed from, kept up to date as coefficients become
+    significant: which have a significant neighbour on their canvas, which a significant
+    parent (one spare slot at the end takes the marks of neighbours off the canvas)."""
 
     def __init__(self, geometry: Geometry) -> None:
         self.geometry = geometry
-        self.canvas = np.zeros(geometry.size, dtype=bool)
-        self.views = [self.canvas[a:b].reshape(shape) for a, b, shape in
-                      zip(geometry.offsets, geometry.offsets[1:], geometry.shapes,
-                          strict=False)]
+        self.near = np.zeros(geometry.size + 1, dtype=bool)
+        self.under = np.zeros(geometry.size + 1, dtype=bool)
 
     def became(self, positions: Ints) -> None:
         """Coefficients at coding ``positions`` became significant."""
-        self.canvas[self.geometry.order[positions]] = True
+        geometry = self.geometry
+        self.near[geometry.neighbours[positions]] = True
+        self.under[geometry.children(positions)] = True
 
     def classes(self, sig: Bools, only: Bools | None = None) -> list[Ints]:
         """Coding positions not yet significant (and in ``only``, if given), by class: near
         a significant neighbour, under a significant parent, neither."""
-        near = np.empty_like(self.canvas)
-        for view, (a, b) in zip(self.views, zip(self.geometry.offsets,
-                                                self.geometry.offsets[1:], strict=False),
-                                strict=True):
-            row = view.copy()
-            row[:, 1:] |= view[:, :-1]
-            row[:, :-1] |= view[:, 1:]
-            out = near[a:b].reshape(view.shape)
-            out[...] = row
-            out[1:] |= row[:-1]
-            out[:-1] |= row[1:]
-        near_o = near[self.geometry.order]
-        under = sig[self.geometry.parent]
+        near, under = self.near[:-1], self.under[:-1]
         rest = ~sig if only is None else ~sig & only
-        far = rest & ~near_o
-        return [np.flatnonzero(rest & near_o), np.flatnonzero(far & under),
+        close = rest & near
+        far = rest ^ close
+        return [np.flatnonzero(close), np.flatnonzero(far & under),
                 np.flatnonzero(far & ~under)]
 
 

@@ -234,7 +234,7 @@ def _mse_estimate(geo: Geometry, state: Planes | None, scale: F64, pixels: int) 
     if state.complete:
         return min(total / pixels, MSE_CEILING)
     unknown = ~state.significant & luma
-    below = state.below[unknown].astype(np.float64)
+    below = state.below[unknown].astype(np.float64)  # (at most 62: see Planes.below)
     bands = len(geo.bands)
     n_sig = np.bincount(band_of[known], minlength=bands)
     n_not = np.bincount(band_of[unknown], minlength=bands)
@@ -251,10 +251,15 @@ def _mse_estimate(geo: Geometry, state: Planes | None, scale: F64, pixels: int) 
             b = min(b, coarser.get(band.level + 1, b) / 2)
         coarser[band.level] = max(coarser.get(band.level, 0.0), b)
         scales[i] = b
-    b_each = scales[band_of[unknown]]
-    t = np.exp2(below)
-    r = np.exp(-t / b_each)
+    # the coefficients of one band below one threshold share their expected square: sum
+    # their 1 / units by (band, threshold) and weigh each group once
+    group = band_of[unknown] * 64 + state.below[unknown]
+    weights = np.bincount(group, weights=1 / units[unknown])
+    used = np.flatnonzero(weights)
+    b = scales[used // 64]
+    t = np.exp2((used % 64).astype(np.float64))
+    r = np.exp(-t / b)
     # E[x² | x < t] for a Laplacian of scale b
-    mean_sq = 2 * b_each * b_each - (t * t + 2 * b_each * t) * r / np.maximum(1 - r, 1e-12)
-    total += BODY * float((np.maximum(mean_sq, 0.0) / units[unknown]).sum())
+    mean_sq = 2 * b * b - (t * t + 2 * b * t) * r / np.maximum(1 - r, 1e-12)
+    total += BODY * float((np.maximum(mean_sq, 0.0) * weights[used]).sum())
     return min(total / pixels, MSE_CEILING)

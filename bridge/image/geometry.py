@@ -112,6 +112,53 @@ class Geometry:
         return mask
 
     @cached_property
+    def neighbours(self) -> NDArray[np.int32]:
+        """Each coding position's 8 neighbours on its canvas, as coding positions (``size``
+        where the canvas ends)."""
+        inverse = np.empty(self.size + 1, dtype=np.int32)
+        inverse[self.order] = np.arange(self.size, dtype=np.int32)
+        inverse[self.size] = self.size
+        out = np.full((self.size, 8), self.size, dtype=np.int32)
+        offsets = self.offsets
+        for (h, w), start in zip(self.shapes, offsets, strict=False):
+            rr, cc = np.divmod(np.arange(h * w), w)
+            at = inverse[start + np.arange(h * w)]
+            k = 0
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    if dr == dc == 0:
+                        continue
+                    r, c = rr + dr, cc + dc
+                    ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+                    out[at[ok], k] = inverse[start + r[ok] * w + c[ok]]
+                    k += 1
+        return out
+
+    @cached_property
+    def _children(self) -> tuple[Ints, Ints]:
+        """The children of each coding position, grouped by parent: (start of each parent's
+        group, the children in parent order)."""
+        has = self.parent != np.arange(self.size)
+        kids = np.flatnonzero(has)
+        kids = kids[np.argsort(self.parent[kids], kind="stable")]
+        starts = np.searchsorted(self.parent[kids], np.arange(self.size + 1))
+        return starts, kids
+
+    def children(self, positions: Ints) -> Ints:
+        """The coding positions whose parent is one of ``positions``."""
+        starts, kids = self._children
+        first = starts[positions]
+        counts = starts[positions + 1] - first
+        keep = counts > 0
+        first, counts = first[keep], counts[keep]
+        if not first.size:
+            return kids[:0]
+        step = np.ones(int(counts.sum()), dtype=np.int64)  # consecutive within a group,
+        step[0] = first[0]  # and a jump to the next group's first child
+        step[np.cumsum(counts)[:-1]] = first[1:] - first[:-1] - counts[:-1] + 1
+        return kids[np.cumsum(step)]  # type: ignore[no-any-return]
+
+    @cached_property
     def band_of(self) -> Ints:
         """Each coding position's band (its index in :attr:`bands`)."""
         return np.repeat(np.arange(len(self.bands)), [b.size for b in self.bands])
@@ -172,7 +219,7 @@ def _norms(levels: int) -> tuple[tuple[float, float], ...]:
     return tuple(_norms_1d(levels))
 
 
-@lru_cache(maxsize=32)
+@lru_cache(maxsize=8)
 def geometry(height: int, width: int, colour: bool) -> Geometry:
     """The geometry of a ``height`` × ``width`` image (grey, or colour with half-size
     chroma)."""
