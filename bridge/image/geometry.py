@@ -156,7 +156,7 @@ class Geometry:
         step = np.ones(int(counts.sum()), dtype=np.int64)  # consecutive within a group,
         step[0] = first[0]  # and a jump to the next group's first child
         step[np.cumsum(counts)[:-1]] = first[1:] - first[:-1] - counts[:-1] + 1
-        return kids[np.cumsum(step)]  # type: ignore[no-any-return]
+        return kids[np.cumsum(step)]
 
     @cached_property
     def band_of(self) -> Ints:
