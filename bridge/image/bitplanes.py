@@ -116,12 +116,12 @@ class Planes:
         return np.where(self.negative, -mag, mag)
 
 
-def _run_encode(out: list[str], ones: list[int], signs: list[bool], length: int,
+def _run_encode(out: list[str], ones: list[int], signs: list[bool], pos: int, length: int,
                 kp: int) -> int:
-    """Append the run codes of ``length`` decisions whose yes are at ``ones``; ``kp`` is the
-    run parameter in quarters (``k = kp >> 2``); returns the final ``kp``."""
+    """Append the run codes of the decisions ``pos`` up to ``length`` of a pass, whose yes
+    are at ``ones``; ``kp`` is the run parameter in quarters (``k = kp >> 2``); returns the
+    final ``kp``."""
     up, down, steps, codes = _UP, _DOWN, _STEP, _CODE
-    pos = 0
     step = steps[kp]
     append = out.append
     for p, negative in zip(ones, signs, strict=True):
@@ -175,21 +175,22 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
                 continue
             hits = q[cand] >= t
             ones_at = np.flatnonzero(hits)
-            cut = np.searchsorted(cand, starts)
-            cut_ones = np.searchsorted(ones_at, cut)
+            cut_at = np.searchsorted(cand, starts)
+            cut_ones = np.searchsorted(ones_at, cut_at).tolist()
+            cut = cut_at.tolist()
             neg = negative[cand[ones_at]].tolist()
             ones_list = ones_at.tolist()
             sig[cand[ones_at]] = True
             context.became(cand[ones_at])
             for b in range(len(starts) - 1):
-                a, z = int(cut[b]), int(cut[b + 1])
+                a, z = cut[b], cut[b + 1]
                 if a == z:
                     continue
-                oa, oz = int(cut_ones[b]), int(cut_ones[b + 1])
+                oa, oz = cut_ones[b], cut_ones[b + 1]
                 key = (cls, b)
                 out: list[str] = []
-                ks[key] = _run_encode(out, [p - a for p in ones_list[oa:oz]], neg[oa:oz],
-                                      z - a, ks.get(key, 0))
+                ks[key] = _run_encode(out, ones_list[oa:oz], neg[oa:oz], a, z,
+                                      ks.get(key, 0))
                 piece = "".join(out)
                 parts.append(piece)
                 total += len(piece)
