@@ -166,6 +166,17 @@ def check(
                             str(q["request_bits"]), str(q["reply_bits"]),
                             f"≤ {max(deadlines):g} s" if deadlines else "—")
         console.print(queries)
+    if data.get("images"):
+        images = Table("image", "from", "to", "size", "budget", "fragment", "fragments",
+                       "a picture takes", title="image channels (progressive pictures)")
+        for i in data["images"]:
+            took = i["seconds_per_picture"]
+            images.add_row(i["name"], ", ".join(i["from"]), ", ".join(i["to"]),
+                           f"{i['size'][0]}×{i['size'][1]}" + (" colour" if i["colour"] else ""),
+                           f"{i['budget_bytes']} B (≤ {i['max_budget_bytes']} B)",
+                           f"{i['fragment_bytes']} B", str(i["fragments_per_picture"]),
+                           "?" if took is None else f"≤ {took:g} s")
+        console.print(images)
     if data.get("demand"):
         always = [c["name"] for c in data["channels"] if c.get("always")]
         want = counted(data["demand"]["want_entry_bits"], "bit")

@@ -18,6 +18,7 @@ from typing import Any
 
 from bridge.core.events import FrameDropped, FrameReceived, MissionMismatch, PeerRestarted
 from bridge.core.families import Families
+from bridge.core.images import Images
 from bridge.core.interest import Interest
 from bridge.core.link import Links, LinkState
 from bridge.core.mac import Schedule, node_preset
@@ -71,6 +72,7 @@ class Inbound:
         self.interest: Interest | None = outbound.interest
         self.queries = queries
         self.ranges = ranges
+        self.images: Images | None = None  # image channels (set by the node if it has some)
         self.received_at: dict[str, float] = {}
         self.mismatched: dict[str, str] = {}  # peers known to run another mission file
         self._foreign: dict[str, int] = {}  # a peer's last fingerprint not ours
@@ -165,6 +167,9 @@ class Inbound:
         surfacing = self.outbound.surfacing
         if surfacing is not None and src in surfacing.reachable and not channel.stream:
             surfacing.duplicates += 1  # it reaches us over IP at full fidelity
+            return
+        if channel.image is not None and self.images is not None:
+            self.images.entry(src, channel, entry, now)
             return
         if channel.fragmented:
             delivered = self._fragment(src, channel, entry, now)

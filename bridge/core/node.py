@@ -44,7 +44,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from bridge.core.drops import clamps
+from bridge.core.images import Images
 from bridge.core.inbound import Inbound
 from bridge.core.link import Links, LinkThresholds
 from bridge.core.loaded import LoadedMission
@@ -57,6 +57,7 @@ from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
 from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
 from bridge.core.restarts import STATE_VERSION, resumable
+from bridge.core.snapshot import snapshot
 from bridge.errors import DecodeError, MissionError
 from bridge.frozen import direct_init
 from bridge.wire.auth import Authenticator
@@ -147,6 +148,10 @@ class NodeCore:
         self.inbound = Inbound(mission, node, self.codec, outbox, self.schedule, self.links,
                                self.receivers, self.outbound, self.queries, self.ranges,
                                sealed=auth is not None)
+        out = self.outbound  # pictures and operators' controls come in as its samples
+        self.images = out.images = self.inbound.images = Images(
+            table, node, outbox, self.receivers, out.senders, out.drop_payload,
+            out.bindings) if mission.images else None
         # what observers read (the parts' own objects)
         out = self.outbound
         self.store, self.bindings, self.families = out.store, out.bindings, out.families
@@ -369,32 +374,6 @@ class NodeCore:
         return self.outbound.last_tx
 
     def snapshot(self, now: float) -> dict[str, Any]:
-        """Counters and channel ages as plain data."""
-        stats, out = self.stats, self.outbound
-        return {
-            "node": self.node,
-            "time": now,
-            "frames_sent": stats.frames_sent,
-            "frames_received": stats.frames_received,
-            "frames_dropped": dict(stats.frames_dropped),
-            "payloads_dropped": dict(stats.payloads_dropped),
-            "payload_drop_causes": out.drops.causes(),
-            "clamped": clamps(out.bindings),
-            "values_published": stats.values_published,
-            "send_errors": stats.send_errors,
-            "left_out": stats.left_out,
-            "channel_age_s": {s.channel.name: s.age(now) for s in out.store.states.values()},
-            "received_age_s": {k: now - t for k, t in self.received_at.items()},
-            "last_heard": dict(self.last_heard),
-            "links": {peer: state.value for peer, state in self.link_states.items()},
-            "epoch": self.epoch,
-            "state": out.saving.snapshot(),
-            "mismatched_peers": dict(self.mismatched),
-            "unfinished": {s.channel.name: s.pending() for s in out.senders.values()},
-            "sent_per_channel": dict(stats.sent_per_channel), **stats.noticed(),
-            **({"queries": self.queries.snapshot()} if self.queries else {}),
-            **({"surfacing": out.surfacing.snapshot()} if out.surfacing else {}),
-            **({"interest": out.interest.snapshot(self.table)} if out.interest else {}),
-            **({"families": out.families.snapshot(now)} if self.table.names is not None
-               or any(c.family for c in self.table.channels) else {}),
-        }
+        """Counters and channel ages as plain data (:func:`~bridge.core.snapshot.snapshot`)."""
+        return snapshot(self.node, self.epoch, now, self.stats, self.outbound, self.inbound,
+                        self.links, self.queries, self.table)

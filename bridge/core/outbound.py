@@ -23,6 +23,7 @@ from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.drops import DropLedger
 from bridge.core.events import FieldsLeftOut, FrameSent, SendFailed, Surfaced
 from bridge.core.families import Extra, Families
+from bridge.core.images import Images, ImageSender
 from bridge.core.interest import Interest
 from bridge.core.keyspace import Keyspace
 from bridge.core.link import heartbeat_s
@@ -101,6 +102,8 @@ class Outbound:
         self.queries = queries
         self.delays: Delays | None = None
         """The DLBL delays of each frame built (set by the node when it ranges)."""
+        self.images: Images | None = None
+        """The image channels' inputs and controls (set by the node when it has some)."""
         self.frame_bytes = mission.node_modem(node).frame_bytes
         self.heartbeat_s = heartbeat_s(mission)
         self.last_tx: float | None = None
@@ -140,7 +143,8 @@ class Outbound:
         self._left_out: set[tuple[str, tuple[str, ...]]] = set()
         retry_s = default_retry_s(mission)
         self.senders: dict[int, Sender] = {
-            c.index: (TransferSender if c.fragmented else ReliableSender)(
+            c.index: (ImageSender if c.image is not None and not c.image.control
+                      else TransferSender if c.fragmented else ReliableSender)(
                 c, c.destinations(node), retry_s, rng.randrange(SEQ_MOD))
             for c in table.streams if c.index in self.store.states}
         by_name = {s.channel.name: s for s in self.senders.values()}
@@ -159,7 +163,9 @@ class Outbound:
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
         ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs);
         ``attachment``: the sample's, carried by channels with ``attachment_bytes``. A
-        payload over the key's cap is dropped before it is decoded."""
+        payload over the key's cap is dropped before it is decoded (pictures: see Images)."""
+        if self.images is not None and self.images.ingest(key, data, encoding, now, ref):
+            return
         if len(data) > (cap := self.payload_cap(key)):
             self.drop_payload(key, f"{len(data)} bytes, over this key's cap of {cap}", now,
                               "too_large")

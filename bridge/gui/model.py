@@ -34,6 +34,7 @@ from bridge.gui.eventlog import (
     link_line,
     transfer_line,
 )
+from bridge.gui.images import ImageBoard
 from bridge.gui.keys import ChannelSource, StatusKey, SurfaceKeys
 from bridge.wire.payloads import decode_payload
 
@@ -147,6 +148,7 @@ class GuiModel:
         self.keys = SurfaceKeys(loaded, node)
         self.track_points = track_points
         self.commands = {c.channel: c for c in command_channels(loaded, node)}
+        self.images = ImageBoard(loaded, node)
         self.book = CommandBook()
         self.vehicles = {name: VehicleView(name) for name in loaded.mission.nodes}
         self.links: dict[tuple[str, str], Item] = {}
@@ -178,6 +180,7 @@ class GuiModel:
         return {"mission": mission.mission, "node": self.node, "nodes": nodes,
                 "channels": channels,
                 "commands": [c.describe() for c in self.commands.values()],
+                "images": self.images.describe(),
                 "track_points": self.track_points, "sent_after_s": self.book.sent_after_s}
 
     # -- output ------------------------------------------------------------------------------
@@ -206,6 +209,7 @@ class GuiModel:
         items.extend(self.transfers.values())
         items.extend(self.events)
         items.extend(self.book.items())
+        items.extend(self.images.items())
         return items
 
     def emit(self, item: Item) -> None:
@@ -228,6 +232,10 @@ class GuiModel:
                publisher: str | None = None) -> None:
         """One sample the GUI's session received; ``publisher``: the node whose bridge
         published it (from its origin tag; None: an application)."""
+        picture = self.images.ingest(key, data, encoding, now)
+        if picture is not None:
+            self._out.append(picture)
+            return
         status = self.keys.status(key)
         sources = self.keys.lookup(key)
         if status is None and sources is None:

@@ -27,6 +27,7 @@ from pydantic import (
 )
 
 from bridge.mission.fields import FieldSpec
+from bridge.mission.images import ImageChannel
 from bridge.mission.ros2 import Ros2Topic
 
 NodeName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)]
@@ -615,6 +616,8 @@ class Mission(Strict):
                        "encoded: the numeric rule and the .proto include path.")
     channels: list[Channel] = Field(default_factory=list)
     queries: list[Query] = Field(default_factory=list, description="Queries across the water.")
+    images: list[ImageChannel] = Field(default_factory=list, description="Image channels: "
+                                       "progressive pictures (see ImageChannel).")
     max_open_queries: int = Field(4, ge=1, le=16, description="Acoustic queries a node keeps "
                                   "open at once; a further get ends at once with an error.")
 

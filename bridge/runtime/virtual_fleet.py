@@ -181,6 +181,8 @@ class FastFleet:
         ``at``); ``ref`` is its correlation text, echoed in delivery reports."""
         if encoding == "json":
             data, enc = encode_payload(value, encoding)
+        elif isinstance(value, bytes) and encoding != MSGPACK:  # encoded already (a picture)
+            data, enc = value, encoding
         else:  # encode_payload's msgpack, by one packer for the run (one thread)
             data, enc = self._packer.pack(value), MSGPACK
         sample_key = None
