@@ -20,9 +20,9 @@ if TYPE_CHECKING:  # not imported at run time: the tracker pulls in numpy
     from bridge.ranging.tracker import Estimate
 
 __all__ = [
-    "Delivery", "Event", "FrameDropped", "FrameReceived", "FrameSent", "Link", "MissionMismatch",
-    "ModemDown", "PayloadDrops", "PeerRestarted", "Position", "Range", "RangeFailed",
-    "SendFailed", "StateSaving", "Surfaced", "notable",
+    "Delivery", "Event", "FieldsLeftOut", "FrameDropped", "FrameReceived", "FrameSent", "Link",
+    "MissionMismatch", "ModemDown", "PayloadDrops", "PeerRestarted", "Position", "Range",
+    "RangeFailed", "SendFailed", "StateSaving", "Surfaced", "UnmappedKey", "notable",
 ]
 
 
@@ -58,6 +58,31 @@ class PayloadDrops(Event):
         return {"time": self.time, "total": self.total,
                 "drops": [{"key": key, "cause": cause, "count": count, "reason": reason}
                           for key, cause, count, reason in self.drops]}
+
+
+@dataclass(frozen=True, slots=True)
+class FieldsLeftOut(Event):
+    """A sample on an input key had fields no channel carries: they do not cross (reported
+    once per key and set of fields; counted per sample)."""
+
+    kind: ClassVar[str] = "fields_left_out"
+    key: str
+    fields: list[str]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "key": self.key, "fields": self.fields}
+
+
+@dataclass(frozen=True, slots=True)
+class UnmappedKey(Event):
+    """An application put a key under this node's ``keyspace`` that no channel reads
+    (reported once per key; counted per sample)."""
+
+    kind: ClassVar[str] = "unmapped_key"
+    key: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "key": self.key}
 
 
 @direct_init
@@ -285,7 +310,7 @@ class StateSaving(Event):
 
 
 NOTABLE = (Link, FrameDropped, SendFailed, ModemDown, PayloadDrops, MissionMismatch,
-           PeerRestarted, Surfaced, StateSaving)
+           PeerRestarted, Surfaced, StateSaving, FieldsLeftOut, UnmappedKey)
 """Events also published on ``@zab/<mission>/<node>/events`` (with failed deliveries)."""
 
 

@@ -12,7 +12,7 @@ positioning (:class:`~bridge.core.ranges.Ranges`) and queries
 One way in per kind of event, one way out:
 
 =============================================  ============================================
-a sample on an input key                       :meth:`NodeCore.ingest`
+a sample on an input key, or its delete        :meth:`NodeCore.ingest`, :meth:`NodeCore.delete`
 the MAC's next opportunity, and what to do     :meth:`NodeCore.wake_at`, :meth:`NodeCore.act`
 the modem carried that out (or refused)        :meth:`NodeCore.done`
 a frame heard                                  :meth:`NodeCore.receive`
@@ -44,7 +44,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from bridge.core.drops import clamps
+from bridge.core.images import Images
 from bridge.core.inbound import Inbound
 from bridge.core.link import Links, LinkThresholds
 from bridge.core.loaded import LoadedMission
@@ -57,11 +57,13 @@ from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
 from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
 from bridge.core.restarts import STATE_VERSION, resumable
+from bridge.core.snapshot import snapshot
 from bridge.errors import DecodeError, MissionError
 from bridge.frozen import direct_init
 from bridge.wire.auth import Authenticator
 from bridge.wire.goby import frame_codec_for
 from bridge.wire.payloads import decode_payload
+from bridge.wire.seal import KeyRing, frame_authenticator
 
 __all__ = ["Action", "NodeCore", "NodeStats", "OutFrame", "Output", "Ping", "Publish",
            "SendFrame", "Status", "Taken"]
@@ -101,11 +103,11 @@ class NodeCore:
 
     def __init__(self, loaded: LoadedMission, node: str,
                  auth: Authenticator | None = None, rng: random.Random | None = None,
-                 state: Mapping[str, Any] | None = None, key: bytes | None = None,
+                 state: Mapping[str, Any] | None = None, key: bytes | KeyRing | None = None,
                  seed: int | None = None) -> None:
         """``rng`` draws this run's epoch when there is no ``state`` (a fresh one per run by
         default; seeded for a reproducible simulation); ``state``: what :meth:`state` returned
-        in the previous run, to resume from; ``key``: the frame key of an authenticated
+        in the previous run, to resume from; ``key``: the frame key(s) of an authenticated
         mission (the core reads no file and no environment: its runtime loads the key);
         ``seed``: the MAC's random draws (random access backoffs)."""
         mission = self.mission = loaded.mission
@@ -122,8 +124,7 @@ class NodeCore:
             if key is None:
                 raise MissionError(f"{node}: wire.auth is on: give the frame key "
                                    "(the runtime loads it, see bridge.runtime.keys)")
-            auth = Authenticator(key, table.fingerprint, mission.address_of(node),
-                                 wire_auth.tag_bytes, state.get("auth"))
+            auth = frame_authenticator(table, key, mission.address_of(node), state.get("auth"))
         self.auth = auth
         drawn = rng.randrange(EPOCHS)  # (drawn even when resumed: the draws that follow stay)
         self.epoch: int = state.get("epoch", drawn)
@@ -147,6 +148,10 @@ class NodeCore:
         self.inbound = Inbound(mission, node, self.codec, outbox, self.schedule, self.links,
                                self.receivers, self.outbound, self.queries, self.ranges,
                                sealed=auth is not None)
+        out = self.outbound  # pictures and operators' controls come in as its samples
+        self.images = out.images = self.inbound.images = Images(
+            table, node, outbox, self.receivers, out.senders, out.drop_payload,
+            out.bindings) if mission.images else None
         # what observers read (the parts' own objects)
         out = self.outbound
         self.store, self.bindings, self.families = out.store, out.bindings, out.families
@@ -198,11 +203,15 @@ class NodeCore:
 
     # -- samples in ----------------------------------------------------------------------------
 
-    def ingest(self, key: str, data: bytes, encoding: str, now: float,
-               ref: str | None = None, sample_key: str | None = None) -> None:
+    def ingest(self, key: str, data: bytes, encoding: str, now: float, ref: str | None = None,
+               sample_key: str | None = None, attachment: bytes | None = None) -> None:
         """A sample arrived on an input key (``ref``: the publisher's correlation text, echoed
         in delivery reports; ``sample_key``: the sample's own key under a wildcard input)."""
-        self.outbound.ingest(key, data, encoding, now, ref, sample_key)
+        self.outbound.ingest(key, data, encoding, now, ref, sample_key, attachment)
+
+    def delete(self, key: str, now: float) -> None:
+        """A Zenoh delete on an input key: a tombstone for the channels with ``deletes``."""
+        self.outbound.delete(key, now)
 
     def ros2_input(self, key: str) -> Any:
         """The ROS 2 topic read on input ``key``, or None."""
@@ -341,16 +350,17 @@ class NodeCore:
         """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
         self.links.update(now)
 
-    def ask(self, key: str, parameters: Any, now: float) -> Ticket | str:
-        """A Zenoh get on ``key`` with ``parameters`` (a dict): the acoustic query's ticket it
-        waits on (replies come as QueryAnswer / QueryEnd outputs), or why it ends at once."""
+    def ask(self, key: str, parameters: Any, now: float,
+            until: float | None = None) -> Ticket | str:
+        """A Zenoh get on ``key`` with ``parameters`` (a dict), its caller waiting ``until``: the
+        ticket it waits on (replies: QueryAnswer / QueryEnd outputs), or why it ends at once."""
         found = self.queries.spec_for(key) if self.queries is not None else None
         if found is None:
             return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
         spec, server = found
         self.links.update(now)
         return self.queries.ask(spec, server, parameters, now,  # type: ignore[union-attr]
-                                self.links.states.get(server))
+                                self.links.states.get(server), until)
 
     def query_served(self, ticket: tuple[int, str, int], values: list[Any],
                      error: str | None = None) -> None:
@@ -364,32 +374,6 @@ class NodeCore:
         return self.outbound.last_tx
 
     def snapshot(self, now: float) -> dict[str, Any]:
-        """Counters and channel ages as plain data."""
-        stats, out = self.stats, self.outbound
-        return {
-            "node": self.node,
-            "time": now,
-            "frames_sent": stats.frames_sent,
-            "frames_received": stats.frames_received,
-            "frames_dropped": dict(stats.frames_dropped),
-            "payloads_dropped": dict(stats.payloads_dropped),
-            "payload_drop_causes": out.drops.causes(),
-            "clamped": clamps(out.bindings),
-            "values_published": stats.values_published,
-            "send_errors": stats.send_errors,
-            "left_out": stats.left_out,
-            "channel_age_s": {s.channel.name: s.age(now) for s in out.store.states.values()},
-            "received_age_s": {k: now - t for k, t in self.received_at.items()},
-            "last_heard": dict(self.last_heard),
-            "links": {peer: state.value for peer, state in self.link_states.items()},
-            "epoch": self.epoch,
-            "state": out.saving.snapshot(),
-            "mismatched_peers": dict(self.mismatched),
-            "unfinished": {s.channel.name: s.pending() for s in out.senders.values()},
-            "sent_per_channel": dict(stats.sent_per_channel),
-            **({"queries": self.queries.snapshot()} if self.queries else {}),
-            **({"surfacing": out.surfacing.snapshot()} if out.surfacing else {}),
-            **({"interest": out.interest.snapshot(self.table)} if out.interest else {}),
-            **({"families": out.families.snapshot(now)} if self.table.names is not None
-               or any(c.family for c in self.table.channels) else {}),
-        }
+        """Counters and channel ages as plain data (:func:`~bridge.core.snapshot.snapshot`)."""
+        return snapshot(self.node, self.epoch, now, self.stats, self.outbound, self.inbound,
+                        self.links, self.queries, self.table)

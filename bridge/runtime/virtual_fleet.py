@@ -32,12 +32,13 @@ from bridge.errors import EncodeError, FrameError
 from bridge.frozen import direct_init
 from bridge.mission.presets import Preset
 from bridge.modems.base import Reception
-from bridge.runtime.keys import key_for_run
+from bridge.runtime.keys import keys_for_run
 from bridge.runtime.virtual_queries import VirtualQueries
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
 from bridge.sim.scenario import surface_script, water_of
 from bridge.wire.frame import DecodedFrame
 from bridge.wire.payloads import MSGPACK, encode_payload
+from bridge.wire.seal import KeyRing
 
 TICK_S = 1.0
 
@@ -70,7 +71,8 @@ class SharedDecoder:
             self._prints[frame] = found
         return found
 
-    def __call__(self, frame: bytes, src: int | None = None) -> DecodedFrame:
+    def __call__(self, frame: bytes, src: int | None = None,
+                 now: float | None = None) -> DecodedFrame:
         key = (frame, src)
         done = self._kept.get(key)
         if done is None:
@@ -109,7 +111,7 @@ class FastFleet:
         start: float = 0.0,
         on_output: Callable[[Timed], None] | None = None,
         keep_outputs: bool = True,
-        key: bytes | None = None,
+        key: bytes | KeyRing | None = None,
         kinds: tuple[type, ...] = (Publish, Status, Event, Relay),
     ) -> None:
         """``keep_outputs`` false: outputs only go to ``on_output`` (long runs); ``kinds``:
@@ -119,8 +121,7 @@ class FastFleet:
         mission = loaded.mission
         self.key, self.throwaway_key = key, False
         if key is None and mission.wire.auth is not None:
-            self.key, self.throwaway_key = key_for_run(mission.wire.auth.key_env,
-                                                       mission.wire.auth.key_file)
+            self.key, self.throwaway_key = keys_for_run(mission.wire.auth)
         self.loaded = loaded
         self.mission = mission
         water = water_of(loaded, seed, loss, preset)
@@ -180,6 +181,8 @@ class FastFleet:
         ``at``); ``ref`` is its correlation text, echoed in delivery reports."""
         if encoding == "json":
             data, enc = encode_payload(value, encoding)
+        elif isinstance(value, bytes) and encoding != MSGPACK:  # encoded already (a picture)
+            data, enc = value, encoding
         else:  # encode_payload's msgpack, by one packer for the run (one thread)
             data, enc = self._packer.pack(value), MSGPACK
         sample_key = None

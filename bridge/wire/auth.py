@@ -104,14 +104,16 @@ class Authenticator:
         self.counter = counter + 1
         return counter
 
-    def seal(self, frame: bytes) -> bytes:
-        """``frame`` followed by the low half of this node's next counter and the tag."""
+    def seal(self, frame: bytes, now: float | None = None) -> bytes:
+        """``frame`` followed by the low half of this node's next counter and the tag
+        (``now``: unused here; :class:`~bridge.wire.seal.Sealer` chooses its key by it)."""
         counter = self.next_counter()
         data = frame + (counter % _LOW).to_bytes(COUNTER_BYTES, "big")
         return data + self._tag(self.address, counter, data)
 
-    def open(self, sealed: bytes, src: int) -> bytes:
-        """The frame inside ``sealed`` from ``src``; FrameError if forged, altered or replayed."""
+    def open(self, sealed: bytes, src: int, now: float | None = None) -> bytes:
+        """The frame inside ``sealed`` from ``src``; FrameError if forged, altered or replayed
+        (``now``: as for :meth:`seal`)."""
         if len(sealed) < self.overhead_bytes:
             raise FrameError("truncated frame: no room for the counter and tag")
         data, tag = sealed[: -self.tag_bytes], sealed[-self.tag_bytes:]
@@ -119,19 +121,28 @@ class Authenticator:
         mark = self.seen.get(src, -1)
         counter = (mark + 1) + ((low - (mark + 1)) % _LOW)  # first value past the mark
         if counter - mark <= _AHEAD and hmac.compare_digest(tag, self._tag(src, counter, data)):
-            self.seen[src] = counter
-            self.changed = True
-            if self._answered:
-                self._answered.pop(src, None)
+            self._accepted(src, counter)
             return data[:-COUNTER_BYTES]
         behind = counter - _LOW
         if behind >= 0 and hmac.compare_digest(tag, self._tag(src, behind, data)):
-            self._owe(src, behind, mark)
-            raise FrameError(f"replayed frame: counter {behind} from {src} is not past "
-                             f"{mark} (a replay, or a sender restarted without its state: "
-                             "told where to resume)", "replayed")
+            raise self._replayed(src, behind, mark)
         raise FrameError("forged or altered frame: the authentication tag does not match",
                          "forged")
+
+    def _accepted(self, src: int, counter: int) -> None:
+        """A frame of ``src`` sealed with ``counter`` opened: its mark moves there."""
+        self.seen[src] = counter
+        self.changed = True
+        if self._answered:
+            self._answered.pop(src, None)
+
+    def _replayed(self, src: int, behind: int, mark: int) -> FrameError:
+        """Why a frame of ``src`` sealed with ``behind``, at or below ``mark``, is refused
+        (``src`` is owed its mark)."""
+        self._owe(src, behind, mark)
+        return FrameError(f"replayed frame: counter {behind} from {src} is not past {mark} (a "
+                          "replay, or a sender restarted without its state: told where to "
+                          "resume)", "replayed")
 
     # -- a sender that lost its state ----------------------------------------------------------
 

@@ -130,7 +130,8 @@ class GobyFrameCodec(FrameCodec):
         return None
 
     def encode(self, items: Sequence[tuple[WireCodec, int]],
-               delays: Sequence[int | None] = (), epoch: int = 0) -> bytes:
+               delays: Sequence[int | None] = (), epoch: int = 0,
+               now: float | None = None) -> bytes:
         """The DCCL messages of ``items`` (payload ints as from ``ChannelCodec.pack``),
         concatenated without their padding."""
         out = []
@@ -143,7 +144,8 @@ class GobyFrameCodec(FrameCodec):
             out.append(data[:used])
         return b"".join(out)
 
-    def decode(self, frame: bytes, src: int | None = None) -> DecodedFrame:
+    def decode(self, frame: bytes, src: int | None = None,
+               now: float | None = None) -> DecodedFrame:
         """Messages as Goby3 decodes them; ``FrameError`` if not even the first decodes."""
         if not isinstance(frame, bytes | bytearray | memoryview):
             raise FrameError(f"a frame is bytes, not {type(frame).__name__}")
