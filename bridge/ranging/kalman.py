@@ -90,3 +90,12 @@ def turned(x: Sequence[float], p: Sequence[Sequence[float]],
     m33 = s * s * p22 - 2 * c * s * p23 + c * c * p33
     return [x0, x1, c * vx + s * vy, c * vy - s * vx], [
         [p00, p01, m02, m03], [p01, p11, m12, m13], [m02, m12, m22, m23], [m03, m13, m23, m33]]
+
+
+def widen(p: Matrix, at: int, ux: float, uy: float, variance: float) -> None:
+    """Add ``variance·u·uᵀ`` to ``p``'s 2×2 block of the position (``at`` 0) or the velocity
+    (``at`` 2), in place: an uncertainty along ``u`` (a unit vector, or a change to scale)."""
+    p[at][at] += variance * ux * ux
+    p[at][at + 1] += variance * ux * uy
+    p[at + 1][at] += variance * ux * uy
+    p[at + 1][at + 1] += variance * uy * uy

@@ -1271,14 +1271,13 @@ class RangeTracker:
             c, s = math.cos(a), math.sin(a)
             x[2], x[3] = c * vx + s * vy, c * vy - s * vx  # clockwise, as headings go
             norm = math.hypot(x[2], x[3]) or 1.0
-            ax, ay = x[2] / norm, x[3] / norm  # along the new velocity (across: -ay, ax)
+            ax, ay = x[2] / norm, x[3] / norm  # along the new velocity (none: no spread)
             along = (JUMP_SPEED_SHARE * speed) ** 2
             across = (speed * math.tan(math.radians(cfg.jump_ring_deg / 2))) ** 2
-            sxx, sxy = along * ax * ax + across * ay * ay, (along - across) * ax * ay
-            syy = along * ay * ay + across * ax * ax
-            p[0][2:] = p[1][2:] = p[2][:2] = p[3][:2] = [0.0, 0.0]
-            p[2][2:], p[3][2:] = [sxx, sxy], [sxy, syy]
-            change = (x[2] - vx) ** 2 + (x[3] - vy) ** 2 + sxx + syy
+            p[0][2:] = p[1][2:] = p[2][:2] = p[3][:2] = p[2][2:] = p[3][2:] = [0.0, 0.0]
+            kalman.widen(p, 2, ax, ay, along)  # the velocity: the turn's alone
+            kalman.widen(p, 2, -ay, ax, across)
+            change = (x[2] - vx) ** 2 + (x[3] - vy) ** 2 + p[2][2] + p[3][3]
         when = change / 2 * gap * gap / 12  # when in the gap it turned
         p[0][0] += when
         p[1][1] += when
@@ -1521,11 +1520,7 @@ def _turn(hyp: _Hypothesis, angle: float, since_s: float) -> None:
     cx, cy = x[2] - vx, x[3] - vy  # what the prediction since the turn missed, per second
     x[0] += cx * since / 2
     x[1] += cy * since / 2
-    when = since**2 / 12
-    p[0][0] += cx * cx * when
-    p[0][1] += cx * cy * when
-    p[1][0] += cx * cy * when
-    p[1][1] += cy * cy * when
+    kalman.widen(p, 0, cx, cy, since**2 / 12)
     hyp.x, hyp.p = np.array(x), np.array(p)
 
 

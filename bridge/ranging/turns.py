@@ -64,16 +64,10 @@ class TurnMixture:
         when = gap**2 / 12  # the variance of when in the gap, per (m/s)² of change
         for angle in self.angles:
             x, p = kalman.turned(base.x.tolist(), base.p.tolist(), angle)
-            ux, uy = x[2] / speed, x[3] / speed  # along the new velocity; across: (-uy, ux)
-            p[2][2] += along * ux * ux + across * uy * uy
-            p[2][3] += (along - across) * ux * uy
-            p[3][2] += (along - across) * ux * uy
-            p[3][3] += along * uy * uy + across * ux * ux
-            cx, cy = x[2] - float(v[0]), x[3] - float(v[1])
-            p[0][0] += cx * cx * when
-            p[0][1] += cx * cy * when
-            p[1][0] += cx * cy * when
-            p[1][1] += cy * cy * when
+            ux, uy = x[2] / speed, x[3] / speed  # along the new velocity
+            kalman.widen(p, 2, ux, uy, along)
+            kalman.widen(p, 2, -uy, ux, across)
+            kalman.widen(p, 0, x[2] - float(v[0]), x[3] - float(v[1]), when)
             comp = _clone(base)
             comp.x, comp.p = np.array(x), np.array(p)
             remember(comp, comp.time, v)
