@@ -92,10 +92,19 @@ def turned(x: Sequence[float], p: Sequence[Sequence[float]],
         [p00, p01, m02, m03], [p01, p11, m12, m13], [m02, m12, m22, m23], [m03, m13, m23, m33]]
 
 
-def widen(p: Matrix, at: int, ux: float, uy: float, variance: float) -> None:
-    """Add ``variance·u·uᵀ`` to ``p``'s 2×2 block of the position (``at`` 0) or the velocity
-    (``at`` 2), in place: an uncertainty along ``u`` (a unit vector, or a change to scale)."""
-    p[at][at] += variance * ux * ux
-    p[at][at + 1] += variance * ux * uy
-    p[at + 1][at] += variance * ux * uy
-    p[at + 1][at + 1] += variance * uy * uy
+def spread(p: Matrix, ux: float, uy: float, along: float, across: float) -> None:
+    """Add a turn's uncertainty to ``p``'s velocity block, in place: ``along`` (a variance)
+    along the unit vector ``u`` (the speed) and ``across`` across it (the heading)."""
+    p[2][2] += along * ux * ux + across * uy * uy
+    p[2][3] += (along - across) * ux * uy
+    p[3][2] += (along - across) * ux * uy
+    p[3][3] += along * uy * uy + across * ux * ux
+
+
+def widen(p: Matrix, cx: float, cy: float, when: float) -> None:
+    """Add ``when·c·cᵀ`` to ``p``'s position block, in place: a change of velocity ``c``
+    made at a time of variance ``when`` (s²) within a gap."""
+    p[0][0] += cx * cx * when
+    p[0][1] += cx * cy * when
+    p[1][0] += cx * cy * when
+    p[1][1] += cy * cy * when

@@ -1275,8 +1275,7 @@ class RangeTracker:
             along = (JUMP_SPEED_SHARE * speed) ** 2
             across = (speed * math.tan(math.radians(cfg.jump_ring_deg / 2))) ** 2
             p[0][2:] = p[1][2:] = p[2][:2] = p[3][:2] = p[2][2:] = p[3][2:] = [0.0, 0.0]
-            kalman.widen(p, 2, ax, ay, along)  # the velocity: the turn's alone
-            kalman.widen(p, 2, -ay, ax, across)
+            kalman.spread(p, ax, ay, along, across)  # the velocity: the turn's alone
             change = (x[2] - vx) ** 2 + (x[3] - vy) ** 2 + p[2][2] + p[3][3]
         when = change / 2 * gap * gap / 12  # when in the gap it turned
         p[0][0] += when
@@ -1520,7 +1519,7 @@ def _turn(hyp: _Hypothesis, angle: float, since_s: float) -> None:
     cx, cy = x[2] - vx, x[3] - vy  # what the prediction since the turn missed, per second
     x[0] += cx * since / 2
     x[1] += cy * since / 2
-    kalman.widen(p, 0, cx, cy, since**2 / 12)
+    kalman.widen(p, cx, cy, since**2 / 12)
     hyp.x, hyp.p = np.array(x), np.array(p)
 
 

@@ -65,9 +65,8 @@ class TurnMixture:
         for angle in self.angles:
             x, p = kalman.turned(base.x.tolist(), base.p.tolist(), angle)
             ux, uy = x[2] / speed, x[3] / speed  # along the new velocity
-            kalman.widen(p, 2, ux, uy, along)
-            kalman.widen(p, 2, -uy, ux, across)
-            kalman.widen(p, 0, x[2] - float(v[0]), x[3] - float(v[1]), when)
+            kalman.spread(p, ux, uy, along, across)
+            kalman.widen(p, x[2] - float(v[0]), x[3] - float(v[1]), when)
             comp = _clone(base)
             comp.x, comp.p = np.array(x), np.array(p)
             remember(comp, comp.time, v)
