@@ -250,6 +250,11 @@ class _Hypothesis:
     pending_until: float = 0.0  # ... kept apart until then (:meth:`RangeTracker._turned_since`)
 
 
+_Taken = tuple[RangeObs, Vector, Matrix, float, float, float, bool]
+"""A range taken again: the observation, the state before it (a vector, a covariance, its
+time), and the log-likelihood, NIS and acceptance it had."""
+
+
 @dataclass
 class _Step:
     """One range as a hypothesis took it: its state just before, and what the range did."""
@@ -1099,9 +1104,17 @@ class RangeTracker:
         return h, [j0, j1, j2, j3]
 
     def _range_update(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
-        """EKF update with one range; (NIS, accepted). The weight takes the likelihood. In
-        plain floats from the prediction to the last iteration (every trial takes it)."""
-        x, p, t = hyp.x.tolist(), hyp.p.tolist(), hyp.time
+        """EKF update with one range; (NIS, accepted). The weight takes the likelihood."""
+        x, p, hyp.time, nis, ok = self._ranged(hyp, hyp.x.tolist(), hyp.p.tolist(), hyp.time,
+                                               obs)
+        hyp.x, hyp.p = np.array(x), np.array(p)
+        return nis, ok
+
+    def _ranged(self, hyp: _Hypothesis, x: Vector, p: Matrix, t: float,
+                obs: RangeObs) -> tuple[Vector, Matrix, float, float, bool]:
+        """:meth:`_range_update` of ``hyp``'s state ``(x, p)`` at ``t``, in plain floats from
+        the prediction to the last iteration (every trial takes it): ``(x, p, t, NIS,
+        accepted)``, ``hyp``'s weight taking the likelihood."""
         if obs.time > t:
             x, p = kalman.predicted(x, p, obs.time - t, *self._accel(obs.time))
             t = obs.time
@@ -1124,8 +1137,7 @@ class RangeTracker:
                 x, p, _ = kalman.updated(x0, p0, obs.range_m - h_i - lin, (j0, j1, j2, j3), r)
                 if math.hypot(x[0] - xi[0], x[1] - xi[1]) < 1e-3:
                     break
-        hyp.x, hyp.p, hyp.time = np.array(x), np.array(p), t
-        return nis, ok
+        return x, p, t, nis, ok
 
     def _range_sigma(self, range_m: float) -> float:
         """The range noise expected at ``range_m``: the profile's (``range_sigma_at``) if it
@@ -1182,7 +1194,7 @@ class RangeTracker:
         track) none is taken: the estimate stays and only its published covariance spreads
         over the turns. Returns the latest range's (NIS, accepted) if one was taken."""
         cfg = self.config
-        best: tuple[float, int, list[tuple[float, _Hypothesis, list[_Step]]]] | None = None
+        best: tuple[float, int, list[tuple[float, _Hypothesis, list[_Taken]]]] | None = None
         ring = cfg.jump_ring_deg
         turns = [ring * k for k in range(1, round(360 / ring))]
         pool: list[tuple[float, _Hypothesis]] = []  # every gap's turns, log-odds on none
@@ -1209,7 +1221,8 @@ class RangeTracker:
             return None
         top = max(t[0] for t in tried)
         weights = [math.exp(t[0] - top) for t in tried]
-        _, trial, redone = tried[max(range(len(tried)), key=weights.__getitem__)]
+        _, trial, taken = tried[max(range(len(tried)), key=weights.__getitem__)]
+        redone = _steps(taken, trial.turns)
         # the estimate: every gap's turns (and none), weighted by how well they explain the
         # ranges; the turn's time is as uncertain as its direction, and the spread says so
         # ... each on the side the track committed to (without a compass an image fits alike)
@@ -1251,11 +1264,11 @@ class RangeTracker:
         return half
 
     def _refilter(self, hyp: _Hypothesis, j: int, turn_deg: float | None,
-                  half: _Hypothesis) -> tuple[float, _Hypothesis, list[_Step]]:
+                  half: _Hypothesis) -> tuple[float, _Hypothesis, list[_Taken]]:
         """The ranges from ``hyp.steps[j]`` on, refiltered as if the vehicle had turned by
         ``turn_deg`` (clockwise; None: changed its velocity by up to its speed, each axis)
         halfway between the range before and that one (``half``, :meth:`_halfway`):
-        (log-likelihood, state, steps)."""
+        (log-likelihood, state, what each range did)."""
         cfg = self.config
         step = hyp.steps[j]
         gap = max(step.obs.time - step.time, 0.0)
@@ -1283,15 +1296,27 @@ class RangeTracker:
         trial = _Hypothesis(np.array(x), np.array(p), half.time, 0.0, hyp.heading,
                             hyp.heading_time, list(step.turns))
         _remember_turn(trial, trial.time, np.array((vx, vy)), cfg.max_lag_s)
-        redone: list[_Step] = []
-        for old in hyp.steps[j:]:
-            again = _Step(old.obs, trial.x.copy(), trial.p.copy(), trial.time, list(trial.turns),
-                          0.0, 0.0, False)
+        taken = self._retake(trial, hyp.steps[j:])
+        return trial.log_w, trial, taken
+
+    def _redo(self, trial: _Hypothesis, steps: list[_Step]) -> list[_Step]:
+        """``steps``' ranges taken again by ``trial`` (which moves on with them), each a new
+        step."""
+        return _steps(self._retake(trial, steps), trial.turns)
+
+    def _retake(self, trial: _Hypothesis, steps: list[_Step]) -> list[_Taken]:
+        """``steps``' ranges taken again by ``trial`` (which moves on with them), the state
+        carried from one to the next in plain floats; each range's :data:`_Taken` (made
+        into steps, :func:`_steps`, for the trial kept alone)."""
+        x, p, t = trial.x.tolist(), trial.p.tolist(), trial.time
+        taken: list[_Taken] = []
+        for old in steps:
             log_w = trial.log_w
-            again.nis, again.accepted = self._range_update(trial, old.obs)
-            again.loglik = trial.log_w - log_w
-            redone.append(again)
-        return trial.log_w, trial, redone
+            after, p_after, t_after, nis, ok = self._ranged(trial, x, p, t, old.obs)
+            taken.append((old.obs, x, p, t, trial.log_w - log_w, nis, ok))
+            x, p, t = after, p_after, t_after
+        trial.x, trial.p, trial.time = np.array(x), np.array(p), t
+        return taken
 
     def _turned_since(self, hyp: _Hypothesis, angle: float, t: float) -> None:
         """The compass says the vehicle turned clockwise by ``angle`` since its last heading:
@@ -1325,14 +1350,7 @@ class RangeTracker:
             change = trial.x[2:] - before
             trial.p[:2, :2] += np.outer(change, change) * gap**2 / 12  # when in the gap
             _remember_turn(trial, trial.time, before, cfg.max_lag_s)
-            redone = []
-            for old in hyp.steps[j:]:
-                again = _Step(old.obs, trial.x.copy(), trial.p.copy(), trial.time,
-                              list(trial.turns), 0.0, 0.0, False)
-                log_w = trial.log_w
-                again.nis, again.accepted = self._range_update(trial, old.obs)
-                again.loglik = trial.log_w - log_w
-                redone.append(again)
+            redone = self._redo(trial, hyp.steps[j:])
             self._predict(trial, t)
             trial.steps = hyp.steps[:j] + redone
             earlier = sum(hyp.steps[k].loglik for k in window if k < j)
@@ -1499,6 +1517,12 @@ def _displacement(t_state: float, t_leg: float,
         return t_leg - t_state, ox, oy
     back = t - t_leg
     return m, ox - back * float(held[0]), oy - back * float(held[1])
+
+
+def _steps(taken: list[_Taken], turns: list[tuple[float, np.ndarray]]) -> list[_Step]:
+    """The steps of ranges taken (:meth:`RangeTracker._retake`) under ``turns``."""
+    return [_Step(obs, np.array(x), np.array(p), t, list(turns), loglik, nis, ok)
+            for obs, x, p, t, loglik, nis, ok in taken]
 
 
 def _remember_turn(hyp: _Hypothesis, when: float, before: np.ndarray, keep_s: float) -> None:
