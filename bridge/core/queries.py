@@ -29,18 +29,19 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.core.bounds import UNBOUNDED_TURN_S, round_trip_s
 from bridge.core.builder import Candidate
 from bridge.core.families import Extra
 from bridge.core.link import LinkState
 from bridge.core.mac import frame_time_s, mac_report
 from bridge.errors import EncodeError
 from bridge.mission.model import Mission
+from bridge.mission.network import Network
 from bridge.wire.channels import ChannelTable
 from bridge.wire.queries import QID_BITS, QueryCodec, QuerySpec, ReplyStatus
 
 LOCAL_GET_S = 1.0  # time the serving bridge allows its local get, within the deadline
 ANSWERS_KEPT = 32  # answers a serving node keeps for repeated requests (oldest go first)
-UNBOUNDED_TURN_S = 30.0  # a node's wait for a turn when the MAC gives no bound
 
 Ticket = tuple[int, str, int]  # (query index, serving node, query id) at the asking node
 Served = tuple[int, str, int]  # (query index, asking node, query id) at the serving node
@@ -80,6 +81,8 @@ def deadline_s(mission: Mission, spec: QuerySpec, asker: str, server: str) -> fl
     longest wait for a turn and its frame, the same for the server, and its local get."""
     if spec.timeout_s is not None:
         return spec.timeout_s
+    if mission.links is not None or any(n.routes for n in mission.nodes.values()):
+        return round(LOCAL_GET_S + round_trip_s(Network(mission), asker, server), 3)
     total = LOCAL_GET_S
     for node in (asker, server):
         worst = mac_report(mission, node, None).worst_interval_s
@@ -90,7 +93,10 @@ def deadline_s(mission: Mission, spec: QuerySpec, asker: str, server: str) -> fl
 
 def retry_s(mission: Mission, asker: str, server: str) -> float:
     """How long after sending a request the asker waits before repeating it: the earliest a
-    reply could be back (its frame and the server's)."""
+    reply could be back (its frame and the server's; with several links or routes, half the
+    longest round trip)."""
+    if mission.links is not None or any(n.routes for n in mission.nodes.values()):
+        return round(round_trip_s(Network(mission), asker, server) / 2, 3)
     return round(sum(frame_time_s(mission, n) or 0.0 for n in (asker, server)), 3)
 
 
@@ -147,6 +153,8 @@ class Queries:
     answers: dict[Served, Answered] = field(default_factory=dict)
     repeats: bool = True
     answers_kept: int = ANSWERS_KEPT
+    explain: Callable[[str, float], str | None] | None = None
+    """Where the route to a server breaks (nodes behind relays): added to a timeout."""
 
     def __post_init__(self) -> None:
         codecs = self.table.query_codecs
@@ -225,11 +233,11 @@ class Queries:
                 codec = self.requests[item.ticket[0]]
                 server = self.table.nodes.index(item.ticket[1])
                 bits = codec.pack(item.ticket[2], server, item.packed)
-                out.append(Candidate(codec, None, Extra(codec, bits, self._marker(item)),
-                                     item.ticket[2]))
+                out.append(Candidate(codec, None, Extra(codec, bits, self._marker(item),
+                                                        item.ticket[1]), item.ticket[2]))
         for n, (codec, bits, served) in enumerate(self.replies):
-            out.append(Candidate(codec, None, Extra(codec, bits, self._unqueue(served, bits)),
-                                 n))
+            out.append(Candidate(codec, None, Extra(codec, bits, self._unqueue(served, bits),
+                                                    served[1]), n))
         return out
 
     def _marker(self, item: Open) -> Callable[[float], None]:
@@ -303,9 +311,11 @@ class Queries:
         for ticket, item in list(self.open.items()):
             if now >= item.deadline:
                 spec = self.table.queries[ticket[0]]
+                why = self.explain(ticket[1], now) if self.explain is not None else None
                 self._end(ticket, f"{ticket[1]}: no reply to query {spec.name!r} within "
                           f"{deadline_s(self.mission, spec, self.node, ticket[1]):g} s "
-                          + ("(its timeout_s)" if spec.timeout_s else "(the MAC's bound)"))
+                          + ("(its timeout_s)" if spec.timeout_s else "(the MAC's bound)")
+                          + (f"; {why}" if why else ""))
         for served, answered in list(self.answers.items()):
             if now >= answered.expires:
                 del self.answers[served]

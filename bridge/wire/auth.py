@@ -18,6 +18,11 @@ so a restarted sender resumes past every counter it may have used. At ten frames
 high half from it: the candidate is the first value above that mark with the received low half,
 so a sender may run up to 2**31 frames ahead of what a receiver last heard. A frame whose
 counter is at or below the mark is refused as replayed — also after either end restarts.
+
+With several links or relays a sender's frames may arrive out of order (a frame over RF
+overtakes one over acoustics). Such missions give the receiver a *window*: a counter up to
+``window - 1`` below the mark is accepted once, as IPsec's anti-replay window does (a bitmap
+per sender says which of them arrived; saved with the mark).
 """
 
 from __future__ import annotations
@@ -45,7 +50,8 @@ class Authenticator:
     """
 
     def __init__(self, key: bytes, fingerprint: bytes, address: int, tag_bytes: int,
-                 state: dict[str, Any] | None = None) -> None:
+                 state: dict[str, Any] | None = None, window: int = 0) -> None:
+        """``window``: counters below a sender's mark still accepted once (0: none)."""
         if len(key) < 16:
             raise MissionError("the frame key must be at least 16 bytes long")
         self._key = key
@@ -56,6 +62,9 @@ class Authenticator:
         self.counter = int(state.get("reserved", 0))  # the next counter to use
         self.reserved = self.counter  # counters below this are saved as used
         self.seen: dict[int, int] = {int(k): int(v) for k, v in state.get("seen", {}).items()}
+        self.window = window
+        self.late: dict[int, int] = {int(k): int(v) for k, v in state.get("late", {}).items()}
+        """Per sender, bit i set: the counter i below its mark arrived (with a window)."""
         self.changed = False
 
     @property
@@ -64,7 +73,11 @@ class Authenticator:
 
     def state(self) -> dict[str, Any]:
         """What must survive a restart: the reservation and the receive window (plain data)."""
-        return {"reserved": self.reserved, "seen": {str(k): v for k, v in self.seen.items()}}
+        state: dict[str, Any] = {"reserved": self.reserved,
+                                 "seen": {str(k): v for k, v in self.seen.items()}}
+        if self.window:
+            state["late"] = {str(k): v for k, v in self.late.items()}
+        return state
 
     def _tag(self, src: int, counter: int, data: bytes) -> bytes:
         mac = hmac.new(self._key, self._fingerprint + src.to_bytes(2, "big")
@@ -98,10 +111,18 @@ class Authenticator:
         counter = (mark + 1) + ((low - (mark + 1)) % _LOW)  # first value past the mark
         if counter - mark <= _AHEAD and hmac.compare_digest(tag, self._tag(src, counter, data)):
             self.seen[src] = counter
+            if self.window:
+                self.late[src] = ((self.late.get(src, 0) << (counter - mark)) | 1) \
+                    & ((1 << self.window) - 1)
             self.changed = True
             return data[:-COUNTER_BYTES]
         behind = counter - _LOW
         if behind >= 0 and hmac.compare_digest(tag, self._tag(src, behind, data)):
+            late, below = self.late.get(src, 0), mark - behind
+            if below < self.window and not late >> below & 1:  # overtaken: once
+                self.late[src] = late | 1 << below
+                self.changed = True
+                return data[:-COUNTER_BYTES]
             raise FrameError(f"replayed frame: counter {behind} from {src} is not past "
                              f"{mark} (a replay, or a sender restarted without its state)",
                              "replayed")

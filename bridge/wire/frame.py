@@ -152,9 +152,11 @@ class FrameCodec:
         items: Sequence[tuple[ChannelCodec | AckCodec, int]],
         delays: Sequence[int | None] = (),
         epoch: int = 0,
+        prefix: bytes = b"",
     ) -> bytes:
         """A frame carrying ``(channel, entry bits)`` items, for DLBL the delays, and in
-        missions with streams the sender's ``epoch``."""
+        missions with streams the sender's ``epoch``; ``prefix`` (a network header,
+        bridge.wire.network) goes before it, covered by the check but not sealed."""
         if len(delays) != self.delay_count:
             raise ValueError(f"expected {self.delay_count} DLBL delays, got {len(delays)}")
         acc, nbits = 0, 0
@@ -179,6 +181,7 @@ class FrameCodec:
             if self.auth is None:
                 raise ValueError("this mission authenticates frames: no Authenticator given")
             data = self.auth.seal(data)
+        data = prefix + data
         return data + check_value(data, self.table.fingerprint)
 
     # -- decode --------------------------------------------------------------------------------
@@ -191,23 +194,26 @@ class FrameCodec:
         body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
         return binascii.crc_hqx(body, 0xFFFF) ^ int.from_bytes(check, "big")
 
-    def decode(self, frame: bytes, src: int | None = None) -> DecodedFrame:
+    def decode(self, frame: bytes, src: int | None = None, start: int = 0) -> DecodedFrame:
         """Parse untrusted bytes; raise :class:`FrameError` for anything but a valid frame.
 
-        Authenticated missions need ``src``, the sender's modem address.
+        Authenticated missions need ``src``, the sender's modem address; ``start``: bytes of
+        network header before the frame (the check covers them too).
         """
         if frame.__class__ is not bytes:
             if not isinstance(frame, bytes | bytearray | memoryview):
                 raise FrameError(f"a frame is bytes, not {type(frame).__name__}")
             frame = bytes(frame)
-        if len(frame) < self.min_frame_bytes:
-            raise FrameError(f"truncated frame: {len(frame)} bytes, at least "
+        if len(frame) - start < self.min_frame_bytes:
+            raise FrameError(f"truncated frame: {len(frame) - start} bytes, at least "
                              f"{self.min_frame_bytes} needed")
         body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
         fingerprint = binascii.crc_hqx(body, 0xFFFF) ^ int.from_bytes(check, "big")
         if fingerprint != self.fingerprint16:
             raise FrameError("check failed: corrupt frame, or sent with another mission file "
                              f"(fingerprint {fingerprint:04x})", "check", fingerprint)
+        if start:
+            body = body[start:]
         if self.auth_bytes:
             if self.auth is None or src is None:
                 raise FrameError("cannot authenticate: no key or no sender address", "forged")
