@@ -173,6 +173,10 @@ def check(
                       f"{n['frame_bytes']} B", f"{n['fill']:.0%}", airtime, " ".join(n["listen"]))
     console.print(nodes)
     _print_mac(data)
+    if data.get("network"):
+        from bridge.cli.check_network import print_network
+
+        print_network(console, data["network"])
     for s in data["streams"]:
         retries = "no retry limit" if s["retries"] is None else f"{s['retries']} retries"
         console.print(

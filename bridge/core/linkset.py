@@ -88,9 +88,8 @@ class LinkSet:
         self.stores = [side.store for side in self.sides.values()]
         net = table.net
         if net is not None:
-            relayed = network.relayed(node)
             for side in self.sides.values():
-                through = [d for d in relayed if network.next_hop(node, d) in side.peers]
+                through = network.routed_over(node, side.name)
                 side.header_bytes = net.routed_bytes if through else net.plain_bytes
                 side.room = min([side.frame_bytes, *(network.path_frame_bytes(node, d)
                                                      for d in through)]) - side.header_bytes

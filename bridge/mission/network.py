@@ -131,6 +131,11 @@ class Network:
         return tuple(d for d in self.mission.nodes
                      if d != node and (hop := self.next_hop(node, d)) is not None and hop != d)
 
+    def routed_over(self, node: str, link: str) -> tuple[str, ...]:
+        """The destinations ``node`` reaches through a relay it hands them to on ``link``."""
+        members = self.link(link).members
+        return tuple(d for d in self.relayed(node) if self.next_hop(node, d) in members)
+
     def path_frame_bytes(self, node: str, dest: str) -> int:
         """The largest frame every link on the path from ``node`` to ``dest`` carries (the
         smallest of each hop's links)."""
