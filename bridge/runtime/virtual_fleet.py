@@ -37,7 +37,7 @@ from bridge.modems.base import Reception
 from bridge.runtime.keys import key_for_run
 from bridge.runtime.virtual_queries import VirtualQueries
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
-from bridge.sim.scenario import surface_script, water_of, waters_of
+from bridge.sim.scenario import surface_script, water_of, water_stats, waters_of
 from bridge.wire.frame import DecodedFrame
 from bridge.wire.payloads import MSGPACK, encode_payload
 
@@ -386,6 +386,10 @@ class FastFleet:
                 core.tick(now)
                 collect(name, core)
         self._next_tick = now + TICK_S
+
+    def water_stats(self) -> dict[str, Any]:
+        """The counters of every link's water (:func:`~bridge.sim.scenario.water_stats`)."""
+        return water_stats({link: ocean.stats() for link, ocean in self.oceans.items()})
 
     @property
     def schedules(self) -> dict[str, Schedule]:

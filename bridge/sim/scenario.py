@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from bridge.core.loaded import LoadedMission
 from bridge.core.positioning import simulated_preset
@@ -47,6 +49,15 @@ def waters_of(loaded: LoadedMission, seed: int | None = None,
     first link's is the mission's)."""
     return {link.name: _water(link.view, None if seed is None else seed + i, loss, None)
             for i, link in enumerate(loaded.network.links)}
+
+
+def water_stats(stats: Mapping[str | None, dict[str, Any]]) -> dict[str, Any]:
+    """The counters of a mission's waters as one: its one water's, or with several links
+    each link's rows named by ``link`` (and each water's counters under ``per_link``)."""
+    if len(stats) == 1:
+        return next(iter(stats.values()))
+    return {"links": [{**row, "link": link} for link, one in stats.items()
+                      for row in one["links"]], "per_link": dict(stats)}
 
 
 def _water(mission: Mission, seed: int | None, loss: float | None,
