@@ -14,8 +14,9 @@ hops, life, age and rank. A node that hears a routed frame
    through this one (every node knows every node's routes: they are in the mission file) —
    the same bytes behind a rewritten header (``for`` narrowed to those nodes, one more hop,
    its life and age moved on by the time it waited here), queued on the link this node's
-   policy chooses for their next hop. A frame past the mission's ``max_hops`` is not
-   forwarded (``hop_limit``), nor one whose life ran out while it waited (``expired``).
+   policy chooses for their next hop. A frame that would take more than the mission's
+   ``max_hops`` transmissions is not forwarded (``hop_limit``), nor one whose life ran out
+   while it waited (``expired``).
 
 A relay spends its own transmit opportunities on what it carries: at each one it fills the
 transmission with the frames it carries, highest rank first (then the oldest), and its own
@@ -167,9 +168,9 @@ class Routing:
                 and self.network.next_hop(src, self.nodes[i]) == self.node]
         if not mine:
             return
-        if header.hops + 1 > self.max_hops:
+        if header.hops + 2 > self.max_hops:  # (it came over hops + 1 transmissions)
             self._dropped(src, "hop_limit", f"frame of {arrival.origin} after "
-                          f"{header.hops} hops (max_hops {self.max_hops})", now)
+                          f"{header.hops + 1} hops (max_hops {self.max_hops})", now)
             return
         frame = data[arrival.start:-CHECK_BYTES]
         by_link: dict[str, list[str]] = {}

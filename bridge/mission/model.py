@@ -559,8 +559,9 @@ class Mission(Strict):
     links: dict[NodeName, LinkSpec] | None = Field(
         None, description="Several links (instead of ``modem`` and ``mac``): each a modem "
         "kind with its own frame size and MAC, by name (see docs/concepts.md).")
-    max_hops: int = Field(3, ge=1, le=7, description="Most hops a frame takes through relays "
-                          "(nodes' ``routes``).")
+    max_hops: int = Field(3, ge=1, le=8, description="Most hops (transmissions) a frame takes "
+                          "from its origin to its destination, through relays (nodes' "
+                          "``routes``).")
     wire: Wire = Field(default_factory=Wire)
     link: LinkHealth = Field(default_factory=LinkHealth)
     demand: Demand | None = Field(None, description="Send channels only where applications "

@@ -12,7 +12,7 @@ Layout, most significant bit first, padded with zeros to a whole byte::
                      one chosen for it is not taken twice); relays forward it for the nodes
                      whose route from its sender goes through them.
     [origin  ceil(log2 N) bits  the node that built the frame
-     hops    3 bits  relays it has crossed (the mission's max_hops bounds it)
+     hops    3 bits  relays it has crossed (the mission's max_hops, at most 8, bounds it)
      seq     8 bits  the origin's routed-frame number: a node takes each (origin, seq) once
      life    8 bits  seconds the frame may still spend at relays (255: no limit): the
                      shortest ttl_s of what it carries, less its age; a relay drops it after
