@@ -16,9 +16,9 @@ destination's ``prefer``, then the mission's order of links. Exactly one link ca
   a link flickering at the edge of its range does not pull traffic back and forth.
 
 Each switch is a :class:`~bridge.core.events.LinkSwitched` event and ``route/<peer>``
-status, and the latching channels to that destination are sent once on the new link at once
-(:meth:`LinkPolicy.update` returns the switches for the node to do so). With one link
-everything goes over it and nothing here changes.
+status (the first choice too, as status), and the latching channels to that destination are
+sent once on the new link at once (:meth:`LinkPolicy.update` returns the switches for the
+node to do so). With one link everything goes over it and nothing here changes.
 """
 
 from __future__ import annotations
@@ -57,6 +57,7 @@ class LinkPolicy:
                             for name, side in linkset.sides.items()}
         self.current: dict[tuple[str, Order], str | None] = {}
         self._started: float | None = None
+        self._announced: set[tuple[str, Order]] = set()  # whose choice went on route/<peer>
         self._up_since: dict[tuple[str, str], float] = {}  # (link, hop) up without a break
         self._served: dict[tuple[str, int], tuple[str, ...]] = {}  # cache, per version
         self.version = 0
@@ -119,7 +120,13 @@ class LinkPolicy:
             hop = self.hops[dest]
             best = self._choose(order, hop, was, now)
             if best == was:
+                if key not in self._announced:  # the first choice, for the record
+                    self._announced.add(key)
+                    self.outbox.status(f"route/{dest}", {"peer": dest, "link": was,
+                                                         "was": None, "via": hop,
+                                                         "reason": "first", "time": now})
                 continue
+            self._announced.add(key)
             self.current[key] = best
             reason = "failback" if best is not None and was is not None \
                 and order.index(best) < order.index(was) else "failover"

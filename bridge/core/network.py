@@ -40,6 +40,8 @@ from bridge.core.store import ChannelState
 from bridge.core.transfer import TransferSender
 from bridge.errors import FrameError
 from bridge.wire.channels import ChannelCodec, ChannelTable
+from bridge.wire.families import NameCodec
+from bridge.wire.interest import InterestCodec
 from bridge.wire.network import SEGMENT_MAX, NetCodec
 
 __all__ = ["NodeNetwork"]
@@ -52,7 +54,15 @@ class NodeNetwork:
         self.linkset = linkset
         self.policy = policy
         self.routing = routing
-        self.node = linkset.node
+        self.node = node = linkset.node
+        table = routing.table
+        self._wide: dict[type, frozenset[str]] = {
+            InterestCodec: frozenset(s for c in table.channels if node in c.receivers
+                                     for s in c.senders if s != node),
+            NameCodec: frozenset(d for c in table.channels if c.family is not None
+                                 and c.sent_by(node) for d in c.destinations(node))}
+        """Whom a system entry without one addressee is for: an ``@want`` bitmap, every node
+        sending this one a channel; an ``@key`` name, every destination of its families."""
 
     @classmethod
     def of(cls, table: ChannelTable, linkset: LinkSet, policy: LinkPolicy, outbox: Outbox,
@@ -66,7 +76,9 @@ class NodeNetwork:
 
     def snapshot(self) -> dict[str, Any]:
         """Per link its frames sent; the link in use to each destination; what it carried."""
-        return {"links": {name: {"kind": side.kind, "peers": list(side.peers)}
+        return {"links": {name: {"kind": side.kind, "peers": list(side.peers),
+                                 "states": {p: s.value for p, s in side.health.states.items()}
+                                 if side.health is not None else {}}
                           for name, side in self.linkset.sides.items()},
                 **self.routing.snapshot()}
 
@@ -78,7 +90,7 @@ class NodeNetwork:
         for candidate in candidates:
             what = candidate.what
             if isinstance(what, Extra):
-                if what.to is None or self.policy.serves(side, what.to):
+                if self.extra_targets(side, what):
                     out.append(candidate)
             elif isinstance(what, ChannelState) or self.targets(side, candidate.channel, what):
                 out.append(candidate)
@@ -95,6 +107,15 @@ class NodeNetwork:
             if isinstance(sender, TransferSender):
                 return set(sender.dests).intersection(served)
         return set(served)
+
+    def extra_targets(self, side: LinkSide, extra: Extra) -> set[str]:
+        """The nodes a system entry serves when it goes out on ``side``: its addressee (a
+        query's server or asker), or those a wide one is for (:attr:`_wide`) that ``side``
+        carries traffic to, relayed ones included."""
+        if extra.to is not None:
+            return {extra.to} if self.policy.serves(side, extra.to) else set()
+        wide = self._wide.get(type(extra.channel), frozenset())
+        return {n for n in wide if self.policy.serves(side, n)}
 
     def stream_due(self, side: LinkSide, sender: ReliableSender | TransferSender
                    ) -> float | None:

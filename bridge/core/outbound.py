@@ -317,8 +317,8 @@ class Outbound:
             elif isinstance(what, Extra):
                 extras.append(what)
                 items.append((what.channel, what.bits))
-                if net is not None and what.to is not None:
-                    targets.add(what.to)
+                if net is not None:
+                    targets |= net.extra_targets(side, what)  # type: ignore[arg-type]
                 continue
             else:
                 sender, item = what

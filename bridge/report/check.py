@@ -236,9 +236,9 @@ def _query(mission: Mission, codec: FrameCodec, request: QueryCodec) -> dict[str
 def _system_entries_fit(loaded: LoadedMission, codec: FrameCodec, report: CheckReport) -> None:
     """Each node's @key, @want and query entries must fit in one of its frames."""
     mission, table = loaded.mission, loaded.table
-    for name in mission.nodes:
-        capacity = codec.body_capacity_bits(mission.node_modem(name).frame_bytes) \
-            - codec.count_bits
+    for name in mission.nodes:  # (its smallest frame, with the longest network header)
+        capacity = codec.body_capacity_bits(mission.frame_bytes_of(name)
+                                            - table.net_header_bytes) - codec.count_bits
         entries: list[Any] = []
         if table.names is not None and any(c.family and c.family.learned and c.sent_by(name)
                                            for c in table.channels):

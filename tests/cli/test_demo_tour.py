@@ -54,10 +54,11 @@ def test_zab_demo_tells_the_tour_and_writes_the_report(tmp_path: Path) -> None:
     headings = ["1. Values crossing the water, quantised", "2. Latest value, not a queue",
                 "3. A reliable command over a lossy link",
                 "4. Position fixes from acoustic ranges", "5. A Zenoh get across the water",
-                "6. A vehicle surfaces, then dives", "7. Summary"]
+                "6. A vehicle surfaces, then dives", "7. A vehicle reached through another",
+                "8. Summary"]
     where = [out.find(h) for h in headings]
     assert all(i >= 0 for i in where) and where == sorted(where), out
-    intro, values, latest, command, fixes, query, surfacing, summary = (
+    intro, values, latest, command, fixes, query, surfacing, relay, summary = (
         out[:where[0]], *(out[a:b] for a, b in zip(where, [*where[1:], len(out)], strict=True)))
 
     assert "You will see, in order: 1. values crossing the water, quantised;" in \
@@ -93,7 +94,9 @@ def test_zab_demo_tells_the_tour_and_writes_the_report(tmp_path: Path) -> None:
     assert re.search(r"[\d.]+ s cv2 dived: its bridge token is gone from ssv", flat), surfacing
     assert re.search(r"back over the water [\d.]+ s after the dive: cv2/\w+ = ", flat), \
         surfacing
-    # 7: a summary a newcomer can read, and the report's path
+    # 7: MORPH is a star: the tour names the mission that shows a relay
+    assert "no relay to show" in relay and "umci_relay.yaml" in relay.replace("\n", "")
+    # 8: a summary a newcomer can read, and the report's path
     for words in ("published", "sent in frames", "received", "mean age",
                   "acoustic ranges measured"):
         assert words in summary, words

@@ -144,21 +144,29 @@ def test_a_route_nobody_reaches_fails_naming_the_missing_hop() -> None:
 
 
 @pytest.mark.parametrize("keep_state", [True, False], ids=["with-state", "without-state"])
-def test_a_relay_killed_and_restarted_never_delivers_twice(keep_state: bool) -> None:
+@pytest.mark.parametrize("victim", ["surface", "rov1", "rov2"])
+def test_any_node_on_the_route_killed_and_restarted_never_delivers_twice(
+        victim: str, keep_state: bool) -> None:
     fleet = FastFleet(umci(), seed=3)
     for i in range(12):
         fleet.put("surface", "goto", {"x": i}, at=5.0 + 15 * i, ref=f"g{i}")
     for t in (40.0, 95.0):
         fleet.run_until(t)
-        fleet.stop("rov1")  # kill -9: what it carried is lost
+        fleet.stop(victim)  # kill -9: a relay loses what it carried, an end its memory
         fleet.run_until(t + 12.0)
-        fleet.restart("rov1", keep_state=keep_state)
+        fleet.restart(victim, keep_state=keep_state)
     fleet.run_until(900.0)
     got = published(fleet, "rov2", "rov2/goto")
     assert len(got) == len({str(v) for v in got})  # never twice
     final = {d.ref: d.state for d in events(fleet, Delivery, "surface")
              if d.state in ("delivered", "failed")}
-    assert set(final) == {f"g{i}" for i in range(12)}  # every value reported, once
+    down = [(40.0, 52.0), (95.0, 107.0)] if victim == "surface" else []  # its puts are lost
+    accepted = {f"g{i}" for i in range(12)
+                if not any(a < 5.0 + 15 * i < b for a, b in down)}
+    if victim == "surface" and not keep_state:  # its disk lost: what it held, unreported
+        assert set(final) <= accepted
+    else:
+        assert set(final) == accepted  # every value its bridge took reported, once
     assert sum(state == "delivered" for state in final.values()) == len(got)
 
 
@@ -263,3 +271,20 @@ def test_a_relay_can_neither_forge_nor_replay_what_it_carries() -> None:
     rov2 = restarted  # (its memory of copies is gone; its replay window is not)
     assert not [o for o in heard(carried, 20.0) if isinstance(o, Publish)]
     assert rov2.stats.frames_dropped["replayed"] == 1
+
+
+def test_interest_bitmaps_cross_the_relays_of_a_demand_mission() -> None:
+    text = (MISSIONS / "acoustic_line.yaml").read_text().replace(
+        "channels:", "demand: {refresh_s: 60}\nchannels:")
+    fleet = FastFleet(parse_mission(text, "line-demand.yaml"), seed=6)
+    for i in range(30):
+        fleet.put("tail", "tail/pose", {"x": i, "depth": 50}, at=1.0 + 20 * i)
+    fleet.run_until(200.0)
+    assert not published(fleet, "head", "tail/pose")  # nobody at the head wants it yet
+    assert not [e for e in events(fleet, FrameSent, "tail") if "pose" in e.channels]
+    fleet.subscribe("head", "tail/pose")  # an application subscribes at the head
+    fleet.run_until(600.0)
+    got = published(fleet, "head", "tail/pose")
+    assert len(got) >= 8  # its @want went 3 hops to the tail, the poses 3 hops back
+    wanted = fleet.cores["tail"].interest
+    assert wanted is not None and "pose" in wanted.snapshot(fleet.loaded.table)["peers"]["head"]

@@ -221,3 +221,29 @@ def test_rf_fails_as_rov2_drifts_to_8_m_and_traffic_falls_over_to_acoustics_and_
         finally:
             surface.close()
             rov2.close()
+
+
+def test_zab_demo_shows_a_vehicle_reached_through_another(tmp_path: Path) -> None:
+    import os
+    import subprocess
+    import sys
+
+    import yaml
+
+    from tests.conftest import REPO, free_port
+
+    data = yaml.safe_load((REPO / "deploy" / "missions" / "umci_relay.yaml").read_text())
+    for node in data["nodes"].values():
+        node["zenoh"]["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
+    mission = tmp_path / "umci_relay.yaml"
+    mission.write_text(yaml.safe_dump(data, sort_keys=False))
+    done = subprocess.run([sys.executable, "-m", "bridge", "demo", "--mission", str(mission),
+                           "--duration", "70", "--no-live", "--no-gui"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=200,
+                          env={**os.environ, "COLUMNS": "200"})
+    assert done.returncode == 0, done.stderr
+    part = done.stdout.split("7. A vehicle reached through another", 1)[1]
+    flat = " ".join(part.split())
+    assert "rov2's traffic to surface goes through others: rov2 –acoustic/rf→ rov1 " \
+           "–acoustic→ surface" in flat, part
+    assert "surface got status" in flat and "from rov2 through rov1 (2 hops" in flat, part
