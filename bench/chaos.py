@@ -77,11 +77,14 @@ channels:
 TERMINAL = ("delivered", "failed")
 
 
-def mission_text(loss: float, ports: dict[str, int] | None = None,
+def mission_text(loss: float, ports: dict[str, int] | None = None, auth: bool = False,
                  template: str = MISSION) -> str:
-    """``template`` with its @LOSS@ and @PORT@ names filled in."""
+    """``template`` with its @LOSS@ and @PORT@ names filled in (``auth``: frames
+    authenticated)."""
     ports = ports or {"WATER": 7600, "OPS": 7501, "AUV": 7502}
     text = template.replace("@LOSS@", str(loss))
+    if auth:  # authenticated frames: a forgetful sender's counter starts below its peer's mark
+        text = "wire: {auth: {tag_bytes: 4}}\n" + text
     for name, port in ports.items():
         text = text.replace(f"@{name}@", str(port))
     return text
@@ -136,7 +139,7 @@ def goal_met(s: dict[str, Any]) -> bool:
 
 def run_virtual(commands: int, restarts: int, loss: float, seed: int,
                 interval_s: float = 1.0, downtime_s: float = 3.0,
-                forgetful: str | None = None) -> dict[str, Any]:
+                forgetful: str | None = None, auth: bool = False) -> dict[str, Any]:
     """``commands`` at ``interval_s``; ``restarts`` kills at random times, each node staying
     down ``downtime_s`` (the ``ops`` application's puts are lost meanwhile). ``forgetful``: a
     node that restarts without its saved state (a new epoch) each time."""
@@ -153,8 +156,9 @@ def run_virtual(commands: int, restarts: int, loss: float, seed: int,
         elif isinstance(out, Status) and out.topic == "delivery/command":
             tally.add_report(out.payload)
 
-    fleet = FastFleet(parse_mission(mission_text(loss)), seed=seed, keep_outputs=False,
-                      on_output=collect)
+    fleet = FastFleet(parse_mission(mission_text(loss, auth=auth)), seed=seed,
+                      keep_outputs=False, on_output=collect,
+                      key=b"a chaos mission key, 32 bytes.." if auth else None)
     rng = random.Random(seed)
     end = 1.0 + commands * interval_s
     for i in range(commands):
@@ -167,7 +171,7 @@ def run_virtual(commands: int, restarts: int, loss: float, seed: int,
                       lambda n=node: fleet.restart(n, keep_state=n != forgetful))
     fleet.run_until(end + 600.0)
     return {"mode": "virtual", "loss": loss, "restarts": restarts, "seed": seed,
-            "forgetful": forgetful, **tally.summary()}
+            "forgetful": forgetful, "auth": auth, **tally.summary()}
 
 
 # -- real processes ------------------------------------------------------------------------------
@@ -317,6 +321,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--forgetful", choices=["ops", "auv"], help="virtual: this node "
                         "restarts without its saved state (shows the epoch resync)")
+    parser.add_argument("--auth", action="store_true", help="virtual: authenticated frames "
+                        "(with --forgetful ops: a sender that lost its counter)")
     args = parser.parse_args()
     ok = True
     for loss in args.loss:
@@ -324,7 +330,7 @@ def main() -> None:
             result = run_real(args.commands or 300, loss, args.seed)
         else:
             result = run_virtual(args.commands or 10_000, args.restarts, loss, args.seed,
-                                 forgetful=args.forgetful)
+                                 forgetful=args.forgetful, auth=args.auth)
         ok &= goal_met(result)
         print(json.dumps(result))
     print("goal met" if ok else "GOAL NOT MET")

@@ -236,7 +236,7 @@ channels:
 
 def chaos_text(loss: float, ports: dict[str, int] | None = None) -> str:
     ports = ports or {"W1": 7640, "W2": 7641, "SURFACE": 7642, "ROV1": 7643, "ROV2": 7644}
-    return chaos.mission_text(loss, ports, CHAOS)
+    return chaos.mission_text(loss, ports, template=CHAOS)
 
 
 def chaos_virtual(commands: int, restarts: int, loss: float, seed: int) -> dict[str, Any]:

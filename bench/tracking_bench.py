@@ -173,6 +173,8 @@ def seed001_table(hours: float) -> list[dict[str, Any]]:
         seed001_row("2 anchors, no compass", ("left", "right"), hours, heading=False),
         seed001_row("3 anchors, compass 5 Hz, seed 001 reception",
                     ("left", "middle", "right"), hours, reception="seed001"),
+        seed001_row("2 anchors + compass 5 Hz, seed 001 reception", ("left", "right"), hours,
+                    reception="seed001", seed=3),
         seed001_row("2 anchors + compass 1 Hz", ("left", "right"), hours, heading_hz=1.0),
         seed001_row("2 anchors + compass 1 Hz, seed 001 reception", ("left", "right"), hours,
                     heading_hz=1.0, reception="seed001"),

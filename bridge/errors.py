@@ -7,7 +7,8 @@
      ├── DecodeError         untrusted bytes cannot be decoded: the ONE error decoders raise
      │    └── FrameError     ... a whole acoustic frame (truncated, corrupt, foreign mission)
      ├── BackendError        a modem backend failed to load, open or operate
-     └── SessionError        the Zenoh session cannot open (a port taken, a router unreachable)
+     ├── SessionError        the Zenoh session cannot open (a port taken, a router unreachable)
+     └── NodeFailure         a running node cannot go on (one of its tasks or threads failed)
 """
 
 from __future__ import annotations
@@ -62,3 +63,8 @@ class BackendError(ZabError):
 
 class SessionError(ZabError):
     """The node's Zenoh session could not be opened; the message is one line for a user."""
+
+
+class NodeFailure(ZabError):
+    """A running node stopped because one of its tasks or threads failed: a bug, never bad
+    input. The message says which and why; the process exits non-zero (systemd restarts it)."""

@@ -5,7 +5,11 @@ A frozen dataclass's generated ``__init__`` stores each field through ``object._
 virtual-clock simulator builds several such records (the ocean's delivery, the modem's
 reception, the core's publication, status and event, the fleet's timed output). ``direct_init``
 stores the fields through their slots, or the instance ``__dict__``, instead: the same
-parameters, defaults and instance, at about half the cost.
+parameters, defaults and instance, for 0.61 of the cost (``bench/record_init_bench.py``, one
+run on the 2-core VM of issue #28, a record of five fields: generated 860 ns, direct 528 ns;
+a slotted dataclass that is not frozen, 253 ns, would lose the records' immutability and hash).
+The ``__init__`` is built from source with ``exec``, as :mod:`dataclasses` builds its own:
+the only way to get one call with the class's exact signature and defaults.
 """
 
 from __future__ import annotations
@@ -64,7 +68,7 @@ def direct_init(cls: T) -> T:
     init = ns["__init__"]
     init.__qualname__ = f"{cls.__qualname__}.__init__"
     init.__module__ = cls.__module__
-    init.__doc__ = cls.__init__.__doc__
+    init.__doc__ = vars(cls)["__init__"].__doc__
     cls.__init__ = init  # type: ignore[misc]
     return cls
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib.util
+import os
 import secrets
 import socket
 from pathlib import Path
@@ -13,6 +15,21 @@ from bridge.core.loaded import LoadedMission, parse_mission
 
 REPO = Path(__file__).resolve().parent.parent
 MISSIONS = REPO / "deploy" / "missions"
+CHROMIUM = Path("/usr/bin/chromium")
+
+
+def browser_missing() -> str | None:
+    """Why the browser tests cannot run here (None: they can)."""
+    if not CHROMIUM.exists():
+        return "needs Debian's chromium (apt-get install chromium)"
+    if importlib.util.find_spec("playwright") is None:
+        return "needs Playwright (the browser group, a default one: uv run pytest installs it)"
+    return None
+
+
+needs_browser = pytest.mark.skipif(browser_missing() is not None,
+                                   reason=browser_missing() or "")
+"""Tests that drive Debian's Chromium through Playwright (the `browser` dependency group)."""
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -40,6 +57,27 @@ def on_free_ports(text: str, name: str | Path = "test.yaml") -> LoadedMission:
 def mission_on_free_ports(path: Path) -> LoadedMission:
     """An example mission from ``deploy/missions`` on fresh loopback ports."""
     return on_free_ports(path.read_text(), path)
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto``: a worker per core, and one more: much of the suite waits on real time
+    (fleets, TDMA slots, browsers), so on two cores a third worker fills those waits (measured:
+    344 s against 443 s with two, the machine shared)."""
+    return len(os.sched_getaffinity(0)) + 1
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Under pytest-xdist (``--dist loadgroup``): a module's tests run on one worker, in their
+    order, sharing its fixtures (a fleet, a router, a demo on fixed ports), unless the module
+    says ``INDEPENDENT = True`` (pure tests, no shared state: each goes where a worker is
+    free, so one long module does not hold the run up)."""
+    for item in items:
+        module = getattr(item, "module", None)
+        if module is None or getattr(module, "INDEPENDENT", False) \
+                or item.get_closest_marker("xdist_group") is not None:
+            continue
+        item.add_marker(pytest.mark.xdist_group(module.__name__))
 
 
 @pytest.fixture(autouse=True)

@@ -8,6 +8,7 @@ import json
 import logging
 import signal
 import sys
+import threading
 import time
 from collections.abc import Coroutine
 from enum import StrEnum
@@ -20,8 +21,9 @@ from rich.logging import RichHandler
 from rich.table import Table
 
 from bridge.cli import helptext
+from bridge.cli.words import counted
 from bridge.core.loaded import LoadedMission, load_mission
-from bridge.errors import BackendError, MissionError, SessionError
+from bridge.errors import BackendError, MissionError, NodeFailure, SessionError
 from bridge.report.check import check_mission
 from bridge.runtime.keys import frame_key, throwaway_note
 
@@ -57,7 +59,7 @@ def _version(value: bool) -> None:
 @app.callback()
 def _main(
     show_version: Annotated[bool, typer.Option(
-        "--version", help="Print the version and exit.", callback=_version,
+        "--version", "-V", help="Print the version and exit.", callback=_version,
         is_eager=True)] = False,
 ) -> None:
     """zenoh-acoustic-bridge: one Zenoh pub/sub space across WiFi and water."""
@@ -74,12 +76,18 @@ def _load(path: Path) -> LoadedMission:
 
 def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
     """Run ``main``; a problem found at start (a missing key, a Zenoh port taken, a router that
-    does not answer) exits 2 with one line, never a traceback."""
+    does not answer, a state directory that cannot be written) exits 2 with one line, never a
+    traceback; a node that cannot go on (:class:`NodeFailure`) exits 1 with one line."""
+    from bridge.runtime.state_file import StateError
+
     try:
         return asyncio.run(main)
-    except (MissionError, SessionError) as exc:
+    except (MissionError, SessionError, StateError) as exc:
         err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2) from None
+    except NodeFailure as exc:
+        err.print(f"[bold red]stopped:[/] {exc}", highlight=False, soft_wrap=True)
+        raise typer.Exit(1) from None
 
 
 def _logging(verbose: bool) -> None:
@@ -108,9 +116,12 @@ def check(
 ) -> None:
     """Validate a mission; show channel sizes, frame fill and airtime.
 
-    Exit 1 if a channel can never fit, 2 if the file is invalid (with --json: a JSON object
-    with the errors on stdout) or its wire.auth disagrees with the frame keys here
-    (authenticated without a key, or a key present and wire.auth not said).
+    Exit 1 if something can never be sent (an entry too large for a frame even in
+    fragments, a frame larger than the modem sends; a value larger than a frame travels in
+    fragments and is only a warning), 2 if the file is invalid (with --json: a JSON object
+    with the errors on stdout) or a frame key here disagrees with its wire.auth (a key too
+    short, or a key present and wire.auth not said). No key at all is fine: checking a file
+    is not running a vehicle, and it says that `zab run` will need one.
     """
     if as_json:
         try:
@@ -122,9 +133,14 @@ def check(
         loaded = _load(mission)
     report = check_mission(loaded)
     key = frame_key(loaded.mission, look=not no_key)
-    code = 2 if key.problem else 0 if report.ok else 1
+    note = _run_needs_key(loaded) if key.throwaway else None
+    problem = None if note else key.problem  # no key here at all: zab run's concern
+    code = 2 if problem else 0 if report.ok else 1
     if as_json:
-        print(json.dumps({**report.data, "frame_key": key.as_json()}, indent=2))
+        errors = [*report.errors, *([problem] if problem else [])]
+        print(json.dumps({**report.data, "errors": errors, "ok": code == 0,
+                          "frame_key": {**key.as_json(), "problem": problem, "note": note}},
+                         indent=2))
         raise typer.Exit(code)
     data = report.data
     console.print(
@@ -152,12 +168,13 @@ def check(
         console.print(queries)
     if data.get("demand"):
         always = [c["name"] for c in data["channels"] if c.get("always")]
-        console.print(f"demand: @want entry {data['demand']['want_entry_bits']} bits, re-sent "
+        want = counted(data["demand"]["want_entry_bits"], "bit")
+        console.print(f"demand: @want entry {want}, re-sent "
                       f"every {data['demand']['refresh_s']:g} s; always sent: "
                       f"{', '.join(always) or 'none'}", highlight=False)
     if data.get("key_entry_bits"):
-        console.print(f"@key entry (names a learned member): {data['key_entry_bits']} bits",
-                      highlight=False)
+        console.print("@key entry (names a learned member): "
+                      f"{counted(data['key_entry_bits'], 'bit')}", highlight=False)
     if data["dccl"]:
         numeric = data["dccl_numeric"]
         console.print(f"DCCL numeric rule: {numeric['rule']}, as {numeric['libdccl']}",
@@ -187,12 +204,22 @@ def check(
             highlight=False)
     for warning in report.warnings:
         console.print(f"[yellow]warning:[/] {warning}", highlight=False)
-    console.print(key.describe(), highlight=False)
+    console.print(key.describe() + (f": {note}" if note else ""), highlight=False)
     for error in report.errors:
         console.print(f"[red]error:[/] {error}", highlight=False)
-    if key.problem:
-        err.print(f"[bold red]error:[/] {key.problem}", highlight=False, soft_wrap=True)
+    if problem:
+        err.print(f"[bold red]error:[/] {problem}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def _run_needs_key(loaded: LoadedMission) -> str | None:
+    """What ``zab check`` says when an authenticated mission finds no key here (None: a key
+    file is there but unreadable or empty, a problem of this machine's key)."""
+    auth = loaded.mission.wire.auth
+    if auth is None or (auth.key_file is not None and auth.key_file.exists()):
+        return None
+    where = f"${auth.key_env}" + (f" or {auth.key_file}" if auth.key_file else "")
+    return f"`zab run` and `zab doctor` will need the mission key in {where}"
 
 
 def _problems(exc: MissionError) -> list[dict[str, Any]]:
@@ -212,7 +239,7 @@ def _keys_text(keys: dict[str, Any] | None) -> str:
     if keys is None:
         return "—"
     members = f"learned ≤ {keys['bound']}" if keys["learned"] else f"{keys['bound']} keys"
-    return f"+{keys['index_bits']} bits ({members})"
+    return f"+{counted(keys['index_bits'], 'bit')} ({members})"
 
 
 def _print_mac(data: dict[str, Any]) -> None:
@@ -306,6 +333,9 @@ def run(
         _install_stop(stop)
         recorder = None if log is None else _mission_log(log, loaded, node)
         bridge = BridgeNode(loaded, node, factory, on_event=recorder, state_file=state)
+        threading.excepthook = lambda hook: bridge.fail(  # no thread dies silently
+            f"the thread {hook.thread.name if hook.thread else '?'} failed: "
+            f"{hook.exc_type.__name__}: {hook.exc_value}")
 
         async def announce() -> None:  # once the Zenoh session is open
             await bridge.started.wait()
@@ -415,11 +445,12 @@ def emulate(
         stop = asyncio.Event()
         _install_stop(stop)
         if kind is ModemKind.evologics:
+            from bridge.modems.evologics.emulator import FIRMWARE as EVOLOGICS_FIRMWARE
             from bridge.modems.evologics.emulator import run_emulator as evologics
 
-            extra = {} if firmware is None else {"firmware": firmware}
             task = asyncio.create_task(evologics(loaded, node, water=address, link=link,
-                                                 tcp_port=tcp_port, ready=ready, **extra))
+                                                 tcp_port=tcp_port, ready=ready,
+                                                 firmware=firmware or EVOLOGICS_FIRMWARE))
         else:
             from bridge.modems.micromodem.emulator import run_emulator as micromodem
 
@@ -627,17 +658,24 @@ def listen(
     = None,
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.",
                                                    min=0)] = None,
+    mission: Annotated[Path | None, typer.Option(
+        "--mission", "-m", help="The fleet's mission: bridged values print to their "
+        "channel's step (3.252 at a 0.0246 step, not 3.25242824).", show_default=False)]
+    = None,
 ) -> None:
     """Print the values arriving at a Zenoh endpoint, decoded, one line each (Ctrl-C stops)."""
     from bridge.cli.poke import PokeError
     from bridge.cli.poke import listen as run_listen
+    from bridge.cli.rounding import Steps
+
+    steps = None if mission is None else Steps(_load(mission))
 
     def ready() -> None:
         err.print(f"listening on {keyexpr} at {endpoint}; Ctrl-C to stop", highlight=False)
 
     try:
         run_listen(endpoint, keyexpr, lambda line: print(line, flush=True), count=count,
-                   duration=duration, ready=ready)
+                   duration=duration, ready=ready, steps=steps)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(1) from None
@@ -650,21 +688,30 @@ def put(
     endpoint: EndpointArg,
     key: Annotated[str, typer.Argument(help="Key to publish on, e.g. target_reference.",
                                        show_default=False)],
-    value: Annotated[str, typer.Argument(help='The value as JSON, e.g. \'{"x": 10, "y": 5}\'.',
-                                         show_default=False)],
+    value: Annotated[str, typer.Argument(
+        help='The value as JSON, e.g. \'{"vector": {"x": 1.5, "y": 0.01}}\'.',
+        show_default=False)],
 ) -> None:
-    """Publish one value (JSON on the command line, msgpack on Zenoh) at a Zenoh endpoint."""
+    """Publish one value (JSON on the command line, msgpack on Zenoh) at a Zenoh endpoint.
+
+    It goes as an operator's command, as the GUI's do: with a reference (`ref:put-…`) that
+    an acknowledged channel's delivery reports echo.
+    """
+    import secrets
+
     from bridge.cli.poke import PokeError
     from bridge.cli.poke import put as run_put
 
+    ref = f"put-{secrets.token_hex(4)}"
     try:
-        payload = run_put(endpoint, key, value)
+        payload = run_put(endpoint, key, value, ref)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(1 if str(exc).startswith("cannot connect") else 2) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
-    console.print(f"put {key} ({len(payload)} B msgpack) at {endpoint}", highlight=False)
+    console.print(f"put {key} ({len(payload)} B msgpack, ref {ref}) at {endpoint}",
+                  highlight=False)
 
 
 @app.command()
@@ -673,16 +720,20 @@ def doctor(
     node: Annotated[str, typer.Option("--node", "-n", help="This vehicle's name in the mission.")],
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the modem.", min=0.1)]
     = 15.0,
+    state_dir: Annotated[Path | None, typer.Option(
+        "--state-dir", help="Where the node keeps its state (as `zab run`).")] = None,
 ) -> None:
     """Check that this vehicle can run its bridge, and print what to fix.
 
-    Checks the mission, the modem port and its answer, the Zenoh endpoints and the clock;
-    exit 1 if something must be fixed.
+    Checks the mission, the modem port and its answer, the Zenoh endpoints, the state
+    directory and the clock; exit 1 if something must be fixed.
     """
     from bridge.cli.doctor import run_doctor
+    from bridge.runtime.state_file import default_state_dir
 
     loaded = _load(mission)
-    findings = asyncio.run(run_doctor(loaded, node, timeout_s=timeout))
+    findings = asyncio.run(run_doctor(loaded, node, timeout_s=timeout,
+                                      state_dir=state_dir or default_state_dir()))
     marks = {"ok": "[green]ok  [/]", "warn": "[yellow]warn[/]", "fail": "[red]FAIL[/]"}
     for f in findings:
         console.print(f"{marks[f.status]} {f.check:<8} {f.message}", highlight=False)
@@ -704,6 +755,17 @@ def _mission_log(path: Path, loaded: LoadedMission, node: str) -> Any:
     except OSError as exc:
         err.print(f"[red]cannot write the mission log:[/] {exc}", highlight=False)
         raise typer.Exit(2) from None
+
+
+@app.command("help")
+def help_(
+    ctx: typer.Context,
+    command: Annotated[list[str] | None, typer.Argument(
+        help="A command (and a subcommand: log summary).", show_default=False)] = None,
+) -> None:
+    """Show this help, or a command's: `zab help sim` is `zab sim -h`."""
+    typer.main.get_command(app).main([*(command or []), "--help"],
+                                     prog_name=ctx.find_root().info_name)
 
 
 log_app = typer.Typer(help="Read mission logs (MCAP) written with --log.", no_args_is_help=True,
@@ -805,7 +867,7 @@ def log_replay(
         raise typer.Exit(130) from None
     finally:
         close_quietly(session)
-    console.print(f"published {count} values")
+    console.print(f"published {counted(count, 'value')}")
 
 
 def main() -> None:

@@ -11,10 +11,13 @@ words; this module runs the fleet and says them at the right moments.
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
+import logging
 import math
 import queue
 import random
+import re
 import threading
 import time
 import zlib
@@ -29,7 +32,7 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from bridge.cli.demo_queries import QueryApps, member_keys, query_for_tour
+from bridge.cli.demo_queries import QUERY_PERIOD_S, QueryApps, member_keys, query_for_tour
 from bridge.cli.demo_relay import RelayWatch, relay_plan, shown_values
 from bridge.cli.demo_surfacing import (
     SentAtSwitches,
@@ -39,11 +42,12 @@ from bridge.cli.demo_surfacing import (
     turns_to_wait,
 )
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
-from bridge.cli.tour import Tour, turn_waits
+from bridge.cli.tour import Tour, short, turn_waits
+from bridge.core.bounds import UNBOUNDED_TURN_S
 from bridge.core.events import Event
 from bridge.core.loaded import LoadedMission, parse_mission
 from bridge.core.mac import frame_time_s
-from bridge.core.queries import UNBOUNDED_TURN_S, deadline_s
+from bridge.core.queries import deadline_s
 from bridge.errors import MissionError
 from bridge.gui.commands import named_as_command
 from bridge.gui.server import GuiServer
@@ -55,6 +59,7 @@ from bridge.runtime.fleet import Fleet
 from bridge.runtime.keys import throwaway_note
 from bridge.runtime.session import close_quietly
 from bridge.wire.channels import ChannelCodec
+from bridge.wire.queries import QuerySpec
 
 PUBLISH_PERIOD_S = 1.0
 OPERATOR_HOLD_S = 60.0  # a key an operator commanded (from the GUI) is left alone this long
@@ -66,7 +71,7 @@ COMMAND_WAIT_S = 25.0  # the tour moves on if a delivery report is still missing
 GET_MARGIN_S = 2.0  # past its deadline, the bridge's reply error reaches the get by then
 END_MARGIN_S = 1.0  # the story's waits end this long before the fleet does
 SWITCH_WAIT_S = 10.0  # the tour waits this long past a scripted surfacing or dive for it
-FIX_EVERY_S = 20.0  # a vehicle's fix is printed at most this often
+FIXES_WAIT_S = 15.0  # the fixes part waits this long for a vehicle's first fix
 TOUR_REF = "tour-1"  # correlation of the tour's command (the put's attachment ``ref:...``)
 POLL_S = 0.2
 
@@ -207,13 +212,17 @@ class VehicleApps:
         self.operator: dict[tuple[str, str], float] = {}  # (node, key) -> last GUI command
         self.history: dict[tuple[str, str], deque[tuple[float, Any]]] = {}
         self.routes = self._routes()
+        self.families = [(zenoh.KeyExpr(element.output_key(src, dst)), channel.name)
+                         for channel in loaded.table.channels if channel.family is not None
+                         for src in channel.senders for dst in channel.destinations(src)
+                         for element in channel.elements]
+        self.members: dict[str, set[str]] = {}  # per key family: member keys arrived
         self.examples: list[str] = []  # channels shown with their quantisation
         self.passed: Counter[str] = Counter()  # arrivals per channel considered for it
         self.examples_done = threading.Event()
-        self.fixes_on = False
         self.fixes_seen: dict[str, tuple[dict[str, Any], tuple[float, float] | None]] = {}
-        self.fix_shown: dict[str, float] = {}
         self.deliveries: queue.Queue[dict[str, Any]] = queue.Queue()
+        self.latest: dict[tuple[str, str], Any] = {}  # (node, field name) -> last published
         self._lock = threading.Lock()
 
     def _routes(self) -> dict[tuple[str, str], tuple[str, ChannelCodec, int]]:
@@ -243,10 +252,10 @@ class VehicleApps:
             if session is None:
                 continue
             self.sessions[node] = session
-            session.declare_subscriber("**", lambda s, n=node: self._arrived(n, s))
+            session.declare_subscriber("**", functools.partial(self._arrived, node))
             prefix = f"@zab/{mission}/{node}"
             session.declare_subscriber(f"{prefix}/position",
-                                       lambda s, n=node: self._fix_arrived(n, s))
+                                       functools.partial(self._fix_arrived, node))
             session.declare_subscriber(f"{prefix}/delivery/*", self._delivered)
 
     # -- what arrives ------------------------------------------------------------------------
@@ -256,8 +265,8 @@ class VehicleApps:
             self.deliveries.put(msgpack.unpackb(sample.payload.to_bytes()))
 
     def _fix_arrived(self, node: str, sample: zenoh.Sample) -> None:
-        """Every published position's error is kept (:attr:`errors`); positions are printed
-        once the tour reaches them, each vehicle's every FIX_EVERY_S."""
+        """Every published position's error is kept (:attr:`errors`), the latest of each
+        vehicle for the tour's part (:meth:`show_fixes`)."""
         try:
             fix = msgpack.unpackb(sample.payload.to_bytes())
         except ValueError:
@@ -267,19 +276,23 @@ class VehicleApps:
         where = self._truth(node, fix)
         with self._lock:
             self.fixes_seen[node] = (fix, where)
-            if not self.fixes_on or time.time() - self.fix_shown.get(node, 0.0) < FIX_EVERY_S:
-                return
-        if self._fixed(node, fix, where):
-            self.fix_shown[node] = time.time()
 
-    def show_fixes(self) -> None:
-        """From now on print fixes; first the latest one of each vehicle so far."""
-        with self._lock:
-            self.fixes_on = True
-            latest = dict(self.fixes_seen)
-        for node, (fix, where) in latest.items():
-            if self._fixed(node, fix, where):
-                self.fix_shown[node] = time.time()
+    async def show_fixes(self, vehicles: list[str], until: float) -> None:
+        """Print the latest fix of each of ``vehicles``, waiting for those without one until
+        wall time ``until``; later fixes are kept (:attr:`errors`), not printed, so the next
+        parts read undisturbed."""
+        shown: set[str] = set()
+        while True:
+            with self._lock:
+                latest = {n: f for n, f in self.fixes_seen.items() if n not in shown}
+            for node, (fix, where) in sorted(latest.items()):
+                self._fixed(node, fix, where)
+                shown.add(node)
+            if set(vehicles) <= shown or time.time() >= until:
+                break
+            await asyncio.sleep(POLL_S)
+        for node in sorted(set(vehicles) - shown):
+            self.show(f"[cyan]{node:>4}[/] position: none yet")
 
     def _fixed(self, node: str, fix: dict[str, Any], where: tuple[float, float] | None) -> bool:
         """Print a published position (a lost one only when its state changed)."""
@@ -323,16 +336,29 @@ class VehicleApps:
         if attachment.startswith(b"ref:"):  # a command put on this node's key
             if attachment == f"ref:{TOUR_REF}".encode():
                 return  # the tour's own, told in its part
-            with self._lock:
+            with self._lock:  # its value is what reaches the receivers now
                 self.operator[(node, str(sample.key_expr))] = time.time()
+                self.history.setdefault((node, str(sample.key_expr)), deque(maxlen=8)).append(
+                    (time.time(), value))
             self.show(f"[magenta]{node:>4}[/] ← operator: [bold]{sample.key_expr}[/] "
-                      f"{_short(value)}")
+                      f"{short(value)}")
             return
         with self._lock:
             self.arrived += 1
         route = self.routes.get((node, str(sample.key_expr)))
         if route is not None and self.tour is not None:
             self._example(node, route, value)
+        elif route is None:
+            family = next((name for pattern, name in self.families
+                           if pattern.intersects(sample.key_expr)), None)
+            if family is not None:
+                with self._lock:
+                    self.members.setdefault(family, set()).add(str(sample.key_expr))
+
+    def members_arrived(self) -> dict[str, list[str]]:
+        """Per key family, the member keys that arrived so far."""
+        with self._lock:
+            return {name: sorted(keys) for name, keys in self.members.items()}
 
     def _example(self, dst: str, route: tuple[str, ChannelCodec, int], got: Any) -> None:
         """The first arrivals of a few channels, beside what was published."""
@@ -385,8 +411,10 @@ class VehicleApps:
                             None if position is None else formation_value(
                                 spec.field, (position.x, position.y, position.depth), t)
                         phase = _phase(node, channel.name, e_index, f_index)
-                        _set(value, spec.field,
-                             moving if moving is not None else synthetic_value(spec, t, phase))
+                        chosen = moving if moving is not None else \
+                            synthetic_value(spec, t, phase)
+                        _set(value, spec.field, chosen)
+                        self.latest[(node, spec.field.rsplit(".", 1)[-1])] = chosen
                     for key in member_keys(compiled, e_index, node):
                         if time.time() - self.operator.get((node, key), -OPERATOR_HOLD_S) \
                                 < OPERATOR_HOLD_S:
@@ -415,6 +443,22 @@ class VehicleApps:
                 "heading": round(math.degrees(math.atan2(east, north)) % 360, 3),
                 "speed": round(math.hypot(east, north), 3)}
 
+    def own(self, node: str, name: str) -> Any:
+        """``node``'s own datum called ``name`` (or ``name`` less a unit suffix: depth_m is
+        its depth): the last value its programs published, else, for a depth, where the
+        simulator has it; None if it has none."""
+        for candidate in (name, name.rsplit("_", 1)[0]):
+            found = self.latest.get((node, candidate))
+            if found is not None:
+                return found
+        if "depth" in name and self.truth is not None:
+            try:
+                where = self.truth(node, time.time())
+            except KeyError:
+                return None
+            return None if where is None else round(where[2], 1)
+        return None
+
     async def run(self) -> None:
         t0 = time.time()
         while True:
@@ -428,7 +472,8 @@ class VehicleApps:
         surfaces = [n for n, node in self.loaded.mission.nodes.items() if node.role == "surface"]
         for channel in self.loaded.table.channels:
             for node in surfaces:
-                if channel.reliable and channel.sent_by(node) and node in self.sessions:
+                if channel.reliable and channel.sent_by(node) \
+                        and self.loaded.mission.nodes[node].zenoh.listen:
                     return node, channel
         return None
 
@@ -515,47 +560,36 @@ def describe_fix(fix: dict[str, Any], truth: tuple[float, float] | None = None) 
     return text
 
 
-def _short(value: Any) -> str:
-    def fmt(v: Any) -> Any:
-        if isinstance(v, float):
-            return round(v, 3)
-        if isinstance(v, dict):
-            return {k: fmt(x) for k, x in v.items()}
-        return v
-
-    text = json.dumps(fmt(value), separators=(", ", ": "))
-    return text if len(text) < 90 else text[:87] + "..."
+def _query_pair(loaded: LoadedMission) -> tuple[QuerySpec, str, str] | None:
+    """(query, asker, server) of the tour's get: two nodes with Zenoh endpoints."""
+    running = {n for n, node in loaded.mission.nodes.items() if node.zenoh.listen}
+    return next(((spec, asker, server) for spec in loaded.table.queries for asker in spec.askers
+                 for server in spec.servers if server != asker
+                 and {asker, server} <= running), None)
 
 
 async def _query_part(tour: Tour, loaded: LoadedMission, fleet: Fleet,
                       queries: QueryApps | None, tasks: list[asyncio.Task[None]],
                       end: float) -> None:
-    """A plain get at the surface answered on a submerged vehicle, alone: the operators' gets
-    (now and then) end first and wait for it (they would share its request, its frames and
-    the open-query limit)."""
-    tour.part("queries")
-    found = None if queries is None else next(
-        ((spec, asker, server) for spec in loaded.table.queries for asker in spec.askers
-         for server in spec.servers if server != asker
-         and {asker, server} <= set(queries.sessions)), None)
-    if queries is None or found is None:
-        tour.say("This mission has no query between two running nodes: nothing to show.")
-    else:
-        spec, asker, server = found
-        selector = queries.selector(spec, server)
-        deadline = deadline_s(loaded.mission, spec, asker, server)
-        tour.query_intro(asker, selector, server, deadline,
-                         "the query's timeout_s" if spec.timeout_s else "the MAC's bound")
-        core = fleet.nodes[asker].core.queries
-        repeated = core.repeated if core is not None else 0
-        # the bridge ends the query itself at its deadline (a reply error); the get waits for
-        # that, but not past the tour's end
-        waited, (values, errors, took) = await queries.ask_alone(
-            asker, selector, lambda: max(1.0, min(deadline + GET_MARGIN_S, end - time.time())))
-        if waited is not None:
-            tour.waited_for_operators(waited)
-        tour.query_answered(asker, selector, values, errors, took,
-                            None if core is None else 1 + core.repeated - repeated)
+    """A plain get at the surface answered on a submerged vehicle, alone; then an operator
+    asks now and then, quietly (the summary says what came of it)."""
+    found = _query_pair(loaded)
+    if queries is None or found is None or not tour.part("queries"):
+        return
+    spec, asker, server = found
+    selector = queries.selector(spec, server)
+    deadline = deadline_s(loaded.mission, spec, asker, server)
+    tour.query_intro(asker, selector, server, deadline,
+                     "the query's timeout_s" if spec.timeout_s else "the MAC's bound")
+    core = fleet.nodes[asker].core.queries
+    repeated = core.repeated if core is not None else 0
+    # the bridge ends the query itself at its deadline (a reply error); the get waits for
+    # that, but not past the tour's end
+    values, errors, took = await queries.ask(
+        asker, selector, max(1.0, min(deadline + GET_MARGIN_S, end - time.time())))
+    tour.query_answered(asker, selector, values, errors, took,
+                        None if core is None else 1 + core.repeated - repeated)
+    tasks.append(asyncio.create_task(queries.run(until=end + END_MARGIN_S)))
 
 
 async def _surfacing_part(tour: Tour, loaded: LoadedMission, fleet: Fleet,
@@ -584,7 +618,7 @@ async def _surfacing_part(tour: Tour, loaded: LoadedMission, fleet: Fleet,
         return
     over_ip = watch.between(up, math.inf, "ip")
     if over_ip:
-        tour.over_ip(over_ip[-1][1], _short(over_ip[-1][2]), len(over_ip))
+        tour.over_ip(over_ip[-1][1], short(over_ip[-1][2]), len(over_ip))
     else:
         tour.not_seen(f"a value of {vehicle} over IP")
     while (counts := sent.while_up()) is None and time.time() < min(end, down + SWITCH_WAIT_S):
@@ -611,7 +645,7 @@ async def _surfacing_part(tour: Tour, loaded: LoadedMission, fleet: Fleet,
         await asyncio.sleep(POLL_S)
     again = watch.between(down, math.inf, "acoustic")
     if again:
-        tour.acoustic_again(again[0][1], _short(again[0][2]), again[0][0] - down)
+        tour.acoustic_again(again[0][1], short(again[0][2]), again[0][0] - down)
     else:
         tour.not_seen(f"{vehicle}'s next acoustic value ({turns} of its turns, "
                       f"{min(wait, end) - down:.0f} s after the dive)")
@@ -626,25 +660,44 @@ async def _switch(watch: SurfacingWatch, up: bool, until: float,
     return at
 
 
+def tour_parts(loaded: LoadedMission, apps: VehicleApps) -> list[str]:
+    """The parts of the tour this mission has something to show for."""
+    parts = ["values", "latest"]
+    if apps.command_channel() is not None:
+        parts.append("command")
+    if loaded.mission.wire.dlbl and loaded.mission.ranging.anchors:
+        parts.append("fixes")
+    if loaded.table.queries and _query_pair(loaded) is not None:
+        parts.append("queries")
+    if surfaced_vehicle(loaded) is not None:
+        parts.append("surfacing")
+    if relay_plan(loaded) is not None:
+        parts.append("relay")
+    return parts
+
+
 async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float,
                  fleet: Fleet, queries: QueryApps | None, watch: SurfacingWatch | None,
                  sent: SentAtSwitches | None, relays: RelayWatch | None,
                  tasks: list[asyncio.Task[None]], end: float) -> None:
-    """Parts 1 to 7 of the tour, each when the fleet has something to show for it."""
+    """The parts of the tour before the summary, each when the fleet has something to show
+    for it (those the plan left out say nothing)."""
     tour.part("values")
     tour.values_intro()
     await asyncio.to_thread(apps.examples_done.wait, EXAMPLES_WAIT_S)
+    tour.families(apps.members_arrived())
     tour.part("latest")
     channel = next((c for c in loaded.table.channels if not apps.is_operators(c)
                     and c.interval_s == 0), None) or loaded.table.channels[0]
     sender = channel.senders[0]
     tour.latest(channel, PUBLISH_PERIOD_S, sender, turn_waits(loaded).get(sender))
-    tour.part("command")
-    await apps.send_command(loss)
-    tour.part("fixes")
-    anchors = list(loaded.mission.ranging.anchors or ())
-    tour.fixes_intro(anchors)
-    apps.show_fixes()
+    if tour.part("command"):
+        await apps.send_command(loss)
+    if tour.part("fixes"):
+        anchors = list(loaded.mission.ranging.anchors or ())
+        tour.fixes_intro(anchors)
+        await apps.show_fixes([n for n in loaded.mission.nodes if n not in anchors],
+                              min(end, time.time() + FIXES_WAIT_S))
     await _query_part(tour, loaded, fleet, queries, tasks, end)
     await _surfacing_part(tour, loaded, fleet, watch, sent, end)
     await _relay_part(tour, fleet, relays, end)
@@ -654,9 +707,7 @@ async def _relay_part(tour: Tour, fleet: Fleet, relays: RelayWatch | None,
                       end: float) -> None:
     """A vehicle out of the surface's reach, its values carried by another: the first frame
     of it the surface took through a relay (waiting for one, but not past the tour)."""
-    tour.part("relay")
-    if relays is None:
-        tour.no_relay()
+    if relays is None or not tour.part("relay"):
         return
     plan = relays.plan
     tour.relay_intro(plan.vehicle, plan.surface, plan.path, plan.links)
@@ -669,9 +720,27 @@ async def _relay_part(tour: Tour, fleet: Fleet, relays: RelayWatch | None,
     _, event = found
     channel, value = shown_values(event)
     network = fleet.nodes[str(event.meta["via"])].core.network
-    tour.relayed(plan.vehicle, plan.surface, channel, _short(value), str(event.meta["via"]),
+    tour.relayed(plan.vehicle, plan.surface, channel, short(value), str(event.meta["via"]),
                  int(event.meta["hops"]), int(event.meta["age_s"]),
                  network.routing.relayed if network is not None else 0)
+
+
+class LateFrames(logging.Filter):
+    """Keeps off the screen, and counts per node, the simulated modem's refusals of frames
+    the bridge asked it to start after their moment (a busy computer): the summary says
+    what they are, once. A frame due as the tour ends, refused by a modem already closed,
+    is no news either."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.by_node: Counter[str] = Counter()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        if "failed: " in text and "expired: asked to start" in text:
+            self.by_node[text.split(":", 1)[0]] += 1
+            return False
+        return not re.search(r"failed: sim modem '\w+' is closed$", text)
 
 
 async def run_demo(
@@ -682,7 +751,6 @@ async def run_demo(
     """The tour: fleet + apps for ``duration`` seconds, its parts told as they happen, then a
     summary; ``report`` (an HTML file) gets the mission report."""
     tour = Tour(loaded, console, duration)
-    tour.intro(changes or [])
     events = EventLog()
     recorder = MissionRecorder()
     plan = surfaced_vehicle(loaded)
@@ -699,8 +767,6 @@ async def run_demo(
             relays(node, event)
 
     fleet = Fleet(loaded, on_event=on_event)
-    if fleet.throwaway_key:
-        console.print(f"  {throwaway_note(loaded.mission)}", highlight=False)
     attach_truth(recorder, fleet)
     water = fleet.water
 
@@ -710,6 +776,14 @@ async def run_demo(
         return water.position(loaded.mission.address_of(node), wall)
 
     apps = VehicleApps(loaded, lambda line: console.print(line, highlight=False), tour, truth)
+    tour.plan(tour_parts(loaded, apps))
+    tour.intro(changes or [])
+    if fleet.throwaway_key:
+        console.print(f"  {throwaway_note(loaded.mission)}", highlight=False)
+    late = LateFrames()
+    handlers = logging.getLogger().handlers
+    for handler in handlers:
+        handler.addFilter(late)
     end = time.time() + duration - END_MARGIN_S  # the story's last moment
     runner = asyncio.create_task(
         run_fleet_for(fleet, duration, live=live, console=console, events=events)
@@ -718,16 +792,13 @@ async def run_demo(
                        return_when=asyncio.FIRST_COMPLETED)
     tasks: list[asyncio.Task[None]] = []
     page: GuiServer | None = None
+    queries: QueryApps | None = None
     try:
         if not runner.done():
             apps.start()
             tasks.append(asyncio.create_task(apps.run()))
-            queries = None
             if loaded.table.queries:  # issue 15: gets across the water (a part of the tour)
-                queries = QueryApps(loaded, apps.sessions,
-                                    lambda line: console.print(line, highlight=False))
-                tasks.append(asyncio.create_task(  # operators, now and then
-                    queries.run(until=end + END_MARGIN_S)))
+                queries = QueryApps(loaded, apps.sessions, apps.own)
             watch = None if plan is None or plan[0] not in apps.sessions else SurfacingWatch(
                 loaded, apps.sessions[plan[0]], plan[0], plan[1])
             if gui:
@@ -745,10 +816,21 @@ async def run_demo(
         await asyncio.gather(*tasks, return_exceptions=True)
         apps.examples_done.set()  # a story thread still waiting ends now
         apps.close()
+        for handler in handlers:
+            handler.removeFilter(late)
     result = fleet.report()
     tour.part("summary")
-    range_errors = [abs(m - t) for _, _, _, m, t in recorder.recording.ranges if t is not None]
-    tour.summary(result.to_dict(), apps.published, range_errors)
+    still = {n for n, node in loaded.mission.nodes.items()
+             if node.nav_key is None and node.path is None}
+    waits = [w for w in turn_waits(loaded).values() if w]
+    tour.summary(result.to_dict(), apps.published,
+                 [(observer, peer, abs(m - t)) for _, observer, peer, m, t
+                  in recorder.recording.ranges if t is not None],
+                 still, max(waits) if waits else None)
+    found = _query_pair(loaded)
+    if queries is not None and found is not None:
+        tour.operators(found[1], queries.answered, queries.failed, QUERY_PERIOD_S)
+    tour.late_frames(late.by_node)
     if apps.errors:
         table = Table("node", "positions", "p50 error", "p95 error", "max error",
                       title="Published positions against the simulator's truth")

@@ -2,15 +2,18 @@
 
 Plain Zenoh applications again (only ``zenoh`` and ``msgpack``): a queryable on each serving
 vehicle answering its query's key with plausible reply fields, and an operator at each asking
-node that gets every asked key now and then and prints the answer (or the reply error).
+node that gets every asked key now and then, counting the answers for the tour's summary.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 import threading
 import time
+import zlib
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -23,9 +26,7 @@ from bridge.wire.channels import ChannelCodec
 from bridge.wire.queries import QuerySpec
 
 QUERY_PERIOD_S = 20.0
-FIRST_QUERY_S = 8.0
 TOUR_QUERY_TIMEOUT_S = 30.0  # the tour's query: several TDMA cycles, for repeats under loss
-POLL_S = 0.2
 LEARNED_DEMO_KEYS = 3  # members a demo application publishes on a learned family
 
 
@@ -59,21 +60,30 @@ def member_keys(channel: ChannelCodec, element: int, node: str) -> list[str]:
     return [codec.input_key(node, name) for name in names]
 
 
-def _reply_value(spec: QuerySpec, t: float, params: dict[str, Any]) -> dict[str, Any]:
-    """Plausible reply fields; a field named like a parameter echoes it."""
+Own = Callable[[str], Any]
+"""A serving vehicle's own data by field name (its battery, its depth ...); None if it has
+none of that name."""
+
+
+def _reply_value(spec: QuerySpec, t: float, params: dict[str, Any], own: Own,
+                 phase: float = 0.0) -> dict[str, Any]:
+    """Reply fields: a field named like a parameter echoes it, one named like the vehicle's
+    own data is that, any other a plausible value of its own (``phase``: the vehicle's)."""
     value: dict[str, Any] = {}
     for field in spec.reply.fields:
         *parents, last = field.path.split(".")
         target = value
         for part in parents:
             target = target.setdefault(part, {})
-        target[last] = params[last] if last in params else _plausible(field, t)
+        mine = own(last)
+        target[last] = params[last] if last in params else \
+            mine if mine is not None else _plausible(field, t, phase)
     return value
 
 
-def _plausible(field: Any, t: float) -> Any:
+def _plausible(field: Any, t: float, phase: float = 0.0) -> Any:
     """A value the field encodes, moving slowly through its codes."""
-    code = int(((1 << field.bits) - 1) * (0.5 + 0.4 * math.sin(t / 30)))
+    code = int(((1 << field.bits) - 1) * (0.5 + 0.4 * math.sin(t / 30 + phase)))
     while code > 0:  # a code past the field's range (an int field's spare codes): go lower
         try:
             return field.decode(code)
@@ -83,33 +93,37 @@ def _plausible(field: Any, t: float) -> Any:
 
 
 class QueryApps:
-    """Queryables on serving vehicles and an operator asking from the asking nodes."""
+    """Queryables on serving vehicles, each answering with that vehicle's own data
+    (``own(vehicle, field)``), and an operator asking from the asking nodes now and then,
+    quietly: what the operator's gets came to is counted (:attr:`answered`,
+    :attr:`failed` by reason) for the tour's summary."""
 
     def __init__(self, loaded: LoadedMission, sessions: dict[str, zenoh.Session],
-                 show: Callable[[str], None]) -> None:
+                 own: Callable[[str, str], Any]) -> None:
         self.loaded = loaded
         self.sessions = sessions
-        self.show = show
         self.answered = 0
-        self.failed = 0
+        self.failed: Counter[str] = Counter()
+        self.own = own
         self.t0 = time.time()
-        self.pending = 0  # the operators' gets not ended yet
-        self.alone = False  # the tour's own get runs: the operators wait
         self.until = math.inf  # the fleet stops then: replies after it are not the fleet's
         self._lock = threading.Lock()
         for spec in loaded.table.queries:
             for server in spec.servers:
                 session = sessions.get(server)
                 if session is not None:
-                    session.declare_queryable(spec.served_key(server),
-                                              lambda q, s=spec: self._answer(q, s))
+                    session.declare_queryable(
+                        spec.served_key(server),
+                        functools.partial(self._answer, spec=spec, server=server))
 
-    def _answer(self, query: zenoh.Query, spec: QuerySpec) -> None:
+    def _answer(self, query: zenoh.Query, spec: QuerySpec, server: str) -> None:
         params = {}
         for part in filter(None, str(query.parameters).split(";")):
             name, _, raw = part.partition("=")
             params[name] = int(raw) if raw.lstrip("-").isdigit() else raw
-        value = _reply_value(spec, time.time() - self.t0, params)
+        phase = zlib.crc32(server.encode()) % 628 / 100  # each vehicle its own
+        value = _reply_value(spec, time.time() - self.t0, params,
+                             lambda name: self.own(server, name), phase)
         query.reply(query.key_expr, msgpack.packb(value),
                     encoding=zenoh.Encoding("application/msgpack"))
         query.drop()
@@ -134,12 +148,16 @@ class QueryApps:
         def on_reply(reply: zenoh.Reply) -> None:  # Zenoh thread
             if reply.ok is not None:
                 values.append(msgpack.unpackb(reply.ok.payload.to_bytes()))
-            else:
+            elif reply.err is not None:
                 errors.append(reply.err.payload.to_string())
+
+        def resolve() -> None:
+            if not done.done():
+                done.set_result(None)
 
         def finished() -> None:
             ended.append(time.time())
-            loop.call_soon_threadsafe(lambda: done.done() or done.set_result(None))
+            loop.call_soon_threadsafe(resolve)
 
         asked = time.time()
         session.get(selector, zenoh.handlers.Callback(on_reply, finished), timeout=timeout)
@@ -157,53 +175,22 @@ class QueryApps:
                     if server == asker:
                         continue
                     selector = self.selector(spec, server)
-                    asked = time.time()
-                    with self._lock:
-                        self.pending += 1
-                    session.get(selector, zenoh.handlers.Callback(
-                        lambda r, a=asker, s=selector, t=asked: self._reply(a, s, t, r),
-                        self._ended), timeout=60.0)
+                    session.get(selector, zenoh.handlers.Callback(self._reply),
+                                timeout=60.0)
 
-    def _ended(self) -> None:  # Zenoh thread: an operator's get is over
-        with self._lock:
-            self.pending -= 1
-
-    async def ask_alone(self, asker: str, selector: str, timeout: Callable[[], float]
-                        ) -> tuple[float | None, tuple[list[Any], list[str], float]]:
-        """:meth:`ask`, once the operators' gets have ended, with theirs held meanwhile;
-        returns the seconds waited for them too (None: none was open). ``timeout()`` is the
-        get's, asked when it starts."""
-        self.alone = True
-        started = time.time()
-        try:
-            busy = self.pending > 0
-            while self.pending > 0:  # each ends by its deadline at the latest
-                await asyncio.sleep(POLL_S)
-            waited = time.time() - started if busy else None
-            return waited, await self.ask(asker, selector, timeout())
-        finally:
-            self.alone = False
-
-    def _reply(self, asker: str, selector: str, asked: float, reply: zenoh.Reply) -> None:
+    def _reply(self, reply: zenoh.Reply) -> None:
         if time.time() >= self.until:
             return  # the bridges are stopping: they end what is still open, not the water
-        took = time.time() - asked
-        if reply.ok is not None:
-            self.answered += 1
-            value = msgpack.unpackb(reply.ok.payload.to_bytes())
-            self.show(f"[blue]{asker:>4}[/] get {selector} → {value} ({took:.1f} s)")
-        else:
-            self.failed += 1
-            self.show(f"[red]{asker:>4}[/] get {selector} failed after {took:.1f} s: "
-                      f"{reply.err.payload.to_string()}")
+        with self._lock:
+            if reply.ok is not None:
+                self.answered += 1
+            else:  # "gcv: acoustic link down", ...: the reason, without the vehicle
+                why = reply.err.payload.to_string() if reply.err is not None else "no reply"
+                self.failed[why.split(": ", 1)[-1]] += 1
 
-    async def run(self, first_s: float = FIRST_QUERY_S, until: float = math.inf) -> None:
-        """Ask every QUERY_PERIOD_S from ``first_s`` on, the tour's get aside
-        (:meth:`ask_alone`), until the fleet stops at wall time ``until``."""
+    async def run(self, until: float = math.inf) -> None:
+        """Ask every QUERY_PERIOD_S until the fleet stops at wall time ``until``."""
         self.until = until
-        await asyncio.sleep(first_s)  # the links come up first
         while True:
-            while self.alone:  # the tour's get goes alone
-                await asyncio.sleep(POLL_S)
             self.ask_once()
             await asyncio.sleep(QUERY_PERIOD_S)

@@ -20,7 +20,7 @@ import zenoh
 
 from bridge.core.events import Event, FrameSent, Surfaced
 from bridge.core.loaded import LoadedMission
-from bridge.runtime.session import origin_tag
+from bridge.runtime.session import origin_of, origin_tag
 from bridge.sim.scenario import surface_script
 
 SURFACE_AT_S = 30.0  # path time at which the tour's vehicle reaches the surface
@@ -32,13 +32,14 @@ ROUTER = {"mode": "router", "scouting/delay": 0, "scouting/gossip/enabled": Fals
 def surfacing_for_tour(data: dict[str, Any]) -> str | None:
     """Give the mission (raw YAML data, changed in place) a scripted surfacing: the last
     submerged vehicle with a position rises to the surface, stays, dives; it and the surface
-    node run Zenoh routers, so the simulated WiFi joins them. Returns the change in words
-    (None: the mission has surfacing already, or no surface node or vehicle to use)."""
+    node run Zenoh routers, so the simulated WiFi joins them; the mission's ``surfacing``
+    settings stay (republish by default). Returns the change in words (None: a node has a
+    scripted path already, or there is no surface node or vehicle to use)."""
     nodes = data.get("nodes") or {}
     surface = next((n for n, v in nodes.items() if v.get("role") == "surface"), None)
     vehicles = [n for n, v in nodes.items() if v.get("role", "submerged") != "surface"
-                and v.get("position") and not v.get("path")]
-    if data.get("surfacing") is not None or surface is None or not vehicles:
+                and v.get("position")]
+    if any(v.get("path") for v in nodes.values()) or surface is None or not vehicles:
         return None
     name = vehicles[-1]
     node = nodes[name]
@@ -59,7 +60,8 @@ def surfacing_for_tour(data: dict[str, Any]) -> str | None:
         {"x": x, "y": round(north[2] + TRANSIT_MPS * 600, 2), "depth": depth}]}
     for who in (surface, name):
         nodes[who].setdefault("zenoh", {}).update(ROUTER)
-    data["surfacing"] = {"republish": True}
+    if data.get("surfacing") is None:
+        data["surfacing"] = {"republish": True}
     return (f"{name} surfaces about {SURFACE_AT_S:.0f} s in for about {SURFACED_S:.0f} s (a "
             f"scripted path); {surface}'s and {name}'s Zenoh run as routers, joined over the "
             "simulated WiFi while it is up")
@@ -141,7 +143,7 @@ class SurfacingWatch:
 
     def _arrived(self, sample: zenoh.Sample) -> None:
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
-        via = self._via.get(attachment)
+        via = self._via.get(origin_of(attachment))
         if via is None:  # not from either bridge
             return
         try:

@@ -2,9 +2,10 @@
 
 Checks, in order: the mission (as ``zab check``) and the frame key; the modem (the serial
 device exists and is usable, then the backend opens and the modem answers its start-up
-commands); the Zenoh session (listen endpoints free, connect endpoints reachable); the clock
-(TDMA slots are wall-clock aligned, so every node needs a synchronised clock: chrony, systemd's
-timesyncd or a PPS source).
+commands); the Zenoh session (listen endpoints free, connect endpoints reachable); the state
+directory (a save works there, with room to spare: a bridge that cannot save its state refuses
+new reliable values); the clock (TDMA slots are wall-clock aligned, so every node needs a
+synchronised clock: chrony, systemd's timesyncd or a PPS source).
 
 Parsing of the clock tools' output is pure (:func:`parse_chronyc`, :func:`parse_timedatectl`);
 running them, opening the modem and the Zenoh session happen in :func:`run_doctor`.
@@ -46,6 +47,7 @@ RunCommand = Callable[[Sequence[str]], str | None]
 
 SERIAL_BACKENDS = frozenset({"evologics", "micromodem"})
 CONNECT_PROBE_S = 1.0
+STATE_ROOM_BYTES = 1 << 20  # free space under which the state directory is a warning
 
 
 @dataclass(frozen=True)
@@ -283,6 +285,31 @@ def zenoh_findings(loaded: LoadedMission, node: str) -> list[Finding]:
     return found
 
 
+def state_findings(loaded: LoadedMission, node: str, directory: Path) -> list[Finding]:
+    """Whether the node's state can be saved in ``directory``: a real save of a probe file
+    (as the bridge saves, atomically), and the room left."""
+    from bridge.runtime.persistence import problem
+    from bridge.runtime.state_file import StateError, StateFile
+
+    try:
+        probe = StateFile(directory, loaded.mission.mission, f"{node}.doctor")
+        probe.save({"doctor": True})
+        probe.path.unlink()
+    except StateError as exc:
+        return [Finding("state", "fail", str(exc), "create the directory and give the bridge's "
+                        "user write access (systemd: StateDirectory=zab), or pass --state-dir")]
+    except OSError as exc:
+        return [Finding("state", "fail", f"cannot save a state file in {directory}: "
+                        f"{problem(exc)}", "free space on that filesystem or remount it "
+                        "read-write: meanwhile a running bridge refuses new reliable values")]
+    free = shutil.disk_usage(directory).free
+    if free < STATE_ROOM_BYTES:
+        return [Finding("state", "warn", f"{directory}: only {free // 1024} KiB free",
+                        "free space: a bridge that cannot save its state refuses new reliable "
+                        "values until it can")]
+    return [Finding("state", "ok", f"{directory} takes a save ({free // (1 << 20)} MiB free)")]
+
+
 def _pps_devices() -> list[str]:
     return sorted(str(p) for p in Path("/dev").glob("pps*"))
 
@@ -294,8 +321,10 @@ async def run_doctor(
     timeout_s: float = 15.0,
     run: RunCommand = run_command,
     modem: Callable[[LoadedMission, str, float], Awaitable[list[Finding]]] = modem_findings,
+    state_dir: Path | None = None,
 ) -> list[Finding]:
-    """Every check for ``node``; the modem is opened only when its device looks usable."""
+    """Every check for ``node``; the modem is opened only when its device looks usable;
+    ``state_dir``: where the node saves its state (not checked when None)."""
     if node not in loaded.mission.nodes:
         return [Finding("mission", "fail", f"no node {node!r}; nodes: "
                         f"{', '.join(loaded.mission.nodes)}", "pass --node with one of them")]
@@ -305,6 +334,8 @@ async def run_doctor(
     if all(f.status == "ok" for f in devices):
         found += await modem(loaded, node, timeout_s)
     found += await asyncio.to_thread(zenoh_findings, loaded, node)
+    if state_dir is not None:
+        found += await asyncio.to_thread(state_findings, loaded, node, state_dir)
     state = await asyncio.to_thread(read_clock, run)
     found += clock_findings(loaded, state, _pps_devices())
     return found

@@ -20,7 +20,7 @@ def _flag_shows_no_type(self: TyperOption, ctx: Context) -> str | None:
 
 def install() -> None:
     """Make option help show flags as flags (idempotent)."""
-    TyperOption.display_type_rich = _flag_shows_no_type  # type: ignore[method-assign]
+    TyperOption.display_type_rich = _flag_shows_no_type  # type: ignore[assignment]
 
 
 HELP_OPTIONS = {"help_option_names": ["-h", "--help"]}

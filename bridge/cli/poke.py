@@ -17,6 +17,7 @@ from typing import Any
 import msgpack
 import zenoh
 
+from bridge.cli.rounding import Steps, to_step
 from bridge.errors import SessionError
 from bridge.mission.model import ZenohSettings
 from bridge.runtime.session import close_quietly, open_session
@@ -74,16 +75,21 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def format_sample(key: str, payload: bytes, encoding: str) -> str:
-    """One line: the key, then the decoded value as compact JSON."""
-    return f"{key} {json.dumps(_plain(decode(payload, encoding)), separators=(', ', ': '))}"
+def format_sample(key: str, payload: bytes, encoding: str, steps: Steps | None = None) -> str:
+    """One line: the key, then the decoded value as compact JSON; with the mission's
+    ``steps``, a bridged value's fields printed to their channel's step."""
+    value = decode(payload, encoding)
+    if steps is not None:
+        value = to_step(value, steps.of(key))
+    return f"{key} {json.dumps(_plain(value), separators=(', ', ': '))}"
 
 
 def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
            count: int | None = None, duration: float | None = None,
-           ready: Callable[[], None] | None = None) -> int:
+           ready: Callable[[], None] | None = None, steps: Steps | None = None) -> int:
     """Print each value arriving on ``keyexpr`` until ``count`` values, ``duration`` seconds
-    or Ctrl-C; return how many were shown. ``ready`` is called once the subscriber is up."""
+    or Ctrl-C; return how many were shown. ``ready`` is called once the subscriber is up;
+    ``steps`` (the mission's) round bridged values to their channel's step."""
     try:
         zenoh.KeyExpr(keyexpr)
     except zenoh.ZError as exc:
@@ -95,7 +101,7 @@ def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
             arrived.put(f"{sample.key_expr} (deleted)")
             return
         arrived.put(format_sample(str(sample.key_expr), sample.payload.to_bytes(),
-                                  str(sample.encoding)))
+                                  str(sample.encoding), steps))
 
     end = None if duration is None else time.monotonic() + duration
     shown = 0
@@ -116,8 +122,11 @@ def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
     return shown
 
 
-def put(endpoint: str, key: str, value_json: str) -> bytes:
-    """Publish the JSON value ``value_json`` on ``key`` as msgpack; return the payload sent."""
+def put(endpoint: str, key: str, value_json: str, ref: str) -> bytes:
+    """Publish the JSON value ``value_json`` on ``key`` as msgpack, an operator's command
+    (attachment ``ref:<ref>``, as the GUI's: a reliable channel's delivery reports echo it,
+    and ``zab demo``'s programs leave the key to the operator for a while); return the
+    payload sent."""
     try:
         value = json.loads(value_json)
     except ValueError as exc:
@@ -129,5 +138,6 @@ def put(endpoint: str, key: str, value_json: str) -> bytes:
     payload = msgpack.packb(value)
     with client(endpoint) as session:
         session.put(key, payload, encoding=zenoh.Encoding(MSGPACK),
-                    congestion_control=zenoh.CongestionControl.BLOCK)
-    return payload
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                    attachment=f"ref:{ref}".encode())
+    return bytes(payload)

@@ -20,7 +20,7 @@ from bridge.core.events import (
     FrameReceived,
     FrameSent,
     ModemDown,
-    PayloadDropped,
+    PayloadDrops,
     SendFailed,
 )
 from bridge.core.loaded import LoadedMission
@@ -35,7 +35,7 @@ REFRESH_S = 0.5
 class EventLog:
     """The last few frame events, for the live view (kept as they come, worded when shown)."""
 
-    KINDS = (FrameSent, FrameReceived, FrameDropped, PayloadDropped, SendFailed, ModemDown)
+    KINDS = (FrameSent, FrameReceived, FrameDropped, PayloadDrops, SendFailed, ModemDown)
 
     def __init__(self, size: int = 10) -> None:
         self._last: deque[tuple[float, str, Event]] = deque(maxlen=size)
@@ -56,7 +56,10 @@ def _wording(node: str, event: Event) -> str:
             return f"{node} sent {size} B [{', '.join(channels) or 'empty'}]"
         case FrameReceived(src=src, size=size):
             return f"{node} heard {src} ({size} B)"
-        case FrameDropped(reason=why) | PayloadDropped(reason=why) | SendFailed(error=why) \
+        case PayloadDrops(drops=drops):
+            return f"{node} dropped {event.total} payloads: " + "; ".join(
+                f"{count} on {key} ({cause})" for key, cause, count, _ in drops)
+        case FrameDropped(reason=why) | SendFailed(error=why) \
                 | ModemDown(error=why):
             return f"{node} {event.kind.replace('_', ' ')}: {why}"
     return f"{node} {event.kind}"

@@ -7,13 +7,15 @@ title in :data:`PARTS`, a method here for its words, and a step in ``demo._story
 
 from __future__ import annotations
 
-import math
+import json
 from collections.abc import Mapping
 from typing import Any
 
 from rich.console import Console
 from rich.table import Table
 
+from bridge.cli.rounding import number, significant
+from bridge.cli.words import counted
 from bridge.core.loaded import LoadedMission
 from bridge.report.check import check_mission
 from bridge.wire.channels import ChannelCodec
@@ -28,18 +30,6 @@ PARTS = {
     "relay": "A vehicle reached through another",
     "summary": "Summary",
 }
-
-
-def number(value: float, step: float | None) -> str:
-    """``value`` with as many decimals as its quantisation ``step`` warrants (no float noise:
-    9.536743164062498e-08 prints as 0.0000 at a 0.0001 step)."""
-    if isinstance(value, int) and (step is None or float(step).is_integer()):
-        return str(value)
-    if step is None or step <= 0 or not math.isfinite(step):
-        return f"{value:.6g}"
-    exponent = math.log10(step)
-    decimals = max(0, -math.floor(exponent) + (0 if exponent.is_integer() else 1))
-    return f"{value:.{decimals}f}"
 
 
 def get_path(value: Any, path: str) -> Any:
@@ -61,16 +51,13 @@ def quantisation_lines(channel: ChannelCodec, element: int, sent: Any, got: Any)
         name = field.path or "(value)"
         if isinstance(before, int | float) and isinstance(after, int | float) \
                 and not isinstance(before, bool):
-            why = _bits(field.bits) + (f", step {step:.3g}" if step else "")
+            why = counted(field.bits, 'bit') + (f", step {significant(step)}" if step else "")
             lines.append(f"     {name:<10} {number(before, step):>10} → "
                          f"{number(after, step):<10} {why}")
         else:
-            lines.append(f"     {name:<10} {before!s:>10} → {after!s:<10} {_bits(field.bits)}")
+            lines.append(f"     {name:<10} {before!s:>10} → {after!s:<10} "
+                         f"{counted(field.bits, 'bit')}")
     return lines
-
-
-def _bits(n: int) -> str:
-    return f"{n} bit" if n == 1 else f"{n} bits"
 
 
 def turn_waits(loaded: LoadedMission) -> dict[str, float | None]:
@@ -78,23 +65,75 @@ def turn_waits(loaded: LoadedMission) -> dict[str, float | None]:
     return {n["name"]: n["mac"]["worst_interval_s"] for n in check_mission(loaded).data["nodes"]}
 
 
+def short(value: Any) -> str:
+    """A value as compact JSON, floats to 3 decimals, cut at 90 characters."""
+    def fmt(v: Any) -> Any:
+        if isinstance(v, float):
+            return round(v, 3)
+        if isinstance(v, dict):
+            return {k: fmt(x) for k, x in v.items()}
+        return v
+
+    text = json.dumps(fmt(value), separators=(", ", ": "), default=str)
+    return text if len(text) < 90 else text[:87] + "..."
+
+
+def range_error_lines(ranges: list[tuple[str, str, float]], still: set[str],
+                      cycle_s: float | None) -> list[str]:
+    """The summary's words on acoustic ranges, ``(observer, peer, |error|)`` each: a DLBL
+    range is two-way, the distance averaged over an exchange that spans up to a TDMA cycle,
+    so a pair whose distance changes meanwhile (a vehicle sailing away from a node that
+    keeps ``still``) reads off against the distance at its end; a pair moving together is
+    what the ranging bench measures."""
+    if not ranges:
+        return []
+    def median(values: list[float]) -> float:
+        return sorted(values)[len(values) // 2]
+
+    lines = [f"{counted(len(ranges), 'acoustic range')} measured; median error against the "
+             f"simulated distance when each completed {median([e for *_, e in ranges]):.2f} m."]
+    moving = [e for a, b, e in ranges if a not in still and b not in still]
+    fixed = [e for a, b, e in ranges if (a in still) != (b in still)]
+    if moving and fixed:
+        span = f"up to {cycle_s:g} s" if cycle_s else "a while"
+        lines.append(
+            f"  A range is two-way: it averages the distance over an exchange of frames "
+            f"({span} apart). Between vehicles sailing in formation the distance changes "
+            f"little meanwhile: median {median(moving):.2f} m ({len(moving)} ranges). To "
+            f"{', '.join(sorted(still))}, which they sail away from, it changes: median "
+            f"{median(fixed):.2f} m ({len(fixed)} ranges); the tracker models that, so "
+            "positions do better. With nothing moving, bench/ranging_bench.py measures the "
+            "ranging alone: centimetres.")
+    return lines
+
+
 class Tour:
-    """Prints the tour's parts in order on ``console``."""
+    """Prints the tour's parts in order on ``console``: those of :data:`PARTS` the mission
+    has something to show for (:meth:`plan`), numbered as shown."""
 
     def __init__(self, loaded: LoadedMission, console: Console, duration: float) -> None:
         self.loaded = loaded
         self.console = console
         self.duration = duration
+        self.parts = list(PARTS)
         self.shown: list[str] = []
+
+    def plan(self, parts: list[str]) -> None:
+        """Show only ``parts`` (names of :data:`PARTS`, kept in its order)."""
+        self.parts = [name for name in PARTS if name in parts or name == "summary"]
 
     def say(self, text: str) -> None:
         self.console.print(text, highlight=False)
 
-    def part(self, name: str) -> None:
-        """The heading of a part of the tour."""
+    def part(self, name: str) -> bool:
+        """The heading of a part of the tour; False (and nothing printed) if the plan left
+        it out."""
+        if name not in self.parts:
+            return False
         self.shown.append(name)
-        number_ = list(PARTS).index(name) + 1
+        number_ = self.parts.index(name) + 1
         self.console.rule(f"[bold]{number_}. {PARTS[name]}", align="left")
+        return True
 
     def intro(self, changes: list[str]) -> None:
         mission = self.loaded.mission
@@ -105,7 +144,7 @@ class Tour:
         for change in changes:
             self.say(f"  [dim]for the tour: {change}[/]")
         self.say("You will see, in order: " + "; ".join(
-            f"{i}. {title.lower()}" for i, title in enumerate(PARTS.values(), start=1)) + ".")
+            f"{i}. {PARTS[name].lower()}" for i, name in enumerate(self.parts, start=1)) + ".")
         for name, node in mission.nodes.items():
             self.say(f"  {name:>4} ({node.role}) Zenoh endpoint {' '.join(node.zenoh.listen)}")
 
@@ -122,9 +161,20 @@ class Tour:
     def quantised(self, src: str, dst: str, channel: ChannelCodec, element: int, sent: Any,
                   got: Any) -> None:
         key = channel.elements[element].output_key(src, dst)
-        self.say(f"  {src} → {dst}: [bold]{key}[/] ({channel.name}, {channel.bits} bits)")
+        self.say(f"  {src} → {dst}: [bold]{key}[/] ({channel.name}, "
+                 f"{counted(channel.bits, 'bit')})")
         for line in quantisation_lines(channel, element, sent, got):
             self.say(line)
+
+    def families(self, members: Mapping[str, list[str]]) -> None:
+        """Key families: the member keys that arrived, each with its own value."""
+        if not members:
+            return
+        self.say("Key families: one channel, a wildcard input; each member crosses with its "
+                 "own index and keeps its own key, value and age at the receiver:")
+        for name, keys in members.items():
+            shown = ", ".join(keys[:4]) + (", ..." if len(keys) > 4 else "")
+            self.say(f"  {name}: {counted(len(keys), 'key')} so far: {shown}")
 
     def latest(self, channel: ChannelCodec, publish_s: float, sender: str,
                wait_s: float | None) -> None:
@@ -175,16 +225,13 @@ class Tour:
                  f"back, repeating the request if a frame is lost, for up to {deadline:g} s "
                  f"({why}, from zab check).")
 
-    def waited_for_operators(self, waited_s: float) -> None:
-        self.say(f"  (it waited {waited_s:.1f} s for the operators' earlier gets to end: "
-                 "they would share its frames)")
-
     def query_answered(self, asker: str, selector: str, values: list[Any], errors: list[str],
                        took: float, sends: int | None = None) -> None:
         went = "" if sends is None else \
             f", the request sent {sends} time{'s' if sends != 1 else ''}"
         for value in values:
-            self.say(f"  {asker} get {selector} → {value} ({took:.1f} s round trip{went})")
+            self.say(f"  {asker} get {selector} → {short(value)} ({took:.1f} s round "
+                     f"trip{went})")
         for error in errors:
             self.say(f"  {asker} get {selector} failed after {took:.1f} s: {error}")
         if not values and not errors:
@@ -203,19 +250,20 @@ class Tour:
         self.say(f"  {at_s:5.1f} s  {vehicle} {what} {surface}{')' if up else ''}")
 
     def over_ip(self, key: str, value: Any, count: int) -> None:
-        self.say(f"          {count} values arrived over IP, e.g. {key} = {value}")
+        self.say(f"          {counted(count, 'value')} arrived over IP, e.g. {key} = {value}")
 
     def acoustic_while_up(self, vehicle: str, sent: Mapping[str, int],
                           destinations: Mapping[str, tuple[str, ...]], published: int,
                           duplicates: int, surface: str) -> None:
         for name, n in sent.items():
             still = ", ".join(destinations[name]) or "nobody"
-            self.say(f"          {name}: {n} values sent acoustically while up "
+            self.say(f"          {name}: {counted(n, 'value')} sent acoustically while up "
                      f"(acoustic destinations left: {still})")
         self.say(f"          {published} acoustic values of {vehicle} published at {surface} "
                  "while up")
         if duplicates:
-            self.say(f"          {surface} dropped {duplicates} acoustic copies heard anyway "
+            self.say(f"          {surface} dropped "
+                     f"{counted(duplicates, 'acoustic copy', 'acoustic copies')} heard anyway "
                      "(the IP copy wins)")
 
     def acoustic_again(self, key: str, value: Any, after_s: float) -> None:
@@ -236,16 +284,14 @@ class Tour:
                  f"({hops + 1} hops, {age_s} s old on arrival by its header); {via} has "
                  f"carried {carried} frames of others so far")
 
-    def no_relay(self) -> None:
-        self.say("Every vehicle of this mission reaches the surface itself: no relay to show "
-                 "(zab demo --mission deploy/missions/umci_relay.yaml shows one: seed 002's "
-                 "ROV2 reached over RF through ROV1).")
-
     def not_seen(self, what: str) -> None:
         self.say(f"  ({what} not seen before the tour moved on)")
 
     def summary(self, report: Mapping[str, Any], published: Mapping[str, int],
-                range_errors: list[float]) -> None:
+                ranges: list[tuple[str, str, float]], still: set[str],
+                cycle_s: float | None) -> None:
+        """The run's figures; ``ranges``: (observer, peer, |error|) of each acoustic range,
+        ``still``: nodes that do not move, ``cycle_s``: the TDMA cycle."""
         table = Table("channel", "published", "sent in frames", "received", "mean age",
                       "max age")
         for name, c in report["channels"].items():
@@ -266,7 +312,25 @@ class Tour:
         if sent:
             self.say(f"The water carried {sent} frame copies between vehicles and lost {lost} "
                      f"({lost / sent:.0%}).")
-        if range_errors:
-            ordered = sorted(range_errors)
-            self.say(f"{len(ordered)} acoustic ranges measured; median error against the "
-                     f"simulated truth {ordered[len(ordered) // 2]:.2f} m.")
+        for line in range_error_lines(ranges, still, cycle_s):
+            self.say(line)
+
+    def operators(self, asker: str, answered: int, failed: Mapping[str, int],
+                  period_s: float) -> None:
+        """What the operator's gets in the background came to (after the query part)."""
+        if not answered and not failed:
+            return
+        why = "; ".join(f"{n} {reason}" for reason, n in failed.items())
+        self.say(f"After part {self.parts.index('queries') + 1}, an operator on {asker} asked "
+                 f"every vehicle every {period_s:g} s: {answered} answered, "
+                 f"{sum(failed.values())} failed" + (f" ({why})" if why else "") + ".")
+
+    def late_frames(self, late: Mapping[str, int]) -> None:
+        """Frames the simulated modem refused because the bridge asked too late."""
+        if not late:
+            return
+        who = ", ".join(f"{node} {n}" for node, n in sorted(late.items()))
+        self.say(f"Frames not sent because this computer was busy ({who}): the bridge asked "
+                 "the simulated modem to start them after their moment had passed, and a "
+                 "timed modem refuses that, as EvoLogics modems do; their values waited for the "
+                 "next turn. On a quieter machine there are none.")

@@ -55,9 +55,13 @@ class _CclAngle(FieldCodec):
             {"type": "number", "minimum": -self.limit, "maximum": self.limit}
         )
 
+    @property
+    def step(self) -> float:
+        """Degrees between two codes (what a decoded angle is rounded to)."""
+        return self.limit / _HALF
+
     def describe(self) -> str:
-        step = self.limit / _HALF
-        return f"{self.label} 24 bit [{-self.limit}, {self.limit}] step {step:.3g}°"
+        return f"{self.label} 24 bit [{-self.limit}, {self.limit}] step {self.step:.3g}°"
 
     def inline_encode(self, v: str, k: str, ns: Namespace, tag: str) -> list[str] | None:
         lim = repr(float(self.limit))

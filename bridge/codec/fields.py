@@ -317,7 +317,7 @@ class EnumCodec(FieldCodec):
                 known = ", ".join(self.names)
                 raise self.fail(f"{value!r} is not one of: {known}") from None
         if isinstance(value, numbers.Integral) and not isinstance(value, bool):
-            if 0 <= value < len(self.names):
+            if 0 <= int(value) < len(self.names):
                 return int(value)
             raise self.fail(f"index {value} is out of range 0..{len(self.names) - 1}")
         raise self.fail(f"expected a name or index, got {type(value).__name__} {value!r}")
@@ -495,7 +495,7 @@ class ArrayCodec(FieldCodec):
         self._encode_element = checked_encode(element)
         self._decode_element = checked_decode(element)
 
-    @property  # type: ignore[override]
+    @property
     def clamped(self) -> int:
         """Clamps counted by the element codec."""
         return self.element.clamped

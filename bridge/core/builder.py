@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
 from bridge.core.store import ChannelState
 from bridge.frozen import direct_init
 from bridge.wire.channels import ChannelCodec
+from bridge.wire.families import NameCodec
 from bridge.wire.frame import FrameCodec
+from bridge.wire.interest import InterestCodec
+from bridge.wire.marks import MarkCodec
+from bridge.wire.queries import QueryCodec
+
+Offered = ChannelCodec | NameCodec | InterestCodec | QueryCodec | MarkCodec
+"""What a candidate offers a frame an entry of: a channel or a system entry."""
 
 
 @direct_init
@@ -28,7 +35,7 @@ class Candidate:
     (``what`` is its state) or a queued value or fragment. ``rank`` orders one channel's
     several candidates."""
 
-    channel: ChannelCodec
+    channel: Offered
     last_sent: float | None
     what: Any
     rank: int = 0
@@ -55,10 +62,3 @@ def fill(codec: FrameCodec, candidates: Iterable[Candidate], budget_bits: int,
             left_out.append(candidate)
     return chosen, left_out
 
-
-def plan_frame(codec: FrameCodec, due: Sequence[ChannelState], frame_bytes: int) -> FramePlan:
-    """A frame of ``frame_bytes`` filled from latest-value channels alone."""
-    chosen, left_out = fill(codec, (Candidate(s.channel, s.last_sent, s) for s in due),
-                            codec.body_capacity_bits(frame_bytes) - codec.count_bits,
-                            (1 << codec.count_bits) - 1)
-    return FramePlan(tuple(c.what for c in chosen), tuple(c.what for c in left_out))

@@ -21,9 +21,8 @@ if TYPE_CHECKING:  # not imported at run time: the tracker pulls in numpy
 
 __all__ = [
     "Delivery", "Event", "FrameDropped", "FrameReceived", "FrameRelayed", "FrameSent", "Link",
-    "LinkSwitched",
-    "MissionMismatch", "ModemDown", "PayloadDropped", "PeerLink", "PeerRestarted", "Position",
-    "Range", "RangeFailed", "SendFailed", "Surfaced", "notable",
+    "LinkSwitched", "MissionMismatch", "ModemDown", "PayloadDrops", "PeerLink", "PeerRestarted",
+    "Position", "Range", "RangeFailed", "SendFailed", "StateSaving", "Surfaced", "notable",
 ]
 
 
@@ -42,15 +41,23 @@ class Event:
 
 
 @dataclass(frozen=True, slots=True)
-class PayloadDropped(Event):
-    """A sample on an input key could not be used (counted per key)."""
+class PayloadDrops(Event):
+    """Samples on input keys that could not be used since the last such event (a summary, at
+    most one a second however many drops: see :mod:`bridge.core.drops`): per key and cause,
+    how many and the first reason given."""
 
-    kind: ClassVar[str] = "payload_dropped"
-    key: str
-    reason: str
+    kind: ClassVar[str] = "payload_drops"
+    drops: tuple[tuple[str, str, int, str], ...]
+    """``(key, cause, count, reason)`` each."""
+
+    @property
+    def total(self) -> int:
+        return sum(count for _, _, count, _ in self.drops)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"time": self.time, "key": self.key, "reason": self.reason}
+        return {"time": self.time, "total": self.total,
+                "drops": [{"key": key, "cause": cause, "count": count, "reason": reason}
+                          for key, cause, count, reason in self.drops]}
 
 
 @direct_init
@@ -114,8 +121,8 @@ class FrameReceived(Event):
     channels: list[str]
     data: bytes
     meta: dict[str, Any]
-    values: dict[str, list[dict]]
-    members: dict[str, dict[str, list[dict]]] | None = None
+    values: dict[str, list[dict[str, Any]]]
+    members: dict[str, dict[str, list[dict[str, Any]]]] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out = {"time": self.time, "src": self.src, "bytes": self.size, "channels": self.channels,
@@ -318,8 +325,22 @@ class ModemDown(Event):
         return {"time": self.time, "error": self.error}
 
 
-NOTABLE = (Link, FrameDropped, SendFailed, ModemDown, PayloadDropped, MissionMismatch,
-           PeerRestarted, Surfaced, PeerLink, LinkSwitched)
+@dataclass(frozen=True, slots=True)
+class StateSaving(Event):
+    """The runtime's saves of the node's state started failing (``error``: why) or work again
+    (``error`` None); ``since``: when they started failing."""
+
+    kind: ClassVar[str] = "state_saving"
+    error: str | None
+    since: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "saved": self.error is None, "error": self.error,
+                "since": self.since}
+
+
+NOTABLE = (Link, FrameDropped, SendFailed, ModemDown, PayloadDrops, MissionMismatch,
+           PeerRestarted, Surfaced, StateSaving, PeerLink, LinkSwitched)
 """Events also published on ``@zab/<mission>/<node>/events`` (with failed deliveries)."""
 
 

@@ -189,6 +189,7 @@ class Families:
                     continue
                 out.append(Candidate(sender.channel, state.last_sent, state, member))
                 if sender.name_due(member, now):
+                    assert self.names_codec is not None  # (a learned family names members)
                     out.append(Candidate(self.names_codec, None, self._name(sender, member),
                                          member))
         return out

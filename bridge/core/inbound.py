@@ -1,7 +1,8 @@
 """The receiving side of a node (pure): frames in, values and events out.
 
 :meth:`Inbound.receive` checks where a frame comes from (a peer under the same mission file;
-two frames in a row with the same foreign fingerprint say the peer runs another one), decodes
+two frames in a row with the same foreign fingerprint say the peer runs another one, or in an
+authenticated mission one whose tag a key holder made under it), decodes
 it (authentication, replay window, check value), tells the MAC and the link what was heard,
 follows the peer's epoch, and hands each entry to what it is for: values to publish (latest,
 released by a reliable window, or reassembled from fragments), acknowledgements to the
@@ -37,10 +38,11 @@ from bridge.core.routing import Arrival
 from bridge.core.transfer import from_bytes
 from bridge.errors import DecodeError, FrameError
 from bridge.mission.model import Mission
-from bridge.wire.channels import AckCodec, ChannelCodec
+from bridge.wire.channels import AckCodec, ChannelCodec, Values
 from bridge.wire.families import NameCodec
 from bridge.wire.frame import DecodedFrame, Entry, FrameCodec
 from bridge.wire.interest import InterestCodec
+from bridge.wire.marks import MarkCodec
 from bridge.wire.queries import QueryCodec
 
 if TYPE_CHECKING:
@@ -116,9 +118,9 @@ class Inbound:
         if arrival is not None:
             self.network.routing.taken(arrival, rx.data, src, now)  # type: ignore[union-attr]
             self._takes = self.index in arrival.header.serves
-        values: dict[str, list[dict]] = {}
+        values: dict[str, Values] = {}
         anchors: Anchors = {}  # live anchor positions the frame carried
-        members: dict[str, dict[str, list[dict]]] = {}  # key families: per member
+        members: dict[str, dict[str, Values]] = {}  # key families: per member
         for entry in frame.entries:
             self._entry(origin, entry, now, values, anchors, members)
         self._takes = True
@@ -165,6 +167,8 @@ class Inbound:
         record it."""
         self.stats.frames_received += 1
         self._foreign.pop(src, None)
+        if self.mismatched:
+            self._matched(src, now)
         self.links.heard(src, now)
         if self.sealed:
             self.outbox.unsaved = True  # the replay window moved: saved before publishing
@@ -178,16 +182,16 @@ class Inbound:
         if self.links.states.get(src) is not LinkState.UP:
             self.links.update(now)
 
-    def _entry(self, src: str, entry: Entry, now: float, values: dict[str, list[dict]],
-               anchors: Anchors, members: dict[str, dict[str, list[dict]]]) -> None:
+    def _entry(self, src: str, entry: Entry, now: float, values: dict[str, Values],
+               anchors: Anchors, members: dict[str, dict[str, Values]]) -> None:
         """One entry of a frame from ``src``: its values published and gathered."""
         channel = entry.channel
-        if channel.__class__ is not ChannelCodec:  # an acknowledgement or a system entry
+        if not isinstance(channel, ChannelCodec):  # an acknowledgement or a system entry
             if isinstance(channel, AckCodec):
                 self.outbound.on_ack(src, entry.header, now)
-                return
-            if self._system(src, entry, now):
-                return
+            else:
+                self._system(src, channel, entry, now)
+            return
         if src not in channel.senders:
             self.stats.frames_dropped["unexpected_sender"] += 1
             return
@@ -202,6 +206,7 @@ class Inbound:
         elif channel.reliable:
             delivered = self.receivers.entry(src, channel, entry.header, entry.values)
         else:
+            assert entry.values is not None  # (a latest value always has its values)
             delivered = [entry.values]
         member = "*"
         if channel.family is not None:
@@ -213,9 +218,9 @@ class Inbound:
         for elements in delivered:
             self._deliver(src, channel, member, elements, now, values, anchors, members)
 
-    def _deliver(self, src: str, channel: ChannelCodec, member: str, elements: list[Any],
-                 now: float, values: dict[str, list[dict]], anchors: Anchors,
-                 members: dict[str, dict[str, list[dict]]]) -> None:
+    def _deliver(self, src: str, channel: ChannelCodec, member: str, elements: Values,
+                 now: float, values: dict[str, Values], anchors: Anchors,
+                 members: dict[str, dict[str, Values]]) -> None:
         """One value of ``channel`` from ``src`` (``member`` of its family): published."""
         cname, family, latching = channel.name, channel.family, channel.latching
         values[cname] = elements
@@ -234,7 +239,7 @@ class Inbound:
             self.outbox.publish(key, value, element.encoding, latching, element.ros2)
 
     def _fragment(self, src: str, channel: ChannelCodec, entry: Entry,
-                  now: float) -> list[list[Any]]:
+                  now: float) -> list[Values]:
         """A fragment: the value it completes, if any, with the transfer's progress out."""
         data, progress = self.receivers.fragment(src, channel, entry.header, entry.chunk)
         self.outbox.status(f"transfer/{channel.name}", {**progress, "peer": src, "time": now})
@@ -248,9 +253,9 @@ class Inbound:
                                            f"transfer on {channel.name!r}: {exc}"))
             return []
 
-    def _system(self, src: str, entry: Entry, now: float) -> bool:
-        """An ``@key``, ``@want`` or query entry from ``src``; False for anything else."""
-        channel = entry.channel
+    def _system(self, src: str, channel: NameCodec | InterestCodec | QueryCodec | MarkCodec,
+                entry: Entry, now: float) -> None:
+        """An ``@key``, ``@want``, query or ``@mark`` entry from ``src``."""
         if isinstance(channel, NameCodec):
             self.families.on_name(src, entry.header)
         elif isinstance(channel, InterestCodec):
@@ -260,15 +265,23 @@ class Inbound:
             if self.queries is not None:
                 handle = self.queries.on_reply if channel.reply else self.queries.on_request
                 handle(src, channel, entry.header, entry.values, now)
-        else:
-            return False
-        return True
+        else:  # an @mark: a peer refused our frames as replayed
+            peer, mark = entry.header
+            auth = self.codec.auth
+            if self.codec.table.nodes[peer] == self.node and auth is not None \
+                    and auth.resume_past(mark):
+                log.info("%s: %s refused its frames as replayed: its counter resumes past %d",
+                         self.node, src, mark)
 
     def _foreign_frame(self, src: str, fingerprint: int, rx: Reception, now: float) -> None:
         """A frame whose check gives another fingerprint: corrupt, or sent with another
-        mission file — the same fingerprint twice in a row from one sender says which."""
-        mismatch = self._foreign.get(src) == fingerprint
-        self._foreign[src] = fingerprint
+        mission file — the same fingerprint twice in a row from one sender says which; in an
+        authenticated mission, only a tag a key holder made under that fingerprint does."""
+        if self.sealed:
+            mismatch = self.codec.vouch(rx.data, rx.src, fingerprint) is not None
+        else:
+            mismatch = self._foreign.get(src) == fingerprint
+            self._foreign[src] = fingerprint
         reason = "mission_mismatch" if mismatch else "check"
         self.stats.frames_dropped[reason] += 1
         self.outbox.event(FrameDropped(now, src, reason,
@@ -282,6 +295,13 @@ class Inbound:
             event = MissionMismatch(now, src, text, ours)
             self.outbox.status(f"mismatch/{src}", event.to_dict())
             self.outbox.event(event)
+
+    def _matched(self, src: str, now: float) -> None:
+        """A frame of this mission file from ``src``: it no longer runs another one."""
+        if self.mismatched.pop(src, None) is not None:
+            log.warning("%s: peer %s runs this mission file again", self.node, src)
+            self.outbox.status(f"mismatch/{src}", {"time": now, "peer": src, "fingerprint": None,
+                                                   "ours": f"{self.codec.fingerprint16:04x}"})
 
 
 def _hop_meta(arrival: Arrival, src: str, side: LinkSide) -> dict[str, Any]:

@@ -182,11 +182,13 @@ class Links:
             if self.on_up is not None and state is LinkState.UP \
                     and previous in (None, LinkState.DOWN):
                 self.on_up()
-            payload = {"peer": peer, "state": state.value, "last_heard": heard,
-                       "silent_s": None if heard is None else now - heard}
+            silent = None if heard is None else now - heard
             if self.link is not None:
-                self.outbox.status(f"links/{self.link}/{peer}", {**payload, "link": self.link})
-                self.outbox.event(PeerLink(now, link=self.link, **payload))
+                self.outbox.status(f"links/{self.link}/{peer}", {
+                    "peer": peer, "state": state.value, "last_heard": heard,
+                    "silent_s": silent, "link": self.link})
+                self.outbox.event(PeerLink(now, peer, self.link, state.value, heard, silent))
                 continue
-            self.outbox.status(f"link/{peer}", payload)
-            self.outbox.event(Link(now, **payload))
+            self.outbox.status(f"link/{peer}", {"peer": peer, "state": state.value,
+                                                "last_heard": heard, "silent_s": silent})
+            self.outbox.event(Link(now, peer, state.value, heard, silent))

@@ -92,7 +92,9 @@ class NodeNetwork:
             if isinstance(what, Extra):
                 if self.extra_targets(side, what):
                     out.append(candidate)
-            elif isinstance(what, ChannelState) or self.targets(side, candidate.channel, what):
+            elif isinstance(what, ChannelState) or (
+                    isinstance(candidate.channel, ChannelCodec)
+                    and self.targets(side, candidate.channel, what)):
                 out.append(candidate)
         return out
 
@@ -258,7 +260,8 @@ class NodeNetwork:
         """Failures to a node reached through relays, with where its route breaks."""
         out = []
         for report in reports:
-            why = self.explain(report.dst, now) if report.state == "failed" else None
+            why = self.explain(report.dst, now) if report.state == "failed" \
+                and report.dst is not None else None
             out.append(report if why is None else replace(report, reason=f"{report.reason}; "
                                                            f"{why}"))
         return out

@@ -55,19 +55,20 @@ from bridge.core.mac import Schedule
 from bridge.core.network import NodeNetwork
 from bridge.core.outbound import Outbound, OutFrame
 from bridge.core.outputs import NodeStats, Outbox, Output, Publish, Status
-from bridge.core.persist import STATE_VERSION, usable_state
 from bridge.core.positioning import Positioning, needs_positioning
-from bridge.core.queries import Queries, Ticket
+from bridge.core.queries import LocalGet, Queries, QueryAnswer, QueryEnd, Ticket
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
 from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
+from bridge.core.restarts import STATE_VERSION, resumable
+from bridge.core.snapshot import snapshot
 from bridge.errors import MissionError
 from bridge.frozen import direct_init
 from bridge.wire.auth import Authenticator
 from bridge.wire.goby import frame_codec_for
 
 __all__ = ["Action", "NodeCore", "NodeStats", "OutFrame", "Output", "Ping", "Publish",
-           "SendFrame", "Status"]
+           "SendFrame", "Status", "Taken"]
 
 EPOCHS = 256  # stream epochs, EPOCH_BITS wide
 AUTH_WINDOW = 64
@@ -95,6 +96,10 @@ class Ping:
 
 Action = SendFrame | Ping
 
+Taken = Output | LocalGet | QueryAnswer | QueryEnd
+"""What :meth:`NodeCore.take` gives: the parts' outputs, then what the queries ask of the
+runtime (a local get) or answer (replies, ends)."""
+
 
 class NodeCore:
     """One node's bridge logic: a façade over the parts that own its state."""
@@ -116,7 +121,7 @@ class NodeCore:
         rng = rng or random.Random()
         outbox = self._outbox = Outbox()
         self.stats: NodeStats = outbox.stats
-        state = usable_state(state, node, table.fingerprint, outbox)
+        state = resumable(state, node, table.fingerprint.hex(), outbox)
         wire_auth = mission.wire.auth
         if wire_auth is not None and auth is None:
             if key is None:
@@ -171,6 +176,14 @@ class NodeCore:
         the outputs or sending the frame just built."""
         return self._outbox.unsaved or (self.auth is not None and self.auth.changed)
 
+    def storage(self, error: str | None, now: float) -> None:
+        """The runtime's saves of :meth:`state` fail (``error``: why) or work (None); while
+        they fail, new reliable values are refused (:mod:`bridge.core.saving`)."""
+        event = self.outbound.saving.changed(error, now)
+        if event is not None:
+            self._outbox.status("state", event.to_dict())
+            self._outbox.event(event)
+
     def saved(self) -> None:
         """The runtime saved :meth:`state`."""
         self._outbox.unsaved = False
@@ -191,11 +204,12 @@ class NodeCore:
 
     # -- the one way out -----------------------------------------------------------------------
 
-    def take(self) -> list[Output]:
-        """Everything produced since the last call, in order."""
+    def take(self) -> list[Taken]:
+        """Everything produced since the last call, in order (the queries' last)."""
+        out: list[Taken] = [*self._outbox.take()]
         if self.queries is not None:
-            self._outbox.items.extend(self.queries.take())
-        return self._outbox.take()
+            out += self.queries.take()
+        return out
 
     # -- samples in ----------------------------------------------------------------------------
 
@@ -209,9 +223,15 @@ class NodeCore:
         """The ROS 2 topic read on input ``key``, or None."""
         return self.outbound.ros2_input(key)
 
-    def drop_payload(self, key: str, reason: str, now: float) -> None:
-        """Count a payload that cannot be used (warned once per key)."""
-        self.outbound.drop_payload(key, reason, now)
+    def payload_cap(self, key: str) -> int:
+        """The longest payload input ``key`` takes: a longer one is dropped before it is
+        decoded (:func:`~bridge.wire.payloads.payload_cap`)."""
+        return self.outbound.payload_cap(key)
+
+    def drop_payload(self, key: str, reason: str, now: float, cause: str = "unfit") -> None:
+        """Count a payload that cannot be used, by key and ``cause`` (logged and summarised at
+        a bounded rate: :mod:`bridge.core.drops`)."""
+        self.outbound.drop_payload(key, reason, now, cause)
 
     def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
                 now: float) -> tuple[float, ...] | None:
@@ -336,6 +356,7 @@ class NodeCore:
             self.ranges.tick(now)
         if self.queries is not None:
             self.queries.expire(now)
+        self.outbound.summarise_drops(now)
 
     def update_links(self, now: float) -> None:
         """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``
@@ -371,30 +392,5 @@ class NodeCore:
         return self.outbound.last_tx
 
     def snapshot(self, now: float) -> dict[str, Any]:
-        """Counters and channel ages as plain data."""
-        stats, out = self.stats, self.outbound
-        return {
-            "node": self.node,
-            "time": now,
-            "frames_sent": stats.frames_sent,
-            "frames_received": stats.frames_received,
-            "frames_dropped": dict(stats.frames_dropped),
-            "payloads_dropped": dict(stats.payloads_dropped),
-            "values_published": stats.values_published,
-            "send_errors": stats.send_errors,
-            "left_out": stats.left_out,
-            "channel_age_s": {s.channel.name: s.age(now) for s in out.store.states.values()},
-            "received_age_s": {k: now - t for k, t in self.received_at.items()},
-            "last_heard": dict(self.last_heard),
-            "links": {peer: state.value for peer, state in self.link_states.items()},
-            "epoch": self.epoch,
-            "mismatched_peers": dict(self.mismatched),
-            "unfinished": {s.channel.name: s.pending() for s in out.senders.values()},
-            "sent_per_channel": dict(stats.sent_per_channel),
-            **({"queries": self.queries.snapshot()} if self.queries else {}),
-            **({"surfacing": out.surfacing.snapshot()} if out.surfacing else {}),
-            **({"interest": out.interest.snapshot(self.table)} if out.interest else {}),
-            **({"families": out.families.snapshot(now)} if self.table.names is not None
-               or any(c.family for c in self.table.channels) else {}),
-            **({"network": self.network.snapshot()} if self.network is not None else {}),
-        }
+        """Counters and channel ages as plain data (:func:`~bridge.core.snapshot.snapshot`)."""
+        return snapshot(self, now)

@@ -10,6 +10,7 @@ the modem took. Heartbeats keep a silent node audible.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import random
@@ -17,7 +18,8 @@ from collections.abc import Callable, Collection, Mapping
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.builder import Candidate, FramePlan, fill
-from bridge.core.events import FrameSent, PayloadDropped, SendFailed, Surfaced
+from bridge.core.drops import DropLedger
+from bridge.core.events import FrameSent, SendFailed, Surfaced
 from bridge.core.families import Extra, Families
 from bridge.core.frames import OutFrame, Sender
 from bridge.core.interest import Interest
@@ -27,14 +29,16 @@ from bridge.core.outputs import Outbox
 from bridge.core.queries import Queries
 from bridge.core.receivers import Receivers
 from bridge.core.reliable import SEQ_MOD, ReliableSender, default_retry_s
+from bridge.core.saving import Saving
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.surfacing import Surfacing
 from bridge.core.transfer import TransferSender
 from bridge.errors import DecodeError, EncodeError
 from bridge.mission.model import Mission
-from bridge.wire.channels import AckCodec, ChannelCodec, ChannelTable, ElementCodec
-from bridge.wire.frame import FrameCodec
-from bridge.wire.payloads import decode_payload
+from bridge.wire.auth import Authenticator
+from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
+from bridge.wire.frame import FrameCodec, WireCodec
+from bridge.wire.payloads import decode_payload, payload_cap
 
 if TYPE_CHECKING:
     from bridge.core.network import NodeNetwork
@@ -46,6 +50,11 @@ log = logging.getLogger("zab.core")
 
 Delays = Callable[[float], list[int | None]]
 """The DLBL delays of a frame starting at a modem time."""
+
+
+def _hinted(auth: Authenticator, address: int, built: float) -> None:
+    """A frame telling ``address`` its replay mark left (built at ``built``)."""
+    auth.hinted(address)
 
 
 class Outbound:
@@ -61,6 +70,9 @@ class Outbound:
         self.epoch = epoch
         self.outbox = outbox
         self.stats = outbox.stats
+        self.drops = DropLedger(node)  # payloads dropped: counted, told at a bounded rate
+        self.stats.payloads_dropped = self.drops.by_key
+        self.saving = Saving()  # whether the runtime can save the state (bridge.core.saving)
         self.receivers = receivers
         self.queries = queries
         self.delays: Delays | None = None
@@ -87,7 +99,10 @@ class Outbound:
                         (channel, i, element))
         self._ros2_inputs = {key: next((e.ros2 for _, _, e in found if e.ros2 is not None), None)
                              for key, found in self.bindings.items()}
-        self._warned_keys: set[str] = set()
+        self._caps = {key: payload_cap(max(e.layout.bits for _, _, e in found))
+                      for key, found in self.bindings.items()}
+        self._cap = payload_cap(max((e.layout.bits for c in table.channels
+                                     for e in c.elements), default=0))
         retry_s = default_retry_s(mission)
         self.senders: dict[int, Sender] = {
             c.index: (TransferSender if c.fragmented else ReliableSender)(
@@ -115,14 +130,19 @@ class Outbound:
         """A sample arrived on an input key: pack it for every channel that reads the key.
 
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
-        ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs)."""
+        ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs). A
+        payload over the key's cap is dropped before it is decoded."""
+        if len(data) > (cap := self.payload_cap(key)):
+            self.drop_payload(key, f"{len(data)} bytes, over this key's cap of {cap}", now,
+                              "too_large")
+            return
         bindings = self.bindings.get(key, ())
         ros2 = self._ros2_inputs.get(key)
         try:
             value = (ros2.decode(data, sample_key or key) if ros2 is not None
                      else decode_payload(data, encoding))
         except DecodeError as exc:
-            self.drop_payload(key, str(exc), now)
+            self.drop_payload(key, str(exc), now, "undecodable")
             return
         store = self.store
         for channel, index, element in bindings:
@@ -138,7 +158,9 @@ class Outbound:
                     other.update(channel.index, index, packed, now)
             elif store.update_value(channel.index, index, packed, now):
                 payload = store.states[channel.index].payload()
-                self.outbox.reports(sender.offer(payload, now, key, ref))
+                refused = self.saving.refusal()  # (while the state cannot be saved)
+                self.outbox.reports(sender.offer(payload, now, key, ref) if refused is None
+                                    else sender.refuse(now, key, ref, refused))
                 self.outbox.unsaved = True
         if self.families.senders:
             for problem in self.families.ingest(key, value, now):
@@ -155,19 +177,29 @@ class Outbound:
         """The ROS 2 topic read on input ``key``, or None."""
         return self._ros2_inputs.get(key)
 
-    def drop_payload(self, key: str, reason: str, now: float) -> None:
-        """Count a payload that cannot be used (warned once per key)."""
-        self.stats.payloads_dropped[key] += 1
-        if key not in self._warned_keys:
-            self._warned_keys.add(key)
-            log.warning("%s: dropped a payload on %r: %s (counted; warned once)",
-                        self.node, key, reason)
-        self.outbox.event(PayloadDropped(now, key, reason))
+    def payload_cap(self, key: str) -> int:
+        """The longest payload input ``key`` takes (:func:`~bridge.wire.payloads.payload_cap`
+        of the bits its channels keep)."""
+        return self._caps.get(key, self._cap)
+
+    def drop_payload(self, key: str, reason: str, now: float, cause: str = "unfit") -> None:
+        """Count a payload that cannot be used, by key and ``cause`` (logged and summarised at
+        a bounded rate: :mod:`bridge.core.drops`)."""
+        summary = self.drops.drop(key, cause, reason, now)
+        if summary is not None:
+            self.outbox.event(summary)
+
+    def summarise_drops(self, now: float) -> None:
+        """The drops not summarised yet, if it is time (a summary a second at most)."""
+        if (summary := self.drops.due(now)) is not None:
+            self.outbox.event(summary)
 
     def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
                 now: float) -> tuple[float, ...] | None:
         """The finite numbers ``names`` of a payload, or None (counted as a dropped payload)."""
         try:
+            if len(data) > (cap := self.payload_cap(key)):
+                raise DecodeError(f"{len(data)} bytes, over the cap of {cap}")
             value = decode_payload(data, encoding)
             numbers = tuple(float(value[k]) for k in names)
             if not all(map(math.isfinite, numbers)):
@@ -194,8 +226,8 @@ class Outbound:
             self._started = now  # the node first plans: its first heartbeat one period later
         if self.network is not None and side is not None:
             return self._next_due_on(now, side, self.network)
-        if self.receivers.due:
-            return -math.inf
+        if self.receivers.due or (self.codec.auth is not None and self.codec.auth.owed):
+            return -math.inf  # (a peer waits for an acknowledgement, or for its @mark)
         times = [self._store_next_due(now), self.next_heartbeat()]
         if self.families.senders:
             times.append(self.families.next_due(now, self.wants))
@@ -208,9 +240,10 @@ class Outbound:
     def _next_due_on(self, now: float | None, side: LinkSide, net: NodeNetwork
                      ) -> float | None:
         """:meth:`next_due` on one of the node's links."""
-        policy = self.network.policy  # type: ignore[union-attr]
-        if any(policy.serves(side, src) for src in self.receivers.due_to()):
-            return -math.inf
+        policy, auth = net.policy, self.codec.auth
+        if any(policy.serves(side, src) for src in self.receivers.due_to()) or (
+                auth is not None and auth.owed):
+            return -math.inf  # (an acknowledgement, or a peer's @mark)
         times = [self._store_next_due(now, side), self.next_heartbeat(side),
                  net.next_carried(side)]
         if self.families.senders:
@@ -270,8 +303,24 @@ class Outbound:
                     for n, item in enumerate(sender.due(now))]
         if self.families.senders:
             out += self.families.candidates(now, lambda c: self.wants(c, side))
+        if self.codec.auth is not None and self.codec.auth.owed:
+            out += self._marks()
         if self.network is not None and side is not None:
             out = self.network.carried_by(side, out)
+        return out
+
+    def _marks(self) -> list[Candidate]:
+        """The ``@mark`` entries owed to senders whose frames were refused as replayed
+        (:mod:`bridge.wire.marks`)."""
+        codec, auth = self.table.marks, self.codec.auth
+        assert codec is not None and auth is not None
+        out = []
+        for address, mark in auth.hints():
+            peer = self.mission.name_of(address)
+            if peer is not None:
+                hinted = functools.partial(_hinted, auth, address)
+                out.append(Candidate(codec, None, Extra(
+                    codec, codec.pack(self.table.nodes.index(peer), mark), hinted, peer)))
         return out
 
     # -- frames out ------------------------------------------------------------------------------
@@ -286,7 +335,7 @@ class Outbound:
         if room is None:
             room = self.frame_bytes if net is None else side.room  # type: ignore[union-attr]
         budget = codec.body_capacity_bits(room) - codec.count_bits
-        items: list[tuple[ChannelCodec | AckCodec, int]] = []
+        items: list[tuple[WireCodec, int]] = []
         targets: set[str] = set()
         acks: list[tuple[str, int]] = []
         receivers, entries = self.receivers, (1 << codec.count_bits) - 1
@@ -310,18 +359,20 @@ class Outbound:
         asks_ack = False  # a channel in the frame asks for the modem's acknowledgement
         node = self.node
         for candidate in picked:
-            what, channel = candidate.what, candidate.channel
-            if isinstance(what, ChannelState):
-                chosen.append(what)
-                items.append((channel, what.payload()))
-            elif isinstance(what, Extra):
+            what = candidate.what
+            if isinstance(what, Extra):
                 extras.append(what)
                 items.append((what.channel, what.bits))
                 if net is not None:
                     targets |= net.extra_targets(side, what)  # type: ignore[arg-type]
                 continue
+            if isinstance(what, ChannelState):
+                channel = what.channel
+                chosen.append(what)
+                items.append((channel, what.payload()))
             else:
                 sender, item = what
+                channel = sender.channel
                 streams.append((sender, item))
                 items.append((channel, sender.entry(item)))
             targets.update(channel.destinations(node) if net is None
@@ -366,9 +417,9 @@ class Outbound:
             by_sender.setdefault(id(sender), (sender, []))[1].append(item)
         dest = self.mission.name_of(out.dest) if out.dest is not None else None
         for sender, group in by_sender.values():
-            self.outbox.reports(sender.sent(group, out.built))  # type: ignore[arg-type]
+            self.outbox.reports(sender.sent(group, out.built))
             if confirmed and dest is not None:
-                sender.confirmed(group, dest)  # type: ignore[arg-type]
+                sender.confirmed(group, dest)
         self.receivers.acked(out.acks)
         if out.streams:
             self.outbox.unsaved = True

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.events import Delivery, Event
+from bridge.core.surfacing import Relay
 from bridge.frozen import direct_init
 
 if TYPE_CHECKING:
@@ -43,7 +44,9 @@ class Status:
     payload: dict[str, Any]
 
 
-Output = Publish | Status | Event
+Output = Publish | Status | Event | Relay
+"""What a core's parts output: values, status, events, and a surfaced peer's relays (its
+queries add what they ask of the runtime and answer: :data:`bridge.core.node.Taken`)."""
 
 
 @dataclass

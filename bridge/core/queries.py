@@ -259,7 +259,7 @@ class Queries:
                     and (self.repeats or item.sent_at is None)), default=None)
 
     def on_reply(self, src: str, codec: QueryCodec, header: tuple[int, ...],
-                 values: list[dict] | None, now: float) -> None:
+                 values: list[dict[str, Any]] | None, now: float) -> None:
         qid, asker, status, index = header
         if self.table.nodes[asker] != self.node:
             return  # a reply to somebody else
@@ -320,13 +320,10 @@ class Queries:
             if now >= answered.expires:
                 del self.answers[served]
 
-    def next_deadline(self) -> float | None:
-        return min((item.deadline for item in self.open.values()), default=None)
-
     # -- serving -----------------------------------------------------------------------------
 
     def on_request(self, src: str, codec: QueryCodec, header: tuple[int, ...],
-                   values: list[dict] | None, now: float) -> None:
+                   values: list[dict[str, Any]] | None, now: float) -> None:
         qid, server = header[:2]
         spec = codec.spec
         if self.table.nodes[server] != self.node or src not in spec.askers:

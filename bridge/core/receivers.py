@@ -56,7 +56,8 @@ class Receivers:
         """A reliable entry of ``channel`` from ``src``: the values it releases, in order."""
         receiver = self._get(src, channel)
         assert isinstance(receiver, ReliableReceiver)
-        delivered = receiver.on_entry(*header, values)
+        seq, lag = header
+        delivered = receiver.on_entry(seq, lag, values)
         self._owe(src, channel.index)
         return delivered
 

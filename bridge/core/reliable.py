@@ -124,6 +124,13 @@ class ReliableSender:
         self._fill()
         return reports
 
+    def refuse(self, now: float, key: str | None, ref: str | None, reason: str
+               ) -> list[Delivery]:
+        """A new value not taken: reported ``failed`` with ``reason`` (it uses up an id)."""
+        item_id, self._next_id = self._next_id, self._next_id + 1
+        return [Delivery(now, self.channel.name, item_id, dst, "failed", reason=reason,
+                         attempts=0, key=key, ref=ref) for dst in sorted(self.dests)]
+
     def _fill(self) -> None:
         while self.queue and len(self.flight) < WINDOW:
             item = self.queue.popleft()

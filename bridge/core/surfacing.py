@@ -2,7 +2,8 @@
 
 In a mission with ``surfacing``, each bridge holds a Zenoh liveliness token
 ``@zab/<mission>/<node>/bridge``. A bridge that sees a peer's token (the peer surfaced and its
-Zenoh joined this node's over IP) calls :meth:`Surfacing.reachable_changed`; from then on:
+Zenoh joined this node's over IP) and, with a mission key, a proof from it
+(:mod:`bridge.runtime.ip_watch`) calls :meth:`Surfacing.changed`; from then on:
 
 - the node's channels to that peer are not carried acoustically (a channel whose every
   destination is reachable over IP is not sent at all; reliable and fragmented ones still are);

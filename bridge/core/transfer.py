@@ -121,6 +121,13 @@ class TransferSender:
         self._start(now)
         return reports
 
+    def refuse(self, now: float, key: str | None, ref: str | None, reason: str
+               ) -> list[Delivery]:
+        """A new value not taken: reported ``failed`` with ``reason`` (it uses up an id)."""
+        item_id, self._next_id = self._next_id, self._next_id + 1
+        return [Delivery(now, self.channel.name, item_id, dst, "failed", reason=reason,
+                         attempts=0, key=key, ref=ref) for dst in self.dests]
+
     def _start(self, now: float) -> None:
         if self.current is None and self.queue:
             self.current = self.queue.popleft()

@@ -178,7 +178,7 @@ class EnumCodec(NumericCodec):
         self.packed = packed
         if packed:
             lo, hi = 0, len(values) - 1
-            self.index = {n: i for i, n in enumerate(self.names)}
+            self.index: dict[str | int, int] = {n: i for i, n in enumerate(self.names)}
             self.index.update({v: i for i, v in enumerate(self.numbers) if v not in self.index})
         else:
             lo, hi = min(self.numbers), max(self.numbers)
@@ -458,7 +458,7 @@ class MessageCodec(FieldCodec):
                 if codec.required and not repeated and name not in self.member_of:
                     return codec.path
                 continue
-            inner = codec.element if repeated else codec
+            inner = codec.element if isinstance(codec, RepeatedCodec) else codec
             if isinstance(inner, MessageCodec):
                 for element in item if repeated and isinstance(item, list | tuple) else [item]:
                     found = inner.missing(element) if isinstance(element, dict) else None

@@ -75,7 +75,8 @@ def f32(x: float) -> float:
     """``x`` rounded to a C ``float`` (what a protobuf ``float`` field holds); beyond the
     float range, an infinity as the C conversion gives."""
     try:
-        return struct.unpack("<f", struct.pack("<f", x))[0]
+        rounded: float = struct.unpack("<f", struct.pack("<f", x))[0]
+        return rounded
     except OverflowError:
         return math.copysign(math.inf, x)
 

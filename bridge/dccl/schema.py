@@ -176,8 +176,8 @@ def _collect_enums(prefix: str, enum_types: Any, message_types: Any,
         _collect_enums(inner, m.enum_type, m.nested_type, out)
 
 
-def _collect_message(mdp: Any, prefix: str, path: tuple[int, ...], lines: dict, file: str,
-                     syntax: str, enums: dict, field_cls: Any, msg_cls: Any,
+def _collect_message(mdp: Any, prefix: str, path: tuple[int, ...], lines: dict[Any, Any],
+                     file: str, syntax: str, enums: dict[str, Any], field_cls: Any, msg_cls: Any,
                      out: dict[str, MessageDef]) -> None:
     full = f"{prefix}.{mdp.name}" if prefix else mdp.name
     fields = []

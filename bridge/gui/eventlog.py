@@ -47,13 +47,31 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
         origin = f" from {src}" if src else ""
         return LogLine("warn", "frame", f"{node} dropped a frame{origin}: "
                        f"{_drop_text(str(event.get('reason', '?')))}")
-    if kind == "payload_dropped":
-        return LogLine("warn", "payload", f"{node} dropped a payload on "
-                       f"{event.get('key')!s}: {event.get('reason')}")
+    if kind == "payload_drops":
+        drops = event.get("drops")
+        drops = drops if isinstance(drops, list) else []
+        parts = [f"{d.get('count')} on {d.get('key')!s} ({d.get('reason')})"
+                 for d in drops[:3] if isinstance(d, Mapping)]
+        more = f"; and {len(drops) - 3} more keys or causes" if len(drops) > 3 else ""
+        return LogLine("warn", "payload", f"{node} dropped {event.get('total')} payloads: "
+                       + "; ".join(parts) + more)
     if kind == "send_failed":
         return LogLine("error", "driver", f"{node}: modem send failed: {event.get('error')}")
     if kind == "modem_down":
         return LogLine("error", "driver", f"{node}: modem unavailable: {event.get('error')}")
+    if kind == "surfaced":  # told by each side, the surface's bridge and the vehicle's
+        peer = event.get("peer")
+        if event.get("ip"):
+            return LogLine("info", kind, f"{node}: {peer} reached over IP (one of them "
+                           "surfaced): channels between them no longer cross the water")
+        return LogLine("info", kind, f"{node}: {peer} no longer reached over IP (dived): "
+                       "channels between them cross the water again")
+    if kind == "peer_restarted":
+        return LogLine("warn", kind, f"{node}: {event.get('peer')} restarted without its "
+                       f"saved state (epoch {event.get('was')} → {event.get('epoch')})")
+    if kind == "mission_mismatch":
+        return LogLine("error", kind, f"{node}: {event.get('peer')} runs another mission "
+                       "file: its frames are not decoded (load the same file on both)")
     if kind == "peer_link":  # issue 29: a peer on one of several links
         state = str(event.get("state"))
         level = {"up": "info", "degraded": "warn"}.get(state, "error")
@@ -72,9 +90,9 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
 def link_line(observer: str, peer: str, state: str, silent_s: float | None,
               never_heard: bool = False) -> LogLine:
     """A link changed state."""
+    if never_heard and state != "up":  # at the start, before the peer's first turn: no fault
+        return LogLine("info", "link", f"link {observer} ↔ {peer}: not heard yet")
     silent = f" (silent {silent_s:.0f} s)" if silent_s is not None and state != "up" else ""
-    if never_heard and state != "up":
-        silent = " (not heard yet)"
     level = {"up": "info", "degraded": "warn"}.get(state, "error")
     return LogLine(level, "link", f"link {observer} ↔ {peer}: {state}{silent}")
 

@@ -26,7 +26,8 @@ RETRY_S = 1.0
 #: How often the session is asked whether the node is still connected.
 CONNECTION_CHECK_S = 1.0
 
-SampleHandler = Callable[[str, bytes, str], None]
+SampleHandler = Callable[[str, bytes, str, bytes | None], None]
+"""(key, payload, encoding, attachment): the attachment tells which bridge published it."""
 LivelinessHandler = Callable[[str, bool], None]
 
 
@@ -105,8 +106,9 @@ class ZenohFeed:
                 return
             key, data = str(sample.key_expr), sample.payload.to_bytes()
             encoding = str(sample.encoding)
+            origin = None if sample.attachment is None else sample.attachment.to_bytes()
             with contextlib.suppress(RuntimeError):  # the loop is closing
-                loop.call_soon_threadsafe(self._deliver, key, data, encoding)
+                loop.call_soon_threadsafe(self._deliver, key, data, encoding, origin)
 
         def on_token(sample: zenoh.Sample) -> None:
             alive = sample.kind == zenoh.SampleKind.PUT
@@ -117,9 +119,9 @@ class ZenohFeed:
             session.declare_subscriber(key, on_sample)
         session.liveliness().declare_subscriber(self.tokens, on_token, history=True)
 
-    def _deliver(self, key: str, data: bytes, encoding: str) -> None:
+    def _deliver(self, key: str, data: bytes, encoding: str, origin: bytes | None) -> None:
         self.samples += 1
-        self.on_sample(key, data, encoding)
+        self.on_sample(key, data, encoding, origin)
 
     def put(self, key: str, value: Any, ref: str) -> None:
         """Publish a command value (msgpack) with attachment ``ref:<ref>``; raises

@@ -226,8 +226,10 @@ class GuiModel:
 
     # -- input -------------------------------------------------------------------------------
 
-    def ingest(self, key: str, data: bytes, encoding: str, now: float) -> None:
-        """One sample the GUI's session received."""
+    def ingest(self, key: str, data: bytes, encoding: str, now: float,
+               publisher: str | None = None) -> None:
+        """One sample the GUI's session received; ``publisher``: the node whose bridge
+        published it (from its origin tag; None: an application)."""
         status = self.keys.status(key)
         sources = self.keys.lookup(key)
         if status is None and sources is None:
@@ -240,7 +242,11 @@ class GuiModel:
         if status is not None:
             self._status(status, value, now)
         for source in sources or ():
-            self._value(source, value, now)
+            if publisher is None or publisher in (self.node, source.src):
+                self._value(source, value, now)
+            # else a third vehicle's bridge published what it heard acoustically, seen here
+            # because it surfaced and its Zenoh joined this node's: this node's bridge brings
+            # the same value (the sender's own bridge, over IP, may too), so it is no arrival
 
     def _drop(self, key: str, reason: str, now: float) -> None:
         self.dropped[key] += 1
@@ -307,9 +313,9 @@ class GuiModel:
                 self._position(node, "fix", xyz, now, _finite(value.get("sigma_m")),
                                _tracked(value))
         elif topic in ("links", "route") and name is not None:
-            item = self.network.status(node, topic, name, value, now)
-            if item is not None:
-                self._out.append(item)
+            news = self.network.status(node, topic, name, value, now)
+            if news is not None:
+                self._out.append(news)
         elif topic == "delivery":
             self._delivery(node, value, now)
         elif topic == "transfer":

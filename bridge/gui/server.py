@@ -27,6 +27,7 @@ from bridge.gui.commands import CommandError
 from bridge.gui.feed import ZenohFeed
 from bridge.gui.model import GuiModel, shown
 from bridge.mission.model import Mission
+from bridge.runtime.session import origin_tag
 
 log = logging.getLogger("zab.gui")
 
@@ -78,6 +79,15 @@ class _Page:
             await self.ws.send_str(await self.queue.get())
 
 
+def unreachable(error: str, node: str, endpoints: list[str]) -> str:
+    """Why the GUI has no session to ``node``, in words an operator can act on (Zenoh's own
+    message names a Rust source file)."""
+    if error.startswith("Unable to connect"):
+        return (f"nothing answers at {' '.join(endpoints)}: is {node}'s bridge running "
+                "(zab run, zab sim or zab demo)?")
+    return error.split(" at /", 1)[0]
+
+
 class GuiServer:
     """The web server, the Zenoh feed and the model between them."""
 
@@ -96,6 +106,8 @@ class GuiServer:
         if not self.endpoints:
             raise ValueError(f"node {self.node!r} has no zenoh.listen endpoint in the mission; "
                              "give one with --connect")
+        self._bridges = {origin_tag(loaded.mission.mission, n): n  # who published a sample
+                         for n in loaded.mission.nodes}
         self.feed = ZenohFeed(
             self.endpoints,
             self.model.keys.subscriptions(),
@@ -115,19 +127,22 @@ class GuiServer:
 
     # -- Zenoh side (on the event loop) --------------------------------------------------------
 
-    def _sample(self, key: str, data: bytes, encoding: str) -> None:
-        self.model.ingest(key, data, encoding, self.clock())
+    def _sample(self, key: str, data: bytes, encoding: str, origin: bytes | None) -> None:
+        publisher = None if origin is None else self._bridges.get(origin)
+        self.model.ingest(key, data, encoding, self.clock(), publisher)
 
     def _token(self, key: str, alive: bool) -> None:
         self.model.liveliness(key, alive, self.clock())
 
     def _connection(self, connected: bool, error: str | None) -> None:
         now = self.clock()
+        first = "time" not in self.connection  # nothing said yet: say the first failure too
         was = self.connection["connected"]
+        error = None if error is None else unreachable(error, self.node, self.endpoints)
         self.connection = {**self.connection, "connected": connected, "error": error,
                            "time": now}
         self.model.emit(dict(self.connection))
-        if connected != was:
+        if connected != was or first:
             where = f"{self.node} at {' '.join(self.endpoints)}"
             if connected:
                 self.model.note("info", "gui", f"GUI connected to {where}", now)

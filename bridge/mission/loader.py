@@ -7,7 +7,7 @@ channel table or the MAC's timing is checked where a mission is loaded to run
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,7 +19,9 @@ from bridge.errors import MissionError
 from bridge.mission.model import Mission
 
 Loc = tuple[str | int, ...]
-Marks = dict[Loc, tuple[int, int]]
+Key = tuple[Any, ...]
+"""A place in the YAML document: mapping keys (any scalar) and sequence indices."""
+Marks = dict[Key, tuple[int, int]]
 
 
 @dataclass(frozen=True)
@@ -45,7 +47,7 @@ class MissionProblems(MissionError):
         self.problems = list({str(p): p for p in problems}.values())
 
 
-def _build(node: yaml.Node, loc: Loc, marks: Marks, constructor: yaml.SafeLoader) -> Any:
+def _build(node: yaml.Node, loc: Key, marks: Marks, constructor: yaml.SafeLoader) -> Any:
     """Turn a composed YAML node into Python data, remembering where each value starts."""
     marks[loc] = (node.start_mark.line + 1, node.start_mark.column + 1)
     if isinstance(node, yaml.MappingNode):
@@ -71,7 +73,7 @@ class _LocatedYamlError(Exception):
         self.line, self.column = line, column
 
 
-def _located(marks: Marks, loc: Loc, message: str, node: yaml.Node) -> _LocatedYamlError:
+def _located(marks: Marks, loc: Key, message: str, node: yaml.Node) -> _LocatedYamlError:
     path = format_loc(loc)
     return _LocatedYamlError(
         f"{path + ': ' if path else ''}{message}",
@@ -96,8 +98,8 @@ def _where(marks: Marks, loc: Loc) -> tuple[int, int]:
     return (1, 1)
 
 
-def _describe(error: dict[str, Any]) -> str:
-    message = error["msg"]
+def _describe(error: Mapping[str, Any]) -> str:
+    message = str(error["msg"])
     if error["type"] == "extra_forbidden":
         return "unknown key (check its spelling and indentation)"
     if error["type"] == "missing":

@@ -429,6 +429,10 @@ class Auth(Strict):
     key_env: str = Field("ZAB_KEY", description="Environment variable holding the key.")
     key_file: Path | None = Field(None, description="File holding the key (used if the "
                                   "variable is unset).")
+    sign_outputs: bool = Field(False, description="Sign what the bridge publishes on Zenoh "
+                               "(values, delivery reports, status, events) with the key: "
+                               "applications holding it can tell the bridge's samples from "
+                               "anyone else's (docs/developers.md).")
 
 
 def _auth_off_in_schema(schema: dict[str, Any]) -> None:
@@ -468,7 +472,7 @@ class Wire(Strict):
 
     @model_serializer(mode="wrap")
     def _dump_off(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        data = handler(self)
+        data: dict[str, Any] = handler(self)
         if self._auth_off:
             data["auth"] = "off"  # a dump reads back as the same mission
         return data
@@ -492,9 +496,11 @@ class Demand(Strict):
 class Surfacing(Strict):
     """Fidelity that follows the link: while a peer's bridge is reachable over IP (its
     liveliness token ``@zab/<mission>/<peer>/bridge`` is visible: it surfaced and its Zenoh
-    joined this node's), channels between the two are not carried acoustically; the sender's
-    bridge puts each input sample, unquantised, on the output key instead (``republish``). When
-    the token goes (the vehicle dives), acoustic bridging resumes at the next opportunity."""
+    joined this node's; with ``wire.auth``, it also answers a challenge with the mission key
+    every 2 s), channels between the two are not carried acoustically; the sender's bridge puts
+    each input sample, unquantised, on the output key instead (``republish``). When the token
+    goes or the proof stops (the vehicle dives), acoustic bridging resumes at the next
+    opportunity."""
 
     republish: bool = Field(True, description="Put full-fidelity copies of input samples on "
                             "the output keys of IP-reachable destinations (skipped when the "

@@ -159,10 +159,15 @@ def _links(mission: Mission) -> Iterable[LinkInfo]:
         return
     for name, spec in mission.links.items():
         members = _members(mission, spec)
-        addresses = {n: spec.member(n).address if spec.member(n).address is not None
-                     else mission.nodes[n].address for n in members}
+        addresses = {n: _address(mission, spec, n) for n in members}
         yield LinkInfo(name, spec.kind, members, addresses, _view(mission, spec, members,
                                                                   addresses))
+
+
+def _address(mission: Mission, spec: LinkSpec, node: str) -> int:
+    """``node``'s address on the link of ``spec``: its own there, else the node's."""
+    address = spec.member(node).address
+    return mission.nodes[node].address if address is None else address
 
 
 def _members(mission: Mission, spec: LinkSpec) -> tuple[str, ...]:
@@ -253,8 +258,7 @@ def _link_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
         on_a_link.update(members)
         seen: dict[int, str] = {}
         for member in members:
-            setting = spec.member(member).address
-            address = setting if setting is not None else mission.nodes[member].address
+            address = _address(mission, spec, member)
             if address in seen:
                 yield (("links", name, "nodes", member), f"address {address} already used on "
                        f"link {name!r} by {seen[address]!r}")

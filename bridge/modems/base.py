@@ -268,7 +268,7 @@ class ModemBackend(ABC):
     async def _send_timed(self, data: bytes, dest: int | None, ack: bool,
                           at: float) -> bool | None:
         """Hook for backends with ``timed_send``: emit at ``at`` (modem clock)."""
-        await self._send(data, dest, ack)
+        return await self._send(data, dest, ack)
 
     def clock(self) -> float:
         """The modem's clock, in which it stamps receptions (default: the host's wall clock)."""

@@ -118,6 +118,7 @@ class SimBackend(ModemBackend):
             }
         )
         try:
+            assert self._reader is not None  # (connected just above)
             msg = await asyncio.wait_for(read_message(self._reader), self._timeout)
         except (OSError, TimeoutError, ProtocolError, asyncio.IncompleteReadError) as exc:
             raise BackendError(

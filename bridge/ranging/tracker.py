@@ -1198,9 +1198,9 @@ class RangeTracker:
         weights = [math.exp(lw - top) for lw, _ in pool]
         states = [self._fold(h.x, h.p)[:2] for _, h in pool]
         total = sum(weights)
-        mean = sum(w * x for w, (x, _) in zip(weights, states, strict=True)) / total
-        cov = sum(w * (p + np.outer(x - mean, x - mean))
-                  for w, (x, p) in zip(weights, states, strict=True)) / total
+        mean = np.asarray(sum(w * x for w, (x, _) in zip(weights, states, strict=True)) / total)
+        cov = np.asarray(sum(w * (p + np.outer(x - mean, x - mean))
+                             for w, (x, p) in zip(weights, states, strict=True)) / total)
         if self._fold(trial.x, trial.p)[2]:  # the likeliest turn was the image: so its history
             _reflect_history(trial.turns, redone, self._fold_line())
         if not take:  # the estimate stays, its covariance spread over the turns too
@@ -1316,9 +1316,10 @@ class RangeTracker:
         top = max(lw for lw, _ in hyp.pending)
         weights = [math.exp(lw - top) for lw, _ in hyp.pending]
         total = sum(weights)
-        mean = sum(w * h.x for w, (_, h) in zip(weights, hyp.pending, strict=True)) / total
-        hyp.p = sum(w * (h.p + np.outer(h.x - mean, h.x - mean))
-                    for w, (_, h) in zip(weights, hyp.pending, strict=True)) / total
+        mean = np.asarray(sum(w * h.x for w, (_, h) in zip(weights, hyp.pending, strict=True))
+                          / total)
+        hyp.p = np.asarray(sum(w * (h.p + np.outer(h.x - mean, h.x - mean))
+                               for w, (_, h) in zip(weights, hyp.pending, strict=True)) / total)
         hyp.x, hyp.time = mean, max(h.time for _, h in hyp.pending)
         return hyp.pending[max(range(len(weights)), key=weights.__getitem__)][1]
 

@@ -131,7 +131,7 @@ class TurnMixture:
         total = sum(w for w, _, _ in states)
         mean = sum(w * x for w, x, _ in states) / total
         cov = sum(w * (p + np.outer(x - mean, x - mean)) for w, x, p in states) / total
-        return mean, cov
+        return np.asarray(mean), np.asarray(cov)
 
 
 def _alike(a: Component, b: Component, near_m: float, near_mps: float) -> bool:

@@ -45,11 +45,30 @@ def channel_bounds(loaded: LoadedMission) -> dict[str, float | None]:
     return bounds
 
 
-def _figure_html(fig: go.Figure, name: str, first: bool) -> str:
+CAPTIONS = {
+    "age": "How old the latest value at each receiver is. The bound (dashed) is the "
+           "channel's interval, then its sender's longest wait for a transmit turn, then the "
+           "frame's airtime: what a receiver waits when every frame gets through and the "
+           "sender has news. Above it: each lost frame adds a turn; a latched channel is "
+           "re-sent without news, so it comes back under; one sent on news only (a command "
+           "published once) ages from its last value on, by design; a vehicle reached over "
+           "IP while surfaced gets no acoustic copy meanwhile.",
+    "ranges": "Measured minus true distance when each range completed. A DLBL range is "
+              "two-way: it averages the distance over an exchange of frames, up to a TDMA "
+              "cycle apart, so where the distance changes meanwhile (a vehicle sailing away "
+              "from a moored node) it reads off by up to half that change; between nodes "
+              "that keep their distance the error is the ranging's own, centimetres "
+              "(bench/ranging_bench.py).",
+}
+"""Words under a plot's heading, where the plot alone would mislead."""
+
+
+def _figure_html(fig: go.Figure, name: str, first: bool, caption: str | None = None) -> str:
     fig.update_layout(**LAYOUT)
     body = fig.to_html(full_html=False, include_plotlyjs=first, config=CONFIG,
                        div_id=f"plot-{name}")
-    return f'<section class="plot" data-plot="{name}">{body}</section>'
+    words = f'<p class="caption">{html.escape(caption)}</p>' if caption else ""
+    return f'<section class="plot" data-plot="{name}">{words}{body}</section>'
 
 
 def tracks_figure(rec: Recording) -> go.Figure:
@@ -81,12 +100,30 @@ def tracks_figure(rec: Recording) -> go.Figure:
     return fig
 
 
+LOSS_COLOURS = {  # one colour per cause, the same in every report
+    "loss": "#7f7f7f", "bit_errors": "#bcbd22", "collision": "#d62728",
+    "half_duplex": "#ff7f0e", "out_of_range": "#9467bd", "range_loss": "#1f77b4",
+}
+
+
+def age_title(channel: str, bound: float | None, latching: bool) -> str:
+    """A subplot's title: the channel, its bound, and when the bound holds."""
+    if bound is None:
+        return f"{channel} (no bound: its sender's turns are not bounded)"
+    if latching:
+        return f"{channel}: latched, re-sent without news (bound {bound:.1f} s)"
+    return f"{channel}: sent on news only (bound {bound:.1f} s while there is news)"
+
+
 def age_figure(rec: Recording, bounds: dict[str, float | None],
-               channels: list[str]) -> go.Figure:
-    """Per channel, age of information at each receiver over time, against its bound."""
+               channels: list[str], latching: dict[str, bool] | None = None) -> go.Figure:
+    """Per channel, age of information at each receiver over time, against its bound (its
+    title says when the bound holds: a latched channel is re-sent without news; one sent on
+    news only, a command published once, ages from its last value on)."""
     shown = [c for c in channels if any(ch == c for ch, _ in rec.arrivals)] or channels[:1]
     fig = make_subplots(rows=len(shown), cols=1, shared_xaxes=True, vertical_spacing=0.04,
-                        subplot_titles=[f"{c} (bound {bounds.get(c) or '—'} s)" for c in shown])
+                        subplot_titles=[age_title(c, bounds.get(c), (latching or {}).get(c, True))
+                                        for c in shown])
     for row, channel in enumerate(shown, start=1):
         for (ch, node), arrivals in sorted(rec.arrivals.items()):
             if ch != channel:
@@ -143,14 +180,16 @@ def losses_figure(report: MissionReport) -> go.Figure:
     names = [link.name for link in links]
     reasons = sorted({r for link in links for r, n in link.lost.items() if n})
     fig = go.Figure()
-    for reason in reasons:
+    for i, reason in enumerate(reasons):
         fig.add_trace(go.Bar(
-            x=names, y=[link.lost.get(reason, 0) for link in links], name=reason,
+            x=names, y=[link.lost.get(reason, 0) for link in links], name=reason.replace("_", " "),
+            marker={"color": LOSS_COLOURS.get(reason, PALETTE[i % len(PALETTE)])},
             hovertext=[f"{link.name}: {link.lost.get(reason, 0)} lost ({reason}) of "
                        f"{link.sent} sent, {link.delivered} delivered" for link in links],
             hoverinfo="text"))
     fig.update_layout(barmode="stack", title="Frames lost per link, by cause",
-                      yaxis_title="frames lost", height=420)
+                      yaxis_title="frames lost", height=420, showlegend=True,
+                      legend_title_text="cause")
     if not reasons:
         sent = sum(link.sent for link in links)
         fig.add_annotation(text=f"no frame lost on any link ({sent} sent)", showarrow=False,
@@ -209,10 +248,13 @@ def write_report(path: Path, report: MissionReport, rec: Recording,
     turns = {n["name"]: n["mac"]["worst_interval_s"]
              for n in check_mission(loaded).data["nodes"]}
     channels = [c.name for c in loaded.table.channels]
-    figures = [("tracks", tracks_figure(rec)), ("age", age_figure(rec, bounds, channels)),
+    latching = {c.name: c.latching for c in loaded.table.channels}
+    figures = [("tracks", tracks_figure(rec)),
+               ("age", age_figure(rec, bounds, channels, latching)),
                ("slots", slots_figure(rec, loaded, turns)), ("losses", losses_figure(report)),
                ("ranges", ranges_figure(rec))]
-    plots = "\n".join(_figure_html(fig, name, i == 0) for i, (name, fig) in enumerate(figures))
+    plots = "\n".join(_figure_html(fig, name, i == 0, CAPTIONS.get(name))
+                      for i, (name, fig) in enumerate(figures))
     title = f"zab mission report: {report.mission}"
     clock = "virtual clock" if report.clock == "virtual" else "real time"
     page = f"""<!DOCTYPE html>
@@ -224,6 +266,7 @@ body {{ font-family: system-ui, sans-serif; margin: 1.5rem auto; max-width: 1100
 table {{ border-collapse: collapse; margin: 0.5rem 0; }}
 td, th {{ padding: 0.2rem 0.8rem 0.2rem 0; text-align: left; border-bottom: 1px solid #ddd; }}
 section.plot {{ margin: 1.5rem 0; }}
+p.caption {{ color: #4d5b69; margin: 0.2rem 0; }}
 </style></head><body>
 <h1>{html.escape(title)}</h1>
 <p>{report.duration_s:.0f} s simulated ({clock}), {len(loaded.mission.nodes)} nodes,

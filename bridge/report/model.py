@@ -76,6 +76,11 @@ class LinkFigures:
         """Share of the frames sent that were delivered (1 when none were sent)."""
         return self.delivered / self.sent if self.sent else 1.0
 
+    @property
+    def in_flight(self) -> int:
+        """Frames sent but neither delivered nor lost yet when the run ended (in the water)."""
+        return max(0, self.sent - self.delivered - sum(self.lost.values()))
+
 
 @dataclass(frozen=True)
 class MissionReport:
@@ -148,7 +153,8 @@ class MissionReport:
         out["nodes"] = self.nodes
         out["links"] = [{"link": link.name, "src": link.src, "dst": link.dst,
                          "sent": link.sent, "delivered": link.delivered,
-                         "lost": dict(link.lost)} for link in self.links]
+                         "lost": dict(link.lost), "in_flight": link.in_flight}
+                        for link in self.links]
         if self.queries is not None:
             out["queries"] = self.queries
         if self.surfacing is not None:
@@ -184,9 +190,12 @@ def print_report(console: Console, report: MissionReport) -> None:
         shown = links if len(links) <= LINK_ROWS else worst_links(links, LINK_ROWS - 1)
         title = "links in the water" if shown is links else \
             f"links in the water: the {len(shown)} worst of {len(links)}"
-        lt = Table("link", "sent", "delivered", "lost", title=title)
+        flying = any(link.in_flight for link in links)  # sent = delivered + lost + this
+        lt = Table("link", "sent", "delivered", "lost", *(["in flight at the end"] * flying),
+                   title=title)
         for link in shown:
-            lt.add_row(link.name, str(link.sent), str(link.delivered), _lost(link.lost))
+            lt.add_row(link.name, str(link.sent), str(link.delivered), _lost(link.lost),
+                       *([str(link.in_flight)] * flying))
         if shown is not links:
             ids = {id(link) for link in shown}
             rest = [link for link in links if id(link) not in ids]
@@ -195,7 +204,8 @@ def print_report(console: Console, report: MissionReport) -> None:
                 for k, v in link.lost.items():
                     lost[k] = lost.get(k, 0) + v
             lt.add_row(f"{len(rest)} others", str(sum(link.sent for link in rest)),
-                       str(sum(link.delivered for link in rest)), _lost(lost))
+                       str(sum(link.delivered for link in rest)), _lost(lost),
+                       *([str(sum(link.in_flight for link in rest))] * flying))
         console.print(lt)
     if report.wall_s is not None:
         console.print(f"{report.duration_s:g} s simulated in {round(report.wall_s, 3):g} s wall "

@@ -18,7 +18,7 @@ from bridge.core.events import (
     FrameDropped,
     FrameReceived,
     FrameSent,
-    PayloadDropped,
+    PayloadDrops,
     Position,
     Range,
     SendFailed,
@@ -80,8 +80,11 @@ class MissionRecorder:
                 rec.ranges.append((t, node, peer, measured, truth))
             case Position(xy=(x, y, sigma)):
                 rec.fixes[node].append((t, x, y, sigma))
-            case FrameDropped(reason=why) | PayloadDropped(reason=why) | SendFailed(error=why):
+            case FrameDropped(reason=why) | SendFailed(error=why):
                 rec.drops[(node, why or event.kind)] += 1
+            case PayloadDrops(drops=drops):
+                for _, _, count, why in drops:
+                    rec.drops[(node, why)] += count
 
     def _sample_truth(self, t: float, clock: float) -> None:
         if self.truth is None or t - self._last_track < TRACK_STEP_S:

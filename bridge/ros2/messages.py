@@ -15,7 +15,7 @@ from typing import Any, Literal
 
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
-from rosbags.typesys.base import Nodetype
+from rosbags.typesys.base import Nodetype  # type: ignore[attr-defined]  # (not in __all__)
 
 from bridge.errors import DecodeError, EncodeError
 
@@ -140,7 +140,8 @@ def decode_cdr(distro: str, msgtype: str, data: bytes) -> dict[str, Any]:
         msg = typestore(distro).deserialize_cdr(bytes(data), msgtype)
     except Exception as exc:  # rosbags raises struct/index/unicode/assertion errors alike
         raise DecodeError(f"malformed CDR for {msgtype}: {type(exc).__name__}: {exc}") from None
-    return to_plain(msg)
+    plain: dict[str, Any] = to_plain(msg)
+    return plain
 
 
 def _build(store: Any, msgtype: str, tree: Any, path: str) -> Any:

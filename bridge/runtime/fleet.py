@@ -128,7 +128,8 @@ class Fleet:
             started = asyncio.ensure_future(
                 asyncio.gather(*(n.started.wait() for n in self.nodes.values()))
             )
-            await asyncio.wait([started, *tasks], return_when=asyncio.FIRST_COMPLETED)
+            waiting: list[asyncio.Future[Any]] = [started, *tasks]
+            await asyncio.wait(waiting, return_when=asyncio.FIRST_COMPLETED)
             started.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await started

@@ -28,6 +28,7 @@ from bridge.core.reception import RangingMode
 from bridge.errors import BackendError
 from bridge.modems.base import ModemBackend, ModemFix, ModemRange, Reception
 from bridge.runtime.eager import start_eagerly
+from bridge.runtime.intake import Intake
 
 __all__ = ["InputSample", "LinkPort", "modem_start"]
 
@@ -52,6 +53,7 @@ class Host(Protocol):
     node: str
     lock: threading.RLock
     clock: Callable[[], float]
+    intake: Intake | None
 
     def _flush(self) -> None: ...
 
@@ -268,7 +270,7 @@ class LinkPort:
             backend = self.backend = self.make_backend()
             backend.on_range = self._modem_range
             backend.on_fix = self._modem_fix
-            backend.on_reception = self.receive  # at once, as the frame arrives
+            backend.on_reception = self._on_reception  # at once, as the frame arrives
             try:
                 await backend.open()
                 self.modem_up.set()
@@ -283,6 +285,16 @@ class LinkPort:
                 await backend.close()
                 await asyncio.sleep(backoff)
                 backoff = min(backoff * 2, RETRY_MAX_S)
+
+    def _on_reception(self, rx: Reception) -> None:
+        """:meth:`receive` for the modem's reader: a frame whose handling raises (it never
+        should) is counted and logged, and the reader goes on."""
+        try:
+            self.receive(rx)
+        except Exception:
+            if self.host.intake is None:
+                raise
+            self.host.intake.failed("(modem)")
 
     def receive(self, rx: Reception) -> None:
         """Hand one received frame to the core and publish what it produced (any thread:

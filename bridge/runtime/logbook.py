@@ -10,7 +10,7 @@ them as they are. Topics:
 - ``/zab/<node>/channel/<channel>``: each received channel's decoded elements (its schema is
   the channel's element layouts), the easiest topic to plot;
 - ``/zab/<node>/<kind>`` for every other event: ``range``, ``position``, ``link``,
-  ``payload_dropped``, ``send_failed``, ``modem_down``, ``delivery``, ``transfer``, ...
+  ``payload_drops``, ``send_failed``, ``modem_down``, ``delivery``, ``transfer``, ...
 
 The mission itself is attached (``mission.yaml``, as validated) with metadata ``zab``
 (mission, node, fingerprint), so :func:`read_log` alone can replay the decoded data.
@@ -104,7 +104,7 @@ def _channel_schema(channel: ChannelCodec) -> dict[str, Any]:
 
 def json_view_schema(layout: Layout) -> dict[str, Any]:
     """A layout's schema as the log stores it (bytes fields as hex strings)."""
-    schema = adapt_schema(layout.json_schema(), "out")
+    schema: dict[str, Any] = adapt_schema(layout.json_schema(), "out")
     schema.pop("$schema", None)
     return schema
 

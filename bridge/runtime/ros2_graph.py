@@ -32,7 +32,7 @@ class _Publisher:
     publisher: Any
     token: Any
     gid: bytes
-    sequence: itertools.count = field(default_factory=lambda: itertools.count(1))
+    sequence: itertools.count[int] = field(default_factory=lambda: itertools.count(1))
 
 
 class Ros2Graph:

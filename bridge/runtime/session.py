@@ -12,6 +12,7 @@ import zenoh
 from bridge.errors import SessionError
 from bridge.mission.model import ZenohSettings
 from bridge.ros2.attachment import from_bridge
+from bridge.wire.proofs import SIGNATURE
 
 # Every sample a bridge publishes carries this attachment prefix; bridges never re-bridge it.
 ORIGIN_PREFIX = b"zab/1 "
@@ -21,13 +22,18 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     """A Zenoh config listening and connecting only where the mission says.
 
     The default listen endpoint would be every interface; here it is none unless given.
-    Multicast scouting is off unless the node's ``zenoh`` section turns it on.
+    Multicast scouting is off unless the node's ``zenoh`` section turns it on. So is shared
+    memory: Zenoh 1.x maps each local publisher's shared-memory pool (16 MB) into a subscriber
+    it sends large samples to, and six applications flooding 1 MB puts on the bridge's inputs
+    held ~100 MB in it that way, never given back (40 MB with it off); the samples a bridge
+    takes are small.
     """
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps(settings.mode))
     config.insert_json5("listen/endpoints", json.dumps(settings.listen))
     config.insert_json5("connect/endpoints", json.dumps(settings.connect))
     config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("transport/shared_memory/enabled", "false")
     for key, value in settings.passthrough().items():
         config.insert_json5(key, json.dumps(value))
     return config
@@ -72,6 +78,11 @@ def close_quietly(session: Any) -> None:
 
 def origin_tag(mission: str, node: str) -> bytes:
     return ORIGIN_PREFIX + f"{mission}/{node}".encode()
+
+
+def origin_of(attachment: bytes) -> bytes:
+    """A bridge's attachment without its signature (:mod:`bridge.wire.proofs`), if any."""
+    return attachment.partition(SIGNATURE)[0]
 
 
 def is_bridged(sample: zenoh.Sample) -> bool:

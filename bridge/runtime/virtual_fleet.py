@@ -28,7 +28,7 @@ from bridge.core.events import Event
 from bridge.core.interest import own_subscriptions, wanted_by
 from bridge.core.loaded import LoadedMission
 from bridge.core.mac import Schedule
-from bridge.core.node import NodeCore, Output, Publish, SendFrame, Status
+from bridge.core.node import NodeCore, Publish, SendFrame, Status, Taken
 from bridge.core.surfacing import Relay
 from bridge.errors import EncodeError, FrameError
 from bridge.frozen import direct_init
@@ -98,7 +98,7 @@ class Timed:
 
     time: float
     node: str
-    output: Output
+    output: Taken
 
 
 class FastFleet:

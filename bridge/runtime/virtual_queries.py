@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -48,6 +49,12 @@ QUERY_PERIOD_S = 30.0
 """How often a synthetic operator asks each query of a mission in ``zab sim --fast``."""
 
 
+
+def _answer(value: Callable[[Any], Any], layout: Any, params: dict[str, Any]) -> list[Any]:
+    """A synthetic queryable's reply: a valid value of the reply's layout."""
+    return [value(layout)]
+
+
 class VirtualQueries:
     """Queryables and pending gets of the applications of a virtual fleet."""
 
@@ -82,7 +89,7 @@ class VirtualQueries:
         for spec in fleet.loaded.table.queries:
             for server in spec.servers:
                 self.queryable(server, spec.served_key(server),
-                               lambda params, s=spec: [value(s.reply)])
+                               functools.partial(_answer, value, spec.reply))
             for asker in spec.askers:
                 for server in spec.servers:
                     if server == asker:

@@ -17,11 +17,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
+import itertools
 import logging
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import msgpack
@@ -34,21 +37,27 @@ from bridge.core.loaded import LoadedMission
 from bridge.core.node import NodeCore, NodeStats, Publish, Status
 from bridge.core.positioning import Positioning
 from bridge.core.surfacing import Relay
-from bridge.errors import DecodeError, EncodeError
+from bridge.errors import DecodeError, EncodeError, NodeFailure
 from bridge.modems.base import ModemBackend, Reception
+from bridge.runtime.gate import EventGate
+from bridge.runtime.intake import Intake
+from bridge.runtime.ip_watch import IpWatch
 from bridge.runtime.keys import load_key
 from bridge.runtime.link_port import LinkPort
+from bridge.runtime.persistence import Persistence
 from bridge.runtime.ros2_graph import Ros2Graph
 from bridge.runtime.session import (
     bridged_attachment,
     close_quietly,
     is_bridged,
     open_session,
+    origin_of,
     origin_tag,
 )
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_queries import QueryBridge
 from bridge.wire.payloads import decode_payload, encode_payload
+from bridge.wire.proofs import sign_output
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -58,8 +67,21 @@ log = logging.getLogger("zab.node")
 STATS_PERIOD_S = 1.0
 TX_LEAD_S = 0.01  # how far ahead a timed emission is scheduled
 EVENTS_S = 0.05  # how long events of the direct data path wait for the loop, at most
+EVENTS_MAX = 1024  # events of the direct data path waiting for the loop (the oldest dropped)
 
 BackendFactory = Callable[[], ModemBackend]
+
+
+def _peer_water(positioning: Positioning, peer: str, values: tuple[float, ...]) -> None:
+    """A peer's CTD reading (``sound_speed_mode: mean_of_ends``)."""
+    temperature, salinity, depth = values
+    positioning.set_peer_water(peer, temperature, salinity, depth)
+
+
+def _matching(loop: asyncio.AbstractEventLoop, changed: Callable[[str, bool], None], key: str,
+              status: zenoh.MatchingStatus) -> None:
+    """Zenoh thread: whether some subscriber matches ``key`` now, told to the loop."""
+    loop.call_soon_threadsafe(changed, key, status.matching)
 
 
 class BridgeNode:
@@ -82,9 +104,14 @@ class BridgeNode:
         (:mod:`bridge.core.events`); ``make_backend``: makes the node's modem backend, or
         with several links, each link's by name."""
         self.state_file = state_file
+        self.persistence = Persistence(state_file, node)
         auth = loaded.mission.wire.auth
         if key is None and auth is not None:
             key = load_key(auth.key_env, auth.key_file)
+        self._key = key  # (proofs on the Zenoh side: bridge.wire.proofs)
+        self._sign = key is not None and auth is not None and auth.sign_outputs
+        self._signed = itertools.count(time.time_ns())  # signed samples' counters
+        self.ip_watch: IpWatch | None = None
         self.core = NodeCore(loaded, node, key=key,
                              state=state_file.load() if state_file is not None else None)
         self.mission = loaded.mission
@@ -115,9 +142,14 @@ class BridgeNode:
         reader all come in."""
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread: int | None = None
-        self._events: deque[Event] = deque()  # from the direct data path, for the loop
+        self._events: deque[Event] = deque(maxlen=EVENTS_MAX)  # the direct path's, for the loop
+        self.events_dropped = 0  # of those, pushed out by newer ones before the loop took them
+        self._gate = EventGate()  # what goes out on …/events, at a bounded rate
+        self.intake: Intake | None = None
         self._events_timer = False  # the loop's timer that takes them is armed
         self.started = asyncio.Event()
+        self.failure: str | None = None  # why the node cannot go on (see fail)
+        self._ended: asyncio.Event | None = None  # set on stop or failure
         self.session: zenoh.Session | None = None
         self._ros2: Ros2Graph | None = None
 
@@ -165,16 +197,18 @@ class BridgeNode:
         """Run until ``stop`` is set; always closes the session and the modem."""
         loop = self._loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
+        ended = self._ended = asyncio.Event()
         self.session = open_session(self.mission.nodes[self.node].zenoh, self.node)
         try:
-            self._flush()  # this run's epoch saved; what a changed mission file ended, reported
+            with self.lock:  # this run's epoch saved (StateError if the disk cannot take it)
+                self.persistence.save(self.core.state, self.clock(), first=True)
+                self.core.saved()
+            self._flush()  # what a changed mission file ended, reported
+            intake = self.intake = Intake(self.session, loop, self.node)
             for key in self.core.bindings:
-                self.session.declare_subscriber(
-                    key, lambda s, k=key: self._from_zenoh(loop, k, s)
-                )
+                intake.subscribe(key, functools.partial(self._from_zenoh, loop, key))
             for key in self.core.families.subscriptions():  # key families: concrete keys
-                self.session.declare_subscriber(
-                    key, lambda s: self._from_zenoh(loop, str(s.key_expr), s))
+                intake.subscribe(key, lambda s: self._from_zenoh(loop, str(s.key_expr), s))
             self._subscribe_positions(loop)
             if self.core.interest is not None:
                 self._watch_interest(loop)
@@ -186,20 +220,28 @@ class BridgeNode:
             self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
             self._ros2.announce(self.table, self.node)  # ROS 2 topics join the ROS 2 graph
             tasks = [
+                *([] if self.ip_watch is None else [asyncio.create_task(
+                    self.ip_watch.run(), name=f"{self.node}-surfacing")]),
                 *(asyncio.create_task(loop(), name=f"{port.name}-{what}")
                   for port in self.ports.values()
                   for what, loop in (("modem", port.modem_loop), ("tx", port.transmit_loop))),
                 asyncio.create_task(self._stats_loop(), name=f"{self.node}-stats"),
                 asyncio.create_task(self._health_loop(), name=f"{self.node}-health"),
             ]
-            self.started.set()
-            await stop.wait()
             for task in tasks:
+                task.add_done_callback(self._task_ended)
+            self.started.set()
+            waits: list[asyncio.Task[Any]] = [asyncio.create_task(stop.wait()),
+                                              asyncio.create_task(ended.wait())]
+            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)  # (or a failure)
+            for task in (*waits, *tasks):
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
             self._take_events()
             with self.lock:
                 self._persist()
+            if self.failure is not None:
+                raise NodeFailure(self.failure)
         finally:
             if self._query_bridge is not None:
                 self._query_bridge.close()
@@ -209,16 +251,39 @@ class BridgeNode:
                 self._ros2.close()
             close_quietly(self.session)
 
+    def fail(self, message: str) -> None:
+        """The node cannot go on (any thread): :meth:`run` stops everything and raises
+        :class:`NodeFailure` with ``message``."""
+        log.critical("%s: %s: stopping (a supervisor such as systemd restarts the bridge)",
+                     self.node, message)
+        if self.failure is None:
+            self.failure = message
+        if self._ended is not None:
+            self._soon(self._ended.set)
+
+    def _task_ended(self, task: asyncio.Task[None]) -> None:
+        """A task of :meth:`run` ended: unless cancelled (the node stops), it failed."""
+        if task.cancelled():
+            return
+        error = task.exception()
+        if error is not None:
+            log.critical("%s: the %s task failed", self.node, task.get_name(),
+                         exc_info=error)
+        what = f"{type(error).__name__}: {error}" if error is not None else "it returned"
+        self.fail(f"the {task.get_name()} task ended ({what})")
+
     # -- Zenoh → core ------------------------------------------------------------------------
 
     def _from_zenoh(self, loop: asyncio.AbstractEventLoop, key: str, sample: zenoh.Sample) -> None:
-        """Zenoh thread: copy what we need; ingest it here with a direct backend, else hand
-        it to the loop."""
+        """The key's intake thread: copy what we need; ingest it here with a direct backend,
+        else hand it to the loop. A payload over the key's cap is counted, never copied."""
         if sample.kind != zenoh.SampleKind.PUT:
             return
         attachment = sample.attachment  # (each read of a sample's field builds an object)
         extra = attachment.to_bytes() if attachment is not None else b""
         if extra and bridged_attachment(extra):
+            return
+        if self._oversized(key, sample):
             return
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
         ref = extra[4:].decode("utf-8", "replace") if extra[:4] == b"ref:" else None
@@ -227,7 +292,18 @@ class BridgeNode:
         if backend is not None:
             self.port.ingest(backend, (key, data, encoding, ref, sample_key))
         else:
-            loop.call_soon_threadsafe(self.ingest, key, data, encoding, ref, sample_key)
+            self.intake.to_loop(key, partial(self.ingest, key, data, encoding, ref, sample_key))  # type: ignore[union-attr]
+
+    def _oversized(self, key: str, sample: zenoh.Sample) -> bool:
+        """Whether ``sample``'s payload is over ``key``'s cap: then counted, never copied."""
+        size, cap = len(sample.payload), self.core.payload_cap(key)
+        if size <= cap:
+            return False
+        with self.lock:
+            self.core.drop_payload(key, f"{size} bytes, over this key's cap of {cap}",
+                                   self.clock(), "too_large")
+            self._flush()
+        return True
 
     def _direct(self) -> ModemBackend | None:
         """The node's one modem, if it is direct (:meth:`LinkPort.direct`); with several
@@ -263,7 +339,8 @@ class BridgeNode:
 
     def _subscribe_positions(self, loop: asyncio.AbstractEventLoop) -> None:
         """Live positions: this node's own (``nav_key``), anchors' and the CTD's."""
-        assert self.session is not None
+        assert self.session is not None and self.intake is not None
+        intake = self.intake
 
         def listen(key: str, names: tuple[str, ...],
                    handler: Callable[[tuple[float, ...]], None], bridged: bool = False,
@@ -277,19 +354,21 @@ class BridgeNode:
                         try:
                             handler(values)
                         except ValueError as exc:  # e.g. an implausible CTD reading
-                            self.core.drop_payload(key, str(exc), self.clock())
+                            self.core.drop_payload(key, str(exc), self.clock(),
+                                                   "implausible")
                     self._flush()
 
             def on_sample(sample: zenoh.Sample) -> None:
                 if sample.kind != zenoh.SampleKind.PUT or (not bridged and is_bridged(sample)):
                     return
                 if not own and sample.attachment is not None \
-                        and sample.attachment.to_bytes() == self._origin:
+                        and origin_of(sample.attachment.to_bytes()) == self._origin:
                     return
-                data, encoding = sample.payload.to_bytes(), str(sample.encoding)
-                loop.call_soon_threadsafe(numbers, data, encoding)
+                if not self._oversized(key, sample):
+                    data, encoding = sample.payload.to_bytes(), str(sample.encoding)
+                    intake.to_loop(key, partial(numbers, data, encoding))
 
-            self.session.declare_subscriber(key, on_sample)  # type: ignore[union-attr]
+            intake.subscribe(key, on_sample)
 
         nav_key = self.mission.nodes[self.node].nav_key
         if nav_key is not None:
@@ -299,24 +378,30 @@ class BridgeNode:
             return
         if nav_key is not None and positioning.tracker is not None:
             def steer(sample: zenoh.Sample) -> None:  # heading and speed, where nav has them
-                if sample.kind == zenoh.SampleKind.PUT and not is_bridged(sample):
+                if sample.kind == zenoh.SampleKind.PUT and not is_bridged(sample) \
+                        and len(sample.payload) <= self.core.payload_cap(nav_key):
                     data, encoding = sample.payload.to_bytes(), str(sample.encoding)
-                    loop.call_soon_threadsafe(self._steer, data, encoding)
+                    intake.to_loop(f"{nav_key} (heading)", partial(self._steer, data, encoding))
 
-            self.session.declare_subscriber(nav_key, steer)
+            intake.subscribe(nav_key, steer)
         for anchor, key in self.mission.ranging.anchor_keys.items():
             if anchor in positioning.anchors:  # (what this bridge decodes, its core takes)
                 listen(key, ("x", "y", "depth"),
-                       lambda v, a=anchor: positioning.set_anchor(  # type: ignore[misc]
-                           a, v, self.clock()), bridged=True, own=False)
+                       functools.partial(self._anchor_at, positioning, anchor),
+                       bridged=True, own=False)
         ctd_key = self.mission.ranging.ctd_key
         if ctd_key is not None:
             listen(ctd_key, ("temperature_c", "salinity_psu", "depth_m"),
                    lambda v: positioning.set_water(*v), bridged=True)
         for peer, key in positioning.peer_ctd_keys().items():  # sound_speed_mode: mean_of_ends
             listen(key, ("temperature_c", "salinity_psu", "depth_m"),
-                   lambda v, p=peer: positioning.set_peer_water(p, *v),  # type: ignore[misc]
-                   bridged=True)
+                   functools.partial(_peer_water, positioning, peer), bridged=True)
+
+    def _anchor_at(self, positioning: Positioning, anchor: str,
+                   position: tuple[float, ...]) -> None:
+        """An anchor's live position, as another bridge published it."""
+        x, y, depth = position
+        positioning.set_anchor(anchor, (x, y, depth), self.clock())
 
     def _watch_interest(self, loop: asyncio.AbstractEventLoop) -> None:
         """Demand-driven missions: a matching listener on every output key this node publishes
@@ -338,23 +423,18 @@ class BridgeNode:
             publisher = self.session.declare_publisher(key)
             self._interest_entities.append(publisher)
             self._interest_entities.append(publisher.declare_matching_listener(
-                lambda status, k=key: loop.call_soon_threadsafe(changed, k, status.matching)))
-            changed(key, publisher.matching_status.matching)
+                functools.partial(_matching, loop, changed, key)))
+            # (the stub says bool; the binding gives a MatchingStatus, as the listener does)
+            changed(key, publisher.matching_status.matching)  # type: ignore[attr-defined]
 
     def _watch_ip(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Surfacing: this bridge's liveliness token, and the peers' tokens seen over IP."""
+        """Surfacing: this bridge's liveliness token, and the peers' seen over IP, each proven
+        with the mission key (:mod:`bridge.runtime.ip_watch`)."""
         assert self.session is not None
-        liveliness = self.session.liveliness()
-        self._interest_entities.append(liveliness.declare_token(f"{self.prefix}/bridge"))
-
-        def on_token(sample: zenoh.Sample) -> None:  # Zenoh thread
-            parts = str(sample.key_expr).split("/")
-            up = sample.kind == zenoh.SampleKind.PUT
-            if len(parts) == 4 and parts[2] in self.mission.nodes:
-                loop.call_soon_threadsafe(self._ip_changed, parts[2], up)
-
-        self._interest_entities.append(liveliness.declare_subscriber(
-            f"@zab/{self.mission.mission}/*/bridge", on_token, history=True))
+        self.ip_watch = IpWatch(self.session, self.mission.mission, self.node,
+                                set(self.mission.nodes), self._key, self._ip_changed)
+        self.ip_watch.start(loop)
+        self._interest_entities.extend(self.ip_watch.entities)
 
     def _ip_changed(self, peer: str, up: bool) -> None:
         with self.lock:
@@ -403,11 +483,14 @@ class BridgeNode:
         self._soon(self._wake_all)  # each link's transmit loop decides when
 
     def _persist(self) -> None:
-        """Save the core's state if a restart must not lose what changed."""
+        """Save the core's state if a restart must not lose what changed; a save that fails
+        is reported and retried (:mod:`bridge.runtime.persistence`), never raised."""
         if self.core.needs_save:
-            if self.state_file is not None:
-                self.state_file.save(self.core.state())
-            self.core.saved()
+            saved = self.persistence.save(self.core.state, self.clock())
+            if saved:
+                self.core.saved()
+            if saved is not None:
+                self.core.storage(self.persistence.error, self.clock())
 
     def _flush(self) -> None:
         """Carry out the core's outputs, once what they depend on is saved. Off the loop,
@@ -441,7 +524,7 @@ class BridgeNode:
             elif isinstance(output, Relay):  # surfaced peer: the sample as it came, over IP
                 assert self.session is not None
                 self.session.put(output.key, output.data, encoding=zenoh.Encoding(output.encoding),
-                                 attachment=self._origin)
+                                 attachment=self._attachment(output.key, output.data))
             elif self._query_bridge is not None:
                 self._query_bridge.handle(output)
         if later:
@@ -454,6 +537,9 @@ class BridgeNode:
         if queries:
             self._soon(self._carry_out, outputs)
             return
+        overflow = len(self._events) + len(outputs) - EVENTS_MAX
+        if overflow > 0:
+            self.events_dropped += overflow
         self._events.extend(outputs)
         self._loop_later()
 
@@ -486,10 +572,12 @@ class BridgeNode:
 
     def _event(self, event: Event) -> None:
         self.on_event(event)
-        if notable(event) and self.session is not None:
+        if notable(event) and self.session is not None \
+                and (held := self._gate.admit(event, self.clock())) is not None:
             self._publish_raw(f"{self.prefix}/events", {
                 "kind": event.kind, "node": self.node,
-                **{k: v for k, v in event.to_dict().items() if not isinstance(v, bytes)}})
+                **{k: v for k, v in event.to_dict().items() if not isinstance(v, bytes)},
+                **({"held_back": held} if held else {})})
 
     def _token(self, topic: str, state: str) -> None:
         """One liveliness token per live link, on the link's key."""
@@ -522,9 +610,9 @@ class BridgeNode:
         if latched and key not in self._latched_keys:
             self._latched_keys.add(key)
             self._queryables.append(
-                self.session.declare_queryable(key, lambda q, k=key: self._answer(q, k))
+                self.session.declare_queryable(key, functools.partial(self._answer, key=key))
             )
-        publisher.put(payload, attachment=self._origin)
+        publisher.put(payload, attachment=self._attachment(key, payload))
 
     def _publish_ros2(self, key: str, value: Any, ros2: Ros2Element) -> None:
         """Publish a decoded value as a ROS 2 message (rmw_zenoh's key, attachment, tokens)."""
@@ -532,27 +620,43 @@ class BridgeNode:
         try:
             self._ros2.publish(key, value, ros2, self.clock())
         except EncodeError as exc:
-            self.core.drop_payload(key, str(exc), self.clock())
+            self.core.drop_payload(key, str(exc), self.clock(), "unpublishable")
 
     def _answer(self, query: zenoh.Query, key: str) -> None:
         """Zenoh thread: a late joiner asks for a latched key; reply with its last value."""
         latest = self._latest.get(key)
         if latest is not None:
             query.reply(key, latest[0], encoding=zenoh.Encoding(latest[1]),
-                        attachment=self._origin)
+                        attachment=self._attachment(key, latest[0]))
         query.drop()
 
     def _publish_raw(self, key: str, value: dict[str, Any]) -> None:
         assert self.session is not None
-        self.session.put(key, msgpack.packb(value, use_bin_type=True),
-                         encoding=zenoh.Encoding("application/msgpack"), attachment=self._origin)
+        payload = msgpack.packb(value, use_bin_type=True)
+        self.session.put(key, payload, encoding=zenoh.Encoding("application/msgpack"),
+                         attachment=self._attachment(key, payload))
+
+    def _attachment(self, key: str, payload: bytes) -> bytes:
+        """What a sample this bridge puts on ``key`` carries: its origin tag (no bridge sends
+        it back), signed where the mission asks (:func:`~bridge.wire.proofs.sign_output`)."""
+        if not self._sign:
+            return self._origin
+        assert self._key is not None
+        return sign_output(self._key, self._origin, key, next(self._signed), payload)
 
     # -- health --------------------------------------------------------------------------------
 
     def snapshot(self) -> dict[str, Any]:
         """Counters and channel ages as plain data."""
         with self.lock:
-            return self.core.snapshot(self.clock())
+            snapshot = self.core.snapshot(self.clock())
+        snapshot["state"].update(self.persistence.snapshot())
+        if self.ip_watch is not None and "surfacing" in snapshot:
+            snapshot["surfacing"]["unproven"] = self.ip_watch.unproven
+        if self.intake is not None:
+            snapshot["intake"] = {**self.intake.snapshot(), "events_dropped": self.events_dropped,
+                                  "events_held_back": self._gate.held_back}
+        return snapshot
 
     def update_links(self, now: float) -> None:
         """Re-evaluate every peer's link now."""

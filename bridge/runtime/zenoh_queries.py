@@ -16,6 +16,7 @@ when the get ends.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import threading
 from collections.abc import Callable
@@ -87,7 +88,7 @@ class QueryBridge:
         assert core.queries is not None
         for key in core.queries.asked_keys():
             self.entities.append(session.declare_queryable(
-                key, lambda q, k=key: self._from_zenoh(q, k)))
+                key, functools.partial(self._from_zenoh, key=key)))
 
     def _from_zenoh(self, query: zenoh.Query, key: str) -> None:
         """Zenoh thread: read the get's parameters, hand it to the loop."""

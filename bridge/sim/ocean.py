@@ -88,7 +88,8 @@ class LossCurve:
     def __call__(self, distance_m: float, max_range_m: float) -> float:
         if max_range_m <= 0:
             return 0.0
-        return min(1.0, max(0.0, self.edge_loss * (distance_m / max_range_m) ** self.exponent))
+        share = self.edge_loss * (distance_m / max_range_m) ** self.exponent
+        return float(min(1.0, max(0.0, share)))
 
 
 NO_RANGE_LOSS = LossCurve(edge_loss=0.0)
@@ -272,8 +273,9 @@ class Ocean:
         velocity = (0.0, 0.0, 0.0)
         if before is not None and 0.0 < now - before[0] <= GLIDE_S:
             dt = now - before[0]
-            velocity = tuple((a - b) / dt for a, b in zip(here, before[1], strict=True))
-        self._glides[addr] = (now, here, velocity)  # type: ignore[assignment]
+            (x, y, z), (x0, y0, z0) = here, before[1]
+            velocity = ((x - x0) / dt, (y - y0) / dt, (z - z0) / dt)
+        self._glides[addr] = (now, here, velocity)
 
     def set_path(self, addr: int, path: Path, start: float) -> None:
         """Move ``addr`` along ``path`` from time ``start`` on (it waits at the first waypoint

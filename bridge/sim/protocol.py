@@ -62,7 +62,7 @@ class ProtocolError(ValueError):
 
 def pack(msg: dict[str, Any]) -> bytes:
     """Serialise one message, length prefix included."""
-    body = msgpack.packb(msg, use_bin_type=True)
+    body: bytes = msgpack.packb(msg, use_bin_type=True)
     if len(body) > MAX_MESSAGE_BYTES:
         raise ProtocolError(f"message of {len(body)} B exceeds {MAX_MESSAGE_BYTES} B")
     return _LEN.pack(len(body)) + body

@@ -58,7 +58,7 @@ class WaterService:
         """Wall-clock time at which the service started, the time 0 of every path."""
         self._clients: dict[int, asyncio.StreamWriter] = {}
         self._told_losses: set[int] = set()  # modems that asked to hear of their losses
-        self._pending_tx: dict[int, tuple[int, int]] = {}  # frame_id -> (addr, client tx id)
+        self._pending_tx: dict[int, tuple[int, int | None]] = {}  # frame_id -> (addr, tx id)
         self._server: asyncio.Server | None = None
         self._driver: asyncio.Task[None] | None = None
         self._handlers: set[asyncio.Task[Any]] = set()

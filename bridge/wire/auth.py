@@ -4,8 +4,9 @@ can forge, alter or replay a frame (pure).
 A sealed frame is the plain frame's bytes (without its check value), then::
 
     counter  32 bits  the low half of a 64-bit counter, strictly increasing per sender
-    tag      tag_bytes × 8 bits: HMAC-SHA256(key, fingerprint ‖ sender address ‖ 64-bit
-                      counter ‖ everything before the tag), truncated
+    tag      tag_bytes × 8 bits: HMAC-SHA256(key, "zab-auth/2" ‖ the fingerprint's first two
+                      bytes ‖ sender address ‖ 64-bit counter ‖ everything before the tag),
+                      truncated
 
 and the usual 16-bit check value last (``bridge.wire.frame``).
 
@@ -18,6 +19,15 @@ so a restarted sender resumes past every counter it may have used. At ten frames
 high half from it: the candidate is the first value above that mark with the received low half,
 so a sender may run up to 2**31 frames ahead of what a receiver last heard. A frame whose
 counter is at or below the mark is refused as replayed — also after either end restarts.
+
+A sender that lost its state counts from 0 again, below every mark its peers hold. A receiver
+that refuses a frame whose tag is valid for a counter at or below the mark (a replay, or such a
+sender: it cannot tell) owes that sender its mark (:meth:`Authenticator.hints`), which its next
+frames carry (``@mark``, :mod:`bridge.wire.marks`); the sender resumes past it
+(:meth:`Authenticator.resume_past`) and is heard again. The tag covers only the two bytes of
+the fingerprint that the check carries, so that a node with *another* mission file and the same
+key can still tell a frame of a key holder from junk (:meth:`Authenticator.vouch`: the mission
+mismatch alarm). Why this keeps every replay out: docs/wire-format.md.
 
 With several links or relays a sender's frames may arrive out of order (a frame over RF
 overtakes one over acoustics). Such missions give the receiver a *window*: a counter up to
@@ -40,6 +50,12 @@ RESERVE_BLOCK = 1 << 10
 _LOW = 1 << (8 * COUNTER_BYTES)
 _AHEAD = _LOW // 2  # how far past the receiver's mark a counter may be rebuilt
 _MAX = (1 << 64) - 1
+AUTH_VERSION = 2
+"""2: the tag covers the check's two fingerprint bytes; refused counters are answered with
+``@mark``. Part of the mission fingerprint."""
+_TAG_PREFIX = b"zab-auth/2"
+HINT_REPEATS = 2
+"""Frames that carry an ``@mark`` once it is owed (a frame can be lost)."""
 
 
 class Authenticator:
@@ -55,7 +71,7 @@ class Authenticator:
         if len(key) < 16:
             raise MissionError("the frame key must be at least 16 bytes long")
         self._key = key
-        self._fingerprint = fingerprint
+        self._fingerprint = fingerprint[:2]  # what the check carries, and the tag covers
         self.address = address
         self.tag_bytes = tag_bytes
         state = state or {}
@@ -66,6 +82,10 @@ class Authenticator:
         self.late: dict[int, int] = {int(k): int(v) for k, v in state.get("late", {}).items()}
         """Per sender, bit i set: the counter i below its mark arrived (with a window)."""
         self.changed = False
+        self.owed: dict[int, list[int]] = {}
+        """Per sender address: the mark its next frames should hear, and in how many frames
+        more (:meth:`hints`)."""
+        self._answered: dict[int, int] = {}  # per sender: the highest refused counter owed
 
     @property
     def overhead_bytes(self) -> int:
@@ -79,9 +99,11 @@ class Authenticator:
             state["late"] = {str(k): v for k, v in self.late.items()}
         return state
 
-    def _tag(self, src: int, counter: int, data: bytes) -> bytes:
-        mac = hmac.new(self._key, self._fingerprint + src.to_bytes(2, "big")
-                       + counter.to_bytes(8, "big") + data, hashlib.sha256)
+    def _tag(self, src: int, counter: int, data: bytes, fingerprint: bytes | None = None
+             ) -> bytes:
+        mac = hmac.new(self._key, _TAG_PREFIX + (fingerprint or self._fingerprint)
+                       + src.to_bytes(2, "big") + counter.to_bytes(8, "big") + data,
+                       hashlib.sha256)
         return mac.digest()[: self.tag_bytes]
 
     def next_counter(self) -> int:
@@ -115,6 +137,8 @@ class Authenticator:
                 self.late[src] = ((self.late.get(src, 0) << (counter - mark)) | 1) \
                     & ((1 << self.window) - 1)
             self.changed = True
+            if self._answered:
+                self._answered.pop(src, None)
             return data[:-COUNTER_BYTES]
         behind = counter - _LOW
         if behind >= 0 and hmac.compare_digest(tag, self._tag(src, behind, data)):
@@ -123,8 +147,57 @@ class Authenticator:
                 self.late[src] = late | 1 << below
                 self.changed = True
                 return data[:-COUNTER_BYTES]
+            self._owe(src, behind, mark)
             raise FrameError(f"replayed frame: counter {behind} from {src} is not past "
-                             f"{mark} (a replay, or a sender restarted without its state)",
-                             "replayed")
+                             f"{mark} (a replay, or a sender restarted without its state: "
+                             "told where to resume)", "replayed")
         raise FrameError("forged or altered frame: the authentication tag does not match",
                          "forged")
+
+    # -- a sender that lost its state ----------------------------------------------------------
+
+    def _owe(self, src: int, refused: int, mark: int) -> None:
+        """``src``'s frame with counter ``refused`` (at or below ``mark``) was refused: owe it
+        the mark, unless a refusal of that counter or a later one is owed or answered already
+        (a replayer repeating one frame costs one answer)."""
+        if refused > self._answered.get(src, -1):
+            self._answered[src] = refused
+            self.owed[src] = [mark, HINT_REPEATS]
+
+    def hints(self) -> list[tuple[int, int]]:
+        """``(sender address, mark)`` for each sender this node's next frame should tell."""
+        return [(src, owed[0]) for src, owed in self.owed.items()]
+
+    def hinted(self, src: int) -> None:
+        """A frame telling ``src`` its mark left."""
+        owed = self.owed.get(src)
+        if owed is not None:
+            owed[1] -= 1
+            if owed[1] <= 0:
+                del self.owed[src]
+
+    def resume_past(self, mark: int) -> bool:
+        """A peer's ``@mark`` for this node: its counters resume past ``mark`` (a new block is
+        reserved, and saved, before the next frame uses it). False: they are past it already."""
+        if mark < self.counter or mark >= _MAX:
+            return False
+        self.counter = mark + 1
+        return True
+
+    def vouch(self, sealed: bytes, src: int, fingerprint: int) -> int | None:
+        """The counter of ``sealed`` if a holder of the key sealed it, as ``src``, under the
+        mission file of 16-bit ``fingerprint`` (another than this node's); None otherwise.
+
+        Its counter's high half is guessed as :meth:`open` rebuilds it, or zero (a node whose
+        state belonged to another mission file starts again from 0): three tags at most."""
+        if len(sealed) < self.overhead_bytes:
+            return None
+        data, tag = sealed[: -self.tag_bytes], sealed[-self.tag_bytes:]
+        low = int.from_bytes(data[-COUNTER_BYTES:], "big")
+        mark = self.seen.get(src, -1)
+        past = (mark + 1) + ((low - (mark + 1)) % _LOW)
+        theirs = fingerprint.to_bytes(2, "big")
+        for counter in dict.fromkeys((low, past, past - _LOW)):
+            if counter >= 0 and hmac.compare_digest(tag, self._tag(src, counter, data, theirs)):
+                return counter
+        return None

@@ -13,15 +13,21 @@ import string
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from bridge.codec import Layout
 from bridge.errors import LayoutError
+from bridge.mission.fields import OutOfRange
 from bridge.mission.model import Channel, Element, LearnedKeys, Mission, NodeKeys
+from bridge.wire.auth import AUTH_VERSION
 from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, name_codec
 from bridge.wire.interest import InterestCodec
+from bridge.wire.marks import MarkCodec
 from bridge.wire.network import NetCodec
 from bridge.wire.queries import QueryCodec, QuerySpec, compile_query, query_codecs
+
+Values = list[dict[str, Any]]
+"""One value of a channel: each element's fields, in element order."""
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -203,8 +209,8 @@ class ChannelCodec:
             n = (n << element.layout.bits) | element.layout.pack(value)
         return n
 
-    def unpack(self, n: int) -> list[dict]:
-        out: list[dict] = []
+    def unpack(self, n: int) -> Values:
+        out: Values = []
         for element in reversed(self.elements):
             bits = element.layout.bits
             out.append(element.layout.unpack(n & ((1 << bits) - 1)))
@@ -213,7 +219,7 @@ class ChannelCodec:
         return out
 
 
-def compile_element(element: Element, on_out_of_range: str) -> ElementCodec:
+def compile_element(element: Element, on_out_of_range: OutOfRange) -> ElementCodec:
     if element.dccl:  # a DCCL message: the element's bytes are libdccl's
         from bridge.dccl.layout import DcclLayout
 
@@ -225,7 +231,7 @@ def compile_element(element: Element, on_out_of_range: str) -> ElementCodec:
     return ElementCodec(element.in_, element.out, element.encoding, layout)
 
 
-def compile_ros2_element(element: Element, on_out_of_range: str, senders: Sequence[str],
+def compile_ros2_element(element: Element, on_out_of_range: OutOfRange, senders: Sequence[str],
                          receivers: Sequence[str]) -> ElementCodec:
     """An element carrying a ROS 2 topic (see :mod:`bridge.ros2`); keys from its topics."""
     from bridge.ros2.element import compile_ros2  # rosbags loads only for ROS 2 missions
@@ -267,17 +273,21 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
                                           eloc))
             continue
         assert element.in_ is not None and element.out is not None
+        out_key = element.out
         if family is not None:
             try:
                 element = element.model_copy(update={"in_": family_template(element.in_)})
             except ValueError as exc:
                 raise ChannelTableError(str(exc), (*eloc, "in")) from None
-            if KEY not in template_names(element.out):
+            if KEY not in template_names(out_key):
                 raise ChannelTableError(f"a keyed channel's output {element.out!r} needs {{key}}"
                                         ": each member is published on its own key",
                                         (*eloc, "out"))
-        for key, allowed, where in ((element.in_, SENDER_TEMPLATES | extra, "in"),
-                                    (element.out, RECEIVER_TEMPLATES | extra, "out")):
+        assert element.in_ is not None and element.out is not None
+        templates: tuple[tuple[str, frozenset[str], str], ...] = (
+            (element.in_, SENDER_TEMPLATES | extra, "in"),
+            (element.out, RECEIVER_TEMPLATES | extra, "out"))
+        for key, allowed, where in templates:
             bad = template_names(key) - allowed
             if bad:
                 raise ChannelTableError(
@@ -288,8 +298,8 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         try:
             elements.append(compile_element(element, channel.on_out_of_range))
         except LayoutError as exc:
-            where = ("dccl",) if element.dccl else ("fields", *exc.loc)
-            raise ChannelTableError(str(exc), (*eloc, *where)) from None
+            inside = ("dccl",) if element.dccl else ("fields", *exc.loc)
+            raise ChannelTableError(str(exc), (*eloc, *inside)) from None
     return ChannelCodec(
         index=index,
         name=channel.name,
@@ -367,7 +377,7 @@ def _network(mission: Mission) -> tuple[str, ...] | None:
     return (f"hops:{mission.max_hops}", *routes)
 
 
-def _ros2_element(element: Element, on_out_of_range: str, senders: Sequence[str],
+def _ros2_element(element: Element, on_out_of_range: OutOfRange, senders: Sequence[str],
                   receivers: Sequence[str], eloc: tuple[str | int, ...]) -> ElementCodec:
     from bridge.ros2.element import Ros2Error
 
@@ -539,12 +549,22 @@ class ChannelTable:
                                          for s in (self.ack, self.names, self.interest))
         return query_codecs(first, self.queries, len(self.nodes))
 
+    @cached_property
+    def marks(self) -> MarkCodec | None:
+        """The ``@mark`` entry, present in authenticated missions (after every other)."""
+        if not self.auth_tag_bytes or self.wire_format != "zab":
+            return None
+        return MarkCodec(len(self.channels) + sum(s is not None for s in (
+            self.ack, self.names, self.interest)) + len(self.query_codecs),
+            (len(self.nodes) - 1).bit_length())
+
     @property
-    def wire(self) -> tuple[ChannelCodec | AckCodec | NameCodec | InterestCodec | QueryCodec,
-                            ...]:
+    def wire(self) -> tuple[ChannelCodec | AckCodec | NameCodec | InterestCodec | QueryCodec
+                            | MarkCodec, ...]:
         """Every kind of entry a frame may hold: the mission's channels, then system ones."""
         system = tuple(s for s in (self.ack, self.names, self.interest) if s is not None)
-        return (*self.channels, *system, *self.query_codecs)
+        marks = () if self.marks is None else (self.marks,)
+        return (*self.channels, *system, *self.query_codecs, *marks)
 
     def by_name(self, name: str) -> ChannelCodec:
         return next(c for c in self.channels if c.name == name)
@@ -576,7 +596,7 @@ class ChannelTable:
         description: dict[str, object] = {
             "wire": WIRE_VERSION,
             "dlbl": self.dlbl,
-            "auth": self.auth_tag_bytes,
+            "auth": [self.auth_tag_bytes, AUTH_VERSION] if self.auth_tag_bytes else 0,
             "nodes": self.nodes,
             "channels": [
                 [c.name, [[f"{f.path}:{f.describe()}" for f in e.layout.fields]

@@ -17,7 +17,8 @@ Layout, most significant bit first::
                      key family: member index (ceil(log2 n) bits) + the value; ``@key``
                      (learned families): see bridge.wire.families.NameCodec; ``@want``
                      (demand missions): see bridge.wire.interest.InterestCodec; query
-                     request ``?name`` / reply ``!name``: see bridge.wire.queries.
+                     request ``?name`` / reply ``!name``: see bridge.wire.queries;
+                     ``@mark`` (authenticated missions): see bridge.wire.marks.
              Only reliable, fragmented, keyed and system entries may repeat in a frame.
     pad      zero bits up to the next byte
     [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.wire.auth)
@@ -36,6 +37,7 @@ from __future__ import annotations
 import binascii
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from bridge.errors import DecodeError, FrameError
 from bridge.frozen import direct_init
@@ -47,15 +49,21 @@ from bridge.wire.channels import (
     AckCodec,
     ChannelCodec,
     ChannelTable,
+    Values,
 )
 from bridge.wire.families import NameCodec
 from bridge.wire.interest import InterestCodec
+from bridge.wire.marks import MarkCodec
 from bridge.wire.queries import QueryCodec, ReplyStatus
 
 DELAY_BYTES = 3
 DELAY_MAX_US = (1 << 24) - 2  # largest delay sent; a longer one wraps (see ranging)
 NO_DELAY = (1 << 24) - 1  # "no reception from that node yet"
 CHECK_BYTES = 2
+
+
+WireCodec = ChannelCodec | AckCodec | NameCodec | InterestCodec | QueryCodec | MarkCodec
+"""Anything with an index on the wire: a channel or a system entry."""
 
 
 def _runs_past() -> FrameError:
@@ -72,9 +80,9 @@ class Entry:
     base, bitmap)``. ``chunk``: a fragment's bytes.
     """
 
-    channel: ChannelCodec | AckCodec
-    values: list[dict] | None = None
-    header: tuple[int, ...] = ()
+    channel: WireCodec
+    values: Values | None = None
+    header: tuple[Any, ...] = ()
     chunk: bytes = b""
 
 
@@ -89,7 +97,7 @@ class DecodedFrame:
     epoch: int | None = None
 
     @property
-    def channels(self) -> tuple[tuple[ChannelCodec, list[dict]], ...]:
+    def channels(self) -> tuple[tuple[ChannelCodec, Values], ...]:
         """The plain (latest-value) channels and their element values."""
         return tuple((e.channel, e.values) for e in self.entries
                      if isinstance(e.channel, ChannelCodec) and not e.channel.stream
@@ -135,11 +143,11 @@ class FrameCodec:
         """Bits left for the count field and channels in a frame of ``frame_bytes``."""
         return max(0, (frame_bytes - self.overhead_bytes()) * 8 - self.epoch_bits)
 
-    def channel_cost_bits(self, channel: ChannelCodec | AckCodec) -> int:
+    def channel_cost_bits(self, channel: WireCodec) -> int:
         """Bits one entry takes in a frame: its index plus its payload."""
         return self.index_bits + channel.wire_bits
 
-    def frame_bytes_for(self, channels: Sequence[ChannelCodec | AckCodec]) -> int:
+    def frame_bytes_for(self, channels: Sequence[WireCodec]) -> int:
         """Size of a frame carrying exactly ``channels``."""
         body = self.epoch_bits + self.count_bits + sum(self.channel_cost_bits(c)
                                                        for c in channels)
@@ -149,7 +157,7 @@ class FrameCodec:
 
     def encode(
         self,
-        items: Sequence[tuple[ChannelCodec | AckCodec, int]],
+        items: Sequence[tuple[WireCodec, int]],
         delays: Sequence[int | None] = (),
         epoch: int = 0,
         prefix: bytes = b"",
@@ -193,6 +201,14 @@ class FrameCodec:
             return None
         body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
         return binascii.crc_hqx(body, 0xFFFF) ^ int.from_bytes(check, "big")
+
+    def vouch(self, frame: bytes, src: int, fingerprint: int) -> int | None:
+        """The counter ``frame`` was sealed with by a holder of the key, ``src``, under another
+        mission file whose 16-bit fingerprint is ``fingerprint``; None if it was not (corrupt,
+        forged) or this mission does not authenticate."""
+        if self.auth is None or len(frame) < CHECK_BYTES + self.auth_bytes:
+            return None
+        return self.auth.vouch(frame[:-CHECK_BYTES], src, fingerprint)
 
     def decode(self, frame: bytes, src: int | None = None, start: int = 0) -> DecodedFrame:
         """Parse untrusted bytes; raise :class:`FrameError` for anything but a valid frame.
@@ -270,7 +286,7 @@ class FrameCodec:
             raise FrameError("trailing data after the last channel")
         return DecodedFrame(delays, tuple(entries), epoch)
 
-    def _entry(self, channel: ChannelCodec | AckCodec | NameCodec, payload: int) -> Entry:
+    def _entry(self, channel: WireCodec, payload: int) -> Entry:
         """One entry's fields, checked (but a plain channel's: :meth:`decode` unpacks those
         itself); raises :class:`DecodeError` when malformed."""
         if isinstance(channel, QueryCodec):
@@ -280,13 +296,18 @@ class FrameCodec:
             if index >= channel.spec.max_replies:
                 raise DecodeError(f"reply index {index} beyond max_replies")
             carries = not channel.reply or status <= ReplyStatus.LAST
-            return Entry(channel, [channel.layout.unpack(packed)] if carries else None,  # type: ignore
+            return Entry(channel, [channel.layout.unpack(packed)] if carries else None,
                          (qid, node, status, index))
+        if isinstance(channel, MarkCodec):
+            peer, mark = channel.unpack(payload)
+            if peer >= len(self.table.nodes):
+                raise DecodeError(f"names unknown node {peer}")
+            return Entry(channel, header=(peer, mark))
         if isinstance(channel, InterestCodec):
-            return Entry(channel, header=tuple(sorted(channel.unpack(payload))))  # type: ignore
+            return Entry(channel, header=tuple(sorted(channel.unpack(payload))))
         if isinstance(channel, NameCodec):
             try:
-                return Entry(channel, header=channel.unpack(payload))  # type: ignore[arg-type]
+                return Entry(channel, header=channel.unpack(payload))
             except ValueError as exc:
                 raise DecodeError(str(exc)) from None
         if isinstance(channel, AckCodec):
@@ -298,11 +319,11 @@ class FrameCodec:
         if channel.fragmented:
             data_bits = 8 * channel.chunk_bytes
             chunk = (payload & ((1 << data_bits) - 1)).to_bytes(channel.chunk_bytes, "big")
-            header = payload >> data_bits
+            head = payload >> data_bits
             fbits = channel.fragment_bits
-            count = header & ((1 << fbits) - 1)
-            index = (header >> fbits) & ((1 << fbits) - 1)
-            tid = header >> (2 * fbits)
+            count = head & ((1 << fbits) - 1)
+            index = (head >> fbits) & ((1 << fbits) - 1)
+            tid = head >> (2 * fbits)
             most = -(-channel.value_bytes // channel.chunk_bytes)
             if not 0 <= index < count <= most:
                 raise DecodeError(f"fragment {index} of {count} (at most {most})")
@@ -314,7 +335,7 @@ class FrameCodec:
                 raise DecodeError(f"member {member} of {channel.family.bound}")
             return Entry(channel, values, (member,))
         if channel.reliable:
-            header = payload >> channel.bits
-            seq, lag = header >> LAG_BITS, header & ((1 << LAG_BITS) - 1)
+            head = payload >> channel.bits
+            seq, lag = head >> LAG_BITS, head & ((1 << LAG_BITS) - 1)
             return Entry(channel, values, (seq, lag))
         return Entry(channel, values)

@@ -24,8 +24,8 @@ from typing import Any
 from bridge.dccl.layout import DcclLayout
 from bridge.dccl.message import DcclMessage, peek_id
 from bridge.errors import DecodeError, FrameError
-from bridge.wire.channels import AckCodec, ChannelCodec, ChannelTable
-from bridge.wire.frame import DecodedFrame, Entry, FrameCodec
+from bridge.wire.channels import ChannelCodec, ChannelTable
+from bridge.wire.frame import DecodedFrame, Entry, FrameCodec, WireCodec
 
 #: At most 2**8 - 1 messages in one Goby frame (a frame of 1-byte messages is 255 bytes).
 _COUNT_BITS = 8
@@ -118,21 +118,22 @@ class GobyFrameCodec(FrameCodec):
     def body_capacity_bits(self, frame_bytes: int) -> int:
         return frame_bytes * 8 + self.count_bits
 
-    def channel_cost_bits(self, channel: ChannelCodec | AckCodec) -> int:
+    def channel_cost_bits(self, channel: WireCodec) -> int:
         """Bits the channel's message may take: its maximum size in whole bytes."""
-        return channel.wire_bits
+        return int(channel.wire_bits)
 
-    def frame_bytes_for(self, channels: Sequence[ChannelCodec | AckCodec]) -> int:
-        return sum(c.wire_bits for c in channels) // 8
+    def frame_bytes_for(self, channels: Sequence[WireCodec]) -> int:
+        return sum(int(c.wire_bits) for c in channels) // 8
 
     def sender_fingerprint(self, frame: bytes) -> int | None:
         """Goby frames carry no check value: nothing tells another mission file apart."""
         return None
 
-    def encode(self, items: Sequence[tuple[ChannelCodec | AckCodec, int]],
-               delays: Sequence[int | None] = (), epoch: int = 0) -> bytes:
+    def encode(self, items: Sequence[tuple[WireCodec, int]],
+               delays: Sequence[int | None] = (), epoch: int = 0, prefix: bytes = b"") -> bytes:
         """The DCCL messages of ``items`` (payload ints as from ``ChannelCodec.pack``),
-        concatenated without their padding."""
+        concatenated without their padding (Goby frames have no network header: ``prefix``
+        stays empty, the loader refuses goby with several links)."""
         out = []
         for channel, payload in items:
             layout = _dccl_of(channel) if isinstance(channel, ChannelCodec) else None
@@ -143,7 +144,7 @@ class GobyFrameCodec(FrameCodec):
             out.append(data[:used])
         return b"".join(out)
 
-    def decode(self, frame: bytes, src: int | None = None) -> DecodedFrame:
+    def decode(self, frame: bytes, src: int | None = None, start: int = 0) -> DecodedFrame:
         """Messages as Goby3 decodes them; ``FrameError`` if not even the first decodes."""
         if not isinstance(frame, bytes | bytearray | memoryview):
             raise FrameError(f"a frame is bytes, not {type(frame).__name__}")

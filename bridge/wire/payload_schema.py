@@ -79,7 +79,8 @@ def adapt_schema(node: Any, direction: Direction) -> Any:
 
 
 def _element_schema(element: ElementCodec, direction: Direction) -> dict[str, Any]:
-    return adapt_schema(element.layout.json_schema(), direction)
+    schema: dict[str, Any] = adapt_schema(element.layout.json_schema(), direction)
+    return schema
 
 
 def _uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, int, ElementCodec, str]]:

@@ -1,8 +1,10 @@
 """Payloads on Zenoh keys: msgpack by default, JSON accepted, chosen by the sample's encoding.
 
-Payloads come from anyone on the Zenoh network, so decoding is bounded: text must be strict
-UTF-8 and nesting at most :data:`MAX_DEPTH` deep; anything else is a :class:`DecodeError` (a
-counted drop for the caller), never a ``RecursionError``.
+Payloads come from anyone on the Zenoh network, so decoding is bounded: a payload longer than
+its key's cap (:func:`payload_cap`, from the bits its channels keep of it) is refused before it
+is parsed, text must be strict UTF-8 and nesting at most :data:`MAX_DEPTH` deep; anything else
+(a map whose keys are maps or arrays too) is a :class:`DecodeError` (a counted drop for the
+caller), never a ``RecursionError`` or a ``TypeError``.
 """
 
 from __future__ import annotations
@@ -29,6 +31,19 @@ walk over a decoded value) far from Python's recursion limit (1000), which a 200
 # A JSON string, from its opening quote to its closing one or to the end of the text. The pattern
 # can always match once it starts, so the regex engine never retries it further on: linear time,
 # even for text full of unterminated strings and escaped quotes.
+PAYLOAD_FLOOR_BYTES = 16 * 1024
+"""Every input key accepts payloads this long whatever its channels keep: room for field names,
+fields no channel reads and a ROS 2 message's header and covariances."""
+PAYLOAD_BYTES_PER_BIT_BYTE = 16
+"""And this many payload bytes per byte of the values its channels keep: a string of ``n`` bytes
+is at most ``6 n`` as JSON escapes, a byte array ``4 n`` as a JSON list."""
+
+
+def payload_cap(bits: int) -> int:
+    """The longest payload accepted on a key whose channels keep ``bits`` bits of it."""
+    return PAYLOAD_FLOOR_BYTES + PAYLOAD_BYTES_PER_BIT_BYTE * ((bits + 7) // 8)
+
+
 _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.?)*"?', re.DOTALL)
 _NOT_BRACKET = re.compile(r"[^\[\]{}]+")
 _STEP = {"[": 1, "{": 1, "]": -1, "}": -1}
@@ -77,16 +92,27 @@ def _check_depth(value: Any) -> Any:
 
 
 def _json(data: bytes) -> Any:
-    return json.loads(_json_text(data))
+    text = _json_text(data)
+    try:
+        return json.loads(text)
+    except ValueError:
+        raise
+    except Exception as exc:  # whatever else the parser meets is still a bad payload
+        raise ValueError(f"{type(exc).__name__}: {exc}") from None
 
 
 def _msgpack(data: bytes) -> Any:
     # strict UTF-8 for str (msgpack's default); msgpack's own stack caps nesting at 1024
-    # (StackError), and _check_depth brings that down to MAX_DEPTH.
+    # (StackError), and _check_depth brings that down to MAX_DEPTH. A map key that is itself a
+    # map or an array raises TypeError (unhashable) inside unpackb: a bad payload too.
     try:
         value = msgpack.unpackb(data, raw=False, strict_map_key=False)
     except msgpack.StackError:
         raise DecodeError(f"nested deeper than {MAX_DEPTH} levels") from None
+    except (ValueError, msgpack.UnpackException):
+        raise
+    except Exception as exc:
+        raise ValueError(f"{type(exc).__name__}: {exc}") from None
     return _check_depth(value)
 
 

@@ -1,5 +1,6 @@
 """Authentication is never off by accident: `wire.auth` absent while a key is present, or on
-without a key, stops `zab check` and `zab run` (exit 2) unless the mission says `auth: off`;
+without a key, stops `zab run` (exit 2) unless the mission says `auth: off`; `zab check` stops
+on a key here that disagrees, and says that `zab run` will need one when there is none;
 simulations in one process authenticate with a throwaway key and say so."""
 
 from __future__ import annotations
@@ -135,6 +136,12 @@ def test_nothing_said_and_no_key_runs_with_a_warning() -> None:
     assert [f.status for f in findings] == ["warn"]
 
 
+def test_doctor_fails_on_auth_without_a_key() -> None:
+    findings = [f for f in mission_findings(load_mission(MORPH)) if f.check == "key"]
+    assert [f.status for f in findings] == ["fail"]
+    assert "no frame key was found in $ZAB_KEY" in findings[0].message
+
+
 def test_doctor_fails_on_a_key_the_mission_would_ignore(mission_key: str) -> None:
     findings = [f for f in mission_findings(parse_mission(yaml.safe_dump(lab()), "m.yaml"))
                 if f.check == "key"]
@@ -159,13 +166,53 @@ def test_check_exits_2_on_a_key_present_and_auth_not_said(tmp_path: Path,
     assert "frames are not authenticated (wire.auth: off, on purpose)" in said.output
 
 
-def test_check_exits_2_on_auth_without_a_key(tmp_path: Path) -> None:
+def test_check_without_a_key_passes_and_says_run_will_need_one() -> None:
+    """Checking a file is not running a vehicle: no key here is one line, exit 0."""
     result = RUNNER.invoke(app, ["check", str(MORPH)])
-    assert result.exit_code == 2, result.output
-    assert "no frame key was found in $ZAB_KEY" in result.output
+    assert result.exit_code == 0, result.output
+    flat = " ".join(result.output.split())
+    assert "frames authenticated (4-byte tag, no key on this machine): `zab run` and `zab " \
+        "doctor` will need the mission key in $ZAB_KEY" in flat
+    assert "error" not in result.output
+    as_json = RUNNER.invoke(app, ["check", str(MORPH), "--json"])
+    assert as_json.exit_code == 0
+    data = json.loads(as_json.stdout)
+    assert data["ok"] is True and data["errors"] == []
+    assert data["frame_key"]["problem"] is None and "zab run" in data["frame_key"]["note"]
     alone = RUNNER.invoke(app, ["check", str(MORPH), "--no-key"])  # the file alone
     assert alone.exit_code == 0, alone.output
     assert "frames authenticated (4-byte tag, key not looked for)" in alone.output
+
+
+def test_check_exits_2_on_an_empty_key_file_and_json_says_not_ok(tmp_path: Path) -> None:
+    empty = tmp_path / "mission.key"
+    empty.write_text("\n")
+    path = write(tmp_path, lab(key_file=str(empty)))
+    result = RUNNER.invoke(app, ["check", str(path)])
+    assert result.exit_code == 2, result.output
+    assert f"no frame key was found in $ZAB_KEY or {empty}" in " ".join(result.output.split())
+    as_json = RUNNER.invoke(app, ["check", str(path), "--json"])
+    data = json.loads(as_json.stdout)
+    assert as_json.exit_code == 2 and data["ok"] is False
+    assert data["errors"] == [data["frame_key"]["problem"]]
+
+
+def test_check_json_ok_matches_the_exit_code_for_every_outcome(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch
+                                                                ) -> None:
+    (tmp_path / "off").mkdir()
+    (tmp_path / "unsaid").mkdir()
+    cases = {"auth off": (write(tmp_path / "off", lab("off")), None, 0),
+             "no key": (MORPH, None, 0), "short key": (MORPH, "short", 2),
+             "key, auth unsaid": (write(tmp_path / "unsaid", lab()), secrets.token_hex(32), 2)}
+    for name, (path, key, code) in cases.items():
+        if key is None:
+            monkeypatch.delenv("ZAB_KEY", raising=False)
+        else:
+            monkeypatch.setenv("ZAB_KEY", key)
+        result = RUNNER.invoke(app, ["check", str(path), "--json"])
+        assert result.exit_code == code, name
+        assert json.loads(result.stdout)["ok"] is (code == 0), name
 
 
 def test_check_with_the_key_says_where_it_came_from(mission_key: str) -> None:
@@ -274,3 +321,23 @@ def test_sim_says_it_uses_a_throwaway_key() -> None:
     assert result.exit_code == 0, result.output
     assert "frames authenticated with a throwaway key for this run (no key in $ZAB_KEY)" in \
         " ".join(result.output.split())
+
+
+def test_every_shipped_mission_checks_on_a_fresh_machine(tmp_path: Path) -> None:
+    """The README's promise: `uv run zab check` passes every example mission with no key on
+    the machine (a bare environment, an empty home), saying so when `zab run` will need one."""
+    zab = Path(sys.executable).parent / "zab"
+    env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "HOME": str(tmp_path),
+           "LANG": "C.UTF-8"}
+    paths = sorted(MISSIONS.glob("*.yaml"))
+    runs = {path.name: subprocess.Popen([str(zab), "check", str(path)], cwd=tmp_path, env=env,
+                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                        text=True) for path in paths}
+    for name, run in runs.items():
+        out, errors = run.communicate(timeout=120)
+        assert run.returncode == 0, (name, out, errors)
+        flat = " ".join(out.split())
+        if load_mission(MISSIONS / name).mission.wire.auth is not None:
+            assert "no key on this machine): `zab run` and `zab doctor` will need the mission " \
+                "key in $ZAB_KEY" in flat, name
+    assert len(runs) >= 9  # morph, morph_evologics, ros2_odometry among them: authenticated

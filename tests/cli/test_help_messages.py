@@ -101,3 +101,34 @@ def test_check_json_on_an_invalid_file_prints_the_errors(tmp_path: Path) -> None
 def test_markdown_help_keeps_placeholders() -> None:
     text = help_of("schema")
     assert "schemas/payloads/MISSION/" in text.replace("│", "").replace("\n", "").replace(" ", "")
+
+
+def test_version_and_help_have_their_usual_spellings() -> None:
+    short = CliRunner().invoke(app, ["-V"])
+    assert short.exit_code == 0
+    assert short.output.strip() == f"zab {version('zenoh-acoustic-bridge')}"
+    assert CliRunner().invoke(app, ["help"], terminal_width=100).output == help_of()
+    assert CliRunner().invoke(app, ["help", "sim"], terminal_width=100).output == help_of("sim")
+    assert CliRunner().invoke(app, ["help", "log", "replay"], terminal_width=100).output == \
+        help_of("log", "replay")
+    unknown = CliRunner().invoke(app, ["help", "nope"])
+    assert unknown.exit_code == 2 and "No such command 'nope'" in unknown.output
+
+
+def test_put_help_shows_a_value_the_shipped_missions_take() -> None:
+    text = " ".join(help_of("put").replace("│", "").split())
+    assert """'{"vector": {"x": 1.5, "y": 0.01}}'""" in text  # target_reference's fields
+
+
+def test_check_help_says_fragments_are_no_failure() -> None:
+    text = " ".join(help_of("check").replace("│", "").split())
+    assert "Exit 1 if something can never be sent" in text
+    assert "a value larger than a frame travels in fragments and is only a warning" in text
+    assert "it says that zab run will need one" in text
+
+
+def test_counts_agree_with_their_number() -> None:
+    from bridge.cli.words import counted
+
+    assert [counted(n, "bit") for n in (0, 1, 2)] == ["0 bits", "1 bit", "2 bits"]
+    assert counted(1, "value") == "1 value" and counted(3, "query", "queries") == "3 queries"

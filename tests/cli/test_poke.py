@@ -12,7 +12,7 @@ import msgpack
 
 from bridge.cli.poke import format_sample
 from tests.conftest import REPO, on_free_ports
-from tests.gui.fleet import MISSION, VehicleApps
+from tests.gui.fleet import MISSION
 from tests.harness import outside_session, running_fleet
 
 ZAB = [sys.executable, "-m", "bridge"]
@@ -55,7 +55,8 @@ def test_put_sets_the_msgpack_encoding() -> None:
         seen = []
         try:
             session.declare_subscriber("poke/test", lambda s: seen.append(
-                (str(s.encoding), msgpack.unpackb(s.payload.to_bytes()))))
+                (str(s.encoding), msgpack.unpackb(s.payload.to_bytes()),
+                 s.attachment.to_bytes() if s.attachment is not None else b"")))
             done = subprocess.run([*ZAB, "put", endpoint(loaded, "auv1"), "poke/test",
                                    '{"a": [1, 2.5, "x"]}'], capture_output=True, text=True,
                                   timeout=30)
@@ -65,7 +66,11 @@ def test_put_sets_the_msgpack_encoding() -> None:
         finally:
             session.close()
     assert done.returncode == 0, done.stderr
-    assert seen == [("application/msgpack", {"a": [1, 2.5, "x"]})]
+    [(encoding, value, attachment)] = seen
+    assert (encoding, value) == ("application/msgpack", {"a": [1, 2.5, "x"]})
+    # an operator's command, as the GUI's: the reference it printed, for delivery reports
+    ref = re.search(r"\(\d+ B msgpack, ref (put-[0-9a-f]{8})\)", done.stdout)
+    assert ref and attachment == f"ref:{ref.group(1)}".encode(), done.stdout
 
 
 def test_bad_arguments_and_a_dead_endpoint_exit_cleanly() -> None:
@@ -85,27 +90,38 @@ def test_listen_decodes_json_and_rounds_float_noise() -> None:
                          "application/msgpack") == 'a/b {"x": 0.3}'
 
 
+def test_listen_with_the_mission_prints_each_field_to_its_channel_s_step() -> None:
+    from bridge.cli.rounding import Steps
+    from bridge.core.loaded import load_mission
+    from tests.conftest import MISSIONS
+
+    steps = Steps(load_mission(MISSIONS / "morph.yaml"))
+    noisy = msgpack.packb({"vector": {"x": 3.25242824, "y": 0.0207777294}})
+    # x: 8 bits, step 0.0246; y: 6 bits, step 0.00166 (zab check)
+    assert format_sample("lsv/target_reference", noisy, "application/msgpack", steps) == \
+        'lsv/target_reference {"vector": {"x": 3.252, "y": 0.0208}}'
+    nav = msgpack.packb({"x": 20.400000000000002, "heading": 14, "speed": 0.8000000000000003})
+    assert format_sample("gcv/nav", nav, "application/msgpack", steps) == \
+        'gcv/nav {"x": 20.4, "heading": 14, "speed": 0.8}'
+    # a key no channel publishes keeps its digits (up to 9 significant ones)
+    assert format_sample("my/key", noisy, "application/msgpack", steps) == \
+        'my/key {"vector": {"x": 3.25242824, "y": 0.0207777294}}'
+
+
+def test_listen_takes_the_mission_and_refuses_a_bad_one(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("mission: [")
+    done = subprocess.run([*ZAB, "listen", "tcp/127.0.0.1:9", "--mission", str(bad)],
+                          capture_output=True, text=True, timeout=30)
+    assert done.returncode == 2 and "invalid mission" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
 def readme_program() -> str:
     text = (REPO / "README.md").read_text(encoding="utf-8")
     found = re.search(r"<!-- readme-program:.*?-->\n```python\n(.*?)```", text, re.S)
     assert found, "README has no marked program"
     return found.group(1)
-
-
-def test_the_readme_program_runs_against_a_simulated_fleet(tmp_path: Path) -> None:
-    """The exact README text, given the surface's endpoint of a small simulated fleet whose
-    vehicles publish navigation: five lines of navigation, then a clean exit."""
-    program = tmp_path / "first.py"
-    program.write_text(readme_program(), encoding="utf-8")
-    loaded = on_free_ports(MISSION, "guitest.yaml")
-    with running_fleet(loaded), VehicleApps(loaded):
-        done = subprocess.run([sys.executable, str(program), endpoint(loaded, "ssv")],
-                              capture_output=True, text=True, timeout=90)
-    assert done.returncode == 0, done.stderr
-    lines = done.stdout.splitlines()
-    assert len(lines) == 5
-    for line in lines:
-        assert re.fullmatch(r"auv[12]/nav: x -?\d+\.\d m, y -?\d+\.\d m, depth \d+\.\d m", line)
 
 
 def test_the_readme_program_says_so_when_nothing_listens(tmp_path: Path) -> None:

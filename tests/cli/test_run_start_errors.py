@@ -121,3 +121,19 @@ def test_zab_sim_with_a_taken_port_stops_every_node_and_says_it_once(
     assert result.returncode == 2, result.stdout + result.stderr
     assert "Traceback" not in result.stderr and "never retrieved" not in result.stderr
     assert result.stderr.count("cannot start") == 1 and f"127.0.0.1:{za}" in result.stderr
+
+
+def test_a_full_state_disk_at_start_exits_2(mission: tuple[Path, int, int],
+                                            tmp_path: Path) -> None:
+    """A state directory whose filesystem is full (a real tmpfs): one line, exit 2."""
+    from tests.runtime.tmpfs import fill, small_tmpfs
+
+    path, _, _ = mission
+    with small_tmpfs(tmp_path / "state") as where:
+        fill(where)
+        result = subprocess.run([*_argv(path, "a"), "--state-dir", str(where)], cwd=REPO,
+                                capture_output=True, text=True, timeout=START_S,
+                                env={**os.environ, "COLUMNS": "80"})
+        line = _one_clear_line(result)
+    assert line == (f"cannot start: a: cannot save its state in {where}: No space left on "
+                    "device (ENOSPC)")

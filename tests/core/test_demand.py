@@ -3,10 +3,6 @@ subscribes to its output (``always`` channels regardless); interest travels as `
 
 from __future__ import annotations
 
-import time
-from pathlib import Path
-
-import msgpack
 import pytest
 import yaml
 
@@ -16,9 +12,6 @@ from bridge.errors import FrameError
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.frame import FrameCodec
 from tests.conftest import MISSIONS
-from tests.harness import put
-from tests.zsim import app as plain_app
-from tests.zsim import mission_file, zab_sim
 
 ZSPACE = MISSIONS / "zspace.yaml"
 
@@ -97,47 +90,6 @@ def test_want_entry_round_trips_and_another_mission_refuses_it() -> None:
     assert without.table.fingerprint != loaded.table.fingerprint
     with pytest.raises(FrameError):
         FrameCodec(without.table).decode(data)
-
-
-def latest_stats(session, key: str, seconds: float) -> dict:
-    got: list[dict] = []
-    sub = session.declare_subscriber(key, lambda s: got.append(
-        msgpack.unpackb(s.payload.to_bytes())))
-    try:
-        end = time.time() + seconds
-        while time.time() < end and not got:
-            time.sleep(0.05)
-        return got[-1] if got else {}
-    finally:
-        sub.undeclare()
-
-
-def test_a_subscriber_at_the_surface_turns_a_channel_on_and_off_through_zab_sim(
-        tmp_path: Path) -> None:
-    mission, endpoints = mission_file(ZSPACE.read_text(), tmp_path)
-    with zab_sim(mission, endpoints):
-        auv1, top = plain_app(endpoints["auv1"]), plain_app(endpoints["top"])
-        try:
-            put(auv1, "status", {"battery": 77, "mode": "transit"})
-            time.sleep(7.0)  # two TDMA cycles: nothing is wanted yet
-            key = "@zab/zspace/auv1/stats"
-            assert latest_stats(auv1, key, 3.0)["sent_per_channel"].get("status", 0) == 0
-            got: list[tuple[str, dict]] = []
-            sub = top.declare_subscriber("auv1/status", lambda s: got.append(
-                (str(s.key_expr), msgpack.unpackb(s.payload.to_bytes()))))
-            deadline = time.time() + 10.0
-            while not got and time.time() < deadline:
-                time.sleep(0.05)
-            assert got[0] == ("auv1/status", {"battery": 77, "mode": "transit"})
-            sub.undeclare()
-            time.sleep(4.0)  # the new @want crosses within a cycle
-            before = latest_stats(auv1, key, 3.0)["sent_per_channel"]["status"]
-            time.sleep(6.0)
-            after = latest_stats(auv1, key, 3.0)["sent_per_channel"]["status"]
-            assert after == before
-        finally:
-            auv1.close()
-            top.close()
 
 
 def test_a_sender_back_from_silence_hears_the_interest_again_at_once() -> None:

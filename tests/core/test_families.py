@@ -20,9 +20,6 @@ from bridge.runtime.logbook import FleetLogs, read_log, received_values
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.frame import FrameCodec
 from tests.conftest import MISSIONS
-from tests.harness import put
-from tests.zsim import Inbox, mission_file, zab_sim
-from tests.zsim import app as plain_app
 
 ZSPACE = MISSIONS / "zspace.yaml"
 
@@ -166,23 +163,6 @@ def test_fast_sim_feeds_every_member(tmp_path: Path) -> None:
     top = json.loads(report.read_text())["nodes"]["top"]["families"]["member_age_s"]
     assert {f"auv{i}/sensors/{m}/temp" for i in (1, 2) for m in "abc"} <= set(top)
     assert {f"auv1/contacts/k{i}" for i in range(8)} <= set(top)
-
-
-def test_two_wildcard_sources_arrive_on_their_own_keys_through_zab_sim(tmp_path: Path) -> None:
-    mission, endpoints = mission_file(ZSPACE.read_text(), tmp_path)
-    with zab_sim(mission, endpoints):
-        auv1, top = plain_app(endpoints["auv1"]), plain_app(endpoints["top"])
-        try:
-            inbox = Inbox()
-            top.declare_subscriber("auv1/sensors/**", inbox)
-            put(auv1, "sensors/a/temp", {"celsius": 10.0})
-            put(auv1, "sensors/b/temp", {"celsius": 20.0})
-            got = dict(inbox.drain(8.0))
-            assert got == {"auv1/sensors/a/temp": {"celsius": 10.0},
-                           "auv1/sensors/b/temp": {"celsius": 20.0}}
-        finally:
-            auv1.close()
-            top.close()
 
 
 def test_a_mission_log_replays_each_member_on_its_own_key(tmp_path: Path) -> None:

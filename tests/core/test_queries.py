@@ -3,16 +3,6 @@ ended with a reply error at the MAC's deadline, bounded, refused when the link i
 
 from __future__ import annotations
 
-import json
-import os
-import signal
-import subprocess
-import sys
-import threading
-import time
-from pathlib import Path
-
-import msgpack
 import pytest
 import yaml
 
@@ -22,9 +12,7 @@ from bridge.errors import MissionError
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.runtime.zenoh_queries import format_parameters, parse_parameters
 from bridge.wire.frame import FrameCodec
-from tests.conftest import MISSIONS, REPO, free_port
-from tests.zsim import app as plain_app
-from tests.zsim import mission_file, zab_sim
+from tests.conftest import MISSIONS
 
 ZSPACE = MISSIONS / "zspace.yaml"
 
@@ -128,85 +116,6 @@ def test_selector_parameters_round_trip() -> None:
     assert parse_parameters(format_parameters(values)) == values
 
 
-TEST_MISSION = """
-nodes:
-  auv3: {address: 4, position: {x: 9000, y: 0, depth: 10}}
-queries:
-  - name: slowinfo
-    key: auv1/slowinfo
-    serve: auv1
-    ask: top
-    reply: [{field: depth_m, min: 0, max: 200, resolution: 0.5}]
-    timeout_s: 1.5
-"""
-
-
-def e2e_mission(tmp_path: Path) -> tuple[Path, dict]:
-    data = yaml.safe_load(ZSPACE.read_text())
-    extra = yaml.safe_load(TEST_MISSION)
-    data["nodes"].update(extra["nodes"])  # auv3 is out of acoustic range: its link is down
-    data["mac"]["order"].append("auv3")
-    data["queries"] += extra["queries"]
-    return mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
-
-
-def get(session, selector: str, timeout: float = 30.0) -> tuple[list, list[str], float]:
-    started = time.time()
-    values, errors = [], []
-    for reply in session.get(selector, timeout=timeout):
-        if reply.ok is not None:
-            values.append((str(reply.ok.key_expr), msgpack.unpackb(reply.ok.payload.to_bytes())))
-        else:
-            errors.append(reply.err.payload.to_string())
-    return values, errors, time.time() - started
-
-
-def test_a_plain_get_crosses_the_water_through_zab_sim(tmp_path: Path) -> None:
-    mission, endpoints = e2e_mission(tmp_path)
-    with zab_sim(mission, endpoints):
-        auv1, top = plain_app(endpoints["auv1"]), plain_app(endpoints["top"])
-        try:
-            def answer(query) -> None:
-                detail = int(str(query.parameters).partition("detail=")[2] or 0)
-                query.reply(query.key_expr, msgpack.packb(
-                    {"depth_m": 42.5, "state": "transit", "detail": detail}))
-                query.drop()
-
-            auv1.declare_queryable("auv1/info", answer)
-            deadline = time.time() + 20  # until the surface has heard auv1
-            while True:
-                values, errors, took = get(top, "auv1/info?detail=3")
-                if values or time.time() > deadline or "link down" not in " ".join(errors):
-                    break
-                time.sleep(1.0)
-            assert values == [("auv1/info", {"depth_m": 42.5, "state": "transit",
-                                             "detail": 3})], errors
-            assert not errors and took < 12.0  # two TDMA cycles of 3 s, at most
-            # concurrent gets share one request
-            results: list = []
-            threads = [threading.Thread(target=lambda: results.append(
-                get(top, "auv1/info?detail=1"))) for _ in range(2)]
-            for t in threads:
-                t.start()
-            for t in threads:
-                t.join()
-            assert [r[0] for r in results] == [[("auv1/info", {"depth_m": 42.5,
-                                                               "state": "transit",
-                                                               "detail": 1})]] * 2
-            # a deadline shorter than the round trip: a clear error
-            values, errors, took = get(top, "auv1/slowinfo")
-            assert values == [] and len(errors) == 1
-            assert "auv1: no reply to query 'slowinfo' within 1.5 s" in errors[0]
-            # the link to auv3 is down: at once, naming it
-            values, errors, took = get(top, "auv3/info?detail=0")
-            assert values == [] and "auv3: acoustic link down" in errors[0] and took < 1.0
-            values, errors, took = get(top, "auv1/info?detail=banana")
-            assert values == [] and "malformed parameters" in errors[0] and took < 1.0
-        finally:
-            auv1.close()
-            top.close()
-
-
 def test_a_query_under_the_polled_mac_is_answered_in_the_reply_to_its_poll() -> None:
     data = yaml.safe_load(ZSPACE.read_text())
     data["mac"] = {"type": "polled", "master": "top", "ipg_s": 1.5}
@@ -219,16 +128,6 @@ def test_a_query_under_the_polled_mac_is_answered_in_the_reply_to_its_poll() -> 
     assert [v for _, v, _ in result.replies] == info({"detail": 3}) and result.error is None
     bound = deadline_s(loaded.mission, loaded.table.queries[0], "top", "auv2")
     assert result.ended_at is not None and result.ended_at - result.asked_at <= bound
-
-
-def test_zab_demo_shows_answered_gets(tmp_path: Path) -> None:
-    mission, _ = mission_file(ZSPACE.read_text(), tmp_path)
-    done = subprocess.run([sys.executable, "-m", "bridge", "demo", "--mission", str(mission),
-                           "--duration", "16", "--no-live", "--no-gui"], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=90,
-                          env={**os.environ, "COLUMNS": "200"})
-    assert done.returncode == 0, done.stderr
-    assert "top get auv1/info?detail=0 → {'depth_m'" in done.stdout
 
 
 def test_a_fresh_latched_value_answers_at_once_without_a_request() -> None:
@@ -255,80 +154,3 @@ def test_a_fresh_latched_value_answers_at_once_without_a_request() -> None:
     assert not stale.done and fleet.cores["top"].queries.asked == 1  # goes over the water
 
 
-def test_check_refuses_a_reply_that_can_never_fit(tmp_path: Path) -> None:
-    data = yaml.safe_load(ZSPACE.read_text())
-    data["queries"][0]["reply"].append({"field": "log", "type": "string", "length": 60})
-    path = tmp_path / "big.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    done = subprocess.run([sys.executable, "-m", "bridge", "check", str(path)], cwd=REPO,
-                          capture_output=True, text=True, timeout=60,
-                          env={**os.environ, "COLUMNS": "200"})
-    assert done.returncode == 1 and "entry '!info'" in done.stdout
-    assert "can never fit" in done.stdout
-
-
-def test_zab_sim_fast_asks_the_queries_and_reports_them(tmp_path: Path) -> None:
-    report = tmp_path / "r.json"
-    done = subprocess.run([sys.executable, "-m", "bridge", "sim", str(ZSPACE), "--fast",
-                           "--duration", "200", "--report", str(report)], cwd=REPO,
-                          capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "COLUMNS": "200"})
-    assert done.returncode == 0, done.stderr
-    queries = json.loads(report.read_text())["queries"]
-    assert queries["asked"] >= 10 and queries["errors"] == {}
-    assert queries["answered"] >= queries["asked"] - 2  # the last ones may still be open
-    bound = deadline_s(load_mission(ZSPACE).mission, load_mission(ZSPACE).table.queries[0],
-                       "top", "auv1")
-    assert queries["max_round_trip_s"] <= bound
-    assert "queries: " in done.stdout and "answered" in done.stdout
-
-
-def test_a_get_through_zab_run_processes_and_zab_water(tmp_path: Path) -> None:
-    """What the vehicles run at sea: one `zab run` per node, here over `zab water`."""
-    data = yaml.safe_load(ZSPACE.read_text())
-    water = free_port()
-    data["modem"]["options"]["water"] = f"127.0.0.1:{water}"
-    mission, endpoints = mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
-    procs = [subprocess.Popen([sys.executable, "-m", "bridge", "water", str(mission), "--port",
-                               str(water)], cwd=REPO, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL)]
-    sessions = []
-    try:
-        time.sleep(1.0)
-        for node in ("top", "auv1"):
-            procs.append(subprocess.Popen([sys.executable, "-m", "bridge", "run", str(mission),
-                                           "--node", node], cwd=REPO,
-                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-        deadline = time.time() + 20
-        while len(sessions) < 2:
-            try:
-                sessions.append(plain_app(endpoints[("auv1", "top")[len(sessions)]]))
-            except Exception:
-                assert time.time() < deadline, "zab run did not open its endpoint"
-                time.sleep(0.2)
-        auv1, top = sessions
-
-        def answer(query) -> None:
-            query.reply(query.key_expr, msgpack.packb({"depth_m": 5.0, "state": "idle",
-                                                       "detail": 1}))
-            query.drop()
-
-        auv1.declare_queryable("auv1/info", answer)
-        deadline = time.time() + 25
-        while True:
-            values, errors, _ = get(top, "auv1/info?detail=1")
-            if values or time.time() > deadline:
-                break
-            time.sleep(1.0)  # until the surface has heard auv1
-        assert values == [("auv1/info", {"depth_m": 5.0, "state": "idle", "detail": 1})], errors
-    finally:
-        for session in sessions:
-            session.close()
-        for proc in reversed(procs):
-            proc.send_signal(signal.SIGINT)
-        for proc in procs:
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()

@@ -7,13 +7,8 @@ from __future__ import annotations
 
 import asyncio
 import math
-import time
-from collections.abc import Callable
-from pathlib import Path as PathLib
 
-import msgpack
 import yaml
-import zenoh
 
 from bridge.cli.sim_fast import run_fast
 from bridge.core.loaded import parse_mission
@@ -22,9 +17,6 @@ from bridge.mission.path import Path
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.sim.scenario import surface_script, surface_windows
 from tests.conftest import MISSIONS
-from tests.harness import put
-from tests.zsim import app as plain_app
-from tests.zsim import mission_file, zab_sim
 
 CYCLE_S = 3.0  # the example's TDMA cycle
 # auv1 rises 10 m at 1 m/s, sails 20 m at the surface, dives 10 m: surfaced ~[10, 30] s
@@ -96,47 +88,3 @@ def test_zab_sim_fast_reports_the_scripted_surfacing() -> None:
         ("top", True, 9.9), ("top", False, 30.1)]
 
 
-def token_seen(session: zenoh.Session, node: str) -> bool:
-    """Whether ``node``'s bridge token is visible from ``session`` (joined over IP)."""
-    return any(r.ok is not None for r in session.liveliness().get(
-        f"@zab/zspace/{node}/bridge", timeout=1.0))
-
-
-def wait_for(check: Callable[[], bool], timeout: float) -> bool:
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        if check():
-            return True
-        time.sleep(0.2)
-    return False
-
-
-def test_zab_sim_puts_a_surfaced_vehicle_on_the_surface_wifi_and_takes_it_off(
-        tmp_path: PathLib) -> None:
-    data = yaml.safe_load((MISSIONS / "zspace.yaml").read_text())
-    for name in ("top", "auv1"):  # as the deploy kit runs them: routers
-        data["nodes"][name]["zenoh"] = {"mode": "router", "scouting/gossip/enabled": False,
-                                        "scouting/delay": 0}
-    data["nodes"]["auv1"]["path"] = {  # at the surface ~[3.9, 20.1] s after the water starts
-        "waypoints": [{"x": 40, "y": 30, "depth": 4}, {"x": 40, "y": 30, "depth": 0},
-                      {"x": 40, "y": 46, "depth": 0}, {"x": 40, "y": 46, "depth": 10}],
-        "speed_mps": 1.0}
-    path, endpoints = mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
-    with zab_sim(path, endpoints):
-        auv1, top = plain_app(endpoints["auv1"]), plain_app(endpoints["top"])
-        try:
-            got: list[dict] = []
-            top.declare_subscriber("auv1/status", lambda s: got.append(
-                msgpack.unpackb(s.payload.to_bytes())))
-            assert wait_for(lambda: token_seen(top, "auv1"), 15.0)  # surfaced: on the WiFi
-            time.sleep(1.0)  # both bridges switch over
-            put(auv1, "status", {"battery": 66.6, "mode": "transit"})
-            time.sleep(2 * CYCLE_S)  # latching every 2 s: acoustic copies would show here
-            assert got == [{"battery": 66.6, "mode": "transit"}]  # over IP, unquantised, once
-            got.clear()
-            assert wait_for(lambda: not token_seen(top, "auv1"), 20.0)  # dived
-            assert wait_for(lambda: bool(got), 2 + 2 * CYCLE_S)
-            assert got[0] == {"battery": 67, "mode": "transit"}  # latched, acoustic again
-        finally:
-            auv1.close()
-            top.close()

@@ -3,21 +3,11 @@ copies; after the dive acoustic bridging resumes within a cycle, latched state a
 
 from __future__ import annotations
 
-import time
-from pathlib import Path
-
-import msgpack
-import yaml
-
 from bridge.core.loaded import load_mission
 from bridge.core.surfacing import Relay
-from bridge.runtime.surface_wifi import access_point
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.payloads import encode_payload
 from tests.conftest import MISSIONS
-from tests.harness import put
-from tests.zsim import app as plain_app
-from tests.zsim import mission_file, zab_sim
 
 ZSPACE = MISSIONS / "zspace.yaml"
 CYCLE_S = 3.0  # the example's TDMA cycle
@@ -77,42 +67,3 @@ def test_a_sender_that_has_not_noticed_is_not_published_twice() -> None:
 
 
 
-def test_surfacing_and_diving_through_zab_sim(tmp_path: Path) -> None:
-    data = yaml.safe_load(ZSPACE.read_text())
-    for name in ("top", "auv1"):  # as the deploy kit runs them: routers
-        data["nodes"][name]["zenoh"] = {"mode": "router", "scouting/gossip/enabled": False,
-                                        "scouting/delay": 0}
-    mission, endpoints = mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
-    with zab_sim(mission, endpoints):
-        auv1, top = plain_app(endpoints["auv1"]), plain_app(endpoints["top"])
-        wifi = None
-        try:
-            got: list[tuple[float, dict]] = []
-            top.declare_subscriber("auv1/status", lambda s: got.append(
-                (time.time(), msgpack.unpackb(s.payload.to_bytes()))))
-            time.sleep(0.5)
-            put(auv1, "status", {"battery": 77.3, "mode": "survey"})
-            deadline = time.time() + 12
-            while not got and time.time() < deadline:
-                time.sleep(0.1)
-            assert got and got[0][1] == {"battery": 77, "mode": "survey"}  # quantised
-            wifi = access_point(endpoints["top"] + endpoints["auv1"])
-            time.sleep(2.0)  # the tokens cross; the bridges switch over
-            got.clear()
-            put(auv1, "status", {"battery": 66.6, "mode": "transit"})
-            time.sleep(3 * CYCLE_S)  # latching every 2 s: acoustic copies would show here
-            assert [v for _, v in got] == [{"battery": 66.6, "mode": "transit"}]
-            got.clear()
-            dived = time.time()
-            wifi.close()
-            wifi = None
-            deadline = time.time() + 2 + 2 * CYCLE_S
-            while not got and time.time() < deadline:
-                time.sleep(0.1)
-            assert got and got[0][1] == {"battery": 67, "mode": "transit"}  # latched, acoustic
-            assert got[0][0] - dived <= 1.0 + 2 * CYCLE_S
-        finally:
-            if wifi is not None:
-                wifi.close()
-            auv1.close()
-            top.close()

@@ -22,6 +22,7 @@ from bridge.cli.doctor import (
     parse_chronyc,
     parse_timedatectl,
     run_doctor,
+    state_findings,
 )
 from bridge.core.loaded import LoadedMission
 from bridge.modems.evologics.emulator import EvologicsEmulator
@@ -168,3 +169,25 @@ def test_clock_outputs_are_parsed_and_judged_against_the_guard() -> None:
     data["mac"] = {"type": "none"}
     free_mac = on_free_ports(yaml.safe_dump(data))
     assert clock_findings(free_mac, None)[0].status == "ok"
+
+
+def test_the_state_directory_must_take_a_save(tmp_path: Path) -> None:
+    """A real save in the node's state directory: fine; on a full or read-only filesystem (a
+    real tmpfs) a failure saying why and what to do."""
+    from tests.runtime.tmpfs import fill, remount, small_tmpfs
+
+    loaded = on_free_ports((MISSIONS / "morph.yaml").read_text())
+    [fine] = state_findings(loaded, "gcv", tmp_path / "state")
+    assert fine.status == "ok" and "takes a save" in fine.message
+    assert not any((tmp_path / "state").iterdir())  # the probe is gone
+    with small_tmpfs(tmp_path / "small") as where:
+        [low] = state_findings(loaded, "gcv", where)
+        assert low.status == "warn" and "KiB free" in low.message
+        filler = fill(where)
+        [full] = state_findings(loaded, "gcv", where)
+        assert full.status == "fail" and "No space left on device" in full.message
+        assert full.fix is not None and "refuses new reliable values" in full.fix
+        filler.unlink()
+        remount(where, "ro")
+        [read_only] = state_findings(loaded, "gcv", where)
+        assert read_only.status == "fail" and "not writable" in read_only.message

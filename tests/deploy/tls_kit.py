@@ -109,11 +109,22 @@ def client_config(pki: Path, tls_port: int, cert: str | None) -> zenoh.Config:
     return connect_with(config, pki, cert)
 
 
-def vehicle_config(pki: Path, listen_port: int, tls_port: int, cert: str | None) -> zenoh.Config:
-    """vehicle.json5: loopback for the vehicle's apps, TLS to the surface router."""
-    config = _on_loopback("vehicle", [f"tcp/127.0.0.1:{listen_port}"],
-                          [f"tls/127.0.0.1:{tls_port}"])
+def vehicle_config(pki: Path, listen_port: int, tls_port: int, cert: str | None,
+                   bridge_socket: Path | None = None) -> zenoh.Config:
+    """vehicle.json5: loopback for the vehicle's apps (and, with ``bridge_socket``, the Unix
+    socket of its bridge), TLS to the surface router."""
+    listen = [f"tcp/127.0.0.1:{listen_port}"]
+    if bridge_socket is not None:
+        listen.append(f"unixsock-stream/{bridge_socket}")
+    config = _on_loopback("vehicle", listen, [f"tls/127.0.0.1:{tls_port}"])
     return connect_with(config, pki, cert)
+
+
+def bridge_socket_config(socket: Path) -> zenoh.Config:
+    """A vehicle's bridge joining its router over the router's Unix socket."""
+    config = local_config(0)
+    set_json(config, "connect/endpoints", [f"unixsock-stream/{socket}"])
+    return config
 
 
 def surface_bridge_settings(pki: Path, bridge_port: int) -> ZenohSettings:

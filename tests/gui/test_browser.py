@@ -16,18 +16,16 @@ from typing import Any
 
 import pytest
 
-from tests.conftest import REPO, on_free_ports
+from tests.conftest import CHROMIUM, REPO, needs_browser, on_free_ports
 from tests.gui.fleet import MISSION, VehicleApps, mission_text
 from tests.harness import Inbox, outside_session, running_fleet
 
-CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--no-sandbox", "--headless", "--disable-gpu",
                  "--disable-background-networking", "--disable-component-update",
                  "--disable-sync", "--no-first-run"]
 WAIT_MS = 20_000  # an upper bound for things the fleet does within a few TDMA cycles
 
-pytestmark = pytest.mark.skipif(not CHROMIUM.exists(),
-                                reason="needs Debian's chromium (apt-get install chromium)")
+pytestmark = needs_browser
 
 @contextlib.contextmanager
 def gui_process(path: Path, node: str | None = None) -> Iterator[str]:

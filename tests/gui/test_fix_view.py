@@ -14,8 +14,7 @@ import pytest
 from bridge.core.loaded import LoadedMission, load_mission
 from bridge.gui.model import GuiModel
 from bridge.ranging.tracker import Estimate
-from tests.conftest import MISSIONS
-from tests.gui.test_browser import CHROMIUM
+from tests.conftest import MISSIONS, browser_missing
 from tests.gui.test_map_view import browser_and_url, open_page
 
 if TYPE_CHECKING:
@@ -61,8 +60,8 @@ def test_model_keeps_state_age_and_ellipse_and_a_lost_reason(morph: LoadedMissio
 
 @pytest.fixture(scope="module")
 def page(browser_and_url: tuple[Browser, str]) -> Iterator[Page]:
-    if not CHROMIUM.exists():
-        pytest.skip("needs Debian's chromium (apt-get install chromium)")
+    if reason := browser_missing():
+        pytest.skip(reason)
     yield from open_page(*browser_and_url)
 
 
@@ -102,3 +101,18 @@ def test_the_page_draws_the_ellipse_and_the_state(page: Page) -> None:
     show(page, {"kind": "lost", "node": "auv1", "reason": "no_ranges", "ago": -1.0})
     got = drawn(page)
     assert got["state"] == "lost" and got["text"] == "lost: no ranges" and got["rx"] is None
+
+
+def test_a_peer_never_heard_is_not_heard_yet_not_down(page: Page) -> None:
+    """At the start of a mission a link is 'down' until the peer's first frame: that is no
+    fault, so the page shows it grey ('not heard yet'), and red only once it was heard."""
+    states = page.evaluate("""() => {
+      const v = vehicle("ghost"), key = state.mission.node + "/ghost";
+      state.links[key] = { state: "down" };
+      const before = linkState("ghost");
+      v.heard = serverNow();
+      const after = linkState("ghost");
+      delete state.links[key]; delete state.nodes.ghost;
+      return [before, after];
+    }""")
+    assert states == ["unknown", "down"]

@@ -17,16 +17,15 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from tests.conftest import on_free_ports
+from tests.conftest import CHROMIUM, needs_browser, on_free_ports
 from tests.gui.fleet import MISSION, VehicleApps, mission_text
-from tests.gui.test_browser import CHROMIUM, CHROMIUM_ARGS, WAIT_MS, gui_process
+from tests.gui.test_browser import CHROMIUM_ARGS, WAIT_MS, gui_process
 from tests.harness import running_fleet
 
 if TYPE_CHECKING:
     from playwright.sync_api import Browser, CDPSession, Page
 
-pytestmark = pytest.mark.skipif(not CHROMIUM.exists(),
-                                reason="needs Debian's chromium (apt-get install chromium)")
+pytestmark = needs_browser
 
 PAD = 36  # the automatic fit's margin in app.js
 MIN_SPAN_M, MAX_SPAN_M = 5, 200000  # mapview.js's zoom range, across the map's short side

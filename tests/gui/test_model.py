@@ -108,8 +108,9 @@ def test_stats_give_links_last_heard_and_dropped_frames(morph):
     assert heard == {"kind": "heard", "node": "gcv", "last_heard": 98.0}
     links = {i["node"]: i["state"] for i in items if i["kind"] == "link"}
     assert links == {"gcv": "up", "lsv": "down"}
-    assert [e["text"] for e in items if e["kind"] == "event"] == [
-        "link ssv ↔ gcv: up", "link ssv ↔ lsv: down (not heard yet)"]
+    events = [(e["level"], e["text"]) for e in items if e["kind"] == "event"]
+    # a peer not heard yet, at the start, is no fault: not an error line
+    assert events == [("info", "link ssv ↔ gcv: up"), ("info", "link ssv ↔ lsv: not heard yet")]
     # the next stats: same links (no news), two more frames dropped failing the check
     stats = {**stats, "time": 1001.0, "frames_dropped": {"check": 2}, "send_errors": 1}
     model.ingest("@zab/morph/ssv/stats", pack(stats), MSGPACK, 101.0)
@@ -248,3 +249,47 @@ def test_the_log_says_links_per_link_and_switches_in_words() -> None:
                                     "link": "acoustic", "was": "rf", "reason": "failover"})
     assert moved is not None and moved.text == \
         "rov2: traffic to surface over acoustic (failover from rf)"
+
+
+def test_a_third_bridge_s_copy_of_a_value_is_not_an_arrival(morph):
+    """cv2 surfaced: its Zenoh joined ssv's, so what cv2's bridge heard and published (the
+    gcv's nav) reaches the GUI too, beside ssv's own copy; cv2's own values over IP count."""
+    model = GuiModel(morph, "ssv")
+    nav = pack({"x": 20.0, "y": 30.0, "depth": 12.0, "heading": 0, "speed": 1.0})
+    model.ingest("gcv/nav", nav, MSGPACK, 100.0, "ssv")
+    model.ingest("gcv/nav", nav, MSGPACK, 100.01, "cv2")  # cv2's copy
+    model.ingest("cv2/nav", nav, MSGPACK, 100.02, "cv2")  # over IP
+    model.ingest("gcv/nav", nav, MSGPACK, 107.5, "ssv")
+    channels = [i for i in model.take() if i["kind"] == "channel"]
+    gcv = [c for c in channels if c["node"] == "gcv"]
+    assert [c["interval_s"] for c in gcv] == [None, 7.5] and gcv[-1]["count"] == 2
+    assert [c["node"] for c in channels if c["node"] == "cv2"] == ["cv2"]
+
+
+def test_events_read_as_sentences(morph):
+    from bridge.gui.eventlog import describe_event
+
+    up = describe_event("ssv", {"kind": "surfaced", "peer": "cv2", "ip": True, "time": 1.0})
+    down = describe_event("ssv", {"kind": "surfaced", "peer": "cv2", "ip": False, "time": 2.0})
+    assert up is not None and up.text == ("ssv: cv2 reached over IP (one of them surfaced): "
+                                          "channels between them no longer cross the water")
+    assert down is not None and down.text == ("ssv: cv2 no longer reached over IP (dived): "
+                                              "channels between them cross the water again")
+    restarted = describe_event("ssv", {"kind": "peer_restarted", "peer": "gcv", "epoch": 3,
+                                       "was": 2, "time": 3.0})
+    assert restarted is not None and restarted.level == "warn"
+    assert restarted.text == "ssv: gcv restarted without its saved state (epoch 2 → 3)"
+    other = describe_event("ssv", {"kind": "mission_mismatch", "peer": "lsv",
+                                   "fingerprint": "ab", "ours": "cd", "time": 4.0})
+    assert other is not None and "lsv runs another mission file" in other.text
+
+
+def test_a_node_nobody_answers_for_is_said_plainly(morph):
+    from bridge.gui.server import unreachable
+
+    zenoh_says = ("Unable to connect to any of [Single(tcp/127.0.0.1:7501)]! at "
+                  "/root/.cargo/git/checkouts/zenoh/src/net/runtime/orchestrator.rs:447.")
+    assert unreachable(zenoh_says, "ssv", ["tcp/127.0.0.1:7501"]) == (
+        "nothing answers at tcp/127.0.0.1:7501: is ssv's bridge running (zab run, zab sim or "
+        "zab demo)?")
+    assert unreachable("no route to the node", "ssv", []) == "no route to the node"

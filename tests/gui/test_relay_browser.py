@@ -11,15 +11,12 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-import pytest
-
-from tests.conftest import REPO, on_free_ports
+from tests.conftest import REPO, needs_browser, on_free_ports
 from tests.gui.fleet import mission_text
-from tests.gui.test_browser import CHROMIUM, WAIT_MS, gui_process, open_page
+from tests.gui.test_browser import WAIT_MS, gui_process, open_page
 from tests.harness import outside_session, put, running_fleet
 
-pytestmark = pytest.mark.skipif(not CHROMIUM.exists(),
-                                reason="needs Debian's chromium (apt-get install chromium)")
+pytestmark = needs_browser
 
 MISSION = """
 mission: relaygui

@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 import asyncio
-import io
 import json
 import re
 import threading
 
 import aiohttp
 import pytest
-from rich.console import Console
 
-from bridge.cli.demo import run_demo
 from bridge.errors import MissionError
 from bridge.gui.server import GuiServer, dumps
-from tests.conftest import MISSIONS, free_port, mission_on_free_ports, on_free_ports
+from tests.conftest import MISSIONS, mission_on_free_ports, on_free_ports
 from tests.gui.fleet import MISSION
 from tests.harness import running_fleet
 
@@ -60,6 +57,33 @@ def test_the_page_and_its_assets_are_served_locally():
             await server.stop()
 
     asyncio.run(main())
+
+
+def test_with_no_fleet_the_page_and_its_log_say_why():
+    """`zab gui` started before the fleet: the badge and the event log name the endpoint and
+    what to start, not Zenoh's source file."""
+    loaded = mission_on_free_ports(MISSIONS / "morph.yaml")  # nobody listens there
+    endpoint = loaded.mission.nodes["ssv"].zenoh.listen[0]
+    why = f"nothing answers at {endpoint}: is ssv's bridge running (zab run, zab sim or zab demo)?"
+
+    async def main() -> tuple[dict, dict]:
+        server = GuiServer(loaded)
+        url = await server.start("127.0.0.1", 0)
+        try:
+            async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
+                items = (await _hello(ws))["items"]
+                while not any(i["kind"] == "event" for i in items):
+                    items += (await ws.receive_json(timeout=10)).get("items", [])
+                feed = [i for i in items if i["kind"] == "feed"][-1]
+                event = [i for i in items if i["kind"] == "event"][-1]
+                return feed, event
+        finally:
+            await server.stop()
+
+    feed, event = asyncio.run(main())
+    assert feed["connected"] is False and feed["error"] == why
+    assert event["level"] == "error" and event["text"] == \
+        f"GUI not connected to ssv at {endpoint}: {why}"
 
 
 def test_the_websocket_says_hello_refuses_bad_messages_and_other_origins():
@@ -125,47 +149,6 @@ def test_a_taken_port_is_an_error_unless_any_port_will_do():
             await first.stop()
 
     asyncio.run(main())
-
-
-def test_the_demo_serves_the_gui_and_leaves_operator_commands_alone():
-    """`zab demo` prints the GUI's address; the page sees the fleet move; a command sent
-    from it reaches the surface bridge and the demo's own publisher leaves that key alone."""
-    loaded = mission_on_free_ports(MISSIONS / "morph.yaml")
-    out = io.StringIO()
-    console = Console(file=out, width=200, color_system=None)
-
-    async def operator() -> tuple[dict, dict]:
-        while (found := re.search(r"open (http://\S+) in a browser", out.getvalue())) is None:
-            await asyncio.sleep(0.1)
-        url = found.group(1)
-        async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
-            await _until_connected(ws, await _hello(ws))
-            await ws.send_json({"type": "command", "request": 1, "channel": "mission_command",
-                                "vehicle": "cv1", "values": {"action": "surface", "leg": 9}})
-            while (reply := await ws.receive_json(timeout=10))["type"] != "reply":
-                pass
-            await asyncio.sleep(9)  # one TDMA cycle of the MORPH fleet and a bit
-            async with http.get(url + "state.json") as response:
-                return reply, await response.json()
-
-    async def main() -> tuple[dict, dict]:
-        demo = asyncio.create_task(run_demo(loaded, duration=14, console=console, live=False,
-                                            gui_port=free_port()))
-        reply, state = await operator()
-        await demo
-        return reply, state
-
-    reply, state = asyncio.run(main())
-    assert reply["ok"], reply
-    text = out.getvalue()
-    assert "ssv ← operator: command" in text
-    positions = {i["node"] for i in state["items"] if i["kind"] == "position"}
-    assert {"gcv", "lsv", "cv1", "cv2"} <= positions
-    # the surface's own input key shows the operator's command, not the demo's synthetic one
-    command = next(i for i in state["items"]
-                   if i["kind"] == "channel" and i["channel"] == "mission_command")
-    assert command["value"] == {"action": "surface", "leg": 9}
-    assert json.dumps(state, allow_nan=False)
 
 
 def test_a_reliable_command_shows_pending_then_delivered_per_receiver():

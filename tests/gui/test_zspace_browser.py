@@ -7,17 +7,15 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
-import pytest
 import yaml
 
 from bridge.runtime.surface_wifi import access_point
-from tests.conftest import MISSIONS
-from tests.gui.test_browser import CHROMIUM, WAIT_MS, gui_process, open_page
+from tests.conftest import MISSIONS, needs_browser
+from tests.gui.test_browser import WAIT_MS, gui_process, open_page
 from tests.zsim import app as plain_app
 from tests.zsim import mission_file, zab_sim
 
-pytestmark = pytest.mark.skipif(not CHROMIUM.exists(),
-                                reason="needs Debian's chromium (apt-get install chromium)")
+pytestmark = needs_browser
 
 
 def test_wants_and_surfacing_show_on_the_page(tmp_path: Path) -> None:

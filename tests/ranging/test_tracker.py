@@ -12,6 +12,7 @@ from bridge.ranging import seed001
 from bridge.ranging.seed001 import NEES_BOUNDS_2D, events, flips, percentile, replay
 from bridge.ranging.tracker import Prior, RangeObs, RangeTracker, TrackerConfig, _predicted
 
+INDEPENDENT = True  # pure replays on a virtual clock: xdist may spread them
 START = Prior(0.0, 5.0, 5.0, 2.0)  # the rectangle's first corner, where the vehicle dived
 
 
@@ -26,11 +27,12 @@ def inside(samples: list[seed001.Sample]) -> float:
     return sum(low <= n <= high for n in nees) / len(nees)
 
 
-def test_two_anchors_and_heading_for_an_hour_without_a_mirror_flip() -> None:
+def test_two_anchors_and_heading_for_a_quarter_hour_without_a_mirror_flip() -> None:
+    # the hour: bench/tracking_bench.py ("2 anchors + compass 5 Hz, seed 001 reception")
     tracker = RangeTracker(prior=START)
-    samples = replay(tracker, events(3600.0, ("left", "right"), seed=3))
+    samples = replay(tracker, events(900.0, ("left", "right"), seed=3))
     err = errors(samples)
-    assert len(err) > 1500  # seed 001's reception: ~40 % of the requests answered
+    assert len(err) > 375  # seed 001's reception: ~40 % of the requests answered (419)
     assert flips(samples) == 0
     assert percentile(err, 0.95) <= 1.0
     assert percentile(errors(samples, west=True), 0.95) <= 1.0  # 5 m from the anchors' line
@@ -46,8 +48,8 @@ def test_three_anchors_every_reply_heard() -> None:
 
 
 def test_covariance_is_consistent() -> None:
-    samples = replay(RangeTracker(prior=START), events(1800.0, ("left", "right"), seed=5,
-                                                        reception="all"))
+    samples = replay(RangeTracker(prior=START), events(900.0, ("left", "right"), seed=5,
+                                                       reception="all"))
     assert inside(samples) >= 0.85  # 95 % if perfectly consistent; overconfident would fail
 
 

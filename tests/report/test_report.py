@@ -15,8 +15,8 @@ from bridge.core.events import FrameReceived, FrameSent, Position, Range
 from bridge.ranging.localise import Fix, NoFix
 from bridge.report.html import channel_bounds
 from bridge.report.recorder import MissionRecorder, age_series
-from tests.conftest import MISSIONS, free_port, mission_on_free_ports
-from tests.gui.test_browser import CHROMIUM, CHROMIUM_ARGS
+from tests.conftest import CHROMIUM, MISSIONS, free_port, mission_on_free_ports, needs_browser
+from tests.gui.test_browser import CHROMIUM_ARGS
 
 PLOTS = ["tracks", "age", "slots", "losses", "ranges"]
 
@@ -61,7 +61,11 @@ def open_offline(path: Path) -> dict[str, Any]:
                   points: plot.data.reduce((n, t) => n + (t.x ? t.x.length : 0), 0),
                   title: plot.layout.title.text,
                   svg: plot.querySelectorAll(".main-svg").length,
-                  annotations: (plot.layout.annotations || []).map((a) => a.text)}];
+                  annotations: (plot.layout.annotations || []).map((a) => a.text),
+                  legend: plot.layout.showlegend,
+                  names: plot.data.map((t) => t.name),
+                  colours: plot.data.map((t) => t.marker && t.marker.color),
+                  caption: s.querySelector("p.caption")?.textContent || null}];
               }))""")
             return {"plots": drawn, "asked": asked, "errors": errors,
                     "text": page.inner_text("body")}
@@ -112,7 +116,7 @@ def test_recorder_keeps_range_errors_against_the_truth() -> None:
     assert rec.tracks["b"] == [(0.0, 30.0, 40.0)]
 
 
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium")
+@needs_browser
 def test_fast_sim_writes_a_report_that_opens_offline(tmp_path: Path) -> None:
     mission = morph_on_free_ports(tmp_path, loss=0.2)  # some frames lost, so losses show
     report = tmp_path / "report.html"
@@ -130,12 +134,24 @@ def test_fast_sim_writes_a_report_that_opens_offline(tmp_path: Path) -> None:
     assert plots["age"]["traces"] >= 5 and plots["age"]["points"] > 100
     assert plots["slots"]["points"] >= 5
     assert plots["losses"]["traces"] >= 1 and plots["losses"]["annotations"] == []  # lost: loss
+    # every cause has its own colour and a legend says which, even when there is one cause
+    losses = plots["losses"]
+    assert losses["legend"] is True and "loss" in losses["names"]
+    assert len(set(losses["colours"])) == len(losses["names"]) and None not in losses["colours"]
+    # each age plot says when its bound holds: latched channels are re-sent without news, one
+    # sent on news only ages from its last value on; the caption says why ages pass a bound
+    titles = plots["age"]["annotations"]
+    assert "surface_fix: latched, re-sent without news (bound 13.0 s)" in titles, titles
+    assert any(t.startswith("nav: sent on news only (bound ") for t in titles), titles
+    assert "each lost frame adds a turn" in plots["age"]["caption"]
+    assert "a command published once" in plots["age"]["caption"]
+    assert "A DLBL range is two-way" in plots["ranges"]["caption"]
     assert plots["ranges"]["points"] > 10
     assert "mission report: morph" in page["text"]
     assert "300 s simulated (virtual clock)" in page["text"]
 
 
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium")
+@needs_browser
 def test_real_time_sim_report_has_truth_and_json_stays_json(tmp_path: Path) -> None:
     mission = morph_on_free_ports(tmp_path)
     report = tmp_path / "report.html"
@@ -151,3 +167,23 @@ def test_real_time_sim_report_has_truth_and_json_stays_json(tmp_path: Path) -> N
     done = zab("sim", str(mission), "--fast", "--duration", "60", "--report", str(as_json))
     assert done.returncode == 0, done.stderr
     assert set(json.loads(as_json.read_text())["channels"]) >= {"nav", "mission_command"}
+
+
+def test_frames_still_in_the_water_at_the_end_are_shown_as_such() -> None:
+    import io
+
+    from rich.console import Console
+
+    from bridge.report.model import LinkFigures, MissionReport, print_report
+
+    links = [LinkFigures("ssv->gcv", 1, 2, 481, 480, {"loss": 0}),
+             LinkFigures("gcv->ssv", 2, 1, 80, 78, {"loss": 2})]
+    assert [link.in_flight for link in links] == [1, 0]
+    report = MissionReport("m", "virtual", 600.0, {}, {}, links, 561, 558)
+    out = io.StringIO()
+    print_report(Console(file=out, width=120), report)
+    rows = [line.split("│")[1:-1] for line in out.getvalue().splitlines() if "->" in line]
+    assert [[cell.strip() for cell in row] for row in rows] == [
+        ["ssv->gcv", "481", "480", "0", "1"], ["gcv->ssv", "80", "78", "loss 2", "0"]]
+    assert "in flight at the end" in out.getvalue()
+    assert report.to_dict()["links"][0]["in_flight"] == 1

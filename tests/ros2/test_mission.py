@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from bridge.core.events import PayloadDropped
+from bridge.core.events import PayloadDrops
 from bridge.core.loaded import parse_mission
 from bridge.core.node import NodeCore, Publish
 from bridge.errors import MissionError
@@ -104,7 +104,8 @@ def test_malformed_cdr_and_unknown_types_are_counted_drops(caplog) -> None:
     core.ingest(listen, odometry(), "", 2.0,
                 sample_key="0/auv1/odom/geometry_msgs::msg::dds_::PoseStamped_/RIHS01_" + "1" * 64)
     assert core.stats.payloads_dropped[listen] == 2
-    reasons = [o.reason for o in core.take() if isinstance(o, PayloadDropped)]
+    reasons = [reason for o in core.take() if isinstance(o, PayloadDrops)
+               for _, _, _, reason in o.drops]
     assert "malformed CDR for nav_msgs/msg/Odometry" in reasons[0]
     assert "unknown ROS 2 type geometry_msgs/msg/PoseStamped on /auv1/odom" in reasons[1]
     assert "dropped a payload on '0/auv1/odom/*/*': malformed CDR" in caplog.text

@@ -9,6 +9,7 @@ import contextlib
 import json
 import logging
 import time
+from collections.abc import Iterator
 
 import msgpack
 import pytest
@@ -17,9 +18,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bridge.codec.layout import Layout
+from bridge.core.loaded import LoadedMission
 from bridge.errors import DecodeError, EncodeError, FrameError
 from bridge.modems.base import ModemSetup
 from bridge.modems.udp import UdpBackend
+from bridge.runtime.fleet import Fleet
 from bridge.wire.frame import FrameCodec
 from bridge.wire.payloads import MAX_DEPTH, decode_payload
 from tests.conftest import on_free_ports, udp_ports
@@ -170,58 +173,73 @@ channels:
 """
 
 
-def test_bad_payloads_and_frames_are_counted_drops_in_a_running_fleet(
-        caplog: pytest.LogCaptureFixture) -> None:
-    """Over real Zenoh and a real UDP link: each bad payload is counted once and logged without
-    a traceback, a frame with a string that is not UTF-8 is a malformed frame, and the channel
-    carries the next good value."""
-    text = udp_ports(LAB)
-    loaded = on_free_ports(text, "bad-input.yaml")
-    caplog.set_level(logging.WARNING)
+@contextlib.contextmanager
+def lab(loaded: LoadedMission) -> Iterator[tuple[Fleet, zenoh.Session, Inbox]]:
+    """The LAB fleet running; an application at ``a`` (to put on ``note``) and what an
+    application at ``b`` receives on ``a/note``."""
     with running_fleet(loaded) as fleet:
         a, b = outside_session(loaded, "a"), outside_session(loaded, "b")
         try:
             inbox = Inbox()
             b.declare_subscriber("a/note", inbox)
             time.sleep(0.2)
-            bad = [(nested_json(DEEP), JSON), (b"[" * DEEP, "zenoh/bytes"),
-                   (nested_msgpack(DEEP), MSGPACK), (b'{"s": "\xff", "n": 1}', JSON),
-                   (b'{"s": "\\ud800", "n": 1}', JSON)]
-            for data, encoding in bad:
-                a.put("note", data, encoding=zenoh.Encoding(encoding))
-            deadline = time.time() + 10
-            while fleet.nodes["a"].stats.payloads_dropped["note"] < len(bad):
-                assert time.time() < deadline, fleet.nodes["a"].stats.payloads_dropped
-                time.sleep(0.05)
-            put(a, "note", {"s": "ok", "n": 2})
-            _, value, _ = inbox.get(timeout=5)
-            assert value == {"s": "ok", "n": 2}
-
-            codec = FrameCodec(loaded.table)
-            [note] = [c for c in loaded.table.channels if c.name == "note"]
-            body = b"\xff\xfe"
-            frame = codec.encode([(note, ((2 << 32 | int.from_bytes(body.ljust(4, b"\0"), "big"))
-                                          << 2) | 1)], [])
-            with pytest.raises(FrameError, match="not valid UTF-8") as info:
-                codec.decode(frame, 1)
-            assert info.value.reason == "malformed"
-            before = fleet.nodes["b"].stats.frames_dropped["malformed"]
-            asyncio.run(_send_as_a(loaded.mission.nodes["b"].modem.options["port"], frame))
-            deadline = time.time() + 5
-            while fleet.nodes["b"].stats.frames_dropped["malformed"] == before:
-                assert time.time() < deadline, "the frame was not counted"
-                time.sleep(0.05)
-            assert fleet.nodes["b"].stats.frames_dropped["malformed"] == before + 1
-            assert [v for _, v, _ in inbox.drain(0.5) if v != {"s": "ok", "n": 2}] == []
+            yield fleet, a, inbox
         finally:
             a.close()
             b.close()
+
+
+def test_bad_payloads_and_frames_are_counted_drops_in_a_running_fleet(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Over real Zenoh and a real UDP link: each bad payload is counted once and logged without
+    a traceback, once per cause (too long for the key: refused before decoding; nested too deep
+    or not UTF-8: undecodable; a string that is not Unicode: unfit), a frame with a string that
+    is not UTF-8 is a malformed frame, and the channel carries the next good value."""
+    text = udp_ports(LAB)
+    loaded = on_free_ports(text, "bad-input.yaml")
+    caplog.set_level(logging.WARNING)
+    with lab(loaded) as (fleet, a, inbox):
+        bad = [(nested_json(DEEP), JSON), (b"[" * DEEP, "zenoh/bytes"),
+               (nested_msgpack(DEEP), MSGPACK), (nested_json(1000), JSON),
+               (nested_msgpack(1000), MSGPACK), (b'{"s": "\xff", "n": 1}', JSON),
+               (b'{"s": "\\ud800", "n": 1}', JSON)]
+        for data, encoding in bad:
+            a.put("note", data, encoding=zenoh.Encoding(encoding))
+        deadline = time.time() + 10
+        while fleet.nodes["a"].stats.payloads_dropped["note"] < len(bad):
+            assert time.time() < deadline, fleet.nodes["a"].stats.payloads_dropped
+            time.sleep(0.05)
+        put(a, "note", {"s": "ok", "n": 2})
+        _, value, _ = inbox.get(timeout=5)
+        assert value == {"s": "ok", "n": 2}
+
+        codec = FrameCodec(loaded.table)
+        [note] = [c for c in loaded.table.channels if c.name == "note"]
+        body = b"\xff\xfe"
+        frame = codec.encode([(note, ((2 << 32 | int.from_bytes(body.ljust(4, b"\0"), "big"))
+                                      << 2) | 1)], [])
+        with pytest.raises(FrameError, match="not valid UTF-8") as info:
+            codec.decode(frame, 1)
+        assert info.value.reason == "malformed"
+        before = fleet.nodes["b"].stats.frames_dropped["malformed"]
+        asyncio.run(_send_as_a(loaded.mission.nodes["b"].modem.options["port"], frame))
+        deadline = time.time() + 5
+        while fleet.nodes["b"].stats.frames_dropped["malformed"] == before:
+            assert time.time() < deadline, "the frame was not counted"
+            time.sleep(0.05)
+        assert fleet.nodes["b"].stats.frames_dropped["malformed"] == before + 1
+        assert [v for _, v, _ in inbox.drain(0.5) if v != {"s": "ok", "n": 2}] == []
     assert fleet.nodes["a"].stats.payloads_dropped["note"] == len(bad)
     records = [r for r in caplog.records if r.exc_info or "Traceback" in r.getMessage()]
     assert records == [], [r.getMessage() for r in records]
     assert not any("RecursionError" in r.getMessage() for r in caplog.records)
     dropped = [r.getMessage() for r in caplog.records if "dropped a payload" in r.getMessage()]
-    assert len(dropped) == 1 and "nested deeper than" in dropped[0]  # warned once per key
+    assert len(dropped) == 3  # logged once per key and cause
+    assert "over this key's cap" in dropped[0] and "(too_large;" in dropped[0]
+    assert "nested deeper than" in dropped[1] and "(undecodable;" in dropped[1]
+    assert "not valid Unicode text" in dropped[2] and "(unfit;" in dropped[2]
+    causes = fleet.nodes["a"].snapshot()["payload_drop_causes"]["note"]
+    assert causes == {"too_large": 3, "undecodable": 3, "unfit": 1}
 
 
 async def _send_as_a(port_b: int, frame: bytes) -> None:
@@ -230,3 +248,38 @@ async def _send_as_a(port_b: int, frame: bytes) -> None:
     async with UdpBackend(setup) as modem:
         await modem.send(frame, None)
         await asyncio.sleep(0.3)
+
+
+def test_every_payload_shape_over_zenoh_is_a_counted_drop_without_a_traceback(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """The shapes of tests/core/test_drops.py (map keys that are maps or arrays, NaN and
+    integer keys, extension types, deep nesting, a payload over the key's cap …) put by a
+    plain Zenoh application on a running node's input key: each counted once, no traceback,
+    no intake error, and the next good value crosses."""
+    from bridge.core.node import NodeCore
+    from tests.core.test_drops import SHAPES
+
+    loaded = on_free_ports(udp_ports(LAB), "bad-input.yaml")
+    alone = NodeCore(loaded, "a")  # which shapes this mission's channel refuses
+    shapes = []
+    for shape in SHAPES:
+        before = alone.stats.payloads_dropped["note"]
+        alone.ingest("note", shape[1], shape[2], 0.0)
+        if alone.stats.payloads_dropped["note"] > before:
+            shapes.append(shape)
+    assert len(shapes) >= 15
+    caplog.set_level(logging.WARNING)
+    with lab(loaded) as (fleet, a, inbox):
+        node = fleet.nodes["a"]
+        for count, (name, data, encoding, _) in enumerate(shapes, 1):
+            a.put("note", data, encoding=zenoh.Encoding(encoding))
+            deadline = time.time() + 5
+            while node.stats.payloads_dropped["note"] < count:
+                assert time.time() < deadline, name
+                time.sleep(0.01)
+        put(a, "note", {"s": "ok", "n": 2})
+        assert inbox.get(timeout=5)[1] == {"s": "ok", "n": 2}
+        snapshot = node.snapshot()
+    assert node.stats.payloads_dropped["note"] == len(shapes)
+    assert snapshot["intake"]["errors"] == {} and snapshot["intake"]["overflow"] == {}
+    assert not [r for r in caplog.records if r.exc_info or "Traceback" in r.getMessage()]

@@ -198,7 +198,7 @@ def test_zab_sim_log_writes_one_file_per_node(tmp_path: Path) -> None:
     mission.write_text(json.dumps(loaded.mission.model_dump(by_alias=True, mode="json",
                                                             exclude_unset=True)))
     result = subprocess.run(
-        [sys.executable, "-m", "bridge", "sim", str(mission), "--duration", "3", "--no-live",
+        [sys.executable, "-m", "bridge", "sim", str(mission), "--duration", "5", "--no-live",
          "--log", str(tmp_path / "logs")], capture_output=True, text=True, timeout=60, cwd=REPO)
     assert result.returncode == 0, result.stderr
     for node, peer in (("a", "b"), ("b", "a")):

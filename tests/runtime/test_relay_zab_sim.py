@@ -242,7 +242,11 @@ def test_zab_demo_shows_a_vehicle_reached_through_another(tmp_path: Path) -> Non
                           capture_output=True, text=True, timeout=200,
                           env={**os.environ, "COLUMNS": "200"})
     assert done.returncode == 0, done.stderr
-    part = done.stdout.split("7. A vehicle reached through another", 1)[1]
+    import re
+
+    found = re.search(r"\d+\. A vehicle reached through another", done.stdout)
+    assert found, done.stdout
+    part = done.stdout[found.end():]
     flat = " ".join(part.split())
     assert "rov2's traffic to surface goes through others: rov2 –acoustic/rf→ rov1 " \
            "–acoustic→ surface" in flat, part

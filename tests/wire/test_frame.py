@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.core.builder import plan_frame
+from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.loaded import parse_mission
 from bridge.core.store import OutboundStore
 from bridge.errors import DecodeError, FrameError
@@ -114,7 +114,10 @@ def test_builder_priority_first_then_oldest_and_reports_left_out() -> None:
     store.update(nav.index, 0, 1, now=0.0)
     store.update(status.index, 0, 2, now=0.0)
     store.update(target.index, 0, 3, now=0.0)
-    plan = plan_frame(codec, store.due(1.0), 24)
+    picked, left = fill(codec, (Candidate(s.channel, s.last_sent, s) for s in store.due(1.0)),
+                        codec.body_capacity_bits(24) - codec.count_bits,
+                        (1 << codec.count_bits) - 1)
+    plan = FramePlan(tuple(c.what for c in picked), tuple(c.what for c in left))
     # 24 B - 12 B delays - 2 B check = 80 bits - 3 count: nav (2) first, then what fits
     assert next(s.channel.name for s in plan.chosen) == "nav"
     used = sum(codec.channel_cost_bits(s.channel) for s in plan.chosen)

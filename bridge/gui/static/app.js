@@ -175,8 +175,11 @@ function linkOf(name) {
 }
 
 function linkState(name) {
+  // "down" before the peer was ever heard is the start of a mission, not a fault: unknown
   const link = linkOf(name);
-  return link ? link.state : "unknown";
+  if (!link) return "unknown";
+  const v = state.nodes[name];
+  return link.state === "down" && v && !v.heard ? "unknown" : link.state;
 }
 
 function where(v) {
@@ -256,9 +259,9 @@ function renderMap() {
     .textContent = "N ↑";
 
   // ranges, measured by an observer to a peer: the peer is somewhere on the circle. Each
-  // label sits on its circle, preferably on the side away from the peer (where the peer's own
-  // label is), at the first angle where it overlaps no other label or vehicle and stays on
-  // the map, so that concentric circles keep readable labels.
+  // label sits just outside its circle (never crossed by its dashes), preferably on the side
+  // away from the peer (where the peer's own label is), at the first angle where it overlaps
+  // no other label or vehicle and stays on the map, so concentric circles keep readable labels.
   const taken = Object.entries(places).map(([name, p]) => ({
     x0: sx(p.x) - 9, y0: sy(p.y) - 9, x1: sx(p.x) + 14 + 7 * (name.length + 7), y1: sy(p.y) + 9,
   }));
@@ -367,12 +370,14 @@ function renderMap() {
 }
 
 const LABEL_STEPS = 48;  // candidate angles around a range circle for its label
+const LABEL_GAP = 11;    // from a range circle to its label's centre line: half a line and some
 
 function labelSpot(cx, cy, radius, preferred, textWidth, taken, width, height) {
   // The point of the circle nearest ``preferred`` (radians) where a label of ``textWidth``
   // overlaps none of ``taken`` and stays inside the map; the preferred point if none is free.
-  const boxAt = (angle) => {
-    const x = cx + radius * Math.cos(angle), y = cy + radius * Math.sin(angle);
+  const boxAt = (angle) => {  // the label's centre, far enough out that its box clears
+    const out = radius + LABEL_GAP + Math.abs(Math.cos(angle)) * (textWidth / 2 + 4);
+    const x = cx + out * Math.cos(angle), y = cy + out * Math.sin(angle);
     return { x, y, box: { x0: x - textWidth / 2 - 4, y0: y - 10, x1: x + textWidth / 2 + 4,
                           y1: y + 9 } };
   };
@@ -444,8 +449,10 @@ function renderVehicles() {
       badge.dataset.state = stats && serverNow() - stats.time < 5 ? "up" : "unknown";
     } else {
       const link = linkOf(node.name);
-      badge.textContent = link ? "link " + link.state : "link not known yet";
-      badge.dataset.state = link ? link.state : "unknown";
+      const shown = linkState(node.name);
+      badge.textContent = !link ? "link not known yet"
+        : shown === "unknown" ? "not heard yet" : "link " + shown;
+      badge.dataset.state = shown;
     }
     card.dataset.state = badge.dataset.state;
     renderZspace(card, node.name, mission.node);

@@ -172,7 +172,7 @@ class CommandReader:
                     return HostBurst(raw)
                 item = self._command(3)
             else:
-                while buf[:1] in (b"\r", b"\n"):
+                while buf.startswith((b"\r", b"\n")):
                     del buf[:1]
                 if not buf:
                     return NEED_DATA
@@ -243,7 +243,7 @@ class CommandReader:
             return NEED_DATA
         data = bytes(buf[pos : pos + length])
         end = pos + length
-        if buf[end : end + 1] not in (b"\r", b"\n"):
+        if bytes(buf[end : end + 1]) not in (b"\r", b"\n"):
             return self._bad_send(body_at, kind, "payload not followed by EOL")
         text = bytes(buf[body_at:end])
         del buf[: _after_eol(buf, end)]

@@ -170,8 +170,8 @@ class EvologicsBackend(ModemBackend):
         self.firmware: str | None = None
         """What ``ATI0`` answered at start-up (None before, or when it named no version)."""
 
-    @property  # type: ignore[override]
-    def timed_send(self) -> bool:
+    @property
+    def timed_send(self) -> bool:  # type: ignore[override]
         """Whether ``send(at=...)`` is exact: the modem answered ``AT?CLOCK`` at start-up."""
         return self._timed
 
@@ -196,6 +196,8 @@ class EvologicsBackend(ModemBackend):
 
     async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
         dst = self.broadcast if dest is None else dest
+        if dst is None:
+            raise BackendError(f"{self}: a frame to every node, but no broadcast address")
         ack = ack and dst != self.broadcast  # broadcast requires noack [V driver practice]
         async with self._lock:
             self._check()
@@ -324,6 +326,8 @@ class EvologicsBackend(ModemBackend):
     async def _send_timed(self, data: bytes, dest: int | None, ack: bool,
                           at: float) -> bool | None:
         dst = self.broadcast if dest is None else dest
+        if dst is None:
+            raise BackendError(f"{self}: a frame to every node, but no broadcast address")
         if ack and dst != self.broadcast:  # SENDIMS has no ack flag: an acked IM at about ``at``
             await asyncio.sleep(max(0.0, at - self.clock()))
             return await self._send(data, dest, ack)

@@ -256,7 +256,8 @@ class _Typed(Event):
 
 def _base_type(hint: Any) -> type:
     args = [a for a in typing.get_args(hint) if a is not type(None)]
-    return args[0] if args else hint
+    found: type = args[0] if args else hint
+    return found
 
 
 _INT = re.compile(rb"[+-]?\d{1,20}")
@@ -618,16 +619,18 @@ def _notification(body: bytes, legacy_recvim: bool) -> Event:
     name_raw, sep, rest = body.partition(b",")
     name = name_raw.decode("ascii")
     if name_raw in _PAYLOAD_NAMES:
-        return _payload_event(name_raw, rest if sep else b"", legacy_recvim, whole=True)[0]
+        event = _payload_event(name_raw, rest if sep else b"", legacy_recvim, whole=True)[0]
+        assert not isinstance(event, NeedData)  # (whole: the line is all there is)
+        return event
     if name.startswith("CANCELED") and name[8:] in ("IM", "IMS", "PBM"):
         return CanceledIm(name[8:], int(_convert(rest, int)))
     if name == "RECVEND":
         values = rest.split(b",")
         if len(values) not in (4, 5):
             raise ValueError(f"RECVEND needs 4 or 5 fields, got {len(values)}")
-        ints = [_convert(v, int) for v in values[:4]]
+        start, duration, rssi, integrity = (int(_convert(v, int)) for v in values[:4])
         velocity = _convert(values[4], float) if len(values) == 5 else None
-        return RecvEnd(*ints, velocity=velocity)
+        return RecvEnd(start, duration, rssi, integrity, velocity)
     cls = _TYPED.get(name)
     if cls is not None:
         values = rest.split(b",") if sep else []

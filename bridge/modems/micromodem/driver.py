@@ -193,6 +193,8 @@ class MicromodemBackend(ModemBackend):
 
     async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
         to = self.broadcast if dest is None else dest
+        if to is None:
+            raise BackendError(f"{self}: a frame to every node, but no broadcast address")
         ack = ack and dest is not None
         last: BackendError | None = None
         for attempt in range(self.send_retries + 1):

@@ -425,7 +425,8 @@ class MicromodemEmulator:
 
     def _cc_clk(self, f: tuple[str, ...]) -> None:
         """``$CCCLK,YYYY,MM,DD,hh,mm,ss``."""
-        self._set_clock(datetime.datetime(*(int(x) for x in f[:6]),
+        year, month, day, hour, minute, second = (int(x) for x in f[:6])
+        self._set_clock(datetime.datetime(year, month, day, hour, minute, second,
                                           tzinfo=datetime.UTC).timestamp())
         self._print("CLK", *f[:6])
 

@@ -812,8 +812,8 @@ class HostProtocol:
             lost, self._incoming = self._incoming, None
             self._events.append(PacketLost(lost.src, f"bad CRC ({event.value})"))
         elif isinstance(event, ModemMessage) and event.packet_timeout:
-            lost, self._incoming = self._incoming, None
-            self._events.append(PacketLost(lost.src if lost else None,
+            timed_out, self._incoming = self._incoming, None
+            self._events.append(PacketLost(timed_out.src if timed_out else None,
                                            f"packet timeout ({event.value})"))
 
     def _finish(self, acked: bool) -> None:

@@ -8,14 +8,9 @@ from __future__ import annotations
 import os
 from collections import Counter
 
-import msgpack
-import zenoh
-
 from bridge.core.loaded import parse_mission
 from bridge.core.node import Publish, Status
 from bridge.runtime.virtual_fleet import FastFleet
-from tests.conftest import on_free_ports
-from tests.harness import Inbox, outside_session, running_fleet
 
 MISSION = """\
 mission: lossy
@@ -133,30 +128,3 @@ def test_publications_are_plain_values() -> None:
     fleet.run_until(30.0)
     [(_, publish)] = fleet.published("auv", "ops/cmd")
     assert isinstance(publish, Publish) and publish.value == {"n": 7, "go": True}
-
-
-def test_delivery_reports_reach_zenoh_with_the_publishers_ref() -> None:
-    text = MISSION.replace("slot_s: 2.0, guard_s: 0.2", "slot_s: 0.5, guard_s: 0.05")
-    text = text.replace("options: {preset: evologics-s2c-im}",
-                        "options: {preset: evologics-s2c-im, seed: 4}")
-    loaded = on_free_ports(text)
-    with running_fleet(loaded):
-        ops = outside_session(loaded, "ops")
-        auv = outside_session(loaded, "auv")
-        try:
-            reports, commands = Inbox(), Inbox()
-            ops.declare_subscriber("@zab/lossy/ops/delivery/command", reports)
-            auv.declare_subscriber("ops/cmd", commands)
-            ops.put("cmd", msgpack.packb({"n": 5, "go": True}),
-                    encoding=zenoh.Encoding("application/msgpack"), attachment=b"ref:abc-1")
-            _, value, _ = commands.get(timeout=10)
-            assert value == {"n": 5, "go": True}
-            states = []
-            while "delivered" not in states:
-                _, report, _ = reports.get(timeout=10)
-                assert report["ref"] == "abc-1" and report["dst"] == "auv"
-                states.append(report["state"])
-            assert states[:2] == ["queued", "sent"]
-        finally:
-            ops.close()
-            auv.close()

@@ -1,0 +1,46 @@
+"""Which saved state a node resumes from (pure).
+
+What a restart must not lose is :meth:`bridge.core.node.NodeCore.state`, plain data the
+runtime saves and hands back to the next run. A state saved by another node, under another
+mission file or in another version of it is not resumed: the node starts afresh (a new epoch:
+its peers resynchronise) and every value that state left unfinished is reported ``failed``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from typing import Any
+
+from bridge.core.events import Delivery
+from bridge.core.outputs import Outbox
+
+__all__ = ["STATE_VERSION", "resumable"]
+
+log = logging.getLogger("zab.core")
+
+STATE_VERSION = 1
+"""The version of :meth:`~bridge.core.node.NodeCore.state`'s layout."""
+
+
+def resumable(state: Mapping[str, Any] | None, node: str, fingerprint: str,
+              outbox: Outbox) -> Mapping[str, Any]:
+    """``state`` if it is ``node``'s under the mission file of ``fingerprint`` (hex); else
+    nothing, every value it left unfinished reported failed in ``outbox``."""
+    if not state:
+        return {}
+    same = (state.get("version") == STATE_VERSION and state.get("node") == node
+            and state.get("fingerprint") == fingerprint)
+    if same:
+        return state
+    log.warning("%s: the saved state is from another mission file or version: starting "
+                "afresh (its unfinished values are reported failed)", node)
+    for name, sender in (state.get("senders") or {}).items():
+        items = [*sender.get("queue", ()), *sender.get("flight", ()), *sender.get("items", ())]
+        for item in items:
+            for dst in item.get("waiting", item.get("dests", ())):
+                outbox.reports([Delivery(
+                    0.0, name, item["id"], dst, "failed",
+                    reason="restarted with another mission file",
+                    attempts=item.get("attempts", 0), key=item.get("key"), ref=item.get("ref"))])
+    return {}

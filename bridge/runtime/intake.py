@@ -1,0 +1,125 @@
+"""Samples from Zenoh into the bridge, in bounded memory whatever the input rate.
+
+Anyone on a vehicle's Zenoh network can publish on the bridge's input keys, as fast and as big
+as they like. Three places could hold what they send, and each is bounded here:
+
+- *Zenoh's queue.* A plain callback subscriber hands each sample to a Python thread through a
+  queue of Zenoh's own that holds whole samples: one application putting 1 MB samples as fast
+  as it could held ~460 MB there (a ``RingChannel`` of 8: ~45 MB with six such applications,
+  with shared memory off as :func:`~bridge.runtime.session.zenoh_config` sets it; a
+  subscriber that sleeps 1 ms a sample, eclipse-zenoh 1.10). Each subscription here is a
+  ``RingChannel`` of :data:`RING` samples:
+  Zenoh drops the oldest, in Rust, without waiting for the GIL, so one flooded key never
+  holds back another's samples (Zenoh does not say how many it dropped).
+- *The hand-off to the event loop.* A thread of ours per subscription takes the samples out
+  (:meth:`Intake.subscribe`); what must run on the loop waits in a queue of :data:`HANDOFF`
+  calls per key (:meth:`Intake.to_loop`), the oldest dropped and counted
+  (:attr:`Intake.overflow`), and the loop is woken once for a batch, not once per sample.
+- *Failures.* A sample whose handling raises (it never should: bad input is a counted drop) is
+  counted (:attr:`Intake.errors`) and its traceback logged at most once a minute per key; the
+  thread goes on with the next sample. Only the session's end stops it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+log = logging.getLogger("zab.node")
+
+RING = 8
+"""Samples Zenoh keeps per subscription while its thread is busy (the oldest dropped)."""
+HANDOFF = 16
+"""Calls per key waiting for the event loop (the oldest dropped, counted)."""
+TRACEBACK_EVERY_S = 60.0
+
+
+class Intake:
+    """The bridge's subscriptions on one session, each drained by a thread of its own."""
+
+    def __init__(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop,
+                 node: str) -> None:
+        self.session = session
+        self.loop = loop
+        self.node = node
+        self.overflow: Counter[str] = Counter()
+        """Calls dropped from the hand-off to the loop, per key."""
+        self.errors: Counter[str] = Counter()
+        """Samples whose handling raised, per key."""
+        self._waiting: dict[str, deque[Callable[[], object]]] = {}
+        self._lock = threading.Lock()
+        self._woken = False  # a call to _run is on its way to the loop
+        self._told: dict[str, float] = {}  # when each key's last traceback was logged
+        self.subscribers: list[Any] = []
+
+    def subscribe(self, key: str, handle: Callable[[zenoh.Sample], None]) -> None:
+        """Subscribe to ``key``; ``handle`` gets each sample on this subscription's thread."""
+        subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(RING))
+        self.subscribers.append(subscriber)
+        threading.Thread(target=self._drain, args=(subscriber, key, handle), daemon=True,
+                         name=f"zab-in {key}").start()
+
+    def _drain(self, subscriber: Any, key: str, handle: Callable[[zenoh.Sample], None]
+               ) -> None:
+        while True:
+            try:
+                sample = subscriber.recv()  # (releases the GIL while it waits)
+            except Exception:  # the session closed: ZError "channel is empty and closed"
+                return
+            try:
+                handle(sample)
+            except Exception:
+                self.failed(key)
+
+    def failed(self, key: str) -> None:
+        """Handling something that came on ``key`` raised: counted, its traceback logged at
+        most once a minute per key (call from the ``except`` block)."""
+        self.errors[key] += 1
+        now = time.monotonic()
+        if now - self._told.get(key, -math.inf) >= TRACEBACK_EVERY_S:
+            self._told[key] = now
+            log.exception("%s: a sample on %r could not be handled (counted as intake_errors; "
+                          "this traceback is logged at most once a minute per key)",
+                          self.node, key)
+
+    def to_loop(self, key: str, call: Callable[[], object]) -> None:
+        """Run ``call`` on the loop soon; at most :data:`HANDOFF` wait per key (any thread)."""
+        with self._lock:
+            waiting = self._waiting.get(key)
+            if waiting is None:
+                waiting = self._waiting[key] = deque(maxlen=HANDOFF)
+            if len(waiting) == HANDOFF:
+                self.overflow[key] += 1
+            waiting.append(call)
+            wake, self._woken = not self._woken, True
+        if wake:
+            with contextlib.suppress(RuntimeError):  # the loop has closed: the node is gone
+                self.loop.call_soon_threadsafe(self._run)
+
+    def _run(self) -> None:
+        """On the loop: every waiting call, a key's in the order they came."""
+        with self._lock:
+            batches = [(key, list(waiting)) for key, waiting in self._waiting.items() if waiting]
+            for waiting in self._waiting.values():
+                waiting.clear()
+            self._woken = False
+        for key, batch in batches:
+            for call in batch:
+                try:
+                    call()
+                except Exception:
+                    self.failed(key)
+
+    def snapshot(self) -> dict[str, Any]:
+        """Counters for the node's stats."""
+        return {"ring": RING, "handoff": HANDOFF, "overflow": dict(self.overflow),
+                "errors": dict(self.errors)}

@@ -1,0 +1,135 @@
+"""The tour's words and its synthetic vehicles, without running it: numbers to their step,
+plausible data, how long to wait after a dive, and what counts as sent while surfaced."""
+
+from __future__ import annotations
+
+import itertools
+
+
+def test_numbers_print_to_their_step_without_float_noise() -> None:
+    from bridge.cli.rounding import number, significant
+
+    assert [significant(s) for s in (1.072883e-05, 0.024639, 0.1, 1.0, 0.05, 2.5e6)] == [
+        "0.0000107", "0.0246", "0.1", "1", "0.05", "2500000"]
+    assert number(9.536743164062498e-08, 0.1) == "0.0"
+    assert number(3.2350001, 0.0246) == "3.235"
+    assert number(14, 1.0) == "14"
+    assert number(0.825, 0.05) == "0.825"
+
+
+def test_synthetic_status_varies_slowly_and_plausibly() -> None:
+    from bridge.cli.demo import synthetic_value
+    from bridge.codec import FieldSpec
+
+    battery = FieldSpec(field="battery", type="int", min=0, max=100)
+    mode = FieldSpec(field="mode", type="enum", values=["idle", "transit", "survey", "abort"])
+    levels = [synthetic_value(battery, t, 1.0) for t in range(0, 600)]
+    assert all(80 <= b <= 100 for b in levels)
+    assert all(0 <= a - b <= 1 for a, b in itertools.pairwise(levels))  # drains
+    assert levels[0] - levels[-1] <= 11  # about 1 % a minute
+    assert {synthetic_value(mode, t, 2.0) for t in range(0, 600, 7)} == {"transit"}
+    depth = FieldSpec(field="depth", min=0, max=100, resolution=0.1)
+    values = [synthetic_value(depth, t, 0.5) for t in range(0, 120)]
+    assert max(abs(a - b) for a, b in itertools.pairwise(values)) < 0.5
+
+
+def test_the_wait_after_a_dive_covers_enough_turns_for_the_loss() -> None:
+    from bridge.cli.demo_surfacing import turns_to_wait
+
+    assert turns_to_wait(0.0) == 1
+    assert turns_to_wait(0.1) == 3  # all three lost: 1 in 1000
+    assert turns_to_wait(0.3) == 6
+    assert 0.3 ** turns_to_wait(0.3) <= 1e-3 < 0.3 ** (turns_to_wait(0.3) - 1)
+
+
+def test_sends_while_up_count_frames_begun_between_the_vehicles_own_switches() -> None:
+    from bridge.cli.demo_surfacing import SentAtSwitches
+    from bridge.core.events import FrameSent, Surfaced
+
+    def frame(at: float, *names: str) -> FrameSent:
+        return FrameSent(at, 8, list(names), None, b"")
+
+    sent = SentAtSwitches("cv2", "ssv")
+    sent("cv2", frame(0.5, "nav", "status"))
+    sent("cv2", Surfaced(1.0, "ssv", True))
+    # begun before the switch (its contents chosen then), reported once on the water: before
+    sent("cv2", frame(0.9, "nav", "status"))
+    sent("cv2", frame(1.5, "nav"))
+    assert sent.while_up() is None  # not dived yet
+    sent("ssv", Surfaced(2.0, "cv2", False))  # the surface's view: not these
+    sent("ssv", frame(2.5, "status"))  # nor the surface's frames
+    sent("cv2", frame(3.0, "nav"))
+    sent("cv2", Surfaced(5.0, "ssv", False))
+    sent("cv2", frame(5.0, "nav", "status"))  # after the dive
+    assert sent.while_up() == {"nav": 2}
+
+
+def test_a_tour_numbers_only_the_parts_its_mission_has() -> None:
+    import io
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from bridge.cli.demo import VehicleApps, tour_mission, tour_parts
+    from bridge.cli.tour import Tour
+
+    loaded, _ = tour_mission(Path("deploy/missions/zspace.yaml"), 0.1)
+    parts = tour_parts(loaded, VehicleApps(loaded, print))
+    assert parts == ["values", "latest", "queries", "surfacing"]  # no command, no ranging
+    out = io.StringIO()
+    tour = Tour(loaded, Console(file=out, width=200), 70)
+    tour.plan(parts)
+    assert not tour.part("command") and not tour.part("fixes")
+    assert tour.part("queries") and tour.part("summary")
+    assert [line.rstrip("─ ") for line in out.getvalue().splitlines()] == [
+        "3. A Zenoh get across the water", "5. Summary"]
+
+
+def test_range_errors_are_told_apart_by_what_moved_during_the_exchange() -> None:
+    from bridge.cli.tour import range_error_lines
+
+    ranges = [("lsv", "cv1", 0.02), ("cv1", "lsv", 0.04), ("lsv", "ssv", 1.9),
+              ("ssv", "cv2", 2.1), ("cv2", "gcv", 0.03)]
+    first, why = range_error_lines(ranges, {"ssv"}, 7.5)
+    assert first == ("5 acoustic ranges measured; median error against the simulated distance "
+                     "when each completed 0.04 m.")
+    assert "(up to 7.5 s apart)" in why and "median 0.03 m (3 ranges)" in why
+    assert "To ssv, which they sail away from, it changes: median 2.10 m (2 ranges)" in why
+    assert range_error_lines([("a", "b", 0.01)], set(), None) == [
+        "1 acoustic range measured; median error against the simulated distance when each "
+        "completed 0.01 m."]
+
+
+def test_late_frames_are_counted_off_the_screen_and_other_warnings_stay() -> None:
+    import logging
+
+    from bridge.cli.demo import LateFrames
+
+    late = LateFrames()
+
+    def record(message: str) -> logging.LogRecord:
+        return logging.LogRecord("zab", logging.WARNING, __file__, 1, message, (), None)
+
+    assert not late.filter(record("lsv: send failed: sim modem 'lsv': water refused the "
+                                  "frame: expired: asked to start 11.9 ms ago"))
+    assert late.filter(record("lsv: send failed: modem unplugged"))
+    # a frame due as the tour ends, its modem closed already: not shown, not counted
+    assert not late.filter(record("cv2: send failed: sim modem 'cv2' is closed"))
+    assert late.by_node == {"lsv": 1}
+
+
+def test_a_vehicle_answers_a_get_with_its_own_data() -> None:
+    from pathlib import Path
+
+    from bridge.cli.demo import VehicleApps, tour_mission
+    from bridge.cli.demo_queries import _reply_value
+
+    loaded, _ = tour_mission(Path("deploy/missions/morph.yaml"), 0.1)
+    apps = VehicleApps(loaded, print, truth=lambda node, t: {"gcv": (0, 0, 12.0),
+                                                              "lsv": (0, 0, 10.0)}[node])
+    apps.latest[("gcv", "battery")] = 81
+    spec = loaded.table.queries[0]
+    gcv = _reply_value(spec, 0.0, {}, lambda name: apps.own("gcv", name))
+    lsv = _reply_value(spec, 0.0, {}, lambda name: apps.own("lsv", name), phase=2.0)
+    assert gcv == {"battery": 81, "depth_m": 12.0}  # its status, its depth
+    assert lsv["depth_m"] == 10.0 and lsv["battery"] != gcv["battery"]

@@ -1,0 +1,101 @@
+"""Surfacing and the bridge's outputs, proven with the mission key, over real Zenoh sessions
+(two bridges as Zenoh routers on loopback, a real UDP link between them):
+
+- a local application declaring the peer's bridge token changes nothing: the peer is not
+  treated as surfaced, its values keep crossing acoustically;
+- a real surfacing (an access point joining both routers, as ``zab sim``'s surface WiFi) still
+  switches both bridges to IP, and the dive switches them back, though the forged token lives on;
+- with ``sign_outputs``, every sample a bridge puts carries a signature an application checks
+  with the key; a copy of it on a forged payload (a fake delivery report) does not check."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import msgpack
+
+from bridge.runtime.ip_watch import PROVE_EVERY_S, PROVE_TIMEOUT_S
+from bridge.runtime.surface_wifi import access_point
+from bridge.wire.proofs import check_output
+from tests.conftest import on_free_ports, udp_ports
+from tests.harness import outside_session, running_fleet
+
+KEY = b"a-mission-key-of-32-bytes-000000"
+MISSION = """\
+mission: proof
+wire: {auth: {tag_bytes: 4, sign_outputs: true}}
+surfacing: {republish: true}
+modem: {backend: udp, frame_bytes: 32}
+mac: {type: none, min_gap_s: 0.05}
+nodes:
+  top: {address: 1, modem: {options: {port: PORT_A}}, zenoh: {mode: router}}
+  auv: {address: 2, modem: {options: {port: PORT_B}}, zenoh: {mode: router}}
+channels:
+  - name: nav
+    from: auv
+    to: top
+    elements: [{in: nav, out: auv/nav, fields: [{field: x, type: int, min: 0, max: 1000}]}]
+"""
+SWITCH_S = 2 * PROVE_EVERY_S + PROVE_TIMEOUT_S + 5.0  # generous: a loaded 2-core machine
+
+
+def wait(condition: Callable[[], Any], what: str, timeout: float = SWITCH_S) -> Any:
+    deadline = time.time() + timeout
+    while not (result := condition()):
+        assert time.time() < deadline, what
+        time.sleep(0.05)
+    return result
+
+
+def test_a_forged_token_changes_nothing_and_a_real_surfacing_still_switches() -> None:
+    loaded = on_free_ports(udp_ports(MISSION), "proof.yaml")
+    with running_fleet(loaded, key=KEY) as fleet:
+        top, auv = fleet.nodes["top"], fleet.nodes["auv"]
+        top_app, auv_app = outside_session(loaded, "top"), outside_session(loaded, "auv")
+        arrived: list[tuple[int, bytes, bytes]] = []
+        reports: list[tuple[str, bytes, bytes]] = []
+        try:
+            top_app.declare_subscriber("auv/nav", lambda s: arrived.append((
+                msgpack.unpackb(s.payload.to_bytes())["x"], s.payload.to_bytes(),
+                s.attachment.to_bytes())))
+            top_app.declare_subscriber("@zab/proof/top/**", lambda s: reports.append((
+                str(s.key_expr), s.payload.to_bytes(), s.attachment.to_bytes())))
+            forged = top_app.liveliness().declare_token("@zab/proof/auv/bridge")
+            assert top.ip_watch is not None
+            wait(lambda: top.ip_watch.unproven >= 2, "the forged token is challenged")
+            assert top.core.surfacing is not None and top.core.surfacing.reachable == set()
+            auv_app.put("nav", msgpack.packb({"x": 1}))
+            _, payload, attachment = wait(lambda: next((a for a in arrived if a[0] == 1), None),
+                                          "nav crosses acoustically")
+            origin, counter = check_output(KEY, "auv/nav", payload, attachment) or ("", 0)
+            assert origin == "zab/1 proof/top" and counter > 0  # decoded by top's bridge
+
+            wifi = access_point([*loaded.mission.nodes["top"].zenoh.listen,
+                                 *loaded.mission.nodes["auv"].zenoh.listen])
+            try:
+                wait(lambda: top.core.surfacing.reachable == {"auv"}, "top sees auv surfaced")
+                assert auv.core.surfacing is not None
+                wait(lambda: auv.core.surfacing.reachable == {"top"}, "auv sees top surfaced")
+                auv_app.put("nav", msgpack.packb({"x": 2}))
+                _, payload, attachment = wait(
+                    lambda: next((a for a in arrived if a[0] == 2), None), "nav relayed over IP")
+                relayed = check_output(KEY, "auv/nav", payload, attachment)
+                assert relayed is not None and relayed[0] == "zab/1 proof/auv"  # (by IP)
+            finally:
+                wifi.close()
+            wait(lambda: top.core.surfacing.reachable == set(),
+                 "the dive is seen though the forged token lives on")
+            forged.undeclare()
+
+            status = wait(lambda: next((r for r in reports if r[0].endswith("/stats")), None),
+                          "top's stats")
+            assert check_output(KEY, status[0], status[1], status[2]) is not None
+            fake = msgpack.packb({"channel": "nav", "state": "delivered"})
+            assert check_output(KEY, "@zab/proof/top/delivery/nav", fake, status[2]) is None
+            assert check_output(KEY, status[0], status[1], b"zab/1 proof/top") is None
+        finally:
+            top_app.close()
+            auv_app.close()
+
