@@ -56,6 +56,11 @@ SEEN_KEPT = 64
 """Routed-frame numbers kept per origin to tell a copy from a new frame (a quarter of the
 number space: a number comes back only after 256 frames of that origin)."""
 
+SEQ_RESERVE = 32
+"""Routed-frame numbers reserved per state save: a restarted node resumes past every number
+it may have used, within a quarter of the number space (so none of its new frames is taken
+for a copy), at most one save per 32 routed frames."""
+
 CARRIED_KEPT = 64
 """Frames a relay holds for each of its links at most; the oldest of the lowest rank is
 dropped first (``frames_dropped["relay_full"]``)."""
@@ -104,6 +109,7 @@ class Routing:
         self.stats = outbox.stats
         self.max_hops = network.mission.max_hops
         self._seq = int(state.get("net_seq", rng.randrange(SEQ_MOD)))
+        self._reserved = self._seq  # numbers from here on are not saved as used yet
         self._seen: dict[str, deque[int]] = {}
         self.waiting: dict[str, list[Carried]] = {name: [] for name in linkset.sides}
         self.relayed = self.forwarded = 0
@@ -122,7 +128,9 @@ class Routing:
         if all(hops.get(n, n) == n for n in serves):
             return self.codec.encode(NetHeader(indices))
         seq, self._seq = self._seq, (self._seq + 1) % SEQ_MOD
-        self.outbox.unsaved = True  # (the next number survives a restart)
+        if seq == self._reserved:  # saved before the frame leaves, as a block
+            self._reserved = (seq + SEQ_RESERVE) % SEQ_MOD
+            self.outbox.unsaved = True
         life = NO_LIMIT if ttl_s is None else min(NO_LIMIT - 1, int(ttl_s))
         return self.codec.encode(NetHeader(indices, self.index, 0, seq, life, 0,
                                            self.rank(priority)))
@@ -135,7 +143,8 @@ class Routing:
             else 0
 
     def state(self) -> dict[str, Any]:
-        return {"net_seq": self._seq}
+        """Where a restarted node resumes its routed-frame numbers: past every one reserved."""
+        return {"net_seq": self._reserved}
 
     # -- frames heard --------------------------------------------------------------------------
 

@@ -288,3 +288,27 @@ def test_interest_bitmaps_cross_the_relays_of_a_demand_mission() -> None:
     assert len(got) >= 8  # its @want went 3 hops to the tail, the poses 3 hops back
     wanted = fleet.cores["tail"].interest
     assert wanted is not None and "pose" in wanted.snapshot(fleet.loaded.table)["peers"]["head"]
+
+
+def test_a_restarted_origin_numbers_its_routed_frames_past_those_it_used() -> None:
+    import random
+
+    from bridge.core.node import NodeCore
+
+    loaded = umci()
+    net = loaded.table.net
+    assert net is not None
+    surface = NodeCore(loaded, "surface", rng=random.Random(1))
+    used = []
+    t = 0.0
+    for i in range(40):  # 40 routed frames: one save per 32 of them
+        surface.ingest("goto", b"\x81\xa1x" + bytes([i]), "application/msgpack", t)
+        data = _frame_for(surface, t, "acoustic")
+        header, _ = net.decode(data)
+        used.append(header.seq)
+        t += 7.0
+    saved = surface.state()
+    again = NodeCore(loaded, "surface", state=saved, rng=random.Random(2))
+    again.ingest("goto", b"\x81\xa1x\x63", "application/msgpack", t)
+    header, _ = net.decode(_frame_for(again, t, "acoustic"))
+    assert header.routed and header.seq not in used[-64:]  # never taken for a copy
