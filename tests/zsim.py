@@ -65,15 +65,20 @@ def zab_sim(mission: Path, endpoints: dict[str, list[str]], *args: str,
                     time.sleep(0.1)
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        interrupt(proc)
         if proc.stderr is not None:
             proc.stderr.close()
+
+
+def interrupt(proc: subprocess.Popen[Any], timeout: float = 15) -> None:
+    """Stop ``proc`` as Ctrl-C does (killed if it does not stop within ``timeout``)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 class Inbox:
@@ -86,11 +91,16 @@ class Inbox:
         self.items.put((str(sample.key_expr), msgpack.unpackb(sample.payload.to_bytes())))
 
     def drain(self, seconds: float) -> list[tuple[str, Any]]:
-        out, end = [], time.time() + seconds
-        while (left := end - time.time()) > 0:
-            try:
-                out.append(self.items.get(timeout=left))
-            except queue.Empty:
-                break
-        return out
+        return drain(self.items, seconds)
+
+
+def drain(items: queue.Queue[Any], seconds: float) -> list[Any]:
+    """Whatever ``items`` gets within ``seconds``."""
+    out, end = [], time.time() + seconds
+    while (left := end - time.time()) > 0:
+        try:
+            out.append(items.get(timeout=left))
+        except queue.Empty:
+            break
+    return out
 

@@ -166,6 +166,17 @@ def check(
                             str(q["request_bits"]), str(q["reply_bits"]),
                             f"≤ {max(deadlines):g} s" if deadlines else "—")
         console.print(queries)
+    if data.get("images"):
+        images = Table("image", "from", "to", "size", "budget", "fragment", "fragments",
+                       "a picture takes", title="image channels (progressive pictures)")
+        for i in data["images"]:
+            took = i["seconds_per_picture"]
+            images.add_row(i["name"], ", ".join(i["from"]), ", ".join(i["to"]),
+                           f"{i['size'][0]}×{i['size'][1]}" + (" colour" if i["colour"] else ""),
+                           f"{i['budget_bytes']} B (≤ {i['max_budget_bytes']} B)",
+                           f"{i['fragment_bytes']} B", str(i["fragments_per_picture"]),
+                           "?" if took is None else f"≤ {took:g} s")
+        console.print(images)
     if data.get("demand"):
         always = [c["name"] for c in data["channels"] if c.get("always")]
         want = counted(data["demand"]["want_entry_bits"], "bit")
@@ -205,6 +216,14 @@ def check(
     for warning in report.warnings:
         console.print(f"[yellow]warning:[/] {warning}", highlight=False)
     console.print(key.describe() + (f": {note}" if note else ""), highlight=False)
+    if (auth := data.get("auth")) is not None:
+        console.print(
+            f"{'sealed' if auth['encrypted'] else 'authenticated'} frames ({auth['cipher']}): "
+            f"+{auth['bits_per_frame']} bits a frame ({auth['counter_bits']}-bit counter + "
+            f"{auth['tag_bits']}-bit tag)" + (f"; the next key takes over at "
+                                             f"{auth['next_key_at']} (both accepted "
+                                             f"±{auth['overlap_s']:g} s)"
+                                             if auth["next_key_at"] else ""), highlight=False)
     for error in report.errors:
         console.print(f"[red]error:[/] {error}", highlight=False)
     if problem:
@@ -488,6 +507,9 @@ def sim(
     = False,
     speed: Annotated[float | None, typer.Option(help="Like --fast, with the virtual clock at "
                                                 "this many times real time.", min=1e-3)] = None,
+    water: Annotated[str | None, typer.Option(metavar="HOST:PORT", help="Join a water already "
+                                              "running there (zab water: other modems, a "
+                                              "hydrophone) instead of starting one.")] = None,
 ) -> None:
     """Run every node of the mission plus the simulated ocean, each node on its own endpoint."""
     from bridge.cli.sim import run_sim
@@ -506,7 +528,8 @@ def sim(
                                             recorder))
         else:
             result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
-                                          console=console, record=logs, recorder=recorder))
+                                          console=console, record=logs, recorder=recorder,
+                                          water=water))
     finally:
         if logs is not None:
             logs.close()

@@ -133,9 +133,11 @@ async def run_sim(
     console: Console,
     record: Callable[[str, Event], None] | None = None,
     recorder: MissionRecorder | None = None,
+    water: str | None = None,
 ) -> MissionReport:
     """``zab sim``: run, show, and return the report. ``record`` also gets every event;
-    ``recorder`` too, and learns where the water has each node (for the HTML report)."""
+    ``recorder`` too, and learns where the water has each node (for the HTML report);
+    ``water``: join a water already running there (``zab water``) instead of starting one."""
     events = EventLog()
 
     def both(node: str, event: Event) -> None:
@@ -145,7 +147,7 @@ async def run_sim(
         if recorder is not None:
             recorder(node, event)
 
-    fleet = Fleet(loaded, seed=seed, on_event=both)
+    fleet = Fleet(loaded, seed=seed, on_event=both, water=water)
     if recorder is not None:
         attach_truth(recorder, fleet)
     console.print(f"simulating [bold]{loaded.mission.mission}[/]: "

@@ -20,9 +20,10 @@ if TYPE_CHECKING:  # not imported at run time: the tracker pulls in numpy
     from bridge.ranging.tracker import Estimate
 
 __all__ = [
-    "Delivery", "Event", "FrameDropped", "FrameReceived", "FrameRelayed", "FrameSent", "Link",
-    "LinkSwitched", "MissionMismatch", "ModemDown", "PayloadDrops", "PeerLink", "PeerRestarted",
-    "Position", "Range", "RangeFailed", "SendFailed", "StateSaving", "Surfaced", "notable",
+    "Delivery", "Event", "FieldsLeftOut", "FrameDropped", "FrameReceived", "FrameRelayed",
+    "FrameSent", "Link", "LinkSwitched", "MissionMismatch", "ModemDown", "PayloadDrops",
+    "PeerLink", "PeerRestarted", "Position", "Range", "RangeFailed", "SendFailed",
+    "StateSaving", "Surfaced", "UnmappedKey", "notable",
 ]
 
 
@@ -58,6 +59,31 @@ class PayloadDrops(Event):
         return {"time": self.time, "total": self.total,
                 "drops": [{"key": key, "cause": cause, "count": count, "reason": reason}
                           for key, cause, count, reason in self.drops]}
+
+
+@dataclass(frozen=True, slots=True)
+class FieldsLeftOut(Event):
+    """A sample on an input key had fields no channel carries: they do not cross (reported
+    once per key and set of fields; counted per sample)."""
+
+    kind: ClassVar[str] = "fields_left_out"
+    key: str
+    fields: list[str]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "key": self.key, "fields": self.fields}
+
+
+@dataclass(frozen=True, slots=True)
+class UnmappedKey(Event):
+    """An application put a key under this node's ``keyspace`` that no channel reads
+    (reported once per key; counted per sample)."""
+
+    kind: ClassVar[str] = "unmapped_key"
+    key: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "key": self.key}
 
 
 @direct_init
@@ -340,7 +366,8 @@ class StateSaving(Event):
 
 
 NOTABLE = (Link, FrameDropped, SendFailed, ModemDown, PayloadDrops, MissionMismatch,
-           PeerRestarted, Surfaced, StateSaving, PeerLink, LinkSwitched)
+           PeerRestarted, Surfaced, StateSaving, FieldsLeftOut, UnmappedKey, PeerLink,
+           LinkSwitched)
 """Events also published on ``@zab/<mission>/<node>/events`` (with failed deliveries)."""
 
 

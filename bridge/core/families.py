@@ -19,8 +19,9 @@ from typing import Any
 from bridge.core.builder import Candidate
 from bridge.core.store import ChannelState
 from bridge.errors import EncodeError
-from bridge.wire.channels import ChannelCodec, ChannelTable
+from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
 from bridge.wire.families import NameCodec, member_pattern
+from bridge.wire.sample_meta import tombstone
 
 ANNOUNCE_REPEATS = 3  # a learned member's name goes beside its first values this many times
 REANNOUNCE_S = 60.0  # and again this often while the member is being sent
@@ -143,19 +144,28 @@ class Families:
     def ingest(self, key: str, value: Any, now: float) -> list[str]:
         """A sample on concrete ``key``: store it in each member it belongs to. Returns why
         it was refused by a family that reads the key (empty: stored, or no family reads it)."""
+        return self._store(key, lambda element: element.layout.pack(value), now)
+
+    def delete(self, key: str, now: float) -> list[str]:
+        """A delete on concrete ``key``: a tombstone in each member it belongs to whose
+        channel has ``deletes``. Returns the problems, as :meth:`ingest`."""
+        return self._store(key, lambda element: tombstone(element.layout), now, deletes=True)
+
+    def _store(self, key: str, pack: Callable[[ElementCodec], int], now: float,
+               deletes: bool = False) -> list[str]:
         problems: list[str] = []
         for sender in self.senders.values():
             for i, pattern in enumerate(sender.patterns):
                 match = pattern.fullmatch(key)
-                if match is None:
+                element = sender.channel.elements[i]
+                if match is None or (deletes and not (element.meta and element.meta.deletes)):
                     continue
                 member = sender.member(match.group(1))
                 if isinstance(member, str):
                     problems.append(member)
                     continue
-                element = sender.channel.elements[i]
                 try:
-                    packed = element.layout.pack(value)
+                    packed = pack(element)
                 except EncodeError as exc:
                     problems.append(f"channel {sender.channel.name!r}: {exc}")
                     continue

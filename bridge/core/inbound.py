@@ -25,9 +25,11 @@ from typing import TYPE_CHECKING, Any
 
 from bridge.core.events import FrameDropped, FrameReceived, MissionMismatch, PeerRestarted
 from bridge.core.families import Families
+from bridge.core.images import Images
 from bridge.core.interest import Interest
 from bridge.core.link import Links, LinkState
 from bridge.core.linkset import LinkSet, LinkSide
+from bridge.core.mac import node_preset
 from bridge.core.outbound import Outbound
 from bridge.core.outputs import Outbox
 from bridge.core.queries import Queries
@@ -38,12 +40,14 @@ from bridge.core.routing import Arrival
 from bridge.core.transfer import from_bytes
 from bridge.errors import DecodeError, FrameError
 from bridge.mission.model import Mission
+from bridge.mission.presets import Preset
 from bridge.wire.channels import AckCodec, ChannelCodec, Values
 from bridge.wire.families import NameCodec
 from bridge.wire.frame import DecodedFrame, Entry, FrameCodec
 from bridge.wire.interest import InterestCodec
 from bridge.wire.marks import MarkCodec
 from bridge.wire.queries import QueryCodec
+from bridge.wire.sample_meta import NOTHING, read_meta
 
 if TYPE_CHECKING:
     from bridge.core.network import NodeNetwork
@@ -85,10 +89,17 @@ class Inbound:
         self.interest: Interest | None = outbound.interest
         self.queries = queries
         self.ranges = ranges
+        self.images: Images | None = None  # image channels (set by the node if it has some)
         self.received_at: dict[str, float] = {}
         self.mismatched: dict[str, str] = {}  # peers known to run another mission file
         self._foreign: dict[str, int] = {}  # a peer's last fingerprint not ours
         self._peer_status: dict[str, float] = {}  # when each peer's status was last put
+        self.sent_at = 0.0
+        """When the frame being decoded left its sender (:func:`frame_start`): its values'
+        timestamps count back from it."""
+        self._presets = {n: node_preset(mission, n) for n in mission.nodes}
+        self._with_meta = {c.index for c in codec.table.channels if any(e.meta for e in
+                                                                         c.elements)}
 
     def receive(self, rx: Reception, now: float, modem_now: float | None = None,
                 side: LinkSide | None = None) -> None:
@@ -107,15 +118,19 @@ class Inbound:
                 return
             origin, address = arrival.origin, self.mission.address_of(arrival.origin)
         try:
-            frame = self.codec.decode(rx.data, address) if arrival is None \
-                else self.codec.decode(rx.data, address, arrival.start)
+            frame = self.codec.decode(rx.data, address, now) if arrival is None \
+                else self.codec.decode(rx.data, address, now, arrival.start)
         except FrameError as exc:
             self.stats.frames_dropped[exc.reason] += 1
             self.outbox.event(FrameDropped(now, origin, exc.reason, str(exc), rx.data))
             return
         self._hop(rx, src, side, now)
         self._heard(origin, frame, now)
-        if arrival is not None:
+        if arrival is None:
+            self.sent_at = frame_start(rx, self._presets[src])
+        else:  # the origin built it the header's age before this hop's frame left
+            self.sent_at = frame_start(rx, node_preset(side.info.view, src)) \
+                - arrival.header.age
             self.network.routing.taken(arrival, rx.data, src, now)  # type: ignore[union-attr]
             self._takes = self.index in arrival.header.serves
         values: dict[str, Values] = {}
@@ -201,6 +216,9 @@ class Inbound:
         if surfacing is not None and src in surfacing.reachable and not channel.stream:
             surfacing.duplicates += 1  # it reaches us over IP at full fidelity
             return
+        if channel.image is not None and self.images is not None:
+            self.images.entry(src, channel, entry, now)
+            return
         if channel.fragmented:
             delivered = self._fragment(src, channel, entry, now)
         elif channel.reliable:
@@ -223,20 +241,27 @@ class Inbound:
                  members: dict[str, dict[str, Values]]) -> None:
         """One value of ``channel`` from ``src`` (``member`` of its family): published."""
         cname, family, latching = channel.name, channel.family, channel.latching
+        seen = None
+        if channel.index in self._with_meta:
+            elements, seen = read_meta(channel, elements)
         values[cname] = elements
         if family is not None:
             members.setdefault(cname, {})[member] = elements
         self.stats.received_per_channel[cname] += 1
         self.received_at[cname] = now
-        for element, value in zip(channel.elements, elements, strict=True):
+        for i, (element, value) in enumerate(zip(channel.elements, elements, strict=True)):
             key = element.output_key(src, self.node, member)
+            said = seen[i] if seen is not None else NOTHING
+            encoding = said.encoding or element.encoding
+            taken = self.sent_at - (said.age_s or 0.0)
             if family is not None:
                 self.families.arrived(key, now)
             if latching and self.queries is not None:
-                self.queries.remember(key, value, element.encoding, now)
-            if self.ranges is not None:
+                self.queries.remember(key, None if said.deleted else value, encoding, taken)
+            if self.ranges is not None and not said.deleted:
                 self.ranges.anchor_value(key, value, anchors, now)
-            self.outbox.publish(key, value, element.encoding, latching, element.ros2)
+            self.outbox.publish(key, None if said.deleted else value, encoding, latching,
+                                element.ros2, taken, said.deleted, said.attachment)
 
     def _fragment(self, src: str, channel: ChannelCodec, entry: Entry,
                   now: float) -> list[Values]:
@@ -263,8 +288,11 @@ class Inbound:
                 self.interest.on_heard(src, entry.header, now)
         elif isinstance(channel, QueryCodec):
             if self.queries is not None:
-                handle = self.queries.on_reply if channel.reply else self.queries.on_request
-                handle(src, channel, entry.header, entry.values, now)
+                if channel.reply:
+                    self.queries.on_reply(src, channel, entry.header, entry.values, now)
+                else:  # (the time left a request carries counts from when its frame left)
+                    self.queries.on_request(src, channel, entry.header, entry.values, now,
+                                            self.sent_at)
         else:  # an @mark: a peer refused our frames as replayed
             peer, mark = entry.header
             auth = self.codec.auth
@@ -302,6 +330,17 @@ class Inbound:
             log.warning("%s: peer %s runs this mission file again", self.node, src)
             self.outbox.status(f"mismatch/{src}", {"time": now, "peer": src, "fingerprint": None,
                                                    "ours": f"{self.codec.fingerprint16:04x}"})
+
+
+def frame_start(rx: Reception, preset: Preset | None) -> float:
+    """When ``rx``'s frame left its sender, as well as the receiver can tell: the end of the
+    reception less the frame's airtime and travel time (the modem's figures when it gives
+    them, else the sender's preset and none)."""
+    meta = rx.meta
+    airtime, travel = meta.get("airtime_s"), meta.get("travel_time_s")
+    if not isinstance(airtime, int | float):
+        airtime = preset.airtime(len(rx.data)) if preset is not None else 0.0
+    return rx.time - airtime - (travel if isinstance(travel, int | float) else 0.0)
 
 
 def _hop_meta(arrival: Arrival, src: str, side: LinkSide) -> dict[str, Any]:

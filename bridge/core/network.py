@@ -44,7 +44,11 @@ from bridge.wire.families import NameCodec
 from bridge.wire.interest import InterestCodec
 from bridge.wire.network import SEGMENT_MAX, NetCodec
 
-__all__ = ["NodeNetwork"]
+__all__ = ["AUTH_WINDOW", "NodeNetwork"]
+
+AUTH_WINDOW = 64
+"""With several links or routes, frames of a sender may arrive out of order: this many
+counters below the highest are still accepted, once each (bridge.wire.auth)."""
 
 
 class NodeNetwork:

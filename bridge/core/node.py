@@ -15,7 +15,7 @@ node's first link, its only one in a mission without ``links``).
 One way in per kind of event, one way out:
 
 =============================================  ============================================
-a sample on an input key                       :meth:`NodeCore.ingest`
+a sample on an input key, or its delete        :meth:`NodeCore.ingest`, :meth:`NodeCore.delete`
 the MAC's next opportunity, and what to do     :meth:`NodeCore.wake_at`, :meth:`NodeCore.act`
 the modem carried that out (or refused)        :meth:`NodeCore.done`
 a frame heard                                  :meth:`NodeCore.receive`
@@ -46,13 +46,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
+from bridge.core.images import Images
 from bridge.core.inbound import Inbound
 from bridge.core.link import Links, LinkThresholds
 from bridge.core.links_policy import LinkPolicy
 from bridge.core.linkset import LinkSet
 from bridge.core.loaded import LoadedMission
 from bridge.core.mac import Schedule
-from bridge.core.network import NodeNetwork
+from bridge.core.network import AUTH_WINDOW, NodeNetwork
 from bridge.core.outbound import Outbound, OutFrame
 from bridge.core.outputs import NodeStats, Outbox, Output, Publish, Status
 from bridge.core.positioning import Positioning, needs_positioning
@@ -66,14 +67,12 @@ from bridge.errors import MissionError
 from bridge.frozen import direct_init
 from bridge.wire.auth import Authenticator
 from bridge.wire.goby import frame_codec_for
+from bridge.wire.seal import KeyRing, frame_authenticator
 
 __all__ = ["Action", "NodeCore", "NodeStats", "OutFrame", "Output", "Ping", "Publish",
            "SendFrame", "Status", "Taken"]
 
 EPOCHS = 256  # stream epochs, EPOCH_BITS wide
-AUTH_WINDOW = 64
-"""With several links or routes, frames of a sender may arrive out of order: this many
-counters below the highest are still accepted, once each (bridge.wire.auth)."""
 
 
 @direct_init
@@ -106,11 +105,11 @@ class NodeCore:
 
     def __init__(self, loaded: LoadedMission, node: str,
                  auth: Authenticator | None = None, rng: random.Random | None = None,
-                 state: Mapping[str, Any] | None = None, key: bytes | None = None,
+                 state: Mapping[str, Any] | None = None, key: bytes | KeyRing | None = None,
                  seed: int | None = None) -> None:
         """``rng`` draws this run's epoch when there is no ``state`` (a fresh one per run by
         default; seeded for a reproducible simulation); ``state``: what :meth:`state` returned
-        in the previous run, to resume from; ``key``: the frame key of an authenticated
+        in the previous run, to resume from; ``key``: the frame key(s) of an authenticated
         mission (the core reads no file and no environment: its runtime loads the key);
         ``seed``: the MAC's random draws (random access backoffs)."""
         mission = self.mission = loaded.mission
@@ -127,9 +126,8 @@ class NodeCore:
             if key is None:
                 raise MissionError(f"{node}: wire.auth is on: give the frame key "
                                    "(the runtime loads it, see bridge.runtime.keys)")
-            auth = Authenticator(key, table.fingerprint, mission.address_of(node),
-                                 wire_auth.tag_bytes, state.get("auth"),
-                                 window=AUTH_WINDOW if table.net is not None else 0)
+            auth = frame_authenticator(table, key, mission.address_of(node), state.get("auth"),
+                                       window=AUTH_WINDOW if table.net is not None else 0)
         self.auth = auth
         drawn = rng.randrange(EPOCHS)  # (drawn even when resumed: the draws that follow stay)
         self.epoch: int = state.get("epoch", drawn)
@@ -161,6 +159,10 @@ class NodeCore:
         self.inbound = Inbound(mission, node, self.codec, outbox, self.linkset, self.links,
                                self.receivers, self.outbound, self.queries, self.ranges,
                                sealed=auth is not None, network=self.network)
+        out = self.outbound  # pictures and operators' controls come in as its samples
+        self.images = out.images = self.inbound.images = Images(
+            table, node, outbox, self.receivers, out.senders, out.drop_payload,
+            out.bindings) if mission.images else None
         # what observers read (the parts' own objects)
         out = self.outbound
         self.store, self.bindings, self.families = out.store, out.bindings, out.families
@@ -213,11 +215,15 @@ class NodeCore:
 
     # -- samples in ----------------------------------------------------------------------------
 
-    def ingest(self, key: str, data: bytes, encoding: str, now: float,
-               ref: str | None = None, sample_key: str | None = None) -> None:
+    def ingest(self, key: str, data: bytes, encoding: str, now: float, ref: str | None = None,
+               sample_key: str | None = None, attachment: bytes | None = None) -> None:
         """A sample arrived on an input key (``ref``: the publisher's correlation text, echoed
         in delivery reports; ``sample_key``: the sample's own key under a wildcard input)."""
-        self.outbound.ingest(key, data, encoding, now, ref, sample_key)
+        self.outbound.ingest(key, data, encoding, now, ref, sample_key, attachment)
+
+    def delete(self, key: str, now: float) -> None:
+        """A Zenoh delete on an input key: a tombstone for the channels with ``deletes``."""
+        self.outbound.delete(key, now)
 
     def ros2_input(self, key: str) -> Any:
         """The ROS 2 topic read on input ``key``, or None."""
@@ -322,11 +328,8 @@ class NodeCore:
 
     def receive(self, rx: Reception, now: float, modem_now: float | None = None,
                 link: str | None = None) -> None:
-        """Decode one received frame (heard on ``link``) and publish what it carries for
-        this node.
-
-        ``modem_now`` is the modem clock at the call (DLBL times are in the modem's clock).
-        """
+        """Decode one received frame (heard on ``link``; ``modem_now``: the modem clock at the
+        call, DLBL times are in it) and publish what it carries for this node."""
         side = self.linkset.side(link)
         frames = self.network.frames(rx, now) if self.network is not None else (rx,)
         for one in frames:
@@ -359,15 +362,15 @@ class NodeCore:
         self.outbound.summarise_drops(now)
 
     def update_links(self, now: float) -> None:
-        """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``
-        (and ``links/<link>/<peer>``, ``route/<peer>`` with several links)."""
+        """Re-evaluate peers' links; changes go on ``link/``, ``links/``, ``route/<peer>``."""
         self.links.update(now)
         if self.network is not None:
             self.network.update(now)
 
-    def ask(self, key: str, parameters: Any, now: float) -> Ticket | str:
-        """A Zenoh get on ``key`` with ``parameters`` (a dict): the acoustic query's ticket it
-        waits on (replies come as QueryAnswer / QueryEnd outputs), or why it ends at once."""
+    def ask(self, key: str, parameters: Any, now: float,
+            until: float | None = None) -> Ticket | str:
+        """A Zenoh get on ``key`` with ``parameters`` (a dict), its caller waiting ``until``: the
+        ticket it waits on (replies: QueryAnswer / QueryEnd outputs), or why it ends at once."""
         found = self.queries.spec_for(key) if self.queries is not None else None
         if found is None:
             return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
@@ -378,7 +381,7 @@ class NodeCore:
         if refused is not None:
             return refused
         return self.queries.ask(spec, server, parameters, now,  # type: ignore[union-attr]
-                                state)
+                                state, until)
 
     def query_served(self, ticket: tuple[int, str, int], values: list[Any],
                      error: str | None = None) -> None:
@@ -393,4 +396,5 @@ class NodeCore:
 
     def snapshot(self, now: float) -> dict[str, Any]:
         """Counters and channel ages as plain data (:func:`~bridge.core.snapshot.snapshot`)."""
-        return snapshot(self, now)
+        return snapshot(self.node, self.epoch, now, self.stats, self.outbound, self.inbound,
+                        self.links, self.queries, self.table, self.network)

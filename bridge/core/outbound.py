@@ -17,12 +17,15 @@ import random
 from collections.abc import Callable, Collection, Mapping
 from typing import TYPE_CHECKING, Any
 
+from bridge.codec import Layout
 from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.drops import DropLedger
-from bridge.core.events import FrameSent, SendFailed, Surfaced
+from bridge.core.events import FieldsLeftOut, FrameSent, SendFailed, Surfaced
 from bridge.core.families import Extra, Families
 from bridge.core.frames import OutFrame, Sender
+from bridge.core.images import Images, ImageSender
 from bridge.core.interest import Interest
+from bridge.core.keyspace import Keyspace
 from bridge.core.link import heartbeat_s
 from bridge.core.linkset import LinkSide
 from bridge.core.outputs import Outbox
@@ -31,7 +34,7 @@ from bridge.core.receivers import Receivers
 from bridge.core.reliable import SEQ_MOD, ReliableSender, default_retry_s
 from bridge.core.saving import Saving
 from bridge.core.store import ChannelState, OutboundStore
-from bridge.core.surfacing import Surfacing
+from bridge.core.surfacing import Relay, Surfacing
 from bridge.core.transfer import TransferSender
 from bridge.errors import DecodeError, EncodeError
 from bridge.mission.model import Mission
@@ -39,6 +42,8 @@ from bridge.wire.auth import Authenticator
 from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
 from bridge.wire.frame import FrameCodec, WireCodec
 from bridge.wire.payloads import decode_payload, payload_cap
+from bridge.wire.sample_meta import aged_payload, encoding_id, stamped, tombstone
+from bridge.wire.unused import field_tree, left_out
 
 if TYPE_CHECKING:
     from bridge.core.network import NodeNetwork
@@ -48,6 +53,8 @@ __all__ = ["OutFrame", "Outbound", "Sender"]
 
 log = logging.getLogger("zab.core")
 
+LEFT_OUT_KEPT = 256
+"""Sets of fields left out (per key) said once each; further ones are only counted."""
 Delays = Callable[[float], list[int | None]]
 """The DLBL delays of a frame starting at a modem time."""
 
@@ -77,6 +84,8 @@ class Outbound:
         self.queries = queries
         self.delays: Delays | None = None
         """The DLBL delays of each frame built (set by the node when it ranges)."""
+        self.images: Images | None = None
+        """The image channels' inputs and controls (set by the node when it has some)."""
         self.frame_bytes = mission.node_modem(node).frame_bytes
         self.heartbeat_s = heartbeat_s(mission)
         self.last_tx: float | None = None
@@ -103,9 +112,25 @@ class Outbound:
                       for key, found in self.bindings.items()}
         self._cap = payload_cap(max((e.layout.bits for c in table.channels
                                      for e in c.elements), default=0))
+        self.keyspace = Keyspace(mission, table, node,
+                                 [*self.bindings, *self.families.subscriptions()], outbox)
+        metas = [(key, e.meta) for key, found in self.bindings.items() for _, _, e in found]
+        metas += [(key, e.meta) for key, found in self.families.subscriptions().items()
+                  for c, i in found for e in (c.elements[i],)]
+        self._stamped = {key for key, meta in metas if meta is not None}
+        """Input keys whose channels carry fields beside the value (sample_meta)."""
+        self._attached = {key for key, meta in metas if meta and meta.attachment_bytes}
+        self._aged = {c.index for c in table.channels if any(e.meta and e.meta.age_step_s
+                                                             for e in c.elements)}
+        self._read = {key: field_tree(f.path for _, _, e in found for f in e.layout.fields)
+                      for key, found in self.bindings.items() if self._ros2_inputs[key] is None
+                      and all(isinstance(e.layout, Layout) for _, _, e in found)}
+        """The fields each input key's channels read (to report those left out)."""
+        self._left_out: set[tuple[str, tuple[str, ...]]] = set()
         retry_s = default_retry_s(mission)
         self.senders: dict[int, Sender] = {
-            c.index: (TransferSender if c.fragmented else ReliableSender)(
+            c.index: (ImageSender if c.image is not None and not c.image.control
+                      else TransferSender if c.fragmented else ReliableSender)(
                 c, c.destinations(node), retry_s, rng.randrange(SEQ_MOD))
             for c in table.streams if c.index in self.store.states}
         by_name = {s.channel.name: s for s in self.senders.values()}
@@ -126,12 +151,16 @@ class Outbound:
     # -- samples in ------------------------------------------------------------------------------
 
     def ingest(self, key: str, data: bytes, encoding: str, now: float,
-               ref: str | None = None, sample_key: str | None = None) -> None:
+               ref: str | None = None, sample_key: str | None = None,
+               attachment: bytes | None = None) -> None:
         """A sample arrived on an input key: pack it for every channel that reads the key.
 
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
-        ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs). A
-        payload over the key's cap is dropped before it is decoded."""
+        ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs);
+        ``attachment``: the sample's, carried by channels with ``attachment_bytes``. A
+        payload over the key's cap is dropped before it is decoded (pictures: see Images)."""
+        if self.images is not None and self.images.ingest(key, data, encoding, now, ref):
+            return
         if len(data) > (cap := self.payload_cap(key)):
             self.drop_payload(key, f"{len(data)} bytes, over this key's cap of {cap}", now,
                               "too_large")
@@ -141,13 +170,39 @@ class Outbound:
         try:
             value = (ros2.decode(data, sample_key or key) if ros2 is not None
                      else decode_payload(data, encoding))
+            read = self._read.get(key)
+            if read is not None and (extra := left_out(value, read)):
+                self._report_left_out(key, extra, now)
+            if self._stamped and (key in self._stamped or self.families.senders):
+                value = stamped(value, encoding_id(encoding, data), attachment)
         except DecodeError as exc:
             self.drop_payload(key, str(exc), now, "undecodable")
             return
+        self._store(key, bindings, lambda element: element.layout.pack(value), now, ref)
+        if self.families.senders:
+            for problem in self.families.ingest(key, value, now):
+                self.drop_payload(key, problem, now)
+        if self.surfacing is not None and self.surfacing.reachable:  # full fidelity over IP
+            self._relay(key, bindings, Relay(key, data, encoding, attachment if key in
+                                             self._attached else None, taken=now))
+
+    def delete(self, key: str, now: float) -> None:
+        """A Zenoh delete on an input key: a tombstone in each channel with ``deletes`` that
+        reads the key (its latched value is not sent again)."""
+        bindings = [b for b in self.bindings.get(key, ()) if b[2].meta and b[2].meta.deletes]
+        self._store(key, bindings, lambda element: tombstone(element.layout), now, None)
+        for problem in self.families.delete(key, now):
+            self.drop_payload(key, problem, now)
+        if self.surfacing is not None and self.surfacing.reachable:
+            self._relay(key, bindings, Relay(key, b"", "", delete=True, taken=now))
+
+    def _store(self, key: str, bindings: Collection[tuple[ChannelCodec, int, ElementCodec]],
+               pack: Callable[[ElementCodec], int], now: float, ref: str | None) -> None:
+        """Each binding's packed value into the store, or queued by its stream."""
         store = self.store
         for channel, index, element in bindings:
             try:
-                packed = element.layout.pack(value)
+                packed = pack(element)
             except EncodeError as exc:
                 self.drop_payload(key, f"channel {channel.name!r}: {exc}", now)
                 continue
@@ -162,16 +217,29 @@ class Outbound:
                 self.outbox.reports(sender.offer(payload, now, key, ref) if refused is None
                                     else sender.refuse(now, key, ref, refused))
                 self.outbox.unsaved = True
-        if self.families.senders:
-            for problem in self.families.ingest(key, value, now):
-                self.drop_payload(key, problem, now)
-        surfacing = self.surfacing
-        if surfacing is not None and surfacing.reachable:  # full fidelity over IP
-            outs = [(d, element.output_key(self.node, d))
-                    for channel, _, element in bindings if not channel.stream
-                    for d in channel.destinations(self.node)]
-            self.outbox.items.extend(surfacing.relays(
-                key, outs + self.families.outputs_for(key), data, encoding))
+
+    def _relay(self, key: str, bindings: Collection[tuple[ChannelCodec, int, ElementCodec]],
+               relay: Relay) -> None:
+        """A sample (or a delete) put as it came on the output keys of the destinations
+        reachable over IP (full fidelity), with the attachment the acoustic path carries."""
+        assert self.surfacing is not None
+        outs = [(d, element.output_key(self.node, d))
+                for channel, _, element in bindings if not channel.stream
+                for d in channel.destinations(self.node)]
+        self.outbox.items.extend(self.surfacing.relays(
+            key, outs + self.families.outputs_for(key), relay))
+
+    def _report_left_out(self, key: str, fields: list[str], now: float) -> None:
+        """Fields of a sample on ``key`` that no channel carries: counted per sample, logged
+        and reported (an event) once per key and set of fields (at most
+        :data:`LEFT_OUT_KEPT` sets: a flood of new field names is counted, not told)."""
+        self.stats.fields_left_out[key] += 1
+        seen = (key, tuple(fields))
+        if seen not in self._left_out and len(self._left_out) < LEFT_OUT_KEPT:
+            self._left_out.add(seen)
+            log.warning("%s: fields %s of %r are carried by no channel: they do not cross "
+                        "(counted; said once)", self.node, ", ".join(fields), key)
+            self.outbox.event(FieldsLeftOut(now, key, fields))
 
     def ros2_input(self, key: str) -> Ros2Element | None:
         """The ROS 2 topic read on input ``key``, or None."""
@@ -369,7 +437,9 @@ class Outbound:
             if isinstance(what, ChannelState):
                 channel = what.channel
                 chosen.append(what)
-                items.append((channel, what.payload()))
+                items.append((channel, what.payload() if channel.index not in self._aged
+                              else aged_payload(channel.elements, what.packed, what.updated,
+                                                now)))
             else:
                 sender, item = what
                 channel = sender.channel
@@ -383,8 +453,9 @@ class Outbound:
         if not items and not always:
             return None
         delays = self.delays(at) if self.delays is not None and self.table.dlbl else ()
-        data = codec.encode(items, delays, self.epoch) if net is None else codec.encode(
-            items, delays, self.epoch, net.header(targets, [c.channel for c in picked]))
+        data = codec.encode(items, delays, self.epoch, now) if net is None else codec.encode(
+            items, delays, self.epoch, now,
+            prefix=net.header(targets, [c.channel for c in picked]))
         if net is not None:  # (the next hop's address: a relayed target's neighbour)
             targets = {net.policy.hops.get(t, t) for t in targets}
         dest, ack = self.addressing(targets, asks_ack, side)

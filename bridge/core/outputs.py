@@ -26,13 +26,21 @@ __all__ = ["NodeStats", "Outbox", "Output", "Publish", "Status"]
 @direct_init
 @dataclass(frozen=True)
 class Publish:
-    """Put ``value`` on the application key ``key`` (bridged; latched keys answer queries)."""
+    """Put ``value`` on the application key ``key`` (bridged; latched keys answer queries).
+
+    ``taken``: when the value was taken at the source (the sample's Zenoh timestamp), as
+    well as the receiver can tell (:mod:`bridge.wire.sample_meta`); ``delete``: a Zenoh
+    delete of ``key`` instead (``value`` None); ``attachment``: the sending application's
+    attachment, where the channel carries it."""
 
     key: str
     value: Any
     encoding: str
     latched: bool = False
     ros2: Ros2Element | None = None  # publish as this ROS 2 topic (CDR, rmw_zenoh attachment)
+    taken: float | None = None
+    delete: bool = False
+    attachment: bytes | None = None
 
 
 @direct_init
@@ -62,6 +70,14 @@ class NodeStats:
     left_out: int = 0
     sent_per_channel: Counter[str] = field(default_factory=Counter)
     received_per_channel: Counter[str] = field(default_factory=Counter)
+    fields_left_out: Counter[str] = field(default_factory=Counter)  # samples, per input key
+    unmapped_keys: Counter[str] = field(default_factory=Counter)  # puts no channel reads
+
+    def noticed(self) -> dict[str, dict[str, int]]:
+        """The counters of what applications put that does not cross (when there is any)."""
+        return {name: dict(counter) for name, counter in (
+            ("fields_left_out", self.fields_left_out), ("unmapped_keys", self.unmapped_keys))
+            if counter}
 
 
 class Outbox:
@@ -83,8 +99,10 @@ class Outbox:
         self.items.append(Status(topic, payload))
 
     def publish(self, key: str, value: Any, encoding: str, latched: bool,
-                ros2: Ros2Element | None = None) -> None:
-        self.items.append(Publish(key, value, encoding, latched, ros2))
+                ros2: Ros2Element | None = None, taken: float | None = None,
+                delete: bool = False, attachment: bytes | None = None) -> None:
+        self.items.append(Publish(key, value, encoding, latched, ros2, taken, delete,
+                                  attachment))
         self.stats.values_published += 1
 
     def reports(self, reports: list[Delivery]) -> None:

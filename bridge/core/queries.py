@@ -14,6 +14,12 @@ Serving side: a request becomes a :class:`LocalGet` for the runtime, which runs 
 back in reply entries, each with its index and the last one marked, in the next frames the MAC
 allows.
 
+Deadlines: a get may say how long its caller waits (``until``); the query then ends at the
+earlier of that and its own deadline, and a request is never sent past it. With the query's
+``deadline_bits`` each request carries the time left, in whole steps (see
+:data:`~bridge.wire.queries.LEFT`): the server drops a request that arrives with none left
+(counted ``expired``), gives its local get no more than what is left, and sends no reply after.
+
 Under loss: the asker repeats the request at each later opportunity (once a reply could have
 come back, :func:`retry_s`) until it holds every reply or the deadline passes; replies are
 handed on once each, in the server's order. The server answers a repeated request from the
@@ -38,7 +44,7 @@ from bridge.errors import EncodeError
 from bridge.mission.model import Mission
 from bridge.mission.network import Network
 from bridge.wire.channels import ChannelTable
-from bridge.wire.queries import QID_BITS, QueryCodec, QuerySpec, ReplyStatus
+from bridge.wire.queries import LEFT, QID_BITS, QueryCodec, QuerySpec, ReplyStatus
 
 LOCAL_GET_S = 1.0  # time the serving bridge allows its local get, within the deadline
 ANSWERS_KEPT = 32  # answers a serving node keeps for repeated requests (oldest go first)
@@ -91,6 +97,14 @@ def deadline_s(mission: Mission, spec: QuerySpec, asker: str, server: str) -> fl
     return round(total, 3)
 
 
+def left_step_s(mission: Mission, spec: QuerySpec) -> float:
+    """One step of the remaining time a request carries: the query's longest deadline over
+    its askers and servers, in ``2**deadline_bits - 1`` steps (both ends compute the same)."""
+    longest = max((deadline_s(mission, spec, a, s) for a in spec.askers for s in spec.servers
+                   if s != a), default=0.0)
+    return longest / ((1 << spec.deadline_bits) - 1) if spec.deadline_bits else 0.0
+
+
 def retry_s(mission: Mission, asker: str, server: str) -> float:
     """How long after sending a request the asker waits before repeating it: the earliest a
     reply could be back (its frame and the server's; with several links or routes, half the
@@ -113,6 +127,7 @@ class Open:
     released: int = 0  # replies handed on, in index order
     held: dict[int, Any] = field(default_factory=dict)  # arrived ahead of a missing one
     count: int | None = None  # known once the last reply (or "done") arrived
+    cut: bool = False  # the deadline is the caller's, before the query's own
 
     def due_at(self) -> float | None:
         """When the request is next due: now if never sent, else once a reply is late."""
@@ -162,6 +177,9 @@ class Queries:
         self.reply_codecs = {c.spec.index: c for c in codecs if c.reply}
         self._qid = -1  # the last query id used
         self._cooling: dict[int, float] = {}  # query id -> when it may be used again
+        self._steps = {s.index: left_step_s(self.mission, s) for s in self.table.queries
+                       if s.deadline_bits}
+        self._serve_until: dict[Served, float] = {}  # a carried deadline, at the server
 
     def spec_for(self, key: str) -> tuple[QuerySpec, str] | None:
         """The query asked by a get on concrete ``key`` here, and its server."""
@@ -180,9 +198,13 @@ class Queries:
     # -- asking ------------------------------------------------------------------------------
 
     def ask(self, spec: QuerySpec, server: str, parameters: Any, now: float,
-            link: LinkState | None) -> Ticket | str:
+            link: LinkState | None, until: float | None = None) -> Ticket | str:
         """Open (or join) a query; returns its ticket, or why it ends at once. A fresh enough
-        latched value (``cached_s``) answers at once, even with the link down."""
+        latched value (``cached_s``) answers at once, even with the link down. ``until``:
+        when the caller stops waiting (None: it waits as long as the query may take)."""
+        if until is not None and until <= now:
+            self.failed += 1
+            return f"query {spec.name!r}: the caller's deadline has passed, not sent"
         hit = self.cache.get(spec.asked_key(server))
         if spec.cached_s is not None and hit is not None and now - hit[2] <= spec.cached_s:
             self.cached += 1
@@ -193,23 +215,29 @@ class Queries:
         if link is not LinkState.UP and link is not LinkState.DEGRADED:
             self.failed += 1
             return f"{server}: acoustic link down, query {spec.name!r} not sent"
+        if spec.deadline_bits and isinstance(parameters, dict):
+            parameters = {**parameters, LEFT: 0}  # the time left goes in as it is sent
         try:
             packed = spec.request.pack(parameters if spec.request.fields else {})
         except (EncodeError, TypeError, ValueError, KeyError) as exc:
             self.dropped[spec.name] += 1
             self.failed += 1
             return f"query {spec.name!r}: malformed parameters: {exc}"
+        bound = now + deadline_s(self.mission, spec, self.node, server)
+        deadline = bound if until is None else min(bound, until)
         for item in self.open.values():
             if item.ticket[:2] == (spec.index, server) and item.packed == packed:
+                if deadline > item.deadline:  # the latest caller's
+                    item.deadline, item.cut = deadline, deadline < bound
                 return item.ticket  # a concurrent get with the same request: share it
         if len(self.open) >= self.mission.max_open_queries:
             self.failed += 1
             return (f"{self.node}: {self.mission.max_open_queries} acoustic queries already "
                     "open (max_open_queries)")
         ticket = (spec.index, server, self._next_qid(now))
-        self.open[ticket] = Open(ticket, spec.asked_key(server), packed,
-                                 now + deadline_s(self.mission, spec, self.node, server),
-                                 retry_s(self.mission, self.node, server))
+        self.open[ticket] = Open(ticket, spec.asked_key(server), packed, deadline,
+                                 retry_s(self.mission, self.node, server),
+                                 cut=deadline < bound)
         self.asked += 1
         return ticket
 
@@ -227,18 +255,47 @@ class Queries:
     def candidates(self, now: float) -> list[Candidate]:
         """Requests due (new, or repeated while replies are missing) and replies owed."""
         out: list[Candidate] = []
+        late: list[Open] = []
         for item in self.open.values():
             due = item.due_at()
             if due is not None and (item.sent_at is None or self.repeats) and due <= now:
                 codec = self.requests[item.ticket[0]]
+                packed = self._with_time_left(item, now)
+                if packed is None:  # past the deadline, or less than a step left (the server
+                    late.append(item)  # would drop it): ended now, not sent
+                    continue
                 server = self.table.nodes.index(item.ticket[1])
-                bits = codec.pack(item.ticket[2], server, item.packed)
+                bits = codec.pack(item.ticket[2], server, packed)
                 out.append(Candidate(codec, None, Extra(codec, bits, self._marker(item),
                                                         item.ticket[1]), item.ticket[2]))
+        for item in late:
+            self._end(item.ticket, self._late(item, now))
+        if self._serve_until:
+            self._drop_late_replies(now)
         for n, (codec, bits, served) in enumerate(self.replies):
             out.append(Candidate(codec, None, Extra(codec, bits, self._unqueue(served, bits),
                                                     served[1]), n))
         return out
+
+    def _with_time_left(self, item: Open, now: float) -> int | None:
+        """The request's fields with the time left until ``item``'s deadline (a query with
+        ``deadline_bits``: in whole steps, None when not one is left)."""
+        step = self._steps.get(item.ticket[0])
+        if step is None:
+            return item.packed if now < item.deadline else None
+        spec = self.table.queries[item.ticket[0]]
+        steps = min(int((item.deadline - now) / step), (1 << spec.deadline_bits) - 1)
+        return (item.packed & ~((1 << spec.deadline_bits) - 1)) | steps if steps > 0 else None
+
+    def _drop_late_replies(self, now: float) -> None:
+        """Replies owed to askers whose carried deadline passed are not sent (counted)."""
+        late = {t for t, until in self._serve_until.items() if now >= until}
+        if late:
+            kept = [r for r in self.replies if r[2] not in late]
+            self.dropped["expired"] += len(self.replies) - len(kept)
+            self.replies = kept
+            for ticket in late:
+                del self._serve_until[ticket]
 
     def _marker(self, item: Open) -> Callable[[float], None]:
         def sent(built: float) -> None:
@@ -310,26 +367,47 @@ class Queries:
         """End the queries whose deadline passed; forget answers kept past theirs."""
         for ticket, item in list(self.open.items()):
             if now >= item.deadline:
-                spec = self.table.queries[ticket[0]]
-                why = self.explain(ticket[1], now) if self.explain is not None else None
-                self._end(ticket, f"{ticket[1]}: no reply to query {spec.name!r} within "
-                          f"{deadline_s(self.mission, spec, self.node, ticket[1]):g} s "
-                          + ("(its timeout_s)" if spec.timeout_s else "(the MAC's bound)")
-                          + (f"; {why}" if why else ""))
+                self._end(ticket, self._late(item, now))
         for served, answered in list(self.answers.items()):
             if now >= answered.expires:
                 del self.answers[served]
 
+    def _late(self, item: Open, now: float) -> str:
+        """Why ``item`` ends without all its replies: its deadline passed (and, for a server
+        behind relays, where its route breaks)."""
+        spec = self.table.queries[item.ticket[0]]
+        why = self.explain(item.ticket[1], now) if self.explain is not None else None
+        route = f"; {why}" if why else ""
+        if item.cut:
+            return (f"{item.ticket[1]}: no reply to query {spec.name!r} before the caller's "
+                    f"deadline{route}")
+        return (f"{item.ticket[1]}: no reply to query {spec.name!r} within "
+                f"{deadline_s(self.mission, spec, self.node, item.ticket[1]):g} s "
+                + ("(its timeout_s)" if spec.timeout_s else "(the MAC's bound)") + route)
+
     # -- serving -----------------------------------------------------------------------------
 
     def on_request(self, src: str, codec: QueryCodec, header: tuple[int, ...],
-                   values: list[dict[str, Any]] | None, now: float) -> None:
+                   values: list[dict[str, Any]] | None, now: float,
+                   sent_at: float | None = None) -> None:
+        """A request heard at ``now``, its frame sent at ``sent_at`` (as well as this node
+        can tell: the time left it carries counts from then)."""
         qid, server = header[:2]
         spec = codec.spec
         if self.table.nodes[server] != self.node or src not in spec.askers:
             return
         ticket = (spec.index, src, qid)
         request = values[0] if values else {}
+        timeout = LOCAL_GET_S
+        if spec.deadline_bits:
+            request = dict(request)
+            until = min(now, sent_at if sent_at is not None else now) \
+                + request.pop(LEFT, 0) * self._steps[spec.index]
+            if until <= now:
+                self.dropped["expired"] += 1  # the caller has given up: not served
+                return
+            self._serve_until[ticket] = until
+            timeout = min(timeout, until - now)
         kept = self.answers.get(ticket)
         if kept is not None and kept.request == request and now < kept.expires:
             self.duplicates += 1
@@ -341,7 +419,7 @@ class Queries:
             del self.answers[next(iter(self.answers))]
         self.answers[ticket] = Answered(
             request, now + deadline_s(self.mission, spec, src, self.node))
-        self.outputs.append(LocalGet(ticket, spec.served_key(self.node), request, LOCAL_GET_S))
+        self.outputs.append(LocalGet(ticket, spec.served_key(self.node), request, timeout))
 
     def served(self, ticket: Served, values: list[Any], error: str | None) -> None:
         """The local get of ``ticket`` ended with ``values`` (or failed with ``error``)."""
@@ -373,9 +451,13 @@ class Queries:
             if not any(r[2] == ticket and r[1] == bits for r in self.replies):
                 self.replies.append((codec, bits, ticket))
 
-    def remember(self, key: str, value: Any, encoding: str, now: float) -> None:
-        """A latched channel's value this node published on ``key``."""
-        self.cache[key] = (value, encoding, now)
+    def remember(self, key: str, value: Any, encoding: str, taken: float) -> None:
+        """A latched channel's value this node published on ``key``, taken at the source at
+        ``taken``; None: the key was deleted."""
+        if value is None:
+            self.cache.pop(key, None)
+        else:
+            self.cache[key] = (value, encoding, taken)
 
     def take(self) -> list[LocalGet | QueryAnswer | QueryEnd]:
         out, self.outputs = self.outputs, []

@@ -19,17 +19,22 @@ store kept the latest value of every channel, so the next opportunity sends thos
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 
 @dataclass(frozen=True)
 class Relay:
-    """Put ``data`` (as received, ``encoding``) on ``key`` over IP, marked as bridged."""
+    """Put ``data`` (as received, ``encoding``) on ``key`` over IP, marked as bridged, with
+    the application's ``attachment`` where the channel carries it (as the acoustic path
+    publishes it) and its time ``taken``; ``delete``: a Zenoh delete of ``key`` instead."""
 
     key: str
     data: bytes
     encoding: str
+    attachment: bytes | None = None
+    delete: bool = False
+    taken: float | None = None
 
 
 @dataclass
@@ -60,15 +65,16 @@ class Surfacing:
         """The destinations still reached only acoustically."""
         return tuple(d for d in destinations if d not in self.reachable)
 
-    def relays(self, input_key: str, out_keys: Iterable[tuple[str, str]], data: bytes,
-               encoding: str) -> list[Relay]:
-        """Relays of an input sample: ``out_keys`` holds (destination, output key)."""
+    def relays(self, input_key: str, out_keys: Iterable[tuple[str, str]],
+               sample: Relay) -> list[Relay]:
+        """Relays of an input ``sample`` (on ``input_key``): ``out_keys`` holds (destination,
+        output key)."""
         if not self.republish:
             return []
         keys = sorted({key for dest, key in out_keys
                        if dest in self.reachable and key != input_key})
         self.relayed += len(keys)
-        return [Relay(key, data, encoding) for key in keys]
+        return [replace(sample, key=key) for key in keys]
 
     def snapshot(self) -> dict[str, Any]:
         return {"ip_reachable": sorted(self.reachable), "since": dict(self.since),

@@ -105,10 +105,14 @@ class TransferSender:
     def offer(self, payload: int, now: float, key: str | None = None,
               ref: str | None = None) -> list[Delivery]:
         """A new value: queued (reliable) or replacing an unfinished transfer (latest wins)."""
+        return self.offer_bytes(to_bytes(self.channel, payload), now, key, ref)
+
+    def offer_bytes(self, data: bytes, now: float, key: str | None = None,
+                    ref: str | None = None) -> list[Delivery]:
+        """:meth:`offer` of bytes as they are (an image stream's)."""
         reports: list[Delivery] = []
         item = Transfer(self._next_id, (self._next_id + self._tid_offset) % TID_MOD,
-                        to_bytes(self.channel, payload), now, key, ref,
-                        self.channel.chunk_bytes, self.dests)
+                        data, now, key, ref, self.channel.chunk_bytes, self.dests)
         self._next_id += 1
         if not self.channel.reliable:
             for old in [*([self.current] if self.current else []), *self.queue]:
@@ -318,6 +322,13 @@ class TransferReceiver:
         receiver.complete = bool(state["complete"])
         receiver.chunks = {int(i): bytes(c) for i, c in state["chunks"]}
         return receiver
+
+    def prefix(self) -> bytes:
+        """The fragments held from the first on, without a gap (a progressive stream's
+        decodable part)."""
+        if self.complete:
+            return b""  # handed out whole already
+        return b"".join(self.chunks[i] for i in range(self.base))
 
     @property
     def base(self) -> int:

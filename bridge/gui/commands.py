@@ -190,7 +190,7 @@ def command_channels(loaded: LoadedMission, node: str) -> list[CommandChannel]:
     """Channels ``node`` sends to others: reliable ones first, then those named as commands,
     then in mission order (the form opens on the first)."""
     found = []
-    for model, channel in zip(loaded.mission.channels, loaded.table.channels, strict=True):
+    for model, channel in zip(loaded.mission.channels, loaded.table.channels, strict=False):
         if not channel.sent_by(node) or not channel.destinations(node):
             continue
         elements = tuple(

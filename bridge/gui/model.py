@@ -36,6 +36,7 @@ from bridge.gui.eventlog import (
     link_line,
     transfer_line,
 )
+from bridge.gui.images import ImageBoard
 from bridge.gui.keys import ChannelSource, StatusKey, SurfaceKeys
 from bridge.gui.network_view import NetworkView, network_description, relay_view
 from bridge.wire.payloads import decode_payload
@@ -111,7 +112,8 @@ def _xyz(value: Any) -> tuple[float, float, float] | None:
 
 def zspace_view(stats: Mapping[str, Any]) -> dict[str, Any]:
     """Issue 15's state in a node's stats, for the page: the channels its applications want
-    (demand missions), its open acoustic queries, and the peers it reaches over IP."""
+    (demand missions), its open acoustic queries, the peers it reaches over IP, and the keys
+    its applications put that no channel reads."""
     out: dict[str, Any] = {}
     interest, queries, surfacing = (stats.get(k) for k in ("interest", "queries", "surfacing"))
     if isinstance(interest, Mapping) and isinstance(interest.get("here"), list):
@@ -121,6 +123,9 @@ def zspace_view(stats: Mapping[str, Any]) -> dict[str, Any]:
                                for q in queries["open"] if isinstance(q, Mapping)]
     if isinstance(surfacing, Mapping) and isinstance(surfacing.get("ip_reachable"), list):
         out["ip_reachable"] = [str(p) for p in surfacing["ip_reachable"]]
+    unmapped = stats.get("unmapped_keys")
+    if isinstance(unmapped, Mapping):  # issue 32: puts no channel reads (a typo, often)
+        out["unmapped"] = [f"{k} ×{n}" for k, n in sorted(unmapped.items())]
     return out
 
 
@@ -146,6 +151,7 @@ class GuiModel:
         self.keys = SurfaceKeys(loaded, node)
         self.track_points = track_points
         self.commands = {c.channel: c for c in command_channels(loaded, node)}
+        self.images = ImageBoard(loaded, node)
         self.book = CommandBook()
         self.vehicles = {name: VehicleView(name) for name in loaded.mission.nodes}
         self.links: dict[tuple[str, str], Item] = {}
@@ -178,6 +184,7 @@ class GuiModel:
         return {"mission": mission.mission, "node": self.node, "nodes": nodes,
                 "channels": channels,
                 "commands": [c.describe() for c in self.commands.values()],
+                "images": self.images.describe(),
                 "track_points": self.track_points, "sent_after_s": self.book.sent_after_s,
                 **network_description(self.loaded, self.node)}
 
@@ -208,6 +215,7 @@ class GuiModel:
         items.extend(self.transfers.values())
         items.extend(self.events)
         items.extend(self.book.items())
+        items.extend(self.images.items())
         return items
 
     def emit(self, item: Item) -> None:
@@ -230,6 +238,10 @@ class GuiModel:
                publisher: str | None = None) -> None:
         """One sample the GUI's session received; ``publisher``: the node whose bridge
         published it (from its origin tag; None: an application)."""
+        picture = self.images.ingest(key, data, encoding, now)
+        if picture is not None:
+            self._out.append(picture)
+            return
         status = self.keys.status(key)
         sources = self.keys.lookup(key)
         if status is None and sources is None:

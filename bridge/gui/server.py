@@ -25,9 +25,10 @@ from aiohttp import WSMsgType, web
 from bridge.core.loaded import LoadedMission
 from bridge.gui.commands import CommandError
 from bridge.gui.feed import ZenohFeed
+from bridge.gui.images import ImageControlError
 from bridge.gui.model import GuiModel, shown
 from bridge.mission.model import Mission
-from bridge.runtime.session import origin_tag
+from bridge.runtime.session import origin_of, origin_tag
 
 log = logging.getLogger("zab.gui")
 
@@ -110,7 +111,7 @@ class GuiServer:
                          for n in loaded.mission.nodes}
         self.feed = ZenohFeed(
             self.endpoints,
-            self.model.keys.subscriptions(),
+            [*self.model.keys.subscriptions(), *self.model.images.keys],
             f"{self.model.keys.prefix}/*/link/*",
             on_sample=self._sample,
             on_liveliness=self._token,
@@ -128,7 +129,7 @@ class GuiServer:
     # -- Zenoh side (on the event loop) --------------------------------------------------------
 
     def _sample(self, key: str, data: bytes, encoding: str, origin: bytes | None) -> None:
-        publisher = None if origin is None else self._bridges.get(origin)
+        publisher = None if origin is None else self._bridges.get(origin_of(origin))
         self.model.ingest(key, data, encoding, self.clock(), publisher)
 
     def _token(self, key: str, alive: bool) -> None:
@@ -156,6 +157,7 @@ class GuiServer:
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._websocket)
         app.router.add_get("/state.json", self._state)
+        app.router.add_get("/image/{channel}/{src}", self._image)
         app.router.add_static("/static/", STATIC_DIR, follow_symlinks=False)
         return app
 
@@ -166,6 +168,15 @@ class GuiServer:
     def _hello(self) -> dict[str, Any]:
         return {"type": "hello", "time": self.clock(), "mission": self.model.description(),
                 "items": [dict(self.connection), *self.model.snapshot()]}
+
+    async def _image(self, request: web.Request) -> web.Response:
+        """The latest picture of an image channel's camera (404 until one came)."""
+        picture = self.model.images.picture(request.match_info["channel"],
+                                            request.match_info["src"])
+        if picture is None:
+            raise web.HTTPNotFound(text="no picture yet")
+        return web.Response(body=picture.data, content_type=picture.encoding.split(";")[0],
+                            headers={"Cache-Control": "no-store"})
 
     async def _state(self, request: web.Request) -> web.Response:
         self._flush()
@@ -204,6 +215,8 @@ class GuiServer:
             message = json.loads(text)
         except ValueError:
             return {"type": "reply", "ok": False, "error": "not JSON"}
+        if isinstance(message, dict) and message.get("type") == "image_control":
+            return self._image_control(message)
         if not isinstance(message, dict) or message.get("type") != "command":
             return {"type": "reply", "ok": False, "error": "unknown message"}
         request = message.get("request")
@@ -223,6 +236,17 @@ class GuiServer:
         log.info("command %s on %s for %s: %s", ref, message.get("channel"),
                  message.get("vehicle"), puts)
         return {"type": "reply", "request": request, "ok": True, "ref": ref}
+
+    def _image_control(self, message: dict[str, Any]) -> dict[str, Any]:
+        """A page steers a camera: the control goes on the image channel's control key."""
+        ref = uuid.uuid4().hex
+        try:
+            key, value = self.model.images.control(message)
+            self.feed.put(key, value, ref)
+        except (ImageControlError, ConnectionError, zenoh.ZError) as exc:
+            return {"type": "reply", "request": "image_control", "ok": False, "error": str(exc)}
+        log.info("image control %s on %s: %s", ref, key, value)
+        return {"type": "reply", "request": "image_control", "ok": True, "ref": ref}
 
     def _flush(self) -> None:
         items = self.model.take()

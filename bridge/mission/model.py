@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import (
+    AwareDatetime,
     BaseModel,
     ConfigDict,
     Field,
@@ -26,6 +27,7 @@ from pydantic import (
 )
 
 from bridge.mission.fields import FieldSpec
+from bridge.mission.images import ImageChannel
 from bridge.mission.ros2 import Ros2Topic
 
 NodeName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)]
@@ -116,6 +118,11 @@ class Node(Strict):
     prefer: list[NodeName] | None = Field(
         None, min_length=1, description="Links (by name) that traffic TO this node takes, "
         "best first (``[rf, acoustic]``); a channel's own ``prefer`` comes first.")
+    keyspace: list[str] = Field(
+        default_factory=lambda: ["{node}/**"], description="Key expressions where this node's "
+        "applications put what is meant to cross ({node} = this node): a put there that no "
+        "channel reads is counted and logged once per key; a get there from another node that "
+        "maps to no query or latched channel gets a reply error saying so.")
 
 
 class Modem(Strict):
@@ -278,7 +285,10 @@ class Element(Strict):
                             "{node}/{src}.")
     out: str | None = Field(None, description="Output key at receivers; may use {src}, {dst} "
                             "and {node}.")
-    encoding: Literal["msgpack", "json"] = Field("msgpack", description="Published payload.")
+    encoding: Literal["msgpack", "json", "as_sent"] = Field(
+        "msgpack", description="Published payload: msgpack, json, or as_sent: the encoding the "
+        "sender's application used (msgpack, JSON, JSON as text/plain or untagged), carried in "
+        "2 bits per value.")
     ros2: Ros2Topic | None = Field(None, description="A ROS 2 topic instead of in/out.")
     fields: list[FieldSpec] = Field(default_factory=list, description="The field codecs "
                                     "(required unless ``dccl`` is given).")
@@ -307,6 +317,10 @@ class Element(Strict):
     def _fields_or_dccl(self) -> Element:
         if bool(self.fields) == bool(self.dccl):
             raise ValueError("give either fields (at least one) or dccl, not both")
+        if self.encoding == "as_sent" and self.dccl:
+            raise ValueError("encoding as_sent needs fields: a DCCL element's bytes are "
+                             "libdccl's")
+        _no_bridge_fields(self.fields)
         return self
 
     @model_validator(mode="after")
@@ -319,6 +333,22 @@ class Element(Strict):
         if self.ros2 is not None and "encoding" in self.model_fields_set:
             raise ValueError("a `ros2` element's payloads are CDR: leave out `encoding`")
         return self
+
+
+def _no_bridge_fields(fields: list[FieldSpec]) -> None:
+    """Field names starting with ``_zab`` are the bridge's own (deletes, encodings, ages)."""
+    for spec in fields:
+        if spec.field.split(".")[0].startswith("_zab"):
+            raise ValueError(f"field {spec.field!r}: names starting with _zab are the bridge's")
+
+
+class Age(Strict):
+    """The value's age carried beside it, so receivers stamp each sample with when its value
+    was taken at the source (see docs/concepts.md)."""
+
+    step_s: float = Field(gt=0, description="Resolution of the age, seconds.")
+    max_s: float = Field(gt=0, description="Longest age told; an older value says at least "
+                         "this old.")
 
 
 class NodeKeys(Strict):
@@ -380,7 +410,26 @@ class Channel(Strict):
     keys: FamilyKeys | None = Field(None, description="Make the channel a key family: its "
                                     "input keys hold ``{key}`` (or one ``*`` chunk) and each "
                                     "member keeps its own value, age and output key.")
+    deletes: bool = Field(False, description="A Zenoh delete on an input key crosses as a "
+                          "tombstone (1 bit per element in every entry): receivers publish a "
+                          "delete and forget the latched value; the sender stops re-sending it.")
+    age: Age | None = Field(None, description="Carry each value's age (latest-value channels "
+                            "without keys): receivers stamp the sample with when it was "
+                            "taken at the source, to this resolution.")
+    attachment_bytes: int = Field(0, ge=0, le=64, description="Carry the application's Zenoh "
+                                  "attachment, up to this many bytes (a length and the bytes, "
+                                  "per element); 0: not carried.")
     elements: list[Element] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _zenoh_fidelity(self) -> Channel:
+        if (self.deletes or self.age or self.attachment_bytes) and any(
+                e.dccl or e.ros2 for e in self.elements):
+            raise ValueError("deletes, age and attachment_bytes need fields: not with dccl or "
+                             "ros2 elements")
+        if self.age is not None and (self.keys is not None or self.reliable):
+            raise ValueError("age is carried on latest-value channels without keys")
+        return self
 
     @model_validator(mode="after")
     def _policy(self) -> Channel:
@@ -419,20 +468,55 @@ class Query(Strict):
     cached_s: float | None = Field(None, gt=0, description="Answer at once, without an acoustic "
                                    "request, when the asked key holds a value this node's "
                                    "bridge published for a latched channel no older than this.")
+    deadline_bits: int = Field(0, ge=0, le=8, description="Carry the asker's remaining time in "
+                               "each request, in this many bits (steps of the query's longest "
+                               "deadline / (2**bits - 1)): the serving bridge drops a request "
+                               "whose caller gave up, and stops its replies then. 0: not "
+                               "carried (the request entry as before).")
+
+
+class NextKey(Strict):
+    """The frame key that takes over from the mission key at ``at`` (key rotation): both are
+    accepted within ``overlap_s`` of the switch, so nothing is lost across it. Like the
+    mission key it is never in the mission file."""
+
+    key_env: str = Field("ZAB_NEXT_KEY", description="Environment variable holding the key.")
+    key_file: Path | None = Field(None, description="File holding the key (used if the "
+                                  "variable is unset).")
+    at: AwareDatetime = Field(description="When frames start being sealed with it (an ISO "
+                              "time with its zone, e.g. 2026-06-01T12:00:00Z).")
+    overlap_s: float = Field(600.0, gt=0, description="Either side of ``at``, frames sealed "
+                             "with either key are accepted (clocks differ; frames in flight).")
 
 
 class Auth(Strict):
     """Authenticated frames. The key is never in the mission: it comes from the environment
     variable ``key_env`` or else from ``key_file``."""
 
-    tag_bytes: int = Field(4, ge=2, le=16, description="Bytes of the truncated HMAC tag.")
+    tag_bytes: int = Field(4, ge=2, le=16, description="Bytes of the truncated tag.")
     key_env: str = Field("ZAB_KEY", description="Environment variable holding the key.")
     key_file: Path | None = Field(None, description="File holding the key (used if the "
                                   "variable is unset).")
+    encrypt: bool = Field(False, description="Confidential frames: the body encrypted and "
+                          "authenticated with AES-CCM (the same counter and tag sizes as the "
+                          "HMAC; tag_bytes even); the DLBL delays stay in the clear, "
+                          "authenticated (docs/wire-format.md).")
+    next_key: NextKey | None = Field(None, description="Key rotation: the key that takes "
+                                     "over, and when (encrypted frames).")
     sign_outputs: bool = Field(False, description="Sign what the bridge publishes on Zenoh "
                                "(values, delivery reports, status, events) with the key: "
                                "applications holding it can tell the bridge's samples from "
                                "anyone else's (docs/developers.md).")
+
+    @model_validator(mode="after")
+    def _sealed(self) -> Auth:
+        if self.encrypt and self.tag_bytes % 2:
+            raise ValueError("an encrypted frame's tag_bytes is even (AES-CCM: 4 to 16)")
+        if self.encrypt and self.tag_bytes < 4:
+            raise ValueError("an encrypted frame's tag_bytes is at least 4 (AES-CCM)")
+        if self.next_key is not None and not self.encrypt:
+            raise ValueError("next_key rotates the key of encrypted frames: give encrypt: true")
+        return self
 
 
 def _auth_off_in_schema(schema: dict[str, Any]) -> None:
@@ -579,8 +663,17 @@ class Mission(Strict):
                        "encoded: the numeric rule and the .proto include path.")
     channels: list[Channel] = Field(default_factory=list)
     queries: list[Query] = Field(default_factory=list, description="Queries across the water.")
+    images: list[ImageChannel] = Field(default_factory=list, description="Image channels: "
+                                       "progressive pictures (see ImageChannel).")
     max_open_queries: int = Field(4, ge=1, le=16, description="Acoustic queries a node keeps "
                                   "open at once; a further get ends at once with an error.")
+
+    @model_validator(mode="after")
+    def _query_fields(self) -> Mission:
+        for query in self.queries:
+            _no_bridge_fields(query.request)
+            _no_bridge_fields(query.reply)
+        return self
 
     @model_validator(mode="after")
     def _dccl_to_elements(self) -> Mission:

@@ -17,12 +17,13 @@ from bridge.core.loaded import LoadedMission
 from bridge.modems.setup import node_backends
 from bridge.report.age import AgeOfInformation
 from bridge.report.model import MissionReport
-from bridge.runtime.keys import key_for_run
+from bridge.runtime.keys import keys_for_run
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.surface_wifi import SurfaceWifi
 from bridge.runtime.zenoh_node import BridgeNode
 from bridge.sim.scenario import Water, surface_script, water_of, water_stats, waters_of
 from bridge.sim.service import WaterService
+from bridge.wire.seal import KeyRing
 
 log = logging.getLogger("zab.fleet")
 
@@ -60,7 +61,7 @@ class Fleet:
         only: Collection[str] | None = None,
         water: str | None = None,
         state_dir: str | None = None,
-        key: bytes | None = None,
+        key: bytes | KeyRing | None = None,
     ) -> None:
         """``only`` runs a subset of the nodes; ``water`` joins a water already running
         (``host:port``) instead of starting one; ``state_dir`` keeps the nodes' saved states
@@ -73,7 +74,7 @@ class Fleet:
         auth = loaded.mission.wire.auth
         self.key, self.throwaway_key = key, False
         if key is None and auth is not None:
-            self.key, self.throwaway_key = key_for_run(auth.key_env, auth.key_file)
+            self.key, self.throwaway_key = keys_for_run(auth)
         self.names = [n for n in loaded.mission.nodes if only is None or n in only]
         self.water_address = water
         sim = water is None and all(link.view.modem.backend == "sim"

@@ -14,6 +14,7 @@ Authentication must never be off by accident. Three states of a mission:
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 import secrets
 from dataclasses import dataclass
@@ -21,7 +22,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 from bridge.errors import MissionError
-from bridge.mission.model import Mission
+from bridge.mission.model import Auth, Mission
+from bridge.wire.seal import KeyRing
 
 DEFAULT_KEY_ENV = "ZAB_KEY"
 """Where operators put the mission key (docs/deploy.md), and where a stray key is looked for."""
@@ -66,6 +68,29 @@ def key_for_run(key_env: str, key_file: Path | None) -> tuple[bytes, bool]:
     return (throwaway_key(), True) if key is None else (key, False)
 
 
+def with_next_key(auth: Auth, key: bytes, throwaway: bool = False) -> bytes | KeyRing:
+    """``key`` alone, or with the next key ``auth.next_key`` names (key rotation), found like
+    the mission key; a throwaway ``key``'s next is derived from it. MissionError when the
+    mission names a next key and there is none."""
+    nxt = auth.next_key
+    if nxt is None:
+        return key
+    found = find_key(nxt.key_env, nxt.key_file)
+    if found is None and throwaway:
+        found = hashlib.sha256(b"zab next key " + key).hexdigest().encode()
+    if found is None:
+        where = f"${nxt.key_env}" + (f" or {nxt.key_file}" if nxt.key_file else "")
+        raise MissionError(f"wire.auth.next_key takes over at {nxt.at.isoformat()} but no key "
+                           f"was found in {where}")
+    return KeyRing(key, found, nxt.at.timestamp(), nxt.overlap_s)
+
+
+def keys_for_run(auth: Auth) -> tuple[bytes | KeyRing, bool]:
+    """:func:`key_for_run` of the mission key, with the next key if the mission names one."""
+    key, throwaway = key_for_run(auth.key_env, auth.key_file)
+    return with_next_key(auth, key, throwaway), throwaway
+
+
 MIN_KEY_BYTES = 16  # what the Authenticator accepts
 MAKE_KEY = "openssl rand -hex 32"  # one way to make a key (docs/deploy.md)
 
@@ -81,6 +106,7 @@ class FrameKey:
     problem: str | None = None  # why the node must not run (None: fine)
     tag_bytes: int = 0
     looked: bool = True  # False: the keys here were not looked at (zab check --no-key)
+    encrypted: bool = False
 
     @property
     def throwaway(self) -> bool:
@@ -96,11 +122,13 @@ class FrameKey:
                     "`auth: {}` under wire to authenticate, or `auth: off` to mean it)")
         where = (f"key from {self.source}" if self.source else
                  "no key on this machine" if self.looked else "key not looked for")
-        return f"frames authenticated ({self.tag_bytes}-byte tag, {where})"
+        how = "encrypted and authenticated (AES-CCM, " if self.encrypted else "authenticated ("
+        return f"frames {how}{self.tag_bytes}-byte tag, {where})"
 
     def as_json(self) -> dict[str, Any]:
         return {"state": self.state, "source": self.source, "problem": self.problem,
-                "tag_bytes": self.tag_bytes, "looked": self.looked}
+                "tag_bytes": self.tag_bytes, "looked": self.looked,
+                "encrypted": self.encrypted}
 
 
 def frame_key(mission: Mission, *, look: bool = True) -> FrameKey:
@@ -130,11 +158,16 @@ def frame_key(mission: Mission, *, look: bool = True) -> FrameKey:
             f"mission key (make one with `{MAKE_KEY}`), or say `auth: off` under wire to send "
             "frames unauthenticated on purpose"), tag_bytes=auth.tag_bytes)
     source = f"${auth.key_env}" if os.environ.get(auth.key_env) else str(auth.key_file)
+    problem = None
     if len(key) < MIN_KEY_BYTES:
-        return FrameKey("on", source, problem=(
-            f"the frame key in {source} is {len(key)} bytes; at least {MIN_KEY_BYTES} are "
-            f"needed (make one with `{MAKE_KEY}`)"), tag_bytes=auth.tag_bytes)
-    return FrameKey("on", source, tag_bytes=auth.tag_bytes)
+        problem = (f"the frame key in {source} is {len(key)} bytes; at least {MIN_KEY_BYTES} "
+                   f"are needed (make one with `{MAKE_KEY}`)")
+    else:
+        try:
+            with_next_key(auth, key)
+        except MissionError as exc:
+            problem = str(exc)
+    return FrameKey("on", source, problem, auth.tag_bytes, encrypted=auth.encrypt)
 
 
 def throwaway_note(mission: Mission) -> str | None:

@@ -36,8 +36,9 @@ log = logging.getLogger("zab.node")
 
 RETRY_MIN_S, RETRY_MAX_S = 0.5, 10.0
 
-InputSample = tuple[str, bytes, str, "str | None", "str | None"]
-"""A sample for the core's ingest: key, payload, encoding, ref and the sample's own key."""
+InputSample = tuple[str, bytes, str, "str | None", "str | None", "bytes | None"]
+"""A sample for the core's ingest: key, payload, encoding, ref, the sample's own key and its
+attachment."""
 
 
 def modem_start(backend: ModemBackend) -> float:
@@ -106,8 +107,7 @@ class LinkPort:
             if ready and backend is not None:  # (its outputs and the frame's, flushed together)
                 self._send_now(backend, sample)
                 return
-            key, data, encoding, ref, sample_key = sample
-            host.core.ingest(key, data, encoding, host.clock(), ref, sample_key)
+            host.core.ingest(*sample[:3], host.clock(), *sample[3:])
             host._flush()
             if not ready:
                 self.wake()  # the transmit loop decides when
@@ -199,8 +199,7 @@ class LinkPort:
             core.modem_ranging = backend.ranging
         now, at = host.clock(), modem_start(backend)
         if sample is not None:
-            key, data, encoding, ref, sample_key = sample
-            core.ingest(key, data, encoding, now, ref, sample_key)
+            core.ingest(*sample[:3], now, *sample[3:])
         action = core.act(now, at, self.link)
         if action is None:
             host._flush()

@@ -13,6 +13,7 @@ from bridge.errors import SessionError
 from bridge.mission.model import ZenohSettings
 from bridge.ros2.attachment import from_bridge
 from bridge.wire.proofs import SIGNATURE
+from bridge.wire.sample_meta import APPLICATION_SEPARATOR
 
 # Every sample a bridge publishes carries this attachment prefix; bridges never re-bridge it.
 ORIGIN_PREFIX = b"zab/1 "
@@ -80,9 +81,16 @@ def origin_tag(mission: str, node: str) -> bytes:
     return ORIGIN_PREFIX + f"{mission}/{node}".encode()
 
 
+def marked(origin: bytes, application: bytes | None) -> bytes:
+    """The bridge's attachment (``origin``) with the sending application's after it, where a
+    channel carries it: ``zab/1 <mission>/<node>`` NUL ``<the application's bytes>``."""
+    return origin + APPLICATION_SEPARATOR + application if application else origin
+
+
 def origin_of(attachment: bytes) -> bytes:
-    """A bridge's attachment without its signature (:mod:`bridge.wire.proofs`), if any."""
-    return attachment.partition(SIGNATURE)[0]
+    """A bridge's attachment without its signature (:mod:`bridge.wire.proofs`) and the
+    application's attachment it carries, if any."""
+    return attachment.partition(SIGNATURE)[0].partition(APPLICATION_SEPARATOR)[0]
 
 
 def is_bridged(sample: zenoh.Sample) -> bool:

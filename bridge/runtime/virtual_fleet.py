@@ -34,12 +34,13 @@ from bridge.errors import EncodeError, FrameError
 from bridge.frozen import direct_init
 from bridge.mission.presets import Preset
 from bridge.modems.base import Reception
-from bridge.runtime.keys import key_for_run
+from bridge.runtime.keys import keys_for_run
 from bridge.runtime.virtual_queries import VirtualQueries
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
 from bridge.sim.scenario import surface_script, water_of, water_stats, waters_of
 from bridge.wire.frame import DecodedFrame
 from bridge.wire.payloads import MSGPACK, encode_payload
+from bridge.wire.seal import KeyRing
 
 TICK_S = 1.0
 
@@ -75,12 +76,13 @@ class SharedDecoder:
             self._prints[frame] = found
         return found
 
-    def __call__(self, frame: bytes, src: int | None = None, start: int = 0) -> DecodedFrame:
+    def __call__(self, frame: bytes, src: int | None = None,
+                 now: float | None = None, start: int = 0) -> DecodedFrame:
         key = (frame, src)
         done = self._kept.get(key)
         if done is None:
             try:
-                done = self._decode(frame, src, start) if start else self._decode(frame, src)
+                done = self._decode(frame, src, start=start) if start else self._decode(frame, src)
             except FrameError as exc:
                 done = exc
             if len(self._kept) >= DECODED_KEPT:
@@ -114,7 +116,7 @@ class FastFleet:
         start: float = 0.0,
         on_output: Callable[[Timed], None] | None = None,
         keep_outputs: bool = True,
-        key: bytes | None = None,
+        key: bytes | KeyRing | None = None,
         kinds: tuple[type, ...] = (Publish, Status, Event, Relay),
     ) -> None:
         """``keep_outputs`` false: outputs only go to ``on_output`` (long runs); ``kinds``:
@@ -124,8 +126,7 @@ class FastFleet:
         mission = loaded.mission
         self.key, self.throwaway_key = key, False
         if key is None and mission.wire.auth is not None:
-            self.key, self.throwaway_key = key_for_run(mission.wire.auth.key_env,
-                                                       mission.wire.auth.key_file)
+            self.key, self.throwaway_key = keys_for_run(mission.wire.auth)
         self.loaded = loaded
         self.mission = mission
         network = loaded.network
@@ -200,6 +201,8 @@ class FastFleet:
         ``at``); ``ref`` is its correlation text, echoed in delivery reports."""
         if encoding == "json":
             data, enc = encode_payload(value, encoding)
+        elif isinstance(value, bytes) and encoding != MSGPACK:  # encoded already (a picture)
+            data, enc = value, encoding
         else:  # encode_payload's msgpack, by one packer for the run (one thread)
             data, enc = self._packer.pack(value), MSGPACK
         sample_key = None

@@ -67,11 +67,14 @@ class VirtualQueries:
         """An application on ``node`` answers gets meeting ``key`` with ``answer(params)``."""
         self.queryables.setdefault(node, []).append((key, answer))
 
-    def get(self, node: str, key: str, parameters: dict[str, Any] | None = None) -> GetResult:
-        """An application on ``node`` gets ``key`` now; the result fills in as time runs."""
+    def get(self, node: str, key: str, parameters: dict[str, Any] | None = None,
+            timeout: float | None = None) -> GetResult:
+        """An application on ``node`` gets ``key`` now, waiting ``timeout`` seconds (None: as
+        long as the query may take); the result fills in as time runs."""
         fleet = self.fleet
         result = GetResult(node, key, fleet.now)
-        ticket = fleet.cores[node].ask(key, parameters or {}, fleet.now)
+        until = None if timeout is None else fleet.now + timeout
+        ticket = fleet.cores[node].ask(key, parameters or {}, fleet.now, until)
         if isinstance(ticket, str):
             result.error, result.ended_at = ticket, fleet.now
         else:

@@ -20,6 +20,7 @@ import contextlib
 import functools
 import itertools
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -42,7 +43,8 @@ from bridge.modems.base import ModemBackend, Reception
 from bridge.runtime.gate import EventGate
 from bridge.runtime.intake import Intake
 from bridge.runtime.ip_watch import IpWatch
-from bridge.runtime.keys import load_key
+from bridge.runtime.keys import load_key, with_next_key
+from bridge.runtime.keyspace_watch import KeyspaceWatch
 from bridge.runtime.link_port import LinkPort
 from bridge.runtime.persistence import Persistence
 from bridge.runtime.ros2_graph import Ros2Graph
@@ -50,14 +52,17 @@ from bridge.runtime.session import (
     bridged_attachment,
     close_quietly,
     is_bridged,
+    marked,
     open_session,
     origin_of,
     origin_tag,
 )
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.zenoh_queries import QueryBridge
-from bridge.wire.payloads import decode_payload, encode_payload
+from bridge.wire.payloads import decode_payload
 from bridge.wire.proofs import sign_output
+from bridge.wire.sample_meta import encode_as
+from bridge.wire.seal import KeyRing
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -96,7 +101,7 @@ class BridgeNode:
         clock: Callable[[], float] = time.time,
         on_event: Callable[[Event], None] | None = None,
         state_file: StateFile | None = None,
-        key: bytes | None = None,
+        key: bytes | KeyRing | None = None,
     ) -> None:
         """``state_file``: where this node keeps what a restart must resume (None: nothing
         survives a restart; peers then see a new epoch and resynchronise); ``key``: the frame
@@ -107,8 +112,9 @@ class BridgeNode:
         self.persistence = Persistence(state_file, node)
         auth = loaded.mission.wire.auth
         if key is None and auth is not None:
-            key = load_key(auth.key_env, auth.key_file)
-        self._key = key  # (proofs on the Zenoh side: bridge.wire.proofs)
+            key = with_next_key(auth, load_key(auth.key_env, auth.key_file))
+        # (proofs on the Zenoh side, bridge.wire.proofs: with the mission key)
+        self._key = key.current if isinstance(key, KeyRing) else key
         self._sign = key is not None and auth is not None and auth.sign_outputs
         self._signed = itertools.count(time.time_ns())  # signed samples' counters
         self.ip_watch: IpWatch | None = None
@@ -122,7 +128,11 @@ class BridgeNode:
         self.prefix = f"@zab/{self.mission.mission}/{node}"
         self._origin = origin_tag(self.mission.mission, node)
         self._tokens: dict[str, Any] = {}
-        self._latest: dict[str, tuple[bytes, str]] = {}
+        self._latest: dict[str, tuple[bytes, str, bytes | None, zenoh.Timestamp | None]] = {}
+        """Per latched output key: payload, encoding, the application's attachment and the
+        timestamp published."""
+        self._stamp_id: zenoh.TimestampId | None = None
+        self._deleted: set[str] = set()  # output keys deleted (and not put since)
         self._latched_keys: set[str] = set()
         self._publishers: dict[str, Any] = {}
         self._queryables: list[Any] = []
@@ -199,6 +209,7 @@ class BridgeNode:
         self._loop_thread = threading.get_ident()
         ended = self._ended = asyncio.Event()
         self.session = open_session(self.mission.nodes[self.node].zenoh, self.node)
+        self._stamp_id = self.session.new_timestamp().get_id()
         try:
             with self.lock:  # this run's epoch saved (StateError if the disk cannot take it)
                 self.persistence.save(self.core.state, self.clock(), first=True)
@@ -210,11 +221,14 @@ class BridgeNode:
             for key in self.core.families.subscriptions():  # key families: concrete keys
                 intake.subscribe(key, lambda s: self._from_zenoh(loop, str(s.key_expr), s))
             self._subscribe_positions(loop)
+            self._interest_entities += KeyspaceWatch(self.session, intake, self.core, self.lock,
+                                                     self.clock, self._flush).entities
             if self.core.interest is not None:
                 self._watch_interest(loop)
             if self.core.queries is not None:
                 self._query_bridge = QueryBridge(self.session, self.core, self.lock,
-                                                 self.clock, self._changed, loop)
+                                                 self.clock, self._changed, loop,
+                                                 self.taken_at)
             if self.core.surfacing is not None:
                 self._watch_ip(loop)
             self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
@@ -277,22 +291,31 @@ class BridgeNode:
     def _from_zenoh(self, loop: asyncio.AbstractEventLoop, key: str, sample: zenoh.Sample) -> None:
         """The key's intake thread: copy what we need; ingest it here with a direct backend,
         else hand it to the loop. A payload over the key's cap is counted, never copied."""
-        if sample.kind != zenoh.SampleKind.PUT:
-            return
         attachment = sample.attachment  # (each read of a sample's field builds an object)
         extra = attachment.to_bytes() if attachment is not None else b""
         if extra and bridged_attachment(extra):
+            return
+        sample_key = str(sample.key_expr) if "*" in key else None  # (else it is ``key``)
+        if sample.kind != zenoh.SampleKind.PUT:
+            self.intake.to_loop(key, partial(self._delete, key))  # type: ignore[union-attr]
             return
         if self._oversized(key, sample):
             return
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
         ref = extra[4:].decode("utf-8", "replace") if extra[:4] == b"ref:" else None
-        sample_key = str(sample.key_expr) if "*" in key else None  # (else it is ``key``)
         backend = self._direct()
         if backend is not None:
-            self.port.ingest(backend, (key, data, encoding, ref, sample_key))
+            self.port.ingest(backend, (key, data, encoding, ref, sample_key, extra or None))
         else:
-            self.intake.to_loop(key, partial(self.ingest, key, data, encoding, ref, sample_key))  # type: ignore[union-attr]
+            self.intake.to_loop(key, partial(self.ingest, key, data, encoding, ref,  # type: ignore[union-attr]
+                                             sample_key, extra or None))
+
+    def _delete(self, key: str) -> None:
+        """On the loop: an application deleted input ``key``."""
+        with self.lock:
+            self.core.delete(key, self.clock())
+            self._flush()
+        self._wake_all()
 
     def _oversized(self, key: str, sample: zenoh.Sample) -> bool:
         """Whether ``sample``'s payload is over ``key``'s cap: then counted, never copied."""
@@ -470,15 +493,17 @@ class BridgeNode:
                 self.core.positioning.set_depth(depth)
 
     def ingest(self, key: str, data: bytes, encoding: str, ref: str | None = None,
-               sample_key: str | None = None) -> None:
+               sample_key: str | None = None, attachment: bytes | None = None) -> None:
         """A sample arrived on an input key (``ref``: the publisher's correlation text;
-        ``sample_key``: the sample's own key, under a wildcard input key). Any thread: with
-        a direct backend an open opportunity's frame leaves from here, else from the loop."""
+        ``sample_key``: the sample's own key, under a wildcard input key; ``attachment``: the
+        sample's). Any thread: with a direct backend an open opportunity's frame leaves from
+        here, else from the loop."""
+        sample = (key, data, encoding, ref, sample_key, attachment)
         if len(self.ports) == 1:
-            self.port.ingest(self._direct(), (key, data, encoding, ref, sample_key))
+            self.port.ingest(self._direct(), sample)
             return
         with self.lock:
-            self.core.ingest(key, data, encoding, self.clock(), ref, sample_key)
+            self.core.ingest(*sample[:3], self.clock(), *sample[3:])
             self._flush()
         self._soon(self._wake_all)  # each link's transmit loop decides when
 
@@ -507,7 +532,7 @@ class BridgeNode:
         queries = False  # among ``later``
         for output in outputs:
             if output.__class__ is Publish:  # (the usual output: asked first)
-                self._put(output.key, output.value, output.encoding, output.latched, output.ros2)
+                self._put(output)
                 continue
             if not asked:
                 asked = True
@@ -522,9 +547,7 @@ class BridgeNode:
             elif isinstance(output, Event):
                 self._event(output)
             elif isinstance(output, Relay):  # surfaced peer: the sample as it came, over IP
-                assert self.session is not None
-                self.session.put(output.key, output.data, encoding=zenoh.Encoding(output.encoding),
-                                 attachment=self._attachment(output.key, output.data))
+                self._relay(output)
             elif self._query_bridge is not None:
                 self._query_bridge.handle(output)
         if later:
@@ -590,29 +613,68 @@ class BridgeNode:
             self._tokens[topic] = self.session.liveliness().declare_token(
                 f"{self.prefix}/{topic}")
 
-    def _put(self, key: str, value: Any, encoding: str, latched: bool,
-             ros2: Ros2Element | None) -> None:
-        """A decoded value out on Zenoh (a :class:`Publish`'s fields)."""
-        if ros2 is None:
-            self.publish(key, value, encoding, latched=latched)
+    def _put(self, output: Publish) -> None:
+        """A decoded value out on Zenoh."""
+        if output.ros2 is None:
+            self.publish(output)
         else:
-            self._publish_ros2(key, value, ros2)
+            self._publish_ros2(output.key, output.value, output.ros2)
 
-    def publish(self, key: str, value: Any, encoding: str, *, latched: bool = False) -> None:
-        """Put a decoded value on Zenoh, marked as bridged so no bridge sends it back."""
+    def publish(self, output: Publish) -> None:
+        """Put a decoded value (or its delete) on Zenoh, marked as bridged so no bridge sends
+        it back, stamped with when it was taken at the source, with the application's
+        attachment where the channel carried it."""
         assert self.session is not None
-        payload, enc = encode_payload(value, encoding)
+        key = output.key
         publisher = self._publishers.get(key)
         if publisher is None:
-            publisher = self.session.declare_publisher(key, encoding=zenoh.Encoding(enc))
+            publisher = self.session.declare_publisher(key)
             self._publishers[key] = publisher
-        self._latest[key] = (payload, enc)
-        if latched and key not in self._latched_keys:
+        stamp = self._stamp(output.taken)
+        if output.delete:  # once: a latched tombstone comes again, the key stays deleted
+            self._latest.pop(key, None)
+            if key not in self._deleted:
+                self._deleted.add(key)
+                publisher.delete(attachment=self._attachment(key, b"", output.attachment),
+                                 timestamp=stamp)
+            return
+        if self._deleted:
+            self._deleted.discard(key)
+        payload, enc = encode_as(output.value, output.encoding)
+        self._latest[key] = (payload, enc, output.attachment, stamp)
+        if output.latched and key not in self._latched_keys:
             self._latched_keys.add(key)
             self._queryables.append(
                 self.session.declare_queryable(key, functools.partial(self._answer, key=key))
             )
-        publisher.put(payload, attachment=self._attachment(key, payload))
+        publisher.put(payload, encoding=zenoh.Encoding(enc),
+                      attachment=self._attachment(key, payload, output.attachment),
+                      timestamp=stamp)
+
+    def _relay(self, relay: Relay) -> None:
+        """A surfaced peer's sample (or delete) as it came, over IP, with the attachment the
+        acoustic path would publish."""
+        assert self.session is not None
+        attachment = self._attachment(relay.key, relay.data, relay.attachment)
+        stamp = self._stamp(relay.taken)
+        if relay.delete:
+            self.session.delete(relay.key, attachment=attachment, timestamp=stamp)
+        else:
+            self.session.put(relay.key, relay.data, encoding=zenoh.Encoding(relay.encoding),
+                             attachment=attachment, timestamp=stamp)
+
+    def _stamp(self, taken: float | None) -> zenoh.Timestamp | None:
+        """A Zenoh timestamp of this node's session for ``taken`` (seconds since the epoch)."""
+        if taken is None or self._stamp_id is None:
+            return None
+        seconds = math.floor(taken)
+        return zenoh.Timestamp(zenoh.NTP64(seconds, int((taken - seconds) * 1e9)),
+                               self._stamp_id)
+
+    def taken_at(self, key: str) -> zenoh.Timestamp | None:
+        """The timestamp of the latched value last published on ``key``, if any."""
+        latest = self._latest.get(key)
+        return latest[3] if latest is not None else None
 
     def _publish_ros2(self, key: str, value: Any, ros2: Ros2Element) -> None:
         """Publish a decoded value as a ROS 2 message (rmw_zenoh's key, attachment, tokens)."""
@@ -626,8 +688,9 @@ class BridgeNode:
         """Zenoh thread: a late joiner asks for a latched key; reply with its last value."""
         latest = self._latest.get(key)
         if latest is not None:
-            query.reply(key, latest[0], encoding=zenoh.Encoding(latest[1]),
-                        attachment=self._attachment(key, latest[0]))
+            payload, enc, application, stamp = latest
+            query.reply(key, payload, encoding=zenoh.Encoding(enc),
+                        attachment=self._attachment(key, payload, application), timestamp=stamp)
         query.drop()
 
     def _publish_raw(self, key: str, value: dict[str, Any]) -> None:
@@ -636,13 +699,17 @@ class BridgeNode:
         self.session.put(key, payload, encoding=zenoh.Encoding("application/msgpack"),
                          attachment=self._attachment(key, payload))
 
-    def _attachment(self, key: str, payload: bytes) -> bytes:
+    def _attachment(self, key: str, payload: bytes, application: bytes | None = None
+                    ) -> bytes:
         """What a sample this bridge puts on ``key`` carries: its origin tag (no bridge sends
-        it back), signed where the mission asks (:func:`~bridge.wire.proofs.sign_output`)."""
+        it back), then the sending ``application``'s attachment where a channel carries it
+        (:func:`~bridge.runtime.session.marked`), signed where the mission asks
+        (:func:`~bridge.wire.proofs.sign_output`)."""
+        origin = marked(self._origin, application)
         if not self._sign:
-            return self._origin
+            return origin
         assert self._key is not None
-        return sign_output(self._key, self._origin, key, next(self._signed), payload)
+        return sign_output(self._key, origin, key, next(self._signed), payload)
 
     # -- health --------------------------------------------------------------------------------
 
@@ -651,6 +718,8 @@ class BridgeNode:
         with self.lock:
             snapshot = self.core.snapshot(self.clock())
         snapshot["state"].update(self.persistence.snapshot())
+        if self._query_bridge is not None and "queries" in snapshot:
+            snapshot["queries"]["refused_gets"] = self._query_bridge.refused
         if self.ip_watch is not None and "surfacing" in snapshot:
             snapshot["surfacing"]["unproven"] = self.ip_watch.unproven
         if self.intake is not None:

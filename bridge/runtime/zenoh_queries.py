@@ -3,33 +3,47 @@ nodes. The core (:mod:`bridge.core.queries`) decides; this module only talks to 
 
 Asking node: a queryable on each asked key (``auv1/info``). A get's selector parameters
 (``?detail=2``; numbers, ``true``/``false`` and text; dotted names nest) or its msgpack/JSON
-payload become the request's fields. The query object is kept until the core ends the query:
-each reply is answered on the asked key, then the query is dropped (finalised); an error ends
-it with ``reply_err`` and a plain-text reason. Several replies on one key reach an application
-only with ``consolidation=NONE`` (Zenoh's default keeps the latest per key).
+payload become the request's fields; ``_timeout=<s>`` says how long the caller waits (Zenoh
+does not tell a queryable the getter's timeout): the query is not sent, or ends, once that has
+passed. Other parameters starting with ``_`` are Zenoh's and are not request fields. The query
+object is kept until the core ends the query: each reply is answered on the asked key, then
+the query is dropped (finalised); an error ends it with ``reply_err`` and a plain-text reason.
+Several replies on one key reach an application only with ``consolidation=NONE`` (Zenoh's
+default keeps the latest per key).
+
+A wildcard get (``auv1/**``) meets the queryable of every asked key it matches: the first of
+them (in key order) answers for all. It asks each matched query that needs no parameters, or
+whose parameters the selector gives, and ends with one reply error naming the others.
 
 Serving node: a :class:`~bridge.core.queries.LocalGet` becomes ``session.get`` on the local key
-with the request's parameters; replies are decoded (msgpack or JSON) and handed back to the core
-when the get ends.
+with the request's parameters and ``consolidation=NONE``, so every reply of every queryable
+counts (up to the query's ``max_replies``); replies are decoded (msgpack or JSON) and handed
+back to the core when the get ends.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import logging
 import threading
+from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
 
 from bridge.core.node import NodeCore
-from bridge.core.queries import LocalGet, QueryAnswer, QueryEnd
+from bridge.core.queries import LocalGet, QueryAnswer, QueryEnd, Ticket
 from bridge.errors import DecodeError
 from bridge.wire.payloads import decode_payload, encode_payload
 
 log = logging.getLogger("zab.queries")
+
+CALLER_TIMEOUT = "_timeout"
+"""The selector parameter in which a get says how long its caller waits, seconds."""
 
 
 def parse_parameters(text: str) -> dict[str, Any]:
@@ -69,29 +83,71 @@ def format_parameters(values: dict[str, Any], prefix: str = "") -> str:
     return ";".join(p for p in parts if p)
 
 
+def has_parameters(values: dict[str, Any], paths: tuple[str, ...]) -> bool:
+    """Whether ``values`` holds every dotted path of ``paths``."""
+    for path in paths:
+        item: Any = values
+        for part in path.split("."):
+            if not isinstance(item, dict) or part not in item:
+                return False
+            item = item[part]
+    return True
+
+
+WAITING_GETS = 64
+"""Zenoh gets waiting for the loop at a time; under a flood the oldest is refused at once."""
+
+@dataclass
+class Waiting:
+    """A Zenoh get held open until every acoustic query it asked has ended."""
+
+    query: zenoh.Query
+    tickets: set[Ticket] = field(default_factory=set)
+    errors: list[str] = field(default_factory=list)
+
+
 class QueryBridge:
     """The Zenoh half of one node's queries."""
 
     def __init__(self, session: zenoh.Session, core: NodeCore, lock: threading.RLock,
                  clock: Callable[[], float], changed: Callable[[], None],
-                 loop: asyncio.AbstractEventLoop) -> None:
+                 loop: asyncio.AbstractEventLoop,
+                 taken_at: Callable[[str], zenoh.Timestamp | None] = lambda key: None) -> None:
         """``core``, used under ``lock``, at the time ``clock`` tells; ``changed``: the core
-        has outputs to carry out and may have something due (on the loop)."""
+        has outputs to carry out and may have something due (on the loop); ``taken_at``:
+        the timestamp of the latched value this node last published on a key (a reply from
+        the cache carries it)."""
         self.session = session
+        self.taken_at = taken_at
         self.core = core
         self.lock = lock
         self.clock = clock
         self.changed = changed
         self.loop = loop
-        self.waiting: dict[Any, list[zenoh.Query]] = {}
+        self.waiting: dict[Ticket, list[Waiting]] = {}
         self.entities: list[Any] = []
+        self.refused = 0
+        """Gets ended at once because :data:`WAITING_GETS` others waited for the loop."""
+        self._gets: deque[tuple[Waiting, list[str], Any, bool]] = deque()
+        self._lock = threading.Lock()
+        self._woken = False  # a call to _take_gets is on its way to the loop
         assert core.queries is not None
-        for key in core.queries.asked_keys():
+        self.asked = core.queries.asked_keys()
+        for key in self.asked:
             self.entities.append(session.declare_queryable(
                 key, functools.partial(self._from_zenoh, key=key)))
 
     def _from_zenoh(self, query: zenoh.Query, key: str) -> None:
-        """Zenoh thread: read the get's parameters, hand it to the loop."""
+        """Zenoh thread: read the get's parameters, hand it to the loop (a wildcard get only
+        from the first asked key it matches)."""
+        asked = str(query.key_expr)
+        keys = [key]
+        if asked != key:  # a wildcard get: every asked key it matches, answered once
+            selector = zenoh.KeyExpr(asked)
+            keys = sorted(k for k in self.asked if selector.intersects(zenoh.KeyExpr(k)))
+            if keys[0] != key:
+                query.drop()
+                return
         try:
             if query.payload is not None:
                 params = decode_payload(query.payload.to_bytes(), str(query.encoding))
@@ -99,47 +155,100 @@ class QueryBridge:
                 params = parse_parameters(str(query.parameters))
         except (DecodeError, ValueError) as exc:
             params = exc
-        self.loop.call_soon_threadsafe(self._ask, query, key, params)
+        self._hand_off((Waiting(query), keys, params, asked != key))
 
-    def _ask(self, query: zenoh.Query, key: str, params: Any) -> None:
+    def _hand_off(self, get: tuple[Waiting, list[str], Any, bool]) -> None:
+        """Zenoh thread: ``get`` waits for the loop, with at most :data:`WAITING_GETS` others;
+        under a flood of gets the oldest waiting one is ended at once with an error and
+        counted (``refused``), so memory stays bounded however fast gets come."""
+        with self._lock:
+            oldest = self._gets.popleft() if len(self._gets) >= WAITING_GETS else None
+            if oldest is not None:
+                self.refused += 1
+            self._gets.append(get)
+            wake, self._woken = not self._woken, True
+        if oldest is not None:
+            self._finish(oldest[0], "too many gets waiting at this bridge: try again")
+        if wake:
+            with contextlib.suppress(RuntimeError):  # the loop has closed: the node is gone
+                self.loop.call_soon_threadsafe(self._take_gets)
+
+    def _take_gets(self) -> None:
+        """On the loop: every get waiting, in the order they came."""
+        with self._lock:
+            gets = list(self._gets)
+            self._gets.clear()
+            self._woken = False
+        for get in gets:
+            self._ask(*get)
+
+    def _ask(self, waiting: Waiting, keys: list[str], params: Any, wildcard: bool) -> None:
         core = self.core
         with self.lock:
             now = self.clock()
             if isinstance(params, Exception):
-                spec = core.queries.spec_for(key) if core.queries else None
+                spec = core.queries.spec_for(keys[0]) if core.queries else None
                 if spec is not None and core.queries is not None:
                     core.queries.dropped[spec[0].name] += 1
-                self._end([query], f"malformed parameters: {params}")
+                self._finish(waiting, f"malformed parameters: {params}")
                 return
-            ticket = core.ask(key, params, now)
-            if isinstance(ticket, str):
-                self._end([query], ticket)
-            else:
-                self.waiting.setdefault(ticket, []).append(query)
+            until = None
+            if isinstance(params, dict):
+                timeout = params.get(CALLER_TIMEOUT)
+                until = now + timeout if isinstance(timeout, int | float) else None
+                params = {k: v for k, v in params.items() if not str(k).startswith("_")}
+            unasked = []
+            for key in keys:
+                found = core.queries.spec_for(key) if core.queries is not None else None
+                if wildcard and found is not None and not has_parameters(
+                        params, found[0].parameters):
+                    unasked.append(f"{key} needs {', '.join(found[0].parameters)}")
+                    continue
+                ticket = core.ask(key, params, now, until)
+                if isinstance(ticket, str):
+                    waiting.errors.append(ticket)
+                else:
+                    waiting.tickets.add(ticket)
+                    self.waiting.setdefault(ticket, []).append(waiting)
+            if unasked:
+                waiting.errors.append(f"a wildcard get does not ask queries that need "
+                                      f"parameters it does not give: {'; '.join(unasked)} "
+                                      f"(get each on its key with them)")
+            if not waiting.tickets:
+                self._finish(waiting, None)
         self.changed()  # a request is due at the next opportunity
 
     @staticmethod
-    def _end(queries: list[zenoh.Query], error: str | None) -> None:
-        for query in queries:
-            try:
-                if error is not None:
-                    query.reply_err(error.encode())
-                query.drop()
-            except zenoh.ZError as exc:  # the getter gave up already
-                log.debug("query already finished: %s", exc)
+    def _finish(waiting: Waiting, error: str | None) -> None:
+        """End ``waiting``'s get: one reply error with every reason, then finalised."""
+        errors = [*waiting.errors, *([error] if error is not None else [])]
+        try:
+            if errors:
+                waiting.query.reply_err("; ".join(errors).encode())
+            waiting.query.drop()
+        except zenoh.ZError as exc:  # the getter gave up already
+            log.debug("query already finished: %s", exc)
 
     def handle(self, output: object) -> bool:
         """Carry out a query output of the core; False if it is not one."""
         if isinstance(output, QueryAnswer):
             payload, enc = encode_payload(output.value, output.encoding)
-            for query in self.waiting.get(output.ticket, []):
+            cached = output.ticket[2] < 0  # answered from the latched value
+            stamp = self.taken_at(output.key) if cached else self.session.new_timestamp()
+            for waiting in self.waiting.get(output.ticket, []):
                 try:
-                    query.reply(output.key, payload, encoding=zenoh.Encoding(enc))
+                    waiting.query.reply(output.key, payload, encoding=zenoh.Encoding(enc),
+                                        timestamp=stamp)
                 except zenoh.ZError as exc:
                     log.debug("reply refused: %s", exc)
             return True
         if isinstance(output, QueryEnd):
-            self._end(self.waiting.pop(output.ticket, []), output.error)
+            for waiting in self.waiting.pop(output.ticket, []):
+                waiting.tickets.discard(output.ticket)
+                if output.error is not None:
+                    waiting.errors.append(output.error)
+                if not waiting.tickets:
+                    self._finish(waiting, None)
             return True
         if isinstance(output, LocalGet):
             self._local_get(output)
@@ -168,6 +277,7 @@ class QueryBridge:
         params = format_parameters(request.parameters)
         selector = request.key + (f"?{params}" if params else "")
         session.get(selector, zenoh.handlers.Callback(on_reply, done),
+                    consolidation=zenoh.ConsolidationMode.NONE,
                     timeout=request.timeout_s)
 
     def _served(self, request: LocalGet, values: list[Any], error: str | None) -> None:
@@ -178,4 +288,7 @@ class QueryBridge:
     def close(self) -> None:
         """End every get still waiting (the bridge stops)."""
         for ticket in list(self.waiting):
-            self._end(self.waiting.pop(ticket), "the bridge is stopping")
+            for waiting in self.waiting.pop(ticket):
+                if waiting.tickets:
+                    waiting.tickets.clear()
+                    self._finish(waiting, "the bridge is stopping")

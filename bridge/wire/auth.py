@@ -117,14 +117,16 @@ class Authenticator:
         self.counter = counter + 1
         return counter
 
-    def seal(self, frame: bytes) -> bytes:
-        """``frame`` followed by the low half of this node's next counter and the tag."""
+    def seal(self, frame: bytes, now: float | None = None) -> bytes:
+        """``frame`` followed by the low half of this node's next counter and the tag
+        (``now``: unused here; :class:`~bridge.wire.seal.Sealer` chooses its key by it)."""
         counter = self.next_counter()
         data = frame + (counter % _LOW).to_bytes(COUNTER_BYTES, "big")
         return data + self._tag(self.address, counter, data)
 
-    def open(self, sealed: bytes, src: int) -> bytes:
-        """The frame inside ``sealed`` from ``src``; FrameError if forged, altered or replayed."""
+    def open(self, sealed: bytes, src: int, now: float | None = None) -> bytes:
+        """The frame inside ``sealed`` from ``src``; FrameError if forged, altered or replayed
+        (``now``: as for :meth:`seal`)."""
         if len(sealed) < self.overhead_bytes:
             raise FrameError("truncated frame: no room for the counter and tag")
         data, tag = sealed[: -self.tag_bytes], sealed[-self.tag_bytes:]
@@ -132,27 +134,44 @@ class Authenticator:
         mark = self.seen.get(src, -1)
         counter = (mark + 1) + ((low - (mark + 1)) % _LOW)  # first value past the mark
         if counter - mark <= _AHEAD and hmac.compare_digest(tag, self._tag(src, counter, data)):
-            self.seen[src] = counter
-            if self.window:
-                self.late[src] = ((self.late.get(src, 0) << (counter - mark)) | 1) \
-                    & ((1 << self.window) - 1)
-            self.changed = True
-            if self._answered:
-                self._answered.pop(src, None)
+            self._accepted(src, counter)
             return data[:-COUNTER_BYTES]
         behind = counter - _LOW
         if behind >= 0 and hmac.compare_digest(tag, self._tag(src, behind, data)):
-            late, below = self.late.get(src, 0), mark - behind
-            if below < self.window and not late >> below & 1:  # overtaken: once
-                self.late[src] = late | 1 << below
-                self.changed = True
-                return data[:-COUNTER_BYTES]
-            self._owe(src, behind, mark)
-            raise FrameError(f"replayed frame: counter {behind} from {src} is not past "
-                             f"{mark} (a replay, or a sender restarted without its state: "
-                             "told where to resume)", "replayed")
+            if (refused := self._behind(src, behind, mark)) is not None:
+                raise refused
+            return data[:-COUNTER_BYTES]
         raise FrameError("forged or altered frame: the authentication tag does not match",
                          "forged")
+
+    def _accepted(self, src: int, counter: int) -> None:
+        """A frame of ``src`` sealed with ``counter`` opened: its mark moves there."""
+        if self.window:  # (the window moves with the mark)
+            moved = counter - self.seen.get(src, counter - self.window)
+            self.late[src] = ((self.late.get(src, 0) << moved) | 1) & ((1 << self.window) - 1)
+        self.seen[src] = counter
+        self.changed = True
+        if self._answered:
+            self._answered.pop(src, None)
+
+    def _behind(self, src: int, behind: int, mark: int) -> FrameError | None:
+        """A frame of ``src`` sealed with ``behind``, at or below ``mark``: accepted (None)
+        when a window holds it and it did not come before (overtaken on another link), else
+        why it is refused (:meth:`_replayed`)."""
+        late, below = self.late.get(src, 0), mark - behind
+        if src in self.seen and below < self.window and not late >> below & 1:
+            self.late[src] = late | 1 << below
+            self.changed = True
+            return None
+        return self._replayed(src, behind, mark)
+
+    def _replayed(self, src: int, behind: int, mark: int) -> FrameError:
+        """Why a frame of ``src`` sealed with ``behind``, at or below ``mark``, is refused
+        (``src`` is owed its mark)."""
+        self._owe(src, behind, mark)
+        return FrameError(f"replayed frame: counter {behind} from {src} is not past {mark} (a "
+                          "replay, or a sender restarted without its state: told where to "
+                          "resume)", "replayed")
 
     # -- a sender that lost its state ----------------------------------------------------------
 

@@ -21,10 +21,12 @@ from bridge.mission.fields import OutOfRange
 from bridge.mission.model import Channel, Element, LearnedKeys, Mission, NodeKeys
 from bridge.wire.auth import AUTH_VERSION
 from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, name_codec
+from bridge.wire.images import ImageSpec, control_layout
 from bridge.wire.interest import InterestCodec
 from bridge.wire.marks import MarkCodec
 from bridge.wire.network import NetCodec
 from bridge.wire.queries import QueryCodec, QuerySpec, compile_query, query_codecs
+from bridge.wire.sample_meta import SampleMeta
 
 Values = list[dict[str, Any]]
 """One value of a channel: each element's fields, in element order."""
@@ -33,6 +35,7 @@ if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
 
 WIRE_VERSION = 2  # 2: the check reveals the fingerprint; epochs in stream missions
+SEAL_VERSION = 1  # encrypted frames (bridge.wire.seal), in their missions' fingerprint
 
 # Reliable channels and fragmented transfers (see bridge.core.reliable and bridge.core.transfer).
 SEQ_BITS = 8  # a reliable value's sequence number, modulo 256
@@ -86,6 +89,7 @@ class ElementCodec:
     encoding: str
     layout: Layout
     ros2: Ros2Element | None = None  # a ROS 2 topic: CDR payloads on rmw_zenoh keys
+    meta: SampleMeta | None = None  # fields carried beside the value (bridge.wire.sample_meta)
 
     def input_key(self, node: str, key: str = "*") -> str:
         """The key read at ``node``; a family member's, or with ``*`` all members'."""
@@ -131,11 +135,14 @@ class ChannelCodec:
     fragment_bits: int = 0  # bits of a fragment index / count
     family: FamilySpec | None = None  # a key family: each entry starts with a member index
     always: bool = False  # with demand: sent even while no destination wants it
+    image: ImageSpec | None = None  # an image channel's stream or control (bridge.wire.images)
     prefer: tuple[str, ...] = ()  # with several links: the links it takes, best first
 
     @cached_property
     def bits(self) -> int:
-        """Bits of one whole value (every element's layout)."""
+        """Bits of one whole value (every element's layout; an image stream's largest)."""
+        if self.image is not None and not self.image.control:
+            return 8 * self.image.largest_budget
         return sum(e.layout.bits for e in self.elements)
 
     @property
@@ -219,16 +226,29 @@ class ChannelCodec:
         return out
 
 
-def compile_element(element: Element, on_out_of_range: OutOfRange) -> ElementCodec:
+def compile_element(element: Element, on_out_of_range: OutOfRange,
+                    meta: SampleMeta | None = None) -> ElementCodec:
+    """``meta``: the fields carried beside the value, appended to the layout."""
     if element.dccl:  # a DCCL message: the element's bytes are libdccl's
         from bridge.dccl.layout import DcclLayout
 
         dccl = DcclLayout.from_reference(element.dccl, strict=on_out_of_range == "reject",
                                          options=element.dccl_options)
         return ElementCodec(element.in_, element.out, element.encoding, dccl)  # type: ignore[arg-type]
-    layout = Layout.from_fields(element.fields, on_out_of_range=on_out_of_range)
+    fields: list[Any] = [*element.fields, *(meta.fields() if meta is not None else ())]
+    layout = Layout.from_fields(fields, on_out_of_range=on_out_of_range)
     assert element.in_ is not None and element.out is not None
-    return ElementCodec(element.in_, element.out, element.encoding, layout)
+    return ElementCodec(element.in_, element.out, element.encoding, layout, meta=meta)
+
+
+def sample_meta(channel: Channel, element: Element) -> SampleMeta | None:
+    """What ``element`` of ``channel`` carries beside its value, if anything."""
+    age = channel.age
+    meta = SampleMeta(deletes=channel.deletes, as_sent=element.encoding == "as_sent",
+                      attachment_bytes=channel.attachment_bytes,
+                      age_step_s=age.step_s if age is not None else None,
+                      age_max_s=age.max_s if age is not None else 0.0)
+    return meta if meta.fields() else None
 
 
 def compile_ros2_element(element: Element, on_out_of_range: OutOfRange, senders: Sequence[str],
@@ -296,7 +316,8 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
                     (*eloc, where),
                 )
         try:
-            elements.append(compile_element(element, channel.on_out_of_range))
+            elements.append(compile_element(element, channel.on_out_of_range,
+                                            sample_meta(channel, element)))
         except LayoutError as exc:
             inside = ("dccl",) if element.dccl else ("fields", *exc.loc)
             raise ChannelTableError(str(exc), (*eloc, *inside)) from None
@@ -393,7 +414,7 @@ def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
     """Bits one entry (index included) can take in a frame of ``node``, after what the
     mission's wire options add: DLBL delays, authentication, check, count. ``streams``: the
     mission has reliable or fragmented channels (a longer count, one more index)."""
-    n_nodes, n_channels = len(mission.nodes), len(mission.channels)
+    n_nodes, n_channels = len(mission.nodes), len(mission.channels) + 2 * len(mission.images)
     overhead = 2 + (3 * (n_nodes - 1) if mission.wire.dlbl else 0)
     if _network(mission) is not None:  # the longest network header (bridge.wire.network)
         priorities = len({c.priority for c in mission.channels})
@@ -429,6 +450,53 @@ def fragment_channel(channel: ChannelCodec, mission: Mission, streams: bool) -> 
         fragments = -(-channel.value_bytes // chunk)
         fragment_bits = fragments.bit_length()
     return replace(channel, chunk_bytes=chunk, fragment_bits=fragment_bits)
+
+
+def compile_images(mission: Mission) -> tuple[ChannelCodec, ...]:
+    """Each image channel as its stream and its control channel, after the mission's
+    channels (see :mod:`bridge.wire.images`)."""
+    out: list[ChannelCodec] = []
+    nodes = tuple(mission.nodes)
+    for i, image in enumerate(mission.images):
+        loc: tuple[str | int, ...] = ("images", i)
+        ends = []
+        for where in ("from", "to"):
+            try:
+                ends.append(match_nodes(getattr(image, "from_" if where == "from" else "to"),
+                                        nodes))
+            except PatternError as exc:
+                raise ChannelTableError(str(exc), (*loc, where)) from None
+        senders, receivers = ends
+        if not any(set(receivers) - {s} for s in senders):
+            raise ChannelTableError("an image channel must reach a node other than its "
+                                    "sender", (*loc, "to"))
+        spec = ImageSpec.from_mission(image)
+        for key, allowed, where in ((spec.in_key, SENDER_TEMPLATES, "in"),
+                                    (image.out, RECEIVER_TEMPLATES, "out"),
+                                    (image.control_key, {"node"}, "control")):
+            bad = template_names(key) - allowed
+            if bad:
+                raise ChannelTableError(f"unknown template {{{sorted(bad)[0]}}} in {key!r}",
+                                        (*loc, where))
+        capacity = min(entry_capacity_bits(mission, s, True) for s in senders)
+        fragment_bits, chunk = 1, 0
+        for _ in range(4):  # the header size depends on the number of fragments: settle it
+            chunk = int(image.share * (capacity - TID_BITS - 2 * fragment_bits)) // 8
+            if chunk < 1:
+                raise ChannelTableError("frames too small for an image fragment", loc)
+            fragment_bits = (-(-image.largest_budget // chunk)).bit_length()
+        index = len(mission.channels) + 2 * i
+        out.append(ChannelCodec(index, image.name, senders, receivers, 0.0, False,
+                                image.priority, (), retry_s=image.retry_s, ttl_s=image.ttl_s,
+                                queue=1, chunk_bytes=chunk, fragment_bits=fragment_bits,
+                                image=spec))
+        control = ElementCodec(image.control_key, image.control_key, "msgpack",
+                               control_layout())
+        out.append(ChannelCodec(index + 1, f"{image.name}.control", receivers, senders, 0.0,
+                                False, image.priority + 1, (control,), reliable=True,
+                                queue=4, overflow="drop_oldest",
+                                image=replace(spec, control=True)))
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -479,6 +547,7 @@ class ChannelTable:
     nodes: tuple[str, ...]
     dlbl: bool
     auth_tag_bytes: int = 0  # 0: frames are not authenticated
+    sealed: bool = False  # frames are encrypted (bridge.wire.seal)
     demand: bool = False  # frames may carry the @want interest bitmap
     queries: tuple[QuerySpec, ...] = ()  # queries across the water
     wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.wire.goby)
@@ -497,13 +566,21 @@ class ChannelTable:
                 )
             seen[channel.name] = i
         compiled = tuple(compile_channel(i, c, nodes) for i, c in enumerate(mission.channels))
-        streams = any(c.reliable or c.family is not None for c in compiled)
+        for i, image in enumerate(mission.images):
+            if image.name in seen or f"{image.name}.control" in seen:
+                raise ChannelTableError(f"channel name {image.name!r} already used",
+                                        ("images", i, "name"))
+            seen[image.name] = i
+        streams = any(c.reliable or c.family is not None for c in compiled) or bool(
+            mission.images)
         compiled = tuple(fragment_channel(c, mission, streams) for c in compiled)
         if not streams and any(c.fragmented for c in compiled):  # the count field grows
             compiled = tuple(fragment_channel(c, mission, True) for c in compiled)
+        compiled += compile_images(mission)
         auth = mission.wire.auth
         return cls(channels=compiled, nodes=nodes, dlbl=mission.wire.dlbl,
                    auth_tag_bytes=auth.tag_bytes if auth else 0,
+                   sealed=auth is not None and auth.encrypt,
                    wire_format=mission.wire.format,
                    demand=mission.demand is not None, queries=compile_queries(mission),
                    network=_network(mission))
@@ -604,9 +681,12 @@ class ChannelTable:
                 + ([["reliable"]] if c.reliable else [])
                 + ([["fragments", c.chunk_bytes, c.fragment_bits]] if c.fragmented else [])
                 + ([["keys", c.family.describe()]] if c.family is not None else [])
+                + ([["image", c.image.describe()]] if c.image is not None else [])
                 for c in self.channels
             ],
         }
+        if self.sealed:
+            description["sealed"] = SEAL_VERSION
         if self.demand:
             description["demand"] = [c.name for c in self.channels if c.always]
         if self.queries:

@@ -21,7 +21,10 @@ Layout, most significant bit first::
                      ``@mark`` (authenticated missions): see bridge.wire.marks.
              Only reliable, fragmented, keyed and system entries may repeat in a frame.
     pad      zero bits up to the next byte
-    [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.wire.auth)
+    [auth]   authenticated missions only: 32-bit counter + truncated HMAC tag (bridge.wire.auth);
+             with wire.auth.encrypt the frame is sealed instead: everything after the DLBL
+             delays encrypted, the counter before it and the cipher's tag after it
+             (bridge.wire.seal)
     check    16 bits: CRC-16/CCITT (init 0xFFFF) of every byte before the check, XOR the first
              two bytes of the mission fingerprint. A receiver XORs them back: its own
              fingerprint means a whole frame; the same other value from one sender, frame
@@ -160,11 +163,13 @@ class FrameCodec:
         items: Sequence[tuple[WireCodec, int]],
         delays: Sequence[int | None] = (),
         epoch: int = 0,
+        now: float | None = None,
         prefix: bytes = b"",
     ) -> bytes:
         """A frame carrying ``(channel, entry bits)`` items, for DLBL the delays, and in
-        missions with streams the sender's ``epoch``; ``prefix`` (a network header,
-        bridge.wire.network) goes before it, covered by the check but not sealed."""
+        missions with streams the sender's ``epoch``; ``now``: the sender's clock (sealed
+        frames choose their key by it); ``prefix`` (a network header, bridge.wire.network)
+        goes before it, covered by the check but not sealed."""
         if len(delays) != self.delay_count:
             raise ValueError(f"expected {self.delay_count} DLBL delays, got {len(delays)}")
         acc, nbits = 0, 0
@@ -188,7 +193,7 @@ class FrameCodec:
         if self.table.auth_tag_bytes:
             if self.auth is None:
                 raise ValueError("this mission authenticates frames: no Authenticator given")
-            data = self.auth.seal(data)
+            data = self.auth.seal(data, now)
         data = prefix + data
         return data + check_value(data, self.table.fingerprint)
 
@@ -210,11 +215,13 @@ class FrameCodec:
             return None
         return self.auth.vouch(frame[:-CHECK_BYTES], src, fingerprint)
 
-    def decode(self, frame: bytes, src: int | None = None, start: int = 0) -> DecodedFrame:
+    def decode(self, frame: bytes, src: int | None = None, now: float | None = None,
+               start: int = 0) -> DecodedFrame:
         """Parse untrusted bytes; raise :class:`FrameError` for anything but a valid frame.
 
-        Authenticated missions need ``src``, the sender's modem address; ``start``: bytes of
-        network header before the frame (the check covers them too).
+        Authenticated missions need ``src``, the sender's modem address (and sealed ones the
+        receiver's clock, ``now``, to choose the key); ``start``: bytes of network header
+        before the frame (the check covers them too).
         """
         if frame.__class__ is not bytes:
             if not isinstance(frame, bytes | bytearray | memoryview):
@@ -233,7 +240,7 @@ class FrameCodec:
         if self.auth_bytes:
             if self.auth is None or src is None:
                 raise FrameError("cannot authenticate: no key or no sender address", "forged")
-            body = self.auth.open(body, src)
+            body = self.auth.open(body, src, now)
         acc = int.from_bytes(body, "big")
         left = len(body) * 8  # bits not read yet; each field is read from the top down
         if self.delay_count:

@@ -19,6 +19,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Literal
 
 from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
+from bridge.wire.sample_meta import HIDDEN
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
 Direction = Literal["in", "out"]
@@ -79,8 +80,15 @@ def adapt_schema(node: Any, direction: Direction) -> Any:
 
 
 def _element_schema(element: ElementCodec, direction: Direction) -> dict[str, Any]:
-    schema: dict[str, Any] = adapt_schema(element.layout.json_schema(), direction)
-    return schema
+    """The payload's schema; the fields the bridge carries beside it (deletes, encodings,
+    attachments, ages: :mod:`bridge.wire.sample_meta`) are not the application's."""
+    schema = element.layout.json_schema()
+    if element.meta is not None:
+        schema["properties"] = {k: v for k, v in schema["properties"].items()
+                                if k not in HIDDEN}
+        schema["required"] = [k for k in schema["required"] if k not in HIDDEN]
+    adapted: dict[str, Any] = adapt_schema(schema, direction)
+    return adapted
 
 
 def _uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, int, ElementCodec, str]]:

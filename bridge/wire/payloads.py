@@ -153,6 +153,8 @@ def _jsonable(value: Any) -> Any:
 
 def encode_payload(value: Any, encoding: str = "msgpack") -> tuple[bytes, str]:
     """Bytes and Zenoh encoding string for publishing ``value``."""
+    if encoding.startswith("image/"):  # a picture, encoded already (bridge.core.images)
+        return bytes(value), encoding
     if encoding == "json":
         return json.dumps(_jsonable(value), separators=(",", ":")).encode(), JSON
     return msgpack.packb(value, use_bin_type=True), MSGPACK

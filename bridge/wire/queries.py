@@ -1,7 +1,8 @@
 """Queries on the wire: a request entry and a reply entry per query of the mission (pure).
 
 Request ``?<name>``: query id (4 bits, per asking node) + the serving node (its place in the
-mission, ⌈log2 N⌉ bits) + the request fields. Reply ``!<name>``: query id + the asking node +
+mission, ⌈log2 N⌉ bits) + the request fields (+ with ``deadline_bits``, the asker's remaining
+time in that many bits, last: see :data:`LEFT`). Reply ``!<name>``: query id + the asking node +
 status (2 bits: 0 a reply, 1 the last reply, 2 done without a reply, 3 failed at the server) +
 the reply's index (⌈log2 max_replies⌉ bits: the last reply's index tells the count) + the reply
 fields (zero when the status carries none). Both may repeat in a frame. An asker repeats a
@@ -13,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Any
 
 from bridge.codec import Layout
 from bridge.mission.model import Mission, Query
@@ -21,6 +23,9 @@ QID_BITS = 4
 STATUS_BITS = 2
 QUERY_WIRE = 2  # 2: replies carry their index (in the fingerprint: older nodes refuse them)
 QUERY_PRIORITY = 1 << 19  # requests and replies go before ordinary channels
+LEFT = "_zab_left"
+"""The request field (last, so the lowest bits) of a query with ``deadline_bits``: the asker's
+remaining time in whole steps, rounded down; 0 means less than one step left."""
 
 
 class ReplyStatus(IntEnum):
@@ -46,6 +51,12 @@ class QuerySpec:
     max_replies: int
     timeout_s: float | None
     cached_s: float | None = None
+    deadline_bits: int = 0
+
+    @property
+    def parameters(self) -> tuple[str, ...]:
+        """The request fields an application gives (the carried deadline is the bridge's)."""
+        return tuple(f.path for f in self.request.fields if f.path != LEFT)
 
     def asked_key(self, server: str) -> str:
         return self.key.format(node=server)
@@ -62,7 +73,7 @@ class QuerySpec:
         return [self.name, list(self.servers), list(self.askers),
                 [f"{f.path}:{f.describe()}" for f in self.request.fields],
                 [f"{f.path}:{f.describe()}" for f in self.reply.fields], self.max_replies,
-                QUERY_WIRE]
+                QUERY_WIRE]  # (a carried deadline is among the request fields)
 
 
 @dataclass(frozen=True)
@@ -121,13 +132,17 @@ def compile_query(index: int, query: Query, mission: Mission, match: Match) -> Q
     askers = (match(query.ask, nodes) if query.ask is not None
               else tuple(n for n in nodes if n not in servers))
     askers = tuple(a for a in askers if any(s != a for s in servers))
+    request: list[Any] = list(query.request)
+    if query.deadline_bits:
+        request.append({"field": LEFT, "type": "int", "min": 0,
+                        "max": (1 << query.deadline_bits) - 1})
     return QuerySpec(
         index=index, name=query.name, key=query.key, local_key=query.local_key or query.key,
         servers=servers, askers=askers,
-        request=Layout.from_fields(query.request, on_out_of_range="reject"),
+        request=Layout.from_fields(request, on_out_of_range="reject"),
         reply=Layout.from_fields(query.reply, on_out_of_range="clamp"),
         encoding=query.encoding, max_replies=query.max_replies, timeout_s=query.timeout_s,
-        cached_s=query.cached_s)
+        cached_s=query.cached_s, deadline_bits=query.deadline_bits)
 
 
 def query_codecs(first_index: int, specs: Sequence[QuerySpec],

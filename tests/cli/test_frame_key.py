@@ -323,6 +323,22 @@ def test_sim_says_it_uses_a_throwaway_key() -> None:
         " ".join(result.output.split())
 
 
+def test_check_shows_what_sealed_frames_cost_and_wants_the_next_key(
+        tmp_path: Path, mission_key: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = write(tmp_path, lab(tag_bytes=6, encrypt=True,
+                               next_key={"at": "2026-06-01T12:00:00Z", "overlap_s": 30}))
+    result = RUNNER.invoke(app, ["check", str(path)])
+    assert result.exit_code == 2  # the next key is named and absent
+    assert "no key was found in $ZAB_NEXT_KEY" in result.output
+    monkeypatch.setenv("ZAB_NEXT_KEY", secrets.token_hex(32))
+    result = RUNNER.invoke(app, ["check", str(path), "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.output)
+    assert data["auth"]["bits_per_frame"] == 32 + 48 and data["auth"]["cipher"] == "AES-CCM"
+    assert data["frame_key"]["encrypted"] and data["overhead_bytes"] == 2 + 4 + 6
+    text = RUNNER.invoke(app, ["check", str(path)]).output
+    assert "frames encrypted and authenticated (AES-CCM, 6-byte tag" in text
+    assert "+80 bits a frame (32-bit counter + 48-bit tag)" in text
 def test_every_shipped_mission_checks_on_a_fresh_machine(tmp_path: Path) -> None:
     """The README's promise: `uv run zab check` passes every example mission with no key on
     the machine (a bare environment, an empty home), saying so when `zab run` will need one."""

@@ -27,7 +27,7 @@ def test_surfaced_vehicle_sends_nothing_acoustic_and_relays_full_fidelity() -> N
     assert f.published("top", "auv1/status")[-1][1].value == {"battery": 77, "mode": "survey"}
     f.ip_link("auv1", "top", True)
     sent = dict(f.cores["auv1"].stats.sent_per_channel)
-    start = len(f.outputs)
+    start, put_at = len(f.outputs), f.now
     f.put("auv1", "status", {"battery": 66.6, "mode": "transit"})
     f.run_until(40.0)
     assert f.cores["auv1"].stats.sent_per_channel == sent  # neither status nor alarm
@@ -36,7 +36,8 @@ def test_surfaced_vehicle_sends_nothing_acoustic_and_relays_full_fidelity() -> N
                 == "auv1/status"]
     relays = [o.output for o in later if isinstance(o.output, Relay)]
     data, enc = encode_payload({"battery": 66.6, "mode": "transit"}, "msgpack")
-    assert relays == [Relay("auv1/status", data, enc)]  # unquantised, on the output key
+    # unquantised, on the output key, stamped when the bridge took it
+    assert relays == [Relay("auv1/status", data, enc, taken=put_at)]
     snap = f.cores["top"].snapshot(40.0)["surfacing"]
     assert snap["ip_reachable"] == ["auv1"]
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import msgpack
 
 from bridge.core.loaded import load_mission
+from bridge.core.node import NodeCore
 from bridge.gui.model import GuiModel
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
@@ -35,3 +36,14 @@ def test_each_family_member_shows_as_its_own_row() -> None:
                      "application/msgpack", 1.0)
     rows = {i["channel"]: i["value"] for i in model.take() if i["kind"] == "channel"}
     assert rows == {"temps:a": {"celsius": 10.0}, "temps:b": {"celsius": 20.0}}
+
+
+def test_the_page_shows_the_puts_no_channel_reads_at_its_node() -> None:
+    loaded = load_mission(MISSIONS / "zspace.yaml")
+    core = NodeCore(loaded, "top")
+    core.outbound.keyspace.unmapped("top/cmd", 1.0)
+    model = GuiModel(loaded, "top")
+    model.ingest("@zab/zspace/top/stats", msgpack.packb(core.snapshot(2.0)),
+                 "application/msgpack", 2.0)
+    item = next(i for i in model.take() if i["kind"] == "stats")
+    assert item["unmapped"] == ["top/cmd ×1"]

@@ -92,6 +92,7 @@ function apply(item) {
     case "command": state.commands[item.ref] = item; break;
     case "transfer": state.transfers[item.node + "/" + item.channel + "/" + item.id] = item; break;
     case "feed": state.connection = item; break;
+    case "image": imageView.apply(item); break;
     default: break;
   }
   dirty = true;
@@ -112,9 +113,12 @@ function onMessage(event) {
       v.static = node.position;
     }
     setupPage();
+    imageView.reset(message.mission.images);
     message.items.forEach(apply);
   } else if (message.type === "patch") {
     message.items.forEach(apply);
+  } else if (message.type === "reply" && message.request === "image_control") {
+    imageView.onReply(message);
   } else if (message.type === "reply") {
     onReply(message);
   }
@@ -540,6 +544,7 @@ function renderZspace(card, name, self) {
   if (own && name === self) {
     if (own.wanted) parts.push("wants: " + (own.wanted.join(", ") || "nothing"));
     if (own.open_queries) parts.push("open queries: " + (own.open_queries.join(", ") || "none"));
+    if (own.unmapped) parts.push("unmapped puts: " + own.unmapped.join(", "));
   } else if (own && own.ip_reachable && own.ip_reachable.includes(name)) {
     parts.push("surfaced: over IP, not bridged acoustically");
   }
@@ -757,6 +762,7 @@ function frame(t) {
     renderVehicles();
     renderEvents();
     renderCommands();
+    imageView.render();
   } else if (state.mission && mapDirty) {
     renderMap();
   } else if (!state.mission && since > RENDER_MS) {

@@ -7,7 +7,8 @@ Options (``modem.options`` of the mission):
   acknowledge every frame (only for frames with one destination).
 - ``fdp`` (false): send by MM2's flexible data protocol (``$CCTDP``, rates 1–6) instead of the
   legacy cycle; packets of either kind are received all the same (``$CARXD``, ``$CARDP``,
-  ``$CARFP``). An FDP send returns at its ``$CATXF`` (no per-frame acknowledgement).
+  ``$CARFP``, user mini-frames included). An FDP send returns at its ``$CATXF``, or with
+  ``ack`` at the destination's ``$CACDR`` acknowledging every data frame.
 - ``timeout_s`` (5): wait for a command's echo; ``retries`` (3): resends of a command
   (goby: 5 s, 3 tries, reference 2.4 E); ``tx_timeout_s`` (derived from the rate): one whole data
   cycle; ``send_retries`` (2): cycles retried after a failure; ``ping_timeout_s`` (10).
@@ -15,6 +16,14 @@ Options (``modem.options`` of the mission):
   address of frames without one destination, and the one that marks a received frame as
   broadcast. Every Micro-Modem passes every packet to its host anyway (seed 003), so it only
   labels frames, but a fleet must agree on it: ``zab check`` says when a node's address is it.
+- ``ping`` (``mpc``): how :meth:`ping` ranges to another modem, ``mpc`` (``$CCMPC`` →
+  ``$CAMPR``) or ``fdp`` (MM2's FDP ping, ``$CCCMD,PNG`` → ``$CACMR,PNR``).
+- ``lbl``: LBL transponders among the mission's nodes, which :meth:`ping` ranges to by an
+  interrogation (``$CCPDT`` REMUS digital, or ``$CCPNT`` narrowband) → ``$SNTTA``, e.g.
+  ``{beacons: {A: 11, B: 12}, max_range_m: 2000}`` or ``{beacons: {A: 11}, kind: narrowband,
+  tx_hz: 9000, reply_hz: {A: 10000}}`` (:class:`~bridge.modems.micromodem.nav.Transponders`).
+  One interrogation listens for every beacon; the ranges of those not asked for go to
+  ``on_range`` too.
 - ``set_clock`` (``none``): at start-up (and after a reboot) set the modem's clock from the
   host's, ``clk`` with ``$CCCLK`` (MM1 and MM2, 50–100 ms after a second's top, naming the next
   second as goby does) or ``tms`` with MM2's ``$CCTMS``, then read it back with ``$CCTMQ``;
@@ -34,8 +43,8 @@ A line with a bad checksum is counted in ``stats["bad_lines"]`` and dropped. ``$
 USBL) becomes a :class:`~bridge.modems.base.ModemFix` of the node heard last, handed to
 ``on_fix`` (the runtime publishes it; the line has no covariance, so none is given).
 
-:meth:`~bridge.modems.base.ModemBackend.ping` runs the two-way ping (``$CCMPC`` →
-``$CAMPR``) and returns the one-way travel time as a
+:meth:`~bridge.modems.base.ModemBackend.ping` runs the two-way ping (or the LBL
+interrogation of a transponder) and returns the one-way travel time as a
 :class:`~bridge.modems.base.ModemRange` (method ``ping``), also handed to ``on_range``.
 """
 
@@ -54,6 +63,7 @@ from bridge.core.reception import RangingMode
 from bridge.errors import BackendError
 from bridge.mission.presets import UnknownPresetError, get_preset
 from bridge.modems.base import Inbox, ModemBackend, ModemFix, ModemRange, ModemSetup, Reception
+from bridge.modems.micromodem.nav import Transponders, TravelTimes
 from bridge.modems.micromodem.nmea import Sentence
 from bridge.modems.micromodem.protocol import (
     BadSentence,
@@ -88,6 +98,7 @@ DEFAULT_BROADCAST = 0
 """Goby's ``BROADCAST_ID`` (reference 2.x, goby ``mm_driver``): the convention of a mixed
 Goby/zab fleet unless the mission says otherwise."""
 CLOCK_MODES = ("none", "clk", "tms")
+PING_MODES = ("mpc", "fdp")
 RX_QUEUE = 256
 RETRY_BACKOFF_S = 0.5
 
@@ -146,6 +157,8 @@ class MicromodemBackend(ModemBackend):
             self.fdp = bool(opts.get("fdp", False))
             self.set_clock = str(opts.get("set_clock", "none"))
             self.sound_speed = float(opts.get("sound_speed_mps", 1500.0))
+            self.ping_mode = str(opts.get("ping", "mpc"))
+            self.lbl = Transponders.from_option(opts["lbl"]) if opts.get("lbl") else None
             self.protocol = HostProtocol(setup.address)
         except (TypeError, ValueError) as exc:
             raise BackendError(f"{where}: {exc}") from None
@@ -154,6 +167,8 @@ class MicromodemBackend(ModemBackend):
                                f"{self.rate.number}")
         if self.set_clock not in CLOCK_MODES:
             raise BackendError(f"{where}: set_clock must be one of {', '.join(CLOCK_MODES)}")
+        if self.ping_mode not in PING_MODES:
+            raise BackendError(f"{where}: ping must be one of {', '.join(PING_MODES)}")
         self.device = str(opts["device"])
         self.config: dict[str, Any] = dict(opts.get("config") or {})
         # a packet's airtime, cycle-init and travel, with room: [C] estimates (reference 2.6)
@@ -175,6 +190,7 @@ class MicromodemBackend(ModemBackend):
         self._configs: dict[str, asyncio.Future[str]] = {}
         self._transfer: asyncio.Future[TransferDone] | None = None
         self._pinging: tuple[int, asyncio.Future[float]] | None = None
+        self._interrogating: asyncio.Future[TravelTimes] | None = None
         self._clock_reply: asyncio.Future[ClockReply | Clock] | None = None
         self._rx_start: float | None = None
 
@@ -228,15 +244,18 @@ class MicromodemBackend(ModemBackend):
             await transport.close()
 
     async def _ping(self, dest: int) -> ModemRange:
-        """Two-way ping of ``dest`` (``$CCMPC`` → ``$CAMPR``, which gives the one-way travel
-        time [V]); :class:`BackendError` when no reply comes within ``ping_timeout_s``."""
+        """Two-way ping of ``dest`` (``$CCMPC`` → ``$CAMPR``, or ``$CCCMD,PNG`` →
+        ``$CACMR``, each giving the one-way travel time [V]), or the LBL interrogation of the
+        transponder ``dest`` stands for; :class:`BackendError` when no reply comes."""
+        if self.lbl is not None and dest in self.lbl.by_address:
+            return await self._interrogate(dest, self.lbl)
         async with self._lock:
             await self._wait_ready()
             fut: asyncio.Future[float] = asyncio.get_running_loop().create_future()
             self._pinging = (dest, fut)
             try:
                 try:
-                    self.protocol.ping(dest)
+                    self.protocol.ping(dest, fdp=self.ping_mode == "fdp")
                 except ValueError as exc:
                     raise BackendError(f"micromodem {self.setup.node!r}: {exc}") from None
                 await self._flush()
@@ -247,6 +266,35 @@ class MicromodemBackend(ModemBackend):
                                    f"{dest} within {self.ping_timeout_s:g} s") from None
             finally:
                 self._pinging = None
+
+    async def _interrogate(self, dest: int, lbl: Transponders) -> ModemRange:
+        """Interrogate the LBL transponders; the range to ``dest``'s is returned, the others'
+        go to ``on_range``."""
+        async with self._lock:
+            await self._wait_ready()
+            fut: asyncio.Future[TravelTimes] = asyncio.get_running_loop().create_future()
+            self._interrogating = fut
+            wait_s = lbl.window_s + self.timeout_s
+            try:
+                self.protocol.send(lbl.sentence)
+                await self._flush()
+                heard = (await asyncio.wait_for(fut, wait_s)).heard()
+            except TimeoutError:
+                raise BackendError(f"micromodem {self.setup.node!r}: no $SNTTA within "
+                                   f"{wait_s:g} s of the LBL interrogation") from None
+            finally:
+                self._interrogating = None
+        now, ranges = self.clock(), {}
+        for address, beacon in lbl.by_address.items():
+            if beacon in heard:
+                ranges[address] = ModemRange(address, heard[beacon], "ping", now)
+        for address, rng in ranges.items():
+            if address != dest:
+                self._report_range(rng)
+        if dest not in ranges:
+            raise BackendError(f"micromodem {self.setup.node!r}: transponder "
+                               f"{lbl.by_address[dest]} (node {dest}) did not answer")
+        return ranges[dest]
 
     # -- internals -----------------------------------------------------------------------------
 
@@ -419,10 +467,10 @@ class MicromodemBackend(ModemBackend):
                 self.stats["modem_errors"] += 1
                 log.warning("%s: modem error %s %s %s", self, event.module, event.number,
                             event.message)
-                if event.module == "NMEA" or event.module == "CFG":  # goby stops waiting
-                    for fut_cfg in self._configs.values():
-                        if not fut_cfg.done():
-                            fut_cfg.set_exception(BackendError(f"{event.module} error"))
+                if event.module in ("NMEA", "CFG", "NAV"):  # goby stops waiting
+                    self._wake(BackendError(f"micromodem {self.setup.node!r}: the modem "
+                                            f"refused the command ({event.module} "
+                                            f"{event.message})"), transfer=False)
             elif isinstance(event, Revision) and event.init:
                 self.stats["reboots"] += 1
                 log.warning("%s: the modem rebooted; re-initialising", self)
@@ -438,6 +486,10 @@ class MicromodemBackend(ModemBackend):
                     self.stats["bad_crc" if event.bad_crc else "packet_timeout"] += 1
             elif isinstance(event, UsblFix):
                 self._usbl(event)
+            elif isinstance(event, TravelTimes):
+                fut_tta = self._interrogating
+                if fut_tta is not None and not fut_tta.done():
+                    fut_tta.set_result(event)
             elif isinstance(event, BadSentence):
                 self.stats["bad_lines"] += 1
                 log.debug("%s: dropped line %r: %s", self, event.line[:60], event.reason)
@@ -474,13 +526,20 @@ class MicromodemBackend(ModemBackend):
             return
         self._failure = error
         self._ready.set()  # waiters wake and see the failure
+        self._wake(error, transfer=True)
+        with contextlib.suppress(asyncio.QueueFull):
+            self._inbox.put(error)
+
+    def _wake(self, error: BackendError, *, transfer: bool) -> None:
+        """Fail every command waiting for the modem's answer (and the transfer with
+        ``transfer``)."""
         futures: list[asyncio.Future[Any]] = [*self._configs.values()]
-        if self._transfer is not None:
+        if transfer and self._transfer is not None:
             futures.append(self._transfer)
         if self._pinging is not None:
             futures.append(self._pinging[1])
+        if self._interrogating is not None:
+            futures.append(self._interrogating)
         for fut in futures:
             if not fut.done():
                 fut.set_exception(error)
-        with contextlib.suppress(asyncio.QueueFull):
-            self._inbox.put(error)

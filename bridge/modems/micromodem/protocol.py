@@ -24,6 +24,11 @@ Rules (reference section 2):
   gives :class:`PacketLost`.
 * ``$CAUSB2`` (MM2 USBL: azimuth, elevation and one-way travel time of the last reception)
   becomes :class:`UsblFix`, attributed to the sender heard last (the line names no address).
+* Pings: ``$CCMPC`` → ``$CAMPC``/``$CAMPR`` and MM2's FDP ping ``$CCCMD,PNG`` →
+  ``$CACMD``/``$CACMR,PNR`` both give :class:`PingSent`/:class:`PingReply` (``$CAMPA`` and
+  ``$CACMA`` :class:`Pinged`); an LBL interrogation (``$CCPDT``/``$CCPNT``) is answered by
+  ``$SNTTA``, :class:`~bridge.modems.micromodem.nav.TravelTimes`. With ack, an FDP packet is
+  done at its ``$CACDR`` (:class:`FdpAck`).
 * ``$CAREV,…,INIT`` means the modem rebooted: any transfer fails and ``needs_init`` is set.
 """
 
@@ -35,6 +40,7 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
+from bridge.modems.micromodem.nav import TravelTimes, travel_times
 from bridge.modems.micromodem.nmea import LineBuffer, NmeaError, Sentence, parse_sentence
 from bridge.modems.micromodem.rates import FDP_RATES, get_rate
 from bridge.modems.protocol import NEED_DATA, NeedData
@@ -49,6 +55,7 @@ __all__ = [
     "CycleInit",
     "DataRequest",
     "Event",
+    "FdpAck",
     "FdpEcho",
     "FdpFrame",
     "FdpReceived",
@@ -291,6 +298,19 @@ class FdpEcho:
 
 
 @dataclass(frozen=True)
+class FdpAck:
+    """``$CACDR,time,seq,src,dest,minirate,mini_ack,data_ack``: node ``src`` acknowledged our
+    FDP packet ``seq``; the acks are bit masks of its mini- and data frames (pyacomms' field
+    names; hex [U])."""
+
+    seq: int
+    src: int
+    dest: int
+    mini_mask: int
+    data_mask: int
+
+
+@dataclass(frozen=True)
 class FdpFrame:
     """One frame of an FDP packet: ``crc_ok;nbytes;hex``."""
 
@@ -403,8 +423,8 @@ class PacketLost:
 Event = (
     Revision | Config | CycleInit | DataRequest | TxData | TxStart | TxFrame | RxStart | RxData
     | Ack | ModemMessage | ModemError | PingSent | Pinged | PingReply | MiniPacket | Sleep | Clock
-    | ClockReply | ApiLevel | FdpEcho | FdpReceived | UsblFix | TxStats | RxStats | Unhandled
-    | BadSentence | TransferDone | TransferFailed | Packet | PacketLost
+    | ClockReply | ApiLevel | FdpEcho | FdpAck | FdpReceived | UsblFix | TravelTimes | TxStats
+    | RxStats | Unhandled | BadSentence | TransferDone | TransferFailed | Packet | PacketLost
 )
 
 
@@ -471,14 +491,6 @@ def _err(f: tuple[str, ...]) -> ModemError:
     return ModemError(f[0], f[1], number, ",".join(f[3:]))
 
 
-def _mpr(f: tuple[str, ...]) -> PingReply:
-    _need(f, 3)
-    owtt = float(f[2])
-    if not 0.0 <= owtt < 1e4:
-        raise ValueError(f"travel time {owtt} out of range")
-    return PingReply(_addr(f[0]), _addr(f[1]), owtt)
-
-
 def _mini(kind: str) -> Callable[[tuple[str, ...]], MiniPacket]:
     def build(f: tuple[str, ...]) -> MiniPacket:
         _need(f, 3)
@@ -532,6 +544,49 @@ def _tdp(f: tuple[str, ...]) -> FdpEcho:
     return FdpEcho(int(f[0]), int(f[1]), _addr(f[2]), _count(f[3], 0, 6), _flag(f[4]))
 
 
+def _cdr(f: tuple[str, ...]) -> FdpAck:
+    _need(f, 7)
+    return FdpAck(_count(f[1], 0, 255), _addr(f[2]), _addr(f[3]), int(f[5], 16), int(f[6], 16))
+
+
+def _cmd(f: tuple[str, ...]) -> PingSent | PingReply | None:
+    """``$CACMD,PNG,src,dest,rate,cdr,nbytes``: the echo of an FDP ping (a real MM2's line);
+    ``$CACMD,time,PNR,src,dest,owtt,…``: its reply on firmware before 3.0 (pyacomms)."""
+    if f and f[0] == "PNG":
+        _need(f, 6)
+        return PingSent(_addr(f[1]), _addr(f[2]))
+    if len(f) > 1 and f[1] == "PNR":
+        return _owtt(f[2:])
+    return None
+
+
+def _cma(f: tuple[str, ...]) -> Pinged | None:
+    """``$CACMA,time,PNG,src,dest,…`` (a real MM2's line; pyacomms reads time and type the
+    other way round from firmware 3.0 on): an FDP ping heard, to us or not."""
+    if "PNG" not in f[:2]:
+        return None
+    _need(f, 4, at_least=True)
+    return Pinged(_addr(f[2]), _addr(f[3]))
+
+
+def _cmr(f: tuple[str, ...]) -> PingReply | None:
+    """``$CACMR,PNR,time,src,dest,owtt,snr_in,snr_out,tx_level,reserved,timing`` (a real
+    MM2's line): ``src`` answered the FDP ping of ``dest``."""
+    if not f or f[0] != "PNR":
+        return None
+    _need(f, 10)
+    return _owtt(f[2:])
+
+
+def _owtt(f: tuple[str, ...], at_least: bool = True) -> PingReply:
+    """``src,dest,owtt,…`` as a :class:`PingReply`."""
+    _need(f, 3, at_least)
+    owtt = float(f[2])
+    if not 0.0 <= owtt < 1e4:
+        raise ValueError(f"travel time {owtt} out of range")
+    return PingReply(_addr(f[0]), _addr(f[1]), owtt)
+
+
 def _usb2(f: tuple[str, ...]) -> UsblFix:
     _need(f, 15, at_least=True)
     owtt = float(f[4])
@@ -552,7 +607,7 @@ def _fixed(n: int, build: Callable[..., Event], *kinds: Callable[[str], object],
     return parse
 
 
-_PARSERS: dict[str, Callable[[tuple[str, ...]], Event]] = {
+_PARSERS: dict[str, Callable[[tuple[str, ...]], Event | None]] = {
     "CAREV": _fixed(3, Revision),
     "CACFG": _fixed(2, Config),
     "CACYC": _cyc,
@@ -567,7 +622,7 @@ _PARSERS: dict[str, Callable[[tuple[str, ...]], Event]] = {
     "CAERR": _err,
     "CAMPC": _fixed(2, PingSent, _addr, _addr),
     "CAMPA": _fixed(2, Pinged, _addr, _addr),
-    "CAMPR": _mpr,
+    "CAMPR": lambda f: _owtt(f, at_least=False),
     "CAMUC": _mini("echo"),
     "CAMUA": _mini("received"),
     "CAMUR": _mini("reply"),
@@ -580,17 +635,22 @@ _PARSERS: dict[str, Callable[[tuple[str, ...]], Event]] = {
     "CARDP": _rdp,
     "CARFP": _rfp,
     "CAUSB2": _usb2,
+    "CACDR": _cdr,
+    "CACMD": _cmd,
+    "CACMA": _cma,
+    "CACMR": _cmr,
+    "SNTTA": travel_times,
     "CAXST": TxStats,
     "CACST": RxStats,
 }
 
 
 def parse_event(sentence: Sentence) -> Event:
-    """The event for one sentence; ``ValueError`` if its fields do not fit its type."""
+    """The event for one sentence (:class:`Unhandled` for one of no use here, such as a
+    ``$CACMD`` of another mode); ``ValueError`` if its fields do not fit its type."""
     parser = _PARSERS.get(sentence.name)
-    if parser is None:
-        return Unhandled(sentence)
-    return parser(sentence.fields)
+    event = parser(sentence.fields) if parser is not None else None
+    return Unhandled(sentence) if event is None else event
 
 
 # -- the state machine ---------------------------------------------------------------------
@@ -686,9 +746,15 @@ class HostProtocol:
         """``$CCCFQ,key``; answered by one :class:`Config` per key."""
         self.send(Sentence("CC", "CFQ", (key,)))
 
-    def ping(self, dest: int) -> None:
-        """``$CCMPC,us,dest``: two-way ping; the answer is :class:`PingReply`."""
-        self.send(Sentence("CC", "MPC", (str(self.address), str(_addr(str(dest))))))
+    def ping(self, dest: int, fdp: bool = False) -> None:
+        """A two-way ping, ``$CCMPC,us,dest`` or with ``fdp`` MM2's ``$CCCMD,PNG,us,dest,1,0``
+        (rate 1, no data: the form pyacomms sends to firmware before 3.0); the answer is
+        :class:`PingReply`."""
+        me, to = str(self.address), str(_addr(str(dest)))
+        if fdp:
+            self.send(Sentence("CC", "CMD", ("PNG", me, to, "1", "0")))
+        else:
+            self.send(Sentence("CC", "MPC", (me, to)))
 
     def reboot(self) -> None:
         """``$CCMSC,us,us,0``: reboot now (the modem then prints ``$CAREV,…,INIT``)."""
@@ -789,7 +855,16 @@ class HostProtocol:
             self._on_fdp(event)
         elif isinstance(event, TxFrame) and t is not None and t.fdp:
             if t.state is TransferState.WAIT_SENT:  # an FDP packet ends at its $CATXF
-                self._finish(acked=False)
+                if t.ack:
+                    t.state = TransferState.WAIT_ACKS
+                else:
+                    self._finish(acked=False)
+        elif isinstance(event, FdpAck) and t is not None and t.fdp:
+            # every data frame acknowledged, by the packet's destination, to us
+            every = (1 << get_rate(t.rate).frames_for(len(t.frames[0]))) - 1
+            if (t.state is TransferState.WAIT_ACKS and event.src == t.dest
+                    and event.dest == self.address and event.data_mask & every == every):
+                self._finish(acked=True)
         elif isinstance(event, TxFrame) and t is not None:
             if t.state is TransferState.WAIT_CYCLE_INIT:
                 t.state = TransferState.WAIT_REQUEST

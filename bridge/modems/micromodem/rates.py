@@ -8,14 +8,16 @@ costs as much as a full one.
 
 MM2's flexible data protocol (FDP, ``$CCTDP``) carries the data of one packet in the same
 frames: pyacomms' ``FDPDataRates`` gives 3×64, 2×256 and 8×256 bytes at rates 1, 3 and 5
-[V], the legacy table's figures; rates 2, 4 and 6 take theirs likewise [C].
+[V], the legacy table's figures; rates 2, 4 and 6 take theirs likewise [C]. An FDP packet sent
+by ``$CCTFP`` may also carry user mini-frames, at rates 1, 3 and 5 one frame of up to 90 bytes
+(pyacomms 3.1.1 ``FDPMiniRates`` [V]; the reference's 64/60/55 B came from another version).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["FDP_RATES", "RATES", "Rate", "frame_bytes_for_rate", "get_rate"]
+__all__ = ["FDP_MINI_BYTES", "FDP_RATES", "RATES", "Rate", "frame_bytes_for_rate", "get_rate"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,9 @@ RATES: dict[int, Rate] = {
 
 FDP_RATES = frozenset(n for n in RATES if n > 0)
 """Rates an FDP packet (``$CCTDP``) may use: the PSK ones (rate 0 is FH-FSK)."""
+
+FDP_MINI_BYTES = {1: 90, 3: 90, 5: 90}
+"""User bytes an FDP packet's mini-frame carries, by its rate (one mini-frame per packet)."""
 
 
 def get_rate(number: int) -> Rate:

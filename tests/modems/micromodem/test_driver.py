@@ -51,6 +51,7 @@ class Bench:
 
 @contextlib.asynccontextmanager
 async def bench(tmp_path: Path, addresses: tuple[int, ...] = (1, 2),
+                transponders: dict[int, str] | None = None,
                 **emulator_options: Any) -> AsyncIterator[Bench]:
     water = WaterService(FAST, seed=1, positions={a: POSITIONS[a] for a in addresses})
     await water.start()
@@ -59,8 +60,10 @@ async def bench(tmp_path: Path, addresses: tuple[int, ...] = (1, 2),
     b = Bench(water, emulators, devices)
     try:
         for a in addresses:
-            setup = ModemSetup(node=f"n{a}", address=a, frame_bytes=32,
-                               options={"water": f"127.0.0.1:{water.port}"},
+            options = {"water": f"127.0.0.1:{water.port}"}
+            if transponders and a in transponders:  # the node stands for an LBL transponder
+                options["transponder"] = transponders[a]
+            setup = ModemSetup(node=f"n{a}", address=a, frame_bytes=32, options=options,
                                position=POSITIONS[a])
             emulators[a] = MicromodemEmulator(setup, link=tmp_path / f"mm{a}",
                                               dto_s=1.0, **emulator_options)
@@ -156,6 +159,82 @@ def test_ping_range(tmp_path: Path) -> None:
             assert len(heard) == 2  # failures report nothing
             await a.send(b"still fine", 2)  # a missing reply leaves the modem usable
             assert (await asyncio.wait_for(c.recv(), 2)).data == b"still fine"
+
+    run(main)
+
+
+def test_fdp_ping_range(tmp_path: Path) -> None:
+    """``ping: fdp``: MM2's FDP ping ($CCCMD,PNG → $CACMR,PNR) gives the same ranges."""
+    async def main() -> None:
+        async with bench(tmp_path, (1, 2, 3)) as b:
+            a = await b.modem(1, ping="fdp", ping_timeout_s=1.0)
+            await b.modem(2)
+            rng = await a.ping(2)
+            assert (rng.peer, rng.method) == (2, "ping")
+            assert rng.travel_time_s == pytest.approx(300.0 / 1500.0, abs=2e-4)
+            assert (await a.ping(3)).travel_time_s == pytest.approx(450.0 / 1500.0, abs=2e-4)
+            with pytest.raises(BackendError, match="no ping reply from 9"):
+                await a.ping(9)
+            with pytest.raises(BackendError, match="ping must be one of"):
+                b.backend(1, ping="usbl")
+
+    run(main)
+
+
+@pytest.mark.parametrize("lbl", [
+    {"beacons": {"A": 2, "B": 3}, "max_range_m": 500},
+    {"beacons": {"A": 2, "B": 3}, "max_range_m": 500, "kind": "narrowband", "tx_hz": 9000,
+     "reply_hz": {"A": 10000, "B": 10500}},
+], ids=["remus", "narrowband"])
+def test_lbl_transponders_range_as_pings(tmp_path: Path, lbl: dict[str, Any]) -> None:
+    """Nodes 2 and 3 stand for LBL transponders A and B: a ping to either is one
+    interrogation ($CCPDT or $CCPNT → $SNTTA), whose other range goes to on_range too."""
+    async def main() -> None:
+        async with bench(tmp_path, (1, 2, 3), transponders={2: "A", 3: "B"},
+                         nav_late_s=0.3) as b:
+            a = await b.modem(1, lbl=lbl)
+            heard: list[ModemRange] = []
+            a.on_range = heard.append
+            rng = await a.ping(2)
+            assert (rng.peer, rng.method) == (2, "ping")
+            assert rng.travel_time_s == pytest.approx(300.0 / 1500.0, abs=2e-4)
+            assert [(r.peer, round(r.travel_time_s, 3)) for r in heard] == [(3, 0.3), (2, 0.2)]
+            assert a.stats["ranges"] == 2
+            b.water.ocean.set_position(3, (0.0, 600.0, 10.0))  # beyond the 717 ms window
+            with pytest.raises(BackendError, match=r"transponder B \(node 3\) did not answer"):
+                await a.ping(3)
+            assert heard[-1].peer == 2 and a.stats["ranges"] == 3
+
+    run(main)
+
+
+def test_lbl_option_is_checked(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with bench(tmp_path, (1,)) as b:
+            for bad, why in (({"beacons": {"E": 2}}, "letters of ABCD"),
+                             ({"beacons": {"A": 2, "B": 2}}, "two beacons"),
+                             ({"beacons": {"A": 2}, "kind": "usbl"}, "remus or narrowband"),
+                             ({"beacons": {"A": 2}, "kind": "narrowband"}, "reply_hz"),
+                             ({"beacons": {"A": 2}, "range": 9}, "unknown keys")):
+                with pytest.raises(BackendError, match=why):
+                    b.backend(1, lbl=bad)
+
+    run(main)
+
+
+def test_fdp_with_ack_waits_for_the_acknowledgement(tmp_path: Path) -> None:
+    """An FDP packet with ack returns once the destination's modem acknowledged every data
+    frame ($CACDR); to nobody, it fails."""
+    async def main() -> None:
+        async with bench(tmp_path) as b:
+            a = await b.modem(1, rate=1, fdp=True, ack=True, frame_bytes=192, send_retries=0,
+                              tx_timeout_s=1.5)
+            c = await b.modem(2, rate=1, frame_bytes=192)
+            assert await a.send(bytes(range(150)), 2) is True  # three frames acknowledged
+            assert (await asyncio.wait_for(c.recv(), 2)).data == bytes(range(150))
+            with pytest.raises(BackendError, match="not acknowledged"):
+                await a.send(b"nobody", 9)
+            assert await a.send(b"to all", None) is None  # a broadcast asks for no ack
 
     run(main)
 

@@ -6,6 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bridge.modems.micromodem import nav
+from bridge.modems.micromodem.nav import TravelTimes
 from bridge.modems.micromodem.nmea import Sentence, parse_sentence
 from bridge.modems.micromodem.protocol import (
     Ack,
@@ -16,6 +18,7 @@ from bridge.modems.micromodem.protocol import (
     Config,
     CycleInit,
     DataRequest,
+    FdpAck,
     FdpEcho,
     FdpFrame,
     FdpReceived,
@@ -101,16 +104,36 @@ CASES = [
      TxStats(("7", "20250606", "230103.000935", "3", "0", "200", "5000", "25000", "1", "0",
               "1", "0", "0", "1", "5", "2", "25000"))),
     ("$CACST,8,0,20250606230123.348554,06", RxStats(("8", "0", "20250606230123.348554", "06"))),
-    ("$SNTTA,0.1,0.2,,,120000.00", Unhandled(Sentence("SN", "TTA",
-                                                      ("0.1", "0.2", "", "", "120000.00")))),
+    # LBL travel times (goby, pyacomms, libumutil layout [C line]): C and D not heard
+    ("$SNTTA,0.1,0.2,,,120000.00", TravelTimes((0.1, 0.2, None, None), "120000.00")),
     # recorded real lines (reference 2.1): MM1's 28-field $CACST, MM2's v8 $CACST and v7 $CAXST
     (MM1_CST, RxStats(tuple(MM1_CST.split("*")[0].split(",")[1:]))),
     (MM2_CST, RxStats(tuple(MM2_CST.split("*")[0].split(",")[1:]))),
     ("$CAXST,7,20250606,230117.336548,3,0,200,5000,25000,1,0,0,0,0,8,5,28,25000*66",
      TxStats(("7", "20250606", "230117.336548", "3", "0", "200", "5000", "25000", "1", "0",
               "0", "0", "0", "8", "5", "28", "25000"))),
-    ("$CACMD,PNG,0,1,1,0,3*22", Unhandled(Sentence("CA", "CMD", ("PNG", "0", "1", "1", "0",
-                                                                  "3")))),
+    # MM2's FDP ping, recorded real lines (reference 2.1): our echo, heard at 1, 1 answered 0
+    ("$CACMD,PNG,0,1,1,0,3*22", PingSent(0, 1)),
+    ("$CACMA,2025-03-17T17:16:29.639994,PNG,0,1,56.7,6.62,3,0,0*74", Pinged(0, 1)),
+    ("$CACMR,PNR,2025-05-29T15:09:05.461473,1,0,0.001997,6.3,7.65,1,0,*41",
+     PingReply(1, 0, 0.001997)),
+    # ... and pyacomms' other layouts [C lines]: $CACMA type first (firmware 3.0 on), the reply
+    # as $CACMD before 3.0
+    ("$CACMA,PNG,2025-03-17T17:16:29.639994,0,1,56.7,6.62,3,0,0", Pinged(0, 1)),
+    ("$CACMD,2025-05-29T15:09:05.461473,PNR,1,0,0.0125,6.3,7.65,1,0,0", PingReply(1, 0, 0.0125)),
+    # an FDP acknowledgement, pyacomms' layout [C line, hex masks U]: frames 1-3 of packet 12
+    ("$CACDR,2025-05-29T15:09:05.461473,12,2,9,-1,00,0007", FdpAck(12, 2, 9, 0, 7)),
+    # what this driver has no use for passes as unhandled, not as a bad line [C lines]
+    ("$CACMD,RLS,1,2", Unhandled(Sentence("CA", "CMD", ("RLS", "1", "2")))),
+    ("$SNPDT,1,1,0,0,2716,1,1,0,0", Unhandled(Sentence("SN", "PDT", (
+        "1", "1", "0", "0", "2716", "1", "1", "0", "0")))),
+    ("$SNPNT,120000,9000,10,10,2716,10000,0,0,0,1", Unhandled(Sentence("SN", "PNT", (
+        "120000", "9000", "10", "10", "2716", "10000", "0", "0", "0", "1")))),
+    ("$CAMEC,1,1,5,0,1", Unhandled(Sentence("CA", "MEC", ("1", "1", "5", "0", "1")))),
+    ("$CAMER,2,1,6,1,1", Unhandled(Sentence("CA", "MER", ("2", "1", "6", "1", "1")))),
+    ("$CARSP,0,2,0", Unhandled(Sentence("CA", "RSP", ("0", "2", "0")))),
+    ("$CATFP,0,7,2,1,1,1,0", Unhandled(Sentence("CA", "TFP", ("0", "7", "2", "1", "1", "1",
+                                                             "0")))),
     # MM2 FDP: the real $CARFP of a ping (only the modem's own mini-frame: no user data) and
     # constructed lines in the layouts of goby ($CARDP) and pyacomms ($CATDP)
     ("$CARFP,2025-05-29T15:26:07.286444,0,1,0,1,-1,0,0,1;6;0801000700ff,,*01",
@@ -347,6 +370,24 @@ def test_fdp_transfer_and_reception_beside_legacy() -> None:
         "modem refused the FDP packet ($CATDP error 1)")
 
 
+def test_fdp_with_ack_ends_at_its_acknowledgement() -> None:
+    """With ack, an FDP packet is done when its destination acknowledged every data frame."""
+    proto = HostProtocol(1)
+    proto.start_fdp(2, bytes(150), 1, True)  # three 64-byte frames at rate 1
+    assert sent(proto) == ["$CCTDP,2,1,1,0," + "00" * 150]
+    cycle(proto, ["$CATDP,0,3,2,1,1,0", "$CATXP,150", "$CATXF,150"])
+    assert proto.transfer_state is TransferState.WAIT_ACKS
+    stamp = "2025-05-29T15:09:05.461473"
+    assert not any(isinstance(e, TransferDone) for e in cycle(proto, [
+        f"$CACDR,{stamp},3,4,1,-1,00,0007",  # another node's
+        f"$CACDR,{stamp},3,2,5,-1,00,0007",  # to another node
+        f"$CACDR,{stamp},3,2,1,-1,00,0003"]))  # frame 3 missing
+    assert cycle(proto, [f"$CACDR,{stamp},3,2,1,-1,00,0007"])[-1] == TransferDone(2, 1, True)
+    # user mini-frames ($CCTFP) arrive in $CARFP's user field, joined before the data
+    got = cycle(proto, [f"$CARFP,{stamp},4,2,1,1,1,0,0,,1;2;0A0B,1;1;0C"])
+    assert got[-1] == Packet(2, 1, False, 1, 2, b"\x0a\x0b\x0c")
+
+
 def test_packet_timeout_loses_the_packet_and_usbl_names_the_last_sender() -> None:
     proto = HostProtocol(1)
     got = cycle(proto, ["$CACYC,0,4,1,0,0,1", "$CAMSG,PACKET_TIMEOUT,1", USB2])
@@ -362,10 +403,29 @@ def test_commands() -> None:
     proto.configure("CST", True)
     proto.query("SRC")
     proto.ping(4)
+    proto.ping(5, fdp=True)
     proto.reboot()
     assert sent(proto) == ["$CCCFG,SRC,3", "$CCCFG,CST,1", "$CCCFQ,SRC", "$CCMPC,3,4",
-                           "$CCMSC,3,3,0"]
+                           "$CCCMD,PNG,3,5,1,0", "$CCMSC,3,3,0"]
     assert proto.data_to_send() == b""
+
+
+def test_lbl_sentences() -> None:
+    """The interrogations the driver writes, goby's window, and ``$SNTTA`` as printed."""
+    assert nav.window_ms(2000, 50) == 2716
+    assert nav.remus(1, 2716, {"A", "c"}).to_line(with_checksum=False) == (
+        "$CCPDT,1,1,0,0,2716,1,0,1,0")
+    assert nav.narrowband(9000, 10, 2716, {"B": 10500}).to_line(with_checksum=False) == (
+        "$CCPNT,9000,10,10,2716,0,10500,0,0,1")
+    assert nav.tta({"A": 0.2, "D": 1.25}, 86400 * 3 + 12 * 3600 + 5.678).to_line(
+        with_checksum=False) == "$SNTTA,0.2000,,,1.2500,120005.67"
+    asked = nav.interrogation(nav.narrowband(9000, 10, 500, {"B": 10500}))
+    assert (asked.listen, asked.window_s, asked.transmit) == ((False, True, False, False), 0.5,
+                                                              True)
+    for bad in (lambda: nav.remus(5, 100, {"A"}), lambda: nav.remus(1, 100, {"E"}),
+                lambda: nav.narrowband(9000, 10, 100, {"A": 0})):
+        with pytest.raises(ValueError):
+            bad()
 
 
 @settings(max_examples=300, deadline=None)

@@ -1,0 +1,377 @@
+"""Progressive images (issue #30): zab's coder against JPEG 2000 and JPEG at 200 B … 6.4 kB.
+
+Pictures: scikit-image's bundled ones, centre-cropped to 4:3 and scaled (Lanczos) to 320×240
+— grey (camera, moon, coins, clock, and the greys of astronaut, coffee, chelsea, rocket) and
+colour (astronaut, coffee, chelsea, rocket, immunohistochemistry) — and synthetic underwater
+scenes (:func:`bridge.image.synthetic.seabed`: low contrast, blue-green cast, marine snow) at
+160×120, 320×240 and 640×480, grey and colour.
+
+For each budget, whole streams with their headers: zab's stream cut to the budget; JPEG 2000
+encoded for the budget by OpenJPEG (glymur, a raw ``.j2k`` codestream, the compression ratio
+lowered until it fits); baseline JPEG at the best quality that fits (Pillow, optimized
+tables; ``—`` where none does). PSNR and SSIM (scikit-image) of the luma for colour. Then
+the region of interest (a centred quarter of the picture): its PSNR without ROI coding, with
+a plain shift (every coefficient whose footprint touches the ROI raised alike), with zab's
+(raised by the share of its footprint in the ROI), and coded alone as its own picture (the
+most any ROI coding can give); the rest's PSNR beside. Then encode + decode time (best of
+N) against OpenJPEG's (through files in a temporary folder), and how far the stream's own distortion
+estimate is from the truth.
+
+``--links`` runs the image channel itself, on the virtual clock (``FastFleet``): seed 002's
+link (``deploy/missions/bluerov_images.yaml``: the polled S100 RF link, a reply every 640 ms)
+and the MORPH mission (``morph.yaml`` with an image channel from cv1 to the ssv added: TDMA,
+a 64-byte frame per 7.5 s cycle), refinements published at every fragment: the time from the
+JPEG put on the vehicle to the first picture of ≥ 22 dB at the receiver (grey 160×120) and
+to the whole 1.6 kB stream, and the longest gap between two status values meanwhile against
+the link's degraded-after bound.
+
+Run: ``uv run --group bench python bench/image_bench.py [--quick] [--links]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from itertools import pairwise
+from pathlib import Path
+
+import glymur
+import numpy as np
+import skimage.data
+from PIL import Image
+from skimage.metrics import structural_similarity
+
+import bridge.image.geometry as geometry_module
+from bridge.image.codec import decode, encode
+from bridge.image.geometry import Roi
+from bridge.image.synthetic import seabed
+
+BUDGETS = (200, 400, 800, 1600, 3200, 6400)
+GREY = ("camera", "moon", "coins", "clock")
+COLOUR = ("astronaut", "coffee", "chelsea", "rocket", "immunohistochemistry")
+J2K_MEAN_IN_ISSUE = {200: 20.3, 400: 24.6, 800: 27.0, 1600: 29.5, 6400: 37.1}
+
+
+def prepare(array: np.ndarray, width: int = 320, height: int = 240,
+            grey: bool = False) -> np.ndarray:
+    """Centre-crop to ``width:height`` and scale with Lanczos."""
+    image = Image.fromarray(array)
+    if grey:
+        image = image.convert("L")
+    w, h = image.size
+    if w / h > width / height:
+        cw = round(h * width / height)
+        image = image.crop(((w - cw) // 2, 0, (w - cw) // 2 + cw, h))
+    else:
+        ch = round(w * height / width)
+        image = image.crop((0, (h - ch) // 2, w, (h - ch) // 2 + ch))
+    return np.asarray(image.resize((width, height), Image.Resampling.LANCZOS))
+
+
+def luma(x: np.ndarray) -> np.ndarray:
+    x = x.astype(np.float64)
+    return x if x.ndim < 3 else x @ np.array([0.299, 0.587, 0.114])
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((luma(a) - luma(b)) ** 2))
+    return 10 * np.log10(255 ** 2 / max(mse, 1e-6))
+
+
+def ssim(a: np.ndarray, b: np.ndarray) -> float:
+    return float(structural_similarity(luma(a), luma(b), data_range=255))
+
+
+def ours(pixels: np.ndarray, budget: int) -> np.ndarray:
+    return decode(encode(pixels, budget)).pixels
+
+
+def jpeg2000(pixels: np.ndarray, budget: int, folder: Path) -> np.ndarray | None:
+    path = folder / "x.j2k"
+    ratio = pixels.size / budget
+    for _ in range(40):
+        glymur.Jp2k(str(path), data=pixels, cratios=[ratio])
+        size = path.stat().st_size
+        if size <= budget:
+            return np.asarray(glymur.Jp2k(str(path))[:])
+        ratio *= size / budget * 1.02
+    return None
+
+
+def jpeg(pixels: np.ndarray, budget: int) -> np.ndarray | None:
+    """Baseline JPEG at the best quality that fits (binary search), or None."""
+    image = Image.fromarray(pixels)
+    best = None
+    lo, hi = 1, 95
+    while lo <= hi:
+        quality = (lo + hi) // 2
+        out = io.BytesIO()
+        image.save(out, format="JPEG", quality=quality, optimize=True)
+        if out.tell() <= budget:
+            best, lo = out.getvalue(), quality + 1
+        else:
+            hi = quality - 1
+    return None if best is None else np.asarray(Image.open(io.BytesIO(best)))
+
+
+def pictures() -> dict[str, list[np.ndarray]]:
+    data = skimage.data
+    grey = [prepare(getattr(data, n)()) for n in GREY]
+    grey += [prepare(getattr(data, n)(), grey=True) for n in COLOUR[:4]]
+    return {
+        "grey 320×240 (scikit-image)": grey,
+        "colour 320×240 (scikit-image, luma)": [prepare(getattr(data, n)()) for n in COLOUR],
+        "underwater grey 160×120": [seabed(120, 160, s, colour=False) for s in range(3)],
+        "underwater colour 320×240 (luma)": [seabed(240, 320, s) for s in range(3)],
+        "underwater colour 640×480 (luma)": [seabed(480, 640, s) for s in range(2)],
+    }
+
+
+def quality_tables(sets: dict[str, list[np.ndarray]], folder: Path) -> dict[str, dict]:
+    results: dict[str, dict] = {}
+    for name, images in sets.items():
+        print(f"\n{name}: mean PSNR dB / SSIM ({len(images)} pictures)")
+        print(f"{'bytes':>6} | {'zab':>13} | {'JPEG 2000':>13} | {'JPEG':>15} | zab − J2K")
+        rows = {}
+        for budget in BUDGETS:
+            scores: dict[str, list[tuple[float, float]]] = {"zab": [], "j2k": [], "jpeg": []}
+            for pixels in images:
+                for key, decoded in (("zab", ours(pixels, budget)),
+                                     ("j2k", jpeg2000(pixels, budget, folder)),
+                                     ("jpeg", jpeg(pixels, budget))):
+                    if decoded is not None:
+                        scores[key].append((psnr(pixels, decoded), ssim(pixels, decoded)))
+            cells = []
+            means = {}
+            for key in ("zab", "j2k", "jpeg"):
+                got = scores[key]
+                if len(got) == len(images):
+                    means[key] = statistics.fmean(p for p, _ in got)
+                    cells.append(f"{means[key]:5.2f} / {statistics.fmean(s for _, s in got):.3f}")
+                else:
+                    cells.append(f"{'—':>5} ({len(got)}/{len(images)} fit)")
+            delta = means["zab"] - means["j2k"] if "j2k" in means else float("nan")
+            print(f"{budget:>6} | {cells[0]:>13} | {cells[1]:>13} | {cells[2]:>15} | "
+                  f"{delta:+.2f}")
+            rows[budget] = means
+        results[name] = rows
+    return results
+
+
+def roi_table(name: str, images: list[np.ndarray]) -> dict[int, dict[str, float]]:
+    print(f"\nROI: a centred quarter of {name}, mean PSNR dB inside (outside)")
+    print(f"{'bytes':>6} | {'no ROI':>13} | {'plain shift':>13} | {'zab ROI':>13} | "
+          f"{'ROI alone':>9} | gain plain, zab")
+    inside = (slice(60, 180), slice(80, 240))
+    outside = np.ones((240, 320), dtype=bool)
+    outside[inside] = False
+    roi = Roi.from_fractions(0.25, 0.25, 0.75, 0.75)
+    out = {}
+    for budget in (400, 800, 1600, 3200):
+        cols: dict[str, tuple[float, float]] = {}
+        for key, full in (("none", None), ("plain", 1e-9), ("zab", geometry_module.FULL)):
+            ins, outs = [], []
+            for pixels in images:
+                if full is None:
+                    decoded = ours(pixels, budget)
+                else:
+                    saved, geometry_module.FULL = geometry_module.FULL, full
+                    try:
+                        decoded = decode(encode(pixels, budget, roi)).pixels
+                    finally:
+                        geometry_module.FULL = saved
+                ins.append(psnr(pixels[inside], decoded[inside]))
+                outs.append(psnr(pixels[outside], decoded[outside]))
+            cols[key] = (statistics.fmean(ins), statistics.fmean(outs))
+        alone = statistics.fmean(psnr(p[inside], ours(np.ascontiguousarray(p[inside]), budget))
+                                 for p in images)
+        base = cols["none"][0]
+        print(f"{budget:>6} | " + " | ".join(f"{cols[k][0]:5.2f} ({cols[k][1]:5.2f})"
+                                             for k in ("none", "plain", "zab"))
+              + f" | {alone:9.2f} | {cols['plain'][0] - base:+.2f}, {cols['zab'][0] - base:+.2f}"
+              + f"  (most: {alone - base:+.2f})")
+        out[budget] = {"none": base, "plain": cols["plain"][0], "zab": cols["zab"][0],
+                       "alone": alone}
+    return out
+
+
+def best_ms(fn: Callable[[], object], repeat: int) -> float:
+    """The least CPU time of ``repeat`` calls (CPU, not wall: the machine is shared)."""
+    best = float("inf")
+    for _ in range(repeat):
+        start = time.process_time()
+        fn()
+        best = min(best, time.process_time() - start)
+    return best * 1000
+
+
+def timing_table(grey: np.ndarray, colour: np.ndarray, folder: Path,
+                 repeat: int) -> dict[str, dict[int, float]]:
+    print(f"\nencode + decode, CPU ms (best of {repeat}), 320×240; OpenJPEG through files")
+    print(f"{'bytes':>6} | {'zab grey':>8} | {'J2K grey':>8} | {'ratio':>5} | "
+          f"{'zab colour':>10} | {'J2K colour':>10} | {'ratio':>5}")
+    path = folder / "t.j2k"
+    out: dict[str, dict[int, float]] = {"grey": {}, "colour": {}}
+    for budget in BUDGETS:
+        cells = []
+        for key, pixels in (("grey", grey), ("colour", colour)):
+            stream = encode(pixels, budget)
+            ms = best_ms(lambda p=pixels, s=stream, b=budget: (encode(p, b), decode(s)), repeat)
+            ratio = pixels.size / budget
+
+            def j2k(p: np.ndarray = pixels, r: float = ratio) -> None:
+                glymur.Jp2k(str(path), data=p, cratios=[r])
+                glymur.Jp2k(str(path))[:]
+
+            cells += [ms, best_ms(j2k, repeat)]
+            out[key][budget] = ms
+        print(f"{budget:>6} | {cells[0]:8.1f} | {cells[1]:8.1f} | {cells[0] / cells[1]:5.2f} | "
+              f"{cells[2]:10.1f} | {cells[3]:10.1f} | {cells[2] / cells[3]:5.2f}")
+    return out
+
+
+def estimate_table(images: list[np.ndarray]) -> None:
+    print("\nthe stream's own distortion estimate − the truth, PSNR dB (grey 320×240)")
+    print(f"{'bytes':>6} | {'mean':>6} | {'worst':>6}")
+    streams = [encode(p, BUDGETS[-1]) for p in images]
+    for budget in BUDGETS:
+        errors = []
+        for pixels, stream in zip(images, streams, strict=True):
+            decoded = decode(stream[:budget])
+            errors.append(decoded.psnr_estimate - psnr(pixels, decoded.pixels))
+        print(f"{budget:>6} | {statistics.fmean(errors):+6.2f} | "
+              f"{max(errors, key=abs):+6.2f}")
+
+
+def link_run(text: str, camera: str, receiver: str, in_key: str, out_key: str,
+             status: tuple[str, str, dict], pixels: np.ndarray, seed: int) -> dict[str, float]:
+    """One picture across a mission on the virtual clock: when it became recognisable, when
+    it was whole, and the longest status gap meanwhile."""
+    from bridge.core.link import LinkThresholds
+    from bridge.core.loaded import parse_mission
+    from bridge.image.formats import write_image
+    from bridge.runtime.virtual_fleet import FastFleet
+
+    loaded = parse_mission(text)
+    fleet = FastFleet(loaded, seed=seed)
+    start = 30.0
+    status_in, status_key, status_value = status
+    fleet.put(camera, status_in, status_value, at=1.0)
+    fleet.put(camera, in_key, write_image(pixels, "jpeg", quality=95), encoding="image/jpeg",
+              at=start)
+    fleet.run_until(start + 1200.0)
+    first = whole = None
+    for t, publish in fleet.published(receiver, out_key):
+        shown = np.asarray(Image.open(io.BytesIO(publish.value)))
+        if first is None and psnr(pixels, shown) >= 22.0:
+            first = t - start
+        if Image.open(io.BytesIO(publish.value)).text.get("zab:final") == "true":
+            whole = t - start
+            break
+    end = start + (whole or 1200.0)
+    times = [t for t, _ in fleet.published(receiver, status_key) if start - 5 <= t <= end + 5]
+    gap = max((b - a for a, b in pairwise(times)), default=float("inf"))
+    return {"first": first if first is not None else float("nan"),
+            "whole": whole if whole is not None else float("nan"), "status_gap": gap,
+            "bound": LinkThresholds.for_mission(loaded.mission).degraded_after_s}
+
+
+ROV_STATUS = {"st": 1, "ready": True, "eoid": False, "loc": False, "hold_heading": False,
+              "armed": True, "nav_mode": "manual", "x": 1.0, "y": 2.0, "z": 3.0, "roll": 0.0,
+              "pitch": 0.0, "yaw": 90.0}
+MORPH_STATUS = {"battery": 80, "mode": "survey", "leak": False}
+MORPH_IMAGES = """
+images:
+  - name: camera
+    from: cv1
+    to: ssv
+    in: cv1/camera
+    out: cv1/camera
+    width: 160
+    height: 120
+    budget_bytes: 1600
+"""
+
+
+def link_table() -> None:
+    repo = Path(__file__).resolve().parent.parent / "deploy" / "missions"
+    bluerov = (repo / "bluerov_images.yaml").read_text().replace(
+        "publish_interval_s: 1.0", "publish_interval_s: 0.0")
+    morph = (repo / "morph.yaml").read_text() + MORPH_IMAGES
+    tests = [prepare(skimage.data.camera(), 160, 120), seabed(120, 160, 1, colour=False)]
+    print("\nlinks (virtual clock): one grey 160×120 JPEG put on the vehicle, s after the put")
+    print(f"{'mission':>22} | {'picture':>8} | {'≥ 22 dB':>7} | {'1.6 kB':>7} | "
+          f"{'status gap':>10} | bound")
+    for name, text, args in (
+            ("bluerov_images (S100)", bluerov,
+             ("rov", "operator", "rov/camera", "rov/camera",
+             ("rov/status", "rov/status", ROV_STATUS))),
+            ("morph + camera", morph, ("cv1", "ssv", "cv1/camera", "cv1/camera",
+                                       ("status", "cv1/status", MORPH_STATUS)))):
+        for label, pixels in zip(("camera", "seabed"), tests, strict=True):
+            got = link_run(text, *args, pixels=pixels, seed=1)
+            print(f"{name:>22} | {label:>8} | {got['first']:7.1f} | {got['whole']:7.1f} | "
+                  f"{got['status_gap']:10.2f} | {got['bound']:g} s")
+
+
+def goals(quality: dict[str, dict], rois: dict[str, dict[int, dict[str, float]]],
+          times: dict[str, dict[int, float]]) -> None:
+    grey = quality["grey 320×240 (scikit-image)"]
+    colour = quality["colour 320×240 (scikit-image, luma)"]
+
+    def say(ok: bool, text: str) -> None:
+        print(f"  [{'met' if ok else 'NOT met'}] {text}")
+
+    print("\ngoals (issue #30)")
+    for name, rows in quality.items():
+        short = [b for b in BUDGETS if rows[b].get("zab", 0) < rows[b].get("j2k", 0)]
+        say(not short, f"{name}: ≥ JPEG 2000's PSNR at every budget"
+            + (f" (short at {short})" if short else ""))
+    say(grey[200]["zab"] >= 23.5, f"grey 320×240 at 200 B ≥ 23.5 dB: {grey[200]['zab']:.2f}")
+    say(colour[800]["zab"] >= 26.5, f"colour 320×240 luma at 800 B ≥ 26.5 dB: "
+        f"{colour[800]['zab']:.2f}")
+    for name, roi in rois.items():
+        for budget, want in ((800, 3.0), (1600, 5.0)):
+            gain = roi[budget]["zab"] - roi[budget]["none"]
+            plain = roi[budget]["plain"] - roi[budget]["none"]
+            most = roi[budget]["alone"] - roi[budget]["none"]
+            say(gain >= want, f"ROI ({name}) at {budget} B ≥ +{want:g} dB: {gain:+.2f} "
+                f"(plain shift {plain:+.2f}; the ROI coded alone {most:+.2f})")
+    for key, limit in (("grey", 30.0), ("colour", 80.0)):
+        worst = max(times[key].values())
+        slow = [b for b, ms in times[key].items() if ms > limit]
+        say(not slow, f"encode + decode {key} ≤ {limit:g} ms: worst {worst:.1f} ms"
+            + (f" (over at {slow})" if slow else ""))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="fewer timing repeats")
+    parser.add_argument("--links", action="store_true", help="only the runs across missions")
+    args = parser.parse_args()
+    if args.links:
+        link_table()
+        return
+    sets = pictures()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        quality = quality_tables(sets, folder)
+        grey_set = sets["grey 320×240 (scikit-image)"]
+        print("\n(the issue's JPEG 2000 on its own grey pictures: "
+              + ", ".join(f"{b} B {v}" for b, v in J2K_MEAN_IN_ISSUE.items()) + " dB)")
+        rois = {"grey 320×240": roi_table("grey 320×240 (scikit-image)", grey_set),
+                "underwater grey 320×240": roi_table(
+                    "underwater grey 320×240", [seabed(240, 320, s, colour=False)
+                                                for s in range(4)])}
+        times = timing_table(grey_set[0], sets["colour 320×240 (scikit-image, luma)"][0],
+                             folder, 5 if args.quick else 30)
+    estimate_table(grey_set)
+    goals(quality, rois, times)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,314 @@
+"""Image channels in a node's core: pictures in, progressive streams out; fragments in,
+sharper pictures out (pure: the maths is :mod:`bridge.image`, no clock, no I/O).
+
+At the camera node, :class:`ImageSender` (a :class:`~bridge.core.transfer.TransferSender`)
+recodes each picture into a stream of the operator's budget, size and region of interest and
+sends it as one transfer; the mission's policy says whether a newer picture waits for the one
+in flight (``finish``) or replaces it (``cancel``). A receiver's acknowledgement that shows a
+gap (a later fragment held, an earlier one not) has the missing fragment sent again at the
+next opportunity, not after ``retry_s``: seed 002's requested trunk.
+
+At a receiving node, :class:`Images` decodes the stream's unbroken prefix after each fragment
+and publishes a standard picture (PNG, or JPEG) on the output key with its metadata in the
+file and on ``@zab/<mission>/<node>/images/<channel>/<src>``, at most every
+``publish_interval_s`` but always the final one. Operators' puts on the control key are
+merged into the channel's settings and carried to the camera by the control channel.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from bridge.core.events import Delivery
+from bridge.core.outputs import Outbox
+from bridge.core.receivers import Receivers
+from bridge.core.transfer import TransferReceiver, TransferSender
+from bridge.errors import DecodeError, EncodeError
+from bridge.wire.channels import ChannelCodec, ChannelTable
+from bridge.wire.frame import Entry
+from bridge.wire.images import REQUESTS, ImageSpec, control_payload
+from bridge.wire.payloads import decode_payload
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
+    Pixels = NDArray[np.uint8]
+
+__all__ = ["ImageSender", "Images"]
+
+log = logging.getLogger("zab.core")
+
+MAX_PICTURE_BYTES = 64 << 20
+"""A picture sample longer than this is dropped unread (the pixel limit is the channel's)."""
+
+# bridge.image (numpy, Pillow) loads with a mission's first picture, not with every bridge
+Drop = Callable[..., None]  # (key, reason, now[, cause]): a counted drop
+
+
+def _spec(channel: ChannelCodec) -> ImageSpec:
+    assert channel.image is not None
+    return channel.image
+
+
+class ImageSender(TransferSender):
+    """The camera's side of one image channel: the newest picture, the operator's settings
+    and the mission's policy."""
+
+    def __init__(self, channel: ChannelCodec, dests: Iterable[str], retry_s: float,
+                 first_seq: int = 0) -> None:
+        super().__init__(channel, dests, retry_s, first_seq)
+        spec = self.spec = _spec(channel)
+        self.settings: dict[str, Any] = {"width": spec.width, "height": spec.height,
+                                         "budget_bytes": spec.budget_bytes, "roi": spec.roi}
+        self.latest: tuple[Pixels, str | None, str | None] | None = None  # not sent yet
+        self.last: tuple[Pixels, str | None, str | None] | None = None  # sent last
+
+    def picture(self, pixels: Pixels, now: float, key: str | None = None,
+                ref: str | None = None) -> list[Delivery]:
+        """A new picture: sent now, or kept until the policy or a request lets it go."""
+        self.latest = (pixels, key, ref)
+        if self.spec.send == "on_request" or (self.current is not None
+                                             and self.spec.policy == "finish"):
+            return []
+        return self._begin(now)
+
+    def _begin(self, now: float) -> list[Delivery]:
+        """Send the newest picture (replacing any in flight)."""
+        taken = self.latest or self.last
+        if taken is None:
+            return []
+        self.latest, self.last = None, taken
+        pixels, key, ref = taken
+        return self.offer_bytes(self.recode(pixels), now, key, ref)
+
+    def recode(self, pixels: Pixels) -> bytes:
+        """``pixels`` as a progressive stream of the current settings: fitted to the size,
+        a budget of whole fragments, the ROI raised."""
+        from bridge.image.codec import encode, header_bytes
+        from bridge.image.formats import fit
+        from bridge.image.geometry import Roi
+
+        s = self.settings
+        chunk = self.channel.chunk_bytes
+        roi = Roi.from_fractions(*s["roi"]) if s["roi"] else None
+        budget = min(int(s["budget_bytes"]), self.spec.largest_budget)
+        budget = max(budget - budget % chunk, chunk * -(-header_bytes(True) // chunk))
+        return encode(fit(pixels, int(s["width"]), int(s["height"])), budget, roi)
+
+    def control(self, value: Mapping[str, Any], now: float) -> list[Delivery]:
+        """The operator's control value arrived: new settings, and a request."""
+        self.settings = {"width": int(value["width"]), "height": int(value["height"]),
+                         "budget_bytes": int(value["budget_bytes"]),
+                         "roi": (tuple(v / 64 for v in (value["x0"], value["y0"], value["x1"],
+                                                        value["y1"]))
+                                 if value["roi_on"] and value["x0"] < value["x1"]
+                                 and value["y0"] < value["y1"] else None)}
+        request = value["request"]
+        if request == "cancel" and self.current is not None:
+            item, self.current = self.current, None
+            self.latest = None if self.spec.send == "on_request" else self.latest
+            return self._report(item, "failed", now, "cancelled by the operator")
+        if request == "now":
+            return self._begin(now)
+        return []
+
+    def on_ack(self, dst: str, tid: int, base: int, bitmap: int, now: float) -> list[Delivery]:
+        reports = super().on_ack(dst, tid, base, bitmap, now)
+        item = self.current
+        if item is not None and item.tid == tid and dst in item.dests:
+            held = item.held.get(dst, set())
+            for i in range(item.done_by(dst), max(held, default=0)):
+                if i not in held and item.attempts.get(i, 0):  # sent, and a later one came
+                    item.next_send[i] = min(item.next_send.get(i, now), now)
+        return reports + self._next(now)
+
+    def expire(self, now: float) -> list[Delivery]:
+        return super().expire(now) + self._next(now)
+
+    def _next(self, now: float) -> list[Delivery]:
+        """The picture in flight ended: the newest one waiting goes (policy ``finish``)."""
+        if self.current is None and self.latest is not None and self.spec.send == "each":
+            return self._begin(now)
+        return []
+
+
+@dataclass
+class Shown:
+    """What a receiver last published of one sender's image channel."""
+
+    tid: int | None = None
+    bytes: int = 0
+    at: float = -math.inf
+
+
+class Images:
+    """A node's image channels: pictures and operators' controls in, refinements out."""
+
+    def __init__(self, table: ChannelTable, node: str, outbox: Outbox, receivers: Receivers,
+                 senders: Mapping[int, Any], drop: Drop, bindings: dict[str, Any]) -> None:
+        """``bindings``: the sending side's input keys, which gain the pictures' (the runtime
+        subscribes to them)."""
+        self.node = node
+        self.outbox = outbox
+        self.receivers = receivers
+        self.drop = drop
+        self.inputs: dict[str, ImageSender] = {}
+        self.cameras: dict[int, ImageSender] = {}  # by the control channel's index
+        self.controls: dict[str, tuple[ChannelCodec, Any, dict[str, Any]]] = {}
+        for channel in table.channels:
+            spec = channel.image
+            sender = senders.get(channel.index)
+            if spec is None or sender is None:
+                continue
+            if isinstance(sender, ImageSender):
+                self.inputs[spec.in_key.format(node=node, src=node)] = sender
+                self.cameras[channel.index + 1] = sender
+            else:  # this node steers the cameras of the channel
+                self.controls[spec.control_key.format(node=node)] = (
+                    channel, sender, {"width": spec.width, "height": spec.height,
+                                      "budget_bytes": spec.budget_bytes, "roi": spec.roi})
+        self.shown: dict[tuple[str, int], Shown] = {}
+        for key in self.inputs:
+            bindings.setdefault(key, [])
+
+    # -- samples in ------------------------------------------------------------------------
+
+    def ingest(self, key: str, data: bytes, encoding: str, now: float,
+               ref: str | None) -> bool:
+        """A sample on an image input or a control key (True), or on neither (False)."""
+        camera = self.inputs.get(key)
+        if camera is not None:
+            from bridge.image.formats import ImageInputError, read_image
+
+            spec = camera.spec
+            if len(data) > MAX_PICTURE_BYTES:
+                self.drop(key, f"image channel {spec.name!r}: {len(data)} bytes, over "
+                          f"{MAX_PICTURE_BYTES}", now, "too_large")
+                return True
+            try:
+                pixels = (read_image(data, encoding, spec.accept, spec.max_input_pixels,
+                                     spec.colour) if spec.ros2 is None
+                          else self._ros2(spec, data))
+            except ImageInputError as exc:
+                self.drop(key, f"image channel {spec.name!r}: {exc}", now, exc.cause)
+                return True
+            self.outbox.reports(camera.picture(pixels, now, key, ref))
+            self.outbox.unsaved = True
+            return True
+        found = self.controls.get(key)
+        if found is None:
+            return False
+        channel, sender, settings = found
+        try:
+            request = self._merge(settings, decode_payload(data, encoding))
+            payload = channel.pack([control_payload(settings, request)])
+        except (DecodeError, EncodeError, TypeError, ValueError) as exc:
+            self.drop(key, f"image control {_spec(channel).name!r}: {exc}", now,
+                      "undecodable" if isinstance(exc, DecodeError) else "unfit")
+            return True
+        self.outbox.reports(sender.offer(payload, now, key, ref))
+        self.outbox.unsaved = True
+        return True
+
+    @staticmethod
+    def _ros2(spec: ImageSpec, data: bytes) -> Pixels:
+        """The picture of a ROS 2 CompressedImage or Image (CDR)."""
+        from bridge.image.formats import ImageInputError, read_image, read_raw
+        from bridge.ros2.messages import decode_cdr
+
+        assert spec.ros2 is not None
+        msgtype, distro = spec.ros2
+        try:
+            message = decode_cdr(distro, msgtype, data)
+        except DecodeError as exc:
+            raise ImageInputError(str(exc)) from None
+        if msgtype.endswith("/Image"):
+            return read_raw(message, spec.max_input_pixels, spec.colour)
+        kind = "image/png" if "png" in str(message.get("format", "")).lower() else ""
+        return read_image(bytes(message.get("data", b"")), kind, spec.accept,
+                          spec.max_input_pixels, spec.colour)
+
+    @staticmethod
+    def _merge(settings: dict[str, Any], value: Any) -> str:
+        """Merge an operator's control into ``settings``; returns its request."""
+        if not isinstance(value, dict):
+            raise ValueError("a control is a map: {request, width, height, budget_bytes, roi}")
+        unknown = set(value) - {"request", "width", "height", "budget_bytes", "roi"}
+        if unknown:
+            raise ValueError(f"unknown control {', '.join(sorted(map(str, unknown)))}")
+        request = value.get("request", "none")
+        if request not in REQUESTS:
+            raise ValueError(f"request {request!r} is none of {', '.join(REQUESTS)}")
+        new = dict(settings)
+        for name in ("width", "height", "budget_bytes"):
+            if name in value:
+                new[name] = int(value[name])
+        if "roi" in value:
+            roi = value["roi"]
+            if roi is not None:
+                x0, y0, x1, y1 = (float(v) for v in roi)
+                if not (0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1):
+                    raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
+                roi = (x0, y0, x1, y1)
+            new["roi"] = roi
+        settings.update(new)
+        return str(request)
+
+    # -- entries in ------------------------------------------------------------------------
+
+    def entry(self, src: str, channel: ChannelCodec, entry: Entry, now: float) -> None:
+        """An entry of an image channel from ``src``: a control for our camera, or a
+        fragment of a picture for us."""
+        if _spec(channel).control:
+            camera = self.cameras.get(channel.index)
+            for values in self.receivers.entry(src, channel, entry.header, entry.values):
+                if camera is not None:
+                    self.outbox.reports(camera.control(values[0], now))
+            return
+        data, progress = self.receivers.fragment(src, channel, entry.header, entry.chunk)
+        receiver = self.receivers.by_key[(src, channel.index)]
+        assert isinstance(receiver, TransferReceiver)
+        stream = data if data is not None else receiver.prefix()
+        self.outbox.status(f"transfer/{channel.name}", {**progress, "peer": src, "time": now,
+                                                        "bytes": len(stream)})
+        self._show(src, channel, receiver, stream, data is not None, now)
+
+    def _show(self, src: str, channel: ChannelCodec, receiver: TransferReceiver,
+              stream: bytes, final: bool, now: float) -> None:
+        """Publish the picture ``stream`` holds, if it is sharper and it is time."""
+        from bridge.image.codec import ImageStreamError, decode, header_bytes
+        from bridge.image.formats import write_image
+
+        spec = _spec(channel)
+        shown = self.shown.setdefault((src, channel.index), Shown())
+        if receiver.tid != shown.tid:
+            shown.tid, shown.bytes = receiver.tid, 0
+        if len(stream) <= shown.bytes or len(stream) < header_bytes(False) or (
+                not final and now - shown.at < spec.publish_interval_s):
+            return
+        try:
+            picture = decode(stream)
+        except ImageStreamError as exc:
+            self.outbox.stats.frames_dropped["malformed"] += 1
+            log.warning("%s: image %r from %s: %s", self.node, spec.name, src, exc)
+            shown.bytes = len(stream)
+            return
+        shown.bytes, shown.at = len(stream), now
+        meta = {"channel": spec.name, "src": src, "sequence": receiver.tid,
+                "bytes": len(stream), "budget": receiver.count * channel.chunk_bytes,
+                "final": final, "width": int(picture.pixels.shape[1]),
+                "height": int(picture.pixels.shape[0]),
+                "psnr_estimate": round(picture.psnr_estimate, 2),
+                "roi": list(picture.roi.fractions()) if picture.roi else None, "time": now}
+        kind = spec.format
+        data = write_image(picture.pixels, kind, spec.jpeg_quality, {  # JSON but for text
+            f"zab:{k}": v if isinstance(v, str) else json.dumps(v) for k, v in meta.items()})
+        key = spec.out_key.format(node=self.node, src=src, dst=self.node)
+        self.outbox.publish(key, data, f"image/{kind}", True)
+        self.outbox.status(f"images/{spec.name}/{src}", meta)

@@ -1,0 +1,137 @@
+"""The pictures the GUI shows: the latest of each image channel and camera, and the
+operator's controls back (pure, but for Pillow reading the PNG's metadata).
+
+The GUI's node publishes each picture (PNG or JPEG) on the image channel's output key; the
+board keeps the latest bytes per (channel, camera) for the page to load from
+``/image/<channel>/<camera>`` and emits an ``image`` item with the picture's metadata (bytes
+received of the budget, sequence, final, the stream's PSNR estimate, ROI). A page's
+``image_control`` message (a request, a budget, an ROI drawn on the picture) becomes a put
+on the channel's control key at the GUI's node.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from bridge.core.loaded import LoadedMission
+from bridge.wire.images import REQUESTS, ImageSpec
+
+__all__ = ["ImageBoard", "ImageControlError"]
+
+Item = dict[str, Any]
+
+
+class ImageControlError(ValueError):
+    """A page's image control that cannot be sent (the message says why)."""
+
+
+@dataclass
+class Picture:
+    data: bytes
+    encoding: str
+    item: Item
+
+
+def _meta(data: bytes) -> dict[str, Any]:
+    """The ``zab:`` metadata of a published picture (PNG text chunks or JPEG comment)."""
+    import json
+
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        image = Image.open(io.BytesIO(data))
+        text = dict(getattr(image, "text", {}) or {})
+        if not text and "comment" in image.info:
+            text = {f"zab:{k}": v for k, v in json.loads(image.info["comment"]).items()}
+    except (OSError, UnidentifiedImageError, ValueError):
+        return {}
+    out: dict[str, Any] = {}
+    for key, value in text.items():
+        if not str(key).startswith("zab:"):
+            continue
+        name = str(key)[4:]
+        if isinstance(value, str):  # JSON, but for text
+            with contextlib.suppress(ValueError):
+                value = json.loads(value)
+        out[name] = value
+    return out
+
+
+class ImageBoard:
+    """The image channels seen at the GUI's node."""
+
+    def __init__(self, loaded: LoadedMission, node: str) -> None:
+        self.node = node
+        self.keys: dict[str, tuple[str, str]] = {}  # output key -> (channel, camera)
+        self.specs: dict[str, ImageSpec] = {}
+        for channel in loaded.table.channels:
+            spec = channel.image
+            if spec is None or spec.control:
+                continue
+            for src in channel.senders:
+                if node in channel.destinations(src):
+                    self.specs[spec.name] = spec
+                    key = spec.out_key.format(node=node, src=src, dst=node)
+                    self.keys[key] = (spec.name, src)
+        self.pictures: dict[tuple[str, str], Picture] = {}
+        self.version = 0
+
+    def describe(self) -> list[dict[str, Any]]:
+        """The page's static part: each channel, its cameras and its settings."""
+        return [{"channel": name, "cameras": sorted({s for c, s in self.keys.values()
+                                                     if c == name}),
+                 "width": spec.width, "height": spec.height, "budget_bytes": spec.budget_bytes,
+                 "max_budget_bytes": spec.largest_budget, "roi": spec.roi}
+                for name, spec in self.specs.items()]
+
+    def ingest(self, key: str, data: bytes, encoding: str, now: float) -> Item | None:
+        """A sample on an image output key: the ``image`` item for the pages (None for any
+        other key)."""
+        found = self.keys.get(key)
+        if found is None:
+            return None
+        channel, src = found
+        self.version += 1
+        item = {"kind": "image", "channel": channel, "node": src, "time": now,
+                "version": self.version, "url": f"/image/{channel}/{src}?v={self.version}",
+                "meta": _meta(data)}
+        self.pictures[(channel, src)] = Picture(data, encoding, item)
+        return item
+
+    def items(self) -> list[Item]:
+        return [p.item for p in self.pictures.values()]
+
+    def picture(self, channel: str, src: str) -> Picture | None:
+        return self.pictures.get((channel, src))
+
+    def control(self, message: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
+        """A page's image control: the control key and the value to put there."""
+        spec = self.specs.get(str(message.get("channel")))
+        if spec is None:
+            raise ImageControlError(f"no image channel {message.get('channel')!r} here")
+        value: dict[str, Any] = {}
+        request = message.get("request", "none")
+        if request not in REQUESTS:
+            raise ImageControlError(f"request {request!r} is none of {', '.join(REQUESTS)}")
+        value["request"] = request
+        if "budget_bytes" in message:
+            budget = message["budget_bytes"]
+            if not isinstance(budget, int) or not 16 <= budget <= spec.largest_budget:
+                raise ImageControlError(f"budget {budget!r} is not 16..{spec.largest_budget}")
+            value["budget_bytes"] = budget
+        if "roi" in message:
+            roi = message["roi"]
+            if roi is not None:
+                if not (isinstance(roi, list) and len(roi) == 4
+                        and all(isinstance(v, int | float) for v in roi)):
+                    raise ImageControlError("roi is [x0, y0, x1, y1] in fractions, or null")
+                x0, y0, x1, y1 = (min(1.0, max(0.0, float(v))) for v in roi)
+                if not (x0 < x1 and y0 < y1):
+                    raise ImageControlError("roi needs x0 < x1 and y0 < y1")
+                roi = [round(v, 4) for v in (x0, y0, x1, y1)]
+            value["roi"] = roi
+        return spec.control_key.format(node=self.node), value

@@ -1,0 +1,293 @@
+"""Embedded bit-plane coding of quantised coefficients, every prefix decodable (pure).
+
+Coefficients (integers, in coding order: see :mod:`bridge.image.geometry`) are sent plane by
+plane from the top. In each plane the coefficients not yet significant are sorted into three
+classes by what the receiver already knows at the plane's start: a significant neighbour on
+the canvas (likely to become significant: sent first), else a significant parent, else neither
+(sent last); coefficients significant from earlier planes get their next bit (*refinement*)
+between the second and the third class — EBCOT's order of passes, most distortion removed per
+bit first.
+
+Each class of each band is a sequence of yes/no significance decisions, mostly no; it goes as
+*adaptive run lengths* (the run-length mode of RLGR / JPEG-LS): with parameter ``k``, ``0``
+says the next ``2**k`` decisions are all no (``k`` grows), ``1`` and ``k`` bits give the
+position of the next yes, then its sign (``k`` shrinks). ``k`` carries over from plane to
+plane for each class and band, so both ends adapt alike with no side information. Refinement
+bits and signs go as they are. Everything is decided for a whole pass from the state at the
+pass's start, so numpy does the bookkeeping and Python only walks the run codes.
+
+A stream cut anywhere decodes to everything before the cut (a run code or a sign cut in
+half is dropped), and a corrupt stream decodes to some image of the same shape: the decoder
+checks every position it reads against the pass it is in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bridge.image.geometry import Geometry
+
+__all__ = ["KMAX", "Planes", "decode_planes", "encode_planes"]
+
+KMAX = 15
+"""Largest run parameter: a ``0`` code covers at most 32768 decisions."""
+KPMAX = 4 * KMAX + 3
+UP, DOWN = 4, 6
+"""How the run parameter (in quarters) moves after a run of no (up) and after a yes (down)."""
+_UP = [min(kp + UP, KPMAX) for kp in range(KPMAX + 1)]  # (tables: the loops' hot path)
+_DOWN = [max(kp - DOWN, 0) for kp in range(KPMAX + 1)]
+_K = [kp >> 2 for kp in range(KPMAX + 1)]
+_STEP = [1 << k for k in _K]
+_CODE = ["1{0:0" + str(k) + "b}{1}" if k else "1{1}" for k in _K]
+
+PASSES = (0, 1, None, 2)
+"""The order of a plane's passes: the classes by number, None the refinement."""
+
+FIRST_OFFSET = 0.375
+"""Where in its interval a coefficient first found significant is put back (its magnitude is
+more often near the bottom); refined ones go to the middle."""
+
+Bools = NDArray[np.bool_]
+Ints = NDArray[np.int64]
+
+
+class Truncated(Exception):
+    """The stream ended (or went wrong) here: everything before stands."""
+
+
+class Context:
+    """What the classes of a plane are computed from, kept up to date as coefficients become
+    significant: which have a significant neighbour on their canvas, which a significant
+    parent (one spare slot at the end takes the marks of neighbours off the canvas)."""
+
+    def __init__(self, geometry: Geometry) -> None:
+        self.geometry = geometry
+        self.near = np.zeros(geometry.size + 1, dtype=bool)
+        self.under = np.zeros(geometry.size + 1, dtype=bool)
+
+    def became(self, positions: Ints) -> None:
+        """Coefficients at coding ``positions`` became significant."""
+        geometry = self.geometry
+        self.near[geometry.neighbours[positions]] = True
+        self.under[geometry.children(positions)] = True
+
+    def classes(self, sig: Bools, only: Bools | None = None) -> list[Ints]:
+        """Coding positions not yet significant (and in ``only``, if given), by class: near
+        a significant neighbour, under a significant parent, neither."""
+        near, under = self.near[:-1], self.under[:-1]
+        rest = ~sig if only is None else ~sig & only
+        close = rest & near
+        far = rest ^ close
+        return [np.flatnonzero(close), np.flatnonzero(far & under),
+                np.flatnonzero(far & ~under)]
+
+
+@dataclass
+class Planes:
+    """The receiver's knowledge of every coefficient after a (possibly cut) stream."""
+
+    size: int
+    magnitude: Ints = field(init=False)  # known bits
+    plane: Ints = field(init=False)  # lowest known bit plane (significant ones)
+    negative: Bools = field(init=False)
+    significant: Bools = field(init=False)
+    refined: Bools = field(init=False)
+    below: Ints = field(init=False)  # an insignificant one's magnitude is below 2**below
+    threshold: int = 0  # the plane the stream stopped in
+    complete: bool = False
+
+    def __post_init__(self) -> None:
+        n = self.size
+        self.magnitude = np.zeros(n, dtype=np.int64)
+        self.plane = np.zeros(n, dtype=np.int64)
+        self.negative = np.zeros(n, dtype=bool)
+        self.significant = np.zeros(n, dtype=bool)
+        self.refined = np.zeros(n, dtype=bool)
+        self.below = np.full(n, 62, dtype=np.int64)
+
+    def values(self) -> NDArray[np.float64]:
+        """Each coefficient's best value (signed, in quantiser units)."""
+        offset = np.where(self.refined, 0.5, FIRST_OFFSET)
+        mag = np.where(self.significant,
+                       self.magnitude + offset * np.exp2(self.plane.astype(np.float64)), 0.0)
+        return np.where(self.negative, -mag, mag)
+
+
+def _run_encode(out: list[str], ones: list[int], signs: list[bool], pos: int, length: int,
+                kp: int) -> int:
+    """Append the run codes of the decisions ``pos`` up to ``length`` of a pass, whose yes
+    are at ``ones``; ``kp`` is the run parameter in quarters (``k = kp >> 2``); returns the
+    final ``kp``."""
+    up, down, steps, codes = _UP, _DOWN, _STEP, _CODE
+    step = steps[kp]
+    append = out.append
+    for p, negative in zip(ones, signs, strict=True):
+        while p >= pos + step:
+            append("0")
+            pos += step
+            kp = up[kp]
+            step = steps[kp]
+        append(codes[kp].format(p - pos, 1 if negative else 0))
+        kp = down[kp]
+        step = steps[kp]
+        pos = p + 1
+    while pos < length:
+        append("0")
+        pos += step
+        kp = up[kp]
+        step = steps[kp]
+    return kp
+
+
+def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
+                  budget_bits: int, raised: tuple[Bools, int] | None = None) -> str:
+    """The bit string (``'0'``/``'1'``) of ``q`` (magnitudes, coding order) from plane ``top``
+    down, stopping once it holds ``budget_bits`` bits (it may run over: cut it).
+    ``raised``: an ROI's mask and the highest plane of anything outside it: above that plane
+    only the ROI is coded."""
+    size = geometry.size
+    sig = np.zeros(size, dtype=bool)
+    starts = geometry.band_start
+    ks: dict[tuple[int, int], int] = {}
+    context = Context(geometry)
+    parts: list[str] = []
+    total = 0
+    for n in range(top, -1, -1):
+        t = 1 << n
+        only = raised[0] if raised is not None and n > raised[1] else None
+        classes = context.classes(sig, only)
+        was = np.flatnonzero(sig)
+        passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
+        for cls, cand in enumerate(passes):
+            if cand is None:  # refinement (no more than the budget still takes)
+                if was.size:
+                    bits = ((q[was[:budget_bits - total]] >> n) & 1).astype(np.uint8) + 48
+                    piece = bits.tobytes().decode("ascii")
+                    parts.append(piece)
+                    total += len(piece)
+                    if total >= budget_bits:
+                        return "".join(parts)
+                continue
+            if cand.size == 0:
+                continue
+            hits = q[cand] >= t
+            ones_at = np.flatnonzero(hits)
+            cut_at = np.searchsorted(cand, starts)
+            cut_ones = np.searchsorted(ones_at, cut_at).tolist()
+            cut = cut_at.tolist()
+            neg = negative[cand[ones_at]].tolist()
+            ones_list = ones_at.tolist()
+            sig[cand[ones_at]] = True
+            context.became(cand[ones_at])
+            for b in range(len(starts) - 1):
+                a, z = cut[b], cut[b + 1]
+                if a == z:
+                    continue
+                oa, oz = cut_ones[b], cut_ones[b + 1]
+                key = (cls, b)
+                out: list[str] = []
+                ks[key] = _run_encode(out, ones_list[oa:oz], neg[oa:oz], a, z,
+                                      ks.get(key, 0))
+                piece = "".join(out)
+                parts.append(piece)
+                total += len(piece)
+                if total >= budget_bits:  # (what the state says past here is never sent)
+                    return "".join(parts)
+    return "".join(parts)
+
+
+def _run_decode(bits: str, i: int, pos: int, length: int, kp: int,
+                found: list[int], signs: list[bool]) -> tuple[int, int]:
+    """Read the run codes of the decisions ``pos`` up to ``length`` of a pass from
+    ``bits[i:]`` into ``found``/``signs``; returns ``(i, kp)`` after them. Raises
+    :class:`Truncated` where the bits end or lie."""
+    up, down, steps, widths = _UP, _DOWN, _STEP, _K
+    end = len(bits)
+    step = steps[kp]
+    while pos < length:
+        if i >= end:
+            raise Truncated
+        if bits[i] == "0":
+            i += 1
+            pos += step
+            kp = up[kp]
+            step = steps[kp]
+            continue
+        k = widths[kp]
+        if i + k + 2 > end:
+            raise Truncated
+        p = pos + int(bits[i + 1:i + 1 + k], 2) if k else pos
+        if p >= length:
+            raise Truncated  # corrupt: a position past the pass
+        i += k + 2
+        found.append(p)
+        signs.append(bits[i - 1] == "1")
+        pos = p + 1
+        kp = down[kp]
+        step = steps[kp]
+    return i, kp
+
+
+def decode_planes(geometry: Geometry, bits: str, top: int,
+                  raised: tuple[Bools, int] | None = None) -> Planes:
+    """What a (possibly cut) bit string from :func:`encode_planes` tells."""
+    size = geometry.size
+    state = Planes(size)
+    state.below[:] = top + 1
+    sig = state.significant
+    starts = geometry.band_start
+    ks: dict[tuple[int, int], int] = {}
+    context = Context(geometry)
+    i = 0
+    end = len(bits)
+    for n in range(top, -1, -1):
+        state.threshold = n
+        only = raised[0] if raised is not None and n > raised[1] else None
+        classes = context.classes(sig, only)
+        was = np.flatnonzero(sig)
+        passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
+        for cls, cand in enumerate(passes):
+            if cand is None:
+                m = min(int(was.size), end - i)
+                if m > 0:
+                    got = np.frombuffer(bits[i:i + m].encode("ascii"), dtype=np.uint8) == 49
+                    idx = was[:m]
+                    state.magnitude[idx] |= got.astype(np.int64) << n
+                    state.plane[idx] = n
+                    state.refined[idx] = True
+                    i += m
+                if m < was.size:
+                    return state
+                continue
+            if cand.size == 0:
+                continue
+            cut = np.searchsorted(cand, starts).tolist()
+            found: list[int] = []
+            signs: list[bool] = []
+            stop = False
+            for b in range(len(cut) - 1):
+                a, z = cut[b], cut[b + 1]
+                if a == z:
+                    continue
+                key = (cls, b)
+                try:
+                    i, ks[key] = _run_decode(bits, i, a, z, ks.get(key, 0), found, signs)
+                except Truncated:
+                    stop = True
+                    break
+            if found:
+                idx = cand[np.array(found, dtype=np.int64)]
+                sig[idx] = True
+                context.became(idx)
+                state.magnitude[idx] = 1 << n
+                state.plane[idx] = n
+                state.negative[idx] = np.array(signs, dtype=bool)
+            if not stop:
+                state.below[cand] = n
+            if stop:
+                return state
+    state.complete = True
+    return state

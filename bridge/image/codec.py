@@ -1,0 +1,265 @@
+"""Progressive images: pixels to an embedded stream of a byte budget and back (pure).
+
+:func:`encode` turns a grey (``h × w``) or colour (``h × w × 3``, RGB) ``uint8`` array into at
+most ``budget`` bytes; :func:`decode` turns *any prefix* of them into the best image that
+prefix holds, with its own estimate of the distortion. Colour goes as YCbCr with chroma at
+half resolution and half weight; a region of interest (:class:`~bridge.image.geometry.Roi`)
+raises its coefficients by a few bit planes, so it sharpens first.
+
+The stream, most significant bit first::
+
+    version   2 bits (0)
+    colour    1 bit
+    width-1   11 bits, height-1 11 bits
+    top+1     5 bits: the highest bit plane (0: an empty image)
+    roi       1 bit; when set x0, y0, x1, y1 (6 bits each, 64ths of the image), shift (3)
+              and the highest bit plane outside the ROI plus one (5)
+    planes    the coefficients' bit planes (:mod:`bridge.image.bitplanes`), cut at the budget
+
+Four bytes of header (eight with an ROI), against JPEG 2000's hundred and more.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bridge.image.bitplanes import Planes, decode_planes, encode_planes
+from bridge.image.geometry import Geometry, Roi, geometry
+from bridge.image.wavelet import forward, inverse
+
+__all__ = ["MAX_SIDE", "Decoded", "ImageStreamError", "decode", "encode", "header_bytes"]
+
+VERSION = 0
+MAX_SIDE = 2048
+FRACTION_BITS = 2  # quantiser step: a quarter of a (weighted) grey level
+QUANTUM = float(1 << FRACTION_BITS)
+MSE_CEILING = 128.0 ** 2
+"""No picture is further off than every pixel by half the range (what the estimate of an
+almost empty stream gives at most)."""
+BODY = 0.25
+"""Wavelet coefficients crowd nearer zero than the Laplacian their tail fits: the share of
+its energy below threshold the distortion estimate keeps (``bench/image_bench.py`` checks the
+estimate against the truth)."""
+
+U8 = NDArray[np.uint8]
+F64 = NDArray[np.float64]
+
+
+class ImageStreamError(ValueError):
+    """Bytes that do not start a progressive image stream (too short, or another version)."""
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """An image decoded from a (possibly cut) stream."""
+
+    pixels: U8
+    stream_bytes: int
+    complete: bool  # every bit plane arrived
+    mse_estimate: float  # the stream's own estimate of the luma's mean squared error
+    roi: Roi | None
+
+    @property
+    def psnr_estimate(self) -> float:
+        """:attr:`mse_estimate` as PSNR (dB, peak 255)."""
+        return 10 * math.log10(255 ** 2 / max(self.mse_estimate, 1e-3))
+
+
+def header_bytes(roi: bool) -> int:
+    """Bytes of the header (the planes start inside its last byte)."""
+    return (_header_bits(roi) + 7) // 8
+
+
+def _header_bits(roi: bool) -> int:
+    return 2 + 1 + 11 + 11 + 5 + 1 + (32 if roi else 0)
+
+
+def _components(pixels: U8) -> list[F64]:
+    """Level-shifted planes: grey, or Y and half-size Cb, Cr."""
+    x = np.asarray(pixels, dtype=np.float64)
+    if x.ndim == 2:
+        return [x - 128.0]
+    r, g, b = x[..., 0], x[..., 1], x[..., 2]
+    y = 0.299 * r + 0.587 * g + 0.114 * b - 128.0
+    cb = -0.168736 * r - 0.331264 * g + 0.5 * b
+    cr = 0.5 * r - 0.418688 * g - 0.081312 * b
+    return [y, _half(cb), _half(cr)]
+
+
+def _half(c: F64) -> F64:
+    h, w = c.shape
+    c = np.pad(c, ((0, h % 2), (0, w % 2)), mode="edge")
+    return 0.25 * (c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2])
+
+
+def _double(c: F64, h: int, w: int) -> F64:
+    """Bilinear upsampling of a half-size chroma plane to ``h × w``."""
+    ch, cw = c.shape
+    ys = np.clip((np.arange(h) + 0.5) / 2 - 0.5, 0, ch - 1)
+    xs = np.clip((np.arange(w) + 0.5) / 2 - 0.5, 0, cw - 1)
+    y0, x0 = np.floor(ys).astype(int), np.floor(xs).astype(int)
+    y1, x1 = np.minimum(y0 + 1, ch - 1), np.minimum(x0 + 1, cw - 1)
+    fy, fx = (ys - y0)[:, None], (xs - x0)[None, :]
+    top = c[y0][:, x0] * (1 - fx) + c[y0][:, x1] * fx
+    bottom = c[y1][:, x0] * (1 - fx) + c[y1][:, x1] * fx
+    return top * (1 - fy) + bottom * fy  # type: ignore[no-any-return]
+
+
+def _pixels(planes: list[F64]) -> U8:
+    if len(planes) == 1:
+        return np.clip(np.rint(planes[0] + 128.0), 0, 255).astype(np.uint8)
+    y = planes[0] + 128.0
+    h, w = y.shape
+    cb, cr = _double(planes[1], h, w), _double(planes[2], h, w)
+    rgb = np.stack((y + 1.402 * cr, y - 0.344136 * cb - 0.714136 * cr, y + 1.772 * cb), -1)
+    return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+
+
+def _shifts(geo: Geometry, roi: Roi | None, height: int, width: int) -> NDArray[np.int64] | None:
+    """Each coefficient's ROI shift (None without an ROI)."""
+    if roi is None or roi.shift == 0:
+        return None
+    return geo.roi_shifts(roi, height, width)
+
+
+def encode(pixels: U8, budget: int, roi: Roi | None = None) -> bytes:
+    """At most ``budget`` bytes of ``pixels`` (grey ``h × w`` or RGB ``h × w × 3``, uint8)."""
+    array = np.asarray(pixels)
+    if array.dtype != np.uint8 or array.ndim not in (2, 3) or (
+            array.ndim == 3 and array.shape[2] != 3):
+        raise ValueError(f"expected a uint8 h × w or h × w × 3 array, not {array.dtype} "
+                         f"{array.shape}")
+    height, width = array.shape[:2]
+    if not (1 <= height <= MAX_SIDE and 1 <= width <= MAX_SIDE):
+        raise ValueError(f"{width} × {height} is outside 1..{MAX_SIDE} pixels a side")
+    if budget < header_bytes(roi is not None):
+        raise ValueError(f"a budget of {budget} bytes cannot hold the header")
+    colour = array.ndim == 3
+    geo = geometry(height, width, colour)
+    comps = _components(array)
+    canvases = np.concatenate([forward(c, lv).ravel() for c, lv in zip(comps, geo.levels,
+                                                                     strict=True)])
+    coefs = canvases[geo.order]
+    q = np.floor(np.abs(coefs) * geo.weight * QUANTUM).astype(np.int64)
+    shifts = _shifts(geo, roi, height, width)
+    raised = None
+    if shifts is not None and roi is not None:
+        q <<= shifts
+        inner = shifts == roi.shift
+        outside = q[~inner]
+        raised = (inner, int(outside.max()).bit_length() - 1 if outside.size else -1)
+    top = int(q.max()).bit_length() - 1 if q.size else -1
+    head = [f"{VERSION:02b}", "1" if colour else "0", f"{width - 1:011b}",
+            f"{height - 1:011b}", f"{top + 1:05b}"]
+    if roi is None:
+        head.append("0")
+    else:
+        head += ["1", *(f"{v:06b}" for v in (roi.x0, roi.y0, roi.x1 - 1, roi.y1 - 1)),
+                 f"{roi.shift:03b}", f"{(raised[1] if raised else -1) + 1:05b}"]
+    header = "".join(head)
+    budget_bits = budget * 8
+    bits = header
+    if top >= 0:
+        bits += encode_planes(geo, q, coefs < 0, top, budget_bits - len(header), raised)
+    bits = bits[:budget_bits]
+    bits += "0" * (-len(bits) % 8)
+    return int(bits, 2).to_bytes(len(bits) // 8, "big")
+
+
+def _read_header(bits: str) -> tuple[bool, int, int, int, Roi | None, int, int]:
+    if len(bits) < _header_bits(False):
+        raise ImageStreamError(f"{len(bits) // 8} bytes cannot hold an image header")
+    version = int(bits[0:2], 2)
+    if version != VERSION:
+        raise ImageStreamError(f"stream version {version}, this decoder reads {VERSION}")
+    colour = bits[2] == "1"
+    width, height = int(bits[3:14], 2) + 1, int(bits[14:25], 2) + 1
+    top = int(bits[25:30], 2) - 1
+    roi = None
+    at, outside = 31, -1
+    if bits[30] == "1":
+        if len(bits) < _header_bits(True):
+            raise ImageStreamError("the stream ends inside its ROI header")
+        x0, y0, x1, y1, shift = (int(bits[a:b], 2) for a, b in
+                                  ((31, 37), (37, 43), (43, 49), (49, 55), (55, 58)))
+        x1, y1 = x1 + 1, y1 + 1
+        outside = int(bits[58:63], 2) - 1
+        try:
+            roi = Roi(x0, y0, x1, y1, shift)
+        except ValueError as exc:
+            raise ImageStreamError(str(exc)) from None
+        at = 63
+    return colour, width, height, top, roi, at, outside
+
+
+def decode(stream: bytes) -> Decoded:
+    """The image any prefix of an :func:`encode` stream holds (a corrupt one gives some image
+    of the header's size; :class:`ImageStreamError` if there is no header)."""
+    bits = bin(int.from_bytes(b"\x01" + bytes(stream), "big"))[3:]
+    colour, width, height, top, roi, at, outside = _read_header(bits)
+    geo = geometry(height, width, colour)
+    shifts = _shifts(geo, roi, height, width)
+    raised = (shifts == roi.shift, outside) if shifts is not None and roi is not None else None
+    state = decode_planes(geo, bits[at:], top, raised) if top >= 0 else None
+    scale = geo.weight * QUANTUM
+    if shifts is not None:
+        scale = scale * np.exp2(shifts.astype(np.float64))
+    values = state.values() if state is not None else np.zeros(geo.size)
+    coefs = values / scale
+    canvases = np.zeros(geo.size)
+    canvases[geo.order] = coefs
+    offsets = geo.offsets
+    planes = [inverse(canvases[offsets[i]:offsets[i + 1]].reshape(shape), lv)
+              for i, (shape, lv) in enumerate(zip(geo.shapes, geo.levels, strict=True))]
+    return Decoded(_pixels(planes), len(stream), state is None or state.complete,
+                   _mse_estimate(geo, state, scale, height * width), roi)
+
+
+def _mse_estimate(geo: Geometry, state: Planes | None, scale: F64, pixels: int) -> float:
+    """The luma's mean squared error as the stream knows it. A significant coefficient is
+    off by a uniform error over its last interval; those still below their threshold ``t``
+    are taken, band by band, as Laplacian with the scale that makes the share found
+    significant so far (at least half a coefficient) exceed ``t``."""
+    if state is None:
+        return 0.0
+    units = (scale / geo.weight) ** 2  # squared quantiser units per squared grey level
+    luma, band_of = geo.luma, geo.band_of
+    known = state.significant & luma
+    width = np.exp2(state.plane[known].astype(np.float64))
+    total = float((width ** 2 / 12 / units[known]).sum())
+    if state.complete:
+        return min(total / pixels, MSE_CEILING)
+    unknown = ~state.significant & luma
+    below = state.below[unknown].astype(np.float64)  # (at most 62: see Planes.below)
+    bands = len(geo.bands)
+    n_sig = np.bincount(band_of[known], minlength=bands)
+    n_not = np.bincount(band_of[unknown], minlength=bands)
+    mean_below = np.bincount(band_of[unknown], weights=below, minlength=bands) / np.maximum(
+        n_not, 1)
+    scales = np.ones(bands)
+    coarser: dict[int, float] = {}  # each level's largest scale found
+    for i, band in enumerate(geo.bands):
+        if band.component or not n_not[i]:
+            continue
+        found = max(float(n_sig[i]), 0.5)
+        b = 2.0 ** mean_below[i] / np.log(band.size / found) if found < band.size else 1.0
+        if not n_sig[i]:  # nothing heard of this band yet: finer bands hold less
+            b = min(b, coarser.get(band.level + 1, b) / 2)
+        coarser[band.level] = max(coarser.get(band.level, 0.0), b)
+        scales[i] = b
+    # the coefficients of one band below one threshold share their expected square: sum
+    # their 1 / units by (band, threshold) and weigh each group once
+    group = band_of[unknown] * 64 + state.below[unknown]
+    weights = np.bincount(group, weights=1 / units[unknown])
+    used = np.flatnonzero(weights)
+    b = scales[used // 64]
+    t = np.exp2((used % 64).astype(np.float64))
+    r = np.exp(-t / b)
+    # E[x² | x < t] for a Laplacian of scale b
+    mean_sq = 2 * b * b - (t * t + 2 * b * t) * r / np.maximum(1 - r, 1e-12)
+    total += BODY * float((np.maximum(mean_sq, 0.0) * weights[used]).sum())
+    return min(total / pixels, MSE_CEILING)

@@ -1,0 +1,159 @@
+"""Standard image files in and out (Pillow): what applications publish, what viewers read.
+
+:func:`read_image` takes the bytes of a JPEG or PNG sample (the Zenoh encoding says which, or
+the bytes' signature when it says nothing), refusing a type not enabled and anything larger
+than a pixel limit *before* decoding it (no decompression bombs); :func:`fit` scales pixels to
+fit a size; :func:`write_image` makes a PNG (metadata in ``tEXt`` chunks) or a JPEG (metadata
+in a comment).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import warnings
+from collections.abc import Collection, Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["KINDS", "ImageInputError", "fit", "kind_of", "read_image", "read_raw",
+           "write_image"]
+
+KINDS = {"jpeg": "image/jpeg", "png": "image/png"}
+"""Image types an input may take, by name, with their Zenoh encodings."""
+
+_SIGNATURES = {b"\xff\xd8\xff": "jpeg", b"\x89PNG\r\n\x1a\n": "png"}
+
+U8 = NDArray[np.uint8]
+
+
+class ImageInputError(ValueError):
+    """An input sample that is not a usable image (the message says why; ``cause``:
+    ``undecodable``, ``too_large`` or ``unfit``: a type not taken)."""
+
+    def __init__(self, message: str, cause: str = "undecodable") -> None:
+        super().__init__(message)
+        self.cause = cause
+
+
+def kind_of(data: bytes, encoding: str) -> str:
+    """``jpeg`` or ``png``: from the encoding (``image/jpeg`` …) or, when it names no image
+    type (``zenoh/bytes``, ``application/octet-stream``), from the bytes' signature."""
+    kind = encoding.partition(";")[0].strip().lower()
+    for name, mime in KINDS.items():
+        if kind == mime or (name == "jpeg" and kind == "image/jpg"):
+            return name
+    if kind.startswith("image/"):
+        raise ImageInputError(f"image type {kind!r} is not one zab reads (jpeg, png)", "unfit")
+    for signature, name in _SIGNATURES.items():
+        if data.startswith(signature):
+            return name
+    raise ImageInputError(f"not a JPEG or PNG image (encoding {encoding or 'none'!r})")
+
+
+def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: int,
+               colour: bool) -> U8:
+    """The pixels of an image sample (``h × w`` grey, or ``h × w × 3`` RGB when ``colour``).
+    Raises :class:`ImageInputError` for a type not in ``accept``, an image of more than
+    ``max_pixels`` pixels, or bytes Pillow cannot decode."""
+    from PIL import Image, UnidentifiedImageError  # (Pillow loads with the first picture)
+
+    kind = kind_of(data, encoding)
+    if kind not in accept:
+        raise ImageInputError(f"{kind} images are not enabled on this channel "
+                              f"(accept: {', '.join(sorted(accept)) or 'none'})", "unfit")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            image = Image.open(io.BytesIO(data), formats=[kind.upper()])
+            width, height = image.size
+            if width * height > max_pixels:
+                raise ImageInputError(f"{width} × {height} pixels is more than the channel's "
+                                      f"{max_pixels}", "too_large")
+            converted = image.convert("RGB" if colour else "L")
+            return np.asarray(converted, dtype=np.uint8).copy()
+    except ImageInputError:
+        raise
+    except UnidentifiedImageError:
+        raise ImageInputError(f"not a decodable {kind} image ({len(data)} bytes)") from None
+    except (OSError, ValueError, SyntaxError,
+            Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        raise ImageInputError(f"cannot decode the {kind} image: {exc}") from None
+
+
+RAW = {"mono8": (1, 1), "mono16": (1, 2), "rgb8": (3, 1), "bgr8": (3, 1), "rgba8": (4, 1),
+       "bgra8": (4, 1), "8UC1": (1, 1), "8UC3": (3, 1)}
+"""Raw pixel encodings taken (sensor_msgs/Image): channels and bytes per channel."""
+
+
+def read_raw(message: Mapping[str, Any], max_pixels: int, colour: bool) -> U8:
+    """The pixels of a ``sensor_msgs/msg/Image`` as plain data (``height``, ``width``,
+    ``encoding``, ``is_bigendian``, ``step``, ``data``)."""
+    try:
+        height, width = int(message["height"]), int(message["width"])
+        encoding, step = str(message["encoding"]), int(message["step"])
+        data = bytes(message["data"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ImageInputError(f"not a sensor_msgs/Image: {exc}") from None
+    if encoding not in RAW:
+        raise ImageInputError(f"raw encoding {encoding!r} is not one zab reads "
+                              f"({', '.join(RAW)})", "unfit")
+    if height * width > max_pixels:
+        raise ImageInputError(f"{width} × {height} pixels is more than the channel's "
+                              f"{max_pixels}", "too_large")
+    channels, size = RAW[encoding]
+    if height < 1 or width < 1 or step < width * channels * size or len(data) < height * step:
+        raise ImageInputError(f"{width} × {height} {encoding} does not fit its {len(data)} "
+                              f"bytes (step {step})")
+    rows = np.frombuffer(data, dtype=np.uint8)[:height * step].reshape(height, step)
+    flat = rows[:, :width * channels * size]
+    if size == 2:  # mono16: keep the high byte
+        flat = flat[:, 0::2] if message.get("is_bigendian") else flat[:, 1::2]
+    pixels = flat.reshape(height, width, channels)
+    if encoding.startswith("bgr"):
+        pixels = pixels[..., 2::-1]
+    pixels = pixels[..., :3]
+    if channels == 1:
+        pixels = np.repeat(pixels, 3, axis=2) if colour else pixels[..., 0]
+    elif not colour:
+        grey = pixels.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+        pixels = np.clip(np.rint(grey), 0, 255)
+    return np.ascontiguousarray(pixels, dtype=np.uint8)
+
+
+def fit(pixels: U8, width: int, height: int) -> U8:
+    """``pixels`` scaled to fit ``width × height``, keeping their shape's proportions
+    (never enlarged)."""
+    from PIL import Image
+
+    h, w = pixels.shape[:2]
+    ratio = min(width / w, height / h, 1.0)
+    size = (max(1, round(w * ratio)), max(1, round(h * ratio)))
+    if size == (w, h):
+        return pixels
+    resized = Image.fromarray(pixels).resize(size, Image.Resampling.LANCZOS)
+    return np.asarray(resized, dtype=np.uint8).copy()
+
+
+def write_image(pixels: U8, kind: str = "png", quality: int = 90,
+                text: Mapping[str, Any] | None = None) -> bytes:
+    """``pixels`` as a PNG (``text`` in ``tEXt`` chunks) or a JPEG at ``quality`` (``text``
+    as JSON in its comment)."""
+    from PIL import Image
+    from PIL.PngImagePlugin import PngInfo
+
+    image = Image.fromarray(pixels)
+    out = io.BytesIO()
+    if kind == "png":
+        info = PngInfo()
+        for key, value in (text or {}).items():
+            info.add_text(key, str(value))
+        image.save(out, format="PNG", pnginfo=info, compress_level=6)
+    elif kind == "jpeg":
+        comment = json.dumps(dict(text or {}), separators=(",", ":")).encode()
+        image.save(out, format="JPEG", quality=quality, comment=comment)
+    else:
+        raise ValueError(f"cannot write {kind!r} images (png, jpeg)")
+    return out.getvalue()

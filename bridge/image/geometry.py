@@ -1,0 +1,282 @@
+"""Where every wavelet coefficient of an image sits, in the order the coder sends it (pure).
+
+The coder sees one flat array of coefficients in *coding order*: bands from the coarsest to the
+finest scale, and at each scale luma before chroma (colour images carry Cb and Cr at half
+resolution, so their bands join one scale later); inside a band, row by row. A
+:class:`Geometry` maps that order to each component's Mallat-layout canvas (where the
+neighbours of a coefficient are its neighbours on the canvas), gives each coefficient its
+parent (the same place one scale coarser), the weight that makes a coefficient's squared
+error the pixels' (the band's synthesis norm, times a chroma weight), and the mask of a
+region of interest. Both ends build the same geometry from the stream's header.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property, lru_cache
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bridge.image.wavelet import band_shapes, inverse, levels_for
+
+__all__ = ["CHROMA_WEIGHT", "Geometry", "Roi", "geometry"]
+
+REACH = 1.0
+"""A coefficient's footprint, for the ROI: its own span widened by this many spacings each
+side (the 9/7 filters reach about that far)."""
+FULL = 0.49
+"""The share of its footprint in the ROI from which a coefficient gets the whole shift
+(``bench/image_bench.py`` compares this graded shift with a plain one)."""
+CHROMA_WEIGHT = 0.5
+"""Chroma coefficients count this much of luma's: colour sharpens after brightness."""
+
+Ints = NDArray[np.int64]
+IntArray = Ints
+
+
+@dataclass(frozen=True)
+class Roi:
+    """A region of interest: a rectangle in 64ths of the image's width and height
+    (``x0 < x1 <= 64``, ``y0 < y1 <= 64``), raised by ``shift`` bit planes."""
+
+    x0: int
+    y0: int
+    x1: int
+    y1: int
+    shift: int = 5
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.x0 < self.x1 <= 64 and 0 <= self.y0 < self.y1 <= 64):
+            raise ValueError(f"ROI {self.x0},{self.y0}-{self.x1},{self.y1} is not inside "
+                             "0..64 with x0 < x1 and y0 < y1")
+        if not 0 <= self.shift <= 7:
+            raise ValueError(f"ROI shift {self.shift} is not 0..7")
+
+    @classmethod
+    def from_fractions(cls, x0: float, y0: float, x1: float, y1: float,
+                       shift: int = 5) -> Roi:
+        """The rectangle ``(x0, y0)``–``(x1, y1)`` given in fractions of the image (0..1),
+        widened to whole 64ths."""
+        lo = [min(63, max(0, int(np.floor(v * 64)))) for v in (x0, y0)]
+        hi = [max(lo[i] + 1, min(64, int(np.ceil(v * 64)))) for i, v in enumerate((x1, y1))]
+        return cls(lo[0], lo[1], hi[0], hi[1], shift)
+
+    def fractions(self) -> tuple[float, float, float, float]:
+        return self.x0 / 64, self.y0 / 64, self.x1 / 64, self.y1 / 64
+
+
+@dataclass(frozen=True)
+class Band:
+    """One band of one component: its place on the canvas and in coding order."""
+
+    component: int
+    level: int  # 1 finest .. levels; the low band has the component's levels
+    rows: tuple[int, int]
+    cols: tuple[int, int]
+    start: int  # first position in coding order
+    weight: float
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.rows[1] - self.rows[0], self.cols[1] - self.cols[0]
+
+    @property
+    def size(self) -> int:
+        return self.shape[0] * self.shape[1]
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Coding order, canvases, parents, weights and the ROI mask of one image shape."""
+
+    shapes: tuple[tuple[int, int], ...]  # each component's canvas
+    levels: tuple[int, ...]
+    bands: tuple[Band, ...]  # in coding order
+    order: IntArray  # coding position -> index into the components' canvases, concatenated
+    parent: IntArray  # coding position -> the parent's coding position (itself: none)
+    weight: NDArray[np.float64]  # coding position -> weight
+    band_start: IntArray  # each band's first coding position, then the total
+
+    @property
+    def size(self) -> int:
+        return int(self.order.shape[0])
+
+    @cached_property
+    def luma(self) -> NDArray[np.bool_]:
+        """Coding positions of the luma (or grey) coefficients."""
+        mask = np.zeros(self.size, dtype=bool)
+        for band in self.bands:
+            if band.component == 0:
+                mask[band.start:band.start + band.size] = True
+        return mask
+
+    @cached_property
+    def neighbours(self) -> NDArray[np.int32]:
+        """Each coding position's 8 neighbours on its canvas, as coding positions (``size``
+        where the canvas ends)."""
+        inverse = np.empty(self.size + 1, dtype=np.int32)
+        inverse[self.order] = np.arange(self.size, dtype=np.int32)
+        inverse[self.size] = self.size
+        out = np.full((self.size, 8), self.size, dtype=np.int32)
+        offsets = self.offsets
+        for (h, w), start in zip(self.shapes, offsets, strict=False):
+            rr, cc = np.divmod(np.arange(h * w), w)
+            at = inverse[start + np.arange(h * w)]
+            k = 0
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    if dr == dc == 0:
+                        continue
+                    r, c = rr + dr, cc + dc
+                    ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+                    out[at[ok], k] = inverse[start + r[ok] * w + c[ok]]
+                    k += 1
+        return out
+
+    @cached_property
+    def _children(self) -> tuple[Ints, Ints]:
+        """The children of each coding position, grouped by parent: (start of each parent's
+        group, the children in parent order)."""
+        has = self.parent != np.arange(self.size)
+        kids = np.flatnonzero(has)
+        kids = kids[np.argsort(self.parent[kids], kind="stable")]
+        starts = np.searchsorted(self.parent[kids], np.arange(self.size + 1))
+        return starts, kids
+
+    def children(self, positions: Ints) -> Ints:
+        """The coding positions whose parent is one of ``positions``."""
+        starts, kids = self._children
+        first = starts[positions]
+        counts = starts[positions + 1] - first
+        keep = counts > 0
+        first, counts = first[keep], counts[keep]
+        if not first.size:
+            return kids[:0]
+        step = np.ones(int(counts.sum()), dtype=np.int64)  # consecutive within a group,
+        step[0] = first[0]  # and a jump to the next group's first child
+        step[np.cumsum(counts)[:-1]] = first[1:] - first[:-1] - counts[:-1] + 1
+        return kids[np.cumsum(step)]
+
+    @cached_property
+    def band_of(self) -> Ints:
+        """Each coding position's band (its index in :attr:`bands`)."""
+        return np.repeat(np.arange(len(self.bands)), [b.size for b in self.bands])
+
+    @property
+    def offsets(self) -> list[int]:
+        """Where each component's canvas starts in the concatenated canvases."""
+        out = [0]
+        for h, w in self.shapes:
+            out.append(out[-1] + h * w)
+        return out
+
+    def roi_shifts(self, roi: Roi, height: int, width: int) -> Ints:
+        """How many bit planes each coefficient is raised: by the share of its footprint
+        (its place on the band, widened by ``REACH`` of its spacing each side for the
+        filter's reach) that lies in the ROI: ``roi.shift`` from ``FULL`` of it, one plane
+        less for each halving below that, none outside."""
+        out = np.zeros(self.size, dtype=np.int64)
+        for band in self.bands:
+            scale = 1 << (band.level + (band.component > 0))
+            bh, bw = band.shape
+            share = np.outer(_inside(bh, scale, roi.y0 * height / 64, roi.y1 * height / 64),
+                             _inside(bw, scale, roi.x0 * width / 64, roi.x1 * width / 64))
+            with np.errstate(divide="ignore"):
+                lower = np.floor(np.log2(np.minimum(share / FULL, 1.0)))
+            shifts = np.clip(roi.shift + lower, 0, roi.shift).astype(np.int64)
+            out[band.start:band.start + band.size] = shifts.ravel()
+        return out
+
+
+def _inside(n: int, spacing: int, lo: float, hi: float) -> NDArray[np.float64]:
+    """For ``n`` coefficients ``spacing`` pixels apart: the share of each one's footprint in
+    the pixel interval ``lo..hi``."""
+    start = (np.arange(n) - REACH) * spacing
+    end = (np.arange(n) + 1 + REACH) * spacing
+    overlap: NDArray[np.float64] = np.clip(np.minimum(end, hi) - np.maximum(start, lo), 0, None)
+    return overlap / (end - start)
+
+
+def _norms_1d(levels: int) -> list[tuple[float, float]]:
+    """Synthesis norms (low, high) of a 1-D coefficient at level ``1..levels`` (an impulse
+    in a long signal, synthesised: an ``(n, 1)`` array's rows pass through unchanged)."""
+    n = 1 << (levels + 6)
+    out = []
+    for level in range(1, levels + 1):
+        low_size = band_shapes(n, 1, level)[level][0]
+        pair = []
+        for at in (low_size // 2, low_size + low_size // 2):
+            c = np.zeros((n, 1))
+            c[at, 0] = 1.0
+            pair.append(float(np.sqrt((inverse(c, level) ** 2).sum())))
+        out.append((pair[0], pair[1]))
+    return out
+
+
+@lru_cache(maxsize=8)
+def _norms(levels: int) -> tuple[tuple[float, float], ...]:
+    return tuple(_norms_1d(levels))
+
+
+@lru_cache(maxsize=8)
+def geometry(height: int, width: int, colour: bool) -> Geometry:
+    """The geometry of a ``height`` × ``width`` image (grey, or colour with half-size
+    chroma)."""
+    levels = levels_for(height, width)
+    comps = [(height, width, levels)]
+    if colour:
+        ch, cw = (height + 1) // 2, (width + 1) // 2
+        comps += [(ch, cw, max(1, levels - 1))] * 2
+    norms = _norms(max(c[2] for c in comps))
+    # every band, keyed by (scale, component, orientation): coarsest scale first
+    found: list[tuple[tuple[int, int, int], int, int, tuple[int, int], tuple[int, int],
+                      float]] = []
+    for comp, (h, w, lv) in enumerate(comps):
+        shapes = band_shapes(h, w, lv)
+        shift = 1 if comp else 0  # chroma's level l is luma's scale l + 1
+        cw_ = CHROMA_WEIGHT if comp else 1.0
+        lh, lw = shapes[lv]
+        low = norms[lv - 1][0]
+        found.append(((-(lv + shift) - 1, comp, 0), comp, lv, (0, lh), (0, lw), low * low * cw_))
+        for level in range(lv, 0, -1):
+            (h0, w0), (h1, w1) = shapes[level - 1], shapes[level]
+            nl, nh = norms[level - 1]
+            key = -(level + shift)
+            for orient, rows, cols, wt in ((1, (0, h1), (w1, w0), nl * nh),
+                                          (2, (h1, h0), (0, w1), nh * nl),
+                                          (3, (h1, h0), (w1, w0), nh * nh)):
+                found.append(((key, comp, orient), comp, level, rows, cols, wt * cw_))
+    found.sort(key=lambda b: b[0])
+    offsets = [0]
+    for h, w, _ in comps:
+        offsets.append(offsets[-1] + h * w)
+    bands: list[Band] = []
+    orders, weights = [], []
+    start = 0
+    where: dict[tuple[int, int, int], Band] = {}  # (component, level, orientation)
+    for (_, _, orient), comp, level, rows, cols, wt in found:
+        band = Band(comp, level, rows, cols, start, wt)
+        bands.append(band)
+        where[(comp, level, orient)] = band
+        w = comps[comp][1]
+        rr, cc = np.meshgrid(np.arange(*rows), np.arange(*cols), indexing="ij")
+        orders.append(offsets[comp] + (rr * w + cc).ravel())
+        weights.append(np.full(band.size, wt))
+        start += band.size
+    order = np.concatenate(orders).astype(np.int64)
+    parent = np.arange(start, dtype=np.int64)
+    for (comp, level, orient), band in where.items():
+        lv = comps[comp][2]
+        if orient == 0:
+            continue
+        up = where[(comp, lv, 0)] if level == lv else where[(comp, level + 1, orient)]
+        bh, bw = band.shape
+        ph, pw = up.shape
+        rr, cc = np.meshgrid(np.minimum(np.arange(bh) // (2 if level < lv else 1), ph - 1),
+                             np.minimum(np.arange(bw) // (2 if level < lv else 1), pw - 1),
+                             indexing="ij")
+        parent[band.start:band.start + band.size] = up.start + (rr * pw + cc).ravel()
+    starts = np.array([b.start for b in bands] + [start], dtype=np.int64)
+    return Geometry(tuple((h, w) for h, w, _ in comps), tuple(c[2] for c in comps),
+                    tuple(bands), order, parent, np.concatenate(weights), starts)

@@ -1,0 +1,117 @@
+"""The CDF 9/7 wavelet (JPEG 2000's irreversible filter) by lifting, in numpy (pure).
+
+Non-expansive on any size (odd ones too): a signal of ``n`` samples gives ``ceil(n/2)`` low
+and ``floor(n/2)`` high coefficients, with whole-sample symmetric extension at both ends. A
+2-D level transforms the rows, then the columns; :func:`forward` repeats it on the low band
+and lays the result out as one array (Mallat's layout: the low band top left, each level's
+details beside and below it), :func:`inverse` undoes it exactly (to rounding).
+
+Our own lifting rather than PyWavelets: PyWavelets' ``bior4.4`` is the same filter but its
+non-expansive mode (periodization) wraps the image's edges around, and its symmetric modes
+give more coefficients than pixels; ``bench/image_bench.py`` measures this one's time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["band_shapes", "forward", "inverse", "levels_for"]
+
+ALPHA = -1.586134342059924
+BETA = -0.052980118572961
+GAMMA = 0.882911075530934
+DELTA = 0.443506852043971
+K = 1.230174104914001
+
+Array = NDArray[np.float64]
+
+
+def levels_for(height: int, width: int, smallest: int = 4) -> int:
+    """How many levels a ``height`` × ``width`` image takes: until the low band would be
+    smaller than ``smallest`` samples on its shorter side (at least one level)."""
+    levels, side = 0, min(height, width)
+    while side >= 2 * smallest and levels < 8:
+        side = (side + 1) // 2
+        levels += 1
+    return max(levels, 1)
+
+
+def band_shapes(height: int, width: int, levels: int) -> list[tuple[int, int]]:
+    """The low band's shape after each level: ``[(h, w) of the image, level 1's low, …]``."""
+    shapes = [(height, width)]
+    for _ in range(levels):
+        h, w = shapes[-1]
+        shapes.append(((h + 1) // 2, (w + 1) // 2))
+    return shapes
+
+
+def _lift_odd(d: Array, s: Array, c: float) -> None:
+    """``d[i] += c (s[i] + s[i+1])``, ``s[n]`` mirrored to ``s[n-1]`` where it is missing."""
+    n = d.shape[0]
+    d += c * (s[:n] + (s[1:n + 1] if s.shape[0] > n else np.concatenate((s[1:], s[-1:]))))
+
+
+def _lift_even(s: Array, d: Array, c: float) -> None:
+    """``s[i] += c (d[i-1] + d[i])``, ``d[-1]`` mirrored to ``d[0]``, ``d[m]`` to ``d[m-1]``."""
+    m = s.shape[0]
+    if d.shape[0] == 0:
+        return
+    left = np.concatenate((d[:1], d[:m - 1]))
+    right = d[:m] if d.shape[0] >= m else np.concatenate((d, d[-1:]))
+    s += c * (left + right)
+
+
+def _analyse(x: Array) -> tuple[Array, Array]:
+    """One level along axis 0: (low, high)."""
+    s = x[0::2].copy()
+    d = x[1::2].copy()
+    if d.shape[0] == 0:
+        return s, d
+    _lift_odd(d, s, ALPHA)
+    _lift_even(s, d, BETA)
+    _lift_odd(d, s, GAMMA)
+    _lift_even(s, d, DELTA)
+    return s * (1 / K), d * (K / 2)
+
+
+def _synthesise(s: Array, d: Array) -> Array:
+    """Inverse of :func:`_analyse` along axis 0."""
+    if d.shape[0] == 0:
+        return s.copy()
+    s = s * K
+    d = d * (2 / K)
+    _lift_even(s, d, -DELTA)
+    _lift_odd(d, s, -GAMMA)
+    _lift_even(s, d, -BETA)
+    _lift_odd(d, s, -ALPHA)
+    out = np.empty((s.shape[0] + d.shape[0], *s.shape[1:]))
+    out[0::2] = s
+    out[1::2] = d
+    return out
+
+
+def forward(image: Array, levels: int) -> Array:
+    """The ``levels``-level transform of a 2-D array, in Mallat's layout."""
+    out = np.array(image, dtype=np.float64)
+    h, w = out.shape
+    for _ in range(levels):
+        low, high = _analyse(out[:h, :w].T)  # rows (as columns of the transpose)
+        band = np.concatenate((low, high)).T
+        low, high = _analyse(band)
+        out[:h, :w] = np.concatenate((low, high))
+        h, w = (h + 1) // 2, (w + 1) // 2
+    return out
+
+
+def inverse(coefficients: Array, levels: int) -> Array:
+    """Undo :func:`forward`."""
+    out = np.array(coefficients, dtype=np.float64)
+    height, width = out.shape
+    shapes = band_shapes(height, width, levels)
+    for level in range(levels, 0, -1):
+        h, w = shapes[level - 1]
+        lh, lw = shapes[level]
+        band = _synthesise(out[:lh, :w], out[lh:h, :w])
+        out[:h, :w] = _synthesise(band[:, :lw].T, band[:, lw:w].T).T
+    return out

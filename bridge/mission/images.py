@@ -1,0 +1,115 @@
+"""Image channels in the mission file: pictures recoded into progressive streams (pure data).
+
+An application on the sending vehicle puts JPEG or PNG bytes on ``in``; the bridge recodes each
+picture into an embedded stream of ``budget_bytes`` (:mod:`bridge.image`) and sends it in
+fragments beside the other channels; every receiving bridge publishes a standard picture on
+``out`` after each fragment that sharpens it. Operators steer the sender from a receiving
+node with puts on ``control`` (see docs/mission-file.md, "Image channels").
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+__all__ = ["ImageChannel", "Ros2Pictures"]
+
+Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
+
+
+class Ros2Pictures(BaseModel):
+    """Pictures from a ROS 2 camera topic over rmw_zenoh's keys, instead of ``in``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    topic: str = Field(description="Topic read at the sender, absolute (/rov/camera/image_raw/"
+                       "compressed); may use {node}.")
+    type: Literal["sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/Image"] = Field(
+        "sensor_msgs/msg/CompressedImage", description="CompressedImage (JPEG or PNG, as its "
+        "format says) or Image (mono8, mono16, rgb8, bgr8, rgba8, bgra8).")
+    distro: Literal["jazzy", "kilted"] = "jazzy"
+    domain: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID, the first key chunk.")
+
+    @field_validator("topic")
+    @classmethod
+    def _absolute(cls, v: str) -> str:
+        if not v.startswith("/") or "//" in v or v.endswith("/"):
+            raise ValueError(f"{v!r}: a ROS 2 topic here is absolute, like /rov/camera")
+        return v
+
+
+class ImageChannel(BaseModel):
+    """A camera across the water: progressive pictures from ``from`` to ``to``."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+    name: str = Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)
+    from_: str | list[str] = Field(alias="from", description="The node(s) with the camera.")
+    to: str | list[str] = Field(description="The node(s) that receive the pictures.")
+    in_: str | None = Field(None, alias="in", description="Input key at the sender ({node}): "
+                            "JPEG or PNG bytes, the Zenoh encoding (image/jpeg, image/png) "
+                            "saying which.")
+    ros2: Ros2Pictures | None = Field(None, description="A ROS 2 camera topic instead of in.")
+    out: str = Field(description="Output key at receivers ({src}, {dst}, {node}): a PNG (or "
+                     "JPEG) after each fragment that sharpens the picture.")
+    control: str | None = Field(None, description="Key at receivers where operators put "
+                                "{request: now|cancel, width, height, budget_bytes, roi: "
+                                "[x0, y0, x1, y1] or null} (msgpack or JSON; any subset); "
+                                "default: <out>/control.")
+    width: int = Field(160, ge=8, le=2048, description="Largest width sent, pixels (pictures "
+                       "are scaled to fit, keeping their proportions).")
+    height: int = Field(120, ge=8, le=2048, description="Largest height sent, pixels.")
+    colour: bool = Field(False, description="Send colour (YCbCr, chroma at half resolution); "
+                         "else grey.")
+    budget_bytes: int = Field(1600, ge=16, le=65536, description="Bytes of each picture's "
+                              "stream (whole fragments), until an operator sets another.")
+    max_budget_bytes: int | None = Field(None, ge=16, le=65536, description="Largest budget "
+                                         "an operator may set; default: budget_bytes.")
+    roi: tuple[Fraction, Fraction, Fraction, Fraction] | None = Field(
+        None, description="Region of interest [x0, y0, x1, y1] in fractions of the picture, "
+        "sharpened first; operators may move it.")
+    priority: int = Field(-1, description="Fragments go in frames at this channel priority "
+                          "(below telemetry's 0 by default: telemetry is never starved).")
+    share: float = Field(0.75, gt=0.0, le=1.0, description="Largest share of a frame one "
+                         "fragment takes (the stream's budget per frame).")
+    policy: Literal["finish", "cancel"] = Field(
+        "finish", description="A newer picture waits for the one in flight to finish "
+        "(finish) or replaces it at once (cancel).")
+    send: Literal["each", "on_request"] = Field(
+        "each", description="Send each new picture (as the policy allows), or only the "
+        "newest when an operator asks (request: now).")
+    publish_interval_s: float = Field(0.0, ge=0.0, description="Least time between two "
+                                      "refinements published at a receiver (the final picture "
+                                      "always goes).")
+    format: Literal["png", "jpeg"] = Field("png", description="What receivers publish.")
+    jpeg_quality: int = Field(90, ge=1, le=100, description="Quality of published JPEGs.")
+    accept: list[Literal["jpeg", "png"]] = Field(
+        default_factory=lambda: ["jpeg", "png"],  # type: ignore[arg-type]
+        description="Input types taken; others are "
+        "dropped (counted).")
+    max_input_pixels: int = Field(8_000_000, ge=64, description="Larger inputs are dropped "
+                                  "(counted) before decoding.")
+    retry_s: float | None = Field(None, gt=0, description="Wait before a fragment is sent "
+                                  "again (a gap the receiver reports is filled at once).")
+    ttl_s: float | None = Field(None, gt=0, description="A picture still unfinished this long "
+                                "after it started is given up.")
+
+    @model_validator(mode="after")
+    def _budgets(self) -> ImageChannel:
+        if (self.in_ is None) == (self.ros2 is None):
+            raise ValueError("give the pictures' input: either `in` or `ros2`")
+        if self.max_budget_bytes is not None and self.max_budget_bytes < self.budget_bytes:
+            raise ValueError("max_budget_bytes is below budget_bytes")
+        roi = self.roi
+        if roi is not None and not (roi[0] < roi[2] and roi[1] < roi[3]):
+            raise ValueError("roi needs x0 < x1 and y0 < y1")
+        return self
+
+    @property
+    def largest_budget(self) -> int:
+        return self.max_budget_bytes or self.budget_bytes
+
+    @property
+    def control_key(self) -> str:
+        return self.control or f"{self.out}/control"

@@ -1,0 +1,92 @@
+"""Image channels as the wire sees them: each is two channels after the mission's own.
+
+- the *stream* (``<name>``): the progressive picture's bytes as a fragmented transfer from
+  the camera node, one transfer per picture (its transfer id is the picture's sequence
+  number), fragments of at most ``share`` of a frame;
+- the *control* (``<name>.control``): the operator's settings and requests from each
+  receiving node back to the camera, a reliable channel of :data:`CONTROL_FIELDS`.
+
+:class:`ImageSpec` is what both ends need of the mission's
+:class:`~bridge.mission.images.ImageChannel`; :func:`control_layout` the control's fields.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from bridge.codec import Layout
+from bridge.mission.fields import FieldSpec
+from bridge.mission.images import ImageChannel
+from bridge.ros2.names import topic_listen_key
+
+__all__ = ["CONTROL_FIELDS", "REQUESTS", "ImageSpec", "control_layout", "control_payload"]
+
+REQUESTS = ("none", "now", "cancel")
+"""What an operator's control asks besides settings: nothing more, a picture now, or that the
+picture in flight be cancelled."""
+
+CONTROL_FIELDS: tuple[dict[str, Any], ...] = (
+    {"field": "request", "type": "enum", "values": list(REQUESTS)},
+    {"field": "width", "type": "int", "min": 8, "max": 2048},
+    {"field": "height", "type": "int", "min": 8, "max": 2048},
+    {"field": "budget_bytes", "type": "int", "min": 16, "max": 65536},
+    {"field": "roi_on", "type": "bool"},
+    *({"field": f, "type": "int", "min": 0, "max": 64} for f in ("x0", "y0", "x1", "y1")),
+)
+
+
+@dataclass(frozen=True)
+class ImageSpec:
+    """One image channel's settings, as compiled for the wire (``control``: this channel is
+    its control, not its stream)."""
+
+    name: str
+    in_key: str
+    out_key: str
+    control_key: str
+    width: int
+    height: int
+    colour: bool
+    budget_bytes: int
+    largest_budget: int
+    roi: tuple[float, float, float, float] | None
+    policy: str
+    send: str
+    publish_interval_s: float
+    format: str
+    jpeg_quality: int
+    accept: tuple[str, ...]
+    max_input_pixels: int
+    ros2: tuple[str, str] | None = None  # (message type, distro) of a ROS 2 camera topic
+    control: bool = False
+
+    @classmethod
+    def from_mission(cls, image: ImageChannel) -> ImageSpec:
+        ros2 = image.ros2
+        in_key = image.in_ if ros2 is None else topic_listen_key(ros2.domain, ros2.topic)
+        assert in_key is not None
+        return cls(image.name, in_key, image.out, image.control_key, image.width,
+                   image.height, image.colour, image.budget_bytes, image.largest_budget,
+                   image.roi, image.policy, image.send, image.publish_interval_s, image.format,
+                   image.jpeg_quality, tuple(image.accept), image.max_input_pixels,
+                   None if ros2 is None else (ros2.type, ros2.distro))
+
+    def describe(self) -> list[Any]:
+        """What both ends must agree on (the fingerprint): the stream's format."""
+        return [self.colour, self.largest_budget, "control" if self.control else "stream"]
+
+
+def control_layout() -> Layout:
+    return Layout.from_fields([FieldSpec.model_validate(f) for f in CONTROL_FIELDS],
+                              on_out_of_range="clamp")
+
+
+def control_payload(settings: dict[str, Any], request: str) -> dict[str, Any]:
+    """The control channel's value for ``settings`` (width, height, budget_bytes, roi as
+    fractions or None) and ``request``."""
+    roi = settings.get("roi")
+    corners = [round(v * 64) for v in roi] if roi else [0, 0, 64, 64]
+    return {"request": request, "width": settings["width"], "height": settings["height"],
+            "budget_bytes": settings["budget_bytes"], "roi_on": roi is not None,
+            **dict(zip(("x0", "y0", "x1", "y1"), corners, strict=True))}

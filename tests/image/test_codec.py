@@ -1,0 +1,118 @@
+"""The progressive image stream: budgets, prefixes, regions of interest, colour, and corrupt
+streams (never a crash)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from bridge.image.codec import ImageStreamError, decode, encode, header_bytes
+from bridge.image.geometry import Roi
+from bridge.image.synthetic import seabed
+from bridge.image.wavelet import forward, inverse, levels_for
+
+GREY = seabed(120, 160, seed=3, colour=False)
+COLOUR = seabed(120, 160, seed=4)
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(float) - b.astype(float)) ** 2))
+    return 10 * np.log10(255 ** 2 / max(mse, 1e-9))
+
+
+@pytest.mark.parametrize("shape", [(240, 320), (121, 161), (7, 5), (1, 9), (2, 2)])
+def test_the_wavelet_inverts_on_any_size(shape: tuple[int, int]) -> None:
+    x = np.random.default_rng(1).normal(0, 50, shape)
+    levels = levels_for(*shape)
+    assert np.abs(inverse(forward(x, levels), levels) - x).max() < 1e-9
+
+
+@pytest.mark.parametrize("budget", [60, 200, 800, 1600])
+def test_a_stream_fits_its_budget_exactly(budget: int) -> None:
+    assert len(encode(GREY, budget)) == budget
+
+
+def test_more_bytes_only_refine() -> None:
+    stream = encode(GREY, 3200)
+    scores = [psnr(GREY, decode(stream[:n]).pixels) for n in (8, 50, 200, 800, 3200)]
+    assert scores == sorted(scores)
+    assert scores[-1] > 38
+    assert decode(stream[:200]).pixels.shape == GREY.shape
+
+
+def test_every_prefix_decodes() -> None:
+    stream = encode(GREY, 400)
+    for n in range(header_bytes(False), len(stream) + 1):
+        image = decode(stream[:n])
+        assert image.pixels.shape == GREY.shape
+        assert image.stream_bytes == n
+
+
+def test_a_large_budget_is_nearly_lossless_and_says_so() -> None:
+    image = decode(encode(GREY, 60000))
+    assert image.complete
+    assert psnr(GREY, image.pixels) > 45
+
+
+def test_the_distortion_estimate_follows_the_truth() -> None:
+    stream = encode(GREY, 1600)
+    for n in (200, 800, 1600):
+        image = decode(stream[:n])
+        assert abs(image.psnr_estimate - psnr(GREY, image.pixels)) < 4
+
+
+def test_colour_goes_as_luma_and_half_size_chroma() -> None:
+    image = decode(encode(COLOUR, 1600))
+    assert image.pixels.shape == COLOUR.shape
+    assert psnr(COLOUR, image.pixels) > 28
+
+
+def test_a_region_of_interest_sharpens_first() -> None:
+    roi = Roi.from_fractions(0.25, 0.25, 0.75, 0.75)
+    inside = (slice(30, 90), slice(40, 120))
+    plain = decode(encode(GREY, 400)).pixels
+    raised = decode(encode(GREY, 400, roi))
+    assert raised.roi == roi
+    assert psnr(GREY[inside], raised.pixels[inside]) > psnr(GREY[inside], plain[inside]) + 1
+
+
+def test_an_roi_outside_64ths_is_refused() -> None:
+    with pytest.raises(ValueError, match="not inside"):
+        Roi(10, 10, 5, 20)
+
+
+def test_bad_pixels_and_budgets_are_refused() -> None:
+    with pytest.raises(ValueError, match="uint8"):
+        encode(GREY.astype(float), 100)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="header"):
+        encode(GREY, 2)
+
+
+def test_no_header_is_a_clear_error() -> None:
+    with pytest.raises(ImageStreamError):
+        decode(b"\x00\x01")
+    with pytest.raises(ImageStreamError, match="version"):
+        decode(b"\xff" * 8)
+
+
+STREAM = encode(COLOUR, 600)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_corrupt_streams_decode_to_some_image_or_a_clear_error(data: st.DataObject) -> None:
+    stream = bytearray(STREAM[:data.draw(st.integers(0, len(STREAM)))])
+    for _ in range(data.draw(st.integers(0, 8))):
+        if stream:
+            at = data.draw(st.integers(0, len(stream) - 1))
+            stream[at] ^= 1 << data.draw(st.integers(0, 7))
+    stream += data.draw(st.binary(max_size=64))
+    try:
+        image = decode(bytes(stream))
+    except ImageStreamError:
+        return
+    assert image.pixels.dtype == np.uint8
+    assert image.pixels.shape[:2] == (int.from_bytes(stream[:4], "big") >> 7 & 0x7FF) + 1 \
+        or image.pixels.ndim in (2, 3)

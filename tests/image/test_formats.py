@@ -1,0 +1,60 @@
+"""Image files in and out: types by encoding or signature, refusals before decoding."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from bridge.image.formats import ImageInputError, fit, kind_of, read_image, write_image
+from bridge.image.synthetic import seabed
+
+PIXELS = seabed(60, 80, seed=1)
+JPEG = write_image(PIXELS, "jpeg", quality=85)
+PNG = write_image(PIXELS, "png", text={"seq": 3})
+
+
+def test_the_encoding_or_the_signature_names_the_type() -> None:
+    assert kind_of(JPEG, "image/jpeg") == "jpeg"
+    assert kind_of(PNG, "image/png;charset=binary") == "png"
+    assert kind_of(PNG, "zenoh/bytes") == "png"
+    assert kind_of(JPEG, "application/octet-stream") == "jpeg"
+    with pytest.raises(ImageInputError, match="image/gif"):
+        kind_of(b"GIF89a", "image/gif")
+    with pytest.raises(ImageInputError, match="not a JPEG or PNG"):
+        kind_of(b"hello", "text/plain")
+
+
+def test_images_read_grey_or_colour() -> None:
+    grey = read_image(PNG, "image/png", {"png"}, 10_000, colour=False)
+    assert grey.shape == (60, 80)
+    rgb = read_image(JPEG, "image/jpeg", {"jpeg"}, 10_000, colour=True)
+    assert rgb.shape == (60, 80, 3)
+    assert np.abs(rgb.astype(int) - PIXELS).mean() < 6
+
+
+def test_a_type_not_enabled_is_refused() -> None:
+    with pytest.raises(ImageInputError, match="png images are not enabled"):
+        read_image(PNG, "image/png", {"jpeg"}, 10_000, colour=False)
+
+
+def test_too_many_pixels_are_refused_before_decoding() -> None:
+    with pytest.raises(ImageInputError, match="more than the channel's 4000"):
+        read_image(PNG, "image/png", {"png"}, 4000, colour=False)
+
+
+def test_undecodable_bytes_are_refused() -> None:
+    with pytest.raises(ImageInputError, match="cannot decode"):
+        read_image(JPEG[:40], "image/jpeg", {"jpeg"}, 10_000, colour=False)
+
+
+def test_fit_keeps_proportions_and_never_enlarges() -> None:
+    assert fit(PIXELS, 40, 40).shape == (30, 40, 3)
+    assert fit(PIXELS, 800, 600) is PIXELS
+
+
+def test_png_metadata_is_readable() -> None:
+    image = Image.open(io.BytesIO(PNG))
+    assert image.text == {"seq": "3"}  # type: ignore[attr-defined]

@@ -1,0 +1,148 @@
+"""Image channels end to end on the virtual clock: a JPEG put on the ROV comes out at the
+operator as ever sharper PNGs; the operator's ROI changes the next picture; lost fragments
+are repaired; bad pictures are counted drops."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+from PIL import Image
+
+from bridge.core.loaded import load_mission, parse_mission
+from bridge.core.node import Status
+from bridge.image.formats import write_image
+from bridge.image.synthetic import seabed
+from bridge.runtime.virtual_fleet import FastFleet
+from tests.conftest import MISSIONS
+
+PICTURE = seabed(240, 320, seed=5, colour=False)
+JPEG = write_image(PICTURE, "jpeg", quality=92)
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(float) - b.astype(float)) ** 2))
+    return 10 * np.log10(255 ** 2 / max(mse, 1e-9))
+
+
+def pictures(fleet: FastFleet) -> list[tuple[float, dict[str, str], np.ndarray]]:
+    """What the operator published on rov/camera: time, PNG text, pixels."""
+    out = []
+    for t, p in fleet.published("operator", "rov/camera"):
+        assert p.encoding == "image/png"
+        image = Image.open(io.BytesIO(p.value))
+        out.append((t, dict(image.text), np.asarray(image)))  # type: ignore[attr-defined]
+    return out
+
+
+def test_a_jpeg_on_the_rov_sharpens_at_the_operator() -> None:
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=1)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(40.0)
+    got = pictures(fleet)
+    assert len(got) >= 10
+    sizes = [int(text["zab:bytes"]) for _, text, _ in got]
+    assert sizes == sorted(sizes) and len(set(sizes)) == len(sizes)
+    small = np.asarray(Image.fromarray(PICTURE).resize((160, 120), Image.Resampling.LANCZOS))
+    quality = [psnr(small, pixels) for _, _, pixels in got]
+    assert quality[-1] > quality[0] + 6
+    assert got[-1][1]["zab:final"] == "true" and all(t["zab:final"] == "false"
+                                                     for _, t, _ in got[:-1])
+    assert got[-1][1]["zab:bytes"] == got[-1][1]["zab:budget"]
+    statuses = [o.output for o in fleet.outputs if o.node == "operator"
+                and isinstance(o.output, Status) and o.output.topic == "images/camera/rov"]
+    assert statuses[-1].payload["final"] is True
+
+
+def test_the_operator_s_roi_changes_the_next_picture() -> None:
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=2)
+    fleet.put("operator", "camera/control", {"roi": [0.5, 0.5, 1.0, 1.0], "budget_bytes": 400,
+                                             "request": "none"}, at=0.5)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=5.0)
+    fleet.run_until(30.0)
+    last = pictures(fleet)[-1][1]
+    assert last["zab:roi"] == "[0.5, 0.5, 1.0, 1.0]"
+    assert int(last["zab:budget"]) <= 400
+
+
+def test_a_request_sends_the_newest_picture_again_and_cancel_stops_it() -> None:
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=3)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=0.5)
+    fleet.put("operator", "camera/control", {"request": "cancel"}, at=4.0)
+    fleet.run_until(15.0)
+    cancelled = [s for s in (o.output for o in fleet.outputs if o.node == "rov")
+                 if isinstance(s, Status) and s.topic == "delivery/camera"
+                 and s.payload["state"] == "failed"]
+    assert cancelled and "cancelled by the operator" in cancelled[0].payload["reason"]
+    fleet.put("operator", "camera/control", {"request": "now", "budget_bytes": 300}, at=16.0)
+    fleet.run_until(40.0)
+    finals = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+    assert finals and int(finals[-1]["zab:budget"]) <= 300
+
+
+def test_lost_fragments_are_repaired() -> None:
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=4, loss=0.2)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(120.0)
+    got = pictures(fleet)
+    assert got and got[-1][1]["zab:final"] == "true"
+    fragments = int(got[-1][1]["zab:budget"]) // 37
+    assert fleet.cores["rov"].stats.sent_per_channel["camera"] > fragments  # some sent again
+
+
+def test_bad_pictures_are_counted_drops() -> None:
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    policy: finish", "    accept: [jpeg]\n    max_input_pixels: 50000\n    policy: finish")
+    fleet = FastFleet(parse_mission(text), seed=5)
+    fleet.put("rov", "rov/camera", b"\xff\xd8\xff not really a jpeg", encoding="image/jpeg")
+    fleet.put("rov", "rov/camera", write_image(PICTURE, "png"), encoding="image/png")
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg")  # 76800 pixels: too many
+    fleet.put("operator", "camera/control", {"roi": [0.9, 0.1, 0.2, 0.5]})
+    fleet.run_until(10.0)
+    assert fleet.cores["rov"].stats.payloads_dropped["rov/camera"] == 3
+    assert fleet.cores["operator"].stats.payloads_dropped["camera/control"] == 1
+    assert fleet.published("operator", "rov/camera") == []
+
+
+ROS2_MISSION = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+    "    in: rov/camera\n", "    ros2: {topic: /rov/camera, type: sensor_msgs/msg/%s}\n")
+
+
+def test_ros2_compressed_and_raw_pictures_cross() -> None:
+    from bridge.ros2.messages import encode_cdr
+
+    small = np.asarray(Image.fromarray(PICTURE).resize((160, 120), Image.Resampling.LANCZOS))
+    rgb = np.repeat(small[..., None], 3, axis=2)
+    raw = {"height": 120, "width": 160, "encoding": "bgr8", "is_bigendian": 0, "step": 480,
+           "data": rgb[..., ::-1].tobytes()}
+    for msgtype, tree in (("CompressedImage", {"format": "jpeg", "data": JPEG}),
+                          ("Image", raw)):
+        fleet = FastFleet(parse_mission(ROS2_MISSION % msgtype), seed=6)
+        cdr = encode_cdr("jazzy", f"sensor_msgs/msg/{msgtype}", tree)
+        fleet.put("rov", "0/rov/camera/*/*", cdr, encoding="", at=1.0)
+        fleet.put("rov", "0/rov/camera/*/*", cdr[:20], encoding="", at=2.0)  # cut: dropped
+        fleet.run_until(40.0)
+        got = pictures(fleet)
+        assert got and got[-1][1]["zab:final"] == "true", msgtype
+        assert psnr(small, got[-1][2]) > 30, msgtype
+        assert fleet.cores["rov"].stats.payloads_dropped["0/rov/camera/*/*"] == 1
+
+
+def test_a_newer_picture_waits_or_cancels_as_the_policy_says() -> None:
+    other = write_image(seabed(240, 320, seed=9, colour=False), "jpeg", quality=92)
+    for policy in ("finish", "cancel"):
+        text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+            "policy: finish", f"policy: {policy}")
+        fleet = FastFleet(parse_mission(text), seed=7)
+        fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+        fleet.put("rov", "rov/camera", other, encoding="image/jpeg", at=6.0)
+        fleet.run_until(80.0)
+        finals = [t["zab:sequence"] for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+        reports = [o.output.payload for o in fleet.outputs if o.node == "rov"
+                   and isinstance(o.output, Status) and o.output.topic == "delivery/camera"]
+        failed = [r for r in reports if r["state"] == "failed"]
+        if policy == "finish":  # both pictures, one after the other
+            assert len(finals) == 2 and not failed
+        else:  # the first gave way to the second at once
+            assert len(finals) == 1
+            assert failed and "cancelled by a newer value" in failed[0]["reason"]
