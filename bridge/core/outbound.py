@@ -113,7 +113,8 @@ class Outbound:
         self._cap = payload_cap(max((e.layout.bits for c in table.channels
                                      for e in c.elements), default=0))
         self.keyspace = Keyspace(mission, table, node,
-                                 [*self.bindings, *self.families.subscriptions()], outbox)
+                                 [*self.bindings, *self.families.subscriptions()], outbox,
+                                 self.surfacing)
         metas = [(key, e.meta) for key, found in self.bindings.items() for _, _, e in found]
         metas += [(key, e.meta) for key, found in self.families.subscriptions().items()
                   for c, i in found for e in (c.elements[i],)]
