@@ -27,6 +27,7 @@ PARTS = {
     "fixes": "Position fixes from acoustic ranges",
     "queries": "A Zenoh get across the water",
     "surfacing": "A vehicle surfaces, then dives",
+    "relay": "A vehicle reached through another",
     "summary": "Summary",
 }
 
@@ -268,6 +269,20 @@ class Tour:
     def acoustic_again(self, key: str, value: Any, after_s: float) -> None:
         self.say(f"          back over the water {after_s:.1f} s after the dive: {key} = "
                  f"{value} (quantised, the latest value: no backlog)")
+
+    def relay_intro(self, vehicle: str, surface: str, path: tuple[str, ...],
+                    links: tuple[str, ...]) -> None:
+        hops = " ".join(f"{a} –{link}→" for a, link in zip(path, links, strict=False))
+        self.say(f"{vehicle}'s traffic to {surface} goes through others: {hops} "
+                 f"{path[-1]}. Each relay carries {vehicle}'s frame on unchanged in its own "
+                 f"turns (authenticated as {vehicle}'s, so it cannot alter it), and "
+                 f"{surface}'s bridge takes it as {vehicle}'s.")
+
+    def relayed(self, vehicle: str, surface: str, channel: str, value: Any, via: str,
+                hops: int, age_s: int, carried: int) -> None:
+        self.say(f"  {surface} got {channel} {value} from {vehicle} through {via} "
+                 f"({hops + 1} hops, {age_s} s old on arrival by its header); {via} has "
+                 f"carried {carried} frames of others so far")
 
     def not_seen(self, what: str) -> None:
         self.say(f"  ({what} not seen before the tour moved on)")

@@ -8,17 +8,21 @@ anchor keys) is *unmapped*: counted per key (``unmapped_keys`` in the node's sta
 (:class:`~bridge.core.events.UnmappedKey`) once per key, so a typo in a key shows at once.
 
 At the other end, a get on a peer's keyspace that asks no query and no latched value of this
-node maps to nothing: :meth:`Keyspace.unanswered` says why, for the runtime's reply error.
+node maps to nothing: :meth:`Keyspace.unanswered` says why, for the runtime's reply error;
+not while a peer is reachable over IP (surfaced): then the get may be answered there, by
+another bridge or application, and an error from here would only contradict it.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Iterable
+from functools import cached_property
 
 from bridge.core.events import UnmappedKey
 from bridge.core.interest import intersects, output_keys
 from bridge.core.outputs import Outbox
+from bridge.core.surfacing import Surfacing
 from bridge.mission.model import Mission
 from bridge.wire.channels import ChannelTable
 
@@ -40,9 +44,11 @@ class Keyspace:
     """What one node reads of its keyspace, and the puts there nothing reads."""
 
     def __init__(self, mission: Mission, table: ChannelTable, node: str, inputs: Iterable[str],
-                 outbox: Outbox) -> None:
-        """``inputs``: the keys the node's channels read (wildcards allowed)."""
+                 outbox: Outbox, surfacing: Surfacing | None = None) -> None:
+        """``inputs``: the keys the node's channels read (wildcards allowed); ``surfacing``:
+        the peers reachable over IP, when the mission surfaces."""
         self.node = node
+        self.surfacing = surfacing
         self.outbox = outbox
         self.expressions = keyspace_of(mission, node)
         ranging = mission.ranging
@@ -51,13 +57,20 @@ class Keyspace:
                  if k is not None]
         self._read = [k.replace("{src}", "*").replace("{node}", "*") for k in read]
         self._maps: dict[str, bool] = {}
-        self._peers = {peer: keyspace_of(mission, peer) for peer in mission.nodes if peer != node}
+        self.mission = mission
+        self.table = table
+
+    @cached_property
+    def _answered(self) -> tuple[list[str], dict[str, str]]:
+        """The keys a get is answered on here (queries asked, latched outputs), and each
+        output key's channel; worked out at the first get."""
+        node, table = self.node, self.table
         outputs = output_keys(table, node)
-        self._latched = sorted({k for c in table.channels if c.latching
-                                for k in outputs.get(c.index, ())})
-        self._outputs = {k: table.channels[i].name for i, keys in outputs.items() for k in keys}
-        self._asked = sorted({spec.asked_key(s) for spec in table.queries if node in spec.askers
-                              for s in spec.servers if s != node})
+        latched = {k for c in table.channels if c.latching for k in outputs.get(c.index, ())}
+        asked = {spec.asked_key(s) for spec in table.queries if node in spec.askers
+                 for s in spec.servers if s != node}
+        return (sorted(asked | latched),
+                {k: table.channels[i].name for i, keys in outputs.items() for k in keys})
 
     def maps(self, key: str) -> bool:
         """Whether a put on concrete ``key`` is read here (answers kept, bounded)."""
@@ -82,14 +95,19 @@ class Keyspace:
 
     def peer_keyspaces(self) -> list[str]:
         """The key expressions of the other nodes' keyspaces, where gets may be asked here."""
-        return sorted({k for keys in self._peers.values() for k in keys})
+        return sorted({k for peer in self.mission.nodes if peer != self.node
+                       for k in keyspace_of(self.mission, peer)})
 
     def unanswered(self, selector: str) -> str | None:
         """Why a get on ``selector`` (under a peer's keyspace) gets nothing from the bridge
-        here, or None when it asks a query or a latched value of this node."""
-        if any(intersects(selector, k) for k in (*self._asked, *self._latched)):
+        here, or None when it asks a query or a latched value of this node, or while a peer is
+        reachable over IP (the get may be answered there)."""
+        if self.surfacing is not None and self.surfacing.reachable:
             return None
-        outputs = [f"{k} (channel {c})" for k, c in self._outputs.items()
+        answered, channels = self._answered
+        if any(intersects(selector, k) for k in answered):
+            return None
+        outputs = [f"{k} (channel {c})" for k, c in channels.items()
                    if intersects(selector, k)]
         if outputs:
             return (f"{selector}: {', '.join(outputs)} at {self.node} not latched: no value is "
