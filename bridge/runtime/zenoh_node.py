@@ -264,6 +264,8 @@ class BridgeNode:
             if self._ros2 is not None:
                 self._ros2.close()
             close_quietly(self.session)
+            if self.intake is not None:
+                self.intake.join()
 
     def fail(self, message: str) -> None:
         """The node cannot go on (any thread): :meth:`run` stops everything and raises
