@@ -42,6 +42,7 @@ from bridge.errors import BackendError, DecodeError, EncodeError, NodeFailure
 from bridge.modems.base import ModemBackend, ModemFix, ModemRange, Reception
 from bridge.runtime.eager import start_eagerly
 from bridge.runtime.gate import EventGate
+from bridge.runtime.image_queries import ImageQueries
 from bridge.runtime.intake import Intake
 from bridge.runtime.ip_watch import IpWatch
 from bridge.runtime.keys import load_key, with_next_key
@@ -149,6 +150,7 @@ class BridgeNode:
         self._queryables: list[Any] = []
         self._interest_entities: list[Any] = []
         self._query_bridge: QueryBridge | None = None
+        self._image_queries: ImageQueries | None = None
         self._data = asyncio.Event()
         self._modem_up = asyncio.Event()
         self._sending = False
@@ -218,6 +220,9 @@ class BridgeNode:
                 self._query_bridge = QueryBridge(self.session, self.core, self.lock,
                                                  self.clock, self._changed, loop,
                                                  self.taken_at)
+            if self.core.images is not None and self.core.images.controls:
+                self._image_queries = ImageQueries(self.session, self.core, self.lock,
+                                                   self.clock, self._changed, loop)
             if self.core.surfacing is not None:
                 self._watch_ip(loop)
             self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
@@ -247,6 +252,8 @@ class BridgeNode:
         finally:
             if self._query_bridge is not None:
                 self._query_bridge.close()
+            if self._image_queries is not None:
+                self._image_queries.close()
             if self.backend is not None:
                 await self.backend.close()
             if self._ros2 is not None:
