@@ -25,19 +25,28 @@ JPEG put on the vehicle to the first picture of ≥ 22 dB at the receiver (grey 
 to the whole 1.6 kB stream, and the longest gap between two status values meanwhile against
 the link's degraded-after bound.
 
-Run: ``uv run --group bench python bench/image_bench.py [--quick] [--links]``.
+``--baseline REV`` runs the coder of a git revision beside this one (``bridge/image`` at REV,
+imported under another name): its PSNR in the quality tables, its ROI gain, its time, all in
+the same run.
+
+Run: ``uv run --group bench python bench/image_bench.py [--quick] [--links] [--baseline main]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import io
 import statistics
+import subprocess
+import sys
+import tarfile
 import tempfile
 import time
 from collections.abc import Callable
 from itertools import pairwise
 from pathlib import Path
+from types import ModuleType
 
 import glymur
 import numpy as np
@@ -54,6 +63,21 @@ BUDGETS = (200, 400, 800, 1600, 3200, 6400)
 GREY = ("camera", "moon", "coins", "clock")
 COLOUR = ("astronaut", "coffee", "chelsea", "rocket", "immunohistochemistry")
 J2K_MEAN_IN_ISSUE = {200: 20.3, 400: 24.6, 800: 27.0, 1600: 29.5, 6400: 37.1}
+
+
+def baseline_codec(rev: str, folder: Path) -> ModuleType:
+    """``bridge.image.codec`` as it was at git revision ``rev``, importable beside ours."""
+    repo = Path(__file__).resolve().parent.parent
+    archive = subprocess.run(["git", "archive", rev, "bridge/image"], cwd=repo, check=True,
+                             capture_output=True).stdout
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(folder, filter="data")
+    package = folder / "baseline_image"
+    (folder / "bridge" / "image").rename(package)
+    for source in package.glob("*.py"):
+        source.write_text(source.read_text().replace("bridge.image.", "baseline_image."))
+    sys.path.insert(0, str(folder))
+    return importlib.import_module("baseline_image.codec")
 
 
 def prepare(array: np.ndarray, width: int = 320, height: int = 240,
@@ -131,20 +155,27 @@ def pictures() -> dict[str, list[np.ndarray]]:
     }
 
 
-def quality_tables(sets: dict[str, list[np.ndarray]], folder: Path) -> dict[str, dict]:
+def quality_tables(sets: dict[str, list[np.ndarray]], folder: Path,
+                   base: tuple[str, ModuleType] | None = None) -> dict[str, dict]:
+    """``base``: (its name, a baseline's codec module), whose PSNR goes in a last column."""
     results: dict[str, dict] = {}
     for name, images in sets.items():
         print(f"\n{name}: mean PSNR dB / SSIM ({len(images)} pictures)")
-        print(f"{'bytes':>6} | {'zab':>13} | {'JPEG 2000':>13} | {'JPEG':>15} | zab − J2K")
+        print(f"{'bytes':>6} | {'zab':>13} | {'JPEG 2000':>13} | {'JPEG':>15} | zab − J2K"
+              + (f" | {base[0]:>8}" if base else ""))
         rows = {}
         for budget in BUDGETS:
             scores: dict[str, list[tuple[float, float]]] = {"zab": [], "j2k": [], "jpeg": []}
+            before = []
             for pixels in images:
                 for key, decoded in (("zab", ours(pixels, budget)),
                                      ("j2k", jpeg2000(pixels, budget, folder)),
                                      ("jpeg", jpeg(pixels, budget))):
                     if decoded is not None:
                         scores[key].append((psnr(pixels, decoded), ssim(pixels, decoded)))
+                if base:
+                    before.append(psnr(pixels, base[1].decode(base[1].encode(pixels,
+                                                                             budget)).pixels))
             cells = []
             means = {}
             for key in ("zab", "j2k", "jpeg"):
@@ -156,16 +187,19 @@ def quality_tables(sets: dict[str, list[np.ndarray]], folder: Path) -> dict[str,
                     cells.append(f"{'—':>5} ({len(got)}/{len(images)} fit)")
             delta = means["zab"] - means["j2k"] if "j2k" in means else float("nan")
             print(f"{budget:>6} | {cells[0]:>13} | {cells[1]:>13} | {cells[2]:>15} | "
-                  f"{delta:+.2f}")
+                  f"{delta:+9.2f}" + (f" | {statistics.fmean(before):8.2f}" if base else ""))
+            if base:
+                means["base"] = statistics.fmean(before)
             rows[budget] = means
         results[name] = rows
     return results
 
 
-def roi_table(name: str, images: list[np.ndarray]) -> dict[int, dict[str, float]]:
+def roi_table(name: str, images: list[np.ndarray],
+              base: tuple[str, ModuleType] | None = None) -> dict[int, dict[str, float]]:
     print(f"\nROI: a centred quarter of {name}, mean PSNR dB inside (outside)")
     print(f"{'bytes':>6} | {'no ROI':>13} | {'plain shift':>13} | {'zab ROI':>13} | "
-          f"{'ROI alone':>9} | gain plain, zab")
+          f"{'ROI alone':>9} | gain plain, zab" + (f"; {base[0]}'s gain" if base else ""))
     inside = (slice(60, 180), slice(80, 240))
     outside = np.ones((240, 320), dtype=bool)
     outside[inside] = False
@@ -189,12 +223,19 @@ def roi_table(name: str, images: list[np.ndarray]) -> dict[int, dict[str, float]
             cols[key] = (statistics.fmean(ins), statistics.fmean(outs))
         alone = statistics.fmean(psnr(p[inside], ours(np.ascontiguousarray(p[inside]), budget))
                                  for p in images)
-        base = cols["none"][0]
+        none = cols["none"][0]
+        then = ""
+        if base:
+            codec, roi_then = base[1], base[1].Roi.from_fractions(0.25, 0.25, 0.75, 0.75)
+            then = "; {:+.2f}".format(statistics.fmean(
+                psnr(p[inside], codec.decode(codec.encode(p, budget, roi_then)).pixels[inside])
+                - psnr(p[inside], codec.decode(codec.encode(p, budget)).pixels[inside])
+                for p in images))
         print(f"{budget:>6} | " + " | ".join(f"{cols[k][0]:5.2f} ({cols[k][1]:5.2f})"
                                              for k in ("none", "plain", "zab"))
-              + f" | {alone:9.2f} | {cols['plain'][0] - base:+.2f}, {cols['zab'][0] - base:+.2f}"
-              + f"  (most: {alone - base:+.2f})")
-        out[budget] = {"none": base, "plain": cols["plain"][0], "zab": cols["zab"][0],
+              + f" | {alone:9.2f} | {cols['plain'][0] - none:+.2f}, {cols['zab'][0] - none:+.2f}"
+              + f"  (most: {alone - none:+.2f}){then}")
+        out[budget] = {"none": none, "plain": cols["plain"][0], "zab": cols["zab"][0],
                        "alone": alone}
     return out
 
@@ -209,15 +250,17 @@ def best_ms(fn: Callable[[], object], repeat: int) -> float:
     return best * 1000
 
 
-def timing_table(grey: np.ndarray, colour: np.ndarray, folder: Path,
-                 repeat: int) -> dict[str, dict[int, float]]:
+def timing_table(grey: np.ndarray, colour: np.ndarray, folder: Path, repeat: int,
+                 base: tuple[str, ModuleType] | None = None) -> dict[str, dict[int, float]]:
     print(f"\nencode + decode, CPU ms (best of {repeat}), 320×240; OpenJPEG through files")
     print(f"{'bytes':>6} | {'zab grey':>8} | {'J2K grey':>8} | {'ratio':>5} | "
-          f"{'zab colour':>10} | {'J2K colour':>10} | {'ratio':>5}")
+          f"{'zab colour':>10} | {'J2K colour':>10} | {'ratio':>5}"
+          + (f" | {base[0]} grey, colour" if base else ""))
     path = folder / "t.j2k"
     out: dict[str, dict[int, float]] = {"grey": {}, "colour": {}}
     for budget in BUDGETS:
-        cells = []
+        cells: list[float] = []
+        before: list[float] = []
         for key, pixels in (("grey", grey), ("colour", colour)):
             stream = encode(pixels, budget)
             ms = best_ms(lambda p=pixels, s=stream, b=budget: (encode(p, b), decode(s)), repeat)
@@ -229,8 +272,13 @@ def timing_table(grey: np.ndarray, colour: np.ndarray, folder: Path,
 
             cells += [ms, best_ms(j2k, repeat)]
             out[key][budget] = ms
+            if base:
+                codec, then = base[1], base[1].encode(pixels, budget)
+                before.append(best_ms(lambda p=pixels, s=then, b=budget, c=codec: (
+                    c.encode(p, b), c.decode(s)), repeat))
         print(f"{budget:>6} | {cells[0]:8.1f} | {cells[1]:8.1f} | {cells[0] / cells[1]:5.2f} | "
-              f"{cells[2]:10.1f} | {cells[3]:10.1f} | {cells[2] / cells[3]:5.2f}")
+              f"{cells[2]:10.1f} | {cells[3]:10.1f} | {cells[2] / cells[3]:5.2f}"
+              + (f" | {before[0]:5.1f}, {before[1]:5.1f}" if base else ""))
     return out
 
 
@@ -352,6 +400,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer timing repeats")
     parser.add_argument("--links", action="store_true", help="only the runs across missions")
+    parser.add_argument("--baseline", metavar="REV",
+                        help="also run bridge/image of this git revision, side by side")
     args = parser.parse_args()
     if args.links:
         link_table()
@@ -359,16 +409,18 @@ def main() -> None:
     sets = pictures()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        quality = quality_tables(sets, folder)
+        base = (args.baseline, baseline_codec(args.baseline, folder / "baseline")) \
+            if args.baseline else None
+        quality = quality_tables(sets, folder, base)
         grey_set = sets["grey 320×240 (scikit-image)"]
         print("\n(the issue's JPEG 2000 on its own grey pictures: "
               + ", ".join(f"{b} B {v}" for b, v in J2K_MEAN_IN_ISSUE.items()) + " dB)")
-        rois = {"grey 320×240": roi_table("grey 320×240 (scikit-image)", grey_set),
+        rois = {"grey 320×240": roi_table("grey 320×240 (scikit-image)", grey_set, base),
                 "underwater grey 320×240": roi_table(
                     "underwater grey 320×240", [seabed(240, 320, s, colour=False)
-                                                for s in range(4)])}
+                                                for s in range(4)], base)}
         times = timing_table(grey_set[0], sets["colour 320×240 (scikit-image, luma)"][0],
-                             folder, 5 if args.quick else 30)
+                             folder, 5 if args.quick else 30, base)
     estimate_table(grey_set)
     goals(quality, rois, times)
 
