@@ -896,6 +896,8 @@ class BridgeNode:
         with self.lock:
             snapshot = self.core.snapshot(self.clock())
         snapshot["state"].update(self.persistence.snapshot())
+        if self._query_bridge is not None and "queries" in snapshot:
+            snapshot["queries"]["refused_gets"] = self._query_bridge.refused
         if self.ip_watch is not None and "surfacing" in snapshot:
             snapshot["surfacing"]["unproven"] = self.ip_watch.unproven
         if self.intake is not None:

@@ -24,9 +24,11 @@ back to the core when the get ends.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import logging
 import threading
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -92,6 +94,9 @@ def has_parameters(values: dict[str, Any], paths: tuple[str, ...]) -> bool:
     return True
 
 
+WAITING_GETS = 64
+"""Zenoh gets waiting for the loop at a time; under a flood the oldest is refused at once."""
+
 @dataclass
 class Waiting:
     """A Zenoh get held open until every acoustic query it asked has ended."""
@@ -121,6 +126,11 @@ class QueryBridge:
         self.loop = loop
         self.waiting: dict[Ticket, list[Waiting]] = {}
         self.entities: list[Any] = []
+        self.refused = 0
+        """Gets ended at once because :data:`WAITING_GETS` others waited for the loop."""
+        self._gets: deque[tuple[Waiting, list[str], Any, bool]] = deque()
+        self._lock = threading.Lock()
+        self._woken = False  # a call to _take_gets is on its way to the loop
         assert core.queries is not None
         self.asked = core.queries.asked_keys()
         for key in self.asked:
@@ -145,7 +155,32 @@ class QueryBridge:
                 params = parse_parameters(str(query.parameters))
         except (DecodeError, ValueError) as exc:
             params = exc
-        self.loop.call_soon_threadsafe(self._ask, Waiting(query), keys, params, asked != key)
+        self._hand_off((Waiting(query), keys, params, asked != key))
+
+    def _hand_off(self, get: tuple[Waiting, list[str], Any, bool]) -> None:
+        """Zenoh thread: ``get`` waits for the loop, with at most :data:`WAITING_GETS` others;
+        under a flood of gets the oldest waiting one is ended at once with an error and
+        counted (``refused``), so memory stays bounded however fast gets come."""
+        with self._lock:
+            oldest = self._gets.popleft() if len(self._gets) >= WAITING_GETS else None
+            if oldest is not None:
+                self.refused += 1
+            self._gets.append(get)
+            wake, self._woken = not self._woken, True
+        if oldest is not None:
+            self._finish(oldest[0], "too many gets waiting at this bridge: try again")
+        if wake:
+            with contextlib.suppress(RuntimeError):  # the loop has closed: the node is gone
+                self.loop.call_soon_threadsafe(self._take_gets)
+
+    def _take_gets(self) -> None:
+        """On the loop: every get waiting, in the order they came."""
+        with self._lock:
+            gets = list(self._gets)
+            self._gets.clear()
+            self._woken = False
+        for get in gets:
+            self._ask(*get)
 
     def _ask(self, waiting: Waiting, keys: list[str], params: Any, wildcard: bool) -> None:
         core = self.core
