@@ -11,9 +11,12 @@ bit first.
 Each class of each band is a sequence of yes/no significance decisions, mostly no; it goes as
 *adaptive run lengths* (the run-length mode of RLGR / JPEG-LS): with parameter ``k``, ``0``
 says the next ``2**k`` decisions are all no (``k`` grows), ``1`` and ``k`` bits give the
-position of the next yes, then its sign (``k`` shrinks). ``k`` starts where one ``0`` covers
-the class's first pass (a band with nothing yet costs a bit) and carries over from plane to
-plane for each class and band, so both ends adapt alike with no side information. Refinement
+position of the next yes, then its sign (``k`` shrinks). The bands still *idle* (nothing
+significant in them yet) go together, one sequence for each scale, so a plane that wakes
+none of them costs a bit a scale, not a bit a band (chroma's many idle bands cost most).
+``k`` starts where one ``0`` covers the sequence's first pass and carries over from plane to
+plane for each class and band (or scale of idle bands), so both ends adapt alike with no
+side information. Refinement
 bits and signs go as they are. With a region of interest each plane is coded twice over:
 first the ROI's coefficients (those raised), with runs of their own, then the rest's, so the
 rest's zeros never lengthen the ROI's runs. Everything is decided for a whole pass from the
@@ -30,6 +33,7 @@ from __future__ import annotations
 from bisect import bisect_left, bisect_right
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from itertools import accumulate
 
 import numpy as np
 from numpy.typing import NDArray
@@ -72,12 +76,14 @@ class Context:
         self.geometry = geometry
         self.near = np.zeros(geometry.size + 1, dtype=bool)
         self.under = np.zeros(geometry.size + 1, dtype=bool)
+        self.busy = np.zeros(len(geometry.bands), dtype=bool)  # bands with a significant one
 
     def became(self, positions: Ints) -> None:
         """Coefficients at coding ``positions`` became significant."""
         geometry = self.geometry
         self.near[geometry.neighbours[positions]] = True
         self.under[geometry.children(positions)] = True
+        self.busy[geometry.band_of[positions]] = True
 
     def classes(self, sig: Bools, only: Bools | None = None) -> list[Ints]:
         """Coding positions not yet significant (and in ``only``, if given), by class: near
@@ -141,6 +147,24 @@ _AFTER = [[min(kp + UP * m, KPMAX) for m in range(len(_COVER[kp]))] for kp in ra
 """The run parameter after ``m`` codes ``0`` from ``kp``."""
 
 
+def _segments(cut: list[int], busy: list[bool], scales: list[int]) -> list[tuple[int, list[int]]]:
+    """A pass's run segments, as (key, bands): each band with something significant on its
+    own (keyed by the band), then the idle bands (nothing significant yet) of each scale as
+    one (keyed ``-1 - scale``), so that a plane that wakes none of them costs a bit a scale,
+    not a bit a band. ``cut``: where each band starts in the pass (bands not in it left out)."""
+    out: list[tuple[int, list[int]]] = []
+    idle: dict[int, list[int]] = {}
+    for b in range(len(cut) - 1):
+        if cut[b] == cut[b + 1]:
+            continue
+        if busy[b]:
+            out.append((b, [b]))
+        else:
+            idle.setdefault(-1 - scales[b], []).append(b)
+    out += idle.items()
+    return out
+
+
 def _run_encode(out: list[str], ones: list[int], signs: list[bool], pos: int, length: int,
                 kp: int) -> int:
     """Append the run codes of the decisions ``pos`` up to ``length`` of a pass, whose yes
@@ -189,6 +213,7 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
     size = geometry.size
     sig = np.zeros(size, dtype=bool)
     starts = geometry.band_start
+    scales = [band.scale for band in geometry.bands]
     ks: dict[tuple[int, int, int], int] = {}
     context = Context(geometry)
     parts: list[str] = []
@@ -217,17 +242,26 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
             cut = cut_at.tolist()
             neg = negative[cand[ones_at]].tolist()
             ones_list = ones_at.tolist()
+            segments = _segments(cut, context.busy.tolist(), scales)
             sig[cand[ones_at]] = True
             context.became(cand[ones_at])
-            for b in range(len(starts) - 1):
-                a, z = cut[b], cut[b + 1]
-                if a == z:
-                    continue
-                oa, oz = cut_ones[b], cut_ones[b + 1]
-                key = (g, cls, b)
+            for key_band, bands in segments:
+                if len(bands) == 1:  # the band's own positions in the pass
+                    b = bands[0]
+                    pos, length = cut[b], cut[b + 1]
+                    ones = ones_list[cut_ones[b]:cut_ones[b + 1]]
+                    signs = neg[cut_ones[b]:cut_ones[b + 1]]
+                else:  # the bands one after another, counted from 0
+                    pos, length, ones, signs = 0, 0, [], []
+                    for b in bands:
+                        oa, oz = cut_ones[b], cut_ones[b + 1]
+                        ones += [p - cut[b] + length for p in ones_list[oa:oz]]
+                        signs += neg[oa:oz]
+                        length += cut[b + 1] - cut[b]
+                key = (g, cls, key_band)
                 out: list[str] = []
-                ks[key] = _run_encode(out, ones_list[oa:oz], neg[oa:oz], a, z,
-                                      ks.get(key, _first_kp(z - a)))
+                ks[key] = _run_encode(out, ones, signs, pos, length,
+                                      ks.get(key, _first_kp(length - pos)))
                 piece = "".join(out)
                 parts.append(piece)
                 total += len(piece)
@@ -278,6 +312,7 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
     state.below[:] = top + 1
     sig = state.significant
     starts = geometry.band_start
+    scales = [band.scale for band in geometry.bands]
     ks: dict[tuple[int, int, int], int] = {}
     context = Context(geometry)
     i = 0
@@ -302,20 +337,28 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
                 continue
             if cand.size == 0:
                 continue
-            cut = np.searchsorted(cand, starts).tolist()
             found: list[int] = []
             signs: list[bool] = []
             stop = False
-            for b in range(len(cut) - 1):
-                a, z = cut[b], cut[b + 1]
-                if a == z:
-                    continue
-                key = (g, cls, b)
+            cut = np.searchsorted(cand, starts).tolist()
+            for key_band, bands in _segments(cut, context.busy.tolist(), scales):
+                key = (g, cls, key_band)
+                lengths = [cut[b + 1] - cut[b] for b in bands]
+                if len(bands) == 1:
+                    pos, length, heard = cut[bands[0]], cut[bands[0] + 1], found
+                else:
+                    pos, length, heard = 0, sum(lengths), []
                 try:
-                    i, ks[key] = _run_decode(bits, i, a, z, ks.get(key, _first_kp(z - a)),
-                                             found, signs)
+                    i, ks[key] = _run_decode(bits, i, pos, length,
+                                             ks.get(key, _first_kp(length - pos)), heard, signs)
                 except Truncated:
                     stop = True
+                if heard is not found:  # back from counted-from-0 to the pass's positions
+                    ends = list(accumulate(lengths))
+                    for v in heard:
+                        at = bisect_right(ends, v)
+                        found.append(cut[bands[at]] + v - (ends[at] - lengths[at]))
+                if stop:
                     break
             if found:
                 idx = cand[np.array(found, dtype=np.int64)]

@@ -8,7 +8,7 @@ raises its coefficients by a few bit planes, so it sharpens first.
 
 The stream, most significant bit first::
 
-    version   2 bits (1; 0 was the first pass of #30, which this decoder refuses)
+    version   2 bits (2; this decoder refuses the earlier ones)
     colour    1 bit
     width-1   11 bits, height-1 11 bits
     top+1     5 bits: the highest bit plane (0: an empty image)
@@ -33,7 +33,7 @@ from bridge.image.wavelet import forward, inverse
 
 __all__ = ["MAX_SIDE", "Decoded", "ImageStreamError", "decode", "encode", "header_bytes"]
 
-VERSION = 1
+VERSION = 2
 MAX_SIDE = 2048
 FRACTION_BITS = 2  # quantiser step: a quarter of a (weighted) grey level
 QUANTUM = float(1 << FRACTION_BITS)
