@@ -77,9 +77,12 @@ channels:
 TERMINAL = ("delivered", "failed")
 
 
-def mission_text(loss: float, ports: dict[str, int] | None = None, auth: bool = False) -> str:
+def mission_text(loss: float, ports: dict[str, int] | None = None, auth: bool = False,
+                 template: str = MISSION) -> str:
+    """``template`` with its @LOSS@ and @PORT@ names filled in (``auth``: frames
+    authenticated)."""
     ports = ports or {"WATER": 7600, "OPS": 7501, "AUV": 7502}
-    text = MISSION.replace("@LOSS@", str(loss))
+    text = template.replace("@LOSS@", str(loss))
     if auth:  # authenticated frames: a forgetful sender's counter starts below its peer's mark
         text = "wire: {auth: {tag_bytes: 4}}\n" + text
     for name, port in ports.items():
@@ -238,63 +241,73 @@ def zenoh_client(endpoints: Iterable[str], timeout_s: float = 30.0) -> Any:
 def run_real(commands: int, loss: float, seed: int, kill_every_s: float = 13.0,
              interval_s: float = 0.5, settle_s: float = 600.0) -> dict[str, Any]:
     """The real processes, killed with SIGKILL every ``kill_every_s`` (alternating nodes)."""
+    ports = {"WATER": free_port(), "OPS": free_port(), "AUV": free_port()}
+    with tempfile.TemporaryDirectory(prefix="zab-chaos-") as tmp:
+        mission = Path(tmp) / "chaos.yaml"
+        mission.write_text(mission_text(loss, ports))
+        tally = drive_real(mission, ["water", "ops", "auv"], ports["OPS"], ports["AUV"],
+                           "@zab/chaos/ops/delivery/command", ["auv", "ops"], commands,
+                           seed, kill_every_s, interval_s, settle_s)
+    return {"mode": "real", "loss": loss, "seed": seed, **tally.summary()}
+
+
+def drive_real(mission: Path, starts: list[str], sender: int, receiver: int, reports: str,
+               victims: list[str], commands: int, seed: int, kill_every_s: float,
+               interval_s: float, settle_s: float) -> Tally:
+    """Start ``starts`` (``water`` and nodes) for ``mission``; plain Zenoh applications at
+    the ``sender`` and ``receiver`` nodes' ports put numbered commands on ``cmd`` and count
+    them on ``ops/cmd`` and on the delivery key ``reports``; one of ``victims`` is killed
+    with SIGKILL every ``kill_every_s`` and started again."""
     import msgpack
     import zenoh
 
     rng = random.Random(seed)
-    ports = {"WATER": free_port(), "OPS": free_port(), "AUV": free_port()}
     tally = Tally()
     lock = threading.Lock()
-    with tempfile.TemporaryDirectory(prefix="zab-chaos-") as tmp:
-        root = Path(tmp)
-        mission = root / "chaos.yaml"
-        mission.write_text(mission_text(loss, ports))
-        procs = Processes(mission, root, root)
-        for name in ("water", "ops", "auv"):
-            procs.start(name)
-        ops_app = zenoh_client([f"tcp/127.0.0.1:{ports['OPS']}"])
-        auv_app = zenoh_client([f"tcp/127.0.0.1:{ports['AUV']}"])
+    root = mission.parent
+    procs = Processes(mission, root, root)
+    for name in starts:
+        procs.start(name)
+    ops_app = zenoh_client([f"tcp/127.0.0.1:{sender}"])
+    auv_app = zenoh_client([f"tcp/127.0.0.1:{receiver}"])
 
-        def on_command(sample: zenoh.Sample) -> None:
-            with lock:
-                tally.published.append(int(msgpack.unpackb(sample.payload.to_bytes())["n"]))
-
-        def on_report(sample: zenoh.Sample) -> None:
-            with lock:
-                tally.add_report(msgpack.unpackb(sample.payload.to_bytes()))
-
-        subs = [auv_app.declare_subscriber("ops/cmd", on_command),
-                ops_app.declare_subscriber("@zab/chaos/ops/delivery/command", on_report)]
-        publisher = ops_app.declare_publisher(
-            "cmd", encoding=zenoh.Encoding("application/msgpack"))
-        try:
-            next_kill = time.time() + kill_every_s
-            victims = ["auv", "ops"]
-            for i in range(commands):
-                publisher.put(msgpack.packb({"n": i}), attachment=f"ref:{i}".encode())
-                tally.offered += 1
-                time.sleep(interval_s)
-                if time.time() >= next_kill:
-                    victim = rng.choice(victims)
-                    procs.kill(victim)
-                    time.sleep(rng.uniform(0.5, 3.0))
-                    procs.start(victim)
-                    next_kill = time.time() + kill_every_s
-            deadline = time.time() + settle_s
-            while time.time() < deadline:
-                time.sleep(2.0)
-                with lock:
-                    summary = tally.summary()
-                if summary["no_terminal_report"] == 0 and summary["sent"]:
-                    break
-        finally:
-            for sub in subs:
-                sub.undeclare()
-            ops_app.close()
-            auv_app.close()
-            procs.stop_all()
+    def on_command(sample: zenoh.Sample) -> None:
         with lock:
-            return {"mode": "real", "loss": loss, "seed": seed, **tally.summary()}
+            tally.published.append(int(msgpack.unpackb(sample.payload.to_bytes())["n"]))
+
+    def on_report(sample: zenoh.Sample) -> None:
+        with lock:
+            tally.add_report(msgpack.unpackb(sample.payload.to_bytes()))
+
+    subs = [auv_app.declare_subscriber("ops/cmd", on_command),
+            ops_app.declare_subscriber(reports, on_report)]
+    publisher = ops_app.declare_publisher("cmd", encoding=zenoh.Encoding("application/msgpack"))
+    try:
+        next_kill = time.time() + kill_every_s
+        for i in range(commands):
+            publisher.put(msgpack.packb({"n": i}), attachment=f"ref:{i}".encode())
+            tally.offered += 1
+            time.sleep(interval_s)
+            if time.time() >= next_kill:
+                victim = rng.choice(victims)
+                procs.kill(victim)
+                time.sleep(rng.uniform(0.5, 3.0))
+                procs.start(victim)
+                next_kill = time.time() + kill_every_s
+        deadline = time.time() + settle_s
+        while time.time() < deadline:
+            time.sleep(2.0)
+            with lock:
+                summary = tally.summary()
+            if summary["no_terminal_report"] == 0 and summary["sent"]:
+                break
+    finally:
+        for sub in subs:
+            sub.undeclare()
+        ops_app.close()
+        auv_app.close()
+        procs.stop_all()
+    return tally
 
 
 def main() -> None:

@@ -50,7 +50,7 @@ def running_fleet(loaded: LoadedMission, **kwargs: Any) -> Iterator[Fleet]:
 
     thread = threading.Thread(target=main, name="fleet", daemon=True)
     thread.start()
-    deadline = time.time() + 10
+    deadline = time.time() + 30  # start-up under a loaded machine
     while not fleet.ready.is_set() and not done.is_set() and time.time() < deadline:
         time.sleep(0.01)
     try:
@@ -61,7 +61,7 @@ def running_fleet(loaded: LoadedMission, **kwargs: Any) -> Iterator[Fleet]:
     finally:
         if not done.is_set():
             loop.call_soon_threadsafe(stop.set)
-        assert done.wait(15), "fleet did not stop"
+        assert done.wait(30), "fleet did not stop"
         thread.join(5)
     if failure:
         raise failure[0]

@@ -201,6 +201,10 @@ def check(
                       f"{n['frame_bytes']} B", f"{n['fill']:.0%}", airtime, " ".join(n["listen"]))
     console.print(nodes)
     _print_mac(data)
+    if data.get("network"):
+        from bridge.cli.check_network import print_network
+
+        print_network(console, data["network"])
     for s in data["streams"]:
         retries = "no retry limit" if s["retries"] is None else f"{s['retries']} retries"
         console.print(
@@ -318,7 +322,7 @@ def run(
         "else ~/.local/state/zab.")] = None,
 ) -> None:
     """Run the bridge of one node (what each vehicle runs)."""
-    from bridge.modems.setup import backend_factory
+    from bridge.modems.setup import node_backends
     from bridge.runtime.state_file import StateError, StateFile, default_state_dir
     from bridge.runtime.zenoh_node import BridgeNode
 
@@ -333,7 +337,7 @@ def run(
         raise typer.Exit(2)
     _logging(verbose)
     try:
-        factory = backend_factory(loaded.mission, node)
+        factory = node_backends(loaded.network, node)
     except BackendError as exc:
         err.print(f"[red]{exc}[/]")
         raise typer.Exit(2) from None
@@ -378,25 +382,34 @@ def water(
     = None,
     seed: Annotated[int | None, typer.Option(help="Random seed of the ocean.")] = None,
 ) -> None:
-    """Run the simulated ocean that `zab run` nodes with `backend: sim` join over loopback."""
+    """Run the simulated ocean that `zab run` nodes with `backend: sim` join over loopback
+    (with several links, one water per link, each at its modem's `water` address)."""
     from bridge.modems.sim import parse_water_address
-    from bridge.runtime.fleet import water_for
+    from bridge.runtime.fleet import waters_for
 
     loaded = _load(mission)
-    address = loaded.mission.modem.options.get("water", "127.0.0.1:7600")
-    host, default_port = parse_water_address(address)
+    links = {link.name: link.view.modem.options.get("water", "127.0.0.1:7600")
+             for link in loaded.network.links}
+    if port is not None and len(links) > 1:
+        err.print("--port names one water; this mission has one per link (their modems' "
+                  "`water` options say where)")
+        raise typer.Exit(2)
 
     async def main() -> None:
         stop = asyncio.Event()
         _install_stop(stop)
-        service = water_for(loaded, seed)
-        bound = await service.start(host, port if port is not None else default_port)
-        console.print(f"water ({service.preset.name}) on {host}:{bound}; Ctrl-C to stop")
+        services = waters_for(loaded, seed)
+        for (link, service), address in zip(services.items(), links.values(), strict=True):
+            host, default_port = parse_water_address(address)
+            bound = await service.start(host, port if port is not None else default_port)
+            console.print(f"water ({service.preset.name}{f', link {link}' if link else ''}) on "
+                          f"{host}:{bound}; Ctrl-C to stop")
         try:
             await stop.wait()
         finally:
-            await service.stop()
-            console.print_json(data=service.stats())
+            for service in services.values():
+                await service.stop()
+                console.print_json(data=service.stats())
 
     asyncio.run(main())
 

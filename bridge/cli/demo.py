@@ -34,6 +34,7 @@ from rich.table import Table
 
 from bridge.cli.demo_images import PictureWatch, camera_pair, images_for_tour
 from bridge.cli.demo_queries import QUERY_PERIOD_S, QueryApps, member_keys, query_for_tour
+from bridge.cli.demo_relay import RelayWatch, relay_plan, shown_values
 from bridge.cli.demo_surfacing import (
     SentAtSwitches,
     SurfacingWatch,
@@ -43,10 +44,11 @@ from bridge.cli.demo_surfacing import (
 )
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
 from bridge.cli.tour import Tour, short, turn_waits
+from bridge.core.bounds import UNBOUNDED_TURN_S
 from bridge.core.events import Event
 from bridge.core.loaded import LoadedMission, parse_mission
 from bridge.core.mac import frame_time_s
-from bridge.core.queries import UNBOUNDED_TURN_S, deadline_s
+from bridge.core.queries import deadline_s
 from bridge.errors import MissionError
 from bridge.gui.commands import named_as_command
 from bridge.gui.server import GuiServer
@@ -90,7 +92,9 @@ def tour_mission(path: Path, loss: float = TOUR_LOSS) -> tuple[LoadedMission, li
     data = yaml.safe_load(path.read_text(encoding="utf-8"))
     changes = []
     if loss > 0:
-        data.setdefault("modem", {}).setdefault("options", {})["loss"] = loss
+        for modem in ([link.setdefault("modem", {}) for link in data["links"].values()]
+                      if data.get("links") else [data.setdefault("modem", {})]):
+            modem.setdefault("options", {})["loss"] = loss  # (each link's water)
         changes.append(f"the water loses {loss:.0%} of frames")
     for extra in (query_for_tour(data), surfacing_for_tour(data), images_for_tour(data)):
         if extra is not None:
@@ -674,6 +678,8 @@ def tour_parts(loaded: LoadedMission, apps: VehicleApps) -> list[str]:
         parts.append("surfacing")
     if camera_pair(loaded) is not None:
         parts.append("pictures")
+    if relay_plan(loaded) is not None:
+        parts.append("relay")
     return parts
 
 
@@ -704,8 +710,9 @@ async def _picture_part(tour: Tour, loaded: LoadedMission, pictures: PictureWatc
 
 async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float,
                  fleet: Fleet, queries: QueryApps | None, watch: SurfacingWatch | None,
-                 sent: SentAtSwitches | None, tasks: list[asyncio.Task[None]],
-                 end: float, pictures: PictureWatch | None = None) -> None:
+                 sent: SentAtSwitches | None, relays: RelayWatch | None,
+                 tasks: list[asyncio.Task[None]], end: float,
+                 pictures: PictureWatch | None = None) -> None:
     """The parts of the tour before the summary, each when the fleet has something to show
     for it (those the plan left out say nothing)."""
     if pictures is not None:
@@ -729,6 +736,29 @@ async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: flo
     await _query_part(tour, loaded, fleet, queries, tasks, end)
     await _surfacing_part(tour, loaded, fleet, watch, sent, end)
     await _picture_part(tour, loaded, pictures, end)
+    await _relay_part(tour, fleet, relays, end)
+
+
+async def _relay_part(tour: Tour, fleet: Fleet, relays: RelayWatch | None,
+                      end: float) -> None:
+    """A vehicle out of the surface's reach, its values carried by another: the first frame
+    of it the surface took through a relay (waiting for one, but not past the tour)."""
+    if relays is None or not tour.part("relay"):
+        return
+    plan = relays.plan
+    tour.relay_intro(plan.vehicle, plan.surface, plan.path, plan.links)
+    while relays.first() is None and time.time() < end:
+        await asyncio.sleep(POLL_S)
+    found = relays.first()
+    if found is None:
+        tour.not_seen(f"a frame of {plan.vehicle} through {plan.path[1]}")
+        return
+    _, event = found
+    channel, value = shown_values(event)
+    network = fleet.nodes[str(event.meta["via"])].core.network
+    tour.relayed(plan.vehicle, plan.surface, channel, short(value), str(event.meta["via"]),
+                 int(event.meta["hops"]), int(event.meta["age_s"]),
+                 network.routing.relayed if network is not None else 0)
 
 
 class LateFrames(logging.Filter):
@@ -761,12 +791,16 @@ async def run_demo(
     recorder = MissionRecorder()
     plan = surfaced_vehicle(loaded)
     sent = None if plan is None else SentAtSwitches(plan[1], plan[0])
+    relayed = relay_plan(loaded)
+    relays = None if relayed is None else RelayWatch(relayed)
 
     def on_event(node: str, event: Event) -> None:
         events(node, event)
         recorder(node, event)
         if sent is not None:  # the vehicle's frames and switches, as its bridge saw them
             sent(node, event)
+        if relays is not None:  # frames the surface took through a relay
+            relays(node, event)
 
     fleet = Fleet(loaded, on_event=on_event)
     attach_truth(recorder, fleet)
@@ -811,8 +845,9 @@ async def run_demo(
             if camera is not None and camera[0] in apps.sessions and camera[2] in apps.sessions:
                 pictures = PictureWatch(apps.sessions[camera[0]], camera[1],
                                         apps.sessions[camera[2]], camera[3])
-            tasks.append(asyncio.create_task(_story(apps, tour, loaded, loss, fleet, queries,
-                                                    watch, sent, tasks, end, pictures)))
+            tasks.append(asyncio.create_task(
+                _story(apps, tour, loaded, loss, fleet, queries, watch, sent, relays, tasks,
+                       end, pictures)))
         await runner
     finally:
         if page is not None:

@@ -29,6 +29,7 @@ from typing import Literal
 from bridge.core.loaded import LoadedMission
 from bridge.core.mac import mac_for
 from bridge.errors import BackendError
+from bridge.mission.model import Mission
 from bridge.modems.setup import backend_factory
 from bridge.report.check import check_mission
 from bridge.runtime.keys import frame_key
@@ -102,7 +103,8 @@ def parse_timedatectl(text: str) -> ClockState | None:
 def clock_findings(loaded: LoadedMission, state: ClockState | None,
                    pps: Sequence[str] = ()) -> list[Finding]:
     """Judge a clock state against the mission: TDMA needs offsets well inside the guard."""
-    limits = mac_for(loaded.mission).clock_limits()
+    limits = min((found for link in loaded.network.links  # the tightest of the links' MACs
+                  if (found := mac_for(link.view).clock_limits()) is not None), default=None)
     if limits is None:
         return [Finding("clock", "ok", "no TDMA: the bridge does not depend on the wall clock")]
     limit, guard = limits
@@ -176,56 +178,77 @@ def mission_findings(loaded: LoadedMission) -> list[Finding]:
 
 
 def device_findings(loaded: LoadedMission, node: str) -> list[Finding]:
-    """The serial device of a serial backend: present, a character device, usable."""
-    modem = loaded.mission.node_modem(node)
+    """The serial device of each serial backend of the node (one per link): present, a
+    character device, usable."""
+    return [finding for view, label in _modems(loaded, node)
+            for finding in _device(view, node, label)]
+
+
+def _modems(loaded: LoadedMission, node: str) -> list[tuple[Mission, str]]:
+    """Each link of ``node`` as its MAC and modem see the mission, and a label for findings
+    (``modem``, or ``modem (rf)`` with several links)."""
+    links = loaded.network.links_of(node)
+    return [(link.view, f"modem ({link.name})" if len(links) > 1 else "modem")
+            for link in links]
+
+
+def _device(mission: Mission, node: str, label: str) -> list[Finding]:
+    modem = mission.node_modem(node)
+    name = label.replace("modem", "device")
     if modem.backend not in SERIAL_BACKENDS:
         return []
     device = modem.options.get("device")
     where = f"nodes.{node}.modem.options.device (or modem.options.device)"
     if not device:
-        return [Finding("device", "fail", f"the {modem.backend} backend needs a device",
+        return [Finding(name, "fail", f"the {modem.backend} backend needs a device",
                         f"set {where} to the modem's serial port, e.g. /dev/ttyUSB0")]
     device = str(device)
     if "://" in device:
-        return [Finding("device", "ok", f"{device} (a URL; checked by opening the modem)")]
+        return [Finding(name, "ok", f"{device} (a URL; checked by opening the modem)")]
     path = Path(device)
     if not path.exists():
         hint = "plug the modem in and check `ls -l /dev/serial/by-id/`"
         if path.is_symlink():
             hint = f"{device} is a dangling link; " + hint
-        return [Finding("device", "fail", f"{device} does not exist", hint)]
+        return [Finding(name, "fail", f"{device} does not exist", hint)]
     try:
         mode = path.stat().st_mode
     except OSError as exc:
-        return [Finding("device", "fail", f"{device}: {exc}", "check the path")]
+        return [Finding(name, "fail", f"{device}: {exc}", "check the path")]
     if not stat.S_ISCHR(mode):
-        return [Finding("device", "fail", f"{device} is not a serial (character) device",
+        return [Finding(name, "fail", f"{device} is not a serial (character) device",
                         f"set {where} to the modem's serial port")]
     if not os.access(path, os.R_OK | os.W_OK):
-        return [Finding("device", "fail", f"{device}: no permission to read and write",
+        return [Finding(name, "fail", f"{device}: no permission to read and write",
                         "add the user to the `dialout` group (usermod -aG dialout zab) or "
                         "give the systemd unit DeviceAllow= and SupplementaryGroups=dialout")]
-    return [Finding("device", "ok", f"{device} is a usable serial device")]
+    return [Finding(name, "ok", f"{device} is a usable serial device")]
 
 
 async def modem_findings(loaded: LoadedMission, node: str, timeout_s: float) -> list[Finding]:
-    """Open the node's modem backend (its start-up commands are the exchange) and close it."""
-    modem = loaded.mission.node_modem(node)
+    """Open each of the node's modem backends (its start-up commands are the exchange) and
+    close it."""
+    return [finding for view, label in _modems(loaded, node)
+            for finding in await _modem(view, node, label, timeout_s)]
+
+
+async def _modem(mission: Mission, node: str, label: str, timeout_s: float) -> list[Finding]:
+    modem = mission.node_modem(node)
     try:
-        backend = backend_factory(loaded.mission, node)()
+        backend = backend_factory(mission, node)()
     except BackendError as exc:
-        return [Finding("modem", "fail", str(exc), "fix the modem options in the mission")]
+        return [Finding(label, "fail", str(exc), "fix the modem options in the mission")]
     try:
         await asyncio.wait_for(backend.open(), timeout_s)
     except TimeoutError:
-        return [Finding("modem", "fail", f"{modem.backend}: no answer within {timeout_s:g} s",
+        return [Finding(label, "fail", f"{modem.backend}: no answer within {timeout_s:g} s",
                         _modem_fix(modem.backend))]
     except BackendError as exc:
-        return [Finding("modem", "fail", f"{modem.backend}: {exc}", _modem_fix(modem.backend))]
+        return [Finding(label, "fail", f"{modem.backend}: {exc}", _modem_fix(modem.backend))]
     finally:
         with contextlib.suppress(BackendError, OSError):
             await backend.close()
-    return [Finding("modem", "ok", f"{modem.backend}: opened, the modem answered")]
+    return [Finding(label, "ok", f"{modem.backend}: opened, the modem answered")]
 
 
 def _modem_fix(backend: str) -> str:

@@ -95,15 +95,15 @@ def _fleet_view(fleet: Fleet, events: EventLog, nodes: Table, ages: Table) -> Gr
 async def run_fleet_for(
     fleet: Fleet, duration: float | None, *, live: bool, console: Console, events: EventLog
 ) -> None:
-    """Run ``fleet`` until ``duration`` passes or SIGINT/SIGTERM, with an optional live view."""
+    """Run ``fleet`` for ``duration`` seconds once started, or until SIGINT/SIGTERM, with an
+    optional live view."""
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):
             loop.add_signal_handler(sig, stop.set)
-    if duration is not None:
-        loop.call_later(duration, stop.set)
     runner = asyncio.create_task(fleet.run(stop))
+    timer = None if duration is None else asyncio.create_task(_stop_after(fleet, duration, stop))
     try:
         if live and console.is_terminal:
             with Live(fleet_view(fleet, events), console=console, refresh_per_second=4) as view:
@@ -113,7 +113,16 @@ async def run_fleet_for(
         await runner
     finally:
         stop.set()
-        await asyncio.gather(runner, return_exceptions=True)
+        if timer is not None:
+            timer.cancel()
+        await asyncio.gather(runner, *([timer] if timer else []), return_exceptions=True)
+
+
+async def _stop_after(fleet: Fleet, duration: float, stop: asyncio.Event) -> None:
+    """Set ``stop`` once the fleet has run ``duration`` seconds (start-up not counted)."""
+    await fleet.ready.wait()
+    await asyncio.sleep(duration)
+    stop.set()
 
 
 def attach_truth(recorder: MissionRecorder, fleet: Fleet) -> None:

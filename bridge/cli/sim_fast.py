@@ -227,7 +227,7 @@ async def run_fast(
             else:
                 await asyncio.sleep(0)
         report = MissionReport.build(loaded, fleet.cores, ages, 0.0, fleet.now,
-                                     fleet.ocean.stats(), clock="virtual",
+                                     fleet.water_stats(), clock="virtual",
                                      wall_s=time.perf_counter() - started)
     if fleet.loaded.table.queries:
         report = replace(report, queries=query_summary(gets))

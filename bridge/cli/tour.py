@@ -28,6 +28,7 @@ PARTS = {
     "queries": "A Zenoh get across the water",
     "surfacing": "A vehicle surfaces, then dives",
     "pictures": "A picture across the water, refining",
+    "relay": "A vehicle reached through another",
     "summary": "Summary",
 }
 
@@ -282,6 +283,20 @@ class Tour:
         self.say(f"  {after_s:5.1f} s  {got:>4} / {budget} B  {width}×{height}, "
                  f"≈{psnr_estimate:.1f} dB by the stream's own estimate"
                  + (" · complete" if final else ""))
+
+    def relay_intro(self, vehicle: str, surface: str, path: tuple[str, ...],
+                    links: tuple[str, ...]) -> None:
+        hops = " ".join(f"{a} –{link}→" for a, link in zip(path, links, strict=False))
+        self.say(f"{vehicle}'s traffic to {surface} goes through others: {hops} "
+                 f"{path[-1]}. Each relay carries {vehicle}'s frame on unchanged in its own "
+                 f"turns (authenticated as {vehicle}'s, so it cannot alter it), and "
+                 f"{surface}'s bridge takes it as {vehicle}'s.")
+
+    def relayed(self, vehicle: str, surface: str, channel: str, value: Any, via: str,
+                hops: int, age_s: int, carried: int) -> None:
+        self.say(f"  {surface} got {channel} {value} from {vehicle} through {via} "
+                 f"({hops + 1} hops, {age_s} s old on arrival by its header); {via} has "
+                 f"carried {carried} frames of others so far")
 
     def not_seen(self, what: str) -> None:
         self.say(f"  ({what} not seen before the tour moved on)")

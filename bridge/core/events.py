@@ -20,9 +20,10 @@ if TYPE_CHECKING:  # not imported at run time: the tracker pulls in numpy
     from bridge.ranging.tracker import Estimate
 
 __all__ = [
-    "Delivery", "Event", "FieldsLeftOut", "FrameDropped", "FrameReceived", "FrameSent", "Link",
-    "MissionMismatch", "ModemDown", "PayloadDrops", "PeerRestarted", "Position", "Range",
-    "RangeFailed", "SendFailed", "StateSaving", "Surfaced", "UnmappedKey", "notable",
+    "Delivery", "Event", "FieldsLeftOut", "FrameDropped", "FrameReceived", "FrameRelayed",
+    "FrameSent", "Link", "LinkSwitched", "MissionMismatch", "ModemDown", "PayloadDrops",
+    "PeerLink", "PeerRestarted", "Position", "Range", "RangeFailed", "SendFailed",
+    "StateSaving", "Surfaced", "UnmappedKey", "notable",
 ]
 
 
@@ -96,10 +97,31 @@ class FrameSent(Event):
     channels: list[str]
     dest: str | None
     data: bytes
+    link: str | None = None  # with several links: the one it went out on
 
     def to_dict(self) -> dict[str, Any]:
-        return {"time": self.time, "bytes": self.size, "channels": self.channels,
-                "dest": self.dest, "data": self.data}
+        out = {"time": self.time, "bytes": self.size, "channels": self.channels,
+               "dest": self.dest, "data": self.data}
+        if self.link is not None:
+            out["link"] = self.link
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class FrameRelayed(Event):
+    """This node carried on a frame of ``origin`` (``size`` bytes, ``hops`` relays so far)
+    over ``link`` (``dest``: its next hop, None = broadcast)."""
+
+    kind: ClassVar[str] = "frame_relayed"
+    origin: str
+    size: int
+    link: str
+    dest: str | None
+    hops: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "origin": self.origin, "bytes": self.size,
+                "link": self.link, "dest": self.dest, "hops": self.hops}
 
 
 @dataclass(frozen=True, slots=True)
@@ -272,6 +294,40 @@ class Link(Event):
                 "last_heard": self.last_heard, "silent_s": self.silent_s}
 
 
+@direct_init
+@dataclass(frozen=True, slots=True)
+class PeerLink(Event):
+    """With several links: ``peer``'s state on ``link`` changed (:class:`Link` is its state
+    over any link, or through relays)."""
+
+    kind: ClassVar[str] = "peer_link"
+    peer: str
+    link: str
+    state: str
+    last_heard: float | None
+    silent_s: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "peer": self.peer, "link": self.link, "state": self.state,
+                "last_heard": self.last_heard, "silent_s": self.silent_s}
+
+
+@dataclass(frozen=True, slots=True)
+class LinkSwitched(Event):
+    """Traffic to ``peer`` moved from link ``was`` (None: none yet) to ``link`` (None: no
+    link reaches it now), because ``reason`` (``failover``, ``failback``)."""
+
+    kind: ClassVar[str] = "link_switched"
+    peer: str
+    link: str | None
+    was: str | None
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "peer": self.peer, "link": self.link, "was": self.was,
+                "reason": self.reason}
+
+
 @dataclass(frozen=True, slots=True)
 class Surfaced(Event):
     """``peer``'s bridge became reachable over IP (``ip``) or stopped being so."""
@@ -310,7 +366,8 @@ class StateSaving(Event):
 
 
 NOTABLE = (Link, FrameDropped, SendFailed, ModemDown, PayloadDrops, MissionMismatch,
-           PeerRestarted, Surfaced, StateSaving, FieldsLeftOut, UnmappedKey)
+           PeerRestarted, Surfaced, StateSaving, FieldsLeftOut, UnmappedKey, PeerLink,
+           LinkSwitched)
 """Events also published on ``@zab/<mission>/<node>/events`` (with failed deliveries)."""
 
 

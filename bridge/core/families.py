@@ -46,6 +46,7 @@ class Extra:
     channel: Any
     bits: int
     on_sent: Callable[[float], None]
+    to: str | None = None  # the one node it is for (a query's server or asker), if any
 
 
 @dataclass

@@ -7,6 +7,13 @@ it (authentication, replay window, check value), tells the MAC and the link what
 follows the peer's epoch, and hands each entry to what it is for: values to publish (latest,
 released by a reliable window, or reassembled from fragments), acknowledgements to the
 sending side, family names, demand bitmaps and queries to theirs. DLBL delays go to ranging.
+
+With several links or routes a frame starts with a network header
+(:class:`~bridge.core.routing.Routing`): the frame is its *origin*'s, heard from a neighbour
+(the origin itself, or a relay), on one of the node's links. What concerns the hop (the MAC,
+the link's health, ranging) follows the neighbour; what the frame carries follows the origin
+(its epoch, its streams, its authentication), and its channel entries are taken only when
+the header says the frame serves this node.
 """
 
 from __future__ import annotations
@@ -14,20 +21,22 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bridge.core.events import FrameDropped, FrameReceived, MissionMismatch, PeerRestarted
 from bridge.core.families import Families
 from bridge.core.images import Images
 from bridge.core.interest import Interest
 from bridge.core.link import Links, LinkState
-from bridge.core.mac import Schedule, node_preset
+from bridge.core.linkset import LinkSet, LinkSide
+from bridge.core.mac import node_preset
 from bridge.core.outbound import Outbound
 from bridge.core.outputs import Outbox
 from bridge.core.queries import Queries
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
 from bridge.core.reception import Reception
+from bridge.core.routing import Arrival
 from bridge.core.transfer import from_bytes
 from bridge.errors import DecodeError, FrameError
 from bridge.mission.model import Mission
@@ -39,6 +48,9 @@ from bridge.wire.interest import InterestCodec
 from bridge.wire.marks import MarkCodec
 from bridge.wire.queries import QueryCodec
 from bridge.wire.sample_meta import NOTHING, read_meta
+
+if TYPE_CHECKING:
+    from bridge.core.network import NodeNetwork
 
 __all__ = ["PEER_STATUS_S", "Inbound", "plain"]
 
@@ -54,17 +66,22 @@ class Inbound:
     """Decoding and acceptance of the frames one node hears."""
 
     def __init__(self, mission: Mission, node: str, codec: FrameCodec, outbox: Outbox,
-                 schedule: Schedule, links: Links, receivers: Receivers, outbound: Outbound,
-                 queries: Queries | None, ranges: Ranges | None, sealed: bool) -> None:
-        """``sealed``: frames are authenticated (each moves a replay window)."""
+                 linkset: LinkSet, links: Links, receivers: Receivers, outbound: Outbound,
+                 queries: Queries | None, ranges: Ranges | None, sealed: bool,
+                 network: NodeNetwork | None = None) -> None:
+        """``sealed``: frames are authenticated (each moves a replay window); ``network``:
+        frames carry the network header (several links or routes)."""
         self.mission = mission
+        self.linkset = linkset
+        self.network = network
+        self.index = list(mission.nodes).index(node)
+        self._takes = True  # the frame being read serves this node
         self.sealed = sealed
         self.node = node
         self.address = mission.address_of(node)
         self.codec = codec
         self.outbox = outbox
         self.stats = outbox.stats
-        self.schedule = schedule
         self.links = links
         self.receivers = receivers
         self.outbound = outbound
@@ -84,39 +101,61 @@ class Inbound:
         self._with_meta = {c.index for c in codec.table.channels if any(e.meta for e in
                                                                          c.elements)}
 
-    def receive(self, rx: Reception, now: float, modem_now: float | None = None) -> None:
-        """Decode one received frame and publish what it carries for this node (``modem_now``:
-        the modem clock now, which DLBL times are in)."""
-        src = self._source(rx, now)
+    def receive(self, rx: Reception, now: float, modem_now: float | None = None,
+                side: LinkSide | None = None) -> None:
+        """Decode one received frame (heard on ``side``, default the node's first link) and
+        publish what it carries for this node (``modem_now``: the modem clock now, which DLBL
+        times are in)."""
+        side = side or self.linkset.primary
+        src = self._source(rx, now, side)
         if src is None:
             return
+        origin, arrival, address = src, None, rx.src
+        if self.network is not None:
+            arrival = self.network.routing.arrived(rx.data, src, now)
+            if arrival is None:  # a copy of a frame taken already (or malformed): the hop
+                self._hop(rx, src, side, now)
+                return
+            origin, address = arrival.origin, self.mission.address_of(arrival.origin)
         try:
-            frame = self.codec.decode(rx.data, rx.src, now)
+            frame = self.codec.decode(rx.data, address, now) if arrival is None \
+                else self.codec.decode(rx.data, address, now, arrival.start)
         except FrameError as exc:
             self.stats.frames_dropped[exc.reason] += 1
-            self.outbox.event(FrameDropped(now, src, exc.reason, str(exc), rx.data))
+            self.outbox.event(FrameDropped(now, origin, exc.reason, str(exc), rx.data))
             return
-        self._heard(rx, src, frame, now)
-        self.sent_at = frame_start(rx, self._presets[src])
+        self._hop(rx, src, side, now)
+        self._heard(origin, frame, now)
+        if arrival is None:
+            self.sent_at = frame_start(rx, self._presets[src])
+        else:  # the origin built it the header's age before this hop's frame left
+            self.sent_at = frame_start(rx, node_preset(side.info.view, src)) \
+                - arrival.header.age
+            self.network.routing.taken(arrival, rx.data, src, now)  # type: ignore[union-attr]
+            self._takes = self.index in arrival.header.serves
         values: dict[str, Values] = {}
         anchors: Anchors = {}  # live anchor positions the frame carried
         members: dict[str, dict[str, Values]] = {}  # key families: per member
         for entry in frame.entries:
-            self._entry(src, entry, now, values, anchors, members)
-        if self.ranges is not None:
+            self._entry(origin, entry, now, values, anchors, members)
+        self._takes = True
+        if self.ranges is not None and origin == src and side is self.linkset.primary:
             self.ranges.heard(src, rx, frame.delays, modem_now if modem_now is not None
                               else now, now, anchors)
         meta = plain(rx.meta)
+        if arrival is not None:
+            meta.update(_hop_meta(arrival, src, side))
+        src = origin
         if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             self._peer_status[src] = now
             self.outbox.status(f"peers/{src}", {"last_heard": now, "meta": dict(meta)})
         self.outbox.event(FrameReceived(now, src, len(rx.data), list(values), rx.data, meta,
                                         values, members or None))
 
-    def _source(self, rx: Reception, now: float) -> str | None:
+    def _source(self, rx: Reception, now: float, side: LinkSide) -> str | None:
         """The sender of ``rx`` if it is a peer under this mission file; else the frame is
         counted dropped (or foreign) and None."""
-        src = self.mission.name_of(rx.src)
+        src = self.mission.name_of(rx.src) if self.network is None else side.name_of(rx.src)
         sender_print = self.codec.sender_fingerprint(rx.data)
         if sender_print is not None and sender_print != self.codec.fingerprint16 \
                 and src != self.node:
@@ -128,11 +167,20 @@ class Inbound:
             return None
         return src
 
-    def _heard(self, rx: Reception, src: str, frame: DecodedFrame, now: float) -> None:
-        """A valid frame from ``src``: the counters, the MAC, the link and the peer's epoch
+    def _hop(self, rx: Reception, src: str, side: LinkSide, now: float) -> None:
+        """A frame heard from neighbour ``src`` on ``side``: its MAC and health record it."""
+        address = self.address if self.network is None else side.address_of(self.node)
+        side.schedule.on_heard(src, rx.dest == address, now)
+        if self.network is not None:
+            self.linkset.heard(side, src, now)
+            self.links.heard(src, now)
+            if self.links.states.get(src) is not LinkState.UP:
+                self.links.update(now)
+
+    def _heard(self, src: str, frame: DecodedFrame, now: float) -> None:
+        """A valid frame of ``src`` (its origin): the counters, the link and the peer's epoch
         record it."""
         self.stats.frames_received += 1
-        self.schedule.on_heard(src, rx.dest == self.address, now)
         self._foreign.pop(src, None)
         if self.mismatched:
             self._matched(src, now)
@@ -162,7 +210,7 @@ class Inbound:
         if src not in channel.senders:
             self.stats.frames_dropped["unexpected_sender"] += 1
             return
-        if not channel.reaches(src, self.node):
+        if not self._takes or not channel.reaches(src, self.node):
             return  # overheard: addressed to others
         surfacing = self.outbound.surfacing
         if surfacing is not None and src in surfacing.reachable and not channel.stream:
@@ -276,7 +324,6 @@ class Inbound:
             self.outbox.status(f"mismatch/{src}", event.to_dict())
             self.outbox.event(event)
 
-
     def _matched(self, src: str, now: float) -> None:
         """A frame of this mission file from ``src``: it no longer runs another one."""
         if self.mismatched.pop(src, None) is not None:
@@ -294,6 +341,15 @@ def frame_start(rx: Reception, preset: Preset | None) -> float:
     if not isinstance(airtime, int | float):
         airtime = preset.airtime(len(rx.data)) if preset is not None else 0.0
     return rx.time - airtime - (travel if isinstance(travel, int | float) else 0.0)
+
+
+def _hop_meta(arrival: Arrival, src: str, side: LinkSide) -> dict[str, Any]:
+    """What a frame's network header adds to its reception's metadata."""
+    meta: dict[str, Any] = {"link": side.name}
+    header = arrival.header
+    if header.routed:
+        meta.update({"via": src, "hops": header.hops, "age_s": header.age})
+    return meta
 
 
 _SCALARS = (int, float, str, bool, type(None))

@@ -8,7 +8,9 @@ anchor keys) is *unmapped*: counted per key (``unmapped_keys`` in the node's sta
 (:class:`~bridge.core.events.UnmappedKey`) once per key, so a typo in a key shows at once.
 
 At the other end, a get on a peer's keyspace that asks no query and no latched value of this
-node maps to nothing: :meth:`Keyspace.unanswered` says why, for the runtime's reply error.
+node maps to nothing: :meth:`Keyspace.unanswered` says why, for the runtime's reply error;
+not while a peer is reachable over IP (surfaced): then the get may be answered there, by
+another bridge or application, and an error from here would only contradict it.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from collections.abc import Iterable
 from bridge.core.events import UnmappedKey
 from bridge.core.interest import intersects, output_keys
 from bridge.core.outputs import Outbox
+from bridge.core.surfacing import Surfacing
 from bridge.mission.model import Mission
 from bridge.wire.channels import ChannelTable
 
@@ -40,9 +43,11 @@ class Keyspace:
     """What one node reads of its keyspace, and the puts there nothing reads."""
 
     def __init__(self, mission: Mission, table: ChannelTable, node: str, inputs: Iterable[str],
-                 outbox: Outbox) -> None:
-        """``inputs``: the keys the node's channels read (wildcards allowed)."""
+                 outbox: Outbox, surfacing: Surfacing | None = None) -> None:
+        """``inputs``: the keys the node's channels read (wildcards allowed); ``surfacing``:
+        the peers reachable over IP, when the mission surfaces."""
         self.node = node
+        self.surfacing = surfacing
         self.outbox = outbox
         self.expressions = keyspace_of(mission, node)
         ranging = mission.ranging
@@ -86,7 +91,10 @@ class Keyspace:
 
     def unanswered(self, selector: str) -> str | None:
         """Why a get on ``selector`` (under a peer's keyspace) gets nothing from the bridge
-        here, or None when it asks a query or a latched value of this node."""
+        here, or None when it asks a query or a latched value of this node, or while a peer is
+        reachable over IP (the get may be answered there)."""
+        if self.surfacing is not None and self.surfacing.reachable:
+            return None
         if any(intersects(selector, k) for k in (*self._asked, *self._latched)):
             return None
         outputs = [f"{k} (channel {c})" for k, c in self._outputs.items()

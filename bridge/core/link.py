@@ -19,11 +19,12 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 
-from bridge.core.events import Link
+from bridge.core.events import Link, PeerLink
 from bridge.core.mac import mac_for
 from bridge.core.mac.base import FREE_HEARTBEAT_S
 from bridge.core.outputs import Outbox
 from bridge.mission.model import Mission
+from bridge.mission.network import Network
 
 DEGRADED_PERIODS = 3
 DOWN_PERIODS = 8
@@ -58,6 +59,12 @@ class LinkThresholds:
         degraded = link.degraded_after_s or DEGRADED_PERIODS * period
         down = link.down_after_s or max(DOWN_PERIODS * period, degraded)
         return cls(degraded, max(down, degraded))
+
+    @classmethod
+    def for_node(cls, network: Network, node: str) -> LinkThresholds:
+        """A peer of ``node`` heard over any of its links: the slowest link's thresholds."""
+        found = [cls.for_mission(link.view) for link in network.links_of(node)]
+        return cls(max(t.degraded_after_s for t in found), max(t.down_after_s for t in found))
 
     def state(self, last_heard: float | None, now: float) -> LinkState:
         if last_heard is None or now - last_heard >= self.down_after_s:
@@ -146,11 +153,14 @@ class Links:
     ``link/<peer>`` status and a :class:`~bridge.core.events.Link` event."""
 
     def __init__(self, thresholds: LinkThresholds, peers: Iterable[str], outbox: Outbox,
-                 on_up: Callable[[], None] | None = None) -> None:
-        """``on_up``: called when a peer comes up from silence (down or never heard)."""
+                 on_up: Callable[[], None] | None = None, link: str | None = None) -> None:
+        """``on_up``: called when a peer comes up from silence (down or never heard);
+        ``link``: the peers' states on this one of several links (reported on
+        ``links/<link>/<peer>`` as :class:`~bridge.core.events.PeerLink`)."""
         self.thresholds = thresholds
         self.outbox = outbox
         self.on_up = on_up
+        self.link = link
         self.states: dict[str, LinkState] = {}
         self.last_heard: dict[str, float] = {}
         self._watch = LinkWatch(thresholds, peers)
@@ -173,6 +183,12 @@ class Links:
                     and previous in (None, LinkState.DOWN):
                 self.on_up()
             silent = None if heard is None else now - heard
+            if self.link is not None:
+                self.outbox.status(f"links/{self.link}/{peer}", {
+                    "peer": peer, "state": state.value, "last_heard": heard,
+                    "silent_s": silent, "link": self.link})
+                self.outbox.event(PeerLink(now, peer, self.link, state.value, heard, silent))
+                continue
             self.outbox.status(f"link/{peer}", {"peer": peer, "state": state.value,
                                                 "last_heard": heard, "silent_s": silent})
             self.outbox.event(Link(now, peer, state.value, heard, silent))

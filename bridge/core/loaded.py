@@ -10,11 +10,13 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 from bridge.core.mac import mac_for
 from bridge.mission.loader import Loc, cross_problems, located, read_mission, read_mission_file
 from bridge.mission.model import Mission
+from bridge.mission.network import Network, network_problems
 from bridge.wire.channels import ChannelTable, ChannelTableError
 from bridge.wire.goby import frame_codec_for, goby_problems
 
@@ -29,12 +31,20 @@ class LoadedMission:
     mission: Mission
     table: ChannelTable
 
+    @cached_property
+    def network(self) -> Network:
+        """The mission's links and routes."""
+        return Network(self.mission)
+
 
 def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
     """Validate mission ``text``; raise :class:`~bridge.mission.loader.MissionProblems`
     listing every problem found."""
     mission, marks = read_mission(text, path)
-    problems = [*cross_problems(mission), *mac_for(mission).problems()]
+    network = list(network_problems(mission))
+    problems = [*cross_problems(mission), *network]
+    if not network:  # (each link's MAC sees the mission through its links)
+        problems += _mac_problems(mission)
     if not problems:
         try:
             table = ChannelTable.from_mission(mission)
@@ -52,17 +62,29 @@ def load_mission(path: str | Path) -> LoadedMission:
     return parse_mission(read_mission_file(path), Path(path))
 
 
+def _mac_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
+    """Each link's MAC problems, located in its section."""
+    if mission.links is None:
+        yield from mac_for(mission).problems()
+        return
+    for link in Network(mission).links:
+        for loc, message in mac_for(link.view).problems():
+            yield (("links", link.name, *loc), message)
+
+
 def _frame_problems(mission: Mission, table: ChannelTable) -> Iterable[tuple[Loc, str]]:
     """Frames too small for what every frame carries besides channels."""
     if table.wire_format == "goby":
         yield from goby_problems(table, mission.wire.dlbl, mission.wire.auth is not None)
-    overhead = frame_codec_for(table).overhead_bytes()
+    overhead = frame_codec_for(table).overhead_bytes() + table.net_header_bytes
     found: dict[Loc, int] = {}  # where each too-small size is set: once, at that line
-    for name, node in mission.nodes.items():
-        frame_bytes = mission.node_modem(name).frame_bytes
-        if frame_bytes <= overhead:
-            own = node.modem.frame_bytes is not None
-            found[("nodes", name, "modem", "frame_bytes") if own
-                  else ("modem", "frame_bytes")] = frame_bytes
+    for link in Network(mission).links:
+        where: Loc = () if mission.links is None else ("links", link.name)
+        for name in link.members:
+            frame_bytes = link.view.node_modem(name).frame_bytes
+            if frame_bytes <= overhead:
+                own = link.view.nodes[name].modem.frame_bytes is not None
+                found[(*where, "nodes", name, "modem", "frame_bytes") if own
+                      else (*where, "modem", "frame_bytes")] = frame_bytes
     for loc, frame_bytes in found.items():
         yield (loc, f"{frame_bytes} bytes cannot hold the {overhead}-byte frame overhead")

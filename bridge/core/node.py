@@ -7,7 +7,10 @@ the receiving side (:class:`~bridge.core.inbound.Inbound`), the stream receivers
 acks owed (:class:`~bridge.core.receivers.Receivers`), the links
 (:class:`~bridge.core.link.Links`), the MAC (a :class:`~bridge.core.mac.Schedule`),
 positioning (:class:`~bridge.core.ranges.Ranges`) and queries
-(:class:`~bridge.core.queries.Queries`).
+(:class:`~bridge.core.queries.Queries`). A node on several links has a MAC per link
+(:class:`~bridge.core.linkset.LinkSet`); their policy and its relaying are
+:class:`~bridge.core.network.NodeNetwork`: the MAC methods take the link's name (None: the
+node's first link, its only one in a mission without ``links``).
 
 One way in per kind of event, one way out:
 
@@ -37,7 +40,6 @@ for it; everything outstanding to it sent again), so a reliable channel never we
 
 from __future__ import annotations
 
-import logging
 import math
 import random
 from collections.abc import Mapping
@@ -47,8 +49,11 @@ from typing import Any
 from bridge.core.images import Images
 from bridge.core.inbound import Inbound
 from bridge.core.link import Links, LinkThresholds
+from bridge.core.links_policy import LinkPolicy
+from bridge.core.linkset import LinkSet
 from bridge.core.loaded import LoadedMission
-from bridge.core.mac import Schedule, schedule_for
+from bridge.core.mac import Schedule
+from bridge.core.network import AUTH_WINDOW, NodeNetwork
 from bridge.core.outbound import Outbound, OutFrame
 from bridge.core.outputs import NodeStats, Outbox, Output, Publish, Status
 from bridge.core.positioning import Positioning, needs_positioning
@@ -58,17 +63,14 @@ from bridge.core.receivers import Receivers
 from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
 from bridge.core.restarts import STATE_VERSION, resumable
 from bridge.core.snapshot import snapshot
-from bridge.errors import DecodeError, MissionError
+from bridge.errors import MissionError
 from bridge.frozen import direct_init
 from bridge.wire.auth import Authenticator
 from bridge.wire.goby import frame_codec_for
-from bridge.wire.payloads import decode_payload
 from bridge.wire.seal import KeyRing, frame_authenticator
 
 __all__ = ["Action", "NodeCore", "NodeStats", "OutFrame", "Output", "Ping", "Publish",
            "SendFrame", "Status", "Taken"]
-
-log = logging.getLogger("zab.core")
 
 EPOCHS = 256  # stream epochs, EPOCH_BITS wide
 
@@ -124,30 +126,39 @@ class NodeCore:
             if key is None:
                 raise MissionError(f"{node}: wire.auth is on: give the frame key "
                                    "(the runtime loads it, see bridge.runtime.keys)")
-            auth = frame_authenticator(table, key, mission.address_of(node), state.get("auth"))
+            auth = frame_authenticator(table, key, mission.address_of(node), state.get("auth"),
+                                       window=AUTH_WINDOW if table.net is not None else 0)
         self.auth = auth
         drawn = rng.randrange(EPOCHS)  # (drawn even when resumed: the draws that follow stay)
         self.epoch: int = state.get("epoch", drawn)
         self.codec = frame_codec_for(table, auth)
-        self.schedule: Schedule = schedule_for(mission, node, seed=seed)
         self.modem_ranging: RangingMode | None = None  # how the modem ranges (the runtime says)
         self.queries = Queries(mission, table, node) if table.queries else None
         self.receivers = Receivers(table, outbox, state)
         self.outbound = Outbound(mission, table, node, self.codec, self.epoch, outbox,
                                  self.receivers, self.queries, rng, state)
-        self.thresholds = LinkThresholds.for_mission(mission)
+        network = loaded.network
+        self.thresholds = LinkThresholds.for_node(network, node)
         interest = self.outbound.interest
         self.links = Links(self.thresholds, table.foreign_nodes(node), outbox,
                            interest.repeat if interest is not None else None)
+        self.linkset = LinkSet(network, table, node, outbox, self.links, self.outbound.store,
+                               seed)
+        self.schedule: Schedule = self.linkset.primary.schedule
+        self.policy = LinkPolicy(mission, self.linkset, outbox)
+        self.network = NodeNetwork.of(table, self.linkset, self.policy, outbox, rng, state)
+        """Several links or routes: the links' policy and the frames carried for others."""
+        if self.network is not None:
+            self.outbound.attach(self.network)
         self.positioning = Positioning(mission, node) if needs_positioning(mission, node) \
             else None
         self.ranges = Ranges(mission, self.positioning, outbox, self.outbound.drop_payload) \
             if self.positioning is not None else None
         if self.ranges is not None:
             self.outbound.delays = self.ranges.on_transmit
-        self.inbound = Inbound(mission, node, self.codec, outbox, self.schedule, self.links,
+        self.inbound = Inbound(mission, node, self.codec, outbox, self.linkset, self.links,
                                self.receivers, self.outbound, self.queries, self.ranges,
-                               sealed=auth is not None)
+                               sealed=auth is not None, network=self.network)
         out = self.outbound  # pictures and operators' controls come in as its samples
         self.images = out.images = self.inbound.images = Images(
             table, node, outbox, self.receivers, out.senders, out.drop_payload,
@@ -190,6 +201,7 @@ class NodeCore:
             "senders": self.outbound.state(),
             "receivers": self.receivers.state(),
             "auth": self.auth.state() if self.auth is not None else None,
+            **(self.network.routing.state() if self.network is not None else {}),
         }
 
     # -- the one way out -----------------------------------------------------------------------
@@ -230,17 +242,7 @@ class NodeCore:
     def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
                 now: float) -> tuple[float, ...] | None:
         """The finite numbers ``names`` of a payload, or None (counted as a dropped payload)."""
-        try:
-            if len(data) > (cap := self.payload_cap(key)):
-                raise DecodeError(f"{len(data)} bytes, over the cap of {cap}")
-            value = decode_payload(data, encoding)
-            numbers = tuple(float(value[k]) for k in names)
-            if not all(map(math.isfinite, numbers)):
-                raise ValueError("not finite")
-            return numbers
-        except (DecodeError, TypeError, KeyError, ValueError) as exc:
-            self.drop_payload(key, f"needs numbers {', '.join(names)}: {exc}", now)
-            return None
+        return self.outbound.numbers(key, data, encoding, names, now)
 
     def ip_reachable(self, peer: str, up: bool, now: float) -> None:
         """The peer's bridge became reachable over IP (``up``) or stopped being so."""
@@ -248,44 +250,50 @@ class NodeCore:
 
     # -- the MAC: when to wake, what to do, how it went -----------------------------------------
 
-    def next_due(self, now: float | None = None) -> float | None:
+    def next_due(self, now: float | None = None, link: str | None = None) -> float | None:
         """When something (data, an acknowledgement, a retransmission, a heartbeat, a query or
-        a ping) is next due; None while nothing is pending."""
-        due = self.outbound.next_due(now)
+        a ping) is next due (on ``link``); None while nothing is pending."""
+        side = self.linkset.side(link) if self.network is not None else None
+        due = self.outbound.next_due(now, side)
         if due == -math.inf:
             return due
         times = [due]
         if self.queries is not None:
             times.append(self.queries.next_due())
-        if self.ranges is not None:
+        if self.ranges is not None and link in (None, self.linkset.primary.name):
             times.append(self.ranges.next_ping())
         return min([t for t in times if t is not None], default=None)
 
-    def wake_at(self, now: float) -> float | None:
-        """When this node's MAC next has an opportunity for what is due (None: nothing is,
-        wait for data or a frame); the runtime sleeps until then and calls :meth:`act`."""
-        opp = self.schedule.next_opportunity(now, self.next_due(now))
+    def wake_at(self, now: float, link: str | None = None) -> float | None:
+        """When the MAC of ``link`` next has an opportunity for what is due (None: nothing
+        is, wait for data or a frame); the runtime sleeps until then and calls :meth:`act`."""
+        schedule = self.linkset.side(link).schedule
+        opp = schedule.next_opportunity(now, self.next_due(now, link))
         return None if opp is None else opp.start
 
-    def act(self, now: float, at: float) -> Action | None:
-        """What to do now, if an opportunity is open: a frame built to start at modem time
-        ``at``, or a ping (``ranging.ping`` with a modem that pings); None: nothing (the
-        opportunity, if any, is given up). Report how it went with :meth:`done`."""
-        opp = self.schedule.next_opportunity(now, self.next_due(now))
+    def act(self, now: float, at: float, link: str | None = None) -> Action | None:
+        """What to do now on ``link``, if an opportunity is open: a frame built to start at
+        modem time ``at``, or a ping (``ranging.ping`` with a modem that pings); None: nothing
+        (the opportunity, if any, is given up). Report how it went with :meth:`done`."""
+        side = self.linkset.side(link)
+        opp = side.schedule.next_opportunity(now, self.next_due(now, link))
         if opp is None or opp.start > now + 1e-9:
             return None
-        ranges = self.ranges
+        ranges = self.ranges if side is self.linkset.primary else None
         peer = ranges.due(now) if ranges is not None and self.modem_ranging \
             and opp.poll is None else None
         if peer is not None and self.modem_ranging is RangingMode.PING:
             return Ping(peer)
-        always = opp.must_send or self.outbound.heartbeat_due(now) or peer is not None
-        out = self.outbound.build(now, at, always=always)
+        net = self.network
+        always = opp.must_send or peer is not None or self.outbound.heartbeat_due(
+            now, side if net is not None else None)
+        out = self.outbound.build(now, at, always=always) if net is None else \
+            net.transmission(side, now, at, always, self.outbound.build, self.outbound.candidates)
         if out is None:
-            self.schedule.on_skipped(now)
+            side.schedule.on_skipped(now)
             return None
         if opp.poll is not None:  # the poll rides on the frame's destination address
-            out = replace(out, dest=self.mission.address_of(opp.poll))
+            out = replace(out, dest=side.address_of(opp.poll))
         if peer is not None:  # the modem measures the range when the peer acknowledges
             out = replace(out, dest=peer, ack=True)
         return SendFrame(out, ranged=peer is not None)
@@ -299,26 +307,33 @@ class NodeCore:
         peer = self.mission.name_of(dest) if dest is not None else None
         if peer is not None and self.ranges is not None:
             self.ranges.asked(peer, start, error)
+        side = self.linkset.side(action.frame.link if isinstance(action, SendFrame) else None)
         if isinstance(action, SendFrame):
+            out = action.frame
             if error is None:
-                self.outbound.sent(action.frame, start, confirmed)
+                if out.carried:
+                    self.network.relayed(side, out, start)  # type: ignore[union-attr]
+                if (own := out.own if out.carried else out) is not None:
+                    self.outbound.sent(own, start, confirmed)
             else:
                 if self.ranges is not None:
-                    self.ranges.forget_transmit(action.frame.at)
+                    self.ranges.forget_transmit(out.at)
                 self.outbound.failed(error, start)
         if error is None:
-            self.schedule.on_sent(start, end)
+            side.schedule.on_sent(start, end)
         else:
-            self.schedule.on_skipped(start)
+            side.schedule.on_skipped(start)
 
     # -- frames and ranges in ------------------------------------------------------------------
 
-    def receive(self, rx: Reception, now: float, modem_now: float | None = None) -> None:
-        """Decode one received frame and publish what it carries for this node.
-
-        ``modem_now`` is the modem clock at the call (DLBL times are in the modem's clock).
-        """
-        self.inbound.receive(rx, now, modem_now)
+    def receive(self, rx: Reception, now: float, modem_now: float | None = None,
+                link: str | None = None) -> None:
+        """Decode one received frame (heard on ``link``; ``modem_now``: the modem clock at the
+        call, DLBL times are in it) and publish what it carries for this node."""
+        side = self.linkset.side(link)
+        frames = self.network.frames(rx, now) if self.network is not None else (rx,)
+        for one in frames:
+            self.inbound.receive(one, now, modem_now, side)
 
     def modem_range(self, rng: ModemRange, now: float) -> None:
         """The modem measured a range itself (a ping, a propagation time): publish it like a
@@ -336,9 +351,9 @@ class NodeCore:
     # -- time and queries ----------------------------------------------------------------------
 
     def tick(self, now: float) -> None:
-        """Periodic work: link states, reliable values past their TTL or retries, the
-        tracker's news, queries past their deadline."""
-        self.links.update(now)
+        """Periodic work: link states (and which link carries what), reliable values past
+        their TTL or retries, the tracker's news, queries past their deadline."""
+        self.update_links(now)
         self.outbound.expire(now)
         if self.ranges is not None:
             self.ranges.tick(now)
@@ -347,8 +362,10 @@ class NodeCore:
         self.outbound.summarise_drops(now)
 
     def update_links(self, now: float) -> None:
-        """Re-evaluate the peers whose link may have changed; report changes on ``link/<peer>``."""
+        """Re-evaluate peers' links; changes go on ``link/``, ``links/``, ``route/<peer>``."""
         self.links.update(now)
+        if self.network is not None:
+            self.network.update(now)
 
     def ask(self, key: str, parameters: Any, now: float,
             until: float | None = None) -> Ticket | str:
@@ -359,8 +376,12 @@ class NodeCore:
             return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
         spec, server = found
         self.links.update(now)
+        state, refused = (self.links.states.get(server), None) if self.network is None \
+            else self.network.reach(server, key, now)
+        if refused is not None:
+            return refused
         return self.queries.ask(spec, server, parameters, now,  # type: ignore[union-attr]
-                                self.links.states.get(server), until)
+                                state, until)
 
     def query_served(self, ticket: tuple[int, str, int], values: list[Any],
                      error: str | None = None) -> None:
@@ -376,4 +397,4 @@ class NodeCore:
     def snapshot(self, now: float) -> dict[str, Any]:
         """Counters and channel ages as plain data (:func:`~bridge.core.snapshot.snapshot`)."""
         return snapshot(self.node, self.epoch, now, self.stats, self.outbound, self.inbound,
-                        self.links, self.queries, self.table)
+                        self.links, self.queries, self.table, self.network)

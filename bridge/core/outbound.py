@@ -15,7 +15,6 @@ import logging
 import math
 import random
 from collections.abc import Callable, Collection, Mapping
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from bridge.codec import Layout
@@ -23,10 +22,12 @@ from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.drops import DropLedger
 from bridge.core.events import FieldsLeftOut, FrameSent, SendFailed, Surfaced
 from bridge.core.families import Extra, Families
+from bridge.core.frames import OutFrame, Sender
 from bridge.core.images import Images, ImageSender
 from bridge.core.interest import Interest
 from bridge.core.keyspace import Keyspace
 from bridge.core.link import heartbeat_s
+from bridge.core.linkset import LinkSide
 from bridge.core.outputs import Outbox
 from bridge.core.queries import Queries
 from bridge.core.receivers import Receivers
@@ -36,7 +37,6 @@ from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.surfacing import Relay, Surfacing
 from bridge.core.transfer import TransferSender
 from bridge.errors import DecodeError, EncodeError
-from bridge.frozen import direct_init
 from bridge.mission.model import Mission
 from bridge.wire.auth import Authenticator
 from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
@@ -46,35 +46,17 @@ from bridge.wire.sample_meta import aged_payload, encoding_id, stamped, tombston
 from bridge.wire.unused import field_tree, left_out
 
 if TYPE_CHECKING:
+    from bridge.core.network import NodeNetwork
     from bridge.ros2.element import Ros2Element
 
 __all__ = ["OutFrame", "Outbound", "Sender"]
 
 log = logging.getLogger("zab.core")
 
-Sender = ReliableSender | TransferSender
 LEFT_OUT_KEPT = 256
 """Sets of fields left out (per key) said once each; further ones are only counted."""
 Delays = Callable[[float], list[int | None]]
 """The DLBL delays of a frame starting at a modem time."""
-
-
-@direct_init
-@dataclass(frozen=True)
-class OutFrame:
-    """A frame ready for the modem: bytes, unicast address (None = broadcast), ack request,
-    the modem-clock start it was built for, and what it carries."""
-
-    data: bytes
-    dest: int | None
-    ack: bool | None
-    at: float
-    plan: FramePlan
-    built: float
-    streams: tuple[tuple[Sender, Any], ...] = ()
-    acks: tuple[tuple[str, int], ...] = ()
-    extras: tuple[Extra, ...] = ()
-
 
 
 def _hinted(auth: Authenticator, address: int, built: float) -> None:
@@ -109,6 +91,10 @@ class Outbound:
         self.last_tx: float | None = None
         self._started: float | None = None
         self.store = OutboundStore.for_node(table.channels, node)
+        self.network: NodeNetwork | None = None
+        """The node's links, their policy and its frames' network header (:meth:`attach`)."""
+        self.stores = [self.store]
+        """The store of each link (the first is :attr:`store`)."""
         self.families = Families(table, node)
         self.surfacing = Surfacing(node, mission.surfacing.republish) \
             if mission.surfacing is not None else None
@@ -130,7 +116,7 @@ class Outbound:
                     if c.image is not None and not c.image.control and c.sent_by(node)]
         self.keyspace = Keyspace(mission, table, node,
                                  [*self.bindings, *self.families.subscriptions(), *pictures],
-                                 outbox)
+                                 outbox, self.surfacing)
         metas = [(key, e.meta) for key, found in self.bindings.items() for _, _, e in found]
         metas += [(key, e.meta) for key, found in self.families.subscriptions().items()
                   for c, i in found for e in (c.elements[i],)]
@@ -155,6 +141,15 @@ class Outbound:
             if name in by_name:
                 by_name[name].restore(saved)
         self._filtered = self.interest is not None or self.surfacing is not None
+
+    def attach(self, network: NodeNetwork) -> None:
+        """The node's links (each its store, schedule, frame size), their policy, and what
+        puts the network header on its frames (several links or routes)."""
+        self.network = network
+        self.stores = network.linkset.stores
+        self._filtered = self._filtered or not network.policy.single
+        if self.queries is not None:  # a query's timeout says where its route breaks
+            self.queries.explain = network.explain
 
     # -- samples in ------------------------------------------------------------------------------
 
@@ -217,6 +212,8 @@ class Outbound:
             sender = self.senders.get(channel.index)
             if sender is None:
                 store.update(channel.index, index, packed, now)
+                for other in self.stores[1:]:
+                    other.update(channel.index, index, packed, now)
             elif store.update_value(channel.index, index, packed, now):
                 payload = store.states[channel.index].payload()
                 refused = self.saving.refusal()  # (while the state cannot be saved)
@@ -268,6 +265,21 @@ class Outbound:
         if (summary := self.drops.due(now)) is not None:
             self.outbox.event(summary)
 
+    def numbers(self, key: str, data: bytes, encoding: str, names: tuple[str, ...],
+                now: float) -> tuple[float, ...] | None:
+        """The finite numbers ``names`` of a payload, or None (counted as a dropped payload)."""
+        try:
+            if len(data) > (cap := self.payload_cap(key)):
+                raise DecodeError(f"{len(data)} bytes, over the cap of {cap}")
+            value = decode_payload(data, encoding)
+            numbers = tuple(float(value[k]) for k in names)
+            if not all(map(math.isfinite, numbers)):
+                raise ValueError("not finite")
+            return numbers
+        except (DecodeError, TypeError, KeyError, ValueError) as exc:
+            self.drop_payload(key, f"needs numbers {', '.join(names)}: {exc}", now)
+            return None
+
     def ip_reachable(self, peer: str, up: bool, now: float) -> None:
         """The peer's bridge became reachable over IP (``up``) or stopped being so."""
         if self.surfacing is not None and self.surfacing.changed(peer, up, now):
@@ -277,11 +289,14 @@ class Outbound:
 
     # -- what is due -----------------------------------------------------------------------------
 
-    def next_due(self, now: float | None) -> float | None:
-        """When data, an acknowledgement, a retransmission or a heartbeat is next due (without
-        queries and pings, which the node adds); None while nothing is pending."""
+    def next_due(self, now: float | None, side: LinkSide | None = None) -> float | None:
+        """When data, an acknowledgement, a retransmission or a heartbeat is next due on
+        ``side`` (default: the node's only link), without queries and pings, which the node
+        adds; None while nothing is pending."""
         if now is not None and self._started is None:
             self._started = now  # the node first plans: its first heartbeat one period later
+        if self.network is not None and side is not None:
+            return self._next_due_on(now, side, self.network)
         if self.receivers.due or (self.codec.auth is not None and self.codec.auth.owed):
             return -math.inf  # (a peer waits for an acknowledgement, or for its @mark)
         times = [self._store_next_due(now), self.next_heartbeat()]
@@ -293,40 +308,62 @@ class Outbound:
             times += [s.next_time() for s in self.senders.values()]
         return min([t for t in times if t is not None], default=None)
 
-    def next_heartbeat(self) -> float | None:
-        if self.heartbeat_s is None:
-            return None
-        since = self._started if self.last_tx is None else self.last_tx
-        return -math.inf if since is None else since + self.heartbeat_s
+    def _next_due_on(self, now: float | None, side: LinkSide, net: NodeNetwork
+                     ) -> float | None:
+        """:meth:`next_due` on one of the node's links."""
+        policy, auth = net.policy, self.codec.auth
+        if any(policy.serves(side, src) for src in self.receivers.due_to()) or (
+                auth is not None and auth.owed):
+            return -math.inf  # (an acknowledgement, or a peer's @mark)
+        times = [self._store_next_due(now, side), self.next_heartbeat(side),
+                 net.next_carried(side)]
+        if self.families.senders:
+            times.append(self.families.next_due(now, lambda c: self.wants(c, side)))
+        if self.interest is not None:
+            times.append(self.interest.next_due())
+        times += [net.stream_due(side, s) for s in self.senders.values()]
+        return min([t for t in times if t is not None], default=None)
 
-    def heartbeat_due(self, now: float) -> bool:
-        beat = self.next_heartbeat()
+    def next_heartbeat(self, side: LinkSide | None = None) -> float | None:
+        """When a frame is due on ``side`` (default: the node's only link) to keep it heard."""
+        beat_s = self.heartbeat_s if side is None else side.heartbeat_s
+        if beat_s is None:
+            return None
+        last = self.last_tx if side is None else side.last_tx
+        since = self._started if last is None else last
+        return -math.inf if since is None else since + beat_s
+
+    def heartbeat_due(self, now: float, side: LinkSide | None = None) -> bool:
+        beat = self.next_heartbeat(side)
         return beat is not None and beat <= now + 1e-9
 
-    def _store_next_due(self, now: float | None) -> float | None:
-        """When a latest-value channel somebody wants becomes due."""
+    def _store_next_due(self, now: float | None, side: LinkSide | None = None
+                        ) -> float | None:
+        """When a latest-value channel somebody wants becomes due (on ``side``)."""
+        store = self.store if side is None else side.store
         if not self._filtered:
-            return self.store.next_due(now)
-        times = [t for s in self.store.states.values()
-                 if self.wants(s.channel) and (t := s.ready_at(now)) is not None]
+            return store.next_due(now)
+        times = [t for s in store.states.values()
+                 if self.wants(s.channel, side) and (t := s.ready_at(now)) is not None]
         return min(times, default=None)
 
-    def wants(self, channel: ChannelCodec) -> bool:
-        """Whether some destination reached acoustically wants ``channel`` now (always,
-        without demand or surfacing)."""
+    def wants(self, channel: ChannelCodec, side: LinkSide | None = None) -> bool:
+        """Whether some destination reached over ``side`` (default: any) wants ``channel``
+        now (always, without demand, surfacing or several links)."""
         if not self._filtered or channel.stream:
             return True
-        destinations = channel.destinations(self.node)
+        destinations = channel.destinations(self.node) if side is None or \
+            self.network is None else self.network.policy.destinations(side, channel)
         if self.surfacing is not None:
             destinations = self.surfacing.acoustic(destinations)
         return bool(destinations) and (self.interest is None
                                        or self.interest.wants(channel, destinations))
 
-    def _candidates(self, now: float) -> list[Candidate]:
-        """Everything that could go in a frame sent at ``now``."""
-        due = self.store.due(now)
+    def candidates(self, now: float, side: LinkSide | None = None) -> list[Candidate]:
+        """Everything that could go in a frame sent at ``now`` (on ``side``)."""
+        due = (self.store if side is None else side.store).due(now)
         if self._filtered:
-            due = [s for s in due if self.wants(s.channel)]
+            due = [s for s in due if self.wants(s.channel, side)]
         out = [Candidate(s.channel, s.last_sent, s) for s in due]
         if self.interest is not None and (want := self.interest.candidate(now)) is not None:
             out.append(want)
@@ -336,9 +373,11 @@ class Outbound:
             out += [Candidate(sender.channel, getattr(item, "last_sent", None), (sender, item), n)
                     for n, item in enumerate(sender.due(now))]
         if self.families.senders:
-            out += self.families.candidates(now, self.wants)
+            out += self.families.candidates(now, lambda c: self.wants(c, side))
         if self.codec.auth is not None and self.codec.auth.owed:
             out += self._marks()
+        if self.network is not None and side is not None:
+            out = self.network.carried_by(side, out)
         return out
 
     def _marks(self) -> list[Candidate]:
@@ -352,34 +391,39 @@ class Outbound:
             if peer is not None:
                 hinted = functools.partial(_hinted, auth, address)
                 out.append(Candidate(codec, None, Extra(
-                    codec, codec.pack(self.table.nodes.index(peer), mark), hinted)))
+                    codec, codec.pack(self.table.nodes.index(peer), mark), hinted, peer)))
         return out
 
     # -- frames out ------------------------------------------------------------------------------
 
-    def build(self, now: float, at: float, *, always: bool = False) -> OutFrame | None:
-        """A frame of what is due at ``now``, to start at modem time ``at``; None when there is
-        nothing to send and ``always`` is false. Report it with :meth:`sent` or
-        :meth:`failed`."""
-        codec = self.codec
-        budget = codec.body_capacity_bits(self.frame_bytes) - codec.count_bits
-        room = (1 << codec.count_bits) - 1
+    def build(self, now: float, at: float, *, always: bool = False,
+              side: LinkSide | None = None, room: int | None = None) -> OutFrame | None:
+        """A frame of what is due at ``now``, to start at modem time ``at`` on ``side``
+        (default: the node's only link) in ``room`` bytes after its network header (default:
+        the link's); None when there is nothing to send and ``always`` is false. Report it
+        with :meth:`sent` or :meth:`failed`."""
+        codec, net = self.codec, self.network if side is not None else None
+        if room is None:
+            room = self.frame_bytes if net is None else side.room  # type: ignore[union-attr]
+        budget = codec.body_capacity_bits(room) - codec.count_bits
         items: list[tuple[WireCodec, int]] = []
         targets: set[str] = set()
         acks: list[tuple[str, int]] = []
-        receivers = self.receivers
+        receivers, entries = self.receivers, (1 << codec.count_bits) - 1
         if receivers.owing:  # acknowledgements first: they unblock the peer
             ack_codec = self.table.ack
             assert ack_codec is not None
             cost = codec.channel_cost_bits(ack_codec)
             for src, index in receivers.owed():
-                if cost > budget or len(items) >= room:
+                if net is not None and not net.policy.serves(side, src):  # type: ignore[arg-type]
+                    continue  # owed over another link
+                if cost > budget or len(items) >= entries:
                     break
                 items.append((ack_codec, receivers.ack_bits(src, index)))
                 budget -= cost
                 acks.append((src, index))
                 targets.add(src)
-        picked, left = fill(codec, self._candidates(now), budget, room - len(items))
+        picked, left = fill(codec, self.candidates(now, side), budget, entries - len(items))
         chosen: list[ChannelState] = []
         streams: list[tuple[Sender, Any]] = []
         extras: list[Extra] = []
@@ -390,6 +434,8 @@ class Outbound:
             if isinstance(what, Extra):
                 extras.append(what)
                 items.append((what.channel, what.bits))
+                if net is not None:
+                    targets |= net.extra_targets(side, what)  # type: ignore[arg-type]
                 continue
             if isinstance(what, ChannelState):
                 channel = what.channel
@@ -402,30 +448,44 @@ class Outbound:
                 channel = sender.channel
                 streams.append((sender, item))
                 items.append((channel, sender.entry(item)))
-            targets.update(channel.destinations(node))
+            targets.update(channel.destinations(node) if net is None
+                           else net.targets(side, channel, what))  # type: ignore[arg-type]
             asks_ack = asks_ack or channel.ack
         left_out = tuple(c.what for c in left if isinstance(c.what, ChannelState))
         self.stats.left_out += len(left_out)
         if not items and not always:
             return None
         delays = self.delays(at) if self.delays is not None and self.table.dlbl else ()
-        data = codec.encode(items, delays, self.epoch, now)
-        dest, ack = self.addressing(targets, asks_ack)
+        data = codec.encode(items, delays, self.epoch, now) if net is None else codec.encode(
+            items, delays, self.epoch, now,
+            prefix=net.header(targets, [c.channel for c in picked]))
+        if net is not None:  # (the next hop's address: a relayed target's neighbour)
+            targets = {net.policy.hops.get(t, t) for t in targets}
+        dest, ack = self.addressing(targets, asks_ack, side)
         return OutFrame(data, dest, ack, at, FramePlan(tuple(chosen), left_out), now,
-                        tuple(streams), tuple(acks), tuple(extras))
+                        tuple(streams), tuple(acks), tuple(extras),
+                        None if side is None else side.name)
 
-    def addressing(self, targets: Collection[str],
-                   asks_ack: bool) -> tuple[int | None, bool | None]:
-        """Where a frame for ``targets`` goes: the unicast address when they are one node
-        (else None, broadcast), and the modem's acknowledgement, asked only of a unicast."""
-        dest = self.mission.address_of(next(iter(targets))) if len(targets) == 1 else None
+    def addressing(self, targets: Collection[str], asks_ack: bool,
+                   side: LinkSide | None = None) -> tuple[int | None, bool | None]:
+        """Where a frame for ``targets`` goes: the unicast address (on ``side``) when they are
+        one node (else None, broadcast), and the modem's acknowledgement, asked only of a
+        unicast."""
+        dest = None
+        if len(targets) == 1:
+            target = next(iter(targets))
+            dest = self.mission.address_of(target) if side is None else side.address_of(target)
         return dest, (True if dest is not None and asks_ack else None)
 
     def sent(self, out: OutFrame, now: float, confirmed: bool | None = None) -> None:
         """The modem accepted ``out`` at ``now``; ``confirmed``: its own acknowledgement said
         the frame reached ``out.dest`` (reliable entries in it are then not re-sent, only
         awaited)."""
-        self.store.mark_sent(out.plan.chosen, out.built)
+        if self.network is not None and out.link is not None:
+            self.network.mark_sent(out.link, out.plan.chosen, out.built)
+            self.network.linkset.sides[out.link].last_tx = out.built
+        else:
+            self.store.mark_sent(out.plan.chosen, out.built)
         by_sender: dict[int, tuple[Sender, list[Any]]] = {}
         for sender, item in out.streams:
             by_sender.setdefault(id(sender), (sender, []))[1].append(item)
@@ -447,7 +507,9 @@ class Outbound:
             names += [s.channel.name for s, _ in out.streams]
         for name in names:
             stats.sent_per_channel[name] += 1
-        self.outbox.event(FrameSent(now, len(out.data), names, dest, out.data))
+        self.outbox.event(FrameSent(now, len(out.data), names, dest, out.data,
+                                    out.link if self.network is not None
+                                    and self.network.linkset.network.several else None))
 
     def failed(self, error: str, now: float) -> None:
         """The modem refused a frame: its data stays due."""
@@ -484,7 +546,10 @@ class Outbound:
     def expire(self, now: float) -> None:
         """Reliable values past their TTL or retries are reported failed."""
         for sender in self.senders.values():
-            self.outbox.reports(sender.expire(now))
+            reports = sender.expire(now)
+            if reports and self.network is not None:
+                reports = self.network.explained(reports, now)
+            self.outbox.reports(reports)
 
     def state(self) -> dict[str, Any]:
         return {s.channel.name: s.state() for s in self.senders.values()}

@@ -35,18 +35,19 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.core.bounds import UNBOUNDED_TURN_S, round_trip_s
 from bridge.core.builder import Candidate
 from bridge.core.families import Extra
 from bridge.core.link import LinkState
 from bridge.core.mac import frame_time_s, mac_report
 from bridge.errors import EncodeError
 from bridge.mission.model import Mission
+from bridge.mission.network import Network
 from bridge.wire.channels import ChannelTable
 from bridge.wire.queries import LEFT, QID_BITS, QueryCodec, QuerySpec, ReplyStatus
 
 LOCAL_GET_S = 1.0  # time the serving bridge allows its local get, within the deadline
 ANSWERS_KEPT = 32  # answers a serving node keeps for repeated requests (oldest go first)
-UNBOUNDED_TURN_S = 30.0  # a node's wait for a turn when the MAC gives no bound
 
 Ticket = tuple[int, str, int]  # (query index, serving node, query id) at the asking node
 Served = tuple[int, str, int]  # (query index, asking node, query id) at the serving node
@@ -86,6 +87,8 @@ def deadline_s(mission: Mission, spec: QuerySpec, asker: str, server: str) -> fl
     longest wait for a turn and its frame, the same for the server, and its local get."""
     if spec.timeout_s is not None:
         return spec.timeout_s
+    if mission.links is not None or any(n.routes for n in mission.nodes.values()):
+        return round(LOCAL_GET_S + round_trip_s(Network(mission), asker, server), 3)
     total = LOCAL_GET_S
     for node in (asker, server):
         worst = mac_report(mission, node, None).worst_interval_s
@@ -104,7 +107,10 @@ def left_step_s(mission: Mission, spec: QuerySpec) -> float:
 
 def retry_s(mission: Mission, asker: str, server: str) -> float:
     """How long after sending a request the asker waits before repeating it: the earliest a
-    reply could be back (its frame and the server's)."""
+    reply could be back (its frame and the server's; with several links or routes, half the
+    longest round trip)."""
+    if mission.links is not None or any(n.routes for n in mission.nodes.values()):
+        return round(round_trip_s(Network(mission), asker, server) / 2, 3)
     return round(sum(frame_time_s(mission, n) or 0.0 for n in (asker, server)), 3)
 
 
@@ -162,6 +168,8 @@ class Queries:
     answers: dict[Served, Answered] = field(default_factory=dict)
     repeats: bool = True
     answers_kept: int = ANSWERS_KEPT
+    explain: Callable[[str, float], str | None] | None = None
+    """Where the route to a server breaks (nodes behind relays): added to a timeout."""
 
     def __post_init__(self) -> None:
         codecs = self.table.query_codecs
@@ -258,15 +266,15 @@ class Queries:
                     continue
                 server = self.table.nodes.index(item.ticket[1])
                 bits = codec.pack(item.ticket[2], server, packed)
-                out.append(Candidate(codec, None, Extra(codec, bits, self._marker(item)),
-                                     item.ticket[2]))
+                out.append(Candidate(codec, None, Extra(codec, bits, self._marker(item),
+                                                        item.ticket[1]), item.ticket[2]))
         for item in late:
-            self._end(item.ticket, self._late(item))
+            self._end(item.ticket, self._late(item, now))
         if self._serve_until:
             self._drop_late_replies(now)
         for n, (codec, bits, served) in enumerate(self.replies):
-            out.append(Candidate(codec, None, Extra(codec, bits, self._unqueue(served, bits)),
-                                 n))
+            out.append(Candidate(codec, None, Extra(codec, bits, self._unqueue(served, bits),
+                                                    served[1]), n))
         return out
 
     def _with_time_left(self, item: Open, now: float) -> int | None:
@@ -359,20 +367,23 @@ class Queries:
         """End the queries whose deadline passed; forget answers kept past theirs."""
         for ticket, item in list(self.open.items()):
             if now >= item.deadline:
-                self._end(ticket, self._late(item))
+                self._end(ticket, self._late(item, now))
         for served, answered in list(self.answers.items()):
             if now >= answered.expires:
                 del self.answers[served]
 
-    def _late(self, item: Open) -> str:
-        """Why ``item`` ends without all its replies: its deadline passed."""
+    def _late(self, item: Open, now: float) -> str:
+        """Why ``item`` ends without all its replies: its deadline passed (and, for a server
+        behind relays, where its route breaks)."""
         spec = self.table.queries[item.ticket[0]]
+        why = self.explain(item.ticket[1], now) if self.explain is not None else None
+        route = f"; {why}" if why else ""
         if item.cut:
             return (f"{item.ticket[1]}: no reply to query {spec.name!r} before the caller's "
-                    "deadline")
+                    f"deadline{route}")
         return (f"{item.ticket[1]}: no reply to query {spec.name!r} within "
                 f"{deadline_s(self.mission, spec, self.node, item.ticket[1]):g} s "
-                + ("(its timeout_s)" if spec.timeout_s else "(the MAC's bound)"))
+                + ("(its timeout_s)" if spec.timeout_s else "(the MAC's bound)") + route)
 
     # -- serving -----------------------------------------------------------------------------
 

@@ -82,6 +82,10 @@ class Receivers:
         """Whether an acknowledgement is owed now (a frame is due at once)."""
         return bool(self._acks)
 
+    def due_to(self) -> set[str]:
+        """The senders owed an acknowledgement now."""
+        return {src for src, _ in self._acks}
+
     @property
     def owing(self) -> bool:
         """Whether the next frame carries acknowledgements (owed now, or repeated)."""

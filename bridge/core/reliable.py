@@ -30,6 +30,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.core.bounds import network_retry_s
 from bridge.core.events import Delivery
 from bridge.core.mac import mac_for
 from bridge.core.persist import int_from_state, int_to_state
@@ -50,7 +51,10 @@ def retry_wait(retry_s: float, attempts: int) -> float:
 
 def default_retry_s(mission: Mission) -> float:
     """The first retransmission's wait when a channel sets no ``retry_s``: the MAC's
-    (:meth:`~bridge.core.mac.Mac.retry_s`: one TDMA cycle, else ten seconds)."""
+    (:meth:`~bridge.core.mac.Mac.retry_s`: one TDMA cycle, else ten seconds); with several
+    links or routes, the longest round trip (:func:`~bridge.core.bounds.network_retry_s`)."""
+    if mission.links is not None or any(n.routes for n in mission.nodes.values()):
+        return network_retry_s(mission)
     return mac_for(mission).retry_s()
 
 

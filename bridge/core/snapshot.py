@@ -8,6 +8,7 @@ from typing import Any
 from bridge.core.drops import clamps
 from bridge.core.inbound import Inbound
 from bridge.core.link import Links
+from bridge.core.network import NodeNetwork
 from bridge.core.outbound import Outbound
 from bridge.core.outputs import NodeStats
 from bridge.core.queries import Queries
@@ -18,8 +19,9 @@ __all__ = ["snapshot"]
 
 def snapshot(node: str, epoch: int, now: float, stats: NodeStats, out: Outbound,
              inbound: Inbound, links: Links, queries: Queries | None,
-             table: ChannelTable) -> dict[str, Any]:
-    """What ``node``'s parts hold at ``now``, as msgpack-able data."""
+             table: ChannelTable, network: NodeNetwork | None = None) -> dict[str, Any]:
+    """What ``node``'s parts hold at ``now``, as msgpack-able data (``network``: its links'
+    policy and relaying, when it has several links or routes)."""
     return {
         "node": node,
         "time": now,
@@ -46,4 +48,5 @@ def snapshot(node: str, epoch: int, now: float, stats: NodeStats, out: Outbound,
         **({"interest": out.interest.snapshot(table)} if out.interest else {}),
         **({"families": out.families.snapshot(now)} if table.names is not None
            or any(c.family for c in table.channels) else {}),
+        **({"network": network.snapshot()} if network is not None else {}),
     }

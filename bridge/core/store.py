@@ -139,6 +139,12 @@ class OutboundStore:
                 best = t
         return best
 
+    def resend(self, index: int) -> None:
+        """Channel ``index`` is due again at once (its value went out on another link)."""
+        state = self.states[index]
+        state.last_sent = None
+        self._changed(state)
+
     def mark_sent(self, sent: Iterable[ChannelState], built: float) -> None:
         """The frame built at ``built`` carried these channels. A value that arrived after
         the frame was built (while the modem was sending it) stays fresh, to go next time."""

@@ -72,6 +72,16 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
     if kind == "mission_mismatch":
         return LogLine("error", kind, f"{node}: {event.get('peer')} runs another mission "
                        "file: its frames are not decoded (load the same file on both)")
+    if kind == "peer_link":  # issue 29: a peer on one of several links
+        state = str(event.get("state"))
+        level = {"up": "info", "degraded": "warn"}.get(state, "error")
+        return LogLine(level, "link", f"link {node} ↔ {event.get('peer')} over "
+                       f"{event.get('link')}: {state}")
+    if kind == "link_switched":
+        was = event.get("was")
+        return LogLine("warn" if event.get("reason") == "failover" else "info", "route",
+                       f"{node}: traffic to {event.get('peer')} over {event.get('link')}"
+                       + (f" ({event.get('reason')} from {was})" if was else ""))
     extra = {k: v for k, v in event.items() if k not in ("kind", "time", "node", "data")}
     details = ", ".join(f"{k} {v}" for k, v in extra.items())
     return LogLine("info", kind, f"{node}: {kind}" + (f" ({details})" if details else ""))

@@ -100,4 +100,6 @@ class SurfaceKeys:
             return StatusKey(parts[0], parts[1])
         if len(parts) == 3:
             return StatusKey(parts[0], parts[1], parts[2])
+        if len(parts) == 4 and parts[1] == "links":  # links/<link>/<peer>
+            return StatusKey(parts[0], parts[1], f"{parts[2]}/{parts[3]}")
         return None

@@ -12,7 +12,9 @@ state tracking|coasting, age_s and its 1-σ ellipse), ``lost`` (node, reason: th
 position), ``track`` (node, source,
 points), ``channel`` (node, channel, element, key, value, interval_s), ``link`` (observer,
 node, state), ``heard`` (node, last_heard), ``range`` (observer, peer, range_m), ``stats``,
-``event`` (level, category, text), ``command`` and ``transfer``.
+``event`` (level, category, text), ``command`` and ``transfer``; with several links or routes
+``hop`` (observer, link, peer, state) and ``route`` (observer, peer, link, via, reason):
+:mod:`bridge.gui.network_view`.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from bridge.gui.eventlog import (
 )
 from bridge.gui.images import ImageBoard
 from bridge.gui.keys import ChannelSource, StatusKey, SurfaceKeys
+from bridge.gui.network_view import NetworkView, network_description, relay_view
 from bridge.wire.payloads import decode_payload
 
 #: Points of track kept per vehicle and source (about 10 min of 1 Hz navigation).
@@ -155,6 +158,7 @@ class GuiModel:
         self.ranges: dict[tuple[str, str], Item] = {}
         self.stats: dict[str, Item] = {}
         self.transfers: dict[tuple[str, str, Any], Item] = {}
+        self.network = NetworkView(set(loaded.mission.nodes))
         self.events: deque[Item] = deque(maxlen=max_events)
         self.dropped: Counter[str] = Counter()
         self._watches: dict[str, CounterWatch] = {}
@@ -181,7 +185,8 @@ class GuiModel:
                 "channels": channels,
                 "commands": [c.describe() for c in self.commands.values()],
                 "images": self.images.describe(),
-                "track_points": self.track_points, "sent_after_s": self.book.sent_after_s}
+                "track_points": self.track_points, "sent_after_s": self.book.sent_after_s,
+                **network_description(self.loaded, self.node)}
 
     # -- output ------------------------------------------------------------------------------
 
@@ -205,6 +210,7 @@ class GuiModel:
                 items.append(view.lost)
         items.extend(self.links.values())
         items.extend(self.ranges.values())
+        items.extend(self.network.items())
         items.extend(self.stats.values())
         items.extend(self.transfers.values())
         items.extend(self.events)
@@ -318,6 +324,10 @@ class GuiModel:
                 self.vehicles[node].lost = None
                 self._position(node, "fix", xyz, now, _finite(value.get("sigma_m")),
                                _tracked(value))
+        elif topic in ("links", "route") and name is not None:
+            news = self.network.status(node, topic, name, value, now)
+            if news is not None:
+                self._out.append(news)
         elif topic == "delivery":
             self._delivery(node, value, now)
         elif topic == "transfer":
@@ -342,8 +352,10 @@ class GuiModel:
                 "send_errors": shown(stats.get("send_errors")),
                 "values_published": shown(stats.get("values_published"))}
         item.update(zspace_view(stats))
+        item.update(relay_view(stats))
         self.stats[node] = item
         self._out.append(item)
+        self._out.extend(self.network.stats(node, stats, now))
         watch = self._watches.setdefault(node, CounterWatch(node))
         lines = watch.update(stats)
         if node not in self._event_streams:  # its events say the same, one by one

@@ -110,6 +110,14 @@ class Node(Strict):
         "(replaces position there); the node's own fixes start from its first waypoint.",
     )
     modem: ModemOverride = Field(default_factory=ModemOverride)
+    routes: dict[NodeName, NodeName] = Field(
+        default_factory=dict, description="Static routes of this node: destination -> the "
+        "neighbour that carries its traffic on (``{rov2: rov1}``); ``default`` as the "
+        "destination routes every node not named, but that neighbour itself (see "
+        "docs/concepts.md).")
+    prefer: list[NodeName] | None = Field(
+        None, min_length=1, description="Links (by name) that traffic TO this node takes, "
+        "best first (``[rf, acoustic]``); a channel's own ``prefer`` comes first.")
     keyspace: list[str] = Field(
         default_factory=lambda: ["{node}/**"], description="Key expressions where this node's "
         "applications put what is meant to cross ({node} = this node): a put there that no "
@@ -204,6 +212,48 @@ class AlohaMac(Strict):
 
 
 Mac = Annotated[TdmaMac | NoMac | PolledMac | AlohaMac, Field(discriminator="type")]
+
+
+class LinkHealth(Strict):
+    """When a silent peer counts as degraded or down (seed 002: lost after 5 s of silence).
+
+    Unset thresholds follow the MAC: with TDMA, 2 and 4 cycles; otherwise 10 s and 30 s.
+    ``heartbeat_s`` makes a node send a frame (empty if need be) at least that often.
+    """
+
+    degraded_after_s: float | None = Field(None, gt=0)
+    down_after_s: float | None = Field(None, gt=0)
+    heartbeat_s: float | None = Field(None, gt=0)
+    failback_s: float | None = Field(None, gt=0, description="With several links: how long "
+                                     "a more preferred link must stay up before traffic "
+                                     "returns to it; default: its degraded_after_s.")
+
+
+class LinkNode(Strict):
+    """A member's own settings on one link."""
+
+    address: int | None = Field(None, ge=0, le=254, description="Its address on this link's "
+                                "modems; default: the node's address.")
+    modem: ModemOverride = Field(default_factory=ModemOverride)
+
+
+class LinkSpec(Strict):
+    """One link of a mission with several: a kind of modem its members carry, with its own
+    frame size and MAC (seed 002's generic link layer: acoustic, RF, optical)."""
+
+    kind: Literal["acoustic", "rf", "optical"] = Field(
+        "acoustic", description="What the link is (the GUI draws it so; presets say its range).")
+    modem: Modem = Field(default_factory=Modem)
+    mac: Mac = Field(default_factory=lambda: NoMac(type="none"))
+    link: LinkHealth | None = Field(None, description="When a silent peer on this link counts "
+                                    "as degraded or down; default: the mission's ``link``.")
+    nodes: list[NodeName] | dict[NodeName, LinkNode] | None = Field(
+        None, description="The members (a list, or a mapping to each one's address and modem "
+        "settings on this link); default: every node.")
+
+    def member(self, name: str) -> LinkNode:
+        """``name``'s settings on this link (defaults when it gives none)."""
+        return self.nodes.get(name, LinkNode()) if isinstance(self.nodes, dict) else LinkNode()
 
 
 class Dccl(Strict):
@@ -354,6 +404,9 @@ class Channel(Strict):
                                   "TDMA cycle, else 10 s.")
     always: bool = Field(False, description="With ``demand``: send even while no application "
                          "at a destination subscribes (latched state, safety data).")
+    prefer: list[NodeName] | None = Field(None, min_length=1, description="With several "
+                                          "links: the links (by name) this channel takes, "
+                                          "best first (``[rf, acoustic]``).")
     keys: FamilyKeys | None = Field(None, description="Make the channel a key family: its "
                                     "input keys hold ``{key}`` (or one ``*`` chunk) and each "
                                     "member keeps its own value, age and output key.")
@@ -538,18 +591,6 @@ class Surfacing(Strict):
                             "output key is the input key: Zenoh carries it as it is).")
 
 
-class LinkHealth(Strict):
-    """When a silent peer counts as degraded or down (seed 002: lost after 5 s of silence).
-
-    Unset thresholds follow the MAC: with TDMA, 2 and 4 cycles; otherwise 10 s and 30 s.
-    ``heartbeat_s`` makes a node send a frame (empty if need be) at least that often.
-    """
-
-    degraded_after_s: float | None = Field(None, gt=0)
-    down_after_s: float | None = Field(None, gt=0)
-    heartbeat_s: float | None = Field(None, gt=0)
-
-
 class WaterProperties(Strict):
     """Temperature, salinity and depth for a computed sound speed."""
 
@@ -605,6 +646,12 @@ class Mission(Strict):
     nodes: dict[NodeName, Node] = Field(min_length=1)
     modem: Modem = Field(default_factory=Modem)
     mac: Mac = Field(default_factory=lambda: NoMac(type="none"))
+    links: dict[NodeName, LinkSpec] | None = Field(
+        None, description="Several links (instead of ``modem`` and ``mac``): each a modem "
+        "kind with its own frame size and MAC, by name (see docs/concepts.md).")
+    max_hops: int = Field(3, ge=1, le=8, description="Most hops (transmissions) a frame takes "
+                          "from its origin to its destination, through relays (nodes' "
+                          "``routes``).")
     wire: Wire = Field(default_factory=Wire)
     link: LinkHealth = Field(default_factory=LinkHealth)
     demand: Demand | None = Field(None, description="Send channels only where applications "
@@ -645,6 +692,15 @@ class Mission(Strict):
             broadcast=self.modem.broadcast if override.broadcast is None else override.broadcast,
             options={**self.modem.options, **override.options},
         )
+
+    def frame_bytes_of(self, name: str) -> int:
+        """The largest frame every link of ``name`` carries (its modem's, with one link)."""
+        if self.links is None:
+            return self.node_modem(name).frame_bytes
+        sizes = [spec.member(name).modem.frame_bytes or spec.modem.frame_bytes
+                 for spec in self.links.values()
+                 if spec.nodes is None or name in spec.nodes]
+        return min(sizes, default=self.modem.frame_bytes)
 
     def address_of(self, name: str) -> int:
         return self.nodes[name].address

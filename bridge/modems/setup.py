@@ -6,6 +6,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from bridge.mission.model import Mission
+from bridge.mission.network import Network
 from bridge.modems.base import ModemBackend, ModemSetup
 from bridge.modems.registry import load_backend
 
@@ -43,3 +44,15 @@ def backend_factory(
     cls = load_backend(mission.node_modem(node).backend)
     setup = modem_setup(mission, node, extra)
     return lambda: cls(setup)
+
+
+def node_backends(network: Network, node: str,
+                  extras: Mapping[str | None, Mapping[str, Any]] | None = None,
+                  ) -> Callable[[], ModemBackend] | dict[str, Callable[[], ModemBackend]]:
+    """What makes ``node``'s modem backend, or with several links each link's, by name
+    (``extras``: more options per link name; None: the mission's one link)."""
+    extras = extras or {}
+    if not network.several:
+        return backend_factory(network.mission, node, extras.get(None))
+    return {link.name: backend_factory(link.view, node, extras.get(link.name))
+            for link in network.links_of(node)}

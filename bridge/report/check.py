@@ -18,6 +18,7 @@ from bridge.errors import BackendError
 from bridge.mission.model import Mission
 from bridge.modems.registry import load_backend
 from bridge.modems.setup import modem_options
+from bridge.report.network_check import network_section
 from bridge.wire.auth import COUNTER_BYTES
 from bridge.wire.channels import ChannelCodec
 from bridge.wire.families import has_wildcard
@@ -85,66 +86,20 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
                 f"channel {c.name!r}: a value ({c.bits} bits) is larger than a frame; it travels "
                 f"in up to {-(-c.value_bytes // c.chunk_bytes)} fragments of {c.chunk_bytes} B")
     nodes = []
-    rules = mac_for(mission)
+    network = loaded.network
     broadcasts: dict[int | None, list[str]] = defaultdict(list)
-    for name, node in mission.nodes.items():
-        frame_bytes = mission.node_modem(name).frame_bytes
-        capacity = codec.body_capacity_bits(frame_bytes) - codec.count_bits
-        sent = [c for c in table.channels if c.sent_by(name) and c.destinations(name)]
-        worst = sum(codec.channel_cost_bits(c) * (c.family.bound if c.family else 1)
-                    for c in sent)  # every member of a key family at once
-        modem = mission.node_modem(name)
-        options = modem_options(mission, name)
-        try:
-            backend = load_backend(modem.backend)
-            limit = backend.max_frame_bytes(options)
-            errors, warnings = backend.setup_problems(options, node.address)
-            report.errors += [f"{name}: {e}" for e in errors]
-            report.warnings += [f"{name}: {w}" for w in warnings]
-            broadcasts[backend.broadcast_address(options)].append(name)
-        except BackendError as exc:
-            report.errors.append(f"{name}: {exc}")
-            limit = None
-        if limit is not None and frame_bytes > limit:
-            report.errors.append(f"{name}: frame_bytes {frame_bytes} exceeds the {limit} bytes a "
-                                 f"{modem.backend} modem sends with these options")
-        for c in sent:
-            if codec.channel_cost_bits(c) > capacity:
-                report.errors.append(
-                    f"channel {c.name!r} ({codec.channel_cost_bits(c)} bits with its index) can "
-                    f"never fit in a {frame_bytes}-byte frame of {name!r} "
-                    f"({capacity} bits free after overhead)"
-                )
-        if worst > capacity:
-            report.warnings.append(
-                f"{name}: all its channels at once need {worst} bits, a frame holds {capacity}; "
-                "lower priorities wait for a later frame"
-            )
-        preset = node_preset(mission, name)
-        largest = codec.frame_bytes_for(sent) if sent else codec.frame_bytes_for([])
-        airtime = preset.airtime(min(largest, frame_bytes)) if preset else None
-        entry = {
-            "name": name,
-            "address": node.address,
-            "role": node.role,
-            "listen": list(node.zenoh.listen),
-            "frame_bytes": frame_bytes,
-            "worst_case_bits": worst + codec.epoch_bits + sent_count_bits
-            + codec.overhead_bytes() * 8,
-            "capacity_bits": frame_bytes * 8,
-            "fill": round(min(largest, frame_bytes) / frame_bytes, 3),
-            "airtime_s": None if airtime is None else round(airtime, 3),
-        }
-        need = None if preset is None else preset.frame_time_s(
-            min(largest, frame_bytes), max_distance_m(mission, preset))
-        extra, warnings = rules.check_node(name, need, airtime)
-        entry.update(extra)
-        report.warnings.extend(warnings)
-        mac = rules.report(name, airtime, _data_per_s(sent, mission.link.heartbeat_s))
-        entry["mac"] = {"worst_interval_s": _round(mac.worst_interval_s),
-                        "airtime_share": mac.airtime_share, "note": mac.note,
-                        "random_access": mac.random_access}
-        nodes.append(entry)
+    by_link: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for name in mission.nodes:
+        found = []
+        for link in network.links_of(name):
+            entry = _node_on(link.view, name, codec, report, broadcasts,
+                             0 if table.net is None else table.net.routed_bytes
+                             if network.routed_over(name, link.name) else table.net.plain_bytes)
+            if network.several:
+                entry["link"] = link.name
+            by_link[link.name].append(entry)
+            found.append(entry)
+        nodes.append({**found[0], **({"links": found} if network.several else {})})
     if len(broadcasts) > 1:  # one fleet, one convention (a Goby node takes 0 as broadcast)
         said = "; ".join(f"{', '.join(names)}: {'none' if b is None else b}"
                          for b, names in broadcasts.items())
@@ -154,19 +109,27 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
     images = [_image(c, codec) for c in table.channels
               if c.image is not None and not c.image.control]
     for image in images:  # one fragment per opportunity of the camera, at worst
-        waits = [n["mac"]["worst_interval_s"] for n in nodes  # type: ignore[index]
+        waits = [n["mac"]["worst_interval_s"] for n in nodes
                  if n["name"] in image["from"]]
         slowest: float | None = max((w for w in waits if w is not None), default=None)
         image["seconds_per_picture"] = None if slowest is None else round(
             slowest * image["fragments_per_picture"], 1)
-    mac_data, warnings = rules.check(nodes)
-    report.warnings.extend(warnings)
+    mac_data: dict[str, Any] = {}
+    for link in network.links:
+        data, warnings = mac_for(link.view).check(by_link[link.name])
+        report.warnings.extend(warnings)
+        mac_data.update({link.name: data} if network.several else data)
+    extra: dict[str, Any] = {}
+    if table.net is not None:
+        extra["network"], warnings = network_section(loaded, codec, by_link)
+        report.warnings.extend(warnings)
     report.data = {
         "streams": [stream_limits(c, mission) for c in table.streams],
         "mission": mission.mission,
         "frame_bytes": mission.modem.frame_bytes,
         "backend": mission.modem.backend,
-        "mac": mission.mac.type,
+        "mac": mission.mac.type if not network.several else ", ".join(
+            f"{link.view.mac.type} ({link.name})" for link in network.links),
         "mac_timing": mac_data,
         "dlbl": mission.wire.dlbl,
         "overhead_bytes": codec.overhead_bytes(),
@@ -185,11 +148,79 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         "dccl": dccl_reports(table),
         "dccl_numeric": {"rule": mission.dccl.numeric, "libdccl": RULES[mission.dccl.numeric]},
         "nodes": nodes,
+        **extra,
         "warnings": report.warnings,
         "errors": report.errors,
         "ok": report.ok,
     }
     return report
+
+
+def _node_on(view: Mission, name: str, codec: FrameCodec, report: CheckReport,
+             broadcasts: dict[int | None, list[str]], header_bytes: int) -> dict[str, Any]:
+    """``zab check``'s entry of node ``name`` on one link (``view``: the mission as that link
+    sees it; the mission itself with one link); ``header_bytes``: its frames' network header."""
+    table, node = codec.table, view.nodes[name]
+    sent_count_bits = 0 if table.wire_format == "goby" else codec.count_bits
+    rules = mac_for(view)
+    frame_bytes = view.node_modem(name).frame_bytes
+    capacity = codec.body_capacity_bits(frame_bytes - header_bytes) - codec.count_bits
+    sent = [c for c in table.channels if c.sent_by(name) and c.destinations(name)]
+    worst = sum(codec.channel_cost_bits(c) * (c.family.bound if c.family else 1)
+                for c in sent)  # every member of a key family at once
+    modem = view.node_modem(name)
+    options = modem_options(view, name)
+    try:
+        backend = load_backend(modem.backend)
+        limit = backend.max_frame_bytes(options)
+        errors, warnings = backend.setup_problems(options, node.address)
+        report.errors += [f"{name}: {e}" for e in errors]
+        report.warnings += [f"{name}: {w}" for w in warnings]
+        broadcasts[backend.broadcast_address(options)].append(name)
+    except BackendError as exc:
+        report.errors.append(f"{name}: {exc}")
+        limit = None
+    if limit is not None and frame_bytes > limit:
+        report.errors.append(f"{name}: frame_bytes {frame_bytes} exceeds the {limit} bytes a "
+                             f"{modem.backend} modem sends with these options")
+    for c in sent:
+        if codec.channel_cost_bits(c) > capacity:
+            report.errors.append(
+                f"channel {c.name!r} ({codec.channel_cost_bits(c)} bits with its index) can "
+                f"never fit in a {frame_bytes}-byte frame of {name!r} "
+                f"({capacity} bits free after overhead)"
+            )
+    if worst > capacity:
+        report.warnings.append(
+            f"{name}: all its channels at once need {worst} bits, a frame holds {capacity}; "
+            "lower priorities wait for a later frame"
+        )
+    preset = node_preset(view, name)
+    largest = codec.frame_bytes_for(sent) if sent else codec.frame_bytes_for([])
+    largest += header_bytes
+    airtime = preset.airtime(min(largest, frame_bytes)) if preset else None
+    entry = {
+        "name": name,
+        "address": node.address,
+        "role": node.role,
+        "listen": list(node.zenoh.listen),
+        "frame_bytes": frame_bytes,
+        "worst_case_bits": worst + codec.epoch_bits + sent_count_bits
+        + (codec.overhead_bytes() + header_bytes) * 8,
+        "capacity_bits": frame_bytes * 8,
+        "fill": round(min(largest, frame_bytes) / frame_bytes, 3),
+        "airtime_s": None if airtime is None else round(airtime, 3),
+    }
+    need = None if preset is None else preset.frame_time_s(
+        min(largest, frame_bytes), max_distance_m(view, preset))
+    extra, warnings = rules.check_node(name, need, airtime)
+    entry.update(extra)
+    report.warnings.extend(warnings)
+    mac = rules.report(name, airtime, _data_per_s(sent, view.link.heartbeat_s))
+    entry["mac"] = {"worst_interval_s": _round(mac.worst_interval_s),
+                    "airtime_share": mac.airtime_share, "note": mac.note,
+                    "random_access": mac.random_access}
+    return entry
 
 
 def _auth(mission: Mission) -> dict[str, Any] | None:
@@ -244,9 +275,9 @@ def _query(mission: Mission, codec: FrameCodec, request: QueryCodec) -> dict[str
 def _system_entries_fit(loaded: LoadedMission, codec: FrameCodec, report: CheckReport) -> None:
     """Each node's @key, @want and query entries must fit in one of its frames."""
     mission, table = loaded.mission, loaded.table
-    for name in mission.nodes:
-        capacity = codec.body_capacity_bits(mission.node_modem(name).frame_bytes) \
-            - codec.count_bits
+    for name in mission.nodes:  # (its smallest frame, with the longest network header)
+        capacity = codec.body_capacity_bits(mission.frame_bytes_of(name)
+                                            - table.net_header_bytes) - codec.count_bits
         entries: list[Any] = []
         if table.names is not None and any(c.family and c.family.learned and c.sent_by(name)
                                            for c in table.channels):

@@ -155,7 +155,7 @@ def slots_figure(rec: Recording, loaded: LoadedMission, turns: dict[str, float |
     for _, node, size, channels in rec.frames:
         for channel in channels or ["(empty)"]:
             carried[channel][node] += 1
-        fill[node].append(size / loaded.mission.node_modem(node).frame_bytes)
+        fill[node].append(size / loaded.mission.frame_bytes_of(node))  # (its smallest link)
     fig = go.Figure()
     for channel in sorted(carried):
         fig.add_trace(go.Bar(x=nodes, y=[carried[channel][n] for n in nodes], name=channel))

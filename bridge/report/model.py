@@ -110,7 +110,8 @@ class MissionReport:
         found = (water or {}).get("links", ())
         name = {a: loaded.mission.name_of(a)  # each address once, not twice per link
                 for a in {link["src"] for link in found} | {link["dst"] for link in found}}
-        links = [LinkFigures(f"{name[link['src']]}->{name[link['dst']]}", link["src"],
+        links = [LinkFigures(f"{name[link['src']]}->{name[link['dst']]}"
+                             + (f" ({link['link']})" if "link" in link else ""), link["src"],
                              link["dst"], link["sent"], link["delivered"], dict(link["lost"]))
                  for link in found]
         return cls(
@@ -187,8 +188,8 @@ def print_report(console: Console, report: MissionReport) -> None:
     links = report.links
     if links:
         shown = links if len(links) <= LINK_ROWS else worst_links(links, LINK_ROWS - 1)
-        title = "acoustic links" if shown is links else \
-            f"acoustic links: the {len(shown)} worst of {len(links)}"
+        title = "links in the water" if shown is links else \
+            f"links in the water: the {len(shown)} worst of {len(links)}"
         flying = any(link.in_flight for link in links)  # sent = delivered + lost + this
         lt = Table("link", "sent", "delivered", "lost", *(["in flight at the end"] * flying),
                    title=title)

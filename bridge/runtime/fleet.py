@@ -1,4 +1,6 @@
-"""Run every node of a mission in one process, over the simulated ocean (``zab sim``)."""
+"""Run every node of a mission in one process, over the simulated ocean (``zab sim``): one
+water per link of the mission (each modem kind with its own preset), each node a modem in the
+water of each of its links."""
 
 from __future__ import annotations
 
@@ -12,14 +14,14 @@ from typing import Any
 
 from bridge.core.events import Event, FrameReceived
 from bridge.core.loaded import LoadedMission
-from bridge.modems.setup import backend_factory
+from bridge.modems.setup import node_backends
 from bridge.report.age import AgeOfInformation
 from bridge.report.model import MissionReport
 from bridge.runtime.keys import keys_for_run
 from bridge.runtime.state_file import StateFile
 from bridge.runtime.surface_wifi import SurfaceWifi
 from bridge.runtime.zenoh_node import BridgeNode
-from bridge.sim.scenario import surface_script, water_of
+from bridge.sim.scenario import Water, surface_script, water_of, water_stats, waters_of
 from bridge.sim.service import WaterService
 from bridge.wire.seal import KeyRing
 
@@ -29,8 +31,20 @@ WATCH_S = 0.25  # how often a node that failed while running is noticed
 
 
 def water_for(loaded: LoadedMission, seed: int | None = None) -> WaterService:
-    """A water service for the mission (:func:`~bridge.sim.scenario.water_of`)."""
-    water = water_of(loaded, seed)
+    """A water service for the mission (:func:`~bridge.sim.scenario.water_of`; with several
+    links, its first link's: :func:`waters_for`)."""
+    return _service(water_of(loaded, seed))
+
+
+def waters_for(loaded: LoadedMission, seed: int | None = None
+               ) -> dict[str | None, WaterService]:
+    """A water service per link of the mission, by link name (None: its one link)."""
+    if not loaded.network.several:
+        return {None: water_for(loaded, seed)}
+    return {link: _service(water) for link, water in waters_of(loaded, seed).items()}
+
+
+def _service(water: Water) -> WaterService:
     return WaterService(water.preset, water.seed, water.positions, loss=water.loss,
                         paths=water.paths)
 
@@ -63,8 +77,12 @@ class Fleet:
             self.key, self.throwaway_key = keys_for_run(auth)
         self.names = [n for n in loaded.mission.nodes if only is None or n in only]
         self.water_address = water
-        sim = loaded.mission.modem.backend == "sim" and water is None
-        self.water = water_for(loaded, seed) if sim else None
+        sim = water is None and all(link.view.modem.backend == "sim"
+                                    for link in loaded.network.links)
+        self.waters = waters_for(loaded, seed) if sim else {}
+        """The water of each link the fleet simulates (None: the mission's one link)."""
+        self.water = next(iter(self.waters.values()), None)
+        """The first link's water."""
         self.on_event = on_event
         self.nodes: dict[str, BridgeNode] = {}
         self.ages = AgeOfInformation()
@@ -87,12 +105,12 @@ class Fleet:
 
     async def run(self, stop: asyncio.Event) -> None:
         """Start the water and every node; run until ``stop`` is set; close everything."""
-        extra: dict[str, Any] = {}
-        if self.water is not None:
-            port = await self.water.start("127.0.0.1", 0)
-            extra["water"] = f"127.0.0.1:{port}"
-        elif self.water_address is not None:
-            extra["water"] = self.water_address
+        extras: dict[str | None, dict[str, Any]] = {}
+        for link, water in self.waters.items():
+            port = await water.start("127.0.0.1", 0)
+            extras[link] = {"water": f"127.0.0.1:{port}"}
+        if not self.waters and self.water_address is not None:
+            extras[None] = {"water": self.water_address}
         node_stop = asyncio.Event()
         scratch = tempfile.TemporaryDirectory(prefix="zab-state-") if self.state_dir is None \
             else None
@@ -102,7 +120,7 @@ class Fleet:
                 self.nodes[name] = BridgeNode(
                     self.loaded,
                     name,
-                    backend_factory(self.loaded.mission, name, extra),
+                    node_backends(self.loaded.network, name, extras),
                     on_event=self._node_events(name),
                     state_file=StateFile(state_dir, self.loaded.mission.mission, name),
                     key=self.key,
@@ -138,10 +156,17 @@ class Fleet:
             await asyncio.gather(*tasks, return_exceptions=True)
         finally:
             node_stop.set()
-            if self.water is not None:
-                await self.water.stop()
+            for water in self.waters.values():
+                await water.stop()
             if scratch is not None:
                 scratch.cleanup()
+
+    def water_stats(self) -> dict[str, Any] | None:
+        """The counters of the fleet's water (several links: each link's, their ``links``
+        named by ``link``)."""
+        if not self.waters:
+            return None
+        return water_stats({link: water.stats() for link, water in self.waters.items()})
 
     def _surfaced(self, a: str, b: str, up: bool) -> None:
         """The scripted surfacing joined ``a`` and ``b`` over IP (``up``) or parted them (the
@@ -153,4 +178,4 @@ class Fleet:
         end = self.ended if self.ended is not None else time.time()
         return MissionReport.build(
             self.loaded, {name: node.core for name, node in self.nodes.items()}, self.ages,
-            self.started, end, self.water.stats() if self.water is not None else None)
+            self.started, end, self.water_stats())

@@ -6,9 +6,11 @@ mission runs in seconds and the same seed gives the same run. Applications are p
 :meth:`FastFleet.put` (scheduled samples on input keys); what nodes publish is collected in
 :attr:`FastFleet.outputs` and passed to ``on_output``.
 
-Nodes with a scripted ``path`` follow it from the start time. What it leaves out compared with
-``zab sim``: Zenoh itself (keys, latching queries), modem drivers, and clock offsets (every node
-shares the virtual clock).
+Nodes with a scripted ``path`` follow it from the start time. A mission with several links
+has an ocean per link (each modem kind with its own preset: range, rate, delay), and each node
+a transmitter on each of its links. What it leaves out compared with ``zab sim``: Zenoh itself
+(keys, latching queries), modem drivers, and clock offsets (every node shares the virtual
+clock).
 """
 
 from __future__ import annotations
@@ -35,12 +37,15 @@ from bridge.modems.base import Reception
 from bridge.runtime.keys import keys_for_run
 from bridge.runtime.virtual_queries import VirtualQueries
 from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
-from bridge.sim.scenario import surface_script, water_of
+from bridge.sim.scenario import surface_script, water_of, water_stats, waters_of
 from bridge.wire.frame import DecodedFrame
 from bridge.wire.payloads import MSGPACK, encode_payload
 from bridge.wire.seal import KeyRing
 
 TICK_S = 1.0
+
+Port = tuple[str, str | None]
+"""A node's transmitter on one link: (node, link name; None in a mission of one link)."""
 
 DECODED_KEPT = 64
 """Frames whose decoding the receivers share at a time (a frame's receptions end within
@@ -53,7 +58,7 @@ class SharedDecoder:
     decoded values, as they share the frame's bytes: read-only. :meth:`fingerprint` shares
     the frame's sender fingerprint (a function of the bytes) the same way."""
 
-    def __init__(self, decode: Callable[[bytes, int | None], DecodedFrame],
+    def __init__(self, decode: Callable[..., DecodedFrame],
                  fingerprint: Callable[[bytes], int | None] | None = None) -> None:
         self._decode = decode
         self._fingerprint = fingerprint
@@ -72,12 +77,12 @@ class SharedDecoder:
         return found
 
     def __call__(self, frame: bytes, src: int | None = None,
-                 now: float | None = None) -> DecodedFrame:
+                 now: float | None = None, start: int = 0) -> DecodedFrame:
         key = (frame, src)
         done = self._kept.get(key)
         if done is None:
             try:
-                done = self._decode(frame, src)
+                done = self._decode(frame, src, start=start) if start else self._decode(frame, src)
             except FrameError as exc:
                 done = exc
             if len(self._kept) >= DECODED_KEPT:
@@ -124,12 +129,27 @@ class FastFleet:
             self.key, self.throwaway_key = keys_for_run(mission.wire.auth)
         self.loaded = loaded
         self.mission = mission
-        water = water_of(loaded, seed, loss, preset)
-        self.ocean = Ocean(water.preset, water.seed, {
-            node.address: water.positions.get(node.address, (0.0, 0.0, 0.0))
-            for node in mission.nodes.values()}, loss=water.loss)
-        for address, path in water.paths.items():
-            self.ocean.set_path(address, path, start)
+        network = loaded.network
+        waters = {None: water_of(loaded, seed, loss, preset)} if not network.several \
+            else waters_of(loaded, seed, loss)
+        self.oceans: dict[str | None, Ocean] = {}
+        """The water of each link (one, None, in a mission of one link)."""
+        self._names: dict[str | None, dict[int, str]] = {}
+        self._addresses: dict[str | None, dict[str, int]] = {}
+        for link, water in waters.items():
+            info = network.links[0] if link is None else network.link(link)
+            ocean = self.oceans[link] = Ocean(water.preset, water.seed, {
+                address: water.positions.get(address, (0.0, 0.0, 0.0))
+                for address in info.addresses.values()}, loss=water.loss)
+            for address, path in water.paths.items():
+                ocean.set_path(address, path, start)
+            self._addresses[link] = dict(info.addresses)
+            self._names[link] = {a: n for n, a in reversed(info.addresses.items())}
+        self.ocean = next(iter(self.oceans.values()))
+        """The first link's water."""
+        self.ports: dict[str, tuple[Port, ...]] = {
+            name: tuple((name, link) for link, a in self._addresses.items() if name in a)
+            for name in mission.nodes}
         self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"),
                                      key=self.key, seed=seed)
                       for name in mission.nodes}
@@ -150,12 +170,12 @@ class FastFleet:
         self.seed = seed
         self.restarts = 0
         self.saved: dict[str, dict[str, Any]] = {}  # each node's saved state, as on its disk
-        self._order = {name: i for i, name in enumerate(mission.nodes)}
-        self._names = {node.address: name for name, node in reversed(mission.nodes.items())}
-        self._addresses = {name: node.address for name, node in mission.nodes.items()}
-        self._next_tx: dict[str, float | None] = {}
-        # every value _next_tx took, as (time, node order, name): stale ones leave lazily
-        self._tx_heap: list[tuple[float, int, str]] = []
+        links = {link: i for i, link in enumerate(self.oceans)}
+        self._order = {(name, link): i * len(links) + links[link]
+                       for i, name in enumerate(mission.nodes) for link in self.oceans}
+        self._next_tx: dict[Port, float | None] = {}
+        # every value _next_tx took, as (time, port order, port): stale ones leave lazily
+        self._tx_heap: list[tuple[float, int, Port]] = []
         self._pending: dict[int, tuple[str, Any]] = {}
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
@@ -263,7 +283,8 @@ class FastFleet:
     def stop(self, node: str) -> None:
         """Silence ``node``: it neither sends nor hears from now on."""
         self.stopped.add(node)
-        self._set_next_tx(node, None)
+        for port in self.ports[node]:
+            self._set_next_tx(port, None)
 
     def resume(self, node: str) -> None:
         self.stopped.discard(node)
@@ -295,10 +316,14 @@ class FastFleet:
         """Advance the virtual clock to ``t_end``, handling every event on the way: at each
         step, in this order, what the water settles, the timers due, the transmissions due
         and the health tick (one loop, no call per step: an hour of 64 nodes is ~4·10^5)."""
-        ocean, timers, next_tx = self.ocean, self._timers, self._next_tx
+        oceans, timers, next_tx = self.oceans, self._timers, self._next_tx
+        single = self.ocean if len(oceans) == 1 else None
         while True:
             t = self._next_tick
-            if (water := ocean.next_event_time()) is not None and water < t:
+            water = single.next_event_time() if single is not None else min(
+                (w for o in oceans.values() if (w := o.next_event_time()) is not None),
+                default=None)
+            if water is not None and water < t:
                 t = water
             if timers and timers[0][0] < t:
                 t = timers[0][0]
@@ -314,9 +339,9 @@ class FastFleet:
                 self.now = t
             now = self.now
             if water is not None and water <= now:
-                for event in ocean.advance(now):  # (the ocean's clock moves when it is asked)
+                for link, event in self._water_events(now):
                     if isinstance(event, Delivery):
-                        self._deliver(event)
+                        self._deliver(event, link)
                     elif isinstance(event, TxDone):
                         self._pending.pop(event.frame_id, None)
             while timers and timers[0][0] <= now:
@@ -327,22 +352,33 @@ class FastFleet:
             if self._next_tick <= now:
                 self._tick(now)
 
-    def _set_next_tx(self, name: str, t: float | None) -> None:
-        self._next_tx[name] = t
+    def _water_events(self, now: float) -> list[tuple[str | None, Any]]:
+        """What every link's water settled up to ``now``, in time order (the ocean's clock
+        moves when it is asked)."""
+        if len(self.oceans) == 1:
+            link, ocean = next(iter(self.oceans.items()))
+            return [(link, event) for event in ocean.advance(now)]
+        found = [(event.time, i, link, event) for i, (link, ocean) in
+                 enumerate(self.oceans.items()) for event in ocean.advance(now)]
+        found.sort(key=lambda e: (e[0], e[1]))
+        return [(link, event) for _, _, link, event in found]
+
+    def _set_next_tx(self, port: Port, t: float | None) -> None:
+        self._next_tx[port] = t
         if t is not None:
-            heapq.heappush(self._tx_heap, (t, self._order[name], name))
+            heapq.heappush(self._tx_heap, (t, self._order[port], port))
             if len(self._tx_heap) > 4 * len(self._order) + 64:  # mostly stale: rebuild
-                self._tx_heap = [(at, self._order[n], n) for n, at in self._next_tx.items()
+                self._tx_heap = [(at, self._order[p], p) for p, at in self._next_tx.items()
                                  if at is not None]
                 heapq.heapify(self._tx_heap)
 
-    def _due_transmitters(self, now: float) -> list[str]:
-        """Nodes whose planned transmission is due at ``now``, in mission order."""
+    def _due_transmitters(self, now: float) -> list[Port]:
+        """Transmitters whose planned transmission is due at ``now``, in mission order."""
         heap, due = self._tx_heap, {}
         while heap and heap[0][0] <= now:
-            t, order, name = heapq.heappop(heap)
-            if self._next_tx.get(name) == t:
-                due[order] = name
+            t, order, port = heapq.heappop(heap)
+            if self._next_tx.get(port) == t:
+                due[order] = port
         return [due[k] for k in sorted(due)]
 
     def _tick(self, now: float) -> None:
@@ -354,35 +390,47 @@ class FastFleet:
                 collect(name, core)
         self._next_tick = now + TICK_S
 
+    def water_stats(self) -> dict[str, Any]:
+        """The counters of every link's water (:func:`~bridge.sim.scenario.water_stats`)."""
+        return water_stats({link: ocean.stats() for link, ocean in self.oceans.items()})
+
     @property
     def schedules(self) -> dict[str, Schedule]:
         """Each node's MAC schedule (owned by its core)."""
         return {name: core.schedule for name, core in self.cores.items()}
 
     def _plan(self, name: str) -> None:
-        """When ``name`` next gets to transmit: its MAC's next opportunity."""
+        """When ``name`` next gets to transmit on each of its links: its MACs' next
+        opportunities."""
+        for port in self.ports[name]:
+            self._plan_port(port)
+
+    def _plan_port(self, port: Port) -> None:
+        name, link = port
         if name in self.stopped:
-            self._set_next_tx(name, None)
+            self._set_next_tx(port, None)
             return
-        wake = self.cores[name].wake_at(self.now)
-        busy = self.ocean.busy_until(self._addresses[name])  # a busy modem refuses
-        self._set_next_tx(name, None if wake is None else max(wake, self.now, busy))
+        wake = self.cores[name].wake_at(self.now, link)
+        busy = self.oceans[link].busy_until(self._addresses[link][name])  # a busy modem refuses
+        self._set_next_tx(port, None if wake is None else max(wake, self.now, busy))
 
     def _replan(self, name: str, core: NodeCore) -> None:
         """New data or a reception may change the next opportunity of ``name``'s ``core`` (a
         poll, a ranging turn), unless the schedule is fixed (TDMA: time and own sends only)."""
-        if not core.schedule.fixed:
+        if len(self.ports[name]) > 1 or not core.schedule.fixed:
             self._plan(name)
 
-    def _transmit(self, name: str) -> None:
-        """Carry out what ``name``'s core does at this opportunity, as its modem would (the
-        simulated modem, like ``zab sim``'s, sends frames and does not range)."""
-        core, now = self.cores[name], self.now
-        action = core.act(now, now + self.ocean.preset.intrinsic_delay_s)
+    def _transmit(self, port: Port) -> None:
+        """Carry out what a node's core does at this opportunity of one of its links, as its
+        modem would (the simulated modem, like ``zab sim``'s, sends frames and does not
+        range)."""
+        name, link = port
+        core, now, ocean = self.cores[name], self.now, self.oceans[link]
+        action = core.act(now, now + ocean.preset.intrinsic_delay_s, link)
         if isinstance(action, SendFrame):
             out = action.frame
             try:
-                end = self.ocean.transmit(now, self._addresses[name], out.data, out.dest)
+                end = ocean.transmit(now, self._addresses[link][name], out.data, out.dest)
             except TransmitRefused as exc:
                 core.done(action, now, now, error=str(exc))
             else:
@@ -390,15 +438,18 @@ class FastFleet:
         elif action is not None:  # a ping: the simulated modem cannot
             core.done(action, now, now, error="the simulated modem does not ping")
         self._collect(name, core)
-        self._plan(name)
+        if len(self.ports[name]) > 1:
+            self._plan(name)  # (what is due on its other links changed too)
+        else:
+            self._plan_port(port)
 
-    def _deliver(self, event: Delivery) -> None:
-        name = self._names.get(event.dst)
+    def _deliver(self, event: Delivery, link: str | None = None) -> None:
+        name = self._names[link].get(event.dst)
         if name is None or name in self.stopped:
             return
         meta = {**event.meta, "start": event.start}
         core, now = self.cores[name], self.now
-        core.receive(Reception(event.data, event.src, event.end, meta), now, now)
+        core.receive(Reception(event.data, event.src, event.end, meta), now, now, link)
         self._collect(name, core)
         self._replan(name, core)
 

@@ -2,7 +2,8 @@
 
 Zenoh callbacks run on Zenoh's own threads; they hand samples to the event loop
 (``call_soon_threadsafe``). The loop feeds the pure core with samples, receptions and the
-time, asks it for frames at each MAC opportunity, and carries out what it outputs:
+time, asks it for frames at each MAC opportunity of each of its links (one
+:class:`~bridge.runtime.link_port.LinkPort` per modem), and carries out what it outputs:
 publications, ``@zab`` status, liveliness tokens and events.
 
 With a :attr:`~bridge.modems.base.ModemBackend.direct` backend (``udp``) the data path skips
@@ -23,30 +24,29 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import msgpack
 import zenoh
 
-from bridge.core.events import Event, ModemDown, notable
+from bridge.core.events import Event, notable
 from bridge.core.interest import output_keys
 from bridge.core.link import LinkState
 from bridge.core.loaded import LoadedMission
-from bridge.core.node import NodeCore, NodeStats, Ping, Publish, SendFrame, Status
+from bridge.core.node import NodeCore, NodeStats, Publish, Status
 from bridge.core.positioning import Positioning
-from bridge.core.reception import RangingMode
 from bridge.core.surfacing import Relay
-from bridge.errors import BackendError, DecodeError, EncodeError, NodeFailure
-from bridge.modems.base import ModemBackend, ModemFix, ModemRange, Reception
-from bridge.runtime.eager import start_eagerly
+from bridge.errors import DecodeError, EncodeError, NodeFailure
+from bridge.modems.base import ModemBackend, Reception
 from bridge.runtime.gate import EventGate
 from bridge.runtime.image_queries import ImageQueries
 from bridge.runtime.intake import Intake
 from bridge.runtime.ip_watch import IpWatch
 from bridge.runtime.keys import load_key, with_next_key
 from bridge.runtime.keyspace_watch import KeyspaceWatch
+from bridge.runtime.link_port import LinkPort
 from bridge.runtime.persistence import Persistence
 from bridge.runtime.ros2_graph import Ros2Graph
 from bridge.runtime.session import (
@@ -71,21 +71,11 @@ if TYPE_CHECKING:
 log = logging.getLogger("zab.node")
 
 STATS_PERIOD_S = 1.0
-RETRY_MIN_S, RETRY_MAX_S = 0.5, 10.0
 TX_LEAD_S = 0.01  # how far ahead a timed emission is scheduled
 EVENTS_S = 0.05  # how long events of the direct data path wait for the loop, at most
 EVENTS_MAX = 1024  # events of the direct data path waiting for the loop (the oldest dropped)
 
-InputSample = tuple[str, bytes, str, "str | None", "str | None", "bytes | None"]
-"""A sample for the core's ingest: key, payload, encoding, ref, the sample's own key and its
-attachment."""
-
-
-
-def modem_start(backend: ModemBackend) -> float:
-    """The modem time a frame handed to ``backend`` now starts at: with a timed modem the
-    emission starts exactly then, so DLBL delays are exact."""
-    return backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
+BackendFactory = Callable[[], ModemBackend]
 
 
 def _peer_water(positioning: Positioning, peer: str, values: tuple[float, ...]) -> None:
@@ -107,7 +97,7 @@ class BridgeNode:
         self,
         loaded: LoadedMission,
         node: str,
-        make_backend: Callable[[], ModemBackend],
+        make_backend: BackendFactory | Mapping[str, BackendFactory],
         *,
         clock: Callable[[], float] = time.time,
         on_event: Callable[[Event], None] | None = None,
@@ -117,7 +107,8 @@ class BridgeNode:
         """``state_file``: where this node keeps what a restart must resume (None: nothing
         survives a restart; peers then see a new epoch and resynchronise); ``key``: the frame
         key (default: found as ``wire.auth`` says); ``on_event``: gets every event of the node
-        (:mod:`bridge.core.events`)."""
+        (:mod:`bridge.core.events`); ``make_backend``: makes the node's modem backend, or
+        with several links, each link's by name."""
         self.state_file = state_file
         self.persistence = Persistence(state_file, node)
         auth = loaded.mission.wire.auth
@@ -133,8 +124,6 @@ class BridgeNode:
         self.mission = loaded.mission
         self.table = loaded.table
         self.node = node
-        self._make_backend = make_backend
-        self.backend: ModemBackend | None = None
         self.clock = clock
         self.on_event = on_event or (lambda event: None)
         self.prefix = f"@zab/{self.mission.mission}/{node}"
@@ -151,10 +140,15 @@ class BridgeNode:
         self._interest_entities: list[Any] = []
         self._query_bridge: QueryBridge | None = None
         self._image_queries: ImageQueries | None = None
-        self._data = asyncio.Event()
-        self._modem_up = asyncio.Event()
-        self._sending = False
-        self._planned: float | None = None  # when the transmit loop wakes by itself
+        factories = make_backend if isinstance(make_backend, Mapping) \
+            else {None: make_backend}
+        links = list(self.core.linkset.sides)
+        self.ports: dict[str | None, LinkPort] = {
+            link: LinkPort(self, link, factory, primary=link in (None, links[0]))
+            for link, factory in factories.items()}
+        """Each link's modem and loops (one, None, in a mission of one link)."""
+        self.port = next(iter(self.ports.values()))
+        """The node's first link."""
         self.lock = threading.RLock()
         """Held while the core is used: the loop, Zenoh's threads and a direct backend's
         reader all come in."""
@@ -191,6 +185,23 @@ class BridgeNode:
     @property
     def positioning(self) -> Positioning | None:
         return self.core.positioning
+
+    @property
+    def backend(self) -> ModemBackend | None:
+        """The modem of the node's first link."""
+        return self.port.backend
+
+    @backend.setter
+    def backend(self, backend: ModemBackend | None) -> None:
+        self.port.backend = backend
+
+    async def transmit(self) -> bool:
+        """Carry out the core's action at an open opportunity of the first link."""
+        return await self.port.transmit()
+
+    def receive(self, rx: Reception) -> None:
+        """A frame heard by the modem of the node's first link."""
+        self.port.receive(rx)
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -230,8 +241,9 @@ class BridgeNode:
             tasks = [
                 *([] if self.ip_watch is None else [asyncio.create_task(
                     self.ip_watch.run(), name=f"{self.node}-surfacing")]),
-                asyncio.create_task(self._modem_loop(), name=f"{self.node}-modem"),
-                asyncio.create_task(self._transmit_loop(), name=f"{self.node}-tx"),
+                *(asyncio.create_task(loop(), name=f"{port.name}-{what}")
+                  for port in self.ports.values()
+                  for what, loop in (("modem", port.modem_loop), ("tx", port.transmit_loop))),
                 asyncio.create_task(self._stats_loop(), name=f"{self.node}-stats"),
                 asyncio.create_task(self._health_loop(), name=f"{self.node}-health"),
             ]
@@ -254,8 +266,8 @@ class BridgeNode:
                 self._query_bridge.close()
             if self._image_queries is not None:
                 self._image_queries.close()
-            if self.backend is not None:
-                await self.backend.close()
+            for port in self.ports.values():
+                await port.close()
             if self._ros2 is not None:
                 self._ros2.close()
             close_quietly(self.session)
@@ -300,7 +312,7 @@ class BridgeNode:
         ref = extra[4:].decode("utf-8", "replace") if extra[:4] == b"ref:" else None
         backend = self._direct()
         if backend is not None:
-            self._ingest(backend, (key, data, encoding, ref, sample_key, extra or None))
+            self.port.ingest(backend, (key, data, encoding, ref, sample_key, extra or None))
         else:
             self.intake.to_loop(key, partial(self.ingest, key, data, encoding, ref,  # type: ignore[union-attr]
                                              sample_key, extra or None))
@@ -310,7 +322,7 @@ class BridgeNode:
         with self.lock:
             self.core.delete(key, self.clock())
             self._flush()
-        self._wake()
+        self._wake_all()
 
     def _oversized(self, key: str, sample: zenoh.Sample) -> bool:
         """Whether ``sample``'s payload is over ``key``'s cap: then counted, never copied."""
@@ -324,12 +336,9 @@ class BridgeNode:
         return True
 
     def _direct(self) -> ModemBackend | None:
-        """The open backend, if it is direct and sends what the core gives it at once (a
-        modem that pings must be awaited)."""
-        backend = self.backend
-        if backend is None or not backend.direct or backend.ranging is RangingMode.PING:
-            return None
-        return backend
+        """The node's one modem, if it is direct (:meth:`LinkPort.direct`); with several
+        links, None: samples go through the loop."""
+        return self.port.direct() if len(self.ports) == 1 else None
 
     def _on_loop(self) -> bool:
         return threading.get_ident() == self._loop_thread
@@ -345,11 +354,18 @@ class BridgeNode:
     def _changed(self) -> None:
         """On the loop: the core has outputs to carry out and may have something due."""
         self._flush()
-        self._data.set()
+        self._wake_all()
 
-    def _wake(self) -> None:
-        """The transmit loop asks the core again (from any thread)."""
-        self._soon(self._data.set)
+    def _wake_all(self) -> None:
+        """Every link's transmit loop asks the core again (on the loop)."""
+        for port in self.ports.values():
+            port.data.set()
+
+    def wake_if_sooner(self, now: float) -> None:
+        """Holding the lock: wake each link's transmit loop whose next opportunity comes
+        before it would wake by itself."""
+        for port in self.ports.values():
+            port.wake_if_sooner(now)
 
     def _subscribe_positions(self, loop: asyncio.AbstractEventLoop) -> None:
         """Live positions: this node's own (``nav_key``), anchors' and the CTD's."""
@@ -431,7 +447,7 @@ class BridgeNode:
             with self.lock:
                 new = self.core.interest.set_local(wanted)
             if new:
-                self._data.set()  # the new @want is due at the next opportunity
+                self._wake_all()  # the new @want is due at the next opportunity
 
         for key in sorted({k for ks in keys.values() for k in ks}):
             publisher = self.session.declare_publisher(key)
@@ -454,7 +470,7 @@ class BridgeNode:
         with self.lock:
             self.core.ip_reachable(peer, up, self.clock())
             self._flush()
-        self._data.set()  # a dive makes the peer's channels due again
+        self._wake_all()  # a dive makes the peer's channels due again
 
     def _steer(self, data: bytes, encoding: str) -> None:
         """This node's nav sample: its heading (and speed) steer the tracker, if it has them."""
@@ -475,8 +491,10 @@ class BridgeNode:
         """This node's live position: move the (simulated) modem, unless a scripted path
         moves it, and keep the depth."""
         x, y, depth = position
-        if self.backend is not None and self.mission.nodes[self.node].path is None:
-            self.backend.set_position(x, y, depth)
+        if self.mission.nodes[self.node].path is None:
+            for port in self.ports.values():  # every modem of the vehicle moves with it
+                if port.backend is not None:
+                    port.backend.set_position(x, y, depth)
         if self.core.positioning is not None:
             with self.lock:
                 self.core.positioning.set_depth(depth)
@@ -487,203 +505,14 @@ class BridgeNode:
         ``sample_key``: the sample's own key, under a wildcard input key; ``attachment``: the
         sample's). Any thread: with a direct backend an open opportunity's frame leaves from
         here, else from the loop."""
-        self._ingest(self._direct(), (key, data, encoding, ref, sample_key, attachment))
-
-    def _ingest(self, backend: ModemBackend | None, sample: InputSample) -> None:
-        """:meth:`ingest`, given :meth:`_direct`."""
+        sample = (key, data, encoding, ref, sample_key, attachment)
+        if len(self.ports) == 1:
+            self.port.ingest(self._direct(), sample)
+            return
         with self.lock:
-            ready = not self._sending and self._modem_up.is_set()
-            if ready and backend is not None:  # (its outputs and the frame's, flushed together)
-                self._send_now(backend, sample)
-                return
             self.core.ingest(*sample[:3], self.clock(), *sample[3:])
             self._flush()
-            if not ready:
-                self._wake()  # the transmit loop decides when
-                return
-        self._soon(self._transmit_eagerly)
-
-    def _transmit_eagerly(self) -> None:
-        """On the loop: an opportunity open now, the frame leaves from here."""
-        start_eagerly(self.transmit())
-
-    # -- core → modem --------------------------------------------------------------------------
-
-    async def _transmit_loop(self) -> None:
-        """Sleep until the core's MAC has an opportunity (new data or a frame heard wakes it to
-        ask again), then carry out what the core says to do there."""
-        while True:
-            await self._modem_up.wait()
-            self._data.clear()
-            with self.lock:
-                sending = self._sending
-                now = self.clock()
-                wake = self._planned = None if sending else self.core.wake_at(now)
-            if sending:  # one in flight (from the ingest path): it wakes us after
-                await self._wait_for_data(None)
-                continue
-            if wake is None or wake > now:
-                await self._wait_for_data(None if wake is None else wake - now)
-                continue
-            await self.transmit()
-
-    async def _wait_for_data(self, timeout: float | None) -> None:
-        """Until new data or a frame sets ``_data``, or ``timeout`` seconds pass (a timer on
-        the loop: no task per wait, as ``asyncio.wait_for`` would make)."""
-        timer = None if timeout is None else \
-            asyncio.get_running_loop().call_later(timeout, self._data.set)
-        try:
-            await self._data.wait()
-        finally:
-            if timer is not None:
-                timer.cancel()
-
-    async def transmit(self) -> bool:
-        """Carry out the core's action at an open opportunity: send its frame, or ping.
-        Returns whether something went out. One at a time: the transmit loop and the ingest
-        path both come here."""
-        backend = self.backend
-        with self.lock:
-            if backend is None or self._sending:
-                return False
-            self._sending = True
-        try:
-            return await self._transmit(backend)
-        finally:
-            self._sending = False
-            # the transmit loop looks again (what is due changed), behind the I/O already
-            # waiting: a frame this send put on a local link is heard first
-            asyncio.get_running_loop().call_soon(self._data.set)
-
-    async def _transmit(self, backend: ModemBackend) -> bool:
-        with self.lock:
-            action, now = self._act(backend)
-            if action is None:
-                return False
-        confirmed = None
-        try:
-            if isinstance(action, Ping):
-                await backend.ping(action.peer)
-            else:
-                out = action.frame
-                confirmed = await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
-        except BackendError as exc:
-            with self.lock:
-                self._failed(backend, action, now, exc)
-            return False
-        with self.lock:
-            self.core.done(action, now, self.clock(), confirmed=confirmed)
-            self._flush()
-        return True
-
-    def _act(self, backend: ModemBackend, sample: InputSample | None = None
-             ) -> tuple[Ping | SendFrame | None, float]:
-        """Ask the core what to do at this opportunity (holding the lock), once it has taken
-        ``sample`` if one just came; a frame's counter is saved before it leaves."""
-        self.core.modem_ranging = backend.ranging
-        now, at = self.clock(), modem_start(backend)
-        if sample is not None:
-            self.core.ingest(*sample[:3], now, *sample[3:])
-        action = self.core.act(now, at)
-        if action is None:
-            self._flush()
-        else:
-            self._persist()
-        return action, now
-
-    def _send_now(self, backend: ModemBackend, sample: InputSample) -> None:
-        """Holding the lock, on any thread: the core takes ``sample`` and its action is
-        carried out through a direct backend, which does not wait."""
-        action, now = self._act(backend, sample)
-        if action is not None:
-            assert isinstance(action, SendFrame)  # a direct backend has no ping
-            out = action.frame
-            try:
-                confirmed = backend.send_now(out.data, out.dest, ack=out.ack)
-            except BackendError as exc:
-                self._failed(backend, action, now, exc)
-                return
-            end = self.clock()
-            self.core.done(action, now, end, confirmed=confirmed)
-            self._flush()
-            now = end
-        self._wake_if_sooner(now)
-
-    def _failed(self, backend: ModemBackend, action: Ping | SendFrame, start: float,
-                error: BackendError) -> None:
-        """Holding the lock: the modem refused ``action``; if the modem is gone, wait until
-        the modem loop reopens it."""
-        what = "ping" if isinstance(action, Ping) else "send"
-        log.warning("%s: %s failed: %s", self.node, what, error)
-        self.core.done(action, start, self.clock(), error=str(error))
-        self._flush()
-        if not backend.is_open:
-            self._soon(self._modem_up.clear)
-
-    def _wake_if_sooner(self, now: float) -> None:
-        """Holding the lock: wake the transmit loop if the core's next opportunity comes
-        before the loop would wake by itself."""
-        wake = self.core.wake_at(now)
-        if wake is not None and (self._planned is None or wake < self._planned):
-            self._wake()
-
-    def _modem_range(self, rng: ModemRange) -> None:
-        """The modem measured a range (called by the backend, on the loop)."""
-        with self.lock:
-            self.core.modem_range(rng, self.clock())
-            self._flush()
-
-    def _modem_fix(self, fix: ModemFix) -> None:
-        """The modem's USBL head located a peer (called by the backend, on the loop)."""
-        with self.lock:
-            self.core.modem_fix(fix, self.clock())
-            self._flush()
-
-    # -- modem → core → Zenoh ------------------------------------------------------------------
-
-    async def _modem_loop(self) -> None:
-        """Open the modem, read receptions; on failure, open a fresh one with backoff."""
-        backoff = RETRY_MIN_S
-        while True:
-            backend = self.backend = self._make_backend()
-            backend.on_range = self._modem_range
-            backend.on_fix = self._modem_fix
-            backend.on_reception = self._on_reception  # at once, as the frame arrives
-            try:
-                await backend.open()
-                self._modem_up.set()
-                backoff = RETRY_MIN_S
-                while True:  # what came before on_reception took over, then its errors
-                    self.receive(await backend.recv())
-            except BackendError as exc:
-                self._modem_up.clear()
-                log.warning("%s: modem unavailable: %s (retry in %.1f s)", self.node, exc, backoff)
-                self._event(ModemDown(self.clock(), str(exc)))
-                await backend.close()
-                await asyncio.sleep(backoff)
-                backoff = min(backoff * 2, RETRY_MAX_S)
-
-    def _on_reception(self, rx: Reception) -> None:
-        """:meth:`receive` for the modem's reader: a frame whose handling raises (it never
-        should) is counted and logged, and the reader goes on."""
-        try:
-            self.receive(rx)
-        except Exception:
-            if self.intake is None:
-                raise
-            self.intake.failed("(modem)")
-
-    def receive(self, rx: Reception) -> None:
-        """Hand one received frame to the core and publish what it produced (any thread:
-        a direct backend calls it from its reader)."""
-        modem_now = self.backend.clock() if self.backend is not None else None
-        with self.lock:
-            valid = self.core.stats.frames_received
-            self.core.receive(rx, self.clock(), modem_now)
-            self._flush()
-            if self.core.stats.frames_received > valid:
-                # a poll or a ranging turn may open an opportunity
-                self._wake_if_sooner(self.clock())
+        self._soon(self._wake_all)  # each link's transmit loop decides when
 
     def _persist(self) -> None:
         """Save the core's state if a restart must not lose what changed; a save that fails

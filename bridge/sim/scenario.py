@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from bridge.core.loaded import LoadedMission
 from bridge.core.positioning import simulated_preset
+from bridge.mission.model import Mission
 from bridge.mission.path import Path
 from bridge.mission.presets import Preset
 from bridge.sim.ocean import Position
@@ -34,8 +37,31 @@ class Water:
 def water_of(loaded: LoadedMission, seed: int | None = None, loss: float | None = None,
              preset: Preset | None = None) -> Water:
     """The mission's water: its preset, ``seed`` (else ``modem.options.seed``, else 0),
-    ``loss`` (else ``modem.options.loss``, else 0), static positions and paths."""
-    mission = loaded.mission
+    ``loss`` (else ``modem.options.loss``, else 0), static positions and paths. With several
+    links, its first link's (:func:`waters_of` gives each)."""
+    return _water(loaded.network.links[0].view, seed, loss, preset)
+
+
+def waters_of(loaded: LoadedMission, seed: int | None = None,
+              loss: float | None = None) -> dict[str, Water]:
+    """The water of each link of the mission, by link name: each modem kind with its own
+    preset (range, rate, delay), the members at their addresses on it, one seed each (the
+    first link's is the mission's)."""
+    return {link.name: _water(link.view, None if seed is None else seed + i, loss, None)
+            for i, link in enumerate(loaded.network.links)}
+
+
+def water_stats(stats: Mapping[str | None, dict[str, Any]]) -> dict[str, Any]:
+    """The counters of a mission's waters as one: its one water's, or with several links
+    each link's rows named by ``link`` (and each water's counters under ``per_link``)."""
+    if len(stats) == 1:
+        return next(iter(stats.values()))
+    return {"links": [{**row, "link": link} for link, one in stats.items()
+                      for row in one["links"]], "per_link": dict(stats)}
+
+
+def _water(mission: Mission, seed: int | None, loss: float | None,
+           preset: Preset | None) -> Water:
     options = mission.modem.options
     return Water(
         preset=preset if preset is not None else simulated_preset(mission),

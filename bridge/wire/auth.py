@@ -28,6 +28,11 @@ frames carry (``@mark``, :mod:`bridge.wire.marks`); the sender resumes past it
 the fingerprint that the check carries, so that a node with *another* mission file and the same
 key can still tell a frame of a key holder from junk (:meth:`Authenticator.vouch`: the mission
 mismatch alarm). Why this keeps every replay out: docs/wire-format.md.
+
+With several links or relays a sender's frames may arrive out of order (a frame over RF
+overtakes one over acoustics). Such missions give the receiver a *window*: a counter up to
+``window - 1`` below the mark is accepted once, as IPsec's anti-replay window does (a bitmap
+per sender says which of them arrived; saved with the mark).
 """
 
 from __future__ import annotations
@@ -61,7 +66,8 @@ class Authenticator:
     """
 
     def __init__(self, key: bytes, fingerprint: bytes, address: int, tag_bytes: int,
-                 state: dict[str, Any] | None = None) -> None:
+                 state: dict[str, Any] | None = None, window: int = 0) -> None:
+        """``window``: counters below a sender's mark still accepted once (0: none)."""
         if len(key) < 16:
             raise MissionError("the frame key must be at least 16 bytes long")
         self._key = key
@@ -72,6 +78,9 @@ class Authenticator:
         self.counter = int(state.get("reserved", 0))  # the next counter to use
         self.reserved = self.counter  # counters below this are saved as used
         self.seen: dict[int, int] = {int(k): int(v) for k, v in state.get("seen", {}).items()}
+        self.window = window
+        self.late: dict[int, int] = {int(k): int(v) for k, v in state.get("late", {}).items()}
+        """Per sender, bit i set: the counter i below its mark arrived (with a window)."""
         self.changed = False
         self.owed: dict[int, list[int]] = {}
         """Per sender address: the mark its next frames should hear, and in how many frames
@@ -84,7 +93,11 @@ class Authenticator:
 
     def state(self) -> dict[str, Any]:
         """What must survive a restart: the reservation and the receive window (plain data)."""
-        return {"reserved": self.reserved, "seen": {str(k): v for k, v in self.seen.items()}}
+        state: dict[str, Any] = {"reserved": self.reserved,
+                                 "seen": {str(k): v for k, v in self.seen.items()}}
+        if self.window:
+            state["late"] = {str(k): v for k, v in self.late.items()}
+        return state
 
     def _tag(self, src: int, counter: int, data: bytes, fingerprint: bytes | None = None
              ) -> bytes:
@@ -125,16 +138,32 @@ class Authenticator:
             return data[:-COUNTER_BYTES]
         behind = counter - _LOW
         if behind >= 0 and hmac.compare_digest(tag, self._tag(src, behind, data)):
-            raise self._replayed(src, behind, mark)
+            if (refused := self._behind(src, behind, mark)) is not None:
+                raise refused
+            return data[:-COUNTER_BYTES]
         raise FrameError("forged or altered frame: the authentication tag does not match",
                          "forged")
 
     def _accepted(self, src: int, counter: int) -> None:
         """A frame of ``src`` sealed with ``counter`` opened: its mark moves there."""
+        if self.window:  # (the window moves with the mark)
+            moved = counter - self.seen.get(src, counter - self.window)
+            self.late[src] = ((self.late.get(src, 0) << moved) | 1) & ((1 << self.window) - 1)
         self.seen[src] = counter
         self.changed = True
         if self._answered:
             self._answered.pop(src, None)
+
+    def _behind(self, src: int, behind: int, mark: int) -> FrameError | None:
+        """A frame of ``src`` sealed with ``behind``, at or below ``mark``: accepted (None)
+        when a window holds it and it did not come before (overtaken on another link), else
+        why it is refused (:meth:`_replayed`)."""
+        late, below = self.late.get(src, 0), mark - behind
+        if src in self.seen and below < self.window and not late >> below & 1:
+            self.late[src] = late | 1 << below
+            self.changed = True
+            return None
+        return self._replayed(src, behind, mark)
 
     def _replayed(self, src: int, behind: int, mark: int) -> FrameError:
         """Why a frame of ``src`` sealed with ``behind``, at or below ``mark``, is refused

@@ -24,6 +24,7 @@ from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, na
 from bridge.wire.images import ImageSpec, control_layout
 from bridge.wire.interest import InterestCodec
 from bridge.wire.marks import MarkCodec
+from bridge.wire.network import NetCodec
 from bridge.wire.queries import QueryCodec, QuerySpec, compile_query, query_codecs
 from bridge.wire.sample_meta import SampleMeta
 
@@ -135,6 +136,7 @@ class ChannelCodec:
     family: FamilySpec | None = None  # a key family: each entry starts with a member index
     always: bool = False  # with demand: sent even while no destination wants it
     image: ImageSpec | None = None  # an image channel's stream or control (bridge.wire.images)
+    prefer: tuple[str, ...] = ()  # with several links: the links it takes, best first
 
     @cached_property
     def bits(self) -> int:
@@ -337,6 +339,7 @@ def compile_channel(index: int, channel: Channel, nodes: Sequence[str]) -> Chann
         retry_s=channel.retry_s,
         family=family,
         always=channel.always,
+        prefer=tuple(channel.prefer or ()),
     )
 
 
@@ -385,6 +388,16 @@ def compile_queries(mission: Mission) -> tuple[QuerySpec, ...]:
         if name in names[:i]:
             raise ChannelTableError(f"query name {name!r} used twice", ("queries", i, "name"))
     return tuple(out)
+def _network(mission: Mission) -> tuple[str, ...] | None:
+    """What every node must agree on about the network (None: one link, no routes): each
+    node's routes and the hop limit."""
+    routes = [f"{name}:{dest}>{hop}" for name, node in mission.nodes.items()
+              for dest, hop in sorted(node.routes.items())]
+    if mission.links is None and not routes:
+        return None
+    return (f"hops:{mission.max_hops}", *routes)
+
+
 def _ros2_element(element: Element, on_out_of_range: OutOfRange, senders: Sequence[str],
                   receivers: Sequence[str], eloc: tuple[str | int, ...]) -> ElementCodec:
     from bridge.ros2.element import Ros2Error
@@ -403,13 +416,16 @@ def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
     mission has reliable or fragmented channels (a longer count, one more index)."""
     n_nodes, n_channels = len(mission.nodes), len(mission.channels) + 2 * len(mission.images)
     overhead = 2 + (3 * (n_nodes - 1) if mission.wire.dlbl else 0)
+    if _network(mission) is not None:  # the longest network header (bridge.wire.network)
+        priorities = len({c.priority for c in mission.channels})
+        overhead += NetCodec(n_nodes, priorities).routed_bytes
     if mission.wire.auth is not None:
         overhead += 4 + mission.wire.auth.tag_bytes
     if streams:
         count_bits, index_bits = COUNT_BITS_REPEATABLE + EPOCH_BITS, n_channels.bit_length()
     else:
         count_bits, index_bits = n_channels.bit_length(), (n_channels - 1).bit_length()
-    return (mission.node_modem(node).frame_bytes - overhead) * 8 - count_bits - index_bits
+    return (mission.frame_bytes_of(node) - overhead) * 8 - count_bits - index_bits
 
 
 def fragment_channel(channel: ChannelCodec, mission: Mission, streams: bool) -> ChannelCodec:
@@ -535,6 +551,8 @@ class ChannelTable:
     demand: bool = False  # frames may carry the @want interest bitmap
     queries: tuple[QuerySpec, ...] = ()  # queries across the water
     wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.wire.goby)
+    network: tuple[str, ...] | None = None  # several links or routes: the network header's
+    # description and every node's routes (bridge.wire.network), None: no network header
 
     @classmethod
     def from_mission(cls, mission: Mission) -> ChannelTable:
@@ -564,7 +582,8 @@ class ChannelTable:
                    auth_tag_bytes=auth.tag_bytes if auth else 0,
                    sealed=auth is not None and auth.encrypt,
                    wire_format=mission.wire.format,
-                   demand=mission.demand is not None, queries=compile_queries(mission))
+                   demand=mission.demand is not None, queries=compile_queries(mission),
+                   network=_network(mission))
 
     def __len__(self) -> int:
         return len(self.channels)
@@ -632,6 +651,23 @@ class ChannelTable:
         return tuple(n for n in self.nodes if n != node)
 
     @cached_property
+    def net(self) -> NetCodec | None:
+        """The network header's codec, in missions with several links or routes."""
+        if self.network is None:
+            return None
+        return NetCodec(len(self.nodes), len(self.priorities))
+
+    @cached_property
+    def priorities(self) -> tuple[int, ...]:
+        """The channels' priorities, lowest first: a frame's rank is its highest one's place."""
+        return tuple(sorted({c.priority for c in self.channels}))
+
+    @property
+    def net_header_bytes(self) -> int:
+        """The longest network header a frame of this mission carries (0: none)."""
+        return 0 if self.net is None else self.net.routed_bytes
+
+    @cached_property
     def fingerprint(self) -> bytes:
         """8 bytes that differ when two mission files would disagree about the wire."""
         description: dict[str, object] = {
@@ -655,5 +691,7 @@ class ChannelTable:
             description["demand"] = [c.name for c in self.channels if c.always]
         if self.queries:
             description["queries"] = [q.describe() for q in self.queries]
+        if self.net is not None and self.network is not None:
+            description["network"] = [self.net.describe(), *self.network]
         blob = json.dumps(description, sort_keys=True, separators=(",", ":")).encode()
         return hashlib.sha256(blob).digest()[:8]

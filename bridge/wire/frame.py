@@ -164,10 +164,12 @@ class FrameCodec:
         delays: Sequence[int | None] = (),
         epoch: int = 0,
         now: float | None = None,
+        prefix: bytes = b"",
     ) -> bytes:
         """A frame carrying ``(channel, entry bits)`` items, for DLBL the delays, and in
         missions with streams the sender's ``epoch``; ``now``: the sender's clock (sealed
-        frames choose their key by it)."""
+        frames choose their key by it); ``prefix`` (a network header, bridge.wire.network)
+        goes before it, covered by the check but not sealed."""
         if len(delays) != self.delay_count:
             raise ValueError(f"expected {self.delay_count} DLBL delays, got {len(delays)}")
         acc, nbits = 0, 0
@@ -192,6 +194,7 @@ class FrameCodec:
             if self.auth is None:
                 raise ValueError("this mission authenticates frames: no Authenticator given")
             data = self.auth.seal(data, now)
+        data = prefix + data
         return data + check_value(data, self.table.fingerprint)
 
     # -- decode --------------------------------------------------------------------------------
@@ -212,25 +215,28 @@ class FrameCodec:
             return None
         return self.auth.vouch(frame[:-CHECK_BYTES], src, fingerprint)
 
-    def decode(self, frame: bytes, src: int | None = None,
-               now: float | None = None) -> DecodedFrame:
+    def decode(self, frame: bytes, src: int | None = None, now: float | None = None,
+               start: int = 0) -> DecodedFrame:
         """Parse untrusted bytes; raise :class:`FrameError` for anything but a valid frame.
 
         Authenticated missions need ``src``, the sender's modem address (and sealed ones the
-        receiver's clock, ``now``, to choose the key).
+        receiver's clock, ``now``, to choose the key); ``start``: bytes of network header
+        before the frame (the check covers them too).
         """
         if frame.__class__ is not bytes:
             if not isinstance(frame, bytes | bytearray | memoryview):
                 raise FrameError(f"a frame is bytes, not {type(frame).__name__}")
             frame = bytes(frame)
-        if len(frame) < self.min_frame_bytes:
-            raise FrameError(f"truncated frame: {len(frame)} bytes, at least "
+        if len(frame) - start < self.min_frame_bytes:
+            raise FrameError(f"truncated frame: {len(frame) - start} bytes, at least "
                              f"{self.min_frame_bytes} needed")
         body, check = frame[:-CHECK_BYTES], frame[-CHECK_BYTES:]
         fingerprint = binascii.crc_hqx(body, 0xFFFF) ^ int.from_bytes(check, "big")
         if fingerprint != self.fingerprint16:
             raise FrameError("check failed: corrupt frame, or sent with another mission file "
                              f"(fingerprint {fingerprint:04x})", "check", fingerprint)
+        if start:
+            body = body[start:]
         if self.auth_bytes:
             if self.auth is None or src is None:
                 raise FrameError("cannot authenticate: no key or no sender address", "forged")

@@ -131,9 +131,10 @@ class GobyFrameCodec(FrameCodec):
 
     def encode(self, items: Sequence[tuple[WireCodec, int]],
                delays: Sequence[int | None] = (), epoch: int = 0,
-               now: float | None = None) -> bytes:
+               now: float | None = None, prefix: bytes = b"") -> bytes:
         """The DCCL messages of ``items`` (payload ints as from ``ChannelCodec.pack``),
-        concatenated without their padding."""
+        concatenated without their padding (Goby frames have no network header: ``prefix``
+        stays empty, the loader refuses goby with several links)."""
         out = []
         for channel, payload in items:
             layout = _dccl_of(channel) if isinstance(channel, ChannelCodec) else None
@@ -144,8 +145,8 @@ class GobyFrameCodec(FrameCodec):
             out.append(data[:used])
         return b"".join(out)
 
-    def decode(self, frame: bytes, src: int | None = None,
-               now: float | None = None) -> DecodedFrame:
+    def decode(self, frame: bytes, src: int | None = None, now: float | None = None,
+               start: int = 0) -> DecodedFrame:
         """Messages as Goby3 decodes them; ``FrameError`` if not even the first decodes."""
         if not isinstance(frame, bytes | bytearray | memoryview):
             raise FrameError(f"a frame is bytes, not {type(frame).__name__}")

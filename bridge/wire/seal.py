@@ -87,11 +87,13 @@ class Sealer(Authenticator):
     """Seals outgoing frames confidential and opens incoming ones, for one node."""
 
     def __init__(self, keys: KeyRing | bytes, fingerprint: bytes, address: int, tag_bytes: int,
-                 clear_bytes: int, state: dict[str, Any] | None = None) -> None:
+                 clear_bytes: int, state: dict[str, Any] | None = None,
+                 window: int = 0) -> None:
         """``clear_bytes``: the frame's leading bytes that stay in the clear (the DLBL
-        delays); ``state``: what :meth:`state` saved in a previous run."""
+        delays); ``state``: what :meth:`state` saved in a previous run; ``window``: as the
+        Authenticator's."""
         ring = keys if isinstance(keys, KeyRing) else KeyRing(keys)
-        super().__init__(ring.current, fingerprint, address, tag_bytes, state)
+        super().__init__(ring.current, fingerprint, address, tag_bytes, state, window)
         if tag_bytes % 2 or not 4 <= tag_bytes <= 16:
             raise MissionError("an encrypted frame's tag is 4 to 16 bytes, an even number")
         if ring.next is not None and len(ring.next) < 16:
@@ -134,8 +136,10 @@ class Sealer(Authenticator):
             self._accepted(src, counter)
             return clear[:self.clear_bytes] + plain
         behind = counter - _LOW
-        if self._decrypt(src, behind, clear, body, now) is not None:
-            raise self._replayed(src, behind, mark)
+        if (late := self._decrypt(src, behind, clear, body, now)) is not None:
+            if (refused := self._behind(src, behind, mark)) is not None:
+                raise refused
+            return clear[:self.clear_bytes] + late  # overtaken on another link
         raise FrameError("forged or altered frame: it does not decrypt with the mission key",
                          "forged")
 
@@ -172,13 +176,16 @@ class Sealer(Authenticator):
 
 
 def frame_authenticator(table: ChannelTable, key: KeyRing | bytes, address: int,
-                        state: dict[str, Any] | None = None) -> Authenticator:
+                        state: dict[str, Any] | None = None, window: int = 0
+                        ) -> Authenticator:
     """What authenticates the frames of an authenticated mission's node at ``address``: a
     :class:`Sealer` when they are encrypted, else an HMAC
-    :class:`~bridge.wire.auth.Authenticator` (which takes no key rotation)."""
+    :class:`~bridge.wire.auth.Authenticator` (which takes no key rotation); ``window``: the
+    counters below a sender's mark still accepted once (several links or relays)."""
     if table.sealed:
         clear = DELAY_BYTES * (len(table.nodes) - 1) if table.dlbl else 0
-        return Sealer(key, table.fingerprint, address, table.auth_tag_bytes, clear, state)
+        return Sealer(key, table.fingerprint, address, table.auth_tag_bytes, clear, state,
+                      window)
     if isinstance(key, KeyRing):
         key = key.current
-    return Authenticator(key, table.fingerprint, address, table.auth_tag_bytes, state)
+    return Authenticator(key, table.fingerprint, address, table.auth_tag_bytes, state, window)

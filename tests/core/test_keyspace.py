@@ -37,3 +37,12 @@ def test_a_get_on_a_peers_keyspace_is_answered_or_told_why_not() -> None:
     assert "not latched" in (keyspace.unanswered("auv1/sensors/a/temp") or "")
     assert "nothing crosses the water" in (keyspace.unanswered("auv2/typo") or "")
 
+
+
+def test_a_surfaced_node_leaves_gets_to_whoever_answers_over_ip() -> None:
+    core = NodeCore(load_mission(ZSPACE), "top")
+    keyspace = core.outbound.keyspace
+    core.ip_reachable("auv1", True, 1.0)  # a peer's bridge or apps may answer now
+    assert keyspace.unanswered("auv2/typo") is None
+    core.ip_reachable("auv1", False, 2.0)
+    assert "nothing crosses the water" in (keyspace.unanswered("auv2/typo") or "")

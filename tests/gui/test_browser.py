@@ -12,6 +12,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -27,10 +28,12 @@ WAIT_MS = 20_000  # an upper bound for things the fleet does within a few TDMA c
 pytestmark = needs_browser
 
 @contextlib.contextmanager
-def gui_process(path: Path) -> Iterator[str]:
-    """``zab gui MISSION --port 0`` in a subprocess; yields the page's URL."""
+def gui_process(path: Path, node: str | None = None) -> Iterator[str]:
+    """``zab gui MISSION --port 0`` (at ``node``: default the surface) in a subprocess;
+    yields the page's URL."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "bridge", "gui", str(path), "--port", "0"],
+        [sys.executable, "-m", "bridge", "gui", str(path), "--port", "0",
+         *(("--node", node) if node else ())],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=REPO)
     try:
         assert process.stdout is not None
@@ -53,11 +56,23 @@ def gui_process(path: Path) -> Iterator[str]:
             process.wait(5)
 
 
+def open_page(stack: contextlib.ExitStack, url: str) -> tuple[Any, list[str]]:
+    """Headless Chromium at ``url`` (closed with ``stack``), and the page's errors."""
+    from playwright.sync_api import sync_playwright
+
+    playwright = stack.enter_context(sync_playwright())
+    browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+    stack.callback(browser.close)
+    page = browser.new_page(viewport={"width": 1280, "height": 900})
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.goto(url)
+    return page, errors
+
+
 @pytest.fixture(scope="module")
 def stage(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
     """The fleet (auv2 in its own Fleet, so it can be stopped), apps, `zab gui`, a page."""
-    from playwright.sync_api import sync_playwright
-
     loaded = on_free_ports(MISSION, "guitest.yaml")
     folder = tmp_path_factory.mktemp("gui")
     path = folder / "guitest.yaml"
@@ -70,14 +85,7 @@ def stage(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
         auv2.enter_context(running_fleet(loaded, only=["auv2"],
                                          water=f"127.0.0.1:{main.water.port}"))
         stack.enter_context(VehicleApps(loaded))
-        url = stack.enter_context(gui_process(path))
-        playwright = stack.enter_context(sync_playwright())
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        stack.callback(browser.close)
-        page = browser.new_page(viewport={"width": 1280, "height": 900})
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(url)
+        page, errors = open_page(stack, stack.enter_context(gui_process(path)))
         yield {"page": page, "loaded": loaded, "stop_auv2": auv2.close, "errors": errors,
                "folder": folder}
         shot = folder / "gui.png"

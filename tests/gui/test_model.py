@@ -210,6 +210,47 @@ def test_shown_values_are_small_and_json_safe():
     assert shown({"a": {"b": (1, 2)}}) == {"a": {"b": [1, 2]}}
 
 
+def test_links_by_kind_each_peers_route_and_a_relays_load() -> None:
+    loaded = load_mission(MISSIONS / "umci_relay.yaml")
+    model = GuiModel(loaded, "surface")
+    description = model.description()
+    assert [(link["name"], link["kind"], link["members"]) for link in description["links"]] \
+        == [("acoustic", "acoustic", ["surface", "rov1", "rov2"]), ("rf", "rf", ["rov1", "rov2"])]
+    assert description["routes"]["rov2"]["path"] == ["surface", "rov1", "rov2"]
+    assert description["routes"]["rov1"]["path"] == ["surface", "rov1"]
+    prefix = "@zab/umci_relay"
+    model.ingest(f"{prefix}/rov1/links/rf/rov2", pack({"peer": "rov2", "link": "rf",
+                                                        "state": "up"}), MSGPACK, 10.0)
+    model.ingest(f"{prefix}/rov1/links/rf/rov2", pack({"state": "up"}), MSGPACK, 11.0)  # no news
+    model.ingest(f"{prefix}/rov2/route/surface", pack({"peer": "surface", "link": "acoustic",
+                                                        "was": "rf", "via": "rov1",
+                                                        "reason": "failover"}), MSGPACK, 12.0)
+    model.ingest(f"{prefix}/rov1/stats", pack({"node": "rov1", "time": 12.0, "network": {
+        "relayed": 41, "waiting": {"acoustic": 2, "rf": 0}}}), MSGPACK, 13.0)
+    items = model.take()
+    hops = [i for i in items if i["kind"] == "hop"]
+    assert [(h["observer"], h["link"], h["peer"], h["state"]) for h in hops] == [
+        ("rov1", "rf", "rov2", "up")]
+    [route] = [i for i in items if i["kind"] == "route"]
+    assert (route["observer"], route["peer"], route["link"], route["reason"]) == (
+        "rov2", "surface", "acoustic", "failover")
+    [stats] = [i for i in items if i["kind"] == "stats"]
+    assert stats["relayed"] == 41 and stats["carrying"] == {"acoustic": 2, "rf": 0}
+    assert {"hop", "route"} <= set(kinds(model.snapshot()))
+
+
+def test_the_log_says_links_per_link_and_switches_in_words() -> None:
+    from bridge.gui.eventlog import describe_event
+
+    up = describe_event("rov1", {"kind": "peer_link", "peer": "rov2", "link": "rf",
+                                 "state": "down"})
+    assert up is not None and (up.level, up.text) == ("error", "link rov1 ↔ rov2 over rf: down")
+    moved = describe_event("rov2", {"kind": "link_switched", "peer": "surface",
+                                    "link": "acoustic", "was": "rf", "reason": "failover"})
+    assert moved is not None and moved.text == \
+        "rov2: traffic to surface over acoustic (failover from rf)"
+
+
 def test_a_third_bridge_s_copy_of_a_value_is_not_an_arrival(morph):
     """cv2 surfaced: its Zenoh joined ssv's, so what cv2's bridge heard and published (the
     gcv's nav) reaches the GUI too, beside ssv's own copy; cv2's own values over IP count."""

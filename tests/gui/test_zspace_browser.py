@@ -10,8 +10,8 @@ from pathlib import Path
 import yaml
 
 from bridge.runtime.surface_wifi import access_point
-from tests.conftest import CHROMIUM, MISSIONS, needs_browser
-from tests.gui.test_browser import CHROMIUM_ARGS, WAIT_MS, gui_process
+from tests.conftest import MISSIONS, needs_browser
+from tests.gui.test_browser import WAIT_MS, gui_process, open_page
 from tests.zsim import app as plain_app
 from tests.zsim import mission_file, zab_sim
 
@@ -19,7 +19,6 @@ pytestmark = needs_browser
 
 
 def test_wants_and_surfacing_show_on_the_page(tmp_path: Path) -> None:
-    from playwright.sync_api import sync_playwright
 
     data = yaml.safe_load((MISSIONS / "zspace.yaml").read_text())
     for name in ("top", "auv1"):
@@ -31,14 +30,7 @@ def test_wants_and_surfacing_show_on_the_page(tmp_path: Path) -> None:
         top = plain_app(endpoints["top"])
         stack.callback(top.close)
         top.declare_subscriber("auv1/status", lambda s: None)
-        url = stack.enter_context(gui_process(mission))
-        playwright = stack.enter_context(sync_playwright())
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        stack.callback(browser.close)
-        page = browser.new_page(viewport={"width": 1280, "height": 900})
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(url)
+        page, errors = open_page(stack, stack.enter_context(gui_process(mission)))
         own = '.vehicle-card[data-node="top"] .zspace'
         page.wait_for_function(f"document.querySelector('{own}')?.textContent"
                                ".includes('wants:')", timeout=WAIT_MS)

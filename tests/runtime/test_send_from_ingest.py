@@ -60,7 +60,7 @@ async def node_with(mac: str, modem: GatedModem, clock: float | None = None) -> 
         node = BridgeNode(loaded, "a", lambda: modem, clock=lambda: clock)
     node.backend = modem
     await modem.open()
-    node._modem_up.set()  # what the modem loop does once the modem is open
+    node.port.modem_up.set()  # what the modem loop does once the modem is open
     return node
 
 
@@ -89,7 +89,7 @@ def test_a_send_in_flight_is_not_doubled_by_a_new_sample() -> None:
         assert len(modem.sent) == 1
         gate, modem.gate = modem.gate, None
         gate.set_result(None)
-        loop = asyncio.create_task(node._transmit_loop())  # the newer value goes next
+        loop = asyncio.create_task(node.port.transmit_loop())  # the newer value goes next
         for _ in range(100):
             if len(modem.sent) == 2:
                 break

@@ -22,7 +22,7 @@ const mapView = new MapView(document.getElementById("map"), () => { mapDirty = t
 function emptyState() {
   return {
     mission: null, offset: 0, connection: null, nodes: {}, ranges: {}, stats: {},
-    links: {}, events: [], commands: {}, transfers: {},
+    links: {}, events: [], commands: {}, transfers: {}, hops: {}, routes: {},
   };
 }
 
@@ -82,6 +82,8 @@ function apply(item) {
     case "heard": vehicle(item.node).heard = item.last_heard; break;
     case "link": state.links[item.observer + "/" + item.node] = item; break;
     case "range": state.ranges[item.observer + "/" + item.peer] = item; break;
+    case "hop": state.hops[item.observer + "/" + item.link + "/" + item.peer] = item; break;
+    case "route": state.routes[item.observer + "/" + item.peer] = item; break;
     case "stats": state.stats[item.node] = item; break;
     case "event":
       state.events.push(item);
@@ -298,6 +300,22 @@ function renderMap() {
     taken.push(spot.box);
   }
 
+  // issue 29: each link a peer is heard on, drawn by the link's kind (acoustic, rf, optical),
+  // from this node's view of its own links and the others' (their status keys)
+  const kinds = Object.fromEntries(((state.mission && state.mission.links) || [])
+    .map((l) => [l.name, l.kind]));
+  for (const hop of Object.values(state.hops)) {
+    const a = places[hop.observer], b = places[hop.peer];
+    if (!a || !b || hop.state === "down" || hop.observer > hop.peer
+        && state.hops[hop.peer + "/" + hop.link + "/" + hop.observer]) continue;
+    const line = el("line", { x1: sx(a.x), y1: sy(a.y), x2: sx(b.x), y2: sy(b.y),
+                              class: `hop ${kinds[hop.link] || "acoustic"} ${hop.state}`,
+                              "data-link": hop.link, "data-kind": kinds[hop.link] || "acoustic",
+                              "data-nodes": [hop.observer, hop.peer].sort().join(" ") }, svg);
+    el("title", {}, line).textContent = `${hop.link} (${kinds[hop.link]}): ${hop.observer} – `
+      + `${hop.peer} ${hop.state}`;
+  }
+
   // tracks
   for (const v of Object.values(state.nodes)) {
     for (const [source, track] of Object.entries(v.tracks)) {
@@ -421,6 +439,7 @@ function renderVehicles() {
       make("span", "role muted", node.role + " · address " + node.address, head);
       make("span", "badge link", "", head);
       make("span", "heard muted", "", head);
+      make("div", "route muted", "", card);
       const table = make("table", null, null, card);
       const hr = make("tr", null, null, make("thead", null, null, table));
       for (const h of ["channel", "value", "age", "interval"]) make("th", null, h, hr);
@@ -443,6 +462,7 @@ function renderVehicles() {
     renderZspace(card, node.name, mission.node);
     card.querySelector(".heard").textContent =
       node.name === mission.node ? "" : "last heard " + (v.heard ? age(v.heard) + " ago" : "never");
+    card.querySelector(".route").textContent = routeText(node.name);
     const body = card.querySelector("tbody");
     const rows = Object.values(v.channels).sort((a, b) =>
       a.channel.localeCompare(b.channel) || a.element - b.element);
@@ -487,6 +507,33 @@ function renderVehicles() {
       tr.dataset.count = item.count;
     }
   }
+}
+
+// Issue 29: the route this node's traffic to a peer takes (its hops, the link in use now),
+// and a relay's load (the frames it carried on, those waiting per link).
+function routeText(name) {
+  const mission = state.mission;
+  const parts = [];
+  const route = mission.routes && mission.routes[name];
+  const now = state.routes[mission.node + "/" + name];
+  if (route && name !== mission.node) {
+    // the link in use to its first hop: the policy's choice, or the one link they share
+    const hop = route.path[1];
+    const shared = (mission.links || []).filter(
+      (l) => l.members.includes(mission.node) && l.members.includes(hop));
+    const link = now && now.link ? now.link : shared.length === 1 ? shared[0].name : null;
+    if (route.problem) parts.push("no route: " + route.problem);
+    else if (route.path.length > 2 || link) {
+      parts.push("route " + route.path.join(" → ") + (link ? ` over ${link}` : ""));
+    }
+  }
+  const stats = state.stats[name];
+  if (stats && (stats.relayed || Object.values(stats.carrying || {}).some((n) => n))) {
+    const waiting = Object.entries(stats.carrying || {}).filter(([, n]) => n)
+      .map(([link, n]) => `${n} waiting on ${link}`);
+    parts.push(`relay: ${stats.relayed} frames carried` + (waiting.length ? ", " + waiting.join(", ") : ""));
+  }
+  return parts.join(" · ");
 }
 
 // Issue 15: what this node's applications want, its open queries, peers reached over IP.

@@ -1,0 +1,268 @@
+"""The links and routes of a mission (pure data): who carries which modem, and how traffic
+reaches a node that is not a neighbour.
+
+A mission without ``links`` has one link, ``modem``: its ``modem`` and ``mac`` sections, every
+node a member. A mission with ``links`` names several (seed 002's generic link layer: an
+acoustic modem under TDMA between the surface and one ROV, an RF modem under polling between
+the ROVs): each is a :class:`LinkInfo` whose :attr:`LinkInfo.view` is the mission as that
+link's MAC and timing see it (its modem and MAC, its members only, their addresses on it), so
+the MAC rules of :mod:`bridge.core.mac` work on a link unchanged.
+
+Routes. Two nodes are *neighbours* when they share a link. A node reaches another node through
+the next hop its ``routes`` give (``{rov2: rov1}``; ``default``: every node not named, but
+that hop itself), and any other node it shares a link with directly. Routes are static and
+part of the mission file, so
+every node knows every node's routes: a relay forwards a frame for exactly the destinations
+for which the node it heard it from routes through it (:func:`next_hop`), and ``zab check``
+refuses a loop or a path longer than ``max_hops`` (:func:`network_problems`).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable
+from dataclasses import dataclass
+from functools import cached_property
+
+from bridge.mission.model import LinkSpec, Mission, Node
+
+__all__ = ["DEFAULT_LINK", "DEFAULT_ROUTE", "LinkInfo", "Network", "network_problems"]
+
+DEFAULT_LINK = "modem"
+"""The name of the one link of a mission without ``links``."""
+
+DEFAULT_ROUTE = "default"
+"""The ``routes`` key that routes every node not named otherwise (but its hop itself)."""
+
+Loc = tuple[str | int, ...]
+
+
+@dataclass(frozen=True)
+class LinkInfo:
+    """One link: its name and kind, its members and their addresses on it, and the mission as
+    its MAC sees it (:attr:`view`)."""
+
+    name: str
+    kind: str
+    members: tuple[str, ...]
+    addresses: dict[str, int]
+    view: Mission
+
+    def name_of(self, address: int) -> str | None:
+        """The member at ``address`` on this link (None: nobody)."""
+        return self._names.get(address)
+
+    @cached_property
+    def _names(self) -> dict[int, str]:
+        names: dict[int, str] = {}
+        for name in reversed(self.members):  # the first in mission order wins
+            names[self.addresses[name]] = name
+        return names
+
+    def frame_bytes_of(self, node: str) -> int:
+        """The largest frame ``node`` sends on this link."""
+        return self.view.node_modem(node).frame_bytes
+
+
+class Network:
+    """The links and static routes of a mission."""
+
+    def __init__(self, mission: Mission) -> None:
+        self.mission = mission
+        self.links: tuple[LinkInfo, ...] = tuple(_links(mission))
+        self.several = mission.links is not None
+        """The mission names its links (else it has the one link of its modem)."""
+        self.routed = any(node.routes for node in mission.nodes.values())
+        """Some node routes traffic through another."""
+
+    @property
+    def networked(self) -> bool:
+        """Frames carry the network header (several links or routes: docs/wire-format.md)."""
+        return self.several or self.routed
+
+    def link(self, name: str) -> LinkInfo:
+        return next(link for link in self.links if link.name == name)
+
+    def links_of(self, node: str) -> tuple[LinkInfo, ...]:
+        """The links ``node`` is a member of, in mission order."""
+        return tuple(link for link in self.links if node in link.members)
+
+    def shared(self, a: str, b: str) -> tuple[LinkInfo, ...]:
+        """The links both ``a`` and ``b`` are members of, in mission order."""
+        return tuple(link for link in self.links if a in link.members and b in link.members)
+
+    def neighbours(self, node: str) -> tuple[str, ...]:
+        """The nodes sharing a link with ``node``, in mission order."""
+        return tuple(n for n in self.mission.nodes if n != node and self.shared(node, n))
+
+    def next_hop(self, node: str, dest: str) -> str | None:
+        """The neighbour through which ``node`` reaches ``dest`` (``dest`` itself when direct);
+        None when it has no way to it."""
+        routes = self.mission.nodes[node].routes
+        if dest in routes:
+            return routes[dest]
+        default = routes.get(DEFAULT_ROUTE)
+        if default is not None and default != dest:
+            return default
+        return dest if self.shared(node, dest) else None
+
+    def path(self, node: str, dest: str) -> tuple[list[str], str | None]:
+        """The nodes from ``node`` to ``dest`` following each hop's routes, and what goes
+        wrong on the way (None: the path reaches ``dest``)."""
+        path = [node]
+        while path[-1] != dest:
+            here = path[-1]
+            hop = self.next_hop(here, dest)
+            if hop is None:
+                return path, f"{here} has no route to {dest}"
+            if not self.shared(here, hop):
+                return path, f"{here} routes {dest} through {hop}, which shares no link with it"
+            if hop in path:
+                loop = " -> ".join([*path[path.index(hop):], hop])
+                return path, f"routing loop {loop}"
+            path.append(hop)
+            if len(path) - 1 > self.mission.max_hops:
+                return path, (f"{' -> '.join(path)} takes more than max_hops "
+                              f"{self.mission.max_hops}")
+        return path, None
+
+    def relayed(self, node: str) -> tuple[str, ...]:
+        """The destinations ``node`` reaches only through another node."""
+        return tuple(d for d in self.mission.nodes
+                     if d != node and (hop := self.next_hop(node, d)) is not None and hop != d)
+
+    def routed_over(self, node: str, link: str) -> tuple[str, ...]:
+        """The destinations ``node`` reaches through a relay it hands them to on ``link``."""
+        members = self.link(link).members
+        return tuple(d for d in self.relayed(node) if self.next_hop(node, d) in members)
+
+    def path_frame_bytes(self, node: str, dest: str) -> int:
+        """The largest frame every link on the path from ``node`` to ``dest`` carries (the
+        smallest of each hop's links)."""
+        path, _ = self.path(node, dest)
+        sizes = [min(link.frame_bytes_of(a) for link in self.shared(a, b))
+                 for a, b in itertools.pairwise(path)]
+        return min(sizes, default=min(link.frame_bytes_of(node)
+                                      for link in self.links_of(node)))
+
+    def describe(self) -> list[str]:
+        """What every node must agree on about routes (part of the mission fingerprint)."""
+        return [f"{name}:{dest}>{hop}" for name, node in self.mission.nodes.items()
+                for dest, hop in sorted(node.routes.items())]
+
+
+def _links(mission: Mission) -> Iterable[LinkInfo]:
+    """The mission's links; without ``links``, its one link over ``modem`` and ``mac``."""
+    if mission.links is None:
+        addresses = {name: node.address for name, node in mission.nodes.items()}
+        yield LinkInfo(DEFAULT_LINK, "acoustic", tuple(mission.nodes), addresses, mission)
+        return
+    for name, spec in mission.links.items():
+        members = _members(mission, spec)
+        addresses = {n: _address(mission, spec, n) for n in members}
+        yield LinkInfo(name, spec.kind, members, addresses, _view(mission, spec, members,
+                                                                  addresses))
+
+
+def _address(mission: Mission, spec: LinkSpec, node: str) -> int:
+    """``node``'s address on the link of ``spec``: its own there, else the node's."""
+    address = spec.member(node).address
+    return mission.nodes[node].address if address is None else address
+
+
+def _members(mission: Mission, spec: LinkSpec) -> tuple[str, ...]:
+    if spec.nodes is None:
+        return tuple(mission.nodes)
+    return tuple(n for n in mission.nodes if n in spec.nodes)  # mission order
+
+
+def _view(mission: Mission, spec: LinkSpec, members: tuple[str, ...],
+          addresses: dict[str, int]) -> Mission:
+    """``mission`` as ``spec``'s MAC and timing see it: its modem and MAC, its members with
+    their address and modem settings on it."""
+    nodes: dict[str, Node] = {
+        n: mission.nodes[n].model_copy(update={"address": addresses[n],
+                                               "modem": spec.member(n).modem})
+        for n in members}
+    view = mission.model_copy(update={"modem": spec.modem, "mac": spec.mac, "nodes": nodes,
+                                      "links": None, "link": spec.link or mission.link})
+    view.__dict__.pop("names_found", None)  # (a cache of the whole mission's addresses)
+    return view
+
+
+def network_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
+    """What a mission's links and routes get wrong, as ``(location, message)``."""
+    if mission.links is not None:
+        yield from _link_problems(mission)
+    network = Network(mission)
+    names = set(mission.links or ())
+    for name, node in mission.nodes.items():
+        for dest, hop in node.routes.items():
+            loc: Loc = ("nodes", name, "routes", dest)
+            if dest != DEFAULT_ROUTE and dest not in mission.nodes:
+                yield (loc, f"unknown node {dest!r}")
+            elif hop not in mission.nodes:
+                yield (loc, f"unknown node {hop!r}")
+            elif hop in (name, dest):
+                yield (loc, f"{name} cannot route {dest} through {hop}")
+            elif not network.shared(name, hop):
+                yield (loc, f"{name} shares no link with {hop}: it cannot hand it traffic")
+        for i, link in enumerate(node.prefer or ()):
+            if link not in names:
+                yield (("nodes", name, "prefer", i), _unknown_link(link, names))
+    for c, channel in enumerate(mission.channels):
+        for i, link in enumerate(channel.prefer or ()):
+            if link not in names:
+                yield (("channels", c, "prefer", i), _unknown_link(link, names))
+    if DEFAULT_ROUTE in mission.nodes:
+        yield (("nodes", DEFAULT_ROUTE), f"{DEFAULT_ROUTE!r} names every other node in routes:"
+               " give this node another name")
+    if network.routed:
+        for name in mission.nodes:
+            for dest in mission.nodes:
+                if dest != name and network.next_hop(name, dest) is not None:
+                    _, problem = network.path(name, dest)
+                    if problem is not None and "no route" not in problem:
+                        yield (("nodes", name, "routes"), f"{name} to {dest}: {problem}")
+
+
+def _unknown_link(link: str, names: set[str]) -> str:
+    if not names:
+        return f"unknown link {link!r}: the mission has one link (give `links` to name several)"
+    return f"unknown link {link!r} (links: {', '.join(sorted(names))})"
+
+
+def _link_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
+    """A mission with ``links``: no mission-wide modem or MAC, known members, everybody on a
+    link, one address per member on each."""
+    for field in ("modem", "mac"):
+        if field in mission.model_fields_set:
+            yield ((field,), f"give {field} per link in `links`, not for the whole mission")
+    for name, node in mission.nodes.items():
+        if node.modem.model_fields_set:
+            yield (("nodes", name, "modem"), "with `links`, a node's modem settings go in "
+                   f"links.<link>.nodes.{name}.modem")
+    if mission.wire.dlbl:
+        yield (("wire", "dlbl"), "DLBL ranging over several links is not supported yet")
+    if mission.wire.format != "zab":
+        yield (("wire", "format"), "several links need zab's frame format")
+    assert mission.links is not None
+    on_a_link: set[str] = set()
+    for name, spec in mission.links.items():
+        for member in spec.nodes or ():
+            if member not in mission.nodes:
+                yield (("links", name, "nodes", member), f"unknown node {member!r}")
+        members = _members(mission, spec)
+        if len(members) < 2:
+            yield (("links", name, "nodes"), "a link needs at least two members")
+        on_a_link.update(members)
+        seen: dict[int, str] = {}
+        for member in members:
+            address = _address(mission, spec, member)
+            if address in seen:
+                yield (("links", name, "nodes", member), f"address {address} already used on "
+                       f"link {name!r} by {seen[address]!r}")
+            seen.setdefault(address, member)
+    for name in mission.nodes:
+        if name not in on_a_link:
+            yield (("nodes", name), f"{name} is on no link")

@@ -1,0 +1,66 @@
+"""``zab check`` of missions with several links or routes: each link's nodes, the routes and
+their worst-case times, relay budgets, end-to-end age bounds, and a loop refused."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from bridge.cli.app import app
+
+RUNNER = CliRunner()
+MISSIONS = Path(__file__).resolve().parents[2] / "deploy" / "missions"
+
+
+def check(path: Path) -> dict:
+    result = RUNNER.invoke(app, ["check", str(path), "--json", "--no-key"])
+    assert result.exit_code == 0, result.output
+    return json.loads(result.output)
+
+
+def test_check_shows_each_link_the_routes_the_relay_budget_and_the_age_bound() -> None:
+    data = check(MISSIONS / "umci_relay.yaml")
+    rov1 = next(n for n in data["nodes"] if n["name"] == "rov1")
+    assert [entry["link"] for entry in rov1["links"]] == ["acoustic", "rf"]
+    assert rov1["links"][1]["mac"]["note"] == "master"
+    network = data["network"]
+    assert [(link["name"], link["kind"], link["mac"]) for link in network["links"]] == [
+        ("acoustic", "acoustic", "tdma"), ("rf", "rf", "polled")]
+    assert {(r["from"], r["to"]): r["path"] for r in network["routes"]} == {
+        ("surface", "rov2"): ["surface", "rov1", "rov2"],
+        ("rov2", "surface"): ["rov2", "rov1", "surface"]}
+    assert {(r["node"], r["link"]) for r in network["relays"]} == {("rov1", "acoustic"),
+                                                                   ("rov1", "rf")}
+    assert all(r["fits"] and r["carried_Bps"] > 0 for r in network["relays"])
+    ages = {a["channel"]: a for a in network["age_bounds"]}
+    status = ages["status"]
+    assert status["route"] == ["rov2", "rov1", "surface"]  # the worst sender: the far one
+    # its interval, then rov2's turn and frame (its slowest link, acoustics: one turn in
+    # 15 s), then rov1's (9 s apart on acoustics): the hop bounds of the routes table
+    assert status["age_bound_s"] == 10 + next(r["bound_s"] for r in network["routes"]
+                                               if r["from"] == "rov2")
+
+
+def test_a_relay_over_its_budget_is_warned(tmp_path: Path) -> None:
+    text = (MISSIONS / "acoustic_line.yaml").read_text().replace(
+        "interval_s: 30", "interval_s: 1")
+    path = tmp_path / "busy.yaml"
+    path.write_text(text)
+    data = check(path)
+    over = [r for r in data["network"]["relays"] if not r["fits"]]
+    assert {r["node"] for r in over} == {"n1", "n2"}
+    assert any(w.startswith("relay n1 on modem: its own data") for w in data["warnings"])
+
+
+def test_a_routing_loop_is_refused_with_its_place(tmp_path: Path) -> None:
+    text = (MISSIONS / "acoustic_line.yaml").read_text().replace(
+        "routes: {head: n1}", "routes: {head: tail}")
+    path = tmp_path / "loop.yaml"
+    path.write_text(text)
+    result = RUNNER.invoke(app, ["check", str(path), "--json", "--no-key"])
+    assert result.exit_code == 2
+    problems = json.loads(result.output)["errors"]
+    assert any("routing loop n2 -> tail -> n2" in p["message"]
+               and p["path"] == "nodes.n2.routes" for p in problems), problems
