@@ -97,7 +97,7 @@ class Inbound:
         self.sent_at = 0.0
         """When the frame being decoded left its sender (:func:`frame_start`): its values'
         timestamps count back from it."""
-        self._presets = {n: node_preset(mission, n) for n in mission.nodes}
+        self._presets: dict[str, Preset | None] = {}  # each sender's, when first heard
         self._with_meta = {c.index for c in codec.table.channels if any(e.meta for e in
                                                                          c.elements)}
 
@@ -127,7 +127,7 @@ class Inbound:
         self._hop(rx, src, side, now)
         self._heard(origin, frame, now)
         if arrival is None:
-            self.sent_at = frame_start(rx, self._presets[src])
+            self.sent_at = frame_start(rx, self._preset(src))
         else:  # the origin built it the header's age before this hop's frame left
             self.sent_at = frame_start(rx, node_preset(side.info.view, src)) \
                 - arrival.header.age
@@ -166,6 +166,14 @@ class Inbound:
             self.outbox.event(FrameDropped(now, src, "unknown_source", data=rx.data))
             return None
         return src
+
+    def _preset(self, src: str) -> Preset | None:
+        """``src``'s modem preset (its frames' timing), looked up once per sender."""
+        try:
+            return self._presets[src]
+        except KeyError:
+            found = self._presets[src] = node_preset(self.mission, src)
+            return found
 
     def _hop(self, rx: Reception, src: str, side: LinkSide, now: float) -> None:
         """A frame heard from neighbour ``src`` on ``side``: its MAC and health record it."""

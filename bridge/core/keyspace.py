@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable
+from functools import cached_property
 
 from bridge.core.events import UnmappedKey
 from bridge.core.interest import intersects, output_keys
@@ -56,13 +57,20 @@ class Keyspace:
                  if k is not None]
         self._read = [k.replace("{src}", "*").replace("{node}", "*") for k in read]
         self._maps: dict[str, bool] = {}
-        self._peers = {peer: keyspace_of(mission, peer) for peer in mission.nodes if peer != node}
+        self.mission = mission
+        self.table = table
+
+    @cached_property
+    def _answered(self) -> tuple[list[str], dict[str, str]]:
+        """The keys a get is answered on here (queries asked, latched outputs), and each
+        output key's channel; worked out at the first get."""
+        node, table = self.node, self.table
         outputs = output_keys(table, node)
-        self._latched = sorted({k for c in table.channels if c.latching
-                                for k in outputs.get(c.index, ())})
-        self._outputs = {k: table.channels[i].name for i, keys in outputs.items() for k in keys}
-        self._asked = sorted({spec.asked_key(s) for spec in table.queries if node in spec.askers
-                              for s in spec.servers if s != node})
+        latched = {k for c in table.channels if c.latching for k in outputs.get(c.index, ())}
+        asked = {spec.asked_key(s) for spec in table.queries if node in spec.askers
+                 for s in spec.servers if s != node}
+        return (sorted(asked | latched),
+                {k: table.channels[i].name for i, keys in outputs.items() for k in keys})
 
     def maps(self, key: str) -> bool:
         """Whether a put on concrete ``key`` is read here (answers kept, bounded)."""
@@ -87,7 +95,8 @@ class Keyspace:
 
     def peer_keyspaces(self) -> list[str]:
         """The key expressions of the other nodes' keyspaces, where gets may be asked here."""
-        return sorted({k for keys in self._peers.values() for k in keys})
+        return sorted({k for peer in self.mission.nodes if peer != self.node
+                       for k in keyspace_of(self.mission, peer)})
 
     def unanswered(self, selector: str) -> str | None:
         """Why a get on ``selector`` (under a peer's keyspace) gets nothing from the bridge
@@ -95,9 +104,10 @@ class Keyspace:
         reachable over IP (the get may be answered there)."""
         if self.surfacing is not None and self.surfacing.reachable:
             return None
-        if any(intersects(selector, k) for k in (*self._asked, *self._latched)):
+        answered, channels = self._answered
+        if any(intersects(selector, k) for k in answered):
             return None
-        outputs = [f"{k} (channel {c})" for k, c in self._outputs.items()
+        outputs = [f"{k} (channel {c})" for k, c in channels.items()
                    if intersects(selector, k)]
         if outputs:
             return (f"{selector}: {', '.join(outputs)} at {self.node} not latched: no value is "

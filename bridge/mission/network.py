@@ -74,6 +74,9 @@ class Network:
         """The mission names its links (else it has the one link of its modem)."""
         self.routed = any(node.routes for node in mission.nodes.values())
         """Some node routes traffic through another."""
+        self._on: dict[str, frozenset[str]] = {
+            node: frozenset(link.name for link in self.links if node in link.addresses)
+            for node in mission.nodes}  # the links each node is a member of
 
     @property
     def networked(self) -> bool:
@@ -89,7 +92,7 @@ class Network:
 
     def shared(self, a: str, b: str) -> tuple[LinkInfo, ...]:
         """The links both ``a`` and ``b`` are members of, in mission order."""
-        return tuple(link for link in self.links if a in link.members and b in link.members)
+        return tuple(link for link in self.links if a in link.addresses and b in link.addresses)
 
     def neighbours(self, node: str) -> tuple[str, ...]:
         """The nodes sharing a link with ``node``, in mission order."""
@@ -104,7 +107,7 @@ class Network:
         default = routes.get(DEFAULT_ROUTE)
         if default is not None and default != dest:
             return default
-        return dest if self.shared(node, dest) else None
+        return None if self._on[node].isdisjoint(self._on[dest]) else dest
 
     def path(self, node: str, dest: str) -> tuple[list[str], str | None]:
         """The nodes from ``node`` to ``dest`` following each hop's routes, and what goes
