@@ -480,10 +480,14 @@ def test_zab_demo_tells_the_tour_and_writes_the_report(morph: Demo) -> None:
     assert re.search(r"[\d.]+ s cv2 dived: its bridge token is gone from ssv", flat), surfacing
     assert re.search(r"back over the water [\d.]+ s after the dive: cv2/\w+ = ", flat), \
         surfacing
-    # 7: the picture put as the tour began, sharper at each fragment (the last one may come
-    # after the tour: a lost fragment waits a turn)
+    # 7: the picture put as the tour began, sharper at each fragment (one 28-byte
+    # fragment goes every ~15 s below the other channels: on a loaded machine, with the tour's
+    # 10 % loss, none may arrive in time, and the tour says so; tests/runtime/test_images_*
+    # follow a picture to its end)
     shown = re.findall(r"^ +([\d.]+) s +(\d+) / (\d+) B  160×120, ≈[\d.]+ dB", picture, re.M)
-    assert len(shown) >= 2 and int(shown[-1][1]) > int(shown[0][1]), picture
+    sizes = [int(got) for _, got, _ in shown]
+    assert sizes == sorted(set(sizes)), picture  # each one sharper than the last
+    assert shown or "not seen before the tour moved on" in picture, picture
     # 8: a summary a newcomer can read, and the report's path
     flat = " ".join(summary.split())
     for words in ("published", "sent in frames", "received", "mean age"):
