@@ -71,7 +71,13 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Under pytest-xdist (``--dist loadgroup``): a module's tests run on one worker, in their
     order, sharing its fixtures (a fleet, a router, a demo on fixed ports), unless the module
     says ``INDEPENDENT = True`` (pure tests, no shared state: each goes where a worker is
-    free, so one long module does not hold the run up)."""
+    free, so one long module does not hold the run up).
+
+    Modules that say ``LONG = True`` (a minute or more of real time or CPU on a loaded
+    machine) come first, in their order: workers take groups in the order collected
+    (``--no-loadscope-reorder``; xdist's own reorder, by tests per group, put them last), so
+    the run does not end on one worker's long tail."""
+    items.sort(key=lambda item: not getattr(getattr(item, "module", None), "LONG", False))
     for item in items:
         module = getattr(item, "module", None)
         if module is None or getattr(module, "INDEPENDENT", False) \
