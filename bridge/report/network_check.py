@@ -9,6 +9,10 @@ sent at every opportunity needs every turn), and every frame it carries for othe
 bytes (with their network header and a bundle's length byte) as often as its origin sends the
 channels it carries. A relay over budget delays and then drops what it carries (a warning).
 
+Each route's worst case is over its primary path (every hop's first listed hop); a route
+that lists several hops says its alternatives, each with its own worst case (taken while
+the hops before them are down).
+
 Age bound of a channel from a sender to a receiver: its ``interval_s``, then each hop's
 longest wait for the sender's turn and its frame's time (:func:`~bridge.core.bounds.hop_s`),
 hop after hop along the route (a relay within its budget sends what it carries at its next
@@ -50,9 +54,10 @@ def network_section(loaded: LoadedMission, codec: FrameCodec,
     for a, b in itertools.permutations(mission.nodes, 2):
         path, problem = network.path(a, b)
         if problem is None and len(path) > 2:
-            routes.append({"from": a, "to": b, "path": path,
-                           "bound_s": _round(sum(hop_s(network, x, y)
-                                                 for x, y in itertools.pairwise(path)))})
+            others = [{"path": other, "bound_s": _bound(network, other)}
+                      for other, wrong in network.paths(a, b) if wrong is None and other != path]
+            routes.append({"from": a, "to": b, "path": path, "bound_s": _bound(network, path),
+                           "alternatives": others})
     own: dict[tuple[str, str], float] = defaultdict(float)
     carried: dict[tuple[str, str], float] = defaultdict(float)
     ages = []
@@ -104,6 +109,11 @@ def network_section(loaded: LoadedMission, codec: FrameCodec,
     return {"links": links, "routes": routes, "relays": relays, "age_bounds": ages,
             "max_hops": mission.max_hops, "header_bytes": {"plain": net.plain_bytes,
                                                            "routed": net.routed_bytes}}, warnings
+
+
+def _bound(network: Network, path: list[str]) -> float | None:
+    """The worst case of a frame along ``path``: each hop's longest wait and frame time."""
+    return _round(sum(hop_s(network, x, y) for x, y in itertools.pairwise(path)))
 
 
 def _rate(channel: ChannelCodec, sender: str, network: Network,

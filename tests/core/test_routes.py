@@ -4,6 +4,8 @@ far whose first relay is killed mid-run and restarted."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 from bridge.core.events import Delivery, FrameReceived, FrameRelayed, RouteSwitched
@@ -49,6 +51,12 @@ channels:
       - in: goto
         out: far/goto
         fields: [{field: x, type: int, min: 0, max: 255}]
+queries:
+  - name: info
+    key: "{node}/info"
+    serve: far
+    ask: surface
+    reply: [{field: battery, type: int, min: 0, max: 100}]
 """
 
 DOWN_AFTER_S, FAILBACK_S = 30.0, 45.0
@@ -69,24 +77,35 @@ def published(fleet: FastFleet, node: str, key: str) -> list[tuple[float, object
             and isinstance(t.output, Publish) and t.output.key == key]
 
 
-def run_diamond(seed: int) -> FastFleet:
+GETS = (100.0, KILLED + 2.0, 250.0, RESTARTED + 10.0, 600.0)
+"""When the surface asks far for its info: through r1, just after r1's death, through r2,
+while r1 comes back, through r1 again."""
+
+
+def run_diamond(seed: int) -> tuple[FastFleet, list[Any]]:
     fleet = FastFleet(diamond(), seed=seed)
+    fleet.queries.queryable("far", "far/info", lambda params: [{"battery": 77}])
     for i in range(64):
         fleet.put("far", "far/status", {"n": i}, at=1.0 + 10 * i)
     for i in range(30):
         fleet.put("surface", "goto", {"x": i}, at=5.0 + 20 * i, ref=f"g{i}")
-    fleet.run_until(KILLED)
-    fleet.stop("r1")  # killed: it sends nothing more, and loses what it carried
-    fleet.run_until(RESTARTED)
-    fleet.restart("r1")
+    gets = []
+    for t in sorted({*GETS, KILLED, RESTARTED}):
+        fleet.run_until(t)
+        if t == KILLED:
+            fleet.stop("r1")  # killed: it sends nothing more, and loses what it carried
+        if t == RESTARTED:
+            fleet.restart("r1")
+        if t in GETS:
+            gets.append(fleet.queries.get("surface", "far/info"))
     fleet.run_until(900.0)
-    return fleet
+    return fleet, gets
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_a_dead_relay_is_routed_around_and_traffic_returns_when_it_comes_back(seed: int
                                                                               ) -> None:
-    fleet = run_diamond(seed)
+    fleet, gets = run_diamond(seed)
     for node, dest in (("surface", "far"), ("far", "surface")):
         switches = [(e.time, e.was, e.via, e.reason) for e in events(fleet, RouteSwitched, node)
                     if e.peer == dest]
@@ -121,6 +140,14 @@ def test_a_dead_relay_is_routed_around_and_traffic_returns_when_it_comes_back(se
     assert len(delivered) >= 27
     dropped = {n: c.stats.frames_dropped for n, c in fleet.cores.items()}
     assert all(not (set(d) - {"duplicate", "expired"}) for d in dropped.values()), dropped
+    # queries: one reply each, through whichever relay; the one asked as r1 died may fail
+    for at, result in zip(GETS, gets, strict=True):
+        assert result.done, at
+        if at == KILLED + 2.0 and result.error is not None:
+            assert "no reply" in result.error, result.error
+            continue
+        assert result.error is None, (at, result.error)
+        assert [value for _, value, _ in result.replies] == [{"battery": 77}], at
 
 
 def test_with_both_relays_up_only_the_chosen_one_carries() -> None:
