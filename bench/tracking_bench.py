@@ -17,7 +17,8 @@ Errors are horizontal, estimate against the truth at the estimate's time, after 
 NEES in 95 % bounds: the share of updates whose normalised estimation error squared lies in
 χ²₂'s 2.5–97.5 % interval (0.051–7.38; a consistent filter: 95 %); flips: times the estimate
 went over to the mirror side of the jetty; wrong: share of published positions more than 5 m
-off while claiming σ < 1 m ("confidently wrong").
+off while claiming σ < 1 m ("confidently wrong"); CPU s: the tracker's time to replay the row
+(``time.process_time``, estimates after every range included).
 
 Table 2, MORPH (``deploy/missions/morph.yaml``) on the virtual clock
 (:class:`~bridge.runtime.virtual_fleet.FastFleet`): the formation transits north at 0.8 m/s
@@ -33,12 +34,19 @@ seeds × 5 starts: per vehicle, runs with a position published on the mirror sid
 line through ssv and gcv), runs without any position, and the errors of every position
 published.
 
+Table 4, the whole runs of which ``tests/ranging/test_tracker.py`` replays the window where
+what it tests happens (seed 001's reception, no compass, from the start at (5, 5)): seed 3's
+restart on the jetty's line (2300 s) and seed 5's slide over it (900 s), each with the tuning
+before turned components (acceleration 0.06 m/s², none turned) and the defaults; restarts,
+folds, flips, positions on the mirror side (of all, and of the last 200) and confidently wrong.
+
 Run: ``uv run python bench/tracking_bench.py [--hours 1] [--morph-s 600] [--demo-seeds 10]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import statistics
 import time
@@ -48,7 +56,7 @@ from pathlib import Path
 from typing import Any
 
 from bridge.cli.demo import formation_value, tour_mission
-from bridge.core.loaded import load_mission
+from bridge.core.loaded import LoadedMission, load_mission
 from bridge.core.node import Status
 from bridge.ranging import seed001
 from bridge.ranging.localise import Fix, attempt
@@ -132,9 +140,9 @@ def seed001_row(name: str, anchors: tuple[str, ...], hours: float, *, reception:
                          turn_radius_m=turn_radius_m))
     tracker = RangeTracker(TrackerConfig(range_sigma_at=seed001.tracker_noise()),
                            prior=Prior(0.0, 5.0, 5.0, 2.0))
-    started = time.perf_counter()
+    started = time.process_time()
     samples = replay(tracker, stream, seed001.route(turn_radius_m))
-    took = time.perf_counter() - started
+    took = time.process_time() - started
     err = [s.error_m for s in samples if s.error_m is not None]
     low, high = NEES_BOUNDS_2D
     nees = [s.nees for s in samples if s.nees is not None]
@@ -187,7 +195,8 @@ def seed001_table(hours: float) -> list[dict[str, Any]]:
     ]
     print(f"\nSeed 001's rectangle, {hours:g} h simulated per row (errors in m)")
     head = (f"{'run':<45} | {'p50':>5} {'p95':>5} {'west95':>6} {'corn95':>6} | "
-            f"{'NEES in':>7} | {'flips':>5} {'wrong':>5} | {'snap95':>6} | rejected (by reason)")
+            f"{'NEES in':>7} | {'flips':>5} {'wrong':>5} | {'snap95':>6} | {'CPU s':>5} | "
+            "rejected (by reason)")
     print(head)
     print("-" * len(head))
     for r in rows:
@@ -198,7 +207,7 @@ def seed001_table(hours: float) -> list[dict[str, Any]]:
             rejected += f"; {r['restarts']} restarts"
         print(f"{r['name']:<45} | {r['p50']:5.2f} {r['p95']:5.2f} {r['west95']:6.2f} "
               f"{r['corner95']:6.2f} | {r['nees_in']:7.1%} | {r['flips']:5d} {r['wrong']:5.1%} | "
-              f"{r['snap95']:6.2f} | {rejected}")
+              f"{r['snap95']:6.2f} | {r['took']:5.1f} | {rejected}")
     print("\nInstant corners: errors by time since the last corner (share of all ranges, p95 m, "
           "share of all ranges > 0.3 m); p95 ≤ 0.3 m allows 5 % of all ranges above it")
     for r in rows:
@@ -244,6 +253,12 @@ MIRROR_M = 3.0
 the line through the two anchors, ssv and gcv, at that moment) is on the mirror side."""
 
 
+@functools.cache
+def _morph(tour: bool) -> LoadedMission:
+    """MORPH as shipped, or as ``zab demo`` runs it (``tour``): parsed once, for every run."""
+    return tour_mission(MORPH, 0.0)[0] if tour else load_mission(MORPH)
+
+
 def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
               apps_start_s: float = 0.0, quiet: bool = False,
               tour: bool = False) -> dict[str, Any]:
@@ -258,7 +273,7 @@ def morph_run(duration_s: float, seed: int = 1, *, loss: float | None = None,
     demo's application does. ``mirror``: positions published on the mirror side
     (:data:`MIRROR_M`). The gcv's live position reaches the others as it does in ``zab demo``:
     each bridge takes it from the frames it decodes (``ranging.anchor_keys``)."""
-    loaded = tour_mission(MORPH, 0.0)[0] if tour else load_mission(MORPH)
+    loaded = _morph(tour)
     mission = loaded.mission
     start_pos = {n: (node.position.x, node.position.y, node.position.depth)
                  for n, node in mission.nodes.items() if node.position is not None}
@@ -414,6 +429,47 @@ def morph_mirrors(seeds: Sequence[int], starts: Sequence[float] = DEMO_STARTS_S,
     return out
 
 
+WHOLE_RUNS = (
+    ("restart on the line, seed 3", 2300.0, 3, "noise profile, accel 0.06, no turns",
+     TrackerConfig(range_sigma_at=seed001.tracker_noise(), accel_sigma=0.06, turn_every_s=0.0)),
+    ("restart on the line, seed 3", 2300.0, 3, "noise profile (the defaults)",
+     TrackerConfig(range_sigma_at=seed001.tracker_noise())),
+    ("slide over the line, seed 5", 900.0, 5, "0.12 m, accel 0.06, no turns",
+     TrackerConfig(range_sigma_m=0.12, accel_sigma=0.06, turn_every_s=0.0)),
+    ("slide over the line, seed 5", 900.0, 5, "0.12 m (else the defaults)",
+     TrackerConfig(range_sigma_m=0.12)),
+)
+"""(what, seconds, seed, tuning, config): the whole runs of Table 4."""
+
+
+def whole_runs(quiet: bool = False) -> list[dict[str, Any]]:
+    """Table 4: the whole runs of which the tests replay a window, with their figures."""
+    rows = []
+    for what, duration_s, seed, tuning, config in WHOLE_RUNS:
+        tracker = RangeTracker(config, prior=Prior(0.0, 5.0, 5.0, 2.0))
+        samples = replay(tracker, events(duration_s, heading=False, seed=seed))
+        published = [s for s in samples if s.error_m is not None]
+        rows.append({
+            "what": what, "s": duration_s, "tuning": tuning, "restarts": tracker.restarts,
+            "folds": tracker.folds, "flips": flips(samples),
+            "mirrored": sum(s.mirrored for s in published),
+            "mirrored_last": sum(s.mirrored for s in published[-200:]),
+            "wrong": sum(s.error_m > WRONG_M and s.estimate.sigma_m < WRONG_SIGMA_M
+                         for s in published) / max(len(published), 1)})
+    if not quiet:
+        print("\nThe tests' whole runs (tests/ranging/test_tracker.py replays a window of each): "
+              "seed 001 reception, no compass")
+        head = (f"{'run':<28} {'s':>5} | {'tuning':<36} | {'restarts':>8} {'folds':>5} "
+                f"{'flips':>5} | {'mirrored (last 200)':>19} {'wrong':>6}")
+        print(head)
+        print("-" * len(head))
+        for r in rows:
+            print(f"{r['what']:<28} {r['s']:5.0f} | {r['tuning']:<36} | {r['restarts']:8d} "
+                  f"{r['folds']:5d} {r['flips']:5d} | {r['mirrored']:12d} "
+                  f"({r['mirrored_last']:3d}) {r['wrong']:6.1%}")
+    return rows
+
+
 def _all_finite(value: Any) -> bool:
     if isinstance(value, float):
         return math.isfinite(value)
@@ -437,6 +493,7 @@ def main() -> None:
         morph_run(args.morph_s)
     if args.demo_seeds > 0:
         morph_mirrors(range(args.demo_seeds))
+    whole_runs()
 
 
 if __name__ == "__main__":

@@ -610,7 +610,8 @@ def demo(
     It shows values crossing the water and their quantisation, latest-value semantics, an
     acknowledged command over a lossy link, position fixes from acoustic ranges and the GUI,
     a Zenoh get answered across the water, a vehicle surfacing (its data over IP) and diving,
-    then a summary and a mission report with plots.
+    a camera's picture sharpening as its fragments arrive, then a summary and a mission
+    report with plots.
     """
     from bridge.cli.demo import default_demo_mission, run_demo, tour_mission
 

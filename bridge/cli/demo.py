@@ -32,6 +32,7 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
+from bridge.cli.demo_images import PictureWatch, camera_pair, images_for_tour
 from bridge.cli.demo_queries import QUERY_PERIOD_S, QueryApps, member_keys, query_for_tour
 from bridge.cli.demo_relay import RelayWatch, relay_plan, shown_values
 from bridge.cli.demo_surfacing import (
@@ -74,6 +75,7 @@ SWITCH_WAIT_S = 10.0  # the tour waits this long past a scripted surfacing or di
 FIXES_WAIT_S = 15.0  # the fixes part waits this long for a vehicle's first fix
 TOUR_REF = "tour-1"  # correlation of the tour's command (the put's attachment ``ref:...``)
 POLL_S = 0.2
+PICTURE_LINES = 8  # refinements of the tour's picture shown at most
 
 
 def default_demo_mission() -> Path:
@@ -85,8 +87,8 @@ def tour_mission(path: Path, loss: float = TOUR_LOSS) -> tuple[LoadedMission, li
     """The mission at ``path`` as the tour runs it, and the changes made, in words: the water
     loses ``loss`` of the frames, a mission without queries gets one (the surface node asks
     the vehicles' health), one without surfacing gets a vehicle surfacing on a scripted path,
-    and the first channel named as a command becomes acknowledged (reliable, so not
-    latching)."""
+    one without image channels a camera, and the first channel named as a command becomes
+    acknowledged (reliable, so not latching)."""
     data = yaml.safe_load(path.read_text(encoding="utf-8"))
     changes = []
     if loss > 0:
@@ -94,7 +96,7 @@ def tour_mission(path: Path, loss: float = TOUR_LOSS) -> tuple[LoadedMission, li
                       if data.get("links") else [data.setdefault("modem", {})]):
             modem.setdefault("options", {})["loss"] = loss  # (each link's water)
         changes.append(f"the water loses {loss:.0%} of frames")
-    for extra in (query_for_tour(data), surfacing_for_tour(data)):
+    for extra in (query_for_tour(data), surfacing_for_tour(data), images_for_tour(data)):
         if extra is not None:
             changes.append(extra)
     plain = yaml.safe_dump(data, sort_keys=False)
@@ -328,6 +330,8 @@ class VehicleApps:
     def _arrived(self, node: str, sample: zenoh.Sample) -> None:
         if sample.attachment is None:  # our own publications; show only what the bridge brought
             return
+        if str(sample.encoding).startswith("image/"):
+            return  # a picture: the tour's pictures part tells it
         try:
             value = msgpack.unpackb(sample.payload.to_bytes())
         except ValueError:
@@ -468,11 +472,12 @@ class VehicleApps:
     # -- the operator's acknowledged command -------------------------------------------------
 
     def command_channel(self) -> tuple[str, ChannelCodec] | None:
-        """(sender, channel): an acknowledged channel the surface node sends."""
+        """(sender, channel): an acknowledged channel the surface node sends (not a
+        camera's control: the pictures part shows those)."""
         surfaces = [n for n, node in self.loaded.mission.nodes.items() if node.role == "surface"]
         for channel in self.loaded.table.channels:
             for node in surfaces:
-                if channel.reliable and channel.sent_by(node) \
+                if channel.reliable and channel.image is None and channel.sent_by(node) \
                         and self.loaded.mission.nodes[node].zenoh.listen:
                     return node, channel
         return None
@@ -671,17 +676,47 @@ def tour_parts(loaded: LoadedMission, apps: VehicleApps) -> list[str]:
         parts.append("queries")
     if surfaced_vehicle(loaded) is not None:
         parts.append("surfacing")
+    if camera_pair(loaded) is not None:
+        parts.append("pictures")
     if relay_plan(loaded) is not None:
         parts.append("relay")
     return parts
 
 
+async def _picture_part(tour: Tour, loaded: LoadedMission, pictures: PictureWatch | None,
+                        end: float) -> None:
+    """The picture put as the tour began, refinement by refinement (until the last one or
+    the tour's end)."""
+    found = camera_pair(loaded)
+    if pictures is None or found is None or not tour.part("pictures"):
+        return
+    camera, key, receiver, _ = found
+    tour.picture_intro(camera, key, receiver)
+    while not any(r.final for r in pictures.seen()) and time.time() < end:
+        pictures.changed.clear()
+        await asyncio.to_thread(pictures.changed.wait, POLL_S * 5)
+    seen = pictures.seen()
+    if not seen:
+        tour.not_seen("a refinement of the picture")
+        return
+    step = max(1, -(-len(seen) // PICTURE_LINES))  # (a long list thinned, the last kept)
+    for index, r in enumerate(seen):
+        if index % step == 0 or index == len(seen) - 1:
+            tour.picture_refined(r.after_s, r.bytes, r.budget, r.psnr_estimate, r.final,
+                                 r.width, r.height)
+    if not seen[-1].final:
+        tour.not_seen("the picture's last fragment")
+
+
 async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float,
                  fleet: Fleet, queries: QueryApps | None, watch: SurfacingWatch | None,
                  sent: SentAtSwitches | None, relays: RelayWatch | None,
-                 tasks: list[asyncio.Task[None]], end: float) -> None:
+                 tasks: list[asyncio.Task[None]], end: float,
+                 pictures: PictureWatch | None = None) -> None:
     """The parts of the tour before the summary, each when the fleet has something to show
     for it (those the plan left out say nothing)."""
+    if pictures is not None:
+        pictures.put()  # (it crosses while the other parts are told)
     tour.part("values")
     tour.values_intro()
     await asyncio.to_thread(apps.examples_done.wait, EXAMPLES_WAIT_S)
@@ -700,6 +735,7 @@ async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: flo
                               min(end, time.time() + FIXES_WAIT_S))
     await _query_part(tour, loaded, fleet, queries, tasks, end)
     await _surfacing_part(tour, loaded, fleet, watch, sent, end)
+    await _picture_part(tour, loaded, pictures, end)
     await _relay_part(tour, fleet, relays, end)
 
 
@@ -793,6 +829,7 @@ async def run_demo(
     tasks: list[asyncio.Task[None]] = []
     page: GuiServer | None = None
     queries: QueryApps | None = None
+    pictures: PictureWatch | None = None
     try:
         if not runner.done():
             apps.start()
@@ -804,9 +841,13 @@ async def run_demo(
             if gui:
                 page = await _start_gui(loaded, gui_port, console)
                 tour.gui(None if page is None else page.url, page.node if page else "")
+            camera = camera_pair(loaded)
+            if camera is not None and camera[0] in apps.sessions and camera[2] in apps.sessions:
+                pictures = PictureWatch(apps.sessions[camera[0]], camera[1],
+                                        apps.sessions[camera[2]], camera[3])
             tasks.append(asyncio.create_task(
                 _story(apps, tour, loaded, loss, fleet, queries, watch, sent, relays, tasks,
-                       end)))
+                       end, pictures)))
         await runner
     finally:
         if page is not None:
@@ -815,6 +856,9 @@ async def run_demo(
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         apps.examples_done.set()  # a story thread still waiting ends now
+        if pictures is not None:
+            pictures.changed.set()
+            pictures.close()
         apps.close()
         for handler in handlers:
             handler.removeFilter(late)

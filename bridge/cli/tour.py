@@ -27,6 +27,7 @@ PARTS = {
     "fixes": "Position fixes from acoustic ranges",
     "queries": "A Zenoh get across the water",
     "surfacing": "A vehicle surfaces, then dives",
+    "pictures": "A picture across the water, refining",
     "relay": "A vehicle reached through another",
     "summary": "Summary",
 }
@@ -269,6 +270,19 @@ class Tour:
     def acoustic_again(self, key: str, value: Any, after_s: float) -> None:
         self.say(f"          back over the water {after_s:.1f} s after the dive: {key} = "
                  f"{value} (quantised, the latest value: no backlog)")
+
+    def picture_intro(self, camera: str, key: str, receiver: str) -> None:
+        self.say(f"As the tour began, a program on {camera} put one JPEG on {key}. {camera}'s "
+                 "bridge recoded it into a progressive stream (wavelets, bit planes: every "
+                 "prefix decodes) and sends it in fragments below every other channel, a lost "
+                 f"one asked for again. {receiver}'s bridge publishes a sharper PNG on {key} "
+                 "after each fragment (the GUI's Pictures panel shows it):")
+
+    def picture_refined(self, after_s: float, got: int, budget: int, psnr_estimate: float,
+                        final: bool, width: int, height: int) -> None:
+        self.say(f"  {after_s:5.1f} s  {got:>4} / {budget} B  {width}×{height}, "
+                 f"≈{psnr_estimate:.1f} dB by the stream's own estimate"
+                 + (" · complete" if final else ""))
 
     def relay_intro(self, vehicle: str, surface: str, path: tuple[str, ...],
                     links: tuple[str, ...]) -> None:

@@ -201,20 +201,36 @@ class Images:
             self.outbox.reports(camera.picture(pixels, now, key, ref))
             self.outbox.unsaved = True
             return True
-        found = self.controls.get(key)
-        if found is None:
+        if key not in self.controls:
             return False
-        channel, sender, settings = found
         try:
-            request = self._merge(settings, decode_payload(data, encoding))
-            payload = channel.pack([control_payload(settings, request)])
-        except (DecodeError, EncodeError, TypeError, ValueError) as exc:
-            self.drop(key, f"image control {_spec(channel).name!r}: {exc}", now,
-                      "undecodable" if isinstance(exc, DecodeError) else "unfit")
-            return True
-        self.outbox.reports(sender.offer(payload, now, key, ref))
-        self.outbox.unsaved = True
+            self.steer(key, decode_payload(data, encoding), now, ref)
+        except DecodeError as exc:
+            self.drop(key, f"image control {key!r}: {exc}", now, "undecodable")
+        except ValueError:
+            pass  # (counted by steer)
         return True
+
+    def steer(self, key: str, value: Any, now: float, ref: str | None = None
+              ) -> dict[str, Any]:
+        """An operator's control (a put's value, or a query's) on the control ``key`` of a
+        channel this node steers: merged into its settings and sent to the camera; returns
+        the settings now in force. A control that does not fit is a counted drop and a
+        :class:`ValueError` saying why."""
+        channel, sender, settings = self.controls[key]
+        try:
+            merged = dict(settings)
+            request = self._merge(merged, value)
+            payload = channel.pack([control_payload(merged, request)])
+        except (EncodeError, TypeError, ValueError) as exc:
+            reason = f"image control {_spec(channel).name!r}: {exc}"
+            self.drop(key, reason, now, "unfit")
+            raise ValueError(reason) from None
+        if merged != settings or request != "none":  # (else the operator only asks)
+            settings.update(merged)
+            self.outbox.reports(sender.offer(payload, now, key, ref))
+            self.outbox.unsaved = True
+        return {**settings, "request": request}
 
     @staticmethod
     def _ros2(spec: ImageSpec, data: bytes) -> Pixels:

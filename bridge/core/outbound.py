@@ -112,9 +112,11 @@ class Outbound:
                       for key, found in self.bindings.items()}
         self._cap = payload_cap(max((e.layout.bits for c in table.channels
                                      for e in c.elements), default=0))
+        pictures = [c.image.in_key.format(node=node, src=node) for c in table.channels
+                    if c.image is not None and not c.image.control and c.sent_by(node)]
         self.keyspace = Keyspace(mission, table, node,
-                                 [*self.bindings, *self.families.subscriptions()], outbox,
-                                 self.surfacing)
+                                 [*self.bindings, *self.families.subscriptions(), *pictures],
+                                 outbox, self.surfacing)
         metas = [(key, e.meta) for key, found in self.bindings.items() for _, _, e in found]
         metas += [(key, e.meta) for key, found in self.families.subscriptions().items()
                   for c, i in found for e in (c.elements[i],)]

@@ -5,7 +5,7 @@ The GUI's node publishes each picture (PNG or JPEG) on the image channel's outpu
 board keeps the latest bytes per (channel, camera) for the page to load from
 ``/image/<channel>/<camera>`` and emits an ``image`` item with the picture's metadata (bytes
 received of the budget, sequence, final, the stream's PSNR estimate, ROI). A page's
-``image_control`` message (a request, a budget, an ROI drawn on the picture) becomes a put
+``image_control`` message (a request, a budget, a size, an ROI drawn on the picture) becomes a put
 on the channel's control key at the GUI's node.
 """
 
@@ -18,11 +18,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from bridge.core.loaded import LoadedMission
-from bridge.wire.images import REQUESTS, ImageSpec
+from bridge.wire.images import CONTROL_FIELDS, REQUESTS, ImageSpec
 
 __all__ = ["ImageBoard", "ImageControlError"]
 
 Item = dict[str, Any]
+MIN_SIDE, MAX_SIDE = (next(f for f in CONTROL_FIELDS if f["field"] == "width")[k]
+                      for k in ("min", "max"))
 
 
 class ImageControlError(ValueError):
@@ -118,6 +120,12 @@ class ImageBoard:
         if request not in REQUESTS:
             raise ImageControlError(f"request {request!r} is none of {', '.join(REQUESTS)}")
         value["request"] = request
+        for name in ("width", "height"):
+            if name in message:
+                side = message[name]
+                if not isinstance(side, int) or not MIN_SIDE <= side <= MAX_SIDE:
+                    raise ImageControlError(f"{name} {side!r} is not {MIN_SIDE}..{MAX_SIDE}")
+                value[name] = side
         if "budget_bytes" in message:
             budget = message["budget_bytes"]
             if not isinstance(budget, int) or not 16 <= budget <= spec.largest_budget:

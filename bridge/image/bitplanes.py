@@ -11,10 +11,17 @@ bit first.
 Each class of each band is a sequence of yes/no significance decisions, mostly no; it goes as
 *adaptive run lengths* (the run-length mode of RLGR / JPEG-LS): with parameter ``k``, ``0``
 says the next ``2**k`` decisions are all no (``k`` grows), ``1`` and ``k`` bits give the
-position of the next yes, then its sign (``k`` shrinks). ``k`` carries over from plane to
-plane for each class and band, so both ends adapt alike with no side information. Refinement
-bits and signs go as they are. Everything is decided for a whole pass from the state at the
-pass's start, so numpy does the bookkeeping and Python only walks the run codes.
+position of the next yes, then its sign (``k`` shrinks). The bands still *idle* (nothing
+significant in them yet) go together, one sequence for each scale, so a plane that wakes
+none of them costs a bit a scale, not a bit a band (chroma's many idle bands cost most).
+``k`` starts where one ``0`` covers the sequence's first pass and carries over from plane to
+plane for each class and band (or scale of idle bands), so both ends adapt alike with no
+side information. Refinement
+bits and signs go as they are. With a region of interest each plane is coded twice over:
+first the ROI's coefficients (those raised), with runs of their own, then the rest's, so the
+rest's zeros never lengthen the ROI's runs. Everything is decided for a whole pass from the
+state at the pass's start, so numpy does the bookkeeping and Python only walks the run codes
+(a run of ``0`` at a time: :data:`_COVER` says how far it reaches).
 
 A stream cut anywhere decodes to everything before the cut (a run code or a sign cut in
 half is dropped), and a corrupt stream decodes to some image of the same shape: the decoder
@@ -23,7 +30,10 @@ checks every position it reads against the pass it is in.
 
 from __future__ import annotations
 
+from bisect import bisect_left, bisect_right
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from itertools import accumulate
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,7 +51,6 @@ _UP = [min(kp + UP, KPMAX) for kp in range(KPMAX + 1)]  # (tables: the loops' ho
 _DOWN = [max(kp - DOWN, 0) for kp in range(KPMAX + 1)]
 _K = [kp >> 2 for kp in range(KPMAX + 1)]
 _STEP = [1 << k for k in _K]
-_CODE = ["1{0:0" + str(k) + "b}{1}" if k else "1{1}" for k in _K]
 
 PASSES = (0, 1, None, 2)
 """The order of a plane's passes: the classes by number, None the refinement."""
@@ -67,12 +76,14 @@ class Context:
         self.geometry = geometry
         self.near = np.zeros(geometry.size + 1, dtype=bool)
         self.under = np.zeros(geometry.size + 1, dtype=bool)
+        self.busy = np.zeros(len(geometry.bands), dtype=bool)  # bands with a significant one
 
     def became(self, positions: Ints) -> None:
         """Coefficients at coding ``positions`` became significant."""
         geometry = self.geometry
         self.near[geometry.neighbours[positions]] = True
         self.under[geometry.children(positions)] = True
+        self.busy[geometry.band_of[positions]] = True
 
     def classes(self, sig: Bools, only: Bools | None = None) -> list[Ints]:
         """Coding positions not yet significant (and in ``only``, if given), by class: near
@@ -116,30 +127,81 @@ class Planes:
         return np.where(self.negative, -mag, mag)
 
 
+def _first_kp(length: int) -> int:
+    """The run parameter a (class, band) starts with: one ``0`` covers its first pass."""
+    return min(4 * max(length - 1, 1).bit_length(), KPMAX)
+
+
+def _coverage(kp: int) -> list[int]:
+    """How many decisions ``m`` run codes ``0`` in a row cover from run parameter ``kp``, for
+    ``m = 0, 1, …`` until more than any pass holds (``2**24``)."""
+    out = [0]
+    while out[-1] <= 1 << 24:
+        out.append(out[-1] + _STEP[kp])
+        kp = _UP[kp]
+    return out
+
+
+_COVER = [_coverage(kp) for kp in range(KPMAX + 1)]
+_AFTER = [[min(kp + UP * m, KPMAX) for m in range(len(_COVER[kp]))] for kp in range(KPMAX + 1)]
+"""The run parameter after ``m`` codes ``0`` from ``kp``."""
+
+
+def _segments(cut: list[int], busy: list[bool], scales: list[int]) -> list[tuple[int, list[int]]]:
+    """A pass's run segments, as (key, bands): each band with something significant on its
+    own (keyed by the band), then the idle bands (nothing significant yet) of each scale as
+    one (keyed ``-1 - scale``), so that a plane that wakes none of them costs a bit a scale,
+    not a bit a band. ``cut``: where each band starts in the pass (bands not in it left out)."""
+    out: list[tuple[int, list[int]]] = []
+    idle: dict[int, list[int]] = {}
+    for b in range(len(cut) - 1):
+        if cut[b] == cut[b + 1]:
+            continue
+        if busy[b]:
+            out.append((b, [b]))
+        else:
+            idle.setdefault(-1 - scales[b], []).append(b)
+    out += idle.items()
+    return out
+
+
 def _run_encode(out: list[str], ones: list[int], signs: list[bool], pos: int, length: int,
                 kp: int) -> int:
     """Append the run codes of the decisions ``pos`` up to ``length`` of a pass, whose yes
     are at ``ones``; ``kp`` is the run parameter in quarters (``k = kp >> 2``); returns the
     final ``kp``."""
-    up, down, steps, codes = _UP, _DOWN, _STEP, _CODE
-    step = steps[kp]
+    cover, after, down, widths = _COVER, _AFTER, _DOWN, _K
     append = out.append
     for p, negative in zip(ones, signs, strict=True):
-        while p >= pos + step:
-            append("0")
-            pos += step
-            kp = up[kp]
-            step = steps[kp]
-        append(codes[kp].format(p - pos, 1 if negative else 0))
+        gap = p - pos
+        covered = cover[kp]
+        m = bisect_right(covered, gap) - 1  # codes 0 before the one
+        if m:
+            append("0" * m)
+            gap -= covered[m]
+            kp = after[kp][m]
+        k = widths[kp]
+        append(bin((1 << k | gap) << 1 | negative)[2:])
         kp = down[kp]
-        step = steps[kp]
         pos = p + 1
-    while pos < length:
-        append("0")
-        pos += step
-        kp = up[kp]
-        step = steps[kp]
+    if pos < length:
+        m = bisect_left(cover[kp], length - pos)
+        append("0" * m)
+        kp = after[kp][m]
     return kp
+
+
+def _groups(top: int, raised: tuple[Bools, int] | None) -> Iterator[tuple[int, int, Bools | None]]:
+    """The planes from ``top`` down, each as its groups of coefficients in coding order:
+    ``(plane, group, mask)``. Without an ROI one group, everything (``None``); with one the
+    ROI's coefficients first, then the rest (from the highest plane anything outside has)."""
+    for n in range(top, -1, -1):
+        if raised is None:
+            yield n, 0, None
+            continue
+        yield n, 0, raised[0]
+        if n <= raised[1]:
+            yield n, 1, ~raised[0]
 
 
 def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
@@ -151,15 +213,15 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
     size = geometry.size
     sig = np.zeros(size, dtype=bool)
     starts = geometry.band_start
-    ks: dict[tuple[int, int], int] = {}
+    scales = [band.scale for band in geometry.bands]
+    ks: dict[tuple[int, int, int], int] = {}
     context = Context(geometry)
     parts: list[str] = []
     total = 0
-    for n in range(top, -1, -1):
+    for n, g, only in _groups(top, raised):
         t = 1 << n
-        only = raised[0] if raised is not None and n > raised[1] else None
         classes = context.classes(sig, only)
-        was = np.flatnonzero(sig)
+        was = np.flatnonzero(sig if only is None else sig & only)
         passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
         for cls, cand in enumerate(passes):
             if cand is None:  # refinement (no more than the budget still takes)
@@ -180,17 +242,26 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
             cut = cut_at.tolist()
             neg = negative[cand[ones_at]].tolist()
             ones_list = ones_at.tolist()
+            segments = _segments(cut, context.busy.tolist(), scales)
             sig[cand[ones_at]] = True
             context.became(cand[ones_at])
-            for b in range(len(starts) - 1):
-                a, z = cut[b], cut[b + 1]
-                if a == z:
-                    continue
-                oa, oz = cut_ones[b], cut_ones[b + 1]
-                key = (cls, b)
+            for key_band, bands in segments:
+                if len(bands) == 1:  # the band's own positions in the pass
+                    b = bands[0]
+                    pos, length = cut[b], cut[b + 1]
+                    ones = ones_list[cut_ones[b]:cut_ones[b + 1]]
+                    signs = neg[cut_ones[b]:cut_ones[b + 1]]
+                else:  # the bands one after another, counted from 0
+                    pos, length, ones, signs = 0, 0, [], []
+                    for b in bands:
+                        oa, oz = cut_ones[b], cut_ones[b + 1]
+                        ones += [p - cut[b] + length for p in ones_list[oa:oz]]
+                        signs += neg[oa:oz]
+                        length += cut[b + 1] - cut[b]
+                key = (g, cls, key_band)
                 out: list[str] = []
-                ks[key] = _run_encode(out, ones_list[oa:oz], neg[oa:oz], a, z,
-                                      ks.get(key, 0))
+                ks[key] = _run_encode(out, ones, signs, pos, length,
+                                      ks.get(key, _first_kp(length - pos)))
                 piece = "".join(out)
                 parts.append(piece)
                 total += len(piece)
@@ -204,31 +275,33 @@ def _run_decode(bits: str, i: int, pos: int, length: int, kp: int,
     """Read the run codes of the decisions ``pos`` up to ``length`` of a pass from
     ``bits[i:]`` into ``found``/``signs``; returns ``(i, kp)`` after them. Raises
     :class:`Truncated` where the bits end or lie."""
-    up, down, steps, widths = _UP, _DOWN, _STEP, _K
+    cover, after, down, widths = _COVER, _AFTER, _DOWN, _K
     end = len(bits)
-    step = steps[kp]
-    while pos < length:
-        if i >= end:
-            raise Truncated
-        if bits[i] == "0":
-            i += 1
-            pos += step
-            kp = up[kp]
-            step = steps[kp]
-            continue
+    while True:
+        j = bits.find("1", i)
+        if j < 0:
+            j = end
+        covered = cover[kp]
+        m = j - i  # codes 0 before the next 1
+        if m >= len(covered) or pos + covered[m] >= length:  # the pass ends first
+            m = bisect_left(covered, length - pos)
+            if i + m > end:
+                raise Truncated
+            return i + m, after[kp][m]
+        if m:
+            pos += covered[m]
+            kp = after[kp][m]
         k = widths[kp]
-        if i + k + 2 > end:
+        i = j + k + 2
+        if i > end:
             raise Truncated
-        p = pos + int(bits[i + 1:i + 1 + k], 2) if k else pos
+        p = pos + int(bits[j + 1:i - 1], 2) if k else pos
         if p >= length:
             raise Truncated  # corrupt: a position past the pass
-        i += k + 2
         found.append(p)
         signs.append(bits[i - 1] == "1")
         pos = p + 1
         kp = down[kp]
-        step = steps[kp]
-    return i, kp
 
 
 def decode_planes(geometry: Geometry, bits: str, top: int,
@@ -239,15 +312,15 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
     state.below[:] = top + 1
     sig = state.significant
     starts = geometry.band_start
-    ks: dict[tuple[int, int], int] = {}
+    scales = [band.scale for band in geometry.bands]
+    ks: dict[tuple[int, int, int], int] = {}
     context = Context(geometry)
     i = 0
     end = len(bits)
-    for n in range(top, -1, -1):
+    for n, g, only in _groups(top, raised):
         state.threshold = n
-        only = raised[0] if raised is not None and n > raised[1] else None
         classes = context.classes(sig, only)
-        was = np.flatnonzero(sig)
+        was = np.flatnonzero(sig if only is None else sig & only)
         passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
         for cls, cand in enumerate(passes):
             if cand is None:
@@ -264,19 +337,28 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
                 continue
             if cand.size == 0:
                 continue
-            cut = np.searchsorted(cand, starts).tolist()
             found: list[int] = []
             signs: list[bool] = []
             stop = False
-            for b in range(len(cut) - 1):
-                a, z = cut[b], cut[b + 1]
-                if a == z:
-                    continue
-                key = (cls, b)
+            cut = np.searchsorted(cand, starts).tolist()
+            for key_band, bands in _segments(cut, context.busy.tolist(), scales):
+                key = (g, cls, key_band)
+                lengths = [cut[b + 1] - cut[b] for b in bands]
+                if len(bands) == 1:
+                    pos, length, heard = cut[bands[0]], cut[bands[0] + 1], found
+                else:
+                    pos, length, heard = 0, sum(lengths), []
                 try:
-                    i, ks[key] = _run_decode(bits, i, a, z, ks.get(key, 0), found, signs)
+                    i, ks[key] = _run_decode(bits, i, pos, length,
+                                             ks.get(key, _first_kp(length - pos)), heard, signs)
                 except Truncated:
                     stop = True
+                if heard is not found:  # back from counted-from-0 to the pass's positions
+                    ends = list(accumulate(lengths))
+                    for v in heard:
+                        at = bisect_right(ends, v)
+                        found.append(cut[bands[at]] + v - (ends[at] - lengths[at]))
+                if stop:
                     break
             if found:
                 idx = cand[np.array(found, dtype=np.int64)]

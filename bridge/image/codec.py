@@ -8,7 +8,7 @@ raises its coefficients by a few bit planes, so it sharpens first.
 
 The stream, most significant bit first::
 
-    version   2 bits (0)
+    version   2 bits (2; this decoder refuses the earlier ones)
     colour    1 bit
     width-1   11 bits, height-1 11 bits
     top+1     5 bits: the highest bit plane (0: an empty image)
@@ -33,7 +33,7 @@ from bridge.image.wavelet import forward, inverse
 
 __all__ = ["MAX_SIDE", "Decoded", "ImageStreamError", "decode", "encode", "header_bytes"]
 
-VERSION = 0
+VERSION = 2
 MAX_SIDE = 2048
 FRACTION_BITS = 2  # quantiser step: a quarter of a (weighted) grey level
 QUANTUM = float(1 << FRACTION_BITS)
@@ -149,7 +149,7 @@ def encode(pixels: U8, budget: int, roi: Roi | None = None) -> bytes:
     raised = None
     if shifts is not None and roi is not None:
         q <<= shifts
-        inner = shifts == roi.shift
+        inner = shifts > 0
         outside = q[~inner]
         raised = (inner, int(outside.max()).bit_length() - 1 if outside.size else -1)
     top = int(q.max()).bit_length() - 1 if q.size else -1
@@ -203,7 +203,7 @@ def decode(stream: bytes) -> Decoded:
     colour, width, height, top, roi, at, outside = _read_header(bits)
     geo = geometry(height, width, colour)
     shifts = _shifts(geo, roi, height, width)
-    raised = (shifts == roi.shift, outside) if shifts is not None and roi is not None else None
+    raised = (shifts > 0, outside) if shifts is not None and roi is not None else None
     state = decode_planes(geo, bits[at:], top, raised) if top >= 0 else None
     scale = geo.weight * QUANTUM
     if shifts is not None:

@@ -85,6 +85,11 @@ class Band:
     def size(self) -> int:
         return self.shape[0] * self.shape[1]
 
+    @property
+    def scale(self) -> int:
+        """Its scale on the picture: its level, one more for chroma (at half resolution)."""
+        return self.level + (self.component > 0)
+
 
 @dataclass(frozen=True)
 class Geometry:
@@ -178,7 +183,7 @@ class Geometry:
         less for each halving below that, none outside."""
         out = np.zeros(self.size, dtype=np.int64)
         for band in self.bands:
-            scale = 1 << (band.level + (band.component > 0))
+            scale = 1 << band.scale
             bh, bw = band.shape
             share = np.outer(_inside(bh, scale, roi.y0 * height / 64, roi.y1 * height / 64),
                              _inside(bw, scale, roi.x0 * width / 64, roi.x1 * width / 64))

@@ -84,6 +84,8 @@ from typing import Any
 
 import numpy as np
 
+from bridge.ranging import kalman
+from bridge.ranging.kalman import Matrix, Vector
 from bridge.ranging.localise import Fix, attempt
 from bridge.ranging.turns import TurnMixture
 
@@ -248,6 +250,11 @@ class _Hypothesis:
     pending_until: float = 0.0  # ... kept apart until then (:meth:`RangeTracker._turned_since`)
 
 
+_Taken = tuple[RangeObs, Vector, Matrix, float, float, float, bool]
+"""A range taken again: the observation, the state before it (a vector, a covariance, its
+time), and the log-likelihood, NIS and acceptance it had."""
+
+
 @dataclass
 class _Step:
     """One range as a hypothesis took it: its state just before, and what the range did."""
@@ -395,6 +402,8 @@ class RangeTracker:
         self._wide: _Hypothesis | None = None  # the manoeuvring mode (:meth:`_mode_update`)
         self._wide_share = 0.0  # ... its probability
         self._turns: TurnMixture | None = None  # turned components (:meth:`_turns_prepare`)
+        self._line_memo: tuple[tuple[RangeObs, ...],
+                               tuple[np.ndarray, np.ndarray] | None] | None = None
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -826,15 +835,19 @@ class RangeTracker:
         """(a point, a unit direction) of the line the anchors heard lie on, if they do (two
         anchors always do): ranges cannot tell a position from its image across it."""
         cfg = self.config
-        points = [np.array(o.anchor_at[:2], dtype=float) for o in self._recent.values()
-                  if self._now - o.time <= cfg.anchor_max_age_s]
+        heard = tuple(o for o in self._recent.values()
+                      if self._now - o.time <= cfg.anchor_max_age_s)
+        if self._line_memo is not None and self._line_memo[0] == heard:
+            return self._line_memo[1]  # every trial of a manoeuvre test, every heading asks
+        points = [np.array(o.anchor_at[:2], dtype=float) for o in heard]
         line = _line_through(points)
-        if line is None:
-            return None
-        a, u = line
-        if any(abs(_cross(u, p - a)) > cfg.collinear_m for p in points):
-            return None  # anchors off one line: no mirror image fits every range
-        return a, u
+        if line is not None:
+            a, u = line
+            a.flags.writeable = u.flags.writeable = False  # shared by every caller
+            if any(abs(_cross(u, p - a)) > cfg.collinear_m for p in points):
+                line = None  # anchors off one line: no mirror image fits every range
+        self._line_memo = (heard, line)
+        return line
 
     def _keep_mirror(self) -> bool:
         """Put the best hypothesis's mirror image back in the bank if no hypothesis is on the
@@ -1067,31 +1080,49 @@ class RangeTracker:
             hyp.x, hyp.p = _predicted(hyp.x, hyp.p, dt, *self._accel(t))
             hyp.time = t
 
-    def _range_model(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, np.ndarray]:
+    def _range_model(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, Vector]:
         """Predicted range and its Jacobian (1×4) for hypothesis ``hyp``."""
+        return self._range_at(hyp.x.tolist(), hyp.time, hyp.turns, obs)
+
+    def _range_at(self, x: Vector, time: float, turns: list[tuple[float, np.ndarray]],
+                  obs: RangeObs) -> tuple[float, Vector]:
+        """Predicted range and its Jacobian (1×4) for the state ``x`` at ``time`` whose
+        velocity was the ``turns``' before each (plain floats, :mod:`bridge.ranging.kalman`)."""
         assert self.depth is not None
-        x = hyp.x
+        x0, x1, x2, x3 = x
         legs = ((obs.time - obs.span_s, obs.anchor_before or obs.anchor_at),
                 (obs.time, obs.anchor_at))
-        h, jac = 0.0, np.zeros(4)
+        h, j0, j1, j2, j3 = 0.0, 0.0, 0.0, 0.0, 0.0
         for t_leg, (ax, ay, az) in legs:
-            m, offset = _displacement(hyp.time, t_leg, hyp.turns)  # p(t_leg) = p + m·v + o
-            px, py = x[:2] + m @ x[2:] + offset
+            m, ox, oy = _displacement(time, t_leg, turns)  # p(t_leg) = p + m·v + o
+            px, py = x0 + m * x2 + ox, x1 + m * x3 + oy
             ex, ey, ez = px - ax, py - ay, self.depth - az
             dist = math.sqrt(ex * ex + ey * ey + ez * ez) or 1e-9
             h += dist / 2
-            u = np.array([ex, ey]) / dist / 2
-            jac += np.concatenate([u, u @ m])
-        return h, jac
+            ux, uy = ex / dist / 2, ey / dist / 2
+            j0, j1, j2, j3 = j0 + ux, j1 + uy, j2 + ux * m, j3 + uy * m
+        return h, [j0, j1, j2, j3]
 
     def _range_update(self, hyp: _Hypothesis, obs: RangeObs) -> tuple[float, bool]:
         """EKF update with one range; (NIS, accepted). The weight takes the likelihood."""
-        self._predict(hyp, obs.time)
-        predicted, jac = self._range_model(hyp, obs)
+        x, p, hyp.time, nis, ok = self._ranged(hyp, hyp.x.tolist(), hyp.p.tolist(), hyp.time,
+                                               obs)
+        hyp.x, hyp.p = np.array(x), np.array(p)
+        return nis, ok
+
+    def _ranged(self, hyp: _Hypothesis, x: Vector, p: Matrix, t: float,
+                obs: RangeObs) -> tuple[Vector, Matrix, float, float, bool]:
+        """:meth:`_range_update` of ``hyp``'s state ``(x, p)`` at ``t``, in plain floats from
+        the prediction to the last iteration (every trial takes it): ``(x, p, t, NIS,
+        accepted)``, ``hyp``'s weight taking the likelihood."""
+        if obs.time > t:
+            x, p = kalman.predicted(x, p, obs.time - t, *self._accel(obs.time))
+            t = obs.time
+        predicted, jac = self._range_at(x, t, hyp.turns, obs)
         r = self._range_sigma(obs.range_m) ** 2 + obs.anchor_sigma_m**2
-        x0, p0 = hyp.x.copy(), hyp.p.copy()
-        nis, ok = self._update(hyp, obs.range_m - predicted, jac, r)
-        if ok and 2 * (p0[0, 0] + p0[1, 1]) / max(obs.range_m, 1.0) > math.sqrt(r):
+        x0, p0 = x, p
+        x, p, nis, ok = self._fused(hyp, x, p, obs.range_m - predicted, jac, r)
+        if ok and 2 * (p0[0][0] + p0[1][1]) / max(obs.range_m, 1.0) > math.sqrt(r):
             # the position so wide (a start, a long gap) that the range's circle curves away
             # from its tangent by more than the range's noise across that width: a step along
             # the gradient at the prior lands off the circle, and the next range to the same
@@ -1099,16 +1130,14 @@ class RangeTracker:
             # under a metre that only one anchor was heard). Iterated (Gauss-Newton) to the
             # posterior's linearisation; the gate and the weight keep the prior's
             for _ in range(ITERATIONS):
-                xi = hyp.x
-                h_i, jac = self._range_model(hyp, obs)
-                s_i = float(jac @ p0 @ jac) + r
-                gain = p0 @ jac / s_i
-                x_next = x0 + gain * (obs.range_m - h_i - jac @ (x0 - xi))
-                ikh = np.eye(4) - np.outer(gain, jac)
-                hyp.x, hyp.p = x_next, ikh @ p0 @ ikh.T + r * np.outer(gain, gain)
-                if np.linalg.norm(x_next[:2] - xi[:2]) < 1e-3:
+                xi = x
+                h_i, (j0, j1, j2, j3) = self._range_at(xi, t, hyp.turns, obs)
+                lin = (j0 * (x0[0] - xi[0]) + j1 * (x0[1] - xi[1]) + j2 * (x0[2] - xi[2])
+                       + j3 * (x0[3] - xi[3]))  # the model linearised at xi, taken at x0
+                x, p, _ = kalman.updated(x0, p0, obs.range_m - h_i - lin, (j0, j1, j2, j3), r)
+                if math.hypot(x[0] - xi[0], x[1] - xi[1]) < 1e-3:
                     break
-        return nis, ok
+        return x, p, t, nis, ok
 
     def _range_sigma(self, range_m: float) -> float:
         """The range noise expected at ``range_m``: the profile's (``range_sigma_at``) if it
@@ -1165,22 +1194,24 @@ class RangeTracker:
         track) none is taken: the estimate stays and only its published covariance spreads
         over the turns. Returns the latest range's (NIS, accepted) if one was taken."""
         cfg = self.config
-        best: tuple[float, int, list[tuple[float, _Hypothesis, list[_Step]]]] | None = None
+        best: tuple[float, int, list[tuple[float, _Hypothesis, list[_Taken]]]] | None = None
         ring = cfg.jump_ring_deg
         turns = [ring * k for k in range(1, round(360 / ring))]
         pool: list[tuple[float, _Hypothesis]] = []  # every gap's turns, log-odds on none
         for j in range(len(hyp.steps)):
-            tried = [self._refilter(hyp, j, turn) for turn in (*turns, None)]
+            # one anchor's ranges fit any turn (a circle): it takes two to see one (nor can
+            # the ranges after a gap that one anchor alone saw: no trial there)
+            if len({s.obs.anchor for s in hyp.steps[j:]}) < 2:
+                break
+            start = self._halfway(hyp, j)
+            tried = [self._refilter(hyp, j, turn, start) for turn in (*turns, None)]
             top = max(t[0] for t in tried)
             mixture = top + math.log(sum(math.exp(t[0] - top) for t in tried) / len(tried))
             none = sum(s.loglik for s in hyp.steps[j:])
             llr = mixture - none
-            # one anchor's ranges fit any turn (a circle): it takes two to see one
-            seen = len({s.obs.anchor for s in hyp.steps[j:]}) >= 2
-            if seen:
-                pool += [(t[0] - none - math.log(len(tried)), t[1]) for t in tried
-                         if math.hypot(t[1].x[2], t[1].x[3]) <= cfg.max_speed_mps]
-            if seen and (best is None or llr > best[0]):
+            pool += [(t[0] - none - math.log(len(tried)), t[1]) for t in tried
+                     if math.hypot(t[1].x[2], t[1].x[3]) <= cfg.max_speed_mps]
+            if best is None or llr > best[0]:
                 best = (llr, j, tried)
         if best is None:
             return None
@@ -1190,7 +1221,8 @@ class RangeTracker:
             return None
         top = max(t[0] for t in tried)
         weights = [math.exp(t[0] - top) for t in tried]
-        _, trial, redone = tried[max(range(len(tried)), key=weights.__getitem__)]
+        _, trial, taken = tried[max(range(len(tried)), key=weights.__getitem__)]
+        redone = _steps(taken, trial.turns)
         # the estimate: every gap's turns (and none), weighted by how well they explain the
         # ranges; the turn's time is as uncertain as its direction, and the spread says so
         # ... each on the side the track committed to (without a compass an image fits alike)
@@ -1222,46 +1254,69 @@ class RangeTracker:
         self.manoeuvres += 1
         return redone[-1].nis, redone[-1].accepted
 
-    def _refilter(self, hyp: _Hypothesis, j: int,
-                  turn_deg: float | None) -> tuple[float, _Hypothesis, list[_Step]]:
+    def _halfway(self, hyp: _Hypothesis, j: int) -> _Hypothesis:
+        """The state before ``hyp.steps[j]``, predicted halfway to that range (where
+        :meth:`_refilter` turns it)."""
+        step = hyp.steps[j]
+        half = _Hypothesis(step.x, step.p, step.time, 0.0, hyp.heading, hyp.heading_time,
+                           step.turns)
+        self._predict(half, step.time + max(step.obs.time - step.time, 0.0) / 2)
+        return half
+
+    def _refilter(self, hyp: _Hypothesis, j: int, turn_deg: float | None,
+                  half: _Hypothesis) -> tuple[float, _Hypothesis, list[_Taken]]:
         """The ranges from ``hyp.steps[j]`` on, refiltered as if the vehicle had turned by
         ``turn_deg`` (clockwise; None: changed its velocity by up to its speed, each axis)
-        halfway between the range before and that one: (log-likelihood, state, steps)."""
+        halfway between the range before and that one (``half``, :meth:`_halfway`):
+        (log-likelihood, state, what each range did)."""
         cfg = self.config
         step = hyp.steps[j]
-        trial = _Hypothesis(step.x.copy(), step.p.copy(), step.time, 0.0, hyp.heading,
-                            hyp.heading_time, list(step.turns))
         gap = max(step.obs.time - step.time, 0.0)
-        self._predict(trial, step.time + gap / 2)
-        v = trial.x[2:].copy()
-        _remember_turn(trial, trial.time, v, cfg.max_lag_s)
-        speed = max(float(np.hypot(*v)), cfg.min_heading_speed_mps)
+        x, p = half.x.tolist(), half.p.tolist()
+        vx, vy = x[2], x[3]
+        speed = max(math.hypot(vx, vy), cfg.min_heading_speed_mps)
         if turn_deg is None:
-            trial.p[2:, 2:] += np.eye(2) * speed**2
+            p[2][2] += speed**2
+            p[3][3] += speed**2
             change = speed**2 * 2
         else:
             a = math.radians(turn_deg)
             c, s = math.cos(a), math.sin(a)
-            rot = np.array([[c, s], [-s, c]])  # clockwise, as headings go
-            trial.x[2:] = rot @ v
-            along = trial.x[2:] / float(np.hypot(*trial.x[2:]) or 1.0)
-            across = np.array([-along[1], along[0]])
-            spread = (JUMP_SPEED_SHARE * speed) ** 2 * np.outer(along, along) + (
-                speed * math.tan(math.radians(cfg.jump_ring_deg / 2))) ** 2 * np.outer(across,
-                                                                                   across)
-            trial.p[2:, 2:] = spread
-            trial.p[:2, 2:] = trial.p[2:, :2] = 0.0
-            change = float(np.sum((trial.x[2:] - v) ** 2) + np.trace(spread))
-        trial.p[:2, :2] += np.eye(2) * change / 2 * gap * gap / 12  # when in the gap it turned
-        redone: list[_Step] = []
-        for old in hyp.steps[j:]:
-            again = _Step(old.obs, trial.x.copy(), trial.p.copy(), trial.time, list(trial.turns),
-                          0.0, 0.0, False)
+            x[2], x[3] = c * vx + s * vy, c * vy - s * vx  # clockwise, as headings go
+            norm = math.hypot(x[2], x[3]) or 1.0
+            ax, ay = x[2] / norm, x[3] / norm  # along the new velocity (none: no spread)
+            along = (JUMP_SPEED_SHARE * speed) ** 2
+            across = (speed * math.tan(math.radians(cfg.jump_ring_deg / 2))) ** 2
+            p[0][2:] = p[1][2:] = p[2][:2] = p[3][:2] = p[2][2:] = p[3][2:] = [0.0, 0.0]
+            kalman.spread(p, ax, ay, along, across)  # the velocity: the turn's alone
+            change = (x[2] - vx) ** 2 + (x[3] - vy) ** 2 + p[2][2] + p[3][3]
+        when = change / 2 * gap * gap / 12  # when in the gap it turned
+        p[0][0] += when
+        p[1][1] += when
+        trial = _Hypothesis(np.array(x), np.array(p), half.time, 0.0, hyp.heading,
+                            hyp.heading_time, list(step.turns))
+        _remember_turn(trial, trial.time, np.array((vx, vy)), cfg.max_lag_s)
+        taken = self._retake(trial, hyp.steps[j:])
+        return trial.log_w, trial, taken
+
+    def _redo(self, trial: _Hypothesis, steps: list[_Step]) -> list[_Step]:
+        """``steps``' ranges taken again by ``trial`` (which moves on with them), each a new
+        step."""
+        return _steps(self._retake(trial, steps), trial.turns)
+
+    def _retake(self, trial: _Hypothesis, steps: list[_Step]) -> list[_Taken]:
+        """``steps``' ranges taken again by ``trial`` (which moves on with them), the state
+        carried from one to the next in plain floats; each range's :data:`_Taken` (made
+        into steps, :func:`_steps`, for the trial kept alone)."""
+        x, p, t = trial.x.tolist(), trial.p.tolist(), trial.time
+        taken: list[_Taken] = []
+        for old in steps:
             log_w = trial.log_w
-            again.nis, again.accepted = self._range_update(trial, old.obs)
-            again.loglik = trial.log_w - log_w
-            redone.append(again)
-        return trial.log_w, trial, redone
+            after, p_after, t_after, nis, ok = self._ranged(trial, x, p, t, old.obs)
+            taken.append((old.obs, x, p, t, trial.log_w - log_w, nis, ok))
+            x, p, t = after, p_after, t_after
+        trial.x, trial.p, trial.time = np.array(x), np.array(p), t
+        return taken
 
     def _turned_since(self, hyp: _Hypothesis, angle: float, t: float) -> None:
         """The compass says the vehicle turned clockwise by ``angle`` since its last heading:
@@ -1295,14 +1350,7 @@ class RangeTracker:
             change = trial.x[2:] - before
             trial.p[:2, :2] += np.outer(change, change) * gap**2 / 12  # when in the gap
             _remember_turn(trial, trial.time, before, cfg.max_lag_s)
-            redone = []
-            for old in hyp.steps[j:]:
-                again = _Step(old.obs, trial.x.copy(), trial.p.copy(), trial.time,
-                              list(trial.turns), 0.0, 0.0, False)
-                log_w = trial.log_w
-                again.nis, again.accepted = self._range_update(trial, old.obs)
-                again.loglik = trial.log_w - log_w
-                redone.append(again)
+            redone = self._redo(trial, hyp.steps[j:])
             self._predict(trial, t)
             trial.steps = hyp.steps[:j] + redone
             earlier = sum(hyp.steps[k].loglik for k in window if k < j)
@@ -1371,40 +1419,44 @@ class RangeTracker:
                         break
 
     def _heading_update(self, hyp: _Hypothesis, theta: float, speed: float) -> float:
-        vx, vy = hyp.x[2], hyp.x[3]
+        vx, vy = float(hyp.x[2]), float(hyp.x[3])
         innovation = _wrap(theta - math.atan2(vx, vy))
         s2 = speed * speed
-        jac = np.array([0.0, 0.0, vy / s2, -vx / s2])
-        nis, _ = self._update(hyp, innovation, jac, math.radians(self.config.heading_sigma_deg)
-                              ** 2)
+        nis, _ = self._update(hyp, innovation, [0.0, 0.0, vy / s2, -vx / s2],
+                              math.radians(self.config.heading_sigma_deg) ** 2)
         return nis
 
     def _speed_update(self, hyp: _Hypothesis, speed_mps: float) -> float:
-        vx, vy = hyp.x[2], hyp.x[3]
+        vx, vy = float(hyp.x[2]), float(hyp.x[3])
         speed = math.hypot(vx, vy)
         if speed < 1e-3:
-            jac = np.zeros(4)
             heading = hyp.heading if hyp.heading is not None else 0.0
-            jac[2], jac[3] = math.sin(heading), math.cos(heading)
+            jac = [0.0, 0.0, math.sin(heading), math.cos(heading)]
         else:
-            jac = np.array([0.0, 0.0, vx / speed, vy / speed])
+            jac = [0.0, 0.0, vx / speed, vy / speed]
         nis, _ = self._update(hyp, speed_mps - speed, jac, self.config.speed_sigma_mps**2)
         return nis
 
-    def _update(self, hyp: _Hypothesis, innovation: float, jac: np.ndarray,
+    def _update(self, hyp: _Hypothesis, innovation: float, jac: Vector,
                 r: float) -> tuple[float, bool]:
-        s = float(jac @ hyp.p @ jac) + r
+        """EKF update of ``hyp`` with one scalar measurement; (NIS, accepted)."""
+        x, p, nis, ok = self._fused(hyp, hyp.x.tolist(), hyp.p.tolist(), innovation, jac, r)
+        if ok:
+            hyp.x, hyp.p = np.array(x), np.array(p)
+        return nis, ok
+
+    def _fused(self, hyp: _Hypothesis, x: Vector, p: Matrix, innovation: float, jac: Vector,
+               r: float) -> tuple[Vector, Matrix, float, bool]:
+        """``(x, p)`` after a scalar measurement, with its NIS and whether the gate let it in
+        (if not, ``(x, p)`` as they were); ``hyp``'s weight takes its likelihood."""
+        xn, pn, s = kalman.updated(x, p, innovation, jac, r)
         nis = innovation * innovation / s
         gate = self.config.gate_nis
         # the weight takes the likelihood, capped at the gate: one wild value cannot decide
         hyp.log_w += -0.5 * min(nis, gate) - 0.5 * math.log(2 * math.pi * s)
         if nis > gate:
-            return nis, False
-        gain = hyp.p @ jac / s
-        hyp.x = hyp.x + gain * innovation
-        ikh = np.eye(4) - np.outer(gain, jac)
-        hyp.p = ikh @ hyp.p @ ikh.T + r * np.outer(gain, gain)  # Joseph form: stays symmetric
-        return nis, True
+            return x, p, nis, False
+        return xn, pn, nis, True
 
 
 def _reflection(u: np.ndarray) -> np.ndarray:
@@ -1439,28 +1491,17 @@ def _reflect_history(turns: list[tuple[float, np.ndarray]], steps: list[_Step],
 
 def _predicted(x: np.ndarray, p: np.ndarray, dt: float, accel_sigma: float,
                along_sigma: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Constant velocity ``dt`` ahead with continuous white-noise acceleration: 1-σ
-    ``accel_sigma`` every way, or, with ``along_sigma``, that along the velocity (a change of
-    speed) and ``accel_sigma`` across it (a turn)."""
-    f = np.eye(4)
-    f[0, 2] = f[1, 3] = dt
-    q = np.eye(2) * accel_sigma**2
-    speed = math.hypot(x[2], x[3])
-    if along_sigma is not None and speed > 1e-6:
-        u = x[2:] / speed
-        q += np.outer(u, u) * (along_sigma**2 - accel_sigma**2)
-    qq = np.zeros((4, 4))
-    qq[:2, :2] = q * dt**3 / 3
-    qq[:2, 2:] = qq[2:, :2] = q * dt**2 / 2
-    qq[2:, 2:] = q * dt
-    return f @ x, f @ p @ f.T + qq
+    """:func:`bridge.ranging.kalman.predicted` on numpy's arrays."""
+    fx, fp = kalman.predicted(x.tolist(), p.tolist(), dt, accel_sigma, along_sigma)
+    return np.array(fx), np.array(fp)
 
 
 def _displacement(t_state: float, t_leg: float,
-                  turns: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
-    """``(m, offset)`` with ``p(t_leg) = p(t_state) + m·v(t_state) + offset``: straight lines,
-    except that going back past a recorded turn the velocity is the one held before it."""
-    m, offset, t = np.zeros((2, 2)), np.zeros(2), t_state
+                  turns: list[tuple[float, np.ndarray]]) -> tuple[float, float, float]:
+    """``(m, ox, oy)`` with ``p(t_leg) = p(t_state) + m·v(t_state) + (ox, oy)``: straight
+    lines, except that going back past a recorded turn the velocity is the one held before it.
+    (``m`` multiplies the identity: a scalar, in plain floats, as every range takes this.)"""
+    m, ox, oy, t = 0.0, 0.0, 0.0, t_state
     held: np.ndarray | None = None  # None: the state's own velocity
     for when, before in reversed(turns):
         if when >= t_state:
@@ -1468,13 +1509,20 @@ def _displacement(t_state: float, t_leg: float,
         if when <= t_leg:
             break
         if held is None:
-            m = -(t - when) * np.eye(2)
+            m = -(t - when)
         else:
-            offset -= (t - when) * held
+            ox, oy = ox - (t - when) * float(held[0]), oy - (t - when) * float(held[1])
         held, t = before, when
     if held is None:
-        return np.eye(2) * (t_leg - t_state), offset
-    return m, offset - (t - t_leg) * held
+        return t_leg - t_state, ox, oy
+    back = t - t_leg
+    return m, ox - back * float(held[0]), oy - back * float(held[1])
+
+
+def _steps(taken: list[_Taken], turns: list[tuple[float, np.ndarray]]) -> list[_Step]:
+    """The steps of ranges taken (:meth:`RangeTracker._retake`) under ``turns``."""
+    return [_Step(obs, np.array(x), np.array(p), t, list(turns), loglik, nis, ok)
+            for obs, x, p, t, loglik, nis, ok in taken]
 
 
 def _remember_turn(hyp: _Hypothesis, when: float, before: np.ndarray, keep_s: float) -> None:
@@ -1489,17 +1537,14 @@ def _turn(hyp: _Hypothesis, angle: float, since_s: float) -> None:
     came halfway, with the variance of not knowing when (uniform over the interval)."""
     if angle == 0.0:
         return
-    c, s = math.cos(angle), math.sin(angle)
-    g = np.eye(4)
-    g[2:, 2:] = [[c, s], [-s, c]]
-    before = hyp.x[2:].copy()
-    hyp.x = g @ hyp.x
-    hyp.p = g @ hyp.p @ g.T
+    vx, vy = float(hyp.x[2]), float(hyp.x[3])
+    x, p = kalman.turned(hyp.x.tolist(), hyp.p.tolist(), angle)
     since = max(since_s, 0.0)
-    change = hyp.x[2:] - before  # what the prediction since the turn missed, per second
-    hyp.x[:2] += change * since / 2
-    spread = np.outer(change, change) * since**2 / 12
-    hyp.p[:2, :2] += spread
+    cx, cy = x[2] - vx, x[3] - vy  # what the prediction since the turn missed, per second
+    x[0] += cx * since / 2
+    x[1] += cy * since / 2
+    kalman.widen(p, cx, cy, since**2 / 12)
+    hyp.x, hyp.p = np.array(x), np.array(p)
 
 
 __all__ = ["LOST_REASONS", "Estimate", "Outcome", "Prior", "RangeObs", "RangeTracker",

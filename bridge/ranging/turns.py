@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from bridge.ranging import kalman
+
 SPEED_SHARE = 0.1
 """1-σ change of speed through a turn, as a share of the speed held before it."""
 
@@ -58,19 +60,15 @@ class TurnMixture:
         v = base.x[2:].copy()
         for c in self.components:
             c.log_w -= math.log1p(-prior)  # the track's own share shrinks by the prior
+        along, across = (SPEED_SHARE * speed) ** 2, (self.across * speed) ** 2
+        when = gap**2 / 12  # the variance of when in the gap, per (m/s)² of change
         for angle in self.angles:
+            x, p = kalman.turned(base.x.tolist(), base.p.tolist(), angle)
+            ux, uy = x[2] / speed, x[3] / speed  # along the new velocity
+            kalman.spread(p, ux, uy, along, across)
+            kalman.widen(p, x[2] - float(v[0]), x[3] - float(v[1]), when)
             comp = _clone(base)
-            cos, sin = math.cos(angle), math.sin(angle)
-            rot = np.array([[cos, sin], [-sin, cos]])  # clockwise, as headings go
-            g = np.eye(4)
-            g[2:, 2:] = rot
-            comp.x, comp.p = g @ comp.x, g @ comp.p @ g.T
-            along = comp.x[2:] / speed
-            across = np.array([-along[1], along[0]])
-            comp.p[2:, 2:] += (SPEED_SHARE * speed) ** 2 * np.outer(along, along) + (
-                self.across * speed) ** 2 * np.outer(across, across)
-            change = comp.x[2:] - v
-            comp.p[:2, :2] += np.outer(change, change) * gap**2 / 12  # when in the gap
+            comp.x, comp.p = np.array(x), np.array(p)
             remember(comp, comp.time, v)
             comp.log_w = math.log(prior / len(self.angles)) - math.log1p(-prior)
             self.components.append(comp)

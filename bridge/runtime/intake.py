@@ -60,13 +60,24 @@ class Intake:
         self._woken = False  # a call to _run is on its way to the loop
         self._told: dict[str, float] = {}  # when each key's last traceback was logged
         self.subscribers: list[Any] = []
+        self._threads: list[threading.Thread] = []
 
     def subscribe(self, key: str, handle: Callable[[zenoh.Sample], None]) -> None:
         """Subscribe to ``key``; ``handle`` gets each sample on this subscription's thread."""
         subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(RING))
         self.subscribers.append(subscriber)
-        threading.Thread(target=self._drain, args=(subscriber, key, handle), daemon=True,
-                         name=f"zab-in {key}").start()
+        thread = threading.Thread(target=self._drain, args=(subscriber, key, handle),
+                                  daemon=True, name=f"zab-in {key}")
+        thread.start()
+        self._threads.append(thread)
+
+    def join(self, timeout_s: float = 2.0) -> None:
+        """After the session closed (which ends every subscription): wait for the threads to
+        return. A thread still inside Zenoh when the interpreter exits is unwound through
+        Rust code, and the process aborts (``FATAL: exception not rethrown``)."""
+        end = time.monotonic() + timeout_s
+        for thread in self._threads:
+            thread.join(max(0.0, end - time.monotonic()))
 
     def _drain(self, subscriber: Any, key: str, handle: Callable[[zenoh.Sample], None]
                ) -> None:

@@ -32,6 +32,8 @@ log = logging.getLogger("zab.node")
 
 PROVE_EVERY_S = 2.0
 PROVE_TIMEOUT_S = 1.5
+WARN_AFTER = (3, 30, 300, 3000)
+"""Challenges of one peer failed in a row at which a warning is logged."""
 
 
 class IpWatch:
@@ -49,6 +51,7 @@ class IpWatch:
         self.tokens: set[str] = set()  # peers whose token is alive
         self.reachable: set[str] = set()  # peers proven reachable
         self.unproven = 0  # challenges a live token's peer did not answer with a proof
+        self._failing: dict[str, int] = {}  # each peer's challenges failed in a row
         self.entities: list[Any] = []
         self._wake = asyncio.Event()
 
@@ -125,11 +128,14 @@ class IpWatch:
 
         answers = await asyncio.to_thread(ask)
         if any(proven(self.key, self.mission, peer, self.node, nonce, a) for a in answers):
+            self._failing.pop(peer, None)
             return True
         self.unproven += 1
-        if peer not in self.reachable and self.unproven in (1, 10, 100, 1000):
+        failing = self._failing[peer] = self._failing.get(peer, 0) + 1
+        # (a peer's token can come before its answer does: the first miss is no alarm)
+        if peer not in self.reachable and failing in WARN_AFTER:
             log.warning("%s: %s's bridge token is alive but no proof came with the mission key "
-                        "(%d times): not treated as surfaced", self.node, peer, self.unproven)
+                        "(%d times in a row): not treated as surfaced", self.node, peer, failing)
         return False
 
     def close(self) -> None:

@@ -43,9 +43,10 @@ class KeyspaceWatch:
         for expression in keyspace.expressions:
             meets = [k for k in outputs if intersects(expression, k)]
             if meets:
-                log.warning("%s: keyspace %r is not watched for unmapped puts: it meets output "
-                            "keys of this demand-driven node (%s)", core.node, expression,
-                            ", ".join(meets))
+                # (a subscriber there would read as demand for those outputs)
+                log.info("%s: keyspace %r is not watched for unmapped puts: it meets output "
+                         "keys of this demand-driven node (%s)", core.node, expression,
+                         ", ".join(meets))
                 continue
             intake.subscribe(expression, partial(self._put, expression))
         for expression in keyspace.peer_keyspaces():

@@ -41,6 +41,7 @@ from bridge.core.surfacing import Relay
 from bridge.errors import DecodeError, EncodeError, NodeFailure
 from bridge.modems.base import ModemBackend, Reception
 from bridge.runtime.gate import EventGate
+from bridge.runtime.image_queries import ImageQueries
 from bridge.runtime.intake import Intake
 from bridge.runtime.ip_watch import IpWatch
 from bridge.runtime.keys import load_key, with_next_key
@@ -138,6 +139,7 @@ class BridgeNode:
         self._queryables: list[Any] = []
         self._interest_entities: list[Any] = []
         self._query_bridge: QueryBridge | None = None
+        self._image_queries: ImageQueries | None = None
         factories = make_backend if isinstance(make_backend, Mapping) \
             else {None: make_backend}
         links = list(self.core.linkset.sides)
@@ -229,6 +231,9 @@ class BridgeNode:
                 self._query_bridge = QueryBridge(self.session, self.core, self.lock,
                                                  self.clock, self._changed, loop,
                                                  self.taken_at)
+            if self.core.images is not None and self.core.images.controls:
+                self._image_queries = ImageQueries(self.session, self.core, self.lock,
+                                                   self.clock, self._changed, loop)
             if self.core.surfacing is not None:
                 self._watch_ip(loop)
             self._ros2 = Ros2Graph(self.session, self.mission.mission, self.node)
@@ -259,11 +264,15 @@ class BridgeNode:
         finally:
             if self._query_bridge is not None:
                 self._query_bridge.close()
+            if self._image_queries is not None:
+                self._image_queries.close()
             for port in self.ports.values():
                 await port.close()
             if self._ros2 is not None:
                 self._ros2.close()
             close_quietly(self.session)
+            if self.intake is not None:
+                self.intake.join()
 
     def fail(self, message: str) -> None:
         """The node cannot go on (any thread): :meth:`run` stops everything and raises

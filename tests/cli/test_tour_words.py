@@ -75,14 +75,15 @@ def test_a_tour_numbers_only_the_parts_its_mission_has() -> None:
 
     loaded, _ = tour_mission(Path("deploy/missions/zspace.yaml"), 0.1)
     parts = tour_parts(loaded, VehicleApps(loaded, print))
-    assert parts == ["values", "latest", "queries", "surfacing"]  # no command, no ranging
-    out = io.StringIO()
+    assert parts == ["values", "latest", "queries", "surfacing", "pictures"]  # no ranging,
+    out = io.StringIO()  # no command (a camera's control is not the tour's command)
     tour = Tour(loaded, Console(file=out, width=200), 70)
     tour.plan(parts)
     assert not tour.part("command") and not tour.part("fixes")
-    assert tour.part("queries") and tour.part("summary")
+    assert tour.part("queries") and tour.part("pictures") and tour.part("summary")
     assert [line.rstrip("─ ") for line in out.getvalue().splitlines()] == [
-        "3. A Zenoh get across the water", "5. Summary"]
+        "3. A Zenoh get across the water", "5. A picture across the water, refining",
+        "6. Summary"]
 
 
 def test_range_errors_are_told_apart_by_what_moved_during_the_exchange() -> None:

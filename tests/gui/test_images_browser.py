@@ -1,6 +1,7 @@
 """The GUI's pictures in a real browser (Debian's headless Chromium, Playwright) against a real
 ``zab sim``: a JPEG put on the ROV appears at the surface and refines, bytes against the
-budget; an ROI drawn with the mouse goes to the camera and comes back on the next picture.
+budget; an ROI drawn with the mouse goes to the camera and comes back on the next picture, and
+so does a size typed in.
 Leaves a screenshot in ``artifacts/gui-images.png``."""
 
 from __future__ import annotations
@@ -74,6 +75,13 @@ def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
         assert abs(x0 - 0.5) < 0.02 and abs(y0 - 0.25) < 0.02
         assert abs(x1 - 0.9) < 0.02 and abs(y1 - 0.75) < 0.02
         assert page.is_visible(f"{FIGURE} .roi")
+
+        page.fill(f"{FIGURE} input.width", "80")
+        page.fill(f"{FIGURE} input.height", "60")
+        page.click(f"{FIGURE} button:has-text('Apply')")
+        page.click(f"{FIGURE} button:has-text('Request now')")
+        page.wait_for_function(
+            f"document.querySelector('{FIGURE}').dataset.size === '80x60'", timeout=3 * WAIT_MS)
         shot = tmp_path / "gui-images.png"
         page.screenshot(path=str(shot), full_page=True)
         artifacts = REPO / "artifacts"

@@ -146,3 +146,32 @@ def test_a_newer_picture_waits_or_cancels_as_the_policy_says() -> None:
         else:  # the first gave way to the second at once
             assert len(finals) == 1
             assert failed and "cancelled by a newer value" in failed[0]["reason"]
+
+
+def test_steering_answers_the_settings_and_a_control_that_changes_nothing_stays_home() -> None:
+    from bridge.runtime.image_queries import control_from_parameters
+
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=6)
+    images = fleet.cores["operator"].images
+    assert images is not None
+    sent = fleet.cores["operator"].stats.sent_per_channel["camera.control"]
+    settings = images.steer("camera/control", {}, 0.0)
+    assert settings == {"width": 160, "height": 120, "budget_bytes": 1600, "roi": None,
+                        "request": "none"}
+    fleet.run_until(10.0)
+    assert fleet.cores["operator"].stats.sent_per_channel["camera.control"] == sent
+    asked = control_from_parameters("request=now;roi=0.25,0.25,0.75,0.75;width=80;_timeout=5")
+    assert asked == {"request": "now", "roi": [0.25, 0.25, 0.75, 0.75], "width": 80}
+    assert control_from_parameters("roi=none") == {"roi": None}
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=10.5)
+    settings = images.steer("camera/control", asked, fleet.now)
+    assert settings["roi"] == (0.25, 0.25, 0.75, 0.75) and settings["width"] == 80
+    try:
+        images.steer("camera/control", {"request": "later"}, fleet.now)
+    except ValueError as exc:
+        assert "request 'later'" in str(exc)
+    else:
+        raise AssertionError("a bad control was taken")
+    assert fleet.cores["operator"].stats.payloads_dropped["camera/control"] == 1
+    fleet.run_until(60.0)
+    assert pictures(fleet)[-1][2].shape == (60, 80)  # (the picture keeps its proportions)

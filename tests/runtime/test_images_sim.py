@@ -1,11 +1,13 @@
 """An image channel through a real ``zab sim``, with plain Zenoh applications: a JPEG put on
 the ROV's Zenoh comes out at the operator's as ever sharper PNGs; the operator's ROI and
-request change the next picture; a corrupt picture is a counted drop."""
+request, put or asked in a get, change the next picture; a corrupt picture is a counted
+drop."""
 
 from __future__ import annotations
 
 import contextlib
 import io
+import json
 import queue
 import time
 from pathlib import Path
@@ -71,6 +73,18 @@ def test_pictures_cross_zab_sim_and_sharpen(tmp_path: Path) -> None:
         assert second and second[-1]["zab:final"] == "true"
         assert second[-1]["zab:roi"] == "[0.25, 0.25, 0.75, 0.75]"
         assert second[-1]["zab:sequence"] != first[-1]["zab:sequence"]
+
+        replies = list(operator.get("camera/control?request=now;roi=none;budget_bytes=200",
+                                    timeout=10))
+        assert len(replies) == 1 and replies[0].ok is not None
+        settings = json.loads(replies[0].ok.payload.to_bytes())
+        assert settings["roi"] is None and settings["budget_bytes"] == 200
+        third = refinements(inbox, time.time() + 60)
+        assert third and third[-1]["zab:final"] == "true" and third[-1]["zab:roi"] == "null"
+        assert int(third[-1]["zab:bytes"]) <= 200 < int(second[-1]["zab:bytes"])
+        refused = list(operator.get("camera/control?request=later", timeout=10))
+        assert len(refused) == 1 and refused[0].err is not None
+        assert "request 'later'" in refused[0].err.payload.to_string()
 
         rov.put("rov/camera", b"\xff\xd8\xff" + b"\0" * 100,
                 encoding=zenoh.Encoding("image/jpeg"))

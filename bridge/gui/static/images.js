@@ -69,10 +69,24 @@ const imageView = {
     budget.max = String(ch.max_budget_bytes);
     budget.value = String(ch.budget_bytes);
     budget.title = "bytes per picture";
-    const setBudget = make("button", "", "Set budget", tools);
-    setBudget.type = "button";
-    setBudget.addEventListener("click", () => this.send(
-      {channel: ch.channel, budget_bytes: parseInt(budget.value, 10)}));
+    const side = (name, value) => {
+      const input = make("input", "side " + name, null, tools);
+      input.type = "number";
+      input.min = "8";
+      input.max = "2048";
+      input.value = String(value);
+      input.title = name + " in pixels";
+      return input;
+    };
+    const width = side("width", ch.width);
+    make("span", "", "×", tools);
+    const height = side("height", ch.height);
+    const apply = make("button", "", "Apply", tools);
+    apply.type = "button";
+    apply.title = "send the budget and size for the next picture";
+    apply.addEventListener("click", () => this.send(
+      {channel: ch.channel, budget_bytes: parseInt(budget.value, 10),
+       width: parseInt(width.value, 10), height: parseInt(height.value, 10)}));
     const error = make("span", "error", "", tools);
     error.setAttribute("role", "alert");
     const card = {figure, frameBox, img, roi, draft, caption, fill, error, shown: 0, pending: null};
@@ -142,6 +156,7 @@ const imageView = {
       const budget = m.budget || 0;
       card.figure.dataset.bytes = String(m.bytes || 0);
       card.figure.dataset.final = String(!!m.final);
+      card.figure.dataset.size = `${m.width}x${m.height}`;
       card.caption.textContent = `${item.node} · ${item.channel} #${m.sequence}: ` +
         `${m.bytes} / ${budget} B` + (m.final ? " · complete" : "") +
         (typeof m.psnr_estimate === "number" ? ` · ≈${m.psnr_estimate.toFixed(1)} dB` : "") +
