@@ -33,9 +33,11 @@ class HopChoice:
     def __init__(self, linkset: LinkSet) -> None:
         self.linkset = linkset
         node, network = linkset.node, linkset.network
+        routes = network.mission.nodes[node].routes
+        listed = any(not isinstance(route, str) and len(route) > 1 for route in routes.values())
         self.dests: dict[str, tuple[str, ...]] = {
             dest: hops for dest in network.mission.nodes
-            if dest != node and len(hops := network.next_hops(node, dest)) > 1}
+            if listed and dest != node and len(hops := network.next_hops(node, dest)) > 1}
         """The destinations whose route lists several hops, and those hops."""
         self.order: tuple[str, ...] = next(iter(self.dests.values()), ())
         self.chosen: str | None = self.order[0] if self.order else None

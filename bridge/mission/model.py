@@ -139,6 +139,8 @@ class Node(Strict):
     def hops_to(self, dest: str) -> tuple[str, ...]:
         """The next hops this node's ``routes`` name for ``dest`` (its ``default``'s, but not
         ``dest`` itself), best first; () when they name none."""
+        if not self.routes:
+            return ()
         if dest in self.routes:
             return route_hops(self.routes[dest])
         hops = route_hops(self.routes.get("default", ()))
