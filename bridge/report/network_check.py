@@ -9,6 +9,9 @@ sent at every opportunity needs every turn), and every frame it carries for othe
 bytes (with their network header and a bundle's length byte) as often as its origin sends the
 channels it carries. A relay over budget delays and then drops what it carries (a warning).
 
+A relay that a route lists as an alternative is budgeted as if it carried that route's
+share all the time (it does while the hops listed before it are down).
+
 Each route's worst case is over its primary path (every hop's first listed hop); a route
 that lists several hops says its alternatives, each with its own worst case (taken while
 the hops before them are down).
@@ -73,12 +76,16 @@ def network_section(loaded: LoadedMission, codec: FrameCodec,
                     continue
                 size = codec.frame_bytes_for([channel]) + (
                     net.routed_bytes if len(path) > 2 else net.plain_bytes)
-                for i, (x, y) in enumerate(itertools.pairwise(path)):
-                    link = _link(network, channel, dest, x, y)
-                    if i == 0:
-                        first_links.add(link)
-                    else:
-                        carried[(x, link)] += rate * (size + 1)
+                carriers: set[tuple[str, str]] = set()  # on any path it may take, once each
+                for way in _ways(network, sender, dest, path):
+                    for i, (x, y) in enumerate(itertools.pairwise(way)):
+                        link = _link(network, channel, dest, x, y)
+                        if i == 0:
+                            first_links.add(link)
+                        else:
+                            carriers.add((x, link))
+                for carrier in carriers:
+                    carried[carrier] += rate * (size + 1)
                 bound = channel.interval_s + sum(hop_s(network, x, y)
                                                  for x, y in itertools.pairwise(path))
                 if worst is None or bound > worst["age_bound_s"]:
@@ -109,6 +116,15 @@ def network_section(loaded: LoadedMission, codec: FrameCodec,
     return {"links": links, "routes": routes, "relays": relays, "age_bounds": ages,
             "max_hops": mission.max_hops, "header_bytes": {"plain": net.plain_bytes,
                                                            "routed": net.routed_bytes}}, warnings
+
+
+def _ways(network: Network, sender: str, dest: str, path: list[str]) -> list[list[str]]:
+    """The paths from ``sender`` to ``dest``: its primary ``path``, and where routes list
+    several hops, every other (a relay on one carries its share while the hops before it
+    are down: budgeted as if it always did)."""
+    if not network.listed:
+        return [path]
+    return [way for way, problem in network.paths(sender, dest) if problem is None]
 
 
 def _bound(network: Network, path: list[str]) -> float | None:

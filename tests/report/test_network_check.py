@@ -72,7 +72,11 @@ def test_a_route_listing_two_relays_shows_its_primary_worst_case_and_the_alterna
 
     path = tmp_path / "diamond.yaml"
     path.write_text(DIAMOND)
-    routes = {(r["from"], r["to"]): r for r in check(path)["network"]["routes"]}
+    network = check(path)["network"]
+    routes = {(r["from"], r["to"]): r for r in network["routes"]}
+    carried = {(r["node"], r["link"]): r["carried_Bps"] for r in network["relays"]}
+    assert carried[("r2", "upper")] == carried[("r1", "upper")] > 0  # r2 budgeted as if r1
+    assert carried[("r2", "lower")] == carried[("r1", "lower")] > 0  # were down all the time
     there = routes[("surface", "far")]
     assert there["path"] == ["surface", "r1", "far"]  # the worst case over the primary
     assert [a["path"] for a in there["alternatives"]] == [["surface", "r2", "far"]]
