@@ -15,7 +15,12 @@ Three parts, each printed as a table and as JSON lines (``--json``):
    on a 221 s loop): per crossing, the time from ROV2 leaving the 5 m RF range (from its path)
    to its traffic to the surface failing over to acoustics, and from its return to the
    failback, against the RF link's down_after_s and failback_s.
-3. **chaos**: seed 002's relay (surface -> ROV1 acoustic -> ROV2 RF) with 30 % loss per hop,
+3. **reroute**: a diamond, the surface and a far vehicle 4 km apart on one acoustic link, two
+   relays between them, each route listing both (``routes: {far: [r1, r2]}``); r1 killed for
+   200 s and restarted, again and again, at 0, 10 and 30 % loss: per kill, the time until the
+   surface's and far's traffic moved to r2 (against down_after_s) and back to r1 after the
+   restart (against failback_s), and the reliable commands delivered once or reported failed.
+4. **chaos**: seed 002's relay (surface -> ROV1 acoustic -> ROV2 RF) with 30 % loss per hop,
    reliable commands from the surface to ROV2, and ROV1 (the relay) killed and restarted again
    and again, as ``bench/chaos.py`` does: every command delivered once or reported failed,
    none twice, none without a report. ``--real`` runs the real processes (``zab water``, one
@@ -36,13 +41,20 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
 import chaos  # noqa: E402  (bench/chaos.py: its tally and process helpers)
 
 from bridge.core.bounds import route_s  # noqa: E402
-from bridge.core.events import FrameRelayed, FrameSent, LinkSwitched  # noqa: E402
+from bridge.core.events import (  # noqa: E402
+    FrameRelayed,
+    FrameSent,
+    LinkSwitched,
+    RouteSwitched,
+)
 from bridge.core.loaded import load_mission, parse_mission  # noqa: E402
 from bridge.core.node import Publish, Status  # noqa: E402
 from bridge.mission.path import Path as Route  # noqa: E402
@@ -198,6 +210,76 @@ def failover_run(duration: float, seed: int) -> list[dict[str, Any]]:
     return out
 
 
+def diamond_mission(loss: float) -> str:
+    """Surface and far 4 km apart (the S2C's 3.5 km), r1 and r2 2.2 km from both."""
+    modem = {"backend": "sim", "frame_bytes": 64,
+             "options": {"preset": "evologics-s2c-im", "loss": loss}}
+    spots = {"surface": (0, 0), "r1": (2000, 1000), "r2": (2000, -1000), "far": (4000, 0)}
+    nodes: dict[str, Any] = {
+        name: {"address": i + 1, "position": {"x": x, "y": y, "depth": 20}}
+        for i, (name, (x, y)) in enumerate(spots.items())}
+    nodes["surface"]["routes"] = {"far": ["r1", "r2"]}
+    nodes["far"]["routes"] = {"surface": ["r1", "r2"]}
+    return yaml.safe_dump({
+        "mission": "diamond", "wire": {"auth": "off"}, "modem": modem,
+        "mac": {"type": "tdma", "slot_s": 3.0, "guard_s": 1.6, "order": list(spots)},
+        "link": {"degraded_after_s": 30, "down_after_s": 45, "failback_s": 45},
+        "nodes": nodes,
+        "channels": [{"name": "command", "from": "surface", "to": "far", "reliable": True,
+                      "ttl_s": COMMAND_TTL_S, "elements": [
+                          {"in": "cmd", "out": "far/cmd",
+                           "fields": [{"field": "n", "type": "int", "min": 0,
+                                       "max": 65535}]}]}]}, sort_keys=False)
+
+
+def reroute_run(loss: float, kills: int, seed: int) -> dict[str, Any]:
+    """The diamond with r1 killed ``kills`` times: failover and failback delays per kill."""
+    loaded = parse_mission(diamond_mission(loss), "diamond.yaml")
+    tally = chaos.Tally()
+    switches: list[tuple[float, str, str]] = []
+
+    def collect(timed: Timed) -> None:
+        out = timed.output
+        if isinstance(out, RouteSwitched):
+            switches.append((timed.time, timed.node, out.reason))
+        elif isinstance(out, Publish) and timed.node == "far" and out.key == "far/cmd":
+            tally.published.append(int(out.value["n"]))
+        elif isinstance(out, Status) and out.topic == "delivery/command":
+            tally.add_report(out.payload)
+
+    fleet = FastFleet(loaded, seed=seed, keep_outputs=False, on_output=collect)
+    cycle = 600.0  # killed at 100 s into each, restarted 200 s later
+    commands = int(kills * cycle / 20.0)
+    for i in range(commands):
+        fleet.put("surface", "cmd", {"n": i}, at=1.0 + 20.0 * i, ref=str(i))
+    tally.offered = commands
+    for k in range(kills):
+        fleet.call_at(k * cycle + 100.0, lambda: fleet.stop("r1"))
+        fleet.call_at(k * cycle + 300.0, lambda: fleet.restart("r1"))
+    fleet.run_until(kills * cycle + COMMAND_TTL_S)
+    over, back = [], []
+    for k in range(kills):
+        for node in ("surface", "far"):
+            moved = [t for t, n, r in switches if n == node and r == "failover"
+                     and k * cycle + 100.0 <= t < k * cycle + 300.0]
+            returned = [t for t, n, r in switches if n == node and r == "failback"
+                        and k * cycle + 300.0 <= t < (k + 1) * cycle + 100.0]
+            over += [moved[0] - k * cycle - 100.0] if moved else []
+            back += [returned[0] - k * cycle - 300.0] if returned else []
+    link = loaded.mission.link
+    return {"part": "reroute", "loss": loss, "kills": kills, "failovers": len(over),
+            "failover_s": _spread(over), "failbacks": len(back), "failback_s": _spread(back),
+            "switches": len(switches), "down_after_s": link.down_after_s,
+            "failback_after_s": link.failback_s, **tally.summary()}
+
+
+def _spread(values: list[float]) -> list[float] | None:
+    """[min, mean, max] of ``values`` (None: none)."""
+    if not values:
+        return None
+    return [round(min(values), 1), round(sum(values) / len(values), 1), round(max(values), 1)]
+
+
 CHAOS = """\
 mission: relay_chaos
 wire: {auth: off}
@@ -295,6 +377,8 @@ def main() -> None:
         for loss in (0.0, 0.1, 0.3):
             rows.append(hops_run(hops, loss, args.duration, args.seed))
     rows += failover_run(min(args.duration, 1200.0), args.seed)
+    rows += [reroute_run(loss, max(1, int(args.duration // 600)), args.seed)
+             for loss in (0.0, 0.1, 0.3)]
     chaos_row = chaos_real(args.commands // 10, 0.3, args.seed) if args.real \
         else chaos_virtual(args.commands, args.restarts, 0.3, args.seed)
     rows.append(chaos_row)
@@ -323,7 +407,23 @@ def print_tables(rows: list[dict[str, Any]]) -> None:
         print(f"{r['crossing_s']:>8.1f}s {r['switch']:>9} {after:>7} "
               f"{r['down_after_s']:>11g}s {r['failback_s']:>9g}s")
     print()
+    print(f"{'loss':>5} {'kills':>5} {'failover min/mean/max':>22} {'failback min/mean/max':>22} "
+          f"{'switches':>8} {'commands d/f/twice':>18} {'goal':>5}")
+    for r in (r for r in rows if r["part"] == "reroute"):
+        failed = sum(r["reported_failed"].values())
+        print(f"{r['loss']:>5.0%} {r['kills']:>5} "
+              f"{_spread_text(r['failover_s'], r['failovers']):>22} "
+              f"{_spread_text(r['failback_s'], r['failbacks']):>22} {r['switches']:>8} "
+              f"{r['reported_delivered']:>8}/{failed}/{r['duplicates']:<7} "
+              f"{'met' if chaos.goal_met(r) else 'NOT':>5}")
+    print("(failover from the kill, against down_after_s 45 s; failback from the restart, "
+          "against failback_s 45 s)")
+    print()
     print(json.dumps(next(r for r in rows if r["part"] == "chaos")))
+
+
+def _spread_text(spread: list[float] | None, count: int) -> str:
+    return "—" if spread is None else f"{'/'.join(f'{v:g}' for v in spread)} s ({count})"
 
 
 if __name__ == "__main__":

@@ -18,12 +18,15 @@ def print_network(console: Console, network: dict[str, Any]) -> None:
                       " / ".join(f"{n} B" for n in sizes))
     console.print(links)
     if network["routes"]:
-        routes = Table("from", "to", "route", "worst case", title=f"routes (max_hops "
+        routes = Table("from", "to", "route", "worst case", "else (a hop down)",
+                       title=f"routes (max_hops "
                        f"{network['max_hops']}; network header {network['header_bytes']['plain']}"
                        f" B, {network['header_bytes']['routed']} B relayed)")
         for route in network["routes"]:
+            others = "\n".join(f"{' -> '.join(o['path'])} {_seconds(o['bound_s'])}"
+                               for o in route["alternatives"])
             routes.add_row(route["from"], route["to"], " -> ".join(route["path"]),
-                           _seconds(route["bound_s"]))
+                           _seconds(route["bound_s"]), others or "-")
         console.print(routes)
     if network["relays"]:
         relays = Table("relay", "link", "own", "carried", "its turns carry", "fits",

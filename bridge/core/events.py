@@ -22,7 +22,8 @@ if TYPE_CHECKING:  # not imported at run time: the tracker pulls in numpy
 __all__ = [
     "Delivery", "Event", "FieldsLeftOut", "FrameDropped", "FrameReceived", "FrameRelayed",
     "FrameSent", "Link", "LinkSwitched", "MissionMismatch", "ModemDown", "PayloadDrops",
-    "PeerLink", "PeerRestarted", "Position", "Range", "RangeFailed", "SendFailed",
+    "PeerLink", "PeerRestarted", "Position", "Range", "RangeFailed", "RouteSwitched",
+    "SendFailed",
     "StateSaving", "Surfaced", "UnmappedKey", "notable",
 ]
 
@@ -329,6 +330,22 @@ class LinkSwitched(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class RouteSwitched(Event):
+    """Traffic to ``peer`` moved from next hop ``was`` to ``via`` among the hops its route
+    lists, because ``reason`` (``failover``, ``failback``)."""
+
+    kind: ClassVar[str] = "route_switched"
+    peer: str
+    via: str
+    was: str
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "peer": self.peer, "via": self.via, "was": self.was,
+                "reason": self.reason}
+
+
+@dataclass(frozen=True, slots=True)
 class Surfaced(Event):
     """``peer``'s bridge became reachable over IP (``ip``) or stopped being so."""
 
@@ -367,7 +384,7 @@ class StateSaving(Event):
 
 NOTABLE = (Link, FrameDropped, SendFailed, ModemDown, PayloadDrops, MissionMismatch,
            PeerRestarted, Surfaced, StateSaving, FieldsLeftOut, UnmappedKey, PeerLink,
-           LinkSwitched)
+           LinkSwitched, RouteSwitched)
 """Events also published on ``@zab/<mission>/<node>/events`` (with failed deliveries)."""
 
 

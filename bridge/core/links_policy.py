@@ -1,7 +1,9 @@
 """Link policy (pure): which of a node's links carries its traffic to each destination, now.
 
 Traffic to a destination goes to its next hop (the destination itself, or the neighbour its
-route names: :meth:`~bridge.mission.network.Network.next_hop`), over one of the links this
+route names: :meth:`~bridge.mission.network.Network.next_hop`; among several its route
+lists, the one :class:`~bridge.core.hop_choice.HopChoice` chooses now), over one of the links
+this
 node shares with that hop. Their order of preference is the channel's ``prefer``, then the
 destination's ``prefer``, then the mission's order of links. Exactly one link carries a
 (destination, order) at a time, so a value never goes to one node over two links at once:
@@ -25,7 +27,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from bridge.core.events import LinkSwitched
+from bridge.core.events import LinkSwitched, RouteSwitched
+from bridge.core.hop_choice import HopChoice
 from bridge.core.link import LinkState
 from bridge.core.linkset import LinkSet, LinkSide
 from bridge.core.outputs import Outbox
@@ -47,8 +50,9 @@ class LinkPolicy:
         self.outbox = outbox
         self.single = len(linkset.sides) == 1
         network = linkset.network
+        self.choice = HopChoice(linkset)
         self.hops: dict[str, str] = {}
-        """Each reachable destination's next hop."""
+        """Each reachable destination's next hop now."""
         for dest in mission.nodes:
             if dest != node and (hop := network.next_hop(node, dest)) is not None:
                 self.hops[dest] = hop
@@ -108,13 +112,14 @@ class LinkPolicy:
 
     def update(self, now: float) -> list[Switch]:
         """Follow the links' health: fail over from a link whose hop is down, fail back to a
-        more preferred one up for its ``failback_s``. Returns the switches made."""
+        more preferred one up for its ``failback_s``; and the next hop among those a route
+        lists (:class:`HopChoice`). Returns the switches made."""
+        switches = self._follow_hops(now)
         if self.single:
-            return []
+            return switches
         if self._started is None:
             self._started = now
         self._track(now)
-        switches: list[Switch] = []
         for key, was in list(self.current.items()):
             dest, order = key
             hop = self.hops[dest]
@@ -137,6 +142,31 @@ class LinkPolicy:
         if switches:
             self.version += 1
             self._served.clear()
+        return switches
+
+    def _follow_hops(self, now: float) -> list[Switch]:
+        """The next hop of the destinations whose route lists several, when it changes:
+        each moves to a link to the new hop (the most preferred, nothing known yet)."""
+        moved = self.choice.update(now)
+        if moved is None:
+            return []
+        was, via, reason = moved
+        switches: list[Switch] = []
+        for dest in self.choice.dests:
+            old = [key for key in self.current if key[0] == dest]
+            before = self.current[old[0]] if old else None
+            for key in old:
+                del self.current[key]
+            self.hops[dest] = via
+            link = self.link_for(dest)
+            self._announced.update(key for key in self.current if key[0] == dest)
+            switches.append((dest, before, link))
+            self.outbox.status(f"route/{dest}", {"peer": dest, "link": link, "was": before,
+                                                 "via": via, "was_via": was, "reason": reason,
+                                                 "time": now})
+            self.outbox.event(RouteSwitched(now, dest, via, was, reason))
+        self.version += 1
+        self._served.clear()
         return switches
 
     def _state(self, link: str, hop: str) -> LinkState:

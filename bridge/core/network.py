@@ -235,7 +235,7 @@ class NodeNetwork:
         """Where the route to ``dest`` breaks as this node sees it: the first hop whose far
         end it has not heard lately (directly, or through the hops before); None when
         ``dest`` is a neighbour."""
-        path, problem = self.linkset.network.path(self.node, dest)
+        path, problem = self.linkset.network.path(self.node, dest, self.policy.hops.get(dest))
         if problem is not None:
             return problem
         if len(path) <= 2:

@@ -11,7 +11,9 @@ hops, life, age and rank. A node that hears a routed frame
    counted in ``frames_dropped["duplicate"]`` (no event: on a shared medium that is
    expected) and not taken again; its own frames carried on by a relay it ignores;
 2. forwards it for each node the frame serves whose route from the node it heard it from goes
-   through this one (every node knows every node's routes: they are in the mission file) —
+   through this one (every node knows every node's routes: they are in the mission file;
+   where that route lists several hops, only when the header's ``via`` names this one as
+   the hop chosen: :meth:`~bridge.mission.network.Network.carries`) —
    the same bytes behind a rewritten header (``for`` narrowed to those nodes, one more hop,
    its life and age moved on by the time it waited here), queued on the link this node's
    policy chooses for their next hop. A frame that would take more than the mission's
@@ -108,6 +110,8 @@ class Routing:
         self.outbox = outbox
         self.stats = outbox.stats
         self.max_hops = network.mission.max_hops
+        self.listed = network.listed
+        """Routes list several hops: routed frames name the hop chosen (``via``)."""
         self._seq = int(state.get("net_seq", rng.randrange(SEQ_MOD)))
         self._reserved = self._seq  # numbers from here on are not saved as used yet
         self._seen: dict[str, deque[int]] = {}
@@ -133,7 +137,15 @@ class Routing:
             self.outbox.unsaved = True
         life = NO_LIMIT if ttl_s is None else min(NO_LIMIT - 1, int(ttl_s))
         return self.codec.encode(NetHeader(indices, self.index, 0, seq, life, 0,
-                                           self.rank(priority)))
+                                           self.rank(priority), self.via()))
+
+    def via(self, hop: str | None = None) -> int:
+        """The network header's ``via``: ``hop`` (default: the hop this node chose among those
+        its routes list), 0 when routes list no several hops."""
+        if not self.listed:
+            return 0
+        hop = hop or self.policy.choice.chosen
+        return 0 if hop is None else self.nodes.index(hop)
 
     def rank(self, priority: int | None) -> int:
         """``priority``'s place among the mission's channel priorities (0: none)."""
@@ -172,9 +184,10 @@ class Routing:
             return
         seen = self._seen.setdefault(arrival.origin, deque(maxlen=SEEN_KEPT))
         seen.append(header.seq)
+        via = self.nodes[header.via] if self.listed else None
         mine = [self.nodes[i] for i in sorted(header.serves)
                 if self.nodes[i] != self.node
-                and self.network.next_hop(src, self.nodes[i]) == self.node]
+                and self.network.carries(self.node, src, self.nodes[i], via)]
         if not mine:
             return
         if header.hops + 2 > self.max_hops:  # (it came over hops + 1 transmissions)
@@ -182,18 +195,20 @@ class Routing:
                           f"{header.hops + 1} hops (max_hops {self.max_hops})", now)
             return
         frame = data[arrival.start:-CHECK_BYTES]
-        by_link: dict[str, list[str]] = {}
+        by_link: dict[tuple[str, str | None], list[str]] = {}
         for dest in mine:
             link = self.policy.link_for(dest)
             if link is None:
                 self._dropped(src, "no_route", f"{self.node} has no link to {dest}", now)
-                continue
-            by_link.setdefault(link, []).append(dest)
-        for link, dests in by_link.items():
+                continue  # (with listed routes: one frame per hop, which it names)
+            by_link.setdefault((link, self.policy.hops[dest] if self.listed else None),
+                               []).append(dest)
+        for (link, hop), dests in by_link.items():
             side = self.linkset.sides[link]
             hops = {self.policy.hops[d] for d in dests}
             out = NetHeader(frozenset(self.nodes.index(d) for d in dests), header.origin,
-                            header.hops + 1, header.seq, header.life, header.age, header.rank)
+                            header.hops + 1, header.seq, header.life, header.age, header.rank,
+                            self.via(hop) if hop is not None else 0)
             self._queue(side, Carried(out, frame, now, side.address_of(next(iter(hops)))
                                       if len(hops) == 1 else None))
 
@@ -256,7 +271,7 @@ class Routing:
         life = header.life if header.life == NO_LIMIT else max(0, header.life - int(waited))
         age = min(NO_LIMIT, header.age + round(waited))
         head = self.codec.encode(NetHeader(header.serves, header.origin, header.hops,
-                                           header.seq, life, age, header.rank))
+                                           header.seq, life, age, header.rank, header.via))
         data = head + carried.frame
         return data + check_value(data, self.table.fingerprint)
 

@@ -82,6 +82,10 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
         return LogLine("warn" if event.get("reason") == "failover" else "info", "route",
                        f"{node}: traffic to {event.get('peer')} over {event.get('link')}"
                        + (f" ({event.get('reason')} from {was})" if was else ""))
+    if kind == "route_switched":
+        return LogLine("warn" if event.get("reason") == "failover" else "info", "route",
+                       f"{node}: traffic to {event.get('peer')} through {event.get('via')} "
+                       f"({event.get('reason')} from {event.get('was')})")
     extra = {k: v for k, v in event.items() if k not in ("kind", "time", "node", "data")}
     details = ", ".join(f"{k} {v}" for k, v in extra.items())
     return LogLine("info", kind, f"{node}: {kind}" + (f" ({details})" if details else ""))

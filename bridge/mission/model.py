@@ -31,6 +31,25 @@ from bridge.mission.images import ImageChannel
 from bridge.mission.ros2 import Ros2Topic
 
 NodeName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)]
+
+
+def route_hops(route: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """The next hops of one route of ``routes`` (a name, or names best first)."""
+    return (route,) if isinstance(route, str) else tuple(route)
+
+
+def route_text(route: str | list[str]) -> str:
+    """One route as every node must agree on it: a name, or names best first joined by
+    ``|`` (part of the mission fingerprint)."""
+    return "|".join(route_hops(route))
+
+
+def listed_routes(mission: Mission) -> bool:
+    """Whether some node's route lists several hops."""
+    return any(len(route_hops(hop)) > 1 for node in mission.nodes.values()
+               for hop in node.routes.values())
+
+
 NodePattern = Annotated[
     str | list[str],
     Field(description="A node name, a list of names, or a regular expression matching names."),
@@ -110,11 +129,22 @@ class Node(Strict):
         "(replaces position there); the node's own fixes start from its first waypoint.",
     )
     modem: ModemOverride = Field(default_factory=ModemOverride)
-    routes: dict[NodeName, NodeName] = Field(
+    routes: dict[NodeName, NodeName | list[NodeName]] = Field(
         default_factory=dict, description="Static routes of this node: destination -> the "
-        "neighbour that carries its traffic on (``{rov2: rov1}``); ``default`` as the "
-        "destination routes every node not named, but that neighbour itself (see "
+        "neighbour that carries its traffic on (``{rov2: rov1}``), or several in order of "
+        "preference (``{rov2: [rov1, rov3]}``: the first whose link is up); ``default`` as "
+        "the destination routes every node not named, but that neighbour itself (see "
         "docs/concepts.md).")
+
+    def hops_to(self, dest: str) -> tuple[str, ...]:
+        """The next hops this node's ``routes`` name for ``dest`` (its ``default``'s, but not
+        ``dest`` itself), best first; () when they name none."""
+        if not self.routes:
+            return ()
+        if dest in self.routes:
+            return route_hops(self.routes[dest])
+        hops = route_hops(self.routes.get("default", ()))
+        return () if dest in hops else hops
     prefer: list[NodeName] | None = Field(
         None, min_length=1, description="Links (by name) that traffic TO this node takes, "
         "best first (``[rf, acoustic]``); a channel's own ``prefer`` comes first.")

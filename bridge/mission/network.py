@@ -10,11 +10,16 @@ the MAC rules of :mod:`bridge.core.mac` work on a link unchanged.
 
 Routes. Two nodes are *neighbours* when they share a link. A node reaches another node through
 the next hop its ``routes`` give (``{rov2: rov1}``; ``default``: every node not named, but
-that hop itself), and any other node it shares a link with directly. Routes are static and
-part of the mission file, so
-every node knows every node's routes: a relay forwards a frame for exactly the destinations
-for which the node it heard it from routes through it (:func:`next_hop`), and ``zab check``
-refuses a loop or a path longer than ``max_hops`` (:func:`network_problems`).
+that hop itself), or the first of several whose link is up (``{rov2: [rov1, rov3]}``: the
+*primary* first, then its alternatives), and any other node it shares a link with directly.
+Routes are static and part of the mission file, so every node knows every node's routes: a
+relay forwards a frame for exactly the destinations for which the node it heard it from
+routes through it (:meth:`Network.carries`: through it alone, or through it among several
+when the frame's header names it as the hop chosen), and ``zab check`` refuses a loop or a
+path longer than ``max_hops`` over any choice of listed hops (:func:`network_problems`).
+The listed routes of one node name the same hops in the same order (``default: [r1, r2]``,
+or the same list for each destination): one choice per node, so every routed frame it sends
+has one chosen hop to name.
 """
 
 from __future__ import annotations
@@ -24,7 +29,14 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
 
-from bridge.mission.model import LinkSpec, Mission, Node
+from bridge.mission.model import (
+    LinkSpec,
+    Mission,
+    Node,
+    listed_routes,
+    route_hops,
+    route_text,
+)
 
 __all__ = ["DEFAULT_LINK", "DEFAULT_ROUTE", "LinkInfo", "Network", "network_problems"]
 
@@ -74,6 +86,8 @@ class Network:
         """The mission names its links (else it has the one link of its modem)."""
         self.routed = any(node.routes for node in mission.nodes.values())
         """Some node routes traffic through another."""
+        self.listed = listed_routes(mission)
+        """Some route lists several hops (routed frames name the hop chosen)."""
         self._on: dict[str, frozenset[str]] = {
             node: frozenset(link.name for link in self.links if node in link.addresses)
             for node in mission.nodes}  # the links each node is a member of
@@ -98,59 +112,98 @@ class Network:
         """The nodes sharing a link with ``node``, in mission order."""
         return tuple(n for n in self.mission.nodes if n != node and self.shared(node, n))
 
-    def next_hop(self, node: str, dest: str) -> str | None:
-        """The neighbour through which ``node`` reaches ``dest`` (``dest`` itself when direct);
-        None when it has no way to it."""
-        routes = self.mission.nodes[node].routes
-        if dest in routes:
-            return routes[dest]
-        default = routes.get(DEFAULT_ROUTE)
-        if default is not None and default != dest:
-            return default
-        return None if self._on[node].isdisjoint(self._on[dest]) else dest
+    def next_hops(self, node: str, dest: str) -> tuple[str, ...]:
+        """The neighbours through which ``node`` reaches ``dest``, best first (``dest`` itself
+        when direct); () when it has no way to it."""
+        hops = self.mission.nodes[node].hops_to(dest)
+        if hops:
+            return hops
+        return () if self._on[node].isdisjoint(self._on[dest]) else (dest,)
 
-    def path(self, node: str, dest: str) -> tuple[list[str], str | None]:
-        """The nodes from ``node`` to ``dest`` following each hop's routes, and what goes
-        wrong on the way (None: the path reaches ``dest``)."""
+    def next_hop(self, node: str, dest: str) -> str | None:
+        """The neighbour through which ``node`` reaches ``dest`` first (its primary route:
+        ``dest`` itself when direct); None when it has no way to it."""
+        hops = self.next_hops(node, dest)
+        return hops[0] if hops else None
+
+    def carries(self, relay: str, src: str, dest: str, via: str | None) -> bool:
+        """Whether ``relay``, hearing a frame for ``dest`` from ``src``, carries it on:
+        ``src`` routes ``dest`` through it alone, or through it among several and chose it
+        (``via``: the hop the frame's header names)."""
+        hops = self.next_hops(src, dest)
+        return relay in hops and (len(hops) == 1 or via == relay)
+
+    def path(self, node: str, dest: str, first: str | None = None
+             ) -> tuple[list[str], str | None]:
+        """The nodes from ``node`` to ``dest`` following each hop's primary route (``first``:
+        ``node``'s hop, when not its primary), and what goes wrong on the way (None: the
+        path reaches ``dest``)."""
         path = [node]
         while path[-1] != dest:
             here = path[-1]
-            hop = self.next_hop(here, dest)
+            hop = first if first is not None and here == node else self.next_hop(here, dest)
             if hop is None:
                 return path, f"{here} has no route to {dest}"
-            if not self.shared(here, hop):
-                return path, f"{here} routes {dest} through {hop}, which shares no link with it"
-            if hop in path:
-                loop = " -> ".join([*path[path.index(hop):], hop])
-                return path, f"routing loop {loop}"
+            problem = self._step(path, hop, dest)
+            if problem is not None:  # (a path too long is shown with its last hop)
+                return [*path, hop] if "max_hops" in problem else path, problem
             path.append(hop)
-            if len(path) - 1 > self.mission.max_hops:
-                return path, (f"{' -> '.join(path)} takes more than max_hops "
-                              f"{self.mission.max_hops}")
         return path, None
+
+    def _step(self, path: list[str], hop: str, dest: str) -> str | None:
+        """What is wrong with going on from ``path`` to ``hop`` (None: nothing)."""
+        here = path[-1]
+        if not self.shared(here, hop):
+            return f"{here} routes {dest} through {hop}, which shares no link with it"
+        if hop in path:
+            return f"routing loop {' -> '.join([*path[path.index(hop):], hop])}"
+        if len(path) > self.mission.max_hops:
+            return f"{' -> '.join([*path, hop])} takes more than max_hops {self.mission.max_hops}"
+        return None
+
+    def paths(self, node: str, dest: str) -> Iterable[tuple[list[str], str | None]]:
+        """Every path from ``node`` to ``dest`` over any choice of listed hops, primary first,
+        each with what goes wrong on it (None: it reaches ``dest``)."""
+        stack: list[list[str]] = [[node]]
+        while stack:
+            path = stack.pop()
+            here = path[-1]
+            if here == dest:
+                yield path, None
+                continue
+            hops = self.next_hops(here, dest)
+            if not hops:
+                yield path, f"{here} has no route to {dest}"
+            for hop in reversed(hops):  # (the primary comes off the stack first)
+                problem = self._step(path, hop, dest)
+                if problem is not None:
+                    yield [*path, hop], problem
+                else:
+                    stack.append([*path, hop])
 
     def relayed(self, node: str) -> tuple[str, ...]:
         """The destinations ``node`` reaches only through another node."""
         return tuple(d for d in self.mission.nodes
-                     if d != node and (hop := self.next_hop(node, d)) is not None and hop != d)
+                     if d != node and any(hop != d for hop in self.next_hops(node, d)))
 
     def routed_over(self, node: str, link: str) -> tuple[str, ...]:
-        """The destinations ``node`` reaches through a relay it hands them to on ``link``."""
+        """The destinations ``node`` may reach through a relay it hands them to on ``link``."""
         members = self.link(link).members
-        return tuple(d for d in self.relayed(node) if self.next_hop(node, d) in members)
+        return tuple(d for d in self.relayed(node)
+                     if any(hop in members for hop in self.next_hops(node, d)))
 
     def path_frame_bytes(self, node: str, dest: str) -> int:
-        """The largest frame every link on the path from ``node`` to ``dest`` carries (the
+        """The largest frame every link on every path from ``node`` to ``dest`` carries (the
         smallest of each hop's links)."""
-        path, _ = self.path(node, dest)
         sizes = [min(link.frame_bytes_of(a) for link in self.shared(a, b))
+                 for path, problem in self.paths(node, dest) if problem is None
                  for a, b in itertools.pairwise(path)]
         return min(sizes, default=min(link.frame_bytes_of(node)
                                       for link in self.links_of(node)))
 
     def describe(self) -> list[str]:
         """What every node must agree on about routes (part of the mission fingerprint)."""
-        return [f"{name}:{dest}>{hop}" for name, node in self.mission.nodes.items()
+        return [f"{name}:{dest}>{route_text(hop)}" for name, node in self.mission.nodes.items()
                 for dest, hop in sorted(node.routes.items())]
 
 
@@ -200,16 +253,7 @@ def network_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
     network = Network(mission)
     names = set(mission.links or ())
     for name, node in mission.nodes.items():
-        for dest, hop in node.routes.items():
-            loc: Loc = ("nodes", name, "routes", dest)
-            if dest != DEFAULT_ROUTE and dest not in mission.nodes:
-                yield (loc, f"unknown node {dest!r}")
-            elif hop not in mission.nodes:
-                yield (loc, f"unknown node {hop!r}")
-            elif hop in (name, dest):
-                yield (loc, f"{name} cannot route {dest} through {hop}")
-            elif not network.shared(name, hop):
-                yield (loc, f"{name} shares no link with {hop}: it cannot hand it traffic")
+        yield from _route_problems(mission, network, name, node)
         for i, link in enumerate(node.prefer or ()):
             if link not in names:
                 yield (("nodes", name, "prefer", i), _unknown_link(link, names))
@@ -224,9 +268,51 @@ def network_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
         for name in mission.nodes:
             for dest in mission.nodes:
                 if dest != name and network.next_hop(name, dest) is not None:
-                    _, problem = network.path(name, dest)
-                    if problem is not None and "no route" not in problem:
-                        yield (("nodes", name, "routes"), f"{name} to {dest}: {problem}")
+                    yield from _path_problems(network, name, dest)
+
+
+def _route_problems(mission: Mission, network: Network, name: str, node: Node
+                    ) -> Iterable[tuple[Loc, str]]:
+    """What one node's routes get wrong: unknown nodes, non-neighbours, lists that differ."""
+    lists: dict[tuple[str, ...], str] = {}
+    for dest, route in node.routes.items():
+        loc: Loc = ("nodes", name, "routes", dest)
+        hops = route_hops(route)
+        if dest != DEFAULT_ROUTE and dest not in mission.nodes:
+            yield (loc, f"unknown node {dest!r}")
+            continue
+        if not hops:
+            yield (loc, "name at least one hop")
+        if len(set(hops)) < len(hops):
+            yield (loc, f"a hop listed twice in {list(hops)}")
+        for i, hop in enumerate(hops):
+            at: Loc = loc if isinstance(route, str) else (*loc, i)
+            if hop not in mission.nodes:
+                yield (at, f"unknown node {hop!r}")
+            elif hop in (name, dest):
+                yield (at, f"{name} cannot route {dest} through {hop}")
+            elif not network.shared(name, hop):
+                yield (at, f"{name} shares no link with {hop}: it cannot hand it traffic")
+        if len(hops) > 1:
+            lists.setdefault(hops, dest)
+    if len(lists) > 1:
+        (a, first), (b, second) = list(lists.items())[:2]
+        yield (("nodes", name, "routes", second), f"{name} lists {list(b)} for {second} but "
+               f"{list(a)} for {first}: a node's routes that list several hops list the same "
+               "ones in the same order (one choice per node)")
+
+
+def _path_problems(network: Network, name: str, dest: str) -> Iterable[tuple[Loc, str]]:
+    """Loops and paths over ``max_hops`` from ``name`` to ``dest``, over any choice of listed
+    hops (the first of each kind)."""
+    found: set[str] = set()
+    for _, problem in network.paths(name, dest):
+        if problem is None or "no route" in problem:
+            continue
+        kind = problem.split(" ", 1)[0]
+        if kind not in found:
+            found.add(kind)
+            yield (("nodes", name, "routes"), f"{name} to {dest}: {problem}")
 
 
 def _unknown_link(link: str, names: set[str]) -> str:

@@ -9,6 +9,13 @@ sent at every opportunity needs every turn), and every frame it carries for othe
 bytes (with their network header and a bundle's length byte) as often as its origin sends the
 channels it carries. A relay over budget delays and then drops what it carries (a warning).
 
+A relay that a route lists as an alternative is budgeted as if it carried that route's
+share all the time (it does while the hops listed before it are down).
+
+Each route's worst case is over its primary path (every hop's first listed hop); a route
+that lists several hops says its alternatives, each with its own worst case (taken while
+the hops before them are down).
+
 Age bound of a channel from a sender to a receiver: its ``interval_s``, then each hop's
 longest wait for the sender's turn and its frame's time (:func:`~bridge.core.bounds.hop_s`),
 hop after hop along the route (a relay within its budget sends what it carries at its next
@@ -50,9 +57,10 @@ def network_section(loaded: LoadedMission, codec: FrameCodec,
     for a, b in itertools.permutations(mission.nodes, 2):
         path, problem = network.path(a, b)
         if problem is None and len(path) > 2:
-            routes.append({"from": a, "to": b, "path": path,
-                           "bound_s": _round(sum(hop_s(network, x, y)
-                                                 for x, y in itertools.pairwise(path)))})
+            others = [{"path": other, "bound_s": _bound(network, other)}
+                      for other, wrong in network.paths(a, b) if wrong is None and other != path]
+            routes.append({"from": a, "to": b, "path": path, "bound_s": _bound(network, path),
+                           "alternatives": others})
     own: dict[tuple[str, str], float] = defaultdict(float)
     carried: dict[tuple[str, str], float] = defaultdict(float)
     ages = []
@@ -68,12 +76,16 @@ def network_section(loaded: LoadedMission, codec: FrameCodec,
                     continue
                 size = codec.frame_bytes_for([channel]) + (
                     net.routed_bytes if len(path) > 2 else net.plain_bytes)
-                for i, (x, y) in enumerate(itertools.pairwise(path)):
-                    link = _link(network, channel, dest, x, y)
-                    if i == 0:
-                        first_links.add(link)
-                    else:
-                        carried[(x, link)] += rate * (size + 1)
+                carriers: set[tuple[str, str]] = set()  # on any path it may take, once each
+                for way in _ways(network, sender, dest, path):
+                    for i, (x, y) in enumerate(itertools.pairwise(way)):
+                        link = _link(network, channel, dest, x, y)
+                        if i == 0:
+                            first_links.add(link)
+                        else:
+                            carriers.add((x, link))
+                for carrier in carriers:
+                    carried[carrier] += rate * (size + 1)
                 bound = channel.interval_s + sum(hop_s(network, x, y)
                                                  for x, y in itertools.pairwise(path))
                 if worst is None or bound > worst["age_bound_s"]:
@@ -104,6 +116,20 @@ def network_section(loaded: LoadedMission, codec: FrameCodec,
     return {"links": links, "routes": routes, "relays": relays, "age_bounds": ages,
             "max_hops": mission.max_hops, "header_bytes": {"plain": net.plain_bytes,
                                                            "routed": net.routed_bytes}}, warnings
+
+
+def _ways(network: Network, sender: str, dest: str, path: list[str]) -> list[list[str]]:
+    """The paths from ``sender`` to ``dest``: its primary ``path``, and where routes list
+    several hops, every other (a relay on one carries its share while the hops before it
+    are down: budgeted as if it always did)."""
+    if not network.listed:
+        return [path]
+    return [way for way, problem in network.paths(sender, dest) if problem is None]
+
+
+def _bound(network: Network, path: list[str]) -> float | None:
+    """The worst case of a frame along ``path``: each hop's longest wait and frame time."""
+    return _round(sum(hop_s(network, x, y) for x, y in itertools.pairwise(path)))
 
 
 def _rate(channel: ChannelCodec, sender: str, network: Network,

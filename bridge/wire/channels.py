@@ -18,7 +18,15 @@ from typing import TYPE_CHECKING, Any
 from bridge.codec import Layout
 from bridge.errors import LayoutError
 from bridge.mission.fields import OutOfRange
-from bridge.mission.model import Channel, Element, LearnedKeys, Mission, NodeKeys
+from bridge.mission.model import (
+    Channel,
+    Element,
+    LearnedKeys,
+    Mission,
+    NodeKeys,
+    listed_routes,
+    route_text,
+)
 from bridge.wire.auth import AUTH_VERSION
 from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, name_codec
 from bridge.wire.images import ImageSpec, control_layout
@@ -391,7 +399,7 @@ def compile_queries(mission: Mission) -> tuple[QuerySpec, ...]:
 def _network(mission: Mission) -> tuple[str, ...] | None:
     """What every node must agree on about the network (None: one link, no routes): each
     node's routes and the hop limit."""
-    routes = [f"{name}:{dest}>{hop}" for name, node in mission.nodes.items()
+    routes = [f"{name}:{dest}>{route_text(hop)}" for name, node in mission.nodes.items()
               for dest, hop in sorted(node.routes.items())]
     if mission.links is None and not routes:
         return None
@@ -418,7 +426,7 @@ def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
     overhead = 2 + (3 * (n_nodes - 1) if mission.wire.dlbl else 0)
     if _network(mission) is not None:  # the longest network header (bridge.wire.network)
         priorities = len({c.priority for c in mission.channels})
-        overhead += NetCodec(n_nodes, priorities).routed_bytes
+        overhead += NetCodec(n_nodes, priorities, listed_routes(mission)).routed_bytes
     if mission.wire.auth is not None:
         overhead += 4 + mission.wire.auth.tag_bytes
     if streams:
@@ -553,6 +561,7 @@ class ChannelTable:
     wire_format: str = "zab"  # or "goby": DCCL messages back to back (bridge.wire.goby)
     network: tuple[str, ...] | None = None  # several links or routes: the network header's
     # description and every node's routes (bridge.wire.network), None: no network header
+    listed: bool = False  # some route lists several hops: routed frames name the hop chosen
 
     @classmethod
     def from_mission(cls, mission: Mission) -> ChannelTable:
@@ -583,7 +592,7 @@ class ChannelTable:
                    sealed=auth is not None and auth.encrypt,
                    wire_format=mission.wire.format,
                    demand=mission.demand is not None, queries=compile_queries(mission),
-                   network=_network(mission))
+                   network=_network(mission), listed=listed_routes(mission))
 
     def __len__(self) -> int:
         return len(self.channels)
@@ -655,7 +664,7 @@ class ChannelTable:
         """The network header's codec, in missions with several links or routes."""
         if self.network is None:
             return None
-        return NetCodec(len(self.nodes), len(self.priorities))
+        return NetCodec(len(self.nodes), len(self.priorities), self.listed)
 
     @cached_property
     def priorities(self) -> tuple[int, ...]:

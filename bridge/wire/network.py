@@ -18,7 +18,10 @@ Layout, most significant bit first, padded with zeros to a whole byte::
                      shortest ttl_s of what it carries, less its age; a relay drops it after
      age     8 bits  seconds since the origin built it (saturating at 255), grown by each relay
      rank    ceil(log2 P) bits  how urgent it is: the place of its highest channel priority
-                     among the mission's P channel priorities (relays send higher first)]
+                     among the mission's P channel priorities (relays send higher first)
+     via     ceil(log2 N) bits  only in missions whose routes list several hops: the next
+                     hop its sender chose among them (a relay carries on a destination its
+                     sender lists several hops for only when it is the one named here)]
 
 The frame follows, exactly as the origin built it (its DLBL delays, epoch, entries and
 authentication), and the check value covers the header and the frame: a relay rewrites the
@@ -73,6 +76,7 @@ class NetHeader:
     life: int = NO_LIMIT
     age: int = 0
     rank: int = 0
+    via: int = 0
 
     @property
     def routed(self) -> bool:
@@ -81,21 +85,23 @@ class NetHeader:
 
 class NetCodec:
     """Encode and decode the network header of one mission (``nodes`` nodes, ``ranks``
-    channel priorities), and bundles."""
+    channel priorities, ``via``: routes list several hops), and bundles."""
 
-    def __init__(self, nodes: int, ranks: int) -> None:
+    def __init__(self, nodes: int, ranks: int, via: bool = False) -> None:
         self.nodes = nodes
         self.origin_bits = (nodes - 1).bit_length()
         self.rank_bits = (max(ranks, 1) - 1).bit_length()
+        self.via_bits = self.origin_bits if via else 0
         self.plain_bits = KIND_BITS + nodes
         self.routed_bits = (self.plain_bits + self.origin_bits + HOPS_BITS + SEQ_BITS
-                            + 2 * TIME_BITS + self.rank_bits)
+                            + 2 * TIME_BITS + self.rank_bits + self.via_bits)
         self.plain_bytes = (self.plain_bits + 7) // 8
         self.routed_bytes = (self.routed_bits + 7) // 8
 
     def describe(self) -> str:
         """What both ends must agree on (part of the mission fingerprint)."""
-        return f"net{NET_VERSION}:{self.nodes}:{self.rank_bits}"
+        return f"net{NET_VERSION}:{self.nodes}:{self.rank_bits}" + (":via" if self.via_bits
+                                                                     else "")
 
     def bitmap(self, nodes: Iterable[int]) -> int:
         """The ``for`` field of ``nodes``: the first node is the most significant bit."""
@@ -112,7 +118,8 @@ class NetCodec:
         if header.origin is not None:
             for value, bits in ((header.origin, self.origin_bits), (header.hops, HOPS_BITS),
                                 (header.seq, SEQ_BITS), (header.life, TIME_BITS),
-                                (header.age, TIME_BITS), (header.rank, self.rank_bits)):
+                                (header.age, TIME_BITS), (header.rank, self.rank_bits),
+                                (header.via, self.via_bits)):
                 if not 0 <= value < 1 << bits:
                     raise ValueError(f"network header field {value} does not fit {bits} bits")
                 acc = (acc << bits) | value
@@ -136,18 +143,18 @@ class NetCodec:
         acc = int.from_bytes(frame[:size], "big") >> (-bits % 8)
         fields = []
         if routed:
-            for width in (self.rank_bits, TIME_BITS, TIME_BITS, SEQ_BITS, HOPS_BITS,
-                          self.origin_bits):
+            for width in (self.via_bits, self.rank_bits, TIME_BITS, TIME_BITS, SEQ_BITS,
+                          HOPS_BITS, self.origin_bits):
                 fields.append(acc & ((1 << width) - 1))
                 acc >>= width
         bitmap = acc & ((1 << self.nodes) - 1)
         serves = frozenset(i for i in range(self.nodes) if bitmap >> (self.nodes - 1 - i) & 1)
         if not routed:
             return NetHeader(serves), size
-        rank, age, life, seq, hops, origin = fields
-        if origin >= self.nodes:
-            raise FrameError(f"network header names unknown node {origin}")
-        return NetHeader(serves, origin, hops, seq, life, age, rank), size
+        via, rank, age, life, seq, hops, origin = fields
+        if origin >= self.nodes or via >= self.nodes:
+            raise FrameError(f"network header names unknown node {max(origin, via)}")
+        return NetHeader(serves, origin, hops, seq, life, age, rank, via), size
 
     # -- bundles -------------------------------------------------------------------------------
 

@@ -64,3 +64,32 @@ def test_a_routing_loop_is_refused_with_its_place(tmp_path: Path) -> None:
     problems = json.loads(result.output)["errors"]
     assert any("routing loop n2 -> tail -> n2" in p["message"]
                and p["path"] == "nodes.n2.routes" for p in problems), problems
+
+
+def test_a_route_listing_two_relays_shows_its_primary_worst_case_and_the_alternative(
+        tmp_path: Path) -> None:
+    from tests.core.test_routes import DIAMOND
+
+    path = tmp_path / "diamond.yaml"
+    path.write_text(DIAMOND)
+    network = check(path)["network"]
+    routes = {(r["from"], r["to"]): r for r in network["routes"]}
+    carried = {(r["node"], r["link"]): r["carried_Bps"] for r in network["relays"]}
+    assert carried[("r2", "upper")] == carried[("r1", "upper")] > 0  # r2 budgeted as if r1
+    assert carried[("r2", "lower")] == carried[("r1", "lower")] > 0  # were down all the time
+    there = routes[("surface", "far")]
+    assert there["path"] == ["surface", "r1", "far"]  # the worst case over the primary
+    assert [a["path"] for a in there["alternatives"]] == [["surface", "r2", "far"]]
+    assert there["alternatives"][0]["bound_s"] > 0 and there["bound_s"] > 0
+    assert [a["path"] for a in routes[("far", "surface")]["alternatives"]] == [
+        ["far", "r2", "surface"]]
+    shown = RUNNER.invoke(app, ["check", str(path), "--no-key"], env={"COLUMNS": "200"})
+    assert "surface -> r2 -> far ≤" in shown.output
+    looped = tmp_path / "loop.yaml"  # a loop only the alternative takes
+    looped.write_text(DIAMOND.replace("r1: {address: 2,",
+                                      "r1: {address: 2, routes: {far: [r2, surface]},"))
+    result = RUNNER.invoke(app, ["check", str(looped), "--json", "--no-key"])
+    assert result.exit_code == 2
+    problems = json.loads(result.output)["errors"]
+    assert any("routing loop r1 -> surface -> r1" in p["message"]
+               and p["path"] == "nodes.r1.routes" for p in problems), problems

@@ -40,3 +40,13 @@ def test_a_relay_killed_again_and_again_delivers_once_or_reports(bench: ModuleTy
     chaos = bench_module("chaos")
     row = bench.chaos_virtual(300, 12, 0.3, seed=4)
     assert chaos.goal_met(row) and row["duplicates"] == 0 and row["delivered_once"] > 250
+
+
+def test_a_relay_killed_again_and_again_is_routed_around_each_time(bench: ModuleType) -> None:
+    row = bench.reroute_run(0.0, 3, seed=1)
+    assert row["failovers"] == row["failbacks"] == 6  # at the surface and at far, each kill
+    low, _, high = row["failover_s"]  # r1's last frame came within a cycle (12 s) of its kill
+    assert row["down_after_s"] - 12.0 <= low and high <= row["down_after_s"] + 2.0
+    low, _, high = row["failback_s"]  # heard again within a cycle or two of its restart
+    assert row["failback_after_s"] <= low and high <= row["failback_after_s"] + 2 * 12.0 + 2.0
+    assert bench_module("chaos").goal_met(row) and row["duplicates"] == 0

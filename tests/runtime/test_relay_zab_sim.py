@@ -257,3 +257,93 @@ def test_zab_demo_shows_a_vehicle_reached_through_another(tmp_path: Path) -> Non
     assert "rov2's traffic to surface goes through others: rov2 –acoustic/rf→ rov1 " \
            "–acoustic→ surface" in flat, part
     assert "surface got status" in flat and "from rov2 through rov1 (2 hops" in flat, part
+
+
+def _waypoints(*holds: tuple[float, float, int]) -> str:
+    """Waypoints that stay about (x, y) for n seconds each (to and fro by 0.8 m at 1 m/s)."""
+    return "".join(f"        - {{x: {x}, y: {y + (0.8 if i % 2 else 0)}, depth: 10}}\n"
+                   for x, y, n in holds for i in range(n))
+
+
+DIAMOND = f"""
+mission: diamond_e2e
+wire: {{auth: off}}
+link: {{degraded_after_s: 5, down_after_s: 8, failback_s: 6}}
+modem: {RF}
+mac: {{type: tdma, slot_s: 0.6, guard_s: 0.15, order: [surface, r1, r2, far]}}
+nodes:
+  surface: {{address: 1, role: surface, position: {{x: 0, y: 0, depth: 10}},
+             routes: {{far: [r1, r2]}}}}
+  r1:
+    address: 2
+    path:  # 3.8 m from the surface and from far; 10 m away (out of RF range) and back
+      speed_mps: 1.0
+      waypoints:
+{_waypoints((3.5, 1.5, 24), (3.5, 12, 12), (3.5, 1.5, 90))}\
+  r2: {{address: 3, position: {{x: 3.5, y: -1.5, depth: 10}}}}
+  far: {{address: 4, position: {{x: 7, y: 0, depth: 10}}, routes: {{surface: [r1, r2]}}}}
+channels:
+  - name: status
+    from: far
+    to: surface
+    elements:
+      - in: far/status
+        out: far/status
+        fields: [{{field: n, type: int, min: 0, max: 1023}}]
+  - name: goto
+    from: surface
+    to: far
+    reliable: true
+    elements:
+      - in: far/goto
+        out: far/goto
+        fields: [{{field: x, type: int, min: 0, max: 255}}]
+"""
+
+
+def test_a_relay_that_leaves_is_routed_around_through_the_other_and_back(
+        tmp_path: Path) -> None:
+    mission, endpoints = mission_file(DIAMOND, tmp_path)
+    with zab_sim(mission, endpoints, timeout=180):
+        surface, far = app(endpoints["surface"]), app(endpoints["far"])
+        try:
+            status, commands, reports, routes = Inbox(), Inbox(), Inbox(), Inbox()
+            surface.declare_subscriber("far/status", status)
+            far.declare_subscriber("far/goto", commands)
+            surface.declare_subscriber("@zab/diamond_e2e/surface/delivery/goto", reports)
+            for node, session, peer in (("surface", surface, "far"), ("far", far, "surface")):
+                session.declare_subscriber(f"@zab/diamond_e2e/{node}/route/{peer}", routes)
+            switches: list = []
+            got: list = []
+            n = 0
+            end = time.time() + 120
+            while time.time() < end and not (
+                    len([s for _, s in switches if s.get("reason") == "failback"]) >= 2
+                    and len(got) >= 10):
+                put(far, "far/status", {"n": n})
+                if n % 3 == 0:
+                    put(surface, "far/goto", {"x": n // 3}, ref=f"g{n // 3}")
+                n += 1
+                time.sleep(1.0)
+                switches += routes.drain(0.01)
+                got += status.drain(0.01)
+            moves = {(key.split("/")[2], s.get("was_via"), s["via"], s["reason"])
+                     for key, s in switches if "was_via" in s}
+            assert moves == {("surface", "r1", "r2", "failover"), ("far", "r1", "r2", "failover"),
+                             ("surface", "r2", "r1", "failback"),
+                             ("far", "r2", "r1", "failback")}, switches
+            values = [v["n"] for _, v in got]
+            assert len(values) >= 10 and values == sorted(set(values))  # on, once each
+            arrived = [v["x"] for _, v in commands.drain(12.0)]  # (what is still on its way)
+            final: dict[str, str] = {}
+            for _, v in reports.drain(1.0):
+                if v["state"] in ("delivered", "failed"):
+                    assert v["ref"] not in final, v  # one end report each
+                    final[v["ref"]] = v["state"]
+            assert len(arrived) == len(set(arrived))  # never twice
+            delivered = {r for r, s in final.items() if s == "delivered"}
+            assert delivered <= {f"g{x}" for x in arrived}  # said delivered: it has it
+            assert len(delivered) >= (n + 2) // 3 - 3  # (the last may still be on their way)
+        finally:
+            surface.close()
+            far.close()

@@ -19,13 +19,15 @@ KEY = bytes(range(32))
 def headers(draw: st.DrawFn) -> tuple[NetCodec, NetHeader]:
     nodes = draw(st.integers(2, 16))
     ranks = draw(st.integers(1, 9))
-    codec = NetCodec(nodes, ranks)
+    via = draw(st.booleans())
+    codec = NetCodec(nodes, ranks, via)
     serves = frozenset(draw(st.sets(st.integers(0, nodes - 1))))
     if not draw(st.booleans()):
         return codec, NetHeader(serves)
     return codec, NetHeader(serves, draw(st.integers(0, nodes - 1)), draw(st.integers(0, 7)),
                             draw(st.integers(0, 255)), draw(st.integers(0, NO_LIMIT)),
-                            draw(st.integers(0, 255)), draw(st.integers(0, ranks - 1)))
+                            draw(st.integers(0, 255)), draw(st.integers(0, ranks - 1)),
+                            draw(st.integers(0, nodes - 1)) if via else 0)
 
 
 @given(headers(), st.binary(max_size=20))
@@ -40,6 +42,17 @@ def test_headers_round_trip_before_any_frame(case: tuple[NetCodec, NetHeader],
 def test_header_sizes_for_seed_002s_five_rovs_and_an_operator() -> None:
     codec = NetCodec(6, 3)  # 2 kind + 6 for; + 3 origin + 3 hops + 8 seq + 16 life/age + 2 rank
     assert (codec.plain_bytes, codec.routed_bytes) == (1, 5)
+
+
+def test_the_hop_chosen_among_listed_routes_costs_one_node_index_and_only_there() -> None:
+    plain, listed = NetCodec(6, 3), NetCodec(6, 3, via=True)
+    assert (listed.plain_bytes, listed.routed_bytes) == (1, 6)  # 40 + 3 bits: one byte more
+    header = NetHeader(frozenset({4}), 0, 1, 9, NO_LIMIT, 3, 2)
+    assert plain.encode(header) != listed.encode(header)
+    assert listed.decode(listed.encode(NetHeader(frozenset({4}), 0, 1, 9, 7, 3, 2, 5)))[0].via == 5
+    assert listed.describe() != plain.describe()  # both ends must agree: in the fingerprint
+    with pytest.raises(ValueError):
+        plain.encode(NetHeader(frozenset({4}), 0, via=2))  # no room for it without lists
 
 
 def test_bundles_split_back_into_their_frames_and_bad_ones_are_refused() -> None:
