@@ -36,6 +36,7 @@ from tests.conftest import MISSIONS, REPO, free_port
 
 BIN = Path(sys.executable).parent  # what `uv run` runs: this venv's programs
 ZSPACE = MISSIONS / "zspace.yaml"
+LONG = True  # two demos of 70 s and what runs beside them: handed out first
 WAIT_S = 40.0  # a few TDMA cycles of the MORPH fleet (7.5 s each) and a margin for load
 
 def readme() -> str:

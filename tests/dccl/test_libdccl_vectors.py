@@ -28,6 +28,9 @@ from bridge.dccl.numeric import f32
 from bridge.errors import DecodeError, EncodeError
 from tests.dccl.conftest import PROTOS
 
+INDEPENDENT = True  # pure: xdist may spread the files (the four all_fields files take ~5 s of
+# CPU each: 8,500 bad buffers, each refused by the generated decoder and then again by the
+# reference path for its message, and every case decoded both ways)
 VECTORS = Path(__file__).resolve().parents[2].parent / "shared" / "reference" / "dccl-vectors"
 LIBDCCL = PROTOS / "libdccl"
 RULES = {"release-4.2": "dccl-4.2", "numeric-2026": "dccl-2026"}

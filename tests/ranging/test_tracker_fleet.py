@@ -15,6 +15,7 @@ from bridge.ranging import seed001
 from tests.conftest import on_free_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 
+LONG = True  # 22 s of a real-time fleet: handed out first
 SLOT_S = 0.4
 LEFT, RIGHT = seed001.ANCHORS["left"], seed001.ANCHORS["right"]
 WAYPOINTS = [{"x": x, "y": y, "depth": d} for x, y, d in seed001.route().waypoints]

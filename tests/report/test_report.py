@@ -18,6 +18,7 @@ from bridge.report.recorder import MissionRecorder, age_series
 from tests.conftest import CHROMIUM, MISSIONS, free_port, mission_on_free_ports, needs_browser
 from tests.gui.test_browser import CHROMIUM_ARGS
 
+LONG = True  # zab sim runs, one in real time, and Chromium: handed out first
 PLOTS = ["tracks", "age", "slots", "losses", "ranges"]
 
 

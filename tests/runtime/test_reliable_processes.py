@@ -11,6 +11,7 @@ from tests.conftest import on_free_ports
 from tests.core.reliable.test_fleet import MISSION
 from tests.harness import Inbox, bench_module, outside_session, running_fleet
 
+LONG = True  # half a minute of processes killed and restarted: handed out first
 chaos = bench_module("chaos")
 
 

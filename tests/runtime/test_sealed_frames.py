@@ -33,6 +33,7 @@ from bridge.wire.seal import KeyRing, frame_authenticator
 from tests.conftest import REPO, free_port
 from tests.zsim import app, interrupt, mission_file, zab_sim
 
+LONG = True  # half a minute of zab sim, to the key switch and past it: handed out first
 ROTATE_AFTER_S = 22.0  # the next key takes over this long after the test starts
 
 MISSION = """

@@ -27,6 +27,7 @@ from tests.zsim import Inbox, mission_file, zab_sim
 from tests.zsim import app as plain_app
 
 ZSPACE = MISSIONS / "zspace.yaml"
+LONG = True  # a minute and a half of zab sim: handed out first
 CYCLE_S = 3.0  # the example's TDMA cycle
 INDEPENDENT = True  # each test waits on real time: xdist may spread them (the shared zab sim
 # then starts once per worker that runs a test of it)

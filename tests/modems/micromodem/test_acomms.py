@@ -65,13 +65,14 @@ import yaml
 from bridge.core.loaded import LoadedMission, load_mission
 from bridge.wire.goby import frame_codec_for
 from tests.conftest import REPO, free_port
-from tests.harness import Inbox, put, zab_run
+from tests.harness import Inbox, put
 from tests.zsim import app
 
 acomms = pytest.importorskip("acomms.micromodem")
 FDPacket = pytest.importorskip("acomms.flexibledataprotocol").FDPacket
 Ping = pytest.importorskip("acomms.ping").Ping
 
+LONG = True  # six processes and a minute of exchanges: handed out first
 TRANSCRIPTS = Path(__file__).parent / "transcripts"
 RECORD = os.environ.get("ZAB_RECORD_TRANSCRIPTS") == "1"
 
@@ -223,31 +224,40 @@ class Listener:
 
 
 @contextmanager
-def process(argv: list[str], ready: str) -> Iterator[subprocess.Popen[str]]:
-    """A zab process, yielded once it printed ``ready``; SIGINT at the end."""
-    proc = subprocess.Popen([sys.executable, "-m", "bridge", *argv], cwd=REPO, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            env={**os.environ, "COLUMNS": "300"})
+def processes(*argvs: list[str], ready: str = "Ctrl-C to stop"
+              ) -> Iterator[list[subprocess.Popen[str]]]:
+    """zab processes started together (their start-ups overlap), yielded once each printed
+    ``ready``; SIGTERM at the end, after which each must stop cleanly (exit 0). Killed if
+    anything fails."""
+    procs: list[subprocess.Popen[str]] = []
     try:
-        assert proc.stdout is not None
-        seen = []
-        for line in proc.stdout:
-            seen.append(line)
-            if ready in line:
-                break
-        else:
-            raise AssertionError(f"{argv[0]} did not start:\n{''.join(seen)}")
-        yield proc
+        for argv in argvs:
+            procs.append(subprocess.Popen([sys.executable, "-m", "bridge", *argv], cwd=REPO,
+                                          text=True, stdout=subprocess.PIPE,
+                                          stderr=subprocess.STDOUT,
+                                          env={**os.environ, "COLUMNS": "300"}))
+        for argv, proc in zip(argvs, procs, strict=True):
+            assert proc.stdout is not None
+            seen = []
+            for line in proc.stdout:
+                seen.append(line)
+                if ready in line:
+                    break
+            else:
+                raise AssertionError(f"{argv[0]} did not start:\n{''.join(seen)}")
+        yield procs
+        for proc in procs:
+            proc.send_signal(signal.SIGTERM)
+        for argv, proc in zip(argvs, procs, strict=True):
+            rest, _ = proc.communicate(timeout=30)
+            assert proc.returncode == 0, f"{argv[:2]} exit {proc.returncode}:\n{rest}"
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
+        for proc in procs:
+            if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-        if proc.stdout is not None:
-            proc.stdout.close()
+            if proc.stdout is not None:
+                proc.stdout.close()
 
 
 @pytest.fixture(scope="module")
@@ -263,12 +273,11 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
     path = folder / "acomms_lab.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     with ExitStack() as stack:
-        stack.enter_context(process(["water", str(path)], "Ctrl-C to stop"))
-        for name in data["nodes"]:
-            stack.enter_context(process(["emulate", "micromodem", str(path), "--node", name],
-                                        "Ctrl-C to stop"))
-        for name in ("legacy", "fdp"):
-            stack.enter_context(zab_run(path, name))
+        stack.enter_context(processes(["water", str(path)]))  # the modems connect to it
+        stack.enter_context(processes(*(["emulate", "micromodem", str(path), "--node", name]
+                                        for name in data["nodes"])))
+        stack.enter_context(processes(*(["run", str(path), "--node", name]
+                                        for name in ("legacy", "fdp")), ready="bridge running"))
         lab = Lab(load_mission(path), str(folder / "lab"), folder, endpoints)
         stack.callback(lab.close)
         with Listener(lab.modem) as heard:  # acomms connects: it asks SRC
