@@ -60,11 +60,10 @@ def mission_on_free_ports(path: Path) -> LoadedMission:
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
-    """``-n auto``: two workers per core, and one more: most of the suite's wall time is
-    waiting on real time (fleets, TDMA slots, demos, browsers), so on two cores five workers
-    fill those waits (measured on 2 cores: 283 s with five against 446 s with three, the
-    CPU busy about half the run; 344 s against 443 s for three against two, before)."""
-    return 2 * len(os.sched_getaffinity(0)) + 1
+    """``-n auto``: a worker per core, and one more: much of the suite waits on real time
+    (fleets, TDMA slots, browsers), so on two cores a third worker fills those waits (measured:
+    344 s against 443 s with two, the machine shared)."""
+    return len(os.sched_getaffinity(0)) + 1
 
 
 @pytest.hookimpl(tryfirst=True)
