@@ -97,7 +97,7 @@ class Inbound:
         self.sent_at = 0.0
         """When the frame being decoded left its sender (:func:`frame_start`): its values'
         timestamps count back from it."""
-        self._presets: dict[str, Preset | None] = {}  # each sender's, when first heard
+        self._presets: dict[tuple[str, str], Preset | None] = {}  # per link and sender
         self._with_meta = {c.index for c in codec.table.channels if any(e.meta for e in
                                                                          c.elements)}
 
@@ -126,11 +126,9 @@ class Inbound:
             return
         self._hop(rx, src, side, now)
         self._heard(origin, frame, now)
-        if arrival is None:
-            self.sent_at = frame_start(rx, self._preset(src))
-        else:  # the origin built it the header's age before this hop's frame left
-            self.sent_at = frame_start(rx, node_preset(side.info.view, src)) \
-                - arrival.header.age
+        self.sent_at = frame_start(rx, self._preset(src, side))
+        if arrival is not None:  # the origin built it the header's age before this frame
+            self.sent_at -= arrival.header.age
             self.network.routing.taken(arrival, rx.data, src, now)  # type: ignore[union-attr]
             self._takes = self.index in arrival.header.serves
         values: dict[str, Values] = {}
@@ -167,12 +165,13 @@ class Inbound:
             return None
         return src
 
-    def _preset(self, src: str) -> Preset | None:
-        """``src``'s modem preset (its frames' timing), looked up once per sender."""
+    def _preset(self, src: str, side: LinkSide) -> Preset | None:
+        """``src``'s modem preset on ``side``'s link (its frames' timing), looked up once per
+        link and sender (a lookup builds the node's modem settings)."""
         try:
-            return self._presets[src]
+            return self._presets[side.name, src]
         except KeyError:
-            found = self._presets[src] = node_preset(self.mission, src)
+            found = self._presets[side.name, src] = node_preset(side.info.view, src)
             return found
 
     def _hop(self, rx: Reception, src: str, side: LinkSide, now: float) -> None:
