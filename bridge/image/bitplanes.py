@@ -16,12 +16,9 @@ significant in them yet) go together, one sequence for each scale, so a plane th
 none of them costs a bit a scale, not a bit a band (chroma's many idle bands cost most).
 ``k`` starts where one ``0`` covers the sequence's first pass and carries over from plane to
 plane for each class and band (or scale of idle bands), so both ends adapt alike with no
-side information. Refinement
-bits and signs go as they are. With a region of interest each plane is coded twice over:
-first the ROI's coefficients (those raised), with runs of their own, then the rest's, so the
-rest's zeros never lengthen the ROI's runs. Everything is decided for a whole pass from the
-state at the pass's start, so numpy does the bookkeeping and Python only walks the run codes
-(a run of ``0`` at a time: :data:`_COVER` says how far it reaches).
+side information. Refinement bits and signs go as they are. Everything is decided for a
+whole pass from the state at the pass's start, so numpy does the bookkeeping and Python
+only walks the run codes (a run of ``0`` at a time: :data:`_COVER` says how far it reaches).
 
 A stream cut anywhere decodes to everything before the cut (a run code or a sign cut in
 half is dropped), and a corrupt stream decodes to some image of the same shape: the decoder
@@ -31,7 +28,6 @@ checks every position it reads against the pass it is in.
 from __future__ import annotations
 
 from bisect import bisect_left, bisect_right
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from itertools import accumulate
 
@@ -85,11 +81,11 @@ class Context:
         self.under[geometry.children(positions)] = True
         self.busy[geometry.band_of[positions]] = True
 
-    def classes(self, sig: Bools, only: Bools | None = None) -> list[Ints]:
-        """Coding positions not yet significant (and in ``only``, if given), by class: near
-        a significant neighbour, under a significant parent, neither."""
+    def classes(self, sig: Bools) -> list[Ints]:
+        """Coding positions not yet significant, by class: near a significant neighbour,
+        under a significant parent, neither."""
         near, under = self.near[:-1], self.under[:-1]
-        rest = ~sig if only is None else ~sig & only
+        rest = ~sig
         close = rest & near
         far = rest ^ close
         return [np.flatnonzero(close), np.flatnonzero(far & under),
@@ -191,37 +187,22 @@ def _run_encode(out: list[str], ones: list[int], signs: list[bool], pos: int, le
     return kp
 
 
-def _groups(top: int, raised: tuple[Bools, int] | None) -> Iterator[tuple[int, int, Bools | None]]:
-    """The planes from ``top`` down, each as its groups of coefficients in coding order:
-    ``(plane, group, mask)``. Without an ROI one group, everything (``None``); with one the
-    ROI's coefficients first, then the rest (from the highest plane anything outside has)."""
-    for n in range(top, -1, -1):
-        if raised is None:
-            yield n, 0, None
-            continue
-        yield n, 0, raised[0]
-        if n <= raised[1]:
-            yield n, 1, ~raised[0]
-
-
 def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
-                  budget_bits: int, raised: tuple[Bools, int] | None = None) -> str:
+                  budget_bits: int) -> str:
     """The bit string (``'0'``/``'1'``) of ``q`` (magnitudes, coding order) from plane ``top``
-    down, stopping once it holds ``budget_bits`` bits (it may run over: cut it).
-    ``raised``: an ROI's mask and the highest plane of anything outside it: above that plane
-    only the ROI is coded."""
+    down, stopping once it holds ``budget_bits`` bits (it may run over: cut it)."""
     size = geometry.size
     sig = np.zeros(size, dtype=bool)
     starts = geometry.band_start
     scales = [band.scale for band in geometry.bands]
-    ks: dict[tuple[int, int, int], int] = {}
+    ks: dict[tuple[int, int], int] = {}
     context = Context(geometry)
     parts: list[str] = []
     total = 0
-    for n, g, only in _groups(top, raised):
+    for n in range(top, -1, -1):
         t = 1 << n
-        classes = context.classes(sig, only)
-        was = np.flatnonzero(sig if only is None else sig & only)
+        classes = context.classes(sig)
+        was = np.flatnonzero(sig)
         passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
         for cls, cand in enumerate(passes):
             if cand is None:  # refinement (no more than the budget still takes)
@@ -258,7 +239,7 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
                         ones += [p - cut[b] + length for p in ones_list[oa:oz]]
                         signs += neg[oa:oz]
                         length += cut[b + 1] - cut[b]
-                key = (g, cls, key_band)
+                key = (cls, key_band)
                 out: list[str] = []
                 ks[key] = _run_encode(out, ones, signs, pos, length,
                                       ks.get(key, _first_kp(length - pos)))
@@ -304,8 +285,7 @@ def _run_decode(bits: str, i: int, pos: int, length: int, kp: int,
         kp = down[kp]
 
 
-def decode_planes(geometry: Geometry, bits: str, top: int,
-                  raised: tuple[Bools, int] | None = None) -> Planes:
+def decode_planes(geometry: Geometry, bits: str, top: int) -> Planes:
     """What a (possibly cut) bit string from :func:`encode_planes` tells."""
     size = geometry.size
     state = Planes(size)
@@ -313,14 +293,14 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
     sig = state.significant
     starts = geometry.band_start
     scales = [band.scale for band in geometry.bands]
-    ks: dict[tuple[int, int, int], int] = {}
+    ks: dict[tuple[int, int], int] = {}
     context = Context(geometry)
     i = 0
     end = len(bits)
-    for n, g, only in _groups(top, raised):
+    for n in range(top, -1, -1):
         state.threshold = n
-        classes = context.classes(sig, only)
-        was = np.flatnonzero(sig if only is None else sig & only)
+        classes = context.classes(sig)
+        was = np.flatnonzero(sig)
         passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
         for cls, cand in enumerate(passes):
             if cand is None:
@@ -342,7 +322,7 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
             stop = False
             cut = np.searchsorted(cand, starts).tolist()
             for key_band, bands in _segments(cut, context.busy.tolist(), scales):
-                key = (g, cls, key_band)
+                key = (cls, key_band)
                 lengths = [cut[b + 1] - cut[b] for b in bands]
                 if len(bands) == 1:
                     pos, length, heard = cut[bands[0]], cut[bands[0] + 1], found
