@@ -78,7 +78,7 @@ class Context:
         """Coefficients at coding ``positions`` became significant."""
         geometry = self.geometry
         self.near[geometry.neighbours[positions]] = True
-        self.under[geometry.children(positions)] = True
+        self.under[geometry.children[positions]] = True
         self.busy[geometry.band_of[positions]] = True
 
     def classes(self, sig: Bools) -> list[Ints]:
@@ -199,8 +199,9 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
     context = Context(geometry)
     parts: list[str] = []
     total = 0
+    first = np.frexp(q)[1] - 1  # the plane each coefficient becomes significant in
     for n in range(top, -1, -1):
-        t = 1 << n
+        new = np.flatnonzero(first == n)
         classes = context.classes(sig)
         was = np.flatnonzero(sig)
         passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
@@ -216,8 +217,8 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
                 continue
             if cand.size == 0:
                 continue
-            hits = q[cand] >= t
-            ones_at = np.flatnonzero(hits)
+            at = np.minimum(np.searchsorted(cand, new), cand.size - 1)
+            ones_at = at[cand[at] == new]
             cut_at = np.searchsorted(cand, starts)
             cut_ones = np.searchsorted(ones_at, cut_at).tolist()
             cut = cut_at.tolist()
@@ -258,8 +259,9 @@ def _run_decode(bits: str, i: int, pos: int, length: int, kp: int,
     :class:`Truncated` where the bits end or lie."""
     cover, after, down, widths = _COVER, _AFTER, _DOWN, _K
     end = len(bits)
+    find, found_one, sign_of = bits.find, found.append, signs.append
     while True:
-        j = bits.find("1", i)
+        j = find("1", i)
         if j < 0:
             j = end
         covered = cover[kp]
@@ -279,17 +281,27 @@ def _run_decode(bits: str, i: int, pos: int, length: int, kp: int,
         p = pos + int(bits[j + 1:i - 1], 2) if k else pos
         if p >= length:
             raise Truncated  # corrupt: a position past the pass
-        found.append(p)
-        signs.append(bits[i - 1] == "1")
+        found_one(p)
+        sign_of(bits[i - 1] == "1")
         pos = p + 1
         kp = down[kp]
 
 
 def decode_planes(geometry: Geometry, bits: str, top: int) -> Planes:
     """What a (possibly cut) bit string from :func:`encode_planes` tells."""
-    size = geometry.size
-    state = Planes(size)
-    state.below[:] = top + 1
+    state = Planes(geometry.size)
+    whole: list[Ints] = []
+    low = _read_planes(geometry, bits, top, state, whole)
+    state.below[:] = low  # (those still insignificant: below every plane read whole,
+    for cand in whole:  # and below the one the stream stopped in if their pass came whole)
+        state.below[cand] = low - 1
+    return state
+
+
+def _read_planes(geometry: Geometry, bits: str, top: int, state: Planes,
+                 whole: list[Ints]) -> int:
+    """Read ``bits`` into ``state``; returns the lowest plane read whole (``top + 1``: none),
+    leaving in ``whole`` the passes of the next plane that came whole."""
     sig = state.significant
     starts = geometry.band_start
     scales = [band.scale for band in geometry.bands]
@@ -299,6 +311,7 @@ def decode_planes(geometry: Geometry, bits: str, top: int) -> Planes:
     end = len(bits)
     for n in range(top, -1, -1):
         state.threshold = n
+        whole.clear()
         classes = context.classes(sig)
         was = np.flatnonzero(sig)
         passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
@@ -313,7 +326,7 @@ def decode_planes(geometry: Geometry, bits: str, top: int) -> Planes:
                     state.refined[idx] = True
                     i += m
                 if m < was.size:
-                    return state
+                    return n + 1
                 continue
             if cand.size == 0:
                 continue
@@ -347,9 +360,9 @@ def decode_planes(geometry: Geometry, bits: str, top: int) -> Planes:
                 state.magnitude[idx] = 1 << n
                 state.plane[idx] = n
                 state.negative[idx] = np.array(signs, dtype=bool)
-            if not stop:
-                state.below[cand] = n
             if stop:
-                return state
+                return n + 1
+            whole.append(cand)
     state.complete = True
-    return state
+    whole.clear()
+    return 0

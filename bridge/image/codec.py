@@ -239,7 +239,7 @@ def _picture(bits: str, height: int, width: int, colour: bool, top: int) -> _Pic
     planes = [inverse(canvases[offsets[i]:offsets[i + 1]].reshape(shape), lv)
               for i, (shape, lv) in enumerate(zip(geo.shapes, geo.levels, strict=True))]
     return _Picture(planes, state is None or state.complete,
-                    _mse_estimate(geo, state, scale, height * width))
+                    _mse_estimate(geo, state, height * width))
 
 
 def decode(stream: bytes) -> Decoded:
@@ -266,26 +266,26 @@ def decode(stream: bytes) -> Decoded:
     return Decoded(pixels, len(stream), whole.complete and tile.complete, mse, roi)
 
 
-def _mse_estimate(geo: Geometry, state: Planes | None, scale: F64, pixels: int) -> float:
+def _mse_estimate(geo: Geometry, state: Planes | None, pixels: int) -> float:
     """The luma's mean squared error as the stream knows it. A significant coefficient is
     off by a uniform error over its last interval; those still below their threshold ``t``
     are taken, band by band, as Laplacian with the scale that makes the share found
     significant so far (at least half a coefficient) exceed ``t``."""
     if state is None:
         return 0.0
-    units = (scale / geo.weight) ** 2  # squared quantiser units per squared grey level
+    units = QUANTUM ** 2  # squared quantiser units per squared grey level
     luma, band_of = geo.luma, geo.band_of
     known = state.significant & luma
-    width = np.exp2(state.plane[known].astype(np.float64))
-    total = float((width ** 2 / 12 / units[known]).sum())
+    total = float(np.exp2(2 * state.plane[known]).sum()) / 12 / units
     if state.complete:
         return min(total / pixels, MSE_CEILING)
-    unknown = ~state.significant & luma
-    below = state.below[unknown].astype(np.float64)  # (at most 62: see Planes.below)
+    unknown = np.flatnonzero(~state.significant & luma)
+    below = state.below[unknown]  # (at most 62: see Planes.below)
     bands = len(geo.bands)
+    unknown_band = band_of[unknown]
     n_sig = np.bincount(band_of[known], minlength=bands)
-    n_not = np.bincount(band_of[unknown], minlength=bands)
-    mean_below = np.bincount(band_of[unknown], weights=below, minlength=bands) / np.maximum(
+    n_not = np.bincount(unknown_band, minlength=bands)
+    mean_below = np.bincount(unknown_band, weights=below, minlength=bands) / np.maximum(
         n_not, 1)
     scales = np.ones(bands)
     coarser: dict[int, float] = {}  # each level's largest scale found
@@ -298,10 +298,9 @@ def _mse_estimate(geo: Geometry, state: Planes | None, scale: F64, pixels: int) 
             b = min(b, coarser.get(band.level + 1, b) / 2)
         coarser[band.level] = max(coarser.get(band.level, 0.0), b)
         scales[i] = b
-    # the coefficients of one band below one threshold share their expected square: sum
-    # their 1 / units by (band, threshold) and weigh each group once
-    group = band_of[unknown] * 64 + state.below[unknown]
-    weights = np.bincount(group, weights=1 / units[unknown])
+    # the coefficients of one band below one threshold share their expected square: count
+    # them by (band, threshold) and weigh each group once
+    weights = np.bincount(unknown_band * 64 + below) / units
     used = np.flatnonzero(weights)
     b = scales[used // 64]
     t = np.exp2((used % 64).astype(np.float64))

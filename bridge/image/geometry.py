@@ -143,28 +143,18 @@ class Geometry:
         return out
 
     @cached_property
-    def _children(self) -> tuple[Ints, Ints]:
-        """The children of each coding position, grouped by parent: (start of each parent's
-        group, the children in parent order)."""
-        has = self.parent != np.arange(self.size)
-        kids = np.flatnonzero(has)
-        kids = kids[np.argsort(self.parent[kids], kind="stable")]
-        starts = np.searchsorted(self.parent[kids], np.arange(self.size + 1))
-        return starts, kids
-
-    def children(self, positions: Ints) -> Ints:
-        """The coding positions whose parent is one of ``positions``."""
-        starts, kids = self._children
-        first = starts[positions]
-        counts = starts[positions + 1] - first
-        keep = counts > 0
-        first, counts = first[keep], counts[keep]
-        if not first.size:
-            return kids[:0]
-        step = np.ones(int(counts.sum()), dtype=np.int64)  # consecutive within a group,
-        step[0] = first[0]  # and a jump to the next group's first child
-        step[np.cumsum(counts)[:-1]] = first[1:] - first[:-1] - counts[:-1] + 1
-        return kids[np.cumsum(step)]
+    def children(self) -> NDArray[np.int32]:
+        """Each coding position's children (the coefficients it is the parent of), as
+        coding positions in a row padded with ``size`` (one spare slot past the end)."""
+        has = np.flatnonzero(self.parent != np.arange(self.size))
+        kids = has[np.argsort(self.parent[has], kind="stable")]
+        parents = self.parent[kids]
+        first = np.searchsorted(parents, parents)  # each kid's place among its siblings
+        rank = np.arange(kids.size) - first
+        out = np.full((self.size + 1, int(rank.max()) + 1 if rank.size else 1), self.size,
+                      dtype=np.int32)
+        out[parents, rank] = kids
+        return out
 
     @cached_property
     def band_of(self) -> Ints:
