@@ -147,7 +147,8 @@ def encode(pixels: U8, budget: int, roi: Roi | None = None) -> bytes:
     if budget * 8 >= 1 << LENGTH_BITS:
         raise ValueError(f"a budget of {budget} bytes is over {(1 << LENGTH_BITS) // 8 - 1}")
     room = budget * 8 - _header_bits(roi is not None)
-    top, whole = _planes(array, room)
+    top, whole = _planes(array if roi is None else _filled(array, *roi.box(height, width)),
+                         room)
     head = [f"{VERSION:02b}", "1" if array.ndim == 3 else "0", f"{width - 1:011b}",
             f"{height - 1:011b}", f"{top + 1:05b}"]
     if roi is None:
@@ -165,6 +166,29 @@ def encode(pixels: U8, budget: int, roi: Roi | None = None) -> bytes:
     bits = ("".join(head) + body)[:budget * 8]
     bits += "0" * (-len(bits) % 8)
     return int(bits, 2).to_bytes(len(bits) // 8, "big")
+
+
+def _filled(array: U8, rows: slice, cols: slice) -> U8:
+    """``array`` with the box ``rows`` × ``cols`` (the ROI, whose tile the decoder puts over
+    it) smoothed over from its edges (the mean of the row-wise and the column-wise straight
+    lines between the pixels just outside), so that the whole picture spends nothing there."""
+    x = array.astype(np.float64)
+    h, w = x.shape[:2]
+    r0, r1, c0, c1 = rows.start, rows.stop, cols.start, cols.stop
+
+    def line(a: F64, b: F64, n: int, axis: int) -> F64:
+        t = (np.arange(n) + 1.0) / (n + 1)
+        shape = [1] * a.ndim
+        shape[axis] = n
+        t = t.reshape(shape)
+        return a * (1 - t) + b * t
+
+    left = x[r0:r1, c0 - 1 if c0 else c1 % w][:, None]
+    right = x[r0:r1, c1 if c1 < w else max(c0 - 1, 0)][:, None]
+    top = x[r0 - 1 if r0 else r1 % h, c0:c1][None]
+    bottom = x[r1 if r1 < h else max(r0 - 1, 0), c0:c1][None]
+    x[rows, cols] = (line(left, right, c1 - c0, 1) + line(top, bottom, r1 - r0, 0)) / 2
+    return np.clip(np.rint(x), 0, 255).astype(np.uint8)
 
 
 def _planes(array: U8, budget_bits: int) -> tuple[int, str]:
@@ -260,7 +284,8 @@ def decode(stream: bytes) -> Decoded:
     tile_h, tile_w = rows.stop - rows.start, cols.stop - cols.start
     tile = _picture(body[head.first:ends], tile_h, tile_w, head.colour, head.tile_top)
     pixels = _pixels(whole.planes)
-    pixels[rows, cols] = _pixels(tile.planes)
+    if len(body) > head.first:  # (until the tile starts, the whole's coarse fill stands)
+        pixels[rows, cols] = _pixels(tile.planes)
     share = tile_h * tile_w / (head.height * head.width)
     mse = (1 - share) * whole.mse_estimate + share * tile.mse_estimate
     return Decoded(pixels, len(stream), whole.complete and tile.complete, mse, roi)
