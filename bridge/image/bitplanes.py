@@ -166,13 +166,13 @@ def _run_encode(out: list[str], ones: list[int], signs: list[bool], pos: int, le
     """Append the run codes of the decisions ``pos`` up to ``length`` of a pass, whose yes
     are at ``ones``; ``kp`` is the run parameter in quarters (``k = kp >> 2``); returns the
     final ``kp``."""
-    cover, after, down, widths = _COVER, _AFTER, _DOWN, _K
+    cover, after, down, widths, steps = _COVER, _AFTER, _DOWN, _K, _STEP
     append = out.append
     for p, negative in zip(ones, signs, strict=True):
         gap = p - pos
-        covered = cover[kp]
-        m = bisect_right(covered, gap) - 1  # codes 0 before the one
-        if m:
+        if gap >= steps[kp]:  # codes 0 before the one
+            covered = cover[kp]
+            m = bisect_right(covered, gap) - 1
             append("0" * m)
             gap -= covered[m]
             kp = after[kp][m]
