@@ -22,7 +22,7 @@ The stream, most significant bit first::
     top+1     5 bits: the highest bit plane (0: an empty image)
     roi       1 bit; when set x0, y0, x1, y1 (6 bits each, 64ths of the image), shift (3),
               the tile's top+1 (5), and how many bits the whole picture's first part and
-              the tile's stream take (19 each)
+              the tile's stream take (20 each)
     planes    the coefficients' bit planes (:mod:`bridge.image.bitplanes`), cut at the budget
               (with an ROI: the whole picture's first part, the tile's, the whole's rest)
 
@@ -46,8 +46,8 @@ __all__ = ["MAX_SIDE", "Decoded", "ImageStreamError", "decode", "encode", "heade
 
 VERSION = 3
 MAX_SIDE = 2048
-LENGTH_BITS = 19
-"""Bits of the lengths in an ROI's header (a budget is at most 64 kB)."""
+LENGTH_BITS = 20
+"""Bits of the lengths in an ROI's header (a mission's budget is at most 64 kB)."""
 FRACTION_BITS = 2  # quantiser step: a quarter of a (weighted) grey level
 QUANTUM = float(1 << FRACTION_BITS)
 MSE_CEILING = 128.0 ** 2

@@ -50,8 +50,9 @@ def test_every_prefix_decodes() -> None:
         assert image.stream_bytes == n
 
 
-def test_a_large_budget_is_nearly_lossless_and_says_so() -> None:
-    image = decode(encode(GREY, 60000))
+@pytest.mark.parametrize("roi", [None, Roi.from_fractions(0.25, 0.25, 0.75, 0.75)])
+def test_a_large_budget_is_nearly_lossless_and_says_so(roi: Roi | None) -> None:
+    image = decode(encode(GREY, 65536, roi))  # (the largest a mission allows)
     assert image.complete
     assert psnr(GREY, image.pixels) > 45
 
