@@ -18,7 +18,8 @@ none of them costs a bit a scale, not a bit a band (chroma's many idle bands cos
 plane for each class and band (or scale of idle bands), so both ends adapt alike with no
 side information. Refinement bits and signs go as they are. Everything is decided for a
 whole pass from the state at the pass's start, so numpy does the bookkeeping and Python
-only walks the run codes (a run of ``0`` at a time: :data:`_COVER` says how far it reaches).
+only walks the run codes (a run of ``0`` at a time: :data:`_COVER` says how far it reaches;
+the encoder takes most codes whole from :data:`_CODES`).
 
 A stream cut anywhere decodes to everything before the cut (a run code or a sign cut in
 half is dropped), and a corrupt stream decodes to some image of the same shape: the decoder
@@ -161,29 +162,39 @@ def _segments(cut: list[int], busy: list[bool], scales: list[int]) -> list[tuple
     return out
 
 
+def _code(kp: int, gap: int, negative: int) -> tuple[str, int]:
+    """The run codes of ``gap`` decisions no then a yes (``negative``: its sign) from run
+    parameter ``kp`` (in quarters: ``k = kp >> 2``), and the run parameter after them."""
+    m = 0
+    if gap >= _STEP[kp]:  # codes 0 before the one
+        covered = _COVER[kp]
+        m = bisect_right(covered, gap) - 1
+        gap -= covered[m]
+        kp = _AFTER[kp][m]
+    k = _K[kp]
+    return "0" * m + bin((1 << k | gap) << 1 | negative)[2:], _DOWN[kp]
+
+
+SHORT = 64
+"""Gaps below this (most of them) take their codes from a table."""
+_CODES = [[_code(kp, g >> 1, g & 1) for g in range(2 * SHORT)] for kp in range(KPMAX + 1)]
+"""Each run parameter's codes and the parameter after them, by ``gap << 1 | negative``."""
+
+
 def _run_encode(out: list[str], ones: list[int], signs: list[bool], pos: int, length: int,
                 kp: int) -> int:
     """Append the run codes of the decisions ``pos`` up to ``length`` of a pass, whose yes
-    are at ``ones``; ``kp`` is the run parameter in quarters (``k = kp >> 2``); returns the
-    final ``kp``."""
-    cover, after, down, widths, steps = _COVER, _AFTER, _DOWN, _K, _STEP
-    append = out.append
+    are at ``ones``; ``kp`` is the run parameter in quarters; returns the final ``kp``."""
+    codes, code, append = _CODES, _code, out.append
     for p, negative in zip(ones, signs, strict=True):
         gap = p - pos
-        if gap >= steps[kp]:  # codes 0 before the one
-            covered = cover[kp]
-            m = bisect_right(covered, gap) - 1
-            append("0" * m)
-            gap -= covered[m]
-            kp = after[kp][m]
-        k = widths[kp]
-        append(bin((1 << k | gap) << 1 | negative)[2:])
-        kp = down[kp]
+        piece, kp = codes[kp][gap << 1 | negative] if gap < SHORT else code(kp, gap, negative)
+        append(piece)
         pos = p + 1
     if pos < length:
-        m = bisect_left(cover[kp], length - pos)
+        m = bisect_left(_COVER[kp], length - pos)
         append("0" * m)
-        kp = after[kp][m]
+        kp = _AFTER[kp][m]
     return kp
 
 
