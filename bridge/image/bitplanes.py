@@ -263,18 +263,51 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
     return "".join(parts)
 
 
-def _run_decode(bits: str, i: int, pos: int, length: int, kp: int,
+WINDOW = 8
+"""Bits the decoder looks at to take a short code whole from a table."""
+
+
+def _short_codes(kp: int) -> list[tuple[int, int, bool, int] | None]:
+    """What ``WINDOW`` bits starting with a whole code say from run parameter ``kp``:
+    (the code's bits, its gap, its sign, the run parameter after it), by the bits' value;
+    None where the code is longer."""
+    table: list[tuple[int, int, bool, int] | None] = [None] * (1 << WINDOW)
+    for gap in range(1 << WINDOW):
+        pair = [_code(kp, gap, negative) for negative in (0, 1)]
+        size = len(pair[0][0])
+        if size > WINDOW:  # (a longer gap takes no fewer bits)
+            break
+        for negative, (code, after) in enumerate(pair):
+            first = int(code, 2) << (WINDOW - size)
+            table[first:first + (1 << (WINDOW - size))] = [
+                (size, gap, bool(negative), after)] * (1 << (WINDOW - size))
+    return table
+
+
+_SHORT_CODES = [_short_codes(kp) for kp in range(KPMAX + 1)]
+
+
+def _run_decode(bits: str, end: int, i: int, pos: int, length: int, kp: int,
                 found: list[int], signs: list[bool]) -> tuple[int, int]:
     """Read the run codes of the decisions ``pos`` up to ``length`` of a pass from
-    ``bits[i:]`` into ``found``/``signs``; returns ``(i, kp)`` after them. Raises
-    :class:`Truncated` where the bits end or lie."""
-    cover, after, down, widths = _COVER, _AFTER, _DOWN, _K
-    end = len(bits)
+    ``bits[i:end]`` into ``found``/``signs``; returns ``(i, kp)`` after them. Raises
+    :class:`Truncated` where the bits end or lie. ``bits`` goes on past ``end`` with
+    ``WINDOW`` ``1``s (so that a window is whole and the next one always found)."""
+    cover, after, down, widths, short = _COVER, _AFTER, _DOWN, _K, _SHORT_CODES
     find, found_one, sign_of = bits.find, found.append, signs.append
     while True:
+        entry = short[kp][int(bits[i:i + WINDOW], 2)]
+        if entry is not None:  # a short code, whole in the window
+            size, gap, negative, next_kp = entry
+            p = pos + gap
+            if p < length and i + size <= end:
+                found_one(p)
+                sign_of(negative)
+                pos = p + 1
+                kp = next_kp
+                i += size
+                continue
         j = find("1", i)
-        if j < 0:
-            j = end
         covered = cover[kp]
         m = j - i  # codes 0 before the next 1
         if m >= len(covered) or pos + covered[m] >= length:  # the pass ends first
@@ -320,6 +353,7 @@ def _read_planes(geometry: Geometry, bits: str, top: int, state: Planes,
     context = Context(geometry)
     i = 0
     end = len(bits)
+    padded = bits + "1" * WINDOW
     for n in range(top, -1, -1):
         state.threshold = n
         whole.clear()
@@ -353,7 +387,7 @@ def _read_planes(geometry: Geometry, bits: str, top: int, state: Planes,
                 else:
                     pos, length, heard = 0, sum(lengths), []
                 try:
-                    i, ks[key] = _run_decode(bits, i, pos, length,
+                    i, ks[key] = _run_decode(padded, end, i, pos, length,
                                              ks.get(key, _first_kp(length - pos)), heard, signs)
                 except Truncated:
                     stop = True
