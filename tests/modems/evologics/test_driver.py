@@ -202,8 +202,8 @@ def test_clock_is_read_again_while_busy(tmp_path: Path) -> None:
         async with modems(tmp_path, 1, 2) as (_, emu), \
                 driver(emu[1], clock_sync_s=0.2, keepalive_s=0) as a:
             first = a.modem_clock.readings
-            for _ in range(4):
-                await a.send(b"x", 2, at=a.clock() + 0.1)
+            for _ in range(4):  # (0.3 s ahead: at load 10 a 0.1 s lead came too late)
+                await a.send(b"x", 2, at=a.clock() + 0.3)
                 await asyncio.sleep(0.1)
             assert a.modem_clock.readings > first
             assert abs(a.clock() - time.time()) < 0.05
