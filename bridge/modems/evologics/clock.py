@@ -5,8 +5,9 @@ Every modem timestamp (``SENDEND``, ``RECVEND``, ``RECVIMS``) and the send time 
 maps counter values to seconds on one scale, anchored at the first reading so that it starts
 near the host's clock; differences of modem times are then exact to the µs whatever the host
 does (that is what DLBL needs). The host-to-modem offset is re-estimated at every reading
-(:meth:`ModemClock.sync`), only to tell "now" on the modem clock (:meth:`ModemClock.now`) and to
-pick the right wrap of a counter value; it follows host–modem drift without moving the scale.
+(:meth:`ModemClock.sync`, as far as the reading's round trip allows), only to tell "now" on the
+modem clock (:meth:`ModemClock.now`) and to pick the right wrap of a counter value; it
+follows host–modem drift without moving the scale.
 
 Readings come from ``AT?CLOCK``. [U] ``modem-protocols.md`` lists ``AT?CLOCK`` as "uint system
 clock (DUNE keep-alive)" without its unit: that it is the same µs counter as the timestamps and
@@ -36,16 +37,20 @@ class ModemClock:
         """Whether a reading has anchored the scale."""
         return self._anchor is not None
 
-    def sync(self, host_s: float, counter_us: int) -> None:
-        """A reading ``counter_us`` of the modem clock, taken at host time ``host_s`` (best:
-        the middle of the query's round trip)."""
+    def sync(self, host_s: float, counter_us: int, uncertainty_s: float = 0.0) -> None:
+        """A reading ``counter_us`` of the modem clock, taken at host time ``host_s`` give or
+        take ``uncertainty_s`` (the query's round trip: the middle of it, ± half). The offset
+        moves only as far as the reading proves it wrong: a slow round trip (a loaded host
+        answering late) cannot drag a better estimate off by half its delay."""
         if not 0 <= counter_us < WRAP_US:
             raise ValueError(f"modem clock reading {counter_us} outside 0..2^32-1")
         if self._anchor is None:
             self._anchor = (host_s, counter_us)
             self._offset = 0.0
         else:
-            self._offset = self.seconds(counter_us, self.now(host_s)) - host_s
+            measured = self.seconds(counter_us, self.now(host_s)) - host_s
+            self._offset = min(max(self._offset, measured - uncertainty_s),
+                               measured + uncertainty_s)
         self.readings += 1
 
     def now(self, host_s: float) -> float:

@@ -286,7 +286,7 @@ class EvologicsBackend(ModemBackend):
             if best is None or got - sent < best[0]:
                 best = (got - sent, (sent + got) / 2, int(text))
         assert best is not None
-        self.modem_clock.sync(best[1], best[2])
+        self.modem_clock.sync(best[1], best[2], uncertainty_s=best[0] / 2)
         self._last_sync = time.monotonic()
         return True
 

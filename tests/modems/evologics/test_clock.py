@@ -41,6 +41,20 @@ def test_resync_follows_drift_without_moving_the_scale() -> None:
         clock.sync(1301.0, WRAP_US)
 
 
+def test_a_slow_reading_moves_the_offset_only_as_far_as_it_proves_it_wrong() -> None:
+    clock = ModemClock()
+    clock.sync(1000.0, 5_000_000)
+    # answered 0.4 s late: the midpoint says the modem is 0.2 s behind, but anywhere in
+    # [-0.4, 0] s fits the reading, and 0 (the last estimate) is in it: kept
+    clock.sync(1010.2, 5_000_000 + 10_000_000, uncertainty_s=0.2)
+    assert clock.now(1020.0) == pytest.approx(1020.0, abs=1e-9)
+    # a reading that does prove it wrong (the modem 0.5 s ahead, ± 0.1 s) moves it to the
+    # nearest offset it allows
+    clock.sync(1020.0, 5_000_000 + 20_500_000, uncertainty_s=0.1)
+    assert clock.now(1020.0) == pytest.approx(1020.4, abs=1e-9)
+    assert clock.readings == 3
+
+
 def test_sendims_builder_round_trips_through_the_modem_reader() -> None:
     wire = send_ims(b"a,b\r\n", 3, 4_294_000_123)
     assert wire == b"*SENDIMS,5,3,4294000123,a,b\r\n"
