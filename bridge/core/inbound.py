@@ -177,7 +177,8 @@ class Inbound:
         """A valid frame of ``src`` (its origin): the counters, the link and the peer's epoch
         record it."""
         self.stats.frames_received += 1
-        self._foreign.pop(src, None)
+        if self._foreign:
+            self._foreign.pop(src, None)
         if self.mismatched:
             self._matched(src, now)
         self.links.heard(src, now)
