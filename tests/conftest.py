@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import os
 import secrets
+import shutil
 import socket
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -23,13 +26,38 @@ def browser_missing() -> str | None:
     if not CHROMIUM.exists():
         return "needs Debian's chromium (apt-get install chromium)"
     if importlib.util.find_spec("playwright") is None:
-        return "needs Playwright (the browser group, a default one: uv run pytest installs it)"
+        return "needs Playwright (the browser group: uv sync --group browser)"
     return None
 
 
-needs_browser = pytest.mark.skipif(browser_missing() is not None,
-                                   reason=browser_missing() or "")
+needs_browser = pytest.mark.browser
 """Tests that drive Debian's Chromium through Playwright (the `browser` dependency group)."""
+
+TEST_GROUPS = {"browser": "playwright", "docs": "mkdocs", "interop": "acomms"}
+"""The dependency groups only some tests use, each with a module it brings: not default groups,
+so ``uv run zab demo`` does not install them; the test session does, the first time."""
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "browser: drives Debian's Chromium through Playwright")
+    if hasattr(config, "workerinput"):
+        return  # an xdist worker: the controller installed what was missing before starting it
+    missing = [group for group, module in TEST_GROUPS.items()
+               if importlib.util.find_spec(module) is None]
+    uv = os.environ.get("UV") or shutil.which("uv")
+    if not missing or uv is None:
+        return
+    command = [uv, "sync", "--locked", "--inexact", *(f"--group={group}" for group in missing)]
+    done = subprocess.run(command, cwd=REPO, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise pytest.UsageError(f"installing the test groups {', '.join(missing)} failed "
+                                f"({' '.join(command[1:])}):\n{done.stderr}")
+    importlib.invalidate_caches()
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    if item.get_closest_marker("browser") is not None and (reason := browser_missing()):
+        pytest.skip(reason)
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:

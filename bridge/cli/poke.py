@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import math
-import queue
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -23,7 +22,8 @@ from bridge.mission.model import ZenohSettings
 from bridge.runtime.session import close_quietly, open_session
 
 MSGPACK = "application/msgpack"
-POLL_S = 0.2  # how often the listen loop wakes to notice Ctrl-C and its end time
+IDLE_S = 0.01  # how long the listen loop sleeps when nothing has arrived
+RING = 4096  # values held for the listen loop; past that the oldest are dropped, never blocking
 
 
 class PokeError(Exception):
@@ -84,6 +84,13 @@ def format_sample(key: str, payload: bytes, encoding: str, steps: Steps | None =
     return f"{key} {json.dumps(_plain(value), separators=(', ', ': '))}"
 
 
+def _line(sample: zenoh.Sample, steps: Steps | None) -> str:
+    if sample.kind == zenoh.SampleKind.DELETE:
+        return f"{sample.key_expr} (deleted)"
+    return format_sample(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding),
+                         steps)
+
+
 def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
            count: int | None = None, duration: float | None = None,
            ready: Callable[[], None] | None = None, steps: Steps | None = None) -> int:
@@ -94,30 +101,20 @@ def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
         zenoh.KeyExpr(keyexpr)
     except zenoh.ZError as exc:
         raise PokeError(f"invalid key expression {keyexpr!r}: {exc}") from None
-    arrived: queue.Queue[str] = queue.Queue()
-
-    def on_sample(sample: zenoh.Sample) -> None:
-        if sample.kind == zenoh.SampleKind.DELETE:
-            arrived.put(f"{sample.key_expr} (deleted)")
-            return
-        arrived.put(format_sample(str(sample.key_expr), sample.payload.to_bytes(),
-                                  str(sample.encoding), steps))
-
     end = None if duration is None else time.monotonic() + duration
     shown = 0
     with client(endpoint) as session:
-        session.declare_subscriber(keyexpr, on_sample)
+        # a channel, not a callback: a callback's thread keeps the process from exiting if
+        # the close fails (it can time out under load), Ctrl-C or not
+        subscriber = session.declare_subscriber(keyexpr, zenoh.handlers.RingChannel(RING))
         if ready is not None:
             ready()
-        while count is None or shown < count:
-            wait = POLL_S if end is None else min(POLL_S, end - time.monotonic())
-            if wait <= 0:
-                break
-            try:
-                line = arrived.get(timeout=wait)
-            except queue.Empty:
+        while (count is None or shown < count) and (end is None or time.monotonic() < end):
+            sample = subscriber.try_recv()
+            if sample is None:
+                time.sleep(IDLE_S)
                 continue
-            show(line)
+            show(_line(sample, steps))
             shown += 1
     return shown
 
