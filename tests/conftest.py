@@ -88,10 +88,11 @@ def mission_on_free_ports(path: Path) -> LoadedMission:
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
-    """``-n auto``: a worker per core, and one more: much of the suite waits on real time
-    (fleets, TDMA slots, browsers), so on two cores a third worker fills those waits (measured:
-    344 s against 443 s with two, the machine shared)."""
-    return len(os.sched_getaffinity(0)) + 1
+    """``-n auto``: two workers per core, and one more: most of the suite's wall time is
+    waiting on real time (fleets, TDMA slots, demos, browsers), so on two cores five workers
+    fill those waits (a full run with three used ~330 s of CPU in 474 s on two cores; five
+    gave 283 s against 446 s for three, the same machine)."""
+    return 2 * len(os.sched_getaffinity(0)) + 1
 
 
 @pytest.hookimpl(tryfirst=True)

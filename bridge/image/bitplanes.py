@@ -16,12 +16,9 @@ significant in them yet) go together, one sequence for each scale, so a plane th
 none of them costs a bit a scale, not a bit a band (chroma's many idle bands cost most).
 ``k`` starts where one ``0`` covers the sequence's first pass and carries over from plane to
 plane for each class and band (or scale of idle bands), so both ends adapt alike with no
-side information. Refinement
-bits and signs go as they are. With a region of interest each plane is coded twice over:
-first the ROI's coefficients (those raised), with runs of their own, then the rest's, so the
-rest's zeros never lengthen the ROI's runs. Everything is decided for a whole pass from the
-state at the pass's start, so numpy does the bookkeeping and Python only walks the run codes
-(a run of ``0`` at a time: :data:`_COVER` says how far it reaches).
+side information. Refinement bits and signs go as they are. Everything is decided for a
+whole pass from the state at the pass's start, so numpy does the bookkeeping and Python
+only walks the run codes (a run of ``0`` at a time: :data:`_COVER` says how far it reaches).
 
 A stream cut anywhere decodes to everything before the cut (a run code or a sign cut in
 half is dropped), and a corrupt stream decodes to some image of the same shape: the decoder
@@ -31,7 +28,6 @@ checks every position it reads against the pass it is in.
 from __future__ import annotations
 
 from bisect import bisect_left, bisect_right
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from itertools import accumulate
 
@@ -82,14 +78,14 @@ class Context:
         """Coefficients at coding ``positions`` became significant."""
         geometry = self.geometry
         self.near[geometry.neighbours[positions]] = True
-        self.under[geometry.children(positions)] = True
+        self.under[geometry.children[positions]] = True
         self.busy[geometry.band_of[positions]] = True
 
-    def classes(self, sig: Bools, only: Bools | None = None) -> list[Ints]:
-        """Coding positions not yet significant (and in ``only``, if given), by class: near
-        a significant neighbour, under a significant parent, neither."""
+    def classes(self, sig: Bools) -> list[Ints]:
+        """Coding positions not yet significant, by class: near a significant neighbour,
+        under a significant parent, neither."""
         near, under = self.near[:-1], self.under[:-1]
-        rest = ~sig if only is None else ~sig & only
+        rest = ~sig
         close = rest & near
         far = rest ^ close
         return [np.flatnonzero(close), np.flatnonzero(far & under),
@@ -170,13 +166,13 @@ def _run_encode(out: list[str], ones: list[int], signs: list[bool], pos: int, le
     """Append the run codes of the decisions ``pos`` up to ``length`` of a pass, whose yes
     are at ``ones``; ``kp`` is the run parameter in quarters (``k = kp >> 2``); returns the
     final ``kp``."""
-    cover, after, down, widths = _COVER, _AFTER, _DOWN, _K
+    cover, after, down, widths, steps = _COVER, _AFTER, _DOWN, _K, _STEP
     append = out.append
     for p, negative in zip(ones, signs, strict=True):
         gap = p - pos
-        covered = cover[kp]
-        m = bisect_right(covered, gap) - 1  # codes 0 before the one
-        if m:
+        if gap >= steps[kp]:  # codes 0 before the one
+            covered = cover[kp]
+            m = bisect_right(covered, gap) - 1
             append("0" * m)
             gap -= covered[m]
             kp = after[kp][m]
@@ -191,37 +187,23 @@ def _run_encode(out: list[str], ones: list[int], signs: list[bool], pos: int, le
     return kp
 
 
-def _groups(top: int, raised: tuple[Bools, int] | None) -> Iterator[tuple[int, int, Bools | None]]:
-    """The planes from ``top`` down, each as its groups of coefficients in coding order:
-    ``(plane, group, mask)``. Without an ROI one group, everything (``None``); with one the
-    ROI's coefficients first, then the rest (from the highest plane anything outside has)."""
-    for n in range(top, -1, -1):
-        if raised is None:
-            yield n, 0, None
-            continue
-        yield n, 0, raised[0]
-        if n <= raised[1]:
-            yield n, 1, ~raised[0]
-
-
 def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
-                  budget_bits: int, raised: tuple[Bools, int] | None = None) -> str:
+                  budget_bits: int) -> str:
     """The bit string (``'0'``/``'1'``) of ``q`` (magnitudes, coding order) from plane ``top``
-    down, stopping once it holds ``budget_bits`` bits (it may run over: cut it).
-    ``raised``: an ROI's mask and the highest plane of anything outside it: above that plane
-    only the ROI is coded."""
+    down, stopping once it holds ``budget_bits`` bits (it may run over: cut it)."""
     size = geometry.size
     sig = np.zeros(size, dtype=bool)
     starts = geometry.band_start
     scales = [band.scale for band in geometry.bands]
-    ks: dict[tuple[int, int, int], int] = {}
+    ks: dict[tuple[int, int], int] = {}
     context = Context(geometry)
     parts: list[str] = []
     total = 0
-    for n, g, only in _groups(top, raised):
-        t = 1 << n
-        classes = context.classes(sig, only)
-        was = np.flatnonzero(sig if only is None else sig & only)
+    first = np.frexp(q)[1] - 1  # the plane each coefficient becomes significant in
+    for n in range(top, -1, -1):
+        new = np.flatnonzero(first == n)
+        classes = context.classes(sig)
+        was = np.flatnonzero(sig)
         passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
         for cls, cand in enumerate(passes):
             if cand is None:  # refinement (no more than the budget still takes)
@@ -235,8 +217,8 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
                 continue
             if cand.size == 0:
                 continue
-            hits = q[cand] >= t
-            ones_at = np.flatnonzero(hits)
+            at = np.minimum(np.searchsorted(cand, new), cand.size - 1)
+            ones_at = at[cand[at] == new]
             cut_at = np.searchsorted(cand, starts)
             cut_ones = np.searchsorted(ones_at, cut_at).tolist()
             cut = cut_at.tolist()
@@ -258,7 +240,7 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
                         ones += [p - cut[b] + length for p in ones_list[oa:oz]]
                         signs += neg[oa:oz]
                         length += cut[b + 1] - cut[b]
-                key = (g, cls, key_band)
+                key = (cls, key_band)
                 out: list[str] = []
                 ks[key] = _run_encode(out, ones, signs, pos, length,
                                       ks.get(key, _first_kp(length - pos)))
@@ -277,8 +259,9 @@ def _run_decode(bits: str, i: int, pos: int, length: int, kp: int,
     :class:`Truncated` where the bits end or lie."""
     cover, after, down, widths = _COVER, _AFTER, _DOWN, _K
     end = len(bits)
+    find, found_one, sign_of = bits.find, found.append, signs.append
     while True:
-        j = bits.find("1", i)
+        j = find("1", i)
         if j < 0:
             j = end
         covered = cover[kp]
@@ -298,29 +281,39 @@ def _run_decode(bits: str, i: int, pos: int, length: int, kp: int,
         p = pos + int(bits[j + 1:i - 1], 2) if k else pos
         if p >= length:
             raise Truncated  # corrupt: a position past the pass
-        found.append(p)
-        signs.append(bits[i - 1] == "1")
+        found_one(p)
+        sign_of(bits[i - 1] == "1")
         pos = p + 1
         kp = down[kp]
 
 
-def decode_planes(geometry: Geometry, bits: str, top: int,
-                  raised: tuple[Bools, int] | None = None) -> Planes:
+def decode_planes(geometry: Geometry, bits: str, top: int) -> Planes:
     """What a (possibly cut) bit string from :func:`encode_planes` tells."""
-    size = geometry.size
-    state = Planes(size)
-    state.below[:] = top + 1
+    state = Planes(geometry.size)
+    whole: list[Ints] = []
+    low = _read_planes(geometry, bits, top, state, whole)
+    state.below[:] = low  # (those still insignificant: below every plane read whole,
+    for cand in whole:  # and below the one the stream stopped in if their pass came whole)
+        state.below[cand] = low - 1
+    return state
+
+
+def _read_planes(geometry: Geometry, bits: str, top: int, state: Planes,
+                 whole: list[Ints]) -> int:
+    """Read ``bits`` into ``state``; returns the lowest plane read whole (``top + 1``: none),
+    leaving in ``whole`` the passes of the next plane that came whole."""
     sig = state.significant
     starts = geometry.band_start
     scales = [band.scale for band in geometry.bands]
-    ks: dict[tuple[int, int, int], int] = {}
+    ks: dict[tuple[int, int], int] = {}
     context = Context(geometry)
     i = 0
     end = len(bits)
-    for n, g, only in _groups(top, raised):
+    for n in range(top, -1, -1):
         state.threshold = n
-        classes = context.classes(sig, only)
-        was = np.flatnonzero(sig if only is None else sig & only)
+        whole.clear()
+        classes = context.classes(sig)
+        was = np.flatnonzero(sig)
         passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
         for cls, cand in enumerate(passes):
             if cand is None:
@@ -333,7 +326,7 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
                     state.refined[idx] = True
                     i += m
                 if m < was.size:
-                    return state
+                    return n + 1
                 continue
             if cand.size == 0:
                 continue
@@ -342,7 +335,7 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
             stop = False
             cut = np.searchsorted(cand, starts).tolist()
             for key_band, bands in _segments(cut, context.busy.tolist(), scales):
-                key = (g, cls, key_band)
+                key = (cls, key_band)
                 lengths = [cut[b + 1] - cut[b] for b in bands]
                 if len(bands) == 1:
                     pos, length, heard = cut[bands[0]], cut[bands[0] + 1], found
@@ -367,9 +360,9 @@ def decode_planes(geometry: Geometry, bits: str, top: int,
                 state.magnitude[idx] = 1 << n
                 state.plane[idx] = n
                 state.negative[idx] = np.array(signs, dtype=bool)
-            if not stop:
-                state.below[cand] = n
             if stop:
-                return state
+                return n + 1
+            whole.append(cand)
     state.complete = True
-    return state
+    whole.clear()
+    return 0

@@ -3,26 +3,37 @@
 :func:`encode` turns a grey (``h × w``) or colour (``h × w × 3``, RGB) ``uint8`` array into at
 most ``budget`` bytes; :func:`decode` turns *any prefix* of them into the best image that
 prefix holds, with its own estimate of the distortion. Colour goes as YCbCr with chroma at
-half resolution and half weight; a region of interest (:class:`~bridge.image.geometry.Roi`)
-raises its coefficients by a few bit planes, so it sharpens first.
+half resolution and half weight.
+
+A region of interest (:class:`~bridge.image.geometry.Roi`) is coded as a picture of its own
+(a *tile*), so its edges cost what a picture's edges cost and none of its bits go to
+coefficients it shares with the rest (raising the ROI's coefficients in one transform of the
+whole picture left ROI coding well short of the ROI coded alone: ``bench/image_bench.py``).
+Its stream goes between two parts of the whole picture's: first a small share of the budget
+(``2**-(shift + 1)``: a coarse picture of everything), then the tile, up to the budget or
+until it is whole, then the rest of the whole picture's stream; the decoder puts the tile
+over the ROI.
 
 The stream, most significant bit first::
 
-    version   2 bits (2; this decoder refuses the earlier ones)
+    version   2 bits (3; this decoder refuses the earlier ones)
     colour    1 bit
     width-1   11 bits, height-1 11 bits
     top+1     5 bits: the highest bit plane (0: an empty image)
-    roi       1 bit; when set x0, y0, x1, y1 (6 bits each, 64ths of the image), shift (3)
-              and the highest bit plane outside the ROI plus one (5)
+    roi       1 bit; when set x0, y0, x1, y1 (6 bits each, 64ths of the image), shift (3),
+              the tile's top+1 (5), and how many bits the whole picture's first part and
+              the tile's stream take (20 each)
     planes    the coefficients' bit planes (:mod:`bridge.image.bitplanes`), cut at the budget
+              (with an ROI: the whole picture's first part, the tile's, the whole's rest)
 
-Four bytes of header (eight with an ROI), against JPEG 2000's hundred and more.
+Four bytes of header (13 with an ROI), against JPEG 2000's hundred and more.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,8 +44,10 @@ from bridge.image.wavelet import forward, inverse
 
 __all__ = ["MAX_SIDE", "Decoded", "ImageStreamError", "decode", "encode", "header_bytes"]
 
-VERSION = 2
+VERSION = 3
 MAX_SIDE = 2048
+LENGTH_BITS = 20
+"""Bits of the lengths in an ROI's header (a mission's budget is at most 64 kB)."""
 FRACTION_BITS = 2  # quantiser step: a quarter of a (weighted) grey level
 QUANTUM = float(1 << FRACTION_BITS)
 MSE_CEILING = 128.0 ** 2
@@ -75,7 +88,7 @@ def header_bytes(roi: bool) -> int:
 
 
 def _header_bits(roi: bool) -> int:
-    return 2 + 1 + 11 + 11 + 5 + 1 + (32 if roi else 0)
+    return 2 + 1 + 11 + 11 + 5 + 1 + (24 + 3 + 5 + 2 * LENGTH_BITS if roi else 0)
 
 
 def _components(pixels: U8) -> list[F64]:
@@ -119,13 +132,6 @@ def _pixels(planes: list[F64]) -> U8:
     return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
 
 
-def _shifts(geo: Geometry, roi: Roi | None, height: int, width: int) -> NDArray[np.int64] | None:
-    """Each coefficient's ROI shift (None without an ROI)."""
-    if roi is None or roi.shift == 0:
-        return None
-    return geo.roi_shifts(roi, height, width)
-
-
 def encode(pixels: U8, budget: int, roi: Roi | None = None) -> bytes:
     """At most ``budget`` bytes of ``pixels`` (grey ``h × w`` or RGB ``h × w × 3``, uint8)."""
     array = np.asarray(pixels)
@@ -138,39 +144,82 @@ def encode(pixels: U8, budget: int, roi: Roi | None = None) -> bytes:
         raise ValueError(f"{width} × {height} is outside 1..{MAX_SIDE} pixels a side")
     if budget < header_bytes(roi is not None):
         raise ValueError(f"a budget of {budget} bytes cannot hold the header")
-    colour = array.ndim == 3
-    geo = geometry(height, width, colour)
-    comps = _components(array)
-    canvases = np.concatenate([forward(c, lv).ravel() for c, lv in zip(comps, geo.levels,
-                                                                     strict=True)])
-    coefs = canvases[geo.order]
-    q = np.floor(np.abs(coefs) * geo.weight * QUANTUM).astype(np.int64)
-    shifts = _shifts(geo, roi, height, width)
-    raised = None
-    if shifts is not None and roi is not None:
-        q <<= shifts
-        inner = shifts > 0
-        outside = q[~inner]
-        raised = (inner, int(outside.max()).bit_length() - 1 if outside.size else -1)
-    top = int(q.max()).bit_length() - 1 if q.size else -1
-    head = [f"{VERSION:02b}", "1" if colour else "0", f"{width - 1:011b}",
+    if budget * 8 >= 1 << LENGTH_BITS:
+        raise ValueError(f"a budget of {budget} bytes is over {(1 << LENGTH_BITS) // 8 - 1}")
+    room = budget * 8 - _header_bits(roi is not None)
+    top, whole = _planes(array if roi is None else _filled(array, *roi.box(height, width)),
+                         room)
+    head = [f"{VERSION:02b}", "1" if array.ndim == 3 else "0", f"{width - 1:011b}",
             f"{height - 1:011b}", f"{top + 1:05b}"]
     if roi is None:
         head.append("0")
+        body = whole
     else:
+        first = whole[:min((budget >> (roi.shift + 1)) * 8, room)]
+        tile_top, tile = _planes(np.ascontiguousarray(array[roi.box(height, width)]),
+                                 room - len(first))
+        tile = tile[:room - len(first)]
         head += ["1", *(f"{v:06b}" for v in (roi.x0, roi.y0, roi.x1 - 1, roi.y1 - 1)),
-                 f"{roi.shift:03b}", f"{(raised[1] if raised else -1) + 1:05b}"]
-    header = "".join(head)
-    budget_bits = budget * 8
-    bits = header
-    if top >= 0:
-        bits += encode_planes(geo, q, coefs < 0, top, budget_bits - len(header), raised)
-    bits = bits[:budget_bits]
+                 f"{roi.shift:03b}", f"{tile_top + 1:05b}",
+                 f"{len(first):0{LENGTH_BITS}b}", f"{len(tile):0{LENGTH_BITS}b}"]
+        body = first + tile + whole[len(first):]
+    bits = ("".join(head) + body)[:budget * 8]
     bits += "0" * (-len(bits) % 8)
     return int(bits, 2).to_bytes(len(bits) // 8, "big")
 
 
-def _read_header(bits: str) -> tuple[bool, int, int, int, Roi | None, int, int]:
+def _filled(array: U8, rows: slice, cols: slice) -> U8:
+    """``array`` with the box ``rows`` × ``cols`` (the ROI, whose tile the decoder puts over
+    it) smoothed over from its edges (the mean of the row-wise and the column-wise straight
+    lines between the pixels just outside), so that the whole picture spends nothing there."""
+    x = array.astype(np.float64)
+    h, w = x.shape[:2]
+    r0, r1, c0, c1 = rows.start, rows.stop, cols.start, cols.stop
+
+    def line(a: F64, b: F64, n: int, axis: int) -> F64:
+        t = (np.arange(n) + 1.0) / (n + 1)
+        shape = [1] * a.ndim
+        shape[axis] = n
+        t = t.reshape(shape)
+        return a * (1 - t) + b * t
+
+    left = x[r0:r1, c0 - 1 if c0 else c1 % w][:, None]
+    right = x[r0:r1, c1 if c1 < w else max(c0 - 1, 0)][:, None]
+    top = x[r0 - 1 if r0 else r1 % h, c0:c1][None]
+    bottom = x[r1 if r1 < h else max(r0 - 1, 0), c0:c1][None]
+    x[rows, cols] = (line(left, right, c1 - c0, 1) + line(top, bottom, r1 - r0, 0)) / 2
+    return np.clip(np.rint(x), 0, 255).astype(np.uint8)
+
+
+def _planes(array: U8, budget_bits: int) -> tuple[int, str]:
+    """A picture's top bit plane and its planes' bits (at least ``budget_bits`` of them, or
+    all)."""
+    height, width = array.shape[:2]
+    geo = geometry(height, width, array.ndim == 3)
+    canvases = np.concatenate([forward(c, lv).ravel() for c, lv in zip(
+        _components(array), geo.levels, strict=True)])
+    coefs = canvases[geo.order]
+    q = np.floor(np.abs(coefs) * geo.weight * QUANTUM).astype(np.int64)
+    top = int(q.max()).bit_length() - 1 if q.size else -1
+    if top < 0 or budget_bits <= 0:
+        return top, ""
+    return top, encode_planes(geo, q, coefs < 0, top, budget_bits)
+
+
+@dataclass(frozen=True)
+class _Header:
+    colour: bool
+    width: int
+    height: int
+    top: int
+    roi: Roi | None
+    at: int  # where the planes start
+    tile_top: int = -1
+    first: int = 0  # bits of the whole picture's first part (with an ROI)
+    tile: int = 0  # bits of the tile's stream
+
+
+def _read_header(bits: str) -> _Header:
     if len(bits) < _header_bits(False):
         raise ImageStreamError(f"{len(bits) // 8} bytes cannot hold an image header")
     version = int(bits[0:2], 2)
@@ -179,66 +228,89 @@ def _read_header(bits: str) -> tuple[bool, int, int, int, Roi | None, int, int]:
     colour = bits[2] == "1"
     width, height = int(bits[3:14], 2) + 1, int(bits[14:25], 2) + 1
     top = int(bits[25:30], 2) - 1
-    roi = None
-    at, outside = 31, -1
-    if bits[30] == "1":
-        if len(bits) < _header_bits(True):
-            raise ImageStreamError("the stream ends inside its ROI header")
-        x0, y0, x1, y1, shift = (int(bits[a:b], 2) for a, b in
-                                  ((31, 37), (37, 43), (43, 49), (49, 55), (55, 58)))
-        x1, y1 = x1 + 1, y1 + 1
-        outside = int(bits[58:63], 2) - 1
-        try:
-            roi = Roi(x0, y0, x1, y1, shift)
-        except ValueError as exc:
-            raise ImageStreamError(str(exc)) from None
-        at = 63
-    return colour, width, height, top, roi, at, outside
+    if bits[30] != "1":
+        return _Header(colour, width, height, top, None, 31)
+    at = _header_bits(True)
+    if len(bits) < at:
+        raise ImageStreamError("the stream ends inside its ROI header")
+    x0, y0, x1, y1, shift, tile_top, first, tile = (
+        int(bits[a:b], 2) for a, b in pairwise((31, 37, 43, 49, 55, 58, 63,
+                                                63 + LENGTH_BITS, at)))
+    try:
+        roi = Roi(x0, y0, x1 + 1, y1 + 1, shift)
+    except ValueError as exc:
+        raise ImageStreamError(str(exc)) from None
+    return _Header(colour, width, height, top, roi, at, tile_top - 1, first, tile)
+
+
+@dataclass(frozen=True)
+class _Picture:
+    """One picture decoded from its planes' bits, before it becomes pixels."""
+
+    planes: list[F64]
+    complete: bool
+    mse_estimate: float
+
+
+def _picture(bits: str, height: int, width: int, colour: bool, top: int) -> _Picture:
+    geo = geometry(height, width, colour)
+    state = decode_planes(geo, bits, top) if top >= 0 else None
+    scale = geo.weight * QUANTUM
+    values = state.values() if state is not None else np.zeros(geo.size)
+    canvases = np.zeros(geo.size)
+    canvases[geo.order] = values / scale
+    offsets = geo.offsets
+    planes = [inverse(canvases[offsets[i]:offsets[i + 1]].reshape(shape), lv)
+              for i, (shape, lv) in enumerate(zip(geo.shapes, geo.levels, strict=True))]
+    return _Picture(planes, state is None or state.complete,
+                    _mse_estimate(geo, state, height * width))
 
 
 def decode(stream: bytes) -> Decoded:
     """The image any prefix of an :func:`encode` stream holds (a corrupt one gives some image
     of the header's size; :class:`ImageStreamError` if there is no header)."""
     bits = bin(int.from_bytes(b"\x01" + bytes(stream), "big"))[3:]
-    colour, width, height, top, roi, at, outside = _read_header(bits)
-    geo = geometry(height, width, colour)
-    shifts = _shifts(geo, roi, height, width)
-    raised = (shifts > 0, outside) if shifts is not None and roi is not None else None
-    state = decode_planes(geo, bits[at:], top, raised) if top >= 0 else None
-    scale = geo.weight * QUANTUM
-    if shifts is not None:
-        scale = scale * np.exp2(shifts.astype(np.float64))
-    values = state.values() if state is not None else np.zeros(geo.size)
-    coefs = values / scale
-    canvases = np.zeros(geo.size)
-    canvases[geo.order] = coefs
-    offsets = geo.offsets
-    planes = [inverse(canvases[offsets[i]:offsets[i + 1]].reshape(shape), lv)
-              for i, (shape, lv) in enumerate(zip(geo.shapes, geo.levels, strict=True))]
-    return Decoded(_pixels(planes), len(stream), state is None or state.complete,
-                   _mse_estimate(geo, state, scale, height * width), roi)
+    head = _read_header(bits)
+    body = bits[head.at:]
+    roi = head.roi
+    if roi is None:
+        whole = _picture(body, head.height, head.width, head.colour, head.top)
+        return Decoded(_pixels(whole.planes), len(stream), whole.complete,
+                       whole.mse_estimate, None)
+    ends = head.first + head.tile
+    whole = _picture(body[:head.first] + body[ends:], head.height, head.width, head.colour,
+                     head.top)
+    rows, cols = roi.box(head.height, head.width)
+    tile_h, tile_w = rows.stop - rows.start, cols.stop - cols.start
+    tile = _picture(body[head.first:ends], tile_h, tile_w, head.colour, head.tile_top)
+    pixels = _pixels(whole.planes)
+    if len(body) > head.first:  # (until the tile starts, the whole's coarse fill stands)
+        pixels[rows, cols] = _pixels(tile.planes)
+    share = tile_h * tile_w / (head.height * head.width)
+    mse = (1 - share) * whole.mse_estimate + share * tile.mse_estimate
+    return Decoded(pixels, len(stream), whole.complete and tile.complete, mse, roi)
 
 
-def _mse_estimate(geo: Geometry, state: Planes | None, scale: F64, pixels: int) -> float:
+def _mse_estimate(geo: Geometry, state: Planes | None, pixels: int) -> float:
     """The luma's mean squared error as the stream knows it. A significant coefficient is
     off by a uniform error over its last interval; those still below their threshold ``t``
     are taken, band by band, as Laplacian with the scale that makes the share found
     significant so far (at least half a coefficient) exceed ``t``."""
     if state is None:
         return 0.0
-    units = (scale / geo.weight) ** 2  # squared quantiser units per squared grey level
+    units = QUANTUM ** 2  # squared quantiser units per squared grey level
     luma, band_of = geo.luma, geo.band_of
     known = state.significant & luma
-    width = np.exp2(state.plane[known].astype(np.float64))
-    total = float((width ** 2 / 12 / units[known]).sum())
+    total = float(np.exp2(2 * state.plane[known]).sum()) / 12 / units
     if state.complete:
         return min(total / pixels, MSE_CEILING)
-    unknown = ~state.significant & luma
-    below = state.below[unknown].astype(np.float64)  # (at most 62: see Planes.below)
+    unknown = np.flatnonzero(~state.significant & luma)
+    below = state.below[unknown]  # (at most 62: see Planes.below)
     bands = len(geo.bands)
+    unknown_band = band_of[unknown]
     n_sig = np.bincount(band_of[known], minlength=bands)
-    n_not = np.bincount(band_of[unknown], minlength=bands)
-    mean_below = np.bincount(band_of[unknown], weights=below, minlength=bands) / np.maximum(
+    n_not = np.bincount(unknown_band, minlength=bands)
+    mean_below = np.bincount(unknown_band, weights=below, minlength=bands) / np.maximum(
         n_not, 1)
     scales = np.ones(bands)
     coarser: dict[int, float] = {}  # each level's largest scale found
@@ -251,10 +323,9 @@ def _mse_estimate(geo: Geometry, state: Planes | None, scale: F64, pixels: int) 
             b = min(b, coarser.get(band.level + 1, b) / 2)
         coarser[band.level] = max(coarser.get(band.level, 0.0), b)
         scales[i] = b
-    # the coefficients of one band below one threshold share their expected square: sum
-    # their 1 / units by (band, threshold) and weigh each group once
-    group = band_of[unknown] * 64 + state.below[unknown]
-    weights = np.bincount(group, weights=1 / units[unknown])
+    # the coefficients of one band below one threshold share their expected square: count
+    # them by (band, threshold) and weigh each group once
+    weights = np.bincount(unknown_band * 64 + below) / units
     used = np.flatnonzero(weights)
     b = scales[used // 64]
     t = np.exp2((used % 64).astype(np.float64))

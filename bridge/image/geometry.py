@@ -5,9 +5,10 @@ finest scale, and at each scale luma before chroma (colour images carry Cb and C
 resolution, so their bands join one scale later); inside a band, row by row. A
 :class:`Geometry` maps that order to each component's Mallat-layout canvas (where the
 neighbours of a coefficient are its neighbours on the canvas), gives each coefficient its
-parent (the same place one scale coarser), the weight that makes a coefficient's squared
-error the pixels' (the band's synthesis norm, times a chroma weight), and the mask of a
-region of interest. Both ends build the same geometry from the stream's header.
+parent (the same place one scale coarser) and the weight that makes a coefficient's squared
+error the pixels' (the band's synthesis norm, times a chroma weight). Both ends build the
+same geometry from the stream's header. A region of interest (:class:`Roi`) is a rectangle
+of the picture, coded as a picture of its own (:mod:`bridge.image.codec`).
 """
 
 from __future__ import annotations
@@ -22,12 +23,6 @@ from bridge.image.wavelet import band_shapes, inverse, levels_for
 
 __all__ = ["CHROMA_WEIGHT", "Geometry", "Roi", "geometry"]
 
-REACH = 1.0
-"""A coefficient's footprint, for the ROI: its own span widened by this many spacings each
-side (the 9/7 filters reach about that far)."""
-FULL = 0.49
-"""The share of its footprint in the ROI from which a coefficient gets the whole shift
-(``bench/image_bench.py`` compares this graded shift with a plain one)."""
 CHROMA_WEIGHT = 0.5
 """Chroma coefficients count this much of luma's: colour sharpens after brightness."""
 
@@ -38,7 +33,8 @@ IntArray = Ints
 @dataclass(frozen=True)
 class Roi:
     """A region of interest: a rectangle in 64ths of the image's width and height
-    (``x0 < x1 <= 64``, ``y0 < y1 <= 64``), raised by ``shift`` bit planes."""
+    (``x0 < x1 <= 64``, ``y0 < y1 <= 64``); the rest of the picture gets a ``2**-(shift +
+    1)`` share of the bytes before it, and whatever the ROI leaves over after it."""
 
     x0: int
     y0: int
@@ -64,6 +60,13 @@ class Roi:
 
     def fractions(self) -> tuple[float, float, float, float]:
         return self.x0 / 64, self.y0 / 64, self.x1 / 64, self.y1 / 64
+
+    def box(self, height: int, width: int) -> tuple[slice, slice]:
+        """Its rows and columns on a ``height`` × ``width`` picture (at least one pixel)."""
+        def span(lo: int, hi: int, n: int) -> slice:
+            start = min(lo * n // 64, n - 1)
+            return slice(start, max(start + 1, -(-hi * n // 64)))
+        return span(self.y0, self.y1, height), span(self.x0, self.x1, width)
 
 
 @dataclass(frozen=True)
@@ -140,28 +143,18 @@ class Geometry:
         return out
 
     @cached_property
-    def _children(self) -> tuple[Ints, Ints]:
-        """The children of each coding position, grouped by parent: (start of each parent's
-        group, the children in parent order)."""
-        has = self.parent != np.arange(self.size)
-        kids = np.flatnonzero(has)
-        kids = kids[np.argsort(self.parent[kids], kind="stable")]
-        starts = np.searchsorted(self.parent[kids], np.arange(self.size + 1))
-        return starts, kids
-
-    def children(self, positions: Ints) -> Ints:
-        """The coding positions whose parent is one of ``positions``."""
-        starts, kids = self._children
-        first = starts[positions]
-        counts = starts[positions + 1] - first
-        keep = counts > 0
-        first, counts = first[keep], counts[keep]
-        if not first.size:
-            return kids[:0]
-        step = np.ones(int(counts.sum()), dtype=np.int64)  # consecutive within a group,
-        step[0] = first[0]  # and a jump to the next group's first child
-        step[np.cumsum(counts)[:-1]] = first[1:] - first[:-1] - counts[:-1] + 1
-        return kids[np.cumsum(step)]
+    def children(self) -> NDArray[np.int32]:
+        """Each coding position's children (the coefficients it is the parent of), as
+        coding positions in a row padded with ``size`` (one spare slot past the end)."""
+        has = np.flatnonzero(self.parent != np.arange(self.size))
+        kids = has[np.argsort(self.parent[has], kind="stable")]
+        parents = self.parent[kids]
+        first = np.searchsorted(parents, parents)  # each kid's place among its siblings
+        rank = np.arange(kids.size) - first
+        out = np.full((self.size + 1, int(rank.max()) + 1 if rank.size else 1), self.size,
+                      dtype=np.int32)
+        out[parents, rank] = kids
+        return out
 
     @cached_property
     def band_of(self) -> Ints:
@@ -175,32 +168,6 @@ class Geometry:
         for h, w in self.shapes:
             out.append(out[-1] + h * w)
         return out
-
-    def roi_shifts(self, roi: Roi, height: int, width: int) -> Ints:
-        """How many bit planes each coefficient is raised: by the share of its footprint
-        (its place on the band, widened by ``REACH`` of its spacing each side for the
-        filter's reach) that lies in the ROI: ``roi.shift`` from ``FULL`` of it, one plane
-        less for each halving below that, none outside."""
-        out = np.zeros(self.size, dtype=np.int64)
-        for band in self.bands:
-            scale = 1 << band.scale
-            bh, bw = band.shape
-            share = np.outer(_inside(bh, scale, roi.y0 * height / 64, roi.y1 * height / 64),
-                             _inside(bw, scale, roi.x0 * width / 64, roi.x1 * width / 64))
-            with np.errstate(divide="ignore"):
-                lower = np.floor(np.log2(np.minimum(share / FULL, 1.0)))
-            shifts = np.clip(roi.shift + lower, 0, roi.shift).astype(np.int64)
-            out[band.start:band.start + band.size] = shifts.ravel()
-        return out
-
-
-def _inside(n: int, spacing: int, lo: float, hi: float) -> NDArray[np.float64]:
-    """For ``n`` coefficients ``spacing`` pixels apart: the share of each one's footprint in
-    the pixel interval ``lo..hi``."""
-    start = (np.arange(n) - REACH) * spacing
-    end = (np.arange(n) + 1 + REACH) * spacing
-    overlap: NDArray[np.float64] = np.clip(np.minimum(end, hi) - np.maximum(start, lo), 0, None)
-    return overlap / (end - start)
 
 
 def _norms_1d(levels: int) -> list[tuple[float, float]]:

@@ -49,17 +49,22 @@ def band_shapes(height: int, width: int, levels: int) -> list[tuple[int, int]]:
 def _lift_odd(d: Array, s: Array, c: float) -> None:
     """``d[i] += c (s[i] + s[i+1])``, ``s[n]`` mirrored to ``s[n-1]`` where it is missing."""
     n = d.shape[0]
-    d += c * (s[:n] + (s[1:n + 1] if s.shape[0] > n else np.concatenate((s[1:], s[-1:]))))
+    if s.shape[0] > n:
+        d += c * (s[:n] + s[1:n + 1])
+        return
+    d[:n - 1] += c * (s[:n - 1] + s[1:n])
+    d[n - 1] += c * (s[n - 1] + s[n - 1])
 
 
 def _lift_even(s: Array, d: Array, c: float) -> None:
     """``s[i] += c (d[i-1] + d[i])``, ``d[-1]`` mirrored to ``d[0]``, ``d[m]`` to ``d[m-1]``."""
-    m = s.shape[0]
-    if d.shape[0] == 0:
+    m, n = s.shape[0], d.shape[0]
+    if n == 0:
         return
-    left = np.concatenate((d[:1], d[:m - 1]))
-    right = d[:m] if d.shape[0] >= m else np.concatenate((d, d[-1:]))
-    s += c * (left + right)
+    s[0] += c * (d[0] + d[0])
+    s[1:n] += c * (d[:n - 1] + d[1:n])
+    if n < m:
+        s[n] += c * (d[n - 1] + d[n - 1])
 
 
 def _analyse(x: Array) -> tuple[Array, Array]:

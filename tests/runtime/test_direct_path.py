@@ -4,6 +4,7 @@ still reaches them there."""
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 from collections.abc import Iterator
@@ -112,13 +113,19 @@ def test_steady_traffic_does_not_wake_the_loop_per_frame() -> None:
 
         loop.call_soon_threadsafe = counted  # type: ignore[method-assign]
         sent = 12
+        times: list[float] = []
         for n in range(1, sent + 1):  # ~0.3 s of traffic: six batches of events
+            times.append(time.monotonic())
             put(c.app, "cmd", {"n": n})
             assert c.inbox.get(5)[1] == {"n": n}
             time.sleep(EVENTS_S / 2)
         time.sleep(3 * EVENTS_S)
         del loop.call_soon_threadsafe
-        assert len(wakes) <= 2, f"the data path woke a's loop {len(wakes)} times: {wakes}"
+        # a gap of over a timer period lets the timer stop, and the next frame start it again
+        # (a loaded machine stretches the round trip between puts past it)
+        pauses = sum(1 for a, b in itertools.pairwise(times) if b - a > EVENTS_S)
+        assert len(wakes) <= 2 + pauses, \
+            f"the data path woke a's loop {len(wakes)} times ({pauses} pauses): {wakes}"
         assert c.frames_sent() == ["fleet"] * (sent + 1)  # every event arrived, on the loop
 
 

@@ -23,6 +23,7 @@ def test_a_flood_of_gets_is_bounded_and_every_get_ends() -> None:
         ended = threading.Semaphore(0)
         errors: list[str] = []
         lock = threading.Lock()
+        busy, free = threading.Event(), threading.Event()
         try:
             def on_reply(reply: zenoh.Reply) -> None:
                 if reply.err is not None:
@@ -32,16 +33,22 @@ def test_a_flood_of_gets_is_bounded_and_every_get_ends() -> None:
             time.sleep(0.3)  # the app's declarations reach the bridge
             loop = fleet.nodes["top"]._loop
             assert loop is not None
-            busy = threading.Event()  # the bridge's loop is busy: the gets pile up meanwhile
-            loop.call_soon_threadsafe(lambda: (busy.set(), time.sleep(1.5)))
+            # the bridge's loop is busy until the gets have piled up (however long a loaded
+            # machine takes to send them)
+            loop.call_soon_threadsafe(lambda: (busy.set(), free.wait(30)))
             assert busy.wait(2)
             for _ in range(GETS):
                 app.get("auv1/info?detail=1", zenoh.handlers.Callback(on_reply, ended.release),
                         timeout=30.0)
+            deadline = time.monotonic() + 20
+            while len(errors) < GETS - WAITING_GETS and time.monotonic() < deadline:
+                time.sleep(0.05)  # the refusals come back while the loop is still held
+            free.set()
             for _ in range(GETS):
                 assert ended.acquire(timeout=40), "a get was left hanging"
             refused = fleet.nodes["top"].snapshot()["queries"]["refused_gets"]
             assert refused >= GETS - WAITING_GETS - 8  # (a few may reach the loop early)
             assert sum("too many gets waiting" in e for e in errors) == refused
         finally:
+            free.set()
             app.close()
