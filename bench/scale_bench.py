@@ -10,8 +10,8 @@ seconds). Acoustic addresses stop at 254, so at most 254 nodes. Measured:
    ``--repeat`` times; printed: the median wall time, the speed-up (virtual seconds per wall
    second, whole process and simulation alone as the report gives it), CPU seconds, and µs
    of simulation per received frame, which should stay flat as the fleet grows.
-   ``--against DIR`` also runs a source tree of another version (e.g. ``git archive`` of an
-   older commit) on the same missions, interleaved run by run, so both see the same load.
+   ``--against DIR [DIR ...]`` also runs source trees of other versions (e.g. ``git archive``
+   of an older commit) on the same missions, interleaved run by run, so all see the same load.
 2. With ``--zenoh`` (one node count): ``zab sim`` (the real command: every node's Zenoh peer,
    bridge and modem, plus the water, in one process) run as a subprocess; its CPU time and
    resident memory read from ``/proc`` during an idle window (nobody publishes) and a loaded
@@ -25,7 +25,7 @@ Targets: virtual clock ≥ 500× real time at 64 × 64 (simulation) and ≥ 100�
 average is printed with the results, and medians are quoted.
 
 Run: ``uv run python bench/scale_bench.py [--nodes 16 32 64 250] [--channels 64]
-[--duration 600] [--repeat 3] [--against DIR] [--zenoh [--idle 20] [--loaded 20] [--rate 1]]``.
+[--duration 600] [--repeat 3] [--against DIR ...] [--zenoh [--idle 20] [--loaded 20] [--rate 1]]``.
 """
 
 from __future__ import annotations
@@ -267,11 +267,10 @@ def summarize(runs: list[FastRun], duration: float) -> dict[str, float]:
 
 
 def sweep(nodes: list[int], channels: list[int], duration: float, repeat: int,
-          against: Path | None) -> None:
+          against: list[Path]) -> None:
     """The virtual-clock sweep (see the module docstring), printed as one table."""
     trees: list[tuple[str, Path | None]] = [("this", None)]
-    if against is not None:
-        trees.append((against.name, against.resolve()))
+    trees += [(tree.name, tree.resolve()) for tree in against]
     print(f"virtual clock: zab sim MISSION --fast --duration {duration:g}, whole process, "
           f"median of {repeat}; load average before: {os.getloadavg()[0]:.2f} (2 cores, shared)")
     if os.environ.get("PYTHONDONTWRITEBYTECODE"):
@@ -338,8 +337,8 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=600.0,
                         help="virtual seconds per run")
     parser.add_argument("--repeat", type=int, default=3, help="runs per point (median)")
-    parser.add_argument("--against", type=Path, default=None,
-                        help="another source tree to run side by side (e.g. git archive)")
+    parser.add_argument("--against", type=Path, nargs="+", default=[],
+                        help="other source trees to run side by side (e.g. git archive)")
     parser.add_argument("--zenoh", action="store_true",
                         help="also measure zab sim with Zenoh (first --nodes value)")
     parser.add_argument("--idle", type=float, default=20.0, help="idle window, seconds")

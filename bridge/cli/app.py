@@ -512,21 +512,20 @@ def sim(
                                               "hydrophone) instead of starting one.")] = None,
 ) -> None:
     """Run every node of the mission plus the simulated ocean, each node on its own endpoint."""
-    from bridge.cli.sim import run_sim
-    from bridge.runtime.logbook import FleetLogs
-
     loaded = _load(mission)
     _logging(verbose)
     if fast and speed is not None:
         err.print("--fast and --speed exclude each other (--fast: as fast as possible)")
         raise typer.Exit(2)
-    logs = None if log is None else FleetLogs(log, loaded)
+    logs = None if log is None else _fleet_logs(log, loaded)
     recorder = _recorder_for(report)
     try:
         if fast or speed is not None:
             result = _run_or_exit(_run_fast(loaded, duration or 3600.0, seed, speed, logs,
                                             recorder))
         else:
+            from bridge.cli.sim import run_sim  # (Zenoh and the modems: not for the virtual clock)
+
             result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
                                           console=console, record=logs, recorder=recorder,
                                           water=water))
@@ -537,6 +536,13 @@ def sim(
         console.print(f"mission logs: {', '.join(str(p.path) for p in logs.logs.values())}")
     if report is not None:
         _write_report(report, result, recorder, loaded)
+
+
+def _fleet_logs(folder: Path, loaded: LoadedMission) -> Any:
+    """The fleet's MCAP logbooks in ``folder`` (imported only when asked for)."""
+    from bridge.runtime.logbook import FleetLogs
+
+    return FleetLogs(folder, loaded)
 
 
 def _recorder_for(report: Path | None) -> Any:

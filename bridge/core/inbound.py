@@ -29,7 +29,6 @@ from bridge.core.images import Images
 from bridge.core.interest import Interest
 from bridge.core.link import Links, LinkState
 from bridge.core.linkset import LinkSet, LinkSide
-from bridge.core.mac import node_preset
 from bridge.core.outbound import Outbound
 from bridge.core.outputs import Outbox
 from bridge.core.queries import Queries
@@ -97,7 +96,6 @@ class Inbound:
         self.sent_at = 0.0
         """When the frame being decoded left its sender (:func:`frame_start`): its values'
         timestamps count back from it."""
-        self._presets: dict[tuple[str, str], Preset | None] = {}  # per link and sender
         self._with_meta = {c.index for c in codec.table.channels if any(e.meta for e in
                                                                          c.elements)}
 
@@ -126,7 +124,7 @@ class Inbound:
             return
         self._hop(rx, src, side, now)
         self._heard(origin, frame, now)
-        self.sent_at = frame_start(rx, self._preset(src, side))
+        self.sent_at = frame_start(rx, side.info.preset_of(src))
         if arrival is not None:  # the origin built it the header's age before this frame
             self.sent_at -= arrival.header.age
             self.network.routing.taken(arrival, rx.data, src, now)  # type: ignore[union-attr]
@@ -165,15 +163,6 @@ class Inbound:
             return None
         return src
 
-    def _preset(self, src: str, side: LinkSide) -> Preset | None:
-        """``src``'s modem preset on ``side``'s link (its frames' timing), looked up once per
-        link and sender (a lookup builds the node's modem settings)."""
-        try:
-            return self._presets[side.name, src]
-        except KeyError:
-            found = self._presets[side.name, src] = node_preset(side.info.view, src)
-            return found
-
     def _hop(self, rx: Reception, src: str, side: LinkSide, now: float) -> None:
         """A frame heard from neighbour ``src`` on ``side``: its MAC and health record it."""
         address = self.address if self.network is None else side.address_of(self.node)
@@ -188,7 +177,8 @@ class Inbound:
         """A valid frame of ``src`` (its origin): the counters, the link and the peer's epoch
         record it."""
         self.stats.frames_received += 1
-        self._foreign.pop(src, None)
+        if self._foreign:
+            self._foreign.pop(src, None)
         if self.mismatched:
             self._matched(src, now)
         self.links.heard(src, now)

@@ -127,7 +127,7 @@ class LinkWatch:
             at, _, peer = heapq.heappop(heap)
             if crossing.get(peer) == at:
                 peers.add(peer)
-        out = sorted(peers, key=self.order.__getitem__)
+        out = sorted(peers, key=self.order.__getitem__) if len(peers) > 1 else list(peers)
         t = self.thresholds
         for peer in out:
             heard = last_heard.get(peer)
@@ -183,12 +183,13 @@ class Links:
                     and previous in (None, LinkState.DOWN):
                 self.on_up()
             silent = None if heard is None else now - heard
+            said = state.value
             if self.link is not None:
                 self.outbox.status(f"links/{self.link}/{peer}", {
-                    "peer": peer, "state": state.value, "last_heard": heard,
+                    "peer": peer, "state": said, "last_heard": heard,
                     "silent_s": silent, "link": self.link})
-                self.outbox.event(PeerLink(now, peer, self.link, state.value, heard, silent))
+                self.outbox.event(PeerLink(now, peer, self.link, said, heard, silent))
                 continue
-            self.outbox.status(f"link/{peer}", {"peer": peer, "state": state.value,
+            self.outbox.status(f"link/{peer}", {"peer": peer, "state": said,
                                                 "last_heard": heard, "silent_s": silent})
-            self.outbox.event(Link(now, peer, state.value, heard, silent))
+            self.outbox.event(Link(now, peer, said, heard, silent))

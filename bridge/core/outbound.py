@@ -164,7 +164,7 @@ class Outbound:
         payload over the key's cap is dropped before it is decoded (pictures: see Images)."""
         if self.images is not None and self.images.ingest(key, data, encoding, now, ref):
             return
-        if len(data) > (cap := self.payload_cap(key)):
+        if len(data) > (cap := self._caps.get(key, self._cap)):  # (self.payload_cap, inlined)
             self.drop_payload(key, f"{len(data)} bytes, over this key's cap of {cap}", now,
                               "too_large")
             return
@@ -212,8 +212,9 @@ class Outbound:
             sender = self.senders.get(channel.index)
             if sender is None:
                 store.update(channel.index, index, packed, now)
-                for other in self.stores[1:]:
-                    other.update(channel.index, index, packed, now)
+                if len(self.stores) > 1:
+                    for other in self.stores[1:]:
+                        other.update(channel.index, index, packed, now)
             elif store.update_value(channel.index, index, packed, now):
                 payload = store.states[channel.index].payload()
                 refused = self.saving.refusal()  # (while the state cannot be saved)

@@ -37,6 +37,7 @@ from bridge.mission.model import (
     route_hops,
     route_text,
 )
+from bridge.mission.presets import Preset, node_preset
 
 __all__ = ["DEFAULT_LINK", "DEFAULT_ROUTE", "LinkInfo", "Network", "network_problems"]
 
@@ -74,6 +75,18 @@ class LinkInfo:
     def frame_bytes_of(self, node: str) -> int:
         """The largest frame ``node`` sends on this link."""
         return self.view.node_modem(node).frame_bytes
+
+    def preset_of(self, node: str) -> Preset | None:
+        """``node``'s modem preset on this link (its frames' timing), looked up once per node
+        for every core of the mission (a lookup builds the node's modem settings)."""
+        presets = self._presets
+        if node not in presets:
+            presets[node] = node_preset(self.view, node)
+        return presets[node]
+
+    @cached_property
+    def _presets(self) -> dict[str, Preset | None]:
+        return {}
 
 
 class Network:

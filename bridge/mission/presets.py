@@ -28,8 +28,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-__all__ = ["MICROMODEM_PSK", "PRESETS", "Preset", "UnknownPresetError", "get_preset"]
+if TYPE_CHECKING:
+    from bridge.mission.model import Mission
+
+__all__ = ["MICROMODEM_PSK", "PRESETS", "Preset", "UnknownPresetError", "get_preset", "node_preset"]
 
 MICROMODEM_PSK: dict[int, tuple[int, float]] = {
     1: (192, 250.0), 2: (192, 500.0), 3: (512, 1200.0), 4: (512, 1300.0), 5: (2048, 5300.0),
@@ -194,3 +198,14 @@ def get_preset(name: str) -> Preset:
     except KeyError:
         known = ", ".join(sorted(PRESETS))
         raise UnknownPresetError(f"unknown modem preset {name!r}; known presets: {known}") from None
+
+
+def node_preset(mission: Mission, node: str) -> Preset | None:
+    """The modem preset that gives ``node`` known timings, if any."""
+    name = mission.node_modem(node).options.get("preset")
+    if not isinstance(name, str):
+        return None
+    try:
+        return get_preset(name)
+    except UnknownPresetError:
+        return None

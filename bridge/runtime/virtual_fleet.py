@@ -18,7 +18,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -340,9 +340,10 @@ class FastFleet:
             now = self.now
             if water is not None and water <= now:
                 for link, event in self._water_events(now):
-                    if isinstance(event, Delivery):
+                    kind = event.__class__
+                    if kind is Delivery:
                         self._deliver(event, link)
-                    elif isinstance(event, TxDone):
+                    elif kind is TxDone:
                         self._pending.pop(event.frame_id, None)
             while timers and timers[0][0] <= now:
                 heapq.heappop(timers)[2]()
@@ -352,12 +353,12 @@ class FastFleet:
             if self._next_tick <= now:
                 self._tick(now)
 
-    def _water_events(self, now: float) -> list[tuple[str | None, Any]]:
+    def _water_events(self, now: float) -> Iterable[tuple[str | None, Any]]:
         """What every link's water settled up to ``now``, in time order (the ocean's clock
         moves when it is asked)."""
         if len(self.oceans) == 1:
             link, ocean = next(iter(self.oceans.items()))
-            return [(link, event) for event in ocean.advance(now)]
+            return zip(itertools.repeat(link), ocean.advance(now))
         found = [(event.time, i, link, event) for i, (link, ocean) in
                  enumerate(self.oceans.items()) for event in ocean.advance(now)]
         found.sort(key=lambda e: (e[0], e[1]))
@@ -447,7 +448,8 @@ class FastFleet:
         name = self._names[link].get(event.dst)
         if name is None or name in self.stopped:
             return
-        meta = {**event.meta, "start": event.start}
+        meta = event.meta  # (the delivery's own, made for it by the water)
+        meta["start"] = event.start
         core, now = self.cores[name], self.now
         core.receive(Reception(event.data, event.src, event.end, meta), now, now, link)
         self._collect(name, core)

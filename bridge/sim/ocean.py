@@ -88,8 +88,8 @@ class LossCurve:
     def __call__(self, distance_m: float, max_range_m: float) -> float:
         if max_range_m <= 0:
             return 0.0
-        share = self.edge_loss * (distance_m / max_range_m) ** self.exponent
-        return float(min(1.0, max(0.0, share)))
+        share = float(self.edge_loss * (distance_m / max_range_m) ** self.exponent)
+        return 1.0 if share > 1.0 else share if share > 0.0 else 0.0
 
 
 NO_RANGE_LOSS = LossCurve(edge_loss=0.0)
@@ -128,7 +128,7 @@ class Delivery:
     data: bytes
     start: float
     end: float
-    meta: Mapping[str, Any]
+    meta: dict[str, Any]  # (made for this delivery: its receiver may add to it)
 
     @property
     def time(self) -> float:

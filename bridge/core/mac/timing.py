@@ -6,20 +6,9 @@ from __future__ import annotations
 import math
 
 from bridge.mission.model import Mission
-from bridge.mission.presets import Preset, UnknownPresetError, get_preset
+from bridge.mission.presets import Preset, node_preset
 
 __all__ = ["busy_s", "frame_time_s", "max_distance_m", "node_preset"]
-
-
-def node_preset(mission: Mission, node: str) -> Preset | None:
-    """The modem preset that gives ``node`` known timings, if any."""
-    name = mission.node_modem(node).options.get("preset")
-    if not isinstance(name, str):
-        return None
-    try:
-        return get_preset(name)
-    except UnknownPresetError:
-        return None
 
 
 def max_distance_m(mission: Mission, preset: Preset) -> float:
