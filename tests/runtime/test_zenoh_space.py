@@ -18,6 +18,8 @@ import zenoh
 
 from tests.zsim import app, drain, mission_file, zab_sim
 
+LONG = True  # a minute of one real-time fleet's tests: handed out first
+
 MISSION = """
 mission: zfid
 wire: {auth: off}

@@ -20,6 +20,8 @@ from bridge.modems.micromodem.emulator import MicromodemEmulator
 from bridge.modems.pty_host import PtyHost
 from bridge.sim.service import WaterService
 
+INDEPENDENT = True  # each test starts its own emulators: xdist may spread them
+
 # rate-0 figures sped up 40x so that a test takes well under a second; real sound speed
 FAST = get_preset("micromodem-rate0").replace(
     name="micromodem-fast", bitrate_bps=3200.0, overhead_s=0.05, frame_bytes=256
