@@ -26,6 +26,10 @@ FAST = get_preset("evologics-s2c-im").replace(name="test-evologics", overhead_s=
                                               per_byte_s=0.001)
 POSITIONS = {1: (0.0, 0.0, 0.0), 2: (150.0, 0.0, 0.0), 3: (300.0, 0.0, 0.0)}
 
+LEAD_S = 0.6
+"""How far ahead of the modem's clock the tests time a send: two suites at once on two cores
+(load 8) took over 0.3 s to hand an AT*SENDIMS to the emulator, which then expired it."""
+
 
 def arun(main: Callable[[], Awaitable[None]], timeout: float = 15.0) -> None:
     asyncio.run(asyncio.wait_for(main(), timeout))
@@ -144,13 +148,13 @@ def test_timed_sends_make_a_two_way_exchange_exact(tmp_path: Path) -> None:
     async def main() -> None:
         async with modems(tmp_path, 1, 2) as (_, emu), driver(emu[1]) as a, \
                 driver(emu[2], tx_lead_s=0.05) as b:
-            assert a.timed_send and b.timed_send and a.tx_lead_s == 0.1
+            assert a.timed_send and b.timed_send and (a.tx_lead_s, b.tx_lead_s) == (0.1, 0.05)
             assert abs(a.clock() - time.time()) < 0.05  # the modem clock, near host time
-            at_a = a.clock() + a.tx_lead_s
+            at_a = a.clock() + LEAD_S
             await a.send(b"request", 2, at=at_a)
             rx_b = await asyncio.wait_for(b.recv(), 2)
             assert rx_b.data == b"request" and "rx_timestamp_us" in rx_b.meta  # RECVIMS
-            at_b = b.clock() + b.tx_lead_s
+            at_b = b.clock() + LEAD_S
             await b.send(b"reply", 1, at=at_b)
             rx_a = await asyncio.wait_for(a.recv(), 2)
             turnaround = at_b - rx_b.meta["start"]  # b's clock only
@@ -170,11 +174,11 @@ def test_a_late_ims_is_reported_and_the_modem_stays_up(tmp_path: Path) -> None:
             with pytest.raises(BackendError, match="EXPIREDIMS"):
                 await a.send(b"too late", 2, at=a.clock() - 0.5)
             assert a.stats["expired"] == 1 and a.is_open
-            await a.send(b"on time", 2, at=a.clock() + 0.1)
+            await a.send(b"on time", 2, at=a.clock() + LEAD_S)
             assert (await asyncio.wait_for(b.recv(), 2)).data == b"on time"
             heard: list[ModemRange] = []
             a.on_range = heard.append
-            await a.send(b"acked", 2, at=a.clock() + 0.1, ack=True)  # SENDIMS has no ack
+            await a.send(b"acked", 2, at=a.clock() + LEAD_S, ack=True)  # SENDIMS has no ack
             assert a.stats["delivered"] == 1 and heard[0].method == "propagation"
             assert (await asyncio.wait_for(b.recv(), 2)).meta["flag"] == "ack"
 
@@ -202,8 +206,8 @@ def test_clock_is_read_again_while_busy(tmp_path: Path) -> None:
         async with modems(tmp_path, 1, 2) as (_, emu), \
                 driver(emu[1], clock_sync_s=0.2, keepalive_s=0) as a:
             first = a.modem_clock.readings
-            for _ in range(4):  # (0.3 s ahead: at load 10 a 0.1 s lead came too late)
-                await a.send(b"x", 2, at=a.clock() + 0.3)
+            for _ in range(4):
+                await a.send(b"x", 2, at=a.clock() + LEAD_S)
                 await asyncio.sleep(0.1)
             assert a.modem_clock.readings > first
             assert abs(a.clock() - time.time()) < 0.05
