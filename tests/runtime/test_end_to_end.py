@@ -25,8 +25,6 @@ from tests.harness import (
     running_fleet,
 )
 
-LONG = True  # 40 s of real-time fleets: handed out first
-
 
 def test_target_reference_crosses_the_simulated_ocean() -> None:
     loaded = mission_on_free_ports(MISSIONS / "morph.yaml")
