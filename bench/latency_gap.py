@@ -125,7 +125,7 @@ def measure(count: int) -> dict[str, list[float]]:
             paths = [(put_peer, "bench/direct"), (put_a, KEY), (put_lean, KEY)]
             run_paths(paths, got, count, RATE)
         finally:
-            stop(sessions, fleet, [lean])
+            stop(sessions, [fleet], [lean])
     assert child.stdout is not None
     direct = json.loads(child.stdout.readline())
     child.wait(30)
