@@ -690,7 +690,7 @@ async def _picture_part(tour: Tour, loaded: LoadedMission, pictures: PictureWatc
     found = camera_pair(loaded)
     if pictures is None or found is None or not tour.part("pictures"):
         return
-    camera, key, receiver, _ = found
+    camera, key, receiver, _, _ = found
     tour.picture_intro(camera, key, receiver)
     while not any(r.final for r in pictures.seen()) and time.time() < end:
         pictures.changed.clear()
@@ -715,8 +715,10 @@ async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: flo
                  pictures: PictureWatch | None = None) -> None:
     """The parts of the tour before the summary, each when the fleet has something to show
     for it (those the plan left out say nothing)."""
-    if pictures is not None:
+    found = camera_pair(loaded)
+    if pictures is not None and found is not None:
         pictures.put()  # (it crosses while the other parts are told)
+        apps.published[found[4]] += 1
     tour.part("values")
     tour.values_intro()
     await asyncio.to_thread(apps.examples_done.wait, EXAMPLES_WAIT_S)

@@ -58,9 +58,9 @@ class Refinement:
     height: int
 
 
-def camera_pair(loaded: LoadedMission) -> tuple[str, str, str, str] | None:
-    """(camera node, its input key, receiving node, output key there) of the first image
-    channel whose ends both have Zenoh endpoints; None if there is none."""
+def camera_pair(loaded: LoadedMission) -> tuple[str, str, str, str, str] | None:
+    """(camera node, its input key, receiving node, output key there, channel name) of the
+    first image channel whose ends both have Zenoh endpoints; None if there is none."""
     nodes = loaded.mission.nodes
     for channel in loaded.table.channels:
         spec = channel.image
@@ -70,7 +70,7 @@ def camera_pair(loaded: LoadedMission) -> tuple[str, str, str, str] | None:
             for dst in channel.destinations(src):
                 if nodes[src].zenoh.listen and nodes[dst].zenoh.listen:
                     return (src, spec.in_key.format(node=src, src=src), dst,
-                            spec.out_key.format(node=dst, src=src, dst=dst))
+                            spec.out_key.format(node=dst, src=src, dst=dst), channel.name)
     return None
 
 

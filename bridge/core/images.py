@@ -288,6 +288,7 @@ class Images:
                     self.outbox.reports(camera.control(values[0], now))
             return
         data, progress = self.receivers.fragment(src, channel, entry.header, entry.chunk)
+        self.outbox.stats.received_per_channel[channel.name] += 1  # (a fragment: its value)
         receiver = self.receivers.by_key[(src, channel.index)]
         assert isinstance(receiver, TransferReceiver)
         stream = data if data is not None else receiver.prefix()
