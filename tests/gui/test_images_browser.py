@@ -47,6 +47,10 @@ def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
         page.goto(url)
         page.wait_for_selector(FIGURE, timeout=WAIT_MS)
         page.wait_for_selector('#connection[data-state="up"]', timeout=WAIT_MS)
+        # before any picture: nothing of the budget is filled, and the budget box says bytes
+        assert page.evaluate(f"document.querySelector('{FIGURE} .picture-bytes span')"
+                             ".getBoundingClientRect().width") == 0
+        assert page.inner_text(f"{FIGURE} .unit") == "B"
         rov.put("rov/camera", jpeg, encoding=zenoh.Encoding("image/jpeg"))
         page.wait_for_function(f"Number(document.querySelector('{FIGURE}').dataset.bytes) > 0",
                                timeout=WAIT_MS)
@@ -55,6 +59,8 @@ def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
             f"document.querySelector('{FIGURE}').dataset.final === 'true'", timeout=WAIT_MS)
         assert int(page.get_attribute(FIGURE, "data-bytes") or 0) > first  # it refined
         assert " / " in page.inner_text(f"{FIGURE} figcaption")
+        assert page.evaluate(f"document.querySelector('{FIGURE} .picture-bytes span')"
+                             ".getBoundingClientRect().width") > 0
         page.wait_for_function(f"document.querySelector('{FIGURE} img').naturalWidth > 0",
                                timeout=WAIT_MS)
 

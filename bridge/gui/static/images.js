@@ -69,6 +69,7 @@ const imageView = {
     budget.max = String(ch.max_budget_bytes);
     budget.value = String(ch.budget_bytes);
     budget.title = "bytes per picture";
+    make("span", "unit", "B", tools);
     const side = (name, value) => {
       const input = make("input", "side " + name, null, tools);
       input.type = "number";
