@@ -53,10 +53,12 @@ QUANTUM = float(1 << FRACTION_BITS)
 MSE_CEILING = 128.0 ** 2
 """No picture is further off than every pixel by half the range (what the estimate of an
 almost empty stream gives at most)."""
-BODY = 0.25
+BODY = 0.3
 """Wavelet coefficients crowd nearer zero than the Laplacian their tail fits: the share of
 its energy below threshold the distortion estimate keeps (``bench/image_bench.py`` checks the
-estimate against the truth)."""
+estimate against the truth). 0.3: over eight scikit-image pictures and three seabeds, every
+12th prefix up to 1.6 kB, the estimate is 0.26 dB below the truth on average, 1.57 dB off
+in mean absolute value (0.25: +0.48 dB, 1.60; 0.4: -1.43 dB, 1.93)."""
 
 U8 = NDArray[np.uint8]
 F64 = NDArray[np.float64]
@@ -294,8 +296,9 @@ def decode(stream: bytes) -> Decoded:
 def _mse_estimate(geo: Geometry, state: Planes | None, pixels: int) -> float:
     """The luma's mean squared error as the stream knows it. A significant coefficient is
     off by a uniform error over its last interval; those still below their threshold ``t``
-    are taken, band by band, as Laplacian with the scale that makes the share found
-    significant so far (at least half a coefficient) exceed ``t``."""
+    are taken, band by band, as Laplacian with the scale that makes the share of the band
+    above the last threshold all were tested against (at least half a coefficient) exceed
+    it."""
     if state is None:
         return 0.0
     units = QUANTUM ** 2  # squared quantiser units per squared grey level
@@ -308,17 +311,20 @@ def _mse_estimate(geo: Geometry, state: Planes | None, pixels: int) -> float:
     below = state.below[unknown]  # (at most 62: see Planes.below)
     bands = len(geo.bands)
     unknown_band = band_of[unknown]
-    n_sig = np.bincount(band_of[known], minlength=bands)
+    # Each band's scale is fitted at the last threshold every coefficient was tested against
+    # (the plane before the one the stream stopped in): a pass tests the likeliest
+    # coefficients first, so the share found so far in the current plane would overstate it.
+    fit = state.threshold + 1
+    above = known & (state.magnitude >= 1 << fit)
+    n_sig = np.bincount(band_of[above], minlength=bands)
     n_not = np.bincount(unknown_band, minlength=bands)
-    mean_below = np.bincount(unknown_band, weights=below, minlength=bands) / np.maximum(
-        n_not, 1)
     scales = np.ones(bands)
     coarser: dict[int, float] = {}  # each level's largest scale found
     for i, band in enumerate(geo.bands):
         if band.component or not n_not[i]:
             continue
         found = max(float(n_sig[i]), 0.5)
-        b = 2.0 ** mean_below[i] / np.log(band.size / found) if found < band.size else 1.0
+        b = 2.0 ** fit / np.log(band.size / found) if found < band.size else 1.0
         if not n_sig[i]:  # nothing heard of this band yet: finer bands hold less
             b = min(b, coarser.get(band.level + 1, b) / 2)
         coarser[band.level] = max(coarser.get(band.level, 0.0), b)

@@ -3,6 +3,8 @@ streams (never a crash)."""
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -62,6 +64,17 @@ def test_the_distortion_estimate_follows_the_truth() -> None:
     for n in (200, 800, 1600):
         image = decode(stream[:n])
         assert abs(image.psnr_estimate - psnr(GREY, image.pixels)) < 4
+
+
+@pytest.mark.parametrize("seed", [3, 11])
+def test_the_distortion_estimate_does_not_fall_as_bytes_come(seed: int) -> None:
+    """A viewer sees each refinement's estimate: more bytes never read as a worse picture
+    (within a tenth of a dB), though a pass tests its likeliest coefficients first."""
+    pixels = seabed(120, 160, seed=seed, colour=False)
+    stream = encode(pixels, 800)
+    estimates = [decode(stream[:n]).psnr_estimate for n in range(20, 801, 8)]
+    falls = [(a, b) for a, b in pairwise(estimates) if b < a - 0.1]
+    assert not falls, falls
 
 
 def test_colour_goes_as_luma_and_half_size_chroma() -> None:
