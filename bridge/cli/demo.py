@@ -604,8 +604,9 @@ async def _surfacing_part(tour: Tour, loaded: LoadedMission, fleet: Fleet,
     over IP and acoustically meanwhile (the vehicle's own counters at its switches), and the
     first acoustic value after the dive. Everything is recorded as it happens, so the part
     tells it right even when it starts late; no wait outlasts the tour (``end``)."""
-    tour.part("surfacing")
     plan = surfaced_vehicle(loaded)
+    if not tour.part("surfacing"):
+        return  # (the plan left it out: no vehicle of this mission surfaces)
     if watch is None or sent is None or plan is None or fleet.water is None:
         tour.say("No vehicle of this mission surfaces: nothing to show.")
         return
