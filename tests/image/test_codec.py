@@ -124,6 +124,10 @@ def test_no_header_is_a_clear_error() -> None:
         decode(b"\x00\x01")
     with pytest.raises(ImageStreamError, match="version 2"):  # the stream before ROI tiles
         decode(b"\xbf" + b"\xff" * 7)
+    stream = bytearray(encode(GREY, 200))
+    stream[0] |= 0xC0  # version 3: the stream before the runs started lower each plane
+    with pytest.raises(ImageStreamError, match="version 3"):
+        decode(bytes(stream))
 
 
 STREAMS = [encode(COLOUR, 600), encode(COLOUR, 600, Roi.from_fractions(0.1, 0.2, 0.6, 0.9))]
