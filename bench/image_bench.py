@@ -239,12 +239,19 @@ def roi_table(name: str, images: list[np.ndarray],
 
 def best_ms(fn: Callable[[], object], repeat: int) -> float:
     """The least CPU time of ``repeat`` calls (CPU, not wall: the machine is shared)."""
-    best = float("inf")
+    return best_ms_each([fn], repeat)[0]
+
+
+def best_ms_each(fns: list[Callable[[], object]], repeat: int) -> list[float]:
+    """:func:`best_ms` of each of ``fns``, their calls taken in turn (so that a burst of load
+    on the shared machine slows them alike, not one of them)."""
+    best = [float("inf")] * len(fns)
     for _ in range(repeat):
-        start = time.process_time()
-        fn()
-        best = min(best, time.process_time() - start)
-    return best * 1000
+        for i, fn in enumerate(fns):
+            start = time.process_time()
+            fn()
+            best[i] = min(best[i], time.process_time() - start)
+    return [b * 1000 for b in best]
 
 
 def timing_table(grey: np.ndarray, colour: np.ndarray, folder: Path, repeat: int,
@@ -261,7 +268,13 @@ def timing_table(grey: np.ndarray, colour: np.ndarray, folder: Path, repeat: int
         before: list[float] = []
         for key, pixels in (("grey", grey), ("colour", colour)):
             stream = encode(pixels, budget)
-            ms = best_ms(lambda p=pixels, s=stream, b=budget: (encode(p, b), decode(s)), repeat)
+            runs: list[Callable[[], object]] = [
+                lambda p=pixels, s=stream, b=budget: (encode(p, b), decode(s))]
+            if base:
+                codec, then = base[1], base[1].encode(pixels, budget)
+                runs.append(lambda p=pixels, s=then, b=budget, c=codec: (c.encode(p, b),
+                                                                          c.decode(s)))
+            ms, *baseline = best_ms_each(runs, repeat)  # (the baseline's in turn with ours)
             ratio = pixels.size / budget
 
             def j2k(p: np.ndarray = pixels, r: float = ratio) -> None:
@@ -270,10 +283,8 @@ def timing_table(grey: np.ndarray, colour: np.ndarray, folder: Path, repeat: int
 
             cells += [ms, best_ms(j2k, repeat)]
             out[key][budget] = {"zab": ms, "j2k": cells[-1]}
-            if base:
-                codec, then = base[1], base[1].encode(pixels, budget)
-                before.append(best_ms(lambda p=pixels, s=then, b=budget, c=codec: (
-                    c.encode(p, b), c.decode(s)), repeat))
+            if baseline:
+                before.append(baseline[0])
                 out[key][budget]["base"] = before[-1]
         print(f"{budget:>6} | {cells[0]:8.1f} | {cells[1]:8.1f} | {cells[0] / cells[1]:5.2f} | "
               f"{cells[2]:10.1f} | {cells[3]:10.1f} | {cells[2] / cells[3]:5.2f}"
