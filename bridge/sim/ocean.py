@@ -388,12 +388,10 @@ class Ocean:
         """Settle everything that has happened up to ``now``; events come in time order."""
         self._set_now(now)
         events: list[Event] = []
-        while self._queue and self._queue[0][0] <= now:
-            _, _, item = heapq.heappop(self._queue)
-            if isinstance(item, TxDone):
-                events.append(item)
-            else:
-                events.append(self._decide(item))
+        queue = self._queue
+        while queue and queue[0][0] <= now:
+            item = heapq.heappop(queue)[2]
+            events.append(item if item.__class__ is TxDone else self._decide(item))  # type: ignore[arg-type]
         return events
 
     # -- statistics ----------------------------------------------------------------------------
@@ -444,15 +442,16 @@ class Ocean:
         for a, b in self._tx_intervals.get(rx.dst, ()):
             if a < end and start < b:
                 return "half_duplex"
+        frame_id = rx.frame_id
         for other in self._rx_intervals.get(rx.dst, ()):
-            if other.start < end and start < other.end and other.frame_id != rx.frame_id:
+            if other.start < end and start < other.end and other.frame_id != frame_id:
                 return "collision"
-        p = self.preset
-        if self._rng.random() < self.loss_curve(rx.distance_m, p.max_range_m):
+        p, rng = self.preset, self._rng
+        if rng.random() < self.loss_curve(rx.distance_m, p.max_range_m):
             return "range_loss"
-        if self.loss > 0 and self._rng.random() < self.loss:
+        if self.loss > 0 and rng.random() < self.loss:
             return "loss"
-        if p.ber > 0 and self._rng.random() < 1.0 - (1.0 - p.ber) ** (8 * len(rx.data)):
+        if p.ber > 0 and rng.random() < 1.0 - (1.0 - p.ber) ** (8 * len(rx.data)):
             return "bit_errors"
         return None
 
@@ -463,19 +462,18 @@ class Ocean:
         ls = rx.link
         if reason is not None:
             ls.lost[reason] = ls.lost.get(reason, 0) + 1
-            return Loss(dst=rx.dst, src=rx.src, reason=reason, time=rx.end, frame_id=rx.frame_id,
-                        dest=rx.dest)
+            return Loss(rx.dst, rx.src, reason, rx.end, rx.frame_id, rx.dest)
         ls.delivered += 1
-        meta = {
+        start, end = rx.start, rx.end
+        return Delivery(rx.dst, rx.src, rx.data, start, end, {
             "dest": rx.dest,
             "frame_id": rx.frame_id,
             "sent_at": rx.sent_at,
             "tx_start": rx.tx_start,
-            "airtime_s": rx.end - rx.start,
+            "airtime_s": end - start,
             "travel_time_s": rx.travel_s,
             "distance_m": rx.distance_m,
-        }
-        return Delivery(dst=rx.dst, src=rx.src, data=rx.data, start=rx.start, end=rx.end, meta=meta)
+        })
 
     def _prune(self, addr: int) -> None:
         """Forget the intervals of ``addr`` that no undecided reception can overlap any more.
@@ -488,7 +486,9 @@ class Ocean:
         open_ = self._open
         while open_ and open_[0][2].decided:
             heapq.heappop(open_)
-        horizon = min(self._now, open_[0][0]) if open_ else self._now
+        horizon = self._now
+        if open_ and open_[0][0] < horizon:
+            horizon = open_[0][0]
         spans = self._tx_intervals.get(addr)
         if spans and spans[0][1] < horizon:
             self._tx_intervals[addr] = [s for s in spans if s[1] >= horizon]
