@@ -65,6 +65,10 @@ GLIDE_S = 5.0
 """How long a node put somewhere with the time moves on at its last velocity (and how far
 apart its last two positions may be for that velocity to count)."""
 
+PRUNE_SLACK_S = 1e-6
+"""Pruning keeps intervals this much longer, so float rounding of a reception's start and end
+never forgets one that still touches an undecided reception."""
+
 LOSS_REASONS = (
     "out_of_range",
     "half_duplex",
@@ -179,7 +183,6 @@ class _Rx:
     travel_s: float
     audible: bool
     link: LinkStats
-    decided: bool = False
 
 
 class Ocean:
@@ -215,8 +218,10 @@ class Ocean:
         self._tx_intervals: dict[int, list[tuple[float, float]]] = {}
         self._rx_intervals: dict[int, list[_Rx]] = {}
         self._queue: list[tuple[float, int, TxDone | _Rx]] = []
-        # undecided audible receptions by start (decided ones leave lazily): the pruning horizon
-        self._open: list[tuple[float, int, _Rx]] = []
+        # the end of the reception being decided (:meth:`_prune`'s horizon counts back from it)
+        self._deciding = math.inf
+        # the longest a reception lasts (the airtime of a whole frame), and a little more
+        self._longest_s = preset.airtime(preset.frame_bytes) + PRUNE_SLACK_S
         self._seq = 0
         self._next_frame = 1
         self._links: dict[tuple[int, int], LinkStats] = {}
@@ -361,7 +366,7 @@ class Ocean:
         data = bytes(data)
         here = self.position(src)
         min_range, max_range, sound_speed = p.min_range_m, p.max_range_m, p.sound_speed_mps
-        queue, open_, seq = self._queue, self._open, self._seq
+        queue, seq = self._queue, self._seq
         positions, links, filed = self._positions, self._links, self._rx_intervals
         moving = self._paths.keys() | self._glides.keys() if self._glides else self._paths
         for dst in sorted(positions):
@@ -379,7 +384,6 @@ class Ocean:
             heapq.heappush(queue, (rx.end, seq, rx))
             if rx.audible:
                 filed.setdefault(dst, []).append(rx)
-                heapq.heappush(open_, (start, seq, rx))
         self._seq = seq
         self._push(tx_end, TxDone(src=src, time=tx_end, frame_id=frame_id))
         return tx_end
@@ -456,9 +460,10 @@ class Ocean:
         return None
 
     def _decide(self, rx: _Rx) -> Delivery | Loss:
+        self._deciding = rx.end
         self._prune(rx.dst)
+        self._deciding = math.inf
         reason = self._reason(rx)
-        rx.decided = True
         ls = rx.link
         if reason is not None:
             ls.lost[reason] = ls.lost.get(reason, 0) + 1
@@ -481,14 +486,16 @@ class Ocean:
         Only a speed-up: a forgotten interval ends before every undecided reception starts, so
         :meth:`_reason` would never count it. Each node is pruned when it is about to be looked
         at (a reception it decides) or added to (a frame it sends), so the cost follows the
-        node's own traffic, not the size of the fleet.
+        node's own traffic, not the size of the fleet. The horizon: an undecided reception
+        ends no earlier than the first event still queued (or the one being decided), and
+        starts at most a whole frame's airtime before it ends.
         """
-        open_ = self._open
-        while open_ and open_[0][2].decided:
-            heapq.heappop(open_)
-        horizon = self._now
-        if open_ and open_[0][0] < horizon:
-            horizon = open_[0][0]
+        queue, horizon = self._queue, self._now
+        if queue and queue[0][0] < horizon:
+            horizon = queue[0][0]
+        if self._deciding < horizon:
+            horizon = self._deciding
+        horizon -= self._longest_s
         spans = self._tx_intervals.get(addr)
         if spans and spans[0][1] < horizon:
             self._tx_intervals[addr] = [s for s in spans if s[1] >= horizon]
