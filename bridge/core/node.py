@@ -331,10 +331,8 @@ class NodeCore:
         """Decode one received frame (heard on ``link``; ``modem_now``: the modem clock at the
         call, DLBL times are in it) and publish what it carries for this node."""
         side = self.linkset.side(link)
-        if self.network is None:
-            self.inbound.receive(rx, now, modem_now, side)
-            return
-        for one in self.network.frames(rx, now):
+        frames = self.network.frames(rx, now) if self.network is not None else (rx,)
+        for one in frames:
             self.inbound.receive(one, now, modem_now, side)
 
     def modem_range(self, rng: ModemRange, now: float) -> None:
