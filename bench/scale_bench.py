@@ -12,6 +12,10 @@ seconds). Acoustic addresses stop at 254, so at most 254 nodes. Measured:
    of simulation per received frame, which should stay flat as the fleet grows.
    ``--against DIR [DIR ...]`` also runs source trees of other versions (e.g. ``git archive``
    of an older commit) on the same missions, interleaved run by run, so all see the same load.
+   Each tree's compiled modules are cached outside it (``PYTHONPYCACHEPREFIX``) by an untimed
+   run first, as an installed package has them: with ``PYTHONDONTWRITEBYTECODE`` set (as on the
+   shared VM) every run would otherwise compile the package again (~0.75 s CPU of each
+   process); ``--compile-every-run`` measures that way.
 2. With ``--zenoh`` (one node count): ``zab sim`` (the real command: every node's Zenoh peer,
    bridge and modem, plus the water, in one process) run as a subprocess; its CPU time and
    resident memory read from ``/proc`` during an idle window (nobody publishes) and a loaded
@@ -234,12 +238,18 @@ class FastRun:
 CLOSING = re.compile(r"simulated in ([0-9.]+) s wall .*?(\d+) frames sent, (\d+) received")
 
 
-def run_fast_process(mission: Path, duration: float, tree: Path | None) -> FastRun:
+def run_fast_process(mission: Path, duration: float, tree: Path | None,
+                     pycache: Path | None = None) -> FastRun:
     """``zab sim MISSION --fast --duration D`` as a subprocess (from source tree ``tree``, or
-    this one), timed whole; simulation time and frames from its closing line."""
+    this one), timed whole; simulation time and frames from its closing line. ``pycache``:
+    compiled modules are kept there (``PYTHONPYCACHEPREFIX``, the trees untouched) and read
+    back by later runs, as an installed package's are."""
     env = dict(os.environ)
     if tree is not None:
         env["PYTHONPATH"] = str(tree)
+    if pycache is not None:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        env["PYTHONPYCACHEPREFIX"] = str(pycache)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "bridge", "sim", str(mission), "--fast",
@@ -267,26 +277,39 @@ def summarize(runs: list[FastRun], duration: float) -> dict[str, float]:
 
 
 def sweep(nodes: list[int], channels: list[int], duration: float, repeat: int,
-          against: list[Path]) -> None:
-    """The virtual-clock sweep (see the module docstring), printed as one table."""
+          against: list[Path], cached: bool = True) -> None:
+    """The virtual-clock sweep (see the module docstring), printed as one table. ``cached``:
+    every tree's compiled modules are cached (outside the trees) by one run before those
+    timed, as an installed package's are; else whatever the environment does."""
     trees: list[tuple[str, Path | None]] = [("this", None)]
     trees += [(tree.name, tree.resolve()) for tree in against]
     print(f"virtual clock: zab sim MISSION --fast --duration {duration:g}, whole process, "
           f"median of {repeat}; load average before: {os.getloadavg()[0]:.2f} (2 cores, shared)")
-    if os.environ.get("PYTHONDONTWRITEBYTECODE"):
+    if cached:
+        print("compiled modules cached outside the trees (PYTHONPYCACHEPREFIX) by an untimed "
+              "run of each tree first, as an installed package has them; "
+              "--compile-every-run: as the environment says")
+    elif os.environ.get("PYTHONDONTWRITEBYTECODE"):
         print("PYTHONDONTWRITEBYTECODE is set: modules without a cached .pyc are compiled at "
               "every run (up to ~0.4 s of start-up that an installed package does not pay)")
     print(f"{'tree':<10} {'nodes':>5} {'chan':>5} {'wall s':>7} {'cpu s':>6} {'× real':>7} "
           f"{'× (sim)':>8} {'µs/rx':>6} {'rx':>8}  target")
     with tempfile.TemporaryDirectory() as tmp:
+        pycache = Path(tmp) / "pycache" if cached else None
+        warm: set[str] = set()
         for n in nodes:
             for c in channels:
                 mission = Path(tmp) / f"scale-{n}x{c}.yaml"
                 mission.write_text(yaml.safe_dump(mission_data(n, c), sort_keys=False))
                 runs: dict[str, list[FastRun]] = {name: [] for name, _ in trees}
+                for name, tree in trees:  # (the first run of a tree compiles its modules)
+                    if pycache is not None and name not in warm:
+                        warm.add(name)
+                        run_fast_process(mission, 1.0, tree, pycache / name)
                 for _ in range(repeat):  # interleaved: every tree sees the same load
                     for name, tree in trees:
-                        runs[name].append(run_fast_process(mission, duration, tree))
+                        runs[name].append(run_fast_process(
+                            mission, duration, tree, None if pycache is None else pycache / name))
                 for name, _ in trees:
                     m = summarize(runs[name], duration)
                     target = TARGET_SPEEDUP.get((n, c))
@@ -339,6 +362,9 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="runs per point (median)")
     parser.add_argument("--against", type=Path, nargs="+", default=[],
                         help="other source trees to run side by side (e.g. git archive)")
+    parser.add_argument("--compile-every-run", action="store_true",
+                        help="no bytecode cache: with PYTHONDONTWRITEBYTECODE set, each run "
+                             "compiles every module of the tree again")
     parser.add_argument("--zenoh", action="store_true",
                         help="also measure zab sim with Zenoh (first --nodes value)")
     parser.add_argument("--idle", type=float, default=20.0, help="idle window, seconds")
@@ -349,7 +375,8 @@ def main() -> None:
         parser.error("--nodes: 2..254 (acoustic addresses stop at 254)")
     if args.zenoh:
         zenoh_part(args.nodes[0], args.channels[0], args.idle, args.loaded, args.rate)
-    sweep(args.nodes, args.channels, args.duration, args.repeat, args.against)
+    sweep(args.nodes, args.channels, args.duration, args.repeat, args.against,
+          cached=not args.compile_every_run)
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ from bridge.core.interest import Interest
 from bridge.core.link import Links, LinkState
 from bridge.core.linkset import LinkSet, LinkSide
 from bridge.core.outbound import Outbound
-from bridge.core.outputs import Outbox
+from bridge.core.outputs import Outbox, Status
 from bridge.core.queries import Queries
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
@@ -108,9 +108,10 @@ class Inbound:
         src = self._source(rx, now, side)
         if src is None:
             return
+        network = self.network
         origin, arrival, address = src, None, rx.src
-        if self.network is not None:
-            arrival = self.network.routing.arrived(rx.data, src, now)
+        if network is not None:
+            arrival = network.routing.arrived(rx.data, src, now)
             if arrival is None:  # a copy of a frame taken already (or malformed): the hop
                 self._hop(rx, src, side, now)
                 return
@@ -122,12 +123,16 @@ class Inbound:
             self.stats.frames_dropped[exc.reason] += 1
             self.outbox.event(FrameDropped(now, origin, exc.reason, str(exc), rx.data))
             return
-        self._hop(rx, src, side, now)
+        meta = rx.meta
+        if network is None:  # (self._hop, inlined: one link, no network)
+            side.schedule.on_heard(src, meta.get("dest") == self.address, now)
+        else:
+            self._hop(rx, src, side, now)
         self._heard(origin, frame, now)
         self.sent_at = frame_start(rx, side.info.preset_of(src))
         if arrival is not None:  # the origin built it the header's age before this frame
             self.sent_at -= arrival.header.age
-            self.network.routing.taken(arrival, rx.data, src, now)  # type: ignore[union-attr]
+            network.routing.taken(arrival, rx.data, src, now)  # type: ignore[union-attr]
             self._takes = self.index in arrival.header.serves
         values: dict[str, Values] = {}
         anchors: Anchors = {}  # live anchor positions the frame carried
@@ -138,22 +143,25 @@ class Inbound:
         if self.ranges is not None and origin == src and side is self.linkset.primary:
             self.ranges.heard(src, rx, frame.delays, modem_now if modem_now is not None
                               else now, now, anchors)
-        meta = plain(rx.meta)
+        meta = plain(meta)
         if arrival is not None:
             meta.update(_hop_meta(arrival, src, side))
         src = origin
-        if now - self._peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
-            self._peer_status[src] = now
-            self.outbox.status(f"peers/{src}", {"last_heard": now, "meta": dict(meta)})
-        self.outbox.event(FrameReceived(now, src, len(rx.data), list(values), rx.data, meta,
-                                        values, members or None))
+        peer_status = self._peer_status
+        if now - peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
+            peer_status[src] = now
+            self.outbox.items.append(Status(f"peers/{src}", {"last_heard": now,
+                                                             "meta": dict(meta)}))
+        self.outbox.items.append(FrameReceived(now, src, len(rx.data), list(values), rx.data,
+                                               meta, values, members or None))
 
     def _source(self, rx: Reception, now: float, side: LinkSide) -> str | None:
         """The sender of ``rx`` if it is a peer under this mission file; else the frame is
         counted dropped (or foreign) and None."""
         src = self.mission.name_of(rx.src) if self.network is None else side.name_of(rx.src)
-        sender_print = self.codec.sender_fingerprint(rx.data)
-        if sender_print is not None and sender_print != self.codec.fingerprint16 \
+        codec = self.codec
+        sender_print = codec.sender_fingerprint(rx.data)
+        if sender_print != codec.fingerprint16 and sender_print is not None \
                 and src != self.node:
             self._foreign_frame(src or f"address {rx.src}", sender_print, rx, now)
             return None
@@ -181,18 +189,20 @@ class Inbound:
             self._foreign.pop(src, None)
         if self.mismatched:
             self._matched(src, now)
-        self.links.heard(src, now)
+        links = self.links
+        links.heard(src, now)
         if self.sealed:
             self.outbox.unsaved = True  # the replay window moved: saved before publishing
-        if frame.epoch is not None and self.receivers.peer_epochs.get(src) != frame.epoch:
-            known = self.receivers.epoch(src, frame.epoch)
+        epoch = frame.epoch
+        if epoch is not None and self.receivers.peer_epochs.get(src) != epoch:
+            known = self.receivers.epoch(src, epoch)
             if known is not None:  # src started without its saved state
                 self.outbound.resync(src)
                 log.info("%s: %s started afresh (epoch %d -> %d): streams resynchronised",
-                         self.node, src, known, frame.epoch)
-                self.outbox.event(PeerRestarted(now, src, frame.epoch, known))
-        if self.links.states.get(src) is not LinkState.UP:
-            self.links.update(now)
+                         self.node, src, known, epoch)
+                self.outbox.event(PeerRestarted(now, src, epoch, known))
+        if links.states.get(src) is not LinkState.UP:
+            links.update(now)
 
     def _entry(self, src: str, entry: Entry, now: float, values: dict[str, Values],
                anchors: Anchors, members: dict[str, dict[str, Values]]) -> None:
@@ -335,9 +345,11 @@ def frame_start(rx: Reception, preset: Preset | None) -> float:
     them, else the sender's preset and none)."""
     meta = rx.meta
     airtime, travel = meta.get("airtime_s"), meta.get("travel_time_s")
-    if not isinstance(airtime, int | float):
+    if airtime.__class__ is not float and not isinstance(airtime, int | float):
         airtime = preset.airtime(len(rx.data)) if preset is not None else 0.0
-    return rx.time - airtime - (travel if isinstance(travel, int | float) else 0.0)
+    if travel.__class__ is not float and not isinstance(travel, int | float):
+        travel = 0.0
+    return rx.time - airtime - travel
 
 
 def _hop_meta(arrival: Arrival, src: str, side: LinkSide) -> dict[str, Any]:

@@ -43,7 +43,7 @@ from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
 from bridge.wire.frame import FrameCodec, WireCodec
 from bridge.wire.payloads import decode_payload, payload_cap
 from bridge.wire.sample_meta import aged_payload, encoding_id, stamped, tombstone
-from bridge.wire.unused import field_tree, left_out
+from bridge.wire.unused import field_tree, left_out, whole_names
 
 if TYPE_CHECKING:
     from bridge.core.network import NodeNetwork
@@ -129,6 +129,9 @@ class Outbound:
                       for key, found in self.bindings.items() if self._ros2_inputs[key] is None
                       and all(isinstance(e.layout, Layout) for _, _, e in found)}
         """The fields each input key's channels read (to report those left out)."""
+        self._whole = {key: whole_names(tree) for key, tree in self._read.items()}
+        """Per key of :attr:`_read`, the names read whole: a sample of only these (the usual
+        one) is not walked."""
         self._left_out: set[tuple[str, tuple[str, ...]]] = set()
         retry_s = default_retry_s(mission)
         self.senders: dict[int, Sender] = {
@@ -174,7 +177,9 @@ class Outbound:
             value = (ros2.decode(data, sample_key or key) if ros2 is not None
                      else decode_payload(data, encoding))
             read = self._read.get(key)
-            if read is not None and (extra := left_out(value, read)):
+            if read is not None and not (value.__class__ is dict
+                                         and value.keys() <= self._whole[key]) \
+                    and (extra := left_out(value, read)):
                 self._report_left_out(key, extra, now)
             if self._stamped and (key in self._stamped or self.families.senders):
                 value = stamped(value, encoding_id(encoding, data), attachment)

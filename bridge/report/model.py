@@ -18,6 +18,7 @@ Definitions, one each:
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -216,7 +217,7 @@ def print_report(console: Console, report: MissionReport) -> None:
 
 def worst_links(links: list[LinkFigures], n: int) -> list[LinkFigures]:
     """The ``n`` links delivering the smallest share of what was sent, in report order."""
-    order = sorted(range(len(links)), key=lambda i: (links[i].ratio, i))[:n]
+    order = heapq.nsmallest(n, range(len(links)), key=lambda i: (links[i].ratio, i))
     return [links[i] for i in sorted(order)]
 
 

@@ -345,6 +345,9 @@ class FastFleet:
                         self._deliver(event, link)
                     elif kind is TxDone:
                         self._pending.pop(event.frame_id, None)
+                if single is not None:  # the water's next events, while nothing else comes first
+                    self._settle(single, t_end)
+                    now = self.now
             while timers and timers[0][0] <= now:
                 heapq.heappop(timers)[2]()
             if self._tx_heap and self._tx_heap[0][0] <= now:
@@ -352,6 +355,26 @@ class FastFleet:
                     self._transmit(name)
             if self._next_tick <= now:
                 self._tick(now)
+
+    def _settle(self, ocean: Ocean, t_end: float) -> None:
+        """Carry out the events of a mission's only water one time after another for as long
+        as each comes before any timer, planned transmission (or a stale plan: :meth:`run_until`
+        looks at those) and tick, and no later than ``t_end``: what :meth:`run_until` would do,
+        one step per event, without looking at everything else at every step."""
+        timers, link = self._timers, next(iter(self.oceans))
+        while True:
+            water, heap = ocean.next_event_time(), self._tx_heap  # (a plan may rebuild the heap)
+            if water is None or water > t_end or water >= self._next_tick \
+                    or (timers and timers[0][0] <= water) or (heap and heap[0][0] <= water):
+                return
+            if water > self.now:
+                self.now = water
+            for event in ocean.advance(self.now):
+                kind = event.__class__
+                if kind is Delivery:
+                    self._deliver(event, link)  # type: ignore[arg-type]
+                elif kind is TxDone:
+                    self._pending.pop(event.frame_id, None)  # type: ignore[union-attr]
 
     def _water_events(self, now: float) -> Iterable[tuple[str | None, Any]]:
         """What every link's water settled up to ``now``, in time order (the ocean's clock

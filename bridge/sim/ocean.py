@@ -65,6 +65,10 @@ GLIDE_S = 5.0
 """How long a node put somewhere with the time moves on at its last velocity (and how far
 apart its last two positions may be for that velocity to count)."""
 
+PRUNE_SLACK_S = 1e-6
+"""Pruning keeps intervals this much longer, so float rounding of a reception's start and end
+never forgets one that still touches an undecided reception."""
+
 LOSS_REASONS = (
     "out_of_range",
     "half_duplex",
@@ -179,7 +183,6 @@ class _Rx:
     travel_s: float
     audible: bool
     link: LinkStats
-    decided: bool = False
 
 
 class Ocean:
@@ -215,8 +218,10 @@ class Ocean:
         self._tx_intervals: dict[int, list[tuple[float, float]]] = {}
         self._rx_intervals: dict[int, list[_Rx]] = {}
         self._queue: list[tuple[float, int, TxDone | _Rx]] = []
-        # undecided audible receptions by start (decided ones leave lazily): the pruning horizon
-        self._open: list[tuple[float, int, _Rx]] = []
+        # the end of the reception being decided (:meth:`_prune`'s horizon counts back from it)
+        self._deciding = math.inf
+        # the longest a reception lasts (the airtime of a whole frame), and a little more
+        self._longest_s = preset.airtime(preset.frame_bytes) + PRUNE_SLACK_S
         self._seq = 0
         self._next_frame = 1
         self._links: dict[tuple[int, int], LinkStats] = {}
@@ -361,7 +366,7 @@ class Ocean:
         data = bytes(data)
         here = self.position(src)
         min_range, max_range, sound_speed = p.min_range_m, p.max_range_m, p.sound_speed_mps
-        queue, open_, seq = self._queue, self._open, self._seq
+        queue, seq = self._queue, self._seq
         positions, links, filed = self._positions, self._links, self._rx_intervals
         moving = self._paths.keys() | self._glides.keys() if self._glides else self._paths
         for dst in sorted(positions):
@@ -379,7 +384,6 @@ class Ocean:
             heapq.heappush(queue, (rx.end, seq, rx))
             if rx.audible:
                 filed.setdefault(dst, []).append(rx)
-                heapq.heappush(open_, (start, seq, rx))
         self._seq = seq
         self._push(tx_end, TxDone(src=src, time=tx_end, frame_id=frame_id))
         return tx_end
@@ -388,12 +392,10 @@ class Ocean:
         """Settle everything that has happened up to ``now``; events come in time order."""
         self._set_now(now)
         events: list[Event] = []
-        while self._queue and self._queue[0][0] <= now:
-            _, _, item = heapq.heappop(self._queue)
-            if isinstance(item, TxDone):
-                events.append(item)
-            else:
-                events.append(self._decide(item))
+        queue = self._queue
+        while queue and queue[0][0] <= now:
+            item = heapq.heappop(queue)[2]
+            events.append(item if item.__class__ is TxDone else self._decide(item))  # type: ignore[arg-type]
         return events
 
     # -- statistics ----------------------------------------------------------------------------
@@ -407,8 +409,9 @@ class Ocean:
         total = LinkStats()
         links = []
         lost = total.lost
-        for (src, dst), ls in sorted(self._links.items()):
-            links.append({"src": src, "dst": dst, **ls.as_dict()})
+        for (src, dst), ls in sorted(self._links.items()):  # (as_dict's, one dict a link)
+            links.append({"src": src, "dst": dst, "sent": ls.sent, "delivered": ls.delivered,
+                          "lost": dict(ls.lost)})
             total.sent += ls.sent
             total.delivered += ls.delivered
             for reason, n in ls.lost.items():
@@ -444,38 +447,39 @@ class Ocean:
         for a, b in self._tx_intervals.get(rx.dst, ()):
             if a < end and start < b:
                 return "half_duplex"
+        frame_id = rx.frame_id
         for other in self._rx_intervals.get(rx.dst, ()):
-            if other.start < end and start < other.end and other.frame_id != rx.frame_id:
+            if other.start < end and start < other.end and other.frame_id != frame_id:
                 return "collision"
-        p = self.preset
-        if self._rng.random() < self.loss_curve(rx.distance_m, p.max_range_m):
+        p, rng = self.preset, self._rng
+        if rng.random() < self.loss_curve(rx.distance_m, p.max_range_m):
             return "range_loss"
-        if self.loss > 0 and self._rng.random() < self.loss:
+        if self.loss > 0 and rng.random() < self.loss:
             return "loss"
-        if p.ber > 0 and self._rng.random() < 1.0 - (1.0 - p.ber) ** (8 * len(rx.data)):
+        if p.ber > 0 and rng.random() < 1.0 - (1.0 - p.ber) ** (8 * len(rx.data)):
             return "bit_errors"
         return None
 
     def _decide(self, rx: _Rx) -> Delivery | Loss:
+        self._deciding = rx.end
         self._prune(rx.dst)
+        self._deciding = math.inf
         reason = self._reason(rx)
-        rx.decided = True
         ls = rx.link
         if reason is not None:
             ls.lost[reason] = ls.lost.get(reason, 0) + 1
-            return Loss(dst=rx.dst, src=rx.src, reason=reason, time=rx.end, frame_id=rx.frame_id,
-                        dest=rx.dest)
+            return Loss(rx.dst, rx.src, reason, rx.end, rx.frame_id, rx.dest)
         ls.delivered += 1
-        meta = {
+        start, end = rx.start, rx.end
+        return Delivery(rx.dst, rx.src, rx.data, start, end, {
             "dest": rx.dest,
             "frame_id": rx.frame_id,
             "sent_at": rx.sent_at,
             "tx_start": rx.tx_start,
-            "airtime_s": rx.end - rx.start,
+            "airtime_s": end - start,
             "travel_time_s": rx.travel_s,
             "distance_m": rx.distance_m,
-        }
-        return Delivery(dst=rx.dst, src=rx.src, data=rx.data, start=rx.start, end=rx.end, meta=meta)
+        })
 
     def _prune(self, addr: int) -> None:
         """Forget the intervals of ``addr`` that no undecided reception can overlap any more.
@@ -483,12 +487,16 @@ class Ocean:
         Only a speed-up: a forgotten interval ends before every undecided reception starts, so
         :meth:`_reason` would never count it. Each node is pruned when it is about to be looked
         at (a reception it decides) or added to (a frame it sends), so the cost follows the
-        node's own traffic, not the size of the fleet.
+        node's own traffic, not the size of the fleet. The horizon: an undecided reception
+        ends no earlier than the first event still queued (or the one being decided), and
+        starts at most a whole frame's airtime before it ends.
         """
-        open_ = self._open
-        while open_ and open_[0][2].decided:
-            heapq.heappop(open_)
-        horizon = min(self._now, open_[0][0]) if open_ else self._now
+        queue, horizon = self._queue, self._now
+        if queue and queue[0][0] < horizon:
+            horizon = queue[0][0]
+        if self._deciding < horizon:
+            horizon = self._deciding
+        horizon -= self._longest_s
         spans = self._tx_intervals.get(addr)
         if spans and spans[0][1] < horizon:
             self._tx_intervals[addr] = [s for s in spans if s[1] >= horizon]

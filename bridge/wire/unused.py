@@ -33,6 +33,14 @@ def field_tree(paths: Iterable[str]) -> Tree:
     return tree
 
 
+def whole_names(tree: Tree) -> frozenset[str]:
+    """The top-level names ``tree`` reads whole: a map payload whose keys are all among them
+    leaves nothing out (:func:`left_out` need not walk it)."""
+    if not isinstance(tree, dict):
+        return frozenset()
+    return frozenset(name for name, sub in tree.items() if sub is True)
+
+
 def left_out(value: Any, tree: Tree, prefix: str = "") -> list[str]:
     """The dotted paths of ``value`` that ``tree`` does not read (a non-map value: none)."""
     if tree is True or not isinstance(value, dict) or not isinstance(tree, dict):
