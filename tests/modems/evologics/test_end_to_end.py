@@ -25,6 +25,9 @@ from tests.harness import listing1_crosses_in_the_next_slot, running_fleet
 from tests.modems.evologics.test_driver import FAST
 
 SLOT_S, GUARD_S = 0.5, 0.1
+TX_LEAD_S = 0.25
+"""The driver's lead (0.1 s by default): with a second suite beside this one on two cores
+(load 5), an AT*SENDIMS 0.1 s ahead reached the emulator after its time and was expired."""
 
 
 def fast_morph(tmp_path: Path) -> LoadedMission:
@@ -33,6 +36,7 @@ def fast_morph(tmp_path: Path) -> LoadedMission:
     for name, node in data["nodes"].items():
         node["modem"]["options"]["device"] = str(tmp_path / f"modem-{name}")
         node["modem"]["options"]["timeout_s"] = 1.0
+        node["modem"]["options"]["tx_lead_s"] = TX_LEAD_S
     return on_free_ports(yaml.safe_dump(data, sort_keys=False), "morph_evologics.yaml")
 
 
