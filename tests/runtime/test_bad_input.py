@@ -101,10 +101,10 @@ def test_the_depth_check_takes_linear_time() -> None:
     120 kB); the check now reads each byte a bounded number of times."""
     for data in (b"[" + b'"a\\' * 400_000, b'["' + b"a" * 1_000_000 + b"\\",
                  b"[" + b"[]," * 333_333 + b"[]]"):
-        start = time.perf_counter()
+        start = time.process_time()  # this process's CPU: a second suite beside it adds none
         with contextlib.suppress(DecodeError):
             decode_payload(data, JSON)
-        assert time.perf_counter() - start < 5.0  # about 0.1 s on a 2-core machine
+        assert time.process_time() - start < 5.0  # at most 0.2 s on a 2-core machine
 
 
 @pytest.mark.parametrize("data", [
