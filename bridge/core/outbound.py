@@ -23,7 +23,7 @@ from bridge.core.drops import DropLedger
 from bridge.core.events import FieldsLeftOut, FrameSent, SendFailed, Surfaced
 from bridge.core.families import Extra, Families
 from bridge.core.frames import OutFrame, Sender
-from bridge.core.images import Images, ImageSender
+from bridge.core.images import MAX_PICTURE_BYTES, Images, ImageSender
 from bridge.core.interest import Interest
 from bridge.core.keyspace import Keyspace
 from bridge.core.link import heartbeat_s
@@ -256,8 +256,13 @@ class Outbound:
 
     def payload_cap(self, key: str) -> int:
         """The longest payload input ``key`` takes (:func:`~bridge.wire.payloads.payload_cap`
-        of the bits its channels keep)."""
-        return self._caps.get(key, self._cap)
+        of the bits its channels keep); a picture key's is
+        :data:`~bridge.core.images.MAX_PICTURE_BYTES`."""
+        cap = self._caps.get(key)
+        if cap is None:
+            pictures = self.images is not None and key in self.images.inputs
+            return MAX_PICTURE_BYTES if pictures else self._cap
+        return cap
 
     def drop_payload(self, key: str, reason: str, now: float, cause: str = "unfit") -> None:
         """Count a payload that cannot be used, by key and ``cause`` (logged and summarised at

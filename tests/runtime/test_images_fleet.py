@@ -10,7 +10,7 @@ import numpy as np
 from PIL import Image
 
 from bridge.core.loaded import load_mission, parse_mission
-from bridge.core.node import Status
+from bridge.core.node import NodeCore, Status
 from bridge.image.formats import write_image
 from bridge.image.synthetic import seabed
 from bridge.runtime.virtual_fleet import FastFleet
@@ -106,6 +106,17 @@ def test_bad_pictures_are_counted_drops() -> None:
 
 ROS2_MISSION = (MISSIONS / "bluerov_images.yaml").read_text().replace(
     "    in: rov/camera\n", "    ros2: {topic: /rov/camera, type: sensor_msgs/msg/%s}\n")
+
+
+def test_a_camera_sized_picture_is_not_over_its_key_s_cap() -> None:
+    """The runtime refuses a sample over ``payload_cap`` before the core sees it: a picture
+    key's cap is the pictures', not that of the mission's longest channel (16 kB here)."""
+    camera = write_image(seabed(480, 640, seed=2, colour=False), "jpeg", quality=92)
+    assert len(camera) > 20_000
+    for text, key in ((MISSIONS / "bluerov_images.yaml").read_text(), "rov/camera"), \
+            (ROS2_MISSION % "CompressedImage", "0/rov/camera/*/*"):
+        core = NodeCore(parse_mission(text), "rov")
+        assert core.payload_cap(key) >= 1 << 20, key
 
 
 def test_ros2_compressed_and_raw_pictures_cross() -> None:
