@@ -31,7 +31,7 @@ from bridge.core.transfer import TransferReceiver, TransferSender
 from bridge.errors import DecodeError, EncodeError
 from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.frame import Entry
-from bridge.wire.images import REQUESTS, ImageSpec, control_payload
+from bridge.wire.images import CONTROL_BOUNDS, REQUESTS, ImageSpec, control_payload
 from bridge.wire.payloads import decode_payload
 
 if TYPE_CHECKING:
@@ -220,7 +220,7 @@ class Images:
         channel, sender, settings = self.controls[key]
         try:
             merged = dict(settings)
-            request = self._merge(merged, value)
+            request = self._merge(merged, value, _spec(channel).largest_budget)
             payload = channel.pack([control_payload(merged, request)])
         except (EncodeError, TypeError, ValueError) as exc:
             reason = f"image control {_spec(channel).name!r}: {exc}"
@@ -251,8 +251,10 @@ class Images:
                           spec.max_input_pixels, spec.colour)
 
     @staticmethod
-    def _merge(settings: dict[str, Any], value: Any) -> str:
-        """Merge an operator's control into ``settings``; returns its request."""
+    def _merge(settings: dict[str, Any], value: Any, largest_budget: int) -> str:
+        """Merge an operator's control into ``settings``; returns its request. A value the
+        camera would not follow as given (its control channel clamps, an ROI narrower than
+        its 64ths) is a :class:`ValueError`: the settings answered are those it applies."""
         if not isinstance(value, dict):
             raise ValueError("a control is a map: {request, width, height, budget_bytes, roi}")
         unknown = set(value) - {"request", "width", "height", "budget_bytes", "roi"}
@@ -264,13 +266,26 @@ class Images:
         new = dict(settings)
         for name in ("width", "height", "budget_bytes"):
             if name in value:
-                new[name] = int(value[name])
+                low, high = CONTROL_BOUNDS[name]
+                high = min(high, largest_budget) if name == "budget_bytes" else high
+                try:
+                    number = int(value[name])
+                except (TypeError, ValueError):
+                    raise ValueError(f"{name} {value[name]!r} is not a whole number") from None
+                if not low <= number <= high:
+                    raise ValueError(f"{name} {number} is outside {low}..{high}" + (
+                        " (the channel's max_budget_bytes)" if high == largest_budget else ""))
+                new[name] = number
         if "roi" in value:
             roi = value["roi"]
             if roi is not None:
+                if not isinstance(roi, (list, tuple)) or len(roi) != 4:
+                    raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
                 x0, y0, x1, y1 = (float(v) for v in roi)
                 if not (0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1):
                     raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
+                if round(x0 * 64) >= round(x1 * 64) or round(y0 * 64) >= round(y1 * 64):
+                    raise ValueError(f"roi {roi!r} is narrower than 1/64 of the picture")
                 roi = (x0, y0, x1, y1)
             new["roi"] = roi
         settings.update(new)

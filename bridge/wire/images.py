@@ -20,7 +20,8 @@ from bridge.mission.fields import FieldSpec
 from bridge.mission.images import ImageChannel
 from bridge.ros2.names import topic_listen_key
 
-__all__ = ["CONTROL_FIELDS", "REQUESTS", "ImageSpec", "control_layout", "control_payload"]
+__all__ = ["CONTROL_BOUNDS", "CONTROL_FIELDS", "REQUESTS", "ImageSpec", "control_layout",
+           "control_payload"]
 
 REQUESTS = ("none", "now", "cancel")
 """What an operator's control asks besides settings: nothing more, a picture now, or that the
@@ -34,6 +35,9 @@ CONTROL_FIELDS: tuple[dict[str, Any], ...] = (
     {"field": "roi_on", "type": "bool"},
     *({"field": f, "type": "int", "min": 0, "max": 64} for f in ("x0", "y0", "x1", "y1")),
 )
+
+CONTROL_BOUNDS = {f["field"]: (f["min"], f["max"]) for f in CONTROL_FIELDS if "min" in f}
+"""The settings' bounds on the control channel (a control outside them is refused)."""
 
 
 @dataclass(frozen=True)

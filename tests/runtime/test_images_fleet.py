@@ -5,8 +5,10 @@ are repaired; bad pictures are counted drops."""
 from __future__ import annotations
 
 import io
+import re
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from bridge.core.loaded import load_mission, parse_mission
@@ -186,3 +188,32 @@ def test_steering_answers_the_settings_and_a_control_that_changes_nothing_stays_
     assert fleet.cores["operator"].stats.payloads_dropped["camera/control"] == 1
     fleet.run_until(60.0)
     assert pictures(fleet)[-1][2].shape == (60, 80)  # (the picture keeps its proportions)
+
+
+@pytest.mark.parametrize("control, why", [
+    ({"budget_bytes": 100_000}, "budget_bytes 100000 is outside 16..6400"),
+    ({"budget_bytes": 10}, "budget_bytes 10 is outside 16..6400"),
+    ({"width": 0}, "width 0 is outside 8..2048"),
+    ({"height": 4096}, "height 4096 is outside 8..2048"),
+    ({"width": "abc"}, "width 'abc' is not a whole number"),
+    ({"roi": [0.1, 0.1, 0.2]}, "roi [0.1, 0.1, 0.2] is not [x0, y0, x1, y1]"),
+    ({"roi": [0.5, 0.5, 0.505, 0.505]}, "narrower than 1/64"),
+])
+def test_a_control_the_camera_would_not_follow_is_refused_not_clamped(
+        control: dict, why: str) -> None:
+    """The settings a control answers are those the camera applies: a value its control
+    channel would clamp (or the ROI's 64ths lose) is refused and counted, nothing crosses."""
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=6)
+    images = fleet.cores["operator"].images
+    assert images is not None
+    sent = fleet.cores["operator"].stats.sent_per_channel["camera.control"]
+    with pytest.raises(ValueError, match=re.escape(why)):
+        images.steer("camera/control", {**control, "request": "now"}, 0.0)
+    assert fleet.cores["operator"].stats.payloads_dropped["camera/control"] == 1
+    assert images.steer("camera/control", {}, 0.0) == {
+        "width": 160, "height": 120, "budget_bytes": 1600, "roi": None, "request": "none"}
+    fleet.run_until(5.0)
+    assert fleet.cores["operator"].stats.sent_per_channel["camera.control"] == sent
+    edge = {"width": 8, "height": 2048, "budget_bytes": 6400, "roi": [0.5, 0.5, 0.52, 0.52]}
+    assert images.steer("camera/control", edge, 5.0) == {**edge, "roi": (0.5, 0.5, 0.52, 0.52),
+                                                         "request": "none"}
