@@ -126,7 +126,7 @@ def decode_payload(data: bytes, encoding: str) -> Any:
         if kind in (JSON, "text/json", "text/plain"):
             return _json(data)
     except (ValueError, msgpack.UnpackException) as exc:
-        raise DecodeError(f"not valid {kind}: {exc}") from None
+        raise DecodeError(f"not valid {kind}: {str(exc) or type(exc).__name__}") from None
     # untagged (zenoh/bytes): JSON text first, as a person typing a value would send it
     try:
         return _json(data)

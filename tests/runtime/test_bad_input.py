@@ -55,6 +55,14 @@ def test_a_200k_deep_msgpack_payload_is_a_decode_error(encoding: str) -> None:
             decode_payload(nested_msgpack(depth), encoding)
 
 
+@pytest.mark.parametrize("data", [b"\xc1", b"\xc1not msgpack", b"\x92\x01", b"\x01\x02"])
+def test_a_msgpack_error_says_what_is_wrong(data: bytes) -> None:
+    """msgpack raises some errors with no text (FormatError on a reserved byte): the drop's
+    log line still names the error, never ends at 'not valid application/msgpack: '."""
+    with pytest.raises(DecodeError, match=r"not valid application/msgpack: \S"):
+        decode_payload(data, MSGPACK)
+
+
 def test_nesting_up_to_the_limit_decodes() -> None:
     value: object = 1
     for _ in range(MAX_DEPTH):
