@@ -21,7 +21,8 @@ from bridge.image.synthetic import seabed
 from tests.conftest import MISSIONS
 from tests.zsim import app, mission_file, zab_sim
 
-JPEG = write_image(seabed(120, 160, seed=2, colour=False), "jpeg", quality=92)
+JPEG = write_image(seabed(480, 640, seed=2, colour=False), "jpeg", quality=92)
+"""A camera's picture: 32 kB, over any cap a channel of the mission's fields would give."""
 
 
 def refinements(inbox: queue.Queue[dict[str, str]], until: float) -> list[dict[str, str]]:
