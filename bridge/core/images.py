@@ -38,6 +38,8 @@ if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
+    from bridge.image.formats import InputImage
+
     Pixels = NDArray[np.uint8]
 
 __all__ = ["ImageSender", "Images"]
@@ -49,6 +51,10 @@ MAX_PICTURE_BYTES = 64 << 20
 
 # bridge.image (numpy, Pillow) loads with a mission's first picture, not with every bridge
 Drop = Callable[..., None]  # (key, reason, now[, cause]): a counted drop
+
+
+def _unread(key: str, reason: str, now: float, cause: str = "undecodable") -> None:
+    log.warning("%s: %s", key, reason)
 
 
 def _spec(channel: ChannelCodec) -> ImageSpec:
@@ -66,13 +72,15 @@ class ImageSender(TransferSender):
         spec = self.spec = _spec(channel)
         self.settings: dict[str, Any] = {"width": spec.width, "height": spec.height,
                                          "budget_bytes": spec.budget_bytes, "roi": spec.roi}
-        self.latest: tuple[Pixels, str | None, str | None] | None = None  # not sent yet
-        self.last: tuple[Pixels, str | None, str | None] | None = None  # sent last
+        self.latest: tuple[InputImage, str | None, str | None] | None = None  # not sent yet
+        self.last: tuple[InputImage, str | None, str | None] | None = None  # sent last
+        self.drop: Drop = _unread  # (set by :class:`Images`: a picture that does not decode)
 
-    def picture(self, pixels: Pixels, now: float, key: str | None = None,
+    def picture(self, image: InputImage, now: float, key: str | None = None,
                 ref: str | None = None) -> list[Delivery]:
-        """A new picture: sent now, or kept until the policy or a request lets it go."""
-        self.latest = (pixels, key, ref)
+        """A new picture (decoded when it is sent): sent now, or kept until the policy or a
+        request lets it go."""
+        self.latest = (image, key, ref)
         if self.spec.send == "on_request" or (self.current is not None
                                              and self.spec.policy == "finish"):
             return []
@@ -80,11 +88,20 @@ class ImageSender(TransferSender):
 
     def _begin(self, now: float) -> list[Delivery]:
         """Send the newest picture (replacing any in flight)."""
+        from bridge.image.formats import ImageInputError
+
         taken = self.latest or self.last
         if taken is None:
             return []
-        self.latest, self.last = None, taken
-        pixels, key, ref = taken
+        self.latest, self.last = None, None
+        image, key, ref = taken
+        try:
+            pixels = image.pixels()
+        except ImageInputError as exc:
+            self.drop(key or self.spec.in_key, f"image channel {self.spec.name!r}: {exc}", now,
+                      exc.cause)
+            return []
+        self.last = taken
         return self.offer_bytes(self.recode(pixels), now, key, ref)
 
     def recode(self, pixels: Pixels) -> bytes:
@@ -167,6 +184,7 @@ class Images:
             if spec is None or sender is None:
                 continue
             if isinstance(sender, ImageSender):
+                sender.drop = drop
                 self.inputs[spec.in_key.format(node=node, src=node)] = sender
                 self.cameras[channel.index + 1] = sender
             else:  # this node steers the cameras of the channel
@@ -184,7 +202,7 @@ class Images:
         """A sample on an image input or a control key (True), or on neither (False)."""
         camera = self.inputs.get(key)
         if camera is not None:
-            from bridge.image.formats import ImageInputError, read_image
+            from bridge.image.formats import ImageInputError, open_image
 
             spec = camera.spec
             if len(data) > MAX_PICTURE_BYTES:
@@ -192,13 +210,13 @@ class Images:
                           f"{MAX_PICTURE_BYTES}", now, "too_large")
                 return True
             try:
-                pixels = (read_image(data, encoding, spec.accept, spec.max_input_pixels,
-                                     spec.colour) if spec.ros2 is None
-                          else self._ros2(spec, data))
+                image = (open_image(data, encoding, spec.accept, spec.max_input_pixels,
+                                    spec.colour) if spec.ros2 is None
+                         else self._ros2(spec, data))
             except ImageInputError as exc:
                 self.drop(key, f"image channel {spec.name!r}: {exc}", now, exc.cause)
                 return True
-            self.outbox.reports(camera.picture(pixels, now, key, ref))
+            self.outbox.reports(camera.picture(image, now, key, ref))
             self.outbox.unsaved = True
             return True
         if key not in self.controls:
@@ -233,9 +251,9 @@ class Images:
         return {**settings, "request": request}
 
     @staticmethod
-    def _ros2(spec: ImageSpec, data: bytes) -> Pixels:
+    def _ros2(spec: ImageSpec, data: bytes) -> InputImage:
         """The picture of a ROS 2 CompressedImage or Image (CDR)."""
-        from bridge.image.formats import ImageInputError, read_image, read_raw
+        from bridge.image.formats import ImageInputError, InputImage, open_image, read_raw
         from bridge.ros2.messages import decode_cdr
 
         assert spec.ros2 is not None
@@ -245,9 +263,9 @@ class Images:
         except DecodeError as exc:
             raise ImageInputError(str(exc)) from None
         if msgtype.endswith("/Image"):
-            return read_raw(message, spec.max_input_pixels, spec.colour)
+            return InputImage.of(read_raw(message, spec.max_input_pixels, spec.colour))
         kind = "image/png" if "png" in str(message.get("format", "")).lower() else ""
-        return read_image(bytes(message.get("data", b"")), kind, spec.accept,
+        return open_image(bytes(message.get("data", b"")), kind, spec.accept,
                           spec.max_input_pixels, spec.colour)
 
     @staticmethod

@@ -1,25 +1,27 @@
 """Standard image files in and out (Pillow): what applications publish, what viewers read.
 
-:func:`read_image` takes the bytes of a JPEG or PNG sample (the Zenoh encoding says which, or
+:func:`open_image` takes the bytes of a JPEG or PNG sample (the Zenoh encoding says which, or
 the bytes' signature when it says nothing), refusing a type not enabled and anything larger
-than a pixel limit *before* decoding it (no decompression bombs); :func:`fit` scales pixels to
-fit a size; :func:`write_image` makes a PNG (metadata in ``tEXt`` chunks) or a JPEG (metadata
-in a comment).
+than a pixel limit by its header (no decompression bombs), and decodes it when first asked;
+:func:`fit` scales pixels to fit a size; :func:`write_image` makes a PNG (metadata in ``tEXt``
+chunks) or a JPEG (metadata in a comment).
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import warnings
-from collections.abc import Collection, Mapping
+from collections.abc import Callable, Collection, Iterator, Mapping
+from functools import partial
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["KINDS", "ImageInputError", "fit", "kind_of", "read_image", "read_raw",
-           "write_image"]
+__all__ = ["KINDS", "ImageInputError", "InputImage", "fit", "kind_of", "open_image",
+           "read_image", "read_raw", "write_image"]
 
 KINDS = {"jpeg": "image/jpeg", "png": "image/png"}
 """Image types an input may take, by name, with their Zenoh encodings."""
@@ -53,29 +55,79 @@ def kind_of(data: bytes, encoding: str) -> str:
     raise ImageInputError(f"not a JPEG or PNG image (encoding {encoding or 'none'!r})")
 
 
-def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: int,
-               colour: bool) -> U8:
-    """The pixels of an image sample (``h × w`` grey, or ``h × w × 3`` RGB when ``colour``).
-    Raises :class:`ImageInputError` for a type not in ``accept``, an image of more than
-    ``max_pixels`` pixels, or bytes Pillow cannot decode."""
-    from PIL import Image, UnidentifiedImageError  # (Pillow loads with the first picture)
+class InputImage:
+    """An input picture whose header has been read (type and size checked); its pixels are
+    decoded when first asked for, then kept. A camera faster than the water has most of its
+    pictures replaced before they are sent: those are never decoded (a 1080p JPEG is ~13 ms)."""
 
+    __slots__ = ("_decode", "_pixels")
+
+    def __init__(self, decode: Callable[[], U8]) -> None:
+        self._decode: Callable[[], U8] | None = decode
+        self._pixels: U8 | None = None
+
+    @classmethod
+    def of(cls, pixels: U8) -> InputImage:
+        """A picture decoded already (a raw ``sensor_msgs/Image``)."""
+        image = cls(lambda: pixels)
+        image._pixels, image._decode = pixels, None
+        return image
+
+    def pixels(self) -> U8:
+        """The pixels; raises :class:`ImageInputError` if the bytes past the header are bad."""
+        if self._pixels is None:
+            assert self._decode is not None
+            self._pixels, self._decode = self._decode(), None
+        return self._pixels
+
+
+def open_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: int,
+               colour: bool) -> InputImage:
+    """An image sample checked by its header, to be decoded when needed
+    (``h × w`` grey, or ``h × w × 3`` RGB when ``colour``). Raises :class:`ImageInputError`
+    for a type not in ``accept``, an image of more than ``max_pixels`` pixels, or bytes that
+    are no image Pillow reads."""
     kind = kind_of(data, encoding)
     if kind not in accept:
         raise ImageInputError(f"{kind} images are not enabled on this channel "
                               f"(accept: {', '.join(sorted(accept)) or 'none'})", "unfit")
+    with _pillow_errors(kind, data):
+        width, height = _open(data, kind).size
+    if width * height > max_pixels:
+        raise ImageInputError(f"{width} × {height} pixels is more than the channel's "
+                              f"{max_pixels}", "too_large")
+    return InputImage(partial(_decoded, data, kind, colour))
+
+
+def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: int,
+               colour: bool) -> U8:
+    """The pixels of an image sample: :func:`open_image`, decoded at once."""
+    return open_image(data, encoding, accept, max_pixels, colour).pixels()
+
+
+def _open(data: bytes, kind: str) -> Any:
+    """Pillow's lazy image of ``data`` (the header read, no pixels yet)."""
+    from PIL import Image  # (Pillow loads with the first picture)
+
+    return Image.open(io.BytesIO(data), formats=[kind.upper()])
+
+
+def _decoded(data: bytes, kind: str, colour: bool) -> U8:
+    with _pillow_errors(kind, data):
+        converted = _open(data, kind).convert("RGB" if colour else "L")
+        return np.asarray(converted, dtype=np.uint8).copy()
+
+
+@contextlib.contextmanager
+def _pillow_errors(kind: str, data: bytes) -> Iterator[None]:
+    """Pillow's complaints about ``data`` as :class:`ImageInputError` (decompression bombs
+    included)."""
+    from PIL import Image, UnidentifiedImageError
+
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", Image.DecompressionBombWarning)
-            image = Image.open(io.BytesIO(data), formats=[kind.upper()])
-            width, height = image.size
-            if width * height > max_pixels:
-                raise ImageInputError(f"{width} × {height} pixels is more than the channel's "
-                                      f"{max_pixels}", "too_large")
-            converted = image.convert("RGB" if colour else "L")
-            return np.asarray(converted, dtype=np.uint8).copy()
-    except ImageInputError:
-        raise
+            yield
     except UnidentifiedImageError:
         raise ImageInputError(f"not a decodable {kind} image ({len(data)} bytes)") from None
     except (OSError, ValueError, SyntaxError,
