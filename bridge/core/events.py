@@ -219,11 +219,16 @@ class Delivery(Event):
     attempts: int = 0
     key: str | None = None
     ref: str | None = None
+    sequence: int | None = None
+    """An image channel's picture sequence number (the ``zab:sequence`` its pictures carry)."""
 
     def to_dict(self) -> dict[str, Any]:
-        return {"channel": self.channel, "id": self.id, "dst": self.dst, "state": self.state,
-                "reason": self.reason, "attempts": self.attempts, "time": self.time,
-                "key": self.key, "ref": self.ref}
+        out = {"channel": self.channel, "id": self.id, "dst": self.dst, "state": self.state,
+               "reason": self.reason, "attempts": self.attempts, "time": self.time,
+               "key": self.key, "ref": self.ref}
+        if self.sequence is not None:
+            out["sequence"] = self.sequence
+        return out
 
 
 @dataclass(frozen=True, slots=True)

@@ -21,13 +21,13 @@ import json
 import logging
 import math
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.events import Delivery
 from bridge.core.outputs import Outbox
 from bridge.core.receivers import Receivers
-from bridge.core.transfer import TransferReceiver, TransferSender
+from bridge.core.transfer import Transfer, TransferReceiver, TransferSender
 from bridge.errors import DecodeError, EncodeError
 from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.frame import Entry
@@ -147,6 +147,11 @@ class ImageSender(TransferSender):
 
     def expire(self, now: float) -> list[Delivery]:
         return super().expire(now) + self._next(now)
+
+    def _one(self, item: Transfer, dst: str, state: str, now: float,
+             reason: str | None = None) -> Delivery:
+        """A picture's delivery report names its sequence number, as its pictures do."""
+        return replace(super()._one(item, dst, state, now, reason), sequence=item.tid)
 
     def _next(self, now: float) -> list[Delivery]:
         """The picture in flight ended: the newest one waiting goes (policy ``finish``)."""

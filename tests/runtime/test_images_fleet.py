@@ -54,6 +54,11 @@ def test_a_jpeg_on_the_rov_sharpens_at_the_operator() -> None:
     statuses = [o.output for o in fleet.outputs if o.node == "operator"
                 and isinstance(o.output, Status) and o.output.topic == "images/camera/rov"]
     assert statuses[-1].payload["final"] is True
+    # the camera's delivery report names the picture as its pictures do
+    reports = [o.output.payload for o in fleet.outputs if o.node == "rov"
+               and isinstance(o.output, Status) and o.output.topic == "delivery/camera"]
+    assert reports[-1]["state"] == "delivered"
+    assert reports[-1]["sequence"] == int(got[-1][1]["zab:sequence"])
 
 
 def test_the_operator_s_roi_changes_the_next_picture() -> None:
