@@ -221,7 +221,7 @@ class VehicleApps:
         self.members: dict[str, set[str]] = {}  # per key family: member keys arrived
         self.examples: list[str] = []  # channels shown with their quantisation
         self.passed: Counter[str] = Counter()  # arrivals per channel considered for it
-        self.examples_done = threading.Event()
+        self.examples_done = threading.Event()  # part 1 over (or its wait)
         self.fixes_seen: dict[str, tuple[dict[str, Any], tuple[float, float] | None]] = {}
         self.deliveries: queue.Queue[dict[str, Any]] = queue.Queue()
         self.latest: dict[tuple[str, str], Any] = {}  # (node, field name) -> last published
@@ -368,8 +368,9 @@ class VehicleApps:
         """The first arrivals of a few channels, beside what was published."""
         src, channel, element = route
         with self._lock:
-            if len(self.examples) >= EXAMPLES or channel.name in self.examples:
-                return
+            if self.examples_done.is_set() or len(self.examples) >= EXAMPLES \
+                    or channel.name in self.examples:
+                return  # (part 1 over: a later part's words are not interrupted)
             history = list(self.history.get((src, channel.elements[element].input_key(src)),
                                             ()))
             if not history:
@@ -723,6 +724,7 @@ async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: flo
     tour.part("values")
     tour.values_intro()
     await asyncio.to_thread(apps.examples_done.wait, EXAMPLES_WAIT_S)
+    apps.examples_done.set()  # part 1 ends: arrivals after it are not shown as examples
     tour.families(apps.members_arrived())
     tour.part("latest")
     channel = next((c for c in loaded.table.channels if not apps.is_operators(c)

@@ -134,3 +134,30 @@ def test_a_vehicle_answers_a_get_with_its_own_data() -> None:
     lsv = _reply_value(spec, 0.0, {}, lambda name: apps.own("lsv", name), phase=2.0)
     assert gcv == {"battery": 81, "depth_m": 12.0}  # its status, its depth
     assert lsv["depth_m"] == 10.0 and lsv["battery"] != gcv["battery"]
+
+
+def test_first_arrivals_are_shown_in_part_one_only() -> None:
+    """An arrival after part 1 ended (its wait ran out before three channels showed
+    rounding) is not printed under a later part."""
+    import io
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from bridge.cli.demo import EXAMPLE_TRIES, VehicleApps, tour_mission
+    from bridge.cli.tour import Tour
+
+    loaded, _ = tour_mission(Path("deploy/missions/zspace.yaml"), 0.1)
+    out = io.StringIO()
+    apps = VehicleApps(loaded, print, tour=Tour(loaded, Console(file=out, width=200), 70))
+    (dst, _), (src, channel, element) = next(
+        (where, route) for where, route in apps.routes.items() if route[1].name == "alarm")
+    apps.history[(src, channel.elements[element].input_key(src))] = [(0.0, {"leak": False})]
+    apps.examples_done.set()  # part 1 is over
+    for _ in range(EXAMPLE_TRIES + 1):  # (arrivals that show no rounding are passed over)
+        apps._example(dst, (src, channel, element), {"leak": False})
+    assert out.getvalue() == "" and apps.examples == []
+    apps.examples_done.clear()  # while part 1 lasts, an arrival is shown
+    for _ in range(EXAMPLE_TRIES + 1):
+        apps._example(dst, (src, channel, element), {"leak": False})
+    assert f"{src} → {dst}: {src}/alarm (alarm, 1 bit)" in out.getvalue()
