@@ -710,6 +710,15 @@ async def _picture_part(tour: Tour, loaded: LoadedMission, pictures: PictureWatc
         tour.not_seen("the picture's last fragment")
 
 
+def latest_channel(loaded: LoadedMission, apps: VehicleApps) -> ChannelCodec:
+    """The channel part 2 tells of: one the vehicles' programs publish every
+    ``PUBLISH_PERIOD_S`` (not a command, not a camera's picture, put once), the most often
+    sent (first of those on news: interval 0)."""
+    published = [c for c in loaded.table.channels if c.image is None
+                 and not apps.is_operators(c)] or list(loaded.table.channels)
+    return min(published, key=lambda c: c.interval_s)
+
+
 async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float,
                  fleet: Fleet, queries: QueryApps | None, watch: SurfacingWatch | None,
                  sent: SentAtSwitches | None, relays: RelayWatch | None,
@@ -727,8 +736,7 @@ async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: flo
     apps.examples_done.set()  # part 1 ends: arrivals after it are not shown as examples
     tour.families(apps.members_arrived())
     tour.part("latest")
-    channel = next((c for c in loaded.table.channels if not apps.is_operators(c)
-                    and c.interval_s == 0), None) or loaded.table.channels[0]
+    channel = latest_channel(loaded, apps)
     sender = channel.senders[0]
     tour.latest(channel, PUBLISH_PERIOD_S, sender, turn_waits(loaded).get(sender))
     if tour.part("command"):

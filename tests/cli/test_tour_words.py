@@ -161,3 +161,33 @@ def test_first_arrivals_are_shown_in_part_one_only() -> None:
     for _ in range(EXAMPLE_TRIES + 1):
         apps._example(dst, (src, channel, element), {"leak": False})
     assert f"{src} → {dst}: {src}/alarm (alarm, 1 bit)" in out.getvalue()
+
+
+def test_part_two_tells_of_a_channel_the_programs_publish_every_second() -> None:
+    """Not the camera (umci_relay's first channel sent on news): its picture is put once."""
+    from pathlib import Path
+
+    from bridge.cli.demo import VehicleApps, latest_channel, tour_mission
+
+    for mission, name in (("umci_relay", "grip"), ("morph", "nav"), ("zspace", "temps")):
+        loaded, _ = tour_mission(Path(f"deploy/missions/{mission}.yaml"), 0.1)
+        assert latest_channel(loaded, VehicleApps(loaded, print)).name == name, mission
+
+
+def test_a_command_to_one_vehicle_waits_for_it_not_each_of_it() -> None:
+    import io
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from bridge.cli.demo import tour_mission
+    from bridge.cli.tour import Tour
+
+    loaded, _ = tour_mission(Path("deploy/missions/umci_relay.yaml"), 0.1)
+    out = io.StringIO()
+    tour = Tour(loaded, Console(file=out, width=400), 70)
+    tour.command_sent("surface", "rov2/goto", '{"x": 0.0}', ("rov2",), 0.1, "@zab/d")
+    tour.command_sent("ssv", "command", '{"leg": 7}', ("gcv", "lsv"), 0.1, "@zab/d")
+    one, two = out.getvalue().splitlines()
+    assert "surface's bridge resends it until rov2 confirms (the water loses 10% of" in one
+    assert "ssv's bridge resends it until each of gcv, lsv confirms" in two
