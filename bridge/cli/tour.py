@@ -189,9 +189,11 @@ class Tour:
 
     def command_sent(self, node: str, key: str, value: Any, destinations: tuple[str, ...],
                      loss: float, report_key: str) -> None:
+        who = destinations[0] if len(destinations) == 1 else \
+            f"each of {', '.join(destinations)}"
         self.say(f"The operator on {node} puts {value} on [bold]{key}[/]; the channel is "
-                 f"acknowledged, so {node}'s bridge resends it until each of "
-                 f"{', '.join(destinations)} confirms (the water loses {loss:.0%} of frames). "
+                 f"acknowledged, so {node}'s bridge resends it until {who} confirms (the "
+                 f"water loses {loss:.0%} of frames). "
                  f"Delivery reports arrive on {report_key}:")
 
     def delivery(self, report: Mapping[str, Any], elapsed_s: float) -> None:
