@@ -191,3 +191,21 @@ def test_a_command_to_one_vehicle_waits_for_it_not_each_of_it() -> None:
     one, two = out.getvalue().splitlines()
     assert "surface's bridge resends it until rov2 confirms (the water loses 10% of" in one
     assert "ssv's bridge resends it until each of gcv, lsv confirms" in two
+
+
+def test_the_tour_announces_the_picture_s_size_as_it_crosses() -> None:
+    """The picture is cut to whole fragments of the camera's frame (zspace: 93 of 112 B):
+    the tour's words allow for it, and say the most it can be."""
+    import re
+    from pathlib import Path
+
+    from bridge.cli.demo import tour_mission
+    from bridge.report.check import check_mission
+
+    for mission in ("morph", "zspace", "umci_relay"):
+        loaded, changes = tour_mission(Path(f"deploy/missions/{mission}.yaml"), 0.1)
+        said = next(c for c in changes if "camera" in c)
+        most = re.search(r"a progressive picture of up to (\d+) bytes, whole fragments", said)
+        assert most, said
+        budget = check_mission(loaded).data["images"][0]["budget_bytes"]
+        assert budget <= int(most.group(1)), (mission, budget)
