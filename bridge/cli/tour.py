@@ -8,6 +8,7 @@ title in :data:`PARTS`, a method here for its words, and a step in ``demo._story
 from __future__ import annotations
 
 import json
+from collections import Counter
 from collections.abc import Mapping
 from typing import Any
 
@@ -31,6 +32,17 @@ PARTS = {
     "relay": "A vehicle reached through another",
     "summary": "Summary",
 }
+
+
+LOSS_WORDS = {
+    "loss": "to the tour's random loss",
+    "out_of_range": "out of range",
+    "range_loss": "faded with distance",
+    "half_duplex": "while the receiver was transmitting",
+    "collision": "in collisions",
+    "bit_errors": "to bit errors",
+}
+"""The simulated water's causes of a lost frame, in words (the summary's)."""
 
 
 def get_path(value: Any, path: str) -> Any:
@@ -324,10 +336,15 @@ class Tour:
                  "latest value at a receiver was, on average and at worst.")
         links = report.get("links") or []
         sent = sum(link["sent"] for link in links)
-        lost = sum(sum(link["lost"].values()) for link in links)
+        causes: Counter[str] = Counter()
+        for link in links:
+            causes.update(link["lost"])
+        lost = sum(causes.values())
         if sent:
+            why = ", ".join(f"{n} {LOSS_WORDS.get(cause, cause)}"
+                            for cause, n in causes.most_common() if n)
             self.say(f"The water carried {sent} frame copies between vehicles and lost {lost} "
-                     f"({lost / sent:.0%}).")
+                     f"({lost / sent:.0%}" + (f": {why})." if why else ")."))
         for line in range_error_lines(ranges, still, cycle_s):
             self.say(line)
 

@@ -498,7 +498,8 @@ def test_zab_demo_tells_the_tour_and_writes_the_report(morph: Demo) -> None:
     flat = " ".join(summary.split())
     for words in ("published", "sent in frames", "received", "mean age"):
         assert words in summary, words
-    assert re.search(r"lost \d+ \(\d+%\)", summary)
+    lost = re.search(r"lost (\d+) \(\d+%(?:: (\d+) to the tour's random loss)?\)\.", flat)
+    assert lost and lost.group(2) == (lost.group(1) if lost.group(1) != "0" else None), flat
     assert re.search(r"\d+ acoustic ranges measured; median error against the simulated "
                      r"distance when each completed [\d.]+ m\. A range is two-way", flat), flat
     assert re.search(r"After part 5, an operator on ssv asked every vehicle every 20 s: "

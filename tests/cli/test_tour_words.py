@@ -209,3 +209,28 @@ def test_the_tour_announces_the_picture_s_size_as_it_crosses() -> None:
         assert most, said
         budget = check_mission(loaded).data["images"][0]["budget_bytes"]
         assert budget <= int(most.group(1)), (mission, budget)
+
+
+def test_the_summary_says_why_frames_were_lost() -> None:
+    """umci_relay's tour announced 10% loss and summed up 25%: rov2 is out of the surface's
+    range, by design (it is reached through rov1); the summary tells the causes apart."""
+    import io
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from bridge.cli.demo import tour_mission
+    from bridge.cli.tour import Tour
+
+    loaded, _ = tour_mission(Path("deploy/missions/umci_relay.yaml"), 0.1)
+    out = io.StringIO()
+    tour = Tour(loaded, Console(file=out, width=400), 70)
+    links = [{"sent": 100, "lost": {"loss": 9, "out_of_range": 20}},
+             {"sent": 40, "lost": {"loss": 4, "collision": 0}}]
+    tour.summary({"channels": {}, "links": links}, {}, [], set(), None)
+    tour.summary({"channels": {}, "links": [{"sent": 10, "lost": {}}]}, {}, [], set(), None)
+    lines = [line for line in out.getvalue().splitlines() if line.startswith("The water")]
+    assert lines == [
+        "The water carried 140 frame copies between vehicles and lost 33 (24%: 20 out of "
+        "range, 13 to the tour's random loss).",
+        "The water carried 10 frame copies between vehicles and lost 0 (0%)."]
