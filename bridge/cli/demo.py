@@ -401,29 +401,32 @@ class VehicleApps:
                 if not compiled.sent_by(node) or self.is_operators(compiled):
                     continue
                 for e_index, element in enumerate(channel.elements):
-                    value: dict[str, Any] = {}
-                    if element.dccl:  # a DCCL message: a valid value of its own
-                        layout = compiled.elements[e_index].layout
-                        value = layout.synthetic_value(  # type: ignore[attr-defined]
-                            random.Random(hash((node, t))))
                     sailed = self._sailed(node)
                     if sailed is None and self.loaded.mission.nodes[node].path is not None:
                         continue  # not in the water yet: nothing to navigate by
-                    for f_index, spec in enumerate(element.fields):
-                        if not spec.field:
-                            continue
-                        moving = sailed.get(spec.field) if sailed is not None else \
-                            None if position is None else formation_value(
-                                spec.field, (position.x, position.y, position.depth), t)
-                        phase = _phase(node, channel.name, e_index, f_index)
-                        chosen = moving if moving is not None else \
-                            synthetic_value(spec, t, phase)
-                        _set(value, spec.field, chosen)
-                        self.latest[(node, spec.field.rsplit(".", 1)[-1])] = chosen
-                    for key in member_keys(compiled, e_index, node):
+                    keys = member_keys(compiled, e_index, node)
+                    for key in keys:
                         if time.time() - self.operator.get((node, key), -OPERATOR_HOLD_S) \
                                 < OPERATOR_HOLD_S:
                             continue  # the operator's command stands
+                        value: dict[str, Any] = {}
+                        if element.dccl:  # a DCCL message: a valid value of its own
+                            layout = compiled.elements[e_index].layout
+                            value = layout.synthetic_value(  # type: ignore[attr-defined]
+                                random.Random(hash((node, key, t))))
+                        for f_index, spec in enumerate(element.fields):
+                            if not spec.field:
+                                continue
+                            moving = sailed.get(spec.field) if sailed is not None else \
+                                None if position is None else formation_value(
+                                    spec.field, (position.x, position.y, position.depth), t)
+                            # (a key family's members: each its own phase, so its own value)
+                            phase = _phase(node, channel.name, e_index, f_index,
+                                           *([key] if len(keys) > 1 else []))
+                            chosen = moving if moving is not None else \
+                                synthetic_value(spec, t, phase)
+                            _set(value, spec.field, chosen)
+                            self.latest[(node, spec.field.rsplit(".", 1)[-1])] = chosen
                         session.put(key, msgpack.packb(value),
                                     encoding=zenoh.Encoding("application/msgpack"))
                         with self._lock:

@@ -234,3 +234,29 @@ def test_the_summary_says_why_frames_were_lost() -> None:
         "The water carried 140 frame copies between vehicles and lost 33 (24%: 20 out of "
         "range, 13 to the tour's random loss).",
         "The water carried 10 frame copies between vehicles and lost 0 (0%)."]
+
+
+def test_each_member_of_a_key_family_gets_values_of_its_own() -> None:
+    """The zspace tour's GUI showed fleet/auv1/depth_order and fleet/auv2/depth_order at the
+    same 78.469, and a vehicle's three temperatures alike: one value put on every member."""
+    from pathlib import Path
+
+    import msgpack
+
+    from bridge.cli.demo import VehicleApps, tour_mission
+
+    loaded, _ = tour_mission(Path("deploy/missions/zspace.yaml"), 0.1)
+    apps = VehicleApps(loaded, print)
+    put: dict[str, dict] = {}
+
+    class Session:
+        def put(self, key: str, payload: bytes, **_: object) -> None:
+            put[key] = msgpack.unpackb(payload)
+
+    apps.sessions = {node: Session() for node in loaded.mission.nodes}  # type: ignore[misc]
+    apps.publish_once(100.0)
+    depths = [put[f"fleet/{vehicle}/depth_order"]["depth_m"] for vehicle in ("auv1", "auv2")]
+    temps = [put[f"sensors/{name}/temp"]["celsius"] for name in "abc"]  # (auv1's, on its peer)
+    contacts = [put[f"contacts/k{i}"]["range_m"] for i in range(3)]
+    assert len(set(depths)) == 2 and len(set(temps)) == 3 and len(set(contacts)) == 3, put
+    assert all(-2 <= t <= 40 for t in temps) and all(0 <= d <= 100 for d in depths)
