@@ -771,7 +771,7 @@ def doctor(
             console.print(f"     {'':<8} [bold]fix:[/] {f.fix}", highlight=False)
     failed = sum(f.status == "fail" for f in findings)
     warned = sum(f.status == "warn" for f in findings)
-    console.print(f"{node}: {failed} to fix, {warned} warning(s)" if failed or warned
+    console.print(f"{node}: {failed} to fix, {counted(warned, 'warning')}" if failed or warned
                   else f"{node}: ready")
     raise typer.Exit(1 if failed else 0)
 

@@ -221,7 +221,7 @@ class VehicleApps:
         self.members: dict[str, set[str]] = {}  # per key family: member keys arrived
         self.examples: list[str] = []  # channels shown with their quantisation
         self.passed: Counter[str] = Counter()  # arrivals per channel considered for it
-        self.examples_done = threading.Event()
+        self.examples_done = threading.Event()  # part 1 over (or its wait)
         self.fixes_seen: dict[str, tuple[dict[str, Any], tuple[float, float] | None]] = {}
         self.deliveries: queue.Queue[dict[str, Any]] = queue.Queue()
         self.latest: dict[tuple[str, str], Any] = {}  # (node, field name) -> last published
@@ -368,8 +368,9 @@ class VehicleApps:
         """The first arrivals of a few channels, beside what was published."""
         src, channel, element = route
         with self._lock:
-            if len(self.examples) >= EXAMPLES or channel.name in self.examples:
-                return
+            if self.examples_done.is_set() or len(self.examples) >= EXAMPLES \
+                    or channel.name in self.examples:
+                return  # (part 1 over: a later part's words are not interrupted)
             history = list(self.history.get((src, channel.elements[element].input_key(src)),
                                             ()))
             if not history:
@@ -400,29 +401,32 @@ class VehicleApps:
                 if not compiled.sent_by(node) or self.is_operators(compiled):
                     continue
                 for e_index, element in enumerate(channel.elements):
-                    value: dict[str, Any] = {}
-                    if element.dccl:  # a DCCL message: a valid value of its own
-                        layout = compiled.elements[e_index].layout
-                        value = layout.synthetic_value(  # type: ignore[attr-defined]
-                            random.Random(hash((node, t))))
                     sailed = self._sailed(node)
                     if sailed is None and self.loaded.mission.nodes[node].path is not None:
                         continue  # not in the water yet: nothing to navigate by
-                    for f_index, spec in enumerate(element.fields):
-                        if not spec.field:
-                            continue
-                        moving = sailed.get(spec.field) if sailed is not None else \
-                            None if position is None else formation_value(
-                                spec.field, (position.x, position.y, position.depth), t)
-                        phase = _phase(node, channel.name, e_index, f_index)
-                        chosen = moving if moving is not None else \
-                            synthetic_value(spec, t, phase)
-                        _set(value, spec.field, chosen)
-                        self.latest[(node, spec.field.rsplit(".", 1)[-1])] = chosen
-                    for key in member_keys(compiled, e_index, node):
+                    keys = member_keys(compiled, e_index, node)
+                    for key in keys:
                         if time.time() - self.operator.get((node, key), -OPERATOR_HOLD_S) \
                                 < OPERATOR_HOLD_S:
                             continue  # the operator's command stands
+                        value: dict[str, Any] = {}
+                        if element.dccl:  # a DCCL message: a valid value of its own
+                            layout = compiled.elements[e_index].layout
+                            value = layout.synthetic_value(  # type: ignore[attr-defined]
+                                random.Random(hash((node, key, t))))
+                        for f_index, spec in enumerate(element.fields):
+                            if not spec.field:
+                                continue
+                            moving = sailed.get(spec.field) if sailed is not None else \
+                                None if position is None else formation_value(
+                                    spec.field, (position.x, position.y, position.depth), t)
+                            # (a key family's members: each its own phase, so its own value)
+                            phase = _phase(node, channel.name, e_index, f_index,
+                                           *([key] if len(keys) > 1 else []))
+                            chosen = moving if moving is not None else \
+                                synthetic_value(spec, t, phase)
+                            _set(value, spec.field, chosen)
+                            self.latest[(node, spec.field.rsplit(".", 1)[-1])] = chosen
                         session.put(key, msgpack.packb(value),
                                     encoding=zenoh.Encoding("application/msgpack"))
                         with self._lock:
@@ -709,6 +713,15 @@ async def _picture_part(tour: Tour, loaded: LoadedMission, pictures: PictureWatc
         tour.not_seen("the picture's last fragment")
 
 
+def latest_channel(loaded: LoadedMission, apps: VehicleApps) -> ChannelCodec:
+    """The channel part 2 tells of: one the vehicles' programs publish every
+    ``PUBLISH_PERIOD_S`` (not a command, not a camera's picture, put once), the most often
+    sent (first of those on news: interval 0)."""
+    published = [c for c in loaded.table.channels if c.image is None
+                 and not apps.is_operators(c)] or list(loaded.table.channels)
+    return min(published, key=lambda c: c.interval_s)
+
+
 async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float,
                  fleet: Fleet, queries: QueryApps | None, watch: SurfacingWatch | None,
                  sent: SentAtSwitches | None, relays: RelayWatch | None,
@@ -723,10 +736,10 @@ async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: flo
     tour.part("values")
     tour.values_intro()
     await asyncio.to_thread(apps.examples_done.wait, EXAMPLES_WAIT_S)
+    apps.examples_done.set()  # part 1 ends: arrivals after it are not shown as examples
     tour.families(apps.members_arrived())
     tour.part("latest")
-    channel = next((c for c in loaded.table.channels if not apps.is_operators(c)
-                    and c.interval_s == 0), None) or loaded.table.channels[0]
+    channel = latest_channel(loaded, apps)
     sender = channel.senders[0]
     tour.latest(channel, PUBLISH_PERIOD_S, sender, turn_waits(loaded).get(sender))
     if tour.part("command"):

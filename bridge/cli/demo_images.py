@@ -41,8 +41,9 @@ def images_for_tour(data: dict[str, Any]) -> str | None:
         "name": "camera", "from": vehicle, "to": surface, "in": f"{vehicle}/camera",
         "out": f"{vehicle}/camera", "width": 160, "height": 120,
         "budget_bytes": TOUR_PICTURE_BYTES, "publish_interval_s": 0.0}]
-    return (f"{vehicle} has a camera seen at {surface} (a {TOUR_PICTURE_BYTES}-byte "
-            "progressive picture, below every channel's priority)")
+    return (f"{vehicle} has a camera seen at {surface} (a progressive picture of up to "
+            f"{TOUR_PICTURE_BYTES} bytes, whole fragments of its frame, below every channel's "
+            "priority)")
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,11 @@ def client(endpoint: str) -> Iterator[zenoh.Session]:
     try:
         session = open_session(ZenohSettings(mode="client", listen=[], connect=[endpoint]))
     except SessionError as exc:
-        raise PokeError(f"cannot connect to {endpoint}: {exc}") from None
+        why = str(exc)
+        if "no Zenoh router answers" in why:  # a vehicle's peer, not a router to configure
+            why = "nothing answers there: is a vehicle's bridge running (zab demo, zab sim, " \
+                "zab run)?"
+        raise PokeError(f"cannot connect to {endpoint}: {why}") from None
     try:
         yield session
     finally:

@@ -8,6 +8,7 @@ title in :data:`PARTS`, a method here for its words, and a step in ``demo._story
 from __future__ import annotations
 
 import json
+from collections import Counter
 from collections.abc import Mapping
 from typing import Any
 
@@ -31,6 +32,17 @@ PARTS = {
     "relay": "A vehicle reached through another",
     "summary": "Summary",
 }
+
+
+LOSS_WORDS = {
+    "loss": "to the tour's random loss",
+    "out_of_range": "out of range",
+    "range_loss": "faded with distance",
+    "half_duplex": "while the receiver was transmitting",
+    "collision": "in collisions",
+    "bit_errors": "to bit errors",
+}
+"""The simulated water's causes of a lost frame, in words (the summary's)."""
 
 
 def get_path(value: Any, path: str) -> Any:
@@ -189,9 +201,11 @@ class Tour:
 
     def command_sent(self, node: str, key: str, value: Any, destinations: tuple[str, ...],
                      loss: float, report_key: str) -> None:
+        who = destinations[0] if len(destinations) == 1 else \
+            f"each of {', '.join(destinations)}"
         self.say(f"The operator on {node} puts {value} on [bold]{key}[/]; the channel is "
-                 f"acknowledged, so {node}'s bridge resends it until each of "
-                 f"{', '.join(destinations)} confirms (the water loses {loss:.0%} of frames). "
+                 f"acknowledged, so {node}'s bridge resends it until {who} confirms (the "
+                 f"water loses {loss:.0%} of frames). "
                  f"Delivery reports arrive on {report_key}:")
 
     def delivery(self, report: Mapping[str, Any], elapsed_s: float) -> None:
@@ -322,10 +336,15 @@ class Tour:
                  "latest value at a receiver was, on average and at worst.")
         links = report.get("links") or []
         sent = sum(link["sent"] for link in links)
-        lost = sum(sum(link["lost"].values()) for link in links)
+        causes: Counter[str] = Counter()
+        for link in links:
+            causes.update(link["lost"])
+        lost = sum(causes.values())
         if sent:
+            why = ", ".join(f"{n} {LOSS_WORDS.get(cause, cause)}"
+                            for cause, n in causes.most_common() if n)
             self.say(f"The water carried {sent} frame copies between vehicles and lost {lost} "
-                     f"({lost / sent:.0%}).")
+                     f"({lost / sent:.0%}" + (f": {why})." if why else ")."))
         for line in range_error_lines(ranges, still, cycle_s):
             self.say(line)
 

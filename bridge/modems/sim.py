@@ -99,9 +99,10 @@ class SimBackend(ModemBackend):
         self._inbox = Inbox(self.stats, self._rx_size)
         where = f"the water at {host}:{port}"
         try:
-            self._reader, self._writer = await asyncio.wait_for(
-                asyncio.open_connection(host, port), self._timeout
-            )
+            # (asyncio.timeout, not wait_for: on Python 3.11 wait_for returns a result that lands
+            # with a cancellation, and a fleet stopped while its modems greeted the water hung)
+            async with asyncio.timeout(self._timeout):
+                self._reader, self._writer = await asyncio.open_connection(host, port)
         except (OSError, TimeoutError) as exc:
             raise BackendError(
                 f"sim modem {self.setup.node!r}: cannot reach {where} ({exc or 'timeout'}); "
@@ -119,7 +120,8 @@ class SimBackend(ModemBackend):
         )
         try:
             assert self._reader is not None  # (connected just above)
-            msg = await asyncio.wait_for(read_message(self._reader), self._timeout)
+            async with asyncio.timeout(self._timeout):
+                msg = await read_message(self._reader)
         except (OSError, TimeoutError, ProtocolError, asyncio.IncompleteReadError) as exc:
             raise BackendError(
                 f"sim modem {self.setup.node!r}: no welcome from {where}: {exc or 'timeout'}"

@@ -80,6 +80,9 @@ def test_bad_arguments_and_a_dead_endpoint_exit_cleanly() -> None:
     dead = subprocess.run([*ZAB, "listen", "tcp/127.0.0.1:9", "--duration", "1"],
                           capture_output=True, text=True, timeout=30)
     assert dead.returncode == 1 and "cannot connect to tcp/127.0.0.1:9" in dead.stderr
+    said = " ".join(dead.stderr.split())  # a vehicle's endpoint: no router advice, no config
+    assert "nothing answers there: is a vehicle's bridge running (zab demo, zab sim, zab " \
+        "run)?" in said and "zenohd" not in said and "zenoh.connect" not in said, said
     assert "Traceback" not in dead.stderr + bad_json.stderr
 
 

@@ -137,3 +137,27 @@ def test_a_full_state_disk_at_start_exits_2(mission: tuple[Path, int, int],
         line = _one_clear_line(result)
     assert line == (f"cannot start: a: cannot save its state in {where}: No space left on "
                     "device (ENOSPC)")
+
+
+def test_a_fleet_with_a_port_taken_exits_2_and_does_not_hang(tmp_path: Path) -> None:
+    """`zab sim` (and `zab demo`: the same fleet) whose surface node finds its Zenoh port
+    taken says so and exits 2. The other nodes, stopped while their simulated modems were
+    still greeting the water, once swallowed that stop (`asyncio.wait_for` on Python 3.11
+    returns a result that lands with the cancellation) and the fleet hung, Ctrl-C too."""
+    text = (REPO / "deploy/missions/umci_relay.yaml").read_text(encoding="utf-8")
+    ports = {port: free_port() for port in ("7622", "7623", "7624")}
+    for port, free in ports.items():
+        text = text.replace(f"tcp/127.0.0.1:{port}", f"tcp/127.0.0.1:{free}")
+    path = tmp_path / "relay.yaml"
+    path.write_text(text, encoding="utf-8")
+    with socket.socket() as holder:
+        holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        holder.bind(("127.0.0.1", ports["7622"]))
+        holder.listen()
+        result = subprocess.run(
+            [sys.executable, "-m", "bridge", "sim", str(path), "--duration", "5", "--no-live"],
+            cwd=REPO, capture_output=True, text=True, timeout=START_S,
+            env={**os.environ, "COLUMNS": "200", "ZAB_KEY": "ab" * 32})
+    output = result.stdout + result.stderr
+    assert result.returncode == 2, output
+    assert f"cannot start: surface: tcp/127.0.0.1:{ports['7622']} is already in use" in output

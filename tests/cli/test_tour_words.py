@@ -134,3 +134,129 @@ def test_a_vehicle_answers_a_get_with_its_own_data() -> None:
     lsv = _reply_value(spec, 0.0, {}, lambda name: apps.own("lsv", name), phase=2.0)
     assert gcv == {"battery": 81, "depth_m": 12.0}  # its status, its depth
     assert lsv["depth_m"] == 10.0 and lsv["battery"] != gcv["battery"]
+
+
+def test_first_arrivals_are_shown_in_part_one_only() -> None:
+    """An arrival after part 1 ended (its wait ran out before three channels showed
+    rounding) is not printed under a later part."""
+    import io
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from bridge.cli.demo import EXAMPLE_TRIES, VehicleApps, tour_mission
+    from bridge.cli.tour import Tour
+
+    loaded, _ = tour_mission(Path("deploy/missions/zspace.yaml"), 0.1)
+    out = io.StringIO()
+    apps = VehicleApps(loaded, print, tour=Tour(loaded, Console(file=out, width=200), 70))
+    (dst, _), (src, channel, element) = next(
+        (where, route) for where, route in apps.routes.items() if route[1].name == "alarm")
+    apps.history[(src, channel.elements[element].input_key(src))] = [(0.0, {"leak": False})]
+    apps.examples_done.set()  # part 1 is over
+    for _ in range(EXAMPLE_TRIES + 1):  # (arrivals that show no rounding are passed over)
+        apps._example(dst, (src, channel, element), {"leak": False})
+    assert out.getvalue() == "" and apps.examples == []
+    apps.examples_done.clear()  # while part 1 lasts, an arrival is shown
+    for _ in range(EXAMPLE_TRIES + 1):
+        apps._example(dst, (src, channel, element), {"leak": False})
+    assert f"{src} → {dst}: {src}/alarm (alarm, 1 bit)" in out.getvalue()
+
+
+def test_part_two_tells_of_a_channel_the_programs_publish_every_second() -> None:
+    """Not the camera (umci_relay's first channel sent on news): its picture is put once."""
+    from pathlib import Path
+
+    from bridge.cli.demo import VehicleApps, latest_channel, tour_mission
+
+    for mission, name in (("umci_relay", "grip"), ("morph", "nav"), ("zspace", "temps")):
+        loaded, _ = tour_mission(Path(f"deploy/missions/{mission}.yaml"), 0.1)
+        assert latest_channel(loaded, VehicleApps(loaded, print)).name == name, mission
+
+
+def test_a_command_to_one_vehicle_waits_for_it_not_each_of_it() -> None:
+    import io
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from bridge.cli.demo import tour_mission
+    from bridge.cli.tour import Tour
+
+    loaded, _ = tour_mission(Path("deploy/missions/umci_relay.yaml"), 0.1)
+    out = io.StringIO()
+    tour = Tour(loaded, Console(file=out, width=400), 70)
+    tour.command_sent("surface", "rov2/goto", '{"x": 0.0}', ("rov2",), 0.1, "@zab/d")
+    tour.command_sent("ssv", "command", '{"leg": 7}', ("gcv", "lsv"), 0.1, "@zab/d")
+    one, two = out.getvalue().splitlines()
+    assert "surface's bridge resends it until rov2 confirms (the water loses 10% of" in one
+    assert "ssv's bridge resends it until each of gcv, lsv confirms" in two
+
+
+def test_the_tour_announces_the_picture_s_size_as_it_crosses() -> None:
+    """The picture is cut to whole fragments of the camera's frame (zspace: 93 of 112 B):
+    the tour's words allow for it, and say the most it can be."""
+    import re
+    from pathlib import Path
+
+    from bridge.cli.demo import tour_mission
+    from bridge.report.check import check_mission
+
+    for mission in ("morph", "zspace", "umci_relay"):
+        loaded, changes = tour_mission(Path(f"deploy/missions/{mission}.yaml"), 0.1)
+        said = next(c for c in changes if "camera" in c)
+        most = re.search(r"a progressive picture of up to (\d+) bytes, whole fragments", said)
+        assert most, said
+        budget = check_mission(loaded).data["images"][0]["budget_bytes"]
+        assert budget <= int(most.group(1)), (mission, budget)
+
+
+def test_the_summary_says_why_frames_were_lost() -> None:
+    """umci_relay's tour announced 10% loss and summed up 25%: rov2 is out of the surface's
+    range, by design (it is reached through rov1); the summary tells the causes apart."""
+    import io
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from bridge.cli.demo import tour_mission
+    from bridge.cli.tour import Tour
+
+    loaded, _ = tour_mission(Path("deploy/missions/umci_relay.yaml"), 0.1)
+    out = io.StringIO()
+    tour = Tour(loaded, Console(file=out, width=400), 70)
+    links = [{"sent": 100, "lost": {"loss": 9, "out_of_range": 20}},
+             {"sent": 40, "lost": {"loss": 4, "collision": 0}}]
+    tour.summary({"channels": {}, "links": links}, {}, [], set(), None)
+    tour.summary({"channels": {}, "links": [{"sent": 10, "lost": {}}]}, {}, [], set(), None)
+    lines = [line for line in out.getvalue().splitlines() if line.startswith("The water")]
+    assert lines == [
+        "The water carried 140 frame copies between vehicles and lost 33 (24%: 20 out of "
+        "range, 13 to the tour's random loss).",
+        "The water carried 10 frame copies between vehicles and lost 0 (0%)."]
+
+
+def test_each_member_of_a_key_family_gets_values_of_its_own() -> None:
+    """The zspace tour's GUI showed fleet/auv1/depth_order and fleet/auv2/depth_order at the
+    same 78.469, and a vehicle's three temperatures alike: one value put on every member."""
+    from pathlib import Path
+
+    import msgpack
+
+    from bridge.cli.demo import VehicleApps, tour_mission
+
+    loaded, _ = tour_mission(Path("deploy/missions/zspace.yaml"), 0.1)
+    apps = VehicleApps(loaded, print)
+    put: dict[str, dict] = {}
+
+    class Session:
+        def put(self, key: str, payload: bytes, **_: object) -> None:
+            put[key] = msgpack.unpackb(payload)
+
+    apps.sessions = {node: Session() for node in loaded.mission.nodes}  # type: ignore[misc]
+    apps.publish_once(100.0)
+    depths = [put[f"fleet/{vehicle}/depth_order"]["depth_m"] for vehicle in ("auv1", "auv2")]
+    temps = [put[f"sensors/{name}/temp"]["celsius"] for name in "abc"]  # (auv1's, on its peer)
+    contacts = [put[f"contacts/k{i}"]["range_m"] for i in range(3)]
+    assert len(set(depths)) == 2 and len(set(temps)) == 3 and len(set(contacts)) == 3, put
+    assert all(-2 <= t <= 40 for t in temps) and all(0 <= d <= 100 for d in depths)

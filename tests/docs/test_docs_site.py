@@ -20,7 +20,7 @@ from tests.conftest import REPO
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     if importlib.util.find_spec("mkdocs") is None:
-        pytest.skip("needs MkDocs (the docs group, a default one: uv run pytest installs it)")
+        pytest.skip("needs MkDocs (the docs group: uv run pytest installs it)")
     out = tmp_path_factory.mktemp("site")
     done = subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
@@ -71,3 +71,28 @@ def test_readme_stays_short_and_links_the_docs() -> None:
     readme = (REPO / "README.md").read_text()
     assert "mkdocs" in readme and "docs/" in readme
     assert "## Wire format" not in readme and "## The mission file" not in readme
+
+
+def test_each_readme_uv_run_has_what_it_runs_in_a_fresh_clone() -> None:
+    """A fresh clone's `uv run` installs the project and the default groups only: a README
+    command running a tool from another group names that group (`uv run --group docs ...`)."""
+    import tomllib
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
+    groups = project["dependency-groups"]
+
+    def names(requirements: list[str]) -> set[str]:
+        return {re.split(r"[<>=!~\[; ]", r, maxsplit=1)[0].lower() for r in requirements
+                if isinstance(r, str)}
+
+    default = names(project["project"]["dependencies"])
+    for group in project["tool"]["uv"]["default-groups"]:
+        default |= names(groups[group])
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    commands = re.findall(r"uv run((?: --group \S+)*) ([\w.-]+)", readme)
+    assert commands
+    for extra, tool in commands:
+        if tool in ("zab", "python"):
+            continue  # the project's own script; the venv's Python
+        present = default.union(*(names(groups[g]) for g in re.findall(r"--group (\S+)", extra)))
+        assert tool in present, f"`uv run {tool}` needs a group that brings it: {extra!r}"

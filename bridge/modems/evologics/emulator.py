@@ -260,8 +260,8 @@ class EvologicsEmulator:
         port = await self.tcp.open() if self.tcp is not None else None
         self._loops = [asyncio.create_task(self._rx_loop(), name="emu-rx"),
                        asyncio.create_task(self._tx_loop(), name="emu-tx")]
-        log.info("evologics emulator %s@%s on %s (tcp %s)", self.setup.node,
-                 self.setup.address, device, port)
+        log.info("evologics emulator %s@%s on %s%s", self.setup.node, self.setup.address,
+                 device, "" if port is None else f" and TCP port {port}")
         return {"device": device, "tcp": port}
 
     async def stop(self) -> None:

@@ -376,3 +376,25 @@ def test_settings_dump_as_a_real_one_shows_it(tmp_path: Path, firmware: str, lab
                             "Sound Speed", label, "Pool Size", "Hold Timeout", "Idle Timeout"]
 
     arun(main)
+
+
+def test_the_start_line_names_what_is_open(tmp_path: Path,
+                                           caplog: pytest.LogCaptureFixture) -> None:
+    """`zab emulate` without a TCP port says where its pty is, not "(tcp None)"."""
+    async def main() -> None:
+        water = WaterService(FAST, seed=1, loss_curve=LossCurve(edge_loss=0.0))
+        port = await water.start()
+        emulator = EvologicsEmulator(
+            ModemSetup(node="n1", address=1, frame_bytes=64,
+                       options={"water": f"127.0.0.1:{port}"}, position=POSITIONS[1]),
+            link=tmp_path / "modem1", positions=POSITIONS)
+        try:
+            await emulator.start()
+        finally:
+            await emulator.stop()
+            await water.stop()
+
+    caplog.set_level("INFO", logger="zab.emulate.evologics")
+    arun(main)
+    line = next(r.getMessage() for r in caplog.records if "emulator n1@1" in r.getMessage())
+    assert "None" not in line and line.startswith("evologics emulator n1@1 on /"), line
