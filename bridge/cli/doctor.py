@@ -239,7 +239,8 @@ async def _modem(mission: Mission, node: str, label: str, timeout_s: float) -> l
     except BackendError as exc:
         return [Finding(label, "fail", str(exc), "fix the modem options in the mission")]
     try:
-        await asyncio.wait_for(backend.open(), timeout_s)
+        async with asyncio.timeout(timeout_s):
+            await backend.open()
     except TimeoutError:
         return [Finding(label, "fail", f"{modem.backend}: no answer within {timeout_s:g} s",
                         _modem_fix(modem.backend))]

@@ -83,8 +83,8 @@ class ZenohFeed:
                     alive = await loop.run_in_executor(None, _has_peer, self.session)
                     self._connection(alive, None if alive else "no route to the node")
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(stop.wait(),
-                                           CONNECTION_CHECK_S if self.session else RETRY_S)
+                    async with asyncio.timeout(CONNECTION_CHECK_S if self.session else RETRY_S):
+                        await stop.wait()
         finally:
             if self.session is not None:
                 close_quietly(self.session)

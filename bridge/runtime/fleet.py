@@ -147,7 +147,8 @@ class Fleet:
             self.ready.set()
             while not stop.is_set():
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(stop.wait(), WATCH_S)
+                    async with asyncio.timeout(WATCH_S):
+                        await stop.wait()
                 for task in tasks:
                     if task.done() and task.exception() is not None:
                         raise task.exception()  # type: ignore[misc]

@@ -109,7 +109,8 @@ class IpWatch:
                     self._set(peer, up)
             self._wake.clear()
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), PROVE_EVERY_S)
+                async with asyncio.timeout(PROVE_EVERY_S):
+                    await self._wake.wait()
 
     async def _prove(self, peer: str) -> bool:
         """Whether ``peer`` answers a fresh challenge with a valid proof now."""

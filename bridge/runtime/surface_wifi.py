@@ -87,8 +87,9 @@ class SurfaceWifi:
                 await self._set(self.script.ip_pairs(now))
                 at = self.script.next_any(now)
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(stop.wait(), None if at is None
-                                           else max(0.0, at - time.time()) + 0.01)
+                    wait_s = None if at is None else max(0.0, at - time.time()) + 0.01
+                    async with asyncio.timeout(wait_s):
+                        await stop.wait()
         finally:
             for session in self.links.values():
                 _close(session)

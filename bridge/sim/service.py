@@ -151,7 +151,8 @@ class WaterService:
             delay = t - loop.time()
             if delay > 0:
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._wake.wait(), delay)
+                    async with asyncio.timeout(delay):
+                        await self._wake.wait()
                     continue  # something new was transmitted: recompute the next event
             self._last = max(self._last, t)
             for event in self.ocean.advance(self._now()):
@@ -224,7 +225,8 @@ class WaterService:
             writer.write(pack({"t": "error", "error": reason}))
 
         try:
-            msg = await asyncio.wait_for(read_message(reader), HELLO_TIMEOUT_S)
+            async with asyncio.timeout(HELLO_TIMEOUT_S):
+                msg = await read_message(reader)
         except TimeoutError:
             reject("no hello received")
             return None

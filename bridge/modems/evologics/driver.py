@@ -407,7 +407,8 @@ class EvologicsBackend(ModemBackend):
         while True:
             left = deadline - asyncio.get_running_loop().time()
             try:
-                event = await asyncio.wait_for(self._tx_events.get(), max(left, 0.0))
+                async with asyncio.timeout(max(left, 0.0)):
+                    event = await self._tx_events.get()
             except TimeoutError:
                 raise BackendError(f"{self._who}: no {what} within {timeout:g} s") from None
             self._check()
@@ -426,7 +427,8 @@ class EvologicsBackend(ModemBackend):
         self._expect = self.protocol.pending[-1]
         await self._write(self.protocol.data_to_send())
         try:
-            return await asyncio.wait_for(asyncio.shield(self._reply), timeout or self.timeout_s)
+            async with asyncio.timeout(timeout or self.timeout_s):
+                return await asyncio.shield(self._reply)
         except TimeoutError:
             self._check()
             if timeout is not None:

@@ -607,7 +607,8 @@ class EvologicsEmulator:
             return
         # !RT is the retry timeout [V]; counted from the end of our transmission here [U]
         with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(outstanding.acked.wait(), self.settings["RT"] / 1000)
+            async with asyncio.timeout(self.settings["RT"] / 1000):
+                await outstanding.acked.wait()
         if self._outstanding is not outstanding:
             return  # a reboot or Z3/Z4 dropped it
         if outstanding.acked.is_set():

@@ -259,7 +259,8 @@ class MicromodemBackend(ModemBackend):
                 except ValueError as exc:
                     raise BackendError(f"micromodem {self.setup.node!r}: {exc}") from None
                 await self._flush()
-                owtt = await asyncio.wait_for(fut, self.ping_timeout_s)
+                async with asyncio.timeout(self.ping_timeout_s):
+                    owtt = await fut
                 return ModemRange(dest, owtt, "ping", self.clock())
             except TimeoutError:
                 raise BackendError(f"micromodem {self.setup.node!r}: no ping reply from "
@@ -278,7 +279,8 @@ class MicromodemBackend(ModemBackend):
             try:
                 self.protocol.send(lbl.sentence)
                 await self._flush()
-                heard = (await asyncio.wait_for(fut, wait_s)).heard()
+                async with asyncio.timeout(wait_s):
+                    heard = (await fut).heard()
             except TimeoutError:
                 raise BackendError(f"micromodem {self.setup.node!r}: no $SNTTA within "
                                    f"{wait_s:g} s of the LBL interrogation") from None
@@ -303,7 +305,8 @@ class MicromodemBackend(ModemBackend):
             raise self._failure
         if not self._ready.is_set():
             try:
-                await asyncio.wait_for(self._ready.wait(), self.timeout_s * (self.retries + 1))
+                async with asyncio.timeout(self.timeout_s * (self.retries + 1)):
+                    await self._ready.wait()
             except TimeoutError:
                 raise BackendError(f"micromodem {self.setup.node!r}: modem not initialised") \
                     from None
@@ -323,7 +326,8 @@ class MicromodemBackend(ModemBackend):
                     raise BackendError(f"micromodem {self.setup.node!r}: {exc}") from None
                 await self._flush()
                 try:
-                    await asyncio.wait_for(asyncio.shield(fut), self.tx_timeout_s)
+                    async with asyncio.timeout(self.tx_timeout_s):
+                        await asyncio.shield(fut)
                 except TimeoutError:
                     what = "acknowledged" if ack else "sent"
                     self.protocol.abort(f"not {what} within {self.tx_timeout_s:g} s")
@@ -354,7 +358,8 @@ class MicromodemBackend(ModemBackend):
             self.protocol.configure(key, text)
             await self._flush()
             try:
-                got = await asyncio.wait_for(fut, self.timeout_s)
+                async with asyncio.timeout(self.timeout_s):
+                    got = await fut
             except TimeoutError:
                 log.warning("%s: no echo of $CCCFG,%s (try %d)", self, key, attempt + 1)
                 continue
@@ -379,7 +384,8 @@ class MicromodemBackend(ModemBackend):
         try:
             self.protocol.send(sentence)
             await self._flush()
-            return await asyncio.wait_for(fut, wait_s)
+            async with asyncio.timeout(wait_s):
+                return await fut
         except TimeoutError:
             raise BackendError(f"micromodem {self.setup.node!r}: no reply to ${sentence.name}"
                                f" within {wait_s:g} s") from None

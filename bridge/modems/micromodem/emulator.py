@@ -573,7 +573,8 @@ class MicromodemEmulator:
             self._txd = asyncio.get_running_loop().create_future()
             self._print("DRQ", _hhmmss(), me, dest, int(ack), spec.frame_bytes, frame)
             try:
-                txd = await asyncio.wait_for(self._txd, self.dto_s)
+                async with asyncio.timeout(self.dto_s):
+                    txd = await self._txd
             except TimeoutError:
                 self._error("DATA_TIMEOUT", frame)
                 return
@@ -652,7 +653,8 @@ class MicromodemEmulator:
         try:
             if not await self._transmit(Header(kind, self.address, dest, rate), MINI):
                 return
-            owtt = await asyncio.wait_for(fut, self.ping_timeout_s)
+            async with asyncio.timeout(self.ping_timeout_s):
+                owtt = await fut
             if kind is AirKind.PING:
                 self._print("MPR", dest, self.address, f"{owtt:.4f}")
             else:  # the real line's layout; its last field (timing) left empty as it was
@@ -681,8 +683,8 @@ class MicromodemEmulator:
                 await self._transmit(Header(AirKind.NAV, self.address), MINI, report=False)
             if any(ping.asked.listen):
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(ping.all_heard.wait(),
-                                           ping.asked.window_s + self.nav_late_s)
+                    async with asyncio.timeout(ping.asked.window_s + self.nav_late_s):
+                        await ping.all_heard.wait()
             self._write(nav.tta(ping.heard, ping.started))
         finally:
             self._nav = None
