@@ -21,11 +21,11 @@ from rich.logging import RichHandler
 from rich.table import Table
 
 from bridge.cli import helptext
-from bridge.cli.words import counted
 from bridge.core.loaded import LoadedMission, load_mission
 from bridge.errors import BackendError, MissionError, NodeFailure, SessionError
 from bridge.report.check import check_mission
 from bridge.runtime.keys import frame_key, throwaway_note
+from bridge.words import counted
 
 if TYPE_CHECKING:
     from bridge.report.model import MissionReport

@@ -16,10 +16,10 @@ from rich.console import Console
 from rich.table import Table
 
 from bridge.cli.rounding import number, significant
-from bridge.cli.words import counted
 from bridge.core.loaded import LoadedMission
 from bridge.report.check import check_mission
 from bridge.wire.channels import ChannelCodec
+from bridge.words import counted
 
 PARTS = {
     "values": "Values crossing the water, quantised",

@@ -17,6 +17,7 @@ from typing import Any
 
 from bridge.codec.fields import FieldCodec
 from bridge.core.loaded import LoadedMission
+from bridge.words import counted
 
 #: A best-effort command with no delivery report after this long is shown as "sent".
 SENT_AFTER_S = 3.0
@@ -172,7 +173,7 @@ class CommandChannel:
             values = [values]
         if not isinstance(values, list) or len(values) != len(self.elements):
             raise CommandError(f"channel {self.channel!r} needs values for "
-                               f"{len(self.elements)} element(s)")
+                               f"{counted(len(self.elements), 'element')}")
         return [(e.key, e.payload(v)) for e, v in zip(self.elements, values, strict=True)]
 
     def is_command(self) -> bool:

@@ -11,6 +11,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.words import counted
+
 # What a dropped frame's reason means to an operator.
 DROP_REASONS = {
     "check": "frame check failed: do the two vehicles load the same mission file?",
@@ -146,12 +148,14 @@ class CounterWatch:
 
     def _line(self, name: str, more: int) -> LogLine:
         if name == "send_errors":
-            return LogLine("error", "driver", f"{self.node}: {more} modem send error(s)")
+            return LogLine("error", "driver",
+                           f"{self.node}: {counted(more, 'modem send error')}")
         prefix, _, what = name.partition(":")
         if prefix == "drop":
             return LogLine("warn", "frame",
-                           f"{self.node} dropped {more} frame(s): {_drop_text(what)}")
-        return LogLine("warn", "payload", f"{self.node} dropped {more} payload(s) on {what}")
+                           f"{self.node} dropped {counted(more, 'frame')}: {_drop_text(what)}")
+        return LogLine("warn", "payload",
+                       f"{self.node} dropped {counted(more, 'payload')} on {what}")
 
 
 def _int(value: Any) -> int:

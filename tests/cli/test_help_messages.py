@@ -128,7 +128,7 @@ def test_check_help_says_fragments_are_no_failure() -> None:
 
 
 def test_counts_agree_with_their_number() -> None:
-    from bridge.cli.words import counted
+    from bridge.words import counted
 
     assert [counted(n, "bit") for n in (0, 1, 2)] == ["0 bits", "1 bit", "2 bits"]
     assert counted(1, "value") == "1 value" and counted(3, "query", "queries") == "3 queries"

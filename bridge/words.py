@@ -1,4 +1,5 @@
-"""Counts as the command line prints them: "1 bit", "2 bits", never "1 bits"."""
+"""Counts as zab prints them (command line, GUI, reports): "1 bit", "2 bits", never "1 bits"
+or "bit(s)"."""
 
 from __future__ import annotations
 
