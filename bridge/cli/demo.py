@@ -722,6 +722,17 @@ def latest_channel(loaded: LoadedMission, apps: VehicleApps) -> ChannelCodec:
     return min(published, key=lambda c: c.interval_s)
 
 
+async def cut_short(stop: asyncio.Event, story: asyncio.Task[None], tour: Tour,
+                    end: float) -> None:
+    """Ctrl-C (or SIGTERM) before the tour's end stops the story where it is, and says so:
+    the stopping fleet is not told as news (a surfaced vehicle's token going with its bridge
+    read as its dive)."""
+    await stop.wait()
+    if not story.done() and time.time() < end:
+        story.cancel()
+        tour.say("[dim]Stopped early: the rest of the tour is skipped.[/]")
+
+
 async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float,
                  fleet: Fleet, queries: QueryApps | None, watch: SurfacingWatch | None,
                  sent: SentAtSwitches | None, relays: RelayWatch | None,
@@ -837,8 +848,9 @@ async def run_demo(
     for handler in handlers:
         handler.addFilter(late)
     end = time.time() + duration - END_MARGIN_S  # the story's last moment
+    stop = asyncio.Event()
     runner = asyncio.create_task(
-        run_fleet_for(fleet, duration, live=live, console=console, events=events)
+        run_fleet_for(fleet, duration, live=live, console=console, events=events, stop=stop)
     )
     await asyncio.wait([runner, asyncio.create_task(fleet.ready.wait())],
                        return_when=asyncio.FIRST_COMPLETED)
@@ -861,9 +873,10 @@ async def run_demo(
             if camera is not None and camera[0] in apps.sessions and camera[2] in apps.sessions:
                 pictures = PictureWatch(apps.sessions[camera[0]], camera[1],
                                         apps.sessions[camera[2]], camera[3])
-            tasks.append(asyncio.create_task(
+            story = asyncio.create_task(
                 _story(apps, tour, loaded, loss, fleet, queries, watch, sent, relays, tasks,
-                       end, pictures)))
+                       end, pictures))
+            tasks += [story, asyncio.create_task(cut_short(stop, story, tour, end))]
         await runner
     finally:
         if page is not None:

@@ -93,11 +93,12 @@ def _fleet_view(fleet: Fleet, events: EventLog, nodes: Table, ages: Table) -> Gr
 
 
 async def run_fleet_for(
-    fleet: Fleet, duration: float | None, *, live: bool, console: Console, events: EventLog
+    fleet: Fleet, duration: float | None, *, live: bool, console: Console, events: EventLog,
+    stop: asyncio.Event | None = None,
 ) -> None:
-    """Run ``fleet`` for ``duration`` seconds once started, or until SIGINT/SIGTERM, with an
-    optional live view."""
-    stop = asyncio.Event()
+    """Run ``fleet`` for ``duration`` seconds once started, or until SIGINT/SIGTERM (which
+    set ``stop``, the caller's to watch if it gives one), with an optional live view."""
+    stop = stop or asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):

@@ -260,3 +260,42 @@ def test_each_member_of_a_key_family_gets_values_of_its_own() -> None:
     contacts = [put[f"contacts/k{i}"]["range_m"] for i in range(3)]
     assert len(set(depths)) == 2 and len(set(temps)) == 3 and len(set(contacts)) == 3, put
     assert all(-2 <= t <= 40 for t in temps) and all(0 <= d <= 100 for d in depths)
+
+
+def test_a_stop_before_the_end_cuts_the_story_short_and_says_so() -> None:
+    """Ctrl-C mid-tour: the story stops where it is (the stopping fleet's tokens going are
+    no dive to tell) and one line says the rest is skipped; a stop at the tour's end says
+    nothing."""
+    import asyncio
+    import io
+    import time
+
+    from rich.console import Console
+
+    from bridge.cli.demo import cut_short
+    from bridge.cli.tour import Tour
+    from bridge.core.loaded import load_mission
+    from tests.conftest import MISSIONS
+
+    async def run(end_in: float) -> tuple[str, bool]:
+        out = io.StringIO()
+        tour = Tour(load_mission(MISSIONS / "morph.yaml"), Console(file=out, width=100), 60.0)
+        stop = asyncio.Event()
+        told: list[str] = []
+
+        async def story() -> None:
+            await stop.wait()
+            await asyncio.sleep(0.05)  # the fleet closing: a token goes
+            told.append("cv2 dived")
+
+        task = asyncio.create_task(story())
+        watcher = asyncio.create_task(cut_short(stop, task, tour, time.time() + end_in))
+        await asyncio.sleep(0.01)
+        stop.set()
+        await asyncio.gather(task, watcher, return_exceptions=True)
+        return out.getvalue(), bool(told)
+
+    said, told = asyncio.run(run(30.0))
+    assert "Stopped early: the rest of the tour is skipped." in said and not told
+    said, told = asyncio.run(run(-1.0))
+    assert said == "" and told
