@@ -59,8 +59,8 @@ def session_problem(text: str, settings: ZenohSettings) -> str:
     text = " ".join(_SOURCE.sub("", text).split())
     bound = _BOUND.search(text)
     if bound and "in use" in text.lower():
-        return (f"{bound.group(1)} is already in use (is another `zab run` or zenohd "
-                "listening there?)")
+        return (f"{bound.group(1)} is already in use (is another `zab run`, `zab sim`, "
+                "`zab demo` or zenohd listening there?)")
     if bound:
         reason = text[bound.end():].strip(" []")
         return f"cannot listen on {bound.group(1)}: {reason}"
