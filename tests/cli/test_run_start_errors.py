@@ -74,7 +74,7 @@ def test_port_taken_by_another_zab_run_exits_2(mission: tuple[Path, int, int]) -
     with _running(path, "a"):
         line = _one_clear_line(_run(path, "a"))
     assert line == (f"cannot start: a: tcp/127.0.0.1:{za} is already in use (is another "
-                    "`zab run` or zenohd listening there?)")
+                    "`zab run`, `zab sim`, `zab demo` or zenohd listening there?)")
 
 
 def test_port_taken_by_any_listener_exits_2_and_starts_once_free(
