@@ -215,7 +215,11 @@ def ranges_figure(rec: Recording) -> go.Figure:
     fig.update_layout(title="Range errors: measured − true distance when the range was "
                       "completed"
                       + ("" if series else " (no ranges measured)"),
-                      xaxis_title="time (s)", yaxis_title=f"error ({unit})", height=420)
+                      xaxis_title="time (s)", yaxis_title=f"error ({unit})",
+                      height=420 + 22 * ((len(series) + 5) // 6),
+                      # a pair per entry: in rows under the plot, never a clipped scroll box
+                      legend={"orientation": "h", "yanchor": "top", "y": -0.18,
+                              "x": 0, "entrywidth": 110})
     return fig
 
 

@@ -66,7 +66,8 @@ def open_offline(path: Path) -> dict[str, Any]:
                   legend: plot.layout.showlegend,
                   names: plot.data.map((t) => t.name),
                   colours: plot.data.map((t) => t.marker && t.marker.color),
-                  caption: s.querySelector("p.caption")?.textContent || null}];
+                  caption: s.querySelector("p.caption")?.textContent || null,
+                  scroll: s.querySelector(".legend .scrollbar")?.getBBox().height || 0}];
               }))""")
             return {"plots": drawn, "asked": asked, "errors": errors,
                     "text": page.inner_text("body")}
@@ -148,6 +149,8 @@ def test_fast_sim_writes_a_report_that_opens_offline(tmp_path: Path) -> None:
     assert "a command published once" in plots["age"]["caption"]
     assert "A DLBL range is two-way" in plots["ranges"]["caption"]
     assert plots["ranges"]["points"] > 10
+    # every legend shows all its entries: none clipped into a scroll box (the ranges' was)
+    assert {name: p["scroll"] for name, p in plots.items()} == dict.fromkeys(PLOTS, 0)
     assert "mission report: morph" in page["text"]
     assert "300 s simulated (virtual clock)" in page["text"]
 
