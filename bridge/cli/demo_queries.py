@@ -92,6 +92,14 @@ def _plausible(field: Any, t: float, phase: float = 0.0) -> Any:
     return field.decode(0)
 
 
+def failure(error: str) -> str | None:
+    """The reason of a reply error without its vehicle ("gcv: acoustic link down" → "acoustic
+    link down"); None for a get its bridge ended as it stopped (Ctrl-C before the tour's
+    end), which is no failure of the water's."""
+    why = error.split(": ", 1)[-1]
+    return None if why == "the bridge is stopping" else why
+
+
 class QueryApps:
     """Queryables on serving vehicles, each answering with that vehicle's own data
     (``own(vehicle, field)``), and an operator asking from the asking nodes now and then,
@@ -185,8 +193,10 @@ class QueryApps:
             if reply.ok is not None:
                 self.answered += 1
             else:  # "gcv: acoustic link down", ...: the reason, without the vehicle
-                why = reply.err.payload.to_string() if reply.err is not None else "no reply"
-                self.failed[why.split(": ", 1)[-1]] += 1
+                why = failure(reply.err.payload.to_string() if reply.err is not None
+                              else "no reply")
+                if why is not None:
+                    self.failed[why] += 1
 
     async def run(self, until: float = math.inf) -> None:
         """Ask every QUERY_PERIOD_S until the fleet stops at wall time ``until``."""

@@ -299,3 +299,11 @@ def test_a_stop_before_the_end_cuts_the_story_short_and_says_so() -> None:
     assert "Stopped early: the rest of the tour is skipped." in said and not told
     said, told = asyncio.run(run(-1.0))
     assert said == "" and told
+
+
+def test_gets_ended_by_a_stopping_bridge_are_no_failures() -> None:
+    from bridge.cli.demo_queries import failure
+
+    assert failure("gcv: acoustic link down") == "acoustic link down"
+    assert failure("no reply") == "no reply"
+    assert failure("cv1: the bridge is stopping") is None
