@@ -643,7 +643,8 @@ async def _surfacing_part(tour: Tour, loaded: LoadedMission, fleet: Fleet,
                       if surface in c.destinations(vehicle)},
             {c.name: tuple(d for d in c.destinations(vehicle) if d != surface)
              for c in channels},
-            len(watch.between(up, down, "acoustic")),
+            len(watch.between(sent.surface_saw_up(up - SWITCH_WAIT_S) or up, down,
+                              "acoustic")),
             dropped.duplicates if dropped is not None else 0, surface)
     tour.switched(vehicle, surface, False, down - origin)
     loss = float(loaded.mission.modem.options.get("loss", 0.0) or 0.0)

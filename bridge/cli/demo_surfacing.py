@@ -86,10 +86,14 @@ class SentAtSwitches:
     def __init__(self, vehicle: str, surface: str) -> None:
         self.vehicle, self.surface = vehicle, surface
         self.switches: list[tuple[bool, float]] = []
+        self.surface_switches: list[tuple[bool, float]] = []  # the surface bridge's own view
         self.frames: list[tuple[float, list[str]]] = []
         self._lock = threading.Lock()
 
     def __call__(self, node: str, event: Event) -> None:
+        if node == self.surface and isinstance(event, Surfaced) and event.peer == self.vehicle:
+            with self._lock:
+                self.surface_switches.append((event.ip, event.time))
         if node != self.vehicle:
             return
         with self._lock:
@@ -97,6 +101,13 @@ class SentAtSwitches:
                 self.switches.append((event.ip, event.time))
             elif isinstance(event, FrameSent):
                 self.frames.append((event.time, event.channels))
+
+    def surface_saw_up(self, after: float) -> float | None:
+        """When the surface node's bridge first saw the vehicle over IP at or after wall time
+        ``after`` (its own view: an acoustic copy it decoded before then is published, by
+        design, even if the token had reached an application a moment sooner)."""
+        with self._lock:
+            return next((t for ip, t in self.surface_switches if ip and t >= after), None)
 
     def while_up(self) -> dict[str, int] | None:
         """Values sent per channel in frames begun between the vehicle's first up and the down

@@ -274,8 +274,8 @@ class Tour:
             still = ", ".join(destinations[name]) or "nobody"
             self.say(f"          {name}: {counted(n, 'value')} sent acoustically while up "
                      f"(acoustic destinations left: {still})")
-        self.say(f"          {published} acoustic values of {vehicle} published at {surface} "
-                 "while up")
+        self.say(f"          {counted(published, 'acoustic value')} of {vehicle} published at "
+                 f"{surface} while up")
         if duplicates:
             self.say(f"          {surface} dropped "
                      f"{counted(duplicates, 'acoustic copy', 'acoustic copies')} heard anyway "

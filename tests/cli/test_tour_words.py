@@ -307,3 +307,31 @@ def test_gets_ended_by_a_stopping_bridge_are_no_failures() -> None:
     assert failure("gcv: acoustic link down") == "acoustic link down"
     assert failure("no reply") == "no reply"
     assert failure("cv1: the bridge is stopping") is None
+
+
+def test_while_up_starts_when_the_surface_bridge_saw_the_vehicle() -> None:
+    """The tour counts acoustic copies published at the surface while the vehicle was up from
+    when the surface's own bridge saw it over IP: a frame it decoded a moment before (the
+    token had reached the tour's application first) is published by design (one beside a
+    full suite was counted, and the tour said '1 acoustic values … while up')."""
+    import io
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from bridge.cli.demo_surfacing import SentAtSwitches
+    from bridge.cli.tour import Tour
+    from bridge.core.events import Surfaced
+    from bridge.core.loaded import load_mission
+
+    sent = SentAtSwitches("cv2", "ssv")
+    sent("cv2", Surfaced(100.2, "ssv", True))  # the vehicle's view: not the surface's
+    assert sent.surface_saw_up(90.0) is None
+    sent("ssv", Surfaced(100.4, "cv2", True))
+    sent("ssv", Surfaced(114.0, "cv2", False))
+    assert sent.surface_saw_up(90.0) == 100.4 and sent.surface_saw_up(101.0) is None
+    out = io.StringIO()
+    tour = Tour(load_mission(Path("deploy/missions/morph.yaml")), Console(file=out, width=120),
+                60.0)
+    tour.acoustic_while_up("cv2", {}, {}, 1, 0, "ssv")
+    assert "1 acoustic value of cv2 published at ssv while up" in out.getvalue()
