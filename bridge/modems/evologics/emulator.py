@@ -80,6 +80,11 @@ CLOCK_WRAP = 1 << 32
 MAX_TX_QUEUE = 16  # IMs waiting for the transmitter; beyond this: ERROR BUFFER FULL [U]
 IMS_MARGIN_S = 0.002
 """A timed IMS must reach the transmitter this long before its time, else it expires [U]."""
+IMS_HANDOFF_S = 0.25
+"""How long before its time the emulator hands a timed IMS to the water (which starts it at
+that time exactly): the emulator's own wake-up may be late on a busy host, and its lateness
+must not expire an IMS the host gave in time (a 20 ms hand-off expired IMSs timed 1 s ahead
+while a test suite ran beside it)."""
 
 HIGHEST_ADDRESSES = (2, 6, 14, 30, 62, 126, 254)
 
@@ -561,7 +566,7 @@ class EvologicsEmulator:
         ahead = (usec - self.modem_us(now)) % CLOCK_WRAP
         if ahead < CLOCK_WRAP // 2:  # otherwise the time has passed (modulo the wrap)
             at = now + ahead * 1e-6
-            await asyncio.sleep(max(0.0, at - self.sim.clock() - 0.02))
+            await asyncio.sleep(max(0.0, at - self.sim.clock() - IMS_HANDOFF_S))
             try:
                 if await self._transmit(tx, at=at):
                     return
@@ -585,9 +590,11 @@ class EvologicsEmulator:
         if tx.flag == "ack":
             dest |= AIR_ACK_REQUEST
         show = self.flags["ZX"] and tx.kind != "ack"
-        if show:
+        if show:  # when the emission starts: a timed IMS is handed to the water before then
             dur = round(self._estimate(len(tx.data)) * 1e6)
-            self.notify(f"SENDSTART,{tx.dst},{tx.kind},{dur},0".encode())
+            line = f"SENDSTART,{tx.dst},{tx.kind},{dur},0".encode()
+            asyncio.get_running_loop().call_later(
+                0.0 if at is None else max(0.0, at - self.sim.clock()), self.notify, line)
         called = time.time()
         await self.sim.send(tx.data, dest, at=at)
         now = time.time()
