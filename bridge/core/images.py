@@ -290,14 +290,15 @@ class Images:
         for name in ("width", "height", "budget_bytes"):
             if name in value:
                 low, high = CONTROL_BOUNDS[name]
-                high = min(high, largest_budget) if name == "budget_bytes" else high
+                channels = name == "budget_bytes" and largest_budget <= high
+                high = largest_budget if channels else high
                 try:
                     number = int(value[name])
                 except (TypeError, ValueError):
                     raise ValueError(f"{name} {value[name]!r} is not a whole number") from None
                 if not low <= number <= high:
                     raise ValueError(f"{name} {number} is outside {low}..{high}" + (
-                        " (the channel's max_budget_bytes)" if high == largest_budget else ""))
+                        " (the channel's max_budget_bytes)" if channels else ""))
                 new[name] = number
         if "roi" in value:
             roi = value["roi"]

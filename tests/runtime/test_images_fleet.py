@@ -262,3 +262,17 @@ def test_a_control_the_camera_would_not_follow_is_refused_not_clamped(
     edge = {"width": 8, "height": 2048, "budget_bytes": 6400, "roi": [0.5, 0.5, 0.52, 0.52]}
     assert images.steer("camera/control", edge, 5.0) == {**edge, "roi": (0.5, 0.5, 0.52, 0.52),
                                                          "request": "none"}
+
+
+def test_a_refused_size_names_its_own_bound() -> None:
+    """Only a budget over the channel's max_budget_bytes is said to be over it: a width over
+    the control channel's 2048 is not, even when max_budget_bytes is 2048 too."""
+    from bridge.core.images import Images
+
+    with pytest.raises(ValueError) as refused:
+        Images._merge({}, {"width": 3000}, 2048)
+    assert str(refused.value) == "width 3000 is outside 8..2048"
+    with pytest.raises(ValueError) as refused:
+        Images._merge({}, {"budget_bytes": 3000}, 2048)
+    assert str(refused.value) == \
+        "budget_bytes 3000 is outside 16..2048 (the channel's max_budget_bytes)"
