@@ -268,7 +268,8 @@ class Images:
         except DecodeError as exc:
             raise ImageInputError(str(exc)) from None
         if msgtype.endswith("/Image"):
-            return InputImage.of(read_raw(message, spec.max_input_pixels, spec.colour))
+            pixels = read_raw(message, spec.max_input_pixels, spec.colour)  # raw: read now
+            return InputImage(lambda: pixels)
         kind = "image/png" if "png" in str(message.get("format", "")).lower() else ""
         return open_image(bytes(message.get("data", b"")), kind, spec.accept,
                           spec.max_input_pixels, spec.colour)

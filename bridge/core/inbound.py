@@ -30,7 +30,7 @@ from bridge.core.interest import Interest
 from bridge.core.link import Links, LinkState
 from bridge.core.linkset import LinkSet, LinkSide
 from bridge.core.outbound import Outbound
-from bridge.core.outputs import Outbox, Status
+from bridge.core.outputs import Outbox
 from bridge.core.queries import Queries
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
@@ -123,11 +123,7 @@ class Inbound:
             self.stats.frames_dropped[exc.reason] += 1
             self.outbox.event(FrameDropped(now, origin, exc.reason, str(exc), rx.data))
             return
-        meta = rx.meta
-        if network is None:  # (self._hop, inlined: one link, no network)
-            side.schedule.on_heard(src, meta.get("dest") == self.address, now)
-        else:
-            self._hop(rx, src, side, now)
+        self._hop(rx, src, side, now)
         self._heard(origin, frame, now)
         self.sent_at = frame_start(rx, side.info.preset_of(src))
         if arrival is not None:  # the origin built it the header's age before this frame
@@ -143,17 +139,16 @@ class Inbound:
         if self.ranges is not None and origin == src and side is self.linkset.primary:
             self.ranges.heard(src, rx, frame.delays, modem_now if modem_now is not None
                               else now, now, anchors)
-        meta = plain(meta)
+        meta = plain(rx.meta)
         if arrival is not None:
             meta.update(_hop_meta(arrival, src, side))
         src = origin
         peer_status = self._peer_status
         if now - peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             peer_status[src] = now
-            self.outbox.items.append(Status(f"peers/{src}", {"last_heard": now,
-                                                             "meta": dict(meta)}))
-        self.outbox.items.append(FrameReceived(now, src, len(rx.data), list(values), rx.data,
-                                               meta, values, members or None))
+            self.outbox.status(f"peers/{src}", {"last_heard": now, "meta": dict(meta)})
+        self.outbox.event(FrameReceived(now, src, len(rx.data), list(values), rx.data, meta,
+                                        values, members or None))
 
     def _source(self, rx: Reception, now: float, side: LinkSide) -> str | None:
         """The sender of ``rx`` if it is a peer under this mission file; else the frame is

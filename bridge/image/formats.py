@@ -66,13 +66,6 @@ class InputImage:
         self._decode: Callable[[], U8] | None = decode
         self._pixels: U8 | None = None
 
-    @classmethod
-    def of(cls, pixels: U8) -> InputImage:
-        """A picture decoded already (a raw ``sensor_msgs/Image``)."""
-        image = cls(lambda: pixels)
-        image._pixels, image._decode = pixels, None
-        return image
-
     def pixels(self) -> U8:
         """The pixels; raises :class:`ImageInputError` if the bytes past the header are bad."""
         if self._pixels is None:

@@ -339,12 +339,7 @@ class FastFleet:
                 self.now = t
             now = self.now
             if water is not None and water <= now:
-                for link, event in self._water_events(now):
-                    kind = event.__class__
-                    if kind is Delivery:
-                        self._deliver(event, link)
-                    elif kind is TxDone:
-                        self._pending.pop(event.frame_id, None)
+                self._carry_out(self._water_events(now))
                 if single is not None:  # the water's next events, while nothing else comes first
                     self._settle(single, t_end)
                     now = self.now
@@ -369,12 +364,16 @@ class FastFleet:
                 return
             if water > self.now:
                 self.now = water
-            for event in ocean.advance(self.now):
-                kind = event.__class__
-                if kind is Delivery:
-                    self._deliver(event, link)  # type: ignore[arg-type]
-                elif kind is TxDone:
-                    self._pending.pop(event.frame_id, None)  # type: ignore[union-attr]
+            self._carry_out(zip(itertools.repeat(link), ocean.advance(self.now)))
+
+    def _carry_out(self, events: Iterable[tuple[str | None, Any]]) -> None:
+        """The water's events, each on its link: deliveries received, transmissions ended."""
+        for link, event in events:
+            kind = event.__class__
+            if kind is Delivery:
+                self._deliver(event, link)
+            elif kind is TxDone:
+                self._pending.pop(event.frame_id, None)
 
     def _water_events(self, now: float) -> Iterable[tuple[str | None, Any]]:
         """What every link's water settled up to ``now``, in time order (the ocean's clock

@@ -409,9 +409,8 @@ class Ocean:
         total = LinkStats()
         links = []
         lost = total.lost
-        for (src, dst), ls in sorted(self._links.items()):  # (as_dict's, one dict a link)
-            links.append({"src": src, "dst": dst, "sent": ls.sent, "delivered": ls.delivered,
-                          "lost": dict(ls.lost)})
+        for (src, dst), ls in sorted(self._links.items()):
+            links.append({"src": src, "dst": dst, **ls.as_dict()})
             total.sent += ls.sent
             total.delivered += ls.delivered
             for reason, n in ls.lost.items():
