@@ -1,11 +1,12 @@
 """``zab sim --fast`` and ``zab sim --speed X``: a mission on the virtual clock.
 
 Every node's bridge core runs in :class:`~bridge.runtime.virtual_fleet.FastFleet` over the
-pure ocean: no
-Zenoh, no sockets. With nobody publishing, each input key is fed synthetic values (random
-valid codes of its layout) as often as its channels may send, ``interval_s`` or every
-:data:`FEED_S` seconds. ``--fast`` runs as fast as the CPU allows; ``--speed X`` keeps the
-virtual clock at ``X`` times the wall clock (a live view can follow it).
+pure ocean: no Zenoh, no sockets. With nobody publishing, each input key is fed synthetic
+values (random valid codes of its layout) as often as its channels may send, ``interval_s``
+or every :data:`FEED_S` seconds, and an image channel's camera a synthetic seabed every
+:data:`PICTURE_S` seconds (an operator's control key is left alone). ``--fast`` runs as fast
+as the CPU allows; ``--speed X`` keeps the virtual clock at ``X`` times the wall clock (a
+live view can follow it).
 """
 
 from __future__ import annotations
@@ -29,9 +30,13 @@ from bridge.report.age import AgeOfInformation
 from bridge.report.model import MissionReport
 from bridge.report.recorder import MissionRecorder, truth_from
 from bridge.runtime.virtual_fleet import FastFleet, Timed
+from bridge.wire.images import ImageSpec
 
 FEED_S = 1.0
 """How often a synthetic application publishes a key whose channels send at every turn."""
+PICTURE_S = 30.0
+"""How often a synthetic camera puts a new picture (a picture of a kilobyte or two takes
+tens of seconds to cross an acoustic link)."""
 
 Drawer = Callable[[random.Random], int]
 """Draws one valid code of a field."""
@@ -136,7 +141,16 @@ def feed(fleet: FastFleet, rng: random.Random, until: float) -> int:
     number of keys fed."""
     keys = 0
     for name, core in fleet.cores.items():
+        images = core.images
         for key, bindings in core.bindings.items():
+            if images is not None and (key in images.inputs or key in images.controls):
+                # a camera's pictures; random controls would cancel every picture
+                camera = images.inputs.get(key)
+                if camera is not None and camera.spec.ros2 is None:
+                    publisher = _camera(fleet, name, key, camera.spec, until)
+                    fleet.call_at(fleet.now + rng.uniform(0, FEED_S), publisher)
+                    keys += 1
+                continue
             intervals = [c.interval_s for c, _, _ in bindings if c.interval_s > 0]
             period = min(intervals) if len(intervals) == len(bindings) else FEED_S
             publisher = _publisher(fleet, rng, name, key, bindings[0][2].layout, period, until)
@@ -147,6 +161,27 @@ def feed(fleet: FastFleet, rng: random.Random, until: float) -> int:
             fleet.call_at(fleet.now + rng.uniform(0, FEED_S), publisher)
             keys += 1
     return keys
+
+
+def _camera(fleet: FastFleet, node: str, key: str, spec: ImageSpec, until: float
+            ) -> Callable[[], None]:
+    """A synthetic camera putting a new seabed (JPEG, or PNG if the channel takes no JPEG)
+    of the channel's size on ``key`` every :data:`PICTURE_S` until ``until``."""
+    from bridge.image.formats import KINDS, write_image
+    from bridge.image.synthetic import seabed
+
+    kind = "jpeg" if "jpeg" in spec.accept else "png"
+    shot = 0
+
+    def put() -> None:
+        nonlocal shot
+        pixels = seabed(spec.height, spec.width, shot, colour=spec.colour)
+        fleet.put(node, key, write_image(pixels, kind), encoding=KINDS[kind])
+        shot += 1
+        if fleet.now + PICTURE_S <= until:
+            fleet.call_at(fleet.now + PICTURE_S, put)
+
+    return put
 
 
 def _publisher(fleet: FastFleet, rng: random.Random, node: str, key: str, layout: Layout,
