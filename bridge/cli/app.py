@@ -624,7 +624,7 @@ def demo(
     path = mission or default_demo_mission()
     _load(path)  # a mistake in the file itself is reported as such
     try:
-        loaded, changes = tour_mission(path, loss)
+        loaded, changes = tour_mission(path, loss, duration)
     except MissionError as exc:
         err.print(f"[bold red]cannot make the tour's variant of {path}[/]\n{exc}",
                   highlight=False)

@@ -11,6 +11,7 @@ words; this module runs the fleet and says them at the right moments.
 from __future__ import annotations
 
 import asyncio
+import copy
 import functools
 import json
 import logging
@@ -65,6 +66,7 @@ from bridge.wire.queries import QuerySpec
 PUBLISH_PERIOD_S = 1.0
 OPERATOR_HOLD_S = 60.0  # a key an operator commanded (from the GUI) is left alone this long
 TOUR_LOSS = 0.1  # share of frames the tour's water loses, so reliability has work to do
+TOUR_S = 70.0  # how long the tour lasts unless `zab demo --duration` says otherwise
 EXAMPLES = 3  # arrivals shown with their quantisation, of different channels
 EXAMPLES_WAIT_S = 20.0
 EXAMPLE_TRIES = 4  # arrivals of a channel passed over while they show no rounding
@@ -83,8 +85,10 @@ def default_demo_mission() -> Path:
     return data_dir("missions") / "morph.yaml"
 
 
-def tour_mission(path: Path, loss: float = TOUR_LOSS) -> tuple[LoadedMission, list[str]]:
-    """The mission at ``path`` as the tour runs it, and the changes made, in words: the water
+def tour_mission(path: Path, loss: float = TOUR_LOSS, duration: float = TOUR_S
+                 ) -> tuple[LoadedMission, list[str]]:
+    """The mission at ``path`` as the tour of ``duration`` seconds runs it, and the changes
+    made, in words: the water
     loses ``loss`` of the frames, a mission without queries gets one (the surface node asks
     the vehicles' health), one without surfacing gets a vehicle surfacing on a scripted path,
     one without image channels a camera, and the first channel named as a command becomes
@@ -96,9 +100,18 @@ def tour_mission(path: Path, loss: float = TOUR_LOSS) -> tuple[LoadedMission, li
                       if data.get("links") else [data.setdefault("modem", {})]):
             modem.setdefault("options", {})["loss"] = loss  # (each link's water)
         changes.append(f"the water loses {loss:.0%} of frames")
-    for extra in (query_for_tour(data), surfacing_for_tour(data), images_for_tour(data)):
-        if extra is not None:
-            changes.append(extra)
+    for extra in (query_for_tour, functools.partial(surfacing_for_tour, duration=duration),
+                  images_for_tour):
+        trial = copy.deepcopy(data)
+        said = extra(trial)
+        if said is None:
+            continue
+        try:
+            parse_mission(yaml.safe_dump(trial, sort_keys=False), path)
+        except MissionError:
+            continue  # this mission cannot take it (goby's wire format has no image channels)
+        data = trial
+        changes.append(said)
     plain = yaml.safe_dump(data, sort_keys=False)
     for channel in data.get("channels") or []:
         keys = [str(e.get("in", "")) for e in channel.get("elements") or []]
@@ -641,8 +654,8 @@ async def _surfacing_part(tour: Tour, loaded: LoadedMission, fleet: Fleet,
         tour.acoustic_while_up(
             vehicle, {c.name: counts.get(c.name, 0) for c in channels
                       if surface in c.destinations(vehicle)},
-            {c.name: tuple(d for d in c.destinations(vehicle) if d != surface)
-             for c in channels},
+            {c.name: tuple(d for d in c.destinations(vehicle) if d != surface or c.stream)
+             for c in channels},  # (a stream, a picture's say, goes on over the water)
             len(watch.between(sent.surface_saw_up(up - SWITCH_WAIT_S) or up, down,
                               "acoustic")),
             dropped.duplicates if dropped is not None else 0, surface)

@@ -20,6 +20,7 @@ import zenoh
 
 from bridge.core.events import Event, FrameSent, Surfaced
 from bridge.core.loaded import LoadedMission
+from bridge.mission.presets import PRESETS
 from bridge.runtime.session import origin_of, origin_tag
 from bridge.sim.scenario import surface_script
 
@@ -29,9 +30,11 @@ TRANSIT_MPS = 0.8  # the formation's speed (bridge.cli.demo), which it keeps
 ROUTER = {"mode": "router", "scouting/delay": 0, "scouting/gossip/enabled": False}
 
 
-def surfacing_for_tour(data: dict[str, Any]) -> str | None:
+def surfacing_for_tour(data: dict[str, Any], duration: float) -> str | None:
     """Give the mission (raw YAML data, changed in place) a scripted surfacing: the last
-    submerged vehicle with a position rises to the surface, stays, dives; it and the surface
+    submerged vehicle with a position rises to the surface, stays, dives (sailing north with
+    the formation, or where it is if that would take it out of the water's range of the
+    surface node within the tour's ``duration``); it and the surface
     node run Zenoh routers, so the simulated WiFi joins them; the mission's ``surfacing``
     settings stay (republish by default). Returns the change in words (None: a node has a
     scripted path already, or there is no surface node or vehicle to use)."""
@@ -47,17 +50,26 @@ def surfacing_for_tour(data: dict[str, Any]) -> str | None:
     depth = float(node["position"].get("depth", 0))
     if depth <= 0:
         return None
-    # it keeps sailing north with the formation, rising to the surface and diving again on
-    # the way, so its navigation (and its position track) stays that of a transiting vehicle
-    run = TRANSIT_MPS * SURFACE_AT_S  # metres sailed (along the slope) until it surfaces
-    rise = math.sqrt(max(run**2 - depth**2, 0.0))  # northward while rising
-    north = [y + rise, y + rise + TRANSIT_MPS * SURFACED_S]
-    north.append(north[-1] + rise)
-    node["path"] = {"speed_mps": TRANSIT_MPS, "waypoints": [
-        {"x": x, "y": y, "depth": depth}, {"x": x, "y": round(north[0], 2), "depth": 0},
-        {"x": x, "y": round(north[1], 2), "depth": 0},
-        {"x": x, "y": round(north[2], 2), "depth": depth},
-        {"x": x, "y": round(north[2] + TRANSIT_MPS * 600, 2), "depth": depth}]}
+    start = {"x": x, "y": y, "depth": depth}
+    if _sails_out_of_range(data, name, surface, duration):  # (an RF link in a tank): up and down
+        speed = min(depth / SURFACE_AT_S, TRANSIT_MPS)
+        y_up = round(y + speed * SURFACED_S, 2)
+        node["path"] = {"speed_mps": round(speed, 4), "waypoints": [
+            start, {"x": x, "y": y, "depth": 0}, {"x": x, "y": y_up, "depth": 0},
+            {"x": x, "y": y_up, "depth": depth}]}
+    else:
+        # it keeps sailing north with the formation, rising to the surface and diving again
+        # on the way, so its navigation (and its position track) stays that of a transiting
+        # vehicle
+        run = TRANSIT_MPS * SURFACE_AT_S  # metres sailed (along the slope) until it surfaces
+        rise = math.sqrt(max(run**2 - depth**2, 0.0))  # northward while rising
+        north = [y + rise, y + rise + TRANSIT_MPS * SURFACED_S]
+        north.append(north[-1] + rise)
+        node["path"] = {"speed_mps": TRANSIT_MPS, "waypoints": [
+            start, {"x": x, "y": round(north[0], 2), "depth": 0},
+            {"x": x, "y": round(north[1], 2), "depth": 0},
+            {"x": x, "y": round(north[2], 2), "depth": depth},
+            {"x": x, "y": round(north[2] + TRANSIT_MPS * 600, 2), "depth": depth}]}
     for who in (surface, name):
         nodes[who].setdefault("zenoh", {}).update(ROUTER)
     if data.get("surfacing") is None:
@@ -65,6 +77,27 @@ def surfacing_for_tour(data: dict[str, Any]) -> str | None:
     return (f"{name} surfaces about {SURFACE_AT_S:.0f} s in for about {SURFACED_S:.0f} s (a "
             f"scripted path); {surface}'s and {name}'s Zenoh run as routers, joined over the "
             "simulated WiFi while it is up")
+
+
+def _sails_out_of_range(data: dict[str, Any], vehicle: str, surface: str,
+                        duration: float) -> bool:
+    """Whether ``vehicle`` sailing north with the formation for ``duration`` would leave the
+    simulated water's range of ``surface`` (the shorter of their presets' ranges; a mission
+    without presets has no such limit)."""
+    nodes = data["nodes"]
+    ranges = []
+    for who in (vehicle, surface):
+        options = {**((data.get("modem") or {}).get("options") or {}),
+                   **((nodes[who].get("modem") or {}).get("options") or {})}
+        preset = PRESETS.get(str(options.get("preset")))
+        if preset is not None:
+            ranges.append(preset.max_range_m)
+    if not ranges:
+        return False
+    here, there = nodes[vehicle]["position"], nodes[surface].get("position") or {}
+    gap = math.dist(*([float(p.get(k, 0)) for k in ("x", "y", "depth")] for p in (here, there)))
+    reach = min(ranges)
+    return gap <= reach < gap + TRANSIT_MPS * duration  # (out of its range already: relays)
 
 
 def turns_to_wait(loss: float, miss: float = 1e-3) -> int:
@@ -127,7 +160,8 @@ class SentAtSwitches:
 class SurfacingWatch:
     """At the surface node: the vehicle's bridge token (up: joined over IP) and the values
     arriving from the vehicle, with wall times and how each came: ``ip`` (relayed by the
-    vehicle's bridge) or ``acoustic`` (published by the surface's bridge from a frame)."""
+    vehicle's bridge, or the vehicle's program's own sample where it publishes on the output
+    key) or ``acoustic`` (published by the surface's bridge from a frame)."""
 
     def __init__(self, loaded: LoadedMission, session: zenoh.Session, surface: str,
                  vehicle: str) -> None:
@@ -139,10 +173,15 @@ class SurfacingWatch:
         self._via = {origin_tag(mission, vehicle): "ip", origin_tag(mission, surface): "acoustic"}
         self.changed = threading.Event()
         self._lock = threading.Lock()
-        keys = sorted({e.output_key(vehicle, surface) for c in loaded.table.channels
-                       if c.sent_by(vehicle) and surface in c.destinations(vehicle)
-                       for e in c.elements})
+        elements = [e for c in loaded.table.channels
+                    if c.sent_by(vehicle) and surface in c.destinations(vehicle)
+                    for e in c.elements]
+        keys = sorted({e.output_key(vehicle, surface) for e in elements})
         self.keys = keys
+        # where the output key is the input key, the vehicle's bridge relays nothing over
+        # IP: the program's own sample arrives, with no bridge's attachment
+        self._own = {e.output_key(vehicle, surface) for e in elements
+                     if e.output_key(vehicle, surface) == e.input_key(vehicle)}
         self._entities = [session.declare_subscriber(k, self._arrived) for k in keys]
         self._entities.append(session.liveliness().declare_subscriber(
             f"@zab/{loaded.mission.mission}/{vehicle}/bridge", self._token, history=True))
@@ -155,6 +194,8 @@ class SurfacingWatch:
     def _arrived(self, sample: zenoh.Sample) -> None:
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
         via = self._via.get(origin_of(attachment))
+        if via is None and not attachment and str(sample.key_expr) in self._own:
+            via = "ip"
         if via is None:  # not from either bridge
             return
         try:

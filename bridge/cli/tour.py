@@ -192,6 +192,13 @@ class Tour:
     def latest(self, channel: ChannelCodec, publish_s: float, sender: str,
                wait_s: float | None) -> None:
         turn = f"every {wait_s:g} s" if wait_s else "only now and then"
+        if wait_s and wait_s <= publish_s:
+            self.say(f"{channel.name} is published every {publish_s:g} s on {sender}, whose "
+                     f"turn to transmit comes {turn}: a turn comes before the next value, so "
+                     "each one goes out in the next frame. Were values published faster than "
+                     "the turns come, each frame would carry only the newest, the others "
+                     "superseded, not lost (receivers want the latest value, not a backlog).")
+            return
         per_turn = f"about {max(1, round(wait_s / publish_s) - 1)}" if wait_s else "several"
         self.say(f"{channel.name} is published every {publish_s:g} s on {sender}, whose turn to "
                  f"transmit comes {turn}: each frame carries the newest value, and the "

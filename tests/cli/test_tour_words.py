@@ -335,3 +335,28 @@ def test_while_up_starts_when_the_surface_bridge_saw_the_vehicle() -> None:
                 60.0)
     tour.acoustic_while_up("cv2", {}, {}, 1, 0, "ssv")
     assert "1 acoustic value of cv2 published at ssv while up" in out.getvalue()
+
+
+def test_latest_value_words_hold_when_turns_come_faster_than_values() -> None:
+    """bluerov_images: status every 1 s, the ROV's turn every 0.64 s; the tour said 'the about
+    1 published in between are superseded'. Nothing is superseded there."""
+    import io
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from bridge.cli.demo import tour_mission
+    from bridge.cli.tour import Tour
+
+    loaded, _ = tour_mission(Path("deploy/missions/bluerov_images.yaml"), 0.1)
+    status = next(c for c in loaded.table.channels if c.name == "status")
+    out = io.StringIO()
+    tour = Tour(loaded, Console(file=out, width=400), 70)
+    tour.latest(status, 1.0, "rov", 0.64)
+    said = " ".join(out.getvalue().split())
+    assert "each one goes out in the next frame" in said
+    assert "about 1 published in between" not in said
+    out.seek(0)
+    out.truncate()
+    tour.latest(status, 1.0, "rov", 7.5)
+    assert "about 7 published in between are superseded" in " ".join(out.getvalue().split())

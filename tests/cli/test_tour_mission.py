@@ -1,0 +1,55 @@
+"""The tour's variant of every shipped mission (``zab demo --mission``): it loads, and the
+vehicle it surfaces stays within the water's range of the surface node."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from bridge.cli.demo import tour_mission
+from bridge.mission.presets import node_preset
+from bridge.runtime.virtual_fleet import FastFleet
+from tests.conftest import MISSIONS
+
+
+@pytest.mark.parametrize("path", sorted(MISSIONS.glob("*.yaml")), ids=lambda p: p.stem)
+def test_the_tour_keeps_its_surfacing_vehicle_in_range(path, mission_key: str) -> None:
+    loaded, changes = tour_mission(path, 0.1, 70.0)
+    mission = loaded.mission
+    surface = next((n for n, v in mission.nodes.items() if v.role == "surface"), None)
+    moving = [n for n, v in mission.nodes.items() if v.path is not None]
+    if surface is None or not any("surfaces about" in c for c in changes):
+        return  # (no surfacing in this tour, or the mission's own path)
+    ocean = FastFleet(loaded, seed=1).ocean
+    for name in moving:
+        ranges = [p.max_range_m for p in (node_preset(mission, name),
+                                          node_preset(mission, surface)) if p is not None]
+        if not ranges:
+            continue
+        reach = min(ranges)
+        at = [ocean.position(mission.nodes[n].address, 0.0) for n in (name, surface)]
+        if math.dist(*at) > reach:
+            continue  # out of direct range by design (a relay line)
+        for t in range(0, 71, 5):
+            here = ocean.position(mission.nodes[name].address, float(t))
+            there = ocean.position(mission.nodes[surface].address, float(t))
+            assert math.dist(here, there) <= reach, (name, t, here, there, reach)
+
+
+def test_a_mission_that_cannot_take_a_camera_tours_without_one(mission_key: str) -> None:
+    """goby's wire format has no image channels: the tour leaves the camera out, not the
+    whole demo ('cannot make the tour's variant')."""
+    loaded, changes = tour_mission(MISSIONS / "goby_dccl.yaml", 0.1, 70.0)
+    assert not loaded.mission.images
+    assert not any("camera" in c for c in changes)
+    assert any("queryable" in c for c in changes)
+
+
+def test_an_rf_tank_vehicle_surfaces_where_it_is(mission_key: str) -> None:
+    """bluerov_images: RF modems of 5 m range; the ROV rises and dives in place."""
+    loaded, _ = tour_mission(MISSIONS / "bluerov_images.yaml", 0.1, 70.0)
+    path = loaded.mission.nodes["rov"].path
+    assert path is not None
+    assert {(w.x, w.depth) for w in path.waypoints} == {(1.0, 0.8), (1.0, 0.0)}
+    assert max(w.y for w in path.waypoints) < 1.0
