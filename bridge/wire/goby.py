@@ -12,8 +12,9 @@ So in this format each channel carries one DCCL element, the channel is found by
 and the frame is exactly what a Goby3 node's QueueManager would produce from those messages.
 zab's own frame features have no place in it: no DLBL delays, no authentication, no mission
 check (a frame from another mission decodes if its ids are known), no reliable or fragmented
-channels. Which messages go in a frame follows zab's scheduler (priority, interval), not
-Goby's ``ttl``/``value_base`` priority.
+channels, and none of zab's own entries: no queries, no ``demand``, no learned key-family
+members (the loader refuses each, saying where). Which messages go in a frame follows zab's
+scheduler (priority, interval), not Goby's ``ttl``/``value_base`` priority.
 """
 
 from __future__ import annotations
@@ -91,6 +92,17 @@ def goby_problems(table: ChannelTable, dlbl: bool, auth: bool
         elif m.id in ids and ids[m.id] != m.name:
             yield (*loc, "elements", 0, "dccl"), f"DCCL id {m.id} is also {ids[m.id]}'s"
         ids.setdefault(m.id, m.name)
+    # what zab says in entries of its own, which goby frames have no room for
+    if table.names is not None:
+        for c in table.channels:
+            if c.family is not None and c.family.learned:
+                yield ("channels", c.index), (f"wire.format goby: channel {c.name!r} cannot "
+                                              "learn its key family's members (@key entries)")
+    if table.interest is not None:
+        yield ("demand",), "wire.format goby frames cannot say what is wanted (demand)"
+    for i, query in enumerate(table.queries):
+        yield ("queries", i), (f"wire.format goby: query {query.name!r} cannot cross (its "
+                               "requests and replies are zab entries)")
 
 
 class GobyFrameCodec(FrameCodec):

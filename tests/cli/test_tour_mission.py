@@ -4,17 +4,19 @@ vehicle it surfaces stays within the water's range of the surface node."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 
 from bridge.cli.demo import tour_mission
+from bridge.core.outputs import Status
 from bridge.mission.presets import node_preset
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 
 
 @pytest.mark.parametrize("path", sorted(MISSIONS.glob("*.yaml")), ids=lambda p: p.stem)
-def test_the_tour_keeps_its_surfacing_vehicle_in_range(path, mission_key: str) -> None:
+def test_the_tour_keeps_its_surfacing_vehicle_in_range(path: Path, mission_key: str) -> None:
     loaded, changes = tour_mission(path, 0.1, 70.0)
     mission = loaded.mission
     surface = next((n for n, v in mission.nodes.items() if v.role == "surface"), None)
@@ -37,13 +39,14 @@ def test_the_tour_keeps_its_surfacing_vehicle_in_range(path, mission_key: str) -
             assert math.dist(here, there) <= reach, (name, t, here, there, reach)
 
 
-def test_a_mission_that_cannot_take_a_camera_tours_without_one(mission_key: str) -> None:
-    """goby's wire format has no image channels: the tour leaves the camera out, not the
-    whole demo ('cannot make the tour's variant')."""
+def test_a_mission_that_cannot_take_a_tour_part_tours_without_it(mission_key: str) -> None:
+    """goby's wire format has no image channels and no queries: the tour leaves the camera
+    and the get out, not the whole demo ('cannot make the tour's variant'), nor does it
+    start a bridge that stops at its first request ('?health is not a DCCL channel')."""
     loaded, changes = tour_mission(MISSIONS / "goby_dccl.yaml", 0.1, 70.0)
-    assert not loaded.mission.images
-    assert not any("camera" in c for c in changes)
-    assert any("queryable" in c for c in changes)
+    assert not loaded.mission.images and not loaded.mission.queries
+    assert not any("camera" in c or "queryable" in c for c in changes)
+    assert any("surfaces about" in c for c in changes)
 
 
 def test_an_rf_tank_vehicle_surfaces_where_it_is(mission_key: str) -> None:
@@ -53,3 +56,24 @@ def test_an_rf_tank_vehicle_surfaces_where_it_is(mission_key: str) -> None:
     assert path is not None
     assert {(w.x, w.depth) for w in path.waypoints} == {(1.0, 0.8), (1.0, 0.0)}
     assert max(w.y for w in path.waypoints) < 1.0
+
+
+def test_the_tour_s_picture_crosses_whole_beside_the_telemetry(mission_key: str) -> None:
+    """MORPH's tour on the virtual clock with every key fed as the tour's programs publish:
+    the camera's fragments fit beside lsv's telemetry, so the picture is whole within the
+    tour (with 28 B fragments it was in one run of six)."""
+    import random
+
+    from bridge.cli.demo import default_demo_mission
+    from bridge.cli.sim_fast import feed
+
+    loaded, _ = tour_mission(default_demo_mission(), 0.1, 70.0)
+    whole = []
+    for seed in range(4):
+        fleet = FastFleet(loaded, seed=seed, keep_outputs=True)
+        feed(fleet, random.Random(seed), 70.0)
+        fleet.run_until(70.0)
+        whole += [t.time for t in fleet.outputs if t.node == "ssv"
+                  and isinstance(t.output, Status) and t.output.topic == "images/camera/lsv"
+                  and t.output.payload.get("final")][:1]
+    assert len(whole) == 4 and max(whole) < 60.0, whole

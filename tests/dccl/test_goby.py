@@ -116,3 +116,16 @@ def test_goby_frames_cross_end_to_end(tmp_path: Path) -> None:
         finally:
             a.close()
             b.close()
+
+
+@pytest.mark.parametrize(("extra", "expected"), [
+    ("queries:\n  - name: info\n    key: '{node}/info'\n    serve: a\n    ask: b\n"
+     "    reply: [{field: ok, type: bool}]\n", "query 'info' cannot cross"),
+    ("demand: {refresh_s: 30}\n", "cannot say what is wanted"),
+])
+def test_goby_missions_refuse_zab_s_own_entries(extra: str, expected: str) -> None:
+    """A goby mission with a query loaded, then its bridge stopped at the first request
+    ('channel ?info is not a DCCL channel', as zab demo --mission goby_dccl.yaml showed)."""
+    text = GOBY_LAB.replace("PORT_A", "7001").replace("PORT_B", "7002") + extra
+    with pytest.raises(MissionError, match=expected):
+        parse_mission(text, "lab.yaml")
