@@ -8,6 +8,7 @@ title in :data:`PARTS`, a method here for its words, and a step in ``demo._story
 from __future__ import annotations
 
 import json
+import math
 from collections import Counter
 from collections.abc import Mapping
 from typing import Any
@@ -76,6 +77,25 @@ def quantisation_lines(channel: ChannelCodec, element: int, sent: Any, got: Any)
 def turn_waits(loaded: LoadedMission) -> dict[str, float | None]:
     """Each node's longest wait between transmit turns, seconds (from ``zab check``)."""
     return {n["name"]: n["mac"]["worst_interval_s"] for n in check_mission(loaded).data["nodes"]}
+
+
+SHOWN_TURNS = 6
+"""Turns of the slowest node a tour should last to show every part."""
+
+
+def slow_turns(loaded: LoadedMission, duration: float) -> str | None:
+    """What to say when the slowest node's turns come too seldom for a tour of ``duration``
+    seconds to show much (a long relay line's 16 s turns in 70 s), else None."""
+    waits = {n: w for n, w in turn_waits(loaded).items() if w}
+    if not waits:
+        return None
+    node = max(waits, key=waits.__getitem__)
+    enough = SHOWN_TURNS * waits[node]
+    if duration >= enough:
+        return None
+    return (f"{node}'s turn to transmit comes every {waits[node]:g} s, so {duration:.0f} s "
+            f"show only a few of its frames; --duration {math.ceil(enough / 60) * 60:.0f} "
+            "shows more.")
 
 
 def short(value: Any) -> str:
@@ -160,6 +180,9 @@ class Tour:
             f"{i}. {PARTS[name].lower()}" for i, name in enumerate(self.parts, start=1)) + ".")
         for name, node in mission.nodes.items():
             self.say(f"  {name:>4} ({node.role}) Zenoh endpoint {' '.join(node.zenoh.listen)}")
+        slow = slow_turns(self.loaded, self.duration)
+        if slow is not None:
+            self.say(f"  [dim]{slow}[/]")
 
     def gui(self, url: str | None, surface: str) -> None:
         if url is None:
@@ -194,10 +217,10 @@ class Tour:
         turn = f"every {wait_s:g} s" if wait_s else "only now and then"
         if wait_s and wait_s <= publish_s:
             self.say(f"{channel.name} is published every {publish_s:g} s on {sender}, whose "
-                     f"turn to transmit comes {turn}: a turn comes before the next value, so "
-                     "each one goes out in the next frame. Were values published faster than "
-                     "the turns come, each frame would carry only the newest, the others "
-                     "superseded, not lost (receivers want the latest value, not a backlog).")
+                     f"turn to transmit comes {turn}. Whenever a turn finds more than one new "
+                     "value (its frame full of other channels, a turn missed), the frame "
+                     "carries only the newest: the others are superseded, not lost (receivers "
+                     "want the latest value, not a backlog).")
             return
         per_turn = f"about {max(1, round(wait_s / publish_s) - 1)}" if wait_s else "several"
         self.say(f"{channel.name} is published every {publish_s:g} s on {sender}, whose turn to "

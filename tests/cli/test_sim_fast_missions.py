@@ -3,6 +3,8 @@ what the mission carries crosses (a camera's pictures too, from a synthetic came
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from typer.testing import CliRunner
 
@@ -13,7 +15,8 @@ RUNNER = CliRunner()
 
 
 @pytest.mark.parametrize("path", sorted(MISSIONS.glob("*.yaml")), ids=lambda p: p.stem)
-def test_every_shipped_mission_simulates_on_the_virtual_clock(path, mission_key: str) -> None:
+def test_every_shipped_mission_simulates_on_the_virtual_clock(path: Path,
+                                                            mission_key: str) -> None:
     result = RUNNER.invoke(app, ["sim", str(path), "--fast", "--duration", "60"])
     assert result.exit_code == 0, result.output
     assert "Traceback" not in result.output

@@ -339,7 +339,7 @@ def test_while_up_starts_when_the_surface_bridge_saw_the_vehicle() -> None:
 
 def test_latest_value_words_hold_when_turns_come_faster_than_values() -> None:
     """bluerov_images: status every 1 s, the ROV's turn every 0.64 s; the tour said 'the about
-    1 published in between are superseded'. Nothing is superseded there."""
+    1 published in between are superseded', as if every turn fell a value behind."""
     import io
     from pathlib import Path
 
@@ -354,9 +354,25 @@ def test_latest_value_words_hold_when_turns_come_faster_than_values() -> None:
     tour = Tour(loaded, Console(file=out, width=400), 70)
     tour.latest(status, 1.0, "rov", 0.64)
     said = " ".join(out.getvalue().split())
-    assert "each one goes out in the next frame" in said
+    assert "Whenever a turn finds more than one new value" in said
     assert "about 1 published in between" not in said
     out.seek(0)
     out.truncate()
     tour.latest(status, 1.0, "rov", 7.5)
     assert "about 7 published in between are superseded" in " ".join(out.getvalue().split())
+
+
+def test_a_mission_of_slow_turns_is_told_the_tour_may_be_short() -> None:
+    """acoustic_line's 16 s turns: a 70 s tour left parts 'not seen before the tour moved
+    on' with no word why; the intro now says so and what duration shows more."""
+    from pathlib import Path
+
+    from bridge.cli.demo import tour_mission
+    from bridge.cli.tour import slow_turns
+
+    line, _ = tour_mission(Path("deploy/missions/acoustic_line.yaml"), 0.1)
+    said = slow_turns(line, 70.0)
+    assert said is not None and "every 16 s" in said and "--duration 120" in said
+    assert slow_turns(line, 120.0) is None
+    morph, _ = tour_mission(Path("deploy/missions/morph.yaml"), 0.1)
+    assert slow_turns(morph, 70.0) is None
