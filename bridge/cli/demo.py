@@ -55,12 +55,13 @@ from bridge.gui.commands import named_as_command
 from bridge.gui.server import GuiServer
 from bridge.mission.fields import FieldSpec
 from bridge.report import MissionRecorder, write_report
+from bridge.report.check import check_mission
 from bridge.report.model import MissionReport
 from bridge.resources import data_dir
 from bridge.runtime.fleet import Fleet
 from bridge.runtime.keys import throwaway_note
 from bridge.runtime.session import close_quietly
-from bridge.wire.channels import ChannelCodec
+from bridge.wire.channels import ChannelCodec, ElementCodec
 from bridge.wire.queries import QuerySpec
 
 PUBLISH_PERIOD_S = 1.0
@@ -88,28 +89,45 @@ def default_demo_mission() -> Path:
 def tour_mission(path: Path, loss: float = TOUR_LOSS, duration: float = TOUR_S
                  ) -> tuple[LoadedMission, list[str]]:
     """The mission at ``path`` as the tour of ``duration`` seconds runs it, and the changes
-    made, in words: the water
+    made, in words: real modems (EvoLogics, Micro-Modem) become simulated ones, the water
     loses ``loss`` of the frames, a mission without queries gets one (the surface node asks
     the vehicles' health), one without surfacing gets a vehicle surfacing on a scripted path,
     one without image channels a camera, and the first channel named as a command becomes
     acknowledged (reliable, so not latching)."""
     data = yaml.safe_load(path.read_text(encoding="utf-8"))
     changes = []
+    modems = ([link.setdefault("modem", {}) for link in data["links"].values()]
+              if data.get("links") else [data.setdefault("modem", {})])
+    own = [n["modem"] for n in (data.get("nodes") or {}).values()
+           if isinstance(n.get("modem"), dict) and "backend" in n["modem"]]
+    real = sorted({str(m["backend"]) for m in (*modems, *own)
+                   if m.get("backend", "sim") not in ("sim", "udp")})
+    if real:  # (the simulated modem reads its preset and water, and leaves the rest)
+        for modem in (*modems, *own):
+            if modem.get("backend", "sim") not in ("sim", "udp"):
+                modem["backend"] = "sim"
+        changes.append(f"the {' and '.join(real)} modems are simulated ones with the same "
+                       "timings, in the simulated water")
     if loss > 0:
-        for modem in ([link.setdefault("modem", {}) for link in data["links"].values()]
-                      if data.get("links") else [data.setdefault("modem", {})]):
+        for modem in modems:
             modem.setdefault("options", {})["loss"] = loss  # (each link's water)
         changes.append(f"the water loses {loss:.0%} of frames")
+    known = set(check_mission(parse_mission(yaml.safe_dump(data, sort_keys=False), path)
+                              ).errors)
     for extra in (query_for_tour, functools.partial(surfacing_for_tour, duration=duration),
                   images_for_tour):
         trial = copy.deepcopy(data)
         said = extra(trial)
         if said is None:
             continue
-        try:
-            parse_mission(yaml.safe_dump(trial, sort_keys=False), path)
+        try:  # this mission may not take it: goby's wire format has no image channels, a
+            # query's repeatable entries lengthen hippocampus's count field past its sensors
+            errors = check_mission(parse_mission(yaml.safe_dump(trial, sort_keys=False),
+                                                 path)).errors
         except MissionError:
-            continue  # this mission cannot take it (goby's wire format has no image channels)
+            continue
+        if set(errors) - known:
+            continue
         data = trial
         changes.append(said)
     plain = yaml.safe_dump(data, sort_keys=False)
@@ -144,7 +162,11 @@ PREFERRED_MODES = ("transit", "survey", "hold")
 
 def synthetic_value(spec: FieldSpec, t: float, phase: float) -> Any:
     """A plausible value inside a field's declared range that changes slowly: a battery
-    drains by about 1 % a minute, a mode stays put, other numbers drift over ten minutes."""
+    drains by about 1 % a minute, a mode stays put, other numbers drift over ten minutes;
+    an array field (``count``) gets a list of such values, each of its own phase."""
+    if spec.count:
+        one = spec.model_copy(update={"count": None})
+        return [synthetic_value(one, t, phase + i) for i in range(spec.count)]
     if spec.values:
         return next((m for m in PREFERRED_MODES if m in spec.values), spec.values[0])
     if spec.type == "bool":
@@ -427,10 +449,14 @@ class VehicleApps:
                             layout = compiled.elements[e_index].layout
                             value = layout.synthetic_value(  # type: ignore[attr-defined]
                                 random.Random(hash((node, key, t))))
-                        for f_index, spec in enumerate(element.fields):
+                        # (a layout file's fields as the compiled layout expands them)
+                        specs = element.fields if element.dccl else [
+                            codec.spec for codec in compiled.elements[e_index].layout.fields]
+                        for f_index, spec in enumerate(specs):
                             if not spec.field:
                                 continue
-                            moving = sailed.get(spec.field) if sailed is not None else \
+                            moving = None if spec.count else sailed.get(spec.field) \
+                                if sailed is not None else \
                                 None if position is None else formation_value(
                                     spec.field, (position.x, position.y, position.depth), t)
                             # (a key family's members: each its own phase, so its own value)
@@ -440,8 +466,7 @@ class VehicleApps:
                                 synthetic_value(spec, t, phase)
                             _set(value, spec.field, chosen)
                             self.latest[(node, spec.field.rsplit(".", 1)[-1])] = chosen
-                        session.put(key, msgpack.packb(value),
-                                    encoding=zenoh.Encoding("application/msgpack"))
+                        _put(session, compiled.elements[e_index], node, key, value)
                         with self._lock:
                             self.published[channel.name] += 1
                             self.history.setdefault((node, key), deque(maxlen=8)).append(
@@ -510,15 +535,16 @@ class VehicleApps:
         destinations = channel.destinations(node)
         report_key = f"@zab/{self.loaded.mission.mission}/{node}/delivery/{channel.name}"
         values = [_command_value(element.layout.fields) for element in channel.elements]
-        self.tour.command_sent(node, channel.elements[0].input_key(node),
+        first = channel.elements[0]
+        self.tour.command_sent(node, first.input_key(node) if first.ros2 is None
+                               else first.ros2.publisher_key(node),
                                json.dumps(values[0]), destinations, loss, report_key)
         t0 = time.time()
         with self._lock:
             self.published[channel.name] += 1
         for element, value in zip(channel.elements, values, strict=True):
-            self.sessions[node].put(element.input_key(node), msgpack.packb(value),
-                                    encoding=zenoh.Encoding("application/msgpack"),
-                                    attachment=f"ref:{TOUR_REF}".encode())
+            _put(self.sessions[node], element, node, element.input_key(node), value,
+                 attachment=f"ref:{TOUR_REF}".encode())
         states: dict[str, str] = {}
         while len(states) < len(destinations) and time.time() - t0 < COMMAND_WAIT_S:
             await asyncio.sleep(POLL_S)
@@ -534,6 +560,19 @@ class VehicleApps:
     def close(self) -> None:
         for session in self.sessions.values():
             close_quietly(session)
+
+
+def _put(session: zenoh.Session, element: ElementCodec, node: str, key: str, value: Any,
+         attachment: bytes | None = None) -> None:
+    """A program's put of ``value`` on an input ``key`` of ``element`` at ``node``: msgpack,
+    or for a ROS 2 topic its CDR message on the exact key a ROS 2 publisher at ``node`` uses
+    (the element's input key is a key expression, which no put may use)."""
+    if element.ros2 is None:
+        session.put(key, msgpack.packb(value), encoding=zenoh.Encoding("application/msgpack"),
+                    attachment=attachment)
+    else:
+        session.put(element.ros2.publisher_key(node), element.ros2.encode(value, time.time()),
+                    attachment=attachment)
 
 
 def _command_value(fields: Any) -> dict[str, Any]:

@@ -12,7 +12,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any
 
 from bridge.core.mac import mac_for
 from bridge.mission.loader import Loc, cross_problems, located, read_mission, read_mission_file
@@ -89,33 +88,3 @@ def _frame_problems(mission: Mission, table: ChannelTable) -> Iterable[tuple[Loc
                       else (*where, "modem", "frame_bytes")] = frame_bytes
     for loc, frame_bytes in found.items():
         yield (loc, f"{frame_bytes} bytes cannot hold the {overhead}-byte frame overhead")
-    if table.wire_format == "zab" and not found:
-        yield from _entry_problems(mission, table, overhead)
-
-
-def _entry_problems(mission: Mission, table: ChannelTable, overhead: int
-                    ) -> Iterable[tuple[Loc, str]]:
-    """Entries sent whole that no frame of their sender can hold beside the frame's count and
-    index fields as the whole mission makes them (queries' entries repeat in a frame, which
-    lengthens the count): such a channel would be due for ever and never sent."""
-    codec = frame_codec_for(table)
-    first_image = len(mission.channels)
-    entries: list[tuple[Loc, str, Any, tuple[str, ...]]] = [
-        (("channels", c.index) if c.index < first_image
-         else ("images", (c.index - first_image) // 2), f"channel {c.name!r}", c, c.senders)
-        for c in table.channels if not c.fragmented]
-    entries += [(("queries", q.spec.index), f"query {q.spec.name!r}'s "
-                 + ("reply" if q.reply else "request"), q,
-                 q.spec.servers if q.reply else q.spec.askers) for q in table.query_codecs]
-    for loc, what, entry, senders in entries:
-        cost = codec.channel_cost_bits(entry)
-        for node in senders:
-            frame_bytes = mission.frame_bytes_of(node)
-            room = codec.body_capacity_bits(frame_bytes) - codec.count_bits
-            if cost > room:
-                why = " (entries that may repeat in a frame, queries', make it so long)" \
-                    if codec.repeats else ""
-                yield (loc, f"{what} takes {cost} bits with its index; {node}'s {frame_bytes}-"
-                            f"byte frame has {max(room, 0)} for entries, after {overhead} B of "
-                            f"frame overhead and a {codec.count_bits}-bit count field{why}")
-                break

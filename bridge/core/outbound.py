@@ -133,6 +133,9 @@ class Outbound:
         """Per key of :attr:`_read`, the names read whole: a sample of only these (the usual
         one) is not walked."""
         self._left_out: set[tuple[str, tuple[str, ...]]] = set()
+        self._never_fit = self._unfit_channels()
+        """Channels this node sends that no frame of its can hold (``zab check`` says so):
+        a value for one is a counted drop, not a channel due for ever."""
         retry_s = default_retry_s(mission)
         self.senders: dict[int, Sender] = {
             c.index: (ImageSender if c.image is not None and not c.image.control
@@ -204,11 +207,30 @@ class Outbound:
         if self.surfacing is not None and self.surfacing.reachable:
             self._relay(key, bindings, Relay(key, b"", "", delete=True, taken=now))
 
+    def _unfit_channels(self) -> dict[int, str]:
+        """Why each channel sent whole by this node fits in none of its links' frames, beside
+        the frame's overhead and count field (queries' repeatable entries lengthen it)."""
+        mission, codec, node = self.mission, self.codec, self.node
+        sizes = [mission.node_modem(node).frame_bytes] if mission.links is None else [
+            spec.member(node).modem.frame_bytes or spec.modem.frame_bytes
+            for spec in mission.links.values() if spec.nodes is None or node in spec.nodes]
+        biggest = max(sizes)
+        room = codec.body_capacity_bits(biggest - self.table.net_header_bytes) \
+            - codec.count_bits
+        return {c.index: f"channel {c.name!r} ({codec.channel_cost_bits(c)} bits with its "
+                         f"index) can never fit in a {biggest}-byte frame of {node!r} ({room} "
+                         "bits free after overhead): see zab check"
+                for c in self.table.channels if c.index in self.store.states
+                and not c.fragmented and codec.channel_cost_bits(c) > room}
+
     def _store(self, key: str, bindings: Collection[tuple[ChannelCodec, int, ElementCodec]],
                pack: Callable[[ElementCodec], int], now: float, ref: str | None) -> None:
         """Each binding's packed value into the store, or queued by its stream."""
         store = self.store
         for channel, index, element in bindings:
+            if channel.index in self._never_fit:
+                self.drop_payload(key, self._never_fit[channel.index], now)
+                continue
             try:
                 packed = pack(element)
             except EncodeError as exc:

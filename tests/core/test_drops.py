@@ -165,3 +165,34 @@ def test_a_summary_waits_for_the_tick_when_drops_stop(core: NodeCore) -> None:
     core.tick(11.0)
     [later] = [o for o in core.take() if isinstance(o, PayloadDrops)]
     assert later.drops == (("k", "undecodable", 1, later.drops[0][3]),)
+
+
+def test_a_channel_no_frame_can_hold_is_a_counted_drop_not_due_for_ever() -> None:
+    """15-byte frames with DLBL for three peers and a query (its repeatable entries make the
+    count field 6 bits): the 26-bit channel fits in no frame (zab check says so). It was
+    stored, due for ever and never built into a frame, and the MAC asked the core to act at
+    the same instant without end (zab sim --fast hung on such a mission)."""
+    text = """\
+mission: tight
+wire: {dlbl: true}
+modem: {backend: sim, frame_bytes: 15}
+mac: {type: none}
+nodes:
+  a: {address: 1}
+  b: {address: 2}
+  c: {address: 3}
+  d: {address: 4}
+channels:
+  - name: sensors
+    from: d
+    to: a
+    elements: [{in: s, out: d/s, fields: [{field: v, type: int, min: 0, max: 67108863}]}]
+queries:
+  - {name: health, key: "{node}/health", serve: d, ask: a, reply: [{field: ok, type: bool}]}
+"""
+    core = NodeCore(parse_mission(text), "d")
+    core.ingest("s", msgpack.packb({"v": 5}), "application/msgpack", 10.0)
+    assert core.stats.payloads_dropped == {"s": 1}
+    drops = [o for o in core.take() if isinstance(o, PayloadDrops)]
+    assert "can never fit in a 15-byte frame of 'd'" in drops[0].drops[0][3]
+    assert core.wake_at(10.0) != 10.0  # nothing due now: the MAC does not spin on it

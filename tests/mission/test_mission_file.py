@@ -11,7 +11,6 @@ from typer.testing import CliRunner
 from bridge.cli.app import app
 from bridge.core.loaded import load_mission, parse_mission
 from bridge.errors import MissionError
-from tests.conftest import MISSIONS
 
 GOOD = """\
 mission: tiny
@@ -117,20 +116,3 @@ def test_frame_too_small_for_the_overhead_counts_the_auth_tag() -> None:
         "  a: {address: 1,", "  a: {address: 1, modem: {frame_bytes: 14},")
     message = error_of(text)  # 2 B check + 4 B counter + 8 B tag = 14 B
     assert "nodes.a.modem.frame_bytes" in message and "14-byte frame overhead" in message
-
-
-def test_a_channel_a_query_crowds_out_of_every_frame_is_refused() -> None:
-    """hippocampus's 15-byte frames with a query added (as zab demo's tour did): the query's
-    repeatable entries lengthen the count field to 6 bits and the 26-bit sensors channel no
-    longer fits; the mission loaded, and the vehicle's core, the channel due for ever and
-    never built into a frame, asked to act again at the same instant without end (zab sim
-    --fast hung; the demo never sent it)."""
-    import yaml
-
-    path = MISSIONS / "hippocampus.yaml"
-    data = yaml.safe_load(path.read_text())
-    data["queries"] = [{"name": "health", "key": "{node}/health", "serve": "hippo",
-                        "ask": "anchor1", "reply": [{"field": "ok", "type": "bool"}]}]
-    message = error_of(yaml.safe_dump(data, sort_keys=False))
-    assert "channels[0]: channel 'sensors' takes 28 bits with its index" in message
-    assert "15-byte frame has 26 for entries" in message and "6-bit count field" in message
