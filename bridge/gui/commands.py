@@ -17,6 +17,8 @@ from typing import Any
 
 from bridge.codec.fields import FieldCodec
 from bridge.core.loaded import LoadedMission
+from bridge.errors import EncodeError
+from bridge.ros2.element import Ros2Element
 from bridge.words import counted
 
 #: A best-effort command with no delivery report after this long is shown as "sent".
@@ -119,12 +121,30 @@ def _number(name: str, raw: Any) -> float:
     return number
 
 
+Put = tuple[str, Any, str | None]
+"""A put of a command: (key, value, encoding). With no encoding the value goes as msgpack;
+a ROS 2 element's is its CDR message, encoded already (encoding ``""``)."""
+
+
 @dataclass(frozen=True)
 class CommandElement:
-    """One key of a command channel and the fields of its payload."""
+    """One key of a command channel and the fields of its payload (``key``: where it is put,
+    for a ROS 2 topic the exact key a ROS 2 publisher uses, not the element's key
+    expression, which no put may use)."""
 
     key: str
     fields: tuple[FormField, ...]
+    ros2: Ros2Element | None = None
+
+    def put(self, raw: Any, now: float) -> Put:
+        """The put of ``raw`` ({path: value}) at time ``now`` (a ROS 2 message's stamp)."""
+        value = self.payload(raw)
+        if self.ros2 is None:
+            return self.key, value, None
+        try:
+            return self.key, self.ros2.encode(value, now), ""
+        except EncodeError as exc:
+            raise CommandError(f"{self.key}: {exc}") from None
 
     def payload(self, raw: Any) -> Any:
         """The payload built from ``raw`` ({path: value}); every field is required."""
@@ -167,14 +187,14 @@ class CommandChannel:
     interval_s: float
     elements: tuple[CommandElement, ...]
 
-    def payloads(self, values: Any) -> list[tuple[str, Any]]:
-        """(input key, payload) per element from ``values`` (one {path: value} per element)."""
+    def puts(self, values: Any, now: float) -> list[Put]:
+        """The put of each element from ``values`` (one {path: value} per element)."""
         if isinstance(values, dict) and len(self.elements) == 1:
             values = [values]
         if not isinstance(values, list) or len(values) != len(self.elements):
             raise CommandError(f"channel {self.channel!r} needs values for "
                                f"{counted(len(self.elements), 'element')}")
-        return [(e.key, e.payload(v)) for e, v in zip(self.elements, values, strict=True)]
+        return [e.put(v, now) for e, v in zip(self.elements, values, strict=True)]
 
     def is_command(self) -> bool:
         """Named as a command: what an operator most likely wants to send."""
@@ -195,8 +215,10 @@ def command_channels(loaded: LoadedMission, node: str) -> list[CommandChannel]:
         if not channel.sent_by(node) or not channel.destinations(node):
             continue
         elements = tuple(
-            CommandElement(element.input_key(node),
-                           tuple(FormField.from_codec(f) for f in element.layout.fields))
+            CommandElement(element.input_key(node) if element.ros2 is None
+                           else element.ros2.publisher_key(node),
+                           tuple(FormField.from_codec(f) for f in element.layout.fields),
+                           element.ros2)
             for element in channel.elements
         )
         found.append(CommandChannel(channel.name, channel.destinations(node),

@@ -123,13 +123,13 @@ class ZenohFeed:
         self.samples += 1
         self.on_sample(key, data, encoding, origin)
 
-    def put(self, key: str, value: Any, ref: str) -> None:
-        """Publish a command value (msgpack) with attachment ``ref:<ref>``; raises
-        ``ConnectionError`` without a session."""
+    def put(self, key: str, value: Any, ref: str, encoding: str | None = None) -> None:
+        """Publish a command value (msgpack; with an ``encoding``, bytes encoded already) with
+        attachment ``ref:<ref>``; raises ``ConnectionError`` without a session."""
         if self.session is None:
             raise ConnectionError("not connected to the node: " + " ".join(self.endpoints))
-        payload, encoding = encode_payload(value)
-        self.session.put(key, payload, encoding=zenoh.Encoding(encoding),
+        payload, encoding = encode_payload(value) if encoding is None else (value, encoding)
+        self.session.put(key, payload, encoding=zenoh.Encoding(encoding) if encoding else None,
                          attachment=f"ref:{ref}".encode())
 
 

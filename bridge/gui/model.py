@@ -27,7 +27,7 @@ from typing import Any
 
 from bridge.core.loaded import LoadedMission
 from bridge.errors import DecodeError
-from bridge.gui.commands import Command, CommandBook, CommandError, command_channels
+from bridge.gui.commands import Command, CommandBook, CommandError, Put, command_channels
 from bridge.gui.eventlog import (
     CounterWatch,
     LogLine,
@@ -427,9 +427,8 @@ class GuiModel:
 
     # -- commands and time ---------------------------------------------------------------------
 
-    def command(self, request: Mapping[str, Any], ref: str, now: float
-                ) -> list[tuple[str, Any]]:
-        """Check a command from the page; (key, payload) to put, each with attachment
+    def command(self, request: Mapping[str, Any], ref: str, now: float) -> list[Put]:
+        """Check a command from the page; the puts to make, each with attachment
         ``ref:<ref>``. Raises :class:`CommandError` with a message for the page."""
         name = request.get("channel")
         channel = self.commands.get(name) if isinstance(name, str) else None
@@ -439,7 +438,7 @@ class GuiModel:
         if vehicle not in channel.destinations:
             raise CommandError(f"channel {channel.channel!r} does not reach {vehicle!r} "
                                f"(it reaches {', '.join(channel.destinations)})")
-        payloads = channel.payloads(request.get("values"))
+        payloads = channel.puts(request.get("values"), now)
         self._out.append(self.book.add(Command(ref, str(vehicle), channel.channel,
                                                shown(request.get("values")), channel.reliable,
                                                now)))

@@ -227,8 +227,8 @@ class GuiServer:
         except CommandError as exc:
             return {"type": "reply", "request": request, "ok": False, "error": str(exc)}
         try:
-            for key, payload in puts:
-                self.feed.put(key, payload, ref)
+            for key, payload, encoding in puts:
+                self.feed.put(key, payload, ref, encoding)
         except (ConnectionError, zenoh.ZError) as exc:
             self.model.command_failed(ref, str(exc), now)
             return {"type": "reply", "request": request, "ok": False, "ref": ref,

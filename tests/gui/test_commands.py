@@ -61,7 +61,7 @@ def test_a_command_becomes_the_payload_on_the_input_key(morph):
     model = GuiModel(morph, "ssv")
     puts = model.command({"channel": "mission_command", "vehicle": "lsv",
                           "values": {"action": "hold", "leg": "12"}}, "r1", 10.0)
-    assert puts == [("command", {"action": "hold", "leg": 12})]
+    assert puts == [("command", {"action": "hold", "leg": 12}, None)]
     (item,) = model.take()
     assert (item["kind"], item["ref"], item["state"], item["vehicle"]) == (
         "command", "r1", "pending", "lsv")
@@ -149,3 +149,22 @@ def test_the_form_opens_on_a_channel_named_as_a_command(morph):
     surface's GPS fix), whatever their order in the mission."""
     assert [c.channel for c in command_channels(morph, "ssv")] == [
         "mission_command", "surface_fix"]
+
+
+def test_a_command_on_a_ros2_topic_is_its_cdr_on_the_publisher_s_key(mission_key: str) -> None:
+    """ros2_odometry's cmd_vel from the GUI went as msgpack on the topic's key expression
+    (0/auv1/cmd_vel_remote/*/*), and the bridge dropped it ('unknown ROS 2 type *'): it
+    goes as the Twist's CDR on the key a ROS 2 publisher of the topic uses at the node."""
+    from bridge.runtime.virtual_fleet import FastFleet
+
+    loaded = load_mission(MISSIONS / "ros2_odometry.yaml")
+    model = GuiModel(loaded, "ship")
+    values = {"linear.x": "0.5", "linear.z": "0", "angular.z": "0.1"}
+    ((key, payload, encoding),) = model.command(
+        {"channel": "cmd_vel", "vehicle": "auv1", "values": values}, "r1", 10.0)
+    assert "*" not in key and key.startswith("0/auv1/cmd_vel_remote/geometry_msgs::msg::dds_::")
+    assert isinstance(payload, bytes) and encoding == ""
+    core = FastFleet(loaded, seed=1).cores["ship"]
+    taken = next(k for k in core.bindings if core.ros2_input(k) is not None)
+    core.ingest(taken, payload, encoding, 10.0, sample_key=key)
+    assert not core.stats.payloads_dropped
