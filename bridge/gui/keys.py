@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from bridge.core.loaded import LoadedMission
+from bridge.ros2.element import Ros2Element
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,7 @@ class ChannelSource:
     element: int
     key: str
     nav: bool = False
+    ros2: Ros2Element | None = None  # a ROS 2 topic: CDR samples, the key names the type
 
 
 @dataclass(frozen=True)
@@ -55,13 +57,15 @@ class SurfaceKeys:
                 if src == node:
                     for i, element in enumerate(channel.elements):
                         key = element.input_key(src)
-                        self._add(ChannelSource(channel.name, src, i, key, nav=key == own_nav))
+                        self._add(ChannelSource(channel.name, src, i, key, nav=key == own_nav,
+                                                ros2=element.ros2))
                 elif node in channel.destinations(src):
                     nav_key = mission.nodes[src].nav_key
                     for i, element in enumerate(channel.elements):
                         self._add(ChannelSource(
                             channel.name, src, i, element.output_key(src, node),
-                            nav=nav_key is not None and element.input_key(src) == nav_key))
+                            nav=nav_key is not None and element.input_key(src) == nav_key,
+                            ros2=element.ros2))
         if own_nav is not None and not any(s.nav for s in self.sources.get(own_nav, ())):
             self._add(ChannelSource("nav_key", node, 0, own_nav, nav=True))
 
@@ -82,6 +86,9 @@ class SurfaceKeys:
             parts = pattern.split("/")
             if "*" in parts and len(parts) == len(chunks) and all(
                     p in ("*", c) for p, c in zip(parts, chunks, strict=True)):
+                if all(s.ros2 is not None for s in sources):  # (its type and hash, no member)
+                    out += [replace(s, key=key) for s in sources]
+                    continue
                 member = chunks[parts.index("*")]
                 out += [replace(s, channel=f"{s.channel}:{member}", key=key) for s in sources]
         return out or None

@@ -246,8 +246,9 @@ class GuiModel:
         sources = self.keys.lookup(key)
         if status is None and sources is None:
             return
+        ros2 = next((s.ros2 for s in sources or () if s.ros2 is not None), None)
         try:
-            value = decode_payload(data, encoding)
+            value = decode_payload(data, encoding) if ros2 is None else ros2.decode(data, key)
         except DecodeError as exc:
             self._drop(key, str(exc), now)
             return

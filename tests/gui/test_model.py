@@ -294,3 +294,21 @@ def test_a_node_nobody_answers_for_is_said_plainly(morph):
         "nothing answers at tcp/127.0.0.1:7501: is ssv's bridge running (zab run, zab sim or "
         "zab demo)?")
     assert unreachable("no route to the node", "ssv", []) == "no route to the node"
+
+
+def test_a_ros2_topic_s_cdr_samples_are_read_by_its_type(mission_key: str) -> None:
+    """ros2_odometry at the ship: the bridge publishes the Odometry as CDR on its rmw_zenoh
+    key; the GUI read every sample as msgpack and counted it unreadable, so no ROS 2 value
+    ever showed. A malformed one is still a counted drop."""
+    loaded = load_mission(MISSIONS / "ros2_odometry.yaml")
+    odom = loaded.table.by_name("odom").elements[0]
+    assert odom.ros2 is not None
+    key = odom.output_key("auv1", "ship")
+    model = GuiModel(loaded, "ship")
+    value = {"pose": {"pose": {"position": {"x": 12.5, "y": -3.0, "z": -20.0}}}}
+    model.ingest(key, odom.ros2.encode(value, 100.0), "", 5.0)
+    (item,) = model.take()
+    assert item["node"] == "auv1" and item["value"]["pose"]["pose"]["position"]["x"] == 12.5
+    assert item["value"]["child_frame_id"] == "auv1/base_link"
+    model.ingest(key, b"\x00\x01\x00\x00\x07", "", 6.0)
+    assert any("malformed CDR" in str(i.get("text", "")) for i in model.take())
