@@ -2,8 +2,8 @@
 
 Coefficients (integers, in coding order: see :mod:`bridge.image.geometry`) are sent plane by
 plane from the top. In each plane the coefficients not yet significant are sorted into three
-classes by what the receiver already knows at the plane's start: a significant neighbour on
-the canvas (likely to become significant: sent first), else a significant parent, else neither
+classes by what the receiver already knows at the plane's start: a significant neighbour in
+its band (likely to become significant: sent first), else a significant parent, else neither
 (sent last); coefficients significant from earlier planes get their next bit (*refinement*)
 between the second and the third class — EBCOT's order of passes, most distortion removed per
 bit first.

@@ -5,8 +5,8 @@ finest scale, and at each scale luma before chroma (colour images carry Cb and C
 resolution, so their bands join one scale later); inside a band, along its edges: the band
 of vertical edges (high-pass across the rows) column by column, the others row by row, so
 that the coefficients of one edge follow one another in the significance passes' runs. A
-:class:`Geometry` maps that order to each component's Mallat-layout canvas (where the
-neighbours of a coefficient are its neighbours on the canvas), gives each coefficient its
+:class:`Geometry` maps that order to each component's Mallat-layout canvas (where a
+coefficient's neighbours are those around it on the canvas, in its band), gives each coefficient its
 parent (the same place one scale coarser) and the weight that makes a coefficient's squared
 error the pixels' (its own synthesis norm, edges and all, times a chroma weight). Both ends
 build the same geometry from the stream's header. A region of interest (:class:`Roi`) is a rectangle
@@ -123,8 +123,9 @@ class Geometry:
 
     @cached_property
     def neighbours(self) -> NDArray[np.int32]:
-        """Each coding position's 8 neighbours on its canvas, as coding positions (``size``
-        where the canvas ends)."""
+        """Each coding position's 8 neighbours in its band, as coding positions (``size``
+        where the band ends: on the canvas the next band's coefficients are no neighbours,
+        +0.02 dB at 800 B, grey and colour 320×240, ``bench/image_bench.py``)."""
         inverse = np.empty(self.size + 1, dtype=np.int32)
         inverse[self.order] = np.arange(self.size, dtype=np.int32)
         inverse[self.size] = self.size
@@ -142,6 +143,8 @@ class Geometry:
                     ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
                     out[at[ok], k] = inverse[start + r[ok] * w + c[ok]]
                     k += 1
+        band = np.append(self.band_of, -1)
+        out[band[out] != band[:-1, None]] = self.size
         return out
 
     @cached_property

@@ -47,6 +47,26 @@ def test_each_weight_is_its_coefficients_synthesis_norm(shape: tuple[int, int],
         assert geo.weight[at] == pytest.approx(norm * (CHROMA_WEIGHT if comp else 1.0))
 
 
+def test_neighbours_are_those_around_a_coefficient_in_its_band() -> None:
+    geo = geometry(23, 37, True)
+    band_of, offsets = geo.band_of, geo.offsets
+
+    def place(at: int) -> tuple[int, int]:
+        band = geo.bands[band_of[at]]
+        return divmod(int(geo.order[at]) - offsets[band.component],
+                      geo.shapes[band.component][1])
+
+    for at in range(geo.size):
+        band = geo.bands[band_of[at]]
+        r, c = place(at)
+        around = {(r + dr, c + dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc}
+        inside = {(y, x) for y, x in around
+                  if band.rows[0] <= y < band.rows[1] and band.cols[0] <= x < band.cols[1]}
+        got = [int(n) for n in geo.neighbours[at] if n != geo.size]
+        assert all(band_of[n] == band_of[at] for n in got)
+        assert {place(n) for n in got} == inside and len(got) == len(inside)
+
+
 @pytest.mark.parametrize("budget", [60, 200, 800, 1600])
 def test_a_stream_fits_its_budget_exactly(budget: int) -> None:
     assert len(encode(GREY, budget)) == budget
