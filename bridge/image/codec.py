@@ -16,8 +16,8 @@ over the ROI.
 
 The stream, most significant bit first::
 
-    version   2 bits, counted modulo 4 (0: the fifth, after 3; this decoder refuses the
-              others, and the first 0, of the coder's first day, is long gone)
+    version   2 bits, counted modulo 4 (1: the sixth, after 0; this decoder refuses the
+              others, and the first 1, of the coder's second day, is long gone)
     colour    1 bit
     width-1   11 bits, height-1 11 bits
     top+1     5 bits: the highest bit plane (0: an empty image)
@@ -45,7 +45,7 @@ from bridge.image.wavelet import forward, inverse
 
 __all__ = ["MAX_SIDE", "Decoded", "ImageStreamError", "decode", "encode", "header_bytes"]
 
-VERSION = 0
+VERSION = 1
 MAX_SIDE = 2048
 LENGTH_BITS = 20
 """Bits of the lengths in an ROI's header (a mission's budget is at most 64 kB)."""

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bridge.image.codec import ImageStreamError, decode, encode, header_bytes
-from bridge.image.geometry import Roi
+from bridge.image.geometry import CHROMA_WEIGHT, Roi, geometry
 from bridge.image.synthetic import seabed
 from bridge.image.wavelet import forward, inverse, levels_for
 
@@ -29,6 +29,42 @@ def test_the_wavelet_inverts_on_any_size(shape: tuple[int, int]) -> None:
     x = np.random.default_rng(1).normal(0, 50, shape)
     levels = levels_for(*shape)
     assert np.abs(inverse(forward(x, levels), levels) - x).max() < 1e-9
+
+
+@pytest.mark.parametrize(("shape", "colour"), [((24, 40), False), ((23, 37), True)])
+def test_each_weight_is_its_coefficients_synthesis_norm(shape: tuple[int, int],
+                                                          colour: bool) -> None:
+    """A unit error in any coefficient (corners and edges too) costs its weight squared in
+    squared error of the pixels (chroma: times the chroma weight squared)."""
+    geo = geometry(*shape, colour)
+    offsets = geo.offsets
+    for at in range(0, geo.size, 7):
+        spot = int(geo.order[at])
+        comp = int(np.searchsorted(offsets, spot, side="right")) - 1
+        canvas = np.zeros(geo.shapes[comp])
+        canvas.flat[spot - offsets[comp]] = 1.0
+        norm = float(np.sqrt((inverse(canvas, geo.levels[comp]) ** 2).sum()))
+        assert geo.weight[at] == pytest.approx(norm * (CHROMA_WEIGHT if comp else 1.0))
+
+
+def test_neighbours_are_those_around_a_coefficient_in_its_band() -> None:
+    geo = geometry(23, 37, True)
+    band_of, offsets = geo.band_of, geo.offsets
+
+    def place(at: int) -> tuple[int, int]:
+        band = geo.bands[band_of[at]]
+        return divmod(int(geo.order[at]) - offsets[band.component],
+                      geo.shapes[band.component][1])
+
+    for at in range(geo.size):
+        band = geo.bands[band_of[at]]
+        r, c = place(at)
+        around = {(r + dr, c + dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc}
+        inside = {(y, x) for y, x in around
+                  if band.rows[0] <= y < band.rows[1] and band.cols[0] <= x < band.cols[1]}
+        got = [int(n) for n in geo.neighbours[at] if n != geo.size]
+        assert all(band_of[n] == band_of[at] for n in got)
+        assert {place(n) for n in got} == inside and len(got) == len(inside)
 
 
 @pytest.mark.parametrize("budget", [60, 200, 800, 1600])
@@ -127,6 +163,9 @@ def test_no_header_is_a_clear_error() -> None:
     stream = bytearray(encode(GREY, 200))
     stream[0] |= 0xC0  # version 3: the stream before the runs started lower each plane
     with pytest.raises(ImageStreamError, match="version 3"):
+        decode(bytes(stream))
+    stream[0] &= 0x3F  # version 0: the stream before each coefficient's own weight
+    with pytest.raises(ImageStreamError, match="version 0"):
         decode(bytes(stream))
 
 

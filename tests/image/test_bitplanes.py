@@ -1,0 +1,35 @@
+"""The run codes of one pass: whatever the decisions, the run parameter and the decisions
+left, the decoder reads back what the encoder wrote, to the bit."""
+
+from __future__ import annotations
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from bridge.image.bitplanes import KPMAX, WINDOW, _place, _run_decode, _run_encode, _windows
+
+
+@given(st.data())
+def test_a_pass_of_run_codes_reads_back_exactly(data: st.DataObject) -> None:
+    length = data.draw(st.integers(1, 3000))
+    start = data.draw(st.integers(0, length - 1))
+    ones = sorted(data.draw(st.sets(st.integers(start, length - 1), max_size=40)))
+    signs = data.draw(st.lists(st.booleans(), min_size=len(ones), max_size=len(ones)))
+    kp = data.draw(st.integers(0, KPMAX))
+    out: list[str] = []
+    kp_after = _run_encode(out, ones, signs, start, length, kp)
+    bits = "".join(out)
+    padded = bits + "1" * WINDOW
+    found: list[int] = []
+    heard: list[bool] = []
+    end, kp_read = _run_decode(padded, _windows(padded), len(bits), 0, start, length, kp,
+                               found, heard)
+    assert (found, heard, end, kp_read) == (ones, signs, len(bits), kp_after)
+
+
+@given(st.integers(0, 15), st.integers(1, 1 << 16), st.data())
+def test_a_place_takes_no_more_bits_than_the_decisions_left_need(
+        k: int, left: int, data: st.DataObject) -> None:
+    value = data.draw(st.integers(0, min(left, 1 << k) - 1))
+    b = (left - 1).bit_length() if left < 1 << k else k
+    assert len(_place(value, k, left)) in (max(b - 1, 0), b)
