@@ -17,7 +17,7 @@ import msgpack
 import zenoh
 
 from bridge.cli.rounding import Steps, to_step
-from bridge.errors import SessionError
+from bridge.errors import DecodeError, SessionError
 from bridge.mission.model import ZenohSettings
 from bridge.runtime.session import close_quietly, open_session
 
@@ -80,9 +80,18 @@ def _plain(value: Any) -> Any:
 
 
 def format_sample(key: str, payload: bytes, encoding: str, steps: Steps | None = None) -> str:
-    """One line: the key, then the decoded value as compact JSON; with the mission's
-    ``steps``, a bridged value's fields printed to their channel's step."""
-    value = decode(payload, encoding)
+    """One line: the key, then the decoded value as compact JSON (a ROS 2 message's too); with
+    the mission's ``steps``, a bridged value's fields printed to their channel's step."""
+    value = None
+    if key[:1].isdigit():  # an rmw_zenoh key: a ROS 2 topic's CDR, its type read from the key
+        from bridge.ros2.messages import decode_sample  # (rosbags: loaded when one comes)
+
+        try:
+            value = decode_sample(key, payload)
+        except DecodeError:
+            value = None
+    if value is None:
+        value = decode(payload, encoding)
     if steps is not None:
         value = to_step(value, steps.of(key))
     return f"{key} {json.dumps(_plain(value), separators=(', ', ': '))}"

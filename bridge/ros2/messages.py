@@ -18,6 +18,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.base import Nodetype  # type: ignore[attr-defined]  # (not in __all__)
 
 from bridge.errors import DecodeError, EncodeError
+from bridge.ros2.names import parse_topic_key
 
 Distro = Literal["jazzy", "kilted"]
 DISTROS: dict[str, Stores] = {"jazzy": Stores.ROS2_JAZZY, "kilted": Stores.ROS2_KILTED}
@@ -236,3 +237,27 @@ def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
         else:
             out[key] = value
     return out
+
+
+def decode_sample(key: str, data: bytes) -> dict[str, Any] | None:
+    """A sample on an rmw_zenoh data key as plain data, its type read from the key (any
+    known distribution whose type hash the key names); None if the key names no type this
+    bridge knows. ``DecodeError`` if it does and ``data`` is not a whole message of it."""
+    try:
+        got = parse_topic_key(key)
+    except ValueError:
+        return None
+    found = _distro_of(got.msgtype, got.type_hash) if got.msgtype else None
+    return None if found is None else decode_cdr(found, got.msgtype or "", data)
+
+
+@cache
+def _distro_of(msgtype: str, hash_: str) -> str | None:
+    """The first known distribution whose ``msgtype`` has the type hash ``hash_``."""
+    for distro in DISTROS:
+        try:
+            if type_hash(distro, msgtype) == hash_:
+                return distro
+        except (UnknownType, KeyError):
+            continue
+    return None

@@ -134,3 +134,18 @@ def test_the_readme_program_says_so_when_nothing_listens(tmp_path: Path) -> None
                           capture_output=True, text=True, timeout=30)
     assert done.returncode != 0
     assert "Unable to connect" in done.stderr
+
+
+def test_a_ros2_topic_s_cdr_prints_as_its_message(mission_key: str) -> None:
+    """`zab listen` at ros2_odometry's ship printed each Odometry as {"bytes": "0001..."}:
+    the type is in the rmw_zenoh key, so the message prints decoded."""
+    from bridge.core.loaded import load_mission
+    from tests.conftest import MISSIONS
+
+    odom = load_mission(MISSIONS / "ros2_odometry.yaml").table.by_name("odom").elements[0]
+    assert odom.ros2 is not None
+    key = odom.output_key("auv1", "ship")
+    data = odom.ros2.encode({"pose": {"pose": {"position": {"x": 12.5}}}}, 100.0)
+    line = format_sample(key, data, "")
+    assert line.startswith(key + " {") and '"x": 12.5' in line and '"frame_id": "odom"' in line
+    assert '"pose"' not in format_sample(key, b"\x00\x01\x00\x00\x07", "")  # malformed: raw
