@@ -60,8 +60,38 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
         pytest.skip(reason)
 
 
+PORT_BASE, PORT_BLOCK = 16000, 1500
+"""Ports handed out to tests: a block of its own per xdist worker, all below the kernel's
+ephemeral range (``net.ipv4.ip_local_port_range``, 32768-60999 by default). A port the
+kernel chose (bind to 0) could be taken, before its test's process listened on it, as the
+source port of any outgoing connection (five workers' Zenoh sessions make many): a suite
+failed so with 'tcp/127.0.0.1:41821 is already in use'."""
+_cursor = secrets.randbelow(PORT_BLOCK)  # (two suites at once start apart)
+
+
+def _ephemeral_low() -> int:
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    """A port that was free on 127.0.0.1 a moment ago."""
+    """A port free on 127.0.0.1 now, from this worker's block (:data:`PORT_BASE`), or the
+    kernel's choice where the ephemeral range reaches down into the blocks."""
+    global _cursor
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:]
+    start = PORT_BASE + (int(worker) % 10 if worker.isdigit() else 0) * PORT_BLOCK
+    if _ephemeral_low() >= PORT_BASE + 10 * PORT_BLOCK:
+        for _ in range(PORT_BLOCK):
+            port = start + _cursor % PORT_BLOCK
+            _cursor += 1
+            with socket.socket(socket.AF_INET, kind) as s:
+                try:
+                    s.bind(("127.0.0.1", port))
+                except OSError:
+                    continue
+                return port
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
