@@ -43,6 +43,7 @@ from bridge.cli.demo_surfacing import (
     surfacing_for_tour,
     turns_to_wait,
 )
+from bridge.cli.poke import value_of
 from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
 from bridge.cli.tour import Tour, short, turn_waits
 from bridge.core.bounds import UNBOUNDED_TURN_S
@@ -223,7 +224,8 @@ def closest(history: list[tuple[float, Any]], got: Any) -> Any:
 
     def distance(item: tuple[float, Any]) -> float:
         sent = _numbers(item[1])
-        return sum(abs(sent.get(k, math.inf) - v) for k, v in numbers.items())
+        return sum(abs(sent[k] - v) for k, v in numbers.items() if k in sent) + (
+            0.0 if sent.keys() & numbers.keys() else math.inf)  # (a ROS 2 message has more)
 
     return min(history, key=distance)[1] if history else None
 
@@ -367,10 +369,7 @@ class VehicleApps:
             return
         if str(sample.encoding).startswith("image/"):
             return  # a picture: the tour's pictures part tells it
-        try:
-            value = msgpack.unpackb(sample.payload.to_bytes())
-        except ValueError:
-            return
+        value = value_of(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding))
         attachment = sample.attachment.to_bytes()
         if attachment.startswith(b"ref:"):  # a command put on this node's key
             if attachment == f"ref:{TOUR_REF}".encode():

@@ -15,9 +15,9 @@ import time
 from collections import Counter
 from typing import Any
 
-import msgpack
 import zenoh
 
+from bridge.cli.poke import value_of
 from bridge.core.events import Event, FrameSent, Surfaced
 from bridge.core.loaded import LoadedMission
 from bridge.mission.presets import PRESETS
@@ -198,10 +198,7 @@ class SurfacingWatch:
             via = "ip"
         if via is None:  # not from either bridge
             return
-        try:
-            value = msgpack.unpackb(sample.payload.to_bytes())
-        except ValueError:
-            return
+        value = value_of(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding))
         with self._lock:
             self.arrivals.append((time.time(), str(sample.key_expr), value, via))
         self.changed.set()

@@ -79,19 +79,25 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def format_sample(key: str, payload: bytes, encoding: str, steps: Steps | None = None) -> str:
-    """One line: the key, then the decoded value as compact JSON (a ROS 2 message's too); with
-    the mission's ``steps``, a bridged value's fields printed to their channel's step."""
-    value = None
-    if key[:1].isdigit():  # an rmw_zenoh key: a ROS 2 topic's CDR, its type read from the key
+def value_of(key: str, payload: bytes, encoding: str) -> Any:
+    """A sample's payload as Python data: a ROS 2 topic's CDR as its message (the type read
+    from the rmw_zenoh key), else :func:`decode`."""
+    if key[:1].isdigit():  # an rmw_zenoh key
         from bridge.ros2.messages import decode_sample  # (rosbags: loaded when one comes)
 
         try:
             value = decode_sample(key, payload)
         except DecodeError:
             value = None
-    if value is None:
-        value = decode(payload, encoding)
+        if value is not None:
+            return value
+    return decode(payload, encoding)
+
+
+def format_sample(key: str, payload: bytes, encoding: str, steps: Steps | None = None) -> str:
+    """One line: the key, then the decoded value (:func:`value_of`) as compact JSON; with
+    the mission's ``steps``, a bridged value's fields printed to their channel's step."""
+    value = value_of(key, payload, encoding)
     if steps is not None:
         value = to_step(value, steps.of(key))
     return f"{key} {json.dumps(_plain(value), separators=(', ', ': '))}"
