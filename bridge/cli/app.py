@@ -724,7 +724,8 @@ def put(
 ) -> None:
     """Publish one value (JSON on the command line, msgpack on Zenoh) at a Zenoh endpoint.
 
-    It goes as an operator's command, as the GUI's do: with a reference (`ref:put-…`) that
+    On a ROS 2 topic's rmw_zenoh key the value goes as the CDR message of the type the key
+    names. It goes as an operator's command, as the GUI's do: with a reference (`ref:put-…`) that
     an acknowledged channel's delivery reports echo.
     """
     import secrets
@@ -734,13 +735,14 @@ def put(
 
     ref = f"put-{secrets.token_hex(4)}"
     try:
-        payload = run_put(endpoint, key, value, ref)
+        payload, encoding = run_put(endpoint, key, value, ref)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(1 if str(exc).startswith("cannot connect") else 2) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
-    console.print(f"put {key} ({len(payload)} B msgpack, ref {ref}) at {endpoint}",
+    kind = "msgpack" if encoding else "CDR"
+    console.print(f"put {key} ({len(payload)} B {kind}, ref {ref}) at {endpoint}",
                   highlight=False)
 
 

@@ -17,7 +17,7 @@ import msgpack
 import zenoh
 
 from bridge.cli.rounding import Steps, to_step
-from bridge.errors import DecodeError, SessionError
+from bridge.errors import DecodeError, EncodeError, SessionError
 from bridge.mission.model import ZenohSettings
 from bridge.runtime.session import close_quietly, open_session
 
@@ -138,11 +138,11 @@ def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
     return shown
 
 
-def put(endpoint: str, key: str, value_json: str, ref: str) -> bytes:
-    """Publish the JSON value ``value_json`` on ``key`` as msgpack, an operator's command
-    (attachment ``ref:<ref>``, as the GUI's: a reliable channel's delivery reports echo it,
-    and ``zab demo``'s programs leave the key to the operator for a while); return the
-    payload sent."""
+def put(endpoint: str, key: str, value_json: str, ref: str) -> tuple[bytes, str]:
+    """Publish the JSON value ``value_json`` on ``key`` (msgpack, or a ROS 2 topic's CDR:
+    :func:`payload_for`), an operator's command (attachment ``ref:<ref>``, as the GUI's: a
+    reliable channel's delivery reports echo it, and ``zab demo``'s programs leave the key to
+    the operator for a while); return the payload sent and its encoding."""
     try:
         value = json.loads(value_json)
     except ValueError as exc:
@@ -151,9 +151,25 @@ def put(endpoint: str, key: str, value_json: str, ref: str) -> bytes:
         zenoh.KeyExpr(key)
     except zenoh.ZError as exc:
         raise PokeError(f"invalid key {key!r}: {exc}") from None
-    payload = msgpack.packb(value)
+    payload, encoding = payload_for(key, value)
     with client(endpoint) as session:
-        session.put(key, payload, encoding=zenoh.Encoding(MSGPACK),
+        session.put(key, payload, encoding=zenoh.Encoding(encoding) if encoding else None,
                     congestion_control=zenoh.CongestionControl.BLOCK,
                     attachment=f"ref:{ref}".encode())
-    return bytes(payload)
+    return payload, encoding
+
+
+def payload_for(key: str, value: Any) -> tuple[bytes, str]:
+    """What :func:`put` sends for ``value`` on ``key``: on an rmw_zenoh key the CDR message
+    of the type the key names (fields left out are zero, as a ROS 2 message's defaults),
+    else msgpack; and its encoding (none for CDR, as rmw_zenoh's)."""
+    if key[:1].isdigit():
+        from bridge.ros2.messages import encode_sample  # (rosbags: loaded when needed)
+
+        try:
+            cdr = encode_sample(key, value)
+        except EncodeError as exc:
+            raise PokeError(f"cannot put on {key}: {exc}") from None
+        if cdr is not None:
+            return cdr, ""
+    return bytes(msgpack.packb(value)), MSGPACK

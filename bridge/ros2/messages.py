@@ -261,3 +261,19 @@ def _distro_of(msgtype: str, hash_: str) -> str | None:
         except (UnknownType, KeyError):
             continue
     return None
+
+
+def encode_sample(key: str, tree: Any) -> bytes | None:
+    """``tree`` as the CDR message an rmw_zenoh data ``key`` names (its type read from the
+    key, as :func:`decode_sample`); None if the key names no type this bridge knows.
+    ``EncodeError`` when a value does not fit its field."""
+    try:
+        got = parse_topic_key(key)
+    except ValueError:
+        return None
+    found = _distro_of(got.msgtype, got.type_hash) if got.msgtype else None
+    if found is None:
+        return None
+    if not isinstance(tree, dict):
+        raise EncodeError(f"{got.msgtype}: expected the message's fields as an object")
+    return encode_cdr(found, got.msgtype or "", tree)

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import msgpack
+import pytest
 
 from bridge.cli.poke import format_sample
 from tests.conftest import REPO, on_free_ports
@@ -149,3 +150,26 @@ def test_a_ros2_topic_s_cdr_prints_as_its_message(mission_key: str) -> None:
     line = format_sample(key, data, "")
     assert line.startswith(key + " {") and '"x": 12.5' in line and '"frame_id": "odom"' in line
     assert '"pose"' not in format_sample(key, b"\x00\x01\x00\x00\x07", "")  # malformed: raw
+
+
+def test_put_on_a_ros2_topic_key_sends_its_cdr(mission_key: str) -> None:
+    """`zab put` on ros2_odometry's cmd_vel key sent msgpack, which the bridge drops ('not a
+    CDR Twist'): on an rmw_zenoh key the value goes as the message the key names."""
+    from bridge.cli.poke import PokeError, payload_for
+    from bridge.core.loaded import load_mission
+    from bridge.runtime.virtual_fleet import FastFleet
+    from tests.conftest import MISSIONS
+
+    loaded = load_mission(MISSIONS / "ros2_odometry.yaml")
+    cmd = loaded.table.by_name("cmd_vel").elements[0]
+    assert cmd.ros2 is not None
+    key = cmd.ros2.publisher_key("ship")
+    payload, encoding = payload_for(key, {"linear": {"x": 0.5}, "angular": {"z": 0.1}})
+    assert encoding == ""
+    core = FastFleet(loaded, seed=1).cores["ship"]
+    taken = next(k for k in core.bindings if core.ros2_input(k) is not None)
+    core.ingest(taken, payload, encoding, 10.0, sample_key=key)
+    assert not core.stats.payloads_dropped
+    assert payload_for("a/b", {"x": 1}) == (msgpack.packb({"x": 1}), "application/msgpack")
+    with pytest.raises(PokeError, match="expected the message's fields"):
+        payload_for(key, [1, 2])
