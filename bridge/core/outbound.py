@@ -211,10 +211,7 @@ class Outbound:
         """Why each channel sent whole by this node fits in none of its links' frames, beside
         the frame's overhead and count field (queries' repeatable entries lengthen it)."""
         mission, codec, node = self.mission, self.codec, self.node
-        sizes = [mission.node_modem(node).frame_bytes] if mission.links is None else [
-            spec.member(node).modem.frame_bytes or spec.modem.frame_bytes
-            for spec in mission.links.values() if spec.nodes is None or node in spec.nodes]
-        biggest = max(sizes)
+        biggest = max(mission.frame_sizes_of(node), default=mission.modem.frame_bytes)
         room = codec.body_capacity_bits(biggest - self.table.net_header_bytes) \
             - codec.count_bits
         return {c.index: f"channel {c.name!r} ({codec.channel_cost_bits(c)} bits with its "

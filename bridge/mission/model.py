@@ -723,14 +723,16 @@ class Mission(Strict):
             options={**self.modem.options, **override.options},
         )
 
+    def frame_sizes_of(self, name: str) -> list[int]:
+        """The frame size of each link of ``name`` (its modem's, with one link)."""
+        if self.links is None:
+            return [self.node_modem(name).frame_bytes]
+        return [spec.member(name).modem.frame_bytes or spec.modem.frame_bytes
+                for spec in self.links.values() if spec.nodes is None or name in spec.nodes]
+
     def frame_bytes_of(self, name: str) -> int:
         """The largest frame every link of ``name`` carries (its modem's, with one link)."""
-        if self.links is None:
-            return self.node_modem(name).frame_bytes
-        sizes = [spec.member(name).modem.frame_bytes or spec.modem.frame_bytes
-                 for spec in self.links.values()
-                 if spec.nodes is None or name in spec.nodes]
-        return min(sizes, default=self.modem.frame_bytes)
+        return min(self.frame_sizes_of(name), default=self.modem.frame_bytes)
 
     def address_of(self, name: str) -> int:
         return self.nodes[name].address
