@@ -240,15 +240,36 @@ def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 
 def decode_sample(key: str, data: bytes) -> dict[str, Any] | None:
-    """A sample on an rmw_zenoh data key as plain data, its type read from the key (any
-    known distribution whose type hash the key names); None if the key names no type this
-    bridge knows. ``DecodeError`` if it does and ``data`` is not a whole message of it."""
+    """A sample on an rmw_zenoh data key as plain data, its type read from the key
+    (:func:`_keyed_type`); None if the key names no type this bridge knows. ``DecodeError``
+    if it does and ``data`` is not a whole message of it."""
+    found = _keyed_type(key)
+    return None if found is None else decode_cdr(*found, data)
+
+
+def encode_sample(key: str, tree: Any) -> bytes | None:
+    """``tree`` as the CDR message an rmw_zenoh data ``key`` names (:func:`_keyed_type`);
+    None if the key names no type this bridge knows. ``EncodeError`` when a value does not
+    fit its field."""
+    found = _keyed_type(key)
+    if found is None:
+        return None
+    if not isinstance(tree, dict):
+        raise EncodeError(f"{found[1]}: expected the message's fields as an object")
+    return encode_cdr(*found, tree)
+
+
+def _keyed_type(key: str) -> tuple[str, str] | None:
+    """(distribution, message type) an rmw_zenoh data ``key`` names: the first known
+    distribution whose type hash the key carries; None for any other key."""
     try:
         got = parse_topic_key(key)
     except ValueError:
         return None
-    found = _distro_of(got.msgtype, got.type_hash) if got.msgtype else None
-    return None if found is None else decode_cdr(found, got.msgtype or "", data)
+    if not got.msgtype:
+        return None
+    distro = _distro_of(got.msgtype, got.type_hash)
+    return None if distro is None else (distro, got.msgtype)
 
 
 @cache
@@ -261,19 +282,3 @@ def _distro_of(msgtype: str, hash_: str) -> str | None:
         except (UnknownType, KeyError):
             continue
     return None
-
-
-def encode_sample(key: str, tree: Any) -> bytes | None:
-    """``tree`` as the CDR message an rmw_zenoh data ``key`` names (its type read from the
-    key, as :func:`decode_sample`); None if the key names no type this bridge knows.
-    ``EncodeError`` when a value does not fit its field."""
-    try:
-        got = parse_topic_key(key)
-    except ValueError:
-        return None
-    found = _distro_of(got.msgtype, got.type_hash) if got.msgtype else None
-    if found is None:
-        return None
-    if not isinstance(tree, dict):
-        raise EncodeError(f"{got.msgtype}: expected the message's fields as an object")
-    return encode_cdr(found, got.msgtype or "", tree)
