@@ -534,9 +534,7 @@ class VehicleApps:
         destinations = channel.destinations(node)
         report_key = f"@zab/{self.loaded.mission.mission}/{node}/delivery/{channel.name}"
         values = [_command_value(element.layout.fields) for element in channel.elements]
-        first = channel.elements[0]
-        self.tour.command_sent(node, first.input_key(node) if first.ros2 is None
-                               else first.ros2.publisher_key(node),
+        self.tour.command_sent(node, channel.elements[0].put_key(node),
                                json.dumps(values[0]), destinations, loss, report_key)
         t0 = time.time()
         with self._lock:
@@ -563,15 +561,11 @@ class VehicleApps:
 
 def _put(session: zenoh.Session, element: ElementCodec, node: str, key: str, value: Any,
          attachment: bytes | None = None) -> None:
-    """A program's put of ``value`` on an input ``key`` of ``element`` at ``node``: msgpack,
-    or for a ROS 2 topic its CDR message on the exact key a ROS 2 publisher at ``node`` uses
-    (the element's input key is a key expression, which no put may use)."""
-    if element.ros2 is None:
-        session.put(key, msgpack.packb(value), encoding=zenoh.Encoding("application/msgpack"),
-                    attachment=attachment)
-    else:
-        session.put(element.ros2.publisher_key(node), element.ros2.encode(value, time.time()),
-                    attachment=attachment)
+    """A program's put of ``value`` on input ``key`` (a family member's) of ``element`` at
+    ``node``, as :meth:`~bridge.wire.channels.ElementCodec.sample` makes it."""
+    key, payload, encoding = element.sample(node, value, time.time(), key)
+    session.put(key, payload, encoding=zenoh.Encoding(encoding) if encoding else None,
+                attachment=attachment)
 
 
 def _command_value(fields: Any) -> dict[str, Any]:

@@ -18,7 +18,7 @@ from typing import Any
 from bridge.codec.fields import FieldCodec
 from bridge.core.loaded import LoadedMission
 from bridge.errors import EncodeError
-from bridge.ros2.element import Ros2Element
+from bridge.wire.channels import ElementCodec
 from bridge.words import counted
 
 #: A best-effort command with no delivery report after this long is shown as "sent".
@@ -121,28 +121,24 @@ def _number(name: str, raw: Any) -> float:
     return number
 
 
-Put = tuple[str, Any, str | None]
-"""A put of a command: (key, value, encoding). With no encoding the value goes as msgpack;
-a ROS 2 element's is its CDR message, encoded already (encoding ``""``)."""
+Put = tuple[str, bytes, str]
+"""A put of a command: (key, payload, encoding; ``""``: none, a ROS 2 topic's CDR)."""
 
 
 @dataclass(frozen=True)
 class CommandElement:
-    """One key of a command channel and the fields of its payload (``key``: where it is put,
-    for a ROS 2 topic the exact key a ROS 2 publisher uses, not the element's key
-    expression, which no put may use)."""
+    """One element of a command channel as ``node`` puts it (``key``: where, its
+    :meth:`~bridge.wire.channels.ElementCodec.put_key`) and the fields of its payload."""
 
     key: str
     fields: tuple[FormField, ...]
-    ros2: Ros2Element | None = None
+    element: ElementCodec
+    node: str
 
     def put(self, raw: Any, now: float) -> Put:
         """The put of ``raw`` ({path: value}) at time ``now`` (a ROS 2 message's stamp)."""
-        value = self.payload(raw)
-        if self.ros2 is None:
-            return self.key, value, None
         try:
-            return self.key, self.ros2.encode(value, now), ""
+            return self.element.sample(self.node, self.payload(raw), now)
         except EncodeError as exc:
             raise CommandError(f"{self.key}: {exc}") from None
 
@@ -215,10 +211,9 @@ def command_channels(loaded: LoadedMission, node: str) -> list[CommandChannel]:
         if not channel.sent_by(node) or not channel.destinations(node):
             continue
         elements = tuple(
-            CommandElement(element.input_key(node) if element.ros2 is None
-                           else element.ros2.publisher_key(node),
+            CommandElement(element.put_key(node),
                            tuple(FormField.from_codec(f) for f in element.layout.fields),
-                           element.ros2)
+                           element, node)
             for element in channel.elements
         )
         found.append(CommandChannel(channel.name, channel.destinations(node),

@@ -33,6 +33,7 @@ from bridge.wire.images import ImageSpec, control_layout
 from bridge.wire.interest import InterestCodec
 from bridge.wire.marks import MarkCodec
 from bridge.wire.network import NetCodec
+from bridge.wire.payloads import encode_payload
 from bridge.wire.queries import QueryCodec, QuerySpec, compile_query, query_codecs
 from bridge.wire.sample_meta import SampleMeta
 
@@ -102,6 +103,22 @@ class ElementCodec:
     def input_key(self, node: str, key: str = "*") -> str:
         """The key read at ``node``; a family member's, or with ``*`` all members'."""
         return self.in_key.format(node=node, src=node, key=key)
+
+    def put_key(self, node: str) -> str:
+        """The key a program at ``node`` puts a value on: the input key, or for a ROS 2 topic
+        the exact key its publisher uses there (the input key is an expression, which no put
+        may use)."""
+        return self.input_key(node) if self.ros2 is None else self.ros2.publisher_key(node)
+
+    def sample(self, node: str, value: Any, now: float, key: str | None = None
+               ) -> tuple[str, bytes, str]:
+        """What a program at ``node`` puts for ``value`` at time ``now`` (a ROS 2 message's
+        stamp): (key, payload, encoding), msgpack on :meth:`put_key` (or a family member's
+        ``key``), a ROS 2 topic's CDR message with no encoding (as rmw_zenoh's).
+        ``EncodeError`` when a ROS 2 value does not fit its message."""
+        if self.ros2 is None:
+            return (key or self.put_key(node), *encode_payload(value))
+        return self.put_key(node), self.ros2.encode(value, now), ""
 
     def output_key(self, src: str, dst: str, key: str = "*") -> str:
         """The key published at ``dst``; a family member's, or with ``*`` all members'."""

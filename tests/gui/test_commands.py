@@ -61,7 +61,8 @@ def test_a_command_becomes_the_payload_on_the_input_key(morph):
     model = GuiModel(morph, "ssv")
     puts = model.command({"channel": "mission_command", "vehicle": "lsv",
                           "values": {"action": "hold", "leg": "12"}}, "r1", 10.0)
-    assert puts == [("command", {"action": "hold", "leg": 12}, None)]
+    assert puts == [("command", msgpack.packb({"action": "hold", "leg": 12}),
+                     "application/msgpack")]
     (item,) = model.take()
     assert (item["kind"], item["ref"], item["state"], item["vehicle"]) == (
         "command", "r1", "pending", "lsv")
