@@ -113,25 +113,23 @@ def tour_mission(path: Path, loss: float = TOUR_LOSS, duration: float = TOUR_S
         for modem in modems:
             modem.setdefault("options", {})["loss"] = loss  # (each link's water)
         changes.append(f"the water loses {loss:.0%} of frames")
-    known = set(check_mission(parse_mission(yaml.safe_dump(data, sort_keys=False), path)
-                              ).errors)
-    for extra in (query_for_tour, functools.partial(surfacing_for_tour, duration=duration),
-                  images_for_tour):
+    loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), path)
+    known = set(check_mission(loaded).errors)
+    for extra in (query_for_tour, functools.partial(surfacing_for_tour, mission=loaded.mission,
+                                                    duration=duration), images_for_tour):
         trial = copy.deepcopy(data)
         said = extra(trial)
         if said is None:
             continue
         try:  # this mission may not take it: goby's wire format has no image channels, a
             # query's repeatable entries lengthen hippocampus's count field past its sensors
-            errors = check_mission(parse_mission(yaml.safe_dump(trial, sort_keys=False),
-                                                 path)).errors
+            tried = parse_mission(yaml.safe_dump(trial, sort_keys=False), path)
         except MissionError:
             continue
-        if set(errors) - known:
+        if set(check_mission(tried).errors) - known:
             continue
-        data = trial
+        data, loaded = trial, tried
         changes.append(said)
-    plain = yaml.safe_dump(data, sort_keys=False)
     for channel in data.get("channels") or []:
         keys = [str(e.get("in", "")) for e in channel.get("elements") or []]
         if named_as_command(str(channel.get("name", "")), *keys):
@@ -143,7 +141,7 @@ def tour_mission(path: Path, loss: float = TOUR_LOSS, duration: float = TOUR_S
                     break  # this channel cannot be acknowledged as it is: leave it be
                 return loaded, [*changes, f"{channel['name']} is acknowledged (reliable: true)"]
             break
-    return parse_mission(plain, path), changes
+    return loaded, changes
 
 
 def _set(target: dict[str, Any], path: str, value: Any) -> None:

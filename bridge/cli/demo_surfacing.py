@@ -20,7 +20,8 @@ import zenoh
 from bridge.cli.poke import value_of
 from bridge.core.events import Event, FrameSent, Surfaced
 from bridge.core.loaded import LoadedMission
-from bridge.mission.presets import PRESETS
+from bridge.mission.model import Mission, Position
+from bridge.mission.presets import node_preset
 from bridge.runtime.session import origin_of, origin_tag
 from bridge.sim.scenario import surface_script
 
@@ -30,11 +31,12 @@ TRANSIT_MPS = 0.8  # the formation's speed (bridge.cli.demo), which it keeps
 ROUTER = {"mode": "router", "scouting/delay": 0, "scouting/gossip/enabled": False}
 
 
-def surfacing_for_tour(data: dict[str, Any], duration: float) -> str | None:
+def surfacing_for_tour(data: dict[str, Any], mission: Mission, duration: float) -> str | None:
     """Give the mission (raw YAML data, changed in place) a scripted surfacing: the last
     submerged vehicle with a position rises to the surface, stays, dives (sailing north with
     the formation, or where it is if that would take it out of the water's range of the
-    surface node within the tour's ``duration``); it and the surface
+    surface node within the tour's ``duration``, by ``mission``: ``data`` as loaded); it and
+    the surface
     node run Zenoh routers, so the simulated WiFi joins them; the mission's ``surfacing``
     settings stay (republish by default). Returns the change in words (None: a node has a
     scripted path already, or there is no surface node or vehicle to use)."""
@@ -51,7 +53,7 @@ def surfacing_for_tour(data: dict[str, Any], duration: float) -> str | None:
     if depth <= 0:
         return None
     start = {"x": x, "y": y, "depth": depth}
-    if _sails_out_of_range(data, name, surface, duration):  # (an RF link in a tank): up and down
+    if _sails_out_of_range(mission, name, surface, duration):  # (an RF link in a tank): up and down
         speed = min(depth / SURFACE_AT_S, TRANSIT_MPS)
         y_up = round(y + speed * SURFACED_S, 2)
         node["path"] = {"speed_mps": round(speed, 4), "waypoints": [
@@ -79,23 +81,17 @@ def surfacing_for_tour(data: dict[str, Any], duration: float) -> str | None:
             "simulated WiFi while it is up")
 
 
-def _sails_out_of_range(data: dict[str, Any], vehicle: str, surface: str,
+def _sails_out_of_range(mission: Mission, vehicle: str, surface: str,
                         duration: float) -> bool:
     """Whether ``vehicle`` sailing north with the formation for ``duration`` would leave the
     simulated water's range of ``surface`` (the shorter of their presets' ranges; a mission
     without presets has no such limit)."""
-    nodes = data["nodes"]
-    ranges = []
-    for who in (vehicle, surface):
-        options = {**((data.get("modem") or {}).get("options") or {}),
-                   **((nodes[who].get("modem") or {}).get("options") or {})}
-        preset = PRESETS.get(str(options.get("preset")))
-        if preset is not None:
-            ranges.append(preset.max_range_m)
+    ranges = [p.max_range_m for p in (node_preset(mission, vehicle),
+                                      node_preset(mission, surface)) if p is not None]
     if not ranges:
         return False
-    here, there = nodes[vehicle]["position"], nodes[surface].get("position") or {}
-    gap = math.dist(*([float(p.get(k, 0)) for k in ("x", "y", "depth")] for p in (here, there)))
+    here, there = (mission.nodes[n].position or Position() for n in (vehicle, surface))
+    gap = math.dist((here.x, here.y, here.depth), (there.x, there.y, there.depth))
     reach = min(ranges)
     return gap <= reach < gap + TRANSIT_MPS * duration  # (out of its range already: relays)
 
