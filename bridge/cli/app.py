@@ -508,8 +508,9 @@ def sim(
     speed: Annotated[float | None, typer.Option(help="Like --fast, with the virtual clock at "
                                                 "this many times real time.", min=1e-3)] = None,
     water: Annotated[str | None, typer.Option(metavar="HOST:PORT", help="Join a water already "
-                                              "running there (zab water: other modems, a "
-                                              "hydrophone) instead of starting one.")] = None,
+                                              "running there (zab water: emulated modems, a "
+                                              "hydrophone) instead of starting one; without "
+                                              "it, real modems are simulated.")] = None,
 ) -> None:
     """Run every node of the mission plus the simulated ocean, each node on its own endpoint."""
     loaded = _load(mission)
@@ -524,8 +525,12 @@ def sim(
             result = _run_or_exit(_run_fast(loaded, duration or 3600.0, seed, speed, logs,
                                             recorder))
         else:
-            from bridge.cli.sim import run_sim  # (Zenoh and the modems: not for the virtual clock)
+            from bridge.cli.sim import run_sim, simulated  # (Zenoh and modems: not --fast)
 
+            if water is None:  # no emulators on a water of ours: real modems are simulated
+                loaded, note = simulated(loaded)
+                if note is not None:
+                    console.print(note, highlight=False)
             result = _run_or_exit(run_sim(loaded, duration=duration, seed=seed, live=live,
                                           console=console, record=logs, recorder=recorder,
                                           water=water))

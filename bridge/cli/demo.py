@@ -44,7 +44,7 @@ from bridge.cli.demo_surfacing import (
     turns_to_wait,
 )
 from bridge.cli.poke import value_of
-from bridge.cli.sim import EventLog, attach_truth, run_fleet_for
+from bridge.cli.sim import EventLog, attach_truth, run_fleet_for, simulate_real_modems
 from bridge.cli.tour import Tour, short, turn_waits
 from bridge.core.bounds import UNBOUNDED_TURN_S
 from bridge.core.events import Event
@@ -97,16 +97,10 @@ def tour_mission(path: Path, loss: float = TOUR_LOSS, duration: float = TOUR_S
     acknowledged (reliable, so not latching)."""
     data = yaml.safe_load(path.read_text(encoding="utf-8"))
     changes = []
-    modems = ([link.setdefault("modem", {}) for link in data["links"].values()]
-              if data.get("links") else [data.setdefault("modem", {})])
-    own = [n["modem"] for n in (data.get("nodes") or {}).values()
-           if isinstance(n.get("modem"), dict) and "backend" in n["modem"]]
-    real = sorted({str(m["backend"]) for m in (*modems, *own)
-                   if m.get("backend", "sim") not in ("sim", "udp")})
-    if real:  # (the simulated modem reads its preset and water, and leaves the rest)
-        for modem in (*modems, *own):
-            if modem.get("backend", "sim") not in ("sim", "udp"):
-                modem["backend"] = "sim"
+    real = simulate_real_modems(data)
+    modems = ([link["modem"] for link in data["links"].values()]
+              if data.get("links") else [data["modem"]])
+    if real:
         changes.append(f"the {' and '.join(real)} modems are simulated ones with the same "
                        "timings, in the simulated water")
     if loss > 0:

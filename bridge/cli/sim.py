@@ -8,7 +8,9 @@ import signal
 import time
 from collections import deque
 from collections.abc import Callable
+from typing import Any
 
+import yaml
 from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
@@ -23,13 +25,44 @@ from bridge.core.events import (
     PayloadDrops,
     SendFailed,
 )
-from bridge.core.loaded import LoadedMission
+from bridge.core.loaded import LoadedMission, parse_mission
 from bridge.report.model import MissionReport, channel_figures, print_report
 from bridge.report.recorder import MissionRecorder, truth_from
 from bridge.runtime.fleet import Fleet
 from bridge.runtime.keys import throwaway_note
 
 REFRESH_S = 0.5
+SIMULATED = ("sim", "udp")
+"""Backends a fleet in one process runs as they are; any other (a real modem's) is simulated."""
+
+
+def simulate_real_modems(data: dict[str, Any]) -> list[str]:
+    """Make every real modem (EvoLogics, Micro-Modem) of mission ``data`` (its YAML, changed in
+    place) a simulated one with the same timings: the simulated modem reads its preset and
+    water and leaves the other options. Returns the real backends found, sorted."""
+    modems = ([link.setdefault("modem", {}) for link in data["links"].values()]
+              if data.get("links") else [data.setdefault("modem", {})])
+    modems += [n["modem"] for n in (data.get("nodes") or {}).values()
+               if isinstance(n, dict) and isinstance(n.get("modem"), dict)
+               and "backend" in n["modem"]]
+    real = set()
+    for modem in modems:
+        if modem.get("backend", "sim") not in SIMULATED:
+            real.add(str(modem["backend"]))
+            modem["backend"] = "sim"
+    return sorted(real)
+
+
+def simulated(loaded: LoadedMission) -> tuple[LoadedMission, str | None]:
+    """``loaded`` as ``zab sim`` runs it with no water of its own (``--water``): its real
+    modems simulated, and a line saying so (None if it has none)."""
+    data = yaml.safe_load(loaded.path.read_text(encoding="utf-8"))
+    real = simulate_real_modems(data)
+    if not real:
+        return loaded, None
+    return parse_mission(yaml.safe_dump(data, sort_keys=False), loaded.path), (
+        f"the {' and '.join(real)} modems are simulated ones with the same timings (to drive "
+        "the real drivers: zab water, zab emulate for each node, then zab sim --water)")
 
 
 class EventLog:
