@@ -95,3 +95,39 @@ def test_pictures_cross_zab_sim_and_sharpen(tmp_path: Path) -> None:
             with contextlib.suppress(queue.Empty):
                 dropped = stats.get(timeout=2)["payloads_dropped"].get("rov/camera", 0)
         assert dropped == 1
+
+
+def test_a_ros2_compressed_image_from_a_ros2_publisher_s_key_crosses(tmp_path: Path) -> None:
+    """A ROS 2 node's CompressedImage, put as rmw_zenoh's publisher puts it (its CDR on the
+    topic's exact key, type and hash in it), comes out at the operator as PNGs."""
+    from bridge.ros2.messages import encode_cdr, type_hash
+
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    in: rov/camera\n",
+        "    ros2: {topic: /rov/camera, type: sensor_msgs/msg/CompressedImage}\n").replace(
+        "budget_bytes: 1600", "budget_bytes: 200").replace(
+        "publish_interval_s: 1.0", "publish_interval_s: 0.0")
+    mission, endpoints = mission_file(text, tmp_path)
+    key = ("0/rov/camera/sensor_msgs::msg::dds_::CompressedImage_/"
+           + type_hash("jazzy", "sensor_msgs/msg/CompressedImage"))
+    cdr = encode_cdr("jazzy", "sensor_msgs/msg/CompressedImage",
+                     {"format": "jpeg", "data": write_image(seabed(120, 160, seed=3,
+                                                                   colour=False), "jpeg")})
+    inbox: queue.Queue[dict[str, str]] = queue.Queue()
+
+    def on_picture(sample: zenoh.Sample) -> None:
+        assert str(sample.encoding) == "image/png"
+        inbox.put(dict(Image.open(io.BytesIO(sample.payload.to_bytes())).text))  # type: ignore[attr-defined]
+
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(zab_sim(mission, endpoints))
+        rov = app(endpoints["rov"])
+        stack.callback(rov.close)
+        operator = app(endpoints["operator"])
+        stack.callback(operator.close)
+        operator.declare_subscriber("rov/camera", on_picture)
+        time.sleep(1.0)  # the subscription reaches the operator's bridge
+        rov.put(key, cdr)
+        got = refinements(inbox, time.time() + 60)
+        assert got and got[-1]["zab:final"] == "true"
+        assert [int(t["zab:bytes"]) for t in got] == sorted(int(t["zab:bytes"]) for t in got)
