@@ -10,6 +10,7 @@ import io
 import json
 import queue
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import msgpack
@@ -39,18 +40,18 @@ def refinements(inbox: queue.Queue[dict[str, str]], until: float) -> list[dict[s
     return got
 
 
-def test_pictures_cross_zab_sim_and_sharpen(tmp_path: Path) -> None:
-    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
-        "budget_bytes: 1600", "budget_bytes: 300").replace(
-        "publish_interval_s: 1.0", "publish_interval_s: 0.0")
-    mission, endpoints = mission_file(text, tmp_path)
+@contextlib.contextmanager
+def rov_and_operator(mission: Path, endpoints: dict[str, list[str]]
+                     ) -> Iterator[tuple[zenoh.Session, zenoh.Session,
+                                         queue.Queue[dict[str, str]]]]:
+    """``zab sim`` of ``mission`` with a plain app at the ROV and one at the operator, and
+    the PNG metadata of each picture the operator gets on rov/camera."""
     inbox: queue.Queue[dict[str, str]] = queue.Queue()
 
     def on_picture(sample: zenoh.Sample) -> None:
         assert str(sample.encoding) == "image/png"
         inbox.put(dict(Image.open(io.BytesIO(sample.payload.to_bytes())).text))  # type: ignore[attr-defined]
 
-    stats: queue.Queue[dict] = queue.Queue()
     with contextlib.ExitStack() as stack:
         stack.enter_context(zab_sim(mission, endpoints))
         rov = app(endpoints["rov"])
@@ -58,6 +59,16 @@ def test_pictures_cross_zab_sim_and_sharpen(tmp_path: Path) -> None:
         operator = app(endpoints["operator"])
         stack.callback(operator.close)
         operator.declare_subscriber("rov/camera", on_picture)
+        yield rov, operator, inbox
+
+
+def test_pictures_cross_zab_sim_and_sharpen(tmp_path: Path) -> None:
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "budget_bytes: 1600", "budget_bytes: 300").replace(
+        "publish_interval_s: 1.0", "publish_interval_s: 0.0")
+    mission, endpoints = mission_file(text, tmp_path)
+    stats: queue.Queue[dict] = queue.Queue()
+    with rov_and_operator(mission, endpoints) as (rov, operator, inbox):
         rov.declare_subscriber("@zab/bluerov_images/rov/stats",
                                lambda s: stats.put(msgpack.unpackb(s.payload.to_bytes())))
         time.sleep(1.0)  # the subscriptions reach the bridges
@@ -113,19 +124,7 @@ def test_a_ros2_compressed_image_from_a_ros2_publisher_s_key_crosses(tmp_path: P
     cdr = encode_cdr("jazzy", "sensor_msgs/msg/CompressedImage",
                      {"format": "jpeg", "data": write_image(seabed(120, 160, seed=3,
                                                                    colour=False), "jpeg")})
-    inbox: queue.Queue[dict[str, str]] = queue.Queue()
-
-    def on_picture(sample: zenoh.Sample) -> None:
-        assert str(sample.encoding) == "image/png"
-        inbox.put(dict(Image.open(io.BytesIO(sample.payload.to_bytes())).text))  # type: ignore[attr-defined]
-
-    with contextlib.ExitStack() as stack:
-        stack.enter_context(zab_sim(mission, endpoints))
-        rov = app(endpoints["rov"])
-        stack.callback(rov.close)
-        operator = app(endpoints["operator"])
-        stack.callback(operator.close)
-        operator.declare_subscriber("rov/camera", on_picture)
+    with rov_and_operator(mission, endpoints) as (rov, _, inbox):
         time.sleep(1.0)  # the subscription reaches the operator's bridge
         rov.put(key, cdr)
         got = refinements(inbox, time.time() + 60)
