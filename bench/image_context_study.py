@@ -162,7 +162,8 @@ def trace(geo: Geometry, q: Ints, negative: Bools, budget_bits: int) -> Trace:
                         picks.append(np.arange(cut[b], cut[b + 1]))
                 key = (cls, key_band)
                 codes: list[str] = []
-                ks[key] = bp._run_encode(codes, found, signs, pos, length,
+                yes = [p << 1 | negative for p, negative in zip(found, signs, strict=True)]
+                ks[key] = bp._run_encode(codes, yes, pos, length,
                                          bp._start_kp(ks, key, length - pos))
                 bits = sum(map(len, codes))
                 pick = np.concatenate(picks)

@@ -79,26 +79,28 @@ class Context:
 
     def __init__(self, geometry: Geometry) -> None:
         self.geometry = geometry
-        self.near = np.zeros(geometry.size + 1, dtype=bool)
-        self.under = np.zeros(geometry.size + 1, dtype=bool)
+        size = geometry.size + 1
+        self.marked = np.zeros(2 * size, dtype=bool)  # near, then under (Geometry.marks)
+        self.near = self.marked[:size]
+        self.under = self.marked[size:]
         self.busy = np.zeros(len(geometry.bands), dtype=bool)  # bands with a significant one
 
     def became(self, positions: Ints) -> None:
         """Coefficients at coding ``positions`` became significant."""
-        geometry = self.geometry
-        self.near[geometry.neighbours[positions]] = True
-        self.under[geometry.children[positions]] = True
+        geometry = self.geometry  # (indices as intp: scattering through int32 ones is slower)
+        self.marked[geometry.marks.take(positions, 0).astype(np.intp)] = True
         self.busy[geometry.band_of[positions]] = True
 
     def classes(self, sig: Bools) -> list[Ints]:
         """Coding positions not yet significant, by class: near a significant neighbour,
         under a significant parent, neither."""
         near, under = self.near[:-1], self.under[:-1]
-        rest = ~sig
-        close = rest & near
-        far = rest ^ close
-        return [np.flatnonzero(close), np.flatnonzero(far & under),
-                np.flatnonzero(far & ~under)]
+        close = near > sig  # (a > b: a and not b)
+        known = near | sig
+        far_under = under > known
+        np.logical_or(known, under, out=known)
+        return [np.flatnonzero(close), np.flatnonzero(far_under),
+                np.flatnonzero(np.logical_not(known, out=known))]
 
 
 @dataclass
@@ -213,27 +215,31 @@ def _code(kp: int, gap: int, negative: int, left: int = 1 << 62) -> tuple[str, i
 
 SHORT = 64
 """Gaps below this (most of them) take their codes from a table."""
-_CODES = [[_code(kp, g >> 1, g & 1) for g in range(2 * SHORT)] for kp in range(KPMAX + 1)]
-"""Each run parameter's codes, the parameter after them and the fewest decisions left for
-which they stand, by ``gap << 1 | negative``."""
+_CODES = [[(piece, after, 2 * need) for piece, after, need in (
+    _code(kp, g >> 1, g & 1) for g in range(2 * SHORT))] for kp in range(KPMAX + 1)]
+"""Each run parameter's codes, the parameter after them and twice the fewest decisions left
+for which they stand, by ``gap << 1 | negative``."""
 
 
-def _run_encode(out: list[str], ones: list[int], signs: list[bool], pos: int, length: int,
-                kp: int) -> int:
+def _run_encode(out: list[str], yes: list[int], pos: int, length: int, kp: int) -> int:
     """Append the run codes of the decisions ``pos`` up to ``length`` of a pass, whose yes
-    are at ``ones``; ``kp`` is the run parameter in quarters; returns the final ``kp``."""
+    are ``yes`` (each ``place << 1 | negative``); ``kp`` is the run parameter in quarters;
+    returns the final ``kp``. (Places go doubled, the sign in the low bit, so that the loop
+    takes a yes's code from the table at ``yes - 2 * pos`` with nothing to unpack.)"""
     codes, code, append = _CODES, _code, out.append
-    for p, negative in zip(ones, signs, strict=True):
-        gap = p - pos
-        if gap < SHORT:
-            piece, after, need = codes[kp][gap << 1 | negative]
-            if length - pos < need:
-                piece, after, need = code(kp, gap, negative, length - pos)
+    at, end, short = pos << 1, length << 1, SHORT << 1
+    for v in yes:
+        g = v - at
+        if g < short:
+            piece, after, need = codes[kp][g]
+            if end - at < need:
+                piece, after, need = code(kp, g >> 1, g & 1, (end - at) >> 1)
         else:
-            piece, after, need = code(kp, gap, negative, length - pos)
+            piece, after, need = code(kp, g >> 1, g & 1, (end - at) >> 1)
         append(piece)
         kp = after
-        pos = p + 1
+        at = (v | 1) + 1
+    pos = at >> 1
     if pos < length:
         m = bisect_left(_COVER[kp], length - pos)
         append("0" * m)
@@ -258,9 +264,11 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
         new = np.flatnonzero(first == n)
         classes = context.classes(sig)
         was = np.flatnonzero(sig)
-        passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
-        for cls, cand in enumerate(passes):
-            if cand is None:  # refinement (no more than the budget still takes)
+        near, under = context.near[new], context.under[new]  # (the new ones' classes)
+        np.logical_or(near, under, out=under)
+        found = [new[near], new[under ^ near], new[~under]]
+        for cls, c in enumerate(PASSES):
+            if c is None:  # refinement (no more than the budget still takes)
                 if was.size:
                     bits = ((q[was[:budget_bits - total]] >> n) & 1).astype(np.uint8) + 48
                     piece = bits.tobytes().decode("ascii")
@@ -269,35 +277,31 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
                     if total >= budget_bits:
                         return "".join(parts)
                 continue
+            cand, hit = classes[c], found[c]  # (the pass's new ones: all in it)
             if cand.size == 0:
                 continue
-            at = np.minimum(np.searchsorted(cand, new), cand.size - 1)
-            ones_at = at[cand[at] == new]
+            ones_at = np.searchsorted(cand, hit)
             cut_at = np.searchsorted(cand, starts)
             cut_ones = np.searchsorted(ones_at, cut_at).tolist()
             cut = cut_at.tolist()
-            neg = negative[cand[ones_at]].tolist()
-            ones_list = ones_at.tolist()
+            yes_list = (ones_at << 1 | negative[hit]).tolist()
             segments = _segments(cut, context.busy.tolist(), scales)
-            sig[cand[ones_at]] = True
-            context.became(cand[ones_at])
+            sig[hit] = True
+            context.became(hit)
             for key_band, bands in segments:
                 if len(bands) == 1:  # the band's own positions in the pass
                     b = bands[0]
                     pos, length = cut[b], cut[b + 1]
-                    ones = ones_list[cut_ones[b]:cut_ones[b + 1]]
-                    signs = neg[cut_ones[b]:cut_ones[b + 1]]
+                    yes = yes_list[cut_ones[b]:cut_ones[b + 1]]
                 else:  # the bands one after another, counted from 0
-                    pos, length, ones, signs = 0, 0, [], []
+                    pos, length, yes = 0, 0, []
                     for b in bands:
-                        oa, oz = cut_ones[b], cut_ones[b + 1]
-                        ones += [p - cut[b] + length for p in ones_list[oa:oz]]
-                        signs += neg[oa:oz]
+                        shift = (length - cut[b]) << 1
+                        yes += [v + shift for v in yes_list[cut_ones[b]:cut_ones[b + 1]]]
                         length += cut[b + 1] - cut[b]
                 key = (cls, key_band)
                 out: list[str] = []
-                ks[key] = _run_encode(out, ones, signs, pos, length,
-                                      _start_kp(ks, key, length - pos))
+                ks[key] = _run_encode(out, yes, pos, length, _start_kp(ks, key, length - pos))
                 piece = "".join(out)
                 parts.append(piece)
                 total += len(piece)
@@ -310,11 +314,12 @@ WINDOW = 8
 """Bits the decoder looks at to take a short code whole from a table."""
 
 
-def _short_codes(kp: int) -> list[tuple[int, int, bool, int, int] | None]:
+def _short_codes(kp: int) -> list[tuple[int, int, int, int, int] | None]:
     """What ``WINDOW`` bits starting with a whole code say from run parameter ``kp``:
-    (the code's bits, its gap, its sign, the run parameter after it, the fewest decisions
-    left for which it stands), by the bits' value; None where the code is longer."""
-    table: list[tuple[int, int, bool, int, int] | None] = [None] * (1 << WINDOW)
+    (the code's bits, its ``gap << 1 | negative``, ``gap + 1``, the run parameter after it,
+    the fewest decisions left for which it stands), by the bits' value; None where the code
+    is longer."""
+    table: list[tuple[int, int, int, int, int] | None] = [None] * (1 << WINDOW)
     for gap in range(1 << WINDOW):
         pair = [_code(kp, gap, negative) for negative in (0, 1)]
         size = len(pair[0][0])
@@ -323,7 +328,7 @@ def _short_codes(kp: int) -> list[tuple[int, int, bool, int, int] | None]:
         for negative, (code, after, need) in enumerate(pair):
             first = int(code, 2) << (WINDOW - size)
             table[first:first + (1 << (WINDOW - size))] = [
-                (size, gap, bool(negative), after, need)] * (1 << (WINDOW - size))
+                (size, gap << 1 | negative, gap + 1, after, need)] * (1 << (WINDOW - size))
     return table
 
 
@@ -341,23 +346,22 @@ def _windows(bits: str) -> bytes:
 
 
 def _run_decode(bits: str, windows: bytes, end: int, i: int, pos: int, length: int, kp: int,
-                found: list[int], signs: list[bool]) -> tuple[int, int]:
+                found: list[int]) -> tuple[int, int]:
     """Read the run codes of the decisions ``pos`` up to ``length`` of a pass from
-    ``bits[i:end]`` into ``found``/``signs``; returns ``(i, kp)`` after them. Raises
+    ``bits[i:end]`` into ``found`` (each yes as ``place << 1 | negative``, as
+    :func:`_run_encode` takes them); returns ``(i, kp)`` after them. Raises
     :class:`Truncated` where the bits end or lie. ``bits`` goes on past ``end`` with
     ``WINDOW`` ``1``s (so that a window is whole and the next one always found);
     ``windows``: :func:`_windows` of it."""
     cover, after, down, widths, short = _COVER, _AFTER, _DOWN, _K, _SHORT_CODES
-    find, found_one, sign_of = bits.find, found.append, signs.append
+    find, found_one = bits.find, found.append
     while True:
         entry = short[kp][windows[i]]
         if entry is not None:  # a short code, whole in the window
-            size, gap, negative, next_kp, need = entry
-            p = pos + gap
+            size, yes, step, next_kp, need = entry
             if pos + need <= length and i + size <= end:
-                found_one(p)
-                sign_of(negative)
-                pos = p + 1
+                found_one((pos << 1) + yes)
+                pos += step
                 kp = next_kp
                 i += size
                 continue
@@ -394,8 +398,7 @@ def _run_decode(bits: str, windows: bytes, end: int, i: int, pos: int, length: i
             raise Truncated
         if p >= length:
             raise Truncated  # corrupt: a position past the pass
-        found_one(p)
-        sign_of(bits[i - 1] == "1")
+        found_one(p << 1 | (bits[i - 1] == "1"))
         pos = p + 1
         kp = down[kp]
 
@@ -445,36 +448,36 @@ def _read_planes(geometry: Geometry, bits: str, top: int, state: Planes,
                 continue
             if cand.size == 0:
                 continue
-            found: list[int] = []
-            signs: list[bool] = []
+            found: list[int] = []  # (place << 1 | negative)
             stop = False
             cut = np.searchsorted(cand, starts).tolist()
             for key_band, bands in _segments(cut, context.busy.tolist(), scales):
                 key = (cls, key_band)
-                lengths = [cut[b + 1] - cut[b] for b in bands]
                 if len(bands) == 1:
                     pos, length, heard = cut[bands[0]], cut[bands[0] + 1], found
                 else:
+                    lengths = [cut[b + 1] - cut[b] for b in bands]
                     pos, length, heard = 0, sum(lengths), []
                 try:
                     i, ks[key] = _run_decode(padded, windows, end, i, pos, length,
-                                             _start_kp(ks, key, length - pos), heard, signs)
+                                             _start_kp(ks, key, length - pos), heard)
                 except Truncated:
                     stop = True
                 if heard is not found:  # back from counted-from-0 to the pass's positions
                     ends = list(accumulate(lengths))
                     for v in heard:
-                        at = bisect_right(ends, v)
-                        found.append(cut[bands[at]] + v - (ends[at] - lengths[at]))
+                        at = bisect_right(ends, v >> 1)
+                        found.append(v + ((cut[bands[at]] - ends[at] + lengths[at]) << 1))
                 if stop:
                     break
             if found:
-                idx = cand[np.array(found, dtype=np.int64)]
+                yes = np.array(found, dtype=np.int64)
+                idx = cand[yes >> 1]
                 sig[idx] = True
                 context.became(idx)
                 state.magnitude[idx] = 1 << n
                 state.plane[idx] = n
-                state.negative[idx] = np.array(signs, dtype=bool)
+                state.negative[idx] = (yes & 1).astype(bool)
             if stop:
                 return n + 1
             whole.append(cand)
