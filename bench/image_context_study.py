@@ -121,7 +121,7 @@ def trace(geo: Geometry, q: Ints, negative: Bools, budget_bits: int) -> Trace:
                     if total >= budget_bits:
                         return out
                 continue
-            cand = classes[c]
+            cand = classes[c].array()
             if cand.size == 0:
                 continue
             s1 = np.append(sig, False)

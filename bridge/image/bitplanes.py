@@ -72,6 +72,58 @@ class Truncated(Exception):
     """The stream ended (or went wrong) here: everything before stands."""
 
 
+class Positions:
+    """Sorted coding positions of one class: given outright (``rest`` False), or, for a
+    class that holds most of ``0 .. n - 1``, as those it leaves out (never written out:
+    finding a pass's positions took a fifth of encode + decode at 3200 B, grey 320×240)."""
+
+    __slots__ = ("at", "n", "rest", "size")
+
+    def __init__(self, at: Ints, n: int, rest: bool) -> None:
+        self.at = at  # the positions, or (rest) those left out
+        self.n = n
+        self.rest = rest
+        self.size = n - at.size if rest else at.size
+
+    @classmethod
+    def of(cls, mask: Bools) -> Positions:
+        """The positions where ``mask`` is set, in the cheaper form."""
+        n = mask.size
+        if 2 * int(np.count_nonzero(mask)) <= n:
+            return cls(np.flatnonzero(mask), n, False)
+        return cls(np.flatnonzero(~mask), n, True)
+
+    def ranks(self, positions: Ints) -> Ints:
+        """How many of the class lie before each of ``positions`` (a member's place)."""
+        before = np.searchsorted(self.at, positions)
+        return positions - before if self.rest else before
+
+    def take(self, ranks: Ints) -> Ints:
+        """The members at places ``ranks``."""
+        if not self.rest:
+            return self.at[ranks]
+        # the r-th position not left out is r + the number of those left out before it,
+        # i.e. of the i-th one left out with at[i] - i <= r
+        return ranks + np.searchsorted(self.at - np.arange(self.at.size), ranks, side="right")
+
+    def put(self, array: NDArray[np.int64], value: int) -> None:
+        """``array[members] = value``."""
+        if not self.rest:
+            array[self.at] = value
+            return
+        kept = array[self.at]
+        array[:self.n] = value
+        array[self.at] = kept
+
+    def array(self) -> Ints:
+        """The members, written out."""
+        if not self.rest:
+            return self.at
+        mask = np.ones(self.n, dtype=bool)
+        mask[self.at] = False
+        return np.flatnonzero(mask)
+
+
 class Context:
     """What the classes of a plane are computed from, kept up to date as coefficients become
     significant: which have a significant neighbour on their canvas, which a significant
@@ -91,7 +143,7 @@ class Context:
         self.marked[geometry.marks.take(positions, 0).astype(np.intp)] = True
         self.busy[geometry.band_of[positions]] = True
 
-    def classes(self, sig: Bools) -> list[Ints]:
+    def classes(self, sig: Bools) -> list[Positions]:
         """Coding positions not yet significant, by class: near a significant neighbour,
         under a significant parent, neither."""
         near, under = self.near[:-1], self.under[:-1]
@@ -99,8 +151,8 @@ class Context:
         known = near | sig
         far_under = under > known
         np.logical_or(known, under, out=known)
-        return [np.flatnonzero(close), np.flatnonzero(far_under),
-                np.flatnonzero(np.logical_not(known, out=known))]
+        return [Positions.of(close), Positions.of(far_under),
+                Positions.of(np.logical_not(known, out=known))]
 
 
 @dataclass
@@ -280,8 +332,8 @@ def encode_planes(geometry: Geometry, q: Ints, negative: Bools, top: int,
             cand, hit = classes[c], found[c]  # (the pass's new ones: all in it)
             if cand.size == 0:
                 continue
-            ones_at = np.searchsorted(cand, hit)
-            cut_at = np.searchsorted(cand, starts)
+            ones_at = cand.ranks(hit)
+            cut_at = cand.ranks(starts)
             cut_ones = np.searchsorted(ones_at, cut_at).tolist()
             cut = cut_at.tolist()
             yes_list = (ones_at << 1 | negative[hit]).tolist()
@@ -406,16 +458,16 @@ def _run_decode(bits: str, windows: bytes, end: int, i: int, pos: int, length: i
 def decode_planes(geometry: Geometry, bits: str, top: int) -> Planes:
     """What a (possibly cut) bit string from :func:`encode_planes` tells."""
     state = Planes(geometry.size)
-    whole: list[Ints] = []
+    whole: list[Positions] = []
     low = _read_planes(geometry, bits, top, state, whole)
     state.below[:] = low  # (those still insignificant: below every plane read whole,
     for cand in whole:  # and below the one the stream stopped in if their pass came whole)
-        state.below[cand] = low - 1
+        cand.put(state.below, low - 1)
     return state
 
 
 def _read_planes(geometry: Geometry, bits: str, top: int, state: Planes,
-                 whole: list[Ints]) -> int:
+                 whole: list[Positions]) -> int:
     """Read ``bits`` into ``state``; returns the lowest plane read whole (``top + 1``: none),
     leaving in ``whole`` the passes of the next plane that came whole."""
     sig = state.significant
@@ -432,9 +484,8 @@ def _read_planes(geometry: Geometry, bits: str, top: int, state: Planes,
         whole.clear()
         classes = context.classes(sig)
         was = np.flatnonzero(sig)
-        passes: list[Ints | None] = [None if c is None else classes[c] for c in PASSES]
-        for cls, cand in enumerate(passes):
-            if cand is None:
+        for cls, c in enumerate(PASSES):
+            if c is None:
                 m = min(int(was.size), end - i)
                 if m > 0:
                     got = np.frombuffer(bits[i:i + m].encode("ascii"), dtype=np.uint8) == 49
@@ -446,11 +497,12 @@ def _read_planes(geometry: Geometry, bits: str, top: int, state: Planes,
                 if m < was.size:
                     return n + 1
                 continue
+            cand = classes[c]
             if cand.size == 0:
                 continue
             found: list[int] = []  # (place << 1 | negative)
             stop = False
-            cut = np.searchsorted(cand, starts).tolist()
+            cut = cand.ranks(starts).tolist()
             for key_band, bands in _segments(cut, context.busy.tolist(), scales):
                 key = (cls, key_band)
                 if len(bands) == 1:
@@ -472,7 +524,7 @@ def _read_planes(geometry: Geometry, bits: str, top: int, state: Planes,
                     break
             if found:
                 yes = np.array(found, dtype=np.int64)
-                idx = cand[yes >> 1]
+                idx = cand.take(yes >> 1)
                 sig[idx] = True
                 context.became(idx)
                 state.magnitude[idx] = 1 << n
