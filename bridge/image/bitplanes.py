@@ -178,12 +178,13 @@ class Planes:
         self.refined = np.zeros(n, dtype=bool)
         self.below = np.full(n, 62, dtype=np.int64)
 
-    def values(self) -> NDArray[np.float64]:
-        """Each coefficient's best value (signed, in quantiser units)."""
-        offset = np.where(self.refined, 0.5, FIRST_OFFSET)
-        mag = np.where(self.significant,
-                       self.magnitude + offset * np.exp2(self.plane.astype(np.float64)), 0.0)
-        return np.where(self.negative, -mag, mag)
+    def values(self) -> tuple[Ints, NDArray[np.float64]]:
+        """The significant coefficients (coding positions) and their best values (signed, in
+        quantiser units); the others' are 0."""
+        at = np.flatnonzero(self.significant)
+        offset = np.where(self.refined[at], 0.5, FIRST_OFFSET)
+        mag = self.magnitude[at] + offset * np.exp2(self.plane[at].astype(np.float64))
+        return at, np.where(self.negative[at], -mag, mag)
 
 
 def _first_kp(length: int) -> int:

@@ -258,10 +258,10 @@ class _Picture:
 def _picture(bits: str, height: int, width: int, colour: bool, top: int) -> _Picture:
     geo = geometry(height, width, colour)
     state = decode_planes(geo, bits, top) if top >= 0 else None
-    scale = geo.weight * QUANTUM
-    values = state.values() if state is not None else np.zeros(geo.size)
     canvases = np.zeros(geo.size)
-    canvases[geo.order] = values / scale
+    if state is not None:
+        at, values = state.values()
+        canvases[geo.order[at]] = values / (geo.weight[at] * QUANTUM)
     offsets = geo.offsets
     planes = [inverse(canvases[offsets[i]:offsets[i + 1]].reshape(shape), lv)
               for i, (shape, lv) in enumerate(zip(geo.shapes, geo.levels, strict=True))]

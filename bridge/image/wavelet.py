@@ -51,13 +51,20 @@ def band_shapes(height: int, width: int, levels: int) -> list[tuple[int, int]]:
     return shapes
 
 
+def _scaled_sum(a: Array, b: Array, c: float) -> Array:
+    """``c * (a + b)`` in one new array (the same values: one temporary fewer)."""
+    out = np.add(a, b)
+    out *= c
+    return out
+
+
 def _lift_odd(d: Array, s: Array, c: float) -> None:
     """``d[i] += c (s[i] + s[i+1])``, ``s[n]`` mirrored to ``s[n-1]`` where it is missing."""
     n = d.shape[0]
     if s.shape[0] > n:
-        d += c * (s[:n] + s[1:n + 1])
+        d += _scaled_sum(s[:n], s[1:n + 1], c)
         return
-    d[:n - 1] += c * (s[:n - 1] + s[1:n])
+    d[:n - 1] += _scaled_sum(s[:n - 1], s[1:n], c)
     d[n - 1] += c * (s[n - 1] + s[n - 1])
 
 
@@ -67,13 +74,14 @@ def _lift_even(s: Array, d: Array, c: float) -> None:
     if n == 0:
         return
     s[0] += c * (d[0] + d[0])
-    s[1:n] += c * (d[:n - 1] + d[1:n])
+    s[1:n] += _scaled_sum(d[:n - 1], d[1:n], c)
     if n < m:
         s[n] += c * (d[n - 1] + d[n - 1])
 
 
 def _analyse(x: Array) -> tuple[Array, Array]:
-    """One level along axis 0: (low, high)."""
+    """One level along axis 0: (low, high), in ``x``'s memory order (the rows of an image go
+    as the columns of its transpose: copying them in C order would transpose them)."""
     s = x[0::2].copy()
     d = x[1::2].copy()
     if d.shape[0] == 0:
@@ -82,20 +90,24 @@ def _analyse(x: Array) -> tuple[Array, Array]:
     _lift_even(s, d, BETA)
     _lift_odd(d, s, GAMMA)
     _lift_even(s, d, DELTA)
-    return s * (1 / K), d * (K / 2)
+    s *= 1 / K
+    d *= K / 2
+    return s, d
 
 
-def _synthesise(s: Array, d: Array) -> Array:
-    """Inverse of :func:`_analyse` along axis 0."""
+def _synthesise(s: Array, d: Array, out: Array | None = None) -> Array:
+    """Inverse of :func:`_analyse` along axis 0, into ``out`` if given."""
+    if out is None:
+        out = np.empty((s.shape[0] + d.shape[0], *s.shape[1:]))
     if d.shape[0] == 0:
-        return s.copy()
+        out[...] = s
+        return out
     s = s * K
     d = d * (2 / K)
     _lift_even(s, d, -DELTA)
     _lift_odd(d, s, -GAMMA)
     _lift_even(s, d, -BETA)
     _lift_odd(d, s, -ALPHA)
-    out = np.empty((s.shape[0] + d.shape[0], *s.shape[1:]))
     out[0::2] = s
     out[1::2] = d
     return out
@@ -105,12 +117,17 @@ def forward(image: Array, levels: int) -> Array:
     """The ``levels``-level transform of a 2-D array, in Mallat's layout."""
     out = np.array(image, dtype=np.float64)
     h, w = out.shape
+    band = np.empty_like(out)
     for _ in range(levels):
         low, high = _analyse(out[:h, :w].T)  # rows (as columns of the transpose)
-        band = np.concatenate((low, high)).T
-        low, high = _analyse(band)
-        out[:h, :w] = np.concatenate((low, high))
-        h, w = (h + 1) // 2, (w + 1) // 2
+        lw = low.shape[0]
+        band[:h, :lw] = low.T
+        band[:h, lw:w] = high.T
+        low, high = _analyse(band[:h, :w])
+        lh = low.shape[0]
+        out[:lh, :w] = low
+        out[lh:h, :w] = high
+        h, w = lh, lw
     return out
 
 
@@ -119,11 +136,12 @@ def inverse(coefficients: Array, levels: int) -> Array:
     out = np.array(coefficients, dtype=np.float64)
     height, width = out.shape
     shapes = band_shapes(height, width, levels)
+    band = np.empty_like(out)
     for level in range(levels, 0, -1):
         h, w = shapes[level - 1]
         lh, lw = shapes[level]
-        band = _synthesise(out[:lh, :w], out[lh:h, :w])
-        out[:h, :w] = _synthesise(band[:, :lw].T, band[:, lw:w].T).T
+        _synthesise(out[:lh, :w], out[lh:h, :w], band[:h, :w])
+        _synthesise(band[:h, :lw].T, band[:h, lw:w].T, out[:h, :w].T)
     return out
 
 
