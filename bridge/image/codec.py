@@ -303,36 +303,38 @@ def _mse_estimate(geo: Geometry, state: Planes | None, pixels: int) -> float:
     if state is None:
         return 0.0
     units = QUANTUM ** 2  # squared quantiser units per squared grey level
-    luma, band_of = geo.luma, geo.band_of
-    known = state.significant & luma
+    known = state.significant & geo.luma
     total = float(np.exp2(2 * state.plane[known]).sum()) / 12 / units
     if state.complete:
         return min(total / pixels, MSE_CEILING)
-    unknown = np.flatnonzero(~state.significant & luma)
-    below = state.below[unknown]  # (at most 62: see Planes.below)
     bands = len(geo.bands)
-    unknown_band = band_of[unknown]
     # Each band's scale is fitted at the last threshold every coefficient was tested against
     # (the plane before the one the stream stopped in): a pass tests the likeliest
     # coefficients first, so the share found so far in the current plane would overstate it.
     fit = state.threshold + 1
-    above = known & (state.magnitude >= 1 << fit)
-    n_sig = np.bincount(band_of[above], minlength=bands)
-    n_not = np.bincount(unknown_band, minlength=bands)
+    sig, above, below = state.significant, state.magnitude >= 1 << fit, state.below
+    # the coefficients of one band below one threshold share their expected square: count
+    # them by (band, threshold) and weigh each group once (a threshold is at most 62: see
+    # Planes.below)
+    counts = np.zeros((bands, 64), dtype=np.int64)
     scales = np.ones(bands)
     coarser: dict[int, float] = {}  # each level's largest scale found
-    for i, band in enumerate(geo.bands):
-        if band.component or not n_not[i]:
+    for i, band in enumerate(geo.bands):  # (luma's bands: one slice of coding order each)
+        if band.component:
             continue
-        found = max(float(n_sig[i]), 0.5)
+        at = slice(band.start, band.start + band.size)
+        unknown = ~sig[at]
+        if not unknown.any():
+            continue
+        counts[i] = np.bincount(below[at][unknown], minlength=64)
+        n_sig = int(np.count_nonzero(sig[at] & above[at]))
+        found = max(float(n_sig), 0.5)
         b = 2.0 ** fit / np.log(band.size / found) if found < band.size else 1.0
-        if not n_sig[i]:  # nothing heard of this band yet: finer bands hold less
+        if not n_sig:  # nothing heard of this band yet: finer bands hold less
             b = min(b, coarser.get(band.level + 1, b) / 2)
         coarser[band.level] = max(coarser.get(band.level, 0.0), b)
         scales[i] = b
-    # the coefficients of one band below one threshold share their expected square: count
-    # them by (band, threshold) and weigh each group once
-    weights = np.bincount(unknown_band * 64 + below) / units
+    weights = counts.ravel() / units
     used = np.flatnonzero(weights)
     b = scales[used // 64]
     t = np.exp2((used % 64).astype(np.float64))
