@@ -3,10 +3,19 @@ left, the decoder reads back what the encoder wrote, to the bit."""
 
 from __future__ import annotations
 
+import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bridge.image.bitplanes import KPMAX, WINDOW, _place, _run_decode, _run_encode, _windows
+from bridge.image.bitplanes import (
+    KPMAX,
+    WINDOW,
+    Positions,
+    _place,
+    _run_decode,
+    _run_encode,
+    _windows,
+)
 
 
 @given(st.data())
@@ -34,3 +43,21 @@ def test_a_place_takes_no_more_bits_than_the_decisions_left_need(
     value = data.draw(st.integers(0, min(left, 1 << k) - 1))
     b = (left - 1).bit_length() if left < 1 << k else k
     assert len(_place(value, k, left)) in (max(b - 1, 0), b)
+
+
+@given(st.lists(st.booleans(), min_size=1, max_size=300), st.data())
+def test_a_class_kept_as_what_it_leaves_out_answers_as_one_written_out(
+        bits: list[bool], data: st.DataObject) -> None:
+    mask = np.array(bits)
+    members = np.flatnonzero(mask)
+    for positions in (Positions.of(mask), Positions(np.flatnonzero(~mask), mask.size, True),
+                      Positions(members, mask.size, False)):
+        assert positions.size == members.size
+        assert positions.array().tolist() == members.tolist()
+        probe = np.array(sorted(data.draw(st.sets(st.integers(0, mask.size)))), dtype=np.int64)
+        assert positions.ranks(probe).tolist() == np.searchsorted(members, probe).tolist()
+        ranks = np.arange(members.size)
+        assert positions.take(ranks).tolist() == members.tolist()
+        array = np.arange(mask.size, dtype=np.int64)
+        positions.put(array, -1)
+        assert array.tolist() == np.where(mask, -1, np.arange(mask.size)).tolist()
