@@ -429,6 +429,9 @@ def _run_decode(bits: str, windows: bytes, end: int, i: int, pos: int, length: i
         if m:
             pos += covered[m]
             kp = after[kp][m]
+            if widths[kp] <= WINDOW - 2:  # the rest may be a short code from the new kp
+                i = j
+                continue
         k = widths[kp]
         at = j + 1
         left = length - pos
