@@ -80,8 +80,7 @@ def _lift_even(s: Array, d: Array, c: float) -> None:
 
 
 def _analyse(x: Array) -> tuple[Array, Array]:
-    """One level along axis 0: (low, high), in ``x``'s memory order (the rows of an image go
-    as the columns of its transpose: copying them in C order would transpose them)."""
+    """One level along axis 0: (low, high)."""
     s = x[0::2].copy()
     d = x[1::2].copy()
     if d.shape[0] == 0:
