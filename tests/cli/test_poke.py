@@ -23,29 +23,36 @@ def endpoint(loaded, node: str) -> str:
     return loaded.mission.nodes[node].zenoh.listen[0]
 
 
+def put_and_listen(loaded, listen: tuple[str, str], put: tuple[str, str, str]) -> str:
+    """`zab listen` at ``listen`` (node, key expression) until one value comes, and `zab put`
+    at ``put`` (node, key, JSON value), against the running fleet of ``loaded``; returns what
+    `zab listen` printed (both exit 0)."""
+    listener = subprocess.Popen(
+        [*ZAB, "listen", endpoint(loaded, listen[0]), listen[1], "--count", "1",
+         "--duration", "40"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert listener.stderr is not None
+        assert "listening on" in listener.stderr.readline()  # the subscriber is up
+        done = subprocess.run([*ZAB, "put", endpoint(loaded, put[0]), put[1], put[2]],
+                              capture_output=True, text=True, timeout=30)
+        assert done.returncode == 0, done.stderr
+        assert f"put {put[1]} (" in done.stdout.replace("\n", "")  # (rich wraps long keys)
+        out, errors = listener.communicate(timeout=45)
+    finally:
+        if listener.poll() is None:
+            listener.kill()
+            listener.communicate()
+    assert listener.returncode == 0, errors
+    return out
+
+
 def test_put_crosses_the_water_and_listen_prints_it_decoded() -> None:
     """`zab put` at auv1's endpoint; its value comes out at the surface, where `zab listen`
     prints it on one line, decoded and quantised."""
     loaded = on_free_ports(MISSION, "guitest.yaml")
     with running_fleet(loaded):
-        listener = subprocess.Popen(
-            [*ZAB, "listen", endpoint(loaded, "ssv"), "auv1/nav", "--count", "1",
-             "--duration", "40"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        try:
-            assert listener.stderr is not None
-            assert "listening on auv1/nav" in listener.stderr.readline()  # subscriber is up
-            put = subprocess.run(
-                [*ZAB, "put", endpoint(loaded, "auv1"), "nav",
-                 '{"x": 12.34, "y": -5.06, "depth": 7.5}'],
-                capture_output=True, text=True, timeout=30)
-            assert put.returncode == 0, put.stderr
-            assert "put nav (" in put.stdout
-            out, errors = listener.communicate(timeout=45)
-        finally:
-            if listener.poll() is None:
-                listener.kill()
-                listener.communicate()
-    assert listener.returncode == 0, errors
+        out = put_and_listen(loaded, ("ssv", "auv1/nav"),
+                             ("auv1", "nav", '{"x": 12.34, "y": -5.06, "depth": 7.5}'))
     assert out.splitlines() == ['auv1/nav {"x": 12.3, "y": -5.1, "depth": 7.5}']
 
 
@@ -173,3 +180,22 @@ def test_put_on_a_ros2_topic_key_sends_its_cdr(mission_key: str) -> None:
     assert payload_for("a/b", {"x": 1}) == (msgpack.packb({"x": 1}), "application/msgpack")
     with pytest.raises(PokeError, match="expected the message's fields"):
         payload_for(key, [1, 2])
+
+
+def test_zab_put_on_a_ros2_key_crosses_and_zab_listen_prints_the_twist() -> None:
+    """Real processes on a ROS 2 mission: `zab put` of a Twist on the key a ROS 2 node at the
+    ship publishes /auv1/cmd_vel_remote on; `zab listen` at the vehicle prints the Twist its
+    bridge publishes on /auv1/cmd_vel (CDR, read by the type the key names)."""
+    from tests.conftest import MISSIONS
+
+    loaded = on_free_ports((MISSIONS / "ros2_odometry.yaml").read_text(), "ros2_odometry.yaml")
+    cmd = loaded.table.by_name("cmd_vel").elements[0]
+    assert cmd.ros2 is not None
+    with running_fleet(loaded):
+        out = put_and_listen(loaded, ("auv1", "0/auv1/cmd_vel/**"), (
+            "ship", cmd.ros2.publisher_key("ship"),
+            '{"linear": {"x": 0.5, "z": -0.25}, "angular": {"z": 0.1}}'))
+    [line] = out.splitlines()
+    key, _, value = line.partition(" ")
+    assert key == cmd.ros2.out_key, key  # (/auv1/cmd_vel: no {src} or {node} in it)
+    assert '"linear": {"x": 0.5, "y": 0.0, "z": -0.25}' in value, value
