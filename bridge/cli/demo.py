@@ -44,7 +44,13 @@ from bridge.cli.demo_surfacing import (
     turns_to_wait,
 )
 from bridge.cli.poke import value_of
-from bridge.cli.sim import EventLog, attach_truth, run_fleet_for, simulate_real_modems
+from bridge.cli.sim import (
+    EventLog,
+    attach_truth,
+    link_modems,
+    run_fleet_for,
+    simulate_real_modems,
+)
 from bridge.cli.tour import Tour, short, turn_waits
 from bridge.core.bounds import UNBOUNDED_TURN_S
 from bridge.core.events import Event
@@ -98,13 +104,11 @@ def tour_mission(path: Path, loss: float = TOUR_LOSS, duration: float = TOUR_S
     data = yaml.safe_load(path.read_text(encoding="utf-8"))
     changes = []
     real = simulate_real_modems(data)
-    modems = ([link["modem"] for link in data["links"].values()]
-              if data.get("links") else [data["modem"]])
     if real:
         changes.append(f"the {' and '.join(real)} modems are simulated ones with the same "
                        "timings, in the simulated water")
     if loss > 0:
-        for modem in modems:
+        for modem in link_modems(data):
             modem.setdefault("options", {})["loss"] = loss  # (each link's water)
         changes.append(f"the water loses {loss:.0%} of frames")
     loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), path)

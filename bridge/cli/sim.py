@@ -36,12 +36,18 @@ SIMULATED = ("sim", "udp")
 """Backends a fleet in one process runs as they are; any other (a real modem's) is simulated."""
 
 
+def link_modems(data: dict[str, Any]) -> list[dict[str, Any]]:
+    """The modem settings of each link of mission ``data`` (its YAML; made empty where a link
+    has none, so a caller may fill them in): the links' own, or the mission's one modem."""
+    return ([link.setdefault("modem", {}) for link in data["links"].values()]
+            if data.get("links") else [data.setdefault("modem", {})])
+
+
 def simulate_real_modems(data: dict[str, Any]) -> list[str]:
     """Make every real modem (EvoLogics, Micro-Modem) of mission ``data`` (its YAML, changed in
     place) a simulated one with the same timings: the simulated modem reads its preset and
     water and leaves the other options. Returns the real backends found, sorted."""
-    modems = ([link.setdefault("modem", {}) for link in data["links"].values()]
-              if data.get("links") else [data.setdefault("modem", {})])
+    modems = link_modems(data)
     modems += [n["modem"] for n in (data.get("nodes") or {}).values()
                if isinstance(n, dict) and isinstance(n.get("modem"), dict)
                and "backend" in n["modem"]]
