@@ -127,13 +127,16 @@ Put = tuple[str, bytes, str]
 
 @dataclass(frozen=True)
 class CommandElement:
-    """One element of a command channel as ``node`` puts it (``key``: where, its
-    :meth:`~bridge.wire.channels.ElementCodec.put_key`) and the fields of its payload."""
+    """One element of a command channel as ``node`` puts it, and the fields of its payload."""
 
-    key: str
     fields: tuple[FormField, ...]
     element: ElementCodec
     node: str
+
+    @property
+    def key(self) -> str:
+        """Where the put goes (:meth:`~bridge.wire.channels.ElementCodec.put_key`)."""
+        return self.element.put_key(self.node)
 
     def put(self, raw: Any, now: float) -> Put:
         """The put of ``raw`` ({path: value}) at time ``now`` (a ROS 2 message's stamp)."""
@@ -211,8 +214,7 @@ def command_channels(loaded: LoadedMission, node: str) -> list[CommandChannel]:
         if not channel.sent_by(node) or not channel.destinations(node):
             continue
         elements = tuple(
-            CommandElement(element.put_key(node),
-                           tuple(FormField.from_codec(f) for f in element.layout.fields),
+            CommandElement(tuple(FormField.from_codec(f) for f in element.layout.fields),
                            element, node)
             for element in channel.elements
         )
