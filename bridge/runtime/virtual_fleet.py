@@ -36,7 +36,7 @@ from bridge.mission.presets import Preset
 from bridge.modems.base import Reception
 from bridge.runtime.keys import keys_for_run
 from bridge.runtime.virtual_queries import VirtualQueries
-from bridge.sim.ocean import Delivery, Ocean, TransmitRefused, TxDone
+from bridge.sim.ocean import Delivery, Ocean, TransmitRefused
 from bridge.sim.scenario import surface_script, water_of, water_stats, waters_of
 from bridge.wire.frame import DecodedFrame
 from bridge.wire.payloads import MSGPACK, encode_payload
@@ -176,7 +176,6 @@ class FastFleet:
         self._next_tx: dict[Port, float | None] = {}
         # every value _next_tx took, as (time, port order, port): stale ones leave lazily
         self._tx_heap: list[tuple[float, int, Port]] = []
-        self._pending: dict[int, tuple[str, Any]] = {}
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
         self._packer = msgpack.Packer(use_bin_type=True)
@@ -339,8 +338,9 @@ class FastFleet:
                 self.now = t
             now = self.now
             if water is not None and water <= now:
-                self._carry_out(self._water_events(now))
-                if single is not None:  # the water's next events, while nothing else comes first
+                if single is None:
+                    self._carry_out(self._water_events(now))
+                else:  # now's events, and the next ones while nothing else comes first
                     self._settle(single, t_end)
                     now = self.now
             while timers and timers[0][0] <= now:
@@ -352,35 +352,33 @@ class FastFleet:
                 self._tick(now)
 
     def _settle(self, ocean: Ocean, t_end: float) -> None:
-        """Carry out the events of a mission's only water one time after another for as long
-        as each comes before any timer, planned transmission (or a stale plan: :meth:`run_until`
-        looks at those) and tick, and no later than ``t_end``: what :meth:`run_until` would do,
-        one step per event, without looking at everything else at every step."""
-        timers, link = self._timers, next(iter(self.oceans))
+        """Carry out the events of a mission's only water up to now, then one time after
+        another for as long as each comes before any timer, planned transmission (or a stale
+        plan: :meth:`run_until` looks at those) and tick, and no later than ``t_end``: what
+        :meth:`run_until` would do, one step per event, without looking at everything else at
+        every step."""
+        timers, link, deliver = self._timers, next(iter(self.oceans)), self._deliver
         while True:
+            for event in ocean.advance(self.now):  # (:meth:`_carry_out`, inlined)
+                if event.__class__ is Delivery:
+                    deliver(event, link)
             water, heap = ocean.next_event_time(), self._tx_heap  # (a plan may rebuild the heap)
             if water is None or water > t_end or water >= self._next_tick \
                     or (timers and timers[0][0] <= water) or (heap and heap[0][0] <= water):
                 return
             if water > self.now:
                 self.now = water
-            self._carry_out(zip(itertools.repeat(link), ocean.advance(self.now)))
 
     def _carry_out(self, events: Iterable[tuple[str | None, Any]]) -> None:
-        """The water's events, each on its link: deliveries received, transmissions ended."""
+        """The water's events, each on its link: deliveries received (a transmission ending
+        or a frame lost changes nothing here: the cores learn of neither from the water)."""
         for link, event in events:
-            kind = event.__class__
-            if kind is Delivery:
+            if event.__class__ is Delivery:
                 self._deliver(event, link)
-            elif kind is TxDone:
-                self._pending.pop(event.frame_id, None)
 
     def _water_events(self, now: float) -> Iterable[tuple[str | None, Any]]:
         """What every link's water settled up to ``now``, in time order (the ocean's clock
-        moves when it is asked)."""
-        if len(self.oceans) == 1:
-            link, ocean = next(iter(self.oceans.items()))
-            return zip(itertools.repeat(link), ocean.advance(now))
+        moves when it is asked; a mission of one water: :meth:`_settle`)."""
         found = [(event.time, i, link, event) for i, (link, ocean) in
                  enumerate(self.oceans.items()) for event in ocean.advance(now)]
         found.sort(key=lambda e: (e[0], e[1]))
