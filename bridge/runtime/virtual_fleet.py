@@ -151,7 +151,7 @@ class FastFleet:
             name: tuple((name, link) for link, a in self._addresses.items() if name in a)
             for name in mission.nodes}
         self.cores = {name: NodeCore(loaded, name, rng=random.Random(f"{seed}/{name}"),
-                                     key=self.key, seed=seed)
+                                     key=self.key, seed=seed, outputs=kinds)
                       for name in mission.nodes}
         self._shared: SharedDecoder | None = None
         if mission.wire.auth is None:  # every core's codec is the same pure function
@@ -296,7 +296,7 @@ class FastFleet:
         state = self.saved.get(node) if keep_state else None
         self.cores[node] = NodeCore(self.loaded, node, state=state, key=self.key,
                                     rng=random.Random(f"{self.seed}/{node}/{self.restarts}"),
-                                    seed=self.seed + self.restarts)
+                                    seed=self.seed + self.restarts, outputs=self.kinds)
         if self._shared is not None:
             self._share(self.cores[node])
         self.stopped.discard(node)
