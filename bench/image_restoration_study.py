@@ -86,7 +86,7 @@ from image_bench import luma, pictures
 
 from bridge.image import geometry as geometry_module
 from bridge.image.bitplanes import decode_planes
-from bridge.image.codec import QUANTUM, _read_header, decode, encode
+from bridge.image.codec import QUANTUM, _mse_estimate, _read_header, decode, encode
 from bridge.image.geometry import geometry
 from bridge.image.wavelet import forward, inverse
 
@@ -128,7 +128,7 @@ def decoded(pixels: NDArray[np.uint8], budget: int) -> Decoded:
     shape, levels = geo.shapes[0], geo.levels[0]
     plane = inverse(canvas[:size].reshape(shape), levels) + 128.0
     return Decoded(luma(pixels), plane, cell_low.reshape(shape), cell_high.reshape(shape),
-                   levels, float(np.sqrt(decode(stream).mse_estimate)))
+                   levels, float(np.sqrt(_mse_estimate(geo, state, head.height * head.width))))
 
 
 def project(plane: F64, d: Decoded) -> F64:
