@@ -13,6 +13,11 @@ and publishes a standard picture (PNG, or JPEG) on the output key with its metad
 file and on ``@zab/<mission>/<node>/images/<channel>/<src>``, at most every
 ``publish_interval_s`` but always the final one. Operators' puts on the control key are
 merged into the channel's settings and carried to the camera by the control channel.
+
+A restart of either bridge keeps the settings in force at its end and, at the camera, the
+picture waiting to go and the last one sent (what ``request: now`` sends again), each as the
+sample it came in when it is at most :data:`STATE_PICTURE_BYTES` (read again when its turn
+comes).
 """
 
 from __future__ import annotations
@@ -48,6 +53,10 @@ log = logging.getLogger("zab.core")
 
 MAX_PICTURE_BYTES = 64 << 20
 """A picture sample longer than this is dropped unread (the pixel limit is the channel's)."""
+STATE_PICTURE_BYTES = 256 << 10
+"""A picture sample longer than this is not in the camera's saved state: the node saves its
+state as fragments go, and a restart before such a picture is sent loses it (a 640 × 480
+JPEG is about 60 kB, a PNG of it about 250 kB)."""
 
 # bridge.image (numpy, Pillow) loads with a mission's first picture, not with every bridge
 Drop = Callable[..., None]  # (key, reason, now[, cause]): a counted drop
@@ -62,6 +71,64 @@ def _spec(channel: ChannelCodec) -> ImageSpec:
     return channel.image
 
 
+def read_picture(spec: ImageSpec, data: bytes, encoding: str) -> InputImage:
+    """The picture of a sample on ``spec``'s input, its header checked (pixels decoded when
+    first asked for): a JPEG or PNG, or a ROS 2 CompressedImage or Image (CDR). Raises
+    :class:`~bridge.image.formats.ImageInputError` for one the channel does not take."""
+    from bridge.image.formats import ImageInputError, InputImage, open_image, read_raw
+
+    if len(data) > MAX_PICTURE_BYTES:
+        raise ImageInputError(f"{len(data)} bytes, over {MAX_PICTURE_BYTES}", "too_large")
+    if spec.ros2 is None:
+        return open_image(data, encoding, spec.accept, spec.max_input_pixels, spec.colour)
+    from bridge.ros2.messages import decode_cdr
+
+    msgtype, distro = spec.ros2
+    try:
+        message = decode_cdr(distro, msgtype, data)
+    except DecodeError as exc:
+        raise ImageInputError(str(exc)) from None
+    if msgtype.endswith("/Image"):
+        pixels = read_raw(message, spec.max_input_pixels, spec.colour)  # raw: read now
+        return InputImage(lambda: pixels)
+    kind = "image/png" if "png" in str(message.get("format", "")).lower() else ""
+    return open_image(bytes(message.get("data", b"")), kind, spec.accept,
+                      spec.max_input_pixels, spec.colour)
+
+
+@dataclass
+class Picture:
+    """A picture sample as it came (what a restart reads again) and, once read, its image."""
+
+    data: bytes
+    encoding: str
+    key: str | None = None
+    ref: str | None = None
+    image: InputImage | None = None
+
+    def state(self) -> list[Any] | None:
+        """As saved state; None if it is too long to be saved (:data:`STATE_PICTURE_BYTES`)."""
+        if len(self.data) > STATE_PICTURE_BYTES:
+            return None
+        return [self.data, self.encoding, self.key, self.ref]
+
+    @classmethod
+    def from_state(cls, state: list[Any] | None) -> Picture | None:
+        if not state:
+            return None
+        data, encoding, key, ref = state
+        return cls(bytes(data), str(encoding), key, ref)
+
+
+def _settings(saved: Mapping[str, Any], spec: ImageSpec) -> dict[str, Any]:
+    """A channel's settings as saved (the mission's where a restart finds none)."""
+    roi = saved.get("roi", spec.roi)
+    return {"width": int(saved.get("width", spec.width)),
+            "height": int(saved.get("height", spec.height)),
+            "budget_bytes": int(saved.get("budget_bytes", spec.budget_bytes)),
+            "roi": tuple(float(v) for v in roi) if roi else None}
+
+
 class ImageSender(TransferSender):
     """The camera's side of one image channel: the newest picture, the operator's settings
     and the mission's policy."""
@@ -70,17 +137,28 @@ class ImageSender(TransferSender):
                  first_seq: int = 0) -> None:
         super().__init__(channel, dests, retry_s, first_seq)
         spec = self.spec = _spec(channel)
-        self.settings: dict[str, Any] = {"width": spec.width, "height": spec.height,
-                                         "budget_bytes": spec.budget_bytes, "roi": spec.roi}
-        self.latest: tuple[InputImage, str | None, str | None] | None = None  # not sent yet
-        self.last: tuple[InputImage, str | None, str | None] | None = None  # sent last
+        self.settings: dict[str, Any] = _settings({}, spec)
+        self.latest: Picture | None = None  # not sent yet
+        self.last: Picture | None = None  # sent last
         self.drop: Drop = _unread  # (set by :class:`Images`: a picture that does not decode)
 
-    def picture(self, image: InputImage, now: float, key: str | None = None,
-                ref: str | None = None) -> list[Delivery]:
+    def state(self) -> dict[str, Any]:
+        """The transfers', the settings in force and the pictures kept."""
+        latest, last = self.latest, self.last
+        return {**super().state(), "settings": dict(self.settings),
+                "latest": latest.state() if latest else None,
+                "last": last.state() if last else None}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        super().restore(state)
+        self.settings = _settings(state.get("settings") or {}, self.spec)
+        self.latest = Picture.from_state(state.get("latest"))
+        self.last = Picture.from_state(state.get("last"))
+
+    def picture(self, picture: Picture, now: float) -> list[Delivery]:
         """A new picture (decoded when it is sent): sent now, or kept until the policy or a
         request lets it go."""
-        self.latest = (image, key, ref)
+        self.latest = picture
         if self.spec.send == "on_request" or (self.current is not None
                                              and self.spec.policy == "finish"):
             return []
@@ -94,15 +172,16 @@ class ImageSender(TransferSender):
         if taken is None:
             return []
         self.latest, self.last = None, None
-        image, key, ref = taken
         try:
-            pixels = image.pixels()
+            if taken.image is None:  # (kept across a restart: read again)
+                taken.image = read_picture(self.spec, taken.data, taken.encoding)
+            pixels = taken.image.pixels()
         except ImageInputError as exc:
-            self.drop(key or self.spec.in_key, f"image channel {self.spec.name!r}: {exc}", now,
-                      exc.cause)
+            self.drop(taken.key or self.spec.in_key, f"image channel {self.spec.name!r}: "
+                      f"{exc}", now, exc.cause)
             return []
         self.last = taken
-        return self.offer_bytes(self.recode(pixels), now, key, ref)
+        return self.offer_bytes(self.recode(pixels), now, taken.key, taken.ref)
 
     def recode(self, pixels: Pixels) -> bytes:
         """``pixels`` as a progressive stream of the current settings: fitted to the size,
@@ -132,6 +211,10 @@ class ImageSender(TransferSender):
             self.latest = None if self.spec.send == "on_request" else self.latest
             return self._report(item, "failed", now, "cancelled by the operator")
         if request == "now":
+            if self.latest is None and self.last is None:
+                log.warning("image channel %r: an operator asked for a picture, and none has "
+                            "come on %s since this bridge started", self.spec.name,
+                            self.spec.in_key)
             return self._begin(now)
         return []
 
@@ -173,9 +256,10 @@ class Images:
     """A node's image channels: pictures and operators' controls in, refinements out."""
 
     def __init__(self, table: ChannelTable, node: str, outbox: Outbox, receivers: Receivers,
-                 senders: Mapping[int, Any], drop: Drop, bindings: dict[str, Any]) -> None:
+                 senders: Mapping[int, Any], drop: Drop, bindings: dict[str, Any],
+                 saved: Mapping[str, Any] | None = None) -> None:
         """``bindings``: the sending side's input keys, which gain the pictures' (the runtime
-        subscribes to them)."""
+        subscribes to them); ``saved``: what :meth:`state` returned before a restart."""
         self.node = node
         self.outbox = outbox
         self.receivers = receivers
@@ -194,11 +278,16 @@ class Images:
                 self.cameras[channel.index + 1] = sender
             else:  # this node steers the cameras of the channel
                 self.controls[spec.control_key.format(node=node)] = (
-                    channel, sender, {"width": spec.width, "height": spec.height,
-                                      "budget_bytes": spec.budget_bytes, "roi": spec.roi})
+                    channel, sender, _settings((saved or {}).get(spec.name) or {}, spec))
         self.shown: dict[tuple[str, int], Shown] = {}
         for key in self.inputs:
             bindings.setdefault(key, [])
+
+    def state(self) -> dict[str, Any]:
+        """The settings this node steers its cameras with, by channel (a restart keeps them:
+        a control merges into them and carries them whole)."""
+        return {_spec(channel).name: dict(settings)
+                for channel, _, settings in self.controls.values()}
 
     # -- samples in ------------------------------------------------------------------------
 
@@ -207,21 +296,14 @@ class Images:
         """A sample on an image input or a control key (True), or on neither (False)."""
         camera = self.inputs.get(key)
         if camera is not None:
-            from bridge.image.formats import ImageInputError, open_image
+            from bridge.image.formats import ImageInputError
 
-            spec = camera.spec
-            if len(data) > MAX_PICTURE_BYTES:
-                self.drop(key, f"image channel {spec.name!r}: {len(data)} bytes, over "
-                          f"{MAX_PICTURE_BYTES}", now, "too_large")
-                return True
             try:
-                image = (open_image(data, encoding, spec.accept, spec.max_input_pixels,
-                                    spec.colour) if spec.ros2 is None
-                         else self._ros2(spec, data))
+                image = read_picture(camera.spec, data, encoding)
             except ImageInputError as exc:
-                self.drop(key, f"image channel {spec.name!r}: {exc}", now, exc.cause)
+                self.drop(key, f"image channel {camera.spec.name!r}: {exc}", now, exc.cause)
                 return True
-            self.outbox.reports(camera.picture(image, now, key, ref))
+            self.outbox.reports(camera.picture(Picture(data, encoding, key, ref, image), now))
             self.outbox.unsaved = True
             return True
         if key not in self.controls:
@@ -254,25 +336,6 @@ class Images:
             self.outbox.reports(sender.offer(payload, now, key, ref))
             self.outbox.unsaved = True
         return {**settings, "request": request}
-
-    @staticmethod
-    def _ros2(spec: ImageSpec, data: bytes) -> InputImage:
-        """The picture of a ROS 2 CompressedImage or Image (CDR)."""
-        from bridge.image.formats import ImageInputError, InputImage, open_image, read_raw
-        from bridge.ros2.messages import decode_cdr
-
-        assert spec.ros2 is not None
-        msgtype, distro = spec.ros2
-        try:
-            message = decode_cdr(distro, msgtype, data)
-        except DecodeError as exc:
-            raise ImageInputError(str(exc)) from None
-        if msgtype.endswith("/Image"):
-            pixels = read_raw(message, spec.max_input_pixels, spec.colour)  # raw: read now
-            return InputImage(lambda: pixels)
-        kind = "image/png" if "png" in str(message.get("format", "")).lower() else ""
-        return open_image(bytes(message.get("data", b"")), kind, spec.accept,
-                          spec.max_input_pixels, spec.colour)
 
     @staticmethod
     def _merge(settings: dict[str, Any], value: Any, largest_budget: int) -> str:
@@ -326,6 +389,7 @@ class Images:
             for values in self.receivers.entry(src, channel, entry.header, entry.values):
                 if camera is not None:
                     self.outbox.reports(camera.control(values[0], now))
+                    self.outbox.unsaved = True  # (its settings)
             return
         data, progress = self.receivers.fragment(src, channel, entry.header, entry.chunk)
         self.outbox.stats.received_per_channel[channel.name] += 1  # (a fragment: its value)

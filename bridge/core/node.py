@@ -162,7 +162,7 @@ class NodeCore:
         out = self.outbound  # pictures and operators' controls come in as its samples
         self.images = out.images = self.inbound.images = Images(
             table, node, outbox, self.receivers, out.senders, out.drop_payload,
-            out.bindings) if mission.images else None
+            out.bindings, state.get("images")) if mission.images else None
         # what observers read (the parts' own objects)
         out = self.outbound
         self.store, self.bindings, self.families = out.store, out.bindings, out.families
@@ -197,10 +197,10 @@ class NodeCore:
         return {
             "version": STATE_VERSION, "mission": self.mission.mission, "node": self.node,
             "fingerprint": self.table.fingerprint.hex(), "epoch": self.epoch,
-            "peer_epochs": dict(self.receivers.peer_epochs),
-            "senders": self.outbound.state(),
+            "peer_epochs": dict(self.receivers.peer_epochs), "senders": self.outbound.state(),
             "receivers": self.receivers.state(),
             "auth": self.auth.state() if self.auth is not None else None,
+            **({"images": self.images.state()} if self.images is not None else {}),
             **(self.network.routing.state() if self.network is not None else {}),
         }
 
