@@ -57,6 +57,9 @@ STATE_PICTURE_BYTES = 256 << 10
 """A picture sample longer than this is not in the camera's saved state: the node saves its
 state as fragments go, and a restart before such a picture is sent loses it (a 640 × 480
 JPEG is about 60 kB, a PNG of it about 250 kB)."""
+KEEP_PICTURE_S = 1.0
+"""A picture that only waits has the node save its state at most this often (the others wait
+for the node's next save): a 30 Hz camera does not cost 30 saves a second."""
 
 # bridge.image (numpy, Pillow) loads with a mission's first picture, not with every bridge
 Drop = Callable[..., None]  # (key, reason, now[, cause]): a counted drop
@@ -141,6 +144,7 @@ class ImageSender(TransferSender):
         self.latest: Picture | None = None  # not sent yet
         self.last: Picture | None = None  # sent last
         self.drop: Drop = _unread  # (set by :class:`Images`: a picture that does not decode)
+        self.kept_at = -math.inf  # when a picture that only waits last asked for a save
 
     def state(self) -> dict[str, Any]:
         """The transfers', the settings in force and the pictures kept."""
@@ -304,7 +308,9 @@ class Images:
                 self.drop(key, f"image channel {camera.spec.name!r}: {exc}", now, exc.cause)
                 return True
             self.outbox.reports(camera.picture(Picture(data, encoding, key, ref, image), now))
-            self.outbox.unsaved = True
+            if now - camera.kept_at >= KEEP_PICTURE_S:  # (a transfer that began: saved anyway)
+                camera.kept_at = now
+                self.outbox.unsaved = True
             return True
         if key not in self.controls:
             return False

@@ -9,7 +9,7 @@ import io
 import numpy as np
 from PIL import Image
 
-from bridge.core.images import STATE_PICTURE_BYTES
+from bridge.core.images import KEEP_PICTURE_S, STATE_PICTURE_BYTES
 from bridge.core.loaded import load_mission
 from bridge.core.node import NodeCore
 from bridge.image.formats import write_image
@@ -98,3 +98,17 @@ def test_a_picture_over_the_state_s_share_is_not_saved() -> None:
     assert core.state()["senders"]["camera"]["last"] is None
     core.ingest("rov/camera", jpeg(FIRST), "image/jpeg", 2.0)  # waits (policy finish)
     assert bytes(core.state()["senders"]["camera"]["latest"][0]) == jpeg(FIRST)
+
+
+def test_a_fast_camera_asks_for_a_save_at_most_once_a_second() -> None:
+    """Pictures that only wait (one in flight, policy finish) go with the node's next save;
+    on their own they ask for one at most every KEEP_PICTURE_S."""
+    core = NodeCore(load_mission(MISSIONS / "bluerov_images.yaml"), "rov")
+    frames = [jpeg(seabed(120, 160, seed=s, colour=False)) for s in range(12)]
+    asked = []
+    for i, frame in enumerate(frames):
+        core.saved()
+        core.ingest("rov/camera", frame, "image/jpeg", 1.0 + i * KEEP_PICTURE_S / 8)
+        asked.append(core.needs_save)
+    assert asked == [True] + [False] * 7 + [True] + [False] * 3  # (0: the transfer began)
+    assert bytes(core.state()["senders"]["camera"]["latest"][0]) == frames[-1]
