@@ -272,8 +272,8 @@ def _read_header(bits: str) -> _Header:
     if bits[30] != "1":
         return _Header(colour, width, height, top, None, 31)
     at = _header_bits(True)
-    if len(bits) < at:
-        raise ImageStreamError("the stream ends inside its ROI header")
+    if len(bits) < at:  # a prefix that ends inside the ROI's header: no planes yet
+        return _Header(colour, width, height, top, None, len(bits))
     x0, y0, x1, y1, shift, tile_top, first, tile = (
         int(bits[a:b], 2) for a, b in pairwise((31, 37, 43, 49, 55, 58, 63,
                                                 63 + LENGTH_BITS, at)))
@@ -308,8 +308,10 @@ def _picture(bits: str, height: int, width: int, colour: bool, top: int) -> _Pic
 
 
 def decode(stream: bytes) -> Decoded:
-    """The image any prefix of an :func:`encode` stream holds (a corrupt one gives some image
-    of the header's size; :class:`ImageStreamError` if there is no header)."""
+    """The image any prefix of an :func:`encode` stream holds, from its first
+    :func:`header_bytes` (``header_bytes(False)``, even with an ROI: one cut inside the
+    ROI's header is a picture with nothing in it yet); a corrupt stream gives some image of
+    the header's size; :class:`ImageStreamError` if there is no header."""
     bits = bin(int.from_bytes(b"\x01" + bytes(stream), "big"))[3:]
     head = _read_header(bits)
     body = bits[head.at:]

@@ -80,12 +80,16 @@ def test_more_bytes_only_refine() -> None:
     assert decode(stream[:200]).pixels.shape == GREY.shape
 
 
-def test_every_prefix_decodes() -> None:
-    stream = encode(GREY, 400)
+@pytest.mark.parametrize("roi", [None, Roi.from_fractions(0.25, 0.25, 0.75, 0.75)])
+def test_every_prefix_decodes(roi: Roi | None) -> None:
+    """From the first four bytes: a receiver whose fragments are shorter than an ROI's
+    header shows a picture with nothing in it yet, not a malformed stream."""
+    stream = encode(GREY, 400, roi)
     for n in range(header_bytes(False), len(stream) + 1):
         image = decode(stream[:n])
         assert image.pixels.shape == GREY.shape
         assert image.stream_bytes == n
+        assert image.roi == (roi if n >= header_bytes(True) else None)
 
 
 @pytest.mark.parametrize("roi", [None, Roi.from_fractions(0.25, 0.25, 0.75, 0.75)])

@@ -276,3 +276,18 @@ def test_a_refused_size_names_its_own_bound() -> None:
         Images._merge({}, {"budget_bytes": 3000}, 2048)
     assert str(refused.value) == \
         "budget_bytes 3000 is outside 16..2048 (the channel's max_budget_bytes)"
+
+
+def test_fragments_shorter_than_an_roi_s_header_are_no_malformed_stream() -> None:
+    """12-byte fragments: the first holds part of the ROI's 13-byte header (it was counted
+    as a malformed frame and logged)."""
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "modem: {frame_bytes: 57}", "modem: {frame_bytes: 24}").replace(
+        "    budget_bytes: 1600\n", "    budget_bytes: 400\n    roi: [0.25, 0.25, 0.75, 0.75]\n")
+    loaded = parse_mission(text)
+    assert next(c for c in loaded.table.channels if c.name == "camera").chunk_bytes < 13
+    fleet = FastFleet(loaded, seed=1)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(200.0)
+    assert pictures(fleet)[-1][1]["zab:final"] == "true"
+    assert not fleet.cores["operator"].stats.frames_dropped
