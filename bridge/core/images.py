@@ -132,6 +132,25 @@ def _settings(saved: Mapping[str, Any], spec: ImageSpec) -> dict[str, Any]:
             "roi": tuple(float(v) for v in roi) if roi else None}
 
 
+def control_keys(table: ChannelTable, node: str) -> dict[str, tuple[ChannelCodec, int]]:
+    """Where operators at ``node`` steer the cameras whose pictures come here: each image
+    channel's control key, with its control channel and the camera it steers (its number in
+    the channel's ``from`` order, 1 first; 0: every camera of the channel). A key with
+    ``{src}`` is one key per camera."""
+    out: dict[str, tuple[ChannelCodec, int]] = {}
+    for channel in table.channels:
+        spec = channel.image
+        if spec is None or not spec.control or not channel.sent_by(node):
+            continue
+        cameras = channel.destinations(node)
+        for camera in cameras if "{src}" in spec.control_key else ():
+            key = spec.control_key.format(node=node, src=camera, dst=node)
+            out[key] = (channel, channel.receivers.index(camera) + 1)
+        if "{src}" not in spec.control_key:
+            out[spec.control_key.format(node=node, dst=node)] = (channel, 0)
+    return out
+
+
 class ImageSender(TransferSender):
     """The camera's side of one image channel: the newest picture, the operator's settings
     and the mission's policy."""
@@ -248,6 +267,16 @@ class ImageSender(TransferSender):
 
 
 @dataclass
+class Control:
+    """One control key at a receiving node: the camera(s) it steers and its settings."""
+
+    channel: ChannelCodec  # the image channel's control
+    sender: Any  # the control channel's sender here
+    camera: int  # see control_keys
+    settings: dict[str, Any]
+
+
+@dataclass
 class Shown:
     """What a receiver last published of one sender's image channel."""
 
@@ -270,28 +299,25 @@ class Images:
         self.drop = drop
         self.inputs: dict[str, ImageSender] = {}
         self.cameras: dict[int, ImageSender] = {}  # by the control channel's index
-        self.controls: dict[str, tuple[ChannelCodec, Any, dict[str, Any]]] = {}
         for channel in table.channels:
-            spec = channel.image
             sender = senders.get(channel.index)
-            if spec is None or sender is None:
-                continue
-            if isinstance(sender, ImageSender):
+            if channel.image is not None and isinstance(sender, ImageSender):
                 sender.drop = drop
-                self.inputs[spec.in_key.format(node=node, src=node)] = sender
+                self.inputs[channel.image.in_key.format(node=node, src=node)] = sender
                 self.cameras[channel.index + 1] = sender
-            else:  # this node steers the cameras of the channel
-                self.controls[spec.control_key.format(node=node)] = (
-                    channel, sender, _settings((saved or {}).get(spec.name) or {}, spec))
+        self.controls: dict[str, Control] = {
+            key: Control(channel, senders[channel.index], camera, _settings(
+                (saved or {}).get(key) or {}, _spec(channel)))
+            for key, (channel, camera) in control_keys(table, node).items()}
+        """This node's steering of cameras, by control key."""
         self.shown: dict[tuple[str, int], Shown] = {}
-        for key in self.inputs:
+        for key in [*self.inputs, *self.controls]:
             bindings.setdefault(key, [])
 
     def state(self) -> dict[str, Any]:
-        """The settings this node steers its cameras with, by channel (a restart keeps them:
-        a control merges into them and carries them whole)."""
-        return {_spec(channel).name: dict(settings)
-                for channel, _, settings in self.controls.values()}
+        """The settings this node steers its cameras with, by control key (a restart keeps
+        them: a control merges into them and carries them whole)."""
+        return {key: dict(control.settings) for key, control in self.controls.items()}
 
     # -- samples in ------------------------------------------------------------------------
 
@@ -328,18 +354,20 @@ class Images:
         channel this node steers: merged into its settings and sent to the camera; returns
         the settings now in force. A control that does not fit is a counted drop and a
         :class:`ValueError` saying why."""
-        channel, sender, settings = self.controls[key]
+        control = self.controls[key]
+        channel, settings = control.channel, control.settings
         try:
             merged = dict(settings)
             request = self._merge(merged, value, _spec(channel).largest_budget)
-            payload = channel.pack([control_payload(merged, request)])
+            payload = channel.pack([control_payload(
+                merged, request, control.camera if len(channel.receivers) > 1 else None)])
         except (EncodeError, TypeError, ValueError) as exc:
             reason = f"image control {_spec(channel).name!r}: {exc}"
             self.drop(key, reason, now, "unfit")
             raise ValueError(reason) from None
         if merged != settings or request != "none":  # (else the operator only asks)
             settings.update(merged)
-            self.outbox.reports(sender.offer(payload, now, key, ref))
+            self.outbox.reports(control.sender.offer(payload, now, key, ref))
             self.outbox.unsaved = True
         return {**settings, "request": request}
 
@@ -392,8 +420,9 @@ class Images:
         fragment of a picture for us."""
         if _spec(channel).control:
             camera = self.cameras.get(channel.index)
+            mine = channel.receivers.index(self.node) + 1 if camera is not None else -1
             for values in self.receivers.entry(src, channel, entry.header, entry.values):
-                if camera is not None:
+                if camera is not None and values[0].get("camera", 0) in (0, mine):
                     self.outbox.reports(camera.control(values[0], now))
                     self.outbox.unsaved = True  # (its settings)
             return

@@ -44,15 +44,18 @@ class Keyspace:
     """What one node reads of its keyspace, and the puts there nothing reads."""
 
     def __init__(self, mission: Mission, table: ChannelTable, node: str, inputs: Iterable[str],
-                 outbox: Outbox, surfacing: Surfacing | None = None) -> None:
+                 outbox: Outbox, surfacing: Surfacing | None = None,
+                 steered: Iterable[str] = ()) -> None:
         """``inputs``: the keys the node's channels read (wildcards allowed); ``surfacing``:
-        the peers reachable over IP, when the mission surfaces."""
+        the peers reachable over IP, when the mission surfaces; ``steered``: the image
+        control keys here (read, and a get on them answered)."""
         self.node = node
+        self.steered = set(steered)
         self.surfacing = surfacing
         self.outbox = outbox
         self.expressions = keyspace_of(mission, node)
         ranging = mission.ranging
-        read = [*inputs, *ranging.anchor_keys.values()]
+        read = [*inputs, *self.steered, *ranging.anchor_keys.values()]
         read += [k for k in (mission.nodes[node].nav_key, ranging.ctd_key, ranging.peer_ctd_key)
                  if k is not None]
         self._read = [k.replace("{src}", "*").replace("{node}", "*") for k in read]
@@ -62,14 +65,14 @@ class Keyspace:
 
     @cached_property
     def _answered(self) -> tuple[list[str], dict[str, str]]:
-        """The keys a get is answered on here (queries asked, latched outputs), and each
-        output key's channel; worked out at the first get."""
+        """The keys a get is answered on here (queries asked, latched outputs, image
+        controls), and each output key's channel; worked out at the first get."""
         node, table = self.node, self.table
         outputs = output_keys(table, node)
         latched = {k for c in table.channels if c.latching for k in outputs.get(c.index, ())}
         asked = {spec.asked_key(s) for spec in table.queries if node in spec.askers
                  for s in spec.servers if s != node}
-        return (sorted(asked | latched),
+        return (sorted(asked | latched | self.steered),
                 {k: table.channels[i].name for i, keys in outputs.items() for k in keys})
 
     def maps(self, key: str) -> bool:

@@ -23,7 +23,7 @@ from bridge.core.drops import DropLedger
 from bridge.core.events import FieldsLeftOut, FrameSent, SendFailed, Surfaced
 from bridge.core.families import Extra, Families
 from bridge.core.frames import OutFrame, Sender
-from bridge.core.images import MAX_PICTURE_BYTES, Images, ImageSender
+from bridge.core.images import MAX_PICTURE_BYTES, Images, ImageSender, control_keys
 from bridge.core.interest import Interest
 from bridge.core.keyspace import Keyspace
 from bridge.core.link import heartbeat_s
@@ -101,8 +101,9 @@ class Outbound:
         self.interest = Interest(table.interest, mission.demand.refresh_s) \
             if table.interest is not None and mission.demand is not None else None
         self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}
-        for channel in table.channels:
-            if channel.index in self.store.states and channel.family is None:
+        for channel in table.channels:  # (an image channel's keys are Images')
+            if channel.index in self.store.states and channel.family is None \
+                    and channel.image is None:
                 for i, element in enumerate(channel.elements):
                     self.bindings.setdefault(element.input_key(node), []).append(
                         (channel, i, element))
@@ -116,7 +117,7 @@ class Outbound:
                     if c.image is not None and not c.image.control and c.sent_by(node)]
         self.keyspace = Keyspace(mission, table, node,
                                  [*self.bindings, *self.families.subscriptions(), *pictures],
-                                 outbox, self.surfacing)
+                                 outbox, self.surfacing, control_keys(table, node))
         metas = [(key, e.meta) for key, found in self.bindings.items() for _, _, e in found]
         metas += [(key, e.meta) for key, found in self.families.subscriptions().items()
                   for c, i in found for e in (c.elements[i],)]

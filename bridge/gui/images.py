@@ -111,7 +111,8 @@ class ImageBoard:
         return self.pictures.get((channel, src))
 
     def control(self, message: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
-        """A page's image control: the control key and the value to put there."""
+        """A page's image control: the control key and the value to put there (with a key
+        per camera, the ``camera`` the page names)."""
         spec = self.specs.get(str(message.get("channel")))
         if spec is None:
             raise ImageControlError(f"no image channel {message.get('channel')!r} here")
@@ -142,4 +143,10 @@ class ImageBoard:
                     raise ImageControlError("roi needs x0 < x1 and y0 < y1")
                 roi = [round(v, 4) for v in (x0, y0, x1, y1)]
             value["roi"] = roi
-        return spec.control_key.format(node=self.node), value
+        key = spec.control_key
+        if "{src}" in key:  # one key per camera: the card's
+            camera = message.get("camera")
+            if (spec.name, camera) not in self.keys.values():
+                raise ImageControlError(f"no camera {camera!r} on image channel {spec.name!r}")
+            key = key.replace("{src}", str(camera))
+        return key.format(node=self.node, dst=self.node), value

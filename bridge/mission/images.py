@@ -53,8 +53,9 @@ class ImageChannel(BaseModel):
     ros2: Ros2Pictures | None = Field(None, description="A ROS 2 camera topic instead of in.")
     out: str = Field(description="Output key at receivers ({src}, {dst}, {node}): a PNG (or "
                      "JPEG) after each fragment that sharpens the picture.")
-    control: str | None = Field(None, description="Key at receivers where operators put "
-                                "{request: now|cancel, width, height, budget_bytes, roi: "
+    control: str | None = Field(None, description="Key at receivers ({node}, {dst}; {src}: "
+                                "one key per camera, each steering its own) where operators "
+                                "put {request: now|cancel, width, height, budget_bytes, roi: "
                                 "[x0, y0, x1, y1] or null} (msgpack or JSON; any subset); "
                                 "default: <out>/control.")
     width: int = Field(160, ge=8, le=2048, description="Largest width sent, pixels (pictures "

@@ -498,7 +498,7 @@ def compile_images(mission: Mission) -> tuple[ChannelCodec, ...]:
         spec = ImageSpec.from_mission(image)
         for key, allowed, where in ((spec.in_key, SENDER_TEMPLATES, "in"),
                                     (image.out, RECEIVER_TEMPLATES, "out"),
-                                    (image.control_key, {"node"}, "control")):
+                                    (image.control_key, RECEIVER_TEMPLATES, "control")):
             bad = template_names(key) - allowed
             if bad:
                 raise ChannelTableError(f"unknown template {{{sorted(bad)[0]}}} in {key!r}",
@@ -516,7 +516,7 @@ def compile_images(mission: Mission) -> tuple[ChannelCodec, ...]:
                                 queue=1, chunk_bytes=chunk, fragment_bits=fragment_bits,
                                 image=spec))
         control = ElementCodec(image.control_key, image.control_key, "msgpack",
-                               control_layout())
+                               control_layout(len(senders)))
         out.append(ChannelCodec(index + 1, f"{image.name}.control", receivers, senders, 0.0,
                                 False, image.priority + 1, (control,), reliable=True,
                                 queue=4, overflow="drop_oldest",

@@ -4,7 +4,8 @@
   the camera node, one transfer per picture (its transfer id is the picture's sequence
   number), fragments of at most ``share`` of a frame;
 - the *control* (``<name>.control``): the operator's settings and requests from each
-  receiving node back to the camera, a reliable channel of :data:`CONTROL_FIELDS`.
+  receiving node back to the camera, a reliable channel of :data:`CONTROL_FIELDS` (and,
+  with several cameras, the one it steers).
 
 :class:`ImageSpec` is what both ends need of the mission's
 :class:`~bridge.mission.images.ImageChannel`; :func:`control_layout` the control's fields.
@@ -81,16 +82,23 @@ class ImageSpec:
         return [self.colour, self.largest_budget, "control" if self.control else "stream"]
 
 
-def control_layout() -> Layout:
-    return Layout.from_fields([FieldSpec.model_validate(f) for f in CONTROL_FIELDS],
+def control_layout(cameras: int = 1) -> Layout:
+    """The control's fields; with several ``cameras``, which one it steers (``camera``: its
+    number in the channel's ``from`` order, 1 first; 0: every camera)."""
+    fields = [*CONTROL_FIELDS, *([{"field": "camera", "type": "int", "min": 0,
+                                   "max": cameras}] if cameras > 1 else [])]
+    return Layout.from_fields([FieldSpec.model_validate(f) for f in fields],
                               on_out_of_range="clamp")
 
 
-def control_payload(settings: dict[str, Any], request: str) -> dict[str, Any]:
+def control_payload(settings: dict[str, Any], request: str,
+                    camera: int | None = None) -> dict[str, Any]:
     """The control channel's value for ``settings`` (width, height, budget_bytes, roi as
-    fractions or None) and ``request``."""
+    fractions or None) and ``request``, to ``camera`` (see :func:`control_layout`; None: a
+    channel of one camera)."""
     roi = settings.get("roi")
     corners = [round(v * 64) for v in roi] if roi else [0, 0, 64, 64]
     return {"request": request, "width": settings["width"], "height": settings["height"],
             "budget_bytes": settings["budget_bytes"], "roi_on": roi is not None,
-            **dict(zip(("x0", "y0", "x1", "y1"), corners, strict=True))}
+            **dict(zip(("x0", "y0", "x1", "y1"), corners, strict=True)),
+            **({"camera": camera} if camera is not None else {})}

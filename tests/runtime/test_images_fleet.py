@@ -291,3 +291,44 @@ def test_fragments_shorter_than_an_roi_s_header_are_no_malformed_stream() -> Non
     fleet.run_until(200.0)
     assert pictures(fleet)[-1][1]["zab:final"] == "true"
     assert not fleet.cores["operator"].stats.frames_dropped
+
+
+TWO_CAMERAS = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+    "    modem: {frame_bytes: 57}\n",
+    "    modem: {frame_bytes: 57}\n  rov2:\n    address: 3\n"
+    "    zenoh: {listen: [tcp/127.0.0.1:7663]}\n    position: {x: 1, y: 1, depth: 0.8}\n"
+    "    modem: {frame_bytes: 57}\n").replace(
+    "    from: rov\n    to: operator\n    in: rov/camera\n    out: rov/camera\n"
+    "    control: camera/control\n",
+    "    from: [rov, rov2]\n    to: operator\n    in: '{node}/camera'\n    out: '{src}/camera'\n"
+    "%s").replace("    budget_bytes: 1600\n", "    budget_bytes: 400\n")
+
+
+@pytest.mark.parametrize(("control", "key", "steered"), [
+    ("", "rov2/camera/control", {"rov2"}),  # default <out>/control: a key per camera
+    ("    control: cameras/control\n", "cameras/control", {"rov", "rov2"}),  # every camera
+])
+def test_several_cameras_are_steered_one_by_one_or_all_at_once(
+        control: str, key: str, steered: set[str]) -> None:
+    fleet = FastFleet(parse_mission(TWO_CAMERAS % control), seed=8)
+    images = fleet.cores["operator"].images
+    assert images is not None and key in images.controls
+    fleet.put("operator", key, {"roi": [0.5, 0.5, 1.0, 1.0]}, at=1.0)
+    for camera in ("rov", "rov2"):
+        fleet.put(camera, f"{camera}/camera", JPEG, encoding="image/jpeg", at=10.0)
+    fleet.run_until(120.0)
+    for camera in ("rov", "rov2"):
+        finals = [Image.open(io.BytesIO(p.value)).text for _, p in  # type: ignore[attr-defined]
+                  fleet.published("operator", f"{camera}/camera")]
+        assert finals and finals[-1]["zab:final"] == "true", camera
+        assert finals[-1]["zab:roi"] == ("[0.5, 0.5, 1.0, 1.0]" if camera in steered
+                                         else "null"), camera
+
+
+def test_a_camera_s_own_control_key_under_its_keyspace_is_answered_at_the_operator() -> None:
+    """``rov2/camera/control`` lies under rov2's keyspace: the operator's bridge, which
+    answers gets on it, must not also reply that nothing maps the key."""
+    core = NodeCore(parse_mission(TWO_CAMERAS % ""), "operator")
+    assert core.outbound.keyspace.unanswered("rov2/camera/control") is None
+    assert core.outbound.keyspace.maps("rov2/camera/control")
+    assert core.outbound.keyspace.unanswered("rov2/camera/elsewhere") is not None

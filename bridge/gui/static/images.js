@@ -56,13 +56,14 @@ const imageView = {
     const tools = make("div", "row", null, figure);
     const now = make("button", "", "Request now", tools);
     now.type = "button";
-    now.addEventListener("click", () => this.send({channel: ch.channel, request: "now"}));
+    const send = (message) => this.send({channel: ch.channel, camera: cam, ...message});
+    now.addEventListener("click", () => send({request: "now"}));
     const cancel = make("button", "", "Cancel", tools);
     cancel.type = "button";
-    cancel.addEventListener("click", () => this.send({channel: ch.channel, request: "cancel"}));
+    cancel.addEventListener("click", () => send({request: "cancel"}));
     const clear = make("button", "", "Clear ROI", tools);
     clear.type = "button";
-    clear.addEventListener("click", () => this.send({channel: ch.channel, roi: null}));
+    clear.addEventListener("click", () => send({roi: null}));
     const budget = make("input", "budget", null, tools);
     budget.type = "number";
     budget.min = "16";
@@ -85,12 +86,13 @@ const imageView = {
     const apply = make("button", "", "Apply", tools);
     apply.type = "button";
     apply.title = "send the budget and size for the next picture";
-    apply.addEventListener("click", () => this.send(
-      {channel: ch.channel, budget_bytes: parseInt(budget.value, 10),
-       width: parseInt(width.value, 10), height: parseInt(height.value, 10)}));
+    apply.addEventListener("click", () => send(
+      {budget_bytes: parseInt(budget.value, 10), width: parseInt(width.value, 10),
+       height: parseInt(height.value, 10)}));
     const error = make("span", "error", "", tools);
     error.setAttribute("role", "alert");
-    const card = {figure, frameBox, img, roi, draft, caption, fill, error, shown: 0, pending: null};
+    const card = {figure, frameBox, img, roi, draft, caption, fill, error, camera: cam, shown: 0,
+                  pending: null};
     this.cards[ch.channel + "/" + cam] = card;
     this.drawing(ch, card);
   },
@@ -127,7 +129,8 @@ const imageView = {
       }
       card.pending = r;
       this.place(card.draft, r);
-      this.send({channel: ch.channel, roi: r.map((v) => Math.round(v * 1000) / 1000)});
+      this.send({channel: ch.channel, camera: card.camera,
+                 roi: r.map((v) => Math.round(v * 1000) / 1000)});
     };
     card.frameBox.addEventListener("mousedown", down);
     window.addEventListener("mousemove", move);
