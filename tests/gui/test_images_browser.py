@@ -1,7 +1,7 @@
 """The GUI's pictures in a real browser (Debian's headless Chromium, Playwright) against a real
 ``zab sim``: a JPEG put on the ROV appears at the surface and refines, bytes against the
 budget; an ROI drawn with the mouse goes to the camera and comes back on the next picture, and
-so does a size typed in.
+so does a size typed in; with two cameras, the ROI drawn on one's picture steers that one only.
 Leaves a screenshot in ``artifacts/gui-images.png``."""
 
 from __future__ import annotations
@@ -93,4 +93,59 @@ def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
         artifacts = REPO / "artifacts"
         artifacts.mkdir(exist_ok=True)
         shutil.copy(shot, artifacts / "gui-images.png")
+        assert errors == [], f"errors in the page: {errors}"
+
+
+def test_an_roi_drawn_on_one_camera_s_picture_steers_that_camera_only(tmp_path: Path) -> None:
+    """Two ROVs on one image channel, a control key each (the default with ``{src}``): the
+    rectangle drawn on rov2's card comes back on rov2's next picture, and rov's has none."""
+    from playwright.sync_api import sync_playwright
+
+    from tests.runtime.test_images_fleet import TWO_CAMERAS
+
+    text = (TWO_CAMERAS % "").replace("publish_interval_s: 1.0", "publish_interval_s: 0.0")
+    text = text.replace("budget_bytes: 400", "budget_bytes: 200")
+    mission, endpoints = mission_file(text, tmp_path)
+    jpeg = write_image(seabed(240, 320, seed=7, colour=False), "jpeg", quality=90)
+    cards = {c: f'figure.picture[data-channel="camera"][data-node="{c}"]' for c in ("rov", "rov2")}
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(zab_sim(mission, endpoints))
+        sessions = {c: app(endpoints[c]) for c in cards}
+        for session in sessions.values():
+            stack.callback(session.close)
+        url = stack.enter_context(gui_process(mission))
+        playwright = stack.enter_context(sync_playwright())
+        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        stack.callback(browser.close)
+        page = browser.new_page(viewport={"width": 1280, "height": 1400})
+        errors: list[str] = []
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.goto(url)
+        page.wait_for_selector('#connection[data-state="up"]', timeout=WAIT_MS)
+        for camera, session in sessions.items():
+            session.put(f"{camera}/camera", jpeg, encoding=zenoh.Encoding("image/jpeg"))
+        for card in cards.values():
+            page.wait_for_function(f"document.querySelector('{card}').dataset.final === 'true'"
+                                   f" && document.querySelector('{card} img').naturalWidth > 0",
+                                   timeout=3 * WAIT_MS)
+        shown = page.get_attribute(f"{cards['rov']} img", "src")
+        card = cards["rov2"]
+        page.locator(f"{card} img").scroll_into_view_if_needed()
+        box = page.locator(f"{card} img").bounding_box()
+        assert box is not None
+        page.mouse.move(box["x"] + 0.5 * box["width"], box["y"] + 0.25 * box["height"])
+        page.mouse.down()
+        page.mouse.move(box["x"] + 0.9 * box["width"], box["y"] + 0.75 * box["height"],
+                        steps=5)
+        page.mouse.up()
+        page.click(f"{card} button:has-text('Request now')")
+        page.click(f"{cards['rov']} button:has-text('Request now')")
+        page.wait_for_function(
+            f"(document.querySelector('{card}').dataset.roi || '').startsWith('0.5')",
+            timeout=3 * WAIT_MS)
+        page.wait_for_function(  # rov's picture sent again (whole), without an ROI
+            f"document.querySelector('{cards['rov']} img').getAttribute('src') !== '{shown}'"
+            f" && document.querySelector('{cards['rov']}').dataset.final === 'true'",
+            timeout=3 * WAIT_MS)
+        assert page.get_attribute(cards["rov"], "data-roi") is None
         assert errors == [], f"errors in the page: {errors}"
