@@ -56,14 +56,16 @@ def gui_process(path: Path, node: str | None = None) -> Iterator[str]:
             process.wait(5)
 
 
-def open_page(stack: contextlib.ExitStack, url: str) -> tuple[Any, list[str]]:
-    """Headless Chromium at ``url`` (closed with ``stack``), and the page's errors."""
+def open_page(stack: contextlib.ExitStack, url: str, height: int = 900
+              ) -> tuple[Any, list[str]]:
+    """Headless Chromium at ``url`` (closed with ``stack``; a viewport 1280 wide, ``height``
+    tall), and the page's errors."""
     from playwright.sync_api import sync_playwright
 
     playwright = stack.enter_context(sync_playwright())
     browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
     stack.callback(browser.close)
-    page = browser.new_page(viewport={"width": 1280, "height": 900})
+    page = browser.new_page(viewport={"width": 1280, "height": height})
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     page.goto(url)

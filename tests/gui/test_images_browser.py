@@ -16,7 +16,7 @@ import zenoh
 from bridge.image.formats import write_image
 from bridge.image.synthetic import seabed
 from tests.conftest import MISSIONS, REPO
-from tests.gui.test_browser import CHROMIUM, CHROMIUM_ARGS, WAIT_MS, gui_process
+from tests.gui.test_browser import CHROMIUM, WAIT_MS, gui_process, open_page
 from tests.zsim import app, mission_file, zab_sim
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(),
@@ -26,8 +26,6 @@ FIGURE = 'figure.picture[data-channel="camera"][data-node="rov"]'
 
 
 def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
-    from playwright.sync_api import sync_playwright
-
     text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
         "budget_bytes: 1600", "budget_bytes: 400").replace(
         "publish_interval_s: 1.0", "publish_interval_s: 0.0")
@@ -37,14 +35,7 @@ def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
         stack.enter_context(zab_sim(mission, endpoints))
         rov = app(endpoints["rov"])
         stack.callback(rov.close)
-        url = stack.enter_context(gui_process(mission))
-        playwright = stack.enter_context(sync_playwright())
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        stack.callback(browser.close)
-        page = browser.new_page(viewport={"width": 1280, "height": 1000})
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(url)
+        page, errors = open_page(stack, stack.enter_context(gui_process(mission)), 1000)
         page.wait_for_selector(FIGURE, timeout=WAIT_MS)
         page.wait_for_selector('#connection[data-state="up"]', timeout=WAIT_MS)
         # before any picture: nothing of the budget is filled, and the budget box says bytes
@@ -99,8 +90,6 @@ def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
 def test_an_roi_drawn_on_one_camera_s_picture_steers_that_camera_only(tmp_path: Path) -> None:
     """Two ROVs on one image channel, a control key each (the default with ``{src}``): the
     rectangle drawn on rov2's card comes back on rov2's next picture, and rov's has none."""
-    from playwright.sync_api import sync_playwright
-
     from tests.runtime.test_images_fleet import TWO_CAMERAS
 
     text = (TWO_CAMERAS % "").replace("publish_interval_s: 1.0", "publish_interval_s: 0.0")
@@ -113,14 +102,7 @@ def test_an_roi_drawn_on_one_camera_s_picture_steers_that_camera_only(tmp_path: 
         sessions = {c: app(endpoints[c]) for c in cards}
         for session in sessions.values():
             stack.callback(session.close)
-        url = stack.enter_context(gui_process(mission))
-        playwright = stack.enter_context(sync_playwright())
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        stack.callback(browser.close)
-        page = browser.new_page(viewport={"width": 1280, "height": 1400})
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(url)
+        page, errors = open_page(stack, stack.enter_context(gui_process(mission)), 1400)
         page.wait_for_selector('#connection[data-state="up"]', timeout=WAIT_MS)
         for camera, session in sessions.items():
             session.put(f"{camera}/camera", jpeg, encoding=zenoh.Encoding("image/jpeg"))
