@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import shutil
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -23,6 +24,17 @@ pytestmark = pytest.mark.skipif(not CHROMIUM.exists(),
                                 reason="needs Debian's chromium (apt-get install chromium)")
 
 FIGURE = 'figure.picture[data-channel="camera"][data-node="rov"]'
+
+
+def draw_roi(page: Any, figure: str) -> None:
+    """Drag the mouse over ``figure``'s picture from (0.5, 0.25) to (0.9, 0.75)."""
+    page.locator(f"{figure} img").scroll_into_view_if_needed()
+    box = page.locator(f"{figure} img").bounding_box()
+    assert box is not None
+    page.mouse.move(box["x"] + 0.5 * box["width"], box["y"] + 0.25 * box["height"])
+    page.mouse.down()
+    page.mouse.move(box["x"] + 0.9 * box["width"], box["y"] + 0.75 * box["height"], steps=5)
+    page.mouse.up()
 
 
 def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
@@ -55,14 +67,7 @@ def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
         page.wait_for_function(f"document.querySelector('{FIGURE} img').naturalWidth > 0",
                                timeout=WAIT_MS)
 
-        page.locator(f"{FIGURE} img").scroll_into_view_if_needed()
-        box = page.locator(f"{FIGURE} img").bounding_box()
-        assert box is not None
-        page.mouse.move(box["x"] + 0.5 * box["width"], box["y"] + 0.25 * box["height"])
-        page.mouse.down()
-        page.mouse.move(box["x"] + 0.9 * box["width"], box["y"] + 0.75 * box["height"],
-                        steps=5)
-        page.mouse.up()
+        draw_roi(page, FIGURE)
         page.click(f"{FIGURE} button:has-text('Request now')")
         page.wait_for_function(
             f"(document.querySelector('{FIGURE}').dataset.roi || '').startsWith('0.5')",
@@ -112,14 +117,7 @@ def test_an_roi_drawn_on_one_camera_s_picture_steers_that_camera_only(tmp_path: 
                                    timeout=3 * WAIT_MS)
         shown = page.get_attribute(f"{cards['rov']} img", "src")
         card = cards["rov2"]
-        page.locator(f"{card} img").scroll_into_view_if_needed()
-        box = page.locator(f"{card} img").bounding_box()
-        assert box is not None
-        page.mouse.move(box["x"] + 0.5 * box["width"], box["y"] + 0.25 * box["height"])
-        page.mouse.down()
-        page.mouse.move(box["x"] + 0.9 * box["width"], box["y"] + 0.75 * box["height"],
-                        steps=5)
-        page.mouse.up()
+        draw_roi(page, card)
         page.click(f"{card} button:has-text('Request now')")
         page.click(f"{cards['rov']} button:has-text('Request now')")
         page.wait_for_function(
