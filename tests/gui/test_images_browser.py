@@ -27,14 +27,23 @@ FIGURE = 'figure.picture[data-channel="camera"][data-node="rov"]'
 
 
 def draw_roi(page: Any, figure: str) -> None:
-    """Drag the mouse over ``figure``'s picture from (0.5, 0.25) to (0.9, 0.75)."""
-    page.locator(f"{figure} img").scroll_into_view_if_needed()
-    box = page.locator(f"{figure} img").bounding_box()
-    assert box is not None
-    page.mouse.move(box["x"] + 0.5 * box["width"], box["y"] + 0.25 * box["height"])
-    page.mouse.down()
-    page.mouse.move(box["x"] + 0.9 * box["width"], box["y"] + 0.75 * box["height"], steps=5)
-    page.mouse.up()
+    """Drag the mouse over ``figure``'s picture from (0.5, 0.25) to (0.9, 0.75).
+
+    Each end is placed on the picture where it is at that moment (``hover``): events and
+    vehicles' rows arriving above the Pictures panel move it down the page, and a drag
+    aimed where the picture was a moment before can miss it (the drafted rectangle then never
+    shows; tried again, at most three times)."""
+    img = page.locator(f"{figure} img")
+    for _ in range(3):
+        box = img.bounding_box()
+        assert box is not None
+        img.hover(position={"x": 0.5 * box["width"], "y": 0.25 * box["height"]})
+        page.mouse.down()
+        img.hover(position={"x": 0.9 * box["width"], "y": 0.75 * box["height"]})
+        page.mouse.up()
+        if page.is_visible(f"{figure} .roi.draft"):
+            return
+    raise AssertionError(f"no rectangle drafted on {figure}'s picture")
 
 
 def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
