@@ -332,3 +332,13 @@ def test_a_camera_s_own_control_key_under_its_keyspace_is_answered_at_the_operat
     assert core.outbound.keyspace.unanswered("rov2/camera/control") is None
     assert core.outbound.keyspace.maps("rov2/camera/control")
     assert core.outbound.keyspace.unanswered("rov2/camera/elsewhere") is not None
+
+
+def test_a_get_on_a_picture_s_key_has_no_error_beside_the_picture() -> None:
+    """The receiver's pictures are latched (a late viewer's get has the latest): the key,
+    under the camera's keyspace, is not also answered with "nothing maps this key"."""
+    for text, camera in ((MISSIONS / "bluerov_images.yaml").read_text(), "rov"), \
+            (TWO_CAMERAS % "", "rov2"):
+        keyspace = NodeCore(parse_mission(text), "operator").outbound.keyspace
+        assert keyspace.unanswered(f"{camera}/camera") is None
+        assert keyspace.unanswered(f"{camera}/camera/**") is None
