@@ -77,7 +77,7 @@ def camera_pair(loaded: LoadedMission) -> tuple[str, str, str, str, str] | None:
             for dst in channel.destinations(src):
                 if nodes[src].zenoh.listen and nodes[dst].zenoh.listen:
                     return (src, spec.in_key.format(node=src, src=src), dst,
-                            spec.out_key.format(node=dst, src=src, dst=dst), channel.name)
+                            spec.output_key(src, dst), channel.name)
     return None
 
 

@@ -142,12 +142,12 @@ def control_keys(table: ChannelTable, node: str) -> dict[str, tuple[ChannelCodec
         spec = channel.image
         if spec is None or not spec.control or not channel.sent_by(node):
             continue
-        cameras = channel.destinations(node)
-        for camera in cameras if "{src}" in spec.control_key else ():
-            key = spec.control_key.format(node=node, src=camera, dst=node)
-            out[key] = (channel, channel.receivers.index(camera) + 1)
         if "{src}" not in spec.control_key:
             out[spec.control_key.format(node=node, dst=node)] = (channel, 0)
+            continue
+        for camera in channel.destinations(node):
+            key = spec.control_key.format(node=node, src=camera, dst=node)
+            out[key] = (channel, channel.receivers.index(camera) + 1)
     return out
 
 
@@ -465,6 +465,6 @@ class Images:
         kind = spec.format
         data = write_image(picture.pixels, kind, spec.jpeg_quality, {  # JSON but for text
             f"zab:{k}": v if isinstance(v, str) else json.dumps(v) for k, v in meta.items()})
-        key = spec.out_key.format(node=self.node, src=src, dst=self.node)
+        key = spec.output_key(src, self.node)
         self.outbox.publish(key, data, f"image/{kind}", True)
         self.outbox.status(f"images/{spec.name}/{src}", meta)

@@ -57,13 +57,18 @@ def _intersects(a: list[str], b: list[str]) -> bool:
 
 def output_keys(table: ChannelTable, node: str) -> dict[int, set[str]]:
     """Per channel ``node`` receives: the output keys it publishes there (a key family's with
-    ``*`` for the member)."""
+    ``*`` for the member; an image channel's pictures, and none for its control, which the
+    camera takes in)."""
     out: dict[int, set[str]] = {}
     for channel in table.channels:
+        image = channel.image
         for sender in channel.senders:
             if node in channel.destinations(sender):
-                out.setdefault(channel.index, set()).update(
-                    e.output_key(sender, node) for e in channel.elements)
+                keys = out.setdefault(channel.index, set())
+                if image is None:
+                    keys.update(e.output_key(sender, node) for e in channel.elements)
+                elif not image.control:
+                    keys.add(image.output_key(sender, node))
     return out
 
 

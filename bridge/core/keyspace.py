@@ -69,10 +69,8 @@ class Keyspace:
         image controls), and each output key's channel; worked out at the first get."""
         node, table = self.node, self.table
         outputs = output_keys(table, node)
-        latched = {k for c in table.channels if c.latching for k in outputs.get(c.index, ())}
-        latched |= {c.image.out_key.format(node=node, src=s, dst=node)  # (pictures: latched)
-                    for c in table.channels if c.image is not None and not c.image.control
-                    for s in c.senders if node in c.destinations(s)}
+        latched = {k for c in table.channels if c.latching or c.image is not None  # (pictures)
+                   for k in outputs.get(c.index, ())}
         asked = {spec.asked_key(s) for spec in table.queries if node in spec.askers
                  for s in spec.servers if s != node}
         return (sorted(asked | latched | self.steered),

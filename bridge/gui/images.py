@@ -77,7 +77,7 @@ class ImageBoard:
             for src in channel.senders:
                 if node in channel.destinations(src):
                     self.specs[spec.name] = spec
-                    key = spec.out_key.format(node=node, src=src, dst=node)
+                    key = spec.output_key(src, node)
                     self.keys[key] = (spec.name, src)
         self.pictures: dict[tuple[str, str], Picture] = {}
         self.version = 0

@@ -77,6 +77,10 @@ class ImageSpec:
                    image.jpeg_quality, tuple(image.accept), image.max_input_pixels,
                    None if ros2 is None else (ros2.type, ros2.distro))
 
+    def output_key(self, src: str, dst: str) -> str:
+        """The key ``dst`` publishes ``src``'s pictures on."""
+        return self.out_key.format(node=dst, src=src, dst=dst)
+
     def describe(self) -> list[Any]:
         """What both ends must agree on (the fingerprint): the stream's format."""
         return [self.colour, self.largest_budget, "control" if self.control else "stream"]
