@@ -48,7 +48,7 @@ class IpWatch:
         self.peers = peers - {node}
         self.key = key
         self.changed = changed
-        self.tokens: set[str] = set()  # peers whose token is alive
+        self.tokens: set[str] = set()  # peers whose token is alive (kept by the Zenoh thread)
         self.reachable: set[str] = set()  # peers proven reachable
         self.unproven = 0  # challenges a live token's peer did not answer with a proof
         self._failing: dict[str, int] = {}  # each peer's challenges failed in a row
@@ -67,6 +67,8 @@ class IpWatch:
             parts = str(sample.key_expr).split("/")
             if len(parts) == 4 and parts[2] in self.peers:
                 up = sample.kind == zenoh.SampleKind.PUT
+                # (at once, not on the loop: a get that came over the same join may be next)
+                (self.tokens.add if up else self.tokens.discard)(parts[2])
                 with contextlib.suppress(RuntimeError):  # the loop closed: the node is gone
                     loop.call_soon_threadsafe(self._token, parts[2], up)
 
@@ -89,10 +91,8 @@ class IpWatch:
     def _token(self, peer: str, up: bool) -> None:
         """On the loop: a peer's token appeared or went."""
         if up:
-            self.tokens.add(peer)
             self._wake.set()  # prove it now
         else:
-            self.tokens.discard(peer)
             self._set(peer, False)
 
     def _set(self, peer: str, up: bool) -> None:

@@ -1,7 +1,10 @@
 """A node's keyspace, the Zenoh side (:mod:`bridge.core.keyspace` decides): a subscriber on
 the node's keyspace hands the core every application put there that nothing reads, and a
 queryable on each peer's keyspace answers a get that maps to nothing with a reply error
-saying so (a get that asks a query or a latched value is left to those).
+saying so (a get that asks a query or a latched value is left to those), unless a peer's bridge
+token is alive on this node's Zenoh: then the get may be answered over IP, and the error would
+contradict that answer (the core's own surfacing comes only once the peer has proven itself,
+after the join that may carry the get).
 
 In a demand-driven mission a keyspace expression that meets an output key of this node is
 not watched (warned at start): the bridge's own subscriber there would count as an
@@ -31,10 +34,12 @@ class KeyspaceWatch:
 
     def __init__(self, session: zenoh.Session, intake: Intake, core: NodeCore,
                  lock: threading.RLock, clock: Callable[[], float],
-                 flush: Callable[[], None]) -> None:
+                 flush: Callable[[], None], joined: Callable[[], bool]) -> None:
         """``intake``: the node's bounded subscriptions; ``core``, used under ``lock`` at the
-        time ``clock`` tells; ``flush``: carry out what the core output (on the loop)."""
+        time ``clock`` tells; ``flush``: carry out what the core output (on the loop);
+        ``joined``: whether a peer's bridge token is alive on this node's Zenoh (any thread)."""
         self.core, self.lock, self.clock, self.flush = core, lock, clock, flush
+        self.joined = joined
         self.intake = intake
         keyspace = self.keyspace = core.outbound.keyspace
         self.entities: list[Any] = []
@@ -73,7 +78,7 @@ class KeyspaceWatch:
         """Zenoh thread: a get under a peer's keyspace; a reply error if it maps to nothing."""
         why = self.keyspace.unanswered(str(query.key_expr))
         try:
-            if why is not None:
+            if why is not None and not self.joined():
                 query.reply_err(why.encode())
             query.drop()
         except zenoh.ZError as exc:  # the getter gave up already

@@ -223,8 +223,9 @@ class BridgeNode:
             for key in self.core.families.subscriptions():  # key families: concrete keys
                 intake.subscribe(key, lambda s: self._from_zenoh(loop, str(s.key_expr), s))
             self._subscribe_positions(loop)
-            self._interest_entities += KeyspaceWatch(self.session, intake, self.core, self.lock,
-                                                     self.clock, self._flush).entities
+            self._interest_entities += KeyspaceWatch(
+                self.session, intake, self.core, self.lock, self.clock, self._flush,
+                lambda: self.ip_watch is not None and bool(self.ip_watch.tokens)).entities
             if self.core.interest is not None:
                 self._watch_interest(loop)
             if self.core.queries is not None:

@@ -6,7 +6,11 @@
 - a real surfacing (an access point joining both routers, as ``zab sim``'s surface WiFi) still
   switches both bridges to IP, and the dive switches them back, though the forged token lives on;
 - with ``sign_outputs``, every sample a bridge puts carries a signature an application checks
-  with the key; a copy of it on a forged payload (a fake delivery report) does not check."""
+  with the key; a copy of it on a forged payload (a fake delivery report) does not check;
+- a get on a peer's keyspace that maps to nothing gets the bridge's reply error only while no
+  peer's bridge token is on its Zenoh: with one, proven or not yet, it may be answered there.
+  (In ``zab demo`` the surfaced cv2's error came beside ssv's own answer: ssv's get crossed
+  the fresh WiFi join before cv2 had proven ssv, then one full suite run in eight.)"""
 
 from __future__ import annotations
 
@@ -99,3 +103,30 @@ def test_a_forged_token_changes_nothing_and_a_real_surfacing_still_switches() ->
             top_app.close()
             auv_app.close()
 
+
+
+def errors_of_get(session: Any, selector: str) -> list[str]:
+    """The reply errors a get on ``selector`` gets (its values are not asked here)."""
+    return [r.err.payload.to_string() for r in session.get(selector, timeout=3.0)
+            if r.err is not None]
+
+
+def test_a_peers_token_not_yet_proven_silences_the_error_on_its_keyspace() -> None:
+    loaded = on_free_ports(udp_ports(MISSION), "proof.yaml")
+    with running_fleet(loaded, key=KEY) as fleet:
+        top = fleet.nodes["top"]
+        app = outside_session(loaded, "top")
+        try:
+            errors = errors_of_get(app, "auv/health")
+            assert len(errors) == 1 and "maps this key at top" in errors[0]
+            token = app.liveliness().declare_token("@zab/proof/auv/bridge")
+            assert top.ip_watch is not None
+            wait(lambda: top.ip_watch.tokens == {"auv"}, "top sees the token")
+            assert top.core.surfacing is not None and top.core.surfacing.reachable == set()
+            assert errors_of_get(app, "auv/health") == []  # (an answer may come over IP)
+            token.undeclare()
+            wait(lambda: not top.ip_watch.tokens, "top sees the token go")
+            errors = errors_of_get(app, "auv/health")
+            assert len(errors) == 1 and "maps this key at top" in errors[0]
+        finally:
+            app.close()
