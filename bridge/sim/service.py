@@ -256,6 +256,7 @@ class WaterService:
         self.ocean.add_node(addr, position)
         if addr in self._paths:
             self.ocean.set_path(addr, self._paths[addr], self._path_start)
+            position = self.ocean.position(addr, self._now())  # (where its path has it)
         self._counters["connections"] += 1
         writer.write(
             pack(

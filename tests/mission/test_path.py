@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
 import time
 
@@ -77,7 +78,10 @@ def test_a_node_on_a_path_is_heard_from_where_it_is_when_a_frame_leaves() -> Non
         ocean.set_path(9, Path(((0, 0, 0),), 1.0), 0.0)
 
 
-def test_the_water_service_starts_paths_when_it_starts() -> None:
+def test_the_water_service_starts_paths_when_it_starts(
+        caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO, logger="bridge.sim.service")
+
     async def main() -> None:
         path = Path(((0.0, 0.0, 5.0), (1000.0, 0.0, 5.0)), speed_mps=10.0)
         water = WaterService(FAST, 1, {1: (0.0, 0.0, 0.0)}, paths={2: path})
@@ -89,6 +93,8 @@ def test_the_water_service_starts_paths_when_it_starts() -> None:
             reader, writer = await asyncio.open_connection("127.0.0.1", water.port)
             writer.write(pack({"t": "hello", "v": 1, "addr": 2, "name": "auv", "pos": None}))
             assert (await read_message(reader) or {}).get("t") == "welcome"
+            said = [r.getMessage() for r in caplog.records if "modem 2 (auv) at" in r.getMessage()]
+            assert len(said) == 1 and said[0].endswith(", 0.0, 5.0)")  # on its path, not at 0
             at = water.started_at + 3.0
             assert water.position(2, at) == pytest.approx((30.0, 0.0, 5.0))
             x_now = water.position(2)[0]
