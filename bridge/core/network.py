@@ -67,6 +67,9 @@ class NodeNetwork:
                                  and c.sent_by(node) for d in c.destinations(node))}
         """Whom a system entry without one addressee is for: an ``@want`` bitmap, every node
         sending this one a channel; an ``@key`` name, every destination of its families."""
+        self._own_turn: dict[str, bool] = {}
+        """Per link: whether the node's own frame goes first at the next opportunity where it
+        is as urgent as the most urgent frame carried (at such ties they take turns)."""
 
     @classmethod
     def of(cls, table: ChannelTable, linkset: LinkSet, policy: LinkPolicy, outbox: Outbox,
@@ -188,7 +191,8 @@ class NodeNetwork:
         """What goes out at ``side``'s opportunity now (to start at modem time ``at``): the
         node's own frame (``builder``: :meth:`~bridge.core.outbound.Outbound.build`), or the
         frames it carries for others with its own in the room left, as a bundle; its own
-        first when it is more urgent than any of them (``due``: what it has due)."""
+        first when it is more urgent than any of them, and every other time when it is as
+        urgent as the most urgent (``due``: what it has due)."""
         def build(room: int | None, always: bool) -> OutFrame | None:
             return builder(now, at, always=always, side=side, room=room)
 
@@ -197,8 +201,10 @@ class NodeNetwork:
         if not routing.waiting[side.name]:
             return build(None, always)
         own_rank, best = self.own_rank(due(now, side)), routing.best_rank(side)
-        own = build(None, False) if own_rank is not None and best is not None \
-            and own_rank > best else None
+        first = own_rank is not None and best is not None and own_rank >= best
+        if first and own_rank == best:  # a tie: own and carried take turns
+            first = self._own_turn[side.name] = not self._own_turn.get(side.name, False)
+        own = build(None, False) if first else None
         if own is not None:
             if len(own.data) > SEGMENT_MAX:
                 return own

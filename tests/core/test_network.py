@@ -312,3 +312,30 @@ def test_a_restarted_origin_numbers_its_routed_frames_past_those_it_used() -> No
     again.ingest("goto", b"\x81\xa1x\x63", "application/msgpack", t)
     header, _ = net.decode(_frame_for(again, t, "acoustic"))
     assert header.routed and header.seq not in used[-64:]  # never taken for a copy
+
+
+FEED = """\
+  - name: feed
+    from: [rov1, rov2]
+    to: surface
+    elements:
+      - in: "{node}/feed"
+        out: "{src}/feed"
+        fields: [FIELDS]
+""".replace("FIELDS", ", ".join(
+    f"{{field: {f}, type: int, min: 0, max: 4294967295}}" for f in ("n", *"abcdefgh")))
+
+
+def test_a_relays_own_values_take_turns_with_those_it_carries_at_the_same_priority() -> None:
+    """rov1 relays rov2's feed and sends its own, the same channel, each value nearly a frame:
+    at equal rank they take turns (before, rov1's own never went while rov2's kept coming:
+    0 of 300 in 600 s, against 100 of rov2's)."""
+    head, tail = UMCI.format(rov2_x=503, auth="").split("queries:")
+    fleet = FastFleet(parse_mission(f"{head}{FEED}queries:{tail}", "feed.yaml"), seed=1)
+    for i in range(300):
+        for node in ("rov1", "rov2"):
+            fleet.put(node, f"{node}/feed", {"n": i, **dict.fromkeys("abcdefgh", 2**31)},
+                      at=1.0 + 2 * i)
+    fleet.run_until(600)
+    rov1, rov2 = (len(published(fleet, "surface", f"{n}/feed")) for n in ("rov1", "rov2"))
+    assert rov1 >= 40 and rov2 >= 40 and abs(rov1 - rov2) <= 4, (rov1, rov2)
