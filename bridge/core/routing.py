@@ -23,7 +23,8 @@ hops, life, age and rank. A node that hears a routed frame
 A relay spends its own transmit opportunities on what it carries: at each one it fills the
 transmission with the frames it carries, highest rank first (then the oldest), and its own
 frame in the room left, as a bundle (:mod:`bridge.wire.network`); its own frame goes first
-when it is more urgent than any of them (its most urgent due channel's rank). What it
+when it is more urgent than any of them (its most urgent due channel's rank), and every other
+time when it is as urgent as the most urgent, so that neither starves the other. What it
 carries is never changed, so a value keeps its priority (the rank), age (the header's age)
 and TTL (its life) across hops,
 and its authentication stays the origin's: receivers check it as a frame of the origin, with
