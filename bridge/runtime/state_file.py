@@ -6,12 +6,20 @@ old state or the new one, never a mix. The runtime saves before it carries out w
 the state (a publication, a report, a frame that uses a reserved counter), so a restart never
 repeats or loses what the previous run made visible.
 
-A file that cannot be read or decoded is moved aside (``….corrupt``) with a warning, and the
-node starts afresh: its peers see a new epoch and resynchronise.
+Large byte strings in the state (an image channel's pictures, up to 256 kB each) change
+seldom while the rest changes with every frame, so each is kept in a file of its own named
+by its SHA-256 (``….state.<digest>.blob``), written (durably) once, before the first state
+that names it, and removed once a state that no longer names it is saved: a picture in
+flight costs one write, not one at every save (three a second on seed 002's link).
+
+A file that cannot be read or decoded, or that names a blob missing or altered, is moved
+aside (``….corrupt``) with a warning, and the node starts afresh: its peers see a new epoch
+and resynchronise.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import tempfile
@@ -23,6 +31,11 @@ import msgpack
 from bridge.errors import ZabError
 
 log = logging.getLogger("zab.state")
+
+BLOB_BYTES = 4096
+"""Byte strings at least this long are kept in blob files of their own."""
+BLOB_EXT = 1
+"""The msgpack extension type that stands for a blob in the state file (its digest)."""
 
 
 class StateError(ZabError):
@@ -51,18 +64,24 @@ class StateFile:
         if not os.access(self.path.parent, os.W_OK):
             raise StateError(f"the state directory {self.path.parent} is not writable")
         self.saves = 0
+        self.blobs: dict[str, bytes] = {}
+        """The blobs the file on disk names, by digest."""
 
     def load(self) -> dict[str, Any] | None:
         """The last saved state, or None (none yet, or unreadable: moved aside)."""
         try:
             data = self.path.read_bytes()
         except FileNotFoundError:
+            self._remove_blobs_but({})  # (of a state moved aside as corrupt)
             return None
         except OSError as exc:
             log.warning("cannot read %s (%s): starting afresh", self.path, exc)
             return None
+        named: dict[str, bytes] = {}
         try:
-            state = msgpack.unpackb(data, raw=False, strict_map_key=False)
+            state = msgpack.unpackb(data, raw=False, strict_map_key=False,
+                                    ext_hook=lambda code, digest: self._read_blob(
+                                        code, digest, named))
             if not isinstance(state, dict):
                 raise ValueError("not a map")
         except (ValueError, msgpack.UnpackException) as exc:
@@ -71,24 +90,83 @@ class StateFile:
             log.warning("%s is corrupt (%s): moved to %s, starting afresh", self.path, exc,
                         aside)
             return None
+        self.blobs = named
+        self._remove_blobs_but(named)  # (left by a crash between a save and its clean-up)
         return state
+
+    def _blob_path(self, digest: str) -> Path:
+        return self.path.with_name(f"{self.path.name}.{digest}.blob")
+
+    def _read_blob(self, code: int, digest: bytes, named: dict[str, bytes]) -> bytes:
+        """The bytes a blob reference in the file stands for (ValueError: none, or altered)."""
+        name = digest.hex()
+        if code != BLOB_EXT:
+            raise ValueError(f"unknown extension type {code}")
+        try:
+            data = self._blob_path(name).read_bytes()
+        except OSError as exc:
+            raise ValueError(f"its blob {name} cannot be read ({exc.strerror or exc})") from None
+        if hashlib.sha256(data).hexdigest() != name:
+            raise ValueError(f"its blob {name} was altered")
+        named[name] = data
+        return data
+
+    def _remove_blobs_but(self, kept: dict[str, bytes]) -> None:
+        for path in self.path.parent.glob(f"{self.path.name}.*.blob"):
+            if path.name.split(".")[-2] not in kept:
+                path.unlink(missing_ok=True)
 
     def save(self, state: dict[str, Any]) -> None:
         """Replace the saved state with ``state`` (atomic, durable)."""
-        data = msgpack.packb(state, use_bin_type=True)
+        named: dict[str, bytes] = {}
+        data = msgpack.packb(_with_references(state, named, self.blobs), use_bin_type=True)
+        new = [digest for digest in named if digest not in self.blobs]
+        for digest in new:
+            self._write(self._blob_path(digest), named[digest])
+        if new:  # (on disk before the state that names them)
+            self._sync_folder()
+        self._write(self.path, data)
+        self._sync_folder()
+        gone = self.blobs.keys() - named.keys()
+        self.blobs = named
+        for digest in gone:  # (no longer named by the state on disk)
+            self._blob_path(digest).unlink(missing_ok=True)
+        self.saves += 1
+
+    def _sync_folder(self) -> None:
+        folder = os.open(self.path.parent, os.O_RDONLY)
+        try:
+            os.fsync(folder)
+        finally:
+            os.close(folder)
+
+    def _write(self, path: Path, data: bytes) -> None:
+        """``data`` into ``path`` through a temporary file, flushed and fsynced."""
         fd, tmp = tempfile.mkstemp(prefix=self.path.name + ".", dir=self.path.parent)
         try:
             with os.fdopen(fd, "wb") as stream:
                 stream.write(data)
                 stream.flush()
                 os.fsync(stream.fileno())
-            os.replace(tmp, self.path)
+            os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
-        folder = os.open(self.path.parent, os.O_RDONLY)
-        try:
-            os.fsync(folder)
-        finally:
-            os.close(folder)
-        self.saves += 1
+
+
+def _with_references(value: Any, named: dict[str, bytes], known: dict[str, bytes]) -> Any:
+    """``value`` with each large byte string replaced by a reference to its blob (collected
+    in ``named`` by digest; ``known``: blobs on disk, whose digests are not computed again
+    for the very same bytes)."""
+    if isinstance(value, bytes | bytearray):
+        if len(value) < BLOB_BYTES:
+            return value
+        digest = next((d for d, b in known.items() if b is value), None) or \
+            hashlib.sha256(value).hexdigest()
+        named[digest] = value if isinstance(value, bytes) else bytes(value)
+        return msgpack.ExtType(BLOB_EXT, bytes.fromhex(digest))
+    if isinstance(value, dict):
+        return {k: _with_references(v, named, known) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_with_references(v, named, known) for v in value]
+    return value
