@@ -1,6 +1,7 @@
 """Large byte strings in a node's state (an image channel's pictures) are kept in blob files
 of their own: written once, however many saves name them, and removed once no saved state
-names them; a state naming a blob missing or altered is moved aside as corrupt."""
+names them, also past a full disk; a state naming a blob missing or altered is moved aside as
+corrupt."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from bridge.runtime.persistence import RETRY_S, Persistence
 from bridge.runtime.state_file import BLOB_BYTES, StateFile
+from tests.runtime.tmpfs import fill, small_tmpfs
 
 PICTURE = os.urandom(100_000)
 OTHER = os.urandom(50_000)
@@ -77,3 +80,18 @@ def test_a_state_whose_picture_is_missing_or_altered_starts_afresh(
     assert f"its blob {blob.name.split('.')[-2]}" in caplog.text
     assert "starting afresh" in caplog.text
     assert (tmp_path / "m.rov.state.corrupt").exists()
+
+
+def test_a_picture_that_comes_while_the_disk_is_full_is_saved_once_it_has_room(
+        tmp_path: Path) -> None:
+    with small_tmpfs(tmp_path / "state", size="512k") as where:
+        saves = Persistence(StateFile(where, "m", "rov"), "rov")
+        assert saves.save(lambda: {"epoch": 1}, 0.0, first=True)
+        filler = fill(where)
+        state = {"epoch": 1, "last": PICTURE}
+        assert saves.save(lambda: state, 1.0) is False
+        assert sorted(where.iterdir()) == sorted([filler, saves.state_file.path])  # nothing half
+        filler.unlink()
+        assert saves.save(lambda: state, 1.0 + RETRY_S) is True
+        assert StateFile(where, "m", "rov").load() == state
+        assert len(blobs(where)) == 1
