@@ -18,6 +18,16 @@ A restart of either bridge keeps the settings in force at its end and, at the ca
 picture waiting to go and the last one sent (what ``request: now`` sends again), each as the
 sample it came in when it is at most :data:`STATE_PICTURE_BYTES` (read again when its turn
 comes).
+
+While a receiver is reachable over IP (``surfacing``), the camera's pictures reach it whole,
+as they came: put on its output key over IP (:class:`~bridge.core.surfacing.Relay`, where
+that key is not the input key itself, which the receiver's applications see anyway), and not
+sent acoustically while every receiver is so reached (the picture is kept as the last one,
+which ``request: now`` sends after a dive). A receiver does not publish the refinements of
+a camera reachable over IP (a transfer that began before the surfacing, or a sender that has
+not noticed yet): counted as ``surfaced_duplicates``, they would overwrite the whole picture
+with coarser ones. (A ROS 2 camera's pictures cross acoustically as ever: its messages are
+not pictures for the output key, and its topic reaches the surface's ROS 2 over IP anyway.)
 """
 
 from __future__ import annotations
@@ -32,6 +42,7 @@ from typing import TYPE_CHECKING, Any
 from bridge.core.events import Delivery
 from bridge.core.outputs import Outbox
 from bridge.core.receivers import Receivers
+from bridge.core.surfacing import Relay, Surfacing
 from bridge.core.transfer import Transfer, TransferReceiver, TransferSender
 from bridge.errors import DecodeError, EncodeError
 from bridge.wire.channels import ChannelCodec, ChannelTable
@@ -290,11 +301,14 @@ class Images:
 
     def __init__(self, table: ChannelTable, node: str, outbox: Outbox, receivers: Receivers,
                  senders: Mapping[int, Any], drop: Drop, bindings: dict[str, Any],
-                 saved: Mapping[str, Any] | None = None) -> None:
+                 saved: Mapping[str, Any] | None = None,
+                 surfacing: Surfacing | None = None) -> None:
         """``bindings``: the sending side's input keys, which gain the pictures' (the runtime
-        subscribes to them); ``saved``: what :meth:`state` returned before a restart."""
+        subscribes to them); ``saved``: what :meth:`state` returned before a restart;
+        ``surfacing``: the peers reachable over IP, when the mission surfaces."""
         self.node = node
         self.outbox = outbox
+        self.surfacing = surfacing
         self.receivers = receivers
         self.drop = drop
         self.inputs: dict[str, ImageSender] = {}
@@ -333,7 +347,11 @@ class Images:
             except ImageInputError as exc:
                 self.drop(key, f"image channel {camera.spec.name!r}: {exc}", now, exc.cause)
                 return True
-            self.outbox.reports(camera.picture(Picture(data, encoding, key, ref, image), now))
+            picture = Picture(data, encoding, key, ref, image)
+            if self._over_ip(camera, picture, now):
+                camera.latest, camera.last = None, picture  # (every receiver has it whole)
+            else:
+                self.outbox.reports(camera.picture(picture, now))
             if now - camera.kept_at >= KEEP_PICTURE_S:  # (a transfer that began: saved anyway)
                 camera.kept_at = now
                 self.outbox.unsaved = True
@@ -347,6 +365,18 @@ class Images:
         except ValueError:
             pass  # (counted by steer)
         return True
+
+    def _over_ip(self, camera: ImageSender, picture: Picture, now: float) -> bool:
+        """Put ``picture`` as it came on the output keys of the camera's receivers reachable
+        over IP; whether every receiver is."""
+        surfacing = self.surfacing
+        if surfacing is None or not surfacing.reachable or camera.spec.ros2 is not None:
+            return False
+        assert picture.key is not None
+        outs = [(d, camera.spec.output_key(self.node, d)) for d in camera.dests]
+        self.outbox.items.extend(surfacing.relays(picture.key, outs, Relay(
+            picture.key, picture.data, picture.encoding, taken=now)))
+        return not surfacing.acoustic(camera.dests)
 
     def steer(self, key: str, value: Any, now: float, ref: str | None = None
               ) -> dict[str, Any]:
@@ -442,6 +472,10 @@ class Images:
         from bridge.image.formats import write_image
 
         spec = _spec(channel)
+        if self.surfacing is not None and src in self.surfacing.reachable \
+                and spec.ros2 is None:
+            self.surfacing.duplicates += 1  # (the camera's picture reaches us whole over IP)
+            return
         shown = self.shown.setdefault((src, channel.index), Shown())
         if receiver.tid != shown.tid:
             shown.tid, shown.bytes = receiver.tid, 0

@@ -162,7 +162,7 @@ class NodeCore:
         out = self.outbound  # pictures and operators' controls come in as its samples
         self.images = out.images = self.inbound.images = Images(
             table, node, outbox, self.receivers, out.senders, out.drop_payload,
-            out.bindings, state.get("images")) if mission.images else None
+            out.bindings, state.get("images"), out.surfacing) if mission.images else None
         # what observers read (the parts' own objects)
         out = self.outbound
         self.store, self.bindings, self.families = out.store, out.bindings, out.families

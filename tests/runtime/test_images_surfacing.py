@@ -1,0 +1,51 @@
+"""Image channels and surfacing, on the virtual clock: while the operator is reachable over
+IP the camera's picture reaches it whole (relayed as it came on the output key) and not as
+acoustic refinements; after the dive, pictures cross the water again."""
+
+from __future__ import annotations
+
+from bridge.core.loaded import parse_mission
+from bridge.core.surfacing import Relay
+from bridge.runtime.virtual_fleet import FastFleet
+from tests.conftest import MISSIONS
+from tests.runtime.test_images_fleet import JPEG, pictures
+
+MISSION = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+    "mission: bluerov_images", "mission: bluerov_images\nsurfacing: {republish: true}").replace(
+    "    in: rov/camera\n", "    in: camera\n")  # (the camera's own key: relayed to rov/camera)
+
+
+def relays(fleet: FastFleet, node: str) -> list[Relay]:
+    return [o.output for o in fleet.outputs if o.node == node and isinstance(o.output, Relay)]
+
+
+def test_a_surfaced_operator_gets_the_picture_whole_and_no_coarser_copies() -> None:
+    fleet = FastFleet(parse_mission(MISSION, "surf.yaml"), seed=1)
+    fleet.ip_link("operator", "rov", True)
+    fleet.put("rov", "camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(40.0)
+    [relay] = relays(fleet, "rov")
+    assert (relay.key, relay.data, relay.encoding) == ("rov/camera", JPEG, "image/jpeg")
+    assert pictures(fleet) == []  # nothing crossed the water to be shown
+    assert fleet.cores["rov"].images is not None
+    camera = next(iter(fleet.cores["rov"].images.inputs.values()))
+    assert camera.current is None and camera.last is not None  # kept for a request
+
+    fleet.ip_link("operator", "rov", False)  # the dive: a request sends it acoustically
+    fleet.put("operator", "camera/control", {"request": "now"}, at=41.0)
+    fleet.run_until(80.0)
+    got = pictures(fleet)
+    assert got and got[-1][1]["zab:final"] == "true"
+
+
+def test_refinements_of_a_picture_begun_before_the_surfacing_are_not_shown() -> None:
+    fleet = FastFleet(parse_mission(MISSION, "surf.yaml"), seed=1)
+    fleet.put("rov", "camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(8.0)
+    before = len(pictures(fleet))
+    assert before >= 2
+    fleet.ip_link("operator", "rov", True)
+    fleet.run_until(40.0)
+    assert len(pictures(fleet)) == before
+    surfacing = fleet.cores["operator"].surfacing
+    assert surfacing is not None and surfacing.duplicates > 0
