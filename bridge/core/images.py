@@ -23,11 +23,13 @@ While a receiver is reachable over IP (``surfacing``), the camera's pictures rea
 as they came: put on its output key over IP (:class:`~bridge.core.surfacing.Relay`, where
 that key is not the input key itself, which the receiver's applications see anyway), and not
 sent acoustically while every receiver is so reached (the picture is kept as the last one,
-which ``request: now`` sends after a dive). A receiver does not publish the refinements of
-a camera reachable over IP (a transfer that began before the surfacing, or a sender that has
-not noticed yet): counted as ``surfaced_duplicates``, they would overwrite the whole picture
-with coarser ones. (A ROS 2 camera's pictures cross acoustically as ever: its messages are
-not pictures for the output key, and its topic reaches the surface's ROS 2 over IP anyway.)
+which ``request: now`` sends after a dive). A picture already crossing when the receiver
+surfaced goes on crossing, and is shown to its end: it came before the IP path. A receiver
+does not publish the refinements of a picture that began to cross once the camera was
+reachable over IP (a camera that has not noticed yet): counted as ``surfaced_duplicates``,
+they would overwrite the whole picture, put over IP, with coarser ones. (A ROS 2 camera's
+pictures cross acoustically as ever: its messages are not pictures for the output key, and
+its topic reaches the surface's ROS 2 over IP anyway.)
 """
 
 from __future__ import annotations
@@ -294,6 +296,7 @@ class Shown:
     tid: int | None = None
     bytes: int = 0
     at: float = -math.inf
+    begun: float = -math.inf  # when its first fragment came
 
 
 class Images:
@@ -472,13 +475,14 @@ class Images:
         from bridge.image.formats import write_image
 
         spec = _spec(channel)
-        if self.surfacing is not None and src in self.surfacing.reachable \
-                and spec.ros2 is None:
-            self.surfacing.duplicates += 1  # (the camera's picture reaches us whole over IP)
-            return
         shown = self.shown.setdefault((src, channel.index), Shown())
         if receiver.tid != shown.tid:
-            shown.tid, shown.bytes = receiver.tid, 0
+            shown.tid, shown.bytes, shown.begun = receiver.tid, 0, now
+        surfacing = self.surfacing
+        if surfacing is not None and src in surfacing.reachable and spec.ros2 is None \
+                and shown.begun >= surfacing.since[src]:
+            surfacing.duplicates += 1  # (a picture the camera put since reaches us over IP)
+            return
         if len(stream) <= shown.bytes or len(stream) < header_bytes(False) or (
                 not final and now - shown.at < spec.publish_interval_s):
             return

@@ -1,6 +1,7 @@
 """Image channels and surfacing, on the virtual clock: while the operator is reachable over
 IP the camera's picture reaches it whole (relayed as it came on the output key) and not as
-acoustic refinements; after the dive, pictures cross the water again."""
+acoustic refinements; a picture already crossing goes on to its end; after the dive,
+pictures cross the water again."""
 
 from __future__ import annotations
 
@@ -38,14 +39,23 @@ def test_a_surfaced_operator_gets_the_picture_whole_and_no_coarser_copies() -> N
     assert got and got[-1][1]["zab:final"] == "true"
 
 
-def test_refinements_of_a_picture_begun_before_the_surfacing_are_not_shown() -> None:
+def test_a_picture_crossing_when_the_operator_surfaces_is_shown_to_its_end() -> None:
     fleet = FastFleet(parse_mission(MISSION, "surf.yaml"), seed=1)
     fleet.put("rov", "camera", JPEG, encoding="image/jpeg", at=1.0)
     fleet.run_until(8.0)
-    before = len(pictures(fleet))
-    assert before >= 2
+    assert len(pictures(fleet)) >= 2
     fleet.ip_link("operator", "rov", True)
     fleet.run_until(40.0)
-    assert len(pictures(fleet)) == before
+    got = pictures(fleet)
+    assert got[-1][1]["zab:final"] == "true"  # (it came before the IP path: never put there)
+    assert relays(fleet, "rov") == []
+
+
+def test_a_picture_begun_by_a_camera_that_has_not_noticed_the_surfacing_is_not_shown() -> None:
+    fleet = FastFleet(parse_mission(MISSION, "surf.yaml"), seed=1)
+    fleet.cores["operator"].ip_reachable("rov", True, 0.5)  # (the ROV's bridge: not yet)
+    fleet.put("rov", "camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(40.0)
+    assert pictures(fleet) == []
     surfacing = fleet.cores["operator"].surfacing
     assert surfacing is not None and surfacing.duplicates > 0
