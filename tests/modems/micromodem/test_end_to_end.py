@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import queue
 import threading
 import time
 from collections.abc import Iterator
@@ -94,11 +95,17 @@ def exchange(loaded: LoadedMission) -> dict[str, Any]:
             for key, inbox in inboxes.items():
                 (r1 if key == "topside/command" else top).declare_subscriber(key, inbox)
             time.sleep(0.3)
-            put(r1, "state", STATE)
-            put(r2, "bathymetry", BATHY)
-            put(top, "command", COMMAND)
+            puts = {"remus1/state": lambda: put(r1, "state", STATE),
+                    "remus2/bathymetry": lambda: put(r2, "bathymetry", BATHY),
+                    "topside/command": lambda: put(top, "command", COMMAND)}
+            for again in puts.values():
+                again()
             for key, inbox in inboxes.items():
-                got[key] = inbox.get(timeout=4 * SLOT["slot_s"] * 2)[1]
+                try:
+                    got[key] = inbox.get(timeout=4 * SLOT["slot_s"] * 2)[1]
+                except queue.Empty:  # (a loaded machine: a subscriber not yet routed when
+                    puts[key]()      # the value came; the value is the same, put once more)
+                    got[key] = inbox.get(timeout=4 * SLOT["slot_s"] * 2)[1]
         finally:
             for session in (top, r1, r2):
                 session.close()
