@@ -4,7 +4,8 @@ operator's controls back (pure, but for Pillow reading the PNG's metadata).
 The GUI's node publishes each picture (PNG or JPEG) on the image channel's output key; the
 board keeps the latest bytes per (channel, camera) for the page to load from
 ``/image/<channel>/<camera>`` and emits an ``image`` item with the picture's metadata (bytes
-received of the budget, sequence, final, the stream's PSNR estimate, ROI). A page's
+received of the budget, sequence, final, the stream's PSNR estimate, ROI; for the camera's
+own picture, put over IP while it is surfaced, ``whole`` and its size). A page's
 ``image_control`` message (a request, a budget, a size, an ROI drawn on the picture) becomes a put
 on the channel's control key at the GUI's node.
 """
@@ -48,7 +49,8 @@ def _meta(data: bytes) -> dict[str, Any]:
         image = Image.open(io.BytesIO(data))
         text = dict(getattr(image, "text", {}) or {})
         if not text and "comment" in image.info:
-            text = {f"zab:{k}": v for k, v in json.loads(image.info["comment"]).items()}
+            with contextlib.suppress(ValueError):  # (a camera's own comment: not ours)
+                text = {f"zab:{k}": v for k, v in json.loads(image.info["comment"]).items()}
     except (OSError, UnidentifiedImageError, ValueError):
         return {}
     out: dict[str, Any] = {}
@@ -60,6 +62,9 @@ def _meta(data: bytes) -> dict[str, Any]:
             with contextlib.suppress(ValueError):
                 value = json.loads(value)
         out[name] = value
+    if not out:  # the camera's picture itself, put over IP while it is surfaced
+        out = {"whole": True, "final": True, "bytes": len(data), "budget": len(data),
+               "width": image.width, "height": image.height}
     return out
 
 

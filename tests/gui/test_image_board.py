@@ -1,4 +1,5 @@
-"""The GUI's image board: a page's control goes on its camera's key."""
+"""The GUI's image board: a page's control goes on its camera's key; a picture's metadata,
+or, for the camera's own picture put over IP, that it is whole."""
 
 from __future__ import annotations
 
@@ -6,8 +7,9 @@ import pytest
 
 from bridge.core.loaded import load_mission, parse_mission
 from bridge.gui.images import ImageBoard, ImageControlError
+from bridge.image.formats import write_image
 from tests.conftest import MISSIONS
-from tests.runtime.test_images_fleet import TWO_CAMERAS
+from tests.runtime.test_images_fleet import JPEG, PICTURE, TWO_CAMERAS
 
 
 def test_a_card_steers_its_own_camera_where_each_has_a_key() -> None:
@@ -27,3 +29,14 @@ def test_one_key_steers_every_camera_whichever_card() -> None:
         "cameras/control"
     single = ImageBoard(load_mission(MISSIONS / "bluerov_images.yaml"), "operator")
     assert single.control({"channel": "camera", "request": "now"})[0] == "camera/control"
+
+
+def test_the_camera_s_own_picture_over_ip_is_shown_whole() -> None:
+    board = ImageBoard(load_mission(MISSIONS / "bluerov_images.yaml"), "operator")
+    item = board.ingest("rov/camera", JPEG, "image/jpeg", 5.0)  # (surfaced: no zab metadata)
+    assert item is not None and item["meta"] == {
+        "whole": True, "final": True, "bytes": len(JPEG), "budget": len(JPEG),
+        "width": 320, "height": 240}
+    png = write_image(PICTURE[:120, :160], "png", text={"zab:bytes": "37", "zab:final": "false"})
+    item = board.ingest("rov/camera", png, "image/png", 6.0)
+    assert item is not None and item["meta"] == {"bytes": 37, "final": False}

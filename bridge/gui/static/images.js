@@ -161,8 +161,9 @@ const imageView = {
       card.figure.dataset.bytes = String(m.bytes || 0);
       card.figure.dataset.final = String(!!m.final);
       card.figure.dataset.size = `${m.width}x${m.height}`;
-      card.caption.textContent = `${item.node} · ${item.channel} #${m.sequence}: ` +
-        `${m.bytes} / ${budget} B` + (m.final ? " · complete" : "") +
+      card.caption.textContent = `${item.node} · ${item.channel}` +
+        (m.whole ? ` · the camera's own picture, over IP: ${m.bytes} B`
+          : ` #${m.sequence}: ${m.bytes} / ${budget} B` + (m.final ? " · complete" : "")) +
         (typeof m.psnr_estimate === "number" ? ` · ≈${m.psnr_estimate.toFixed(1)} dB` : "") +
         ` · ${m.width}×${m.height}` + ` · ${age(item.time)}`;
       card.fill.style.width = budget ? Math.min(100, 100 * m.bytes / budget) + "%" : "0";
