@@ -22,12 +22,14 @@ comes).
 While a receiver is reachable over IP (``surfacing``), the camera's pictures reach it whole,
 as they came: put on its output key over IP (:class:`~bridge.core.surfacing.Relay`, where
 that key is not the input key itself, which the receiver's applications see anyway), and not
-sent acoustically while every receiver is so reached (the picture is kept as the last one,
-which ``request: now`` sends after a dive). A picture already crossing when the receiver
-surfaced goes on crossing, and is shown to its end: it came before the IP path. A receiver
-does not publish the refinements of a picture that began to cross once the camera was
-reachable over IP (a camera that has not noticed yet): counted as ``surfaced_duplicates``,
-they would overwrite the whole picture, put over IP, with coarser ones. (A ROS 2 camera's
+sent acoustically while every receiver is so reached (the picture is kept as the last one).
+``request: now`` then puts that picture over IP again where it can (an output key that is
+the input key cannot show it again: there it crosses the water). A picture already crossing
+when the receiver surfaced goes on crossing, and is shown to its end: it came before the IP
+path. Where the camera puts its pictures over IP, a receiver does not publish the refinements
+of a picture that began to cross once the camera was reachable over IP (a camera that has not
+noticed yet): counted as ``surfaced_duplicates``, they would overwrite the whole picture with
+coarser ones. (A ROS 2 camera's
 pictures cross acoustically as ever: its messages are not pictures for the output key, and
 its topic reaches the surface's ROS 2 over IP anyway.)
 """
@@ -162,6 +164,14 @@ def control_keys(table: ChannelTable, node: str) -> dict[str, tuple[ChannelCodec
             key = spec.control_key.format(node=node, src=camera, dst=node)
             out[key] = (channel, channel.receivers.index(camera) + 1)
     return out
+
+
+def _relayed(spec: ImageSpec, camera: str, receivers: Iterable[str],
+             surfacing: Surfacing) -> bool:
+    """Whether a surfaced camera puts its pictures over IP on each receiver's output key (the
+    mission republishes, and that key is not the camera's input key)."""
+    key = spec.in_key.format(node=camera, src=camera)
+    return surfacing.republish and all(spec.output_key(camera, d) != key for d in receivers)
 
 
 class ImageSender(TransferSender):
@@ -369,17 +379,21 @@ class Images:
             pass  # (counted by steer)
         return True
 
-    def _over_ip(self, camera: ImageSender, picture: Picture, now: float) -> bool:
+    def _over_ip(self, camera: ImageSender, picture: Picture, now: float,
+                 asked: bool = False) -> bool:
         """Put ``picture`` as it came on the output keys of the camera's receivers reachable
-        over IP; whether every receiver is."""
+        over IP; whether it need not cross the water: every receiver is reachable and, for a
+        picture ``asked`` for again, each got it so (an output key that is the input key
+        itself showed the picture as it came, but cannot show it again)."""
         surfacing = self.surfacing
         if surfacing is None or not surfacing.reachable or camera.spec.ros2 is not None:
             return False
-        assert picture.key is not None
+        key = picture.key or camera.spec.in_key.format(node=self.node, src=self.node)
         outs = [(d, camera.spec.output_key(self.node, d)) for d in camera.dests]
-        self.outbox.items.extend(surfacing.relays(picture.key, outs, Relay(
-            picture.key, picture.data, picture.encoding, taken=now)))
-        return not surfacing.acoustic(camera.dests)
+        self.outbox.items.extend(surfacing.relays(key, outs, Relay(
+            key, picture.data, picture.encoding, taken=now)))
+        return not surfacing.acoustic(camera.dests) and (not asked or _relayed(
+            camera.spec, self.node, camera.dests, surfacing))
 
     def steer(self, key: str, value: Any, now: float, ref: str | None = None
               ) -> dict[str, Any]:
@@ -456,7 +470,12 @@ class Images:
             mine = channel.receivers.index(self.node) + 1 if camera is not None else -1
             for values in self.receivers.entry(src, channel, entry.header, entry.values):
                 if camera is not None and values[0].get("camera", 0) in (0, mine):
-                    self.outbox.reports(camera.control(values[0], now))
+                    value = values[0]
+                    picture = camera.latest or camera.last
+                    if value["request"] == "now" and picture is not None and self._over_ip(
+                            camera, picture, now, asked=True):
+                        value = {**value, "request": "none"}  # (it went over IP)
+                    self.outbox.reports(camera.control(value, now))
                     self.outbox.unsaved = True  # (its settings)
             return
         data, progress = self.receivers.fragment(src, channel, entry.header, entry.chunk)
@@ -480,7 +499,8 @@ class Images:
             shown.tid, shown.bytes, shown.begun = receiver.tid, 0, now
         surfacing = self.surfacing
         if surfacing is not None and src in surfacing.reachable and spec.ros2 is None \
-                and shown.begun >= surfacing.since[src]:
+                and shown.begun >= surfacing.since[src] \
+                and _relayed(spec, src, (self.node,), surfacing):
             surfacing.duplicates += 1  # (a picture the camera put since reaches us over IP)
             return
         if len(stream) <= shown.bytes or len(stream) < header_bytes(False) or (

@@ -11,9 +11,10 @@ from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 from tests.runtime.test_images_fleet import JPEG, pictures
 
-MISSION = (MISSIONS / "bluerov_images.yaml").read_text().replace(
-    "mission: bluerov_images", "mission: bluerov_images\nsurfacing: {republish: true}").replace(
-    "    in: rov/camera\n", "    in: camera\n")  # (the camera's own key: relayed to rov/camera)
+SAME_KEY = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+    "mission: bluerov_images", "mission: bluerov_images\nsurfacing: {republish: true}")
+MISSION = SAME_KEY.replace(  # (the camera's own key: relayed to rov/camera)
+    "    in: rov/camera\n", "    in: camera\n")
 
 
 def relays(fleet: FastFleet, node: str) -> list[Relay]:
@@ -59,3 +60,27 @@ def test_a_picture_begun_by_a_camera_that_has_not_noticed_the_surfacing_is_not_s
     assert pictures(fleet) == []
     surfacing = fleet.cores["operator"].surfacing
     assert surfacing is not None and surfacing.duplicates > 0
+
+
+def test_a_picture_asked_for_while_surfaced_comes_over_ip_where_it_can() -> None:
+    fleet = FastFleet(parse_mission(MISSION, "surf.yaml"), seed=1)
+    fleet.ip_link("operator", "rov", True)
+    fleet.put("rov", "camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.put("operator", "camera/control", {"request": "now"}, at=10.0)
+    fleet.run_until(40.0)
+    assert [r.key for r in relays(fleet, "rov")] == ["rov/camera", "rov/camera"]  # put, asked
+    assert pictures(fleet) == []
+
+
+def test_where_the_output_key_is_the_input_key_a_picture_asked_for_crosses_and_shows() -> None:
+    """The operator's applications saw the put itself over IP; asked for again, the picture
+    can only cross the water, and the operator shows it."""
+    fleet = FastFleet(parse_mission(SAME_KEY, "same.yaml"), seed=1)
+    fleet.ip_link("operator", "rov", True)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(8.0)
+    assert relays(fleet, "rov") == [] and pictures(fleet) == []  # (seen as put: not sent)
+    fleet.put("operator", "camera/control", {"request": "now"}, at=10.0)
+    fleet.run_until(50.0)
+    got = pictures(fleet)
+    assert got and got[-1][1]["zab:final"] == "true"
