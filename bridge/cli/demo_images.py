@@ -76,7 +76,7 @@ def camera_pair(loaded: LoadedMission) -> tuple[str, str, str, str, str] | None:
         for src in channel.senders:
             for dst in channel.destinations(src):
                 if nodes[src].zenoh.listen and nodes[dst].zenoh.listen:
-                    return (src, spec.in_key.format(node=src, src=src), dst,
+                    return (src, spec.input_key(src), dst,
                             spec.output_key(src, dst), channel.name)
     return None
 

@@ -29,9 +29,8 @@ when the receiver surfaced goes on crossing, and is shown to its end: it came be
 path. Where the camera puts its pictures over IP, a receiver does not publish the refinements
 of a picture that began to cross once the camera was reachable over IP (a camera that has not
 noticed yet): counted as ``surfaced_duplicates``, they would overwrite the whole picture with
-coarser ones. (A ROS 2 camera's
-pictures cross acoustically as ever: its messages are not pictures for the output key, and
-its topic reaches the surface's ROS 2 over IP anyway.)
+coarser ones. (A ROS 2 camera's pictures cross acoustically as ever: its messages are not
+pictures for the output key, and its topic reaches the surface's ROS 2 over IP anyway.)
 """
 
 from __future__ import annotations
@@ -164,14 +163,6 @@ def control_keys(table: ChannelTable, node: str) -> dict[str, tuple[ChannelCodec
             key = spec.control_key.format(node=node, src=camera, dst=node)
             out[key] = (channel, channel.receivers.index(camera) + 1)
     return out
-
-
-def _relayed(spec: ImageSpec, camera: str, receivers: Iterable[str],
-             surfacing: Surfacing) -> bool:
-    """Whether a surfaced camera puts its pictures over IP on each receiver's output key (the
-    mission republishes, and that key is not the camera's input key)."""
-    key = spec.in_key.format(node=camera, src=camera)
-    return surfacing.republish and all(spec.output_key(camera, d) != key for d in receivers)
 
 
 class ImageSender(TransferSender):
@@ -330,7 +321,7 @@ class Images:
             sender = senders.get(channel.index)
             if channel.image is not None and isinstance(sender, ImageSender):
                 sender.drop = drop
-                self.inputs[channel.image.in_key.format(node=node, src=node)] = sender
+                self.inputs[channel.image.input_key(node)] = sender
                 self.cameras[channel.index + 1] = sender
         self.controls: dict[str, Control] = {
             key: Control(channel, senders[channel.index], camera, _settings(
@@ -388,12 +379,12 @@ class Images:
         surfacing = self.surfacing
         if surfacing is None or not surfacing.reachable or camera.spec.ros2 is not None:
             return False
-        key = picture.key or camera.spec.in_key.format(node=self.node, src=self.node)
+        key = camera.spec.input_key(self.node)
         outs = [(d, camera.spec.output_key(self.node, d)) for d in camera.dests]
         self.outbox.items.extend(surfacing.relays(key, outs, Relay(
             key, picture.data, picture.encoding, taken=now)))
-        return not surfacing.acoustic(camera.dests) and (not asked or _relayed(
-            camera.spec, self.node, camera.dests, surfacing))
+        return not surfacing.acoustic(camera.dests) and (
+            not asked or all(surfacing.republishes(key, out) for _, out in outs))
 
     def steer(self, key: str, value: Any, now: float, ref: str | None = None
               ) -> dict[str, Any]:
@@ -500,7 +491,7 @@ class Images:
         surfacing = self.surfacing
         if surfacing is not None and src in surfacing.reachable and spec.ros2 is None \
                 and shown.begun >= surfacing.since[src] \
-                and _relayed(spec, src, (self.node,), surfacing):
+                and surfacing.republishes(spec.input_key(src), spec.output_key(src, self.node)):
             surfacing.duplicates += 1  # (a picture the camera put since reaches us over IP)
             return
         if len(stream) <= shown.bytes or len(stream) < header_bytes(False) or (

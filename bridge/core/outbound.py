@@ -113,7 +113,7 @@ class Outbound:
                       for key, found in self.bindings.items()}
         self._cap = payload_cap(max((e.layout.bits for c in table.channels
                                      for e in c.elements), default=0))
-        pictures = [c.image.in_key.format(node=node, src=node) for c in table.channels
+        pictures = [c.image.input_key(node) for c in table.channels
                     if c.image is not None and not c.image.control and c.sent_by(node)]
         self.keyspace = Keyspace(mission, table, node,
                                  [*self.bindings, *self.families.subscriptions(), *pictures],

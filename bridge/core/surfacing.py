@@ -65,14 +65,17 @@ class Surfacing:
         """The destinations still reached only acoustically."""
         return tuple(d for d in destinations if d not in self.reachable)
 
+    def republishes(self, input_key: str, output_key: str) -> bool:
+        """Whether a sample on ``input_key`` is put over IP on ``output_key`` (for a
+        destination reachable over IP): not where that is the input key itself."""
+        return self.republish and output_key != input_key
+
     def relays(self, input_key: str, out_keys: Iterable[tuple[str, str]],
                sample: Relay) -> list[Relay]:
         """Relays of an input ``sample`` (on ``input_key``): ``out_keys`` holds (destination,
         output key)."""
-        if not self.republish:
-            return []
         keys = sorted({key for dest, key in out_keys
-                       if dest in self.reachable and key != input_key})
+                       if dest in self.reachable and self.republishes(input_key, key)})
         self.relayed += len(keys)
         return [replace(sample, key=key) for key in keys]
 

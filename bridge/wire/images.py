@@ -77,6 +77,10 @@ class ImageSpec:
                    image.jpeg_quality, tuple(image.accept), image.max_input_pixels,
                    None if ros2 is None else (ros2.type, ros2.distro))
 
+    def input_key(self, camera: str) -> str:
+        """The key ``camera`` takes its pictures on."""
+        return self.in_key.format(node=camera, src=camera)
+
     def output_key(self, src: str, dst: str) -> str:
         """The key ``dst`` publishes ``src``'s pictures on."""
         return self.out_key.format(node=dst, src=src, dst=dst)
