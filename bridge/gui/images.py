@@ -63,8 +63,11 @@ def _meta(data: bytes) -> dict[str, Any]:
                 value = json.loads(value)
         out[name] = value
     if not out:  # the camera's picture itself, put over IP while it is surfaced
+        width, height = image.size
+        if image.getexif().get(0x0112) in (5, 6, 7, 8):  # shown turned a quarter
+            width, height = height, width
         out = {"whole": True, "final": True, "bytes": len(data), "budget": len(data),
-               "width": image.width, "height": image.height}
+               "width": width, "height": height}
     return out
 
 

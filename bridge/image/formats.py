@@ -2,7 +2,8 @@
 
 :func:`open_image` takes the bytes of a JPEG or PNG sample (the Zenoh encoding says which, or
 the bytes' signature when it says nothing), refusing a type not enabled and anything larger
-than a pixel limit by its header (no decompression bombs), and decodes it when first asked;
+than a pixel limit by its header (no decompression bombs), and decodes it when first asked
+(upright, by its EXIF orientation);
 :func:`fit` scales pixels to fit a size; :func:`write_image` makes a PNG (metadata in ``tEXt``
 chunks) or a JPEG (metadata in a comment).
 """
@@ -106,8 +107,18 @@ def _open(data: bytes, kind: str) -> Any:
 
 
 def _decoded(data: bytes, kind: str, colour: bool) -> U8:
+    """The pixels as a viewer shows them: turned upright by the EXIF orientation a camera
+    wrote, and 16-bit grey (PNG) by its high bytes, as a raw ``mono16`` (Pillow's own
+    conversion clips it at 255: a white picture)."""
+    from PIL import Image, ImageOps
+
     with _pillow_errors(kind, data):
-        converted = _open(data, kind).convert("RGB" if colour else "L")
+        image = _open(data, kind)
+        ImageOps.exif_transpose(image, in_place=True)
+        if image.mode.startswith("I"):  # I;16 (or I): 16-bit grey
+            high = np.clip(np.asarray(image), 0, 65535) >> 8
+            image = Image.fromarray(high.astype(np.uint8))
+        converted = image.convert("RGB" if colour else "L")
         return np.asarray(converted, dtype=np.uint8).copy()
 
 

@@ -3,7 +3,10 @@ or, for the camera's own picture put over IP, that it is whole."""
 
 from __future__ import annotations
 
+import io
+
 import pytest
+from PIL import Image
 
 from bridge.core.loaded import load_mission, parse_mission
 from bridge.gui.images import ImageBoard, ImageControlError
@@ -40,3 +43,15 @@ def test_the_camera_s_own_picture_over_ip_is_shown_whole() -> None:
     png = write_image(PICTURE[:120, :160], "png", text={"zab:bytes": "37", "zab:final": "false"})
     item = board.ingest("rov/camera", png, "image/png", 6.0)
     assert item is not None and item["meta"] == {"bytes": 37, "final": False}
+
+
+def test_the_camera_s_own_picture_turned_by_its_exif_gives_the_size_shown() -> None:
+    board = ImageBoard(load_mission(MISSIONS / "bluerov_images.yaml"), "operator")
+    image = Image.fromarray(PICTURE)  # 320 × 240, taken with the camera turned
+    exif = image.getexif()
+    exif[0x0112] = 8
+    out = io.BytesIO()
+    image.save(out, "JPEG", exif=exif.tobytes())
+    item = board.ingest("rov/camera", out.getvalue(), "image/jpeg", 5.0)
+    assert item is not None
+    assert (item["meta"]["width"], item["meta"]["height"]) == (240, 320)

@@ -58,3 +58,33 @@ def test_fit_keeps_proportions_and_never_enlarges() -> None:
 def test_png_metadata_is_readable() -> None:
     image = Image.open(io.BytesIO(PNG))
     assert image.text == {"seq": "3"}  # type: ignore[attr-defined]
+
+
+def _png16(values: np.ndarray) -> bytes:
+    """A 16-bit grey PNG of ``values`` (Pillow opens it as mode ``I;16``)."""
+    out = io.BytesIO()
+    Image.fromarray(values.astype(np.uint16)).save(out, "PNG")
+    return out.getvalue()
+
+
+def test_a_16_bit_grey_png_reads_as_its_high_bytes() -> None:
+    ramp = np.linspace(0, 65535, 48 * 64).reshape(48, 64).astype(np.uint16)
+    data = _png16(ramp)
+    assert Image.open(io.BytesIO(data)).mode == "I;16"
+    grey = read_image(data, "image/png", {"png"}, 10_000, colour=False)
+    assert np.array_equal(grey, (ramp >> 8).astype(np.uint8))  # (Pillow's own clips at 255)
+    rgb = read_image(data, "image/png", {"png"}, 10_000, colour=True)
+    assert np.array_equal(rgb, np.repeat(grey[..., None], 3, axis=2))
+
+
+def test_a_jpeg_is_turned_upright_by_its_exif_orientation() -> None:
+    pixels = np.zeros((40, 80, 3), dtype=np.uint8)
+    pixels[:, :40] = 255  # white on the left
+    image = Image.fromarray(pixels)
+    exif = image.getexif()
+    exif[0x0112] = 6  # the camera was turned: show it rotated 90° clockwise
+    out = io.BytesIO()
+    image.save(out, "JPEG", exif=exif.tobytes(), quality=95)
+    rgb = read_image(out.getvalue(), "image/jpeg", {"jpeg"}, 10_000, colour=True)
+    assert rgb.shape == (80, 40, 3)
+    assert rgb[:30].mean() > 200 > 50 > rgb[50:].mean()  # the left is now on top
