@@ -140,8 +140,10 @@ def _pillow_errors(kind: str, data: bytes) -> Iterator[None]:
 
 
 RAW = {"mono8": (1, 1), "mono16": (1, 2), "rgb8": (3, 1), "bgr8": (3, 1), "rgba8": (4, 1),
-       "bgra8": (4, 1), "8UC1": (1, 1), "8UC3": (3, 1)}
-"""Raw pixel encodings taken (sensor_msgs/Image): channels and bytes per channel."""
+       "bgra8": (4, 1), "rgb16": (3, 2), "bgr16": (3, 2), "rgba16": (4, 2), "bgra16": (4, 2),
+       "8UC1": (1, 1), "8UC3": (3, 1), "16UC1": (1, 2)}
+"""Raw pixel encodings taken (sensor_msgs/Image, its ``image_encodings``): channels and bytes
+per channel (16-bit ones by their high bytes)."""
 
 
 def read_raw(message: Mapping[str, Any], max_pixels: int, colour: bool) -> U8:
@@ -165,7 +167,7 @@ def read_raw(message: Mapping[str, Any], max_pixels: int, colour: bool) -> U8:
                               f"bytes (step {step})")
     rows = np.frombuffer(data, dtype=np.uint8)[:height * step].reshape(height, step)
     flat = rows[:, :width * channels * size]
-    if size == 2:  # mono16: keep the high byte
+    if size == 2:  # 16 bits a channel: keep the high byte
         flat = flat[:, 0::2] if message.get("is_bigendian") else flat[:, 1::2]
     pixels = flat.reshape(height, width, channels)
     if encoding.startswith("bgr"):

@@ -27,7 +27,8 @@ class Ros2Pictures(BaseModel):
                        "compressed); may use {node}.")
     type: Literal["sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/Image"] = Field(
         "sensor_msgs/msg/CompressedImage", description="CompressedImage (JPEG or PNG, as its "
-        "format says) or Image (mono8, mono16, rgb8, bgr8, rgba8, bgra8).")
+        "format says) or Image (mono8, mono16, rgb8, bgr8, rgba8, bgra8, rgb16, bgr16, rgba16, "
+        "bgra16, 8UC1, 8UC3, 16UC1).")
     distro: Literal["jazzy", "kilted"] = "jazzy"
     domain: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID, the first key chunk.")
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bridge.image.formats import ImageInputError, fit, kind_of, read_image, write_image
+from bridge.image.formats import ImageInputError, fit, kind_of, read_image, read_raw, write_image
 from bridge.image.synthetic import seabed
 
 PIXELS = seabed(60, 80, seed=1)
@@ -88,3 +88,41 @@ def test_a_jpeg_is_turned_upright_by_its_exif_orientation() -> None:
     rgb = read_image(out.getvalue(), "image/jpeg", {"jpeg"}, 10_000, colour=True)
     assert rgb.shape == (80, 40, 3)
     assert rgb[:30].mean() > 200 > 50 > rgb[50:].mean()  # the left is now on top
+
+
+def _raw(pixels: np.ndarray, encoding: str, big: bool = False, pad: int = 0) -> dict:
+    """A sensor_msgs/Image as plain data, each row padded by ``pad`` bytes."""
+    h, w = pixels.shape[:2]
+    data = pixels.astype(pixels.dtype.newbyteorder(">" if big else "<")).tobytes()
+    row = len(data) // h
+    rows = b"".join(data[r * row:(r + 1) * row] + b"\0" * pad for r in range(h))
+    return {"height": h, "width": w, "encoding": encoding, "is_bigendian": big,
+            "step": row + pad, "data": rows}
+
+
+def test_raw_pictures_read_in_every_encoding_taken() -> None:
+    rgb = PIXELS
+    assert np.array_equal(read_raw(_raw(rgb, "rgb8", pad=3), 10_000, colour=True), rgb)
+    assert np.array_equal(read_raw(_raw(rgb[..., ::-1], "bgr8"), 10_000, colour=True), rgb)
+    wide = rgb.astype(np.uint16) * 256 + 7  # each channel's high byte is the 8-bit value
+    for big in (False, True):
+        assert np.array_equal(read_raw(_raw(wide, "rgb16", big), 10_000, colour=True), rgb)
+        mono = read_raw(_raw(wide[..., 0], "mono16", big, pad=2), 10_000, colour=False)
+        assert np.array_equal(mono, rgb[..., 0])
+    alpha = np.concatenate([wide[..., ::-1], wide[..., :1]], axis=2)
+    assert np.array_equal(read_raw(_raw(alpha, "bgra16"), 10_000, colour=True), rgb)
+    grey = read_raw(_raw(rgb, "rgb8"), 10_000, colour=False)
+    assert np.abs(grey.astype(int) - rgb @ np.array([0.299, 0.587, 0.114])).max() <= 0.5
+
+
+def test_raw_pictures_that_do_not_fit_are_refused() -> None:
+    with pytest.raises(ImageInputError, match="'yuv422' is not one zab reads") as refused:
+        read_raw(_raw(PIXELS, "yuv422"), 10_000, colour=True)
+    assert refused.value.cause == "unfit"
+    short = _raw(PIXELS, "rgb8") | {"step": 100}
+    with pytest.raises(ImageInputError, match="does not fit"):
+        read_raw(short, 10_000, colour=True)
+    with pytest.raises(ImageInputError, match="more than the channel's 100"):
+        read_raw(_raw(PIXELS, "rgb8"), 100, colour=True)
+    with pytest.raises(ImageInputError, match="not a sensor_msgs/Image"):
+        read_raw({"height": 2}, 10_000, colour=True)
