@@ -58,8 +58,9 @@ import skimage.data
 from PIL import Image
 from skimage.metrics import structural_similarity
 
-from bridge.image.codec import decode, encode
-from bridge.image.geometry import Roi
+from bridge.image.bitplanes import Planes, decode_planes
+from bridge.image.codec import _read_header, decode, encode
+from bridge.image.geometry import Geometry, Roi, geometry
 from bridge.image.synthetic import seabed
 
 BUDGETS = (200, 400, 800, 1600, 3200, 6400)
@@ -115,6 +116,15 @@ def ssim(a: np.ndarray, b: np.ndarray) -> float:
 
 def ours(pixels: np.ndarray, budget: int) -> np.ndarray:
     return decode(encode(pixels, budget)).pixels
+
+
+def stream_state(pixels: np.ndarray, budget: int) -> tuple[Geometry, Planes]:
+    """What a decoder knows of ``pixels`` coded at ``budget`` (no ROI): the picture's
+    geometry and every coefficient's known bits (for the studies)."""
+    bits = bin(int.from_bytes(b"\x01" + encode(pixels, budget), "big"))[3:]
+    head = _read_header(bits)
+    geo = geometry(head.height, head.width, head.colour)
+    return geo, decode_planes(geo, bits[head.at:], head.top)
 
 
 def jpeg2000(pixels: np.ndarray, budget: int, folder: Path) -> np.ndarray | None:

@@ -37,11 +37,10 @@ from numpy.typing import NDArray
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from image_bench import pictures, psnr
+from image_bench import pictures, psnr, stream_state
 
-from bridge.image.bitplanes import decode_planes
-from bridge.image.codec import QUANTUM, _components, _pixels, _read_header, encode
-from bridge.image.geometry import Geometry, geometry
+from bridge.image.codec import QUANTUM, _components, _pixels
+from bridge.image.geometry import Geometry
 from bridge.image.wavelet import forward, inverse
 
 F64 = NDArray[np.float64]
@@ -66,11 +65,7 @@ class Decoded:
 
 
 def decoded(pixels: NDArray[np.uint8], budget: int) -> Decoded:
-    stream = encode(pixels, budget)
-    bits = bin(int.from_bytes(b"\x01" + stream, "big"))[3:]
-    head = _read_header(bits)
-    geo = geometry(head.height, head.width, head.colour)
-    state = decode_planes(geo, bits[head.at:], head.top)
+    geo, state = stream_state(pixels, budget)
     at, vals = state.values()
     values = np.zeros(geo.size + 1)  # (a spare slot: neighbours past a band's end)
     values[at] = vals

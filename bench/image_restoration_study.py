@@ -86,12 +86,11 @@ from skimage.restoration import denoise_tv_chambolle
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from image_bench import luma, pictures
+from image_bench import luma, pictures, stream_state
 
 from bridge.image import codec as codec_module
 from bridge.image import geometry as geometry_module
-from bridge.image.bitplanes import decode_planes
-from bridge.image.codec import QUANTUM, _mse_estimate, _read_header, decode, encode
+from bridge.image.codec import QUANTUM, _mse_estimate, decode, encode
 from bridge.image.geometry import geometry
 from bridge.image.wavelet import forward, inverse
 
@@ -112,11 +111,7 @@ class Decoded:
 
 
 def decoded(pixels: NDArray[np.uint8], budget: int) -> Decoded:
-    stream = encode(pixels, budget)
-    bits = bin(int.from_bytes(b"\x01" + stream, "big"))[3:]
-    head = _read_header(bits)
-    geo = geometry(head.height, head.width, head.colour)
-    state = decode_planes(geo, bits[head.at:], head.top)
+    geo, state = stream_state(pixels, budget)
     at = np.flatnonzero(geo.luma)
     scale = geo.weight[at] * QUANTUM
     sig = state.significant[at]
@@ -133,7 +128,7 @@ def decoded(pixels: NDArray[np.uint8], budget: int) -> Decoded:
     shape, levels = geo.shapes[0], geo.levels[0]
     plane = inverse(canvas[:size].reshape(shape), levels) + 128.0
     return Decoded(luma(pixels), plane, cell_low.reshape(shape), cell_high.reshape(shape),
-                   levels, float(np.sqrt(_mse_estimate(geo, state, head.height * head.width))))
+                   levels, float(np.sqrt(_mse_estimate(geo, state, size))))
 
 
 def project(plane: F64, d: Decoded) -> F64:
