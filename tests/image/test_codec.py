@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bridge.image.codec import ImageStreamError, decode, encode, header_bytes
+from bridge.image.codec import ImageStreamError, _pixels, decode, encode, header_bytes
 from bridge.image.geometry import CHROMA_WEIGHT, Roi, geometry
 from bridge.image.synthetic import seabed
 from bridge.image.wavelet import forward, inverse, levels_for
@@ -121,6 +121,23 @@ def test_colour_goes_as_luma_and_half_size_chroma() -> None:
     image = decode(encode(COLOUR, 1600))
     assert image.pixels.shape == COLOUR.shape
     assert psnr(COLOUR, image.pixels) > 28
+
+
+def test_a_colour_out_of_range_comes_back_desaturated_with_its_luma() -> None:
+    to_rgb = np.array([[0.0, 1.402], [-0.344136, -0.714136], [1.772, 0.0]])  # (Cb, Cr)
+    for y, cb, cr in np.random.default_rng(5).uniform(-150, 150, (200, 3)):
+        rgb = _pixels([np.full((4, 4), y), np.full((2, 2), cb), np.full((2, 2), cr)])
+        assert np.all(rgb == rgb[0, 0])
+        got = rgb[0, 0].astype(float)
+        luma = got @ np.array([0.299, 0.587, 0.114])
+        assert abs(luma - np.clip(y + 128, 0, 255)) <= 0.5  # (channels rounded)
+        chroma = to_rgb @ [cb, cr]
+        scale = (got - luma) @ chroma / (chroma @ chroma)  # the same hue, less of it
+        assert np.abs(got - luma - scale * chroma).max() <= 1.0
+        assert -0.01 <= scale <= 1.01
+        plain = y + 128 + chroma
+        if np.all((plain >= 0) & (plain <= 255)):  # in range: as converted
+            assert np.abs(got - plain).max() <= 0.5
 
 
 def test_a_region_of_interest_sharpens_first() -> None:
