@@ -40,8 +40,10 @@ acomms bugs worked around here, never in the emulator:
   all three fields from one), so the test checks the ``$CACDR`` acomms received.
 * ``UnifiedLog()`` adds a file handler to the root logger under ``~/acomms_logs``: the tests
   give it a root name and a temporary folder, and remove its handlers at the end.
-* The serial thread never ends (after ``disconnect`` it retries the port every second); it
-  is a daemon thread, so it dies with the test process.
+* The serial thread never ends (after ``disconnect`` it opens the port again every second:
+  a later test's pty may take this one's name) and reads on while the port closes (a read
+  on the closed port raises in the thread). :meth:`Lab.close` stops its reads and points it
+  at a path that never exists first; a daemon thread, it dies with the test process.
 """
 
 from __future__ import annotations
@@ -189,6 +191,11 @@ class Lab:
         return lines
 
     def close(self) -> None:
+        connection = self.modem.connection
+        if connection is not None:  # (see the module docstring)
+            connection.port = "/nonexistent/acomms-lab-closed"
+            connection.readline = lambda: time.sleep(connection.timeout)
+            time.sleep(3 * connection.timeout)  # (a read under way ends)
         self.modem.disconnect()
         for handler in list(self.log._log.handlers):
             handler.close()
