@@ -108,21 +108,21 @@ def test_run_stops_cleanly_on_sigint(tmp_path: Path) -> None:
             "b": {"address": 2, "modem": {"options": {"port": free_port()}}},
         },
     }))
-    proc = subprocess.Popen([sys.executable, "-m", "bridge", "run", str(mission), "--node", "a"],
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "COLUMNS": "200"})
-    try:
-        deadline = time.time() + 20
-        assert proc.stderr is not None
-        for line in proc.stderr:
-            if "bridge running" in line or time.time() > deadline:
-                break
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    with subprocess.Popen([sys.executable, "-m", "bridge", "run", str(mission), "--node", "a"],
+                          cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                          text=True, env={**os.environ, "COLUMNS": "200"}) as proc:
+        try:
+            deadline = time.time() + 20
+            assert proc.stderr is not None
+            for line in proc.stderr:
+                if "bridge running" in line or time.time() > deadline:
+                    break
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(timeout=10) == 0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
 
 
 def test_run_unknown_node_exit_2() -> None:

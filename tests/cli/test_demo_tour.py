@@ -94,8 +94,11 @@ class Demo:
         self.started = time.monotonic()
         self.proc = subprocess.Popen(self.args, cwd=self.folder, env=env, text=True,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        for stream, into in ((self.proc.stdout, self.lines), (self.proc.stderr, self.errors)):
-            threading.Thread(target=self._read, args=(stream, into), daemon=True).start()
+        self.readers = [threading.Thread(target=self._read, args=(stream, into), daemon=True)
+                        for stream, into in ((self.proc.stdout, self.lines),
+                                             (self.proc.stderr, self.errors))]
+        for reader in self.readers:
+            reader.start()
 
     def _read(self, stream: Any, into: list[str]) -> None:
         for line in stream:
@@ -111,6 +114,7 @@ class Demo:
             demo = cls([str(BIN / "zab"), "demo", *args], folder, {})
             if not demo.refused():
                 return demo
+            demo.stop()
         endpoints = {}
         data = yaml.safe_load(mission.read_text())
         for node in data["nodes"].values():
@@ -167,6 +171,11 @@ class Demo:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+        for reader in self.readers:  # (the pipes end with the process)
+            reader.join(5)
+        for stream in (self.proc.stdout, self.proc.stderr):
+            if stream is not None:
+                stream.close()
 
 
 @pytest.fixture(scope="module")
@@ -228,6 +237,9 @@ def test_the_readme_listen_and_put_lines_work_as_written(morph: Demo) -> None:
             if listener.poll() is None:
                 listener.kill()
                 listener.wait()
+            for stream in (listener.stdout, listener.stderr):
+                if stream is not None:
+                    stream.close()
     assert listener.returncode in (0, 130)
 
 

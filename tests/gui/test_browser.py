@@ -35,8 +35,9 @@ def gui_process(path: Path, node: str | None = None) -> Iterator[str]:
         [sys.executable, "-m", "bridge", "gui", str(path), "--port", "0",
          *(("--node", node) if node else ())],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=REPO)
+    assert process.stdout is not None
+    drain = threading.Thread(target=process.stdout.read, daemon=True)  # (after the URL)
     try:
-        assert process.stdout is not None
         lines = []
         for line in process.stdout:
             lines.append(line)
@@ -45,7 +46,7 @@ def gui_process(path: Path, node: str | None = None) -> Iterator[str]:
                 break
         else:
             raise AssertionError("zab gui printed no URL:\n" + "".join(lines))
-        threading.Thread(target=process.stdout.read, daemon=True).start()  # keep it draining
+        drain.start()
         yield found.group(1)
     finally:
         process.terminate()
@@ -54,6 +55,9 @@ def gui_process(path: Path, node: str | None = None) -> Iterator[str]:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait(5)
+        if drain.is_alive():
+            drain.join(5)  # (the pipe ends with the process)
+        process.stdout.close()
 
 
 def open_page(stack: contextlib.ExitStack, url: str, height: int = 900
