@@ -185,12 +185,10 @@ def _into_gamut(channels: tuple[F64, F64, F64], y: F64) -> None:
     out = np.flatnonzero((low < 0) | (high > 255))  # (on whole planes: few are out)
     if not out.size:
         return
-    luma = y.ravel()[out]
+    luma, up, down = y.ravel()[out], high.ravel()[out], low.ravel()[out]
     inside = np.clip(luma, 0.0, 255.0)
-    above = np.divide(255.0 - inside, high.ravel()[out] - luma, out=np.ones(out.size),
-                      where=high.ravel()[out] > luma)
-    below = np.divide(inside, luma - low.ravel()[out], out=np.ones(out.size),
-                      where=low.ravel()[out] < luma)
+    above = np.divide(255.0 - inside, up - luma, out=np.ones(out.size), where=up > luma)
+    below = np.divide(inside, luma - down, out=np.ones(out.size), where=down < luma)
     scale = np.minimum(np.minimum(above, below, out=above), 1.0, out=above)
     for channel in channels:
         flat = channel.reshape(-1)
