@@ -135,33 +135,34 @@ def listing1_crosses_in_the_next_slot(loaded: LoadedMission) -> None:
 
 
 @contextlib.contextmanager
-def zab_run(mission: Path, node: str, *args: str, env: dict[str, str] | None = None
+def zab_run(mission: Path, node: str, *args: str, env: dict[str, str] | None = None,
+            stop: signal.Signals = signal.SIGTERM
             ) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
     """A real ``zab run`` process, yielded once it says it runs, with the lines it printed so
-    far; SIGTERM on exit, after which it must stop cleanly (exit 0). Killed if anything
-    fails."""
+    far; ``stop`` (SIGTERM, or SIGINT as Ctrl-C) on exit, after which it must stop cleanly
+    (exit 0). Killed if anything fails; its pipe closed either way."""
     argv = [sys.executable, "-m", "bridge", "run", str(mission), "--node", node, *args]
-    proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, env={**(os.environ if env is None else env),
-                                            "COLUMNS": "300"})
-    try:
-        assert proc.stdout is not None
-        lines: list[str] = []
-        for line in proc.stdout:
-            lines.append(line)
-            if "bridge running" in line:
-                break
-        else:
-            raise AssertionError("zab run did not start:\n" + "".join(lines))
-        yield proc, lines
-        proc.send_signal(signal.SIGTERM)
-        rest, _ = proc.communicate(timeout=30)
-        lines.append(rest)
-        assert proc.returncode == 0, "".join(lines)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    with subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                          text=True, env={**(os.environ if env is None else env),
+                                          "COLUMNS": "300"}) as proc:
+        try:
+            assert proc.stdout is not None
+            lines: list[str] = []
+            for line in proc.stdout:
+                lines.append(line)
+                if "bridge running" in line:
+                    break
+            else:
+                raise AssertionError("zab run did not start:\n" + "".join(lines))
+            yield proc, lines
+            proc.send_signal(stop)
+            rest, _ = proc.communicate(timeout=30)
+            lines.append(rest)
+            assert proc.returncode == 0, "".join(lines)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
 
 
 def bench_module(name: str) -> ModuleType:

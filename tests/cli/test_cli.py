@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -17,6 +16,7 @@ from typer.testing import CliRunner
 from bridge.cli.app import app
 from bridge.mission.schema import default_schema_path, schema_text
 from tests.conftest import MISSIONS, REPO, free_port
+from tests.harness import zab_run
 
 RUNNER = CliRunner()
 
@@ -108,21 +108,8 @@ def test_run_stops_cleanly_on_sigint(tmp_path: Path) -> None:
             "b": {"address": 2, "modem": {"options": {"port": free_port()}}},
         },
     }))
-    with subprocess.Popen([sys.executable, "-m", "bridge", "run", str(mission), "--node", "a"],
-                          cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                          text=True, env={**os.environ, "COLUMNS": "200"}) as proc:
-        try:
-            deadline = time.time() + 20
-            assert proc.stderr is not None
-            for line in proc.stderr:
-                if "bridge running" in line or time.time() > deadline:
-                    break
-            proc.send_signal(signal.SIGINT)
-            assert proc.wait(timeout=10) == 0
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+    with zab_run(mission, "a", stop=signal.SIGINT):  # (exit 0 after Ctrl-C, or it fails)
+        pass
 
 
 def test_run_unknown_node_exit_2() -> None:

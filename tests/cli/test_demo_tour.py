@@ -15,7 +15,6 @@ import json
 import os
 import re
 import shlex
-import signal
 import socket
 import subprocess
 import sys
@@ -33,6 +32,7 @@ import yaml
 
 from bridge.cli.demo import default_demo_mission
 from tests.conftest import MISSIONS, REPO, free_port
+from tests.zsim import interrupt
 
 BIN = Path(sys.executable).parent  # what `uv run` runs: this venv's programs
 ZSPACE = MISSIONS / "zspace.yaml"
@@ -164,13 +164,7 @@ class Demo:
         return self.text
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        interrupt(self.proc, timeout=30)
         for reader in self.readers:  # (the pipes end with the process)
             reader.join(5)
         for stream in (self.proc.stdout, self.proc.stderr):
@@ -206,40 +200,31 @@ def morph(demos: dict[str, Demo]) -> Demo:
 
 def test_the_readme_listen_and_put_lines_work_as_written(morph: Demo) -> None:
     listen, put = readme_block("readme-poke").strip().splitlines()
-    listener = subprocess.Popen(as_run(listen, morph.endpoints), cwd=REPO, text=True,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    try:
-        assert listener.stderr is not None and listener.stdout is not None
-        assert "listening on ssv/* at" in listener.stderr.readline()
-        done = subprocess.run(as_run(put, morph.endpoints), cwd=REPO, capture_output=True,
-                              text=True, timeout=30)
-        assert done.returncode == 0, done.stderr
-        assert re.fullmatch(r"put command \(\d+ B msgpack, ref put-[0-9a-f]{8}\) at "
-                            r"tcp/127\.0\.0\.1:\d+\n", done.stdout)
-        # the demo's programs see the operator's put (and leave the key alone)
-        morph.wait_for(r'ssv ← operator: command \{"action": "surface", "leg": 3\}', 10)
-        # it crosses in the ssv's next slots, acknowledged, whatever the water loses
-        expected = readme_arrival()
-        arrived = []
-        deadline = time.monotonic() + WAIT_S
-        while time.monotonic() < deadline and (not arrived or arrived[-1] != expected):
-            arrived.append(listener.stdout.readline().strip())
-        assert arrived[-1] == expected, arrived
-        for line in arrived:  # the GPS fix to its channel's step, no float noise; the
-            # tour's own command (part 3) may come first
-            assert re.fullmatch(r'ssv/gps \{"lat": \d+\.\d{1,6}, "lon": \d+\.\d{1,6}\}|'
-                                r'ssv/command \{"action": "\w+", "leg": \d+\}', line), line
-    finally:
-        listener.send_signal(signal.SIGINT)  # the README's listen runs until Ctrl-C
+    with subprocess.Popen(as_run(listen, morph.endpoints), cwd=REPO, text=True,
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE) as listener:
         try:
-            listener.wait(timeout=15)
+            assert listener.stderr is not None and listener.stdout is not None
+            assert "listening on ssv/* at" in listener.stderr.readline()
+            done = subprocess.run(as_run(put, morph.endpoints), cwd=REPO, capture_output=True,
+                                  text=True, timeout=30)
+            assert done.returncode == 0, done.stderr
+            assert re.fullmatch(r"put command \(\d+ B msgpack, ref put-[0-9a-f]{8}\) at "
+                                r"tcp/127\.0\.0\.1:\d+\n", done.stdout)
+            # the demo's programs see the operator's put (and leave the key alone)
+            morph.wait_for(r'ssv ← operator: command \{"action": "surface", "leg": 3\}', 10)
+            # it crosses in the ssv's next slots, acknowledged, whatever the water loses
+            expected = readme_arrival()
+            arrived = []
+            deadline = time.monotonic() + WAIT_S
+            while time.monotonic() < deadline and (not arrived or arrived[-1] != expected):
+                arrived.append(listener.stdout.readline().strip())
+            assert arrived[-1] == expected, arrived
+            for line in arrived:  # the GPS fix to its channel's step, no float noise; the
+                # tour's own command (part 3) may come first
+                assert re.fullmatch(r'ssv/gps \{"lat": \d+\.\d{1,6}, "lon": \d+\.\d{1,6}\}|'
+                                    r'ssv/command \{"action": "\w+", "leg": \d+\}', line), line
         finally:
-            if listener.poll() is None:
-                listener.kill()
-                listener.wait()
-            for stream in (listener.stdout, listener.stderr):
-                if stream is not None:
-                    stream.close()
+            interrupt(listener)  # the README's listen runs until Ctrl-C
     assert listener.returncode in (0, 130)
 
 
