@@ -4,14 +4,19 @@ crosses hops end to end (reliable values, queries, authentication)."""
 
 from __future__ import annotations
 
+import io
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import pytest
+from PIL import Image
 
 from bridge.core.events import Delivery, FrameReceived, FrameRelayed, FrameSent, LinkSwitched
 from bridge.core.loaded import LoadedMission, load_mission, parse_mission
 from bridge.core.node import Publish
+from bridge.image.formats import write_image
+from bridge.image.synthetic import seabed
 from bridge.mission.loader import MissionProblems
 from bridge.runtime.virtual_fleet import FastFleet
 
@@ -123,6 +128,47 @@ def test_a_get_at_the_surface_is_answered_on_the_node_behind_the_relay() -> None
     fleet.run_until(120.0)
     assert result.done and result.error is None
     assert [value for _, value, _ in result.replies] == [{"battery": 77}]
+
+
+CAMERA = """\
+images:
+  - name: camera
+    from: rov2
+    to: surface
+    in: rov2/camera
+    out: rov2/camera
+    control: rov2/camera/control
+    width: 160
+    height: 120
+    budget_bytes: 600
+    publish_interval_s: 0
+"""
+
+
+def test_a_picture_behind_the_relay_sharpens_at_the_surface_and_takes_its_roi() -> None:
+    """Seed 002's feedback from the ROV the surface reaches only through ROV1 (CAPTURE's
+    multi-hop pictures): the operator's ROI crosses the relay one way, the picture the other."""
+    fleet = FastFleet(parse_mission(UMCI.format(rov2_x=503, auth="") + CAMERA, "umci.yaml"),
+                      seed=3)
+    fleet.put("surface", "rov2/camera/control", {"roi": [0.0, 0.0, 0.5, 0.5],
+                                                 "budget_bytes": 400, "request": "none"}, at=1.0)
+    picture = seabed(120, 160, seed=4, colour=False)
+    fleet.put("rov2", "rov2/camera", write_image(picture, "jpeg", quality=92),
+              encoding="image/jpeg", at=40.0)
+    fleet.run_until(200.0)
+    shown = [Image.open(io.BytesIO(p.value)) for _, p in fleet.published("surface",
+                                                                         "rov2/camera")]
+    texts = [dict(image.text) for image in shown]  # type: ignore[attr-defined]
+    assert len(shown) >= 4
+    sizes = [int(t["zab:bytes"]) for t in texts]
+    assert sizes == sorted(sizes) and texts[-1]["zab:final"] == "true"
+    assert texts[-1]["zab:roi"] == "[0.0, 0.0, 0.5, 0.5]" and sizes[-1] <= 400
+    error = np.asarray(shown[-1]).astype(float) - picture
+    roi, rest = (10 * np.log10(255 ** 2 / float(np.mean(e ** 2)))
+                 for e in (error[:60, :80], error[60:, 80:]))
+    assert roi > 35 and roi > rest + 10  # (the ROI's top left quarter against the far one)
+    relayed = Counter(e.origin for e in events(fleet, FrameRelayed, "rov1"))
+    assert relayed["rov2"] >= 4 and relayed["surface"] >= 1
 
 
 def test_a_route_nobody_reaches_fails_naming_the_missing_hop() -> None:
