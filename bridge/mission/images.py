@@ -58,7 +58,7 @@ class ImageChannel(BaseModel):
                                 "one key per camera, each steering its own) where operators "
                                 "put {request: now|cancel, width, height, budget_bytes, roi: "
                                 "[x0, y0, x1, y1] or null} (msgpack or JSON; any subset); "
-                                "default: <out>/control.")
+                                "default: <out>/control; never the out key itself.")
     width: int = Field(160, ge=8, le=2048, description="Largest width sent, pixels (pictures "
                        "are scaled to fit, keeping their proportions).")
     height: int = Field(120, ge=8, le=2048, description="Largest height sent, pixels.")

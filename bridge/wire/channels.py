@@ -503,6 +503,14 @@ def compile_images(mission: Mission) -> tuple[ChannelCodec, ...]:
             if bad:
                 raise ChannelTableError(f"unknown template {{{sorted(bad)[0]}}} in {key!r}",
                                         (*loc, where))
+        for src in senders:
+            for dst in set(receivers) - {src}:
+                out_key = spec.output_key(src, dst)
+                if image.control_key.format(node=dst, dst=dst, src=src) == out_key:
+                    raise ChannelTableError(
+                        f"{out_key!r} at {dst} is both the pictures' output and the operator's "
+                        "control: a viewer there would get settings among the pictures (give "
+                        "control a key of its own; by default <out>/control)", (*loc, "control"))
         capacity = min(entry_capacity_bits(mission, s, True) for s in senders)
         fragment_bits, chunk = 1, 0
         for _ in range(4):  # the header size depends on the number of fragments: settle it

@@ -15,6 +15,7 @@ from bridge.core.loaded import load_mission, parse_mission
 from bridge.core.node import NodeCore, Status
 from bridge.image.formats import write_image
 from bridge.image.synthetic import seabed
+from bridge.mission.loader import MissionProblems
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 
@@ -276,6 +277,24 @@ def test_a_refused_size_names_its_own_bound() -> None:
         Images._merge({}, {"budget_bytes": 3000}, 2048)
     assert str(refused.value) == \
         "budget_bytes 3000 is outside 16..2048 (the channel's max_budget_bytes)"
+
+
+@pytest.mark.parametrize(("control", "out"), [
+    ("rov/camera", "rov/camera"),  # the operator's control on the pictures' own key
+    ("'{src}/camera'", "'{src}/camera'"),  # the same once each camera's key is filled in
+])
+def test_a_control_key_that_is_the_pictures_output_is_refused(control: str, out: str) -> None:
+    """A viewer on the pictures' key would get the operator's settings among them."""
+    text = (MISSIONS / "bluerov_images.yaml").read_text()
+    assert "control: camera/control" in text and "out: rov/camera" in text
+    text = text.replace("control: camera/control", f"control: {control}").replace(
+        "out: rov/camera", f"out: {out}")
+    with pytest.raises(MissionProblems) as refused:
+        parse_mission(text, "bad.yaml")
+    assert "images[0].control: 'rov/camera' at operator is both the pictures' output and the " \
+        "operator's control" in str(refused.value)
+    parse_mission(text.replace(f"control: {control}", "control: rov/camera/settings"),
+                  "good.yaml")
 
 
 def test_fragments_shorter_than_an_roi_s_header_are_no_malformed_stream() -> None:
