@@ -187,6 +187,36 @@ def test_ros2_compressed_and_raw_pictures_cross() -> None:
         assert fleet.cores["rov"].stats.payloads_dropped["0/rov/camera/*/*"] == 1
 
 
+def test_a_colour_camera_s_pictures_come_out_as_colour_jpegs() -> None:
+    """colour: true and format: jpeg: the operator's viewer gets RGB JPEGs (their metadata as
+    JSON in the comment) in the camera's colours, sharpening."""
+    import json
+
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    height: 120\n", "    height: 120\n    colour: true\n    format: jpeg\n"
+        "    jpeg_quality: 95\n")
+    fleet = FastFleet(parse_mission(text), seed=8)
+    picture = seabed(240, 320, seed=5)
+    picture[80:160, 100:220] = (250, 30, 30)  # a red box on the seabed
+    fleet.put("rov", "rov/camera", write_image(picture, "jpeg", quality=95),
+              encoding="image/jpeg", at=1.0)
+    fleet.run_until(40.0)
+    got = []
+    for _, p in fleet.published("operator", "rov/camera"):
+        assert p.encoding == "image/jpeg"
+        image = Image.open(io.BytesIO(p.value))
+        assert image.format == "JPEG" and image.mode == "RGB"
+        got.append((json.loads(image.info["comment"]), np.asarray(image)))
+    assert len(got) >= 10 and got[-1][0]["zab:final"] == "true"
+    assert [int(meta["zab:bytes"]) for meta, _ in got] == sorted(
+        int(meta["zab:bytes"]) for meta, _ in got)
+    small = np.asarray(Image.fromarray(picture).resize((160, 120), Image.Resampling.LANCZOS))
+    assert psnr(small, got[-1][1]) > psnr(small, got[0][1]) + 6
+    assert psnr(small, got[-1][1]) > 30
+    box = got[-1][1][45:75, 55:105].reshape(-1, 3).mean(axis=0)
+    assert box[0] > 220 and box[1] < 60 and box[2] < 60, box  # still red
+
+
 def test_a_newer_picture_waits_or_cancels_as_the_policy_says() -> None:
     other = write_image(seabed(240, 320, seed=9, colour=False), "jpeg", quality=92)
     for policy in ("finish", "cancel"):
