@@ -217,6 +217,52 @@ def test_a_colour_camera_s_pictures_come_out_as_colour_jpegs() -> None:
     assert box[0] > 220 and box[1] < 60 and box[2] < 60, box  # still red
 
 
+def delivery(fleet: FastFleet) -> list[dict]:
+    """The camera's delivery reports, in order."""
+    return [o.output.payload for o in fleet.outputs if o.node == "rov"
+            and isinstance(o.output, Status) and o.output.topic == "delivery/camera"]
+
+
+def test_a_camera_sending_on_request_sends_only_the_newest_when_asked() -> None:
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    policy: finish", "    send: on_request\n    policy: finish")
+    fleet = FastFleet(parse_mission(text), seed=8)
+    shots = [seabed(240, 320, seed=s, colour=False) for s in (1, 2, 3)]
+    for i, shot in enumerate(shots):
+        fleet.put("rov", "rov/camera", write_image(shot, "jpeg", quality=92),
+                  encoding="image/jpeg", at=1.0 + i)
+    fleet.run_until(20.0)
+    assert pictures(fleet) == [] and delivery(fleet) == []  # nothing goes unasked
+    fleet.put("operator", "camera/control", {"request": "now"}, at=21.0)
+    fleet.run_until(70.0)
+    got = pictures(fleet)
+    assert got[0][0] > 21.0 and got[-1][1]["zab:final"] == "true"
+    assert len({t["zab:sequence"] for _, t, _ in got}) == 1  # one picture: the newest
+    small = [np.asarray(Image.fromarray(shot).resize((160, 120), Image.Resampling.LANCZOS))
+             for shot in shots]
+    assert psnr(small[2], got[-1][2]) > 40 > 30 > max(psnr(s, got[-1][2]) for s in small[:2])
+    assert [r["state"] for r in delivery(fleet)] == ["queued", "sent", "delivered"]
+
+
+def test_a_picture_unfinished_after_its_ttl_is_given_up_for_the_next() -> None:
+    """ttl_s 10 against the ~27 s a 1.6 kB picture takes: each is reported failed at 10 s and
+    the next one starts; none is shown as final."""
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    policy: finish", "    ttl_s: 10\n    policy: finish")
+    fleet = FastFleet(parse_mission(text), seed=8)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.put("rov", "rov/camera", write_image(seabed(240, 320, seed=2, colour=False), "jpeg"),
+              encoding="image/jpeg", at=2.0)
+    fleet.run_until(60.0)
+    failed = [r for r in delivery(fleet) if r["state"] == "failed"]
+    assert [r["reason"] for r in failed] == ["older than ttl_s=10"] * 2
+    assert failed[1]["sequence"] == failed[0]["sequence"] + 1
+    assert failed[0]["time"] == pytest.approx(12.0, abs=1.0)  # 10 s after it began, at a turn
+    got = pictures(fleet)
+    assert {t["zab:sequence"] for _, t, _ in got} == {str(r["sequence"]) for r in failed}
+    assert all(t["zab:final"] == "false" for _, t, _ in got)
+
+
 def test_a_newer_picture_waits_or_cancels_as_the_policy_says() -> None:
     other = write_image(seabed(240, 320, seed=9, colour=False), "jpeg", quality=92)
     for policy in ("finish", "cancel"):
