@@ -114,6 +114,14 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         slowest: float | None = max((w for w in waits if w is not None), default=None)
         image["seconds_per_picture"] = None if slowest is None else round(
             slowest * image["fragments_per_picture"], 1)
+        ttl = image["ttl_s"]
+        if ttl is not None and image["seconds_per_picture"] is not None and \
+                image["seconds_per_picture"] > ttl:
+            report.warnings.append(
+                f"image channel '{image['name']}': a picture of {image['budget_bytes']} B "
+                f"takes up to {image['seconds_per_picture']} s ({image['fragments_per_picture']}"
+                f" fragments, one a turn), more than its ttl_s={ttl:g}: such a picture is "
+                "given up unfinished (raise ttl_s or lower budget_bytes)")
     mac_data: dict[str, Any] = {}
     for link in network.links:
         data, warnings = mac_for(link.view).check(by_link[link.name])
@@ -258,7 +266,8 @@ def _image(channel: ChannelCodec, codec: FrameCodec) -> dict[str, Any]:
             "max_budget_bytes": spec.largest_budget, "fragment_bytes": chunk,
             "fragment_bits": codec.channel_cost_bits(channel),
             "fragments_per_picture": spec.budget_bytes // chunk,
-            "priority": channel.priority, "policy": spec.policy, "send": spec.send}
+            "priority": channel.priority, "policy": spec.policy, "send": spec.send,
+            "ttl_s": channel.ttl_s}
 
 
 def _query(mission: Mission, codec: FrameCodec, request: QueryCodec) -> dict[str, Any]:

@@ -261,6 +261,15 @@ def test_a_picture_unfinished_after_its_ttl_is_given_up_for_the_next() -> None:
     got = pictures(fleet)
     assert {t["zab:sequence"] for _, t, _ in got} == {str(r["sequence"]) for r in failed}
     assert all(t["zab:final"] == "false" for _, t, _ in got)
+    from bridge.report.check import check_mission  # zab check says so beforehand
+
+    warned = [w for w in check_mission(parse_mission(text)).warnings if "ttl_s" in w]
+    assert len(warned) == 1 and warned[0].startswith(
+        "image channel 'camera': a picture of 1591 B takes up to ")
+    assert warned[0].endswith("more than its ttl_s=10: such a picture is given up unfinished "
+                              "(raise ttl_s or lower budget_bytes)")
+    assert not [w for w in check_mission(parse_mission(text.replace("ttl_s: 10", "ttl_s: 60"))
+                                         ).warnings if "ttl_s" in w]
 
 
 def test_a_newer_picture_waits_or_cancels_as_the_policy_says() -> None:
