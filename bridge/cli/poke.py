@@ -6,6 +6,7 @@ session on every path: normal end, Ctrl-C, a bad argument or a failed put.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import time
@@ -48,8 +49,11 @@ def client(endpoint: str) -> Iterator[zenoh.Session]:
 
 
 def decode(payload: bytes, encoding: str) -> Any:
-    """A payload as Python data: msgpack or JSON by its encoding, else whichever parses."""
+    """A payload as Python data: a picture as :func:`picture` says it, msgpack or JSON by
+    its encoding, else whichever parses."""
     kind = encoding.split(";", 1)[0]
+    if kind in PICTURES or payload.startswith(SIGNATURES):
+        return picture(payload)
     tries: list[Callable[[bytes], Any]] = [lambda b: msgpack.unpackb(b, raw=False)]
     if kind in ("application/json", "text/json"):
         tries.insert(0, json.loads)
@@ -63,18 +67,63 @@ def decode(payload: bytes, encoding: str) -> Any:
     try:
         return payload.decode("utf-8")
     except UnicodeDecodeError:
-        return {"bytes": payload.hex()}
+        return {"bytes": payload}
+
+
+PICTURES = ("image/png", "image/jpeg")
+SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff")
+LONG = 64
+"""Bytes longer than this print as their first half and their length, not whole."""
+
+
+def picture(payload: bytes) -> dict[str, Any]:
+    """A PNG or JPEG as a viewer's caption: its format, size and length, and the metadata
+    zab's receiving bridge writes in it (PNG text, a JPEG's JSON comment), not its bytes."""
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(payload)) as image:
+            out: dict[str, Any] = {"picture": (image.format or "?").lower(),
+                                   "size": list(image.size), "mode": image.mode,
+                                   "length": len(payload)}
+            text = dict(getattr(image, "text", None) or {})
+            comment = image.info.get("comment")
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError):
+        return {"picture": "unreadable", "length": len(payload)}
+    if isinstance(comment, bytes):
+        try:
+            said = json.loads(comment)
+        except ValueError:
+            said = None
+        if isinstance(said, dict):
+            text.update(said)
+        else:
+            text["comment"] = comment.decode("utf-8", "replace")
+    for key, value in sorted(text.items()):
+        try:
+            out[key] = json.loads(value) if key.startswith("zab:") else value
+        except (TypeError, ValueError):
+            out[key] = value
+    return out
 
 
 def _plain(value: Any) -> Any:
-    """JSON-ready: floats rounded to 9 significant digits (no 9.536743164062498e-08)."""
+    """JSON-ready: floats rounded to 9 significant digits (no 9.536743164062498e-08), and
+    large ones to milliseconds at least (a Unix time keeps its fraction of a second)."""
     if isinstance(value, float):
-        return float(f"{value:.9g}") if math.isfinite(value) else str(value)
+        if not math.isfinite(value):
+            return str(value)
+        digits = 9 if abs(value) < 1e6 else int(math.log10(abs(value))) + 4
+        return float(f"{value:.{digits}g}")
     if isinstance(value, dict):
         return {str(k): _plain(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
         return [_plain(v) for v in value]
     if isinstance(value, bytes):
+        if value.startswith(SIGNATURES):  # (a ROS 2 CompressedImage's data)
+            return _plain(picture(value))
+        if len(value) > LONG:
+            return f"{value[:LONG // 2].hex()}... ({len(value)} bytes)"
         return value.hex()
     return value
 

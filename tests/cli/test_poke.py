@@ -99,6 +99,39 @@ def test_listen_decodes_json_and_rounds_float_noise() -> None:
         'a/b {"v": 9.53674316e-08}'
     assert format_sample("a/b", msgpack.packb({"x": 0.30000000000000004}),
                          "application/msgpack") == 'a/b {"x": 0.3}'
+    # a Unix time keeps its milliseconds (9 digits printed 1795813660.9 as 1795813660.0)
+    assert format_sample("a/b", msgpack.packb({"time": 1795813660.9173}),
+                         "application/msgpack") == 'a/b {"time": 1795813660.917}'
+
+
+def test_listen_prints_a_picture_as_its_caption_not_its_bytes() -> None:
+    """`zab listen` on an image channel's key printed each PNG as 12 kB of hex on one line."""
+    import numpy as np
+
+    from bridge.image.formats import write_image
+
+    meta = {"zab:channel": "camera", "zab:bytes": "407", "zab:final": "false",
+            "zab:roi": "[0.25, 0.25, 0.75, 0.75]", "zab:psnr_estimate": "31.2"}
+    said = ('"zab:bytes": 407, "zab:channel": "camera", "zab:final": false, '
+            '"zab:psnr_estimate": 31.2, "zab:roi": [0.25, 0.25, 0.75, 0.75]}')
+    png = write_image(np.zeros((120, 160), np.uint8), "png", text=meta)
+    assert format_sample("rov/camera", png, "image/png") == (
+        'rov/camera {"picture": "png", "size": [160, 120], "mode": "L", '
+        f'"length": {len(png)}, {said}')
+    jpeg = write_image(np.zeros((120, 160, 3), np.uint8), "jpeg", text=meta)  # (a comment)
+    assert format_sample("rov/camera", jpeg, "") == (
+        'rov/camera {"picture": "jpeg", "size": [160, 120], "mode": "RGB", '
+        f'"length": {len(jpeg)}, {said}')
+    # a camera's own JPEG inside a message, a cut picture, and other long bytes
+    assert format_sample("cam", msgpack.packb({"format": "jpeg", "data": jpeg}), "") == (
+        f'cam {{"format": "jpeg", "data": {{"picture": "jpeg", "size": [160, 120], '
+        f'"mode": "RGB", "length": {len(jpeg)}, {said}}}')
+    assert format_sample("rov/camera", png[:40], "image/png") == \
+        'rov/camera {"picture": "unreadable", "length": 40}'
+    assert format_sample("x", bytes(range(200)), "") == \
+        f'x {{"bytes": "{bytes(range(32)).hex()}... (200 bytes)"}}'
+    short = bytes(range(192, 256))  # (64 bytes: whole)
+    assert format_sample("x", short, "") == f'x {{"bytes": "{short.hex()}"}}'
 
 
 def test_listen_with_the_mission_prints_each_field_to_its_channel_s_step() -> None:
