@@ -21,8 +21,8 @@ from bridge.mission.fields import FieldSpec
 from bridge.mission.images import ImageChannel
 from bridge.ros2.names import topic_listen_key
 
-__all__ = ["CONTROL_BOUNDS", "CONTROL_FIELDS", "REQUESTS", "ImageSpec", "control_layout",
-           "control_payload"]
+__all__ = ["CONTROL_BOUNDS", "CONTROL_FIELDS", "PICTURE_METADATA", "REQUESTS", "ImageSpec",
+           "control_layout", "control_payload"]
 
 REQUESTS = ("none", "now", "cancel")
 """What an operator's control asks besides settings: nothing more, a picture now, or that the
@@ -38,6 +38,23 @@ CONTROL_FIELDS: tuple[dict[str, Any], ...] = (
 )
 
 CONTROL_BOUNDS = {f["field"]: (f["min"], f["max"]) for f in CONTROL_FIELDS if "min" in f}
+
+PICTURE_METADATA = {
+    "channel": "the image channel's name",
+    "src": "the camera's node",
+    "sequence": "the picture's sequence number (its transfer id, 0-15)",
+    "bytes": "bytes of the picture's stream received so far",
+    "budget": "bytes of its whole stream",
+    "final": "the last picture of this stream (true once)",
+    "width": "width in pixels",
+    "height": "height in pixels",
+    "psnr_estimate": "the stream's own estimate of its luma PSNR, dB",
+    "roi": "the region of interest [x0, y0, x1, y1] in fractions, or null",
+    "time": "when the receiving bridge published it (s, its clock)",
+}
+"""What a receiving bridge writes in each picture it publishes (PNG text, a JPEG's JSON
+comment), each as ``zab:<key>``, JSON but for text (and on its ``images/<name>/<src>``
+status)."""
 """The settings' bounds on the control channel (a control outside them is refused)."""
 
 

@@ -19,6 +19,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Literal
 
 from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
+from bridge.wire.images import CONTROL_BOUNDS, PICTURE_METADATA, REQUESTS
 from bridge.wire.sample_meta import HIDDEN
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
@@ -52,7 +53,10 @@ class KeySchema:
             "description": (f"Payload of `{self.key}`, {where} {', '.join(self.nodes)}; "
                             f"channel `{self.channel}` of mission `{mission}`."),
         }
-        doc.update({k: v for k, v in self.schema.items() if k != "$schema"})
+        doc.update({k: v for k, v in self.schema.items() if k not in ("$schema",
+                                                                      "description")})
+        if "description" in self.schema:
+            doc["description"] += " " + self.schema["description"]
         doc["x-zab"] = {"mission": mission, "direction": self.direction, "channel": self.channel,
                         "element": self.element, "encoding": self.encoding,
                         "nodes": list(self.nodes)}
@@ -102,6 +106,61 @@ def _uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, int, ElementC
                 yield "out", element.output_key(src, dst), i, element, dst
 
 
+def _image_uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, str, str,
+                                                           dict[str, Any]]]:
+    """(direction, key, encoding, node, schema) for every use of an image channel: the
+    pictures each camera reads and each receiver publishes, and the operator's control each
+    receiver reads (the camera's bridge takes it: it is published nowhere)."""
+    spec = channel.image
+    assert spec is not None
+    if spec.control:
+        low, high = CONTROL_BOUNDS["budget_bytes"]
+        size = {"type": "integer", "minimum": CONTROL_BOUNDS["width"][0],
+                "maximum": CONTROL_BOUNDS["width"][1]}
+        schema = {
+            "description": "An operator's control (any subset): settings for the next "
+                           "pictures and a request (now: the newest picture at once; cancel: "
+                           "give up the one in flight).",
+            "type": "object", "additionalProperties": False,
+            "properties": {
+                "request": {"enum": list(REQUESTS)},
+                "width": size, "height": size,
+                "budget_bytes": {"type": "integer", "minimum": low,
+                                 "maximum": min(high, spec.largest_budget)},
+                "roi": {"description": "[x0, y0, x1, y1] in fractions of the picture, or "
+                                       "null for none",
+                        "oneOf": [{"type": "null"}, {
+                            "type": "array", "minItems": 4, "maxItems": 4,
+                            "items": {"type": "number", "minimum": 0, "maximum": 1}}]}}}
+        for dst in channel.senders:  # (the pictures' receivers, steering each camera)
+            for src in channel.destinations(dst):
+                yield "in", spec.control_key.format(node=dst, dst=dst, src=src), "msgpack", \
+                    dst, schema
+        return
+    taken = [f"image/{kind}" for kind in spec.accept]
+    if spec.ros2 is not None:
+        read: dict[str, Any] = {
+            "description": f"A ROS 2 {spec.ros2[0]} (CDR, rmw_zenoh {spec.ros2[1]})."}
+        encoding = "cdr"
+    else:
+        read = {"description": f"A picture: {' or '.join(k.upper() for k in spec.accept)} "
+                               f"bytes, the Zenoh encoding ({', '.join(taken)}) or the bytes' "
+                               "signature saying which.",
+                "anyOf": [{"contentMediaType": kind} for kind in taken]}
+        encoding = "|".join(taken)
+    shown = {"description": f"The picture so far, a {spec.format.upper()} any viewer shows, "
+                            "sharper at each one; zab's metadata in it as zab:<key> (PNG "
+                            "text, a JPEG's JSON comment).",
+             "contentMediaType": f"image/{spec.format}",
+             "x-zab-metadata": {f"zab:{k}": v for k, v in PICTURE_METADATA.items()}}
+    for src in channel.senders:
+        if not channel.destinations(src):
+            continue
+        yield "in", spec.input_key(src), encoding, src, read
+        for dst in channel.destinations(src):
+            yield "out", spec.output_key(src, dst), f"image/{spec.format}", dst, shown
+
+
 def key_schemas(table: ChannelTable) -> list[KeySchema]:
     """Every bridged key's schema, inputs first then outputs, each sorted by key.
 
@@ -109,6 +168,13 @@ def key_schemas(table: ChannelTable) -> list[KeySchema]:
     """
     found: dict[tuple[Direction, str], KeySchema] = {}
     for channel in table.channels:
+        if channel.image is not None:
+            for direction, key, encoding, node, schema in _image_uses(channel):
+                entry = found.setdefault((direction, key), KeySchema(
+                    key, direction, channel.name, 0, encoding, schema=schema))
+                if node not in entry.nodes:
+                    entry.nodes.append(node)
+            continue
         for direction, key, index, element, node in _uses(channel):
             entry = found.get((direction, key))
             schema = _element_schema(element, direction)

@@ -3,14 +3,22 @@
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import queue
 from pathlib import Path
 
 import jsonschema
+import pytest
+from PIL import Image
 from typer.testing import CliRunner
 
 from bridge.cli.app import app
+from bridge.core.images import Images
+from bridge.core.loaded import load_mission
+from bridge.image.formats import write_image
+from bridge.image.synthetic import seabed
+from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.payload_schema import json_view, key_schemas, write_payload_schemas
 from tests.conftest import MISSIONS, on_free_ports, udp_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
@@ -105,3 +113,34 @@ def test_a_real_decoded_payload_validates(tmp_path: Path) -> None:
     assert not jsonschema.Draft202012Validator(out_schema).is_valid(wrong)
     shorter = json_view({k: v for k, v in decoded.items() if k != "battery"})
     assert not jsonschema.Draft202012Validator(out_schema).is_valid(shorter)
+
+
+def test_an_image_channel_s_keys_say_what_crosses_there() -> None:
+    """bluerov_images' index left out the pictures' keys, and gave the operator's control the
+    wire's layout (roi_on, x0 … in 64ths, every field required) and an output at the camera,
+    where nothing is published."""
+    loaded = load_mission(MISSIONS / "bluerov_images.yaml")
+    entries = {(e.direction, e.key): e for e in key_schemas(loaded.table)}
+    images = {k: (e.encoding, e.nodes) for k, e in entries.items() if "camera" in e.key}
+    assert images == {("in", "rov/camera"): ("image/jpeg|image/png", ["rov"]),
+                      ("out", "rov/camera"): ("image/png", ["operator"]),
+                      ("in", "camera/control"): ("msgpack", ["operator"])}
+    control = jsonschema.Draft202012Validator(entries[("in", "camera/control")].schema)
+    for good in ({"request": "now"}, {"roi": [0.25, 0.25, 0.75, 0.75], "budget_bytes": 800},
+                 {"roi": None, "width": 320, "height": 240}, {}):
+        assert control.is_valid(good), good
+        Images._merge({}, good, 6400)  # (the bridge takes it as well)
+    for bad in ({"roi_on": True}, {"budget_bytes": 6401}, {"request": "later"},
+                {"roi": [0.5, 0.5, 1.5, 1.0]}, {"width": 4}):
+        assert not control.is_valid(bad), bad
+        with pytest.raises(ValueError):
+            Images._merge({}, bad, 6400)
+    # the metadata the schema lists is what a published picture carries
+    fleet = FastFleet(loaded, seed=1)
+    fleet.put("rov", "rov/camera", write_image(seabed(120, 160, seed=1, colour=False), "jpeg"),
+              encoding="image/jpeg", at=1.0)
+    fleet.run_until(5.0)
+    [(_, first), *_] = fleet.published("operator", "rov/camera")
+    text = Image.open(io.BytesIO(first.value)).text  # type: ignore[attr-defined]
+    listed = entries[("out", "rov/camera")].schema["x-zab-metadata"]
+    assert set(text) == set(listed)
