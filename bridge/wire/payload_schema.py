@@ -170,10 +170,10 @@ def key_schemas(table: ChannelTable) -> list[KeySchema]:
     for channel in table.channels:
         if channel.image is not None:
             for direction, key, encoding, node, schema in _image_uses(channel):
-                entry = found.setdefault((direction, key), KeySchema(
+                use = found.setdefault((direction, key), KeySchema(
                     key, direction, channel.name, 0, encoding, schema=schema))
-                if node not in entry.nodes:
-                    entry.nodes.append(node)
+                if node not in use.nodes:
+                    use.nodes.append(node)
             continue
         for direction, key, index, element, node in _uses(channel):
             entry = found.get((direction, key))
