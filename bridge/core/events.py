@@ -139,8 +139,9 @@ class SendFailed(Event):
 @direct_init
 @dataclass(frozen=True, slots=True)
 class FrameReceived(Event):
-    """A frame from ``src`` decoded: the channels it carried for this node and their element
-    values (``members``: per member of a key family), with the link metadata."""
+    """A frame from ``src`` decoded: the channels it carried for this node, the element
+    values it completed (``members``: per member of a key family; a picture's fragment
+    completes none), with the link metadata."""
 
     kind: ClassVar[str] = "frame_received"
     src: str

@@ -133,8 +133,9 @@ class Inbound:
         values: dict[str, Values] = {}
         anchors: Anchors = {}  # live anchor positions the frame carried
         members: dict[str, dict[str, Values]] = {}  # key families: per member
+        carried: dict[str, None] = {}  # every channel it carried for us, values or not
         for entry in frame.entries:
-            self._entry(origin, entry, now, values, anchors, members)
+            self._entry(origin, entry, now, values, anchors, members, carried)
         self._takes = True
         if self.ranges is not None and origin == src and side is self.linkset.primary:
             self.ranges.heard(src, rx, frame.delays, modem_now if modem_now is not None
@@ -147,7 +148,7 @@ class Inbound:
         if now - peer_status.get(src, -math.inf) >= PEER_STATUS_S:  # not every frame
             peer_status[src] = now
             self.outbox.status(f"peers/{src}", {"last_heard": now, "meta": dict(meta)})
-        self.outbox.event(FrameReceived(now, src, len(rx.data), list(values), rx.data, meta,
+        self.outbox.event(FrameReceived(now, src, len(rx.data), list(carried), rx.data, meta,
                                         values, members or None))
 
     def _source(self, rx: Reception, now: float, side: LinkSide) -> str | None:
@@ -200,8 +201,10 @@ class Inbound:
             links.update(now)
 
     def _entry(self, src: str, entry: Entry, now: float, values: dict[str, Values],
-               anchors: Anchors, members: dict[str, dict[str, Values]]) -> None:
-        """One entry of a frame from ``src``: its values published and gathered."""
+               anchors: Anchors, members: dict[str, dict[str, Values]],
+               carried: dict[str, None]) -> None:
+        """One entry of a frame from ``src``: its values published and gathered, its channel
+        in ``carried`` if it was for us (a picture's fragment too, which is no value)."""
         channel = entry.channel
         if not isinstance(channel, ChannelCodec):  # an acknowledgement or a system entry
             if isinstance(channel, AckCodec):
@@ -219,6 +222,7 @@ class Inbound:
             surfacing.duplicates += 1  # it reaches us over IP at full fidelity
             return
         if channel.image is not None and self.images is not None:
+            carried[channel.name] = None
             self.images.entry(src, channel, entry, now)
             return
         if channel.fragmented:
@@ -236,6 +240,7 @@ class Inbound:
                 return
             member = name
         for elements in delivered:
+            carried[channel.name] = None
             self._deliver(src, channel, member, elements, now, values, anchors, members)
 
     def _deliver(self, src: str, channel: ChannelCodec, member: str, elements: Values,

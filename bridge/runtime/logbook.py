@@ -296,7 +296,7 @@ def summarise(log: MissionLogFile) -> dict[str, Any]:
         if r.kind == "frame_sent":
             sent.update(r.data.get("channels") or [])
         elif r.kind == "frame_received":
-            for name in r.data.get("values") or {}:
+            for name in r.data.get("channels") or ():
                 received[name].append(r.time)
                 sources[name].add(str(r.data.get("src")))
     names = list(dict.fromkeys([*sent, *received]))

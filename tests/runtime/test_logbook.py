@@ -15,8 +15,13 @@ from mcap.reader import make_reader
 from typer.testing import CliRunner
 
 from bridge.cli.app import app
+from bridge.core.events import Event
+from bridge.core.loaded import load_mission
+from bridge.image.formats import write_image
+from bridge.image.synthetic import seabed
 from bridge.runtime.logbook import FleetLogs, LogError, read_log, summarise
-from tests.conftest import REPO, free_port, on_free_ports, udp_ports
+from bridge.runtime.virtual_fleet import FastFleet, Timed
+from tests.conftest import MISSIONS, REPO, free_port, on_free_ports, udp_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
 
 RUNNER = CliRunner()
@@ -206,3 +211,28 @@ def test_zab_sim_log_writes_one_file_per_node(tmp_path: Path) -> None:
         assert data["events"]["frame_sent"] >= 2  # heartbeats in its TDMA slots
         assert data["events"]["frame_received"] >= 1
         assert data["node"] == node and data["mission"] == "simlog", peer
+
+
+def test_a_camera_s_fragments_count_as_its_channel_s_receptions(tmp_path: Path) -> None:
+    """`zab log summary` at the operator of bluerov_images listed no channel at all: a
+    picture's fragments are no values, and only values were counted."""
+    loaded = load_mission(MISSIONS / "bluerov_images.yaml")
+    logs = FleetLogs(tmp_path, loaded)
+
+    def record(timed: Timed) -> None:
+        if isinstance(timed.output, Event):
+            logs(timed.node, timed.output)
+
+    fleet = FastFleet(loaded, seed=1, on_output=record)
+    fleet.put("rov", "rov/camera", write_image(seabed(120, 160, seed=1, colour=False), "jpeg"),
+              encoding="image/jpeg", at=1.0)
+    fleet.put("operator", "camera/control", {"budget_bytes": 800}, at=2.0)
+    fleet.run_until(40.0)
+    logs.close()
+    operator = summarise(read_log(logs.path_of("operator")))["channels"]
+    fragments = fleet.cores["operator"].stats.received_per_channel["camera"]
+    assert fragments >= 1591 // 37  # (the whole picture)
+    assert operator["camera"]["received"] == fragments and operator["camera"]["from"] == ["rov"]
+    rov = summarise(read_log(logs.path_of("rov")))["channels"]
+    assert rov["camera"]["sent"] >= fragments
+    assert rov["camera.control"]["received"] == 1 and operator["camera.control"]["sent"] >= 1
