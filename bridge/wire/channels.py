@@ -504,7 +504,7 @@ def compile_images(mission: Mission) -> tuple[ChannelCodec, ...]:
                 raise ChannelTableError(f"unknown template {{{sorted(bad)[0]}}} in {key!r}",
                                         (*loc, where))
         for src in senders:
-            for dst in set(receivers) - {src}:
+            for dst in (d for d in receivers if d != src):
                 out_key = spec.output_key(src, dst)
                 if image.control_key.format(node=dst, dst=dst, src=src) == out_key:
                     raise ChannelTableError(

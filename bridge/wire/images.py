@@ -38,6 +38,7 @@ CONTROL_FIELDS: tuple[dict[str, Any], ...] = (
 )
 
 CONTROL_BOUNDS = {f["field"]: (f["min"], f["max"]) for f in CONTROL_FIELDS if "min" in f}
+"""The settings' bounds on the control channel (a control outside them is refused)."""
 
 PICTURE_METADATA = {
     "channel": "the image channel's name",
@@ -55,7 +56,6 @@ PICTURE_METADATA = {
 """What a receiving bridge writes in each picture it publishes (PNG text, a JPEG's JSON
 comment), each as ``zab:<key>``, JSON but for text (and on its ``images/<name>/<src>``
 status)."""
-"""The settings' bounds on the control channel (a control outside them is refused)."""
 
 
 @dataclass(frozen=True)

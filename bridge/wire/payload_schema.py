@@ -114,9 +114,10 @@ def _image_uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, str, st
     spec = channel.image
     assert spec is not None
     if spec.control:
-        low, high = CONTROL_BOUNDS["budget_bytes"]
-        size = {"type": "integer", "minimum": CONTROL_BOUNDS["width"][0],
-                "maximum": CONTROL_BOUNDS["width"][1]}
+        def whole(name: str, most: int = 1 << 62) -> dict[str, Any]:
+            low, high = CONTROL_BOUNDS[name]
+            return {"type": "integer", "minimum": low, "maximum": min(high, most)}
+
         schema = {
             "description": "An operator's control (any subset): settings for the next "
                            "pictures and a request (now: the newest picture at once; cancel: "
@@ -124,9 +125,8 @@ def _image_uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, str, st
             "type": "object", "additionalProperties": False,
             "properties": {
                 "request": {"enum": list(REQUESTS)},
-                "width": size, "height": size,
-                "budget_bytes": {"type": "integer", "minimum": low,
-                                 "maximum": min(high, spec.largest_budget)},
+                "width": whole("width"), "height": whole("height"),
+                "budget_bytes": whole("budget_bytes", spec.largest_budget),
                 "roi": {"description": "[x0, y0, x1, y1] in fractions of the picture, or "
                                        "null for none",
                         "oneOf": [{"type": "null"}, {
