@@ -22,8 +22,8 @@ if TYPE_CHECKING:  # not imported at run time: the tracker pulls in numpy
 __all__ = [
     "Delivery", "Event", "FieldsLeftOut", "FrameDropped", "FrameReceived", "FrameRelayed",
     "FrameSent", "Link", "LinkSwitched", "MissionMismatch", "ModemDown", "PayloadDrops",
-    "PeerLink", "PeerRestarted", "Position", "Range", "RangeFailed", "RouteSwitched",
-    "SendFailed",
+    "PeerLink", "PeerRestarted", "PicturePublished", "Position", "Range", "RangeFailed",
+    "RouteSwitched", "SendFailed",
     "StateSaving", "Surfaced", "UnmappedKey", "notable",
 ]
 
@@ -158,6 +158,26 @@ class FrameReceived(Event):
         if self.members:
             out["members"] = self.members
         return out
+
+
+@direct_init
+@dataclass(frozen=True, slots=True)
+class PicturePublished(Event):
+    """A receiving bridge published a picture of an image channel from ``src`` on ``key``:
+    the file as published (``encoding``: ``image/png`` or ``image/jpeg``) and its metadata
+    (for the mission log, which ``zab log replay`` publishes again)."""
+
+    kind: ClassVar[str] = "picture_published"
+    channel: str
+    src: str
+    key: str
+    data: bytes
+    encoding: str
+    meta: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "channel": self.channel, "src": self.src, "key": self.key,
+                "data": self.data, "encoding": self.encoding, "meta": self.meta}
 
 
 @dataclass(frozen=True, slots=True)

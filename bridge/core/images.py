@@ -42,7 +42,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
-from bridge.core.events import Delivery
+from bridge.core.events import Delivery, PicturePublished
 from bridge.core.outputs import Outbox
 from bridge.core.receivers import Receivers
 from bridge.core.surfacing import Relay, Surfacing
@@ -517,3 +517,5 @@ class Images:
         key = spec.output_key(src, self.node)
         self.outbox.publish(key, data, f"image/{kind}", True)
         self.outbox.status(f"images/{spec.name}/{src}", meta)
+        self.outbox.event(PicturePublished(now, spec.name, src, key, data, f"image/{kind}",
+                                           meta))

@@ -9,11 +9,14 @@ them as they are. Topics:
   and the decoded values of every channel;
 - ``/zab/<node>/channel/<channel>``: each received channel's decoded elements (its schema is
   the channel's element layouts), the easiest topic to plot;
+- ``/zab/<node>/picture_published``: each picture an image channel published, the file as
+  it went out (``data_hex``), its key and metadata;
 - ``/zab/<node>/<kind>`` for every other event: ``range``, ``position``, ``link``,
   ``payload_drops``, ``send_failed``, ``modem_down``, ``delivery``, ``transfer``, ...
 
 The mission itself is attached (``mission.yaml``, as validated) with metadata ``zab``
-(mission, node, fingerprint), so :func:`read_log` alone can replay the decoded data.
+(mission, node, fingerprint), so :func:`read_log` alone can replay the decoded data and the
+pictures.
 
 :class:`MissionLog` is an ``on_event`` callback for :class:`~bridge.runtime.zenoh_node.BridgeNode`;
 :func:`summarise` and :func:`read_log` read a file back.
@@ -67,6 +70,11 @@ _FRAME_SCHEMAS: dict[str, dict[str, Any]] = {
                                    "-> member -> element values"}},
     "frame_dropped": {"time": _TIME, "src": {"type": ["string", "null"]},
                       "reason": {"type": "string"}, "data_hex": _HEX},
+    "picture_published": {"time": _TIME, "channel": {"type": "string"},
+                          "src": {"type": "string"}, "key": {"type": "string"},
+                          "encoding": {"type": "string"}, "meta": _OBJECT,
+                          "data_hex": {"type": "string", "description": "The PNG or JPEG "
+                                       "published, hex"}},
 }
 
 
@@ -348,11 +356,16 @@ def _unhex(value: Any) -> Any:
 
 
 def received_values(log: MissionLogFile) -> Iterator[tuple[float, str, Any, str]]:
-    """(time, output key, value, encoding) of every decoded value the node published."""
+    """(time, output key, value, encoding) of every decoded value the node published, and of
+    every picture (its file as the value, ``image/…`` its encoding)."""
     if log.loaded is None:
         raise LogError(f"{log.path}: no mission attached; cannot name the output keys")
     table = log.loaded.table
     for r in log.records:
+        if r.kind == "picture_published":
+            yield r.time, str(r.data["key"]), bytes.fromhex(r.data["data_hex"]), \
+                str(r.data["encoding"])
+            continue
         if r.kind != "frame_received":
             continue
         src = str(r.data.get("src"))
