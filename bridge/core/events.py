@@ -163,21 +163,22 @@ class FrameReceived(Event):
 @direct_init
 @dataclass(frozen=True, slots=True)
 class PicturePublished(Event):
-    """A receiving bridge published a picture of an image channel from ``src`` on ``key``:
-    the file as published (``encoding``: ``image/png`` or ``image/jpeg``) and its metadata
-    (for the mission log, which ``zab log replay`` publishes again)."""
+    """A receiving bridge published a picture of an image channel from ``src`` on ``key``,
+    decoded from the stream so far, with ``meta`` in it: the stream's bytes from ``start``
+    that the events before had not carried (for the mission log: ``zab log replay`` decodes
+    and publishes each picture again, a few dozen bytes logged a refinement, not the file)."""
 
     kind: ClassVar[str] = "picture_published"
     channel: str
     src: str
     key: str
+    start: int
     data: bytes
-    encoding: str
     meta: dict[str, Any]
 
     def to_dict(self) -> dict[str, Any]:
         return {"time": self.time, "channel": self.channel, "src": self.src, "key": self.key,
-                "data": self.data, "encoding": self.encoding, "meta": self.meta}
+                "start": self.start, "data": self.data, "meta": self.meta}
 
 
 @dataclass(frozen=True, slots=True)

@@ -61,7 +61,7 @@ if TYPE_CHECKING:
 
     Pixels = NDArray[np.uint8]
 
-__all__ = ["ImageSender", "Images"]
+__all__ = ["ImageSender", "Images", "picture_file"]
 
 log = logging.getLogger("zab.core")
 
@@ -290,6 +290,15 @@ class Control:
     settings: dict[str, Any]
 
 
+def picture_file(pixels: Any, spec: ImageSpec, meta: dict[str, Any]) -> bytes:
+    """The file a receiver publishes of a decoded picture: a PNG or JPEG as ``spec`` says,
+    ``meta`` in it as ``zab:<key>`` (JSON but for text)."""
+    from bridge.image.formats import write_image
+
+    return write_image(pixels, spec.format, spec.jpeg_quality, {
+        f"zab:{k}": v if isinstance(v, str) else json.dumps(v) for k, v in meta.items()})
+
+
 @dataclass
 class Shown:
     """What a receiver last published of one sender's image channel."""
@@ -298,6 +307,7 @@ class Shown:
     bytes: int = 0
     at: float = -math.inf
     begun: float = -math.inf  # when its first fragment came
+    logged: int = 0  # bytes of its stream the PicturePublished events have carried
 
 
 class Images:
@@ -482,12 +492,11 @@ class Images:
               stream: bytes, final: bool, now: float) -> None:
         """Publish the picture ``stream`` holds, if it is sharper and it is time."""
         from bridge.image.codec import ImageStreamError, decode, header_bytes
-        from bridge.image.formats import write_image
 
         spec = _spec(channel)
         shown = self.shown.setdefault((src, channel.index), Shown())
         if receiver.tid != shown.tid:
-            shown.tid, shown.bytes, shown.begun = receiver.tid, 0, now
+            shown.tid, shown.bytes, shown.begun, shown.logged = receiver.tid, 0, now, 0
         surfacing = self.surfacing
         if surfacing is not None and src in surfacing.reachable and spec.ros2 is None \
                 and shown.begun >= surfacing.since[src] \
@@ -511,11 +520,10 @@ class Images:
                 "height": int(picture.pixels.shape[0]),
                 "psnr_estimate": round(picture.psnr_estimate, 2),
                 "roi": list(picture.roi.fractions()) if picture.roi else None, "time": now}
-        kind = spec.format
-        data = write_image(picture.pixels, kind, spec.jpeg_quality, {  # JSON but for text
-            f"zab:{k}": v if isinstance(v, str) else json.dumps(v) for k, v in meta.items()})
         key = spec.output_key(src, self.node)
-        self.outbox.publish(key, data, f"image/{kind}", True)
+        self.outbox.publish(key, picture_file(picture.pixels, spec, meta),
+                            f"image/{spec.format}", True)
         self.outbox.status(f"images/{spec.name}/{src}", meta)
-        self.outbox.event(PicturePublished(now, spec.name, src, key, data, f"image/{kind}",
-                                           meta))
+        self.outbox.event(PicturePublished(now, spec.name, src, key, shown.logged,
+                                           stream[shown.logged:], meta))
+        shown.logged = len(stream)

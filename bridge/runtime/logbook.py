@@ -42,7 +42,7 @@ from bridge.codec import ArrayCodec, BytesCodec, Layout
 from bridge.core.events import Event, FrameReceived
 from bridge.core.loaded import LoadedMission, parse_mission
 from bridge.errors import MissionError
-from bridge.wire.channels import ChannelCodec
+from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.payload_schema import adapt_schema
 from bridge.wire.payloads import encode_payload
 
@@ -72,9 +72,9 @@ _FRAME_SCHEMAS: dict[str, dict[str, Any]] = {
                       "reason": {"type": "string"}, "data_hex": _HEX},
     "picture_published": {"time": _TIME, "channel": {"type": "string"},
                           "src": {"type": "string"}, "key": {"type": "string"},
-                          "encoding": {"type": "string"}, "meta": _OBJECT,
-                          "data_hex": {"type": "string", "description": "The PNG or JPEG "
-                                       "published, hex"}},
+                          "start": {"type": "integer"}, "meta": _OBJECT,
+                          "data_hex": {"type": "string", "description": "The picture's "
+                                       "stream from start, hex"}},
 }
 
 
@@ -361,10 +361,12 @@ def received_values(log: MissionLogFile) -> Iterator[tuple[float, str, Any, str]
     if log.loaded is None:
         raise LogError(f"{log.path}: no mission attached; cannot name the output keys")
     table = log.loaded.table
+    streams: dict[tuple[str, str, Any], bytearray] = {}  # (channel, src, sequence): so far
     for r in log.records:
         if r.kind == "picture_published":
-            yield r.time, str(r.data["key"]), bytes.fromhex(r.data["data_hex"]), \
-                str(r.data["encoding"])
+            shown = _picture(table, streams, r.data)
+            if shown is not None:
+                yield r.time, *shown
             continue
         if r.kind != "frame_received":
             continue
@@ -380,6 +382,30 @@ def received_values(log: MissionLogFile) -> Iterator[tuple[float, str, Any, str]
                 for element, value in zip(channel.elements, values, strict=False):
                     yield (r.time, element.output_key(src, log.node, member),
                            restore_bytes(element.layout, value), element.encoding)
+
+
+def _picture(table: ChannelTable, streams: dict[tuple[str, str, Any], bytearray],
+             data: dict[str, Any]) -> tuple[str, bytes, str] | None:
+    """(key, file, encoding) of a logged picture, decoded from its stream so far as the
+    receiver did; None where the log lacks its start (it began in the middle)."""
+    from bridge.core.images import picture_file
+    from bridge.image.codec import ImageStreamError, decode
+
+    meta = data.get("meta") or {}
+    stream = streams.setdefault((data["channel"], data["src"], meta.get("sequence")),
+                                bytearray())
+    start, chunk = int(data["start"]), bytes.fromhex(data["data_hex"])
+    if start > len(stream):
+        return None
+    stream[start:] = chunk
+    try:
+        spec = table.by_name(data["channel"]).image
+        pixels = decode(bytes(stream)).pixels
+    except (StopIteration, ImageStreamError):
+        return None
+    if spec is None:
+        return None
+    return str(data["key"]), picture_file(pixels, spec, meta), f"image/{spec.format}"
 
 
 def replay(
