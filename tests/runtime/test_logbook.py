@@ -213,11 +213,12 @@ def test_zab_sim_log_writes_one_file_per_node(tmp_path: Path) -> None:
         assert data["node"] == node and data["mission"] == "simlog", peer
 
 
-def test_a_camera_s_fragments_count_as_its_channel_s_receptions(tmp_path: Path) -> None:
-    """`zab log summary` at the operator of bluerov_images listed no channel at all: a
-    picture's fragments are no values, and only values were counted."""
+@pytest.fixture(scope="module")
+def camera_logs(tmp_path_factory: pytest.TempPathFactory) -> tuple[FastFleet, FleetLogs]:
+    """bluerov_images on the virtual clock with logs on: one picture crosses whole, and the
+    operator sets a budget for the next."""
     loaded = load_mission(MISSIONS / "bluerov_images.yaml")
-    logs = FleetLogs(tmp_path, loaded)
+    logs = FleetLogs(tmp_path_factory.mktemp("camera"), loaded)
 
     def record(timed: Timed) -> None:
         if isinstance(timed.output, Event):
@@ -229,6 +230,14 @@ def test_a_camera_s_fragments_count_as_its_channel_s_receptions(tmp_path: Path) 
     fleet.put("operator", "camera/control", {"budget_bytes": 800}, at=2.0)
     fleet.run_until(40.0)
     logs.close()
+    return fleet, logs
+
+
+def test_a_camera_s_fragments_count_as_its_channel_s_receptions(
+        camera_logs: tuple[FastFleet, FleetLogs]) -> None:
+    """`zab log summary` at the operator of bluerov_images listed no channel at all: a
+    picture's fragments are no values, and only values were counted."""
+    fleet, logs = camera_logs
     operator = summarise(read_log(logs.path_of("operator")))["channels"]
     fragments = fleet.cores["operator"].stats.received_per_channel["camera"]
     assert fragments >= 1591 // 37  # (the whole picture)
@@ -238,21 +247,10 @@ def test_a_camera_s_fragments_count_as_its_channel_s_receptions(tmp_path: Path) 
     assert rov["camera.control"]["received"] == 1 and operator["camera.control"]["sent"] >= 1
 
 
-def test_replay_publishes_the_pictures_again(tmp_path: Path) -> None:
+def test_replay_publishes_the_pictures_again(camera_logs: tuple[FastFleet, FleetLogs]) -> None:
     """`zab log replay` of an operator's log where a whole picture crossed published 0
     values: a picture is no value. Each one it published is in the log, and goes out again."""
-    loaded = load_mission(MISSIONS / "bluerov_images.yaml")
-    logs = FleetLogs(tmp_path, loaded)
-
-    def record(timed: Timed) -> None:
-        if isinstance(timed.output, Event):
-            logs(timed.node, timed.output)
-
-    fleet = FastFleet(loaded, seed=2, on_output=record)
-    fleet.put("rov", "rov/camera", write_image(seabed(120, 160, seed=3, colour=False), "jpeg"),
-              encoding="image/jpeg", at=1.0)
-    fleet.run_until(40.0)
-    logs.close()
+    fleet, logs = camera_logs
     shown = [(p.key, p.value, p.encoding) for _, p in fleet.published("operator", "rov/camera")]
     assert len(shown) >= 10
     again: list[tuple[str, bytes, str]] = []
