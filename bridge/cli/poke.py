@@ -51,9 +51,9 @@ def client(endpoint: str) -> Iterator[zenoh.Session]:
 def decode(payload: bytes, encoding: str) -> Any:
     """A payload as Python data: a picture as :func:`picture` says it, msgpack or JSON by
     its encoding, else whichever parses."""
-    kind = encoding.split(";", 1)[0]
-    if kind in PICTURES or payload.startswith(SIGNATURES):
+    if _is_picture(payload, encoding):
         return picture(payload)
+    kind = encoding.split(";", 1)[0]
     tries: list[Callable[[bytes], Any]] = [lambda b: msgpack.unpackb(b, raw=False)]
     if kind in ("application/json", "text/json"):
         tries.insert(0, json.loads)
@@ -70,41 +70,39 @@ def decode(payload: bytes, encoding: str) -> Any:
         return {"bytes": payload}
 
 
-PICTURES = ("image/png", "image/jpeg")
-SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff")
 LONG = 64
 """Bytes longer than this print as their first half and their length, not whole."""
 
 
+def _is_picture(payload: bytes, encoding: str) -> bool:
+    """A JPEG or PNG by its encoding or, where that names no image type, its signature
+    (:func:`bridge.image.formats.kind_of`, loaded when a sample comes: it brings numpy)."""
+    from bridge.image.formats import ImageInputError, kind_of
+
+    try:
+        kind_of(payload, encoding)
+    except ImageInputError:
+        return False
+    return True
+
+
 def picture(payload: bytes) -> dict[str, Any]:
     """A PNG or JPEG as a viewer's caption: its format, size and length, and the metadata
-    zab's receiving bridge writes in it (PNG text, a JPEG's JSON comment), not its bytes."""
+    zab's receiving bridge writes in it (:func:`bridge.image.formats.read_text`), not its
+    bytes."""
     from PIL import Image
+
+    from bridge.image.formats import read_text
 
     try:
         with Image.open(io.BytesIO(payload)) as image:
             out: dict[str, Any] = {"picture": (image.format or "?").lower(),
                                    "size": list(image.size), "mode": image.mode,
                                    "length": len(payload)}
-            text = dict(getattr(image, "text", None) or {})
-            comment = image.info.get("comment")
+            text = read_text(image)
     except (OSError, ValueError, SyntaxError, Image.DecompressionBombError):
         return {"picture": "unreadable", "length": len(payload)}
-    if isinstance(comment, bytes):
-        try:
-            said = json.loads(comment)
-        except ValueError:
-            said = None
-        if isinstance(said, dict):
-            text.update(said)
-        else:
-            text["comment"] = comment.decode("utf-8", "replace")
-    for key, value in sorted(text.items()):
-        try:
-            out[key] = json.loads(value) if key.startswith("zab:") else value
-        except (TypeError, ValueError):
-            out[key] = value
-    return out
+    return out | dict(sorted(text.items()))
 
 
 def _plain(value: Any) -> Any:
@@ -120,7 +118,7 @@ def _plain(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [_plain(v) for v in value]
     if isinstance(value, bytes):
-        if value.startswith(SIGNATURES):  # (a ROS 2 CompressedImage's data)
+        if _is_picture(value, ""):  # (a ROS 2 CompressedImage's data)
             return _plain(picture(value))
         if len(value) > LONG:
             return f"{value[:LONG // 2].hex()}... ({len(value)} bytes)"

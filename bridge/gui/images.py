@@ -12,7 +12,6 @@ on the channel's control key at the GUI's node.
 
 from __future__ import annotations
 
-import contextlib
 import io
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -41,27 +40,16 @@ class Picture:
 
 def _meta(data: bytes) -> dict[str, Any]:
     """The ``zab:`` metadata of a published picture (PNG text chunks or JPEG comment)."""
-    import json
-
     from PIL import Image, UnidentifiedImageError
+
+    from bridge.image.formats import read_text
 
     try:
         image = Image.open(io.BytesIO(data))
-        text = dict(getattr(image, "text", {}) or {})
-        if not text and "comment" in image.info:
-            with contextlib.suppress(ValueError):  # (a camera's own comment: not ours)
-                text = {f"zab:{k}": v for k, v in json.loads(image.info["comment"]).items()}
+        text = read_text(image)
     except (OSError, UnidentifiedImageError, ValueError):
         return {}
-    out: dict[str, Any] = {}
-    for key, value in text.items():
-        if not str(key).startswith("zab:"):
-            continue
-        name = str(key)[4:]
-        if isinstance(value, str):  # JSON, but for text
-            with contextlib.suppress(ValueError):
-                value = json.loads(value)
-        out[name] = value
+    out = {str(key)[4:]: value for key, value in text.items() if str(key).startswith("zab:")}
     if not out:  # the camera's picture itself, put over IP while it is surfaced
         width, height = image.size
         if image.getexif().get(0x0112) in (5, 6, 7, 8):  # shown turned a quarter

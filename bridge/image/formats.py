@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["KINDS", "ImageInputError", "InputImage", "fit", "kind_of", "open_image",
-           "read_image", "read_raw", "write_image"]
+           "read_image", "read_raw", "read_text", "write_image"]
 
 KINDS = {"jpeg": "image/jpeg", "png": "image/png"}
 """Image types an input may take, by name, with their Zenoh encodings."""
@@ -215,3 +215,25 @@ def write_image(pixels: U8, kind: str = "png", quality: int = 90,
     else:
         raise ValueError(f"cannot write {kind!r} images (png, jpeg)")
     return out.getvalue()
+
+
+def read_text(image: Any) -> dict[str, Any]:
+    """The ``text`` :func:`write_image` wrote in ``image`` (an open Pillow image): a PNG's
+    text chunks, or the object a JPEG's JSON comment holds (a comment that is no JSON object
+    comes back as ``comment``); each ``zab:`` value parsed from its JSON (text stays text)."""
+    text = dict(getattr(image, "text", None) or {})
+    comment = image.info.get("comment")
+    if isinstance(comment, bytes):
+        try:
+            said = json.loads(comment)
+        except ValueError:
+            said = None
+        if isinstance(said, dict):
+            text.update(said)
+        else:
+            text["comment"] = comment.decode("utf-8", "replace")
+    for key, value in text.items():
+        if str(key).startswith("zab:") and isinstance(value, str):
+            with contextlib.suppress(ValueError):
+                text[key] = json.loads(value)
+    return text

@@ -9,8 +9,8 @@ them as they are. Topics:
   and the decoded values of every channel;
 - ``/zab/<node>/channel/<channel>``: each received channel's decoded elements (its schema is
   the channel's element layouts), the easiest topic to plot;
-- ``/zab/<node>/picture_published``: each picture an image channel published, the file as
-  it went out (``data_hex``), its key and metadata;
+- ``/zab/<node>/picture_published``: each picture an image channel published: its key, its
+  metadata and its stream's bytes since the one before (``start``, ``data_hex``);
 - ``/zab/<node>/<kind>`` for every other event: ``range``, ``position``, ``link``,
   ``payload_drops``, ``send_failed``, ``modem_down``, ``delivery``, ``transfer``, ...
 

@@ -55,3 +55,19 @@ def test_the_camera_s_own_picture_turned_by_its_exif_gives_the_size_shown() -> N
     item = board.ingest("rov/camera", out.getvalue(), "image/jpeg", 5.0)
     assert item is not None
     assert (item["meta"]["width"], item["meta"]["height"]) == (240, 320)
+
+
+def test_a_jpeg_picture_s_metadata_reads_as_a_png_s() -> None:
+    """A channel publishing JPEGs (format: jpeg) gave the GUI {"zab:bytes": 37, …} instead of
+    {"bytes": 37, …}: its comment's keys had "zab:" put before them again. A camera's own
+    JPEG with a JSON comment of its own is still shown whole."""
+    board = ImageBoard(load_mission(MISSIONS / "bluerov_images.yaml"), "operator")
+    text = {"zab:bytes": "37", "zab:final": "false", "zab:roi": "null"}
+    for kind in ("png", "jpeg"):
+        item = board.ingest("rov/camera", write_image(PICTURE[:120, :160], kind, text=text),
+                            f"image/{kind}", 6.0)
+        assert item is not None and item["meta"] == {"bytes": 37, "final": False, "roi": None}
+    out = io.BytesIO()
+    Image.fromarray(PICTURE).save(out, "JPEG", comment=b'{"exposure_ms": 8}')
+    item = board.ingest("rov/camera", out.getvalue(), "image/jpeg", 7.0)
+    assert item is not None and item["meta"]["whole"] is True
