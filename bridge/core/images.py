@@ -100,9 +100,9 @@ def read_picture(spec: ImageSpec, data: bytes, encoding: str) -> InputImage:
         return open_image(data, encoding, spec.accept, spec.max_input_pixels, spec.colour)
     from bridge.ros2.messages import decode_cdr
 
-    msgtype, distro = spec.ros2
+    msgtype = spec.ros2.msgtype
     try:
-        message = decode_cdr(distro, msgtype, data)
+        message = decode_cdr(spec.ros2.distro, msgtype, data)
     except DecodeError as exc:
         raise ImageInputError(str(exc)) from None
     if msgtype.endswith("/Image"):
@@ -521,8 +521,15 @@ class Images:
                 "psnr_estimate": round(picture.psnr_estimate, 2),
                 "roi": list(picture.roi.fractions()) if picture.roi else None, "time": now}
         key = spec.output_key(src, self.node)
-        self.outbox.publish(key, picture_file(picture.pixels, spec, meta),
-                            f"image/{spec.format}", True)
+        file = picture_file(picture.pixels, spec, meta)
+        self.outbox.publish(key, file, f"image/{spec.format}", True)
+        ros2_key = spec.ros2_output_key(src, self.node)
+        if ros2_key is not None:
+            from bridge.ros2.element import picture_message
+
+            self.outbox.publish(ros2_key, picture_message(file, spec.format,
+                                                          picture.pixels.ndim == 3),
+                                "cdr", False, ros2=spec.ros2_out)
         self.outbox.status(f"images/{spec.name}/{src}", meta)
         self.outbox.event(PicturePublished(now, spec.name, src, key, shown.logged,
                                            stream[shown.logged:], meta))

@@ -31,11 +31,16 @@ class Ros2Pictures(BaseModel):
         "bgra16, 8UC1, 8UC3, 16UC1).")
     distro: Literal["jazzy", "kilted"] = "jazzy"
     domain: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID, the first key chunk.")
+    out_topic: str | None = Field(None, description="Topic receivers also publish each picture "
+                                  "on ({src}, {dst}, {node}), as a sensor_msgs/msg/"
+                                  "CompressedImage, for rqt_image_view and rviz (name it "
+                                  "<base>/compressed for image_transport); default: none.")
+    frame_id: str = Field("", description="header.frame_id of the pictures on out_topic.")
 
-    @field_validator("topic")
+    @field_validator("topic", "out_topic")
     @classmethod
-    def _absolute(cls, v: str) -> str:
-        if not v.startswith("/") or "//" in v or v.endswith("/"):
+    def _absolute(cls, v: str | None) -> str | None:
+        if v is not None and (not v.startswith("/") or "//" in v or v.endswith("/")):
             raise ValueError(f"{v!r}: a ROS 2 topic here is absolute, like /rov/camera")
         return v
 

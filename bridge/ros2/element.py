@@ -4,6 +4,7 @@ Input: samples on ``<domain>/<topic>/*/*`` (any type, so that a publisher of ano
 definition is seen and counted as a dropped payload, not silently missed), CDR decoded to plain
 data for the element's layout. Output: the layout's values laid over the element's defaults,
 serialised as a complete CDR message for ``<domain>/<out topic>/<dds type>/<RIHS01 hash>``.
+An image channel's camera topic and pictures (as CompressedImages) likewise: :func:`compile_camera`.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import Any
 
 from bridge.codec import Layout
 from bridge.errors import DecodeError, EncodeError
+from bridge.mission.images import Ros2Pictures
 from bridge.mission.ros2 import NameError_, Ros2Topic, check_topic, dds_type_name
 from bridge.ros2 import messages
 from bridge.ros2.names import (
@@ -182,3 +184,38 @@ def compile_ros2(spec: Ros2Topic, layout: Layout, fields: Sequence[Any],
                        type_hash=messages.type_hash(spec.distro, spec.type), domain=spec.domain,
                        in_topic=spec.topic, out_topic=out_topic, qos=qos, defaults=defaults,
                        stamp_now=tuple(spec.stamp_now))
+
+
+
+PICTURE_TYPE = "sensor_msgs/msg/CompressedImage"
+
+
+def compile_camera(spec: Ros2Pictures, senders: Sequence[str], receivers: Sequence[str]
+                   ) -> tuple[Ros2Element, Ros2Element | None]:
+    """An image channel's ROS 2 sides: the camera's topic read at senders (its subscription
+    announced best effort, which any publisher matches), and, with ``out_topic``, the
+    pictures receivers publish, each a CompressedImage stamped when published."""
+    _templates(spec.topic, SENDER_TEMPLATES, ("ros2", "topic"), {"n": senders})
+    camera = Ros2Element(msgtype=spec.type, distro=spec.distro,
+                         type_hash=messages.type_hash(spec.distro, spec.type),
+                         domain=spec.domain, in_topic=spec.topic, out_topic=spec.topic,
+                         qos=Qos(reliability="best_effort"))
+    if spec.out_topic is None:
+        return camera, None
+    _templates(spec.out_topic, RECEIVER_TEMPLATES, ("ros2", "out_topic"), {"n": receivers})
+    return camera, Ros2Element(msgtype=PICTURE_TYPE, distro=spec.distro,
+                               type_hash=messages.type_hash(spec.distro, PICTURE_TYPE),
+                               domain=spec.domain, in_topic=spec.topic,
+                               out_topic=spec.out_topic, qos=Qos(),
+                               defaults={"header": {"frame_id": spec.frame_id}},
+                               stamp_now=("header.stamp",))
+
+
+def picture_message(data: bytes, kind: str, colour: bool) -> dict[str, Any]:
+    """A CompressedImage's ``format`` and ``data`` for a PNG or JPEG file, ``format`` as
+    compressed_image_transport writes it (``rgb8; png compressed bgr8``: the pixels' encoding,
+    the file's type, and what OpenCV decodes it to), so its subscribers give the right
+    colours."""
+    pixels = "rgb8" if colour else "mono8"
+    return {"format": f"{pixels}; {kind} compressed {'bgr8' if colour else 'mono8'}",
+            "data": data}

@@ -69,7 +69,7 @@ class Ros2Graph:
     def announce(self, table: ChannelTable, node: str) -> None:
         """Join the ROS 2 graph as ``node``'s bridge: a subscription per ROS 2 topic it reads,
         a publisher per ROS 2 topic it publishes (so ``ros2 topic list/echo`` see them before
-        the first message crosses)."""
+        the first message crosses), its image channels' camera topics and pictures too."""
         for channel in table.channels:
             for element in channel.elements:
                 if element.ros2 is None:
@@ -79,6 +79,17 @@ class Ros2Graph:
                 for src in channel.senders:
                     if node in channel.destinations(src):
                         self._publisher(element.output_key(src, node), element.ros2)
+            spec = channel.image
+            if spec is None or spec.control or spec.ros2 is None:
+                continue
+            if channel.sent_by(node) and channel.destinations(node):
+                # (image_transport publishes a topic only while something subscribes to it)
+                self.listen(spec.ros2, spec.ros2.in_topic.format(node=node, src=node))
+            for src in channel.senders:
+                key = spec.ros2_output_key(src, node)
+                if spec.ros2_out is not None and key is not None \
+                        and node in channel.destinations(src):
+                    self._publisher(key, spec.ros2_out)
 
     def _publisher(self, key: str, ros2: Ros2Element) -> _Publisher:
         pub = self._publishers.get(key)

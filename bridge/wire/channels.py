@@ -41,6 +41,7 @@ Values = list[dict[str, Any]]
 """One value of a channel: each element's fields, in element order."""
 
 if TYPE_CHECKING:
+    from bridge.mission.images import Ros2Pictures
     from bridge.ros2.element import Ros2Element
 
 WIRE_VERSION = 2  # 2: the check reveals the fingerprint; epochs in stream missions
@@ -435,6 +436,16 @@ def _ros2_element(element: Element, on_out_of_range: OutOfRange, senders: Sequen
         raise ChannelTableError(str(exc), (*eloc, *exc.loc)) from None
 
 
+def _ros2_camera(spec: Ros2Pictures, senders: Sequence[str], receivers: Sequence[str],
+                 loc: tuple[str | int, ...]) -> tuple[Ros2Element, Ros2Element | None]:
+    from bridge.ros2.element import Ros2Error, compile_camera
+
+    try:
+        return compile_camera(spec, senders, receivers)
+    except Ros2Error as exc:
+        raise ChannelTableError(str(exc), (*loc, *exc.loc)) from None
+
+
 def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
     """Bits one entry (index included) can take in a frame of ``node``, after what the
     mission's wire options add: DLBL delays, authentication, check, count. ``streams``: the
@@ -495,7 +506,8 @@ def compile_images(mission: Mission) -> tuple[ChannelCodec, ...]:
         if not any(set(receivers) - {s} for s in senders):
             raise ChannelTableError("an image channel must reach a node other than its "
                                     "sender", (*loc, "to"))
-        spec = ImageSpec.from_mission(image)
+        spec = ImageSpec.from_mission(image, None if image.ros2 is None else _ros2_camera(
+            image.ros2, senders, receivers, loc))
         for key, allowed, where in ((spec.in_key, SENDER_TEMPLATES, "in"),
                                     (image.out, RECEIVER_TEMPLATES, "out"),
                                     (image.control_key, RECEIVER_TEMPLATES, "control")):

@@ -14,12 +14,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bridge.codec import Layout
 from bridge.mission.fields import FieldSpec
 from bridge.mission.images import ImageChannel
-from bridge.ros2.names import topic_listen_key
+
+if TYPE_CHECKING:
+    from bridge.ros2.element import Ros2Element
 
 __all__ = ["CONTROL_BOUNDS", "CONTROL_FIELDS", "PICTURE_METADATA", "REQUESTS", "ImageSpec",
            "control_layout", "control_payload"]
@@ -80,19 +82,22 @@ class ImageSpec:
     jpeg_quality: int
     accept: tuple[str, ...]
     max_input_pixels: int
-    ros2: tuple[str, str] | None = None  # (message type, distro) of a ROS 2 camera topic
+    ros2: Ros2Element | None = None  # a ROS 2 camera topic, instead of in_key's bytes
+    ros2_out: Ros2Element | None = None  # the pictures as CompressedImages too, at receivers
     control: bool = False
 
     @classmethod
-    def from_mission(cls, image: ImageChannel) -> ImageSpec:
-        ros2 = image.ros2
-        in_key = image.in_ if ros2 is None else topic_listen_key(ros2.domain, ros2.topic)
+    def from_mission(cls, image: ImageChannel,
+                     ros2: tuple[Ros2Element, Ros2Element | None] | None = None) -> ImageSpec:
+        """``ros2``: the channel's ROS 2 sides, compiled
+        (:func:`~bridge.ros2.element.compile_camera`), when it has a ROS 2 camera."""
+        in_key = image.in_ if ros2 is None else ros2[0].in_key
         assert in_key is not None
         return cls(image.name, in_key, image.out, image.control_key, image.width,
                    image.height, image.colour, image.budget_bytes, image.largest_budget,
                    image.roi, image.policy, image.send, image.publish_interval_s, image.format,
                    image.jpeg_quality, tuple(image.accept), image.max_input_pixels,
-                   None if ros2 is None else (ros2.type, ros2.distro))
+                   *(ros2 or (None, None)))
 
     def input_key(self, camera: str) -> str:
         """The key ``camera`` takes its pictures on."""
@@ -101,6 +106,12 @@ class ImageSpec:
     def output_key(self, src: str, dst: str) -> str:
         """The key ``dst`` publishes ``src``'s pictures on."""
         return self.out_key.format(node=dst, src=src, dst=dst)
+
+    def ros2_output_key(self, src: str, dst: str) -> str | None:
+        """The ROS 2 topic's key ``dst`` publishes ``src``'s pictures on too, if any."""
+        if self.ros2_out is None:
+            return None
+        return self.ros2_out.out_key.format(node=dst, src=src, dst=dst)
 
     def describe(self) -> list[Any]:
         """What both ends must agree on (the fingerprint): the stream's format."""

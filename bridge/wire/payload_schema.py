@@ -140,7 +140,7 @@ def _image_uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, str, st
     taken = [f"image/{kind}" for kind in spec.accept]
     if spec.ros2 is not None:
         read: dict[str, Any] = {
-            "description": f"A ROS 2 {spec.ros2[0]} (CDR, rmw_zenoh {spec.ros2[1]})."}
+            "description": f"A ROS 2 {spec.ros2.msgtype} (CDR, rmw_zenoh {spec.ros2.distro})."}
         encoding = "cdr"
     else:
         read = {"description": f"A picture: {' or '.join(k.upper() for k in spec.accept)} "
@@ -159,6 +159,13 @@ def _image_uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, str, st
         yield "in", spec.input_key(src), encoding, src, read
         for dst in channel.destinations(src):
             yield "out", spec.output_key(src, dst), f"image/{spec.format}", dst, shown
+            ros2_key = spec.ros2_output_key(src, dst)
+            if ros2_key is not None and spec.ros2_out is not None:
+                yield "out", ros2_key, "cdr", dst, {
+                    "description": f"The same picture as a ROS 2 {spec.ros2_out.msgtype} (CDR, "
+                                   f"rmw_zenoh {spec.ros2_out.distro}): format "
+                                   f"'<rgb8|mono8>; {spec.format} compressed <bgr8|mono8>', "
+                                   "header.stamp when published."}
 
 
 def key_schemas(table: ChannelTable) -> list[KeySchema]:

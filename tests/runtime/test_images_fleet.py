@@ -382,6 +382,23 @@ def test_a_control_key_that_is_the_pictures_output_is_refused(control: str, out:
                   "good.yaml")
 
 
+@pytest.mark.parametrize(("out_topic", "error"), [
+    ("/{vehicle}/camera", "images[0].ros2.out_topic: unknown template {vehicle} in "
+                          "'/{vehicle}/camera'; allowed here: {dst}, {node}, {src}"),
+    ("operator/camera", "images[0].ros2.out_topic: 'operator/camera': a ROS 2 topic here "
+                        "is absolute"),
+    ("/{dst}/1camera", "images[0].ros2.out_topic: with node 'operator': "),
+])
+def test_a_ros2_pictures_topic_is_checked_with_its_place(out_topic: str, error: str) -> None:
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    in: rov/camera\n",
+        f"    ros2: {{topic: /rov/camera, out_topic: '{out_topic}'}}\n")
+    with pytest.raises(MissionProblems) as refused:
+        parse_mission(text, "bad.yaml")
+    assert error in str(refused.value)
+    parse_mission(text.replace(out_topic, "/{dst}/{src}_camera/compressed"), "good.yaml")
+
+
 def test_fragments_shorter_than_an_roi_s_header_are_no_malformed_stream() -> None:
     """12-byte fragments: the first holds part of the ROI's 13-byte header (it was counted
     as a malformed frame and logged)."""

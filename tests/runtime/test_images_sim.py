@@ -108,15 +108,22 @@ def test_pictures_cross_zab_sim_and_sharpen(tmp_path: Path) -> None:
         assert dropped == 1
 
 
-def test_a_ros2_compressed_image_from_a_ros2_publisher_s_key_crosses(tmp_path: Path) -> None:
+def test_a_ros2_camera_crosses_and_comes_out_as_compressed_images(tmp_path: Path) -> None:
     """A ROS 2 node's CompressedImage, put as rmw_zenoh's publisher puts it (its CDR on the
-    topic's exact key, type and hash in it), comes out at the operator as PNGs."""
+    topic's exact key, type and hash in it), comes out at the operator as PNGs and, on the
+    mission's ``out_topic``, as CompressedImages a ROS 2 viewer reads (decoded here with
+    rosbags, not zab's code). The bridges are in the ROS 2 graph: the ROV's subscribes to the
+    camera's topic (image_transport publishes only while something does), the operator's
+    publishes the pictures' topic."""
+    from rosbags.typesys import Stores, get_typestore
+
     from bridge.ros2.messages import encode_cdr, type_hash
 
     text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
         "    in: rov/camera\n",
-        "    ros2: {topic: /rov/camera, type: sensor_msgs/msg/CompressedImage}\n").replace(
-        "budget_bytes: 1600", "budget_bytes: 200").replace(
+        "    ros2: {topic: /rov/camera, type: sensor_msgs/msg/CompressedImage,\n"
+        "           out_topic: '/{dst}/{src}_camera/compressed', frame_id: rov_camera}\n"
+    ).replace("budget_bytes: 1600", "budget_bytes: 200").replace(
         "publish_interval_s: 1.0", "publish_interval_s: 0.0")
     mission, endpoints = mission_file(text, tmp_path)
     key = ("0/rov/camera/sensor_msgs::msg::dds_::CompressedImage_/"
@@ -124,9 +131,36 @@ def test_a_ros2_compressed_image_from_a_ros2_publisher_s_key_crosses(tmp_path: P
     cdr = encode_cdr("jazzy", "sensor_msgs/msg/CompressedImage",
                      {"format": "jpeg", "data": write_image(seabed(120, 160, seed=3,
                                                                    colour=False), "jpeg")})
-    with rov_and_operator(mission, endpoints) as (rov, _, inbox):
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    shown: queue.Queue[tuple[object, bytes | None]] = queue.Queue()
+    with rov_and_operator(mission, endpoints) as (rov, operator, inbox):
+        operator.declare_subscriber(
+            "0/operator/rov_camera/compressed/**",
+            lambda s: shown.put((typestore.deserialize_cdr(
+                s.payload.to_bytes(), "sensor_msgs/msg/CompressedImage"),
+                None if s.attachment is None else s.attachment.to_bytes())))
         time.sleep(1.0)  # the subscription reaches the operator's bridge
+        tokens = {name: [str(r.ok.key_expr) for r in session.liveliness().get(
+            "@ros2_lv/0/**", timeout=2.0) if r.ok] for name, session in (("rov", rov),
+                                                                          ("operator", operator))}
+        assert any("/MS/" in t and "/%rov%camera/" in t and "CompressedImage" in t
+                   for t in tokens["rov"]), tokens
+        assert any("/MP/" in t and "/%operator%rov_camera%compressed/" in t
+                   for t in tokens["operator"]), tokens
         rov.put(key, cdr)
         got = refinements(inbox, time.time() + 60)
         assert got and got[-1]["zab:final"] == "true"
         assert [int(t["zab:bytes"]) for t in got] == sorted(int(t["zab:bytes"]) for t in got)
+        messages = []
+        deadline = time.time() + 10
+        while len(messages) < len(got) and time.time() < deadline:
+            with contextlib.suppress(queue.Empty):
+                messages.append(shown.get(timeout=1))
+    assert len(messages) == len(got)
+    for (message, attachment), text in zip(messages, got, strict=True):
+        assert message.format == "mono8; png compressed mono8"  # type: ignore[attr-defined]
+        assert message.header.frame_id == "rov_camera"  # type: ignore[attr-defined]
+        assert message.header.stamp.sec > 1_700_000_000  # type: ignore[attr-defined]
+        picture = Image.open(io.BytesIO(bytes(message.data)))  # type: ignore[attr-defined]
+        assert picture.size == (160, 120) and picture.text == text  # type: ignore[attr-defined]
+        assert attachment is not None and len(attachment) == 33  # rmw_zenoh's attachment
