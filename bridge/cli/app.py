@@ -22,13 +22,14 @@ from rich.table import Table
 
 from bridge.cli import helptext
 from bridge.core.loaded import LoadedMission, load_mission
-from bridge.errors import BackendError, MissionError, NodeFailure, SessionError
+from bridge.errors import BackendError, EncodeError, MissionError, NodeFailure, SessionError
 from bridge.report.check import check_mission
 from bridge.runtime.keys import frame_key, throwaway_note
 from bridge.words import counted
 
 if TYPE_CHECKING:
     from bridge.report.model import MissionReport
+    from bridge.ros2.element import Ros2Element
 
 T = TypeVar("T")
 
@@ -862,13 +863,15 @@ def log_replay(
 ) -> None:
     """Publish the decoded data of a mission log on Zenoh again.
 
-    Values go to the channels' output keys (msgpack or JSON as the mission says). Without
+    Values go to the channels' output keys (msgpack or JSON as the mission says; a ROS 2
+    topic's as CDR, the way a bridge publishes it; pictures as their files). Without
     --connect/--listen it listens on tcp/127.0.0.1:7447.
     """
     import zenoh
 
     from bridge.mission.model import ZenohSettings
     from bridge.runtime.logbook import LogError, replay
+    from bridge.runtime.ros2_graph import Ros2Graph
     from bridge.runtime.session import close_quietly, open_session, origin_tag
 
     data = _read_log(file)
@@ -891,18 +894,32 @@ def log_replay(
                 key, encoding=zenoh.Encoding(encoding))
         publisher.put(payload, attachment=origin)
 
+    # ROS 2 topics as a bridge publishes them (CDR, rmw_zenoh's attachment naming a bridge
+    # publisher, which no live bridge takes as input), under a ROS 2 node of their own
+    ros2 = Ros2Graph(session, mission, f"{data.node}-replay")
+    unpublishable: set[str] = set()
+
+    def publish_ros2(key: str, value: Any, element: Ros2Element, at: float) -> None:
+        try:
+            ros2.publish(key, value, element, at)
+        except EncodeError as exc:
+            if key not in unpublishable:  # said once a key
+                unpublishable.add(key)
+                err.print(f"[yellow]{key}: not published: {exc}[/]", highlight=False)
+
     console.print(f"replaying {file} ({data.node}) at "
                   f"{'full speed' if speed == 0 else f'{speed:g}x'} on "
                   f"{' '.join(listen or connect or [])}")
     try:
         time.sleep(wait)
-        count = replay(data, publish, speed=speed)
+        count = replay(data, publish, publish_ros2=publish_ros2, speed=speed)
     except LogError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(2) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
     finally:
+        ros2.close()
         close_quietly(session)
     console.print(f"published {counted(count, 'value')}")
 

@@ -31,7 +31,7 @@ from collections import Counter, defaultdict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import yaml
 from mcap.exceptions import McapError
@@ -46,9 +46,12 @@ from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.payload_schema import adapt_schema
 from bridge.wire.payloads import encode_payload
 
+if TYPE_CHECKING:
+    from bridge.ros2.element import Ros2Element
+
 __all__ = [
-    "FleetLogs", "LogError", "LogRecord", "MissionLog", "MissionLogFile", "read_log",
-    "received_values", "replay", "restore_bytes", "summarise",
+    "FleetLogs", "LogError", "LogRecord", "MissionLog", "MissionLogFile", "Received",
+    "read_log", "received_values", "replay", "restore_bytes", "summarise",
 ]
 
 PROFILE = "zab"
@@ -355,18 +358,28 @@ def _unhex(value: Any) -> Any:
     return value
 
 
-def received_values(log: MissionLogFile) -> Iterator[tuple[float, str, Any, str]]:
-    """(time, output key, value, encoding) of every decoded value the node published, and of
-    every picture (its file as the value, ``image/…`` its encoding)."""
+@dataclass(frozen=True)
+class Received:
+    """One value a node published, as its log tells it: at ``time`` on ``key``; a ROS 2
+    topic's (``ros2`` set) is the message's plain data, a picture its file (``image/…``)."""
+
+    time: float
+    key: str
+    value: Any
+    encoding: str
+    ros2: Ros2Element | None = None
+
+
+def received_values(log: MissionLogFile) -> Iterator[Received]:
+    """Every decoded value the node published, and every picture (its file, and its ROS 2
+    CompressedImage where the channel has ``out_topic``)."""
     if log.loaded is None:
         raise LogError(f"{log.path}: no mission attached; cannot name the output keys")
     table = log.loaded.table
     streams: dict[tuple[str, str, Any], bytearray] = {}  # (channel, src, sequence): so far
     for r in log.records:
         if r.kind == "picture_published":
-            shown = _picture(table, streams, r.data)
-            if shown is not None:
-                yield r.time, *shown
+            yield from _picture(r.time, table, streams, r.data, log.node)
             continue
         if r.kind != "frame_received":
             continue
@@ -380,14 +393,15 @@ def received_values(log: MissionLogFile) -> Iterator[tuple[float, str, Any, str]
                 {"*": elements}
             for member, values in members.items():
                 for element, value in zip(channel.elements, values, strict=False):
-                    yield (r.time, element.output_key(src, log.node, member),
-                           restore_bytes(element.layout, value), element.encoding)
+                    yield Received(r.time, element.output_key(src, log.node, member),
+                                   restore_bytes(element.layout, value), element.encoding,
+                                   element.ros2)
 
 
-def _picture(table: ChannelTable, streams: dict[tuple[str, str, Any], bytearray],
-             data: dict[str, Any]) -> tuple[str, bytes, str] | None:
-    """(key, file, encoding) of a logged picture, decoded from its stream so far as the
-    receiver did; None where the log lacks its start (it began in the middle)."""
+def _picture(at: float, table: ChannelTable, streams: dict[tuple[str, str, Any], bytearray],
+             data: dict[str, Any], node: str) -> Iterator[Received]:
+    """A logged picture, decoded from its stream so far as the receiver did (nothing where
+    the log lacks its start: it began in the middle)."""
     from bridge.core.images import picture_file
     from bridge.image.codec import ImageStreamError, decode
 
@@ -396,22 +410,30 @@ def _picture(table: ChannelTable, streams: dict[tuple[str, str, Any], bytearray]
                                 bytearray())
     start, chunk = int(data["start"]), bytes.fromhex(data["data_hex"])
     if start > len(stream):
-        return None
+        return
     stream[start:] = chunk
     try:
         spec = table.by_name(data["channel"]).image
         pixels = decode(bytes(stream)).pixels
     except (StopIteration, ImageStreamError):
-        return None
+        return
     if spec is None:
-        return None
-    return str(data["key"]), picture_file(pixels, spec, meta), f"image/{spec.format}"
+        return
+    file = picture_file(pixels, spec, meta)
+    yield Received(at, str(data["key"]), file, f"image/{spec.format}")
+    ros2_key = spec.ros2_output_key(str(data["src"]), node)
+    if ros2_key is not None:
+        from bridge.ros2.element import picture_message
+
+        yield Received(at, ros2_key, picture_message(file, spec.format, pixels.ndim == 3),
+                       "cdr", spec.ros2_out)
 
 
 def replay(
     log: MissionLogFile,
     publish: Callable[[str, bytes, str], None],
     *,
+    publish_ros2: Callable[[str, Any, Ros2Element, float], None] | None = None,
     speed: float = 1.0,
     sleep: Callable[[float], None] = time.sleep,
     clock: Callable[[], float] = time.monotonic,
@@ -419,21 +441,29 @@ def replay(
     """Publish every decoded value again, ``speed`` times faster than recorded (0: at once).
 
     ``publish(key, payload, encoding)`` gets the payload encoded as the element says
-    (msgpack by default). Returns how many values were published.
+    (msgpack by default, a picture's file as it is); a ROS 2 topic's value goes to
+    ``publish_ros2(key, message, element, time recorded)`` instead (its publisher writes
+    rmw_zenoh's CDR and attachment), or is left out without one. Returns how many values
+    were published.
     """
     if speed < 0 or not math.isfinite(speed):
         raise ValueError(f"speed must be >= 0 (0 = as fast as possible), not {speed}")
     count = 0
     first: float | None = None
     started = clock()
-    for t, key, value, encoding in received_values(log):
+    for got in received_values(log):
+        if got.ros2 is not None and publish_ros2 is None:
+            continue
         if first is None:
-            first = t
+            first = got.time
         if speed > 0:
-            delay = (t - first) / speed - (clock() - started)
+            delay = (got.time - first) / speed - (clock() - started)
             if delay > 0:
                 sleep(delay)
-        payload, content_type = encode_payload(value, encoding)
-        publish(key, payload, content_type)
+        if got.ros2 is not None:
+            assert publish_ros2 is not None
+            publish_ros2(got.key, got.value, got.ros2, got.time)
+        else:
+            publish(got.key, *encode_payload(got.value, got.encoding))
         count += 1
     return count

@@ -172,6 +172,6 @@ def test_a_mission_log_replays_each_member_on_its_own_key(tmp_path: Path) -> Non
         asyncio.run(run_fast(loaded, duration=30.0, record=logs))
     finally:
         logs.close()
-    keys = {key for _, key, _, _ in received_values(read_log(logs.path_of("top")))}
+    keys = {got.key for got in received_values(read_log(logs.path_of("top")))}
     assert {f"auv1/sensors/{m}/temp" for m in "abc"} <= keys
     assert not any("*" in key for key in keys)

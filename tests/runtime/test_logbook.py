@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import math
+import queue
 import subprocess
 import sys
 import time
@@ -259,3 +261,101 @@ def test_replay_publishes_the_pictures_again(camera_logs: tuple[FastFleet, Fleet
                    speed=0)
     assert count == len(again) and again == shown  # the same files, in the same order
     assert b"zab:final\x00true" in again[-1][1]
+
+
+def test_replay_publishes_ros2_topics_as_a_ros2_publisher_does(tmp_path: Path) -> None:
+    """`zab log replay` of a ROS 2 mission put msgpack on rmw_zenoh's keys, with zab's own
+    attachment: no ROS 2 node could read it. A plain app now gets CDR (read with rosbags)
+    with rmw_zenoh's 33-byte attachment, which names a bridge publisher (so no live bridge
+    sends it again), each message stamped as the ship first published it."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from bridge.ros2.attachment import from_bridge
+    from bridge.ros2.messages import type_hash
+
+    loaded = load_mission(MISSIONS / "ros2_odometry.yaml")
+    logs = FleetLogs(tmp_path, loaded)
+
+    def record(timed: Timed) -> None:
+        if isinstance(timed.output, Event):
+            logs(timed.node, timed.output)
+
+    fleet = FastFleet(loaded, seed=4, on_output=record)
+    for i in range(5):
+        fleet.put("auv1", "0/auv1/odom/*/*",
+                  {"pose": {"pose": {"position": {"x": 10.0 * i, "y": -2.0, "z": -30.0}}}},
+                  at=4.0 * i)
+    fleet.run_until(25.0)
+    logs.close()
+    key = ("0/auv1/odom/nav_msgs::msg::dds_::Odometry_/"
+           + type_hash("jazzy", "nav_msgs/msg/Odometry"))
+    sent = fleet.published("ship", key)
+    assert len(sent) >= 4
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    port = free_port()
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    inbox: queue.Queue[tuple[str, bytes, bytes | None]] = queue.Queue()
+    session = zenoh.open(config)
+    try:
+        session.declare_subscriber("0/auv1/odom/**", lambda s: inbox.put((
+            str(s.key_expr), s.payload.to_bytes(),
+            None if s.attachment is None else s.attachment.to_bytes())))
+        result = subprocess.run(
+            [sys.executable, "-m", "bridge", "log", "replay", str(logs.path_of("ship")),
+             "--speed", "0", "--connect", f"tcp/127.0.0.1:{port}", "--wait", "0.5"],
+            capture_output=True, text=True, timeout=60, cwd=REPO)
+        assert result.returncode == 0, result.stderr
+        assert f"published {len(sent)} values" in result.stdout
+        got = [inbox.get(timeout=5) for _ in sent]
+    finally:
+        session.close()
+    for (t, value), (got_key, payload, attachment) in zip(sent, got, strict=True):
+        assert got_key == key and attachment is not None and len(attachment) == 33
+        assert from_bridge(attachment)
+        message = typestore.deserialize_cdr(payload, "nav_msgs/msg/Odometry")
+        assert message.pose.pose.position.x == pytest.approx(
+            value.value["pose"]["pose"]["position"]["x"])
+        assert message.header.frame_id == "odom"
+        assert message.header.stamp.sec + message.header.stamp.nanosec * 1e-9 == \
+            pytest.approx(t, abs=1e-6)
+
+
+def test_replay_publishes_a_ros2_camera_s_pictures_on_its_topic_too(tmp_path: Path) -> None:
+    """With ``out_topic``, the operator published each picture twice, as a file and as a
+    CompressedImage; replay does the same, from the one logged stream."""
+    from bridge.core.loaded import parse_mission
+    from bridge.ros2.messages import encode_cdr
+
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    in: rov/camera\n",
+        "    ros2: {topic: /rov/camera, out_topic: '/{dst}/rov_camera/compressed'}\n").replace(
+        "budget_bytes: 1600", "budget_bytes: 300")
+    loaded = parse_mission(text)
+    logs = FleetLogs(tmp_path, loaded)
+
+    def record(timed: Timed) -> None:
+        if isinstance(timed.output, Event):
+            logs(timed.node, timed.output)
+
+    fleet = FastFleet(loaded, seed=1, on_output=record)
+    fleet.put("rov", "0/rov/camera/*/*", encode_cdr(
+        "jazzy", "sensor_msgs/msg/CompressedImage",
+        {"format": "jpeg", "data": write_image(seabed(120, 160, seed=1, colour=False), "jpeg")}),
+        encoding="application/cdr", at=1.0)
+    fleet.run_until(30.0)
+    logs.close()
+    shown = [(t, p.key, p.value) for t, p in fleet.published("operator")
+             if p.key == "rov/camera" or p.ros2 is not None]
+    assert len(shown) >= 8 and sum(1 for _, k, _ in shown if k == "rov/camera") == len(shown) / 2
+    again: list[tuple[float, str, object]] = []
+    count = replay(read_log(logs.path_of("operator")),
+                   lambda key, payload, encoding: again.append((math.nan, key, payload)),
+                   publish_ros2=lambda key, value, ros2, at: again.append((at, key, value)),
+                   speed=0)
+    assert count == len(shown)
+    for (t, key, value), (at, key_again, value_again) in zip(shown, again, strict=True):
+        assert key_again == key and value_again == value
+        assert key == "rov/camera" or at == pytest.approx(t)
