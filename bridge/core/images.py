@@ -92,7 +92,7 @@ def read_picture(spec: ImageSpec, data: bytes, encoding: str) -> InputImage:
     """The picture of a sample on ``spec``'s input, its header checked (pixels decoded when
     first asked for): a JPEG or PNG, or a ROS 2 CompressedImage or Image (CDR). Raises
     :class:`~bridge.image.formats.ImageInputError` for one the channel does not take."""
-    from bridge.image.formats import ImageInputError, InputImage, open_image, read_raw
+    from bridge.image.formats import ImageInputError, open_image, open_raw
 
     if len(data) > MAX_PICTURE_BYTES:
         raise ImageInputError(f"{len(data)} bytes, over {MAX_PICTURE_BYTES}", "too_large")
@@ -106,8 +106,7 @@ def read_picture(spec: ImageSpec, data: bytes, encoding: str) -> InputImage:
     except DecodeError as exc:
         raise ImageInputError(str(exc)) from None
     if msgtype.endswith("/Image"):
-        pixels = read_raw(message, spec.max_input_pixels, spec.colour)  # raw: read now
-        return InputImage(lambda: pixels)
+        return open_raw(message, spec.max_input_pixels, spec.colour)
     kind = "image/png" if "png" in str(message.get("format", "")).lower() else ""
     return open_image(bytes(message.get("data", b"")), kind, spec.accept,
                       spec.max_input_pixels, spec.colour)
