@@ -526,9 +526,9 @@ class Images:
         if ros2_key is not None:
             from bridge.ros2.element import picture_message
 
-            self.outbox.publish(ros2_key, picture_message(file, spec.format,
-                                                          picture.pixels.ndim == 3),
-                                "cdr", False, ros2=spec.ros2_out)
+            self.outbox.publish(ros2_key, picture_message(
+                file, spec.format, picture.pixels.ndim == 3, now), "cdr", False,
+                ros2=spec.ros2_out)
         self.outbox.status(f"images/{spec.name}/{src}", meta)
         self.outbox.event(PicturePublished(now, spec.name, src, key, shown.logged,
                                            stream[shown.logged:], meta))

@@ -9,6 +9,7 @@ An image channel's camera topic and pictures (as CompressedImages) likewise: :fu
 
 from __future__ import annotations
 
+import math
 import string
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -194,7 +195,7 @@ def compile_camera(spec: Ros2Pictures, senders: Sequence[str], receivers: Sequen
                    ) -> tuple[Ros2Element, Ros2Element | None]:
     """An image channel's ROS 2 sides: the camera's topic read at senders (its subscription
     announced best effort, which any publisher matches), and, with ``out_topic``, the
-    pictures receivers publish, each a CompressedImage stamped when published."""
+    pictures receivers publish, each a CompressedImage (:func:`picture_message`)."""
     _templates(spec.topic, SENDER_TEMPLATES, ("ros2", "topic"), {"n": senders})
     camera = Ros2Element(msgtype=spec.type, distro=spec.distro,
                          type_hash=messages.type_hash(spec.distro, spec.type),
@@ -207,15 +208,17 @@ def compile_camera(spec: Ros2Pictures, senders: Sequence[str], receivers: Sequen
                                type_hash=messages.type_hash(spec.distro, PICTURE_TYPE),
                                domain=spec.domain, in_topic=spec.topic,
                                out_topic=spec.out_topic, qos=Qos(),
-                               defaults={"header": {"frame_id": spec.frame_id}},
-                               stamp_now=("header.stamp",))
+                               defaults={"header": {"frame_id": spec.frame_id}})
 
 
-def picture_message(data: bytes, kind: str, colour: bool) -> dict[str, Any]:
-    """A CompressedImage's ``format`` and ``data`` for a PNG or JPEG file, ``format`` as
-    compressed_image_transport writes it (``rgb8; png compressed bgr8``: the pixels' encoding,
-    the file's type, and what OpenCV decodes it to), so its subscribers give the right
-    colours."""
+def picture_message(data: bytes, kind: str, colour: bool, stamp: float) -> dict[str, Any]:
+    """A CompressedImage's fields for a PNG or JPEG file made at ``stamp`` (Unix seconds: its
+    ``zab:time``), ``format`` as compressed_image_transport writes it (``rgb8; png compressed
+    bgr8``: the pixels' encoding, the file's type, and what OpenCV decodes it to), so its
+    subscribers give the right colours."""
     pixels = "rgb8" if colour else "mono8"
-    return {"format": f"{pixels}; {kind} compressed {'bgr8' if colour else 'mono8'}",
+    sec = math.floor(stamp)
+    return {"header": {"stamp": {"sec": sec, "nanosec": min(round((stamp - sec) * 1e9),
+                                                             999_999_999)}},
+            "format": f"{pixels}; {kind} compressed {'bgr8' if colour else 'mono8'}",
             "data": data}

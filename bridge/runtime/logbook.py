@@ -425,7 +425,8 @@ def _picture(at: float, table: ChannelTable, streams: dict[tuple[str, str, Any],
     if ros2_key is not None:
         from bridge.ros2.element import picture_message
 
-        yield Received(at, ros2_key, picture_message(file, spec.format, pixels.ndim == 3),
+        yield Received(at, ros2_key, picture_message(file, spec.format, pixels.ndim == 3,
+                                                     float(meta.get("time", at))),
                        "cdr", spec.ros2_out)
 
 

@@ -165,7 +165,7 @@ def _image_uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, str, st
                     "description": f"The same picture as a ROS 2 {spec.ros2_out.msgtype} (CDR, "
                                    f"rmw_zenoh {spec.ros2_out.distro}): format "
                                    f"'<rgb8|mono8>; {spec.format} compressed <bgr8|mono8>', "
-                                   "header.stamp when published."}
+                                   "header.stamp its zab:time."}
 
 
 def key_schemas(table: ChannelTable) -> list[KeySchema]:
