@@ -187,7 +187,6 @@ def compile_ros2(spec: Ros2Topic, layout: Layout, fields: Sequence[Any],
                        stamp_now=tuple(spec.stamp_now))
 
 
-
 PICTURE_TYPE = "sensor_msgs/msg/CompressedImage"
 
 
