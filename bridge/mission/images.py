@@ -19,12 +19,13 @@ Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
 
 
 class Ros2Pictures(BaseModel):
-    """Pictures from a ROS 2 camera topic over rmw_zenoh's keys, instead of ``in``."""
+    """An image channel's ROS 2 sides over rmw_zenoh's keys: a camera topic read instead of
+    ``in``, pictures published on a topic beside ``out``, or both."""
 
     model_config = ConfigDict(extra="forbid")
 
-    topic: str = Field(description="Topic read at the sender, absolute (/rov/camera/image_raw/"
-                       "compressed); may use {node}.")
+    topic: str | None = Field(None, description="Camera topic read at the sender instead of "
+                              "in, absolute (/rov/camera/image_raw/compressed); may use {node}.")
     type: Literal["sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/Image"] = Field(
         "sensor_msgs/msg/CompressedImage", description="CompressedImage (JPEG or PNG, as its "
         "format says) or Image (mono8, mono16, rgb8, bgr8, rgba8, bgra8, rgb16, bgr16, rgba16, "
@@ -56,7 +57,8 @@ class ImageChannel(BaseModel):
     in_: str | None = Field(None, alias="in", description="Input key at the sender ({node}): "
                             "JPEG or PNG bytes, the Zenoh encoding (image/jpeg, image/png) "
                             "saying which.")
-    ros2: Ros2Pictures | None = Field(None, description="A ROS 2 camera topic instead of in.")
+    ros2: Ros2Pictures | None = Field(None, description="A ROS 2 camera topic instead of in, "
+                                      "and/or a ROS 2 topic for the pictures beside out.")
     out: str = Field(description="Output key at receivers ({src}, {dst}, {node}): a PNG (or "
                      "JPEG) after each fragment that sharpens the picture.")
     control: str | None = Field(None, description="Key at receivers ({node}, {dst}; {src}: "
@@ -104,8 +106,12 @@ class ImageChannel(BaseModel):
 
     @model_validator(mode="after")
     def _budgets(self) -> ImageChannel:
-        if (self.in_ is None) == (self.ros2 is None):
-            raise ValueError("give the pictures' input: either `in` or `ros2`")
+        camera = self.ros2 is not None and self.ros2.topic is not None
+        if (self.in_ is None) == (not camera):
+            raise ValueError("give the pictures' input: either `in` or `ros2.topic`")
+        if self.ros2 is not None and self.ros2.topic is None and self.ros2.out_topic is None:
+            raise ValueError("ros2 needs topic (a camera to read), out_topic (a topic to "
+                             "publish the pictures on) or both")
         if self.max_budget_bytes is not None and self.max_budget_bytes < self.budget_bytes:
             raise ValueError("max_budget_bytes is below budget_bytes")
         roi = self.roi

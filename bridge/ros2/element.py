@@ -191,23 +191,25 @@ PICTURE_TYPE = "sensor_msgs/msg/CompressedImage"
 
 
 def compile_camera(spec: Ros2Pictures, senders: Sequence[str], receivers: Sequence[str]
-                   ) -> tuple[Ros2Element, Ros2Element | None]:
-    """An image channel's ROS 2 sides: the camera's topic read at senders (its subscription
-    announced best effort, which any publisher matches), and, with ``out_topic``, the
-    pictures receivers publish, each a CompressedImage (:func:`picture_message`)."""
-    _templates(spec.topic, SENDER_TEMPLATES, ("ros2", "topic"), {"n": senders})
-    camera = Ros2Element(msgtype=spec.type, distro=spec.distro,
-                         type_hash=messages.type_hash(spec.distro, spec.type),
-                         domain=spec.domain, in_topic=spec.topic, out_topic=spec.topic,
-                         qos=Qos(reliability="best_effort"))
-    if spec.out_topic is None:
-        return camera, None
-    _templates(spec.out_topic, RECEIVER_TEMPLATES, ("ros2", "out_topic"), {"n": receivers})
-    return camera, Ros2Element(msgtype=PICTURE_TYPE, distro=spec.distro,
-                               type_hash=messages.type_hash(spec.distro, PICTURE_TYPE),
-                               domain=spec.domain, in_topic=spec.topic,
-                               out_topic=spec.out_topic, qos=Qos(),
-                               defaults={"header": {"frame_id": spec.frame_id}})
+                   ) -> tuple[Ros2Element | None, Ros2Element | None]:
+    """An image channel's ROS 2 sides: with ``topic``, the camera read at senders (its
+    subscription announced best effort, which any publisher matches); with ``out_topic``,
+    the pictures receivers publish, each a CompressedImage (:func:`picture_message`)."""
+    camera = out = None
+    if spec.topic is not None:
+        _templates(spec.topic, SENDER_TEMPLATES, ("ros2", "topic"), {"n": senders})
+        camera = Ros2Element(msgtype=spec.type, distro=spec.distro,
+                             type_hash=messages.type_hash(spec.distro, spec.type),
+                             domain=spec.domain, in_topic=spec.topic, out_topic=spec.topic,
+                             qos=Qos(reliability="best_effort"))
+    if spec.out_topic is not None:
+        _templates(spec.out_topic, RECEIVER_TEMPLATES, ("ros2", "out_topic"), {"n": receivers})
+        out = Ros2Element(msgtype=PICTURE_TYPE, distro=spec.distro,
+                          type_hash=messages.type_hash(spec.distro, PICTURE_TYPE),
+                          domain=spec.domain, in_topic=spec.topic or spec.out_topic,
+                          out_topic=spec.out_topic, qos=Qos(),
+                          defaults={"header": {"frame_id": spec.frame_id}})
+    return camera, out
 
 
 def picture_message(data: bytes, kind: str, colour: bool, stamp: float) -> dict[str, Any]:

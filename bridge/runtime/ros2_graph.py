@@ -80,9 +80,9 @@ class Ros2Graph:
                     if node in channel.destinations(src):
                         self._publisher(element.output_key(src, node), element.ros2)
             spec = channel.image
-            if spec is None or spec.control or spec.ros2 is None:
+            if spec is None or spec.control:
                 continue
-            if channel.sent_by(node) and channel.destinations(node):
+            if spec.ros2 is not None and channel.sent_by(node) and channel.destinations(node):
                 # (image_transport publishes a topic only while something subscribes to it)
                 self.listen(spec.ros2, spec.ros2.in_topic.format(node=node, src=node))
             for src in channel.senders:

@@ -437,7 +437,7 @@ def _ros2_element(element: Element, on_out_of_range: OutOfRange, senders: Sequen
 
 
 def _ros2_camera(spec: Ros2Pictures, senders: Sequence[str], receivers: Sequence[str],
-                 loc: tuple[str | int, ...]) -> tuple[Ros2Element, Ros2Element | None]:
+                 loc: tuple[str | int, ...]) -> tuple[Ros2Element | None, Ros2Element | None]:
     from bridge.ros2.element import Ros2Error, compile_camera
 
     try:
@@ -506,8 +506,8 @@ def compile_images(mission: Mission) -> tuple[ChannelCodec, ...]:
         if not any(set(receivers) - {s} for s in senders):
             raise ChannelTableError("an image channel must reach a node other than its "
                                     "sender", (*loc, "to"))
-        spec = ImageSpec.from_mission(image, None if image.ros2 is None else _ros2_camera(
-            image.ros2, senders, receivers, loc))
+        spec = ImageSpec.from_mission(image, (None, None) if image.ros2 is None else
+                                      _ros2_camera(image.ros2, senders, receivers, loc))
         for key, allowed, where in ((spec.in_key, SENDER_TEMPLATES, "in"),
                                     (image.out, RECEIVER_TEMPLATES, "out"),
                                     (image.control_key, RECEIVER_TEMPLATES, "control")):

@@ -88,16 +88,17 @@ class ImageSpec:
 
     @classmethod
     def from_mission(cls, image: ImageChannel,
-                     ros2: tuple[Ros2Element, Ros2Element | None] | None = None) -> ImageSpec:
-        """``ros2``: the channel's ROS 2 sides, compiled
-        (:func:`~bridge.ros2.element.compile_camera`), when it has a ROS 2 camera."""
-        in_key = image.in_ if ros2 is None else ros2[0].in_key
+                     ros2: tuple[Ros2Element | None, Ros2Element | None] = (None, None)
+                     ) -> ImageSpec:
+        """``ros2``: the channel's ROS 2 camera and pictures' topic, compiled
+        (:func:`~bridge.ros2.element.compile_camera`), where it has them."""
+        in_key = image.in_ if ros2[0] is None else ros2[0].in_key
         assert in_key is not None
         return cls(image.name, in_key, image.out, image.control_key, image.width,
                    image.height, image.colour, image.budget_bytes, image.largest_budget,
                    image.roi, image.policy, image.send, image.publish_interval_s, image.format,
                    image.jpeg_quality, tuple(image.accept), image.max_input_pixels,
-                   *(ros2 or (None, None)))
+                   *ros2)
 
     def input_key(self, camera: str) -> str:
         """The key ``camera`` takes its pictures on."""

@@ -424,6 +424,46 @@ def test_a_ros2_pictures_topic_is_checked_with_its_place(out_topic: str, error: 
     parse_mission(text.replace(out_topic, "/{dst}/{src}_camera/compressed"), "good.yaml")
 
 
+def test_a_zenoh_camera_s_pictures_come_out_on_a_ros2_topic_too() -> None:
+    """A camera putting JPEGs on Zenoh, a surface running ROS 2 tools: ``ros2: {out_topic}``
+    beside ``in`` publishes each picture as a CompressedImage too, the same file."""
+    from rosbags.typesys import Stores, get_typestore
+
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    in: rov/camera\n",
+        "    in: rov/camera\n    ros2: {out_topic: /rov/camera/zab/compressed}\n").replace(
+        "budget_bytes: 1600", "budget_bytes: 400")
+    fleet = FastFleet(parse_mission(text), seed=2)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(60.0)
+    files = [p.value for _, p in fleet.published("operator", "rov/camera")]
+    ros2 = [(t, p) for t, p in fleet.published("operator") if p.ros2 is not None]
+    assert len(files) >= 3 and len(ros2) == len(files)
+    assert {p.key for _, p in ros2} == {
+        "0/rov/camera/zab/compressed/sensor_msgs::msg::dds_::CompressedImage_/"
+        + ros2[0][1].ros2.type_hash}  # type: ignore[union-attr]
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    for file, (t, p) in zip(files, ros2, strict=True):
+        assert p.ros2 is not None
+        message = typestore.deserialize_cdr(p.ros2.encode(p.value, t),
+                                            "sensor_msgs/msg/CompressedImage")
+        assert bytes(message.data) == file and message.format == "mono8; png compressed mono8"
+
+
+@pytest.mark.parametrize(("ros2", "error"), [
+    ("{topic: /rov/camera, out_topic: /rov/pictures}",
+     "give the pictures' input: either `in` or `ros2.topic`"),
+    ("{frame_id: camera}", "ros2 needs topic (a camera to read), out_topic (a topic to "
+                           "publish the pictures on) or both"),
+])
+def test_a_camera_has_one_input_and_a_ros2_block_a_use(ros2: str, error: str) -> None:
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    in: rov/camera\n", f"    in: rov/camera\n    ros2: {ros2}\n")
+    with pytest.raises(MissionProblems) as refused:
+        parse_mission(text, "bad.yaml")
+    assert error in str(refused.value)
+
+
 def test_fragments_shorter_than_an_roi_s_header_are_no_malformed_stream() -> None:
     """12-byte fragments: the first holds part of the ROI's 13-byte header (it was counted
     as a malformed frame and logged)."""
