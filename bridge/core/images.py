@@ -61,7 +61,7 @@ if TYPE_CHECKING:
 
     Pixels = NDArray[np.uint8]
 
-__all__ = ["ImageSender", "Images", "picture_file"]
+__all__ = ["ImageSender", "Images", "picture_file", "ros2_picture"]
 
 log = logging.getLogger("zab.core")
 
@@ -298,6 +298,18 @@ def picture_file(pixels: Any, spec: ImageSpec, meta: dict[str, Any]) -> bytes:
         f"zab:{k}": v if isinstance(v, str) else json.dumps(v) for k, v in meta.items()})
 
 
+def ros2_picture(spec: ImageSpec, src: str, dst: str, file: bytes, colour: bool,
+                 at: float) -> tuple[str, dict[str, Any]] | None:
+    """The key and CompressedImage with which ``dst`` publishes ``src``'s picture ``file``
+    (made at ``at``) on the channel's ROS 2 topic; None where it has no ``out_topic``."""
+    key = spec.ros2_output_key(src, dst)
+    if key is None:
+        return None
+    from bridge.ros2.element import picture_message
+
+    return key, picture_message(file, spec.format, colour, at)
+
+
 @dataclass
 class Shown:
     """What a receiver last published of one sender's image channel."""
@@ -522,13 +534,9 @@ class Images:
         key = spec.output_key(src, self.node)
         file = picture_file(picture.pixels, spec, meta)
         self.outbox.publish(key, file, f"image/{spec.format}", True)
-        ros2_key = spec.ros2_output_key(src, self.node)
-        if ros2_key is not None:
-            from bridge.ros2.element import picture_message
-
-            self.outbox.publish(ros2_key, picture_message(
-                file, spec.format, picture.pixels.ndim == 3, now), "cdr", False,
-                ros2=spec.ros2_out)
+        ros2 = ros2_picture(spec, src, self.node, file, picture.pixels.ndim == 3, now)
+        if ros2 is not None:
+            self.outbox.publish(*ros2, "cdr", False, ros2=spec.ros2_out)
         self.outbox.status(f"images/{spec.name}/{src}", meta)
         self.outbox.event(PicturePublished(now, spec.name, src, key, shown.logged,
                                            stream[shown.logged:], meta))

@@ -9,7 +9,6 @@ An image channel's camera topic and pictures (as CompressedImages) likewise: :fu
 
 from __future__ import annotations
 
-import math
 import string
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -95,8 +94,7 @@ class Ros2Element:
         """The plain message published for ``value``: defaults, then ``stamp_now``, then the
         values that crossed."""
         tree = dict(self.defaults)
-        sec = int(now // 1)
-        stamp = {"sec": sec, "nanosec": min(round((now - sec) * 1e9), 999_999_999)}
+        stamp = time_message(now)
         for path in self.stamp_now:
             messages.set_path(tree, path, stamp)
         if not isinstance(value, dict):
@@ -218,8 +216,12 @@ def picture_message(data: bytes, kind: str, colour: bool, stamp: float) -> dict[
     bgr8``: the pixels' encoding, the file's type, and what OpenCV decodes it to), so its
     subscribers give the right colours."""
     pixels = "rgb8" if colour else "mono8"
-    sec = math.floor(stamp)
-    return {"header": {"stamp": {"sec": sec, "nanosec": min(round((stamp - sec) * 1e9),
-                                                             999_999_999)}},
+    return {"header": {"stamp": time_message(stamp)},
             "format": f"{pixels}; {kind} compressed {'bgr8' if colour else 'mono8'}",
             "data": data}
+
+
+def time_message(t: float) -> dict[str, int]:
+    """A ``builtin_interfaces/msg/Time`` of ``t`` (Unix seconds)."""
+    sec = int(t // 1)
+    return {"sec": sec, "nanosec": min(round((t - sec) * 1e9), 999_999_999)}
