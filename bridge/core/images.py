@@ -29,8 +29,10 @@ when the receiver surfaced goes on crossing, and is shown to its end: it came be
 path. Where the camera puts its pictures over IP, a receiver does not publish the refinements
 of a picture that began to cross once the camera was reachable over IP (a camera that has not
 noticed yet): counted as ``surfaced_duplicates``, they would overwrite the whole picture with
-coarser ones. (A ROS 2 camera's pictures cross acoustically as ever: its messages are not
-pictures for the output key, and its topic reaches the surface's ROS 2 over IP anyway.)
+coarser ones. With ``ros2.out_topic``, the camera also publishes the picture whole on each such
+receiver's ROS 2 topic, and the receiver none of its refinements there. (A ROS 2 camera's
+pictures cross acoustically as ever: its messages are not pictures for the output key, and its
+topic reaches the surface's ROS 2 over IP anyway.)
 """
 
 from __future__ import annotations
@@ -61,7 +63,7 @@ if TYPE_CHECKING:
 
     Pixels = NDArray[np.uint8]
 
-__all__ = ["ImageSender", "Images", "picture_file", "ros2_picture"]
+__all__ = ["ImageSender", "Images", "picture_file", "pixel_encoding", "ros2_picture"]
 
 log = logging.getLogger("zab.core")
 
@@ -298,16 +300,22 @@ def picture_file(pixels: Any, spec: ImageSpec, meta: dict[str, Any]) -> bytes:
         f"zab:{k}": v if isinstance(v, str) else json.dumps(v) for k, v in meta.items()})
 
 
-def ros2_picture(spec: ImageSpec, src: str, dst: str, file: bytes, colour: bool,
-                 at: float) -> tuple[str, dict[str, Any]] | None:
+def pixel_encoding(pixels: Pixels) -> str:
+    """The ROS 2 encoding of decoded pixels: ``mono8`` or ``rgb8``."""
+    return "rgb8" if pixels.ndim == 3 else "mono8"
+
+
+def ros2_picture(spec: ImageSpec, src: str, dst: str, file: bytes, pixels: str, at: float,
+                 kind: str | None = None) -> tuple[str, dict[str, Any]] | None:
     """The key and CompressedImage with which ``dst`` publishes ``src``'s picture ``file``
-    (made at ``at``) on the channel's ROS 2 topic; None where it has no ``out_topic``."""
+    (of ``pixels``: ``mono8``, ``rgb8`` …; made at ``at``; a ``kind`` file, by default the
+    channel's format) on the channel's ROS 2 topic; None where it has no ``out_topic``."""
     key = spec.ros2_output_key(src, dst)
     if key is None:
         return None
     from bridge.ros2.element import picture_message
 
-    return key, picture_message(file, spec.format, colour, at)
+    return key, picture_message(file, kind or spec.format, pixels, at)
 
 
 @dataclass
@@ -404,8 +412,42 @@ class Images:
         outs = [(d, camera.spec.output_key(self.node, d)) for d in camera.dests]
         self.outbox.items.extend(surfacing.relays(key, outs, Relay(
             key, picture.data, picture.encoding, taken=now)))
+        if camera.spec.ros2_out is not None and surfacing.republish:
+            self._ros2_over_ip(camera, picture, now)
         return not surfacing.acoustic(camera.dests) and (
             not asked or all(surfacing.republishes(key, out) for _, out in outs))
+
+    def _ros2_over_ip(self, camera: ImageSender, picture: Picture, now: float) -> None:
+        """Publish ``picture`` on the ROS 2 topic of each receiver reachable over IP, as the
+        receiver would were it to come across the water: the file as it came where a ROS 2
+        viewer shows it so, else made anew in the channel's format (a palette PNG, or an
+        EXIF orientation OpenCV would not follow)."""
+        from bridge.image.formats import ImageInputError, write_image
+        from bridge.ros2.element import FILE_PIXELS
+
+        spec = camera.spec
+        assert self.surfacing is not None
+        dests = [d for d in camera.dests if d in self.surfacing.reachable]
+        if not dests:
+            return
+        try:
+            if picture.image is None:  # (kept across a restart: read again)
+                picture.image = read_picture(spec, picture.data, picture.encoding)
+            image = picture.image
+            file, kind, pixels = picture.data, image.kind, FILE_PIXELS.get(image.layout or "")
+            if pixels is None or kind is None:
+                decoded = image.pixels()
+                file, kind = write_image(decoded, spec.format, spec.jpeg_quality), spec.format
+                pixels = pixel_encoding(decoded)
+        except ImageInputError as exc:
+            self.drop(picture.key or spec.in_key, f"image channel {spec.name!r}: {exc}", now,
+                      exc.cause)
+            return
+        for dest in dests:
+            ros2 = ros2_picture(spec, self.node, dest, file, pixels, now, kind)
+            if ros2 is not None:
+                self.outbox.publish(*ros2, "cdr", False, ros2=spec.ros2_out, taken=now)
+                self.surfacing.relayed += 1
 
     def steer(self, key: str, value: Any, now: float, ref: str | None = None
               ) -> dict[str, Any]:
@@ -509,10 +551,12 @@ class Images:
         if receiver.tid != shown.tid:
             shown.tid, shown.bytes, shown.begun, shown.logged = receiver.tid, 0, now, 0
         surfacing = self.surfacing
-        if surfacing is not None and src in surfacing.reachable and spec.ros2 is None \
-                and shown.begun >= surfacing.since[src] \
+        over_ip = surfacing is not None and src in surfacing.reachable \
+            and spec.ros2 is None and shown.begun >= surfacing.since[src] \
+            and surfacing.republish  # (a picture the camera put since reaches us over IP)
+        if over_ip and surfacing is not None \
                 and surfacing.republishes(spec.input_key(src), spec.output_key(src, self.node)):
-            surfacing.duplicates += 1  # (a picture the camera put since reaches us over IP)
+            surfacing.duplicates += 1
             return
         if len(stream) <= shown.bytes or len(stream) < header_bytes(False) or (
                 not final and now - shown.at < spec.publish_interval_s):
@@ -534,8 +578,8 @@ class Images:
         key = spec.output_key(src, self.node)
         file = picture_file(picture.pixels, spec, meta)
         self.outbox.publish(key, file, f"image/{spec.format}", True)
-        ros2 = ros2_picture(spec, src, self.node, file, picture.pixels.ndim == 3, now)
-        if ros2 is not None:
+        ros2 = ros2_picture(spec, src, self.node, file, pixel_encoding(picture.pixels), now)
+        if ros2 is not None and not over_ip:  # (there: the picture whole, over IP)
             self.outbox.publish(*ros2, "cdr", False, ros2=spec.ros2_out)
         self.outbox.status(f"images/{spec.name}/{src}", meta)
         self.outbox.event(PicturePublished(now, spec.name, src, key, shown.logged,

@@ -61,11 +61,18 @@ class InputImage:
     decoded when first asked for, then kept. A camera faster than the water has most of its
     pictures replaced before they are sent: those are never decoded (a 1080p JPEG is ~13 ms)."""
 
-    __slots__ = ("_decode", "_pixels")
+    __slots__ = ("_decode", "_pixels", "kind", "layout")
 
-    def __init__(self, decode: Callable[[], U8]) -> None:
+    def __init__(self, decode: Callable[[], U8], kind: str | None = None,
+                 layout: str | None = None) -> None:
         self._decode: Callable[[], U8] | None = decode
         self._pixels: U8 | None = None
+        self.kind = kind
+        """``jpeg`` or ``png`` for a file (None: raw pixels)."""
+        self.layout = layout
+        """How the file's pixels are laid out, as Pillow names it (``L``, ``RGB``, ``RGBA``,
+        ``I;16B`` …), where a viewer shows them upright as they are (None: an EXIF
+        orientation turns them)."""
 
     def pixels(self) -> U8:
         """The pixels; raises :class:`ImageInputError` if the bytes past the header are bad."""
@@ -86,11 +93,35 @@ def open_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: 
         raise ImageInputError(f"{kind} images are not enabled on this channel "
                               f"(accept: {', '.join(sorted(accept)) or 'none'})", "unfit")
     with _pillow_errors(kind, data):
-        width, height = _open(data, kind).size
+        image = _open(data, kind)
+        width, height = image.size
+        layout = _layout(image)
     if width * height > max_pixels:
         raise ImageInputError(f"{width} × {height} pixels is more than the channel's "
                               f"{max_pixels}", "too_large")
-    return InputImage(partial(_decoded, data, kind, colour))
+    return InputImage(partial(_decoded, data, kind, colour), kind, layout)
+
+
+def _layout(image: Any) -> str | None:
+    """The raw mode of an open Pillow image's pixels (``RGB;16B`` for a 16-bit colour PNG
+    Pillow makes ``RGB``), None where its EXIF orientation turns it. (From the header: a
+    PNG's ``getexif`` would decode it.)"""
+    from PIL import Image
+
+    if not image.tile:
+        return None
+    args = image.tile[0][3]
+    raw = args[0] if isinstance(args, tuple) else args
+    exif = image.info.get("exif")
+    if isinstance(exif, bytes):
+        orientation = Image.Exif()
+        orientation.load(exif)
+        if orientation.get(_ORIENTATION, 1) != 1:
+            return None
+    return raw if isinstance(raw, str) else None
+
+
+_ORIENTATION = 0x0112
 
 
 def read_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: int,

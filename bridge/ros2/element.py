@@ -210,14 +210,21 @@ def compile_camera(spec: Ros2Pictures, senders: Sequence[str], receivers: Sequen
     return camera, out
 
 
-def picture_message(data: bytes, kind: str, colour: bool, stamp: float) -> dict[str, Any]:
-    """A CompressedImage's fields for a PNG or JPEG file made at ``stamp`` (Unix seconds: its
-    ``zab:time``), ``format`` as compressed_image_transport writes it (``rgb8; png compressed
-    bgr8``: the pixels' encoding, the file's type, and what OpenCV decodes it to), so its
-    subscribers give the right colours."""
-    pixels = "rgb8" if colour else "mono8"
+DECODED = {"mono8": "mono8", "mono16": "mono16", "rgb8": "bgr8", "rgba8": "bgra8"}
+"""The pixel encodings a CompressedImage's file may hold, with what OpenCV decodes each to."""
+FILE_PIXELS = {"L": "mono8", "I;16B": "mono16", "RGB": "rgb8", "RGBA": "rgba8"}
+"""The pixel encoding of a JPEG or PNG by its layout (Pillow's raw mode,
+:attr:`~bridge.image.formats.InputImage.layout`); other files are made anew to be shown."""
+
+
+def picture_message(data: bytes, kind: str, pixels: str, stamp: float) -> dict[str, Any]:
+    """A CompressedImage's fields for a ``kind`` (PNG or JPEG) file of ``pixels`` (a key of
+    :data:`DECODED`) made at ``stamp`` (Unix seconds: its ``zab:time``), ``format`` as
+    compressed_image_transport writes it (``rgb8; png compressed bgr8``: the pixels'
+    encoding, the file's type, and what OpenCV decodes it to), so its subscribers give the
+    right colours."""
     return {"header": {"stamp": time_message(stamp)},
-            "format": f"{pixels}; {kind} compressed {'bgr8' if colour else 'mono8'}",
+            "format": f"{pixels}; {kind} compressed {DECODED[pixels]}",
             "data": data}
 
 

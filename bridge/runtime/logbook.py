@@ -402,7 +402,7 @@ def _picture(at: float, table: ChannelTable, streams: dict[tuple[str, str, Any],
              data: dict[str, Any], node: str) -> Iterator[Received]:
     """A logged picture, decoded from its stream so far as the receiver did (nothing where
     the log lacks its start: it began in the middle)."""
-    from bridge.core.images import picture_file, ros2_picture
+    from bridge.core.images import picture_file, pixel_encoding, ros2_picture
     from bridge.image.codec import ImageStreamError, decode
 
     meta = data.get("meta") or {}
@@ -421,7 +421,7 @@ def _picture(at: float, table: ChannelTable, streams: dict[tuple[str, str, Any],
         return
     file = picture_file(pixels, spec, meta)
     yield Received(at, str(data["key"]), file, f"image/{spec.format}")
-    ros2 = ros2_picture(spec, str(data["src"]), node, file, pixels.ndim == 3,
+    ros2 = ros2_picture(spec, str(data["src"]), node, file, pixel_encoding(pixels),
                         float(meta.get("time", at)))
     if ros2 is not None:
         yield Received(at, *ros2, "cdr", spec.ros2_out)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import msgpack
 import pytest
+import yaml
 import zenoh
 from PIL import Image
 
@@ -167,3 +168,43 @@ def test_a_ros2_camera_crosses_and_comes_out_as_compressed_images(tmp_path: Path
         picture = Image.open(io.BytesIO(bytes(message.data)))  # type: ignore[attr-defined]
         assert picture.size == (160, 120) and picture.text == text  # type: ignore[attr-defined]
         assert attachment is not None and len(attachment) == 33  # rmw_zenoh's attachment
+
+
+def test_a_surfaced_rov_s_pictures_reach_ros2_viewers_over_ip(tmp_path: Path) -> None:
+    """``zab sim`` with the ROV's bridge and the operator's on one Wi-Fi (a Zenoh peer joining
+    their routers, as the surface's access point does): the camera's JPEG reaches the
+    operator's ROS 2 topic whole, as it came, read with rosbags by a plain app; nothing
+    crosses the water to be shown meanwhile."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from bridge.runtime.surface_wifi import access_point
+
+    data = yaml.safe_load((MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    in: rov/camera\n",
+        "    in: camera\n    ros2: {out_topic: '/{dst}/{src}_camera/compressed'}\n"))
+    data["surfacing"] = {"republish": True}
+    for node in data["nodes"].values():  # (as the deploy kit runs them: routers)
+        node["zenoh"] = {"mode": "router", "scouting/gossip/enabled": False,
+                         "scouting/delay": 0}
+    mission, endpoints = mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    shown: queue.Queue[object] = queue.Queue()
+    pngs: list[bytes] = []
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(zab_sim(mission, endpoints))
+        rov, operator = app(endpoints["rov"]), app(endpoints["operator"])
+        stack.callback(rov.close)
+        stack.callback(operator.close)
+        operator.declare_subscriber("0/operator/rov_camera/compressed/**", lambda s: shown.put(
+            typestore.deserialize_cdr(s.payload.to_bytes(), "sensor_msgs/msg/CompressedImage")))
+        operator.declare_subscriber("rov/camera", lambda s: pngs.append(s.payload.to_bytes())
+                                    if str(s.encoding) == "image/png" else None)
+        wifi = access_point(endpoints["operator"] + endpoints["rov"])
+        stack.callback(wifi.close)
+        time.sleep(2.0)  # the bridges' tokens cross; they switch over
+        rov.put("camera", JPEG, encoding=zenoh.Encoding("image/jpeg"))
+        message = shown.get(timeout=10)
+        time.sleep(2.0)  # (refinements crossing the water would show by now)
+    assert message.format == "mono8; jpeg compressed mono8"  # type: ignore[attr-defined]
+    assert bytes(message.data) == JPEG  # type: ignore[attr-defined]
+    assert shown.empty() and pngs == []

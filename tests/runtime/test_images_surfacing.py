@@ -5,11 +5,18 @@ pictures cross the water again."""
 
 from __future__ import annotations
 
+import io
+from typing import Any
+
+import numpy as np
+import pytest
+from PIL import Image, ImageOps
+
 from bridge.core.loaded import parse_mission
 from bridge.core.surfacing import Relay
 from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
-from tests.runtime.test_images_fleet import JPEG, pictures
+from tests.runtime.test_images_fleet import JPEG, PICTURE, pictures
 
 SAME_KEY = (MISSIONS / "bluerov_images.yaml").read_text().replace(
     "mission: bluerov_images", "mission: bluerov_images\nsurfacing: {republish: true}")
@@ -84,3 +91,92 @@ def test_where_the_output_key_is_the_input_key_a_picture_asked_for_crosses_and_s
     fleet.run_until(50.0)
     got = pictures(fleet)
     assert got and got[-1][1]["zab:final"] == "true"
+
+
+ROS2_OUT = MISSION.replace(
+    "    in: camera\n", "    in: camera\n    ros2: {out_topic: /operator/rov_camera/compressed}\n")
+
+
+def ros2_pictures(fleet: FastFleet, node: str) -> list[tuple[str, Any]]:
+    """The CompressedImages ``node`` published: their format and data, read with rosbags."""
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    out = []
+    for t, p in fleet.published(node):
+        if p.ros2 is not None:
+            assert p.key.startswith("0/operator/rov_camera/compressed/sensor_msgs::msg::dds_::"
+                                    "CompressedImage_/")
+            message = typestore.deserialize_cdr(p.ros2.encode(p.value, t),
+                                                "sensor_msgs/msg/CompressedImage")
+            out.append((message.format, bytes(message.data)))
+    return out
+
+
+def test_a_surfaced_operator_s_ros2_topic_gets_the_picture_as_it_came() -> None:
+    """``ros2.out_topic`` while surfaced: the camera's bridge publishes the JPEG as it came
+    on the operator's ROS 2 topic (nothing crosses the water, and the operator publishes
+    nothing); after the dive, the operator publishes the refinements again."""
+    fleet = FastFleet(parse_mission(ROS2_OUT, "surf.yaml"), seed=1)
+    fleet.ip_link("operator", "rov", True)
+    fleet.put("rov", "camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(40.0)
+    assert ros2_pictures(fleet, "rov") == [("mono8; jpeg compressed mono8", JPEG)]
+    assert ros2_pictures(fleet, "operator") == [] and pictures(fleet) == []
+
+    fleet.ip_link("operator", "rov", False)
+    fleet.put("operator", "camera/control", {"request": "now"}, at=41.0)
+    fleet.run_until(80.0)
+    got = ros2_pictures(fleet, "operator")
+    assert len(got) == len(pictures(fleet)) >= 2
+    assert {f for f, _ in got} == {"mono8; png compressed mono8"}
+
+
+@pytest.mark.parametrize(("mode", "exif"), [("P", None), ("RGB", 6), ("I;16", None)])
+def test_a_file_a_ros2_viewer_would_misread_is_made_anew_or_said_so(
+        mode: str, exif: int | None) -> None:
+    """A palette PNG and an EXIF-turned one are made anew as the channel's PNG (OpenCV
+    would show the palette's indices, or the picture on its side); a 16-bit one goes as it
+    is, said ``mono16``."""
+    picture = Image.fromarray(PICTURE).convert("RGB")
+    if mode == "I;16":
+        picture = Image.fromarray(np.asarray(picture.convert("L"), dtype=np.uint16) * 257)
+    elif mode == "P":
+        picture = picture.convert("P")
+    out = io.BytesIO()
+    if exif is not None:
+        tags = picture.getexif()
+        tags[0x0112] = exif
+        picture.save(out, format="PNG", exif=tags.tobytes())
+    else:
+        picture.save(out, format="PNG")
+    fleet = FastFleet(parse_mission(ROS2_OUT, "surf.yaml"), seed=1)
+    fleet.ip_link("operator", "rov", True)
+    fleet.put("rov", "camera", out.getvalue(), encoding="image/png", at=1.0)
+    fleet.run_until(10.0)
+    [(fmt, data)] = ros2_pictures(fleet, "rov")
+    if mode == "I;16":
+        assert (fmt, data) == ("mono16; png compressed mono16", out.getvalue())
+        return
+    assert fmt == "mono8; png compressed mono8" and data != out.getvalue()
+    shown = np.asarray(Image.open(io.BytesIO(data)))
+    upright = np.asarray(ImageOps.exif_transpose(Image.open(out)).convert("L"))
+    assert shown.shape == upright.shape and np.abs(
+        shown.astype(int) - upright.astype(int)).max() <= 1
+
+
+def test_a_picture_asked_for_again_where_it_must_cross_shows_on_ros2_whole_only() -> None:
+    """The output key is the input key: asked for while surfaced, the picture crosses the
+    water to be shown on it again; the ROS 2 topic has had it whole over IP, and gets no
+    coarser copies after it."""
+    fleet = FastFleet(parse_mission(SAME_KEY.replace(
+        "    in: rov/camera\n",
+        "    in: rov/camera\n    ros2: {out_topic: /operator/rov_camera/compressed}\n"),
+        "same.yaml"), seed=1)
+    fleet.ip_link("operator", "rov", True)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.put("operator", "camera/control", {"request": "now"}, at=10.0)
+    fleet.run_until(50.0)
+    assert pictures(fleet)[-1][1]["zab:final"] == "true"  # (crossed to be shown)
+    assert ros2_pictures(fleet, "rov") == [("mono8; jpeg compressed mono8", JPEG)] * 2
+    assert ros2_pictures(fleet, "operator") == []
