@@ -9,11 +9,13 @@ so the channel layouts pick fields by dotted path exactly as in msgpack payloads
 from __future__ import annotations
 
 import difflib
+import math
 from dataclasses import dataclass
 from functools import cache
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.base import Nodetype  # type: ignore[attr-defined]  # (not in __all__)
 
@@ -173,6 +175,8 @@ def _scalar(base: str, value: Any, where: str) -> Any:
         raise EncodeError(f"{where}: expected a number, got {type(value).__name__}")
     if base in _INTS:
         info = np.iinfo(_DTYPES[base])
+        if not math.isfinite(value):
+            raise EncodeError(f"{where}: {value} does not fit a {base}")
         n = round(value)
         if not info.min <= n <= info.max:
             raise EncodeError(f"{where}: {value} does not fit a {base}")
@@ -186,10 +190,12 @@ def _value(store: Any, leaf: Leaf, value: Any, where: str) -> Any:
             return _build(store, leaf.message, value, where)
         assert leaf.base is not None
         return _scalar(leaf.base, value, where)
-    items: list[Any]
+    items: list[Any] | bytes
     if value is None:
         items = []
-    elif isinstance(value, bytes | bytearray | list | tuple):
+    elif isinstance(value, bytes | bytearray):
+        items = bytes(value)  # (a picture's megabytes: never a list of ints)
+    elif isinstance(value, list | tuple):
         items = list(value)
     else:
         raise EncodeError(f"{where}: expected a list, got {type(value).__name__}")
@@ -201,10 +207,44 @@ def _value(store: Any, leaf: Leaf, value: Any, where: str) -> Any:
     if leaf.message is not None:
         return [_build(store, leaf.message, v, f"{where}.{i}") for i, v in enumerate(items)]
     assert leaf.base is not None
+    if leaf.base in _BYTES and isinstance(items, bytes):
+        return np.frombuffer(items, dtype=np.uint8)
+    numbers = _numbers(leaf.base, items)
+    if numbers is not None:
+        return numbers
     scalars = [_scalar(leaf.base, v, f"{where}.{i}") for i, v in enumerate(items)]
     if leaf.base in _DTYPES:
-        return np.array(scalars, dtype=_DTYPES[leaf.base])
+        with np.errstate(over="ignore"):
+            return np.array(scalars, dtype=_DTYPES[leaf.base])
     return scalars  # strings
+
+
+def _numbers(base: str, items: list[Any] | bytes) -> NDArray[Any] | None:
+    """``items`` as a numeric array field, all at once, as :func:`_scalar` takes each (ints
+    rounded, each within its type); None where one of them is no number for it (bools are
+    not) or out of range: the element-wise path then says which."""
+    dtype = _DTYPES.get(base)
+    if dtype is None or base == "bool" or not len(items):
+        return None
+    if isinstance(items, list) and any(type(v) is bool for v in items):
+        return None
+    try:
+        array = np.asarray(items)
+    except (TypeError, ValueError):
+        return None
+    if array.ndim != 1 or array.dtype.kind not in "iuf":
+        return None
+    if base in _FLOATS:
+        with np.errstate(over="ignore"):  # (beyond a float32: inf, as one value at a time)
+            return array.astype(dtype)
+    if array.dtype.kind == "f":
+        if not np.isfinite(array).all():
+            return None
+        array = np.rint(array)
+    info = np.iinfo(dtype)
+    if array.min() < info.min or array.max() > info.max:
+        return None
+    return array.astype(dtype)
 
 
 def encode_cdr(distro: str, msgtype: str, tree: dict[str, Any]) -> bytes:

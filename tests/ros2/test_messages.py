@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_typestore
 
 from bridge.codec import Layout
@@ -95,6 +97,51 @@ def test_encode_refuses_values_that_do_not_fit() -> None:
         messages.encode_cdr("jazzy", ODOM, {"child_frame_id": 3})
     with pytest.raises(EncodeError, match=r"pose\.covariance: needs 36"):
         messages.encode_cdr("jazzy", ODOM, {"pose": {"covariance": [1.0, 2.0]}})
+
+
+ARRAYS = {"uint8": "std_msgs/msg/UInt8MultiArray", "int16": "std_msgs/msg/Int16MultiArray",
+          "uint32": "std_msgs/msg/UInt32MultiArray", "float32": "std_msgs/msg/Float32MultiArray"}
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(sorted(ARRAYS)), st.lists(st.one_of(
+    st.integers(-70_000, 70_000), st.integers(), st.booleans(), st.text(max_size=2),
+    st.floats(-70_000, 70_000), st.floats(allow_nan=True, allow_infinity=True)), max_size=6))
+def test_a_numeric_array_takes_each_value_as_a_field_does(base: str, values: list[object]
+                                                          ) -> None:
+    """Arrays go through numpy at once (a camera's megabytes took seconds one by one): each
+    value as a single field of the type takes it (ints rounded, in range, bools and text
+    refused), and a refusal names the first value that does not fit."""
+    msgtype = ARRAYS[base]
+    expected: list[object] = []
+    refused = None
+    for i, value in enumerate(values):
+        try:
+            expected.append(messages._scalar(base, value, f"data.{i}"))
+        except EncodeError as exc:
+            refused = str(exc)
+            break
+    if refused is not None:
+        with pytest.raises(EncodeError) as exc_info:
+            messages.encode_cdr("jazzy", msgtype, {"data": values})
+        assert str(exc_info.value) == refused
+        return
+    got = messages.decode_cdr("jazzy", msgtype, messages.encode_cdr(
+        "jazzy", msgtype, {"data": values}))["data"]
+    if base == "uint8":
+        assert got == bytes(expected)  # type: ignore[arg-type]
+        return
+    with np.errstate(over="ignore"):  # (beyond a float32: inf both ways)
+        want = np.asarray(expected, dtype=np.float32 if base == "float32" else None)
+    assert np.array_equal(np.asarray(got), want)
+
+
+def test_a_picture_s_bytes_go_whole() -> None:
+    data = bytes(range(256)) * 4000  # (a megabyte: one value at a time, about a second)
+    message = messages.encode_cdr("jazzy", "sensor_msgs/msg/CompressedImage",
+                                  {"format": "jpeg", "data": data})
+    assert messages.decode_cdr("jazzy", "sensor_msgs/msg/CompressedImage",
+                               message)["data"] == data
 
 
 FIELDS = [
