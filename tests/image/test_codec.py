@@ -32,6 +32,13 @@ def test_the_wavelet_inverts_on_any_size(shape: tuple[int, int]) -> None:
     assert np.abs(inverse(forward(x, levels), levels) - x).max() < 1e-9
 
 
+def luma_psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR of the luma (what the stream's estimate is of)."""
+    def luma(x: np.ndarray) -> np.ndarray:
+        return x.astype(float) @ np.array([0.299, 0.587, 0.114]) if x.ndim == 3 else x
+    return psnr(luma(a), luma(b))
+
+
 @pytest.mark.parametrize(("shape", "colour"), [((24, 40), False), ((23, 37), True)])
 def test_each_weight_is_its_coefficients_synthesis_norm(shape: tuple[int, int],
                                                           colour: bool) -> None:
@@ -109,12 +116,14 @@ def test_the_distortion_estimate_follows_the_truth() -> None:
 
 @pytest.mark.parametrize("seed", [3, 11])
 def test_the_distortion_estimate_does_not_fall_as_bytes_come(seed: int) -> None:
-    """A viewer sees each refinement's estimate: more bytes never read as a worse picture
-    (within a tenth of a dB), though a pass tests its likeliest coefficients first."""
+    """A viewer sees each refinement's estimate: more bytes never read as a worse picture,
+    though a pass tests its likeliest coefficients first (within a tenth of a dB past the
+    first 40 bytes; before, the bands' first coefficients may move it by half a dB)."""
     pixels = seabed(120, 160, seed=seed, colour=False)
     stream = encode(pixels, 800)
     estimates = [decode(stream[:n]).psnr_estimate for n in range(20, 801, 8)]
-    falls = [(a, b) for a, b in pairwise(estimates) if b < a - 0.1]
+    falls = [(n, a, b) for n, (a, b) in zip(range(28, 801, 8), pairwise(estimates),
+                                            strict=True) if b < a - (0.1 if n > 40 else 0.5)]
     assert not falls, falls
 
 
@@ -122,7 +131,7 @@ def test_the_first_refinements_estimate_no_better_picture_than_the_later_ones() 
     """The tour's picture (a camera's JPEG of a seabed, made 160×120) in 19-byte fragments:
     its first refinement read 32.2 dB, the second 26.9 (the truth: 26.3, then 27.8), as
     though the picture got worse. And over seabeds as cameras give them, no refinement reads
-    much worse than the one before."""
+    a dB worse than the one before, and the estimates are within about a dB of the truth."""
     def camera(seed: int, colour: bool) -> np.ndarray:
         jpeg = write_image(seabed(240, 320, seed=seed, colour=colour), "jpeg", quality=90)
         return fit(read_image(jpeg, "image/jpeg", ["jpeg"], 10**6, colour), 160, 120)
@@ -132,12 +141,17 @@ def test_the_first_refinements_estimate_no_better_picture_than_the_later_ones() 
     pictures = [decode(stream[:n]) for n in range(19, 96, 19)]
     estimates = [p.psnr_estimate for p in pictures]
     assert estimates == sorted(estimates)
-    assert abs(estimates[0] - psnr(tour, pictures[0].pixels)) < 1.5
+    assert abs(estimates[0] - luma_psnr(tour, pictures[0].pixels)) < 1.5
+    errors = []
     for seed in range(4):
         for colour in (False, True):
-            stream = encode(camera(seed, colour), 400)
-            estimates = [decode(stream[:n]).psnr_estimate for n in range(12, 401, 12)]
-            assert max(a - b for a, b in pairwise(estimates)) < 2.0, (seed, colour)
+            pixels = camera(seed, colour)
+            stream = encode(pixels, 400)
+            pictures = [decode(stream[:n]) for n in range(12, 401, 12)]
+            estimates = [p.psnr_estimate for p in pictures]
+            assert max(a - b for a, b in pairwise(estimates)) < 1.0, (seed, colour)
+            errors += [p.psnr_estimate - luma_psnr(pixels, p.pixels) for p in pictures]
+    assert np.mean(np.abs(errors)) < 1.1  # (0.90; 1.26 when a level's largest scale ruled)
 
 
 def test_colour_goes_as_luma_and_half_size_chroma() -> None:
