@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import struct
 import warnings
 from collections.abc import Callable, Collection, Iterator, Mapping
 from functools import partial
@@ -114,9 +115,12 @@ def _layout(image: Any) -> str | None:
     raw = args[0] if isinstance(args, tuple) else args
     exif = image.info.get("exif")
     if isinstance(exif, bytes):
-        orientation = Image.Exif()
-        orientation.load(exif)
-        if orientation.get(_ORIENTATION, 1) != 1:
+        tags = Image.Exif()
+        try:
+            tags.load(exif)
+        except (struct.error, SyntaxError):  # (EXIF it cannot read: upright, as decoded)
+            return raw if isinstance(raw, str) else None
+        if tags.get(_ORIENTATION, 1) != 1:
             return None
     return raw if isinstance(raw, str) else None
 
@@ -145,7 +149,8 @@ def _decoded(data: bytes, kind: str, colour: bool) -> U8:
 
     with _pillow_errors(kind, data):
         image = _open(data, kind)
-        ImageOps.exif_transpose(image, in_place=True)
+        with contextlib.suppress(struct.error, SyntaxError):  # (EXIF it cannot read: upright)
+            ImageOps.exif_transpose(image, in_place=True)
         if image.mode.startswith("I"):  # I;16 (or I): 16-bit grey
             high = np.clip(np.asarray(image), 0, 65535) >> 8
             image = Image.fromarray(high.astype(np.uint8))
@@ -165,7 +170,7 @@ def _pillow_errors(kind: str, data: bytes) -> Iterator[None]:
             yield
     except UnidentifiedImageError:
         raise ImageInputError(f"not a decodable {kind} image ({len(data)} bytes)") from None
-    except (OSError, ValueError, SyntaxError,
+    except (OSError, ValueError, SyntaxError, struct.error,
             Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
         raise ImageInputError(f"cannot decode the {kind} image: {exc}") from None
 

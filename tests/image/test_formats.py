@@ -3,12 +3,23 @@
 from __future__ import annotations
 
 import io
+import warnings
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from PIL import Image
 
-from bridge.image.formats import ImageInputError, fit, kind_of, read_image, read_raw, write_image
+from bridge.image.formats import (
+    ImageInputError,
+    fit,
+    kind_of,
+    open_image,
+    read_image,
+    read_raw,
+    write_image,
+)
 from bridge.image.synthetic import seabed
 
 PIXELS = seabed(60, 80, seed=1)
@@ -88,6 +99,36 @@ def test_a_jpeg_is_turned_upright_by_its_exif_orientation() -> None:
     rgb = read_image(out.getvalue(), "image/jpeg", {"jpeg"}, 10_000, colour=True)
     assert rgb.shape == (80, 40, 3)
     assert rgb[:30].mean() > 200 > 50 > rgb[50:].mean()  # the left is now on top
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.sampled_from(["PNG", "JPEG"]), st.integers(1, 8), st.binary(max_size=8),
+       st.lists(st.tuples(st.integers(0, 60), st.integers(0, 255)), max_size=6),
+       st.integers(0, 60))
+def test_a_picture_with_an_exif_block_it_cannot_read_shows_upright(
+        kind: str, orientation: int, junk: bytes, flips: list[tuple[int, int]], cut: int
+        ) -> None:
+    """Cameras write EXIF blocks that are cut or garbled: the picture's pixels are fine, so
+    it is taken (upright where the block cannot be read), never a crash; its layout, which
+    says whether a ROS 2 viewer may show the file as it is, never ignores a turn."""
+    pixels = np.zeros((6, 10), dtype=np.uint8)
+    pixels[:, :5] = 255
+    tags = Image.Exif()
+    tags[0x0112] = orientation
+    block = bytearray(tags.tobytes())
+    for at, value in flips:
+        if at < len(block):
+            block[at] = value
+    block = block[:len(block) - cut] + junk if cut else block + junk
+    out = io.BytesIO()
+    Image.fromarray(pixels).save(out, kind, exif=bytes(block))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (Pillow warns of the corrupt block)
+        image = open_image(out.getvalue(), "", {"jpeg", "png"}, 10_000, colour=False)
+        shown = image.pixels()
+    assert shown.shape in ((6, 10), (10, 6))
+    if image.layout is not None:  # (as it is: upright)
+        assert shown.shape == (6, 10) and shown[:, :5].mean() > 200 > 50 > shown[:, 5:].mean()
 
 
 def _raw(pixels: np.ndarray, encoding: str, big: bool = False, pad: int = 0) -> dict:
