@@ -42,7 +42,7 @@ def _meta(data: bytes) -> dict[str, Any]:
     """The ``zab:`` metadata of a published picture (PNG text chunks or JPEG comment)."""
     from PIL import Image, UnidentifiedImageError
 
-    from bridge.image.formats import read_text
+    from bridge.image.formats import orientation, read_text
 
     try:
         image = Image.open(io.BytesIO(data))
@@ -52,7 +52,7 @@ def _meta(data: bytes) -> dict[str, Any]:
     out = {str(key)[4:]: value for key, value in text.items() if str(key).startswith("zab:")}
     if not out:  # the camera's picture itself, put over IP while it is surfaced
         width, height = image.size
-        if image.getexif().get(0x0112) in (5, 6, 7, 8):  # shown turned a quarter
+        if orientation(image) in (5, 6, 7, 8):  # shown turned a quarter
             width, height = height, width
         out = {"whole": True, "final": True, "bytes": len(data), "budget": len(data),
                "width": width, "height": height}

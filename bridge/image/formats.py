@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["KINDS", "ImageInputError", "InputImage", "fit", "kind_of", "open_image",
-           "open_raw", "read_image", "read_raw", "read_text", "write_image"]
+           "open_raw", "orientation", "read_image", "read_raw", "read_text", "write_image"]
 
 KINDS = {"jpeg": "image/jpeg", "png": "image/png"}
 """Image types an input may take, by name, with their Zenoh encodings."""
@@ -105,24 +105,30 @@ def open_image(data: bytes, encoding: str, accept: Collection[str], max_pixels: 
 
 def _layout(image: Any) -> str | None:
     """The raw mode of an open Pillow image's pixels (``RGB;16B`` for a 16-bit colour PNG
-    Pillow makes ``RGB``), None where its EXIF orientation turns it. (From the header: a
-    PNG's ``getexif`` would decode it.)"""
-    from PIL import Image
-
-    if not image.tile:
+    Pillow makes ``RGB``), None where its EXIF orientation turns it."""
+    if not image.tile or orientation(image) != 1:
         return None
     args = image.tile[0][3]
     raw = args[0] if isinstance(args, tuple) else args
-    exif = image.info.get("exif")
-    if isinstance(exif, bytes):
-        tags = Image.Exif()
-        try:
-            tags.load(exif)
-        except (struct.error, SyntaxError):  # (EXIF it cannot read: upright, as decoded)
-            return raw if isinstance(raw, str) else None
-        if tags.get(_ORIENTATION, 1) != 1:
-            return None
     return raw if isinstance(raw, str) else None
+
+
+def orientation(image: Any) -> int:
+    """The EXIF orientation of an open Pillow image, from its header (a PNG's ``getexif``
+    would decode it): 1 where it has none, or a block that cannot be read (decoding shows
+    such a picture upright too)."""
+    from PIL import Image
+
+    exif = image.info.get("exif")
+    if not isinstance(exif, bytes):
+        return 1
+    tags = Image.Exif()
+    try:
+        tags.load(exif)
+    except (struct.error, SyntaxError):
+        return 1
+    value = tags.get(_ORIENTATION, 1)
+    return value if isinstance(value, int) else 1
 
 
 _ORIENTATION = 0x0112

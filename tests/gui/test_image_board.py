@@ -57,6 +57,21 @@ def test_the_camera_s_own_picture_turned_by_its_exif_gives_the_size_shown() -> N
     assert (item["meta"]["width"], item["meta"]["height"]) == (240, 320)
 
 
+@pytest.mark.parametrize("kind", ["PNG", "JPEG"])
+def test_the_camera_s_own_picture_with_an_exif_block_cut_short_is_shown(kind: str) -> None:
+    """A block the picture's decoder cannot read shows the picture upright; the board took
+    its size from it and raised (a PNG's: 'not a TIFF file'), so the picture never showed."""
+    board = ImageBoard(load_mission(MISSIONS / "bluerov_images.yaml"), "operator")
+    image = Image.fromarray(PICTURE)
+    exif = image.getexif()
+    exif[0x0112] = 6
+    out = io.BytesIO()
+    image.save(out, kind, exif=exif.tobytes()[:3])
+    item = board.ingest("rov/camera", out.getvalue(), f"image/{kind.lower()}", 5.0)
+    assert item is not None
+    assert (item["meta"]["width"], item["meta"]["height"]) == (320, 240)
+
+
 def test_a_jpeg_picture_s_metadata_reads_as_a_png_s() -> None:
     """A channel publishing JPEGs (format: jpeg) gave the GUI {"zab:bytes": 37, …} instead of
     {"bytes": 37, …}: its comment's keys had "zab:" put before them again. A camera's own
