@@ -443,9 +443,11 @@ class Images:
             self.drop(picture.key or spec.in_key, f"image channel {spec.name!r}: {exc}", now,
                       exc.cause)
             return
-        for dest in dests:
+        keys = set()
+        for dest in dests:  # (a topic without {dst} is one topic for them all: once)
             ros2 = ros2_picture(spec, self.node, dest, file, pixels, now, kind)
-            if ros2 is not None:
+            if ros2 is not None and ros2[0] not in keys:
+                keys.add(ros2[0])
                 self.outbox.publish(*ros2, "cdr", False, ros2=spec.ros2_out, taken=now)
                 self.surfacing.relayed += 1
 

@@ -180,3 +180,24 @@ def test_a_picture_asked_for_again_where_it_must_cross_shows_on_ros2_whole_only(
     assert pictures(fleet)[-1][1]["zab:final"] == "true"  # (crossed to be shown)
     assert ros2_pictures(fleet, "rov") == [("mono8; jpeg compressed mono8", JPEG)] * 2
     assert ros2_pictures(fleet, "operator") == []
+
+
+@pytest.mark.parametrize(("topic", "keys"), [
+    ("/rov/camera/compressed", ["0/rov/camera/compressed"]),
+    ("/{dst}/rov_camera", ["0/operator/rov_camera", "0/pilot/rov_camera"])])
+def test_two_surfaced_receivers_get_the_picture_once_a_topic(topic: str, keys: list[str]) -> None:
+    """One topic for every receiver (no ``{dst}``) gets the picture once, not once each."""
+    text = MISSION.replace(
+        "    to: operator\n    in: camera\n",
+        f"    to: [operator, pilot]\n    in: camera\n    ros2: {{out_topic: '{topic}'}}\n"
+    ).replace("  rov:\n", "  pilot:\n    address: 3\n    role: surface\n"
+              "    position: {x: 0, y: 1, depth: 0.5}\n  rov:\n", 1)
+    assert "pilot]" in text
+    fleet = FastFleet(parse_mission(text, "two.yaml"), seed=1)
+    fleet.ip_link("operator", "rov", True)
+    fleet.ip_link("pilot", "rov", True)
+    fleet.put("rov", "camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(10.0)
+    published = sorted(p.key.rsplit("/", 2)[0] for _, p in fleet.published("rov")
+                       if p.ros2 is not None)
+    assert published == keys
