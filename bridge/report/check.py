@@ -122,6 +122,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
                 f"takes up to {image['seconds_per_picture']} s ({image['fragments_per_picture']}"
                 f" fragments, one a turn), more than its ttl_s={ttl:g}: such a picture is "
                 "given up unfinished (raise ttl_s or lower budget_bytes)")
+    _shared_picture_topics(table, report)
     mac_data: dict[str, Any] = {}
     for link in network.links:
         data, warnings = mac_for(link.view).check(by_link[link.name])
@@ -300,6 +301,24 @@ def _system_entries_fit(loaded: LoadedMission, codec: FrameCodec, report: CheckR
                 report.errors.append(
                     f"entry {entry.name!r} ({codec.channel_cost_bits(entry)} bits with its "
                     f"index) can never fit in a frame of {name!r} ({capacity} bits free)")
+
+
+def _shared_picture_topics(table: Any, report: CheckReport) -> None:
+    """An image channel's ROS 2 pictures topic that several of a camera's receivers share
+    (no ``{dst}``): each receiver publishes every picture on it."""
+    for c in table.channels:
+        spec = c.image
+        if spec is None or spec.control or spec.ros2_out is None:
+            continue
+        for src in c.senders:
+            dests = c.destinations(src)
+            keys = {spec.ros2_output_key(src, d) for d in dests}
+            if len(keys) < len(dests):
+                report.warnings.append(
+                    f"image channel {c.name!r}: {src}'s receivers {', '.join(dests)} share "
+                    f"one ROS 2 topic ({spec.ros2_out.out_topic}): where their ROS 2 graphs "
+                    "meet, each picture comes once from each (give out_topic {dst})")
+                break
 
 
 def _family_warnings(loaded: LoadedMission, report: CheckReport) -> None:

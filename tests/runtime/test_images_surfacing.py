@@ -186,7 +186,8 @@ def test_a_picture_asked_for_again_where_it_must_cross_shows_on_ros2_whole_only(
     ("/rov/camera/compressed", ["0/rov/camera/compressed"]),
     ("/{dst}/rov_camera", ["0/operator/rov_camera", "0/pilot/rov_camera"])])
 def test_two_surfaced_receivers_get_the_picture_once_a_topic(topic: str, keys: list[str]) -> None:
-    """One topic for every receiver (no ``{dst}``) gets the picture once, not once each."""
+    """One topic for every receiver (no ``{dst}``) gets the picture once, not once each;
+    ``zab check`` warns that every receiver publishes every picture on it."""
     text = MISSION.replace(
         "    to: operator\n    in: camera\n",
         f"    to: [operator, pilot]\n    in: camera\n    ros2: {{out_topic: '{topic}'}}\n"
@@ -201,3 +202,10 @@ def test_two_surfaced_receivers_get_the_picture_once_a_topic(topic: str, keys: l
     published = sorted(p.key.rsplit("/", 2)[0] for _, p in fleet.published("rov")
                        if p.ros2 is not None)
     assert published == keys
+    from bridge.report.check import check_mission  # zab check says so beforehand
+
+    shared = [w for w in check_mission(parse_mission(text)).warnings if "share" in w]
+    assert shared == ([] if "{dst}" in topic else [
+        "image channel 'camera': rov's receivers operator, pilot share one ROS 2 topic "
+        "(/rov/camera/compressed): where their ROS 2 graphs meet, each picture comes once "
+        "from each (give out_topic {dst})"])
