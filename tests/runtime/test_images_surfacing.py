@@ -93,12 +93,12 @@ def test_where_the_output_key_is_the_input_key_a_picture_asked_for_crosses_and_s
     assert got and got[-1][1]["zab:final"] == "true"
 
 
-ROS2_OUT = MISSION.replace(
-    "    in: camera\n", "    in: camera\n    ros2: {out_topic: /operator/rov_camera/compressed}\n")
+ROS2_OUT = MISSION.replace("    in: camera\n", "    in: camera\n    ros2: {out_topic: "
+                          "/operator/rov_camera/compressed, frame_id: rov_camera}\n")
 
 
-def ros2_pictures(fleet: FastFleet, node: str) -> list[tuple[str, Any]]:
-    """The CompressedImages ``node`` published: their format and data, read with rosbags."""
+def compressed_images(fleet: FastFleet, node: str) -> list[Any]:
+    """The CompressedImages ``node`` published, read with rosbags."""
     from rosbags.typesys import Stores, get_typestore
 
     typestore = get_typestore(Stores.ROS2_JAZZY)
@@ -107,10 +107,14 @@ def ros2_pictures(fleet: FastFleet, node: str) -> list[tuple[str, Any]]:
         if p.ros2 is not None:
             assert p.key.startswith("0/operator/rov_camera/compressed/sensor_msgs::msg::dds_::"
                                     "CompressedImage_/")
-            message = typestore.deserialize_cdr(p.ros2.encode(p.value, t),
-                                                "sensor_msgs/msg/CompressedImage")
-            out.append((message.format, bytes(message.data)))
+            out.append(typestore.deserialize_cdr(p.ros2.encode(p.value, t),
+                                                 "sensor_msgs/msg/CompressedImage"))
     return out
+
+
+def ros2_pictures(fleet: FastFleet, node: str) -> list[tuple[str, bytes]]:
+    """The CompressedImages ``node`` published: their format and data."""
+    return [(m.format, bytes(m.data)) for m in compressed_images(fleet, node)]
 
 
 def test_a_surfaced_operator_s_ros2_topic_gets_the_picture_as_it_came() -> None:
@@ -122,6 +126,7 @@ def test_a_surfaced_operator_s_ros2_topic_gets_the_picture_as_it_came() -> None:
     fleet.put("rov", "camera", JPEG, encoding="image/jpeg", at=1.0)
     fleet.run_until(40.0)
     assert ros2_pictures(fleet, "rov") == [("mono8; jpeg compressed mono8", JPEG)]
+    assert [m.header.frame_id for m in compressed_images(fleet, "rov")] == ["rov_camera"]
     assert ros2_pictures(fleet, "operator") == [] and pictures(fleet) == []
 
     fleet.ip_link("operator", "rov", False)
