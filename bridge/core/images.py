@@ -124,6 +124,13 @@ class Picture:
     ref: str | None = None
     image: InputImage | None = None
 
+    def opened(self, spec: ImageSpec) -> InputImage:
+        """Its image, its header read the first time (a picture kept across a restart comes
+        back unread); raises :class:`~bridge.image.formats.ImageInputError`."""
+        if self.image is None:
+            self.image = read_picture(spec, self.data, self.encoding)
+        return self.image
+
     def state(self) -> list[Any] | None:
         """As saved state; None if it is too long to be saved (:data:`STATE_PICTURE_BYTES`)."""
         if len(self.data) > STATE_PICTURE_BYTES:
@@ -211,9 +218,7 @@ class ImageSender(TransferSender):
             return []
         self.latest, self.last = None, None
         try:
-            if taken.image is None:  # (kept across a restart: read again)
-                taken.image = read_picture(self.spec, taken.data, taken.encoding)
-            pixels = taken.image.pixels()
+            pixels = taken.opened(self.spec).pixels()
         except ImageInputError as exc:
             self.drop(taken.key or self.spec.in_key, f"image channel {self.spec.name!r}: "
                       f"{exc}", now, exc.cause)
@@ -431,9 +436,7 @@ class Images:
         if not dests:
             return
         try:
-            if picture.image is None:  # (kept across a restart: read again)
-                picture.image = read_picture(spec, picture.data, picture.encoding)
-            image = picture.image
+            image = picture.opened(spec)
             file, kind, pixels = picture.data, image.kind, FILE_PIXELS.get(image.layout or "")
             if pixels is None or kind is None:
                 decoded = image.pixels()

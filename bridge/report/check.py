@@ -20,7 +20,7 @@ from bridge.modems.registry import load_backend
 from bridge.modems.setup import modem_options
 from bridge.report.network_check import network_section
 from bridge.wire.auth import COUNTER_BYTES
-from bridge.wire.channels import ChannelCodec
+from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.families import has_wildcard
 from bridge.wire.frame import FrameCodec
 from bridge.wire.goby import frame_codec_for
@@ -303,7 +303,7 @@ def _system_entries_fit(loaded: LoadedMission, codec: FrameCodec, report: CheckR
                     f"index) can never fit in a frame of {name!r} ({capacity} bits free)")
 
 
-def _shared_picture_topics(table: Any, report: CheckReport) -> None:
+def _shared_picture_topics(table: ChannelTable, report: CheckReport) -> None:
     """An image channel's ROS 2 pictures topic that several of a camera's receivers share
     (no ``{dst}``): each receiver publishes every picture on it."""
     for c in table.channels:

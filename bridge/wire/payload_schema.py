@@ -165,7 +165,9 @@ def _image_uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, str, st
                     "description": f"The same picture as a ROS 2 {spec.ros2_out.msgtype} (CDR, "
                                    f"rmw_zenoh {spec.ros2_out.distro}): format "
                                    f"'<rgb8|mono8>; {spec.format} compressed <bgr8|mono8>', "
-                                   "header.stamp its zab:time."}
+                                   "header.stamp its zab:time; while the camera is reachable "
+                                   "over IP, its file as it came (format saying its type and "
+                                   "pixels: mono8, mono16, rgb8 or rgba8)."}
 
 
 def key_schemas(table: ChannelTable) -> list[KeySchema]:
