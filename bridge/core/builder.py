@@ -32,8 +32,9 @@ class FramePlan:
 @dataclass(frozen=True)
 class Candidate:
     """Something that could go in a frame as one entry of ``channel``: a latest-value channel
-    (``what`` is its state) or a queued value or fragment. ``rank`` orders one channel's
-    several candidates."""
+    (``what`` is its state) or a queued value or fragment. ``last_sent``: when the channel
+    (for a stream, anything of it; in a key family, the member) last went in a frame.
+    ``rank`` orders one channel's several candidates."""
 
     channel: Offered
     last_sent: float | None

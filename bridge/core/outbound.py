@@ -143,6 +143,9 @@ class Outbound:
                       else TransferSender if c.fragmented else ReliableSender)(
                 c, c.destinations(node), retry_s, rng.randrange(SEQ_MOD))
             for c in table.streams if c.index in self.store.states}
+        self._streamed: dict[int, float] = {}
+        """When each stream (by channel index) last had something in a frame: its values and
+        fragments wait from then, so streams of one priority take turns."""
         by_name = {s.channel.name: s for s in self.senders.values()}
         for name, saved in (state.get("senders") or {}).items():
             if name in by_name:
@@ -401,7 +404,8 @@ class Outbound:
         if self.queries is not None:
             out += self.queries.candidates(now)
         for sender in self.senders.values():
-            out += [Candidate(sender.channel, getattr(item, "last_sent", None), (sender, item), n)
+            since = self._streamed.get(sender.channel.index)
+            out += [Candidate(sender.channel, since, (sender, item), n)
                     for n, item in enumerate(sender.due(now))]
         if self.families.senders:
             out += self.families.candidates(now, lambda c: self.wants(c, side))
@@ -522,6 +526,7 @@ class Outbound:
             by_sender.setdefault(id(sender), (sender, []))[1].append(item)
         dest = self.mission.name_of(out.dest) if out.dest is not None else None
         for sender, group in by_sender.values():
+            self._streamed[sender.channel.index] = out.built
             self.outbox.reports(sender.sent(group, out.built))
             if confirmed and dest is not None:
                 sender.confirmed(group, dest)

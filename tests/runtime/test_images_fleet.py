@@ -528,3 +528,30 @@ def test_a_get_on_a_picture_s_key_has_no_error_beside_the_picture() -> None:
         keyspace = NodeCore(parse_mission(text), "operator").outbound.keyspace
         assert keyspace.unanswered(f"{camera}/camera") is None
         assert keyspace.unanswered(f"{camera}/camera/**") is None
+
+
+@pytest.mark.parametrize("priority", [None, 2])
+def test_two_cameras_of_one_priority_share_the_water_a_higher_one_goes_first(
+        priority: int | None) -> None:
+    """A forward and a down camera on one ROV: at one priority their fragments take turns,
+    so each shows a first picture within seconds; at a higher priority the down camera's
+    picture crosses whole first."""
+    text = (MISSIONS / "bluerov_images.yaml").read_text() + (
+        "  - name: down\n    from: rov\n    to: operator\n    in: rov/down\n    out: rov/down\n"
+        "    width: 160\n    height: 120\n    budget_bytes: 800\n"
+        + (f"    priority: {priority}\n" if priority else ""))
+    fleet = FastFleet(parse_mission(text), seed=3)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.put("rov", "rov/down", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(80.0)
+    times = {key: [t for t, _ in fleet.published("operator", key)]
+             for key in ("rov/camera", "rov/down")}
+    finals = {key: [t for t, p in fleet.published("operator", key)
+                    if Image.open(io.BytesIO(p.value)).text["zab:final"] == "true"]  # type: ignore[attr-defined]
+              for key in times}
+    assert all(finals.values())
+    if priority is None:
+        assert max(times["rov/camera"][0], times["rov/down"][0]) < 1.0 + 5.0
+        assert finals["rov/camera"][0] > finals["rov/down"][0]  # (twice the bytes)
+    else:
+        assert finals["rov/down"][0] < times["rov/camera"][0]
