@@ -555,3 +555,21 @@ def test_two_cameras_of_one_priority_share_the_water_a_higher_one_goes_first(
         assert finals["rov/camera"][0] > finals["rov/down"][0]  # (twice the bytes)
     else:
         assert finals["rov/down"][0] < times["rov/camera"][0]
+
+
+def test_an_operator_s_control_lost_in_the_water_is_sent_again_within_a_few_polls() -> None:
+    """Seed 002's link polls the ROV every 640 ms: a control (here a budget) lost on the way,
+    or whose acknowledgement is, goes again a couple of polls later, not after ten seconds."""
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=4, loss=0.2)
+    puts = [2.0 + 6.0 * i for i in range(30)]
+    for i, at in enumerate(puts):
+        fleet.put("operator", "camera/control", {"budget_bytes": 400 + 40 * (i % 2)}, at=at)
+    fleet.run_until(puts[-1] + 30.0)
+    reports = [o.output.payload for o in fleet.outputs if o.node == "operator"
+               and isinstance(o.output, Status) and o.output.topic == "delivery/camera.control"]
+    delivered = {r["id"]: r["time"] for r in reports if r["state"] == "delivered"}
+    assert sorted(delivered) == list(range(len(puts)))
+    waits = sorted(delivered[i] - at for i, at in enumerate(puts))
+    assert waits[len(waits) // 2] < 1.5  # most at once
+    assert max(waits) > 1.5  # some were lost, and repaired
+    assert waits[int(0.9 * len(waits))] < 6.0  # (10.6 s when the first retry waited 10 s)

@@ -199,6 +199,19 @@ class Polled(Mac):
     def heartbeat_s(self) -> None:
         return None  # every poll and every reply is a frame
 
+    def retry_s(self) -> float:
+        """A slave's longest wait between turns and a poll more: its value is acknowledged
+        in the master's next poll and sent again at its next turn; the master's value to a
+        slave is acknowledged in that slave's next reply (seed 002's link: 1.3 s, where ten
+        seconds of silence made an operator's lost ROI wait that long)."""
+        ipg = polled_ipg_s(self.mission, self.model)
+        slaves = polled_slaves(self.mission, self.model)
+        if ipg is None or not slaves:
+            return super().retry_s()
+        gaps = [PolledSchedule(s, self.model.master, slaves, ipg).worst_gap_s() or ipg
+                for s in set(slaves)]
+        return max(gaps) + ipg
+
 
 def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 4)
