@@ -29,7 +29,7 @@ from bridge.mission.model import (
 )
 from bridge.wire.auth import AUTH_VERSION
 from bridge.wire.families import KEY, FamilySpec, NameCodec, family_template, name_codec
-from bridge.wire.images import ImageSpec, control_layout
+from bridge.wire.images import CONTROL_TTL_S, ImageSpec, control_layout
 from bridge.wire.interest import InterestCodec
 from bridge.wire.marks import MarkCodec
 from bridge.wire.network import NetCodec
@@ -539,7 +539,8 @@ def compile_images(mission: Mission) -> tuple[ChannelCodec, ...]:
                                control_layout(len(senders)))
         out.append(ChannelCodec(index + 1, f"{image.name}.control", receivers, senders, 0.0,
                                 False, image.priority + 1, (control,), reliable=True,
-                                queue=4, overflow="drop_oldest",
+                                retries=None, ttl_s=CONTROL_TTL_S, queue=4,
+                                overflow="drop_oldest",
                                 image=replace(spec, control=True)))
     return tuple(out)
 

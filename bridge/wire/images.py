@@ -23,8 +23,8 @@ from bridge.mission.images import ImageChannel
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
 
-__all__ = ["CONTROL_BOUNDS", "CONTROL_FIELDS", "PICTURE_METADATA", "REQUESTS", "ImageSpec",
-           "control_layout", "control_payload"]
+__all__ = ["CONTROL_BOUNDS", "CONTROL_FIELDS", "CONTROL_TTL_S", "PICTURE_METADATA", "REQUESTS",
+           "ImageSpec", "control_layout", "control_payload"]
 
 REQUESTS = ("none", "now", "cancel")
 """What an operator's control asks besides settings: nothing more, a picture now, or that the
@@ -38,6 +38,11 @@ CONTROL_FIELDS: tuple[dict[str, Any], ...] = (
     {"field": "roi_on", "type": "bool"},
     *({"field": f, "type": "int", "min": 0, "max": 64} for f in ("x0", "y0", "x1", "y1")),
 )
+
+CONTROL_TTL_S = 3600.0
+"""How long an operator's control is sent again until it arrives: settings are state, so they
+cross when the link comes back (retries are not counted: a fast link, retrying every second or
+so, would use them up in a minute's outage); older than this, it is reported failed."""
 
 CONTROL_BOUNDS = {f["field"]: (f["min"], f["max"]) for f in CONTROL_FIELDS if "min" in f}
 """The settings' bounds on the control channel (a control outside them is refused)."""

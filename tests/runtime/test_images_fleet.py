@@ -5,6 +5,7 @@ are repaired; bad pictures are counted drops."""
 from __future__ import annotations
 
 import io
+import json
 import re
 
 import numpy as np
@@ -573,3 +574,19 @@ def test_an_operator_s_control_lost_in_the_water_is_sent_again_within_a_few_poll
     assert waits[len(waits) // 2] < 1.5  # most at once
     assert max(waits) > 1.5  # some were lost, and repaired
     assert waits[int(0.9 * len(waits))] < 6.0  # (10.6 s when the first retry waited 10 s)
+
+
+def test_an_operator_s_control_put_while_the_link_is_down_arrives_when_it_comes_back() -> None:
+    """Settings are state, not a command: the control is sent again until it arrives, over a
+    ten-minute outage too, however fast the link retries."""
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=5)
+    fleet.call_at(5.0, lambda: setattr(fleet.ocean, "loss", 1.0))
+    fleet.call_at(605.0, lambda: setattr(fleet.ocean, "loss", 0.0))
+    fleet.put("operator", "camera/control", {"roi": [0.5, 0.5, 1.0, 1.0]}, at=10.0)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=620.0)
+    fleet.run_until(660.0)
+    reports = [o.output.payload for o in fleet.outputs if o.node == "operator"
+               and isinstance(o.output, Status) and o.output.topic == "delivery/camera.control"]
+    assert reports[-1]["state"] == "delivered" and 605.0 < reports[-1]["time"] < 615.0
+    got = pictures(fleet)
+    assert got and json.loads(got[-1][1]["zab:roi"]) == [0.5, 0.5, 1.0, 1.0]
