@@ -332,6 +332,9 @@ class Shown:
     at: float = -math.inf
     begun: float = -math.inf  # when its first fragment came
     logged: int = 0  # bytes of its stream the PicturePublished events have carried
+    held: tuple[ChannelCodec, TransferReceiver] | None = None
+    """A sharper picture came too soon after the last one: published once the interval is
+    over, if nothing sharper has come by then (:meth:`Images.tick`)."""
 
 
 class Images:
@@ -546,6 +549,18 @@ class Images:
                                                         "bytes": len(stream)})
         self._show(src, channel, receiver, stream, data is not None, now)
 
+    def tick(self, now: float) -> None:
+        """Publish the pictures held back by ``publish_interval_s`` whose interval is over
+        (the last fragments before a pause show then, not at the next fragment)."""
+        for (src, _), shown in self.shown.items():
+            if shown.held is None:
+                continue
+            channel, receiver = shown.held
+            if receiver.tid != shown.tid:  # (another picture since: it shows itself)
+                shown.held = None
+            elif now - shown.at >= _spec(channel).publish_interval_s:
+                self._show(src, channel, receiver, receiver.prefix(), False, now)
+
     def _show(self, src: str, channel: ChannelCodec, receiver: TransferReceiver,
               stream: bytes, final: bool, now: float) -> None:
         """Publish the picture ``stream`` holds, if it is sharper and it is time."""
@@ -553,6 +568,7 @@ class Images:
 
         spec = _spec(channel)
         shown = self.shown.setdefault((src, channel.index), Shown())
+        shown.held = None
         if receiver.tid != shown.tid:
             shown.tid, shown.bytes, shown.begun, shown.logged = receiver.tid, 0, now, 0
         surfacing = self.surfacing
@@ -563,8 +579,10 @@ class Images:
                 and surfacing.republishes(spec.input_key(src), spec.output_key(src, self.node)):
             surfacing.duplicates += 1
             return
-        if len(stream) <= shown.bytes or len(stream) < header_bytes(False) or (
-                not final and now - shown.at < spec.publish_interval_s):
+        if len(stream) <= shown.bytes or len(stream) < header_bytes(False):
+            return
+        if not final and now - shown.at < spec.publish_interval_s:
+            shown.held = channel, receiver
             return
         try:
             picture = decode(stream)

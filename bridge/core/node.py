@@ -150,8 +150,7 @@ class NodeCore:
         """Several links or routes: the links' policy and the frames carried for others."""
         if self.network is not None:
             self.outbound.attach(self.network)
-        self.positioning = Positioning(mission, node) if needs_positioning(mission, node) \
-            else None
+        self.positioning = Positioning(mission, node) if needs_positioning(mission, node) else None
         self.ranges = Ranges(mission, self.positioning, outbox, self.outbound.drop_payload) \
             if self.positioning is not None else None
         if self.ranges is not None:
@@ -164,7 +163,6 @@ class NodeCore:
             table, node, outbox, self.receivers, out.senders, out.drop_payload,
             out.bindings, state.get("images"), out.surfacing) if mission.images else None
         # what observers read (the parts' own objects)
-        out = self.outbound
         self.store, self.bindings, self.families = out.store, out.bindings, out.families
         self.senders, self.interest, self.surfacing = out.senders, out.interest, out.surfacing
         self.link_states, self.last_heard = self.links.states, self.links.last_heard
@@ -352,13 +350,15 @@ class NodeCore:
 
     def tick(self, now: float) -> None:
         """Periodic work: link states (and which link carries what), reliable values past
-        their TTL or retries, the tracker's news, queries past their deadline."""
+        their TTL or retries, the tracker's news, queries past their deadline, held pictures."""
         self.update_links(now)
         self.outbound.expire(now)
         if self.ranges is not None:
             self.ranges.tick(now)
         if self.queries is not None:
             self.queries.expire(now)
+        if self.images is not None:
+            self.images.tick(now)
         self.outbound.summarise_drops(now)
 
     def update_links(self, now: float) -> None:

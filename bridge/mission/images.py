@@ -90,7 +90,7 @@ class ImageChannel(BaseModel):
         "newest when an operator asks (request: now).")
     publish_interval_s: float = Field(0.0, ge=0.0, description="Least time between two "
                                       "refinements published at a receiver (the final picture "
-                                      "always goes).")
+                                      "always goes; one held back goes when it is over).")
     format: Literal["png", "jpeg"] = Field("png", description="What receivers publish.")
     jpeg_quality: int = Field(90, ge=1, le=100, description="Quality of published JPEGs.")
     accept: list[Literal["jpeg", "png"]] = Field(

@@ -5,6 +5,7 @@ are repaired; bad pictures are counted drops."""
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import re
 
@@ -590,3 +591,21 @@ def test_an_operator_s_control_put_while_the_link_is_down_arrives_when_it_comes_
     assert reports[-1]["state"] == "delivered" and 605.0 < reports[-1]["time"] < 615.0
     got = pictures(fleet)
     assert got and json.loads(got[-1][1]["zab:roi"]) == [0.5, 0.5, 1.0, 1.0]
+
+
+def test_a_refinement_held_back_by_the_publish_interval_shows_when_the_link_pauses() -> None:
+    """At most one picture every 5 s, and the link lost 11.5 s in, after a fragment that came
+    too soon to be shown (at 11.3 s, the last shown at 6.8 s): it is published once the
+    interval is over, not when (if ever) the next fragment comes."""
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "publish_interval_s: 1.0", "publish_interval_s: 5.0")
+    fleet = FastFleet(parse_mission(text), seed=6)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.call_at(11.5, lambda: setattr(fleet.ocean, "loss", 1.0))
+    fleet.run_until(40.0)
+    came = [(o.time, o.output.payload["bytes"]) for o in fleet.outputs if o.node == "operator"
+            and isinstance(o.output, Status) and o.output.topic == "transfer/camera"]
+    got = pictures(fleet)
+    assert int(got[-1][1]["zab:bytes"]) == came[-1][1] and got[-1][1]["zab:final"] == "false"
+    assert came[-1][0] - got[-2][0] < 5.0 <= got[-1][0] - got[-2][0] < 5.0 + 1.0
+    assert all(b - a >= 5.0 for (a, _, _), (b, _, _) in itertools.pairwise(got))
