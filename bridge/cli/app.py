@@ -176,7 +176,9 @@ def check(
                            f"{i['size'][0]}×{i['size'][1]}" + (" colour" if i["colour"] else ""),
                            f"{i['budget_bytes']} B (≤ {i['max_budget_bytes']} B)",
                            f"{i['fragment_bytes']} B", str(i["fragments_per_picture"]),
-                           "?" if took is None else f"≤ {took:g} s")
+                           "?" if took is None else f"≤ {took:g} s" + (
+                               f" (turns shared with {', '.join(i['shares_turns_with'])})"
+                               if i["shares_turns_with"] else ""))
         console.print(images)
     if data.get("demand"):
         always = [c["name"] for c in data["channels"] if c.get("always")]

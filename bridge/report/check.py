@@ -108,20 +108,24 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
                                "address (set modem.broadcast once for the mission)")
     images = [_image(c, codec) for c in table.channels
               if c.image is not None and not c.image.control]
-    for image in images:  # one fragment per opportunity of the camera, at worst
+    for image in images:  # a turn's wait for the first, then one fragment a turn at worst,
+        # taking turns with the cameras of the same node at its priority or above (each sending)
         waits = [n["mac"]["worst_interval_s"] for n in nodes
                  if n["name"] in image["from"]]
         slowest: float | None = max((w for w in waits if w is not None), default=None)
-        image["seconds_per_picture"] = None if slowest is None else round(
-            slowest * image["fragments_per_picture"], 1)
+        image["shares_turns_with"] = [
+            other["name"] for other in images if other is not image
+            and set(other["from"]) & set(image["from"]) and other["priority"] >= image["priority"]]
+        turns = 1 + image["fragments_per_picture"] * (1 + len(image["shares_turns_with"]))
+        image["seconds_per_picture"] = None if slowest is None else round(slowest * turns, 1)
         ttl = image["ttl_s"]
         if ttl is not None and image["seconds_per_picture"] is not None and \
                 image["seconds_per_picture"] > ttl:
             report.warnings.append(
                 f"image channel '{image['name']}': a picture of {image['budget_bytes']} B "
                 f"takes up to {image['seconds_per_picture']} s ({image['fragments_per_picture']}"
-                f" fragments, one a turn), more than its ttl_s={ttl:g}: such a picture is "
-                "given up unfinished (raise ttl_s or lower budget_bytes)")
+                f" fragments, one a turn{_sharing(image)}), more than its ttl_s={ttl:g}: such a "
+                "picture is given up unfinished (raise ttl_s or lower budget_bytes)")
     _shared_picture_topics(table, report)
     mac_data: dict[str, Any] = {}
     for link in network.links:
@@ -254,6 +258,12 @@ def _family(channel: ChannelCodec) -> dict[str, Any] | None:
     return {"members": None if spec.learned else list(spec.members), "bound": spec.bound,
             "learned": spec.learned, "index_bits": spec.index_bits,
             "name_bytes": spec.name_bytes if spec.learned else None}
+
+
+def _sharing(image: dict[str, Any]) -> str:
+    """What an image channel's turns are shared with, for a warning (or nothing)."""
+    others = image["shares_turns_with"]
+    return f", turns shared with {', '.join(repr(o) for o in others)}" if others else ""
 
 
 def _image(channel: ChannelCodec, codec: FrameCodec) -> dict[str, Any]:

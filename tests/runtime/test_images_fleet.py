@@ -557,6 +557,13 @@ def test_two_cameras_of_one_priority_share_the_water_a_higher_one_goes_first(
         assert finals["rov/camera"][0] > finals["rov/down"][0]  # (twice the bytes)
     else:
         assert finals["rov/down"][0] < times["rov/camera"][0]
+    from bridge.report.check import check_mission  # zab check's bound holds, turns shared
+
+    bound = {i["name"]: i for i in check_mission(parse_mission(text)).data["images"]}
+    assert bound["camera"]["shares_turns_with"] == ["down"]
+    assert bound["down"]["shares_turns_with"] == ([] if priority else ["camera"])
+    for name, key in (("camera", "rov/camera"), ("down", "rov/down")):
+        assert finals[key][0] - 1.0 <= bound[name]["seconds_per_picture"]
 
 
 def test_an_operator_s_control_lost_in_the_water_is_sent_again_within_a_few_polls() -> None:
