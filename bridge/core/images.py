@@ -332,7 +332,7 @@ class Shown:
     at: float = -math.inf
     begun: float = -math.inf  # when its first fragment came
     logged: int = 0  # bytes of its stream the PicturePublished events have carried
-    held: tuple[ChannelCodec, TransferReceiver] | None = None
+    held: bool = False
     """A sharper picture came too soon after the last one: published once the interval is
     over, if nothing sharper has come by then (:meth:`Images.tick`)."""
 
@@ -552,14 +552,15 @@ class Images:
     def tick(self, now: float) -> None:
         """Publish the pictures held back by ``publish_interval_s`` whose interval is over
         (the last fragments before a pause show then, not at the next fragment)."""
-        for (src, _), shown in self.shown.items():
-            if shown.held is None:
+        for key, shown in self.shown.items():
+            if not shown.held:
                 continue
-            channel, receiver = shown.held
+            receiver = self.receivers.by_key[key]
+            assert isinstance(receiver, TransferReceiver)
             if receiver.tid != shown.tid:  # (another picture since: it shows itself)
-                shown.held = None
-            elif now - shown.at >= _spec(channel).publish_interval_s:
-                self._show(src, channel, receiver, receiver.prefix(), False, now)
+                shown.held = False
+            elif now - shown.at >= _spec(receiver.channel).publish_interval_s:
+                self._show(key[0], receiver.channel, receiver, receiver.prefix(), False, now)
 
     def _show(self, src: str, channel: ChannelCodec, receiver: TransferReceiver,
               stream: bytes, final: bool, now: float) -> None:
@@ -568,7 +569,7 @@ class Images:
 
         spec = _spec(channel)
         shown = self.shown.setdefault((src, channel.index), Shown())
-        shown.held = None
+        shown.held = False
         if receiver.tid != shown.tid:
             shown.tid, shown.bytes, shown.begun, shown.logged = receiver.tid, 0, now, 0
         surfacing = self.surfacing
@@ -582,7 +583,7 @@ class Images:
         if len(stream) <= shown.bytes or len(stream) < header_bytes(False):
             return
         if not final and now - shown.at < spec.publish_interval_s:
-            shown.held = channel, receiver
+            shown.held = True
             return
         try:
             picture = decode(stream)
