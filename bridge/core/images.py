@@ -6,7 +6,10 @@ recodes each picture into a stream of the operator's budget, size and region of 
 sends it as one transfer; the mission's policy says whether a newer picture waits for the one
 in flight (``finish``) or replaces it (``cancel``). A receiver's acknowledgement that shows a
 gap (a later fragment held, an earlier one not) has the missing fragment sent again at the
-next opportunity, not after ``retry_s``: seed 002's requested trunk.
+next opportunity, not after ``retry_s``: seed 002's requested trunk. Only where the gap's last
+copy is known lost: the held fragment went out first after it (as SACK's loss detection
+decides). A copy still on its way (a relay's queue holds minutes of them) is not sent again
+at each acknowledgement that predates it.
 
 At a receiving node, :class:`Images` decodes the stream's unbroken prefix after each fragment
 and publishes a standard picture (PNG, or JPEG) on the output key with its metadata in the
@@ -266,8 +269,11 @@ class ImageSender(TransferSender):
         item = self.current
         if item is not None and item.tid == tid and dst in item.dests:
             held = item.held.get(dst, set())
+            # a copy of a held one left after the gap's last copy: that copy is lost
+            after = max((item.first_sent[i] for i in held if i in item.first_sent),
+                        default=-math.inf)
             for i in range(item.done_by(dst), max(held, default=0)):
-                if i not in held and item.attempts.get(i, 0):  # sent, and a later one came
+                if i not in held and item.last_sent.get(i, math.inf) < after:
                     item.next_send[i] = min(item.next_send.get(i, now), now)
         return reports + self._next(now)
 

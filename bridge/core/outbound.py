@@ -158,6 +158,11 @@ class Outbound:
         self.network = network
         self.stores = network.linkset.stores
         self._filtered = self._filtered or not network.policy.single
+        routes = network.routing.network
+        for sender in self.senders.values():
+            if isinstance(sender, TransferSender):
+                sender.behind_relays(d for d in sender.dests
+                                     if routes.next_hop(self.node, d) not in (d, None))
         if self.queries is not None:  # a query's timeout says where its route breaks
             self.queries.explain = network.explain
 

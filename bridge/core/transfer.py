@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.core.events import Delivery
-from bridge.core.reliable import retry_wait, stream_ttl_s
+from bridge.core.reliable import BACKOFF_CAP, retry_wait, stream_ttl_s
+from bridge.core.round_trips import RoundTrips
 from bridge.wire.channels import TID_BITS, WINDOW, ChannelCodec
 
 TID_MOD = 1 << TID_BITS
@@ -64,6 +65,8 @@ class Transfer:
     held: dict[str, set[int]] = field(default_factory=dict)  # per receiver, past base
     attempts: dict[int, int] = field(default_factory=dict)
     next_send: dict[int, float] = field(default_factory=dict)
+    first_sent: dict[int, float] = field(default_factory=dict)  # when each went out first
+    last_sent: dict[int, float] = field(default_factory=dict)  # and last
     started: bool = False
 
     @property
@@ -80,10 +83,13 @@ class Transfer:
     def complete(self) -> bool:
         return all(self.done_by(d) >= self.count for d in self.dests)
 
+    def lacks(self, dst: str, index: int) -> bool:
+        """Receiver ``dst`` does not hold fragment ``index`` yet."""
+        return index >= self.done_by(dst) and index not in self.held.get(dst, ())
+
     def needed(self, index: int) -> bool:
         """Some receiver still lacks fragment ``index``."""
-        return any(index >= self.done_by(d) and index not in self.held.get(d, ())
-                   for d in self.dests)
+        return any(self.lacks(d, index) for d in self.dests)
 
 
 class TransferSender:
@@ -97,6 +103,8 @@ class TransferSender:
         self.dests = tuple(dests)
         self.retry_s = channel.retry_s or retry_s
         self.ttl_s = channel.ttl_s or transfer_ttl_s(channel, self.retry_s)
+        self.round_trips: dict[str, RoundTrips] = {}
+        """Per receiver behind a relay: its round trips (:meth:`behind_relays`)."""
         self.current: Transfer | None = None
         self.queue: deque[Transfer] = deque()
         self._next_id = 0
@@ -171,7 +179,9 @@ class TransferSender:
         reports: list[Delivery] = []
         for i in indices:
             n = item.attempts[i] = item.attempts.get(i, 0) + 1
-            item.next_send[i] = now + retry_wait(self.retry_s, n)
+            item.next_send[i] = now + self._wait(item, i, n)
+            item.first_sent.setdefault(i, now)
+            item.last_sent[i] = now
         if not item.started:
             item.started = True
             reports += self._report(item, "sent", now)
@@ -187,16 +197,51 @@ class TransferSender:
         if item is None or tid != item.tid or dst not in item.dests:
             return []
         reports: list[Delivery] = []
-        was = item.done_by(dst)
+        was, had = item.done_by(dst), item.held.get(dst, set())
         if base > was:
             item.base[dst] = min(base, item.count)
         item.held[dst] = {item.done_by(dst) + 1 + i for i in range(WINDOW) if bitmap >> i & 1}
+        if dst in self.round_trips:
+            self._timed(item, dst, {*range(was, item.done_by(dst)), *item.held[dst]} - had,
+                        now)
         if was < item.count <= item.done_by(dst):
             reports.append(self._one(item, dst, "delivered", now))
         if item.complete():
             self.current = None
             self._start(now)
         return reports
+
+    def behind_relays(self, dests: Iterable[str]) -> None:
+        """Receivers reached through relays: the wait before sending a fragment again
+        learns from their acknowledgements (:mod:`bridge.core.round_trips`: what a relay's
+        queue adds is not known before the dive). A neighbour's stays ``retry_s``: its MAC
+        bounds the round trip."""
+        self.round_trips = {d: RoundTrips(self.retry_s, BACKOFF_CAP * self.retry_s)
+                            for d in dests if d in self.dests}
+
+    def _wait(self, item: Transfer, index: int, attempts: int) -> float:
+        """How long fragment ``index`` waits after its ``attempts``-th copy: the longest
+        wait of the receivers behind relays that lack it, else ``retry_s``'s."""
+        return max((trips.wait(attempts) for dst, trips in self.round_trips.items()
+                    if dst in item.dests and item.lacks(dst, index)),
+                   default=retry_wait(self.retry_s, attempts))
+
+    def _timed(self, item: Transfer, dst: str, acknowledged: set[int], now: float) -> None:
+        """Fragments newly ``acknowledged`` by ``dst``: the round trip of the last one sent,
+        where it was sent once (Karn), and the timers of those in flight moved out to a
+        longer wait."""
+        once = [item.first_sent[i] for i in acknowledged
+                if item.attempts.get(i) == 1 and i in item.first_sent]
+        if not once:
+            return
+        trips = self.round_trips[dst]
+        timeout = trips.timeout
+        trips.sample(now - max(once))
+        if trips.timeout > timeout:
+            for i, last in item.last_sent.items():
+                if i in item.next_send and item.lacks(dst, i):
+                    item.next_send[i] = max(item.next_send[i],
+                                            last + self._wait(item, i, item.attempts[i]))
 
     def resync(self, dst: str) -> None:
         """``dst`` started afresh (a new epoch): it holds nothing; send it every fragment."""

@@ -79,7 +79,8 @@ class Authenticator:
         self.reserved = self.counter  # counters below this are saved as used
         self.seen: dict[int, int] = {int(k): int(v) for k, v in state.get("seen", {}).items()}
         self.window = window
-        self.late: dict[int, int] = {int(k): int(v) for k, v in state.get("late", {}).items()}
+        self.late: dict[int, int] = {int(k): _bitmap(v) & ((1 << window) - 1)
+                                     for k, v in state.get("late", {}).items()}
         """Per sender, bit i set: the counter i below its mark arrived (with a window)."""
         self.changed = False
         self.owed: dict[int, list[int]] = {}
@@ -96,7 +97,8 @@ class Authenticator:
         state: dict[str, Any] = {"reserved": self.reserved,
                                  "seen": {str(k): v for k, v in self.seen.items()}}
         if self.window:
-            state["late"] = {str(k): v for k, v in self.late.items()}
+            state["late"] = {str(k): v.to_bytes((v.bit_length() + 7) // 8, "big")
+                             for k, v in self.late.items()}
         return state
 
     def _tag(self, src: int, counter: int, data: bytes, fingerprint: bytes | None = None
@@ -148,7 +150,8 @@ class Authenticator:
         """A frame of ``src`` sealed with ``counter`` opened: its mark moves there."""
         if self.window:  # (the window moves with the mark)
             moved = counter - self.seen.get(src, counter - self.window)
-            self.late[src] = ((self.late.get(src, 0) << moved) | 1) & ((1 << self.window) - 1)
+            late = self.late.get(src, 0) << moved if moved < self.window else 0
+            self.late[src] = (late | 1) & ((1 << self.window) - 1)
         self.seen[src] = counter
         self.changed = True
         if self._answered:
@@ -220,3 +223,9 @@ class Authenticator:
             if counter >= 0 and hmac.compare_digest(tag, self._tag(src, counter, data, theirs)):
                 return counter
         return None
+
+
+def _bitmap(saved: int | bytes) -> int:
+    """A saved window's bitmap: bytes, big-endian (an integer in the state of a version
+    whose window was 64 bits)."""
+    return saved if isinstance(saved, int) else int.from_bytes(saved, "big")

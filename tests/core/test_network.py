@@ -385,3 +385,34 @@ def test_a_relays_own_values_take_turns_with_those_it_carries_at_the_same_priori
     fleet.run_until(600)
     rov1, rov2 = (len(published(fleet, "surface", f"{n}/feed")) for n in ("rov1", "rov2"))
     assert rov1 >= 40 and rov2 >= 40 and abs(rov1 - rov2) <= 4, (rov1, rov2)
+
+
+@pytest.mark.parametrize("drift", [False, True], ids=["rov2-near", "rov2-drifting"])
+def test_a_picture_behind_a_slow_relay_crosses_whole_sent_about_once(drift: bool) -> None:
+    """umci_relay with a camera on ROV2: ROV2 sends a fragment a second over RF, ROV1 carries
+    one every 7.5 s on to the surface over acoustics, so a fragment waits minutes in its
+    queue. Before, ROV2 sent again what was still queued (after retry_s, and at each
+    acknowledgement that showed a gap the queued copy had not filled yet): the picture failed
+    after 11 copies of one fragment. Drifting (RF lost and back, the surface hearing ROV2
+    directly), the surface refused ROV2's relayed frames as replayed (more than 64 counters
+    behind what it had heard), and the picture took over 1000 s."""
+    text = (MISSIONS / "umci_relay.yaml").read_text() + CAMERA.replace(
+        "budget_bytes: 600", "budget_bytes: 1600").replace("publish_interval_s: 0",
+                                                            "publish_interval_s: 5")
+    if not drift:  # ROV2 holds 3 m from ROV1, always in RF range
+        text = text.replace("{x: 408,", "{x: 403,")
+    loaded = parse_mission(text, "umci_camera.yaml")
+    fleet = FastFleet(loaded, seed=3, key=KEY)
+    picture = seabed(120, 160, seed=4, colour=False)
+    fleet.put("rov2", "rov2/camera", write_image(picture, "jpeg", quality=92),
+              encoding="image/jpeg", at=10.0)
+    fleet.run_until(1000.0)
+    finals = [t for t, p in fleet.published("surface", "rov2/camera")
+              if Image.open(io.BytesIO(p.value)).text["zab:final"] == "true"]  # type: ignore[attr-defined]
+    from bridge.report.check import check_mission
+
+    [bound] = check_mission(loaded).data["images"]
+    assert len(finals) == 1 and finals[0] - 10.0 <= bound["seconds_per_picture"]
+    sent = fleet.cores["rov2"].stats.sent_per_channel["camera"]
+    assert sent <= 1.4 * bound["fragments_per_picture"]  # (before: 115 and 92 of 48)
+    assert "replayed" not in fleet.cores["surface"].stats.frames_dropped

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import msgpack
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -97,3 +98,26 @@ def test_a_window_accepts_frames_overtaken_on_another_link_once() -> None:
     assert again.open(frames[4], 7) == bytes([4])  # the window survives a restart
     with pytest.raises(FrameError, match="replayed"):
         again.open(frames[3], 7)
+
+
+def test_a_window_of_a_thousand_frames_is_saved_as_bytes_and_read_from_an_older_state() -> None:
+    """A relay may hold a frame minutes while its origin sends one a second on another link:
+    the window spans 1024 counters, and its bitmap goes into the (msgpack) state as bytes;
+    a state saved with the 64-bit window of before (an integer) still reads."""
+    sender = Authenticator(KEY, FINGERPRINT, 7, 4)
+    frames = [sender.seal(bytes([i % 256])) for i in range(1100)]
+    receiver = Authenticator(KEY, FINGERPRINT, 1, 4, window=1024)
+    receiver.open(frames[1050], 7)
+    assert receiver.open(frames[30], 7) == bytes([30])  # 1020 below the highest
+    with pytest.raises(FrameError, match="replayed"):
+        receiver.open(frames[20], 7)  # 1030 below: out of the window
+    saved = msgpack.unpackb(msgpack.packb(receiver.state()), strict_map_key=False)
+    again = Authenticator(KEY, FINGERPRINT, 1, 4, saved, window=1024)
+    with pytest.raises(FrameError, match="replayed"):
+        again.open(frames[30], 7)  # once only, across the restart
+    assert again.open(frames[31], 7) == bytes([31])
+    older = {**saved, "late": {"7": 0b10}}  # the counter 1 below the mark came
+    before = Authenticator(KEY, FINGERPRINT, 1, 4, older, window=1024)
+    with pytest.raises(FrameError, match="replayed"):
+        before.open(frames[1049], 7)
+    assert before.open(frames[1048], 7) == bytes([1048 % 256])
