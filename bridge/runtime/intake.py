@@ -13,7 +13,8 @@ as they like. Three places could hold what they send, and each is bounded here:
   holds back another's samples (Zenoh does not say how many it dropped).
 - *The hand-off to the event loop.* A thread of ours per subscription takes the samples out
   (:meth:`Intake.subscribe`); what must run on the loop waits in a queue of :data:`HANDOFF`
-  calls per key (:meth:`Intake.to_loop`), the oldest dropped and counted
+  calls per *lane* (:meth:`Intake.to_loop`: a subscription's key; a key family's samples, each
+  under its own key, share their subscription's lane), the oldest dropped and counted
   (:attr:`Intake.overflow`), and the loop is woken once for a batch, not once per sample.
 - *Failures.* A sample whose handling raises (it never should: bad input is a counted drop) is
   counted (:attr:`Intake.errors`) and its traceback logged at most once a minute per key; the
@@ -39,7 +40,7 @@ log = logging.getLogger("zab.node")
 RING = 8
 """Samples Zenoh keeps per subscription while its thread is busy (the oldest dropped)."""
 HANDOFF = 16
-"""Calls per key waiting for the event loop (the oldest dropped, counted)."""
+"""Calls per lane waiting for the event loop (the oldest dropped, counted)."""
 TRACEBACK_EVERY_S = 60.0
 
 
@@ -103,7 +104,8 @@ class Intake:
                           self.node, key)
 
     def to_loop(self, key: str, call: Callable[[], object]) -> None:
-        """Run ``call`` on the loop soon; at most :data:`HANDOFF` wait per key (any thread)."""
+        """Run ``call`` on the loop soon; at most :data:`HANDOFF` wait per lane ``key``
+        (any thread)."""
         with self._lock:
             waiting = self._waiting.get(key)
             if waiting is None:
@@ -119,9 +121,8 @@ class Intake:
     def _run(self) -> None:
         """On the loop: every waiting call, a key's in the order they came."""
         with self._lock:
-            batches = [(key, list(waiting)) for key, waiting in self._waiting.items() if waiting]
-            for waiting in self._waiting.values():
-                waiting.clear()
+            batches = [(key, list(waiting)) for key, waiting in self._waiting.items()]
+            self._waiting.clear()  # (a lane is made again when it has something)
             self._woken = False
         for key, batch in batches:
             for call in batch:

@@ -221,7 +221,7 @@ class BridgeNode:
             for key in self.core.bindings:
                 intake.subscribe(key, functools.partial(self._from_zenoh, loop, key))
             for key in self.core.families.subscriptions():  # key families: concrete keys
-                intake.subscribe(key, lambda s: self._from_zenoh(loop, str(s.key_expr), s))
+                intake.subscribe(key, functools.partial(self._from_family, loop, key))
             self._subscribe_positions(loop)
             self._interest_entities += KeyspaceWatch(
                 self.session, intake, self.core, self.lock, self.clock, self._flush,
@@ -298,16 +298,25 @@ class BridgeNode:
 
     # -- Zenoh → core ------------------------------------------------------------------------
 
-    def _from_zenoh(self, loop: asyncio.AbstractEventLoop, key: str, sample: zenoh.Sample) -> None:
+    def _from_family(self, loop: asyncio.AbstractEventLoop, expression: str,
+                     sample: zenoh.Sample) -> None:
+        """A key family's intake thread: the sample under its own key, handed to the loop in
+        the subscription's lane (an application putting on ever new keys under the family's
+        expression must not make a queue a key)."""
+        self._from_zenoh(loop, str(sample.key_expr), sample, lane=expression)
+
+    def _from_zenoh(self, loop: asyncio.AbstractEventLoop, key: str, sample: zenoh.Sample,
+                    lane: str | None = None) -> None:
         """The key's intake thread: copy what we need; ingest it here with a direct backend,
-        else hand it to the loop. A payload over the key's cap is counted, never copied."""
+        else hand it to the loop (in ``lane``: the key's own by default). A payload over the
+        key's cap is counted, never copied."""
         attachment = sample.attachment  # (each read of a sample's field builds an object)
         extra = attachment.to_bytes() if attachment is not None else b""
         if extra and bridged_attachment(extra):
             return
         sample_key = str(sample.key_expr) if "*" in key else None  # (else it is ``key``)
         if sample.kind != zenoh.SampleKind.PUT:
-            self.intake.to_loop(key, partial(self._delete, key))  # type: ignore[union-attr]
+            self.intake.to_loop(lane or key, partial(self._delete, key))  # type: ignore[union-attr]
             return
         if self._oversized(key, sample):
             return
@@ -317,7 +326,7 @@ class BridgeNode:
         if backend is not None:
             self.port.ingest(backend, (key, data, encoding, ref, sample_key, extra or None))
         else:
-            self.intake.to_loop(key, partial(self.ingest, key, data, encoding, ref,  # type: ignore[union-attr]
+            self.intake.to_loop(lane or key, partial(self.ingest, key, data, encoding, ref,  # type: ignore[union-attr]
                                              sample_key, extra or None))
 
     def _delete(self, key: str) -> None:
