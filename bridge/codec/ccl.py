@@ -66,7 +66,7 @@ class _CclAngle(FieldCodec):
     def inline_encode(self, v: str, k: str, ns: Namespace, tag: str) -> list[str] | None:
         lim = repr(float(self.limit))
         return [
-            f"if -{lim} <= {v} <= {lim}:",
+            f"if -{lim} <= {v} <= {lim} and {v}.__class__ is not bool:",
             f"    {k} = (int(({v} + {lim}) * {self.scale!r} + 0.5) - {_HALF}) & {_MASK}",
             "else:",
             "    raise _F",
@@ -151,7 +151,7 @@ class CclDepth(FieldCodec):
         return f"ccl.depth {self.bits} bit [0, {_num(self.hi)}] m, steps {steps} m"
 
     def inline_encode(self, v: str, k: str, ns: Namespace, tag: str) -> list[str] | None:
-        lines: list[str] = []
+        lines = [f"if {v}.__class__ is bool: raise _F"]
         for i, (start, step, base) in enumerate(self.bands):
             lo = repr(start / 10)
             if i == len(self.bands) - 1:

@@ -103,7 +103,7 @@ class FieldCodec:
 
     def real(self, value: Any) -> float:
         """``value`` as a finite float, or ``EncodeError``."""
-        if not isinstance(value, numbers.Real):
+        if not isinstance(value, numbers.Real) or isinstance(value, bool):
             raise self.fail(f"expected a number, got {type(value).__name__} {value!r}")
         x = float(value)
         if not math.isfinite(x):
@@ -189,7 +189,7 @@ class FloatCodec(FieldCodec):
         lo, hi, inv = repr(self.lo), repr(self.hi), repr(self.inv)
         offset = v if self.lo == 0.0 else f"({v} - {lo})"
         lines = [
-            f"if {lo} <= {v} <= {hi}:",
+            f"if {lo} <= {v} <= {hi} and {v}.__class__ is not bool:",
             f"    {k} = int({offset} * {inv} + 0.5)",
             "else:",
             "    raise _F",
@@ -219,7 +219,7 @@ class IntCodec(FieldCodec):
         self.bits = bits_for(self.kmax + 1)
 
     def encode(self, value: Any) -> int:
-        if isinstance(value, numbers.Integral):
+        if isinstance(value, numbers.Integral) and not isinstance(value, bool):
             x = int(value)
         else:
             f = self.real(value)

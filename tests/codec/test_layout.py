@@ -91,6 +91,8 @@ def test_clamp_counts_and_reject_raises() -> None:
         ({"vector": {"x": math.inf, "y": 0}}, "vector.x: inf is not a finite number"),
         ({"vector": {"x": "1", "y": 0}}, "vector.x: expected a number"),
         ({"vector": {"x": None, "y": 0}}, "vector.x: expected a number"),
+        ({"vector": {"x": True, "y": 0}}, "vector.x: expected a number, got bool True"),
+        ({"vector": {"x": 0, "y": False}}, "vector.y: expected a number, got bool False"),
         ({"vector": {"x": 1}}, "vector.y: missing"),
         ({"vectr": {"x": 1}}, "vector.x: missing ('vector' not found)"),
         ([], "vector.x: missing"),
@@ -277,3 +279,17 @@ def test_readme_example_verbatim() -> None:
     out = layout.decode(data)
     assert abs(out["vector"]["x"] - 1.0) <= 6.2831 / 255 / 2
     assert abs(out["vector"]["y"] - 0.01) <= 2 * 0.052359878 / 63 / 2
+
+
+@pytest.mark.parametrize("field", [{"field": "n", "type": "int", "min": 0, "max": 100},
+                                   {"field": "n", "min": 0, "max": 100, "resolution": 0.5},
+                                   {"field": "n", "codec": "ccl.latitude"},
+                                   {"field": "n", "codec": "ccl.depth"}])
+def test_a_bool_in_a_number_field_is_refused_not_taken_for_0_or_1(field: dict) -> None:
+    """A bool is no number in the payload schema (JSON Schema's "number"): before, True went
+    as 1 and False as 0, silently."""
+    layout = Layout.from_fields([field])
+    for value in (True, False):
+        with pytest.raises(EncodeError, match="n: expected a number, got bool"):
+            layout.pack({"n": value})
+    assert layout.unpack(layout.pack({"n": 1}))["n"] == pytest.approx(1, abs=1e-3)
