@@ -13,6 +13,8 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from bridge.mission.keyexpr import AnyTemplateKey
+
 __all__ = ["ImageChannel", "Ros2Pictures"]
 
 Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
@@ -54,15 +56,15 @@ class ImageChannel(BaseModel):
     name: str = Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)
     from_: str | list[str] = Field(alias="from", description="The node(s) with the camera.")
     to: str | list[str] = Field(description="The node(s) that receive the pictures.")
-    in_: str | None = Field(None, alias="in", description="Input key at the sender ({node}): "
-                            "JPEG or PNG bytes, the Zenoh encoding (image/jpeg, image/png) "
-                            "saying which.")
+    in_: AnyTemplateKey | None = Field(None, alias="in", description="Input key at the "
+                                       "sender ({node}): JPEG or PNG bytes, the Zenoh encoding "
+                                       "(image/jpeg, image/png) saying which.")
     ros2: Ros2Pictures | None = Field(None, description="A ROS 2 camera topic instead of in, "
                                       "and/or a ROS 2 topic for the pictures beside out.")
-    out: str = Field(description="Output key at receivers ({src}, {dst}, {node}): a PNG (or "
-                     "JPEG) after each fragment that sharpens the picture.")
-    control: str | None = Field(None, description="Key at receivers ({node}, {dst}; {src}: "
-                                "one key per camera, each steering its own) where operators "
+    out: AnyTemplateKey = Field(description="Output key at receivers ({src}, {dst}, {node}): "
+                                "a PNG (or JPEG) after each fragment that sharpens the picture.")
+    control: AnyTemplateKey | None = Field(None, description="Key at receivers ({node}, {dst}; "
+                                "{src}: one key per camera, each steering its own) where operators "
                                 "put {request: now|cancel, width, height, budget_bytes, roi: "
                                 "[x0, y0, x1, y1] or null} (msgpack or JSON; any subset); "
                                 "default: <out>/control; never the out key itself.")

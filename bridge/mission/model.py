@@ -28,6 +28,7 @@ from pydantic import (
 
 from bridge.mission.fields import FieldSpec
 from bridge.mission.images import ImageChannel
+from bridge.mission.keyexpr import AnyTemplateKey, FixedKey, NodeTemplateKey, PeerTemplateKey
 from bridge.mission.ros2 import Ros2Topic
 
 NodeName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$", max_length=32)]
@@ -117,7 +118,7 @@ class Node(Strict):
     role: Literal["surface", "submerged"] = "submerged"
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
     position: Position | None = None
-    nav_key: str | None = Field(
+    nav_key: FixedKey | None = Field(
         None,
         description="Zenoh key of this node's live position ({x, y, depth} in metres, with "
         "heading and speed if it has them: they steer its position tracker); the simulated "
@@ -148,7 +149,7 @@ class Node(Strict):
     prefer: list[NodeName] | None = Field(
         None, min_length=1, description="Links (by name) that traffic TO this node takes, "
         "best first (``[rf, acoustic]``); a channel's own ``prefer`` comes first.")
-    keyspace: list[str] = Field(
+    keyspace: list[NodeTemplateKey] = Field(
         default_factory=lambda: ["{node}/**"], description="Key expressions where this node's "
         "applications put what is meant to cross ({node} = this node): a put there that no "
         "channel reads is counted and logged once per key; a get there from another node that "
@@ -311,10 +312,10 @@ class Element(Strict):
     Either ``in`` and ``out`` (msgpack/JSON payloads) or ``ros2`` (a ROS 2 topic over
     rmw_zenoh's keys, CDR payloads; see docs/ros2.md)."""
 
-    in_: str | None = Field(None, alias="in", description="Input key at the sender; may use "
-                            "{node}/{src}.")
-    out: str | None = Field(None, description="Output key at receivers; may use {src}, {dst} "
-                            "and {node}.")
+    in_: AnyTemplateKey | None = Field(None, alias="in", description="Input key at the "
+                                       "sender; may use {node}/{src}.")
+    out: AnyTemplateKey | None = Field(None, description="Output key at receivers; may use "
+                                       "{src}, {dst} and {node}.")
     encoding: Literal["msgpack", "json", "as_sent"] = Field(
         "msgpack", description="Published payload: msgpack, json, or as_sent: the encoding the "
         "sender's application used (msgpack, JSON, JSON as text/plain or untagged), carried in "
@@ -480,13 +481,15 @@ class Query(Strict):
     ends it with a reply error at the deadline the MAC allows."""
 
     name: NodeName
-    key: str = Field(description="Key expression applications get at the asking nodes; with "
-                     "several servers it holds {node}, the serving node (e.g. {node}/info).")
+    key: AnyTemplateKey = Field(description="Key expression applications get at the asking "
+                                "nodes; with several servers it holds {node}, the serving node "
+                                "(e.g. {node}/info).")
     serve: NodePattern = Field(description="Serving node(s): where the queryable lives.")
     ask: NodePattern | None = Field(None, description="Nodes whose applications may ask "
                                     "(default: every node that does not serve).")
-    local_key: str | None = Field(None, description="Key the serving bridge gets on its own "
-                                  "session ({node} = the server); default: the asked key.")
+    local_key: AnyTemplateKey | None = Field(None, description="Key the serving bridge gets "
+                                             "on its own session ({node} = the server); "
+                                             "default: the asked key.")
     request: list[FieldSpec] = Field(default_factory=list, description="The parameters "
                                      "(selector parameters or a msgpack/JSON payload); none: "
                                      "a bare get.")
@@ -648,20 +651,20 @@ class Ranging(Strict):
     sound_speed_mps: float | None = Field(None, ge=1300, le=1800, description="Fixed sound "
                                           "speed; default 1500 unless ``water`` is given.")
     water: WaterProperties | None = None
-    ctd_key: str | None = Field(None, description="Live {temperature_c, salinity_psu, depth_m}"
+    ctd_key: FixedKey | None = Field(None, description="Live {temperature_c, salinity_psu, depth_m}"
                                 " at this node; replaces the fixed sound speed.")
     tx_latency_s: float = Field(0.0, ge=0, description="Modem delay from send to emission.")
     rx_latency_s: float = Field(0.0, ge=0, description="Modem delay of reception stamps.")
     anchors: list[NodeName] | None = Field(None, description="Nodes with known positions; "
                                            "default: surface nodes with a position.")
-    anchor_keys: dict[NodeName, str] = Field(default_factory=dict, description="Key with an "
+    anchor_keys: dict[NodeName, FixedKey] = Field(default_factory=dict, description="Key with an "
                                              "anchor's live {x, y, depth} at each node.")
     fix_max_age_s: float | None = Field(None, gt=0, description="Oldest range used in a fix; "
                                         "default: one TDMA cycle, else 30 s.")
     sound_speed_mode: Literal["local", "mean_of_ends"] = Field(
         "local", description="Sound speed of a range: this node's, or the mean of both ends' "
         "(seed 001) once the peer's is known from peer_ctd_key.")
-    peer_ctd_key: str | None = Field(
+    peer_ctd_key: PeerTemplateKey | None = Field(
         None, description="Key where this node hears each peer's water, {src} = the peer (e.g. "
         "the output of a bridged CTD channel: {src}/ctd), holding {temperature_c, "
         "salinity_psu, depth_m} like ctd_key.")
