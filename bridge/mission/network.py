@@ -32,14 +32,17 @@ from functools import cached_property
 from bridge.mission.model import (
     LinkSpec,
     Mission,
+    Modem,
+    ModemOverride,
     Node,
     listed_routes,
     route_hops,
     route_text,
 )
-from bridge.mission.presets import Preset, node_preset
+from bridge.mission.presets import Preset, node_preset, preset_problem
 
-__all__ = ["DEFAULT_LINK", "DEFAULT_ROUTE", "LinkInfo", "Network", "network_problems"]
+__all__ = ["DEFAULT_LINK", "DEFAULT_ROUTE", "LinkInfo", "Network", "modem_problems",
+           "network_problems"]
 
 DEFAULT_LINK = "modem"
 """The name of the one link of a mission without ``links``."""
@@ -368,3 +371,27 @@ def _link_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
     for name in mission.nodes:
         if name not in on_a_link:
             yield (("nodes", name), f"{name} is on no link")
+
+
+def modem_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
+    """What the options of the mission's modems name that does not exist: a ``preset`` no
+    modem kind has (the MAC's timing and the simulated water come from it), wherever a modem's
+    settings are given."""
+    for loc, modem in _modem_sections(mission):
+        if "preset" in modem.options:
+            problem = preset_problem(modem.options["preset"])
+            if problem is not None:
+                yield ((*loc, "options", "preset"), problem)
+
+
+def _modem_sections(mission: Mission) -> Iterable[tuple[Loc, Modem | ModemOverride]]:
+    """Every modem section of the mission file, with its place: the mission's, each node's,
+    each link's and each link member's."""
+    yield ("modem",), mission.modem
+    for name, node in mission.nodes.items():
+        yield ("nodes", name, "modem"), node.modem
+    for link, spec in (mission.links or {}).items():
+        yield ("links", link, "modem"), spec.modem
+        if isinstance(spec.nodes, dict):
+            for name, member in spec.nodes.items():
+                yield ("links", link, "nodes", name, "modem"), member.modem
