@@ -113,6 +113,30 @@ def test_an_unknown_preset_on_one_of_several_links_is_named_not_the_macs_timing(
     assert "ipg_s" not in message, message  # (the MAC's timing needs the preset it names)
 
 
+@pytest.mark.parametrize(("water", "words"), [
+    ("127.0.0.1:99999", "port 99999 is out of range (1-65535)"),
+    ("127.0.0.1:0", "port 0 is out of range (1-65535)"),
+    ("70000", "port 70000 is out of range (1-65535)"),
+    ("nowhere", "must be the 'host:port' of `zab water` (got 'nowhere')"),
+    ("'127.0.0.1:'", "must be the 'host:port' of `zab water` (got '127.0.0.1:')"),
+])
+def test_a_water_address_that_cannot_be_listened_on_is_refused(water: str, words: str) -> None:
+    message = error_of(two_links(water_rf=water))
+    assert message.startswith("m.yaml:16:9: "), message
+    assert f"links.rf.modem.options.water: {words}" in message, message
+    message = error_of(one_link(water=water))
+    assert f"m.yaml:8:5: modem.options.water: {words}" in message, message
+
+
+@pytest.mark.parametrize("water_rf", ["127.0.0.1:17620", "17620", "'[127.0.0.1]:17620'"])
+def test_two_links_cannot_share_one_water(water_rf: str) -> None:
+    message = error_of(two_links(water_rf=water_rf))
+    assert message == (
+        "m.yaml:16:9: links.rf.modem.options.water: 127.0.0.1:17620 is also the water of link "
+        "'acoustic': each link needs a water of its own (one `zab water` per link, each with "
+        "the link's modem preset)"), message
+
+
 def test_check_sim_and_water_refuse_an_unknown_preset_without_a_traceback(tmp_path: Path) -> None:
     path = tmp_path / "m.yaml"
     path.write_text(one_link(preset="evologics-s2c-imm"))
