@@ -8,6 +8,7 @@
      │    └── FrameError     ... a whole acoustic frame (truncated, corrupt, foreign mission)
      ├── BackendError        a modem backend failed to load, open or operate
      ├── SessionError        the Zenoh session cannot open (a port taken, a router unreachable)
+     ├── WaterError          the simulated water cannot listen (its port taken or invalid)
      └── NodeFailure         a running node cannot go on (one of its tasks or threads failed)
 """
 
@@ -63,6 +64,11 @@ class BackendError(ZabError):
 
 class SessionError(ZabError):
     """The node's Zenoh session could not be opened; the message is one line for a user."""
+
+
+class WaterError(ZabError):
+    """The simulated water cannot listen where it is told (its port taken by another water,
+    an address not of this machine); the message is one line for a user."""
 
 
 class NodeFailure(ZabError):

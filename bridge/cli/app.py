@@ -22,7 +22,14 @@ from rich.table import Table
 
 from bridge.cli import helptext
 from bridge.core.loaded import LoadedMission, load_mission
-from bridge.errors import BackendError, EncodeError, MissionError, NodeFailure, SessionError
+from bridge.errors import (
+    BackendError,
+    EncodeError,
+    MissionError,
+    NodeFailure,
+    SessionError,
+    WaterError,
+)
 from bridge.report.check import check_mission
 from bridge.runtime.keys import frame_key, throwaway_note
 from bridge.words import counted
@@ -76,14 +83,15 @@ def _load(path: Path) -> LoadedMission:
 
 
 def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
-    """Run ``main``; a problem found at start (a missing key, a Zenoh port taken, a router that
-    does not answer, a state directory that cannot be written) exits 2 with one line, never a
-    traceback; a node that cannot go on (:class:`NodeFailure`) exits 1 with one line."""
+    """Run ``main``; a problem found at start (a missing key, a Zenoh or water port taken, a
+    router that does not answer, a state directory that cannot be written) exits 2 with one
+    line, never a traceback; a node that cannot go on (:class:`NodeFailure`) exits 1 with one
+    line."""
     from bridge.runtime.state_file import StateError
 
     try:
         return asyncio.run(main)
-    except (MissionError, SessionError, StateError) as exc:
+    except (MissionError, SessionError, StateError, WaterError) as exc:
         err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2) from None
     except NodeFailure as exc:
@@ -381,8 +389,8 @@ def run(
 @app.command()
 def water(
     mission: MissionArg,
-    port: Annotated[int | None, typer.Option(help="TCP port (default: the mission's water).")]
-    = None,
+    port: Annotated[int | None, typer.Option(help="TCP port (default: the mission's water).",
+                                             min=0, max=65535)] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed of the ocean.")] = None,
 ) -> None:
     """Run the simulated ocean that `zab run` nodes with `backend: sim` join over loopback
@@ -391,30 +399,49 @@ def water(
     from bridge.runtime.fleet import waters_for
 
     loaded = _load(mission)
-    links = {link.name: link.view.modem.options.get("water", "127.0.0.1:7600")
-             for link in loaded.network.links}
+    links = {link.name: parse_water_address(link.view.modem.options.get("water",
+                                                                       "127.0.0.1:7600"))
+             for link in loaded.network.links}  # (checked at load)
     if port is not None and len(links) > 1:
         err.print("--port names one water; this mission has one per link (their modems' "
                   "`water` options say where)")
+        raise typer.Exit(2)
+    shared = _shared_water(links)
+    if shared is not None:
+        err.print(f"[bold red]cannot start:[/] {shared}", highlight=False, soft_wrap=True)
         raise typer.Exit(2)
 
     async def main() -> None:
         stop = asyncio.Event()
         _install_stop(stop)
         services = waters_for(loaded, seed)
-        for (link, service), address in zip(services.items(), links.values(), strict=True):
-            host, default_port = parse_water_address(address)
-            bound = await service.start(host, port if port is not None else default_port)
-            console.print(f"water ({service.preset.name}{f', link {link}' if link else ''}) on "
-                          f"{host}:{bound}; Ctrl-C to stop")
+        started = []
         try:
+            for (link, service), (host, default_port) in zip(services.items(), links.values(),
+                                                             strict=True):
+                bound = await service.start(host, port if port is not None else default_port)
+                started.append(service)
+                console.print(f"water ({service.preset.name}{f', link {link}' if link else ''})"
+                              f" on {host}:{bound}; Ctrl-C to stop")
             await stop.wait()
         finally:
-            for service in services.values():
+            for service in started:
                 await service.stop()
                 console.print_json(data=service.stats())
 
-    asyncio.run(main())
+    _run_or_exit(main())
+
+
+def _shared_water(links: dict[str, tuple[str, int]]) -> str | None:
+    """Two links whose waters would listen at one address (theirs by default: a mission
+    check refuses two that give the same), said in one line; None when each has its own."""
+    seen: dict[tuple[str, int], str] = {}
+    for link, address in links.items():
+        if address in seen:
+            return (f"links {seen[address]} and {link} both have their water at "
+                    f"{address[0]}:{address[1]} (give each link's modem its own `water` option)")
+        seen[address] = link
+    return None
 
 
 class ModemKind(StrEnum):

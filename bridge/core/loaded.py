@@ -16,7 +16,7 @@ from pathlib import Path
 from bridge.core.mac import mac_for
 from bridge.mission.loader import Loc, cross_problems, located, read_mission, read_mission_file
 from bridge.mission.model import Mission
-from bridge.mission.network import Network, network_problems
+from bridge.mission.network import Network, modem_problems, network_problems
 from bridge.wire.channels import ChannelTable, ChannelTableError
 from bridge.wire.goby import frame_codec_for, goby_problems
 
@@ -41,10 +41,10 @@ def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
     """Validate mission ``text``; raise :class:`~bridge.mission.loader.MissionProblems`
     listing every problem found."""
     mission, marks = read_mission(text, path)
-    network = list(network_problems(mission))
+    network = [*modem_problems(mission), *network_problems(mission)]
     problems = [*cross_problems(mission), *network]
-    if not network:  # (each link's MAC sees the mission through its links)
-        problems += _mac_problems(mission)
+    if not network:  # (each link's MAC sees the mission through its links, its modems'
+        problems += _mac_problems(mission)  # timing through their presets)
     if not problems:
         try:
             table = ChannelTable.from_mission(mission)

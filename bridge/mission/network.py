@@ -24,22 +24,27 @@ has one chosen hop to name.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 from bridge.mission.model import (
     LinkSpec,
     Mission,
+    Modem,
+    ModemOverride,
     Node,
     listed_routes,
     route_hops,
     route_text,
 )
-from bridge.mission.presets import Preset, node_preset
+from bridge.mission.presets import Preset, node_preset, preset_problem
 
-__all__ = ["DEFAULT_LINK", "DEFAULT_ROUTE", "LinkInfo", "Network", "network_problems"]
+__all__ = ["DEFAULT_LINK", "DEFAULT_ROUTE", "LinkInfo", "Network", "modem_problems",
+           "network_problems", "water_address"]
 
 DEFAULT_LINK = "modem"
 """The name of the one link of a mission without ``links``."""
@@ -368,3 +373,68 @@ def _link_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
     for name in mission.nodes:
         if name not in on_a_link:
             yield (("nodes", name), f"{name} is on no link")
+
+
+def water_address(value: Any) -> tuple[str, int] | None:
+    """A modem's ``water`` option, ``"host:port"`` (or a bare port number, meaning
+    127.0.0.1), as ``(host, port)``; None when it is neither (the port is not checked)."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return "127.0.0.1", value
+    if isinstance(value, str):
+        host, sep, port = value.rpartition(":")
+        if not sep:
+            host, port = "127.0.0.1", value
+        with contextlib.suppress(ValueError):
+            return host.strip("[]") or "127.0.0.1", int(port)
+    return None
+
+
+def modem_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
+    """What the options of the mission's modems name that does not exist: a ``preset`` no
+    modem kind has (the MAC's timing and the simulated water come from it), a ``water`` no
+    water can listen on, wherever a modem's settings are given; and two links whose modems
+    give the same ``water`` (one water is one ocean with one preset: ``zab water`` starts one
+    per link, at its address)."""
+    for loc, modem in _modem_sections(mission):
+        if "preset" in modem.options:
+            problem = preset_problem(modem.options["preset"])
+            if problem is not None:
+                yield ((*loc, "options", "preset"), problem)
+        if "water" in modem.options:
+            problem = _water_problem(modem.options["water"])
+            if problem is not None:
+                yield ((*loc, "options", "water"), problem)
+    waters: dict[tuple[str, int], str] = {}
+    for link, spec in (mission.links or {}).items():
+        address = water_address(spec.modem.options.get("water"))
+        if address is None or _water_problem(address[1]) is not None:
+            continue
+        if address in waters:
+            yield (("links", link, "modem", "options", "water"),
+                   f"{address[0]}:{address[1]} is also the water of link {waters[address]!r}: "
+                   "each link needs a water of its own (one `zab water` per link, each with "
+                   "the link's modem preset)")
+        waters.setdefault(address, link)
+
+
+def _water_problem(value: Any) -> str | None:
+    """What is wrong with ``value`` as the address of a water (None: nothing)."""
+    address = water_address(value)
+    if address is None:
+        return f"must be the 'host:port' of `zab water` (got {value!r})"
+    if not 1 <= address[1] <= 65535:
+        return f"port {address[1]} is out of range (1-65535)"
+    return None
+
+
+def _modem_sections(mission: Mission) -> Iterable[tuple[Loc, Modem | ModemOverride]]:
+    """Every modem section of the mission file, with its place: the mission's, each node's,
+    each link's and each link member's."""
+    yield ("modem",), mission.modem
+    for name, node in mission.nodes.items():
+        yield ("nodes", name, "modem"), node.modem
+    for link, spec in (mission.links or {}).items():
+        yield ("links", link, "modem"), spec.modem
+        if isinstance(spec.nodes, dict):
+            for name, member in spec.nodes.items():
+                yield ("links", link, "nodes", name, "modem"), member.modem

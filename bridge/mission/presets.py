@@ -33,7 +33,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from bridge.mission.model import Mission
 
-__all__ = ["MICROMODEM_PSK", "PRESETS", "Preset", "UnknownPresetError", "get_preset", "node_preset"]
+__all__ = ["MICROMODEM_PSK", "PRESETS", "Preset", "UnknownPresetError", "get_preset", "node_preset",
+           "preset_problem"]
 
 MICROMODEM_PSK: dict[int, tuple[int, float]] = {
     1: (192, 250.0), 2: (192, 500.0), 3: (512, 1200.0), 4: (512, 1300.0), 5: (2048, 5300.0),
@@ -193,11 +194,18 @@ class UnknownPresetError(KeyError):
 
 def get_preset(name: str) -> Preset:
     """The preset called ``name``; :class:`UnknownPresetError` (a ``KeyError``) lists the rest."""
-    try:
-        return PRESETS[name]
-    except KeyError:
-        known = ", ".join(sorted(PRESETS))
-        raise UnknownPresetError(f"unknown modem preset {name!r}; known presets: {known}") from None
+    problem = preset_problem(name)
+    if problem is not None:
+        raise UnknownPresetError(problem)
+    return PRESETS[name]
+
+
+def preset_problem(name: object) -> str | None:
+    """What is wrong with ``name`` as the name of a preset, listing the known ones (None: it
+    names one). A mission's ``preset`` option is checked with it at load."""
+    if isinstance(name, str) and name in PRESETS:
+        return None
+    return f"unknown modem preset {name!r}; known presets: {', '.join(sorted(PRESETS))}"
 
 
 def node_preset(mission: Mission, node: str) -> Preset | None:

@@ -22,6 +22,8 @@ import tty
 from collections.abc import Callable
 from pathlib import Path
 
+from bridge.errors import BackendError
+
 __all__ = ["MAX_PENDING_OUTPUT", "PtyHost", "TcpHost"]
 
 MAX_PENDING_OUTPUT = 1 << 20
@@ -58,7 +60,12 @@ class PtyHost:
         return str(self.link) if self.link is not None else self.path
 
     async def open(self) -> str:
-        """Open the pty pair (no-op if open); returns the slave device path (or the link)."""
+        """Open the pty pair (no-op if open); returns the slave device path (or the link).
+
+        The link is pointed at the new pty in one step (it never goes missing), replacing a
+        symlink already there: an emulator opens its pty last, once it is up (joined the
+        water), so one that cannot start leaves a running emulator's link alone.
+        :class:`BackendError` if ``link`` is something else than a symlink."""
         if self._master is not None:
             assert self.device is not None
             return self.device
@@ -67,11 +74,10 @@ class PtyHost:
         try:
             tty.setraw(slave)  # no echo, no CR/LF translation: a plain 8-bit line
             os.set_blocking(master, False)
-            self.path = os.ttyname(slave)
+            path = os.ttyname(slave)
             if self.link is not None:
-                with contextlib.suppress(FileNotFoundError):
-                    self.link.unlink()
-                self.link.symlink_to(self.path)
+                _point(self.link, path)
+            self.path = path
         except BaseException:
             os.close(master)
             os.close(slave)
@@ -93,7 +99,8 @@ class PtyHost:
         self._flush()
 
     async def close(self) -> None:
-        """Close the pty pair and remove the link. Idempotent."""
+        """Close the pty pair and remove the link if it still points to this pty (not one it
+        never made, nor one another emulator has made since). Idempotent."""
         master, slave = self._master, self._slave
         self._master = self._slave = None
         self._out.clear()
@@ -106,7 +113,7 @@ class PtyHost:
             os.close(master)
         if slave is not None:
             os.close(slave)
-        if self.link is not None and self.link.is_symlink():
+        if self.link is not None and self.path is not None and _points_to(self.link, self.path):
             with contextlib.suppress(FileNotFoundError):
                 self.link.unlink()
         self.path = None
@@ -157,6 +164,32 @@ class PtyHost:
         elif not self._out and self._writing:
             self._loop.remove_writer(master)
             self._writing = False
+
+
+def _point(link: Path, target: str) -> None:
+    """Make ``link`` a symlink to ``target`` at once (a new symlink renamed over the old one);
+    :class:`BackendError` when ``link`` is there and not a symlink (a file, a real device)."""
+    if os.path.lexists(link) and not link.is_symlink():
+        raise BackendError(f"{link} exists and is not a symlink: not replacing it with a link "
+                           "to the emulated modem (give another --link)")
+    fresh = link.with_name(f".{link.name}.{os.getpid()}.{id(link):x}")
+    with contextlib.suppress(FileNotFoundError):
+        fresh.unlink()
+    fresh.symlink_to(target)
+    try:
+        os.replace(fresh, link)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            fresh.unlink()
+        raise
+
+
+def _points_to(link: Path, target: str) -> bool:
+    """Whether ``link`` is a symlink to ``target``."""
+    try:
+        return os.readlink(link) == target
+    except OSError:
+        return False
 
 
 class TcpHost:

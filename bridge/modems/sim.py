@@ -29,6 +29,7 @@ from collections.abc import Callable
 from typing import Any, ClassVar
 
 from bridge.errors import BackendError
+from bridge.mission.network import water_address
 from bridge.modems.base import Inbox, ModemBackend, ModemSetup, Reception
 from bridge.sim.protocol import PROTOCOL_VERSION, ProtocolError, pack, read_message
 
@@ -40,16 +41,12 @@ DEFAULT_RX_QUEUE = 256
 
 
 def parse_water_address(value: Any) -> tuple[str, int]:
-    """``"host:port"`` (or a bare port number, meaning 127.0.0.1) -> ``(host, port)``."""
-    if isinstance(value, int) and not isinstance(value, bool):
-        return "127.0.0.1", value
-    if isinstance(value, str):
-        host, sep, port = value.rpartition(":")
-        if not sep:
-            host, port = "127.0.0.1", value
-        with contextlib.suppress(ValueError):
-            return host.strip("[]") or "127.0.0.1", int(port)
-    raise BackendError(f"sim backend: option 'water' must be 'host:port', got {value!r}")
+    """``"host:port"`` (or a bare port number, meaning 127.0.0.1) -> ``(host, port)``
+    (:func:`bridge.mission.network.water_address`, which a mission's are checked with)."""
+    address = water_address(value)
+    if address is None:
+        raise BackendError(f"sim backend: option 'water' must be 'host:port', got {value!r}")
+    return address
 
 
 CLOCK_EPOCH = 1.7e9  # drift is counted from here, so clock readings stay near wall time

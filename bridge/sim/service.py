@@ -12,11 +12,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import logging
+import os
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from bridge.errors import WaterError
 from bridge.mission.path import Path
 from bridge.mission.presets import Preset, get_preset
 from bridge.sim.ocean import Delivery, Loss, Ocean, Position, TransmitRefused, TxDone
@@ -28,12 +31,24 @@ from bridge.sim.protocol import (
     read_message,
 )
 
-__all__ = ["WaterService", "serve_water"]
+__all__ = ["WaterService", "listen_problem", "serve_water"]
 
 log = logging.getLogger(__name__)
 
 HELLO_TIMEOUT_S = 5.0
 """A client that does not say hello within this time is dropped."""
+
+
+def listen_problem(host: str, port: int, exc: BaseException) -> str:
+    """Why a water cannot listen on ``host:port`` (``exc``: what binding raised), and what to
+    do, in one line."""
+    if isinstance(exc, OSError) and exc.errno == errno.EADDRINUSE:
+        return f"{host}:{port} is already in use (is another `zab water` running?)"
+    if isinstance(exc, OSError) and exc.errno is not None and exc.errno > 0:
+        reason = os.strerror(exc.errno)  # (asyncio's strerror repeats the address)
+    else:  # a host name unknown (its own message), a port out of range (OverflowError)
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+    return f"the water cannot listen on {host}:{port}: {reason}"
 
 
 class WaterService:
@@ -79,14 +94,19 @@ class WaterService:
     # -- lifecycle -----------------------------------------------------------------------------
 
     async def start(self, host: str = "127.0.0.1", port: int = 0) -> int:
-        """Listen on ``host:port`` (0 = any free port); returns the bound port."""
+        """Listen on ``host:port`` (0 = any free port); returns the bound port.
+        :class:`~bridge.errors.WaterError` (one line) when it cannot."""
         if self._server is not None:
             raise RuntimeError("water service already started")
         loop = asyncio.get_running_loop()
         self._offset = time.time() - loop.time()
         self._last = self._path_start = loop.time()
         self.started_at = self._wall(self._path_start)
-        self._server = await asyncio.start_server(self._handle, host, port)
+        try:
+            self._server = await asyncio.start_server(self._handle, host, port)
+        except (OSError, OverflowError) as exc:
+            self.started_at = None
+            raise WaterError(listen_problem(host, port, exc)) from None
         self.port = self._server.sockets[0].getsockname()[1]
         self._driver = asyncio.create_task(self._drive(), name="water-driver")
         self._driver.add_done_callback(_log_crash)

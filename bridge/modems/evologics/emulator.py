@@ -36,6 +36,7 @@ import contextlib
 import dataclasses
 import logging
 import math
+import os
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -255,19 +256,31 @@ class EvologicsEmulator:
     # -- lifecycle -----------------------------------------------------------------------------
 
     async def start(self) -> dict[str, Any]:
-        """Join the water, open the pty (and TCP port); returns ``{"device", "tcp"}``."""
+        """Join the water, open the TCP port (if any), then the pty (and its link, last: once
+        the modem is up); returns ``{"device", "tcp"}``."""
         self.failure = asyncio.get_running_loop().create_future()
         await self.sim.open()
         with contextlib.suppress(UnknownPresetError, TypeError):
             preset = get_preset(self.sim.preset_name)  # type: ignore[arg-type]
             self._airtime = preset.airtime
+        port = await self._open_tcp()
         device = await self.pty.open()
-        port = await self.tcp.open() if self.tcp is not None else None
         self._loops = [asyncio.create_task(self._rx_loop(), name="emu-rx"),
                        asyncio.create_task(self._tx_loop(), name="emu-tx")]
         log.info("evologics emulator %s@%s on %s%s", self.setup.node, self.setup.address,
                  device, "" if port is None else f" and TCP port {port}")
         return {"device": device, "tcp": port}
+
+    async def _open_tcp(self) -> int | None:
+        """Listen on the modem's TCP port, if it has one; :class:`BackendError` if taken."""
+        if self.tcp is None:
+            return None
+        try:
+            return await self.tcp.open()
+        except (OSError, OverflowError) as exc:
+            reason = os.strerror(exc.errno) if isinstance(exc, OSError) and exc.errno else exc
+            raise BackendError(f"evologics emulator of {self.setup.node!r}: cannot listen on "
+                               f"TCP port {self.tcp.port}: {reason}") from None
 
     async def stop(self) -> None:
         """Close everything (idempotent)."""
