@@ -299,6 +299,10 @@ def _route_problems(mission: Mission, network: Network, name: str, node: Node
         if dest != DEFAULT_ROUTE and dest not in mission.nodes:
             yield (loc, f"unknown node {dest!r}")
             continue
+        if dest == name:
+            yield (loc, f"a route from {name} to itself (routes name the nodes it reaches "
+                   "through others)")
+            continue
         if not hops:
             yield (loc, "name at least one hop")
         if len(set(hops)) < len(hops):

@@ -260,6 +260,8 @@ def test_a_line_of_four_reaches_end_to_end_through_two_relays() -> None:
     ("links:", "modem: {frame_bytes: 32}\nlinks:", "give modem per link in `links`"),
     ("nodes: [rov1, rov2]", "nodes: [rov1]", "rov2 is on no link"),
     ("routes: {rov2: rov1}", "routes: {rov2: rov2}", "cannot route rov2 through rov2"),
+    ("routes: {rov2: rov1}", "routes: {rov2: rov1, surface: rov1}",
+     "nodes.surface.routes.surface: a route from surface to itself"),
     ("mission: umci", "mission: umci\nmax_hops: 1", "takes more than max_hops 1"),
     ("mission: umci", "mission: umci\nwire: {dlbl: true}", "DLBL ranging over several links"),
 ])
