@@ -99,6 +99,13 @@ def network_section(loaded: LoadedMission, codec: FrameCodec,
                 own[(sender, link)] += rate * size
         if worst is not None:
             ages.append(worst)
+    for spec in {c.spec.name: c.spec for c in table.query_codecs}.values():
+        for asker, server in itertools.product(spec.askers, spec.servers):
+            problems = [network.path(a, b)[1] for a, b in ((asker, server), (server, asker))
+                        if asker != server]
+            problem = next((p for p in problems if p is not None), None)
+            if problem is not None:
+                warnings.append(f"query {spec.name!r}: {asker} asking {server}: {problem}")
     relays = []
     for (node, link), load in sorted(carried.items()):
         interval = turns.get((link, node))

@@ -418,3 +418,14 @@ def test_a_picture_behind_a_slow_relay_crosses_whole_sent_about_once(drift: bool
     sent = fleet.cores["rov2"].stats.sent_per_channel["camera"]
     assert sent <= 1.4 * bound["fragments_per_picture"]  # (before: 115 and 92 of 48)
     assert "replayed" not in fleet.cores["surface"].stats.frames_dropped
+
+
+def test_zab_check_warns_of_a_channel_and_a_query_with_no_route() -> None:
+    """Without the surface's route through ROV1, neither the operator's command nor its get
+    can reach ROV2: zab check says so for both (it said nothing of the query)."""
+    from bridge.report.check import check_mission
+
+    text = UMCI.format(rov2_x=503, auth="").replace(", routes: {rov2: rov1}}", "}")
+    warnings = check_mission(parse_mission(text, "no_route.yaml")).warnings
+    assert "channel 'goto': surface to rov2: surface has no route to rov2" in warnings
+    assert "query 'info': surface asking rov2: surface has no route to rov2" in warnings
