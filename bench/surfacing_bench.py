@@ -85,7 +85,7 @@ def main() -> None:
             n = 0
             while not stop.is_set():
                 n += 1
-                auv1.put("status", msgpack.packb({"battery": 50 + (n % 40) + 0.3,
+                auv1.put("auv1/status", msgpack.packb({"battery": 50 + (n % 40) + 0.3,
                                                   "mode": "survey"}),
                          encoding=zenoh.Encoding("application/msgpack"))
                 stop.wait(0.5)

@@ -19,6 +19,7 @@ from bridge.mission.model import Mission
 from bridge.modems.registry import load_backend
 from bridge.modems.setup import modem_options
 from bridge.report.network_check import network_section
+from bridge.report.shared_inputs import shared_input_warnings
 from bridge.wire.auth import COUNTER_BYTES
 from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.families import has_wildcard
@@ -79,6 +80,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
         for c in table.channels
     ]
     _family_warnings(loaded, report)
+    report.warnings.extend(shared_input_warnings(mission, table))
     _system_entries_fit(loaded, codec, report)
     for c in table.channels:
         if c.fragmented and c.image is None:

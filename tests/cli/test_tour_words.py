@@ -256,8 +256,8 @@ def test_each_member_of_a_key_family_gets_values_of_its_own() -> None:
     apps.sessions = {node: Session() for node in loaded.mission.nodes}  # type: ignore[misc]
     apps.publish_once(100.0)
     depths = [put[f"fleet/{vehicle}/depth_order"]["depth_m"] for vehicle in ("auv1", "auv2")]
-    temps = [put[f"sensors/{name}/temp"]["celsius"] for name in "abc"]  # (auv1's, on its peer)
-    contacts = [put[f"contacts/k{i}"]["range_m"] for i in range(3)]
+    temps = [put[f"auv1/sensors/{name}/temp"]["celsius"] for name in "abc"]  # auv1's
+    contacts = [put[f"auv1/contacts/k{i}"]["range_m"] for i in range(3)]
     assert len(set(depths)) == 2 and len(set(temps)) == 3 and len(set(contacts)) == 3, put
     assert all(-2 <= t <= 40 for t in temps) and all(0 <= d <= 100 for d in depths)
 

@@ -33,8 +33,8 @@ def sent(fleet: FastFleet, node: str, channel: str) -> int:
 
 def test_nothing_crosses_until_subscribed_and_it_stops_after_the_subscriber_leaves() -> None:
     fleet = FastFleet(load_mission(ZSPACE), seed=1)
-    fleet.put("auv1", "status", {"battery": 80, "mode": "survey"})
-    fleet.put("auv1", "alarm", {"leak": False})
+    fleet.put("auv1", "auv1/status", {"battery": 80, "mode": "survey"})
+    fleet.put("auv1", "auv1/alarm", {"leak": False})
     fleet.run_until(30.0)
     assert sent(fleet, "auv1", "status") == 0  # nobody at the surface wants it
     assert sent(fleet, "auv1", "alarm") >= 2  # always: true keeps today's behaviour
@@ -54,7 +54,7 @@ def test_nothing_crosses_until_subscribed_and_it_stops_after_the_subscriber_leav
 
 def test_want_is_refreshed_so_a_lost_bitmap_heals() -> None:
     fleet = FastFleet(load_mission(ZSPACE), seed=1)
-    fleet.put("auv1", "status", {"battery": 50, "mode": "idle"})
+    fleet.put("auv1", "auv1/status", {"battery": 50, "mode": "idle"})
     fleet.run_until(10.0)
     fleet.stop("auv1")  # deaf for a moment (not long enough for its link to go down)...
     fleet.subscribe("top", "*/status")  # ...while the surface announces its interest
@@ -103,7 +103,7 @@ def test_a_sender_back_from_silence_hears_the_interest_again_at_once() -> None:
     back = fleet.now
     fleet.cores["auv1"] = type(fleet.cores["auv1"])(fleet.loaded, "auv1")  # a restart
     fleet.resume("auv1")
-    fleet.put("auv1", "status", {"battery": 42, "mode": "idle"})
+    fleet.put("auv1", "auv1/status", {"battery": 42, "mode": "idle"})
     fleet.run_until(back + 4 * 3.0)  # far sooner than refresh_s (30 s)
     got = [p.value for t, p in fleet.published("top", "auv1/status") if t > back]
     assert got and got[0] == {"battery": 42, "mode": "idle"}

@@ -41,18 +41,18 @@ def values(fleet: FastFleet, node: str) -> dict[str, list]:
 
 def test_listed_members_arrive_on_their_own_keys_with_their_own_values() -> None:
     fleet = wanting()
-    fleet.put("auv1", "sensors/a/temp", {"celsius": 10.0}, at=0.5)
-    fleet.put("auv1", "sensors/b/temp", {"celsius": 20.0}, at=0.6)
-    fleet.put("auv2", "sensors/a/temp", {"celsius": 5.0}, at=0.7)
-    fleet.put("auv1", "sensors/zz/temp", {"celsius": 1.0}, at=0.8)  # not a member
-    fleet.put("auv1", "sensors/a/temp", {"celsius": 11.0}, at=4.0)
+    fleet.put("auv1", "auv1/sensors/a/temp", {"celsius": 10.0}, at=0.5)
+    fleet.put("auv1", "auv1/sensors/b/temp", {"celsius": 20.0}, at=0.6)
+    fleet.put("auv2", "auv2/sensors/a/temp", {"celsius": 5.0}, at=0.7)
+    fleet.put("auv1", "auv1/sensors/zz/temp", {"celsius": 1.0}, at=0.8)  # not a member
+    fleet.put("auv1", "auv1/sensors/a/temp", {"celsius": 11.0}, at=4.0)
     fleet.run_until(12.0)
     got = values(fleet, "top")
     assert got["auv1/sensors/a/temp"] == [{"celsius": 10.0}, {"celsius": 11.0}]
     assert got["auv1/sensors/b/temp"] == [{"celsius": 20.0}]
     assert got["auv2/sensors/a/temp"] == [{"celsius": 5.0}]
     assert not any("zz" in key for key in got)
-    assert fleet.cores["auv1"].stats.payloads_dropped["sensors/zz/temp"] == 1
+    assert fleet.cores["auv1"].stats.payloads_dropped["auv1/sensors/zz/temp"] == 1
     snap = fleet.cores["auv1"].snapshot(12.0)["families"]
     assert set(snap["members"]["temps"]) == {"a", "b"}  # each member keeps its own age
     assert snap["members"]["temps"]["a"] == pytest.approx(8.0)
@@ -76,7 +76,7 @@ def test_learned_family_names_members_and_stops_at_its_bound() -> None:
     fleet = wanting()
     names = [f"c{i}" for i in range(10)]
     for i, name in enumerate(names):
-        fleet.put("auv1", f"contacts/{name}", {"range_m": 100 + i, "bearing_deg": 2 * i})
+        fleet.put("auv1", f"auv1/contacts/{name}", {"range_m": 100 + i, "bearing_deg": 2 * i})
     fleet.run_until(30.0)
     got = values(fleet, "top")
     learned = {k for k in got if k.startswith("auv1/contacts/")}
@@ -84,8 +84,8 @@ def test_learned_family_names_members_and_stops_at_its_bound() -> None:
     assert got["auv1/contacts/c3"][0] == {"range_m": 103, "bearing_deg": 6}
     auv1 = fleet.cores["auv1"]
     assert auv1.snapshot(30.0)["families"]["keys_refused"] == {"contacts": 2}
-    assert auv1.stats.payloads_dropped["contacts/c8"] == 1
-    assert auv1.stats.payloads_dropped["contacts/c9"] == 1
+    assert auv1.stats.payloads_dropped["auv1/contacts/c8"] == 1
+    assert auv1.stats.payloads_dropped["auv1/contacts/c9"] == 1
 
 
 def test_a_value_of_an_unnamed_member_is_dropped_until_its_name_arrives() -> None:
@@ -93,7 +93,7 @@ def test_a_value_of_an_unnamed_member_is_dropped_until_its_name_arrives() -> Non
     auv1, top = NodeCore(loaded, "auv1"), NodeCore(loaded, "top")
     assert auv1.interest is not None
     auv1.interest.on_heard("top", range(len(loaded.table)), 0.0)  # top wants everything
-    auv1.ingest("contacts/buoy", b'{"range_m": 7, "bearing_deg": 4}', "application/json", 0.0)
+    auv1.ingest("auv1/contacts/buoy", b'{"range_m": 7, "bearing_deg": 4}', "application/json", 0.0)
     first = auv1.outbound.build(0.0, 0.0)
     assert first is not None and [x.channel.name for x in first.extras] == ["@want", "@key"]
     auv1.outbound.sent(first, 0.0)
@@ -132,7 +132,7 @@ def test_mission_errors_name_the_element() -> None:
     with pytest.raises(MissionError, match=r"elements\[0\]\.out.*\{key\}"):
         parse_mission(text.replace('out: "{src}/sensors/{key}/temp"', 'out: "{src}/temp"'))
     with pytest.raises(MissionError, match=r"elements\[0\]\.in"):
-        parse_mission(text.replace('in: "sensors/*/temp"', 'in: "sensors/temp"'))
+        parse_mission(text.replace('in: "{node}/sensors/*/temp"', 'in: "{node}/sensors/temp"'))
     with pytest.raises(MissionError, match="twice"):
         parse_mission(text.replace("keys: [a, b, c]", "keys: [a, b, a]"))
 

@@ -16,7 +16,7 @@ def test_a_put_nothing_reads_is_counted_once_said_and_bounded() -> None:
     core = NodeCore(load_mission(ZSPACE), "auv1")
     keyspace = core.outbound.keyspace
     assert keyspace.expressions == ["auv1/**"]
-    assert keyspace.maps("status") and keyspace.maps("sensors/b/temp")
+    assert keyspace.maps("auv1/status") and keyspace.maps("auv1/sensors/b/temp")
     assert not keyspace.maps("auv1/statsu")
     for _ in range(3):
         keyspace.unmapped("auv1/statsu", 1.0)

@@ -139,7 +139,7 @@ def test_a_fresh_latched_value_answers_at_once_without_a_request() -> None:
     loaded = parse_mission(yaml.safe_dump(data, sort_keys=False), "cached.yaml")
     fleet = FastFleet(loaded, seed=1)
     fleet.subscribe("top", "auv1/status")
-    fleet.put("auv1", "status", {"battery": 80, "mode": "survey"}, at=0.5)
+    fleet.put("auv1", "auv1/status", {"battery": 80, "mode": "survey"}, at=0.5)
     fleet.run_until(10.0)
     arrived = fleet.published("top", "auv1/status")[-1][0]
     result = fleet.queries.get("top", "auv1/status")

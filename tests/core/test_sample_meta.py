@@ -44,16 +44,16 @@ def test_the_fields_beside_a_value_are_appended_to_its_layout() -> None:
 
 def test_a_delete_crosses_once_and_the_latched_value_is_not_sent_again() -> None:
     fleet = zspace(deletes=True)
-    fleet.put("auv1", "status", {"battery": 80, "mode": "survey"}, at=1.0)
+    fleet.put("auv1", "auv1/status", {"battery": 80, "mode": "survey"}, at=1.0)
     fleet.run_until(10.0)
     assert fleet.published("top", "auv1/status")[-1][1].value == {"battery": 80, "mode": "survey"}
     assert fleet.cores["top"].queries.cache["auv1/status"][0] == {"battery": 80, "mode": "survey"}
-    fleet.cores["auv1"].delete("status", fleet.now)
+    fleet.cores["auv1"].delete("auv1/status", fleet.now)
     fleet.run_until(30.0)
     after = [p for t, p in fleet.published("top", "auv1/status") if t > 10.5]
     assert after and all(p.delete and p.value is None for p in after)  # the tombstone, latched
     assert "auv1/status" not in fleet.cores["top"].queries.cache
-    fleet.put("auv1", "status", {"battery": 79, "mode": "idle"})
+    fleet.put("auv1", "auv1/status", {"battery": 79, "mode": "idle"})
     fleet.run_until(40.0)
     assert fleet.published("top", "auv1/status")[-1][1].value == {"battery": 79, "mode": "idle"}
 
@@ -61,9 +61,9 @@ def test_a_delete_crosses_once_and_the_latched_value_is_not_sent_again() -> None
 def test_a_key_familys_member_is_deleted_on_its_own_key() -> None:
     fleet = zspace(deletes=True)
     for member in ("a", "b"):
-        fleet.put("auv1", f"sensors/{member}/temp", {"celsius": 10.0}, at=1.0)
+        fleet.put("auv1", f"auv1/sensors/{member}/temp", {"celsius": 10.0}, at=1.0)
     fleet.run_until(10.0)
-    fleet.cores["auv1"].delete("sensors/a/temp", fleet.now)
+    fleet.cores["auv1"].delete("auv1/sensors/a/temp", fleet.now)
     fleet.run_until(20.0)
     last = {key: p for _, p in fleet.published("top") if (key := p.key).endswith("/temp")}
     assert last["auv1/sensors/a/temp"].delete
@@ -72,7 +72,7 @@ def test_a_key_familys_member_is_deleted_on_its_own_key() -> None:
 
 def test_a_receiver_stamps_each_value_with_when_it_was_taken() -> None:
     fleet = zspace(age={"step_s": 0.5, "max_s": 100})
-    fleet.put("auv1", "status", {"battery": 80, "mode": "survey"}, at=1.3)
+    fleet.put("auv1", "auv1/status", {"battery": 80, "mode": "survey"}, at=1.3)
     fleet.run_until(30.0)
     arrivals = fleet.published("top", "auv1/status")
     assert len(arrivals) >= 3  # latched: sent again every interval_s
@@ -80,7 +80,7 @@ def test_a_receiver_stamps_each_value_with_when_it_was_taken() -> None:
         assert publish.taken == pytest.approx(1.3, abs=0.5) and arrived - publish.taken > 0.5
     plain = FastFleet(load_mission(ZSPACE), seed=1)
     plain.subscribe("top", "**")
-    plain.put("auv1", "status", {"battery": 80, "mode": "survey"}, at=1.3)
+    plain.put("auv1", "auv1/status", {"battery": 80, "mode": "survey"}, at=1.3)
     plain.run_until(30.0)
     arrived, publish = plain.published("top", "auv1/status")[-1]
     assert publish.taken is not None and arrived - 1.0 < publish.taken < arrived  # its frame's
@@ -92,7 +92,7 @@ def test_the_encoding_and_attachment_the_application_used_cross() -> None:
     data["channels"][3]["attachment_bytes"] = 6
     fleet = FastFleet(parse_mission(yaml.safe_dump(data, sort_keys=False), "z.yaml"), seed=1)
     fleet.subscribe("top", "**")
-    fleet.cores["auv1"].ingest("status", b'{"battery": 60, "mode": "idle"}', "text/plain", 1.0,
+    fleet.cores["auv1"].ingest("auv1/status", b'{"battery": 60, "mode": "idle"}', "text/plain", 1.0,
                                attachment=b"run-42-and-more")
     fleet.run_until(10.0)
     publish = fleet.published("top", "auv1/status")[-1][1]
@@ -106,12 +106,12 @@ def test_the_encoding_and_attachment_the_application_used_cross() -> None:
 def test_fields_no_channel_reads_are_counted_and_reported_once_per_key() -> None:
     fleet = zspace()
     for battery in (10, 20):
-        fleet.put("auv1", "status", {"battery": battery, "mode": "idle", "note": "x"})
+        fleet.put("auv1", "auv1/status", {"battery": battery, "mode": "idle", "note": "x"})
     core = fleet.cores["auv1"]
-    assert core.stats.fields_left_out == {"status": 2}
-    assert core.snapshot(fleet.now)["fields_left_out"] == {"status": 2}
+    assert core.stats.fields_left_out == {"auv1/status": 2}
+    assert core.snapshot(fleet.now)["fields_left_out"] == {"auv1/status": 2}
     reported = [t.output for t in fleet.outputs if isinstance(t.output, FieldsLeftOut)]
-    assert [(e.key, e.fields) for e in reported] == [("status", ["note"])]
+    assert [(e.key, e.fields) for e in reported] == [("auv1/status", ["note"])]
     assert "fields_left_out" not in fleet.cores["top"].snapshot(fleet.now)
 
 
@@ -151,9 +151,9 @@ def test_over_ip_a_relay_carries_the_attachment_and_a_delete_as_the_water_would(
     fleet.run_until(10.0)
     fleet.ip_link("auv1", "top", True)
     core = fleet.cores["auv1"]
-    core.ingest("status", msgpack.packb({"battery": 1, "mode": "idle"}),
+    core.ingest("auv1/status", msgpack.packb({"battery": 1, "mode": "idle"}),
                 "application/msgpack", fleet.now, attachment=b"tag1")
-    core.delete("status", fleet.now + 1)
+    core.delete("auv1/status", fleet.now + 1)
     relays = [o for o in core.take() if isinstance(o, Relay)]
     assert [(r.key, r.attachment, r.delete, r.taken) for r in relays] == [
         ("surface/auv1/status", b"tag1", False, 10.0), ("surface/auv1/status", None, True, 11.0)]

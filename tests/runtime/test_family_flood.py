@@ -26,14 +26,14 @@ def test_new_keys_flooding_a_family_wait_in_its_lane_and_leave_nothing_behind() 
             node._loop.call_soon_threadsafe(time.sleep, 4.0)  # a busy loop takes nothing
             value = msgpack.packb({"range_m": 5, "bearing_deg": 90})
             for i in range(3000):
-                app.put(f"contacts/c{i}", value)
-                app.put(f"sensors/s{i}/temp", msgpack.packb({"celsius": 5}))
+                app.put(f"auv1/contacts/c{i}", value)
+                app.put(f"auv1/sensors/s{i}/temp", msgpack.packb({"celsius": 5}))
             time.sleep(1.5)  # the intake threads hand off what Zenoh gave them
             with intake._lock:
                 lanes = dict(intake._waiting)
                 waiting = sum(len(q) for q in lanes.values())
             assert len(lanes) <= 2 and waiting <= 2 * HANDOFF, (len(lanes), waiting)
-            assert set(intake.overflow) <= {"contacts/*", "sensors/*/temp"}
+            assert set(intake.overflow) <= {"auv1/contacts/*", "auv1/sensors/*/temp"}
             assert sum(intake.overflow.values()) > 0
             time.sleep(3.0)  # the loop takes the lanes' last calls, and keeps no lane
             assert not intake._waiting

@@ -62,7 +62,7 @@ def test_a_subscriber_at_the_surface_turns_a_channel_on_and_off_through_zab_sim(
     endpoints = zspace
     auv1, top = plain_app(endpoints["auv1"]), plain_app(endpoints["top"])
     try:
-        put(auv1, "status", {"battery": 77, "mode": "transit"})
+        put(auv1, "auv1/status", {"battery": 77, "mode": "transit"})
         time.sleep(7.0)  # two TDMA cycles: nothing is wanted yet
         key = "@zab/zspace/auv1/stats"
         assert latest_stats(auv1, key, 3.0)["sent_per_channel"].get("status", 0) == 0
@@ -93,8 +93,8 @@ def test_two_wildcard_sources_arrive_on_their_own_keys_through_zab_sim(
     try:
         inbox = Inbox()
         top.declare_subscriber("auv1/sensors/**", inbox)
-        put(auv1, "sensors/a/temp", {"celsius": 10.0})
-        put(auv1, "sensors/b/temp", {"celsius": 20.0})
+        put(auv1, "auv1/sensors/a/temp", {"celsius": 10.0})
+        put(auv1, "auv1/sensors/b/temp", {"celsius": 20.0})
         got = dict(inbox.drain(8.0))
         assert got == {"auv1/sensors/a/temp": {"celsius": 10.0},
                        "auv1/sensors/b/temp": {"celsius": 20.0}}
@@ -251,7 +251,7 @@ def test_surfacing_and_diving_through_zab_sim(tmp_path: Path) -> None:
             top.declare_subscriber("auv1/status", lambda s: got.append(
                 (time.time(), msgpack.unpackb(s.payload.to_bytes()))))
             time.sleep(0.5)
-            put(auv1, "status", {"battery": 77.3, "mode": "survey"})
+            put(auv1, "auv1/status", {"battery": 77.3, "mode": "survey"})
             deadline = time.time() + 12
             while not got and time.time() < deadline:
                 time.sleep(0.1)
@@ -259,7 +259,7 @@ def test_surfacing_and_diving_through_zab_sim(tmp_path: Path) -> None:
             wifi = access_point(endpoints["top"] + endpoints["auv1"])
             time.sleep(2.0)  # the tokens cross; the bridges switch over
             got.clear()
-            put(auv1, "status", {"battery": 66.6, "mode": "transit"})
+            put(auv1, "auv1/status", {"battery": 66.6, "mode": "transit"})
             time.sleep(3 * CYCLE_S)  # latching every 2 s: acoustic copies would show here
             assert [v for _, v in got] == [{"battery": 66.6, "mode": "transit"}]
             got.clear()
@@ -312,7 +312,7 @@ def test_zab_sim_puts_a_surfaced_vehicle_on_the_surface_wifi_and_takes_it_off(
                 msgpack.unpackb(s.payload.to_bytes())))
             assert wait_for(lambda: token_seen(top, "auv1"), 15.0)  # surfaced: on the WiFi
             time.sleep(1.0)  # both bridges switch over
-            put(auv1, "status", {"battery": 66.6, "mode": "transit"})
+            put(auv1, "auv1/status", {"battery": 66.6, "mode": "transit"})
             time.sleep(2 * CYCLE_S)  # latching every 2 s: acoustic copies would show here
             assert got == [{"battery": 66.6, "mode": "transit"}]  # over IP, unquantised, once
             got.clear()
@@ -322,3 +322,45 @@ def test_zab_sim_puts_a_surfaced_vehicle_on_the_surface_wifi_and_takes_it_off(
         finally:
             auv1.close()
             top.close()
+
+
+def test_two_vehicles_surfaced_at_once_keep_their_own_values(tmp_path: Path) -> None:
+    """auv1 and auv2 up together: one Zenoh joins all three nodes. With inputs read on bare
+    keys (``status``), auv2's bridge took auv1's status as its own: auv1's value came out as
+    auv2/status, and stayed auv2's latched state after the dive. Each vehicle's inputs are
+    under its own name now, and every value keeps its sender, over IP and after the dive."""
+    data = yaml.safe_load(ZSPACE.read_text())
+    for name in ("top", "auv1", "auv2"):  # as the deploy kit runs them: routers
+        data["nodes"][name]["zenoh"] = {"mode": "router", "scouting/gossip/enabled": False,
+                                        "scouting/delay": 0}
+    mission, endpoints = mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
+    with zab_sim(mission, endpoints):
+        auv1, auv2 = plain_app(endpoints["auv1"]), plain_app(endpoints["auv2"])
+        top = plain_app(endpoints["top"])
+        wifi = None
+        try:
+            got: dict[str, list[dict]] = {"auv1/status": [], "auv2/status": []}
+            for key, values in got.items():
+                top.declare_subscriber(key, lambda s, v=values: v.append(
+                    msgpack.unpackb(s.payload.to_bytes())))
+            wifi = access_point(endpoints["top"] + endpoints["auv1"] + endpoints["auv2"])
+            assert wait_for(lambda: token_seen(top, "auv1") and token_seen(top, "auv2"), 10.0)
+            time.sleep(2.0)  # the bridges switch over
+            put(auv1, "auv1/status", {"battery": 11.0, "mode": "survey"})
+            put(auv2, "auv2/status", {"battery": 22.0, "mode": "transit"})
+            time.sleep(2 * CYCLE_S)
+            assert got == {"auv1/status": [{"battery": 11.0, "mode": "survey"}],
+                           "auv2/status": [{"battery": 22.0, "mode": "transit"}]}
+            wifi.close()
+            wifi = None
+            assert wait_for(lambda: not token_seen(top, "auv1"), 15.0)
+            for values in got.values():
+                values.clear()
+            assert wait_for(lambda: all(got.values()), 3 * CYCLE_S)  # latched, acoustic
+            assert got["auv1/status"][0] == {"battery": 11, "mode": "survey"}
+            assert got["auv2/status"][0] == {"battery": 22, "mode": "transit"}
+        finally:
+            if wifi is not None:
+                wifi.close()
+            for session in (auv1, auv2, top):
+                session.close()
