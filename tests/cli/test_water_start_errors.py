@@ -18,36 +18,15 @@ from bridge.cli.app import app
 from bridge.errors import WaterError
 from bridge.sim.service import WaterService
 from tests.conftest import REPO, free_port
+from tests.two_links import two_links
 
-MISSION = """\
-mission: waters
-wire: {{auth: off}}
-links:
-  acoustic:
-    modem: {{backend: sim, options: {{preset: evologics-s2c-im{water_a}}}}}
-    mac: {{type: tdma, slot_s: 1.5, guard_s: 0.2, order: [surface, rov1]}}
-    nodes: [surface, rov1]
-  rf:
-    kind: rf
-    modem: {{backend: sim, options: {{preset: s100-rf{water_rf}}}}}
-    mac: {{type: polled, master: rov1}}
-    nodes: [rov1, rov2]
-nodes:
-  surface: {{address: 1, role: surface, routes: {{rov2: rov1}}}}
-  rov1: {{address: 2}}
-  rov2: {{address: 3, routes: {{surface: rov1}}}}
-channels:
-  - {{name: n, from: rov2, to: surface, elements: [{{in: n, out: rov2/n, fields: [{{field: n,
-      type: int, min: 0, max: 9}}]}}]}}
-"""
 START_S = 60.0  # generous: a loaded 2-core machine
 
 
 def mission(tmp_path: Path, water_a: int | None, water_rf: int | None) -> Path:
     path = tmp_path / "waters.yaml"
-    path.write_text(MISSION.format(
-        water_a="" if water_a is None else f", water: 127.0.0.1:{water_a}",
-        water_rf="" if water_rf is None else f", water: 127.0.0.1:{water_rf}"))
+    path.write_text(two_links(water_a=None if water_a is None else f"127.0.0.1:{water_a}",
+                              water_rf=None if water_rf is None else f"127.0.0.1:{water_rf}"))
     return path
 
 
@@ -118,7 +97,7 @@ def test_two_links_on_the_default_water_exit_2_before_listening(tmp_path: Path) 
 
 def test_a_port_out_of_range_is_refused_by_the_option(tmp_path: Path) -> None:
     path = tmp_path / "one.yaml"
-    path.write_text(MISSION.split("links:")[0] + """\
+    path.write_text(two_links().split("links:")[0] + """\
 modem: {backend: sim, options: {preset: evologics-s2c-im}}
 nodes: {a: {address: 1}, b: {address: 2}}
 channels:

@@ -14,6 +14,7 @@ from bridge.cli.app import app
 from bridge.core.loaded import parse_mission
 from bridge.errors import MissionError
 from bridge.mission.presets import PRESETS
+from tests.two_links import two_links
 
 ONE_LINK = """\
 mission: one
@@ -35,43 +36,10 @@ channels:
       min: 0, max: 9}}]}}]}}
 """
 
-TWO_LINKS = """\
-mission: two
-wire: {{auth: off}}
-links:
-  acoustic:
-    modem:
-      backend: sim
-      options: {{preset: evologics-s2c-im, water: {water_a}}}
-    mac: {{type: tdma, slot_s: 1.5, guard_s: 0.2, order: [surface, rov1]}}
-    nodes: [surface, rov1]
-  rf:
-    kind: rf
-    modem:
-      backend: sim
-      options:
-        preset: {preset_rf}
-        water: {water_rf}
-    mac: {{type: polled, master: rov1}}
-    nodes: [rov1, rov2]
-nodes:
-  surface: {{address: 1, role: surface, routes: {{rov2: rov1}}}}
-  rov1: {{address: 2}}
-  rov2: {{address: 3, routes: {{surface: rov1}}}}
-channels:
-  - {{name: n, from: rov2, to: surface, elements: [{{in: n, out: rov2/n, fields: [{{field: n,
-      type: int, min: 0, max: 9}}]}}]}}
-"""
-
 
 def one_link(preset: str = "evologics-s2c-im", water: str = "127.0.0.1:7630",
              b_preset: str = "evologics-s2c-im") -> str:
     return ONE_LINK.format(preset=preset, water=water, b_preset=b_preset)
-
-
-def two_links(preset_rf: str = "s100-rf", water_a: str = "127.0.0.1:17620",
-              water_rf: str = "127.0.0.1:17621") -> str:
-    return TWO_LINKS.format(preset_rf=preset_rf, water_a=water_a, water_rf=water_rf)
 
 
 def error_of(text: str) -> str:
@@ -122,7 +90,7 @@ def test_an_unknown_preset_on_one_of_several_links_is_named_not_the_macs_timing(
 ])
 def test_a_water_address_that_cannot_be_listened_on_is_refused(water: str, words: str) -> None:
     message = error_of(two_links(water_rf=water))
-    assert message.startswith("m.yaml:16:9: "), message
+    assert message.startswith("m.yaml:10:54: "), message
     assert f"links.rf.modem.options.water: {words}" in message, message
     message = error_of(one_link(water=water))
     assert f"m.yaml:8:5: modem.options.water: {words}" in message, message
@@ -132,7 +100,7 @@ def test_a_water_address_that_cannot_be_listened_on_is_refused(water: str, words
 def test_two_links_cannot_share_one_water(water_rf: str) -> None:
     message = error_of(two_links(water_rf=water_rf))
     assert message == (
-        "m.yaml:16:9: links.rf.modem.options.water: 127.0.0.1:17620 is also the water of link "
+        "m.yaml:10:54: links.rf.modem.options.water: 127.0.0.1:17620 is also the water of link "
         "'acoustic': each link needs a water of its own (one `zab water` per link, each with "
         "the link's modem preset)"), message
 
