@@ -11,6 +11,7 @@ from bridge.core.loaded import LoadedMission
 from bridge.core.mac import mac_for, max_distance_m, node_preset
 from bridge.core.queries import deadline_s
 from bridge.core.reliable import default_retry_s, stream_ttl_s
+from bridge.core.shared_inputs import shared_input_warnings
 from bridge.core.transfer import transfer_ttl_s
 from bridge.dccl.numeric import RULES
 from bridge.dccl.report import dccl_reports
@@ -19,7 +20,6 @@ from bridge.mission.model import Mission
 from bridge.modems.registry import load_backend
 from bridge.modems.setup import modem_options
 from bridge.report.network_check import network_section
-from bridge.report.shared_inputs import shared_input_warnings
 from bridge.wire.auth import COUNTER_BYTES
 from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.families import has_wildcard

@@ -37,6 +37,7 @@ from bridge.core.link import LinkState
 from bridge.core.loaded import LoadedMission
 from bridge.core.node import NodeCore, NodeStats, Publish, Status
 from bridge.core.positioning import Positioning
+from bridge.core.shared_inputs import keys_read_alike
 from bridge.core.surfacing import Relay
 from bridge.errors import DecodeError, EncodeError, NodeFailure
 from bridge.modems.base import ModemBackend, Reception
@@ -119,6 +120,7 @@ class BridgeNode:
         self._sign = key is not None and auth is not None and auth.sign_outputs
         self._signed = itertools.count(time.time_ns())  # signed samples' counters
         self.ip_watch: IpWatch | None = None
+        self._told_alike: set[str] = set()  # peers over IP whose shared keys were logged
         self.core = NodeCore(loaded, node, key=key,
                              state=state_file.load() if state_file is not None else None)
         self.mission = loaded.mission
@@ -479,6 +481,15 @@ class BridgeNode:
         self._interest_entities.extend(self.ip_watch.entities)
 
     def _ip_changed(self, peer: str, up: bool) -> None:
+        if up and peer not in self._told_alike:
+            self._told_alike.add(peer)
+            alike = keys_read_alike(self.mission, self.table, self.node, peer)
+            if alike:  # (zab check warns of these too)
+                log.warning("%s: %s is reachable over IP and reads %s as this node does: "
+                            "their samples cannot be told apart from this vehicle's own, and "
+                            "are taken as its own (name the sender in the mission's input "
+                            "keys, e.g. '{node}/%s')", self.node, peer,
+                            ", ".join(map(repr, alike)), alike[0])
         with self.lock:
             self.core.ip_reachable(peer, up, self.clock())
             self._flush()

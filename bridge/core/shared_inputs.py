@@ -20,7 +20,7 @@ from bridge.mission.loader import Loc, format_loc
 from bridge.mission.model import Mission
 from bridge.wire.channels import ChannelTable
 
-__all__ = ["shared_input_warnings"]
+__all__ = ["keys_read_alike", "shared_input_warnings", "shared_inputs"]
 
 
 @dataclass(frozen=True)
@@ -50,11 +50,9 @@ def _reads(mission: Mission, table: ChannelTable) -> Iterator[_Read]:
                 yield _Read(node, element.input_key(node), loc, channel.name)
 
 
-def shared_input_warnings(mission: Mission, table: ChannelTable) -> Iterator[str]:
-    """A warning, with its place, for each input key two nodes read alike, in a mission with
-    ``surfacing`` (none without)."""
-    if mission.surfacing is None:
-        return
+def shared_inputs(mission: Mission, table: ChannelTable) -> Iterator[tuple[_Read, _Read]]:
+    """Each pair of input keys two nodes read alike (the earlier in the mission first), once
+    per pair of places in the mission."""
     reads = list(_reads(mission, table))
     told: set[tuple[Loc, Loc]] = set()
     for j, later in enumerate(reads):
@@ -63,8 +61,23 @@ def shared_input_warnings(mission: Mission, table: ChannelTable) -> Iterator[str
                     or not intersects(earlier.key, later.key):
                 continue
             told.add((earlier.loc, later.loc))
-            same = "" if earlier.loc == later.loc else f" (channel {earlier.channel!r})"
-            yield (f"{format_loc(later.loc)}: {earlier.node} and {later.node} both read "
-                   f"{later.key!r}{same}: with surfacing, two vehicles up at once share one "
-                   f"Zenoh, and each bridge would take the other's samples as its own; name "
-                   f"the sender in the key, e.g. '{{node}}/{later.key}'")
+            yield earlier, later
+
+
+def shared_input_warnings(mission: Mission, table: ChannelTable) -> Iterator[str]:
+    """``zab check``'s warning, with its place, for each input key two nodes read alike, in a
+    mission with ``surfacing`` (none without)."""
+    if mission.surfacing is None:
+        return
+    for earlier, later in shared_inputs(mission, table):
+        same = "" if earlier.loc == later.loc else f" (channel {earlier.channel!r})"
+        yield (f"{format_loc(later.loc)}: {earlier.node} and {later.node} both read "
+               f"{later.key!r}{same}: with surfacing, two vehicles up at once share one "
+               f"Zenoh, and each bridge would take the other's samples as its own; name "
+               f"the sender in the key, e.g. '{{node}}/{later.key}'")
+
+
+def keys_read_alike(mission: Mission, table: ChannelTable, node: str, peer: str) -> list[str]:
+    """The input keys of ``node`` that ``peer`` reads alike (sorted, each once)."""
+    return sorted({(a if a.node == node else b).key for a, b in shared_inputs(mission, table)
+                   if {a.node, b.node} == {node, peer}})
