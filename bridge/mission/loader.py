@@ -168,7 +168,8 @@ def located(name: str, marks: Marks, problems: Iterable[tuple[Loc, str]]) -> Mis
 
 
 def _is_union_tag(part: str | int) -> bool:
-    return isinstance(part, str) and (part in ("tdma", "none", "polled", "aloha") or "[" in part)
+    return isinstance(part, str) and (part in ("tdma", "none", "polled", "aloha", "{nodes}",
+                                               "{learn}") or "[" in part)
 
 
 def cross_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:

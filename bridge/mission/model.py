@@ -16,10 +16,12 @@ from pydantic import (
     AwareDatetime,
     BaseModel,
     ConfigDict,
+    Discriminator,
     Field,
     ModelWrapValidatorHandler,
     PrivateAttr,
     SerializerFunctionWrapHandler,
+    Tag,
     ValidationInfo,
     field_validator,
     model_serializer,
@@ -398,8 +400,23 @@ class LearnedKeys(Strict):
                             "a longer one is refused, counted.")
 
 
+def _family_kind(value: Any) -> str | None:
+    """Which form of ``keys`` a value is, so that a mistake is told in that form's terms
+    (``{learn: 0}`` is a learned family of no member, not "not a list")."""
+    if isinstance(value, list):
+        return "[names]"
+    if isinstance(value, NodeKeys | LearnedKeys):
+        return "{nodes}" if isinstance(value, NodeKeys) else "{learn}"
+    if isinstance(value, dict):
+        return "{nodes}" if "nodes" in value else "{learn}" if "learn" in value else None
+    return None
+
+
 FamilyKeys = Annotated[
-    list[Annotated[str, Field(pattern=r"^[^/*$#?{}]+$")]] | NodeKeys | LearnedKeys,
+    Annotated[list[Annotated[str, Field(pattern=r"^[^/*$#?{}]+$")]], Tag("[names]")]
+    | Annotated[NodeKeys, Tag("{nodes}")] | Annotated[LearnedKeys, Tag("{learn}")],
+    Discriminator(_family_kind, custom_error_type="zab_keys", custom_error_message=(
+        "keys are a list of member names, {nodes: pattern} or {learn: n}")),
     Field(description="The members of a key family: a list of names, ``{nodes: pattern}``, or "
           "``{learn: n}``."),
 ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -135,6 +136,17 @@ def test_mission_errors_name_the_element() -> None:
         parse_mission(text.replace('in: "{node}/sensors/*/temp"', 'in: "{node}/sensors/temp"'))
     with pytest.raises(MissionError, match="twice"):
         parse_mission(text.replace("keys: [a, b, c]", "keys: [a, b, a]"))
+    # each form's mistake in that form's terms (before: "Input should be a valid list" first,
+    # then one line per other form)
+    for keys, said in [("{learn: 0}", r"channels\[1\]\.keys\.learn: Input should be greater "
+                        r"than or equal to 1 \(got 0\)$"),
+                       ("{learn: 2, nodes: auv1}", r"channels\[1\]\.keys\.learn: unknown key"),
+                       ("5", r"channels\[1\]\.keys: keys are a list of member names, "
+                        r"\{nodes: pattern\} or \{learn: n\} \(got 5\)$")]:
+        with pytest.raises(MissionError) as info:
+            parse_mission(text.replace("keys: {learn: 8, name_bytes: 8}", f"keys: {keys}"))
+        (line,) = str(info.value).splitlines()
+        assert re.search(said, line), line
 
 
 def test_check_shows_the_index_bits_and_warns_about_a_bare_wildcard(tmp_path: Path) -> None:
