@@ -15,6 +15,12 @@ check (a frame from another mission decodes if its ids are known), no reliable o
 channels, and none of zab's own entries: no queries, no ``demand``, no learned key-family
 members (the loader refuses each, saying where). Which messages go in a frame follows zab's
 scheduler (priority, interval), not Goby's ``ttl``/``value_base`` priority.
+
+A frame holds at least one message: a node with nothing due sends nothing, as Goby's
+QueueManager, its queues empty, gives its MAC no data. So there are no heartbeats (a silent
+peer is told from an absent one only by its data) and nothing a MAC would send empty: the
+loader refuses ``link.heartbeat_s``, ``mac: polled`` (a master's polls ride on its frames)
+and ``mac.ranging`` rounds.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from typing import Any
 from bridge.dccl.layout import DcclLayout
 from bridge.dccl.message import DcclMessage, peek_id
 from bridge.errors import DecodeError, FrameError
+from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac
 from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.frame import DecodedFrame, Entry, FrameCodec, WireCodec
 
@@ -68,13 +75,15 @@ def _dccl_of(channel: ChannelCodec) -> DcclLayout | None:
     return None
 
 
-def goby_problems(table: ChannelTable, dlbl: bool, auth: bool
+def goby_problems(table: ChannelTable, mission: Mission
                   ) -> Iterable[tuple[tuple[str | int, ...], str]]:
     """What a Goby-format mission cannot have, with where it is in the mission file."""
-    if dlbl:
+    wire = mission.wire
+    if wire.dlbl:
         yield ("wire", "dlbl"), "wire.format goby frames have no DLBL delays"
-    if auth:
+    if wire.auth is not None:
         yield ("wire", "auth"), "wire.format goby frames cannot be authenticated"
+    yield from _empty_frame_problems(mission)
     ids: dict[int, str] = {}
     for c in table.channels:
         loc: tuple[str | int, ...] = ("channels", c.index)
@@ -105,8 +114,24 @@ def goby_problems(table: ChannelTable, dlbl: bool, auth: bool
                                "requests and replies are zab entries)")
 
 
+def _empty_frame_problems(mission: Mission) -> Iterable[tuple[tuple[str | int, ...], str]]:
+    """What would send a Goby frame with nothing in it (see the module docstring)."""
+    if mission.link.heartbeat_s is not None:
+        yield ("link", "heartbeat_s"), ("wire.format goby frames cannot be empty: a node with "
+                                        "nothing to send sends nothing (no heartbeats)")
+    mac = mission.mac
+    if isinstance(mac, PolledMac):
+        yield ("mac", "type"), ("wire.format goby frames cannot be empty: a polled master "
+                                "with nothing to send could not poll")
+    elif isinstance(mac, NoMac | AlohaMac) and mac.ranging is not None:
+        yield ("mac", "ranging"), ("wire.format goby frames cannot be empty (nor carry DLBL "
+                                   "delays): ranging rounds need frames of their own")
+
+
 class GobyFrameCodec(FrameCodec):
     """:class:`FrameCodec`'s interface over Goby-format frames (see the module docstring)."""
+
+    empty_frames = False
 
     def __init__(self, table: ChannelTable, auth: Any = None) -> None:
         super().__init__(table, None)
@@ -146,7 +171,10 @@ class GobyFrameCodec(FrameCodec):
                now: float | None = None, prefix: bytes = b"") -> bytes:
         """The DCCL messages of ``items`` (payload ints as from ``ChannelCodec.pack``),
         concatenated without their padding (Goby frames have no network header: ``prefix``
-        stays empty, the loader refuses goby with several links)."""
+        stays empty, the loader refuses goby with several links). A frame holds at least one
+        message: ``ValueError`` without one (the frame builder sends nothing instead)."""
+        if not items:
+            raise ValueError("a Goby frame carries at least one DCCL message")
         out = []
         for channel, payload in items:
             layout = _dccl_of(channel) if isinstance(channel, ChannelCodec) else None
