@@ -20,7 +20,8 @@ A frame holds at least one message: a node with nothing due sends nothing, as Go
 QueueManager, its queues empty, gives its MAC no data. So there are no heartbeats (a silent
 peer is told from an absent one only by its data) and nothing a MAC would send empty: the
 loader refuses ``link.heartbeat_s``, ``mac: polled`` (a master's polls ride on its frames)
-and ``mac.ranging`` rounds.
+and ``mac.ranging`` rounds. Since the frame names no channel, a DCCL message (its id) belongs
+to one channel: two channels carrying one message are refused too.
 """
 
 from __future__ import annotations
@@ -84,7 +85,7 @@ def goby_problems(table: ChannelTable, mission: Mission
     if wire.auth is not None:
         yield ("wire", "auth"), "wire.format goby frames cannot be authenticated"
     yield from _empty_frame_problems(mission)
-    ids: dict[int, str] = {}
+    seen: dict[int, tuple[DcclMessage, str]] = {}  # each DCCL id's message and first channel
     for c in table.channels:
         loc: tuple[str | int, ...] = ("channels", c.index)
         layout = _dccl_of(c)
@@ -98,9 +99,18 @@ def goby_problems(table: ChannelTable, mission: Mission
         m = layout.message
         if m.omit_id:
             yield (*loc, "elements", 0, "dccl"), f"{m.name} has omit_id: Goby frames need ids"
-        elif m.id in ids and ids[m.id] != m.name:
-            yield (*loc, "elements", 0, "dccl"), f"DCCL id {m.id} is also {ids[m.id]}'s"
-        ids.setdefault(m.id, m.name)
+            continue
+        if m.id not in seen:
+            seen[m.id] = (m, c.name)
+            continue
+        first, name = seen[m.id]
+        if first.name != m.name:
+            yield (*loc, "elements", 0, "dccl"), f"DCCL id {m.id} is also {first.name}'s"
+        else:
+            yield (*loc, "elements", 0, "dccl"), (
+                f"wire.format goby: channels {name!r} and {c.name!r} both carry DCCL message "
+                f"{m.name} (id {m.id}); a Goby frame names no channel, so a receiver would "
+                f"take both as {name!r}")
     # what zab says in entries of its own, which goby frames have no room for
     if table.names is not None:
         for c in table.channels:

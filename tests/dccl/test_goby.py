@@ -90,6 +90,12 @@ CMD = f'    elements: [{{in: cmd, out: b/cmd, dccl: "{AUV}:Command"}}]'
     ("wire: {format: goby}", "wire: {format: goby, dlbl: true}", "no DLBL delays"),
     (CMD, "    elements: [{in: cmd, out: b/cmd, fields: [{field: v, type: bool}]}]",
      "exactly one element with a dccl message"),
+    # a receiver took both as the first: a's value on a second NavStatus channel 'pos' came
+    # out at b on a/nav; here b's cmd was dropped at a as a nav value from the wrong sender
+    (CMD, CMD.replace("Command", "NavStatus"),
+     r"lab.yaml:\d+:\d+: channels\[1\]\.elements\[0\]\.dccl: wire.format goby: channels 'nav' "
+     r"and 'cmd' both carry DCCL message zab\.auv\.NavStatus \(id 124\); a Goby frame names "
+     r"no channel, so a receiver would take both as 'nav'"),
     # nothing a Goby frame could hold: a heartbeat, an idle master's poll, a ranging round
     ("wire: {format: goby}", "wire: {format: goby}\nlink: {heartbeat_s: 30}",
      r"link\.heartbeat_s: wire.format goby frames cannot be empty"),
@@ -98,7 +104,7 @@ CMD = f'    elements: [{{in: cmd, out: b/cmd, dccl: "{AUV}:Command"}}]'
     ("mac: {type: none, min_gap_s: 0.3}",
      "mac: {type: none, ranging: {requester: a, anchors: [b], interval_s: 30, tmax_s: 2}}",
      r"mac\.ranging: wire.format goby frames cannot be empty"),
-], ids=["dlbl", "not-dccl", "heartbeat", "polled", "ranging"])
+], ids=["dlbl", "not-dccl", "one-message-two-channels", "heartbeat", "polled", "ranging"])
 def test_goby_missions_refuse_what_goby_frames_cannot_carry(old: str, new: str,
                                                               expected: str) -> None:
     text = GOBY_LAB.replace("PORT_A", "7001").replace("PORT_B", "7002")
