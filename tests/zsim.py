@@ -10,6 +10,7 @@ import contextlib
 import json
 import queue
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -68,6 +69,26 @@ def zab_sim(mission: Path, endpoints: dict[str, list[str]], *args: str,
         interrupt(proc)
         if proc.stderr is not None:
             proc.stderr.close()
+
+
+@contextlib.contextmanager
+def zab_water(mission: Path, port: int, env: dict[str, str] | None = None) -> Iterator[None]:
+    """A ``zab water`` process on ``port`` (``env``: its environment, default this one's),
+    until the block ends."""
+    proc = subprocess.Popen([sys.executable, "-m", "bridge", "water", str(mission), "--port",
+                             str(port)], cwd=REPO, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 20
+        while True:
+            with contextlib.suppress(OSError):
+                socket.create_connection(("127.0.0.1", port)).close()
+                break
+            assert proc.poll() is None and time.time() < deadline, "zab water did not start"
+            time.sleep(0.1)
+        yield
+    finally:
+        interrupt(proc, 10)
 
 
 def interrupt(proc: subprocess.Popen[Any], timeout: float = 15) -> None:

@@ -104,6 +104,7 @@ class Inbound:
         """Decode one received frame (heard on ``side``, default the node's first link) and
         publish what it carries for this node (``modem_now``: the modem clock now, which DLBL
         times are in)."""
+        self.linkset.news()  # (what this frame asks, or polls, may be sent at once)
         side = side or self.linkset.primary
         src = self._source(rx, now, side)
         if src is None:

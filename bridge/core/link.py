@@ -1,7 +1,8 @@
 """Link health: is each peer up, degraded or down, from when it was last heard (pure).
 
 A node that has nothing to send still sends a *heartbeat* (an empty frame) at least every
-``heartbeat_s``, so its peers can tell silence from absence. By default the MAC says how often
+``heartbeat_s``, so its peers can tell silence from absence (not in Goby's format, which has
+no empty frame: :mod:`bridge.wire.goby`). By default the MAC says how often
 (:meth:`~bridge.core.mac.Mac.heartbeat_s`): one TDMA cycle (every slot carries a frame), ten
 seconds with random access, none when polled (every poll and every reply is a frame). A peer
 is *degraded* after :data:`DEGRADED_PERIODS` and *down* after :data:`DOWN_PERIODS` of its
@@ -38,7 +39,10 @@ class LinkState(StrEnum):
 
 def heartbeat_s(mission: Mission) -> float | None:
     """How often a node sends at least a frame: the mission's ``link.heartbeat_s``, or its
-    default from the MAC (None: the MAC makes every node send anyway)."""
+    default from the MAC (None: the MAC makes every node send anyway, or the wire format has
+    no empty frame: a Goby node with nothing to send sends nothing)."""
+    if mission.wire.format == "goby":
+        return None
     if mission.link.heartbeat_s is not None:
         return mission.link.heartbeat_s
     return mac_for(mission).heartbeat_s()

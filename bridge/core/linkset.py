@@ -9,18 +9,26 @@ value goes out once per link, to the destinations that link serves:
 :class:`~bridge.core.links_policy.LinkPolicy`) and its own :class:`Links`, whose changes go to
 ``links/<link>/<peer>``; the node's :class:`Links` then say whether a peer is heard at all
 (over any link, or through relays).
+
+After an opportunity that sent nothing (nothing to send after all, or the modem refused the
+frame) a side takes no other for :data:`IDLE_S`, unless news comes first (a sample, a frame
+heard: :meth:`LinkSet.news`): a MAC that offers the next one at once (``none``, ``aloha``
+without backoff) never makes its driver ask in a loop.
 """
 
 from __future__ import annotations
 
 from bridge.core.link import Links, LinkThresholds, heartbeat_s
-from bridge.core.mac import Schedule, schedule_for
+from bridge.core.mac import Opportunity, Schedule, schedule_for
 from bridge.core.outputs import Outbox
 from bridge.core.store import OutboundStore
 from bridge.mission.network import LinkInfo, Network
 from bridge.wire.channels import ChannelTable
 
-__all__ = ["LinkSet", "LinkSide"]
+__all__ = ["IDLE_S", "LinkSet", "LinkSide"]
+
+IDLE_S = 1.0
+"""How long a side waits, without news, after an opportunity that sent nothing."""
 
 
 class LinkSide:
@@ -49,6 +57,28 @@ class LinkSide:
         """When this node's last frame on this link was built."""
         self.sent = 0
         """Frames this node sent on this link."""
+        self.idle_at: float | None = None
+        """When an opportunity last sent nothing (None: one sent since, or news came)."""
+
+    def opportunity(self, now: float, due: float | None) -> Opportunity | None:
+        """The schedule's next opportunity for what is ``due``, no sooner than :data:`IDLE_S`
+        after one that sent nothing."""
+        opp = self.schedule.next_opportunity(now, due)
+        if opp is None or self.idle_at is None or opp.start >= self.idle_at + IDLE_S:
+            return opp
+        # (past ``latest`` it is none: asked again then, the schedule offers the next one)
+        return Opportunity(self.idle_at + IDLE_S, opp.latest, opp.must_send, opp.poll, opp.kind)
+
+    def used(self, start: float, end: float) -> None:
+        """A frame went out from ``start``; the modem was done at ``end``."""
+        self.schedule.on_sent(start, end)
+        self.idle_at = None
+
+    def skipped(self, now: float, until: float | None = None) -> None:
+        """The opportunity offered before ``now`` sent nothing (the modem refused it
+        ``until`` then, if later)."""
+        self.schedule.on_skipped(now)
+        self.idle_at = now if until is None else max(now, until)
 
     def name_of(self, address: int) -> str | None:
         """The peer at ``address`` on this link."""
@@ -103,6 +133,11 @@ class LinkSet:
             raise KeyError(f"{self.node} is not on link {link!r} "
                            f"(its links: {', '.join(self.sides)})")
         return side
+
+    def news(self) -> None:
+        """A sample or a frame came: every side may take its next opportunity at once."""
+        for side in self.sides.values():
+            side.idle_at = None
 
     def heard(self, side: LinkSide, peer: str, now: float) -> None:
         """A valid frame from neighbour ``peer`` on ``side``."""

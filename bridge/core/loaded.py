@@ -75,7 +75,7 @@ def _mac_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
 def _frame_problems(mission: Mission, table: ChannelTable) -> Iterable[tuple[Loc, str]]:
     """Frames too small for what every frame carries besides channels."""
     if table.wire_format == "goby":
-        yield from goby_problems(table, mission.wire.dlbl, mission.wire.auth is not None)
+        yield from goby_problems(table, mission)
     overhead = frame_codec_for(table).overhead_bytes() + table.net_header_bytes
     found: dict[Loc, int] = {}  # where each too-small size is set: once, at that line
     for link in Network(mission).links:

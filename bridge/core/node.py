@@ -217,6 +217,7 @@ class NodeCore:
                sample_key: str | None = None, attachment: bytes | None = None) -> None:
         """A sample arrived on an input key (``ref``: the publisher's correlation text, echoed
         in delivery reports; ``sample_key``: the sample's own key under a wildcard input)."""
+        self.linkset.news()
         self.outbound.ingest(key, data, encoding, now, ref, sample_key, attachment)
 
     def delete(self, key: str, now: float) -> None:
@@ -265,8 +266,7 @@ class NodeCore:
     def wake_at(self, now: float, link: str | None = None) -> float | None:
         """When the MAC of ``link`` next has an opportunity for what is due (None: nothing
         is, wait for data or a frame); the runtime sleeps until then and calls :meth:`act`."""
-        schedule = self.linkset.side(link).schedule
-        opp = schedule.next_opportunity(now, self.next_due(now, link))
+        opp = self.linkset.side(link).opportunity(now, self.next_due(now, link))
         return None if opp is None else opp.start
 
     def act(self, now: float, at: float, link: str | None = None) -> Action | None:
@@ -274,7 +274,7 @@ class NodeCore:
         modem time ``at``, or a ping (``ranging.ping`` with a modem that pings); None: nothing
         (the opportunity, if any, is given up). Report how it went with :meth:`done`."""
         side = self.linkset.side(link)
-        opp = side.schedule.next_opportunity(now, self.next_due(now, link))
+        opp = side.opportunity(now, self.next_due(now, link))
         if opp is None or opp.start > now + 1e-9:
             return None
         ranges = self.ranges if side is self.linkset.primary else None
@@ -288,7 +288,7 @@ class NodeCore:
         out = self.outbound.build(now, at, always=always) if net is None else \
             net.transmission(side, now, at, always, self.outbound.build, self.outbound.candidates)
         if out is None:
-            side.schedule.on_skipped(now)
+            side.skipped(now)
             return None
         if opp.poll is not None:  # the poll rides on the frame's destination address
             out = replace(out, dest=side.address_of(opp.poll))
@@ -318,9 +318,9 @@ class NodeCore:
                     self.ranges.forget_transmit(out.at)
                 self.outbound.failed(error, start)
         if error is None:
-            side.schedule.on_sent(start, end)
+            side.used(start, end)
         else:
-            side.schedule.on_skipped(start)
+            side.skipped(start, end)
 
     # -- frames and ranges in ------------------------------------------------------------------
 

@@ -440,8 +440,8 @@ class Outbound:
               side: LinkSide | None = None, room: int | None = None) -> OutFrame | None:
         """A frame of what is due at ``now``, to start at modem time ``at`` on ``side``
         (default: the node's only link) in ``room`` bytes after its network header (default:
-        the link's); None when there is nothing to send and ``always`` is false. Report it
-        with :meth:`sent` or :meth:`failed`."""
+        the link's); None when there is nothing to send and ``always`` is false, or the wire
+        format has no empty frame (Goby's). Report it with :meth:`sent` or :meth:`failed`."""
         codec, net = self.codec, self.network if side is not None else None
         if room is None:
             room = self.frame_bytes if net is None else side.room  # type: ignore[union-attr]
@@ -493,7 +493,7 @@ class Outbound:
             asks_ack = asks_ack or channel.ack
         left_out = tuple(c.what for c in left if isinstance(c.what, ChannelState))
         self.stats.left_out += len(left_out)
-        if not items and not always:
+        if not items and not (always and codec.empty_frames):
             return None
         delays = self.delays(at) if self.delays is not None and self.table.dlbl else ()
         data = codec.encode(items, delays, self.epoch, now) if net is None else codec.encode(

@@ -137,7 +137,10 @@ class LinkPort:
             if wake is None or wake > now:
                 await self._wait_for_data(None if wake is None else wake - now)
                 continue
-            await self.transmit()
+            if not await self.transmit():
+                # nothing went out (the core then waits for news or IDLE_S before the next
+                # opportunity): whatever it says next, never a loop that does not yield
+                await asyncio.sleep(0)
 
     async def _wait_for_data(self, timeout: float | None) -> None:
         """Until new data or a frame sets :attr:`data`, or ``timeout`` seconds pass (a timer

@@ -40,7 +40,7 @@ from __future__ import annotations
 import binascii
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from bridge.errors import DecodeError, FrameError
 from bridge.frozen import direct_init
@@ -116,6 +116,10 @@ def check_value(body: bytes, fingerprint: bytes) -> bytes:
 
 class FrameCodec:
     """Encode and decode frames of one mission."""
+
+    empty_frames: ClassVar[bool] = True
+    """A frame without entries is a frame of this format (zab's: its header, count and check,
+    a heartbeat). A format without one (Goby's) sends nothing when nothing is due."""
 
     def __init__(self, table: ChannelTable, auth: Authenticator | None = None) -> None:
         self.table = table

@@ -15,6 +15,13 @@ check (a frame from another mission decodes if its ids are known), no reliable o
 channels, and none of zab's own entries: no queries, no ``demand``, no learned key-family
 members (the loader refuses each, saying where). Which messages go in a frame follows zab's
 scheduler (priority, interval), not Goby's ``ttl``/``value_base`` priority.
+
+A frame holds at least one message: a node with nothing due sends nothing, as Goby's
+QueueManager, its queues empty, gives its MAC no data. So there are no heartbeats (a silent
+peer is told from an absent one only by its data) and nothing a MAC would send empty: the
+loader refuses ``link.heartbeat_s``, ``mac: polled`` (a master's polls ride on its frames)
+and ``mac.ranging`` rounds. Since the frame names no channel, a DCCL message (its id) belongs
+to one channel: two channels carrying one message are refused too.
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from typing import Any
 from bridge.dccl.layout import DcclLayout
 from bridge.dccl.message import DcclMessage, peek_id
 from bridge.errors import DecodeError, FrameError
+from bridge.mission.model import AlohaMac, Mission, NoMac, PolledMac
 from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.frame import DecodedFrame, Entry, FrameCodec, WireCodec
 
@@ -68,14 +76,16 @@ def _dccl_of(channel: ChannelCodec) -> DcclLayout | None:
     return None
 
 
-def goby_problems(table: ChannelTable, dlbl: bool, auth: bool
+def goby_problems(table: ChannelTable, mission: Mission
                   ) -> Iterable[tuple[tuple[str | int, ...], str]]:
     """What a Goby-format mission cannot have, with where it is in the mission file."""
-    if dlbl:
+    wire = mission.wire
+    if wire.dlbl:
         yield ("wire", "dlbl"), "wire.format goby frames have no DLBL delays"
-    if auth:
+    if wire.auth is not None:
         yield ("wire", "auth"), "wire.format goby frames cannot be authenticated"
-    ids: dict[int, str] = {}
+    yield from _empty_frame_problems(mission)
+    seen: dict[int, tuple[DcclMessage, str]] = {}  # each DCCL id's message and first channel
     for c in table.channels:
         loc: tuple[str | int, ...] = ("channels", c.index)
         layout = _dccl_of(c)
@@ -89,9 +99,18 @@ def goby_problems(table: ChannelTable, dlbl: bool, auth: bool
         m = layout.message
         if m.omit_id:
             yield (*loc, "elements", 0, "dccl"), f"{m.name} has omit_id: Goby frames need ids"
-        elif m.id in ids and ids[m.id] != m.name:
-            yield (*loc, "elements", 0, "dccl"), f"DCCL id {m.id} is also {ids[m.id]}'s"
-        ids.setdefault(m.id, m.name)
+            continue
+        if m.id not in seen:
+            seen[m.id] = (m, c.name)
+            continue
+        first, name = seen[m.id]
+        if first.name != m.name:
+            yield (*loc, "elements", 0, "dccl"), f"DCCL id {m.id} is also {first.name}'s"
+        else:
+            yield (*loc, "elements", 0, "dccl"), (
+                f"wire.format goby: channels {name!r} and {c.name!r} both carry DCCL message "
+                f"{m.name} (id {m.id}); a Goby frame names no channel, so a receiver would "
+                f"take both as {name!r}")
     # what zab says in entries of its own, which goby frames have no room for
     if table.names is not None:
         for c in table.channels:
@@ -105,8 +124,24 @@ def goby_problems(table: ChannelTable, dlbl: bool, auth: bool
                                "requests and replies are zab entries)")
 
 
+def _empty_frame_problems(mission: Mission) -> Iterable[tuple[tuple[str | int, ...], str]]:
+    """What would send a Goby frame with nothing in it (see the module docstring)."""
+    if mission.link.heartbeat_s is not None:
+        yield ("link", "heartbeat_s"), ("wire.format goby frames cannot be empty: a node with "
+                                        "nothing to send sends nothing (no heartbeats)")
+    mac = mission.mac
+    if isinstance(mac, PolledMac):
+        yield ("mac", "type"), ("wire.format goby frames cannot be empty: a polled master "
+                                "with nothing to send could not poll")
+    elif isinstance(mac, NoMac | AlohaMac) and mac.ranging is not None:
+        yield ("mac", "ranging"), ("wire.format goby frames cannot be empty (nor carry DLBL "
+                                   "delays): ranging rounds need frames of their own")
+
+
 class GobyFrameCodec(FrameCodec):
     """:class:`FrameCodec`'s interface over Goby-format frames (see the module docstring)."""
+
+    empty_frames = False
 
     def __init__(self, table: ChannelTable, auth: Any = None) -> None:
         super().__init__(table, None)
@@ -146,7 +181,10 @@ class GobyFrameCodec(FrameCodec):
                now: float | None = None, prefix: bytes = b"") -> bytes:
         """The DCCL messages of ``items`` (payload ints as from ``ChannelCodec.pack``),
         concatenated without their padding (Goby frames have no network header: ``prefix``
-        stays empty, the loader refuses goby with several links)."""
+        stays empty, the loader refuses goby with several links). A frame holds at least one
+        message: ``ValueError`` without one (the frame builder sends nothing instead)."""
+        if not items:
+            raise ValueError("a Goby frame carries at least one DCCL message")
         out = []
         for channel, payload in items:
             layout = _dccl_of(channel) if isinstance(channel, ChannelCodec) else None

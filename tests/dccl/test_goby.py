@@ -7,10 +7,12 @@ from pathlib import Path
 
 import pytest
 
+from bridge.core.events import FrameSent, SendFailed
 from bridge.core.loaded import load_mission, parse_mission
 from bridge.dccl import load_message
 from bridge.errors import DecodeError, FrameError, MissionError
 from bridge.report.check import check_mission
+from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.goby import GobyFrameCodec, decode_repeated, encode_repeated, frame_codec_for
 from tests.conftest import on_free_ports, udp_ports
 from tests.dccl.test_mission import EXAMPLE, NAV
@@ -81,20 +83,34 @@ channels:
 """
 
 
-@pytest.mark.parametrize(("change", "expected"), [
-    ("wire: {format: goby, dlbl: true}", "no DLBL delays"),
-    ("    elements: [{in: cmd, out: b/cmd, fields: [{field: v, type: bool}]}]",
+CMD = f'    elements: [{{in: cmd, out: b/cmd, dccl: "{AUV}:Command"}}]'
+
+
+@pytest.mark.parametrize(("old", "new", "expected"), [
+    ("wire: {format: goby}", "wire: {format: goby, dlbl: true}", "no DLBL delays"),
+    (CMD, "    elements: [{in: cmd, out: b/cmd, fields: [{field: v, type: bool}]}]",
      "exactly one element with a dccl message"),
-])
-def test_goby_missions_refuse_what_goby_frames_cannot_carry(change: str, expected: str) -> None:
+    # a receiver took both as the first: a's value on a second NavStatus channel 'pos' came
+    # out at b on a/nav; here b's cmd was dropped at a as a nav value from the wrong sender
+    (CMD, CMD.replace("Command", "NavStatus"),
+     r"lab.yaml:\d+:\d+: channels\[1\]\.elements\[0\]\.dccl: wire.format goby: channels 'nav' "
+     r"and 'cmd' both carry DCCL message zab\.auv\.NavStatus \(id 124\); a Goby frame names "
+     r"no channel, so a receiver would take both as 'nav'"),
+    # nothing a Goby frame could hold: a heartbeat, an idle master's poll, a ranging round
+    ("wire: {format: goby}", "wire: {format: goby}\nlink: {heartbeat_s: 30}",
+     r"link\.heartbeat_s: wire.format goby frames cannot be empty"),
+    ("mac: {type: none, min_gap_s: 0.3}", "mac: {type: polled, master: a, ipg_s: 5}",
+     r"mac\.type: wire.format goby frames cannot be empty: a polled master"),
+    ("mac: {type: none, min_gap_s: 0.3}",
+     "mac: {type: none, ranging: {requester: a, anchors: [b], interval_s: 30, tmax_s: 2}}",
+     r"mac\.ranging: wire.format goby frames cannot be empty"),
+], ids=["dlbl", "not-dccl", "one-message-two-channels", "heartbeat", "polled", "ranging"])
+def test_goby_missions_refuse_what_goby_frames_cannot_carry(old: str, new: str,
+                                                              expected: str) -> None:
     text = GOBY_LAB.replace("PORT_A", "7001").replace("PORT_B", "7002")
-    if change.startswith("wire"):
-        text = text.replace("wire: {format: goby}", change)
-    else:
-        text = text.replace(f'    elements: [{{in: cmd, out: b/cmd, dccl: "{AUV}:Command"}}]',
-                            change)
+    assert old in text
     with pytest.raises(MissionError, match=expected):
-        parse_mission(text, "lab.yaml")
+        parse_mission(text.replace(old, new), "lab.yaml")
 
 
 def test_goby_frames_cross_end_to_end(tmp_path: Path) -> None:
@@ -129,3 +145,28 @@ def test_goby_missions_refuse_zab_s_own_entries(extra: str, expected: str) -> No
     text = GOBY_LAB.replace("PORT_A", "7001").replace("PORT_B", "7002") + extra
     with pytest.raises(MissionError, match=expected):
         parse_mission(text, "lab.yaml")
+
+
+@pytest.mark.parametrize("mac", ["tdma", "none"])
+def test_an_idle_goby_node_sends_nothing_and_data_still_crosses(
+        mac: str, caplog: pytest.LogCaptureFixture) -> None:
+    """goby_dccl's nodes built a heartbeat in every idle slot, which Goby frames encode as
+    no bytes: the modem refused each ('cannot send an empty frame'), and with mac: none the
+    node asked again at once, for ever (zab sim: thousands of warnings a second, then deaf
+    to Ctrl-C; here the virtual clock stood still at the first heartbeat)."""
+    text = EXAMPLE.read_text()
+    if mac == "none":
+        text = text.replace("  type: tdma\n", "  type: none\n").replace(
+            "  slot_s: 10.0\n  guard_s: 0.5\n  order: [topside, auv1, topside, auv2]\n", "")
+    fleet = FastFleet(parse_mission(text, EXAMPLE), seed=2)
+    fleet.put("auv1", "nav_status", NAV, at=300.0)
+    with caplog.at_level("WARNING"):
+        fleet.run_until(600.0)
+    events = [o for o in fleet.outputs if isinstance(o.output, FrameSent | SendFailed)]
+    assert events and all(isinstance(o.output, FrameSent) for o in events), events[:3]
+    assert {o.node for o in events} == {"auv1"}  # the others have had nothing to send
+    assert all(o.time >= 300.0 and o.output.channels == ["nav"] and o.output.size > 0
+               for o in events if isinstance(o.output, FrameSent))
+    got = fleet.published("topside", "auv1/nav_status")
+    assert got and got[0][1].value["mode"] == "survey"
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]

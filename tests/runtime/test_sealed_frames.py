@@ -11,8 +11,6 @@ import os
 import secrets
 import socket
 import struct
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -30,8 +28,8 @@ from bridge.core.loaded import load_mission
 from bridge.core.node import NodeCore
 from bridge.core.reception import Reception
 from bridge.wire.seal import KeyRing, frame_authenticator
-from tests.conftest import REPO, free_port
-from tests.zsim import app, interrupt, mission_file, zab_sim
+from tests.conftest import free_port
+from tests.zsim import app, mission_file, zab_sim, zab_water
 
 LONG = True  # half a minute of zab sim, to the key switch and past it: handed out first
 ROTATE_AFTER_S = 22.0  # the next key takes over this long after the test starts
@@ -109,24 +107,6 @@ class Sea:
     auv1: zenoh.Session
     hydrophone: Hydrophone
     started: float = field(default_factory=time.time)
-
-
-@contextlib.contextmanager
-def zab_water(mission: Path, port: int, env: dict[str, str]) -> Iterator[None]:
-    proc = subprocess.Popen([sys.executable, "-m", "bridge", "water", str(mission), "--port",
-                             str(port)], cwd=REPO, env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.time() + 20
-        while True:
-            with contextlib.suppress(OSError):
-                socket.create_connection(("127.0.0.1", port)).close()
-                break
-            assert proc.poll() is None and time.time() < deadline, "zab water did not start"
-            time.sleep(0.1)
-        yield
-    finally:
-        interrupt(proc, 10)
 
 
 @pytest.fixture(scope="module")

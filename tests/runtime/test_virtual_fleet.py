@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from bridge.core.events import FrameSent, SendFailed
 from bridge.core.loaded import LoadedMission, load_mission, parse_mission
 from bridge.core.node import Publish
 from bridge.runtime.virtual_fleet import FastFleet
+from bridge.sim.ocean import TransmitRefused
 from tests.conftest import MISSIONS
 
 
@@ -96,3 +98,44 @@ def test_receivers_sharing_a_frames_decoding_see_what_their_own_decoding_gives()
         with pytest.raises(FrameError) as refused:
             decode(bytes(20), 3)
         assert refused.value.reason == "check"
+
+
+REFUSED = """
+mission: refused
+mac: {type: none}
+link: {heartbeat_s: 1000}  # b stays silent: a frame heard is news too
+nodes:
+  a: {address: 1}
+  b: {address: 2}
+channels:
+  - name: x
+    from: a
+    to: b
+    elements: [{in: x, out: a/x, fields: [{field: v, type: int, min: 0, max: 100}]}]
+"""
+
+
+def test_a_refused_frame_is_tried_again_after_a_pause_or_news_not_at_once() -> None:
+    """Under mac: none a node whose frame the modem refused asked again at once: while the
+    refusal lasted (a Goby heartbeat, which was empty, for ever) the virtual clock stood
+    still, and a real node's transmit loop spun without yielding. Now the next try waits
+    IDLE_S, or a new sample."""
+    fleet = FastFleet(parse_mission(REFUSED, "refused.yaml"), seed=1)
+    transmit, refused = fleet.ocean.transmit, []
+
+    def busy_until_25(now: float, src: int, data: bytes, dest: int | None = None) -> float:
+        if src == 1 and now < 25.5:
+            refused.append(now)
+            assert len(refused) < 1000, "asked again at once"
+            raise TransmitRefused("busy", "the modem stays busy")
+        return transmit(now, src, data, dest)
+
+    fleet.ocean.transmit = busy_until_25  # type: ignore[method-assign]
+    fleet.put("a", "x", {"v": 7}, at=5.0)
+    fleet.put("a", "x", {"v": 8}, at=12.25)  # news: tried at once
+    fleet.run_until(40.0)
+    assert refused == [5.0 + i for i in range(8)] + [12.25 + i for i in range(14)]
+    failed = [o for o in fleet.outputs if isinstance(o.output, SendFailed)]
+    assert len(failed) == len(refused)
+    sent = [o.time for o in fleet.outputs if isinstance(o.output, FrameSent)]
+    assert sent[0] == 26.25 and [p.value for _, p in fleet.published("b", "a/x")] == [{"v": 8}]
