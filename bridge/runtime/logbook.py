@@ -19,13 +19,18 @@ The mission itself is attached (``mission.yaml``, as validated) with metadata ``
 pictures.
 
 :class:`MissionLog` is an ``on_event`` callback for :class:`~bridge.runtime.zenoh_node.BridgeNode`;
+it puts what it has recorded on disk every :data:`FLUSH_S` (a chunk closed, the file flushed
+and fsynced, off the caller's thread), so a node killed outright loses about a second of it.
 :func:`summarise` and :func:`read_log` read a file back.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
+import threading
 import time
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterator
@@ -57,7 +62,9 @@ __all__ = [
 PROFILE = "zab"
 MISSION_ATTACHMENT = "mission.yaml"
 CHUNK_BYTES = 32 * 1024
-"""Messages stay in memory until a chunk is this big; small, so a crash loses little."""
+"""A chunk is closed when this big, or every :data:`FLUSH_S`, whichever comes first."""
+FLUSH_S = 1.0
+"""How often a log puts what it has recorded on disk: at most this much is lost to a kill."""
 
 _OBJECT = {"type": "object"}
 _TIME = {"type": "number", "description": "Host clock, seconds since 1970"}
@@ -120,14 +127,23 @@ def json_view_schema(layout: Layout) -> dict[str, Any]:
     return schema
 
 
+def _sync(stream: IO[bytes]) -> None:
+    """Have the OS write ``stream``'s file to its disk, if it can (and it is still open)."""
+    with contextlib.suppress(OSError, ValueError):  # closed meanwhile (close syncs it), or
+        os.fsync(stream.fileno())  # a file system without fsync
+
+
 class MissionLog:
     """Records one node's events into an MCAP file; call it as ``on_event(event)``.
 
     Never raises into the runtime: an event that cannot be written is counted in ``failed``.
+    A thread puts what was recorded on disk every ``flush_s`` (:meth:`flush`; ``None``: only
+    when a chunk fills and at :meth:`close`).
     """
 
     def __init__(self, path: str | Path, loaded: LoadedMission, node: str,
-                 clock: Callable[[], float] = time.time) -> None:
+                 clock: Callable[[], float] = time.time,
+                 flush_s: float | None = FLUSH_S) -> None:
         self.path = Path(path)
         self.loaded = loaded
         self.node = node
@@ -150,6 +166,33 @@ class MissionLog:
         self._writer.add_attachment(now_ns, now_ns, MISSION_ATTACHMENT, "application/yaml",
                                     text.encode())
         self._closed = False
+        self._lock = threading.Lock()  # the writer is used by the caller and the flusher
+        self._dirty = True  # recorded since the last flush
+        self.flush()  # the mission is on disk from the start
+        self._stop = threading.Event()
+        self._flusher: threading.Thread | None = None
+        if flush_s is not None:
+            self._flusher = threading.Thread(target=self._flush_every, args=(flush_s,),
+                                             name=f"log-{node}", daemon=True)
+            self._flusher.start()
+
+    def flush(self) -> None:
+        """Close the chunk in progress and put the file on disk (fsync); a failure is
+        counted in ``failed``, never raised."""
+        with self._lock:
+            if self._closed or not self._dirty:
+                return
+            self._dirty = False
+            try:
+                self._writer.flush()
+            except Exception:  # as an event that cannot be written: counted
+                self.failed += 1
+                return
+        _sync(self._stream)  # (outside the lock: the caller never waits for the disk)
+
+    def _flush_every(self, period: float) -> None:
+        while not self._stop.wait(period):
+            self.flush()
 
     def _channel_id(self, topic: str, properties: dict[str, Any]) -> int:
         found = self._channels.get(topic)
@@ -167,12 +210,14 @@ class MissionLog:
         self._writer.add_message(channel, ns, json.dumps(message).encode(), ns)
 
     def __call__(self, event: Event) -> None:
-        if self._closed:
-            return
-        try:
-            self._record(event)
-        except Exception:  # a log must never stop the bridge; counted instead
-            self.failed += 1
+        with self._lock:
+            if self._closed:
+                return
+            self._dirty = True
+            try:
+                self._record(event)
+            except Exception:  # a log must never stop the bridge; counted instead
+                self.failed += 1
 
     def _record(self, event: Event) -> None:
         kind, info = event.kind, event.to_dict()
@@ -196,13 +241,19 @@ class MissionLog:
 
     def close(self) -> None:
         """Write the summary and close the file (safe to call twice)."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._writer.finish()
-        finally:
-            self._stream.close()
+        self._stop.set()
+        if self._flusher is not None and self._flusher is not threading.current_thread():
+            self._flusher.join()
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._writer.finish()
+                self._stream.flush()
+                _sync(self._stream)
+            finally:
+                self._stream.close()
 
     def __enter__(self) -> MissionLog:
         return self
@@ -215,9 +266,11 @@ class FleetLogs:
     """One :class:`MissionLog` per node in ``folder`` (``<mission>-<node>.mcap``); call it as a
     :class:`~bridge.runtime.fleet.Fleet` ``on_event(node, event)``."""
 
-    def __init__(self, folder: str | Path, loaded: LoadedMission) -> None:
+    def __init__(self, folder: str | Path, loaded: LoadedMission,
+                 flush_s: float | None = FLUSH_S) -> None:
         self.folder = Path(folder)
         self.loaded = loaded
+        self.flush_s = flush_s
         self.logs: dict[str, MissionLog] = {}
 
     def path_of(self, node: str) -> Path:
@@ -226,7 +279,8 @@ class FleetLogs:
     def __call__(self, node: str, event: Event) -> None:
         log = self.logs.get(node)
         if log is None:
-            log = self.logs[node] = MissionLog(self.path_of(node), self.loaded, node)
+            log = self.logs[node] = MissionLog(self.path_of(node), self.loaded, node,
+                                               flush_s=self.flush_s)
         log(event)
 
     def close(self) -> None:
