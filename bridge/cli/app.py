@@ -845,10 +845,13 @@ def _read_log(path: Path) -> Any:
     from bridge.runtime.logbook import LogError, read_log
 
     try:
-        return read_log(path)
+        log = read_log(path)
     except LogError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(2) from None
+    if log.note is not None:
+        err.print(f"[yellow]{log.note}[/]", highlight=False, soft_wrap=True)
+    return log
 
 
 @log_app.command("summary")

@@ -21,7 +21,7 @@ pictures.
 :class:`MissionLog` is an ``on_event`` callback for :class:`~bridge.runtime.zenoh_node.BridgeNode`;
 it puts what it has recorded on disk every :data:`FLUSH_S` (a chunk closed, the file flushed
 and fsynced, off the caller's thread), so a node killed outright loses about a second of it.
-:func:`summarise` and :func:`read_log` read a file back.
+:func:`summarise` and :func:`read_log` read a file back, a cut-short one too.
 """
 
 from __future__ import annotations
@@ -39,14 +39,14 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 import yaml
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
+from mcap.records import Attachment, Channel, Message, Metadata
 from mcap.writer import CompressionType, Writer
 
 from bridge.codec import ArrayCodec, BytesCodec, Layout
 from bridge.core.events import Event, FrameReceived
 from bridge.core.loaded import LoadedMission, parse_mission
 from bridge.errors import MissionError
+from bridge.runtime.mcap_scan import WholeRecords
 from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.payload_schema import adapt_schema
 from bridge.wire.payloads import encode_payload
@@ -89,7 +89,8 @@ _FRAME_SCHEMAS: dict[str, dict[str, Any]] = {
 
 
 class LogError(Exception):
-    """A mission log cannot be read (not MCAP, truncated, or not written by zab)."""
+    """A mission log cannot be read (not MCAP, cut short before its metadata, or not written
+    by zab)."""
 
 
 def _jsonable(value: Any) -> Any:
@@ -306,6 +307,13 @@ class MissionLogFile:
     node: str
     loaded: LoadedMission | None
     records: list[LogRecord] = field(default_factory=list)
+    note: str | None = None
+    """Set when the log ends without its footer (cut short) or is damaged: what was read."""
+
+    @property
+    def complete(self) -> bool:
+        """The log was closed properly (nothing is missing from it)."""
+        return self.note is None
 
 
 def _kind(topic: str, node: str) -> str:
@@ -314,33 +322,74 @@ def _kind(topic: str, node: str) -> str:
 
 
 def read_log(path: str | Path) -> MissionLogFile:
-    """Read a mission log; :class:`LogError` with a clear message if it is not one."""
+    """Read a mission log; :class:`LogError` with a clear message if it is not one.
+
+    A log cut short (its node killed: no footer, a last record half written) is read as far
+    as its records are whole; its ``note`` says so.
+    """
     p = Path(path)
     try:
         with p.open("rb") as stream:
-            reader = make_reader(stream)
-            meta = next((m.metadata for m in reader.iter_metadata() if m.name == "zab"), None)
-            if meta is None:
-                raise LogError(f"{p}: an MCAP file, but not a zab mission log (no 'zab' metadata)")
-            node = meta.get("node", "")
-            text = next((a.data for a in reader.iter_attachments()
-                         if a.name == MISSION_ATTACHMENT), None)
-            records = [
-                LogRecord(channel.topic, _kind(channel.topic, node), message.log_time / 1e9,
-                          json.loads(message.data))
-                for _, channel, message in reader.iter_messages(log_time_order=True)
-            ]
+            scan = WholeRecords(stream)
+            meta, text, messages = _contents(scan)
+            cut_short = scan.cut_short
     except FileNotFoundError:
         raise LogError(f"{p}: no such file") from None
-    except (McapError, OSError, ValueError, EOFError) as exc:
-        raise LogError(f"{p}: not a readable MCAP file: {exc}") from None
+    except OSError as exc:
+        raise LogError(f"{p}: cannot read it: {exc}") from None
+    if meta is None:
+        if scan.complete:
+            raise LogError(f"{p}: an MCAP file, but not a zab mission log (no 'zab' metadata)")
+        if scan.size == 0:
+            raise LogError(f"{p}: an empty file (its node stopped before writing anything)")
+        if cut_short:
+            raise LogError(f"{p}: cut short before its 'zab' metadata (its node stopped "
+                           "abruptly?): nothing to read")
+        raise LogError(f"{p}: not a readable MCAP file ({scan.problem})")
+    node = meta.get("node", "")
     loaded = None
     if text is not None:
         try:
             loaded = parse_mission(text.decode(), f"{p}:{MISSION_ATTACHMENT}")
         except (MissionError, UnicodeDecodeError) as exc:
             raise LogError(f"{p}: the attached mission is invalid: {exc}") from None
-    return MissionLogFile(p, node, loaded, records)
+    messages.sort(key=lambda m: m[1])  # (stable: equal times stay in the order written)
+    records = [LogRecord(topic, _kind(topic, node), t, data) for topic, t, data in messages]
+    note = None
+    read = f"{len(records)} record{'' if len(records) == 1 else 's'} read"
+    if cut_short:
+        note = f"{p}: the log ends without its footer (its node was stopped abruptly, or " \
+            f"still runs): {read}"
+    elif not scan.complete:
+        note = f"{p}: the log is damaged at byte {scan.stopped_at} of {scan.size} " \
+            f"({scan.problem}): {read} before it"
+    return MissionLogFile(p, node, loaded, records, note)
+
+
+def _contents(scan: WholeRecords) -> tuple[dict[str, str] | None, bytes | None,
+                                           list[tuple[str, float, Any]]]:
+    """The 'zab' metadata, the attached mission and the messages (topic, time, data) of the
+    whole records of a log."""
+    meta: dict[str, str] | None = None
+    text: bytes | None = None
+    topics: dict[int, str] = {}
+    messages: list[tuple[str, float, Any]] = []
+    for record in scan:
+        if isinstance(record, Message):
+            topic = topics.get(record.channel_id)
+            if topic is not None:
+                try:
+                    data = json.loads(record.data)
+                except ValueError:
+                    continue  # not zab's JSON (a whole record is as written): left out
+                messages.append((topic, record.log_time / 1e9, data))
+        elif isinstance(record, Channel):
+            topics[record.id] = record.topic
+        elif isinstance(record, Metadata) and record.name == "zab" and meta is None:
+            meta = record.metadata
+        elif isinstance(record, Attachment) and record.name == MISSION_ATTACHMENT:
+            text = record.data
+    return meta, text, messages
 
 
 def summarise(log: MissionLogFile) -> dict[str, Any]:
