@@ -194,6 +194,8 @@ def put(endpoint: str, key: str, value_json: str, ref: str) -> tuple[bytes, str]
         value = json.loads(value_json)
     except ValueError as exc:
         raise PokeError(f"the value is not JSON ({exc}): {value_json!r}") from None
+    except RecursionError:
+        raise PokeError("the value is nested too deeply to read") from None
     try:
         zenoh.KeyExpr(key)
     except zenoh.ZError as exc:
@@ -209,7 +211,8 @@ def put(endpoint: str, key: str, value_json: str, ref: str) -> tuple[bytes, str]
 def payload_for(key: str, value: Any) -> tuple[bytes, str]:
     """What :func:`put` sends for ``value`` on ``key``: on an rmw_zenoh key the CDR message
     of the type the key names (fields left out are zero, as a ROS 2 message's defaults),
-    else msgpack; and its encoding (none for CDR, as rmw_zenoh's)."""
+    else msgpack; and its encoding (none for CDR, as rmw_zenoh's). :class:`PokeError`, one
+    line, for a value that neither can hold."""
     if key[:1].isdigit():
         from bridge.ros2.messages import encode_sample  # (rosbags: loaded when needed)
 
@@ -219,4 +222,42 @@ def payload_for(key: str, value: Any) -> tuple[bytes, str]:
             raise PokeError(f"cannot put on {key}: {exc}") from None
         if cdr is not None:
             return cdr, ""
-    return bytes(msgpack.packb(value)), MSGPACK
+    try:
+        return bytes(msgpack.packb(value)), MSGPACK
+    except (ValueError, TypeError, OverflowError) as exc:  # (UnicodeEncodeError: a ValueError)
+        raise PokeError(f"cannot put on {key}: {unpackable(value) or exc}") from None
+
+
+MSGPACK_INTS = (-(2**63), 2**64 - 1)
+"""The integers msgpack holds."""
+
+
+def unpackable(value: Any) -> str | None:
+    """Why msgpack cannot hold ``value`` (JSON data), naming where in it; None if it can."""
+    todo: list[tuple[str, Any]] = [("", value)]  # (a loop: JSON nests deeper than the stack)
+    while todo:
+        path, item = todo.pop()
+        where = f"{path}: " if path else ""
+        if isinstance(item, int) and not isinstance(item, bool) \
+                and not MSGPACK_INTS[0] <= item <= MSGPACK_INTS[1]:
+            return f"{where}{item} is beyond msgpack's integers (-2**63 to 2**64 - 1)"
+        if isinstance(item, str) and not _utf8(item):
+            return f"{where}{item!r} is not UTF-8 text (a lone surrogate, \\ud800-\\udfff)"
+        if isinstance(item, dict):
+            for name, inner in reversed(item.items()):
+                if not _utf8(str(name)):
+                    return f"{where}the name {name!r} is not UTF-8 text (a lone surrogate, " \
+                        "\\ud800-\\udfff)"
+                todo.append((f"{path}.{name}" if path else str(name), inner))
+        elif isinstance(item, list):
+            todo += [(f"{path}.{i}" if path else str(i), inner)
+                     for i, inner in reversed(list(enumerate(item)))]
+    return None
+
+
+def _utf8(text: str) -> bool:
+    try:
+        text.encode()
+    except UnicodeEncodeError:
+        return False
+    return True
