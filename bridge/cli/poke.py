@@ -210,14 +210,14 @@ def put(endpoint: str, key: str, value_json: str, ref: str) -> tuple[bytes, str]
 
 def payload_for(key: str, value: Any) -> tuple[bytes, str]:
     """What :func:`put` sends for ``value`` on ``key``: on an rmw_zenoh key the CDR message
-    of the type the key names (fields left out are zero, as a ROS 2 message's defaults),
-    else msgpack; and its encoding (none for CDR, as rmw_zenoh's). :class:`PokeError`, one
-    line, for a value that neither can hold."""
+    of the type the key names (fields left out are zero, as a ROS 2 message's defaults; a
+    name the type has not is refused, not dropped), else msgpack; and its encoding (none for
+    CDR, as rmw_zenoh's). :class:`PokeError`, one line, for a value that neither can hold."""
     if key[:1].isdigit():
         from bridge.ros2.messages import encode_sample  # (rosbags: loaded when needed)
 
         try:
-            cdr = encode_sample(key, value)
+            cdr = encode_sample(key, value, strict=True)
         except EncodeError as exc:
             raise PokeError(f"cannot put on {key}: {exc}") from None
         if cdr is not None:
