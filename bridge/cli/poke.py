@@ -12,7 +12,7 @@ import math
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 import zenoh
@@ -21,6 +21,9 @@ from bridge.cli.rounding import Steps, to_step
 from bridge.errors import DecodeError, EncodeError, SessionError
 from bridge.mission.model import ZenohSettings
 from bridge.runtime.session import close_quietly, open_session
+
+if TYPE_CHECKING:
+    from bridge.core.loaded import LoadedMission
 
 MSGPACK = "application/msgpack"
 IDLE_S = 0.01  # how long the listen loop sleeps when nothing has arrived
@@ -185,11 +188,14 @@ def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
     return shown
 
 
-def put(endpoint: str, key: str, value_json: str, ref: str) -> tuple[bytes, str]:
+def put(endpoint: str, key: str, value_json: str, ref: str,
+        mission: LoadedMission | None = None) -> tuple[bytes, str]:
     """Publish the JSON value ``value_json`` on ``key`` (msgpack, or a ROS 2 topic's CDR:
     :func:`payload_for`), an operator's command (attachment ``ref:<ref>``, as the GUI's: a
     reliable channel's delivery reports echo it, and ``zab demo``'s programs leave the key to
-    the operator for a while); return the payload sent and its encoding."""
+    the operator for a while); return the payload sent and its encoding. With the
+    ``mission``, a value the channels reading ``key`` cannot take is refused
+    (:func:`bridge.cli.put_check.problem_with`)."""
     try:
         value = json.loads(value_json)
     except ValueError as exc:
@@ -201,6 +207,11 @@ def put(endpoint: str, key: str, value_json: str, ref: str) -> tuple[bytes, str]
     except zenoh.ZError as exc:
         raise PokeError(f"invalid key {key!r}: {exc}") from None
     payload, encoding = payload_for(key, value)
+    if mission is not None:
+        from bridge.cli.put_check import problem_with
+
+        if (problem := problem_with(mission, key, value)) is not None:
+            raise PokeError(f"cannot put on {key}: {problem}")
     with client(endpoint) as session:
         session.put(key, payload, encoding=zenoh.Encoding(encoding) if encoding else None,
                     congestion_control=zenoh.CongestionControl.BLOCK,

@@ -18,6 +18,7 @@ from bridge.cli.app import app
 from bridge.cli.poke import PokeError, payload_for
 from bridge.ros2.messages import decode_cdr, encode_cdr, type_hash
 from bridge.ros2.names import topic_key
+from tests.conftest import MISSIONS
 
 DEAD = "tcp/127.0.0.1:9"  # (never reached: a value that cannot be sent is refused before)
 PLAIN = "auv1/nav"
@@ -124,3 +125,36 @@ def test_zab_put_refuses_a_field_the_ros2_type_has_not(value: str, says: str,
     result = CliRunner().invoke(app, ["put", DEAD, ros2_key(TWIST), value])
     assert result.exit_code == 2 and says in " ".join(result.output.split()), result.output
     assert encode_cdr(DISTRO, TWIST, json.loads(value)) == encode_cdr(DISTRO, TWIST, known)
+
+
+@pytest.mark.parametrize(("mission", "key", "value", "says"), [
+    ("goby_dccl", "command/topside", '{"mode": "dive", "nonexistent": 1}',
+     "channel 'command' has no field 'nonexistent' (its fields: mode, goto_lat, goto_lon, "
+     "note)"),
+    ("goby_dccl", "command/topside", "5",
+     "channel 'command': zab.auv.Command: expected a mapping, got int"),
+    ("goby_dccl", "nav_status", '{"lat": 1}', "channel 'nav': lon: required field missing"),
+    ("goby_dccl", "command/topside", '{"mode": "swim"}', "mode: 'swim' is not one of"),
+    ("morph", "target_reference", '{"vector": {"x": 1, "q": 2}}',
+     "channel 'target_reference' has no field 'q' in vector (its fields there: x, y)"),
+    ("morph", "nav", '{"x": "far"}', "channel 'nav': x: expected a number, got str 'far'"),
+    ("morph", "command", '"surface"', "channel 'mission_command': "),
+], ids=["dccl-unknown", "dccl-int", "dccl-missing", "dccl-enum", "unknown", "string-number",
+        "string-map"])
+def test_zab_put_with_the_mission_refuses_what_its_channels_cannot_take(
+        mission: str, key: str, value: str, says: str) -> None:
+    """Without the mission zab put cannot know a DCCL or msgpack channel's fields: it sent
+    the value and the bridge dropped it (counted, at the vehicle). With --mission it says
+    why, and sends nothing."""
+    path = str(MISSIONS / f"{mission}.yaml")
+    result = CliRunner().invoke(app, ["put", DEAD, key, value, "--mission", path])
+    assert result.exit_code == 2, result.output
+    said = " ".join(result.output.split())
+    assert said.startswith(f"cannot put on {key}: ") and says in said, said
+    fits = CliRunner().invoke(app, ["put", DEAD, key, {
+        "command/topside": '{"mode": "dive", "note": "hi"}', "nav_status": json.dumps(
+            {"lat": 1, "lon": 2, "depth": 3, "heading": 4, "speed": 1, "battery": 5,
+             "mode": "idle", "time": 6}), "target_reference": '{"vector": {"x": 1, "y": 0}}',
+        "nav": '{"x": 1, "y": 2, "depth": 3, "heading": 4, "speed": 1}',
+        "command": '{"action": "surface", "leg": 3}'}[key], "--mission", path])
+    assert "cannot connect to" in fits.output, fits.output  # (checked, then sent)
