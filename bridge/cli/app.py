@@ -756,12 +756,17 @@ def put(
     value: Annotated[str, typer.Argument(
         help='The value as JSON, e.g. \'{"vector": {"x": 1.5, "y": 0.01}}\'.',
         show_default=False)],
+    mission: Annotated[Path | None, typer.Option(
+        "--mission", "-m", help="The fleet's mission: a value that the channels reading the "
+        "key cannot take (a field they have not, a missing DCCL field, a number for a map) "
+        "is refused, not sent.", show_default=False)] = None,
 ) -> None:
     """Publish one value (JSON on the command line, msgpack on Zenoh) at a Zenoh endpoint.
 
     On a ROS 2 topic's rmw_zenoh key the value goes as the CDR message of the type the key
-    names. It goes as an operator's command, as the GUI's do: with a reference (`ref:put-…`) that
-    an acknowledged channel's delivery reports echo.
+    names (a field the type has not is refused). It goes as an operator's command, as the
+    GUI's do: with a reference (`ref:put-…`) that an acknowledged channel's delivery reports
+    echo.
     """
     import secrets
 
@@ -769,8 +774,9 @@ def put(
     from bridge.cli.poke import put as run_put
 
     ref = f"put-{secrets.token_hex(4)}"
+    loaded = None if mission is None else _load(mission)
     try:
-        payload, encoding = run_put(endpoint, key, value, ref)
+        payload, encoding = run_put(endpoint, key, value, ref, loaded)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(1 if str(exc).startswith("cannot connect") else 2) from None
@@ -845,10 +851,13 @@ def _read_log(path: Path) -> Any:
     from bridge.runtime.logbook import LogError, read_log
 
     try:
-        return read_log(path)
+        log = read_log(path)
     except LogError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(2) from None
+    if log.note is not None:
+        err.print(f"[yellow]{log.note}[/]", highlight=False, soft_wrap=True)
+    return log
 
 
 @log_app.command("summary")

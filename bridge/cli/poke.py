@@ -12,7 +12,7 @@ import math
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 import zenoh
@@ -21,6 +21,9 @@ from bridge.cli.rounding import Steps, to_step
 from bridge.errors import DecodeError, EncodeError, SessionError
 from bridge.mission.model import ZenohSettings
 from bridge.runtime.session import close_quietly, open_session
+
+if TYPE_CHECKING:
+    from bridge.core.loaded import LoadedMission
 
 MSGPACK = "application/msgpack"
 IDLE_S = 0.01  # how long the listen loop sleeps when nothing has arrived
@@ -185,20 +188,30 @@ def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
     return shown
 
 
-def put(endpoint: str, key: str, value_json: str, ref: str) -> tuple[bytes, str]:
+def put(endpoint: str, key: str, value_json: str, ref: str,
+        mission: LoadedMission | None = None) -> tuple[bytes, str]:
     """Publish the JSON value ``value_json`` on ``key`` (msgpack, or a ROS 2 topic's CDR:
     :func:`payload_for`), an operator's command (attachment ``ref:<ref>``, as the GUI's: a
     reliable channel's delivery reports echo it, and ``zab demo``'s programs leave the key to
-    the operator for a while); return the payload sent and its encoding."""
+    the operator for a while); return the payload sent and its encoding. With the
+    ``mission``, a value the channels reading ``key`` cannot take is refused
+    (:func:`bridge.cli.put_check.problem_with`)."""
     try:
         value = json.loads(value_json)
     except ValueError as exc:
         raise PokeError(f"the value is not JSON ({exc}): {value_json!r}") from None
+    except RecursionError:
+        raise PokeError("the value is nested too deeply to read") from None
     try:
         zenoh.KeyExpr(key)
     except zenoh.ZError as exc:
         raise PokeError(f"invalid key {key!r}: {exc}") from None
     payload, encoding = payload_for(key, value)
+    if mission is not None:
+        from bridge.cli.put_check import problem_with
+
+        if (problem := problem_with(mission, key, value)) is not None:
+            raise PokeError(f"cannot put on {key}: {problem}")
     with client(endpoint) as session:
         session.put(key, payload, encoding=zenoh.Encoding(encoding) if encoding else None,
                     congestion_control=zenoh.CongestionControl.BLOCK,
@@ -208,15 +221,54 @@ def put(endpoint: str, key: str, value_json: str, ref: str) -> tuple[bytes, str]
 
 def payload_for(key: str, value: Any) -> tuple[bytes, str]:
     """What :func:`put` sends for ``value`` on ``key``: on an rmw_zenoh key the CDR message
-    of the type the key names (fields left out are zero, as a ROS 2 message's defaults),
-    else msgpack; and its encoding (none for CDR, as rmw_zenoh's)."""
+    of the type the key names (fields left out are zero, as a ROS 2 message's defaults; a
+    name the type has not is refused, not dropped), else msgpack; and its encoding (none for
+    CDR, as rmw_zenoh's). :class:`PokeError`, one line, for a value that neither can hold."""
     if key[:1].isdigit():
         from bridge.ros2.messages import encode_sample  # (rosbags: loaded when needed)
 
         try:
-            cdr = encode_sample(key, value)
+            cdr = encode_sample(key, value, strict=True)
         except EncodeError as exc:
             raise PokeError(f"cannot put on {key}: {exc}") from None
         if cdr is not None:
             return cdr, ""
-    return bytes(msgpack.packb(value)), MSGPACK
+    try:
+        return bytes(msgpack.packb(value)), MSGPACK
+    except (ValueError, TypeError, OverflowError) as exc:  # (UnicodeEncodeError: a ValueError)
+        raise PokeError(f"cannot put on {key}: {unpackable(value) or exc}") from None
+
+
+MSGPACK_INTS = (-(2**63), 2**64 - 1)
+"""The integers msgpack holds."""
+
+
+def unpackable(value: Any) -> str | None:
+    """Why msgpack cannot hold ``value`` (JSON data), naming where in it; None if it can."""
+    todo: list[tuple[str, Any]] = [("", value)]  # (a loop: JSON nests deeper than the stack)
+    while todo:
+        path, item = todo.pop()
+        where = f"{path}: " if path else ""
+        if isinstance(item, int) and not isinstance(item, bool) \
+                and not MSGPACK_INTS[0] <= item <= MSGPACK_INTS[1]:
+            return f"{where}{item} is beyond msgpack's integers (-2**63 to 2**64 - 1)"
+        if isinstance(item, str) and not _utf8(item):
+            return f"{where}{item!r} is not UTF-8 text (a lone surrogate, \\ud800-\\udfff)"
+        if isinstance(item, dict):
+            for name, inner in reversed(item.items()):
+                if not _utf8(str(name)):
+                    return f"{where}the name {name!r} is not UTF-8 text (a lone surrogate, " \
+                        "\\ud800-\\udfff)"
+                todo.append((f"{path}.{name}" if path else str(name), inner))
+        elif isinstance(item, list):
+            todo += [(f"{path}.{i}" if path else str(i), inner)
+                     for i, inner in reversed(list(enumerate(item)))]
+    return None
+
+
+def _utf8(text: str) -> bool:
+    try:
+        text.encode()
+    except UnicodeEncodeError:
+        return False
+    return True

@@ -147,16 +147,20 @@ def decode_cdr(distro: str, msgtype: str, data: bytes) -> dict[str, Any]:
     return plain
 
 
-def _build(store: Any, msgtype: str, tree: Any, path: str) -> Any:
+def _build(store: Any, msgtype: str, tree: Any, path: str, strict: bool) -> Any:
     values = tree if isinstance(tree, dict) else {}
     if tree is not None and not isinstance(tree, dict):
         raise EncodeError(f"{path or msgtype}: expected a mapping for {msgtype}, "
                           f"got {type(tree).__name__}")
+    fields = store.fielddefs[msgtype][1]
+    if strict and (unknown := [n for n in values if n not in {f for f, _ in fields}]):
+        raise EncodeError(f"{path + ': ' if path else ''}no field {unknown[0]!r} in {msgtype} "
+                          f"(its fields: {', '.join(f for f, _ in fields)})")
     kwargs = {}
-    for name, desc in store.fielddefs[msgtype][1]:
+    for name, desc in fields:
         where = f"{path}.{name}" if path else name
         value = values.get(name, DEFINITION_DEFAULTS.get((msgtype, name)))
-        kwargs[name] = _value(store, _leaf(desc), value, where)
+        kwargs[name] = _value(store, _leaf(desc), value, where, strict)
     return store.types[msgtype](**kwargs)
 
 
@@ -184,10 +188,10 @@ def _scalar(base: str, value: Any, where: str) -> Any:
     return float(value)
 
 
-def _value(store: Any, leaf: Leaf, value: Any, where: str) -> Any:
+def _value(store: Any, leaf: Leaf, value: Any, where: str, strict: bool) -> Any:
     if not leaf.array:
         if leaf.message is not None:
-            return _build(store, leaf.message, value, where)
+            return _build(store, leaf.message, value, where, strict)
         assert leaf.base is not None
         return _scalar(leaf.base, value, where)
     items: list[Any] | bytes
@@ -205,7 +209,8 @@ def _value(store: Any, leaf: Leaf, value: Any, where: str) -> Any:
         if value is None:
             items = [None] * leaf.count
     if leaf.message is not None:
-        return [_build(store, leaf.message, v, f"{where}.{i}") for i, v in enumerate(items)]
+        return [_build(store, leaf.message, v, f"{where}.{i}", strict)
+                for i, v in enumerate(items)]
     assert leaf.base is not None
     if leaf.base in _BYTES and isinstance(items, bytes):
         return np.frombuffer(items, dtype=np.uint8)
@@ -247,12 +252,14 @@ def _numbers(base: str, items: list[Any] | bytes) -> NDArray[Any] | None:
     return array.astype(dtype)
 
 
-def encode_cdr(distro: str, msgtype: str, tree: dict[str, Any]) -> bytes:
+def encode_cdr(distro: str, msgtype: str, tree: dict[str, Any], *,
+               strict: bool = False) -> bytes:
     """A complete CDR ``msgtype`` from plain data; every field not in ``tree`` is zero/empty.
 
-    ``EncodeError`` when a value does not fit its field."""
+    ``EncodeError`` when a value does not fit its field, and, ``strict``, when ``tree`` names
+    a field the type has not (else such names are ignored)."""
     store = typestore(distro)
-    msg = _build(store, msgtype, tree, "")
+    msg = _build(store, msgtype, tree, "", strict)
     try:
         return bytes(store.serialize_cdr(msg, msgtype))
     except Exception as exc:
@@ -287,16 +294,16 @@ def decode_sample(key: str, data: bytes) -> dict[str, Any] | None:
     return None if found is None else decode_cdr(*found, data)
 
 
-def encode_sample(key: str, tree: Any) -> bytes | None:
+def encode_sample(key: str, tree: Any, *, strict: bool = False) -> bytes | None:
     """``tree`` as the CDR message an rmw_zenoh data ``key`` names (:func:`_keyed_type`);
     None if the key names no type this bridge knows. ``EncodeError`` when a value does not
-    fit its field."""
+    fit its field (or, ``strict``, names no field: :func:`encode_cdr`)."""
     found = _keyed_type(key)
     if found is None:
         return None
     if not isinstance(tree, dict):
         raise EncodeError(f"{found[1]}: expected the message's fields as an object")
-    return encode_cdr(*found, tree)
+    return encode_cdr(*found, tree, strict=strict)
 
 
 def _keyed_type(key: str) -> tuple[str, str] | None:

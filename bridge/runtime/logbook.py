@@ -19,13 +19,18 @@ The mission itself is attached (``mission.yaml``, as validated) with metadata ``
 pictures.
 
 :class:`MissionLog` is an ``on_event`` callback for :class:`~bridge.runtime.zenoh_node.BridgeNode`;
-:func:`summarise` and :func:`read_log` read a file back.
+it puts what it has recorded on disk every :data:`FLUSH_S` (a chunk closed, the file flushed
+and fsynced, off the caller's thread), so a node killed outright loses about a second of it.
+:func:`summarise` and :func:`read_log` read a file back, a cut-short one too.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
+import threading
 import time
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterator
@@ -34,14 +39,14 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 import yaml
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
+from mcap.records import Attachment, Channel, Message, Metadata
 from mcap.writer import CompressionType, Writer
 
 from bridge.codec import ArrayCodec, BytesCodec, Layout
 from bridge.core.events import Event, FrameReceived
 from bridge.core.loaded import LoadedMission, parse_mission
 from bridge.errors import MissionError
+from bridge.runtime.mcap_scan import WholeRecords
 from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.payload_schema import adapt_schema
 from bridge.wire.payloads import encode_payload
@@ -57,7 +62,9 @@ __all__ = [
 PROFILE = "zab"
 MISSION_ATTACHMENT = "mission.yaml"
 CHUNK_BYTES = 32 * 1024
-"""Messages stay in memory until a chunk is this big; small, so a crash loses little."""
+"""A chunk is closed when this big, or every :data:`FLUSH_S`, whichever comes first."""
+FLUSH_S = 1.0
+"""How often a log puts what it has recorded on disk: at most this much is lost to a kill."""
 
 _OBJECT = {"type": "object"}
 _TIME = {"type": "number", "description": "Host clock, seconds since 1970"}
@@ -82,7 +89,8 @@ _FRAME_SCHEMAS: dict[str, dict[str, Any]] = {
 
 
 class LogError(Exception):
-    """A mission log cannot be read (not MCAP, truncated, or not written by zab)."""
+    """A mission log cannot be read (not MCAP, cut short before its metadata, or not written
+    by zab)."""
 
 
 def _jsonable(value: Any) -> Any:
@@ -120,14 +128,23 @@ def json_view_schema(layout: Layout) -> dict[str, Any]:
     return schema
 
 
+def _sync(stream: IO[bytes]) -> None:
+    """Have the OS write ``stream``'s file to its disk, if it can (and it is still open)."""
+    with contextlib.suppress(OSError, ValueError):  # closed meanwhile (close syncs it), or
+        os.fsync(stream.fileno())  # a file system without fsync
+
+
 class MissionLog:
     """Records one node's events into an MCAP file; call it as ``on_event(event)``.
 
     Never raises into the runtime: an event that cannot be written is counted in ``failed``.
+    A thread puts what was recorded on disk every ``flush_s`` (:meth:`flush`; ``None``: only
+    when a chunk fills and at :meth:`close`).
     """
 
     def __init__(self, path: str | Path, loaded: LoadedMission, node: str,
-                 clock: Callable[[], float] = time.time) -> None:
+                 clock: Callable[[], float] = time.time,
+                 flush_s: float | None = FLUSH_S) -> None:
         self.path = Path(path)
         self.loaded = loaded
         self.node = node
@@ -150,6 +167,33 @@ class MissionLog:
         self._writer.add_attachment(now_ns, now_ns, MISSION_ATTACHMENT, "application/yaml",
                                     text.encode())
         self._closed = False
+        self._lock = threading.Lock()  # the writer is used by the caller and the flusher
+        self._dirty = True  # recorded since the last flush
+        self.flush()  # the mission is on disk from the start
+        self._stop = threading.Event()
+        self._flusher: threading.Thread | None = None
+        if flush_s is not None:
+            self._flusher = threading.Thread(target=self._flush_every, args=(flush_s,),
+                                             name=f"log-{node}", daemon=True)
+            self._flusher.start()
+
+    def flush(self) -> None:
+        """Close the chunk in progress and put the file on disk (fsync); a failure is
+        counted in ``failed``, never raised."""
+        with self._lock:
+            if self._closed or not self._dirty:
+                return
+            self._dirty = False
+            try:
+                self._writer.flush()
+            except Exception:  # as an event that cannot be written: counted
+                self.failed += 1
+                return
+        _sync(self._stream)  # (outside the lock: the caller never waits for the disk)
+
+    def _flush_every(self, period: float) -> None:
+        while not self._stop.wait(period):
+            self.flush()
 
     def _channel_id(self, topic: str, properties: dict[str, Any]) -> int:
         found = self._channels.get(topic)
@@ -167,12 +211,14 @@ class MissionLog:
         self._writer.add_message(channel, ns, json.dumps(message).encode(), ns)
 
     def __call__(self, event: Event) -> None:
-        if self._closed:
-            return
-        try:
-            self._record(event)
-        except Exception:  # a log must never stop the bridge; counted instead
-            self.failed += 1
+        with self._lock:
+            if self._closed:
+                return
+            self._dirty = True
+            try:
+                self._record(event)
+            except Exception:  # a log must never stop the bridge; counted instead
+                self.failed += 1
 
     def _record(self, event: Event) -> None:
         kind, info = event.kind, event.to_dict()
@@ -196,13 +242,19 @@ class MissionLog:
 
     def close(self) -> None:
         """Write the summary and close the file (safe to call twice)."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._writer.finish()
-        finally:
-            self._stream.close()
+        self._stop.set()
+        if self._flusher is not None and self._flusher is not threading.current_thread():
+            self._flusher.join()
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._writer.finish()
+                self._stream.flush()
+                _sync(self._stream)
+            finally:
+                self._stream.close()
 
     def __enter__(self) -> MissionLog:
         return self
@@ -215,9 +267,11 @@ class FleetLogs:
     """One :class:`MissionLog` per node in ``folder`` (``<mission>-<node>.mcap``); call it as a
     :class:`~bridge.runtime.fleet.Fleet` ``on_event(node, event)``."""
 
-    def __init__(self, folder: str | Path, loaded: LoadedMission) -> None:
+    def __init__(self, folder: str | Path, loaded: LoadedMission,
+                 flush_s: float | None = FLUSH_S) -> None:
         self.folder = Path(folder)
         self.loaded = loaded
+        self.flush_s = flush_s
         self.logs: dict[str, MissionLog] = {}
 
     def path_of(self, node: str) -> Path:
@@ -226,7 +280,8 @@ class FleetLogs:
     def __call__(self, node: str, event: Event) -> None:
         log = self.logs.get(node)
         if log is None:
-            log = self.logs[node] = MissionLog(self.path_of(node), self.loaded, node)
+            log = self.logs[node] = MissionLog(self.path_of(node), self.loaded, node,
+                                               flush_s=self.flush_s)
         log(event)
 
     def close(self) -> None:
@@ -252,6 +307,13 @@ class MissionLogFile:
     node: str
     loaded: LoadedMission | None
     records: list[LogRecord] = field(default_factory=list)
+    note: str | None = None
+    """Set when the log ends without its footer (cut short) or is damaged: what was read."""
+
+    @property
+    def complete(self) -> bool:
+        """The log was closed properly (nothing is missing from it)."""
+        return self.note is None
 
 
 def _kind(topic: str, node: str) -> str:
@@ -260,33 +322,74 @@ def _kind(topic: str, node: str) -> str:
 
 
 def read_log(path: str | Path) -> MissionLogFile:
-    """Read a mission log; :class:`LogError` with a clear message if it is not one."""
+    """Read a mission log; :class:`LogError` with a clear message if it is not one.
+
+    A log cut short (its node killed: no footer, a last record half written) is read as far
+    as its records are whole; its ``note`` says so.
+    """
     p = Path(path)
     try:
         with p.open("rb") as stream:
-            reader = make_reader(stream)
-            meta = next((m.metadata for m in reader.iter_metadata() if m.name == "zab"), None)
-            if meta is None:
-                raise LogError(f"{p}: an MCAP file, but not a zab mission log (no 'zab' metadata)")
-            node = meta.get("node", "")
-            text = next((a.data for a in reader.iter_attachments()
-                         if a.name == MISSION_ATTACHMENT), None)
-            records = [
-                LogRecord(channel.topic, _kind(channel.topic, node), message.log_time / 1e9,
-                          json.loads(message.data))
-                for _, channel, message in reader.iter_messages(log_time_order=True)
-            ]
+            scan = WholeRecords(stream)
+            meta, text, messages = _contents(scan)
+            cut_short = scan.cut_short
     except FileNotFoundError:
         raise LogError(f"{p}: no such file") from None
-    except (McapError, OSError, ValueError, EOFError) as exc:
-        raise LogError(f"{p}: not a readable MCAP file: {exc}") from None
+    except OSError as exc:
+        raise LogError(f"{p}: cannot read it: {exc}") from None
+    if meta is None:
+        if scan.complete:
+            raise LogError(f"{p}: an MCAP file, but not a zab mission log (no 'zab' metadata)")
+        if scan.size == 0:
+            raise LogError(f"{p}: an empty file (its node stopped before writing anything)")
+        if cut_short:
+            raise LogError(f"{p}: cut short before its 'zab' metadata (its node stopped "
+                           "abruptly?): nothing to read")
+        raise LogError(f"{p}: not a readable MCAP file ({scan.problem})")
+    node = meta.get("node", "")
     loaded = None
     if text is not None:
         try:
             loaded = parse_mission(text.decode(), f"{p}:{MISSION_ATTACHMENT}")
         except (MissionError, UnicodeDecodeError) as exc:
             raise LogError(f"{p}: the attached mission is invalid: {exc}") from None
-    return MissionLogFile(p, node, loaded, records)
+    messages.sort(key=lambda m: m[1])  # (stable: equal times stay in the order written)
+    records = [LogRecord(topic, _kind(topic, node), t, data) for topic, t, data in messages]
+    note = None
+    read = f"{len(records)} record{'' if len(records) == 1 else 's'} read"
+    if cut_short:
+        note = f"{p}: the log ends without its footer (its node was stopped abruptly, or " \
+            f"still runs): {read}"
+    elif not scan.complete:
+        note = f"{p}: the log is damaged at byte {scan.stopped_at} of {scan.size} " \
+            f"({scan.problem}): {read} before it"
+    return MissionLogFile(p, node, loaded, records, note)
+
+
+def _contents(scan: WholeRecords) -> tuple[dict[str, str] | None, bytes | None,
+                                           list[tuple[str, float, Any]]]:
+    """The 'zab' metadata, the attached mission and the messages (topic, time, data) of the
+    whole records of a log."""
+    meta: dict[str, str] | None = None
+    text: bytes | None = None
+    topics: dict[int, str] = {}
+    messages: list[tuple[str, float, Any]] = []
+    for record in scan:
+        if isinstance(record, Message):
+            topic = topics.get(record.channel_id)
+            if topic is not None:
+                try:
+                    data = json.loads(record.data)
+                except ValueError:
+                    continue  # not zab's JSON (a whole record is as written): left out
+                messages.append((topic, record.log_time / 1e9, data))
+        elif isinstance(record, Channel):
+            topics[record.id] = record.topic
+        elif isinstance(record, Metadata) and record.name == "zab" and meta is None:
+            meta = record.metadata
+        elif isinstance(record, Attachment) and record.name == MISSION_ATTACHMENT:
+            text = record.data
+    return meta, text, messages
 
 
 def summarise(log: MissionLogFile) -> dict[str, Any]:
