@@ -20,24 +20,12 @@ from bridge.core.events import FrameReceived, FrameSent
 from bridge.core.loaded import parse_mission
 from bridge.runtime.logbook import LogError, MissionLog, read_log, summarise
 from tests.conftest import REPO
+from tests.runtime.test_logbook import SIM
 from tests.zsim import Inbox, app, mission_file, zab_sim
 
 INDEPENDENT = True  # the kill test runs a `zab sim` of its own
 
-MISSION = """\
-mission: cutlog
-modem: {backend: sim, frame_bytes: 32, options: {preset: evologics-s2c-im}}
-mac: {type: tdma, slot_s: 0.5, guard_s: 0.1, order: [a, b]}
-link: {heartbeat_s: 0.5}
-nodes:
-  a: {address: 1, position: {x: 0, y: 0, depth: 1}}
-  b: {address: 2, position: {x: 100, y: 0, depth: 5}}
-channels:
-  - name: ping
-    from: a
-    to: b
-    elements: [{in: ping, out: "{src}/ping", fields: [{field: n, type: int, min: 0, max: 9}]}]
-"""
+MISSION = SIM.replace("mission: simlog", "mission: cutlog")  # (a log of its own name)
 GROUPS = 6
 
 
