@@ -32,7 +32,6 @@ class WholeRecords:
         self.complete = False
         self.problem: str | None = None
         self.stopped_at = 0
-        self.whole = 0  # records read
 
     @property
     def cut_short(self) -> bool:
@@ -52,7 +51,6 @@ class WholeRecords:
             except Exception as exc:
                 self.problem = f"{type(exc).__name__}: {exc}".rstrip(": ")
                 return
-            self.whole += 1
             if isinstance(record, Footer):
                 self.complete = True
             yield record
