@@ -1,11 +1,12 @@
 """``zab put --mission``: a value checked against the channels that read its key before it
 is sent, so an operator's typo is refused in one line rather than dropped by the bridge.
 
-Two checks, each against every channel element whose input key (at any of its senders) is
-the key: a field name that none of them has (named, with the names they have), and a value
-that none of them can pack (the first one's reason: a DCCL message's missing required field,
-a number where a map is read...). Keys no channel reads, ROS 2 topics (their type is in the
-key: :func:`bridge.cli.poke.payload_for`), key families and pictures are not checked.
+Two checks, against every channel element whose input key (at any of its senders) is the
+key: a field name that none of them reads (:mod:`bridge.wire.unused`, named with the names
+they read there), and a value that none of them can pack (the first one's reason: a DCCL
+message's missing required field, a number where a map is read...). Keys no channel reads,
+ROS 2 topics (their type is in the key: :func:`bridge.cli.poke.payload_for`), key families
+and pictures are not checked.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import Any
 from bridge.core.loaded import LoadedMission
 from bridge.errors import EncodeError
 from bridge.wire.channels import ChannelCodec, ElementCodec
+from bridge.wire.unused import schema_tree, union, unread
 
 __all__ = ["problem_with", "readers"]
 
@@ -32,10 +34,9 @@ def problem_with(loaded: LoadedMission, key: str, value: Any) -> str | None:
     found = readers(loaded, key)
     if not found:
         return None
-    unknown = [unknown_name(value, element.layout.json_schema()) for _, element in found]
-    first = unknown[0]
-    if first is not None and all(unknown):
-        path, names = first
+    tree = union(schema_tree(element.layout.json_schema()) for _, element in found)
+    if (unknown := next(unread(value, tree), None)) is not None:
+        path, names = unknown
         parent, _, name = path.rpartition(".")
         channels = " and ".join(repr(channel.name) for channel, _ in found)
         return f"channel {channels} {'have' if len(found) > 1 else 'has'} no field {name!r}" \
@@ -50,22 +51,3 @@ def problem_with(loaded: LoadedMission, key: str, value: Any) -> str | None:
             continue
         return None
     return reasons[0]
-
-
-def unknown_name(value: Any, schema: dict[str, Any], path: str = "") -> \
-        tuple[str, list[str]] | None:
-    """The first name in ``value`` that its JSON ``schema`` has no property for: its dotted
-    path and the names there are; None if every name is known."""
-    if isinstance(value, dict) and isinstance(properties := schema.get("properties"), dict):
-        for name, item in value.items():
-            where = f"{path}.{name}" if path else str(name)
-            sub = properties.get(name)
-            if sub is None:
-                return where, list(properties)
-            if (found := unknown_name(item, sub, where)) is not None:
-                return found
-    elif isinstance(value, list) and isinstance(items := schema.get("items"), dict):
-        for i, item in enumerate(value):
-            if (found := unknown_name(item, items, f"{path}.{i}" if path else str(i))):
-                return found
-    return None

@@ -17,7 +17,6 @@ import random
 from collections.abc import Callable, Collection, Mapping
 from typing import TYPE_CHECKING, Any
 
-from bridge.codec import Layout
 from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.drops import DropLedger
 from bridge.core.events import FieldsLeftOut, FrameSent, SendFailed, Surfaced
@@ -43,7 +42,7 @@ from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
 from bridge.wire.frame import FrameCodec, WireCodec
 from bridge.wire.payloads import decode_payload, payload_cap
 from bridge.wire.sample_meta import aged_payload, encoding_id, stamped, tombstone
-from bridge.wire.unused import field_tree, left_out, whole_names
+from bridge.wire.unused import left_out, schema_tree, union, whole_names
 
 if TYPE_CHECKING:
     from bridge.core.network import NodeNetwork
@@ -126,9 +125,8 @@ class Outbound:
         self._attached = {key for key, meta in metas if meta and meta.attachment_bytes}
         self._aged = {c.index for c in table.channels if any(e.meta and e.meta.age_step_s
                                                              for e in c.elements)}
-        self._read = {key: field_tree(f.path for _, _, e in found for f in e.layout.fields)
-                      for key, found in self.bindings.items() if self._ros2_inputs[key] is None
-                      and all(isinstance(e.layout, Layout) for _, _, e in found)}
+        self._read = {key: union(schema_tree(e.layout.json_schema()) for _, _, e in found)
+                      for key, found in self.bindings.items() if self._ros2_inputs[key] is None}
         """The fields each input key's channels read (to report those left out)."""
         self._whole = {key: whole_names(tree) for key, tree in self._read.items()}
         """Per key of :attr:`_read`, the names read whole: a sample of only these (the usual

@@ -1,36 +1,41 @@
 """Fields of a payload that no channel carries (pure): reported, so an application learns that
 part of what it publishes does not cross the water.
 
-A channel's layouts name the fields they read by dotted paths (``pos.x``); whatever else a map
-payload holds is left out. :func:`field_tree` gathers the paths of every layout reading a key
-once; :func:`left_out` walks a payload against it.
+A channel's layout says what it reads by its JSON Schema (zab's own layouts and DCCL's alike):
+:func:`schema_tree` turns one into a tree of the names read, :func:`union` joins the trees of
+every layout reading a key, and :func:`left_out` walks a payload against it. ``zab put
+--mission`` asks the same walk (:func:`unread`) for the names there are where one is unknown.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 Tree = dict[str, Any] | bool
-"""The fields read: a name → subtree map, or True where the whole value is read."""
+"""The fields read: a name → subtree map, or True where the whole value is read. A list's
+items are read by its tree (their indices are not named)."""
 
 
-def field_tree(paths: Iterable[str]) -> Tree:
-    """The tree of the dotted ``paths`` (an empty path reads the whole payload)."""
-    tree: dict[str, Any] = {}
-    for path in paths:
-        if not path:
+def schema_tree(schema: dict[str, Any]) -> Tree:
+    """The names a layout's JSON ``schema`` reads: an object's properties, an array's items'."""
+    if isinstance(properties := schema.get("properties"), dict):
+        return {name: schema_tree(sub) for name, sub in properties.items()}
+    if isinstance(items := schema.get("items"), dict):
+        return schema_tree(items)
+    return True
+
+
+def union(trees: Iterable[Tree]) -> Tree:
+    """What any of ``trees`` reads."""
+    joined: dict[str, Any] = {}
+    for tree in trees:
+        if tree is True:
             return True
-        node: dict[str, Any] = tree
-        *parents, leaf = path.split(".")
-        for part in parents:
-            child = node.get(part)
-            if child is True:
-                break
-            node = node.setdefault(part, {})
-        else:
-            node[leaf] = True
-    return tree
+        assert isinstance(tree, dict)
+        for name, sub in tree.items():
+            joined[name] = union((joined[name], sub)) if name in joined else sub
+    return joined
 
 
 def whole_names(tree: Tree) -> frozenset[str]:
@@ -41,15 +46,22 @@ def whole_names(tree: Tree) -> frozenset[str]:
     return frozenset(name for name, sub in tree.items() if sub is True)
 
 
-def left_out(value: Any, tree: Tree, prefix: str = "") -> list[str]:
-    """The dotted paths of ``value`` that ``tree`` does not read (a non-map value: none)."""
-    if tree is True or not isinstance(value, dict) or not isinstance(tree, dict):
-        return []
-    out: list[str] = []
-    for name, item in value.items():
-        sub = tree.get(name) if isinstance(name, str) else None
-        if sub is None:
-            out.append(f"{prefix}{name}")
-        elif sub is not True:
-            out += left_out(item, sub, f"{prefix}{name}.")
-    return out
+def unread(value: Any, tree: Tree, prefix: str = "") -> Iterator[tuple[str, dict[str, Any]]]:
+    """Each dotted path of ``value`` that ``tree`` does not read, with the names read there."""
+    if tree is True or not isinstance(tree, dict):
+        return
+    if isinstance(value, list):
+        for i, item in enumerate(value):
+            yield from unread(item, tree, f"{prefix}{i}.")
+    elif isinstance(value, dict):
+        for name, item in value.items():
+            sub = tree.get(name) if isinstance(name, str) else None
+            if sub is None:
+                yield f"{prefix}{name}", tree
+            elif sub is not True:
+                yield from unread(item, sub, f"{prefix}{name}.")
+
+
+def left_out(value: Any, tree: Tree) -> list[str]:
+    """The dotted paths of ``value`` that ``tree`` does not read (a scalar value: none)."""
+    return [path for path, _ in unread(value, tree)]

@@ -170,3 +170,13 @@ def test_an_idle_goby_node_sends_nothing_and_data_still_crosses(
     got = fleet.published("topside", "auv1/nav_status")
     assert got and got[0][1].value["mode"] == "survey"
     assert not [r for r in caplog.records if r.levelname == "WARNING"]
+
+
+def test_fields_a_dccl_message_does_not_have_are_counted_as_left_out() -> None:
+    """Fields no channel reads were counted for zab's own layouts only: a DCCL channel's
+    extra fields vanished at the water unsaid."""
+    fleet = FastFleet(load_mission(EXAMPLE), seed=2)
+    fleet.put("auv1", "nav_status", {**NAV, "heading_deg": 90.0}, at=1.0)
+    fleet.put("auv1", "nav_status", NAV, at=2.0)
+    fleet.run_until(3.0)
+    assert fleet.cores["auv1"].stats.fields_left_out == {"nav_status": 1}
