@@ -26,6 +26,7 @@ from bridge.core.mac.base import FREE_HEARTBEAT_S
 from bridge.core.outputs import Outbox
 from bridge.mission.model import Mission
 from bridge.mission.network import Network
+from bridge.wire.goby import frame_codec_class
 
 DEGRADED_PERIODS = 3
 DOWN_PERIODS = 8
@@ -41,7 +42,7 @@ def heartbeat_s(mission: Mission) -> float | None:
     """How often a node sends at least a frame: the mission's ``link.heartbeat_s``, or its
     default from the MAC (None: the MAC makes every node send anyway, or the wire format has
     no empty frame: a Goby node with nothing to send sends nothing)."""
-    if mission.wire.format == "goby":
+    if not frame_codec_class(mission.wire.format).empty_frames:
         return None
     if mission.link.heartbeat_s is not None:
         return mission.link.heartbeat_s

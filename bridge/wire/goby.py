@@ -210,8 +210,11 @@ class GobyFrameCodec(FrameCodec):
         return DecodedFrame((), entries)
 
 
+def frame_codec_class(wire_format: str) -> type[FrameCodec]:
+    """The frame codec of a mission's ``wire.format``."""
+    return GobyFrameCodec if wire_format == "goby" else FrameCodec
+
+
 def frame_codec_for(table: ChannelTable, auth: Any = None) -> FrameCodec:
     """The frame codec of the mission's wire format."""
-    if getattr(table, "wire_format", "zab") == "goby":
-        return GobyFrameCodec(table, auth)
-    return FrameCodec(table, auth)
+    return frame_codec_class(getattr(table, "wire_format", "zab"))(table, auth)
