@@ -50,7 +50,9 @@ app = typer.Typer(
     rich_markup_mode="markdown",  # a docstring's paragraph reads as one paragraph
 )
 console = Console(width=None if sys.stdout.isatty() else 120)
-err = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
+# An error is one line a script or an editor can read (path:line:col: message): the terminal
+# wraps it, rich does not cut it.
+err = Console(stderr=True, width=None if sys.stderr.isatty() else 120, soft_wrap=True)
 
 MissionArg = Annotated[Path, typer.Argument(help="Mission file (YAML).", show_default=False)]
 VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="Log debug messages too.")]
@@ -92,10 +94,10 @@ def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
     try:
         return asyncio.run(main)
     except (MissionError, SessionError, StateError, WaterError) as exc:
-        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
+        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
         raise typer.Exit(2) from None
     except NodeFailure as exc:
-        err.print(f"[bold red]stopped:[/] {exc}", highlight=False, soft_wrap=True)
+        err.print(f"[bold red]stopped:[/] {exc}", highlight=False)
         raise typer.Exit(1) from None
 
 
@@ -238,7 +240,7 @@ def check(
     for error in report.errors:
         console.print(f"[red]error:[/] {error}", highlight=False)
     if problem:
-        err.print(f"[bold red]error:[/] {problem}", highlight=False, soft_wrap=True)
+        err.print(f"[bold red]error:[/] {problem}", highlight=False)
     raise typer.Exit(code)
 
 
@@ -343,8 +345,7 @@ def run(
         raise typer.Exit(2)
     key = frame_key(loaded.mission)
     if key.problem:
-        err.print(f"[bold red]cannot start:[/] {node}: {key.problem}", highlight=False,
-                  soft_wrap=True)
+        err.print(f"[bold red]cannot start:[/] {node}: {key.problem}", highlight=False)
         raise typer.Exit(2)
     _logging(verbose)
     try:
@@ -408,7 +409,7 @@ def water(
         raise typer.Exit(2)
     shared = _shared_water(links)
     if shared is not None:
-        err.print(f"[bold red]cannot start:[/] {shared}", highlight=False, soft_wrap=True)
+        err.print(f"[bold red]cannot start:[/] {shared}", highlight=False)
         raise typer.Exit(2)
 
     async def main() -> None:
@@ -856,7 +857,7 @@ def _read_log(path: Path) -> Any:
         err.print(f"[red]{exc}[/]", highlight=False)
         raise typer.Exit(2) from None
     if log.note is not None:
-        err.print(f"[yellow]{log.note}[/]", highlight=False, soft_wrap=True)
+        err.print(f"[yellow]{log.note}[/]", highlight=False)
     return log
 
 
@@ -919,7 +920,7 @@ def log_replay(
         session = open_session(ZenohSettings(listen=listen or [], connect=connect or []),
                                "replay")
     except SessionError as exc:
-        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False, soft_wrap=True)
+        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
         raise typer.Exit(2) from None
     mission = data.loaded.mission.mission if data.loaded is not None else "?"
     origin = origin_tag(mission, f"{data.node}-replay")  # never re-bridged by a live node
