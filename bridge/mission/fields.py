@@ -7,13 +7,14 @@ missing combinations at the end. ``type`` is inferred when absent: ``values`` ->
 
 from __future__ import annotations
 
-import math
 import re
 from decimal import Decimal
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import ConfigDict, Field, ValidationInfo, field_validator, model_validator
 from pydantic_core import PydanticCustomError
+
+from bridge.mission.base import MissionModel
 
 __all__ = ["MAX_BITS", "MAX_BYTES", "MAX_COUNT", "FieldSpec", "FieldType", "OutOfRange"]
 
@@ -69,7 +70,7 @@ def resolution_levels(lo: float, hi: float, resolution: float) -> int:
     return round((hi - lo) / resolution) + 1
 
 
-class FieldSpec(BaseModel):
+class FieldSpec(MissionModel):
     """One field: a dotted ``field`` path into the payload and how to encode the value there."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -157,13 +158,6 @@ class FieldSpec(BaseModel):
         kind = info.data.get("type")
         if kind is not None and name not in _KEYS_OF[kind]:
             raise _err(f"`{name}` is not used with type {kind}")
-        return v
-
-    @field_validator("min", "max", "resolution")
-    @classmethod
-    def _check_finite(cls, v: float | None, info: ValidationInfo) -> float | None:
-        if v is not None and not math.isfinite(v):
-            raise _err(f"`{info.field_name}` must be a finite number")
         return v
 
     @field_validator("max")

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
+from bridge.mission.base import MissionModel
 from bridge.mission.keyexpr import AnyTemplateKey
 
 __all__ = ["ImageChannel", "Ros2Pictures"]
@@ -20,7 +21,7 @@ __all__ = ["ImageChannel", "Ros2Pictures"]
 Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
 
 
-class Ros2Pictures(BaseModel):
+class Ros2Pictures(MissionModel):
     """An image channel's ROS 2 sides over rmw_zenoh's keys: a camera topic read instead of
     ``in``, pictures published on a topic beside ``out``, or both."""
 
@@ -48,7 +49,7 @@ class Ros2Pictures(BaseModel):
         return v
 
 
-class ImageChannel(BaseModel):
+class ImageChannel(MissionModel):
     """A camera across the water: progressive pictures from ``from`` to ``to``."""
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)

@@ -104,6 +104,9 @@ def _describe(error: Mapping[str, Any]) -> str:
         return "unknown key (check its spelling and indentation)"
     if error["type"] == "missing":
         return "required key missing"
+    if error["type"] == "finite_number":
+        return (f"must be a finite number, not {error['input']!r} (.inf and .nan mean no "
+                "number here: write the number meant)")
     if (error["type"] not in ("value_error", "assertion_error") and "input" in error
             and not (error["type"] == "zab_field" and error.get("ctx"))  # values in message
             and "(got " not in message):

@@ -14,7 +14,6 @@ from typing import Annotated, Any, Literal
 
 from pydantic import (
     AwareDatetime,
-    BaseModel,
     ConfigDict,
     Discriminator,
     Field,
@@ -28,6 +27,7 @@ from pydantic import (
     model_validator,
 )
 
+from bridge.mission.base import MissionModel
 from bridge.mission.fields import FieldSpec
 from bridge.mission.images import ImageChannel
 from bridge.mission.keyexpr import AnyTemplateKey, FixedKey, NodeTemplateKey, PeerTemplateKey
@@ -59,13 +59,13 @@ NodePattern = Annotated[
 ]
 
 
-class Strict(BaseModel):
-    """Base of every mission model: unknown keys are errors."""
+class Strict(MissionModel):
+    """Base of every mission model: unknown keys are errors (and numbers finite)."""
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
 
-class ZenohSettings(BaseModel):
+class ZenohSettings(MissionModel):
     """How a node opens its Zenoh session. Extra keys are Zenoh config paths, passed through."""
 
     model_config = ConfigDict(extra="allow")

@@ -5,7 +5,9 @@ from __future__ import annotations
 import re
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import ConfigDict, Field, field_validator
+
+from bridge.mission.base import MissionModel
 
 _TYPE = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)/(msg)/([A-Z][A-Za-z0-9]*)$")
 _TOKEN = re.compile(r"^[A-Za-z_{][A-Za-z0-9_{}]*$")  # one topic name token (templates allowed)
@@ -36,7 +38,7 @@ def dds_type_name(msgtype: str) -> str:
     return f"{package}::{kind}::dds_::{name}_"
 
 
-class Ros2Qos(BaseModel):
+class Ros2Qos(MissionModel):
     """The QoS the bridge announces for its ROS 2 publishers (rmw_zenoh defaults)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -46,7 +48,7 @@ class Ros2Qos(BaseModel):
     depth: int = Field(42, ge=1, le=10_000, description="KEEP_LAST depth (42: rmw_zenoh's).")
 
 
-class Ros2Topic(BaseModel):
+class Ros2Topic(MissionModel):
     """A ROS 2 topic carried by an element over rmw_zenoh's keys, instead of ``in``/``out``."""
 
     model_config = ConfigDict(extra="forbid")

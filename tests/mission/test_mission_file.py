@@ -116,3 +116,29 @@ def test_frame_too_small_for_the_overhead_counts_the_auth_tag() -> None:
         "  a: {address: 1,", "  a: {address: 1, modem: {frame_bytes: 14},")
     message = error_of(text)  # 2 B check + 4 B counter + 8 B tag = 14 B
     assert "nodes.a.modem.frame_bytes" in message and "14-byte frame overhead" in message
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "line", "path"),
+    [
+        ("    interval_s: 5", "    interval_s: .inf", 10, "channels[0].interval_s"),
+        ("slot_s: 2.0", "slot_s: .inf", 5, "mac.slot_s"),
+        ("guard_s: 0.1", "guard_s: .nan", 5, "mac.guard_s"),
+        ("  b: {address: 2}", "  b: {address: 2, position: {x: .nan}}", 4,
+         "nodes.b.position.x"),
+        ("min: 0, max: 10", "min: -.inf, max: 10", 15,
+         "channels[0].elements[0].fields[0].min"),
+        ("min: 0, max: 10", "min: 0, max: .nan", 15, "channels[0].elements[0].fields[0].max"),
+        ("    interval_s: 5", "    interval_s: 5\n    age: {step_s: 1, max_s: .inf}", 11,
+         "channels[0].age.max_s"),
+    ],
+)
+def test_inf_and_nan_are_refused_wherever_a_number_is(old: str, new: str, line: int,
+                                                        path: str) -> None:
+    """`.inf`/`.nan` (YAML) are no time, bound or position: every mission model refuses them,
+    at the key that has one (an infinite interval_s or age.max_s passed before)."""
+    assert old in GOOD
+    message = error_of(GOOD.replace(old, new))
+    assert f"m.yaml:{line}:" in message
+    assert f"{path}: must be a finite number" in message
+    assert "write the number meant" in message
