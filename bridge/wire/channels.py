@@ -67,6 +67,9 @@ class PatternError(ValueError):
 def match_nodes(pattern: str | Sequence[str], nodes: Sequence[str]) -> tuple[str, ...]:
     """Nodes named by ``pattern``: an exact name, a list of them, or a regex (full match)."""
     items = [pattern] if isinstance(pattern, str) else list(pattern)
+    if not items:
+        raise PatternError(f"an empty list names no node: give at least one node name "
+                           f"(nodes: {', '.join(nodes)})")
     found: list[str] = []
     for item in items:
         if item in nodes:

@@ -142,3 +142,16 @@ def test_inf_and_nan_are_refused_wherever_a_number_is(old: str, new: str, line: 
     assert f"m.yaml:{line}:" in message
     assert f"{path}: must be a finite number" in message
     assert "write the number meant" in message
+
+
+@pytest.mark.parametrize(("old", "new", "line", "path"), [
+    ("    from: a", "    from: []", 8, "channels[0].from"),
+    ("    to: b", "    to: []", 9, "channels[0].to"),
+])
+def test_an_empty_node_list_is_told_where_it_is(old: str, new: str, line: int,
+                                                 path: str) -> None:
+    """`from: []` was reported at channels[0].to ("must reach a node other than its
+    sender"): the empty list is the mistake, and it is said there."""
+    message = error_of(GOOD.replace(old, new))
+    assert f"m.yaml:{line}:5: {path}: an empty list names no node" in message
+    assert "give at least one node name" in message
