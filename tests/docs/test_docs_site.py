@@ -96,3 +96,15 @@ def test_each_readme_uv_run_has_what_it_runs_in_a_fresh_clone() -> None:
             continue  # the project's own script; the venv's Python
         present = default.union(*(names(groups[g]) for g in re.findall(r"--group (\S+)", extra)))
         assert tool in present, f"`uv run {tool}` needs a group that brings it: {extra!r}"
+
+
+def test_status_table_tells_what_peers_carry() -> None:
+    """Every bridge puts `peers/<peer>` ({last_heard, meta}) on hearing a peer, and the table
+    of keys one can subscribe to in docs/developers.md left it out."""
+    code = (REPO / "bridge/core/inbound.py").read_text()
+    published = re.search(r'status\(f"peers/\{src\}", \{"last_heard": now, "meta": ', code)
+    assert published, "inbound.py no longer puts peers/<peer> as documented: update both"
+    rows = [line for line in (REPO / "docs/developers.md").read_text().splitlines()
+            if line.startswith("| `@zab/<mission>/<node>/peers/<peer>`")]
+    assert len(rows) == 1
+    assert "`{last_heard, meta}`" in rows[0] and "once a second" in rows[0]
