@@ -383,6 +383,16 @@ class Age(Strict):
     max_s: float = Field(gt=0, description="Longest age told; an older value says at least "
                          "this old.")
 
+    @field_validator("max_s")
+    @classmethod
+    def _a_step_at_least(cls, value: float, info: ValidationInfo) -> float:
+        step = info.data.get("step_s")
+        if step is not None and value < step:
+            raise ValueError(f"max_s {value:g} is shorter than one step ({step:g} s): every age "
+                             "would say only 'fresh' or 'at least max_s'; give max_s the "
+                             "longest age to tell (at least step_s), or a finer step_s")
+        return value
+
 
 class NodeKeys(Strict):
     """A key family with one member per node: ``{key}`` takes each matching node's name."""
@@ -468,6 +478,17 @@ class Channel(Strict):
                                   "attachment, up to this many bytes (a length and the bytes, "
                                   "per element); 0: not carried.")
     elements: list[Element] = Field(min_length=1)
+
+    @field_validator("queue", "overflow")
+    @classmethod
+    def _reliable_queue(cls, value: Any, info: ValidationInfo) -> Any:
+        """``queue`` and ``overflow`` bound a reliable channel's values waiting for their
+        acknowledgement; any other channel holds only its latest value."""
+        if not info.data.get("reliable", True):  # (reliable itself failed: said there)
+            raise ValueError(f"{info.field_name} is a reliable channel's setting: this channel "
+                             "is not reliable and sends only its latest value, so nothing "
+                             f"queues; give reliable: true, or remove {info.field_name}")
+        return value
 
     @model_validator(mode="after")
     def _zenoh_fidelity(self) -> Channel:

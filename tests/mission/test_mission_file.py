@@ -155,3 +155,27 @@ def test_an_empty_node_list_is_told_where_it_is(old: str, new: str, line: int,
     message = error_of(GOOD.replace(old, new))
     assert f"m.yaml:{line}:5: {path}: an empty list names no node" in message
     assert "give at least one node name" in message
+
+
+@pytest.mark.parametrize(("old", "new", "line", "path", "words"), [
+    ("    interval_s: 5", "    interval_s: 5\n    queue: 100", 11, "channels[0].queue",
+     "queue is a reliable channel's setting"),
+    ("    interval_s: 5", "    interval_s: 5\n    overflow: drop_oldest", 11,
+     "channels[0].overflow", "give reliable: true, or remove overflow"),
+    ("    interval_s: 5", "    interval_s: 5\n    age: {step_s: 2, max_s: 1}", 11,
+     "channels[0].age.max_s", "max_s 1 is shorter than one step (2 s)"),
+])
+def test_settings_that_would_do_nothing_are_refused(old: str, new: str, line: int, path: str,
+                                                    words: str) -> None:
+    """A queue on a channel that is not reliable (it holds only its latest value), and an
+    age that cannot count one step, were accepted without a word."""
+    message = error_of(GOOD.replace(old, new))
+    assert f"m.yaml:{line}:" in message and f"{path}: " in message and words in message
+
+
+def test_queue_settings_of_a_reliable_channel_load() -> None:
+    text = GOOD.replace("    interval_s: 5",
+                        "    interval_s: 5\n    reliable: true\n    queue: 100\n"
+                        "    overflow: drop_oldest")
+    channel = parse_mission(text, "m.yaml").mission.channels[0]
+    assert (channel.queue, channel.overflow) == (100, "drop_oldest")
