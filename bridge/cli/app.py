@@ -130,7 +130,9 @@ def check(
     Exit 1 if something can never be sent (an entry too large for a frame even in
     fragments, a frame larger than the modem sends; a value larger than a frame travels in
     fragments and is only a warning), 2 if the file is invalid (with --json: a JSON object
-    with the errors on stdout) or a frame key here disagrees with its wire.auth (a key too
+    with the errors on stdout), a node has something to send but never a turn under the MAC
+    (a sender, or a reliable channel's receiver that must acknowledge: --json lists them
+    under "silent") or a frame key here disagrees with its wire.auth (a key too
     short, or a key present and wire.auth not said). No key at all is fine: checking a file
     is not running a vehicle, and it says that `zab run` will need one.
     """
@@ -146,7 +148,7 @@ def check(
     key = frame_key(loaded.mission, look=not no_key)
     note = _run_needs_key(loaded) if key.throwaway else None
     problem = None if note else key.problem  # no key here at all: zab run's concern
-    code = 2 if problem else 0 if report.ok else 1
+    code = 2 if problem or report.invalid else 0 if report.ok else 1
     if as_json:
         errors = [*report.errors, *([problem] if problem else [])]
         print(json.dumps({**report.data, "errors": errors, "ok": code == 0,

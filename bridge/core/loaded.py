@@ -9,12 +9,19 @@ channel table's (:class:`~bridge.wire.channels.ChannelTable`) and the frame's ov
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
 from bridge.core.mac import mac_for
-from bridge.mission.loader import Loc, cross_problems, located, read_mission, read_mission_file
+from bridge.mission.loader import (
+    Loc,
+    Marks,
+    cross_problems,
+    located,
+    read_mission,
+    read_mission_file,
+)
 from bridge.mission.model import Mission
 from bridge.mission.network import Network, modem_problems, network_problems
 from bridge.wire.channels import ChannelTable, ChannelTableError
@@ -30,6 +37,9 @@ class LoadedMission:
     path: Path
     mission: Mission
     table: ChannelTable
+    marks: Marks = field(default_factory=dict, compare=False, repr=False)
+    """Where each value of the file is written (line, column), to locate what is found later
+    (``zab check``'s)."""
 
     @cached_property
     def network(self) -> Network:
@@ -54,7 +64,7 @@ def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
             problems.extend(_frame_problems(mission, table))
     if problems:
         raise located(str(path), marks, problems)
-    return LoadedMission(Path(path), mission, table)
+    return LoadedMission(Path(path), mission, table, marks)
 
 
 def load_mission(path: str | Path) -> LoadedMission:

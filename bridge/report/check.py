@@ -16,6 +16,7 @@ from bridge.core.transfer import transfer_ttl_s
 from bridge.dccl.numeric import RULES
 from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
+from bridge.mission.loader import Problem, located
 from bridge.mission.model import Mission
 from bridge.modems.registry import load_backend
 from bridge.modems.setup import modem_options
@@ -37,10 +38,13 @@ class CheckReport:
     data: dict[str, Any]
     warnings: list[str] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
+    invalid: list[Problem] = field(default_factory=list)
+    """Mistakes of the mission file found here (a node that sends but never gets a turn):
+    ``zab check`` exits 2 for them, as for any invalid file."""
 
     @property
     def ok(self) -> bool:
-        return not self.errors
+        return not self.errors and not self.invalid
 
 
 def stream_limits(channel: ChannelCodec, mission: Mission) -> dict[str, Any]:
@@ -138,7 +142,14 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
     if table.net is not None:
         extra["network"], warnings = network_section(loaded, codec, by_link)
         report.warnings.extend(warnings)
+    silent = _silent(loaded)
+    report.invalid = located(str(loaded.path), loaded.marks,
+                             [(s.pop("loc"), s["message"]) for s in silent]).problems
+    for entry, problem in zip(silent, report.invalid, strict=False):
+        entry.update(path=problem.path, line=problem.line, column=problem.column)
+    report.errors += [str(p) for p in report.invalid]
     report.data = {
+        "silent": silent,
         "streams": [stream_limits(c, mission) for c in table.streams],
         "mission": mission.mission,
         "frame_bytes": mission.modem.frame_bytes,
@@ -357,3 +368,44 @@ def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 4)
 
 
+
+
+def _silent(loaded: LoadedMission) -> list[dict[str, Any]]:
+    """Nodes that would have to send but never get a turn under the mission's MAC (on no link
+    of theirs): a sender of a channel, or a receiver of a reliable one (it acknowledges).
+    Each with ``loc`` (the caller locates it, then takes it out) and ``message``."""
+    mission, network = loaded.mission, loaded.network
+    missing: dict[str, str] = {}
+    for name in mission.nodes:
+        reasons = [mac_for(link.view).turn_missing(name) for link in network.links_of(name)]
+        if reasons and all(reasons):
+            where = [f"on link {link.name}: " if network.several else ""
+                     for link in network.links_of(name)]
+            missing[name] = "; ".join(w + str(r) for w, r in zip(where, reasons, strict=True))
+    if not missing:
+        return []
+    places = {c.name: ("channels", i) for i, c in enumerate(mission.channels)}
+    places.update({c.name: ("images", i) for i, c in enumerate(mission.images)})
+    found = []
+    for c in loaded.table.channels:
+        if (c.image is not None and c.image.control) or c.name not in places:
+            continue  # an image's control: its receivers steer it where they can
+        for node in c.senders:
+            if node in missing and c.destinations(node):
+                found.append({
+                    "node": node, "channel": c.name, "as": "sender", "why": missing[node],
+                    "loc": (*places[c.name], "from"),
+                    "message": f"node {node} sends channel {c.name!r} but never gets a turn to "
+                    f"send under the mission's MAC, so its values would never leave: "
+                    f"{missing[node]} (or take {node} out of this channel's from)"})
+        if not c.reliable:
+            continue
+        for node in dict.fromkeys(r for s in c.senders for r in c.destinations(s)):
+            if node in missing:
+                found.append({
+                    "node": node, "channel": c.name, "as": "receiver", "why": missing[node],
+                    "loc": (*places[c.name], "to"),
+                    "message": f"node {node} receives reliable channel {c.name!r} but never "
+                    f"gets a turn to send, so it can never acknowledge and every value would "
+                    f"be reported failed: {missing[node]} (or make the channel not reliable)"})
+    return found

@@ -115,6 +115,11 @@ class Mac(ABC):
         """Cross-references and missing times, as ``(location, message)``."""
         return ()
 
+    def turn_missing(self, node: str) -> str | None:
+        """Why ``node`` never gets a turn to send under this MAC and what gives it one (said
+        to the user), or None when it does get turns (every node does, by default)."""
+        return None
+
     @abstractmethod
     def report(self, node: str, airtime_s: float | None, data_per_s: float) -> MacReport:
         """``node``'s worst-case interval and airtime share: ``airtime_s`` is its largest

@@ -171,6 +171,14 @@ class Polled(Mac):
                 and polled_ipg_s(self.mission, mac) is None:
             yield (("mac", "ipg_s"), "required: a node's modem has no preset to compute it from")
 
+    def turn_missing(self, node: str) -> str | None:
+        mac = self.model
+        if node == mac.master or node in polled_slaves(self.mission, mac):
+            return None
+        where = "mac.weights" if mac.weights is not None else "mac.order"
+        return (f"the master {mac.master} never polls it (a slave sends only when polled); "
+                f"add {node} to {where}")
+
     def report(self, node: str, airtime_s: float | None, data_per_s: float) -> MacReport:
         ipg = polled_ipg_s(self.mission, self.model)
         if ipg is None:

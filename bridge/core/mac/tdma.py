@@ -91,6 +91,11 @@ class Tdma(Mac):
         return [(("mac", "order", i), f"unknown node {owner!r}")
                 for i, owner in enumerate(self.model.order) if owner not in self.mission.nodes]
 
+    def turn_missing(self, node: str) -> str | None:
+        if node in self.model.order:
+            return None
+        return f"it owns no TDMA slot (mac.order); add {node} to mac.order"
+
     def report(self, node: str, airtime_s: float | None, data_per_s: float) -> MacReport:
         tdma = TdmaSchedule(self.model, node)
         gap = tdma.worst_gap_s()
