@@ -358,6 +358,11 @@ def run(
     except StateError as exc:
         err.print(f"[red]{exc}[/]")
         raise typer.Exit(2) from None
+    try:  # one bridge of the node at a time on this state (held until the process ends)
+        state.hold()
+    except StateError as exc:
+        err.print(f"[bold red]cannot start:[/] {node}: {exc}", highlight=False)
+        raise typer.Exit(2) from None
 
     async def main() -> None:
         stop = asyncio.Event()
@@ -380,6 +385,7 @@ def run(
             await bridge.run(stop)
         finally:
             announced.cancel()
+            state.release()
             if recorder is not None:
                 recorder.close()
                 logging.getLogger("zab").info("%s: mission log %s", node, recorder.path)
