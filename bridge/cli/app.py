@@ -750,7 +750,7 @@ def listen(
                    duration=duration, ready=ready, steps=steps)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
-        raise typer.Exit(1) from None
+        raise typer.Exit(exc.code) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
 
@@ -786,7 +786,7 @@ def put(
         payload, encoding = run_put(endpoint, key, value, ref, loaded)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
-        raise typer.Exit(1 if str(exc).startswith("cannot connect") else 2) from None
+        raise typer.Exit(exc.code) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
     kind = "msgpack" if encoding else "CDR"

@@ -129,6 +129,11 @@ def test_session_problem_keeps_other_zenoh_errors_readable() -> None:
         "(os error 99)")
     assert session_problem("something new at /src/a.rs:1.", ZenohSettings()) == (
         "cannot open the Zenoh session: something new")
+    json5 = ('Json5Err(Message { msg: "Endpoints must be of the form <protocol>/<address>'
+             '[?<metadata>]: notanendpoint", location: Some(Location { line: 1, column: 2 }) })')
+    assert session_problem(json5, ZenohSettings()) == (
+        "invalid endpoint 'notanendpoint': expected a Zenoh endpoint <protocol>/<host>:<port>, "
+        "such as tcp/127.0.0.1:7447")
 
 
 def test_zab_sim_with_a_taken_port_stops_every_node_and_says_it_once(
