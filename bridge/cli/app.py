@@ -385,12 +385,14 @@ def run(
             await bridge.run(stop)
         finally:
             announced.cancel()
-            state.release()
             if recorder is not None:
                 recorder.close()
                 logging.getLogger("zab").info("%s: mission log %s", node, recorder.path)
 
-    _run_or_exit(main())
+    try:
+        _run_or_exit(main())
+    finally:
+        state.release()  # (however the bridge ended)
 
 
 @app.command()
