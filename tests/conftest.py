@@ -153,6 +153,15 @@ def _no_frame_key_from_outside(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("ZAB_KEY", raising=False)
 
 
+@pytest.fixture(autouse=True)
+def _state_directory_of_its_own(monkeypatch: pytest.MonkeyPatch,
+                                tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Each test's ``zab run`` (without --state-dir) saves in a $STATE_DIRECTORY of the
+    test's own, never in ~/.local/state/zab: tests running at once with one mission and node
+    would share a state file, and the second bridge of a node refuses to start (its lock)."""
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path_factory.mktemp("state")))
+
+
 @pytest.fixture
 def mission_key(monkeypatch: pytest.MonkeyPatch) -> str:
     """A frame key in $ZAB_KEY for this test, as an operator sets it (zab check, run, doctor)."""

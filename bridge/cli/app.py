@@ -360,6 +360,11 @@ def run(
     except StateError as exc:
         err.print(f"[red]{exc}[/]")
         raise typer.Exit(2) from None
+    try:  # one bridge of the node at a time on this state (held until the process ends)
+        state.hold()
+    except StateError as exc:
+        err.print(f"[bold red]cannot start:[/] {node}: {exc}", highlight=False)
+        raise typer.Exit(2) from None
 
     async def main() -> None:
         stop = asyncio.Event()
@@ -386,7 +391,10 @@ def run(
                 recorder.close()
                 logging.getLogger("zab").info("%s: mission log %s", node, recorder.path)
 
-    _run_or_exit(main())
+    try:
+        _run_or_exit(main())
+    finally:
+        state.release()  # (however the bridge ended)
 
 
 @app.command()
@@ -746,7 +754,7 @@ def listen(
                    duration=duration, ready=ready, steps=steps)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
-        raise typer.Exit(1) from None
+        raise typer.Exit(exc.code) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
 
@@ -782,7 +790,7 @@ def put(
         payload, encoding = run_put(endpoint, key, value, ref, loaded)
     except PokeError as exc:
         err.print(f"[red]{exc}[/]", highlight=False)
-        raise typer.Exit(1 if str(exc).startswith("cannot connect") else 2) from None
+        raise typer.Exit(exc.code) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
     kind = "msgpack" if encoding else "CDR"

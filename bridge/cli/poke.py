@@ -9,9 +9,11 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from itertools import pairwise
 from typing import TYPE_CHECKING, Any
 
 import msgpack
@@ -31,20 +33,120 @@ RING = 4096  # values held for the listen loop; past that the oldest are dropped
 
 
 class PokeError(Exception):
-    """An endpoint, key or value that cannot be used; the message is ready to show."""
+    """An endpoint, key or value that cannot be used; the message is ready to show.
+    ``code``: the command's exit status (2: a bad argument; 1: nothing answers there)."""
+
+    def __init__(self, message: str, code: int = 2) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+ENDPOINT_EXAMPLE = "tcp/127.0.0.1:7447"
+HOST_PORT = ("tcp", "udp", "tls", "quic", "ws")
+"""Zenoh's protocols whose address is ``<host>:<port>``."""
+OTHER_PROTOCOLS = ("unixsock-stream", "unixpipe", "serial", "vsock")
+"""Zenoh's protocols whose address is something else (a path, a device): left to Zenoh."""
+
+
+def endpoint_problem(endpoint: str) -> str | None:
+    """What is wrong with a Zenoh ``endpoint`` (``<protocol>/<host>:<port>``), in one line
+    naming it and the form expected; None if nothing is."""
+    protocol, slash, address = endpoint.partition("/")
+    address = address.split("?", 1)[0].split("#", 1)[0]  # (metadata, configuration)
+    why = None
+    if not slash or not protocol or not address:
+        why = "not <protocol>/<address>"
+    elif protocol in OTHER_PROTOCOLS:
+        return None
+    elif protocol not in HOST_PORT:
+        why = f"unknown protocol '{protocol}' (Zenoh's are {', '.join(HOST_PORT)}, " \
+            f"{', '.join(OTHER_PROTOCOLS)})"
+    else:
+        if address.startswith("["):  # an IPv6 address: [::1]:7447
+            inside, _, rest = address.partition("]")
+            host, colon, port = inside + "]", rest.startswith(":"), rest[1:]
+        else:
+            host, separator, port = address.rpartition(":")
+            colon = bool(separator)
+        if not colon:
+            why = f"no port after the host '{address}' (<host>:<port>)"
+        elif host in ("", "[]"):
+            why = "no host before the port (<host>:<port>)"
+        elif not port.isdigit() or not 0 < int(port) < 65536:
+            why = f"'{port}' is not a port (1 to 65535)"
+    if why is None:
+        return None
+    return f"invalid endpoint '{endpoint}': {why}; expected a Zenoh endpoint such as " \
+        f"{ENDPOINT_EXAMPLE}"
+
+
+def key_problem(key: str) -> str | None:
+    """What is wrong with a Zenoh key expression, in words (Zenoh's own reason, without its
+    source paths, when none of these is it); None if nothing is."""
+    try:
+        zenoh.KeyExpr(key)
+    except zenoh.ZError as exc:
+        raw = str(exc)
+    else:
+        return None
+    why = _key_words(key)
+    if why is None:  # Zenoh's reason: "Invalid Key Expr `k`: <reason> at <source>.rs:N."
+        why = re.sub(r"\s+at \S+\.rs:\d+\.?$", "", raw.split("`: ", 1)[-1]).strip()
+    return f"{why}; a key is parts joined by '/', e.g. robot/nav"
+
+
+def _key_words(key: str) -> str | None:
+    if not key:
+        return "it is empty"
+    for at, char in enumerate(key, 1):
+        if char in "#?":
+            return f"'{char}' (character {at}) is not allowed in a key"
+    if key.startswith("/"):
+        return "it starts with '/' (robot/nav, not /robot/nav)"
+    if key.endswith("/"):
+        return "it ends with '/'"
+    if "//" in key:
+        return f"it has an empty part between two slashes ('//' at character " \
+            f"{key.index('//') + 1})"
+    parts = key.split("/")
+    for part in parts:
+        if part in ("*", "**"):
+            continue
+        if part == "$*":
+            return "the part '$*' is written '*' when it is the whole part"
+        if "$*$*" in part:
+            return f"the part '{part}' has '$*$*': one '$*' matches as much"
+        inside = part.replace("$*", "")
+        if "$" in inside:
+            return f"the part '{part}' has a '$' not followed by '*' ('$*' matches any " \
+                "characters within a part, e.g. nav$*)"
+        if "*" in inside:
+            return f"the part '{part}' has '*' inside it: '*' (any one part) and '**' (any " \
+                "parts) stand alone between slashes, and '$*' matches within a part " \
+                "(e.g. nav$*)"
+    for first, second in pairwise(parts):
+        if (first, second) == ("**", "**"):
+            return "'**/**' is written '**'"
+        if (first, second) == ("**", "*"):
+            return "'**/*' is written '*/**'"
+    return None
 
 
 @contextmanager
 def client(endpoint: str) -> Iterator[zenoh.Session]:
     """A client session to ``endpoint``, closed however the block ends."""
+    if (problem := endpoint_problem(endpoint)) is not None:
+        raise PokeError(problem)
     try:
         session = open_session(ZenohSettings(mode="client", listen=[], connect=[endpoint]))
     except SessionError as exc:
         why = str(exc)
+        if "invalid endpoint" in why:  # (a form endpoint_problem let through, Zenoh refused)
+            raise PokeError(why[why.index("invalid endpoint"):]) from None
         if "no Zenoh router answers" in why:  # a vehicle's peer, not a router to configure
             why = "nothing answers there: is a vehicle's bridge running (zab demo, zab sim, " \
                 "zab run)?"
-        raise PokeError(f"cannot connect to {endpoint}: {why}") from None
+        raise PokeError(f"cannot connect to {endpoint}: {why}", code=1) from None
     try:
         yield session
     finally:
@@ -166,10 +268,8 @@ def listen(endpoint: str, keyexpr: str, show: Callable[[str], None], *,
     """Print each value arriving on ``keyexpr`` until ``count`` values, ``duration`` seconds
     or Ctrl-C; return how many were shown. ``ready`` is called once the subscriber is up;
     ``steps`` (the mission's) round bridged values to their channel's step."""
-    try:
-        zenoh.KeyExpr(keyexpr)
-    except zenoh.ZError as exc:
-        raise PokeError(f"invalid key expression {keyexpr!r}: {exc}") from None
+    if (problem := key_problem(keyexpr)) is not None:
+        raise PokeError(f"invalid key expression {keyexpr!r}: {problem}")
     end = None if duration is None else time.monotonic() + duration
     shown = 0
     with client(endpoint) as session:
@@ -202,10 +302,8 @@ def put(endpoint: str, key: str, value_json: str, ref: str,
         raise PokeError(f"the value is not JSON ({exc}): {value_json!r}") from None
     except RecursionError:
         raise PokeError("the value is nested too deeply to read") from None
-    try:
-        zenoh.KeyExpr(key)
-    except zenoh.ZError as exc:
-        raise PokeError(f"invalid key {key!r}: {exc}") from None
+    if (problem := key_problem(key)) is not None:
+        raise PokeError(f"invalid key {key!r}: {problem}")
     payload, encoding = payload_for(key, value)
     if mission is not None:
         from bridge.cli.put_check import problem_with

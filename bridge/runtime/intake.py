@@ -16,6 +16,12 @@ as they like. Three places could hold what they send, and each is bounded here:
   calls per *lane* (:meth:`Intake.to_loop`: a subscription's key; a key family's samples, each
   under its own key, share their subscription's lane), the oldest dropped and counted
   (:attr:`Intake.overflow`), and the loop is woken once for a batch, not once per sample.
+- *Reliable channels' keys* (``subscribe(..., fifo=True)``) lose nothing on the way in: a
+  burst bigger than both queues must reach the channel's own queue whole (which refuses, with
+  a report, what it cannot hold). Their subscription is a ``FifoChannel`` of :data:`RING`
+  samples (Zenoh's thread waits for room: backpressure to the publisher) and their lane waits
+  for room rather than dropping (:meth:`Intake.to_loop` from the subscription's thread), until
+  :meth:`Intake.close` at shutdown. Memory stays bounded the same.
 - *Failures.* A sample whose handling raises (it never should: bad input is a counted drop) is
   counted (:attr:`Intake.errors`) and its traceback logged at most once a minute per key; the
   thread goes on with the next sample. Only the session's end stops it.
@@ -24,7 +30,6 @@ as they like. Three places could hold what they send, and each is bounded here:
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 import threading
@@ -58,19 +63,36 @@ class Intake:
         """Samples whose handling raised, per key."""
         self._waiting: dict[str, deque[Callable[[], object]]] = {}
         self._lock = threading.Lock()
+        self._room = threading.Condition(self._lock)  # a lane was emptied, or the intake closed
+        self._fifo: set[str] = set()  # lanes that wait for room (reliable channels' keys)
+        self._closed = False
         self._woken = False  # a call to _run is on its way to the loop
         self._told: dict[str, float] = {}  # when each key's last traceback was logged
         self.subscribers: list[Any] = []
         self._threads: list[threading.Thread] = []
 
-    def subscribe(self, key: str, handle: Callable[[zenoh.Sample], None]) -> None:
-        """Subscribe to ``key``; ``handle`` gets each sample on this subscription's thread."""
-        subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(RING))
+    def subscribe(self, key: str, handle: Callable[[zenoh.Sample], None], *,
+                  fifo: bool = False) -> None:
+        """Subscribe to ``key``; ``handle`` gets each sample on this subscription's thread.
+        ``fifo`` (a reliable channel's key): no sample dropped, neither by Zenoh nor in the
+        lane ``key`` (each waits for room)."""
+        if fifo:
+            self._fifo.add(key)
+        handler: Any = zenoh.handlers.FifoChannel(RING) if fifo \
+            else zenoh.handlers.RingChannel(RING)
+        subscriber = self.session.declare_subscriber(key, handler)
         self.subscribers.append(subscriber)
         thread = threading.Thread(target=self._drain, args=(subscriber, key, handle),
                                   daemon=True, name=f"zab-in {key}")
         thread.start()
         self._threads.append(thread)
+
+    def close(self) -> None:
+        """The node stops (before the session closes): a thread waiting for room in a lane
+        returns at once, its call dropped, and no call waits from now on."""
+        with self._lock:
+            self._closed = True
+            self._room.notify_all()
 
     def join(self, timeout_s: float = 2.0) -> None:
         """After the session closed (which ends every subscription): wait for the threads to
@@ -105,9 +127,17 @@ class Intake:
 
     def to_loop(self, key: str, call: Callable[[], object]) -> None:
         """Run ``call`` on the loop soon; at most :data:`HANDOFF` wait per lane ``key``
-        (any thread)."""
+        (any thread). A full lane drops its oldest call, counted, unless it is a ``fifo``
+        subscription's: then a thread other than the loop's waits for room (after
+        :meth:`close`, ``call`` is dropped)."""
         with self._lock:
             waiting = self._waiting.get(key)
+            if key in self._fifo and not self._on_loop():
+                while waiting is not None and len(waiting) >= HANDOFF and not self._closed:
+                    self._room.wait()  # (a run of the lane is on its way: _woken is set)
+                    waiting = self._waiting.get(key)
+                if self._closed:
+                    return
             if waiting is None:
                 waiting = self._waiting[key] = deque(maxlen=HANDOFF)
             if len(waiting) == HANDOFF:
@@ -115,8 +145,17 @@ class Intake:
             waiting.append(call)
             wake, self._woken = not self._woken, True
         if wake:
-            with contextlib.suppress(RuntimeError):  # the loop has closed: the node is gone
+            try:
                 self.loop.call_soon_threadsafe(self._run)
+            except RuntimeError:  # the loop has closed: the node is gone, nothing will wait
+                self.close()
+
+    def _on_loop(self) -> bool:
+        """Whether this thread runs the loop (which must never wait for itself)."""
+        try:
+            return asyncio.get_running_loop() is self.loop
+        except RuntimeError:
+            return False
 
     def _run(self) -> None:
         """On the loop: every waiting call, a key's in the order they came."""
@@ -124,6 +163,7 @@ class Intake:
             batches = [(key, list(waiting)) for key, waiting in self._waiting.items()]
             self._waiting.clear()  # (a lane is made again when it has something)
             self._woken = False
+            self._room.notify_all()
         for key, batch in batches:
             for call in batch:
                 try:

@@ -52,11 +52,15 @@ def open_session(settings: ZenohSettings, who: str = "zenoh") -> zenoh.Session:
 _SOURCE = re.compile(r"\s+at \S+\.rs:\d+\.?")  # "at /root/.cargo/.../tcp.rs:61." in ZError text
 _BOUND = re.compile(r"bound to (\S+?): \[")
 _CONNECT = re.compile(r"Unable to connect to any of")
+_NOT_ENDPOINT = re.compile(r"Endpoints must be of the form [^:]*: ([^\"]*)")
 
 
 def session_problem(text: str, settings: ZenohSettings) -> str:
     """What a ``zenoh.ZError`` from opening a session means, and what to do, in one line."""
     text = " ".join(_SOURCE.sub("", text).split())
+    if not_endpoint := _NOT_ENDPOINT.search(text):  # (Zenoh's Json5Err, as it reads config)
+        return (f"invalid endpoint '{not_endpoint.group(1)}': expected a Zenoh endpoint "
+                "<protocol>/<host>:<port>, such as tcp/127.0.0.1:7447")
     bound = _BOUND.search(text)
     if bound and "in use" in text.lower():
         return (f"{bound.group(1)} is already in use (is another `zab run`, `zab sim`, "

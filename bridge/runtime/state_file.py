@@ -12,6 +12,11 @@ by its SHA-256 (``….state.<digest>.blob``), written (durably) once, before the
 that names it, and removed once a state that no longer names it is saved: a picture in
 flight costs one write, not one at every save (three a second on seed 002's link).
 
+One bridge at a time: :meth:`StateFile.hold` takes an ``flock`` on ``….state.lock`` for the
+bridge's lifetime (the kernel lets it go when the process ends, however it ends), so a second
+``zab run`` of the node on the same state directory stops at start instead of both saving
+over each other.
+
 A file that cannot be read or decoded, or that names a blob missing or altered, is moved
 aside (``….corrupt``) with a warning, and the node starts afresh: its peers see a new epoch
 and resynchronise.
@@ -19,6 +24,8 @@ and resynchronise.
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import hashlib
 import logging
 import os
@@ -66,6 +73,43 @@ class StateFile:
         self.saves = 0
         self.blobs: dict[str, bytes] = {}
         """The blobs the file on disk names, by digest."""
+        self.lock_path = self.path.with_name(self.path.name + ".lock")
+        self._held: int | None = None  # the lock file's descriptor while held
+
+    def hold(self) -> None:
+        """Hold the node's state for this process (until :meth:`release` or its end): an
+        exclusive ``flock`` on :attr:`lock_path`, which holds this process's id. StateError
+        if another process holds it."""
+        if self._held is not None:
+            return
+        try:
+            fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        except OSError as exc:
+            raise StateError(f"cannot open {self.lock_path}: {exc.strerror or exc}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            holder = _pid_in(fd)
+            os.close(fd)
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+                raise StateError(f"cannot lock {self.lock_path}: {exc.strerror or exc}"
+                                 ) from None
+            raise StateError(
+                f"another bridge holds this node's state ({self.lock_path} is locked"
+                f"{f' by process {holder}' if holder else ''}): stop it first, or give this "
+                "one a --state-dir of its own") from None
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+        except OSError:
+            pass  # (the id is only said to a second bridge: the lock is what matters)
+        self._held = fd
+
+    def release(self) -> None:
+        """Let another bridge take the node's state (the lock file stays)."""
+        if self._held is not None:
+            os.close(self._held)  # (closing the descriptor ends the flock)
+            self._held = None
 
     def load(self) -> dict[str, Any] | None:
         """The last saved state, or None (none yet, or unreadable: moved aside)."""
@@ -152,6 +196,15 @@ class StateFile:
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
+
+
+def _pid_in(fd: int) -> str:
+    """The process id a lock file holds ('' if none can be read)."""
+    try:
+        text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+    except OSError:
+        return ""
+    return text if text.isdigit() else ""
 
 
 def _with_references(value: Any, named: dict[str, bytes], known: dict[str, bytes]) -> Any:

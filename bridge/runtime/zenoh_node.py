@@ -220,8 +220,9 @@ class BridgeNode:
                 self.core.saved()
             self._flush()  # what a changed mission file ended, reported
             intake = self.intake = Intake(self.session, loop, self.node)
-            for key in self.core.bindings:
-                intake.subscribe(key, functools.partial(self._from_zenoh, loop, key))
+            for key, bound in self.core.bindings.items():  # a reliable channel's: lose none
+                intake.subscribe(key, functools.partial(self._from_zenoh, loop, key),
+                                 fifo=any(channel.reliable for channel, _, _ in bound))
             for key in self.core.families.subscriptions():  # key families: concrete keys
                 intake.subscribe(key, functools.partial(self._from_family, loop, key))
             self._subscribe_positions(loop)
@@ -273,6 +274,8 @@ class BridgeNode:
                 await port.close()
             if self._ros2 is not None:
                 self._ros2.close()
+            if self.intake is not None:
+                self.intake.close()  # (a thread waiting for room in a lane returns)
             close_quietly(self.session)
             if self.intake is not None:
                 self.intake.join()

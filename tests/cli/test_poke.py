@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -232,3 +233,68 @@ def test_zab_put_on_a_ros2_key_crosses_and_zab_listen_prints_the_twist() -> None
     key, _, value = line.partition(" ")
     assert key == cmd.ros2.out_key, key  # (/auv1/cmd_vel: no {src} or {node} in it)
     assert '"linear": {"x": 0.5, "y": 0.0, "z": -0.25}' in value, value
+
+
+BAD_KEYS = {  # a key, and what zab put and zab listen say is wrong with it
+    "a//b": "an empty part between two slashes ('//' at character 2)",
+    "/a": "it starts with '/'",
+    "a/b/": "it ends with '/'",
+    "": "it is empty",
+    "a?b": "'?' (character 2) is not allowed in a key",
+    "a/*b": "the part '*b' has '*' inside it",
+    "a/**b": "the part '**b' has '*' inside it",
+    "a/$b": "the part '$b' has a '$' not followed by '*'",
+    "a/**/**": "'**/**' is written '**'",
+}
+
+
+@pytest.mark.parametrize("key", BAD_KEYS)
+def test_a_bad_key_is_said_in_words(key: str) -> None:
+    from bridge.cli.poke import key_problem
+
+    said = key_problem(key)
+    assert said is not None and BAD_KEYS[key] in said, said
+    assert "Invalid Key Expr" not in said and ".rs:" not in said
+    assert key_problem("robot/nav") is None and key_problem("robot/*/a$*b/**") is None
+
+
+@pytest.mark.parametrize(("endpoint", "why"), [
+    ("notanendpoint", "not <protocol>/<address>"),
+    ("tcp/127.0.0.1", "no port"),
+    ("tcp/127.0.0.1:notaport", "'notaport' is not a port"),
+    ("tcp/127.0.0.1:70000", "'70000' is not a port"),
+    ("tcp/:7447", "no host"),
+    ("tcpp/127.0.0.1:7447", "unknown protocol 'tcpp'"),
+])
+def test_a_bad_endpoint_is_said_with_the_form_expected(endpoint: str, why: str) -> None:
+    from bridge.cli.poke import endpoint_problem
+
+    said = endpoint_problem(endpoint)
+    assert said is not None and why in said and "tcp/127.0.0.1:7447" in said, said
+    for good in ("tcp/127.0.0.1:7447", "tcp/[::1]:7447", "udp/10.0.0.2:7447",
+                 "tcp/localhost:7447", "unixsock-stream//tmp/zenoh.sock"):
+        assert endpoint_problem(good) is None, good
+
+
+def _one_line_exit_2(*args: str) -> str:
+    done = subprocess.run([*ZAB, *args], capture_output=True, text=True, timeout=30,
+                          env={**os.environ, "COLUMNS": "80"})
+    output = done.stdout + done.stderr
+    assert done.returncode == 2, output
+    for raw in ("Traceback", "Json5Err", "Invalid Key Expr", ".rs:", "ZError"):
+        assert raw not in output, output
+    [line] = done.stderr.strip().splitlines()
+    return line
+
+
+def test_zab_put_and_listen_say_what_is_wrong_with_a_key_or_an_endpoint() -> None:
+    assert _one_line_exit_2("put", "tcp/127.0.0.1:9", "a//b", "1") == (
+        "invalid key 'a//b': it has an empty part between two slashes ('//' at character 2); "
+        "a key is parts joined by '/', e.g. robot/nav")
+    line = _one_line_exit_2("listen", "tcp/127.0.0.1:9", "a/**b")
+    assert line.startswith("invalid key expression 'a/**b': the part '**b' has '*' inside "
+                           "it"), line
+    for command in (("put", "notanendpoint", "k", "1"), ("listen", "notanendpoint", "k")):
+        assert _one_line_exit_2(*command) == (
+            "invalid endpoint 'notanendpoint': not <protocol>/<address>; expected a Zenoh "
+            "endpoint such as tcp/127.0.0.1:7447")

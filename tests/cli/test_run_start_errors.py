@@ -47,8 +47,8 @@ def _argv(path: Path, node: str) -> list[str]:
     return [sys.executable, "-m", "bridge", "run", str(path), "--node", node]
 
 
-def _run(path: Path, node: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(_argv(path, node), cwd=REPO, capture_output=True, text=True,
+def _run(path: Path, node: str, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*_argv(path, node), *args], cwd=REPO, capture_output=True, text=True,
                           timeout=START_S, env={**os.environ, "COLUMNS": "80"})
 
 
@@ -69,12 +69,36 @@ def _one_clear_line(result: subprocess.CompletedProcess[str]) -> str:
     return lines[0]
 
 
-def test_port_taken_by_another_zab_run_exits_2(mission: tuple[Path, int, int]) -> None:
+def test_port_taken_by_another_zab_run_exits_2(mission: tuple[Path, int, int],
+                                              tmp_path: Path) -> None:
     path, za, _ = mission
-    with _running(path, "a"):
-        line = _one_clear_line(_run(path, "a"))
+    with _running(path, "a"):  # (the second on a state of its own: its port is what it meets)
+        line = _one_clear_line(_run(path, "a", "--state-dir", str(tmp_path / "other")))
     assert line == (f"cannot start: a: tcp/127.0.0.1:{za} is already in use (is another "
                     "`zab run`, `zab sim`, `zab demo` or zenohd listening there?)")
+
+
+def test_a_second_bridge_of_the_node_on_the_same_state_exits_2(
+        mission: tuple[Path, int, int], tmp_path: Path) -> None:
+    """Two `zab run` of one node on one state directory (here on Zenoh ports of their own,
+    so only the state is shared): the second says another bridge holds the state and exits 2
+    before anything runs; the first goes on, and saves as before."""
+    path, _, _ = mission
+    second = tmp_path / "second.yaml"  # the same mission and node, other ports
+    second.write_text(MISSION.format(udp_a=free_port(socket.SOCK_DGRAM),
+                                     udp_b=free_port(socket.SOCK_DGRAM), za=free_port(),
+                                     router=free_port()))
+    state = Path(os.environ["STATE_DIRECTORY"]) / "start.a.state"
+    with _running(path, "a") as first:
+        line = _one_clear_line(_run(second, "a"))
+        assert first.poll() is None
+        saved = state.stat().st_mtime_ns
+    assert line == (f"cannot start: a: another bridge holds this node's state ({state}.lock "
+                    f"is locked by process {first.pid}): stop it first, or give this one a "
+                    "--state-dir of its own")
+    assert state.stat().st_mtime_ns >= saved  # (the first saved at its stop)
+    with _running(second, "a"):  # the first gone, the node's state is free again
+        pass
 
 
 def test_port_taken_by_any_listener_exits_2_and_starts_once_free(
@@ -105,6 +129,11 @@ def test_session_problem_keeps_other_zenoh_errors_readable() -> None:
         "(os error 99)")
     assert session_problem("something new at /src/a.rs:1.", ZenohSettings()) == (
         "cannot open the Zenoh session: something new")
+    json5 = ('Json5Err(Message { msg: "Endpoints must be of the form <protocol>/<address>'
+             '[?<metadata>]: notanendpoint", location: Some(Location { line: 1, column: 2 }) })')
+    assert session_problem(json5, ZenohSettings()) == (
+        "invalid endpoint 'notanendpoint': expected a Zenoh endpoint <protocol>/<host>:<port>, "
+        "such as tcp/127.0.0.1:7447")
 
 
 def test_zab_sim_with_a_taken_port_stops_every_node_and_says_it_once(

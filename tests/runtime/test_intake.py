@@ -4,7 +4,10 @@
 from __future__ import annotations
 
 import asyncio
+import threading
 from itertools import pairwise
+
+import zenoh
 
 from bridge.core.events import FrameDropped, Link
 from bridge.runtime.gate import EVERY_S, EventGate
@@ -43,3 +46,48 @@ def test_frame_drops_go_out_once_per_reason_a_second_saying_how_many_were_held()
         assert len(times) == 3 and all(b - a >= EVERY_S for a, b in pairwise(times))
     assert gate.held_back == 2500 - 6  # each held back is said by the next that goes out
     assert sum(held for _, _, held in out) + sum(gate._held.values()) == gate.held_back
+
+
+def _quiet_session() -> zenoh.Session:
+    config = zenoh.Config()
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", "[]")
+    return zenoh.open(config)
+
+
+def test_a_reliable_keys_lane_waits_for_room_and_close_lets_a_waiting_thread_go() -> None:
+    loop = asyncio.new_event_loop()
+    session = _quiet_session()
+    try:
+        intake = Intake(session, loop, "a")
+        intake.subscribe("cmd", lambda sample: None, fifo=True)
+        ran: list[int] = []
+        sent = threading.Event()
+
+        def burst() -> None:  # the subscription's thread, faster than the loop
+            for n in range(5 * HANDOFF):
+                intake.to_loop("cmd", lambda n=n: ran.append(n))
+            sent.set()
+
+        thread = threading.Thread(target=burst)
+        thread.start()
+        while not sent.is_set():
+            loop.run_until_complete(asyncio.sleep(0.01))
+        loop.run_until_complete(asyncio.sleep(0))
+        thread.join(5)
+        assert ran == list(range(5 * HANDOFF))  # none dropped, in order
+        assert intake.overflow == {}
+
+        for _ in range(HANDOFF):  # a full lane the loop no longer runs
+            intake.to_loop("cmd", lambda: None)
+        stuck = threading.Thread(target=intake.to_loop, args=("cmd", lambda: None))
+        stuck.start()
+        stuck.join(0.3)
+        assert stuck.is_alive()  # waiting for room
+        intake.close()
+        stuck.join(5)
+        assert not stuck.is_alive()
+    finally:
+        session.close()
+        loop.close()
+        intake.join()

@@ -57,3 +57,18 @@ def test_a_full_disk_at_start_is_a_state_error_in_one_line(tmp_path: Path) -> No
             saves.save(lambda: STATE, 0.0, first=True)
     assert str(info.value) == (f"a: cannot save its state in {where}: No space left on device "
                                "(ENOSPC)")
+
+
+def test_one_holder_of_a_node_s_state_at_a_time_until_it_lets_go(tmp_path: Path) -> None:
+    first, second = StateFile(tmp_path, "m", "a"), StateFile(tmp_path, "m", "a")
+    first.hold()
+    with pytest.raises(StateError, match=r"another bridge holds this node's state .*"
+                       r"locked by process \d+"):
+        second.hold()
+    other = StateFile(tmp_path, "m", "b")
+    other.hold()  # another node's state: its own lock
+    other.release()
+    first.release()
+    second.hold()  # let go: the next bridge takes it
+    second.release()
+    assert (tmp_path / "m.a.state.lock").exists()
