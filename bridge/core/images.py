@@ -157,6 +157,19 @@ def _settings(saved: Mapping[str, Any], spec: ImageSpec) -> dict[str, Any]:
             "roi": tuple(float(v) for v in roi) if roi else None}
 
 
+def _whole(value: Any) -> int | None:
+    """``value`` as a whole number: an int, or a float without a fraction (160.0, as some
+    JSON writers put it); None for anything else (160.5 is not 160, nor ``true`` a 1, nor
+    the text "160" a number)."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return None
+
+
 def control_keys(table: ChannelTable, node: str) -> dict[str, tuple[ChannelCodec, int]]:
     """Where operators at ``node`` steer the cameras whose pictures come here: each image
     channel's control key, with its control channel and the camera it steers (its number in
@@ -505,10 +518,9 @@ class Images:
                 low, high = CONTROL_BOUNDS[name]
                 channels = name == "budget_bytes" and largest_budget <= high
                 high = largest_budget if channels else high
-                try:
-                    number = int(value[name])
-                except (TypeError, ValueError):
-                    raise ValueError(f"{name} {value[name]!r} is not a whole number") from None
+                number = _whole(value[name])
+                if number is None:
+                    raise ValueError(f"{name} {value[name]!r} is not a whole number")
                 if not low <= number <= high:
                     raise ValueError(f"{name} {number} is outside {low}..{high}" + (
                         " (the channel's max_budget_bytes)" if channels else ""))
@@ -518,6 +530,9 @@ class Images:
             if roi is not None:
                 if not isinstance(roi, (list, tuple)) or len(roi) != 4:
                     raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
+                if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                           for v in roi):  # (true is no 1.0, "0.5" no fraction)
+                    raise ValueError(f"roi {roi!r}: a corner is not a number")
                 x0, y0, x1, y1 = (float(v) for v in roi)
                 if not (0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1):
                     raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")

@@ -86,3 +86,12 @@ def test_a_jpeg_picture_s_metadata_reads_as_a_png_s() -> None:
     Image.fromarray(PICTURE).save(out, "JPEG", comment=b'{"exposure_ms": 8}')
     item = board.ingest("rov/camera", out.getvalue(), "image/jpeg", 7.0)
     assert item is not None and item["meta"]["whole"] is True
+
+
+@pytest.mark.parametrize("message", [
+    {"roi": [0, 0, True, True]}, {"width": True}, {"budget_bytes": True}])
+def test_a_page_s_boolean_is_no_number(message: dict) -> None:
+    """A page's ``true`` is refused where a size or an ROI corner goes, not read as 1."""
+    board = ImageBoard(load_mission(MISSIONS / "bluerov_images.yaml"), "operator")
+    with pytest.raises(ImageControlError):
+        board.control({"channel": "camera", **message})

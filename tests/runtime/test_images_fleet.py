@@ -356,6 +356,12 @@ def test_steering_answers_the_settings_and_a_control_that_changes_nothing_stays_
     ({"width": "abc"}, "width 'abc' is not a whole number"),
     ({"roi": [0.1, 0.1, 0.2]}, "roi [0.1, 0.1, 0.2] is not [x0, y0, x1, y1]"),
     ({"roi": [0.5, 0.5, 0.505, 0.505]}, "narrower than 1/64"),
+    ({"width": 160.5}, "width 160.5 is not a whole number"),
+    ({"height": True}, "height True is not a whole number"),
+    ({"budget_bytes": 800.25}, "budget_bytes 800.25 is not a whole number"),
+    ({"budget_bytes": "800"}, "budget_bytes '800' is not a whole number"),
+    ({"roi": [0, 0, True, True]}, "roi [0, 0, True, True]: a corner is not a number"),
+    ({"roi": [0, 0, "1", 1]}, "roi [0, 0, '1', 1]: a corner is not a number"),
 ])
 def test_a_control_the_camera_would_not_follow_is_refused_not_clamped(
         control: dict, why: str) -> None:
@@ -375,6 +381,23 @@ def test_a_control_the_camera_would_not_follow_is_refused_not_clamped(
     edge = {"width": 8, "height": 2048, "budget_bytes": 6400, "roi": [0.5, 0.5, 0.52, 0.52]}
     assert images.steer("camera/control", edge, 5.0) == {**edge, "roi": (0.5, 0.5, 0.52, 0.52),
                                                          "request": "none"}
+
+
+def test_a_fractional_or_boolean_size_put_by_an_operator_is_a_counted_drop() -> None:
+    """A width of 160.5 is not 160 (nor is ``true`` a 1, or an ROI corner of ``true`` a
+    1.0): the put is refused as a whole, nothing crosses, the settings stay; a whole number
+    written as a float (160.0, as some JSON writers do) is that number."""
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=6)
+    sent = fleet.cores["operator"].stats.sent_per_channel["camera.control"]
+    for value in ({"width": 80.5}, {"budget_bytes": True}, {"roi": [0, 0, True, True]}):
+        fleet.put("operator", "camera/control", value, at=fleet.now + 0.5)
+    fleet.run_until(10.0)
+    assert fleet.cores["operator"].stats.payloads_dropped["camera/control"] == 3
+    assert fleet.cores["operator"].stats.sent_per_channel["camera.control"] == sent
+    images = fleet.cores["operator"].images
+    assert images is not None
+    assert images.steer("camera/control", {"width": 80.0}, fleet.now)["width"] == 80
+    assert images.steer("camera/control", {}, fleet.now)["roi"] is None
 
 
 def test_a_refused_size_names_its_own_bound() -> None:
