@@ -166,8 +166,8 @@ def _decoded(data: bytes, kind: str, colour: bool) -> U8:
 
 @contextlib.contextmanager
 def _pillow_errors(kind: str, data: bytes) -> Iterator[None]:
-    """Pillow's complaints about ``data`` as :class:`ImageInputError` (decompression bombs
-    included)."""
+    """Pillow's complaints about ``data`` as :class:`ImageInputError` (a decompression bomb:
+    ``too_large``)."""
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -176,8 +176,12 @@ def _pillow_errors(kind: str, data: bytes) -> Iterator[None]:
             yield
     except UnidentifiedImageError:
         raise ImageInputError(f"not a decodable {kind} image ({len(data)} bytes)") from None
-    except (OSError, ValueError, SyntaxError, struct.error,
-            Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        # (its header declares more pixels than Pillow decodes, whatever the channel takes)
+        raise ImageInputError(f"the {kind} image's header declares more pixels than zab "
+                              f"decodes, a decompression bomb? ({len(data)} bytes: {exc})",
+                              "too_large") from None
+    except (OSError, ValueError, SyntaxError, struct.error) as exc:
         raise ImageInputError(f"cannot decode the {kind} image: {exc}") from None
 
 

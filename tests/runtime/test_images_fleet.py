@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import itertools
 import json
+import logging
 import re
 
 import numpy as np
@@ -112,6 +113,25 @@ def test_bad_pictures_are_counted_drops() -> None:
     assert fleet.cores["rov"].stats.payloads_dropped["rov/camera"] == 3
     assert fleet.cores["operator"].stats.payloads_dropped["camera/control"] == 1
     assert fleet.published("operator", "rov/camera") == []
+
+
+def test_a_decompression_bomb_put_on_the_camera_is_a_counted_too_large_drop(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A 100-odd-byte PNG declaring 20000 × 20000 pixels: a too_large drop whose log line
+    says so, on the key it came on; nothing escapes, nothing crosses; the next picture goes."""
+    from tests.image.test_formats import png_declaring
+
+    caplog.set_level(logging.WARNING)
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=5)
+    fleet.put("rov", "rov/camera", png_declaring(20000, 20000), encoding="image/png", at=1.0)
+    fleet.run_until(5.0)
+    assert fleet.cores["rov"].outbound.drops.by_cause == {("rov/camera", "too_large"): 1}
+    assert any("rov/camera" in r.getMessage() and "decompression bomb" in r.getMessage()
+               for r in caplog.records)
+    assert not [r for r in caplog.records if r.exc_info]
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=6.0)
+    fleet.run_until(40.0)
+    assert pictures(fleet)[-1][1]["zab:final"] == "true"
 
 
 def test_pictures_replaced_while_one_is_in_flight_are_never_decoded(
