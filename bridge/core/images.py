@@ -112,7 +112,8 @@ def read_picture(spec: ImageSpec, data: bytes, encoding: str) -> InputImage:
         raise ImageInputError(str(exc)) from None
     if msgtype.endswith("/Image"):
         return open_raw(message, spec.max_input_pixels, spec.colour)
-    kind = "image/png" if "png" in str(message.get("format", "")).lower() else ""
+    said = str(message.get("format", "")).lower()  # "jpeg", "png", "bgr8; jpeg compressed …"
+    kind = "image/png" if "png" in said else "image/jpeg" if "jp" in said else ""
     return open_image(bytes(message.get("data", b"")), kind, spec.accept,
                       spec.max_input_pixels, spec.colour)
 

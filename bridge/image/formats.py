@@ -44,10 +44,16 @@ class ImageInputError(ValueError):
 
 def kind_of(data: bytes, encoding: str) -> str:
     """``jpeg`` or ``png``: from the encoding (``image/jpeg`` …) or, when it names no image
-    type (``zenoh/bytes``, ``application/octet-stream``), from the bytes' signature."""
+    type (``zenoh/bytes``, ``application/octet-stream``), from the bytes' signature. An
+    encoding naming one type on the other's signature is refused (``unfit``): neither is
+    trusted."""
     kind = encoding.partition(";")[0].strip().lower()
     for name, mime in KINDS.items():
         if kind == mime or (name == "jpeg" and kind == "image/jpg"):
+            for signature, other in _SIGNATURES.items():
+                if other != name and data.startswith(signature):
+                    raise ImageInputError(f"the encoding says {kind} but the bytes are a "
+                                          f"{other.upper()} image", "unfit")
             return name
     if kind.startswith("image/"):
         raise ImageInputError(f"image type {kind!r} is not one zab reads (jpeg, png)", "unfit")

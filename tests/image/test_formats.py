@@ -48,6 +48,18 @@ def test_images_read_grey_or_colour() -> None:
     assert np.abs(rgb.astype(int) - PIXELS).mean() < 6
 
 
+@pytest.mark.parametrize("data, encoding, said, was", [
+    (PNG, "image/jpeg", "image/jpeg", "PNG"), (JPEG, "image/png", "image/png", "JPEG"),
+    (PNG, "image/jpg", "image/jpg", "PNG")], ids=["png-as-jpeg", "jpeg-as-png", "png-as-jpg"])
+def test_an_encoding_that_names_the_other_type_is_refused_saying_so(
+        data: bytes, encoding: str, said: str, was: str) -> None:
+    """A PNG put as image/jpeg is not a picture the sample says it is: refused, naming both."""
+    with pytest.raises(ImageInputError) as refused:
+        open_image(data, encoding, {"jpeg", "png"}, 10**6, colour=False)
+    assert str(refused.value) == f"the encoding says {said} but the bytes are a {was} image"
+    assert refused.value.cause == "unfit"
+
+
 def test_a_type_not_enabled_is_refused() -> None:
     with pytest.raises(ImageInputError, match="png images are not enabled"):
         read_image(PNG, "image/png", {"jpeg"}, 10_000, colour=False)

@@ -134,6 +134,29 @@ def test_a_decompression_bomb_put_on_the_camera_is_a_counted_too_large_drop(
     assert pictures(fleet)[-1][1]["zab:final"] == "true"
 
 
+def test_a_png_put_as_a_jpeg_is_a_counted_drop_naming_the_mismatch(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """The sample's encoding and its bytes disagree: neither is trusted, the log says which
+    said what (a ROS 2 CompressedImage's format likewise)."""
+    from bridge.ros2.messages import encode_cdr
+
+    caplog.set_level(logging.WARNING)
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=5)
+    fleet.put("rov", "rov/camera", write_image(PICTURE, "png"), encoding="image/jpeg", at=1.0)
+    fleet.run_until(30.0)
+    assert fleet.cores["rov"].outbound.drops.by_cause == {("rov/camera", "unfit"): 1}
+    assert any("rov/camera" in r.getMessage() and "the encoding says image/jpeg but the bytes "
+               "are a PNG image" in r.getMessage() for r in caplog.records)
+    assert fleet.published("operator", "rov/camera") == []
+    fleet = FastFleet(parse_mission(ROS2_MISSION % "CompressedImage"), seed=5)
+    cdr = encode_cdr("jazzy", "sensor_msgs/msg/CompressedImage",
+                     {"format": "jpeg", "data": write_image(PICTURE, "png")})
+    fleet.put("rov", "0/rov/camera/*/*", cdr, encoding="", at=1.0)
+    fleet.run_until(30.0)
+    assert fleet.cores["rov"].outbound.drops.by_cause == {("0/rov/camera/*/*", "unfit"): 1}
+    assert fleet.published("operator", "rov/camera") == []
+
+
 def test_pictures_replaced_while_one_is_in_flight_are_never_decoded(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A camera faster than the water (policy finish): only the picture sent and the newest
