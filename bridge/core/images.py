@@ -226,22 +226,29 @@ class ImageSender(TransferSender):
             return []
         return self._begin(now)
 
-    def _begin(self, now: float) -> list[Delivery]:
-        """Send the newest picture (replacing any in flight)."""
+    def _begin(self, now: float, again: bool = False) -> list[Delivery]:
+        """Send the newest picture (replacing any in flight); ``again``: an operator's
+        request, which sends the last one sent where the newest does not decode. A picture
+        that does not decode is a counted drop that leaves the one in flight going and the
+        last one sent as it was (what a request sends again)."""
         from bridge.image.formats import ImageInputError
 
-        taken = self.latest or self.last
-        if taken is None:
-            return []
-        self.latest, self.last = None, None
-        try:
-            pixels = taken.opened(self.spec).pixels()
-        except ImageInputError as exc:
-            self.drop(taken.key or self.spec.in_key, f"image channel {self.spec.name!r}: "
-                      f"{exc}", now, exc.cause)
-            return []
-        self.last = taken
-        return self.offer_bytes(self.recode(pixels), now, taken.key, taken.ref)
+        for taken in [p for p in (self.latest, self.last) if p is not None]:
+            if taken is self.latest:
+                self.latest = None
+            else:
+                self.last = None  # (sent again: it becomes the last one below)
+            try:
+                pixels = taken.opened(self.spec).pixels()
+            except ImageInputError as exc:
+                self.drop(taken.key or self.spec.in_key,
+                          f"image channel {self.spec.name!r}: {exc}", now, exc.cause)
+                if again:
+                    continue
+                return []
+            self.last = taken
+            return self.offer_bytes(self.recode(pixels), now, taken.key, taken.ref)
+        return []
 
     def recode(self, pixels: Pixels) -> bytes:
         """``pixels`` as a progressive stream of the current settings: fitted to the size,
@@ -275,7 +282,7 @@ class ImageSender(TransferSender):
                 log.warning("image channel %r: an operator asked for a picture, and none has "
                             "come on %s since this bridge started", self.spec.name,
                             self.spec.in_key)
-            return self._begin(now)
+            return self._begin(now, again=True)
         return []
 
     def on_ack(self, dst: str, tid: int, base: int, bitmap: int, now: float) -> list[Delivery]:

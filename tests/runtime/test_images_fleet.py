@@ -201,6 +201,27 @@ ROS2_MISSION = (MISSIONS / "bluerov_images.yaml").read_text().replace(
     "    in: rov/camera\n", "    ros2: {topic: /rov/camera, type: sensor_msgs/msg/%s}\n")
 
 
+@pytest.mark.parametrize("policy", ["finish", "cancel"])
+def test_a_bad_picture_after_a_good_one_does_not_forget_the_good_one(policy: str) -> None:
+    """A picture bad past its header put while a good one crosses: a counted drop, and the
+    good one goes on to its end and stays the one a request sends again."""
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "policy: finish", f"policy: {policy}")
+    fleet = FastFleet(parse_mission(text), seed=4)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.put("rov", "rov/camera", JPEG[:len(JPEG) // 2], encoding="image/jpeg", at=3.0)
+    fleet.run_until(40.0)
+    assert fleet.cores["rov"].stats.payloads_dropped["rov/camera"] == 1
+    finals = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+    assert len(finals) == 1
+    reports = [r["state"] for r in delivery(fleet)]
+    assert "failed" not in reports and reports[-1] == "delivered"
+    fleet.put("operator", "camera/control", {"request": "now"}, at=41.0)
+    fleet.run_until(80.0)
+    finals = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+    assert len(finals) == 2 and finals[1]["zab:sequence"] != finals[0]["zab:sequence"]
+
+
 def test_a_camera_sized_picture_is_not_over_its_key_s_cap() -> None:
     """The runtime refuses a sample over ``payload_cap`` before the core sees it: a picture
     key's cap is the pictures', not that of the mission's longest channel (16 kB here)."""
@@ -312,6 +333,22 @@ def test_a_camera_sending_on_request_sends_only_the_newest_when_asked() -> None:
              for shot in shots]
     assert psnr(small[2], got[-1][2]) > 40 > 30 > max(psnr(s, got[-1][2]) for s in small[:2])
     assert [r["state"] for r in delivery(fleet)] == ["queued", "sent", "delivered"]
+
+
+def test_a_request_sends_the_last_good_picture_where_the_newest_does_not_decode() -> None:
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    policy: finish", "    send: on_request\n    policy: finish")
+    fleet = FastFleet(parse_mission(text), seed=8)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.put("operator", "camera/control", {"request": "now"}, at=2.0)
+    fleet.run_until(40.0)
+    fleet.put("rov", "rov/camera", JPEG[:len(JPEG) // 2], encoding="image/jpeg", at=41.0)
+    fleet.put("operator", "camera/control", {"request": "now"}, at=42.0)
+    fleet.run_until(90.0)
+    assert fleet.cores["rov"].stats.payloads_dropped["rov/camera"] == 1
+    finals = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+    assert len(finals) == 2  # the good one, sent again
+    assert [r["state"] for r in delivery(fleet)].count("delivered") == 2
 
 
 def test_a_picture_unfinished_after_its_ttl_is_given_up_for_the_next() -> None:
