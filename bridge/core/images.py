@@ -202,6 +202,9 @@ class ImageSender(TransferSender):
         self.latest: Picture | None = None  # not sent yet
         self.last: Picture | None = None  # sent last
         self.drop: Drop = _unread  # (set by :class:`Images`: a picture that does not decode)
+        self.in_key = spec.in_key
+        """The camera's input key, as its application puts pictures there (set by
+        :class:`Images`: the mission's may be a template, ``{node}/camera``)."""
         self.kept_at = -math.inf  # when a picture that only waits last asked for a save
 
     def state(self) -> dict[str, Any]:
@@ -241,7 +244,7 @@ class ImageSender(TransferSender):
             try:
                 pixels = taken.opened(self.spec).pixels()
             except ImageInputError as exc:
-                self.drop(taken.key or self.spec.in_key,
+                self.drop(taken.key or self.in_key,
                           f"image channel {self.spec.name!r}: {exc}", now, exc.cause)
                 if again:
                     continue
@@ -281,7 +284,7 @@ class ImageSender(TransferSender):
             if self.latest is None and self.last is None:
                 log.warning("image channel %r: an operator asked for a picture, and none has "
                             "come on %s since this bridge started", self.spec.name,
-                            self.spec.in_key)
+                            self.in_key)
             return self._begin(now, again=True)
         return []
 
@@ -385,6 +388,7 @@ class Images:
             sender = senders.get(channel.index)
             if channel.image is not None and isinstance(sender, ImageSender):
                 sender.drop = drop
+                sender.in_key = channel.image.input_key(node)
                 self.inputs[channel.image.input_key(node)] = sender
                 self.cameras[channel.index + 1] = sender
         self.controls: dict[str, Control] = {
@@ -473,7 +477,7 @@ class Images:
                 file, kind = write_image(decoded, spec.format, spec.jpeg_quality), spec.format
                 pixels = pixel_encoding(decoded)
         except ImageInputError as exc:
-            self.drop(picture.key or spec.in_key, f"image channel {spec.name!r}: {exc}", now,
+            self.drop(picture.key or camera.in_key, f"image channel {spec.name!r}: {exc}", now,
                       exc.cause)
             return
         keys = set()

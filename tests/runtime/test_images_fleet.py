@@ -719,3 +719,25 @@ def test_a_refinement_held_back_by_the_publish_interval_shows_when_the_link_paus
     assert int(got[-1][1]["zab:bytes"]) == came[-1][1] and got[-1][1]["zab:final"] == "false"
     assert came[-1][0] - got[-2][0] < 5.0 <= got[-1][0] - got[-2][0] < 5.0 + 1.0
     assert all(b - a >= 5.0 for (a, _, _), (b, _, _) in itertools.pairwise(got))
+
+
+def test_a_camera_s_log_lines_name_its_own_input_key_not_the_mission_s_template(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Where the mission's input key is a template ('{node}/camera'), the camera's lines
+    name the key its application puts on (rov2/camera): a request before any picture, and a
+    picture kept across a restart (saved without its key) that does not decode."""
+    caplog.set_level(logging.WARNING)
+    fleet = FastFleet(parse_mission(TWO_CAMERAS % ""), seed=8)
+    fleet.put("operator", "rov2/camera/control", {"request": "now"}, at=1.0)
+    fleet.run_until(20.0)
+    asked = [r.getMessage() for r in caplog.records if "since this bridge started" in
+             r.getMessage()]
+    assert asked and all("rov2/camera" in m and "{node}" not in m for m in asked)
+    images = fleet.cores["rov2"].images
+    assert images is not None
+    camera = images.inputs["rov2/camera"]
+    camera.restore({**camera.state(), "latest": [JPEG[:len(JPEG) // 2], "image/jpeg", None,
+                                                  None]})
+    fleet.put("operator", "rov2/camera/control", {"request": "now"}, at=21.0)
+    fleet.run_until(40.0)
+    assert fleet.cores["rov2"].outbound.drops.by_cause == {("rov2/camera", "undecodable"): 1}
