@@ -741,3 +741,29 @@ def test_a_camera_s_log_lines_name_its_own_input_key_not_the_mission_s_template(
     fleet.put("operator", "rov2/camera/control", {"request": "now"}, at=21.0)
     fleet.run_until(40.0)
     assert fleet.cores["rov2"].outbound.drops.by_cause == {("rov2/camera", "undecodable"): 1}
+
+
+def test_sixteen_pictures_in_a_burst_do_not_reuse_the_sequence_the_operator_holds() -> None:
+    """Sequence numbers wrap at 16: with policy cancel, the last of a burst of 16 pictures
+    took the number of the picture the operator had finished, and the operator took its
+    fragments for that picture's (ignored) while the camera reported it delivered. The
+    camera skips the number each receiver last acknowledged."""
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "policy: finish", "policy: cancel")
+    fleet = FastFleet(parse_mission(text), seed=7)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(40.0)
+    first = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+    assert len(first) == 1
+    shots = [seabed(240, 320, seed=100 + i, colour=False) for i in range(16)]
+    for shot in shots:
+        fleet.put("rov", "rov/camera", write_image(shot, "jpeg", quality=92),
+                  encoding="image/jpeg", at=41.0)
+    fleet.run_until(100.0)
+    got = [(t, pixels) for _, t, pixels in pictures(fleet) if t["zab:final"] == "true"]
+    assert len(got) == 2, [t["zab:sequence"] for t, _ in got]
+    assert got[1][0]["zab:sequence"] != first[0]["zab:sequence"]
+    newest = np.asarray(Image.fromarray(shots[-1]).resize((160, 120), Image.Resampling.LANCZOS))
+    assert psnr(newest, got[1][1]) > 30
+    delivered = [r for r in delivery(fleet) if r["state"] == "delivered"]
+    assert len(delivered) == 2 and delivered[1]["sequence"] == int(got[1][0]["zab:sequence"])
