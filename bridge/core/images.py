@@ -498,7 +498,8 @@ class Images:
         channel, settings = control.channel, control.settings
         try:
             merged = dict(settings)
-            request = self._merge(merged, value, _spec(channel).largest_budget)
+            spec = _spec(channel)
+            request = self._merge(merged, value, spec.largest_budget, spec)
             payload = channel.pack([control_payload(
                 merged, request, control.camera if len(channel.receivers) > 1 else None)])
         except (EncodeError, TypeError, ValueError) as exc:
@@ -512,10 +513,13 @@ class Images:
         return {**settings, "request": request}
 
     @staticmethod
-    def _merge(settings: dict[str, Any], value: Any, largest_budget: int) -> str:
+    def _merge(settings: dict[str, Any], value: Any, largest_budget: int,
+               spec: ImageSpec | None = None) -> str:
         """Merge an operator's control into ``settings``; returns its request. A value the
         camera would not follow as given (its control channel clamps, an ROI narrower than
-        its 64ths) is a :class:`ValueError`: the settings answered are those it applies."""
+        its 64ths, a budget below a picture's fewest fragments, which would exceed it) is a
+        :class:`ValueError`: the settings answered are those it applies (``spec``: the
+        channel's, for its smallest budget)."""
         if not isinstance(value, dict):
             raise ValueError("a control is a map: {request, width, height, budget_bytes, roi}")
         unknown = set(value) - {"request", "width", "height", "budget_bytes", "roi"}
@@ -528,11 +532,18 @@ class Images:
         for name in ("width", "height", "budget_bytes"):
             if name in value:
                 low, high = CONTROL_BOUNDS[name]
+                if name == "budget_bytes" and spec is not None:
+                    low = max(low, spec.smallest_budget)
                 channels = name == "budget_bytes" and largest_budget <= high
                 high = largest_budget if channels else high
                 number = _whole(value[name])
                 if number is None:
                     raise ValueError(f"{name} {value[name]!r} is not a whole number")
+                if name == "budget_bytes" and spec is not None \
+                        and number < spec.smallest_budget:
+                    raise ValueError(f"budget_bytes {number} is below one picture's smallest "
+                                     f"stream, {spec.smallest_stream()} (a fragment crosses "
+                                     "whole)")
                 if not low <= number <= high:
                     raise ValueError(f"{name} {number} is outside {low}..{high}" + (
                         " (the channel's max_budget_bytes)" if channels else ""))

@@ -83,6 +83,7 @@ class ImageBoard:
         return [{"channel": name, "cameras": sorted({s for c, s in self.keys.values()
                                                      if c == name}),
                  "width": spec.width, "height": spec.height, "budget_bytes": spec.budget_bytes,
+                 "min_budget_bytes": spec.smallest_budget,
                  "max_budget_bytes": spec.largest_budget, "roi": spec.roi}
                 for name, spec in self.specs.items()]
 
@@ -127,8 +128,10 @@ class ImageBoard:
         if "budget_bytes" in message:
             budget = message["budget_bytes"]
             if isinstance(budget, bool) or not isinstance(budget, int) \
-                    or not 16 <= budget <= spec.largest_budget:
-                raise ImageControlError(f"budget {budget!r} is not 16..{spec.largest_budget}")
+                    or not spec.smallest_budget <= budget <= spec.largest_budget:
+                raise ImageControlError(f"budget {budget!r} is not {spec.smallest_budget}.."
+                                        f"{spec.largest_budget} (whole fragments of "
+                                        f"{spec.fragment_bytes} bytes)")
             value["budget_bytes"] = budget
         if "roi" in message:
             roi = message["roi"]

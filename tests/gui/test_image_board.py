@@ -95,3 +95,11 @@ def test_a_page_s_boolean_is_no_number(message: dict) -> None:
     board = ImageBoard(load_mission(MISSIONS / "bluerov_images.yaml"), "operator")
     with pytest.raises(ImageControlError):
         board.control({"channel": "camera", **message})
+
+
+def test_a_page_s_budget_below_one_fragment_is_refused() -> None:
+    board = ImageBoard(load_mission(MISSIONS / "bluerov_images.yaml"), "operator")
+    assert board.describe()[0]["min_budget_bytes"] == 37
+    with pytest.raises(ImageControlError, match=r"budget 16 is not 37\.\.6400"):
+        board.control({"channel": "camera", "budget_bytes": 16})
+    assert board.control({"channel": "camera", "budget_bytes": 37})[1]["budget_bytes"] == 37

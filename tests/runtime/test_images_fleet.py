@@ -429,8 +429,10 @@ def test_steering_answers_the_settings_and_a_control_that_changes_nothing_stays_
 
 
 @pytest.mark.parametrize("control, why", [
-    ({"budget_bytes": 100_000}, "budget_bytes 100000 is outside 16..6400"),
-    ({"budget_bytes": 10}, "budget_bytes 10 is outside 16..6400"),
+    ({"budget_bytes": 100_000}, "budget_bytes 100000 is outside 37..6400"),
+    ({"budget_bytes": 10}, "budget_bytes 10 is below one picture's smallest stream"),
+    ({"budget_bytes": 36}, "budget_bytes 36 is below one picture's smallest stream, a "
+                           "37-byte fragment"),
     ({"width": 0}, "width 0 is outside 8..2048"),
     ({"height": 4096}, "height 4096 is outside 8..2048"),
     ({"width": "abc"}, "width 'abc' is not a whole number"),
@@ -767,3 +769,38 @@ def test_sixteen_pictures_in_a_burst_do_not_reuse_the_sequence_the_operator_hold
     assert psnr(newest, got[1][1]) > 30
     delivered = [r for r in delivery(fleet) if r["state"] == "delivered"]
     assert len(delivered) == 2 and delivered[1]["sequence"] == int(got[1][0]["zab:sequence"])
+
+
+def test_a_budget_is_honoured_or_refused_never_exceeded() -> None:
+    """A budget of 16 bytes cannot be kept (a picture crosses in whole fragments, 37 bytes
+    here): it is refused saying what the least is, not answered with a 37-byte picture; a
+    budget between fragments gets the whole fragments it holds (100: two, 74 bytes)."""
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=6)
+    images = fleet.cores["operator"].images
+    assert images is not None
+    fleet.put("operator", "camera/control", {"budget_bytes": 16}, at=0.5)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(2.0)
+    assert fleet.cores["operator"].stats.payloads_dropped["camera/control"] == 1
+    assert images.steer("camera/control", {}, fleet.now)["budget_bytes"] == 1600
+    fleet.put("operator", "camera/control", {"budget_bytes": 100, "request": "cancel"},
+              at=3.0)
+    fleet.put("operator", "camera/control", {"request": "now"}, at=4.0)
+    fleet.run_until(60.0)
+    last = pictures(fleet)[-1][1]
+    assert last["zab:final"] == "true" and int(last["zab:budget"]) == 74
+
+
+def test_a_mission_budget_below_one_fragment_is_refused_saying_why() -> None:
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "budget_bytes: 1600", "budget_bytes: 16")
+    with pytest.raises(MissionProblems, match="budget_bytes 16 is below one picture's "
+                                              "smallest stream, a 37-byte fragment"):
+        parse_mission(text)
+
+
+def test_the_wire_knows_the_stream_header_the_codec_writes() -> None:
+    from bridge.image.codec import header_bytes
+    from bridge.wire.images import STREAM_HEADER_BYTES
+
+    assert header_bytes(True) == STREAM_HEADER_BYTES
