@@ -112,7 +112,8 @@ def read_picture(spec: ImageSpec, data: bytes, encoding: str) -> InputImage:
         raise ImageInputError(str(exc)) from None
     if msgtype.endswith("/Image"):
         return open_raw(message, spec.max_input_pixels, spec.colour)
-    kind = "image/png" if "png" in str(message.get("format", "")).lower() else ""
+    said = str(message.get("format", "")).lower()  # "jpeg", "png", "bgr8; jpeg compressed …"
+    kind = "image/png" if "png" in said else "image/jpeg" if "jp" in said else ""
     return open_image(bytes(message.get("data", b"")), kind, spec.accept,
                       spec.max_input_pixels, spec.colour)
 
@@ -157,6 +158,19 @@ def _settings(saved: Mapping[str, Any], spec: ImageSpec) -> dict[str, Any]:
             "roi": tuple(float(v) for v in roi) if roi else None}
 
 
+def _whole(value: Any) -> int | None:
+    """``value`` as a whole number: an int, or a float without a fraction (160.0, as some
+    JSON writers put it); None for anything else (160.5 is not 160, nor ``true`` a 1, nor
+    the text "160" a number)."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return None
+
+
 def control_keys(table: ChannelTable, node: str) -> dict[str, tuple[ChannelCodec, int]]:
     """Where operators at ``node`` steer the cameras whose pictures come here: each image
     channel's control key, with its control channel and the camera it steers (its number in
@@ -188,6 +202,9 @@ class ImageSender(TransferSender):
         self.latest: Picture | None = None  # not sent yet
         self.last: Picture | None = None  # sent last
         self.drop: Drop = _unread  # (set by :class:`Images`: a picture that does not decode)
+        self.in_key = spec.in_key
+        """The camera's input key, as its application puts pictures there (set by
+        :class:`Images`: the mission's may be a template, ``{node}/camera``)."""
         self.kept_at = -math.inf  # when a picture that only waits last asked for a save
 
     def state(self) -> dict[str, Any]:
@@ -212,22 +229,29 @@ class ImageSender(TransferSender):
             return []
         return self._begin(now)
 
-    def _begin(self, now: float) -> list[Delivery]:
-        """Send the newest picture (replacing any in flight)."""
+    def _begin(self, now: float, again: bool = False) -> list[Delivery]:
+        """Send the newest picture (replacing any in flight); ``again``: an operator's
+        request, which sends the last one sent where the newest does not decode. A picture
+        that does not decode is a counted drop that leaves the one in flight going and the
+        last one sent as it was (what a request sends again)."""
         from bridge.image.formats import ImageInputError
 
-        taken = self.latest or self.last
-        if taken is None:
-            return []
-        self.latest, self.last = None, None
-        try:
-            pixels = taken.opened(self.spec).pixels()
-        except ImageInputError as exc:
-            self.drop(taken.key or self.spec.in_key, f"image channel {self.spec.name!r}: "
-                      f"{exc}", now, exc.cause)
-            return []
-        self.last = taken
-        return self.offer_bytes(self.recode(pixels), now, taken.key, taken.ref)
+        for taken in [p for p in (self.latest, self.last) if p is not None]:
+            if taken is self.latest:
+                self.latest = None
+            else:
+                self.last = None  # (sent again: it becomes the last one below)
+            try:
+                pixels = taken.opened(self.spec).pixels()
+            except ImageInputError as exc:
+                self.drop(taken.key or self.in_key,
+                          f"image channel {self.spec.name!r}: {exc}", now, exc.cause)
+                if again:
+                    continue
+                return []
+            self.last = taken
+            return self.offer_bytes(self.recode(pixels), now, taken.key, taken.ref)
+        return []
 
     def recode(self, pixels: Pixels) -> bytes:
         """``pixels`` as a progressive stream of the current settings: fitted to the size,
@@ -260,8 +284,8 @@ class ImageSender(TransferSender):
             if self.latest is None and self.last is None:
                 log.warning("image channel %r: an operator asked for a picture, and none has "
                             "come on %s since this bridge started", self.spec.name,
-                            self.spec.in_key)
-            return self._begin(now)
+                            self.in_key)
+            return self._begin(now, again=True)
         return []
 
     def on_ack(self, dst: str, tid: int, base: int, bitmap: int, now: float) -> list[Delivery]:
@@ -364,6 +388,7 @@ class Images:
             sender = senders.get(channel.index)
             if channel.image is not None and isinstance(sender, ImageSender):
                 sender.drop = drop
+                sender.in_key = channel.image.input_key(node)
                 self.inputs[channel.image.input_key(node)] = sender
                 self.cameras[channel.index + 1] = sender
         self.controls: dict[str, Control] = {
@@ -452,7 +477,7 @@ class Images:
                 file, kind = write_image(decoded, spec.format, spec.jpeg_quality), spec.format
                 pixels = pixel_encoding(decoded)
         except ImageInputError as exc:
-            self.drop(picture.key or spec.in_key, f"image channel {spec.name!r}: {exc}", now,
+            self.drop(picture.key or camera.in_key, f"image channel {spec.name!r}: {exc}", now,
                       exc.cause)
             return
         keys = set()
@@ -473,7 +498,8 @@ class Images:
         channel, settings = control.channel, control.settings
         try:
             merged = dict(settings)
-            request = self._merge(merged, value, _spec(channel).largest_budget)
+            spec = _spec(channel)
+            request = self._merge(merged, value, spec.largest_budget, spec)
             payload = channel.pack([control_payload(
                 merged, request, control.camera if len(channel.receivers) > 1 else None)])
         except (EncodeError, TypeError, ValueError) as exc:
@@ -487,10 +513,13 @@ class Images:
         return {**settings, "request": request}
 
     @staticmethod
-    def _merge(settings: dict[str, Any], value: Any, largest_budget: int) -> str:
+    def _merge(settings: dict[str, Any], value: Any, largest_budget: int,
+               spec: ImageSpec | None = None) -> str:
         """Merge an operator's control into ``settings``; returns its request. A value the
         camera would not follow as given (its control channel clamps, an ROI narrower than
-        its 64ths) is a :class:`ValueError`: the settings answered are those it applies."""
+        its 64ths, a budget below a picture's fewest fragments, which would exceed it) is a
+        :class:`ValueError`: the settings answered are those it applies (``spec``: the
+        channel's, for its smallest budget)."""
         if not isinstance(value, dict):
             raise ValueError("a control is a map: {request, width, height, budget_bytes, roi}")
         unknown = set(value) - {"request", "width", "height", "budget_bytes", "roi"}
@@ -503,12 +532,18 @@ class Images:
         for name in ("width", "height", "budget_bytes"):
             if name in value:
                 low, high = CONTROL_BOUNDS[name]
+                if name == "budget_bytes" and spec is not None:
+                    low = max(low, spec.smallest_budget)
                 channels = name == "budget_bytes" and largest_budget <= high
                 high = largest_budget if channels else high
-                try:
-                    number = int(value[name])
-                except (TypeError, ValueError):
-                    raise ValueError(f"{name} {value[name]!r} is not a whole number") from None
+                number = _whole(value[name])
+                if number is None:
+                    raise ValueError(f"{name} {value[name]!r} is not a whole number")
+                if name == "budget_bytes" and spec is not None \
+                        and number < spec.smallest_budget:
+                    raise ValueError(f"budget_bytes {number} is below one picture's smallest "
+                                     f"stream, {spec.smallest_stream()} (a fragment crosses "
+                                     "whole)")
                 if not low <= number <= high:
                     raise ValueError(f"{name} {number} is outside {low}..{high}" + (
                         " (the channel's max_budget_bytes)" if channels else ""))
@@ -518,6 +553,9 @@ class Images:
             if roi is not None:
                 if not isinstance(roi, (list, tuple)) or len(roi) != 4:
                     raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
+                if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                           for v in roi):  # (true is no 1.0, "0.5" no fraction)
+                    raise ValueError(f"roi {roi!r}: a corner is not a number")
                 x0, y0, x1, y1 = (float(v) for v in roi)
                 if not (0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1):
                     raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")

@@ -3,6 +3,9 @@
 A channel whose value does not fit a frame sends it as a *transfer*: the packed value's bytes,
 trailing zero bytes trimmed, cut into ``chunk_bytes`` fragments that share frames with other
 channels. Each fragment carries the transfer id (modulo 16), its index and the fragment count.
+A new transfer skips the id each receiver last acknowledged (a receiver takes fragments of the
+id it holds for that transfer's), and a receiver given other bytes at a place it holds under
+that id starts afresh.
 
 Receivers acknowledge in the frames they send anyway with ``base`` (first fragment missing, or
 the count when complete) and a bitmap of the ``WINDOW`` fragments after it that they hold (seed
@@ -109,6 +112,9 @@ class TransferSender:
         self.queue: deque[Transfer] = deque()
         self._next_id = 0
         self._tid_offset = first_seq % TID_MOD
+        self.holds: dict[str, int] = {}
+        """Per receiver: the transfer id its last acknowledgement named (the transfer it
+        holds, finished or not): a new transfer does not take it (:meth:`offer_bytes`)."""
 
     def offer(self, payload: int, now: float, key: str | None = None,
               ref: str | None = None) -> list[Delivery]:
@@ -119,8 +125,8 @@ class TransferSender:
                     ref: str | None = None) -> list[Delivery]:
         """:meth:`offer` of bytes as they are (an image stream's)."""
         reports: list[Delivery] = []
-        item = Transfer(self._next_id, (self._next_id + self._tid_offset) % TID_MOD,
-                        data, now, key, ref, self.channel.chunk_bytes, self.dests)
+        item = Transfer(self._next_id, self._fresh_tid(), data, now, key, ref,
+                        self.channel.chunk_bytes, self.dests)
         self._next_id += 1
         if not self.channel.reliable:
             for old in [*([self.current] if self.current else []), *self.queue]:
@@ -132,6 +138,19 @@ class TransferSender:
         reports += self._report(item, "queued", now)
         self._start(now)
         return reports
+
+    def _fresh_tid(self) -> int:
+        """The next transfer id on the wire, past any a receiver holds: ids wrap at 16, and
+        a receiver given the id of the transfer it finished takes the new one's fragments for
+        that one's (duplicates, ignored) and acknowledges it whole. Where every id is held
+        (more receivers than ids), the next one as numbered."""
+        held = {tid for dst, tid in self.holds.items() if dst in self.dests}
+        for _ in range(TID_MOD):
+            tid = (self._next_id + self._tid_offset) % TID_MOD
+            if tid not in held:
+                return tid
+            self._tid_offset = (self._tid_offset + 1) % TID_MOD
+        return (self._next_id + self._tid_offset) % TID_MOD
 
     def refuse(self, now: float, key: str | None, ref: str | None, reason: str
                ) -> list[Delivery]:
@@ -193,6 +212,7 @@ class TransferSender:
             self.current.held.setdefault(dst, set()).update(indices)
 
     def on_ack(self, dst: str, tid: int, base: int, bitmap: int, now: float) -> list[Delivery]:
+        self.holds[dst] = tid  # (whatever it acknowledges: what it holds)
         item = self.current
         if item is None or tid != item.tid or dst not in item.dests:
             return []
@@ -259,12 +279,13 @@ class TransferSender:
         """Everything a restart must resume: numbering and every unfinished transfer."""
         items = [*([self.current] if self.current else []), *self.queue]
         return {"next_id": self._next_id, "tid_offset": self._tid_offset,
-                "items": [_transfer_state(i) for i in items]}
+                "holds": dict(self.holds), "items": [_transfer_state(i) for i in items]}
 
     def restore(self, state: dict[str, Any]) -> None:
         """Resume from :meth:`state`: the transfer under way starts its fragments again."""
         self._next_id = int(state["next_id"])
         self._tid_offset = int(state["tid_offset"])
+        self.holds = {str(d): int(t) for d, t in (state.get("holds") or {}).items()}
         items = [_transfer_from(s, self.channel.chunk_bytes) for s in state["items"]]
         self.current, self.queue = None, deque(items)
         self._start(0.0)
@@ -336,13 +357,24 @@ class TransferReceiver:
         self.complete = False
         self.cancelled = 0
         self.duplicates = 0
+        self.whole: bytes | None = None
+        """The transfer completed last, while it is the one held (not saved: a restarted
+        receiver takes a fragment of its id and count for a copy, as ever)."""
 
     def on_fragment(self, tid: int, index: int, count: int, chunk: bytes) -> bytes | None:
-        """A fragment arrived; returns the transfer's bytes when it just completed."""
-        if tid != self.tid or count != self.count:
+        """A fragment arrived; returns the transfer's bytes when it just completed. A
+        fragment of the id held whose bytes differ from those held at its place is another
+        transfer's (ids wrap at 16): that one starts afresh."""
+        held = self.chunks.get(index)
+        if self.complete and self.whole is not None:
+            size = len(chunk)
+            held = self.whole[index * size:(index + 1) * size]
+        other = held is not None and held != chunk
+        if tid != self.tid or count != self.count or other:
             if self.tid is not None and not self.complete and self.chunks:
                 self.cancelled += 1
             self.tid, self.count, self.chunks, self.complete = tid, count, {}, False
+            self.whole = None
         if self.complete or index in self.chunks:
             self.duplicates += 1
             return None
@@ -350,7 +382,7 @@ class TransferReceiver:
         if len(self.chunks) < self.count:
             return None
         self.complete = True
-        data = b"".join(self.chunks[i] for i in range(self.count))
+        data = self.whole = b"".join(self.chunks[i] for i in range(self.count))
         self.chunks = {}
         return data
 

@@ -83,6 +83,7 @@ class ImageBoard:
         return [{"channel": name, "cameras": sorted({s for c, s in self.keys.values()
                                                      if c == name}),
                  "width": spec.width, "height": spec.height, "budget_bytes": spec.budget_bytes,
+                 "min_budget_bytes": spec.smallest_budget,
                  "max_budget_bytes": spec.largest_budget, "roi": spec.roi}
                 for name, spec in self.specs.items()]
 
@@ -120,19 +121,24 @@ class ImageBoard:
         for name in ("width", "height"):
             if name in message:
                 side = message[name]
-                if not isinstance(side, int) or not MIN_SIDE <= side <= MAX_SIDE:
+                if isinstance(side, bool) or not isinstance(side, int) \
+                        or not MIN_SIDE <= side <= MAX_SIDE:
                     raise ImageControlError(f"{name} {side!r} is not {MIN_SIDE}..{MAX_SIDE}")
                 value[name] = side
         if "budget_bytes" in message:
             budget = message["budget_bytes"]
-            if not isinstance(budget, int) or not 16 <= budget <= spec.largest_budget:
-                raise ImageControlError(f"budget {budget!r} is not 16..{spec.largest_budget}")
+            if isinstance(budget, bool) or not isinstance(budget, int) \
+                    or not spec.smallest_budget <= budget <= spec.largest_budget:
+                raise ImageControlError(f"budget {budget!r} is not {spec.smallest_budget}.."
+                                        f"{spec.largest_budget} (whole fragments of "
+                                        f"{spec.fragment_bytes} bytes)")
             value["budget_bytes"] = budget
         if "roi" in message:
             roi = message["roi"]
             if roi is not None:
                 if not (isinstance(roi, list) and len(roi) == 4
-                        and all(isinstance(v, int | float) for v in roi)):
+                        and all(isinstance(v, int | float) and not isinstance(v, bool)
+                                for v in roi)):
                     raise ImageControlError("roi is [x0, y0, x1, y1] in fractions, or null")
                 x0, y0, x1, y1 = (min(1.0, max(0.0, float(v))) for v in roi)
                 if not (x0 < x1 and y0 < y1):

@@ -44,10 +44,16 @@ class ImageInputError(ValueError):
 
 def kind_of(data: bytes, encoding: str) -> str:
     """``jpeg`` or ``png``: from the encoding (``image/jpeg`` …) or, when it names no image
-    type (``zenoh/bytes``, ``application/octet-stream``), from the bytes' signature."""
+    type (``zenoh/bytes``, ``application/octet-stream``), from the bytes' signature. An
+    encoding naming one type on the other's signature is refused (``unfit``): neither is
+    trusted."""
     kind = encoding.partition(";")[0].strip().lower()
     for name, mime in KINDS.items():
         if kind == mime or (name == "jpeg" and kind == "image/jpg"):
+            for signature, other in _SIGNATURES.items():
+                if other != name and data.startswith(signature):
+                    raise ImageInputError(f"the encoding says {kind} but the bytes are a "
+                                          f"{other.upper()} image", "unfit")
             return name
     if kind.startswith("image/"):
         raise ImageInputError(f"image type {kind!r} is not one zab reads (jpeg, png)", "unfit")
@@ -166,8 +172,8 @@ def _decoded(data: bytes, kind: str, colour: bool) -> U8:
 
 @contextlib.contextmanager
 def _pillow_errors(kind: str, data: bytes) -> Iterator[None]:
-    """Pillow's complaints about ``data`` as :class:`ImageInputError` (decompression bombs
-    included)."""
+    """Pillow's complaints about ``data`` as :class:`ImageInputError` (a decompression bomb:
+    ``too_large``)."""
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -176,8 +182,12 @@ def _pillow_errors(kind: str, data: bytes) -> Iterator[None]:
             yield
     except UnidentifiedImageError:
         raise ImageInputError(f"not a decodable {kind} image ({len(data)} bytes)") from None
-    except (OSError, ValueError, SyntaxError, struct.error,
-            Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        # (its header declares more pixels than Pillow decodes, whatever the channel takes)
+        raise ImageInputError(f"the {kind} image's header declares more pixels than zab "
+                              f"decodes, a decompression bomb? ({len(data)} bytes: {exc})",
+                              "too_large") from None
+    except (OSError, ValueError, SyntaxError, struct.error) as exc:
         raise ImageInputError(f"cannot decode the {kind} image: {exc}") from None
 
 

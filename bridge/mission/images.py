@@ -75,7 +75,8 @@ class ImageChannel(MissionModel):
     colour: bool = Field(False, description="Send colour (YCbCr, chroma at half resolution); "
                          "else grey.")
     budget_bytes: int = Field(1600, ge=16, le=65536, description="Bytes of each picture's "
-                              "stream (whole fragments), until an operator sets another.")
+                              "stream (whole fragments, at least one: a fragment crosses "
+                              "whole), until an operator sets another.")
     max_budget_bytes: int | None = Field(None, ge=16, le=65536, description="Largest budget "
                                          "an operator may set; default: budget_bytes.")
     roi: tuple[Fraction, Fraction, Fraction, Fraction] | None = Field(

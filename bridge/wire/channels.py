@@ -533,6 +533,11 @@ def compile_images(mission: Mission) -> tuple[ChannelCodec, ...]:
             if chunk < 1:
                 raise ChannelTableError("frames too small for an image fragment", loc)
             fragment_bits = (-(-image.largest_budget // chunk)).bit_length()
+        spec = replace(spec, fragment_bytes=chunk)
+        if image.budget_bytes < spec.smallest_budget:
+            raise ChannelTableError(
+                f"budget_bytes {image.budget_bytes} is below one picture's smallest stream, "
+                f"{spec.smallest_stream()} (a fragment crosses whole)", (*loc, "budget_bytes"))
         index = len(mission.channels) + 2 * i
         out.append(ChannelCodec(index, image.name, senders, receivers, 0.0, False,
                                 image.priority, (), retry_s=image.retry_s, ttl_s=image.ttl_s,

@@ -24,7 +24,11 @@ if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
 
 __all__ = ["CONTROL_BOUNDS", "CONTROL_FIELDS", "CONTROL_TTL_S", "PICTURE_METADATA", "REQUESTS",
-           "ImageSpec", "control_layout", "control_payload"]
+           "STREAM_HEADER_BYTES", "ImageSpec", "control_layout", "control_payload"]
+
+STREAM_HEADER_BYTES = 13
+"""Bytes of a progressive stream's header with a region of interest (``bridge.image.codec``'s
+``header_bytes(True)``): a picture's smallest stream is the whole fragments that hold it."""
 
 REQUESTS = ("none", "now", "cancel")
 """What an operator's control asks besides settings: nothing more, a picture now, or that the
@@ -90,6 +94,22 @@ class ImageSpec:
     ros2: Ros2Element | None = None  # a ROS 2 camera topic, instead of in_key's bytes
     ros2_out: Ros2Element | None = None  # the pictures as CompressedImages too, at receivers
     control: bool = False
+    fragment_bytes: int = 0
+    """The stream's fragment size (set once the frames' sizes give it)."""
+
+    @property
+    def smallest_budget(self) -> int:
+        """The least budget a picture keeps: the whole fragments its header takes (a
+        fragment crosses whole, so a budget below it would be exceeded)."""
+        chunk = self.fragment_bytes
+        return chunk * -(-STREAM_HEADER_BYTES // chunk) if chunk else 1
+
+    def smallest_stream(self) -> str:
+        """:attr:`smallest_budget` in words."""
+        chunk = self.fragment_bytes
+        fragments = self.smallest_budget // chunk if chunk else 0
+        return (f"a {chunk}-byte fragment" if fragments == 1 else
+                f"{fragments} fragments of {chunk} bytes")
 
     @classmethod
     def from_mission(cls, image: ImageChannel,
@@ -144,3 +164,4 @@ def control_payload(settings: dict[str, Any], request: str,
             "budget_bytes": settings["budget_bytes"], "roi_on": roi is not None,
             **dict(zip(("x0", "y0", "x1", "y1"), corners, strict=True)),
             **({"camera": camera} if camera is not None else {})}
+

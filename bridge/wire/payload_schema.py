@@ -114,9 +114,9 @@ def _image_uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, str, st
     spec = channel.image
     assert spec is not None
     if spec.control:
-        def whole(name: str, most: int = 1 << 62) -> dict[str, Any]:
+        def whole(name: str, most: int = 1 << 62, least: int = 0) -> dict[str, Any]:
             low, high = CONTROL_BOUNDS[name]
-            return {"type": "integer", "minimum": low, "maximum": min(high, most)}
+            return {"type": "integer", "minimum": max(low, least), "maximum": min(high, most)}
 
         schema = {
             "description": "An operator's control (any subset): settings for the next "
@@ -126,7 +126,8 @@ def _image_uses(channel: ChannelCodec) -> Iterator[tuple[Direction, str, str, st
             "properties": {
                 "request": {"enum": list(REQUESTS)},
                 "width": whole("width"), "height": whole("height"),
-                "budget_bytes": whole("budget_bytes", spec.largest_budget),
+                "budget_bytes": whole("budget_bytes", spec.largest_budget,
+                                      spec.smallest_budget),
                 "roi": {"description": "[x0, y0, x1, y1] in fractions of the picture, or "
                                        "null for none",
                         "oneOf": [{"type": "null"}, {

@@ -86,3 +86,20 @@ def test_a_jpeg_picture_s_metadata_reads_as_a_png_s() -> None:
     Image.fromarray(PICTURE).save(out, "JPEG", comment=b'{"exposure_ms": 8}')
     item = board.ingest("rov/camera", out.getvalue(), "image/jpeg", 7.0)
     assert item is not None and item["meta"]["whole"] is True
+
+
+@pytest.mark.parametrize("message", [
+    {"roi": [0, 0, True, True]}, {"width": True}, {"budget_bytes": True}])
+def test_a_page_s_boolean_is_no_number(message: dict) -> None:
+    """A page's ``true`` is refused where a size or an ROI corner goes, not read as 1."""
+    board = ImageBoard(load_mission(MISSIONS / "bluerov_images.yaml"), "operator")
+    with pytest.raises(ImageControlError):
+        board.control({"channel": "camera", **message})
+
+
+def test_a_page_s_budget_below_one_fragment_is_refused() -> None:
+    board = ImageBoard(load_mission(MISSIONS / "bluerov_images.yaml"), "operator")
+    assert board.describe()[0]["min_budget_bytes"] == 37
+    with pytest.raises(ImageControlError, match=r"budget 16 is not 37\.\.6400"):
+        board.control({"channel": "camera", "budget_bytes": 16})
+    assert board.control({"channel": "camera", "budget_bytes": 37})[1]["budget_bytes"] == 37

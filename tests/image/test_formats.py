@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import io
+import struct
 import warnings
+import zlib
 
 import numpy as np
 import pytest
@@ -46,6 +48,18 @@ def test_images_read_grey_or_colour() -> None:
     assert np.abs(rgb.astype(int) - PIXELS).mean() < 6
 
 
+@pytest.mark.parametrize("data, encoding, said, was", [
+    (PNG, "image/jpeg", "image/jpeg", "PNG"), (JPEG, "image/png", "image/png", "JPEG"),
+    (PNG, "image/jpg", "image/jpg", "PNG")], ids=["png-as-jpeg", "jpeg-as-png", "png-as-jpg"])
+def test_an_encoding_that_names_the_other_type_is_refused_saying_so(
+        data: bytes, encoding: str, said: str, was: str) -> None:
+    """A PNG put as image/jpeg is not a picture the sample says it is: refused, naming both."""
+    with pytest.raises(ImageInputError) as refused:
+        open_image(data, encoding, {"jpeg", "png"}, 10**6, colour=False)
+    assert str(refused.value) == f"the encoding says {said} but the bytes are a {was} image"
+    assert refused.value.cause == "unfit"
+
+
 def test_a_type_not_enabled_is_refused() -> None:
     with pytest.raises(ImageInputError, match="png images are not enabled"):
         read_image(PNG, "image/png", {"jpeg"}, 10_000, colour=False)
@@ -54,6 +68,42 @@ def test_a_type_not_enabled_is_refused() -> None:
 def test_too_many_pixels_are_refused_before_decoding() -> None:
     with pytest.raises(ImageInputError, match="more than the channel's 4000"):
         read_image(PNG, "image/png", {"png"}, 4000, colour=False)
+
+
+def png_declaring(width: int, height: int) -> bytes:
+    """A tiny PNG whose header declares ``width × height`` pixels (a decompression bomb's
+    header: its few bytes of data would inflate to the declared size)."""
+    data = write_image(np.zeros((8, 8), np.uint8), "png")
+    at = data.index(b"IHDR")
+    body = struct.pack(">II", width, height) + data[at + 12:at + 17]
+    return data[:at + 4] + body + struct.pack(">I", zlib.crc32(b"IHDR" + body)) + \
+        data[at + 21:]
+
+
+def jpeg_declaring(width: int, height: int) -> bytes:
+    """A small JPEG whose frame header (SOF0) declares ``width × height`` pixels."""
+    data = bytearray(write_image(np.zeros((8, 8), np.uint8), "jpeg"))
+    at = data.index(b"\xff\xc0")
+    data[at + 5:at + 9] = struct.pack(">HH", height, width)
+    return bytes(data)
+
+
+@pytest.mark.parametrize("bomb, kind", [
+    (png_declaring(20000, 20000), "png"),  # over Pillow's error limit (2 × 89 M pixels)
+    (png_declaring(10000, 10000), "png"),  # over its warning limit only
+    (jpeg_declaring(20000, 20000), "jpeg"),
+], ids=["png-error", "png-warning", "jpeg"])
+def test_a_decompression_bomb_is_too_large_whatever_the_channel_s_limit(
+        bomb: bytes, kind: str) -> None:
+    """A header declaring more pixels than Pillow decodes is refused as too large (with the
+    pixels it declares), not as undecodable bytes, and no warning escapes; even where the
+    channel's own limit would take that many."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ImageInputError, match="pixels") as refused:
+            open_image(bomb, f"image/{kind}", {kind}, 10**9, colour=False)
+    assert refused.value.cause == "too_large"
+    assert "decompression bomb" in str(refused.value)
 
 
 def test_undecodable_bytes_are_refused() -> None:

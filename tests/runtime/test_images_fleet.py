@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import itertools
 import json
+import logging
 import re
 
 import numpy as np
@@ -114,6 +115,48 @@ def test_bad_pictures_are_counted_drops() -> None:
     assert fleet.published("operator", "rov/camera") == []
 
 
+def test_a_decompression_bomb_put_on_the_camera_is_a_counted_too_large_drop(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A 100-odd-byte PNG declaring 20000 × 20000 pixels: a too_large drop whose log line
+    says so, on the key it came on; nothing escapes, nothing crosses; the next picture goes."""
+    from tests.image.test_formats import png_declaring
+
+    caplog.set_level(logging.WARNING)
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=5)
+    fleet.put("rov", "rov/camera", png_declaring(20000, 20000), encoding="image/png", at=1.0)
+    fleet.run_until(5.0)
+    assert fleet.cores["rov"].outbound.drops.by_cause == {("rov/camera", "too_large"): 1}
+    assert any("rov/camera" in r.getMessage() and "decompression bomb" in r.getMessage()
+               for r in caplog.records)
+    assert not [r for r in caplog.records if r.exc_info]
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=6.0)
+    fleet.run_until(40.0)
+    assert pictures(fleet)[-1][1]["zab:final"] == "true"
+
+
+def test_a_png_put_as_a_jpeg_is_a_counted_drop_naming_the_mismatch(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """The sample's encoding and its bytes disagree: neither is trusted, the log says which
+    said what (a ROS 2 CompressedImage's format likewise)."""
+    from bridge.ros2.messages import encode_cdr
+
+    caplog.set_level(logging.WARNING)
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=5)
+    fleet.put("rov", "rov/camera", write_image(PICTURE, "png"), encoding="image/jpeg", at=1.0)
+    fleet.run_until(30.0)
+    assert fleet.cores["rov"].outbound.drops.by_cause == {("rov/camera", "unfit"): 1}
+    assert any("rov/camera" in r.getMessage() and "the encoding says image/jpeg but the bytes "
+               "are a PNG image" in r.getMessage() for r in caplog.records)
+    assert fleet.published("operator", "rov/camera") == []
+    fleet = FastFleet(parse_mission(ROS2_MISSION % "CompressedImage"), seed=5)
+    cdr = encode_cdr("jazzy", "sensor_msgs/msg/CompressedImage",
+                     {"format": "jpeg", "data": write_image(PICTURE, "png")})
+    fleet.put("rov", "0/rov/camera/*/*", cdr, encoding="", at=1.0)
+    fleet.run_until(30.0)
+    assert fleet.cores["rov"].outbound.drops.by_cause == {("0/rov/camera/*/*", "unfit"): 1}
+    assert fleet.published("operator", "rov/camera") == []
+
+
 def test_pictures_replaced_while_one_is_in_flight_are_never_decoded(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A camera faster than the water (policy finish): only the picture sent and the newest
@@ -156,6 +199,27 @@ def test_a_picture_bad_past_its_header_is_a_counted_drop_when_its_turn_comes() -
 
 ROS2_MISSION = (MISSIONS / "bluerov_images.yaml").read_text().replace(
     "    in: rov/camera\n", "    ros2: {topic: /rov/camera, type: sensor_msgs/msg/%s}\n")
+
+
+@pytest.mark.parametrize("policy", ["finish", "cancel"])
+def test_a_bad_picture_after_a_good_one_does_not_forget_the_good_one(policy: str) -> None:
+    """A picture bad past its header put while a good one crosses: a counted drop, and the
+    good one goes on to its end and stays the one a request sends again."""
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "policy: finish", f"policy: {policy}")
+    fleet = FastFleet(parse_mission(text), seed=4)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.put("rov", "rov/camera", JPEG[:len(JPEG) // 2], encoding="image/jpeg", at=3.0)
+    fleet.run_until(40.0)
+    assert fleet.cores["rov"].stats.payloads_dropped["rov/camera"] == 1
+    finals = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+    assert len(finals) == 1
+    reports = [r["state"] for r in delivery(fleet)]
+    assert "failed" not in reports and reports[-1] == "delivered"
+    fleet.put("operator", "camera/control", {"request": "now"}, at=41.0)
+    fleet.run_until(80.0)
+    finals = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+    assert len(finals) == 2 and finals[1]["zab:sequence"] != finals[0]["zab:sequence"]
 
 
 def test_a_camera_sized_picture_is_not_over_its_key_s_cap() -> None:
@@ -271,6 +335,22 @@ def test_a_camera_sending_on_request_sends_only_the_newest_when_asked() -> None:
     assert [r["state"] for r in delivery(fleet)] == ["queued", "sent", "delivered"]
 
 
+def test_a_request_sends_the_last_good_picture_where_the_newest_does_not_decode() -> None:
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "    policy: finish", "    send: on_request\n    policy: finish")
+    fleet = FastFleet(parse_mission(text), seed=8)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.put("operator", "camera/control", {"request": "now"}, at=2.0)
+    fleet.run_until(40.0)
+    fleet.put("rov", "rov/camera", JPEG[:len(JPEG) // 2], encoding="image/jpeg", at=41.0)
+    fleet.put("operator", "camera/control", {"request": "now"}, at=42.0)
+    fleet.run_until(90.0)
+    assert fleet.cores["rov"].stats.payloads_dropped["rov/camera"] == 1
+    finals = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+    assert len(finals) == 2  # the good one, sent again
+    assert [r["state"] for r in delivery(fleet)].count("delivered") == 2
+
+
 def test_a_picture_unfinished_after_its_ttl_is_given_up_for_the_next() -> None:
     """ttl_s 10 against the ~27 s a 1.6 kB picture takes: each is reported failed at 10 s and
     the next one starts; none is shown as final."""
@@ -349,13 +429,21 @@ def test_steering_answers_the_settings_and_a_control_that_changes_nothing_stays_
 
 
 @pytest.mark.parametrize("control, why", [
-    ({"budget_bytes": 100_000}, "budget_bytes 100000 is outside 16..6400"),
-    ({"budget_bytes": 10}, "budget_bytes 10 is outside 16..6400"),
+    ({"budget_bytes": 100_000}, "budget_bytes 100000 is outside 37..6400"),
+    ({"budget_bytes": 10}, "budget_bytes 10 is below one picture's smallest stream"),
+    ({"budget_bytes": 36}, "budget_bytes 36 is below one picture's smallest stream, a "
+                           "37-byte fragment"),
     ({"width": 0}, "width 0 is outside 8..2048"),
     ({"height": 4096}, "height 4096 is outside 8..2048"),
     ({"width": "abc"}, "width 'abc' is not a whole number"),
     ({"roi": [0.1, 0.1, 0.2]}, "roi [0.1, 0.1, 0.2] is not [x0, y0, x1, y1]"),
     ({"roi": [0.5, 0.5, 0.505, 0.505]}, "narrower than 1/64"),
+    ({"width": 160.5}, "width 160.5 is not a whole number"),
+    ({"height": True}, "height True is not a whole number"),
+    ({"budget_bytes": 800.25}, "budget_bytes 800.25 is not a whole number"),
+    ({"budget_bytes": "800"}, "budget_bytes '800' is not a whole number"),
+    ({"roi": [0, 0, True, True]}, "roi [0, 0, True, True]: a corner is not a number"),
+    ({"roi": [0, 0, "1", 1]}, "roi [0, 0, '1', 1]: a corner is not a number"),
 ])
 def test_a_control_the_camera_would_not_follow_is_refused_not_clamped(
         control: dict, why: str) -> None:
@@ -375,6 +463,23 @@ def test_a_control_the_camera_would_not_follow_is_refused_not_clamped(
     edge = {"width": 8, "height": 2048, "budget_bytes": 6400, "roi": [0.5, 0.5, 0.52, 0.52]}
     assert images.steer("camera/control", edge, 5.0) == {**edge, "roi": (0.5, 0.5, 0.52, 0.52),
                                                          "request": "none"}
+
+
+def test_a_fractional_or_boolean_size_put_by_an_operator_is_a_counted_drop() -> None:
+    """A width of 160.5 is not 160 (nor is ``true`` a 1, or an ROI corner of ``true`` a
+    1.0): the put is refused as a whole, nothing crosses, the settings stay; a whole number
+    written as a float (160.0, as some JSON writers do) is that number."""
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=6)
+    sent = fleet.cores["operator"].stats.sent_per_channel["camera.control"]
+    for value in ({"width": 80.5}, {"budget_bytes": True}, {"roi": [0, 0, True, True]}):
+        fleet.put("operator", "camera/control", value, at=fleet.now + 0.5)
+    fleet.run_until(10.0)
+    assert fleet.cores["operator"].stats.payloads_dropped["camera/control"] == 3
+    assert fleet.cores["operator"].stats.sent_per_channel["camera.control"] == sent
+    images = fleet.cores["operator"].images
+    assert images is not None
+    assert images.steer("camera/control", {"width": 80.0}, fleet.now)["width"] == 80
+    assert images.steer("camera/control", {}, fleet.now)["roi"] is None
 
 
 def test_a_refused_size_names_its_own_bound() -> None:
@@ -616,3 +721,86 @@ def test_a_refinement_held_back_by_the_publish_interval_shows_when_the_link_paus
     assert int(got[-1][1]["zab:bytes"]) == came[-1][1] and got[-1][1]["zab:final"] == "false"
     assert came[-1][0] - got[-2][0] < 5.0 <= got[-1][0] - got[-2][0] < 5.0 + 1.0
     assert all(b - a >= 5.0 for (a, _, _), (b, _, _) in itertools.pairwise(got))
+
+
+def test_a_camera_s_log_lines_name_its_own_input_key_not_the_mission_s_template(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Where the mission's input key is a template ('{node}/camera'), the camera's lines
+    name the key its application puts on (rov2/camera): a request before any picture, and a
+    picture kept across a restart (saved without its key) that does not decode."""
+    caplog.set_level(logging.WARNING)
+    fleet = FastFleet(parse_mission(TWO_CAMERAS % ""), seed=8)
+    fleet.put("operator", "rov2/camera/control", {"request": "now"}, at=1.0)
+    fleet.run_until(20.0)
+    asked = [r.getMessage() for r in caplog.records if "since this bridge started" in
+             r.getMessage()]
+    assert asked and all("rov2/camera" in m and "{node}" not in m for m in asked)
+    images = fleet.cores["rov2"].images
+    assert images is not None
+    camera = images.inputs["rov2/camera"]
+    camera.restore({**camera.state(), "latest": [JPEG[:len(JPEG) // 2], "image/jpeg", None,
+                                                  None]})
+    fleet.put("operator", "rov2/camera/control", {"request": "now"}, at=21.0)
+    fleet.run_until(40.0)
+    assert fleet.cores["rov2"].outbound.drops.by_cause == {("rov2/camera", "undecodable"): 1}
+
+
+def test_sixteen_pictures_in_a_burst_do_not_reuse_the_sequence_the_operator_holds() -> None:
+    """Sequence numbers wrap at 16: with policy cancel, the last of a burst of 16 pictures
+    took the number of the picture the operator had finished, and the operator took its
+    fragments for that picture's (ignored) while the camera reported it delivered. The
+    camera skips the number each receiver last acknowledged."""
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "policy: finish", "policy: cancel")
+    fleet = FastFleet(parse_mission(text), seed=7)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(40.0)
+    first = [t for _, t, _ in pictures(fleet) if t["zab:final"] == "true"]
+    assert len(first) == 1
+    shots = [seabed(240, 320, seed=100 + i, colour=False) for i in range(16)]
+    for shot in shots:
+        fleet.put("rov", "rov/camera", write_image(shot, "jpeg", quality=92),
+                  encoding="image/jpeg", at=41.0)
+    fleet.run_until(100.0)
+    got = [(t, pixels) for _, t, pixels in pictures(fleet) if t["zab:final"] == "true"]
+    assert len(got) == 2, [t["zab:sequence"] for t, _ in got]
+    assert got[1][0]["zab:sequence"] != first[0]["zab:sequence"]
+    newest = np.asarray(Image.fromarray(shots[-1]).resize((160, 120), Image.Resampling.LANCZOS))
+    assert psnr(newest, got[1][1]) > 30
+    delivered = [r for r in delivery(fleet) if r["state"] == "delivered"]
+    assert len(delivered) == 2 and delivered[1]["sequence"] == int(got[1][0]["zab:sequence"])
+
+
+def test_a_budget_is_honoured_or_refused_never_exceeded() -> None:
+    """A budget of 16 bytes cannot be kept (a picture crosses in whole fragments, 37 bytes
+    here): it is refused saying what the least is, not answered with a 37-byte picture; a
+    budget between fragments gets the whole fragments it holds (100: two, 74 bytes)."""
+    fleet = FastFleet(load_mission(MISSIONS / "bluerov_images.yaml"), seed=6)
+    images = fleet.cores["operator"].images
+    assert images is not None
+    fleet.put("operator", "camera/control", {"budget_bytes": 16}, at=0.5)
+    fleet.put("rov", "rov/camera", JPEG, encoding="image/jpeg", at=1.0)
+    fleet.run_until(2.0)
+    assert fleet.cores["operator"].stats.payloads_dropped["camera/control"] == 1
+    assert images.steer("camera/control", {}, fleet.now)["budget_bytes"] == 1600
+    fleet.put("operator", "camera/control", {"budget_bytes": 100, "request": "cancel"},
+              at=3.0)
+    fleet.put("operator", "camera/control", {"request": "now"}, at=4.0)
+    fleet.run_until(60.0)
+    last = pictures(fleet)[-1][1]
+    assert last["zab:final"] == "true" and int(last["zab:budget"]) == 74
+
+
+def test_a_mission_budget_below_one_fragment_is_refused_saying_why() -> None:
+    text = (MISSIONS / "bluerov_images.yaml").read_text().replace(
+        "budget_bytes: 1600", "budget_bytes: 16")
+    with pytest.raises(MissionProblems, match="budget_bytes 16 is below one picture's "
+                                              "smallest stream, a 37-byte fragment"):
+        parse_mission(text)
+
+
+def test_the_wire_knows_the_stream_header_the_codec_writes() -> None:
+    from bridge.image.codec import header_bytes
+    from bridge.wire.images import STREAM_HEADER_BYTES
+
+    assert header_bytes(True) == STREAM_HEADER_BYTES
