@@ -91,8 +91,10 @@ def zab_water(mission: Path, port: int, env: dict[str, str] | None = None) -> It
         interrupt(proc, 10)
 
 
-def interrupt(proc: subprocess.Popen[Any], timeout: float = 15) -> None:
-    """Stop ``proc`` as Ctrl-C does (killed if it does not stop within ``timeout``)."""
+def interrupt(proc: subprocess.Popen[Any], timeout: float = 30) -> None:
+    """Stop ``proc`` as Ctrl-C does (killed if it does not stop within ``timeout``: Zenoh's
+    ``close()`` alone may take its 10 s open timeout, more on a loaded machine; CI saw a
+    ``zab listen`` outlive 15 s once)."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
         try:
