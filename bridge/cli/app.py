@@ -30,7 +30,7 @@ from bridge.errors import (
     SessionError,
     WaterError,
 )
-from bridge.report.check import check_mission
+from bridge.report.check import check_mission, silent_nodes
 from bridge.runtime.keys import frame_key, throwaway_note
 from bridge.words import counted
 
@@ -380,6 +380,9 @@ def run(
             zab_log = logging.getLogger("zab")
             zab_log.log(logging.WARNING if key.state == "unsaid" else logging.INFO, "%s: %s",
                         node, key.describe())
+            for silent in silent_nodes(loaded):  # (zab check refuses it: said here too)
+                if silent["node"] == node:
+                    zab_log.warning("%s: %s", node, silent["message"])
             zab_log.info("%s: bridge running (Ctrl-C to stop)", node)
 
         announced = asyncio.create_task(announce())

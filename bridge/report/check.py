@@ -142,7 +142,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
     if table.net is not None:
         extra["network"], warnings = network_section(loaded, codec, by_link)
         report.warnings.extend(warnings)
-    silent = _silent(loaded)
+    silent = silent_nodes(loaded)
     report.invalid = located(str(loaded.path), loaded.marks,
                              [(s.pop("loc"), s["message"]) for s in silent]).problems
     for entry, problem in zip(silent, report.invalid, strict=False):
@@ -368,9 +368,7 @@ def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 4)
 
 
-
-
-def _silent(loaded: LoadedMission) -> list[dict[str, Any]]:
+def silent_nodes(loaded: LoadedMission) -> list[dict[str, Any]]:
     """Nodes that would have to send but never get a turn under the mission's MAC (on no link
     of theirs): a sender of a channel, or a receiver of a reliable one (it acknowledges).
     Each with ``loc`` (the caller locates it, then takes it out) and ``message``."""

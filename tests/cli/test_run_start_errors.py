@@ -190,3 +190,22 @@ def test_a_fleet_with_a_port_taken_exits_2_and_does_not_hang(tmp_path: Path) -> 
     output = result.stdout + result.stderr
     assert result.returncode == 2, output
     assert f"cannot start: surface: tcp/127.0.0.1:{ports['7622']} is already in use" in output
+
+
+def test_a_node_that_never_gets_a_turn_is_warned_at_start(mission: tuple[Path, int, int]
+                                                          ) -> None:
+    """`zab check` refuses a sender without a TDMA slot; `zab run` of such a mission still
+    runs (the node may receive), but says at start, once, that its values would never leave."""
+    path, _, _ = mission
+    text = path.read_text()
+    said = {}
+    for order in ("[b]", "[a, b]"):
+        path.write_text(text.replace(
+            "channels:", f"mac: {{type: tdma, slot_s: 1.0, order: {order}}}\nchannels:"))
+        with zab_run(path, "a") as (_, lines):
+            pass
+        said[order] = " ".join("".join(lines).split())  # (the log's lines wrap)
+    assert "never gets a turn" not in said["[a, b]"], said
+    assert said["[b]"].count("never gets a turn") == 1, said
+    assert "node a sends channel 'ping' but never gets a turn to send" in said["[b]"], said
+    assert "add a to mac.order" in said["[b]"], said
