@@ -235,16 +235,17 @@ def test_zab_put_on_a_ros2_key_crosses_and_zab_listen_prints_the_twist() -> None
     assert '"linear": {"x": 0.5, "y": 0.0, "z": -0.25}' in value, value
 
 
-BAD_KEYS = {  # a key, and what zab put and zab listen say is wrong with it
-    "a//b": "an empty part between two slashes ('//' at character 2)",
-    "/a": "it starts with '/'",
-    "a/b/": "it ends with '/'",
-    "": "it is empty",
-    "a?b": "'?' (character 2) is not allowed in a key",
-    "a/*b": "the part '*b' has '*' inside it",
-    "a/**b": "the part '**b' has '*' inside it",
-    "a/$b": "the part '$b' has a '$' not followed by '*'",
-    "a/**/**": "'**/**' is written '**'",
+BAD_KEYS = {  # a key, and what zab put and zab listen say is wrong with it (the mission
+    # file's words: bridge.mission.keyexpr)
+    "a//b": "empty chunk: '//' (write 'a/b')",
+    "/a": "empty chunk: a leading '/' (write 'a')",
+    "a/b/": "empty chunk: a trailing '/' (write 'a/b')",
+    "": "empty",
+    "a?b": "'?' is forbidden",
+    "a/*b": "'*' only as a whole chunk ('*' or '**') or in '$*', not '*b'",
+    "a/**b": "'*' only as a whole chunk ('*' or '**') or in '$*', not '**b'",
+    "a/$b": "'$' only in '$*' (a wildcard inside a chunk), not '$b'",
+    "a/**/**": "not canonical (write 'a/**')",
 }
 
 
@@ -289,11 +290,11 @@ def _one_line_exit_2(*args: str) -> str:
 
 def test_zab_put_and_listen_say_what_is_wrong_with_a_key_or_an_endpoint() -> None:
     assert _one_line_exit_2("put", "tcp/127.0.0.1:9", "a//b", "1") == (
-        "invalid key 'a//b': it has an empty part between two slashes ('//' at character 2); "
-        "a key is parts joined by '/', e.g. robot/nav")
+        "invalid key 'a//b': empty chunk: '//' (write 'a/b'); a key is chunks joined by '/', "
+        "e.g. robot/nav")
     line = _one_line_exit_2("listen", "tcp/127.0.0.1:9", "a/**b")
-    assert line.startswith("invalid key expression 'a/**b': the part '**b' has '*' inside "
-                           "it"), line
+    assert line.startswith("invalid key expression 'a/**b': '*' only as a whole chunk ('*' "
+                           "or '**') or in '$*', not '**b'"), line
     for command in (("put", "notanendpoint", "k", "1"), ("listen", "notanendpoint", "k")):
         assert _one_line_exit_2(*command) == (
             "invalid endpoint 'notanendpoint': not <protocol>/<address>; expected a Zenoh "
