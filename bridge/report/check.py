@@ -44,7 +44,7 @@ class CheckReport:
 
     @property
     def ok(self) -> bool:
-        return not self.errors and not self.invalid
+        return not self.errors  # (``invalid`` are among them)
 
 
 def stream_limits(channel: ChannelCodec, mission: Mission) -> dict[str, Any]:
@@ -384,26 +384,27 @@ def silent_nodes(loaded: LoadedMission) -> list[dict[str, Any]]:
         return []
     places = {c.name: ("channels", i) for i, c in enumerate(mission.channels)}
     places.update({c.name: ("images", i) for i, c in enumerate(mission.images)})
-    found = []
+    found: list[dict[str, Any]] = []
+
+    def add(node: str, c: ChannelCodec, role: str, end: str, message: str) -> None:
+        found.append({"node": node, "channel": c.name, "as": role, "why": missing[node],
+                      "loc": (*places[c.name], end), "message": message})
+
     for c in loaded.table.channels:
         if (c.image is not None and c.image.control) or c.name not in places:
             continue  # an image's control: its receivers steer it where they can
         for node in c.senders:
             if node in missing and c.destinations(node):
-                found.append({
-                    "node": node, "channel": c.name, "as": "sender", "why": missing[node],
-                    "loc": (*places[c.name], "from"),
-                    "message": f"node {node} sends channel {c.name!r} but never gets a turn to "
-                    f"send under the mission's MAC, so its values would never leave: "
-                    f"{missing[node]} (or take {node} out of this channel's from)"})
+                add(node, c, "sender", "from",
+                    f"node {node} sends channel {c.name!r} but never gets a turn to send under "
+                    f"the mission's MAC, so its values would never leave: {missing[node]} (or "
+                    f"take {node} out of this channel's from)")
         if not c.reliable:
             continue
         for node in dict.fromkeys(r for s in c.senders for r in c.destinations(s)):
             if node in missing:
-                found.append({
-                    "node": node, "channel": c.name, "as": "receiver", "why": missing[node],
-                    "loc": (*places[c.name], "to"),
-                    "message": f"node {node} receives reliable channel {c.name!r} but never "
-                    f"gets a turn to send, so it can never acknowledge and every value would "
-                    f"be reported failed: {missing[node]} (or make the channel not reliable)"})
+                add(node, c, "receiver", "to",
+                    f"node {node} receives reliable channel {c.name!r} but never gets a turn to "
+                    f"send, so it can never acknowledge and every value would be reported "
+                    f"failed: {missing[node]} (or make the channel not reliable)")
     return found

@@ -164,4 +164,3 @@ def control_payload(settings: dict[str, Any], request: str,
             "budget_bytes": settings["budget_bytes"], "roi_on": roi is not None,
             **dict(zip(("x0", "y0", "x1", "y1"), corners, strict=True)),
             **({"camera": camera} if camera is not None else {})}
-
