@@ -10,6 +10,7 @@ import io
 import json
 import math
 import re
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -29,6 +30,9 @@ if TYPE_CHECKING:
 
 MSGPACK = "application/msgpack"
 IDLE_S = 0.01  # how long the listen loop sleeps when nothing has arrived
+CLOSE_S = 5.0
+"""Longest wait for the session's close: Zenoh's can block (a peer that does not answer its
+close, zenoh-python notes' gotcha 12), and a command the user stopped must end."""
 RING = 4096  # values held for the listen loop; past that the oldest are dropped, never blocking
 
 
@@ -114,7 +118,10 @@ def client(endpoint: str) -> Iterator[zenoh.Session]:
     try:
         yield session
     finally:
-        close_quietly(session)
+        closing = threading.Thread(target=close_quietly, args=(session,), daemon=True,
+                                   name="zab-close")
+        closing.start()
+        closing.join(CLOSE_S)
 
 
 def decode(payload: bytes, encoding: str) -> Any:
