@@ -19,7 +19,7 @@ modem:
   frame_bytes: 32
   options: {preset: evologics-s2c-im, seed: 3}
 mac: {type: tdma, slot_s: 0.7, guard_s: 0.1, order: [ssv, auv1, auv2]}
-link: {degraded_after_s: 3, down_after_s: 5}
+link: {degraded_after_s: 5, down_after_s: 7}  # (a cycle is 2.1 s: one frame lost is no silence)
 nodes:
   ssv: {address: 1, role: surface, position: {x: 0, y: 0, depth: 0.5}}
   auv1: {address: 2, position: {x: 40, y: 30, depth: 8}, nav_key: nav}
