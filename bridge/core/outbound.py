@@ -249,9 +249,9 @@ class Outbound:
             elif store.update_value(channel.index, index, packed, now):
                 payload = store.states[channel.index].payload()
                 refused = self.saving.refusal()  # (while the state cannot be saved)
-                self.outbox.reports(sender.offer(payload, now, key, ref) if refused is None
-                                    else sender.refuse(now, key, ref, refused))
-                self.outbox.unsaved = True
+                reports = sender.offer(payload, now, key, ref) if refused is None \
+                    else sender.refuse(now, key, ref, refused)
+                self.outbox.reports(reports, changed=sender.changed)
 
     def _relay(self, key: str, bindings: Collection[tuple[ChannelCodec, int, ElementCodec]],
                relay: Relay) -> None:

@@ -116,9 +116,10 @@ class Outbox:
                                       attachment))
         self.stats.values_published += 1
 
-    def reports(self, reports: list[Delivery]) -> None:
-        """Delivery reports of reliable values: each as status and event (state changed)."""
-        if reports:
+    def reports(self, reports: list[Delivery], changed: bool = True) -> None:
+        """Delivery reports of reliable values: each as status and event (``changed``: what
+        they report changed the state, to be saved before they go out)."""
+        if reports and changed:
             self.unsaved = True
         for report in reports:
             self.status(f"delivery/{report.channel}", report.to_dict())

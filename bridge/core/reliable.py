@@ -32,6 +32,7 @@ from typing import Any
 
 from bridge.core.bounds import network_retry_s
 from bridge.core.events import Delivery
+from bridge.core.ids import Ids
 from bridge.core.mac import mac_for
 from bridge.core.persist import int_from_state, int_to_state
 from bridge.mission.model import Mission
@@ -104,21 +105,23 @@ class ReliableSender:
                                                    channel.queue)
         self.queue: deque[Pending] = deque()  # not yet numbered
         self.flight: list[Pending] = []  # numbered, oldest first
-        self._next_id = 0
+        self.ids = Ids()
+        self.changed = False
+        """Whether the last :meth:`offer` or :meth:`refuse` changed what a restart must resume
+        (a refusal does only when its id starts a new block: :mod:`bridge.core.ids`)."""
         self._next_seq = first_seq % SEQ_MOD
 
     def offer(self, payload: int, now: float, key: str | None = None,
               ref: str | None = None) -> list[Delivery]:
         """A new value to deliver; reports it queued (or what the full queue did)."""
         reports: list[Delivery] = []
-        item = Pending(self._next_id, payload, now, key, ref, set(self.dests))
-        self._next_id += 1
         if len(self.queue) + len(self.flight) >= self.channel.queue:
-            if self.channel.overflow == "drop_oldest" and self.queue:
-                reports += self._fail(self.queue.popleft(), now, "queue overflow: dropped "
-                                      "for a newer value")
-            else:
-                return self._fail(item, now, f"queue full ({self.channel.queue} values)")
+            if self.channel.overflow != "drop_oldest" or not self.queue:
+                return self.refuse(now, key, ref, f"queue full ({self.channel.queue} values)")
+            reports += self._fail(self.queue.popleft(), now, "queue overflow: dropped for a "
+                                  "newer value")
+        item = Pending(self.ids.take(), payload, now, key, ref, set(self.dests))
+        self.changed = True
         self.queue.append(item)
         reports += self._report(item, "queued", now)
         self._fill()
@@ -127,7 +130,7 @@ class ReliableSender:
     def refuse(self, now: float, key: str | None, ref: str | None, reason: str
                ) -> list[Delivery]:
         """A new value not taken: reported ``failed`` with ``reason`` (it uses up an id)."""
-        item_id, self._next_id = self._next_id, self._next_id + 1
+        item_id, self.changed = self.ids.take_refused()
         return [Delivery(now, self.channel.name, item_id, dst, "failed", reason=reason,
                          attempts=0, key=key, ref=ref) for dst in sorted(self.dests)]
 
@@ -201,13 +204,13 @@ class ReliableSender:
 
     def state(self) -> dict[str, Any]:
         """Everything a restart must resume: numbering and every unfinished value."""
-        return {"next_id": self._next_id, "next_seq": self._next_seq,
+        return {"next_id": self.ids.state(), "next_seq": self._next_seq,
                 "queue": [_pending_state(p) for p in self.queue],
                 "flight": [_pending_state(p) for p in self.flight]}
 
     def restore(self, state: dict[str, Any]) -> None:
         """Resume from :meth:`state` (values keep their ids, numbers and attempts)."""
-        self._next_id = int(state["next_id"])
+        self.ids = Ids.restore(state["next_id"])
         self._next_seq = int(state["next_seq"]) % SEQ_MOD
         self.queue = deque(_pending_from(s) for s in state["queue"])
         self.flight = [_pending_from(s) for s in state["flight"]]

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.core.events import Delivery
+from bridge.core.ids import Ids
 from bridge.core.reliable import BACKOFF_CAP, retry_wait, stream_ttl_s
 from bridge.core.round_trips import RoundTrips
 from bridge.wire.channels import TID_BITS, WINDOW, ChannelCodec
@@ -110,7 +111,10 @@ class TransferSender:
         """Per receiver behind a relay: its round trips (:meth:`behind_relays`)."""
         self.current: Transfer | None = None
         self.queue: deque[Transfer] = deque()
-        self._next_id = 0
+        self.ids = Ids()
+        self.changed = False
+        """Whether the last :meth:`offer` or :meth:`refuse` changed what a restart must resume
+        (a refusal does only when its id starts a new block: :mod:`bridge.core.ids`)."""
         self._tid_offset = first_seq % TID_MOD
         self.holds: dict[str, int] = {}
         """Per receiver: the transfer id its last acknowledgement named (the transfer it
@@ -125,15 +129,17 @@ class TransferSender:
                     ref: str | None = None) -> list[Delivery]:
         """:meth:`offer` of bytes as they are (an image stream's)."""
         reports: list[Delivery] = []
-        item = Transfer(self._next_id, self._fresh_tid(), data, now, key, ref,
-                        self.channel.chunk_bytes, self.dests)
-        self._next_id += 1
+        if self.channel.reliable and \
+                len(self.queue) + (self.current is not None) >= self.channel.queue:
+            return self.refuse(now, key, ref, f"queue full ({self.channel.queue} values)")
+        tid = self._fresh_tid()
+        item = Transfer(self.ids.take(), tid, data, now, key, ref, self.channel.chunk_bytes,
+                        self.dests)
+        self.changed = True
         if not self.channel.reliable:
             for old in [*([self.current] if self.current else []), *self.queue]:
                 reports += self._report(old, "failed", now, "cancelled by a newer value")
             self.current, self.queue = None, deque()
-        elif len(self.queue) + (self.current is not None) >= self.channel.queue:
-            return self._report(item, "failed", now, f"queue full ({self.channel.queue} values)")
         self.queue.append(item)
         reports += self._report(item, "queued", now)
         self._start(now)
@@ -146,16 +152,16 @@ class TransferSender:
         (more receivers than ids), the next one as numbered."""
         held = {tid for dst, tid in self.holds.items() if dst in self.dests}
         for _ in range(TID_MOD):
-            tid = (self._next_id + self._tid_offset) % TID_MOD
+            tid = (self.ids.next + self._tid_offset) % TID_MOD
             if tid not in held:
                 return tid
             self._tid_offset = (self._tid_offset + 1) % TID_MOD
-        return (self._next_id + self._tid_offset) % TID_MOD
+        return (self.ids.next + self._tid_offset) % TID_MOD
 
     def refuse(self, now: float, key: str | None, ref: str | None, reason: str
                ) -> list[Delivery]:
         """A new value not taken: reported ``failed`` with ``reason`` (it uses up an id)."""
-        item_id, self._next_id = self._next_id, self._next_id + 1
+        item_id, self.changed = self.ids.take_refused()
         return [Delivery(now, self.channel.name, item_id, dst, "failed", reason=reason,
                          attempts=0, key=key, ref=ref) for dst in self.dests]
 
@@ -278,12 +284,12 @@ class TransferSender:
     def state(self) -> dict[str, Any]:
         """Everything a restart must resume: numbering and every unfinished transfer."""
         items = [*([self.current] if self.current else []), *self.queue]
-        return {"next_id": self._next_id, "tid_offset": self._tid_offset,
+        return {"next_id": self.ids.state(), "tid_offset": self._tid_offset,
                 "holds": dict(self.holds), "items": [_transfer_state(i) for i in items]}
 
     def restore(self, state: dict[str, Any]) -> None:
         """Resume from :meth:`state`: the transfer under way starts its fragments again."""
-        self._next_id = int(state["next_id"])
+        self.ids = Ids.restore(state["next_id"])
         self._tid_offset = int(state["tid_offset"])
         self.holds = {str(d): int(t) for d, t in (state.get("holds") or {}).items()}
         items = [_transfer_from(s, self.channel.chunk_bytes) for s in state["items"]]

@@ -47,7 +47,7 @@ def test_a_burst_on_a_reliable_key_loses_nothing_at_intake() -> None:
                 sender = next(s for s in node.core.outbound.senders.values()
                               if s.channel.name == "command")
                 assert isinstance(sender, ReliableSender)
-                assert sender._next_id == BURST
+                assert sender.ids.next == BURST
             assert intake.overflow.total() == 0, intake.snapshot()
             assert queued == {str(n) for n in range(BURST)}, \
                 f"{BURST - len(queued)} of {BURST} never reached the channel's queue"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from bridge.core.ids import BLOCK
 from bridge.core.loaded import parse_mission
 from bridge.core.reliable import ReliableReceiver, ReliableSender, seq_after
 from bridge.wire.channels import ChannelTable
@@ -113,6 +114,34 @@ def test_queue_full_rejects_or_drops_oldest() -> None:
         sender.offer(n, 0.0)
     reports = sender.offer(99, 0.0)  # 16 in flight, 4 queued: the oldest queued one goes
     assert [(r.id, r.state) for r in reports] == [(16, "failed"), (20, "queued")]
+
+
+def test_a_refusal_costs_a_save_once_a_block_and_a_restart_never_reuses_its_id() -> None:
+    sender, _ = make()
+    for n in range(4):
+        sender.offer(n, 0.0)
+        assert sender.changed  # an accepted value is saved before it is reported
+    saves = []
+    reported: set[int] = set()
+    for n in range(3 * BLOCK):  # a flood on the full queue
+        reports = sender.offer(n % 256, 1.0)
+        assert [r.state for r in reports] == ["failed"]
+        reported.add(reports[0].id)
+        saves.append(sender.changed)
+        if sender.changed:  # (the runtime saves here: a restart could resume from now)
+            saved = sender.state()
+    assert sum(saves) == 3  # one save a block of refusals, not one a refusal
+    assert len(reported) == 3 * BLOCK
+    # a crash after the last save: the restart numbers past every id reported since
+    restarted, _ = make()
+    restarted.restore(saved)
+    assert restarted.offer(0, 2.0)[0].id > max(reported)
+    # with no refusal, the ids go on one by one across a restart
+    plain, _ = make()
+    plain.offer(0, 0.0)
+    again, _ = make()
+    again.restore(plain.state())
+    assert again.offer(0, 0.0)[0].id == 1
 
 
 def test_a_receiver_that_restarted_afresh_is_sent_again_what_it_held() -> None:

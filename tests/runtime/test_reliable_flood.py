@@ -1,0 +1,94 @@
+"""A plain Zenoh application flooding a full reliable channel's input key: every put gets its
+report, and the refusals do not make the node save its state once each (which had kept its
+event loop saving, not sending: under a 30 s flood from four publishers, one navigation value
+of 60 crossed, and none for 20 s after it)."""
+
+from __future__ import annotations
+
+import queue
+import time
+from typing import Any
+
+import msgpack
+import zenoh
+
+from bridge.core.ids import BLOCK
+from tests.conftest import on_free_ports
+from tests.harness import Inbox, outside_session, running_fleet
+
+MISSION = """\
+mission: flood
+modem: {backend: sim, frame_bytes: 64, options: {preset: evologics-s2c-im}}
+mac: {type: tdma, slot_s: 1.0, guard_s: 0.2, order: [ops, auv]}
+nodes:
+  ops: {address: 1, role: surface, position: {x: 0, y: 0, depth: 0}}
+  auv: {address: 2, position: {x: 300, y: 0, depth: 20}}
+channels:
+  - name: command
+    from: ops
+    to: auv
+    reliable: true
+    queue: 8
+    elements:
+      - in: cmd
+        out: ops/cmd
+        fields: [{field: n, type: int, min: 0, max: 65535}]
+  - name: nav
+    from: ops
+    to: auv
+    elements:
+      - in: nav
+        out: ops/nav
+        fields: [{field: depth, type: float, min: 0, max: 100, bits: 10}]
+"""
+FLOOD = 2000
+
+
+def test_a_flood_on_a_full_reliable_channel_is_refused_without_a_save_each() -> None:
+    loaded = on_free_ports(MISSION)
+    with running_fleet(loaded) as fleet:
+        node = fleet.nodes["ops"]
+        saves: list[float] = []
+        save = node.persistence.save
+
+        def counted(*args: Any, **kwargs: Any) -> bool | None:
+            saves.append(time.monotonic())
+            return save(*args, **kwargs)
+
+        node.persistence.save = counted  # type: ignore[method-assign]
+        ops, auv = outside_session(loaded, "ops"), outside_session(loaded, "auv")
+        try:
+            reports, navs = Inbox(), Inbox()
+            ops.declare_subscriber("@zab/flood/ops/delivery/command", reports)
+            auv.declare_subscriber("ops/nav", navs)
+            time.sleep(0.5)  # the subscribers declared at the bridges
+            for n in range(FLOOD):  # (BLOCK: the application's Zenoh drops none)
+                ops.put("cmd", msgpack.packb({"n": n}),
+                        encoding=zenoh.Encoding("application/msgpack"),
+                        congestion_control=zenoh.CongestionControl.BLOCK,
+                        attachment=f"ref:{n}".encode())
+            ops.put("nav", msgpack.packb({"depth": 42.0}),
+                    encoding=zenoh.Encoding("application/msgpack"))
+            first: dict[str, dict[str, Any]] = {}  # each put's first report
+            end = time.time() + 60
+            while len(first) < FLOOD and time.time() < end:
+                try:
+                    _, report, _ = reports.get(timeout=max(0.01, end - time.time()))
+                except queue.Empty:
+                    break
+                first.setdefault(report["ref"], report)
+            assert set(first) == {str(n) for n in range(FLOOD)}, \
+                f"{FLOOD - len(first)} of {FLOOD} puts never reported"
+            states = [r["state"] for r in first.values()]
+            refused = [r for r in first.values() if r["state"] == "failed"]
+            assert states.count("queued") >= 8 and len(refused) > FLOOD - 100
+            assert all(r["reason"] == "queue full (8 values)" for r in refused)
+            assert len({r["id"] for r in first.values()}) == FLOOD  # an id each
+            # a save for each accepted value and frame, one a block of refusals: not one a put
+            assert len(saves) < 60 + FLOOD // BLOCK, f"{len(saves)} saves for {FLOOD} puts"
+            # and the node goes on sending: the navigation put after the flood crosses
+            _, nav, _ = navs.get(timeout=15)
+            assert abs(nav["depth"] - 42.0) < 0.1
+        finally:
+            ops.close()
+            auv.close()
