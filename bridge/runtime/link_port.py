@@ -60,6 +60,8 @@ class Host(Protocol):
 
     def _persist(self) -> None: ...
 
+    def settle_soon(self) -> None: ...
+
     def _event(self, event: Event) -> None: ...
 
     def _soon(self, callback: Callable[..., object], *args: Any) -> None: ...
@@ -107,11 +109,13 @@ class LinkPort:
             if ready and backend is not None:  # (its outputs and the frame's, flushed together)
                 self._send_now(backend, sample)
                 return
-            host.core.ingest(*sample[:3], host.clock(), *sample[3:])
-            host._flush()
-            if not ready:
-                self.wake()  # the transmit loop decides when
+            now = host.clock()
+            host.core.ingest(*sample[:3], now, *sample[3:])
+            wake = host.core.wake_at(now, self.link) if ready else None
+            if wake is None or wake > now + 1e-9:  # the transmit loop decides when, after the
+                host.settle_soon()  # outputs of every sample taken until the loop's turn
                 return
+            host._flush()
         host._soon(self._transmit_eagerly)
 
     def _transmit_eagerly(self) -> None:
@@ -205,7 +209,10 @@ class LinkPort:
             core.ingest(*sample[:3], now, *sample[3:])
         action = core.act(now, at, self.link)
         if action is None:
-            host._flush()
+            if sample is None:
+                host._flush()
+            else:  # (a burst of samples: one flush, on the loop)
+                host.settle_soon()
         else:
             host._persist()
         return action, now

@@ -156,6 +156,7 @@ class BridgeNode:
         reader all come in."""
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread: int | None = None
+        self._settling = False  # a call of _settle is on its way to the loop
         self._events: deque[Event] = deque(maxlen=EVENTS_MAX)  # the direct path's, for the loop
         self.events_dropped = 0  # of those, pushed out by newer ones before the loop took them
         self._gate = EventGate()  # what goes out on …/events, at a bounded rate
@@ -537,8 +538,32 @@ class BridgeNode:
             return
         with self.lock:
             self.core.ingest(*sample[:3], self.clock(), *sample[3:])
+            self.settle_soon()
+
+    def settle_soon(self) -> None:
+        """Holding the lock, on any thread: the core took input. What it has to say goes out
+        on the loop's next turn, once for all the input taken until then (:meth:`_settle`):
+        a burst of samples costs one save of the state, not one each (a flood on a reliable
+        channel's key with ``overflow: drop_oldest`` had the loop doing nothing but save, its
+        frames all late)."""
+        if self._settling:
+            return
+        if self._loop is None:  # (not running yet: at once)
             self._flush()
-        self._soon(self._wake_all)  # each link's transmit loop decides when
+            return
+        self._settling = True
+        try:
+            self._loop.call_soon_threadsafe(self._settle)
+        except RuntimeError:  # the loop has closed: the node is gone
+            self._settling = False
+
+    def _settle(self) -> None:
+        """On the loop: carry out what the input taken since :meth:`settle_soon` produced
+        (the state saved first), then let each link's transmit loop look again."""
+        with self.lock:
+            self._settling = False
+            self._flush()
+        self._wake_all()  # each link's transmit loop decides when
 
     def _persist(self) -> None:
         """Save the core's state if a restart must not lose what changed; a save that fails

@@ -1,7 +1,9 @@
 """A plain Zenoh application flooding a full reliable channel's input key: every put gets its
-report, and the refusals do not make the node save its state once each (which had kept its
-event loop saving, not sending: under a 30 s flood from four publishers, one navigation value
-of 60 crossed, and none for 20 s after it)."""
+report, and the node does not save its state once a put (which had kept its event loop saving,
+not sending: under a 30 s flood from four publishers, one navigation value of 60 crossed, and
+none for 20 s after it). A refusal costs a save once a block of ids (bridge.core.ids); values
+taken (``overflow: drop_oldest``) are saved once for all those taken until the loop's next
+turn (BridgeNode.settle_soon)."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import time
 from typing import Any
 
 import msgpack
+import pytest
 import zenoh
 
 from bridge.core.ids import BLOCK
@@ -28,7 +31,8 @@ channels:
     from: ops
     to: auv
     reliable: true
-    queue: 8
+    queue: 40
+    overflow: %s
     elements:
       - in: cmd
         out: ops/cmd
@@ -36,6 +40,8 @@ channels:
   - name: nav
     from: ops
     to: auv
+    interval_s: 2
+    latching: true         # (sent again each cycle: the water loses frames)
     elements:
       - in: nav
         out: ops/nav
@@ -44,8 +50,9 @@ channels:
 FLOOD = 2000
 
 
-def test_a_flood_on_a_full_reliable_channel_is_refused_without_a_save_each() -> None:
-    loaded = on_free_ports(MISSION)
+@pytest.mark.parametrize("overflow", ["reject", "drop_oldest"])
+def test_a_flood_on_a_full_reliable_channel_costs_no_save_a_put(overflow: str) -> None:
+    loaded = on_free_ports(MISSION % overflow)
     with running_fleet(loaded) as fleet:
         node = fleet.nodes["ops"]
         saves: list[float] = []
@@ -79,13 +86,17 @@ def test_a_flood_on_a_full_reliable_channel_is_refused_without_a_save_each() -> 
                 first.setdefault(report["ref"], report)
             assert set(first) == {str(n) for n in range(FLOOD)}, \
                 f"{FLOOD - len(first)} of {FLOOD} puts never reported"
-            states = [r["state"] for r in first.values()]
-            refused = [r for r in first.values() if r["state"] == "failed"]
-            assert states.count("queued") >= 8 and len(refused) > FLOOD - 100
-            assert all(r["reason"] == "queue full (8 values)" for r in refused)
             assert len({r["id"] for r in first.values()}) == FLOOD  # an id each
-            # a save for each accepted value and frame, one a block of refusals: not one a put
-            assert len(saves) < 60 + FLOOD // BLOCK, f"{len(saves)} saves for {FLOOD} puts"
+            states = [r["state"] for r in first.values()]
+            if overflow == "reject":  # a save for each value taken and each frame, one a
+                refused = [r for r in first.values() if r["state"] == "failed"]  # block of
+                assert states.count("queued") >= 40 and len(refused) > FLOOD - 100  # refusals
+                assert all(r["reason"] == "queue full (40 values)" for r in refused)
+                assert len(saves) < 60 + FLOOD // BLOCK, f"{len(saves)} saves for {FLOOD} puts"
+            else:  # every put taken (the oldest queued one given up): a save a batch
+                assert states == ["queued"] * FLOOD
+                assert len(saves) < FLOOD // 2, f"{len(saves)} saves for {FLOOD} puts"
+            print(f"{overflow}: {len(saves)} saves for {FLOOD} puts")
             # and the node goes on sending: the navigation put after the flood crosses
             _, nav, _ = navs.get(timeout=15)
             assert abs(nav["depth"] - 42.0) < 0.1
