@@ -157,6 +157,7 @@ class BridgeNode:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread: int | None = None
         self._settling = False  # a call of _settle is on its way to the loop
+        self._closing = False  # run() is closing the session: nothing more goes out
         self._events: deque[Event] = deque(maxlen=EVENTS_MAX)  # the direct path's, for the loop
         self.events_dropped = 0  # of those, pushed out by newer ones before the loop took them
         self._gate = EventGate()  # what goes out on …/events, at a bounded rate
@@ -267,6 +268,7 @@ class BridgeNode:
             if self.failure is not None:
                 raise NodeFailure(self.failure)
         finally:
+            self._closing = True  # (a _settle still on its way finds the session closed)
             if self._query_bridge is not None:
                 self._query_bridge.close()
             if self._image_queries is not None:
@@ -280,6 +282,8 @@ class BridgeNode:
             close_quietly(self.session)
             if self.intake is not None:
                 self.intake.join()
+                with self.lock:  # what the intake took as the node stopped, for the next run
+                    self._persist()
 
     def fail(self, message: str) -> None:
         """The node cannot go on (any thread): :meth:`run` stops everything and raises
@@ -562,6 +566,8 @@ class BridgeNode:
         (the state saved first), then let each link's transmit loop look again."""
         with self.lock:
             self._settling = False
+            if self._closing:  # (the node stops: its last state is saved by run())
+                return
             self._flush()
         self._wake_all()  # each link's transmit loop decides when
 

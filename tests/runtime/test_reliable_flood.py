@@ -8,7 +8,10 @@ turn (BridgeNode.settle_soon)."""
 from __future__ import annotations
 
 import queue
+import signal
+import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import msgpack
@@ -16,8 +19,9 @@ import pytest
 import zenoh
 
 from bridge.core.ids import BLOCK
-from tests.conftest import on_free_ports
-from tests.harness import Inbox, outside_session, running_fleet
+from tests.conftest import on_free_ports, udp_ports
+from tests.harness import Inbox, outside_session, running_fleet, zab_run
+from tests.zsim import app, mission_file
 
 MISSION = """\
 mission: flood
@@ -103,3 +107,58 @@ def test_a_flood_on_a_full_reliable_channel_costs_no_save_a_put(overflow: str) -
         finally:
             ops.close()
             auv.close()
+
+
+UDP = """\
+mission: stopflood
+modem: {backend: udp, frame_bytes: 32}
+mac: {type: tdma, slot_s: 0.5, order: [ops, auv]}
+nodes:
+  ops: {address: 1, modem: {options: {port: PORT_A}}}
+  auv: {address: 2, modem: {options: {port: PORT_B}}}
+channels:
+  - name: command
+    from: ops
+    to: auv
+    reliable: true
+    queue: 40
+    overflow: drop_oldest
+    elements: [{in: cmd, out: ops/cmd, fields: [{field: n, type: int, min: 0, max: 65535}]}]
+"""
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_a_node_stopped_in_the_middle_of_a_flood_stops_cleanly(stop: signal.Signals,
+                                                              tmp_path: Path) -> None:
+    """Its last outputs, taken as it stopped, found the session closed: a traceback (an
+    asyncio callback's) where a clean stop was due."""
+    mission, endpoints = mission_file(udp_ports(UDP), tmp_path)
+    flooding = threading.Event()
+    done = threading.Event()
+
+    def flood() -> None:
+        session = app(endpoints["ops"])
+        try:
+            payload = msgpack.packb({"n": 7})
+            while not done.is_set():
+                session.put("cmd", payload)
+                flooding.set()
+        finally:
+            session.close()
+
+    with zab_run(mission, "ops", "--state-dir", str(tmp_path / "state"),
+                 stop=stop) as (_, lines):
+        threads = [threading.Thread(target=flood) for _ in range(2)]
+        for thread in threads:
+            thread.start()
+        try:
+            assert flooding.wait(10)
+            time.sleep(2.0)
+        except BaseException:
+            done.set()
+            raise
+    done.set()  # (zab_run checked the exit status: 0)
+    for thread in threads:
+        thread.join(15)
+    text = "".join(lines)
+    assert "Traceback" not in text and "ERROR" not in text, text
