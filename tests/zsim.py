@@ -6,6 +6,7 @@ written in another language would.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import json
 import queue
@@ -13,6 +14,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,6 +25,9 @@ import yaml
 import zenoh
 
 from tests.conftest import REPO, free_port
+
+LOG_TAIL = 40
+"""Lines of a ``zab sim``'s log a test prints at its end."""
 
 
 def mission_file(text: str, folder: Path, name: str = "mission.yaml") -> tuple[Path, dict]:
@@ -49,15 +54,22 @@ def app(endpoints: list[str]) -> zenoh.Session:
 def zab_sim(mission: Path, endpoints: dict[str, list[str]], *args: str,
             timeout: float = 120) -> Iterator[subprocess.Popen[str]]:
     """Run ``zab sim mission`` until the block ends (SIGINT, then kill if need be); yields
-    once every node's endpoint accepts a client."""
+    once every node's endpoint accepts a client. Its log is read all along (a pipe left full
+    would stop the fleet) and its last lines printed at the end (a failing test shows them)."""
     proc = subprocess.Popen([sys.executable, "-m", "bridge", "sim", str(mission), "--no-live",
                              "--duration", str(timeout), *args], cwd=REPO,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    log: collections.deque[str] = collections.deque(maxlen=LOG_TAIL)
+    assert proc.stderr is not None
+    reader = threading.Thread(target=log.extend, args=(proc.stderr,), daemon=True)
+    reader.start()
     try:
         deadline = time.time() + 30
         for listen in endpoints.values():
             while True:
-                assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+                if proc.poll() is not None:
+                    reader.join(5)
+                    raise AssertionError("zab sim ended:\n" + "".join(log))
                 try:
                     app(listen).close()
                     break
@@ -67,8 +79,9 @@ def zab_sim(mission: Path, endpoints: dict[str, list[str]], *args: str,
         yield proc
     finally:
         interrupt(proc)
-        if proc.stderr is not None:
-            proc.stderr.close()
+        reader.join(5)  # (the pipe ends with the process)
+        proc.stderr.close()
+        print(f"zab sim's last {LOG_TAIL} log lines:\n" + "".join(log))
 
 
 @contextlib.contextmanager

