@@ -113,8 +113,12 @@ def interrupt(proc: subprocess.Popen[Any], timeout: float = 30) -> None:
         try:
             proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+            proc.send_signal(signal.SIGABRT)  # (with PYTHONFAULTHANDLER: its threads' stacks)
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
 
 
 class Inbox:
