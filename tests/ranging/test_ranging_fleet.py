@@ -32,7 +32,7 @@ def test_dlbl_ranges_and_position_over_the_simulated_ocean() -> None:
             app.declare_subscriber("@zab/morph/cv1/range/*", ranges)
             app.declare_subscriber("@zab/morph/cv1/position", fixes)
             got = {}
-            deadline = time.time() + 15
+            deadline = time.time() + 45  # (four 4 s cycles quiet; a loaded machine loses late frames)
             while time.time() < deadline and len(got) < 4:
                 key, value, _ = ranges.get(timeout=deadline - time.time())
                 got[key.rsplit("/", 1)[1]] = value
@@ -43,10 +43,10 @@ def test_dlbl_ranges_and_position_over_the_simulated_ocean() -> None:
                 assert abs(value["range_m"] - true) < 0.3, (peer, value, true)
                 assert 1500 < value["sound_speed_mps"] < 1520  # UNESCO at 16 °C, 38 PSU
                 assert {"range_m", "time", "travel_time_s", "sound_speed_mps"} <= set(value)
-            _, fix, _ = fixes.get(timeout=10)
+            _, fix, _ = fixes.get(timeout=30)
             while not fix["fix"]:  # "no fix" reports until ranges to both anchors are in
                 assert fix["reason"] == "too_few_anchors" and set(fix["anchors"]) < {"ssv", "gcv"}
-                _, fix, _ = fixes.get(timeout=10)
+                _, fix, _ = fixes.get(timeout=30)
             assert math.dist((fix["x"], fix["y"]), positions["cv1"][:2]) < 1.0, fix
             assert set(fix["anchors"]) == {"ssv", "gcv"} and fix["sigma_m"] > 0
         finally:
