@@ -39,7 +39,7 @@ class CheckReport:
     warnings: list[str] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
     invalid: list[Problem] = field(default_factory=list)
-    """Mistakes of the mission file found here (a node that sends but never gets a turn):
+    """Mistakes of the mission file found here (a node that must send but never gets a turn):
     ``zab check`` exits 2 for them, as for any invalid file."""
 
     @property
@@ -370,7 +370,9 @@ def _round(value: float | None) -> float | None:
 
 def silent_nodes(loaded: LoadedMission) -> list[dict[str, Any]]:
     """Nodes that would have to send but never get a turn under the mission's MAC (on no link
-    of theirs): a sender of a channel, or a receiver of a reliable one (it acknowledges).
+    of theirs): a sender of a channel, a receiver of a reliable one (it acknowledges), a
+    query's server (it replies) and an asker a query names in its ``ask`` (an asker by default,
+    every node that does not serve, may be a listener only: its gets end at their deadline).
     Each with ``loc`` (the caller locates it, then takes it out) and ``message``."""
     mission, network = loaded.mission, loaded.network
     missing: dict[str, str] = {}
@@ -386,16 +388,17 @@ def silent_nodes(loaded: LoadedMission) -> list[dict[str, Any]]:
     places.update({c.name: ("images", i) for i, c in enumerate(mission.images)})
     found: list[dict[str, Any]] = []
 
-    def add(node: str, c: ChannelCodec, role: str, end: str, message: str) -> None:
-        found.append({"node": node, "channel": c.name, "as": role, "why": missing[node],
-                      "loc": (*places[c.name], end), "message": message})
+    def add(node: str, what: dict[str, str], role: str, loc: tuple[str | int, ...],
+            message: str) -> None:  # (what: the channel or the query, by name)
+        found.append({"node": node, **what, "as": role, "why": missing[node], "loc": loc,
+                      "message": message})
 
     for c in loaded.table.channels:
         if (c.image is not None and c.image.control) or c.name not in places:
             continue  # an image's control: its receivers steer it where they can
         for node in c.senders:
             if node in missing and c.destinations(node):
-                add(node, c, "sender", "from",
+                add(node, {"channel": c.name}, "sender", (*places[c.name], "from"),
                     f"node {node} sends channel {c.name!r} but never gets a turn to send under "
                     f"the mission's MAC, so its values would never leave: {missing[node]} (or "
                     f"take {node} out of this channel's from)")
@@ -403,8 +406,25 @@ def silent_nodes(loaded: LoadedMission) -> list[dict[str, Any]]:
             continue
         for node in dict.fromkeys(r for s in c.senders for r in c.destinations(s)):
             if node in missing:
-                add(node, c, "receiver", "to",
+                add(node, {"channel": c.name}, "receiver", (*places[c.name], "to"),
                     f"node {node} receives reliable channel {c.name!r} but never gets a turn to "
                     f"send, so it can never acknowledge and every value would be reported "
                     f"failed: {missing[node]} (or make the channel not reliable)")
+    specs = {spec.name: spec for spec in loaded.table.queries}
+    for i, query in enumerate(mission.queries):
+        spec = specs[query.name]
+        for node in spec.servers:
+            if node in missing and any(a != node for a in spec.askers):
+                add(node, {"query": query.name}, "server", ("queries", i, "serve"),
+                    f"node {node} serves query {query.name!r} but never gets a turn to send, "
+                    f"so no get would ever be answered: {missing[node]} (or take {node} out "
+                    "of this query's serve)")
+        if query.ask is None:
+            continue
+        for node in spec.askers:
+            if node in missing and any(s != node for s in spec.servers):
+                add(node, {"query": query.name}, "asker", ("queries", i, "ask"),
+                    f"node {node} asks query {query.name!r} but never gets a turn to send, so "
+                    f"its gets would never leave: {missing[node]} (or take {node} out of this "
+                    "query's ask)")
     return found

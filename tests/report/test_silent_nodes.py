@@ -90,3 +90,37 @@ def test_every_node_with_a_turn_passes(tmp_path: Path) -> None:
                 "mac: {type: polled, master: a, ipg_s: 3}", "mac: {type: none}"):
         code, output = check(tmp_path, mac, "--json")
         assert code == 0 and json.loads(output)["silent"] == [], (mac, output)
+
+
+QUERIES = """\
+queries:
+  - name: depth
+    key: a/depth
+    serve: b
+    ASK
+    reply:
+      - {field: d, bits: 8, min: 0, max: 100}
+"""
+
+
+@pytest.mark.parametrize(("order", "ask", "silent"), [
+    ("[a, c]", "", {("b", "server", "queries[0].serve", 10)}),  # nobody could answer
+    ("[b]", "ask: [a, c]", {("a", "asker", "queries[0].ask", 11),
+                            ("c", "asker", "queries[0].ask", 11)}),
+    ("[b]", "", set()),  # askers by default (every node but b) may only listen
+    ("[a, b]", "ask: [a]", set()),
+])
+def test_a_query_server_or_named_asker_without_a_turn_is_an_error(
+        tmp_path: Path, order: str, ask: str, silent: set[tuple[str, str, str, int]]) -> None:
+    mission = MISSION.split("channels:")[0].replace(
+        "MAC", f"mac: {{type: tdma, slot_s: 2.0, order: {order}}}")
+    path = tmp_path / "asked.yaml"
+    path.write_text(mission + QUERIES.replace("ASK", ask or "# ask: every other node"))
+    result = RUNNER.invoke(app, ["check", str(path), "--no-key", "--json"])
+    data = json.loads(result.output)
+    found = {(s["node"], s["as"], s["path"], s["line"]) for s in data["silent"]}
+    assert found == silent, data["silent"]
+    assert (result.exit_code == 2) == bool(silent)
+    for s in data["silent"]:
+        assert s["query"] == "depth" and "never gets a turn to send" in s["message"]
+        assert f"take {s['node']} out of this query's {s['path'].split('.')[1]}" in s["message"]
