@@ -413,18 +413,14 @@ def silent_nodes(loaded: LoadedMission) -> list[dict[str, Any]]:
     specs = {spec.name: spec for spec in loaded.table.queries}
     for i, query in enumerate(mission.queries):
         spec = specs[query.name]
-        for node in spec.servers:
-            if node in missing and any(a != node for a in spec.askers):
-                add(node, {"query": query.name}, "server", ("queries", i, "serve"),
-                    f"node {node} serves query {query.name!r} but never gets a turn to send, "
-                    f"so no get would ever be answered: {missing[node]} (or take {node} out "
-                    "of this query's serve)")
-        if query.ask is None:
-            continue
-        for node in spec.askers:
-            if node in missing and any(s != node for s in spec.servers):
-                add(node, {"query": query.name}, "asker", ("queries", i, "ask"),
-                    f"node {node} asks query {query.name!r} but never gets a turn to send, so "
-                    f"its gets would never leave: {missing[node]} (or take {node} out of this "
-                    "query's ask)")
+        roles = [("server", "serve", spec.servers, spec.askers, "no get would ever be answered")]
+        if query.ask is not None:
+            roles.append(("asker", "ask", spec.askers, spec.servers, "its gets would never leave"))
+        for role, place, nodes, others, effect in roles:
+            for node in nodes:
+                if node in missing and any(o != node for o in others):
+                    add(node, {"query": query.name}, role, ("queries", i, place),
+                        f"node {node} {place}s query {query.name!r} but never gets a turn to "
+                        f"send, so {effect}: {missing[node]} (or take {node} out of this "
+                        f"query's {place})")
     return found
