@@ -108,13 +108,14 @@ class Authenticator:
                        hashlib.sha256)
         return mac.digest()[: self.tag_bytes]
 
-    def next_counter(self) -> int:
-        """This node's next counter, reserving a new block (``changed``) when needed."""
+    def next_counter(self, cap: int = _MAX) -> int:
+        """This node's next counter, reserving a new block (``changed``) when needed: up to
+        ``cap`` at most (one at least)."""
         counter = self.counter
         if counter >= _MAX:
             raise FrameError("the 64-bit frame counter is exhausted", "exhausted")
         if counter >= self.reserved:
-            self.reserved = min(counter + RESERVE_BLOCK, _MAX)
+            self.reserved = max(min(counter + RESERVE_BLOCK, cap, _MAX), counter + 1)
             self.changed = True
         self.counter = counter + 1
         return counter

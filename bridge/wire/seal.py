@@ -20,11 +20,18 @@ a changed delay, counter, body or tag, or a frame from another sender address, f
 The counter, its reservation across restarts, the replay window and the ``@mark`` that tells a
 sender refused as replayed where to resume are the :class:`~bridge.wire.auth.Authenticator`'s.
 But a sender that starts without its saved state must not count from 0 again (its frames
-would reuse nonces before any ``@mark`` came back): it starts its counter at
-:data:`COUNTS_PER_S` per second of its clock since the Unix epoch (never a counter it used
-before, at up to that many frames a second on average), and a receiver that holds no counter
-from a sender accepts one within 2**30 of its own clock's count (about two years at that rate
-either way). So an encrypted frame never reuses a nonce, even after a node lost its state.
+would reuse nonces before any ``@mark`` came back). So the counter is held to the clock: its
+*clock count* is :data:`COUNTS_PER_S` per second since the Unix epoch, and a sender reserves
+counters (what a restart with its state resumes past) no further than :data:`LEAD` past it.
+Every counter it used is then at most one past the clock count plus ``LEAD`` of when it was
+used (more only where it sends over ``COUNTS_PER_S`` frames a second for minutes on end, or
+its clock went back), and one that starts without its state starts past its clock count plus
+``LEAD``: past every one of them. (Reserving a whole block past the last reservation at each
+restart, as the HMAC counter does, ran ahead of the clock by a block a restart: a node killed
+and restarted with its state a few times, then started without it, sealed with counters it
+had used.) A receiver that holds no counter from a sender accepts one within 2**30 of its own
+clock's count (about two years either way). So an encrypted frame never reuses a nonce, even
+after a node lost its state, as long as its clock does not go back.
 
 Key rotation: a :class:`KeyRing` names the next key and when it takes over. A sender seals with
 the key of its clock; a receiver opens with that key and, within ``overlap_s`` of the switch,
@@ -43,13 +50,16 @@ from cryptography.hazmat.primitives.ciphers.aead import AESCCM
 from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
 from bridge.errors import FrameError, MissionError
-from bridge.wire.auth import COUNTER_BYTES, Authenticator
+from bridge.wire.auth import COUNTER_BYTES, RESERVE_BLOCK, Authenticator
 from bridge.wire.channels import ChannelTable
 from bridge.wire.frame import DELAY_BYTES
 
 COUNTS_PER_S = 16
 """Counter values per second of clock a sender without saved state starts from: more than
 an acoustic modem sends a second, on average, over any stretch."""
+LEAD = 4 * RESERVE_BLOCK
+"""How far past its clock count a sender reserves counters (4096: over four minutes of
+frames beyond ``COUNTS_PER_S`` a second before it saves its state at each frame)."""
 FIRST_WINDOW = 1 << 30
 """How far a first counter from a sender may be from the receiver's clock count, either way."""
 _LOW = 1 << (8 * COUNTER_BYTES)
@@ -110,10 +120,14 @@ class Sealer(Authenticator):
     def seal(self, frame: bytes, now: float | None = None) -> bytes:
         """``frame`` with everything after its clear header encrypted, the counter's low half
         and the tag."""
-        if not self._resumed and now is not None:  # no saved state: start from the clock
-            self._resumed = True
-            self.counter = self.reserved = max(self.counter, math.floor(now) * COUNTS_PER_S)
-        counter = self.next_counter()
+        if now is None:
+            counter = self.next_counter()
+        else:
+            top = math.floor(now * COUNTS_PER_S) + LEAD  # (no reservation goes past it)
+            if not self._resumed:  # no saved state: past every counter it may have used
+                self._resumed = True
+                self.counter = self.reserved = max(self.counter, top + 1)
+            counter = self.next_counter(cap=top + 1)
         clear = frame[:self.clear_bytes] + (counter % _LOW).to_bytes(COUNTER_BYTES, "big")
         cipher = self._ciphers[self.ring.keys(now)[0]]
         return clear + cipher.encrypt(self._nonce(self.address, counter),

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bridge.core.loaded import parse_mission
 from bridge.errors import FrameError, MissionError
 from bridge.runtime.virtual_fleet import FastFleet
 from bridge.wire.frame import FrameCodec, check_value
-from bridge.wire.seal import COUNTS_PER_S, KeyRing, Sealer, frame_authenticator
+from bridge.wire.seal import COUNTS_PER_S, LEAD, KeyRing, Sealer, frame_authenticator
 from tests.conftest import MISSIONS
 from tests.harness import bench_module
 
@@ -78,7 +80,7 @@ def _rechecked(codec: FrameCodec, frame: bytes) -> bytes:
 def test_a_sender_without_its_state_starts_its_counter_from_its_clock() -> None:
     gcv, lsv, _ = morph(encrypt=True)
     lsv.decode(gcv.encode(items(gcv), DELAYS, now=1_700_000_000.0), 1, now=1_700_000_000.5)
-    assert gcv.auth is not None and gcv.auth.counter == 1_700_000_000 * COUNTS_PER_S + 1
+    assert gcv.auth is not None and gcv.auth.counter == 1_700_000_000 * COUNTS_PER_S + LEAD + 2
     again = FrameCodec(gcv.table, frame_authenticator(gcv.table, KEY, 1))  # restarted afresh
     lsv.decode(again.encode(items(again), DELAYS, now=1_700_000_060.0), 1,
                now=1_700_000_060.2)  # a counter never used, accepted
@@ -86,6 +88,51 @@ def test_a_sender_without_its_state_starts_its_counter_from_its_clock() -> None:
     lsv.decode(resumed.encode(items(resumed), DELAYS, now=5.0), 1, now=1_700_000_061.0)
     with pytest.raises(FrameError, match="forged"):  # a first counter far from the clock
         morph(encrypt=True)[1].decode(sealed_at(0.0), 1, now=1_700_000_000.0)
+
+
+def test_restarts_with_and_without_state_never_reuse_a_nonce() -> None:
+    """Found from outside: started afresh, killed and restarted with its state (which resumed
+    a whole block of 1024 counters on, 64 s of clock count), sending for 35 s, killed again and
+    started without its state 66 s after the first start: the third life sealed with counters
+    the second had used (the receiver refused them as replays *after* their tags checked
+    out)."""
+    t = 1_700_000_000.0
+    used = _lives([(None, t, 1, 0.0), ("state", t + 1, 73, 0.48), (None, t + 66, 40, 0.5)])
+    assert len(used) == len(set(used))
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["state", None]),
+                          st.one_of(st.floats(0.07, 5), st.floats(5, 900)),
+                          st.integers(0, 40), st.floats(1 / COUNTS_PER_S, 5)),
+                min_size=1, max_size=12))
+def test_no_sequence_of_restarts_reuses_a_nonce(lives: list[tuple[str | None, float, int,
+                                                                  float]]) -> None:
+    """Lives of one sender, each after a gap, restarted with its saved state or without,
+    sending frames (at most COUNTS_PER_S a second): never one counter twice."""
+    t, plan = 1_700_000_000.0, []
+    for keep, gap, frames, every in lives:
+        t += gap
+        plan.append((keep, t, frames, every))
+        t += frames * every
+    used = _lives(plan)
+    assert len(used) == len(set(used))
+
+
+def _lives(plan: list[tuple[str | None, float, int, float]]) -> list[int]:
+    """The counters one sender (address 1) seals with over ``plan``'s lives, each ``(kept
+    state or None, start time, frames, seconds between them)``; its state is saved whenever
+    it changes (as the runtime does before a frame leaves)."""
+    table, saved, used = morph(encrypt=True)[0].table, None, []
+    for keep, start, frames, every in plan:
+        sealer = frame_authenticator(table, KEY, 1, saved if keep else None)
+        saved = saved if keep else None
+        for i in range(frames):
+            sealer.seal(b"\0" * 8, now=start + i * every)
+            used.append(sealer.counter - 1)
+            if sealer.changed:
+                saved, sealer.changed = sealer.state(), False
+    return used
 
 
 def sealed_at(now: float) -> bytes:
