@@ -97,6 +97,14 @@ def origin_of(attachment: bytes) -> bytes:
     return attachment.partition(SIGNATURE)[0].partition(APPLICATION_SEPARATOR)[0]
 
 
+def application_of(attachment: bytes) -> bytes | None:
+    """The sending application's attachment: inside a bridge's (:func:`marked`), or all of
+    an application's own; None if there is none."""
+    if not attachment.startswith(ORIGIN_PREFIX):
+        return attachment or None
+    return attachment.partition(SIGNATURE)[0].partition(APPLICATION_SEPARATOR)[2] or None
+
+
 def is_bridged(sample: zenoh.Sample) -> bool:
     """True when a bridge published this sample (loop safety): its origin tag, or a ROS 2
     attachment naming a bridge publisher (see :mod:`bridge.ros2.attachment`)."""

@@ -51,6 +51,7 @@ from bridge.runtime.link_port import LinkPort
 from bridge.runtime.persistence import Persistence
 from bridge.runtime.ros2_graph import Ros2Graph
 from bridge.runtime.session import (
+    application_of,
     bridged_attachment,
     close_quietly,
     is_bridged,
@@ -312,8 +313,19 @@ class BridgeNode:
                      sample: zenoh.Sample) -> None:
         """A key family's intake thread: the sample under its own key, handed to the loop in
         the subscription's lane (an application putting on ever new keys under the family's
-        expression must not make a queue a key)."""
-        self._from_zenoh(loop, str(sample.key_expr), sample, lane=expression)
+        expression must not make a queue a key). A put on a key expression with wildcards
+        names no one member: counted, as a payload no channel can take (so is a delete)."""
+        key = str(sample.key_expr)
+        if "*" in key:
+            kind = "put" if sample.kind == zenoh.SampleKind.PUT else "delete"
+            with self.lock:
+                self.core.drop_payload(key, f"a {kind} on a key expression with wildcards "
+                                       f"reaches key family {expression!r} but names none of "
+                                       f"its members: {kind} each member's own key",
+                                       self.clock(), "unfit")
+                self._flush()
+            return
+        self._from_zenoh(loop, key, sample, lane=expression)
 
     def _from_zenoh(self, loop: asyncio.AbstractEventLoop, key: str, sample: zenoh.Sample,
                     lane: str | None = None) -> None:
@@ -708,9 +720,10 @@ class BridgeNode:
         self._latest[key] = (payload, enc, output.attachment, stamp)
         if output.latched and key not in self._latched_keys:
             self._latched_keys.add(key)
-            self._queryables.append(
-                self.session.declare_queryable(key, functools.partial(self._answer, key=key))
-            )
+            self._queryables += [
+                self.session.declare_queryable(key, functools.partial(self._answer, key=key)),
+                self.session.declare_subscriber(key, functools.partial(self._heard, key=key),
+                                                allowed_origin=zenoh.Locality.REMOTE)]
         publisher.put(payload, encoding=zenoh.Encoding(enc),
                       attachment=self._attachment(key, payload, output.attachment),
                       timestamp=stamp)
@@ -747,6 +760,23 @@ class BridgeNode:
             self._ros2.publish(key, value, ros2, self.clock())
         except EncodeError as exc:
             self.core.drop_payload(key, str(exc), self.clock(), "unpublishable")
+
+    def _heard(self, sample: zenoh.Sample, key: str) -> None:
+        """Zenoh thread: a latched output ``key`` put or deleted by another session (a
+        surfaced peer's bridge relaying it over IP, or an application here): what a get on
+        it answers from now on, unless older than what this node holds."""
+        stamp = sample.timestamp
+        held = self._latest.get(key)
+        if stamp is not None and held is not None and held[3] is not None \
+                and stamp.get_time() < held[3].get_time():
+            return
+        if sample.kind != zenoh.SampleKind.PUT:
+            self._latest.pop(key, None)
+            return
+        attachment = sample.attachment
+        self._latest[key] = (sample.payload.to_bytes(), str(sample.encoding),
+                             application_of(attachment.to_bytes() if attachment else b""),
+                             stamp)
 
     def _answer(self, query: zenoh.Query, key: str) -> None:
         """Zenoh thread: a late joiner asks for a latched key; reply with its last value."""

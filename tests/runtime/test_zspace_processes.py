@@ -95,9 +95,15 @@ def test_two_wildcard_sources_arrive_on_their_own_keys_through_zab_sim(
         top.declare_subscriber("auv1/sensors/**", inbox)
         put(auv1, "auv1/sensors/a/temp", {"celsius": 10.0})
         put(auv1, "auv1/sensors/b/temp", {"celsius": 20.0})
+        put(auv1, "auv1/sensors/*/temp", {"celsius": 30.0})  # no one member: counted
         got = dict(inbox.drain(8.0))
         assert got == {"auv1/sensors/a/temp": {"celsius": 10.0},
                        "auv1/sensors/b/temp": {"celsius": 20.0}}
+        deadline, dropped = time.time() + 10.0, {}
+        while "auv1/sensors/*/temp" not in dropped and time.time() < deadline:
+            dropped = latest_stats(auv1, "@zab/zspace/auv1/stats", 3.0).get("payloads_dropped",
+                                                                              {})
+        assert dropped.get("auv1/sensors/*/temp") == 1, dropped
     finally:
         auv1.close()
         top.close()
@@ -262,6 +268,10 @@ def test_surfacing_and_diving_through_zab_sim(tmp_path: Path) -> None:
             put(auv1, "auv1/status", {"battery": 66.6, "mode": "transit"})
             time.sleep(3 * CYCLE_S)  # latching every 2 s: acoustic copies would show here
             assert [v for _, v in got] == [{"battery": 66.6, "mode": "transit"}]
+            # a get at the surface: the value that came over IP, not the older acoustic one
+            # the surface bridge published before (its latched queryable answered 77 until the
+            # dive)
+            assert latched(top, "auv1/status") == [{"battery": 66.6, "mode": "transit"}]
             got.clear()
             dived = time.time()
             wifi.close()
@@ -276,6 +286,12 @@ def test_surfacing_and_diving_through_zab_sim(tmp_path: Path) -> None:
                 wifi.close()
             auv1.close()
             top.close()
+
+
+def latched(session: zenoh.Session, key: str) -> list[dict]:
+    """What a get on ``key`` answers (each reply's value)."""
+    return [msgpack.unpackb(r.ok.payload.to_bytes()) for r in session.get(key, timeout=3.0)
+            if r.ok is not None]
 
 
 def token_seen(session: zenoh.Session, node: str) -> bool:
