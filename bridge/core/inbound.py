@@ -269,7 +269,7 @@ class Inbound:
             if self.ranges is not None and not said.deleted:
                 self.ranges.anchor_value(key, value, anchors, now)
             self.outbox.publish(key, None if said.deleted else value, encoding, latching,
-                                element.ros2, taken, said.deleted, said.attachment)
+                                element.ros2, taken, said.deleted, said.attachment, src)
 
     def _fragment(self, src: str, channel: ChannelCodec, entry: Entry,
                   now: float) -> list[Values]:

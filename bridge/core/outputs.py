@@ -32,7 +32,8 @@ class Publish:
     ``taken``: when the value was taken at the source (the sample's Zenoh timestamp), as
     well as the receiver can tell (:mod:`bridge.wire.sample_meta`); ``delete``: a Zenoh
     delete of ``key`` instead (``value`` None); ``attachment``: the sending application's
-    attachment, where the channel carries it."""
+    attachment, where the channel carries it; ``src``: the node it came from (None: this
+    one's own)."""
 
     key: str
     value: Any
@@ -42,6 +43,7 @@ class Publish:
     taken: float | None = None
     delete: bool = False
     attachment: bytes | None = None
+    src: str | None = None
 
 
 @direct_init
@@ -110,10 +112,11 @@ class Outbox:
 
     def publish(self, key: str, value: Any, encoding: str, latched: bool,
                 ros2: Ros2Element | None = None, taken: float | None = None,
-                delete: bool = False, attachment: bytes | None = None) -> None:
+                delete: bool = False, attachment: bytes | None = None,
+                src: str | None = None) -> None:
         if self._publishes:
             self.items.append(Publish(key, value, encoding, latched, ros2, taken, delete,
-                                      attachment))
+                                      attachment, src))
         self.stats.values_published += 1
 
     def reports(self, reports: list[Delivery], changed: bool = True) -> None:

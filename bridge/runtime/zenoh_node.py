@@ -138,6 +138,10 @@ class BridgeNode:
         self._stamp_id: zenoh.TimestampId | None = None
         self._deleted: set[str] = set()  # output keys deleted (and not put since)
         self._latched_keys: set[str] = set()
+        self._sources: dict[str, str] = {}  # latched output key -> the peer it comes from
+        self._ip_up: set[str] = set()  # peers reachable over IP (surfaced)
+        self._over_ip: dict[str, Any] = {}  # latched output key -> its subscriber while the
+        # peer it comes from is reachable over IP (see _hear_over_ip)
         self._publishers: dict[str, Any] = {}
         self._queryables: list[Any] = []
         self._interest_entities: list[Any] = []
@@ -501,6 +505,8 @@ class BridgeNode:
         self._interest_entities.extend(self.ip_watch.entities)
 
     def _ip_changed(self, peer: str, up: bool) -> None:
+        (self._ip_up.add if up else self._ip_up.discard)(peer)
+        self._hear_over_ip(peer)
         if up and peer not in self._told_alike:
             self._told_alike.add(peer)
             alike = keys_read_alike(self.mission, self.table, self.node, peer)
@@ -720,10 +726,11 @@ class BridgeNode:
         self._latest[key] = (payload, enc, output.attachment, stamp)
         if output.latched and key not in self._latched_keys:
             self._latched_keys.add(key)
-            self._queryables += [
-                self.session.declare_queryable(key, functools.partial(self._answer, key=key)),
-                self.session.declare_subscriber(key, functools.partial(self._heard, key=key),
-                                                allowed_origin=zenoh.Locality.REMOTE)]
+            self._queryables.append(
+                self.session.declare_queryable(key, functools.partial(self._answer, key=key)))
+            if output.src is not None:
+                self._sources[key] = output.src
+                self._hear_over_ip(output.src)
         publisher.put(payload, encoding=zenoh.Encoding(enc),
                       attachment=self._attachment(key, payload, output.attachment),
                       timestamp=stamp)
@@ -761,10 +768,31 @@ class BridgeNode:
         except EncodeError as exc:
             self.core.drop_payload(key, str(exc), self.clock(), "unpublishable")
 
+    def _hear_over_ip(self, peer: str) -> None:
+        """Listen on the latched output keys ``peer``'s values come out on while it is
+        reachable over IP, and only then: a surfaced vehicle's puts and deletes reach them
+        over IP (its bridge's relays, or its applications' own where the key is the same), and
+        a get here must answer those, not the older value that last crossed the water. (A
+        subscriber here would say to the demand-driven channels that they are wanted: hence
+        not while the peer is under water.)"""
+        assert self.session is not None
+        up = peer in self._ip_up
+        for key, source in self._sources.items():
+            if source != peer:
+                continue
+            listening = self._over_ip.get(key)
+            if up and listening is None:
+                self._over_ip[key] = self.session.declare_subscriber(
+                    key, functools.partial(self._heard, key=key),
+                    allowed_origin=zenoh.Locality.REMOTE)
+            elif not up and listening is not None:
+                del self._over_ip[key]
+                listening.undeclare()
+
     def _heard(self, sample: zenoh.Sample, key: str) -> None:
-        """Zenoh thread: a latched output ``key`` put or deleted by another session (a
-        surfaced peer's bridge relaying it over IP, or an application here): what a get on
-        it answers from now on, unless older than what this node holds."""
+        """Zenoh thread: a latched output ``key`` put or deleted over IP by another session
+        (:meth:`_hear_over_ip`): what a get on it answers from now on, unless older than what
+        this node holds."""
         stamp = sample.timestamp
         held = self._latest.get(key)
         if stamp is not None and held is not None and held[3] is not None \
