@@ -88,7 +88,7 @@ def test_sim_writes_a_report(tmp_path: Path) -> None:
     mission = tmp_path / "m.yaml"
     mission.write_text(yaml.safe_dump(data))
     report = tmp_path / "report.json"
-    result = zab("sim", str(mission), "--duration", "4", "--report", str(report), "--no-live")
+    result = zab("sim", str(mission), "--duration", "6", "--report", str(report), "--no-live")
     assert result.returncode == 0, result.stderr
     out = json.loads(report.read_text())
     assert set(out["channels"]) == {c["name"] for c in data["channels"]}
