@@ -5,7 +5,9 @@ device exists and is usable, then the backend opens and the modem answers its st
 commands); the Zenoh session (listen endpoints free, connect endpoints reachable); the state
 directory (a save works there, with room to spare: a bridge that cannot save its state refuses
 new reliable values); the clock (TDMA slots are wall-clock aligned, so every node needs a
-synchronised clock: chrony, systemd's timesyncd or a PPS source).
+synchronised clock: chrony, systemd's timesyncd or a PPS source). When a bridge of the node
+is running (it holds the node's state lock), the modem, Zenoh and state checks are skipped:
+they would open what the bridge holds.
 
 Parsing of the clock tools' output is pure (:func:`parse_chronyc`, :func:`parse_timedatectl`);
 running them, opening the modem and the Zenoh session happen in :func:`run_doctor`.
@@ -334,6 +336,19 @@ def state_findings(loaded: LoadedMission, node: str, directory: Path) -> list[Fi
     return [Finding("state", "ok", f"{directory} takes a save ({free // (1 << 20)} MiB free)")]
 
 
+def running_findings(loaded: LoadedMission, node: str, directory: Path | None) -> list[Finding]:
+    """A bridge of this node running (it holds the node's state lock): opening its modem
+    would disturb the bridge, so the modem and state checks are skipped."""
+    from bridge.runtime.state_file import lock_holder
+
+    holder = None if directory is None else lock_holder(directory, loaded.mission.mission, node)
+    if holder is None:
+        return []
+    return [Finding("bridge", "warn", f"a bridge of {node} is running ({holder} holds its "
+                    f"state in {directory}): modem, Zenoh and state not checked",
+                    "stop that bridge to check them")]
+
+
 def _pps_devices() -> list[str]:
     return sorted(str(p) for p in Path("/dev").glob("pps*"))
 
@@ -353,12 +368,15 @@ async def run_doctor(
         return [Finding("mission", "fail", f"no node {node!r}; nodes: "
                         f"{', '.join(loaded.mission.nodes)}", "pass --node with one of them")]
     found = mission_findings(loaded)
+    running = running_findings(loaded, node, state_dir)
+    found += running
     devices = device_findings(loaded, node)
     found += devices
-    if all(f.status == "ok" for f in devices):
+    if not running and all(f.status == "ok" for f in devices):
         found += await modem(loaded, node, timeout_s)
-    found += await asyncio.to_thread(zenoh_findings, loaded, node)
-    if state_dir is not None:
+    if not running:  # (a running bridge holds the node's listen endpoints, too)
+        found += await asyncio.to_thread(zenoh_findings, loaded, node)
+    if state_dir is not None and not running:
         found += await asyncio.to_thread(state_findings, loaded, node, state_dir)
     state = await asyncio.to_thread(read_clock, run)
     found += clock_findings(loaded, state, _pps_devices())

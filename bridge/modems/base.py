@@ -8,6 +8,8 @@ and :meth:`~ModemBackend._close`. Every failure surfaces as :class:`~bridge.erro
 from __future__ import annotations
 
 import asyncio
+import logging
+import re
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
@@ -18,7 +20,8 @@ from typing import Any, ClassVar
 from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
 from bridge.errors import BackendError
 
-__all__ = ["Inbox", "ModemBackend", "ModemFix", "ModemRange", "ModemSetup", "Reception"]
+__all__ = ["BadInputLog", "Inbox", "ModemBackend", "ModemFix", "ModemRange", "ModemSetup",
+           "Reception"]
 
 _EMPTY: Mapping[str, Any] = MappingProxyType({})
 
@@ -33,6 +36,43 @@ class ModemSetup:
     options: Mapping[str, Any] = field(default_factory=lambda: _EMPTY)
     peers: Mapping[int, Mapping[str, Any]] = field(default_factory=lambda: MappingProxyType({}))
     position: tuple[float, float, float] | None = None
+
+
+class BadInputLog:
+    """Bad input from a modem (a noisy line), logged so an operator sees it without a flood:
+    each kind's first at WARNING, then at most one WARNING per ``period_s`` per kind, with the
+    running count; the others at DEBUG. A kind is the reason without its numbers and quoted
+    parts (``checksum mismatch``, ``+++AT packet declares N B, its body holds N``)."""
+
+    SHOWN = 80
+    """Bytes of the offending input shown."""
+
+    def __init__(self, logger: logging.Logger, who: str, period_s: float = 60.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.logger = logger
+        self.who = who
+        self.period_s = period_s
+        self.clock = clock
+        self.counts: dict[str, int] = {}
+        self._warned: dict[str, float] = {}
+
+    @staticmethod
+    def kind(reason: str) -> str:
+        head = re.split(r"[:;(]| in | got |'|\$", reason, maxsplit=1)[0]
+        return re.sub(r"\d+", "N", head).strip()[:60] or "bad input"
+
+    def bad(self, data: bytes, reason: str) -> None:
+        """Count (and maybe log) one piece of bad input."""
+        kind = self.kind(reason)
+        count = self.counts[kind] = self.counts.get(kind, 0) + 1
+        now = self.clock()
+        last = self._warned.get(kind)
+        level = logging.DEBUG
+        if last is None or now - last >= self.period_s:
+            self._warned[kind] = now
+            level = logging.WARNING
+        self.logger.log(level, "%s: bad modem input (%s; %d of this kind so far): %r", self.who,
+                        reason, count, data[: self.SHOWN])
 
 
 class Inbox:

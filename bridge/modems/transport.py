@@ -4,7 +4,9 @@ Shared by the real-modem backends. A serial path (``/dev/ttyUSB0``, a pty) or a 
 (``socket://127.0.0.1:9200`` for a modem's TCP port, ``loop://`` in tests) is opened with
 :func:`serial.serial_for_url`. One reader thread per open transport polls the port with a short
 timeout and hands chunks to the event loop, so the loop never blocks; :meth:`ByteTransport.close`
-stops and joins that thread. Every failure is a :class:`~bridge.errors.BackendError`.
+stops and joins that thread. A serial device is opened exclusively: a second opener (``zab
+doctor`` beside a running bridge) gets "port busy". Every failure is a
+:class:`~bridge.errors.BackendError`.
 """
 
 from __future__ import annotations
@@ -60,6 +62,11 @@ class ByteTransport:
         try:
             port = await loop.run_in_executor(None, self._open_blocking)
         except (serial.SerialException, OSError, ValueError) as exc:
+            if "exclusively lock" in str(exc):  # pyserial's words when the flock is taken
+                raise BackendError(
+                    f"{self.name}: port {self.url} busy: another program (a running `zab run`, "
+                    "a terminal) has it open"
+                ) from None
             raise BackendError(
                 f"{self.name}: port {self.url} absent or unusable ({_reason(exc)})"
             ) from None
@@ -73,11 +80,14 @@ class ByteTransport:
         self._thread.start()
 
     def _open_blocking(self) -> Any:
+        """Open the port exclusively (an ``flock`` on a serial device), so that a second
+        opener is refused instead of sharing the modem's line."""
         return serial.serial_for_url(
             self.url,
             baudrate=self.baudrate,
             timeout=READ_POLL_S,
             write_timeout=WRITE_TIMEOUT_S,
+            exclusive=True,
         )
 
     async def read(self) -> bytes:

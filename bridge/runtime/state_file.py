@@ -198,6 +198,27 @@ class StateFile:
             raise
 
 
+def lock_holder(directory: str | Path, mission: str, node: str) -> str | None:
+    """Who holds the node's state lock (as :meth:`StateFile.hold` takes it): ``None`` when no
+    process does, else ``"process <pid>"`` (or ``"another process"``). Only tries the lock,
+    never creates the file; a lock free this instant is let go at once."""
+    lock_path = Path(directory) / f"{mission}.{node}.state.lock"
+    try:
+        fd = os.open(lock_path, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None  # no lock file (or none we may read): no bridge has run here
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError as exc:
+        if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+            return None
+        holder = _pid_in(fd)
+        return f"process {holder}" if holder else "another process"
+    finally:
+        os.close(fd)  # (and with it a lock this call took)
+    return None
+
+
 def _pid_in(fd: int) -> str:
     """The process id a lock file holds ('' if none can be read)."""
     try:

@@ -836,7 +836,8 @@ class BridgeNode:
     # -- health --------------------------------------------------------------------------------
 
     def snapshot(self) -> dict[str, Any]:
-        """Counters and channel ages as plain data."""
+        """Counters and channel ages as plain data; ``modem``: the modem backend's counters
+        (by link name with several links)."""
         with self.lock:
             snapshot = self.core.snapshot(self.clock())
         snapshot["state"].update(self.persistence.snapshot())
@@ -847,6 +848,10 @@ class BridgeNode:
         if self.intake is not None:
             snapshot["intake"] = {**self.intake.snapshot(), "events_dropped": self.events_dropped,
                                   "events_held_back": self._gate.held_back}
+        modems = {port.link: dict(port.backend.stats) for port in self.ports.values()
+                  if port.backend is not None}  # (the drivers' counters: bad lines, retries...)
+        if modems:
+            snapshot["modem"] = modems.get(None, modems)
         return snapshot
 
     def update_links(self, now: float) -> None:

@@ -29,7 +29,9 @@ from bridge.core.loaded import LoadedMission
 from bridge.modems.evologics.emulator import EvologicsEmulator
 from bridge.modems.micromodem.emulator import MicromodemEmulator
 from bridge.modems.setup import modem_setup
+from bridge.modems.transport import ByteTransport
 from bridge.runtime.fleet import water_for
+from bridge.runtime.state_file import StateFile
 from tests.conftest import MISSIONS, REPO, free_port, on_free_ports
 
 CHRONY = """\
@@ -103,6 +105,34 @@ def test_a_ready_vehicle_passes(tmp_path: Path, kind: str) -> None:
     assert found["modem"][0].status == "ok" and "answered" in found["modem"][0].message
     assert found["zenoh"][0].status == "ok"
     assert found["clock"][0].status == "warn"  # TDMA mission, no clock tool to ask
+
+
+def test_beside_a_running_bridge_the_modem_is_left_alone(tmp_path: Path) -> None:
+    """Found from outside: doctor beside the node's running bridge opened the same port,
+    disturbed the bridge and called the healthy modem FAIL. The bridge holds the node's state
+    lock (as `zab run` does) and its port: doctor says a bridge is running and skips the
+    modem, Zenoh and state checks, without a byte to the modem."""
+    async def main() -> tuple[list[Finding], int]:
+        async with emulated("micromodem", tmp_path) as (loaded, node, emulator):
+            state = StateFile(tmp_path / "state", loaded.mission.mission, node)
+            state.hold()
+            port = ByteTransport(str(tmp_path / f"modem-{node}"))
+            await port.open()
+            try:
+                lines = emulator.stats["lines"]  # type: ignore[attr-defined]
+                found = await run_doctor(loaded, node, timeout_s=10, run=no_tools,
+                                         state_dir=tmp_path / "state")
+                return found, emulator.stats["lines"] - lines  # type: ignore[attr-defined]
+            finally:
+                await port.close()
+                state.release()
+
+    found, heard = asyncio.run(asyncio.wait_for(main(), 30))
+    checks = by_check(found)
+    [bridge] = checks["bridge"]
+    assert bridge.status == "warn" and f"process {os.getpid()}" in bridge.message
+    assert "modem" not in checks and "state" not in checks and "zenoh" not in checks
+    assert all(f.status != "fail" for f in found) and heard == 0
 
 
 def test_a_modem_that_does_not_answer_fails_with_a_fix(tmp_path: Path) -> None:

@@ -151,3 +151,24 @@ async def _stop(emulator: EvologicsEmulator | MicromodemEmulator) -> None:
         await emulator.stop()
     else:
         await emulator.close()
+
+
+def test_a_second_opener_of_a_port_is_told_it_is_busy(tmp_path: Path) -> None:
+    """A port is opened exclusively: `zab doctor` beside a running bridge gets "busy" instead
+    of sharing (and disturbing) the modem's line; once the first closes, it opens."""
+    async def main() -> None:
+        host = PtyHost(lambda data: None, link=tmp_path / "modem")
+        device = await host.open()
+        first, second = ByteTransport(device), ByteTransport(device)
+        try:
+            await first.open()
+            with pytest.raises(BackendError, match="busy"):
+                await second.open()
+            await first.close()
+            await second.open()
+        finally:
+            await second.close()
+            await first.close()
+            await host.close()
+
+    arun(main)

@@ -292,3 +292,15 @@ def test_every_payload_shape_over_zenoh_is_a_counted_drop_without_a_traceback(
     assert node.stats.payloads_dropped["note"] == len(shapes)
     assert snapshot["intake"]["errors"] == {} and snapshot["intake"]["overflow"] == {}
     assert not [r for r in caplog.records if r.exc_info or "Traceback" in r.getMessage()]
+
+
+def test_the_modem_drivers_counters_are_in_the_nodes_stats() -> None:
+    """`@zab/<mission>/<node>/stats` carries the backend's counters (a noisy modem line, its
+    bad_lines/malformed, was visible nowhere): here the UDP modem's frames sent and heard."""
+    loaded = on_free_ports(udp_ports(LAB), "modem-stats.yaml")
+    with lab(loaded) as (fleet, a, inbox):
+        put(a, "note", {"s": "ok", "n": 1})
+        assert inbox.get(timeout=5)[1] == {"s": "ok", "n": 1}
+        sender, receiver = fleet.nodes["a"].snapshot(), fleet.nodes["b"].snapshot()
+    assert sender["modem"]["sent"] >= 1 and receiver["modem"]["received"] >= 1
+    assert sender["modem"]["errors"] == 0

@@ -63,7 +63,15 @@ from typing import Any, ClassVar
 
 from bridge.core.reception import RangingMode
 from bridge.errors import BackendError
-from bridge.modems.base import Inbox, ModemBackend, ModemFix, ModemRange, ModemSetup, Reception
+from bridge.modems.base import (
+    BadInputLog,
+    Inbox,
+    ModemBackend,
+    ModemFix,
+    ModemRange,
+    ModemSetup,
+    Reception,
+)
 from bridge.modems.evologics.clock import ModemClock
 from bridge.modems.evologics.commands import send_im, send_ims
 from bridge.modems.evologics.protocol import (
@@ -156,6 +164,7 @@ class EvologicsBackend(ModemBackend):
         self.fixes: dict[int, dict[str, Any]] = {}
         self.propagation: dict[int, tuple[float, float]] = {}  # dst -> (time, seconds)
         self._inbox = Inbox(self.stats)
+        self._bad_input = BadInputLog(log, f"evologics {setup.node}")
         self._reply: asyncio.Future[Event] | None = None
         self._expect: str | None = None
         self._raw: bytearray = bytearray()
@@ -496,8 +505,7 @@ class EvologicsBackend(ModemBackend):
                 fut.set_result(event)
         elif isinstance(event, Malformed):
             self.stats["malformed"] += 1
-            log.warning("%s: unparsable modem output %r (%s)", self._who, event.data[:80],
-                        event.reason)
+            self._bad_input.bad(event.data, event.reason)
 
     def _reception(self, ev: RecvIm | RecvImLegacy | RecvIms | RecvPbm | RecvPbmLegacy,
                    now: float) -> Reception:

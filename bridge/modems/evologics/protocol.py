@@ -86,8 +86,17 @@ longest notification (``USBLPHYP``, ~250 B) fit easily; beyond this the bytes ar
 reported as :class:`Malformed` rather than buffered forever (like h11's
 ``DEFAULT_MAX_INCOMPLETE_EVENT_SIZE``)."""
 
-MAX_PAYLOAD = 1 << 16
-"""Largest declared length accepted (burst ``RECV`` payloads; drivers cap sends at 1024 B)."""
+MAX_PAYLOAD = 1024
+"""Largest declared payload accepted: a burst ``RECV`` (drivers cap a send at 1024 B [V OSL,
+SUNSET]; an IM holds at most 64). A longer one is a corrupt length, not a wait."""
+
+MAX_BODY = MAX_PAYLOAD + 256
+"""Longest body of a ``+++AT`` packet: a ``RECV`` of :data:`MAX_PAYLOAD` and its header
+(``AT&V`` ~400 B and ``USBLPHYP`` ~250 B are shorter)."""
+
+MULTILINE_REPLIES = frozenset(["&V", "?P", "?S"])
+"""Replies whose body may hold line ends (§1.4); every other body without a payload is one
+line."""
 
 TIES = b"+++AT"
 CRLF = b"\r\n"
@@ -811,20 +820,35 @@ class HostProtocol:
                 return NEED_DATA
             return self._bad(5, "bad length in +++AT packet")
         digits = bytes(buf[colon + 1 : colon2])
-        if not digits.isdigit() or int(digits) > MAX_PAYLOAD:
-            return self._bad(5, f"bad length {digits!r} in +++AT packet")
+        if not digits.isdigit() or int(digits) > MAX_BODY:
+            reason = f"bad length {digits[:12]!r} in +++AT packet"
+            return self._bad(self._line_end(colon2 + 1), reason)
+        name = command.decode("ascii")
         start = colon2 + 1
         end = start + int(digits)
-        if len(buf) < end + 2:
-            return NEED_DATA
+        own = _body_length(name, bytes(buf[start : start + MAX_BODY + 2]), self.legacy_recvim)
+        if own is not None and own != end - start:
+            # the body ends where its own content says: a corrupt length gives up there rather
+            # than wait for the length's bytes and swallow the packets behind it
+            if buf[start + own : start + own + 2] == CRLF:
+                return self._bad(start + own + 2,
+                                 f"+++AT packet declares {end - start} B, its body holds {own}")
+            if len(buf) < start + own + 2 and buf[end : end + 2] != CRLF:
+                return NEED_DATA
         if buf[end : end + 2] != CRLF:
-            return self._bad(5, f"+++AT packet of {int(digits)} B not followed by CRLF")
+            if len(buf) < end + 2:
+                return NEED_DATA
+            return self._bad(5, f"+++AT packet of {end - start} B not followed by CRLF")
         body = bytes(buf[start:end])
         del buf[: end + 2]
-        name = command.decode("ascii")
         if name:
             self._answered(name)
         return parse_body(name or None, body, legacy_recvim=self.legacy_recvim)
+
+    def _line_end(self, at: int) -> int:
+        """Bytes up to and including the first CRLF from ``at`` (up to ``at`` if none yet)."""
+        crlf_at = self._buffer.find(CRLF, at, at + MAX_INCOMPLETE)
+        return crlf_at + 2 if crlf_at >= 0 else at
 
     def _bad(self, skip: int, reason: str) -> Malformed:
         data = bytes(self._buffer[:skip])
@@ -907,6 +931,25 @@ class HostProtocol:
         if len(self._buffer) <= limit:
             return NEED_DATA
         return self._bad(limit, f"no line end within {limit} bytes")
+
+
+def _body_length(command: str, body: bytes, legacy_recvim: bool) -> int | None:
+    """Where a wrapped body ends by its own content, before its declared length is read:
+    a payload line's ``len`` field, else the first CRLF of a one-line body. ``None``: not
+    known yet (or a multi-line reply)."""
+    name, sep, rest = body.partition(b",")
+    if sep and name in _PAYLOAD_NAMES:
+        cls = LEGACY.get(name) if legacy_recvim else None
+        n = 3 if name == b"NOISE" else (cls or _TYPED[name.decode()]).n_fields()
+        try:
+            header = _payload_header(rest, n)
+        except ValueError:
+            return None
+        return None if header is None else len(name) + 1 + header[3] + header[1]
+    if command in MULTILINE_REPLIES:
+        return None
+    crlf_at = body.find(CRLF)
+    return crlf_at if crlf_at >= 0 else None
 
 
 def _partial_prefix(buf: bytes | bytearray) -> int:

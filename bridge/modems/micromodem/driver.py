@@ -37,7 +37,8 @@ bytes at most) and joined again by the receiving backend. ``send`` returns when 
 left the modem (``$CATXF``), or when every frame was acknowledged with ``ack``; it retries a
 failed cycle ``send_retries`` times, then raises :class:`BackendError`: a frame is sent, or the
 caller is told. A reboot (``$CAREV,…,INIT``) fails the running cycle and re-initialises the modem.
-A line with a bad checksum is counted in ``stats["bad_lines"]`` and dropped. ``$CAMSG``
+A line with a bad checksum is counted in ``stats["bad_lines"]``, logged (each kind's first at
+WARNING, then one a minute: :class:`~bridge.modems.base.BadInputLog`) and dropped. ``$CAMSG``
 ``BAD_CRC`` and ``PACKET_TIMEOUT`` are counted in ``stats["bad_crc"]`` and
 ``stats["packet_timeout"]`` (the packet they spoil also in ``rx_lost``). A ``$CAUSB2`` (MM2
 USBL) becomes a :class:`~bridge.modems.base.ModemFix` of the node heard last, handed to
@@ -62,7 +63,15 @@ from typing import Any, ClassVar
 from bridge.core.reception import RangingMode
 from bridge.errors import BackendError
 from bridge.mission.presets import UnknownPresetError, get_preset
-from bridge.modems.base import Inbox, ModemBackend, ModemFix, ModemRange, ModemSetup, Reception
+from bridge.modems.base import (
+    BadInputLog,
+    Inbox,
+    ModemBackend,
+    ModemFix,
+    ModemRange,
+    ModemSetup,
+    Reception,
+)
 from bridge.modems.micromodem.nav import Transponders, TravelTimes
 from bridge.modems.micromodem.nmea import Sentence
 from bridge.modems.micromodem.protocol import (
@@ -184,6 +193,7 @@ class MicromodemBackend(ModemBackend):
         self._reader: asyncio.Task[None] | None = None
         self._init_task: asyncio.Task[None] | None = None
         self._inbox = Inbox(self.stats, RX_QUEUE)
+        self._bad_input = BadInputLog(log, f"micromodem {setup.node}")
         self._lock = asyncio.Lock()  # one cycle or ping at a time: the modem is half-duplex
         self._ready = asyncio.Event()
         self._failure: BackendError | None = None
@@ -498,7 +508,7 @@ class MicromodemBackend(ModemBackend):
                     fut_tta.set_result(event)
             elif isinstance(event, BadSentence):
                 self.stats["bad_lines"] += 1
-                log.debug("%s: dropped line %r: %s", self, event.line[:60], event.reason)
+                self._bad_input.bad(event.line, event.reason)
             elif isinstance(event, PacketLost):
                 self.stats["rx_lost"] += 1
                 log.info("%s: lost a packet from %s: %s", self, event.src, event.reason)

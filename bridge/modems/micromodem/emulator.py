@@ -305,7 +305,10 @@ class MicromodemEmulator:
             self._error("NMEA", 1, "Line too long")
         for line in lines:
             self.stats["lines"] += 1
-            start = line.find(b"$")
+            start = line.rfind(b"$")  # resynchronise on the last '$' (a command cut off before)
+            if b"$" in line[:max(start, 0)]:
+                self.stats["unknown"] += 1
+                self._error("NMEA", 1, "Bad sentence")  # [U] number and text
             try:
                 if start < 0:
                     raise NmeaError("no '$'")

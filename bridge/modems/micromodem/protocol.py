@@ -8,7 +8,8 @@ come out of :meth:`HostProtocol.data_to_send`. No I/O and no clock: the adapter
 
 Rules (reference section 2):
 
-* Lines end in ``\\r`` and/or ``\\n``; empty lines are ignored. A line with a wrong checksum, a
+* Lines end in ``\\r`` and/or ``\\n``; empty lines are ignored. A line is read from its last
+  ``$`` (noise or a sentence cut off before it is one bad line). A line with a wrong checksum, a
   bad talker or unparsable fields becomes a :class:`BadSentence` event (counted in ``bad_lines``)
   and is otherwise dropped. Receiving never raises.
 * A transfer is one data cycle: ``$CCCYC`` → echo ``$CACYC`` → (rate 0: cycle-init
@@ -813,9 +814,12 @@ class HostProtocol:
         self._events.append(BadSentence(line, reason))
 
     def _line(self, line: bytes) -> None:
-        start = line.find(b"$")
-        if start > 0:  # line noise before a sentence: drop the noise, keep the sentence
-            self._bad(line[:start], "noise before '$'")
+        # resynchronise on the last '$': what comes before it is noise or a sentence cut off
+        # without its line end (a modem rebooting mid-line), one bad line; keep the sentence
+        start = line.rfind(b"$")
+        if start > 0:
+            cut = b"$" in line[:start]
+            self._bad(line[:start], "sentence cut off by a new '$'" if cut else "noise before '$'")
             line = line[start:]
         try:
             sentence = parse_sentence(line)

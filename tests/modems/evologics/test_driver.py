@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
@@ -339,6 +340,26 @@ def test_pty_host_and_transport_close_cleanly(tmp_path: Path) -> None:
         assert not (tmp_path / "link").exists()
 
     arun(main)
+
+
+def test_corrupt_packets_are_logged_once_per_kind_with_their_bytes(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A noisy line gives one WARNING per kind, naming the bad packet (it was a WARNING for
+    every one), and receptions behind a corrupt length still arrive."""
+    caplog.set_level(logging.DEBUG, logger="zab.evologics")
+
+    async def main() -> None:
+        async with modems(tmp_path, 1) as (_, emu), driver(emu[1]) as a:
+            for n in (999, 998):
+                emu[1].pty.write(b"+++AT:%d:RECVIM,3,2,1,ack,1000,-50,100,0.0,abc\r\n" % n)
+            emu[1].pty.write(b"+++AT:37:RECVIM,3,2,1,ack,1000,-50,100,0.0,xyz\r\n")
+            rx = await asyncio.wait_for(a.recv(), 2)
+            assert rx.data == b"xyz" and a.stats["malformed"] == 2
+
+    arun(main)
+    warned = [r.getMessage() for r in caplog.records
+              if r.levelno == logging.WARNING and "bad modem input" in r.getMessage()]
+    assert len(warned) == 1 and "b'+++AT:999:RECVIM,3" in warned[0]
 
 
 @pytest.mark.parametrize("firmware", ["1.6", "1.7", "1.9"])

@@ -254,6 +254,39 @@ def test_malformed_input_is_reported_and_the_parser_recovers(bad: bytes) -> None
         assert not any(isinstance(e, DeliveredIm) and e.dst != 7 for e in events)
 
 
+@pytest.mark.parametrize("how", HOW)
+def test_a_corrupt_length_does_not_stall_the_parser(how: str) -> None:
+    # found from outside: a RECVIM declaring 999 B made the parser wait for them, swallowing
+    # the reply and the notification behind it
+    bad = b"+++AT:999:RECVIM,3,1,2,ack,1000,-50,100,0.0,abc\r\n"
+    p = HostProtocol(Mode.DATA)
+    events = feed(p, bad + b"+++AT*SENDIMS:2:OK\r\n+++AT:26:SENDSTART,255,ims,400850,0\r\n", how)
+    assert events[0] == Malformed(bad, "+++AT packet declares 999 B, its body holds 37")
+    assert events[1:] == [Ok("*SENDIMS"), SendStart(255, "ims", 400850, 0)]
+
+
+def test_a_length_beyond_any_body_is_malformed_at_once() -> None:
+    p = HostProtocol(Mode.DATA)
+    assert feed(p, b"+++AT:1281:PHYOFF", "whole")[0] == Malformed(
+        b"+++AT:1281:", "bad length b'1281' in +++AT packet")
+    p = HostProtocol(Mode.DATA)  # with its line end there, the whole line goes
+    events = feed(p, b"+++AT:60000:PHYOFF\r\n+++AT:13:DELIVEREDIM,7\r\n", "whole")
+    assert events == [Malformed(b"+++AT:60000:PHYOFF\r\n", "bad length b'60000' in +++AT packet"),
+                      DeliveredIm(7)]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.sampled_from([b for b, _ in NOTIFICATIONS]), st.integers(0, 1280),
+       st.sampled_from(HOW))
+def test_any_wrong_length_never_loses_the_packet_behind(body: bytes, declared: int,
+                                                         how: str) -> None:
+    packet = b"+++AT:%d:%s\r\n" % (declared, body)
+    events = feed(HostProtocol(Mode.DATA), packet + b"+++AT:13:DELIVEREDIM,7\r\n", how)
+    assert events[-1] == DeliveredIm(7)
+    if declared != len(body):
+        assert any(isinstance(e, Malformed) for e in events)
+
+
 def test_command_mode_malformed_and_truncated() -> None:
     p = HostProtocol(Mode.COMMAND)
     events = feed(p, b"RECVIM,5,1,2,ack,312,14,11,0.03,toolongpayload\r\nFAILEDIM,2\r\n", "whole")

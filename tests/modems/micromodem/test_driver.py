@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
@@ -279,6 +280,27 @@ def test_modem_reboot_mid_transfer(tmp_path: Path) -> None:
             assert (await asyncio.wait_for(c.recv(), 2)).data == b"later"
 
     run(main)
+
+
+def test_bad_lines_are_logged_at_warning_once_per_kind(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A noisy serial line is seen in the log (it was DEBUG only): one WARNING per kind with
+    the offending bytes and the count."""
+    caplog.set_level(logging.DEBUG, logger="zab.micromodem")
+
+    async def main() -> None:
+        async with bench(tmp_path, (1,), rev_period_s=None) as b:
+            a = await b.modem(1)
+            b.emulators[1].pty.write(b"$CATXF,2*00\r\n$CATXF,3*00\r\nxx$CATXF,2*56\r\n")
+            while a.stats["bad_lines"] < 3:
+                await asyncio.sleep(0.01)
+
+    run(main)
+    warned = [r.getMessage() for r in caplog.records
+              if r.levelno == logging.WARNING and "bad modem input" in r.getMessage()]
+    assert len(warned) == 2
+    assert "checksum mismatch" in warned[0] and "b'$CATXF,2*00'" in warned[0]
+    assert "noise before" in warned[1] and "b'xx'" in warned[1]
 
 
 def test_bad_checksums_both_ways(tmp_path: Path) -> None:

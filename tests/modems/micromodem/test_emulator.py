@@ -63,6 +63,19 @@ def fields(s: Sentence) -> list[str]:
     return list(s.fields)
 
 
+def test_a_command_cut_off_does_not_eat_the_next_one(tmp_path: Path) -> None:
+    """A host sentence cut off without its line end is one bad line; the sentence after it
+    on the same line is still answered."""
+    async def main() -> None:
+        async with bench(tmp_path, (1,)) as b, hosts(b) as h:
+            await h[1].send("$CCCFQ,SR$CCCFQ,SRC*3A")
+            assert fields(await h[1].expect("CAERR"))[1:] == ["NMEA", "1", "Bad sentence"]
+            assert fields(await h[1].expect("CACFG")) == ["SRC", "1"]
+            assert b.emulators[1].stats["unknown"] == 1
+
+    run(main)
+
+
 def test_lbl_interrogations(tmp_path: Path) -> None:
     """$CCPDT/$CCPNT are echoed ($SNPDT, $SNPNT with the time first) and answered by $SNTTA:
     the one-way travel time to each transponder listened for that answered in the window."""

@@ -221,6 +221,31 @@ def test_noise_before_a_sentence_is_dropped_and_the_sentence_kept() -> None:
     assert isinstance(got[0], BadSentence) and got[1:] == [TxFrame(2)]
 
 
+@pytest.mark.parametrize("how", HOW)
+def test_a_sentence_cut_off_does_not_eat_the_next_one(how: str) -> None:
+    # a modem rebooting mid-line: the cut-off $CARXD has no line end before the $CAREV
+    proto = HostProtocol(3)
+    proto.start_transfer(2, b"abc", rate=1, ack=False)
+    got = feed(proto, b"$CARXD,1,3,0,1,01$CAREV,000000,INIT,2.0.27087*4D\r\n", how)
+    assert isinstance(got[0], BadSentence) and got[0].line == b"$CARXD,1,3,0,1,01"
+    assert got[1] == Revision("000000", "INIT", "2.0.27087")
+    assert isinstance(got[2], TransferFailed) and proto.needs_init
+    assert proto.bad_lines == 1
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=60).map(lambda b: b.replace(b"\r", b"").replace(b"\n", b"")),
+       st.sampled_from([c for c in CASES if isinstance(c[1], TxFrame | Ack | Revision | Config)]))
+def test_garbage_before_a_valid_sentence_never_loses_it(
+        garbage: bytes, case: tuple[str, object]) -> None:
+    # garbage without '$' is noise; with '$' it is a cut-off sentence: either way the valid
+    # sentence after it is kept
+    proto = HostProtocol(1)
+    got = feed(proto, garbage + line(case[0]))
+    assert got[-1] == case[1]
+    assert proto.bad_lines == len(got) - 1 == (1 if garbage else 0)
+
+
 def test_overlong_line_is_dropped_up_to_the_next_line_end() -> None:
     proto = HostProtocol(1)
     proto.receive_data(b"$CARXD," + b"A" * 9000)
