@@ -3,7 +3,8 @@
 Every node's bridge core runs in :class:`~bridge.runtime.virtual_fleet.FastFleet` over the
 pure ocean: no Zenoh, no sockets. With nobody publishing, each input key is fed synthetic
 values (random valid codes of its layout) as often as its channels may send, ``interval_s``
-or every :data:`FEED_S` seconds, and an image channel's camera a synthetic seabed every
+or every :data:`FEED_S` seconds, but no faster than the node's frames can leave
+(:func:`least_feed_s`), and an image channel's camera a synthetic seabed every
 :data:`PICTURE_S` seconds (an operator's control key is left alone). ``--fast`` runs as fast
 as the CPU allows; ``--speed X`` keeps the virtual clock at ``X`` times the wall clock (a
 live view can follow it).
@@ -136,12 +137,23 @@ def _drawers(layout: Layout) -> list[tuple[FieldCodec, Drawer]]:
     return drawers
 
 
+def least_feed_s(fleet: FastFleet, node: str) -> float:
+    """The shortest period a synthetic application on ``node`` publishes at: the airtime of a
+    one-byte frame on the node's quickest water (no frame of the node is shorter). A modem
+    sends one frame at a time, so values fed faster would only replace each other in the
+    store (or fill a reliable queue) before any frame could carry them: they would cost the
+    run time, not change what crosses (``interval_s: 1e-6`` made ``zab sim --fast`` hang)."""
+    return min((fleet.oceans[link].preset.airtime(1) for _, link in fleet.ports[node]),
+               default=FEED_S)
+
+
 def feed(fleet: FastFleet, rng: random.Random, until: float) -> int:
     """Publish synthetic values on every input key of every node until ``until``; returns the
     number of keys fed."""
     keys = 0
     for name, core in fleet.cores.items():
         images = core.images
+        least = least_feed_s(fleet, name)
         for key, bindings in core.bindings.items():
             if images is not None and (key in images.inputs or key in images.controls):
                 # a camera's pictures; random controls would cancel every picture
@@ -152,7 +164,7 @@ def feed(fleet: FastFleet, rng: random.Random, until: float) -> int:
                     keys += 1
                 continue
             intervals = [c.interval_s for c, _, _ in bindings if c.interval_s > 0]
-            period = min(intervals) if len(intervals) == len(bindings) else FEED_S
+            period = max(min(intervals) if len(intervals) == len(bindings) else FEED_S, least)
             publisher = _publisher(fleet, rng, name, key, bindings[0][2].layout, period, until)
             fleet.call_at(fleet.now + rng.uniform(0, period), publisher)
             keys += 1

@@ -14,7 +14,8 @@ drop *says* is bounded, whatever the input rate:
 Causes: ``too_large`` (over the key's cap, refused before decoding), ``undecodable`` (not
 msgpack, JSON or CDR; not UTF-8; nested too deep), ``unfit`` (decoded, but not what its
 channel packs: a missing field, a wrong type, a value refused out of range), and the few the
-runtime adds (``implausible``, ``unpublishable``).
+runtime adds (``implausible``, ``unpublishable``), and ``unbuildable``: an entry or a frame the
+core could not build (a bug; left out, keyed by channel, or ``(frame)``).
 """
 
 from __future__ import annotations

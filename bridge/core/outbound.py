@@ -63,6 +63,28 @@ def _hinted(auth: Authenticator, address: int, built: float) -> None:
     auth.hinted(address)
 
 
+def _unfit(outbound: Outbound, channel: WireCodec, bits: int, now: float) -> bool:
+    """Whether an entry of ``channel`` does not fit its ``wire_bits`` in a frame (a bug, such
+    as a fragmented channel's whole value): then it is left out, a counted drop (cause
+    ``unbuildable``) with a log line, never an error that ends the transmit task."""
+    if bits >= 0 and not bits >> channel.wire_bits:
+        return False
+    outbound.drop_payload(channel.name, f"channel {channel.name!r}: an entry of "
+                          f"{bits.bit_length()} bits does not fit its {channel.wire_bits} bits "
+                          "in a frame (left out)", now, "unbuildable")
+    return True
+
+
+def _dropped(outbound: Outbound, states: list[ChannelState], now: float,
+             side: LinkSide | None) -> None:
+    """Latest values dropped from a frame, marked sent at ``now`` (due again when they are,
+    not at every opportunity)."""
+    if outbound.network is not None and side is not None:
+        outbound.network.mark_sent(side.name, states, now)
+    else:
+        outbound.store.mark_sent(states, now)
+
+
 class Outbound:
     """Store, streams, families, demand and heartbeats of one node, and its frames."""
 
@@ -463,6 +485,7 @@ class Outbound:
                 targets.add(src)
         picked, left = fill(codec, self.candidates(now, side), budget, entries - len(items))
         chosen: list[ChannelState] = []
+        dropped: list[ChannelState] = []
         streams: list[tuple[Sender, Any]] = []
         extras: list[Extra] = []
         asks_ack = False  # a channel in the frame asks for the modem's acknowledgement
@@ -470,6 +493,8 @@ class Outbound:
         for candidate in picked:
             what = candidate.what
             if isinstance(what, Extra):
+                if _unfit(self, what.channel, what.bits, now):
+                    continue
                 extras.append(what)
                 items.append((what.channel, what.bits))
                 if net is not None:
@@ -477,26 +502,40 @@ class Outbound:
                 continue
             if isinstance(what, ChannelState):
                 channel = what.channel
+                bits = what.payload() if channel.index not in self._aged \
+                    else aged_payload(channel.elements, what.packed, what.updated, now)
+                if _unfit(self, channel, bits, now):
+                    dropped.append(what)  # (marked sent: due again when it is)
+                    continue
                 chosen.append(what)
-                items.append((channel, what.payload() if channel.index not in self._aged
-                              else aged_payload(channel.elements, what.packed, what.updated,
-                                                now)))
+                items.append((channel, bits))
             else:
                 sender, item = what
                 channel = sender.channel
+                bits = sender.entry(item)
+                if _unfit(self, channel, bits, now):
+                    continue
                 streams.append((sender, item))
-                items.append((channel, sender.entry(item)))
+                items.append((channel, bits))
             targets.update(channel.destinations(node) if net is None
                            else net.targets(side, channel, what))  # type: ignore[arg-type]
             asks_ack = asks_ack or channel.ack
+        if dropped:
+            _dropped(self, dropped, now, side)
         left_out = tuple(c.what for c in left if isinstance(c.what, ChannelState))
         self.stats.left_out += len(left_out)
         if not items and not (always and codec.empty_frames):
             return None
         delays = self.delays(at) if self.delays is not None and self.table.dlbl else ()
-        data = codec.encode(items, delays, self.epoch, now) if net is None else codec.encode(
-            items, delays, self.epoch, now,
-            prefix=net.header(targets, [c.channel for c in picked]))
+        try:
+            data = codec.encode(items, delays, self.epoch, now) if net is None else \
+                codec.encode(items, delays, self.epoch, now,
+                             prefix=net.header(targets, [c.channel for c in picked]))
+        except (ValueError, OverflowError) as exc:  # (a bug: never the transmit task's end)
+            self.drop_payload("(frame)", f"a frame could not be built: {exc}", now,
+                              "unbuildable")
+            _dropped(self, chosen, now, side)
+            return None
         if net is not None:  # (the next hop's address: a relayed target's neighbour)
             targets = {net.policy.hops.get(t, t) for t in targets}
         dest, ack = self.addressing(targets, asks_ack, side)

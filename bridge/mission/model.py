@@ -175,6 +175,17 @@ class TdmaMac(Strict):
     guard_s: float = Field(0.0, ge=0, description="Silence kept at the end of each slot, seconds.")
     order: list[NodeName] = Field(min_length=1, description="Slot owners; a node may repeat.")
 
+    @field_validator("guard_s")
+    @classmethod
+    def _guard_inside_slot(cls, guard_s: float, info: ValidationInfo) -> float:
+        slot_s = info.data.get("slot_s")
+        if slot_s is not None and guard_s >= slot_s:
+            raise ValueError(f"a guard of {guard_s:g} s leaves nothing of a {slot_s:g} s slot "
+                             "(the guard is the slot's silent end): no frame could ever be "
+                             "sent; make guard_s shorter than slot_s (the propagation time "
+                             "over the longest range, with margin)")
+        return guard_s
+
 
 class RangingSlots(Strict):
     """Seed 001's ranging rounds, reserved inside a random-access MAC.

@@ -398,7 +398,8 @@ def modem_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
     modem kind has (the MAC's timing and the simulated water come from it), a ``water`` no
     water can listen on, wherever a modem's settings are given; and two links whose modems
     give the same ``water`` (one water is one ocean with one preset: ``zab water`` starts one
-    per link, at its address)."""
+    per link, at its address); a simulated water's ``seed`` that is not a whole number, its
+    ``loss`` not a share from 0 to 1."""
     for loc, modem in _modem_sections(mission):
         if "preset" in modem.options:
             problem = preset_problem(modem.options["preset"])
@@ -408,6 +409,9 @@ def modem_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
             problem = _water_problem(modem.options["water"])
             if problem is not None:
                 yield ((*loc, "options", "water"), problem)
+        for option, check in (("seed", _seed_problem), ("loss", _loss_problem)):
+            if option in modem.options and (problem := check(modem.options[option])):
+                yield ((*loc, "options", option), problem)
     waters: dict[tuple[str, int], str] = {}
     for link, spec in (mission.links or {}).items():
         address = water_address(spec.modem.options.get("water"))
@@ -429,6 +433,21 @@ def _water_problem(value: Any) -> str | None:
     if not 1 <= address[1] <= 65535:
         return f"port {address[1]} is out of range (1-65535)"
     return None
+
+
+def _seed_problem(value: Any) -> str | None:
+    """What is wrong with ``value`` as the simulated water's random seed (None: nothing)."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return None
+    return f"must be a whole number, the simulated water's random seed (got {value!r})"
+
+
+def _loss_problem(value: Any) -> str | None:
+    """What is wrong with ``value`` as the share of frames the simulated water loses."""
+    if isinstance(value, int | float) and not isinstance(value, bool) and 0 <= value <= 1:
+        return None
+    return ("must be a number from 0 to 1, the share of frames the simulated water loses "
+            f"(got {value!r})")
 
 
 def _modem_sections(mission: Mission) -> Iterable[tuple[Loc, Modem | ModemOverride]]:

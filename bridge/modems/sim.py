@@ -3,7 +3,9 @@
 Options: ``water`` = ``"host:port"`` of the water (required), ``broadcast`` (none): the
 address a frame for every node carries in the water, and that marks a frame heard as one
 (the mission's ``modem.broadcast``; without it the water carries no address for them),
-``connect_timeout`` (s, default 3),
+``seed`` (a whole number, default 0) and ``loss`` (a share of frames from 0 to 1, default 0):
+the water's random seed and the frames it loses at random (``zab sim``, ``zab water``; `zab
+check` refuses other values), ``connect_timeout`` (s, default 3),
 ``rx_queue`` (receptions kept while nobody calls ``recv``, default 256; the oldest are dropped
 and counted in ``stats["dropped"]``), ``tx_lead_s`` (default 0.05): how far ahead each frame's
 start is scheduled. Like a timed modem, the water refuses a frame whose start has passed when it

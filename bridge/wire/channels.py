@@ -470,7 +470,8 @@ def entry_capacity_bits(mission: Mission, node: str, streams: bool) -> int:
 def fragment_channel(channel: ChannelCodec, mission: Mission, streams: bool) -> ChannelCodec:
     """``channel`` as a fragmented transfer when a whole value does not fit in every sender's
     frame: a fragment fills about three quarters of a frame, so telemetry still fits beside
-    it."""
+    it. A latching channel is refused then (like a reliable one, a transfer is sent until
+    acknowledged, once, so it cannot latch)."""
     if channel.fragmented or channel.family is not None:
         return channel  # a family member never fragments: `zab check` says if it cannot fit
     capacity = min(entry_capacity_bits(mission, s, streams or channel.reliable)
@@ -488,6 +489,12 @@ def fragment_channel(channel: ChannelCodec, mission: Mission, streams: bool) -> 
             return channel  # frames too small for anything: the frame checks say so
         fragments = -(-channel.value_bytes // chunk)
         fragment_bits = fragments.bit_length()
+    if channel.latching:  # (a transfer is acknowledged and ends: there is nothing to re-send)
+        raise ChannelTableError(
+            f"a latching channel's value must fit in one frame: this one ({channel.bits} bits) "
+            f"needs {fragments} fragments of {chunk} B, which travel once, until acknowledged; "
+            "set latching: false, or make a value fit a frame (fewer or coarser fields, or a "
+            "larger modem.frame_bytes)", (*loc, "latching"))
     return replace(channel, chunk_bytes=chunk, fragment_bits=fragment_bits)
 
 

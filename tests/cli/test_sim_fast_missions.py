@@ -3,12 +3,18 @@ what the mission carries crosses (a camera's pictures too, from a synthetic came
 
 from __future__ import annotations
 
+import random
+import time
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from bridge.cli.app import app
+from bridge.cli.sim_fast import feed, least_feed_s
+from bridge.core.loaded import parse_mission
+from bridge.mission.presets import PRESETS
+from bridge.runtime.virtual_fleet import FastFleet
 from tests.conftest import MISSIONS
 
 RUNNER = CliRunner()
@@ -34,3 +40,35 @@ def test_a_synthetic_camera_feeds_an_image_channel(mission_key: str) -> None:
     camera, control = rows["camera"], rows["camera.control"]
     assert int(camera[1]) >= 40 and int(camera[2]) >= 40  # a 1600 B picture: 40 trunks
     assert control[1:3] == ["0", "0"]
+
+
+def tiny_interval_odometry() -> str:
+    """ros2_odometry as shipped, its odometry channel at ``interval_s: 1e-6``."""
+    text = (MISSIONS / "ros2_odometry.yaml").read_text()
+    return text.replace("    to: ship\n", "    to: ship\n    interval_s: 1.0e-6\n", 1)
+
+
+def test_a_tiny_interval_is_fed_no_faster_than_frames_can_leave() -> None:
+    """Before, the synthetic application put a value every interval_s (a million a virtual
+    second): ``zab sim --fast`` never ended. Now no faster than a one-byte frame's airtime."""
+    loaded = parse_mission(tiny_interval_odometry(), "ros2_odometry.yaml")
+    assert loaded.mission.channels[0].interval_s == 1e-6
+    fleet = FastFleet(loaded, seed=0)
+    puts: list[tuple[float, str]] = []
+    fleet.put = lambda node, key, value, **_: puts.append((fleet.now, key))  # type: ignore[method-assign]
+    feed(fleet, random.Random(0), 2.0)
+    fleet.run_until(2.0)
+    least = least_feed_s(fleet, "auv1")
+    assert least == PRESETS["evologics-s2c-im"].airtime(1)
+    odom = [t for t, key in puts if "odom" in key]
+    assert 2.0 / least - 2 <= len(odom) <= 2.0 / least + 1, len(odom)
+
+
+def test_a_tiny_interval_simulates_quickly(mission_key: str, tmp_path: Path) -> None:
+    path = tmp_path / "ros2_odometry.yaml"
+    path.write_text(tiny_interval_odometry())
+    start = time.monotonic()
+    result = RUNNER.invoke(app, ["sim", str(path), "--fast", "--duration", "60"])
+    assert result.exit_code == 0, result.output
+    assert "simulated in" in result.output
+    assert time.monotonic() - start < 30  # (a few seconds; before, not done after 40)

@@ -116,3 +116,53 @@ def test_check_sim_and_water_refuse_an_unknown_preset_without_a_traceback(tmp_pa
         assert "Traceback" not in output
         assert "unknown modem preset 'evologics-s2c-imm'" in output.replace("\n", ""), \
             (args, output)
+
+
+def with_water_option(option: str, value: str) -> str:
+    """The one-link mission with ``option: value`` after its water (line 9)."""
+    text = one_link()
+    water = "    water: 127.0.0.1:7630\n"
+    return text.replace(water, f"{water}    {option}: {value}\n")
+
+
+def test_a_good_seed_and_loss_load() -> None:
+    parse_mission(with_water_option("seed", "4"), "m.yaml")
+    parse_mission(with_water_option("loss", "0.3"), "m.yaml")
+    parse_mission(with_water_option("loss", "1"), "m.yaml")
+
+
+@pytest.mark.parametrize("loss", ["2", "-0.1", "x", "true", ".nan", "[0.1]"])
+def test_a_loss_that_is_not_a_share_is_refused_at_its_place(loss: str) -> None:
+    message = error_of(with_water_option("loss", loss))
+    assert message.startswith("m.yaml:9:5: modem.options.loss: must be a number from 0 to 1, "
+                              "the share of frames the simulated water loses (got "), message
+
+
+@pytest.mark.parametrize("seed", ["x", "1.5", "true", "'4'"])
+def test_a_seed_that_is_not_a_whole_number_is_refused_at_its_place(seed: str) -> None:
+    message = error_of(with_water_option("seed", seed))
+    assert message.startswith("m.yaml:9:5: modem.options.seed: must be a whole number, the "
+                              "simulated water's random seed (got "), message
+
+
+def test_a_bad_seed_or_loss_of_one_node_is_located_there() -> None:
+    text = one_link().replace("modem: {options: {preset: evologics-s2c-im}}",
+                              "modem: {options: {preset: evologics-s2c-im, loss: 7}}")
+    message = error_of(text)
+    assert message.startswith("m.yaml:14:"), message
+    assert "nodes.b.modem.options.loss: must be a number from 0 to 1" in message, message
+
+
+@pytest.mark.parametrize(("option", "value"), [("loss", "2"), ("seed", "x")])
+def test_sim_and_water_refuse_a_bad_seed_or_loss_without_a_traceback(
+        tmp_path: Path, option: str, value: str) -> None:
+    path = tmp_path / "m.yaml"
+    path.write_text(with_water_option(option, value))
+    for args in (["check", "--no-key"], ["sim", "--fast", "--duration", "5"], ["water"],
+                 ["sim", "--duration", "1", "--no-live"]):
+        result = CliRunner().invoke(app, [*args, str(path)])
+        output = result.output + (result.stderr if result.stderr_bytes is not None else "")
+        assert result.exit_code == 2, (args, output, result.exception)
+        assert "Traceback" not in output
+        assert f"m.yaml:9:5: modem.options.{option}: must be" in output.replace("\n", ""), \
+            (args, output)
