@@ -21,6 +21,7 @@ from rich.logging import RichHandler
 from rich.table import Table
 
 from bridge.cli import helptext
+from bridge.cli.text import said
 from bridge.core.loaded import LoadedMission, load_mission
 from bridge.errors import (
     BackendError,
@@ -49,10 +50,19 @@ app = typer.Typer(
     context_settings=helptext.HELP_OPTIONS,
     rich_markup_mode="markdown",  # a docstring's paragraph reads as one paragraph
 )
-console = Console(width=None if sys.stdout.isatty() else 120)
+# Text printed is never read as rich markup or emoji: a user's or an exception's text ("[/]",
+# ":100:") prints as it is; the CLI's own styles come as Text (bridge.cli.text.said).
+console = Console(width=None if sys.stdout.isatty() else 120, markup=False, emoji=False)
 # An error is one line a script or an editor can read (path:line:col: message): the terminal
 # wraps it, rich does not cut it.
-err = Console(stderr=True, width=None if sys.stderr.isatty() else 120, soft_wrap=True)
+err = Console(stderr=True, width=None if sys.stderr.isatty() else 120, soft_wrap=True,
+              markup=False, emoji=False)
+
+def _error(label: str, message: object = "", style: str = "bold red") -> None:
+    """Print on stderr ``label`` in ``style``, then ``message`` as it is."""
+    message = str(message)
+    err.print(said((label, style), " " if message and label else "", message), highlight=False)
+
 
 MissionArg = Annotated[Path, typer.Argument(help="Mission file (YAML).", show_default=False)]
 VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="Log debug messages too.")]
@@ -80,7 +90,7 @@ def _load(path: Path) -> LoadedMission:
     try:
         return load_mission(path)
     except MissionError as exc:
-        err.print(f"[bold red]invalid mission[/]\n{exc}", highlight=False, markup=True)
+        err.print(said(("invalid mission", "bold red"), f"\n{exc}"), highlight=False)
         raise typer.Exit(2) from None
 
 
@@ -94,10 +104,10 @@ def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
     try:
         return asyncio.run(main)
     except (MissionError, SessionError, StateError, WaterError) as exc:
-        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
+        _error("cannot start:", exc)
         raise typer.Exit(2) from None
     except NodeFailure as exc:
-        err.print(f"[bold red]stopped:[/] {exc}", highlight=False)
+        _error("stopped:", exc)
         raise typer.Exit(1) from None
 
 
@@ -156,12 +166,11 @@ def check(
                          indent=2))
         raise typer.Exit(code)
     data = report.data
-    console.print(
-        f"[bold]{data['mission']}[/]: {len(data['nodes'])} nodes, {len(data['channels'])} "
+    console.print(said(
+        (data["mission"], "bold"), f": {len(data['nodes'])} nodes, {len(data['channels'])} "
         f"channels, backend {data['backend']}, mac {data['mac']}, "
         f"frame overhead {data['overhead_bytes']} B + {data['count_bits']}-bit count"
-        + (" (DLBL on)" if data["dlbl"] else "")
-    )
+        + (" (DLBL on)" if data["dlbl"] else "")))
     channels = Table("index", "channel", "bits", "keys", "from", "to", "interval", "latching",
                      "priority", title="channels")
     for c in data["channels"]:
@@ -229,7 +238,7 @@ def check(
             + f": every value is reported delivered or failed within {s['report_within_s']:g} s",
             highlight=False)
     for warning in report.warnings:
-        console.print(f"[yellow]warning:[/] {warning}", highlight=False)
+        console.print(said(("warning:", "yellow"), f" {warning}"), highlight=False)
     console.print(key.describe() + (f": {note}" if note else ""), highlight=False)
     if (auth := data.get("auth")) is not None:
         console.print(
@@ -240,9 +249,9 @@ def check(
                                              f"±{auth['overlap_s']:g} s)"
                                              if auth["next_key_at"] else ""), highlight=False)
     for error in report.errors:
-        console.print(f"[red]error:[/] {error}", highlight=False)
+        console.print(said(("error:", "red"), f" {error}"), highlight=False)
     if problem:
-        err.print(f"[bold red]error:[/] {problem}", highlight=False)
+        _error("error:", problem)
     raise typer.Exit(code)
 
 
@@ -314,7 +323,7 @@ def schema(
         try:
             written = write_payload_schemas(loaded.table, loaded.mission.mission, folder)
         except (OSError, ValueError) as exc:
-            err.print(f"[red]cannot write payload schemas:[/] {exc}", highlight=False)
+            _error("cannot write payload schemas:", exc, "red")
             raise typer.Exit(1) from None
         console.print(f"wrote {len(written) - 1} payload schemas and index.json to {folder}")
         return
@@ -347,23 +356,23 @@ def run(
         raise typer.Exit(2)
     key = frame_key(loaded.mission)
     if key.problem:
-        err.print(f"[bold red]cannot start:[/] {node}: {key.problem}", highlight=False)
+        _error("cannot start:", f"{node}: {key.problem}")
         raise typer.Exit(2)
     _logging(verbose)
     try:
         factory = node_backends(loaded.network, node)
     except BackendError as exc:
-        err.print(f"[red]{exc}[/]")
+        _error(str(exc), style="red")
         raise typer.Exit(2) from None
     try:
         state = StateFile(state_dir or default_state_dir(), loaded.mission.mission, node)
     except StateError as exc:
-        err.print(f"[red]{exc}[/]")
+        _error(str(exc), style="red")
         raise typer.Exit(2) from None
     try:  # one bridge of the node at a time on this state (held until the process ends)
         state.hold()
     except StateError as exc:
-        err.print(f"[bold red]cannot start:[/] {node}: {exc}", highlight=False)
+        _error("cannot start:", f"{node}: {exc}")
         raise typer.Exit(2) from None
 
     async def main() -> None:
@@ -422,7 +431,7 @@ def water(
         raise typer.Exit(2)
     shared = _shared_water(links)
     if shared is not None:
-        err.print(f"[bold red]cannot start:[/] {shared}", highlight=False)
+        _error("cannot start:", shared)
         raise typer.Exit(2)
 
     async def main() -> None:
@@ -528,7 +537,7 @@ def emulate(
     try:
         _run_or_exit(main())
     except BackendError as exc:
-        err.print(f"[red]{exc}[/]")
+        _error(str(exc), style="red")
         raise typer.Exit(1) from None
 
 
@@ -615,7 +624,7 @@ def _write_report(path: Path, result: MissionReport, recorder: Any,
 
             write_report(path, result, recorder.recording, loaded)
     except OSError as exc:
-        err.print(f"[red]cannot write the report:[/] {exc}", highlight=False)
+        _error("cannot write the report:", exc, "red")
         raise typer.Exit(1) from None
     console.print(f"report written to {path}", highlight=False)
 
@@ -629,8 +638,9 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
     stop = asyncio.Event()
     _install_stop(stop)
     pace = "as fast as possible" if speed is None else f"at {speed:g}× real time"
-    console.print(f"simulating [bold]{loaded.mission.mission}[/] on a virtual clock, {pace}: "
-                  f"{duration:g} s, no Zenoh, synthetic inputs")
+    console.print(said("simulating ", (loaded.mission.mission, "bold"),
+                       f" on a virtual clock, {pace}: {duration:g} s, no Zenoh, synthetic "
+                       "inputs"))
     if (note := throwaway_note(loaded.mission)) is not None:
         console.print(note, highlight=False)
     result = await run_fast(loaded, duration=duration, seed=seed, speed=speed, record=record,
@@ -675,7 +685,7 @@ def demo(
     try:
         loaded, changes = tour_mission(path, loss, duration)
     except MissionError as exc:
-        err.print(f"[bold red]cannot make the tour's variant of {path}[/]\n{exc}",
+        err.print(said((f"cannot make the tour's variant of {path}", "bold red"), f"\n{exc}"),
                   highlight=False)
         raise typer.Exit(2) from None
     _logging(False)
@@ -716,11 +726,10 @@ def gui(
     try:
         _run_or_exit(main())
     except ValueError as exc:
-        err.print(f"[red]{exc}[/]", highlight=False)
+        _error(str(exc), style="red")
         raise typer.Exit(2) from None
     except OSError as exc:
-        err.print(f"[red]cannot serve on {host}:{port}: {exc.strerror or exc}[/]",
-                  highlight=False)
+        _error(f"cannot serve on {host}:{port}: {exc.strerror or exc}", style="red")
         raise typer.Exit(1) from None
 
 
@@ -760,7 +769,7 @@ def listen(
         run_listen(endpoint, keyexpr, lambda line: print(line, flush=True), count=count,
                    duration=duration, ready=ready, steps=steps)
     except PokeError as exc:
-        err.print(f"[red]{exc}[/]", highlight=False)
+        _error(str(exc), style="red")
         raise typer.Exit(exc.code) from None
 
 
@@ -794,7 +803,7 @@ def put(
     try:
         payload, encoding = run_put(endpoint, key, value, ref, loaded)
     except PokeError as exc:
-        err.print(f"[red]{exc}[/]", highlight=False)
+        _error(str(exc), style="red")
         raise typer.Exit(exc.code) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
@@ -823,11 +832,11 @@ def doctor(
     loaded = _load(mission)
     findings = asyncio.run(run_doctor(loaded, node, timeout_s=timeout,
                                       state_dir=state_dir or default_state_dir()))
-    marks = {"ok": "[green]ok  [/]", "warn": "[yellow]warn[/]", "fail": "[red]FAIL[/]"}
+    marks = {"ok": ("ok  ", "green"), "warn": ("warn", "yellow"), "fail": ("FAIL", "red")}
     for f in findings:
-        console.print(f"{marks[f.status]} {f.check:<8} {f.message}", highlight=False)
+        console.print(said(marks[f.status], f" {f.check:<8} {f.message}"), highlight=False)
         if f.fix and f.status != "ok":
-            console.print(f"     {'':<8} [bold]fix:[/] {f.fix}", highlight=False)
+            console.print(said(f"     {'':<8} ", ("fix:", "bold"), f" {f.fix}"), highlight=False)
     failed = sum(f.status == "fail" for f in findings)
     warned = sum(f.status == "warn" for f in findings)
     console.print(f"{node}: {failed} to fix, {counted(warned, 'warning')}" if failed or warned
@@ -842,7 +851,7 @@ def _mission_log(path: Path, loaded: LoadedMission, node: str) -> Any:
     try:
         return MissionLog(path, loaded, node)
     except OSError as exc:
-        err.print(f"[red]cannot write the mission log:[/] {exc}", highlight=False)
+        _error("cannot write the mission log:", exc, "red")
         raise typer.Exit(2) from None
 
 
@@ -869,10 +878,10 @@ def _read_log(path: Path) -> Any:
     try:
         log = read_log(path)
     except LogError as exc:
-        err.print(f"[red]{exc}[/]", highlight=False)
+        _error(str(exc), style="red")
         raise typer.Exit(2) from None
     if log.note is not None:
-        err.print(f"[yellow]{log.note}[/]", highlight=False)
+        err.print(said((log.note, "yellow")), highlight=False)
     return log
 
 
@@ -888,8 +897,8 @@ def log_summary(
     if as_json:
         print(json.dumps(data, indent=2))
         return
-    console.print(f"[bold]{data.get('mission') or '?'}[/] node [bold]{data['node']}[/]: "
-                  f"{data['duration_s']:g} s logged")
+    console.print(said((str(data.get("mission") or "?"), "bold"), " node ",
+                       (str(data["node"]), "bold"), f": {data['duration_s']:g} s logged"))
     table = Table("channel", "sent", "received", "from", "age at end", "longest gap",
                   title="channels")
     for name, c in data["channels"].items():
@@ -935,7 +944,7 @@ def log_replay(
         session = open_session(ZenohSettings(listen=listen or [], connect=connect or []),
                                "replay")
     except SessionError as exc:
-        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
+        _error("cannot start:", exc)
         raise typer.Exit(2) from None
     mission = data.loaded.mission.mission if data.loaded is not None else "?"
     origin = origin_tag(mission, f"{data.node}-replay")  # never re-bridged by a live node
@@ -959,7 +968,7 @@ def log_replay(
         except EncodeError as exc:
             if key not in unpublishable:  # said once a key
                 unpublishable.add(key)
-                err.print(f"[yellow]{key}: not published: {exc}[/]", highlight=False)
+                err.print(said((f"{key}: not published: {exc}", "yellow")), highlight=False)
 
     console.print(f"replaying {file} ({data.node}) at "
                   f"{'full speed' if speed == 0 else f'{speed:g}x'} on "
@@ -968,7 +977,7 @@ def log_replay(
         time.sleep(wait)
         count = replay(data, publish, publish_ros2=publish_ros2, speed=speed)
     except LogError as exc:
-        err.print(f"[red]{exc}[/]", highlight=False)
+        _error(str(exc), style="red")
         raise typer.Exit(2) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
