@@ -64,6 +64,25 @@ def _error(label: str, message: object = "", style: str = "bold red") -> None:
     err.print(said((label, style), " " if message and label else "", message), highlight=False)
 
 
+def _number(low: float, high: float, *, above: bool = False, zero: bool = False,
+            unit: str = "") -> Any:
+    """An option's callback refusing (exit 2, as click's range) a number that is not finite
+    or not within ``low``..``high`` (``above``: > ``low``; ``zero``: 0 also taken)."""
+    def check(value: float | None) -> float | None:
+        if value is None or (zero and value == 0) or (
+                (value > low if above else value >= low) and value <= high):
+            return value  # (NaN fails each comparison)
+        bound = f"{'>' if above else 'from'} {low:.12g}{unit}" + (
+            f" up to {high:.12g}{unit}" if above else f" to {high:.12g}{unit}")
+        raise typer.BadParameter(f"must be a finite number {bound}"
+                                 + (" (or 0)" if zero else "") + f", not {value:g}")
+    return check
+
+
+SECONDS = _number(0, 366 * 86400.0, above=True, unit=" s")
+"""A duration: finite, > 0 (up to a year)."""
+
+
 MissionArg = Annotated[Path, typer.Argument(help="Mission file (YAML).", show_default=False)]
 VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="Log debug messages too.")]
 
@@ -328,7 +347,11 @@ def schema(
         console.print(f"wrote {len(written) - 1} payload schemas and index.json to {folder}")
         return
     path = out or default_schema_path()
-    path.write_text(schema_text(), encoding="utf-8")
+    try:
+        path.write_text(schema_text(), encoding="utf-8")
+    except OSError as exc:
+        _error("cannot write the schema:", exc, "red")
+        raise typer.Exit(1) from None
     console.print(f"wrote {path}")
 
 
@@ -544,7 +567,8 @@ def emulate(
 @app.command()
 def sim(
     mission: MissionArg,
-    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
+    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.",
+                                                   callback=SECONDS)] = None,
     report: Annotated[Path | None, typer.Option(
         help="Write a report here: .html a mission report with plots (one file, opens "
         "offline), anything else the numbers as JSON.")] = None,
@@ -559,7 +583,8 @@ def sim(
                                        "get synthetic values (default duration 3600 s).")]
     = False,
     speed: Annotated[float | None, typer.Option(help="Like --fast, with the virtual clock at "
-                                                "this many times real time.", min=1e-3)] = None,
+                                                "this many times real time.",
+                                                callback=_number(1e-3, 1e6))] = None,
     water: Annotated[str | None, typer.Option(metavar="HOST:PORT", help="Join a water already "
                                               "running there (zab water: emulated modems, a "
                                               "hydrophone) instead of starting one; without "
@@ -597,9 +622,15 @@ def sim(
 
 
 def _fleet_logs(folder: Path, loaded: LoadedMission) -> Any:
-    """The fleet's MCAP logbooks in ``folder`` (imported only when asked for)."""
+    """The fleet's MCAP logbooks in ``folder`` (imported only when asked for); a folder that
+    cannot be made (a file there) exits 2 before the run, as ``zab run --log``."""
     from bridge.runtime.logbook import FleetLogs
 
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _error("cannot write the mission logs:", exc, "red")
+        raise typer.Exit(2) from None
     return FleetLogs(folder, loaded)
 
 
@@ -656,15 +687,16 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
 
 @app.command()
 def demo(
-    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.")] = 70.0,
+    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.",
+                                            callback=SECONDS)] = 70.0,
     mission: Annotated[Path | None, typer.Option(help="Mission (default: the MORPH fleet).")]
     = None,
     live: Annotated[bool, typer.Option(help="Live terminal view of counters (under the "
                                        "tour's lines).")] = False,
     gui: Annotated[bool, typer.Option(help="Serve the browser GUI (zab gui) during the demo.")]
     = True,
-    gui_port: Annotated[int, typer.Option(help="Port of the GUI (any free one if taken).")]
-    = 8080,
+    gui_port: Annotated[int, typer.Option(help="Port of the GUI (any free one if taken).",
+                                          min=0, max=65535)] = 8080,
     report: Annotated[Path, typer.Option(help="Where to write the mission report (HTML).")]
     = Path("zab-demo-report.html"),
     loss: Annotated[float, typer.Option(help="Share of frames the simulated water loses.",
@@ -704,7 +736,8 @@ def gui(
         "--node", "-n", help="The node the GUI joins (default: the surface node).")] = None,
     host: Annotated[str, typer.Option(
         help="Address to serve the page on; 0.0.0.0 for tablets on the WiFi.")] = "127.0.0.1",
-    port: Annotated[int, typer.Option(help="TCP port of the page (0: any free port).")] = 8080,
+    port: Annotated[int, typer.Option(help="TCP port of the page (0: any free port).",
+                                      min=0, max=65535)] = 8080,
     verbose: VerboseOpt = False,
 ) -> None:
     """The fleet in a browser: map, channels and links per vehicle, commands, events."""
@@ -916,13 +949,15 @@ def log_summary(
 def log_replay(
     file: LogArg,
     speed: Annotated[float, typer.Option(help="1 = as recorded, 10 = ten times faster, "
-                                         "0 = as fast as possible.", min=0)] = 1.0,
+                                         "0 = as fast as possible.",
+                                         callback=_number(1e-3, 1e6, zero=True))] = 1.0,
     connect: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to connect to "
                                                       "(repeatable).")] = None,
     listen: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to listen on "
                                                      "(repeatable).")] = None,
     wait: Annotated[float, typer.Option(help="Seconds to let subscribers connect before the "
-                                        "first value.", min=0)] = 1.0,
+                                        "first value.", callback=_number(0, 3600, unit=" s"))]
+    = 1.0,
 ) -> None:
     """Publish the decoded data of a mission log on Zenoh again.
 
