@@ -83,6 +83,19 @@ SECONDS = _number(0, 366 * 86400.0, above=True, unit=" s")
 """A duration: finite, > 0 (up to a year)."""
 
 
+def _water_address(value: str | None) -> str | None:
+    """``--water``'s HOST:PORT checked at the option (exit 2, not each node's traceback)."""
+    from bridge.modems.sim import parse_water_address
+
+    if value is not None:
+        try:
+            parse_water_address(value)
+        except BackendError:
+            raise typer.BadParameter(f"must be HOST:PORT (e.g. 127.0.0.1:7600), not "
+                                     f"{value!r}") from None
+    return value
+
+
 MissionArg = Annotated[Path, typer.Argument(help="Mission file (YAML).", show_default=False)]
 VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="Log debug messages too.")]
 
@@ -588,7 +601,8 @@ def sim(
     water: Annotated[str | None, typer.Option(metavar="HOST:PORT", help="Join a water already "
                                               "running there (zab water: emulated modems, a "
                                               "hydrophone) instead of starting one; without "
-                                              "it, real modems are simulated.")] = None,
+                                              "it, real modems are simulated.",
+                                              callback=_water_address)] = None,
 ) -> None:
     """Run every node of the mission plus the simulated ocean, each node on its own endpoint."""
     loaded = _load(mission)

@@ -3,7 +3,7 @@
 
 Found from outside: ``zab schema --out`` a missing folder or a folder, ``zab sim --log`` a
 file, ``zab gui --port 70000``, ``zab sim --duration -5``/``0``/``nan``, ``zab log replay
---speed inf``/``1e-300``, and ``--wait inf`` printed tracebacks, ran
+--speed inf``/``1e-300``, ``--wait inf`` and ``zab sim --water bogus`` printed tracebacks, ran
 3600 s instead of 0, or reported nothing simulated with exit 0."""
 
 from __future__ import annotations
@@ -51,6 +51,8 @@ CASES = {  # arguments ({tmp}: a folder, {log}: a mission log, {port}: a free po
                                "--speed", "1e-300", "--wait", "0"], 2, "'--speed'"),
     "replay --wait inf": (["log", "replay", "{log}", "--listen", "tcp/127.0.0.1:{port}",
                            "--wait", "inf"], 2, "'--wait'"),
+    "sim --water bogus": (["sim", "--duration", "3", "--no-live", "--water", "bogus", LINE], 2,
+                          "'--water'"),
 }
 
 
