@@ -32,7 +32,8 @@ def test_dlbl_ranges_and_position_over_the_simulated_ocean() -> None:
             app.declare_subscriber("@zab/morph/cv1/range/*", ranges)
             app.declare_subscriber("@zab/morph/cv1/position", fixes)
             got = {}
-            deadline = time.time() + 45  # (four 4 s cycles quiet; a loaded machine loses late frames)
+            # (four 4 s cycles quiet; a loaded machine loses late frames)
+            deadline = time.time() + 45
             while time.time() < deadline and len(got) < 4:
                 key, value, _ = ranges.get(timeout=deadline - time.time())
                 got[key.rsplit("/", 1)[1]] = value
