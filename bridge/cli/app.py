@@ -21,6 +21,7 @@ from rich.logging import RichHandler
 from rich.table import Table
 
 from bridge.cli import helptext
+from bridge.cli.text import said
 from bridge.core.loaded import LoadedMission, load_mission
 from bridge.errors import (
     BackendError,
@@ -49,10 +50,51 @@ app = typer.Typer(
     context_settings=helptext.HELP_OPTIONS,
     rich_markup_mode="markdown",  # a docstring's paragraph reads as one paragraph
 )
-console = Console(width=None if sys.stdout.isatty() else 120)
+# Text printed is never read as rich markup or emoji: a user's or an exception's text ("[/]",
+# ":100:") prints as it is; the CLI's own styles come as Text (bridge.cli.text.said).
+console = Console(width=None if sys.stdout.isatty() else 120, markup=False, emoji=False)
 # An error is one line a script or an editor can read (path:line:col: message): the terminal
 # wraps it, rich does not cut it.
-err = Console(stderr=True, width=None if sys.stderr.isatty() else 120, soft_wrap=True)
+err = Console(stderr=True, width=None if sys.stderr.isatty() else 120, soft_wrap=True,
+              markup=False, emoji=False)
+
+def _error(label: str, message: object = "", style: str = "bold red") -> None:
+    """Print on stderr ``label`` in ``style``, then ``message`` as it is."""
+    message = str(message)
+    err.print(said((label, style), " " if message and label else "", message), highlight=False)
+
+
+def _number(low: float, high: float, *, above: bool = False, zero: bool = False,
+            unit: str = "") -> Any:
+    """An option's callback refusing (exit 2, as click's range) a number that is not finite
+    or not within ``low``..``high`` (``above``: > ``low``; ``zero``: 0 also taken)."""
+    def check(value: float | None) -> float | None:
+        if value is None or (zero and value == 0) or (
+                (value > low if above else value >= low) and value <= high):
+            return value  # (NaN fails each comparison)
+        bound = f"{'>' if above else 'from'} {low:.12g}{unit}" + (
+            f" up to {high:.12g}{unit}" if above else f" to {high:.12g}{unit}")
+        raise typer.BadParameter(f"must be a finite number {bound}"
+                                 + (" (or 0)" if zero else "") + f", not {value:g}")
+    return check
+
+
+SECONDS = _number(0, 366 * 86400.0, above=True, unit=" s")
+"""A duration: finite, > 0 (up to a year)."""
+
+
+def _water_address(value: str | None) -> str | None:
+    """``--water``'s HOST:PORT checked at the option (exit 2, not each node's traceback)."""
+    from bridge.modems.sim import parse_water_address
+
+    if value is not None:
+        try:
+            parse_water_address(value)
+        except BackendError:
+            raise typer.BadParameter(f"must be HOST:PORT (e.g. 127.0.0.1:7600), not "
+                                     f"{value!r}") from None
+    return value
+
 
 MissionArg = Annotated[Path, typer.Argument(help="Mission file (YAML).", show_default=False)]
 VerboseOpt = Annotated[bool, typer.Option("--verbose", "-v", help="Log debug messages too.")]
@@ -80,7 +122,7 @@ def _load(path: Path) -> LoadedMission:
     try:
         return load_mission(path)
     except MissionError as exc:
-        err.print(f"[bold red]invalid mission[/]\n{exc}", highlight=False, markup=True)
+        err.print(said(("invalid mission", "bold red"), f"\n{exc}"), highlight=False)
         raise typer.Exit(2) from None
 
 
@@ -94,10 +136,10 @@ def _run_or_exit(main: Coroutine[Any, Any, T]) -> T:
     try:
         return asyncio.run(main)
     except (MissionError, SessionError, StateError, WaterError) as exc:
-        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
+        _error("cannot start:", exc)
         raise typer.Exit(2) from None
     except NodeFailure as exc:
-        err.print(f"[bold red]stopped:[/] {exc}", highlight=False)
+        _error("stopped:", exc)
         raise typer.Exit(1) from None
 
 
@@ -156,12 +198,11 @@ def check(
                          indent=2))
         raise typer.Exit(code)
     data = report.data
-    console.print(
-        f"[bold]{data['mission']}[/]: {len(data['nodes'])} nodes, {len(data['channels'])} "
+    console.print(said(
+        (data["mission"], "bold"), f": {len(data['nodes'])} nodes, {len(data['channels'])} "
         f"channels, backend {data['backend']}, mac {data['mac']}, "
         f"frame overhead {data['overhead_bytes']} B + {data['count_bits']}-bit count"
-        + (" (DLBL on)" if data["dlbl"] else "")
-    )
+        + (" (DLBL on)" if data["dlbl"] else "")))
     channels = Table("index", "channel", "bits", "keys", "from", "to", "interval", "latching",
                      "priority", title="channels")
     for c in data["channels"]:
@@ -229,7 +270,7 @@ def check(
             + f": every value is reported delivered or failed within {s['report_within_s']:g} s",
             highlight=False)
     for warning in report.warnings:
-        console.print(f"[yellow]warning:[/] {warning}", highlight=False)
+        console.print(said(("warning:", "yellow"), f" {warning}"), highlight=False)
     console.print(key.describe() + (f": {note}" if note else ""), highlight=False)
     if (auth := data.get("auth")) is not None:
         console.print(
@@ -240,9 +281,9 @@ def check(
                                              f"±{auth['overlap_s']:g} s)"
                                              if auth["next_key_at"] else ""), highlight=False)
     for error in report.errors:
-        console.print(f"[red]error:[/] {error}", highlight=False)
+        console.print(said(("error:", "red"), f" {error}"), highlight=False)
     if problem:
-        err.print(f"[bold red]error:[/] {problem}", highlight=False)
+        _error("error:", problem)
     raise typer.Exit(code)
 
 
@@ -314,12 +355,16 @@ def schema(
         try:
             written = write_payload_schemas(loaded.table, loaded.mission.mission, folder)
         except (OSError, ValueError) as exc:
-            err.print(f"[red]cannot write payload schemas:[/] {exc}", highlight=False)
+            _error("cannot write payload schemas:", exc, "red")
             raise typer.Exit(1) from None
         console.print(f"wrote {len(written) - 1} payload schemas and index.json to {folder}")
         return
     path = out or default_schema_path()
-    path.write_text(schema_text(), encoding="utf-8")
+    try:
+        path.write_text(schema_text(), encoding="utf-8")
+    except OSError as exc:
+        _error("cannot write the schema:", exc, "red")
+        raise typer.Exit(1) from None
     console.print(f"wrote {path}")
 
 
@@ -347,23 +392,23 @@ def run(
         raise typer.Exit(2)
     key = frame_key(loaded.mission)
     if key.problem:
-        err.print(f"[bold red]cannot start:[/] {node}: {key.problem}", highlight=False)
+        _error("cannot start:", f"{node}: {key.problem}")
         raise typer.Exit(2)
     _logging(verbose)
     try:
         factory = node_backends(loaded.network, node)
     except BackendError as exc:
-        err.print(f"[red]{exc}[/]")
+        _error(str(exc), style="red")
         raise typer.Exit(2) from None
     try:
         state = StateFile(state_dir or default_state_dir(), loaded.mission.mission, node)
     except StateError as exc:
-        err.print(f"[red]{exc}[/]")
+        _error(str(exc), style="red")
         raise typer.Exit(2) from None
     try:  # one bridge of the node at a time on this state (held until the process ends)
         state.hold()
     except StateError as exc:
-        err.print(f"[bold red]cannot start:[/] {node}: {exc}", highlight=False)
+        _error("cannot start:", f"{node}: {exc}")
         raise typer.Exit(2) from None
 
     async def main() -> None:
@@ -422,7 +467,7 @@ def water(
         raise typer.Exit(2)
     shared = _shared_water(links)
     if shared is not None:
-        err.print(f"[bold red]cannot start:[/] {shared}", highlight=False)
+        _error("cannot start:", shared)
         raise typer.Exit(2)
 
     async def main() -> None:
@@ -528,14 +573,15 @@ def emulate(
     try:
         _run_or_exit(main())
     except BackendError as exc:
-        err.print(f"[red]{exc}[/]")
+        _error(str(exc), style="red")
         raise typer.Exit(1) from None
 
 
 @app.command()
 def sim(
     mission: MissionArg,
-    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.")] = None,
+    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds.",
+                                                   callback=SECONDS)] = None,
     report: Annotated[Path | None, typer.Option(
         help="Write a report here: .html a mission report with plots (one file, opens "
         "offline), anything else the numbers as JSON.")] = None,
@@ -550,11 +596,13 @@ def sim(
                                        "get synthetic values (default duration 3600 s).")]
     = False,
     speed: Annotated[float | None, typer.Option(help="Like --fast, with the virtual clock at "
-                                                "this many times real time.", min=1e-3)] = None,
+                                                "this many times real time.",
+                                                callback=_number(1e-3, 1e6))] = None,
     water: Annotated[str | None, typer.Option(metavar="HOST:PORT", help="Join a water already "
                                               "running there (zab water: emulated modems, a "
                                               "hydrophone) instead of starting one; without "
-                                              "it, real modems are simulated.")] = None,
+                                              "it, real modems are simulated.",
+                                              callback=_water_address)] = None,
 ) -> None:
     """Run every node of the mission plus the simulated ocean, each node on its own endpoint."""
     loaded = _load(mission)
@@ -588,9 +636,15 @@ def sim(
 
 
 def _fleet_logs(folder: Path, loaded: LoadedMission) -> Any:
-    """The fleet's MCAP logbooks in ``folder`` (imported only when asked for)."""
+    """The fleet's MCAP logbooks in ``folder`` (imported only when asked for); a folder that
+    cannot be made (a file there) exits 2 before the run, as ``zab run --log``."""
     from bridge.runtime.logbook import FleetLogs
 
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _error("cannot write the mission logs:", exc, "red")
+        raise typer.Exit(2) from None
     return FleetLogs(folder, loaded)
 
 
@@ -615,7 +669,7 @@ def _write_report(path: Path, result: MissionReport, recorder: Any,
 
             write_report(path, result, recorder.recording, loaded)
     except OSError as exc:
-        err.print(f"[red]cannot write the report:[/] {exc}", highlight=False)
+        _error("cannot write the report:", exc, "red")
         raise typer.Exit(1) from None
     console.print(f"report written to {path}", highlight=False)
 
@@ -629,8 +683,9 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
     stop = asyncio.Event()
     _install_stop(stop)
     pace = "as fast as possible" if speed is None else f"at {speed:g}× real time"
-    console.print(f"simulating [bold]{loaded.mission.mission}[/] on a virtual clock, {pace}: "
-                  f"{duration:g} s, no Zenoh, synthetic inputs")
+    console.print(said("simulating ", (loaded.mission.mission, "bold"),
+                       f" on a virtual clock, {pace}: {duration:g} s, no Zenoh, synthetic "
+                       "inputs"))
     if (note := throwaway_note(loaded.mission)) is not None:
         console.print(note, highlight=False)
     result = await run_fast(loaded, duration=duration, seed=seed, speed=speed, record=record,
@@ -646,15 +701,16 @@ async def _run_fast(loaded: LoadedMission, duration: float, seed: int | None,
 
 @app.command()
 def demo(
-    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.")] = 70.0,
+    duration: Annotated[float, typer.Option(help="Seconds before it ends by itself.",
+                                            callback=SECONDS)] = 70.0,
     mission: Annotated[Path | None, typer.Option(help="Mission (default: the MORPH fleet).")]
     = None,
     live: Annotated[bool, typer.Option(help="Live terminal view of counters (under the "
                                        "tour's lines).")] = False,
     gui: Annotated[bool, typer.Option(help="Serve the browser GUI (zab gui) during the demo.")]
     = True,
-    gui_port: Annotated[int, typer.Option(help="Port of the GUI (any free one if taken).")]
-    = 8080,
+    gui_port: Annotated[int, typer.Option(help="Port of the GUI (any free one if taken).",
+                                          min=0, max=65535)] = 8080,
     report: Annotated[Path, typer.Option(help="Where to write the mission report (HTML).")]
     = Path("zab-demo-report.html"),
     loss: Annotated[float, typer.Option(help="Share of frames the simulated water loses.",
@@ -675,7 +731,7 @@ def demo(
     try:
         loaded, changes = tour_mission(path, loss, duration)
     except MissionError as exc:
-        err.print(f"[bold red]cannot make the tour's variant of {path}[/]\n{exc}",
+        err.print(said((f"cannot make the tour's variant of {path}", "bold red"), f"\n{exc}"),
                   highlight=False)
         raise typer.Exit(2) from None
     _logging(False)
@@ -694,7 +750,8 @@ def gui(
         "--node", "-n", help="The node the GUI joins (default: the surface node).")] = None,
     host: Annotated[str, typer.Option(
         help="Address to serve the page on; 0.0.0.0 for tablets on the WiFi.")] = "127.0.0.1",
-    port: Annotated[int, typer.Option(help="TCP port of the page (0: any free port).")] = 8080,
+    port: Annotated[int, typer.Option(help="TCP port of the page (0: any free port).",
+                                      min=0, max=65535)] = 8080,
     verbose: VerboseOpt = False,
 ) -> None:
     """The fleet in a browser: map, channels and links per vehicle, commands, events."""
@@ -716,11 +773,10 @@ def gui(
     try:
         _run_or_exit(main())
     except ValueError as exc:
-        err.print(f"[red]{exc}[/]", highlight=False)
+        _error(str(exc), style="red")
         raise typer.Exit(2) from None
     except OSError as exc:
-        err.print(f"[red]cannot serve on {host}:{port}: {exc.strerror or exc}[/]",
-                  highlight=False)
+        _error(f"cannot serve on {host}:{port}: {exc.strerror or exc}", style="red")
         raise typer.Exit(1) from None
 
 
@@ -760,7 +816,7 @@ def listen(
         run_listen(endpoint, keyexpr, lambda line: print(line, flush=True), count=count,
                    duration=duration, ready=ready, steps=steps)
     except PokeError as exc:
-        err.print(f"[red]{exc}[/]", highlight=False)
+        _error(str(exc), style="red")
         raise typer.Exit(exc.code) from None
 
 
@@ -794,7 +850,7 @@ def put(
     try:
         payload, encoding = run_put(endpoint, key, value, ref, loaded)
     except PokeError as exc:
-        err.print(f"[red]{exc}[/]", highlight=False)
+        _error(str(exc), style="red")
         raise typer.Exit(exc.code) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
@@ -823,11 +879,11 @@ def doctor(
     loaded = _load(mission)
     findings = asyncio.run(run_doctor(loaded, node, timeout_s=timeout,
                                       state_dir=state_dir or default_state_dir()))
-    marks = {"ok": "[green]ok  [/]", "warn": "[yellow]warn[/]", "fail": "[red]FAIL[/]"}
+    marks = {"ok": ("ok  ", "green"), "warn": ("warn", "yellow"), "fail": ("FAIL", "red")}
     for f in findings:
-        console.print(f"{marks[f.status]} {f.check:<8} {f.message}", highlight=False)
+        console.print(said(marks[f.status], f" {f.check:<8} {f.message}"), highlight=False)
         if f.fix and f.status != "ok":
-            console.print(f"     {'':<8} [bold]fix:[/] {f.fix}", highlight=False)
+            console.print(said(f"     {'':<8} ", ("fix:", "bold"), f" {f.fix}"), highlight=False)
     failed = sum(f.status == "fail" for f in findings)
     warned = sum(f.status == "warn" for f in findings)
     console.print(f"{node}: {failed} to fix, {counted(warned, 'warning')}" if failed or warned
@@ -842,7 +898,7 @@ def _mission_log(path: Path, loaded: LoadedMission, node: str) -> Any:
     try:
         return MissionLog(path, loaded, node)
     except OSError as exc:
-        err.print(f"[red]cannot write the mission log:[/] {exc}", highlight=False)
+        _error("cannot write the mission log:", exc, "red")
         raise typer.Exit(2) from None
 
 
@@ -869,10 +925,10 @@ def _read_log(path: Path) -> Any:
     try:
         log = read_log(path)
     except LogError as exc:
-        err.print(f"[red]{exc}[/]", highlight=False)
+        _error(str(exc), style="red")
         raise typer.Exit(2) from None
     if log.note is not None:
-        err.print(f"[yellow]{log.note}[/]", highlight=False)
+        err.print(said((log.note, "yellow")), highlight=False)
     return log
 
 
@@ -888,8 +944,8 @@ def log_summary(
     if as_json:
         print(json.dumps(data, indent=2))
         return
-    console.print(f"[bold]{data.get('mission') or '?'}[/] node [bold]{data['node']}[/]: "
-                  f"{data['duration_s']:g} s logged")
+    console.print(said((str(data.get("mission") or "?"), "bold"), " node ",
+                       (str(data["node"]), "bold"), f": {data['duration_s']:g} s logged"))
     table = Table("channel", "sent", "received", "from", "age at end", "longest gap",
                   title="channels")
     for name, c in data["channels"].items():
@@ -907,13 +963,15 @@ def log_summary(
 def log_replay(
     file: LogArg,
     speed: Annotated[float, typer.Option(help="1 = as recorded, 10 = ten times faster, "
-                                         "0 = as fast as possible.", min=0)] = 1.0,
+                                         "0 = as fast as possible.",
+                                         callback=_number(1e-3, 1e6, zero=True))] = 1.0,
     connect: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to connect to "
                                                       "(repeatable).")] = None,
     listen: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to listen on "
                                                      "(repeatable).")] = None,
     wait: Annotated[float, typer.Option(help="Seconds to let subscribers connect before the "
-                                        "first value.", min=0)] = 1.0,
+                                        "first value.", callback=_number(0, 3600, unit=" s"))]
+    = 1.0,
 ) -> None:
     """Publish the decoded data of a mission log on Zenoh again.
 
@@ -935,7 +993,7 @@ def log_replay(
         session = open_session(ZenohSettings(listen=listen or [], connect=connect or []),
                                "replay")
     except SessionError as exc:
-        err.print(f"[bold red]cannot start:[/] {exc}", highlight=False)
+        _error("cannot start:", exc)
         raise typer.Exit(2) from None
     mission = data.loaded.mission.mission if data.loaded is not None else "?"
     origin = origin_tag(mission, f"{data.node}-replay")  # never re-bridged by a live node
@@ -959,7 +1017,7 @@ def log_replay(
         except EncodeError as exc:
             if key not in unpublishable:  # said once a key
                 unpublishable.add(key)
-                err.print(f"[yellow]{key}: not published: {exc}[/]", highlight=False)
+                err.print(said((f"{key}: not published: {exc}", "yellow")), highlight=False)
 
     console.print(f"replaying {file} ({data.node}) at "
                   f"{'full speed' if speed == 0 else f'{speed:g}x'} on "
@@ -968,7 +1026,7 @@ def log_replay(
         time.sleep(wait)
         count = replay(data, publish, publish_ros2=publish_ros2, speed=speed)
     except LogError as exc:
-        err.print(f"[red]{exc}[/]", highlight=False)
+        _error(str(exc), style="red")
         raise typer.Exit(2) from None
     except KeyboardInterrupt:
         raise typer.Exit(130) from None

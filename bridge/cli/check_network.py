@@ -7,6 +7,7 @@ from typing import Any
 
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 
 def print_network(console: Console, network: dict[str, Any]) -> None:
@@ -34,7 +35,7 @@ def print_network(console: Console, network: dict[str, Any]) -> None:
         for relay in network["relays"]:
             relays.add_row(relay["node"], relay["link"], f"{relay['own_Bps']:g}",
                            f"{relay['carried_Bps']:g}", f"{relay['capacity_Bps']:g}",
-                           "yes" if relay["fits"] else "[red]no[/]")
+                           "yes" if relay["fits"] else Text("no", style="red"))
         console.print(relays)
     ages = Table("channel", "worst from", "to", "route", "age bound",
                  title="end-to-end age (worst case across the route)")

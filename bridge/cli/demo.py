@@ -32,6 +32,7 @@ import yaml
 import zenoh
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 from bridge.cli.demo_images import PictureWatch, camera_pair, images_for_tour
 from bridge.cli.demo_queries import QUERY_PERIOD_S, QueryApps, member_keys, query_for_tour
@@ -51,6 +52,7 @@ from bridge.cli.sim import (
     run_fleet_for,
     simulate_real_modems,
 )
+from bridge.cli.text import said
 from bridge.cli.tour import Tour, short, turn_waits
 from bridge.core.bounds import UNBOUNDED_TURN_S
 from bridge.core.events import Event
@@ -229,7 +231,7 @@ def closest(history: list[tuple[float, Any]], got: Any) -> Any:
 class VehicleApps:
     """Per node: a publisher of its input keys and a watcher of what arrives there."""
 
-    def __init__(self, loaded: LoadedMission, show: Callable[[str], None],
+    def __init__(self, loaded: LoadedMission, show: Callable[[str | Text], None],
                  tour: Tour | None = None,
                  truth: Callable[[str, float], tuple[float, float, float] | None] | None = None
                  ) -> None:
@@ -327,20 +329,21 @@ class VehicleApps:
                 break
             await asyncio.sleep(POLL_S)
         for node in sorted(set(vehicles) - shown):
-            self.show(f"[cyan]{node:>4}[/] position: none yet")
+            self.show(said((f"{node:>4}", "cyan"), " position: none yet"))
 
     def _fixed(self, node: str, fix: dict[str, Any], where: tuple[float, float] | None) -> bool:
         """Print a published position (a lost one only when its state changed)."""
         state = str(fix.get("state", "tracking" if fix.get("fix", True) else "lost"))
-        said = f"{state} {fix.get('reason', '')}"
+        told = f"{state} {fix.get('reason', '')}"
         with self._lock:
-            changed, self.fix_state[node] = self.fix_state.get(node) != said, said
+            changed, self.fix_state[node] = self.fix_state.get(node) != told, told
         if not fix.get("fix", True):
             if changed:  # say it once, not at every range
                 reason = str(fix.get("reason", "")).replace("_", " ")
-                self.show(f"[cyan]{node:>4}[/] position: [yellow]{state}[/] ({reason})")
+                self.show(said((f"{node:>4}", "cyan"), " position: ", (state, "yellow"),
+                               f" ({reason})"))
             return changed
-        self.show(f"[cyan]{node:>4}[/] {describe_fix(fix, where)}")
+        self.show(said((f"{node:>4}", "cyan"), " ") + describe_fix(fix, where))
         return True
 
     def _truth(self, node: str, fix: dict[str, Any]) -> tuple[float, float] | None:
@@ -374,8 +377,8 @@ class VehicleApps:
                 self.operator[(node, str(sample.key_expr))] = time.time()
                 self.history.setdefault((node, str(sample.key_expr)), deque(maxlen=8)).append(
                     (time.time(), value))
-            self.show(f"[magenta]{node:>4}[/] ← operator: [bold]{sample.key_expr}[/] "
-                      f"{short(value)}")
+            self.show(said((f"{node:>4}", "magenta"), " ← operator: ",
+                           (str(sample.key_expr), "bold"), f" {short(value)}"))
             return
         with self._lock:
             self.arrived += 1
@@ -590,23 +593,24 @@ async def _start_gui(loaded: LoadedMission, port: int, console: Console) -> GuiS
         server = GuiServer(loaded)
         await server.start("127.0.0.1", port, any_port=True)
     except (ValueError, OSError) as exc:
-        console.print(f"[yellow]no GUI: {exc}[/]")
+        console.print(said((f"no GUI: {exc}", "yellow")), markup=False, emoji=False)
         return None
     return server
 
 
-def describe_fix(fix: dict[str, Any], truth: tuple[float, float] | None = None) -> str:
+def describe_fix(fix: dict[str, Any], truth: tuple[float, float] | None = None) -> Text:
     """One published position for a newcomer: state, anchors, where, how sure, and (from the
     simulator) the truth and the error, in sensible units."""
     anchors = " + ".join(fix.get("anchors", [])) or "no anchors"
     state = str(fix.get("state", "fix"))
     if state == "coasting":
         state = f"coasting {float(fix.get('age_s', 0.0)):.0f} s"
-    text = (f"position ({state}, {anchors}): x {fix['x']:.1f} m, y {fix['y']:.1f} m, "
-            f"±{fix['sigma_m']:.2f} m")
+    text = said(f"position ({state}, {anchors}): x {fix['x']:.1f} m, y {fix['y']:.1f} m, "
+                f"±{fix['sigma_m']:.2f} m")
     if truth is not None:
         error = math.dist((fix["x"], fix["y"]), truth)
-        text += f" · truth x {truth[0]:.1f}, y {truth[1]:.1f} · [bold]error {error:.2f} m[/]"
+        text.append(f" · truth x {truth[0]:.1f}, y {truth[1]:.1f} · ")
+        text.append(f"error {error:.2f} m", style="bold")
     return text
 
 
@@ -772,7 +776,7 @@ async def cut_short(stop: asyncio.Event, story: asyncio.Task[None], tour: Tour,
     await stop.wait()
     if not story.done() and time.time() < end:
         story.cancel()
-        tour.say("[dim]Stopped early: the rest of the tour is skipped.[/]")
+        tour.say(said(("Stopped early: the rest of the tour is skipped.", "dim")))
 
 
 async def _story(apps: VehicleApps, tour: Tour, loaded: LoadedMission, loss: float,
@@ -880,7 +884,8 @@ async def run_demo(
             return None
         return water.position(loaded.mission.address_of(node), wall)
 
-    apps = VehicleApps(loaded, lambda line: console.print(line, highlight=False), tour, truth)
+    apps = VehicleApps(loaded, lambda line: console.print(line, highlight=False, markup=False,
+                                                               emoji=False), tour, truth)
     tour.plan(tour_parts(loaded, apps))
     tour.intro(changes or [])
     if fleet.throwaway_key:
@@ -959,7 +964,8 @@ async def run_demo(
         try:
             write_report(report, result, recorder.recording, loaded)
         except OSError as exc:
-            console.print(f"[red]cannot write the mission report:[/] {exc}", highlight=False)
+            console.print(said(("cannot write the mission report:", "red"), f" {exc}"),
+                          highlight=False)
         else:
             console.print(f"mission report (plots, opens offline): {report.resolve()}",
                           highlight=False, soft_wrap=True)  # a path one can copy whole

@@ -16,6 +16,7 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from bridge.cli.text import said
 from bridge.core.events import (
     Event,
     FrameDropped,
@@ -199,9 +200,9 @@ async def run_sim(
     fleet = Fleet(loaded, seed=seed, on_event=both, water=water)
     if recorder is not None:
         attach_truth(recorder, fleet)
-    console.print(f"simulating [bold]{loaded.mission.mission}[/]: "
-                  + ", ".join(f"{n} on {' '.join(node.zenoh.listen) or '(no endpoint)'}"
-                              for n, node in loaded.mission.nodes.items()))
+    console.print(said("simulating ", (loaded.mission.mission, "bold"), ": " + ", ".join(
+        f"{n} on {' '.join(node.zenoh.listen) or '(no endpoint)'}"
+        for n, node in loaded.mission.nodes.items())))
     if fleet.throwaway_key:
         console.print(throwaway_note(loaded.mission), highlight=False)
     await run_fleet_for(fleet, duration, live=live, console=console, events=events)

@@ -15,8 +15,10 @@ from typing import Any
 
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 from bridge.cli.rounding import number, significant
+from bridge.cli.text import said
 from bridge.core.loaded import LoadedMission
 from bridge.report.check import check_mission
 from bridge.wire.channels import ChannelCodec
@@ -155,8 +157,9 @@ class Tour:
         """Show only ``parts`` (names of :data:`PARTS`, kept in its order)."""
         self.parts = [name for name in PARTS if name in parts or name == "summary"]
 
-    def say(self, text: str) -> None:
-        self.console.print(text, highlight=False)
+    def say(self, text: str | Text) -> None:
+        """One line as it is (a str is never read as markup: styles come as Text)."""
+        self.console.print(text, highlight=False, markup=False, emoji=False)
 
     def part(self, name: str) -> bool:
         """The heading of a part of the tour; False (and nothing printed) if the plan left
@@ -165,30 +168,30 @@ class Tour:
             return False
         self.shown.append(name)
         number_ = self.parts.index(name) + 1
-        self.console.rule(f"[bold]{number_}. {PARTS[name]}", align="left")
+        self.console.rule(said((f"{number_}. {PARTS[name]}", "bold")), align="left")
         return True
 
     def intro(self, changes: list[str]) -> None:
         mission = self.loaded.mission
-        self.say(f"[bold]zab demo[/]: the {mission.mission} fleet, {len(mission.nodes)} "
+        self.say(said(("zab demo", "bold"), f": the {mission.mission} fleet, {len(mission.nodes)} "
                  f"vehicles over a simulated ocean, for {self.duration:.0f} s (Ctrl-C ends "
                  "it sooner). Each vehicle runs a Zenoh peer and the bridge; small programs on "
-                 "the vehicles publish navigation and status, as yours would.")
+                 "the vehicles publish navigation and status, as yours would."))
         for change in changes:
-            self.say(f"  [dim]for the tour: {change}[/]")
+            self.say(said("  ", (f"for the tour: {change}", "dim")))
         self.say("You will see, in order: " + "; ".join(
             f"{i}. {PARTS[name].lower()}" for i, name in enumerate(self.parts, start=1)) + ".")
         for name, node in mission.nodes.items():
             self.say(f"  {name:>4} ({node.role}) Zenoh endpoint {' '.join(node.zenoh.listen)}")
         slow = slow_turns(self.loaded, self.duration)
         if slow is not None:
-            self.say(f"  [dim]{slow}[/]")
+            self.say(said("  ", (slow, "dim")))
 
     def gui(self, url: str | None, surface: str) -> None:
         if url is None:
             return
-        self.say(f"[bold]GUI:[/] open {url} in a browser to watch the fleet move and send "
-                 f"commands from {surface}")
+        self.say(said(("GUI:", "bold"), f" open {url} in a browser to watch the fleet move "
+                      f"and send commands from {surface}"))
 
     def values_intro(self) -> None:
         self.say("A channel squeezes each field into a fixed number of bits, so what arrives "
@@ -197,8 +200,8 @@ class Tour:
     def quantised(self, src: str, dst: str, channel: ChannelCodec, element: int, sent: Any,
                   got: Any) -> None:
         key = channel.elements[element].output_key(src, dst)
-        self.say(f"  {src} → {dst}: [bold]{key}[/] ({channel.name}, "
-                 f"{counted(channel.bits, 'bit')})")
+        self.say(said(f"  {src} → {dst}: ", (key, "bold"),
+                      f" ({channel.name}, {counted(channel.bits, 'bit')})"))
         for line in quantisation_lines(channel, element, sent, got):
             self.say(line)
 
@@ -233,10 +236,10 @@ class Tour:
                      loss: float, report_key: str) -> None:
         who = destinations[0] if len(destinations) == 1 else \
             f"each of {', '.join(destinations)}"
-        self.say(f"The operator on {node} puts {value} on [bold]{key}[/]; the channel is "
-                 f"acknowledged, so {node}'s bridge resends it until {who} confirms (the "
-                 f"water loses {loss:.0%} of frames). "
-                 f"Delivery reports arrive on {report_key}:")
+        self.say(said(f"The operator on {node} puts {value} on ", (key, "bold"),
+                      f"; the channel is acknowledged, so {node}'s bridge resends it until "
+                      f"{who} confirms (the water loses {loss:.0%} of frames). "
+                      f"Delivery reports arrive on {report_key}:"))
 
     def delivery(self, report: Mapping[str, Any], elapsed_s: float) -> None:
         attempts = report.get("attempts")

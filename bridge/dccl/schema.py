@@ -106,7 +106,9 @@ def _run_protoc(path: Path, proto_path: tuple[str, ...]) -> bytes:
         if run.returncode != 0 or not out.is_file():
             lines = (run.stderr.strip() or "protoc failed").splitlines()
             # a located line first ("m.proto:3:1: Import ... was not found"), then the rest
-            located = [line for line in lines if re.match(r"[^:]+:\d+:", line)]
+            # (not absl's log lines: "W0000 00:00:17.. parser.cc:659] No edition or syntax")
+            located = [line for line in lines if re.match(r"[^:]+:\d+:", line)
+                       and not re.match(r"[IWEF]\d{4} ", line)]
             raise _protoc_error((located or lines)[0], path)
         return out.read_bytes()
 
@@ -148,8 +150,16 @@ def _load_cached(path: str, mtime: float, proto_path: tuple[str, ...]) -> ProtoF
     pool = descriptor_pool.DescriptorPool()
     for fdp in fds.file:
         pool.Add(fdp)
-    field_cls = message_factory.GetMessageClass(pool.FindMessageTypeByName("dccl.DCCLFieldOptions"))
-    msg_cls = message_factory.GetMessageClass(pool.FindMessageTypeByName("dccl.DCCLMessageOptions"))
+    try:
+        field_type = pool.FindMessageTypeByName("dccl.DCCLFieldOptions")
+        msg_type = pool.FindMessageTypeByName("dccl.DCCLMessageOptions")
+    except KeyError:  # (a plain protobuf message: no DCCL options to read)
+        raise DcclSchemaError('not a DCCL message file: it does not import '
+                              '"dccl/option_extensions.proto" (a DCCL message needs its '
+                              '(dccl.msg) id and max_bytes, and bounds on its fields)',
+                              str(file)) from None
+    field_cls = message_factory.GetMessageClass(field_type)
+    msg_cls = message_factory.GetMessageClass(msg_type)
     enums: dict[str, tuple[tuple[str, int], ...]] = {}
     for fdp in fds.file:
         _collect_enums(fdp.package, fdp.enum_type, fdp.message_type, enums)

@@ -47,13 +47,28 @@ class MissionProblems(MissionError):
         self.problems = list({str(p): p for p in problems}.values())
 
 
+MAX_DEPTH = 100
+"""Levels of nesting a mission file may have (its deepest field is under ten)."""
+MAX_VALUES = 1_000_000
+"""Values (mappings, lists, scalars) a mission file may hold once its aliases are expanded
+(a few hundred in the largest): a tiny file of aliases of aliases builds billions."""
+
+
 def _build(node: yaml.Node, loc: Key, marks: Marks, constructor: yaml.SafeLoader) -> Any:
-    """Turn a composed YAML node into Python data, remembering where each value starts."""
+    """Turn a composed YAML node into Python data, remembering where each value starts;
+    refuse (located) nesting deeper than :data:`MAX_DEPTH` and a scalar Python cannot hold
+    (an integer of more than 4300 digits). (:func:`_count` first: aliases bounded.)"""
+    if len(loc) > MAX_DEPTH:
+        raise _located(marks, loc[:1], f"nested deeper than {MAX_DEPTH} levels: not a "
+                       "mission", node)
     marks[loc] = (node.start_mark.line + 1, node.start_mark.column + 1)
     if isinstance(node, yaml.MappingNode):
         out: dict[Any, Any] = {}
         for key_node, value_node in node.value:
-            key = constructor.construct_object(key_node, deep=True)
+            if not isinstance(key_node, yaml.ScalarNode):
+                raise _located(marks, loc, "unsupported key (a key is a name or a number, "
+                               "not a list or a mapping)", key_node)
+            key = _scalar(key_node, loc, marks, constructor)
             if not isinstance(key, str | int | float | bool) and key is not None:
                 raise _located(marks, loc, f"unsupported key {key!r}", key_node)
             if key in out:
@@ -64,7 +79,34 @@ def _build(node: yaml.Node, loc: Key, marks: Marks, constructor: yaml.SafeLoader
         return out
     if isinstance(node, yaml.SequenceNode):
         return [_build(item, (*loc, i), marks, constructor) for i, item in enumerate(node.value)]
-    return constructor.construct_object(node, deep=True)
+    return _scalar(node, loc, marks, constructor)
+
+
+def _count(node: yaml.Node, counted: dict[int, int], depth: int = 0) -> int:
+    """How many values ``node`` builds, its aliases expanded (each node counted once:
+    quick however many times it is aliased); stops past :data:`MAX_DEPTH` levels (a node
+    that holds itself) and past :data:`MAX_VALUES` (:func:`_build` refuses both)."""
+    if id(node) in counted:
+        return counted[id(node)]
+    total = 1
+    if depth <= MAX_DEPTH and isinstance(node, yaml.MappingNode | yaml.SequenceNode):
+        for child in node.value:
+            for part in child if isinstance(child, tuple) else (child,):
+                total += _count(part, counted, depth + 1)
+                if total > MAX_VALUES:
+                    return total
+    counted[id(node)] = total
+    return total
+
+
+def _scalar(node: yaml.Node, loc: Key, marks: Marks, constructor: yaml.SafeLoader) -> Any:
+    """A scalar's value; one Python cannot hold (an integer of more than 4300 digits, a
+    timestamp out of range) is refused where it is written."""
+    try:
+        return constructor.construct_object(node, deep=True)
+    except (ValueError, OverflowError) as exc:
+        why = str(exc).split(";")[0]  # (not Python's advice to raise its limit)
+        raise _located(marks, loc, f"cannot read this value: {why}", node) from None
 
 
 class _LocatedYamlError(Exception):
@@ -139,6 +181,9 @@ def read_mission(text: str, path: str | Path = "<mission>") -> tuple[Mission, Ma
         root = _compose(text)
         if root is None:
             raise MissionError(f"{name}: the file is empty")
+        if _count(root, {}) > MAX_VALUES:
+            raise MissionError(f"{name}: invalid YAML: more than {MAX_VALUES:,} values (aliases "
+                               "expand to that many): not a mission")
         data = _build(root, (), marks, yaml.SafeLoader(""))
     except _LocatedYamlError as exc:
         raise MissionProblems([Problem(name, exc.line, exc.column, "", str(exc))]) from None
@@ -149,6 +194,9 @@ def read_mission(text: str, path: str | Path = "<mission>") -> tuple[Mission, Ma
                                        f"invalid YAML: {exc.problem or exc}")]) from None
     except yaml.YAMLError as exc:
         raise MissionError(f"{name}: invalid YAML: {exc}") from None
+    except RecursionError:  # (Python's parser, on a file libyaml refused)
+        raise MissionError(f"{name}: invalid YAML: nested deeper than {MAX_DEPTH} levels: "
+                           "not a mission") from None
     if not isinstance(data, dict):
         raise MissionProblems([Problem(name, 1, 1, "",
                                        "a mission file is a mapping (key: value), not a list")])
