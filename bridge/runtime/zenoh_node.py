@@ -775,13 +775,13 @@ class BridgeNode:
         a get here must answer those, not the older value that last crossed the water. (A
         subscriber here would say to the demand-driven channels that they are wanted: hence
         not while the peer is under water.)"""
-        assert self.session is not None
         up = peer in self._ip_up
         for key, source in self._sources.items():
             if source != peer:
                 continue
             listening = self._over_ip.get(key)
             if up and listening is None:
+                assert self.session is not None  # (sources: keys this session published)
                 self._over_ip[key] = self.session.declare_subscriber(
                     key, functools.partial(self._heard, key=key),
                     allowed_origin=zenoh.Locality.REMOTE)
