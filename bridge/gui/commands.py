@@ -19,6 +19,7 @@ from bridge.codec.fields import FieldCodec
 from bridge.core.loaded import LoadedMission
 from bridge.errors import EncodeError
 from bridge.wire.channels import ElementCodec
+from bridge.wire.families import FamilySpec
 from bridge.words import counted
 
 #: A best-effort command with no delivery report after this long is shown as "sent".
@@ -116,6 +117,8 @@ def _number(name: str, raw: Any) -> float:
         number = float(raw)
     except ValueError:
         raise CommandError(f"{name}: {raw!r} is not a number") from None
+    except OverflowError:  # (an integer past a float's range)
+        raise CommandError(f"{name}: {raw} is not a finite number") from None
     if not math.isfinite(number):
         raise CommandError(f"{name}: {raw!r} is not a finite number")
     return number
@@ -138,10 +141,12 @@ class CommandElement:
         """Where the put goes (:meth:`~bridge.wire.channels.ElementCodec.put_key`)."""
         return self.element.put_key(self.node)
 
-    def put(self, raw: Any, now: float) -> Put:
-        """The put of ``raw`` ({path: value}) at time ``now`` (a ROS 2 message's stamp)."""
+    def put(self, raw: Any, now: float, member: str | None = None) -> Put:
+        """The put of ``raw`` ({path: value}) at time ``now`` (a ROS 2 message's stamp), on
+        the key of a key family's ``member``."""
+        key = None if member is None else self.element.input_key(self.node, member)
         try:
-            return self.element.sample(self.node, self.payload(raw), now)
+            return self.element.sample(self.node, self.payload(raw), now, key)
         except EncodeError as exc:
             raise CommandError(f"{self.key}: {exc}") from None
 
@@ -185,15 +190,25 @@ class CommandChannel:
     reliable: bool
     interval_s: float
     elements: tuple[CommandElement, ...]
+    family: FamilySpec | None = None  # a key family: a command goes to one member's key
 
-    def puts(self, values: Any, now: float) -> list[Put]:
-        """The put of each element from ``values`` (one {path: value} per element)."""
+    def puts(self, values: Any, now: float, vehicle: str | None = None) -> list[Put]:
+        """The put of each element from ``values`` (one {path: value} per element); on a
+        key family, on the member named as the ``vehicle`` it goes to (a put on the family's
+        expression names no one member: the bridge counts it and sends nothing)."""
         if isinstance(values, dict) and len(self.elements) == 1:
             values = [values]
         if not isinstance(values, list) or len(values) != len(self.elements):
             raise CommandError(f"channel {self.channel!r} needs values for "
                                f"{counted(len(self.elements), 'element')}")
-        return [e.put(v, now) for e, v in zip(self.elements, values, strict=True)]
+        member = None
+        if self.family is not None:
+            if vehicle is None or not (self.family.learned or vehicle in self.family.members):
+                raise CommandError(f"channel {self.channel!r} is a key family of "
+                                   f"{', '.join(self.family.members)}: the GUI sends a vehicle "
+                                   f"the member of its name, and {vehicle!r} is none of them")
+            member = vehicle
+        return [e.put(v, now, member) for e, v in zip(self.elements, values, strict=True)]
 
     def is_command(self) -> bool:
         """Named as a command: what an operator most likely wants to send."""
@@ -220,7 +235,7 @@ def command_channels(loaded: LoadedMission, node: str) -> list[CommandChannel]:
         )
         found.append(CommandChannel(channel.name, channel.destinations(node),
                                     bool(getattr(model, "reliable", False)),
-                                    channel.interval_s, elements))
+                                    channel.interval_s, elements, channel.family))
     return sorted(found, key=lambda c: (not c.reliable, not c.is_command()))
 
 

@@ -140,7 +140,10 @@ class ImageBoard:
                         and all(isinstance(v, int | float) and not isinstance(v, bool)
                                 for v in roi)):
                     raise ImageControlError("roi is [x0, y0, x1, y1] in fractions, or null")
-                x0, y0, x1, y1 = (min(1.0, max(0.0, float(v))) for v in roi)
+                try:
+                    x0, y0, x1, y1 = (min(1.0, max(0.0, float(v))) for v in roi)
+                except OverflowError:  # (an integer past a float's range)
+                    raise ImageControlError("roi is [x0, y0, x1, y1] in fractions") from None
                 if not (x0 < x1 and y0 < y1):
                     raise ImageControlError("roi needs x0 < x1 and y0 < y1")
                 roi = [round(v, 4) for v in (x0, y0, x1, y1)]

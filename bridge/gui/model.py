@@ -439,7 +439,7 @@ class GuiModel:
         if vehicle not in channel.destinations:
             raise CommandError(f"channel {channel.channel!r} does not reach {vehicle!r} "
                                f"(it reaches {', '.join(channel.destinations)})")
-        payloads = channel.puts(request.get("values"), now)
+        payloads = channel.puts(request.get("values"), now, str(vehicle))
         self._out.append(self.book.add(Command(ref, str(vehicle), channel.channel,
                                                shown(request.get("values")), channel.reliable,
                                                now)))

@@ -213,7 +213,7 @@ class GuiServer:
         """Handle one message from a page; the reply to send it, if any."""
         try:
             message = json.loads(text)
-        except ValueError:
+        except (ValueError, RecursionError):  # (nested past the parser's depth: not ours)
             return {"type": "reply", "ok": False, "error": "not JSON"}
         if isinstance(message, dict) and message.get("type") == "image_control":
             return self._image_control(message)

@@ -84,6 +84,8 @@ def test_a_command_becomes_the_payload_on_the_input_key(morph):
     ({"channel": "mission_command", "vehicle": "gcv",
       "values": {"action": "start", "leg": "nan"}}, "not a finite number"),
     ({"channel": "mission_command", "vehicle": "gcv", "values": "start"}, "1 element"),
+    ({"channel": "mission_command", "vehicle": "gcv",  # (OverflowError, the socket closed)
+      "values": {"action": "start", "leg": 10 ** 400}}, "not a finite number"),
     ({"channel": "surface_fix", "vehicle": "gcv", "values": {"lat": -91, "lon": 3}},
      "below the minimum -90"),
 ])
@@ -92,6 +94,17 @@ def test_a_wrong_command_is_refused_with_a_reason(morph, request_, message):
     with pytest.raises(CommandError, match=message):
         model.command(request_, "r", 0.0)
     assert model.take() == []
+
+
+def test_a_command_on_a_key_family_goes_to_the_vehicle_s_member_key():
+    """zspace's fleet_depth has a member per AUV (keys: {nodes: auv.*}): the GUI put the
+    command on the family's expression (fleet/*/depth_order), which the bridge counts as naming
+    no member and never sends, while the page showed it sent."""
+    model = GuiModel(load_mission(MISSIONS / "zspace.yaml"), "top")
+    puts = model.command({"channel": "fleet_depth", "vehicle": "auv2",
+                          "values": {"depth_m": 10}}, "r1", 0.0)
+    assert puts == [("fleet/auv2/depth_order", msgpack.packb({"depth_m": 10.0}),
+                     "application/msgpack")]
 
 
 def test_best_effort_commands_count_as_sent_after_a_while(morph):

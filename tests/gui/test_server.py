@@ -108,6 +108,8 @@ def test_the_websocket_says_hello_refuses_bad_messages_and_other_origins():
                     assert feed["connected"] is False
                     await ws.send_str("{not json")
                     assert (await ws.receive_json(timeout=5))["error"] == "not JSON"
+                    await ws.send_str("[" * 30000 + "]" * 30000)  # (closed the page's socket)
+                    assert (await ws.receive_json(timeout=5))["error"] == "not JSON"
                     await ws.send_json({"type": "command", "request": 1, "channel": "nav",
                                         "vehicle": "gcv", "values": {}})
                     reply = await ws.receive_json(timeout=5)
