@@ -214,11 +214,11 @@ class NodeCore:
     # -- samples in ----------------------------------------------------------------------------
 
     def ingest(self, key: str, data: bytes, encoding: str, now: float, ref: str | None = None,
-               sample_key: str | None = None, attachment: bytes | None = None) -> None:
-        """A sample arrived on an input key (``ref``: the publisher's correlation text, echoed
-        in delivery reports; ``sample_key``: the sample's own key under a wildcard input)."""
+               sample_key: str | None = None, attachment: bytes | None = None,
+               taken: float | None = None) -> None:
+        """A sample arrived on an input key (see :meth:`Outbound.ingest`)."""
         self.linkset.news()
-        self.outbound.ingest(key, data, encoding, now, ref, sample_key, attachment)
+        self.outbound.ingest(key, data, encoding, now, ref, sample_key, attachment, taken)
 
     def delete(self, key: str, now: float) -> None:
         """A Zenoh delete on an input key: a tombstone for the channels with ``deletes``."""

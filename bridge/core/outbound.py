@@ -190,13 +190,15 @@ class Outbound:
 
     def ingest(self, key: str, data: bytes, encoding: str, now: float,
                ref: str | None = None, sample_key: str | None = None,
-               attachment: bytes | None = None) -> None:
+               attachment: bytes | None = None, taken: float | None = None) -> None:
         """A sample arrived on an input key: pack it for every channel that reads the key.
 
         ``ref`` (the publisher's correlation text) is echoed in delivery reports;
         ``sample_key`` is the sample's own key when ``key`` has wildcards (ROS 2 inputs);
-        ``attachment``: the sample's, carried by channels with ``attachment_bytes``. A
-        payload over the key's cap is dropped before it is decoded (pictures: see Images)."""
+        ``attachment``: the sample's, carried by channels with ``attachment_bytes``;
+        ``taken``: the sample's own timestamp, if it has one (when its value was taken: what
+        a channel's ``age`` carries, never later than ``now``). A payload over the key's cap
+        is dropped before it is decoded (pictures: see Images)."""
         if self.images is not None and self.images.ingest(key, data, encoding, now, ref):
             return
         if len(data) > (cap := self._caps.get(key, self._cap)):  # (self.payload_cap, inlined)
@@ -218,13 +220,14 @@ class Outbound:
         except DecodeError as exc:
             self.drop_payload(key, str(exc), now, "undecodable")
             return
-        self._store(key, bindings, lambda element: element.layout.pack(value), now, ref)
+        taken = now if taken is None else min(taken, now)
+        self._store(key, bindings, lambda element: element.layout.pack(value), now, ref, taken)
         if self.families.senders:
             for problem in self.families.ingest(key, value, now):
                 self.drop_payload(key, problem, now)
         if self.surfacing is not None and self.surfacing.reachable:  # full fidelity over IP
             self._relay(key, bindings, Relay(key, data, encoding, attachment if key in
-                                             self._attached else None, taken=now))
+                                             self._attached else None, taken=taken))
 
     def delete(self, key: str, now: float) -> None:
         """A Zenoh delete on an input key: a tombstone in each channel with ``deletes`` that
@@ -250,8 +253,10 @@ class Outbound:
                 and not c.fragmented and codec.channel_cost_bits(c) > room}
 
     def _store(self, key: str, bindings: Collection[tuple[ChannelCodec, int, ElementCodec]],
-               pack: Callable[[ElementCodec], int], now: float, ref: str | None) -> None:
-        """Each binding's packed value into the store, or queued by its stream."""
+               pack: Callable[[ElementCodec], int], now: float, ref: str | None,
+               taken: float | None = None) -> None:
+        """Each binding's packed value into the store (taken at ``taken``), or queued by its
+        stream."""
         store = self.store
         for channel, index, element in bindings:
             if channel.index in self._never_fit:
@@ -264,10 +269,10 @@ class Outbound:
                 continue
             sender = self.senders.get(channel.index)
             if sender is None:
-                store.update(channel.index, index, packed, now)
+                store.update(channel.index, index, packed, now, taken)
                 if len(self.stores) > 1:
                     for other in self.stores[1:]:
-                        other.update(channel.index, index, packed, now)
+                        other.update(channel.index, index, packed, now, taken)
             elif store.update_value(channel.index, index, packed, now):
                 payload = store.states[channel.index].payload()
                 refused = self.saving.refusal()  # (while the state cannot be saved)
@@ -503,7 +508,7 @@ class Outbound:
             if isinstance(what, ChannelState):
                 channel = what.channel
                 bits = what.payload() if channel.index not in self._aged \
-                    else aged_payload(channel.elements, what.packed, what.updated, now)
+                    else aged_payload(channel.elements, what.packed, what.taken, now)
                 if _unfit(self, channel, bits, now):
                     dropped.append(what)  # (marked sent: due again when it is)
                     continue

@@ -22,7 +22,8 @@ class ChannelState:
 
     channel: ChannelCodec
     packed: list[int | None]
-    updated: list[float | None]
+    updated: list[float | None]  # when each element's value arrived here
+    taken: list[float | None] = field(default_factory=list)  # when each was taken (its age)
     fresh: bool = False
     last_sent: float | None = None
     sends: int = 0
@@ -95,7 +96,8 @@ class OutboundStore:
     def for_node(cls, channels: Iterable[ChannelCodec], node: str) -> OutboundStore:
         return cls(
             {
-                c.index: ChannelState(c, [None] * len(c.elements), [None] * len(c.elements))
+                c.index: ChannelState(c, [None] * len(c.elements), [None] * len(c.elements),
+                                      [None] * len(c.elements))
                 for c in channels
                 if c.sent_by(node) and c.destinations(node)
             }
@@ -110,11 +112,14 @@ class OutboundStore:
         self._changed(state)
         return state.complete
 
-    def update(self, index: int, element: int, packed: int, now: float) -> None:
-        """Store a newly packed element value; it replaces whatever was there."""
+    def update(self, index: int, element: int, packed: int, now: float,
+               taken: float | None = None) -> None:
+        """Store a newly packed element value, taken at ``taken`` (default: ``now``); it
+        replaces whatever was there."""
         state = self.states[index]
         state.packed[element] = packed
         state.updated[element] = now
+        state.taken[element] = now if taken is None else taken
         state.fresh = True
         self._changed(state)
 

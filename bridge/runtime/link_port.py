@@ -30,15 +30,21 @@ from bridge.modems.base import ModemBackend, ModemFix, ModemRange, Reception
 from bridge.runtime.eager import start_eagerly
 from bridge.runtime.intake import Intake
 
-__all__ = ["InputSample", "LinkPort", "modem_start"]
+__all__ = ["InputSample", "LinkPort", "ingest_sample", "modem_start"]
 
 log = logging.getLogger("zab.node")
 
 RETRY_MIN_S, RETRY_MAX_S = 0.5, 10.0
 
-InputSample = tuple[str, bytes, str, "str | None", "str | None", "bytes | None"]
-"""A sample for the core's ingest: key, payload, encoding, ref, the sample's own key and its
-attachment."""
+InputSample = tuple[str, bytes, str, "str | None", "str | None", "bytes | None", "float | None"]
+"""A sample for the core's ingest: key, payload, encoding, ref, the sample's own key, its
+attachment and its own timestamp (seconds since the epoch), if any."""
+
+
+def ingest_sample(core: NodeCore, sample: InputSample, now: float) -> None:
+    """The core takes ``sample`` at ``now``."""
+    key, data, encoding, ref, sample_key, attachment, taken = sample
+    core.ingest(key, data, encoding, now, ref, sample_key, attachment, taken)
 
 
 def modem_start(backend: ModemBackend) -> float:
@@ -110,7 +116,7 @@ class LinkPort:
                 self._send_now(backend, sample)
                 return
             now = host.clock()
-            host.core.ingest(*sample[:3], now, *sample[3:])
+            ingest_sample(host.core, sample, now)
             wake = host.core.wake_at(now, self.link) if ready else None
             if wake is None or wake > now + 1e-9:  # the transmit loop decides when, after the
                 host.settle_soon()  # outputs of every sample taken until the loop's turn
@@ -206,7 +212,7 @@ class LinkPort:
             core.modem_ranging = backend.ranging
         now, at = host.clock(), modem_start(backend)
         if sample is not None:
-            core.ingest(*sample[:3], now, *sample[3:])
+            ingest_sample(core, sample, now)
         action = core.act(now, at, self.link)
         if action is None:
             if sample is None:

@@ -47,7 +47,7 @@ from bridge.runtime.intake import Intake
 from bridge.runtime.ip_watch import IpWatch
 from bridge.runtime.keys import load_key, with_next_key
 from bridge.runtime.keyspace_watch import KeyspaceWatch
-from bridge.runtime.link_port import LinkPort
+from bridge.runtime.link_port import LinkPort, ingest_sample
 from bridge.runtime.persistence import Persistence
 from bridge.runtime.ros2_graph import Ros2Graph
 from bridge.runtime.session import (
@@ -348,12 +348,15 @@ class BridgeNode:
             return
         data, encoding = sample.payload.to_bytes(), str(sample.encoding)
         ref = extra[4:].decode("utf-8", "replace") if extra[:4] == b"ref:" else None
+        stamp = sample.timestamp  # (an application's own: when its value was taken)
+        taken = stamp.get_time().timestamp() if stamp is not None else None
         backend = self._direct()
         if backend is not None:
-            self.port.ingest(backend, (key, data, encoding, ref, sample_key, extra or None))
+            self.port.ingest(backend, (key, data, encoding, ref, sample_key, extra or None,
+                                       taken))
         else:
             self.intake.to_loop(lane or key, partial(self.ingest, key, data, encoding, ref,  # type: ignore[union-attr]
-                                             sample_key, extra or None))
+                                             sample_key, extra or None, taken))
 
     def _delete(self, key: str) -> None:
         """On the loop: an application deleted input ``key``."""
@@ -549,17 +552,18 @@ class BridgeNode:
                 self.core.positioning.set_depth(depth)
 
     def ingest(self, key: str, data: bytes, encoding: str, ref: str | None = None,
-               sample_key: str | None = None, attachment: bytes | None = None) -> None:
+               sample_key: str | None = None, attachment: bytes | None = None,
+               taken: float | None = None) -> None:
         """A sample arrived on an input key (``ref``: the publisher's correlation text;
         ``sample_key``: the sample's own key, under a wildcard input key; ``attachment``: the
-        sample's). Any thread: with a direct backend an open opportunity's frame leaves from
-        here, else from the loop."""
-        sample = (key, data, encoding, ref, sample_key, attachment)
+        sample's; ``taken``: its own timestamp, if any). Any thread: with a direct backend an
+        open opportunity's frame leaves from here, else from the loop."""
+        sample = (key, data, encoding, ref, sample_key, attachment, taken)
         if len(self.ports) == 1:
             self.port.ingest(self._direct(), sample)
             return
         with self.lock:
-            self.core.ingest(*sample[:3], self.clock(), *sample[3:])
+            ingest_sample(self.core, sample, self.clock())
             self.settle_soon()
 
     def settle_soon(self) -> None:
