@@ -40,7 +40,7 @@ from bridge.core.transfer import from_bytes
 from bridge.errors import DecodeError, FrameError
 from bridge.mission.model import Mission
 from bridge.mission.presets import Preset
-from bridge.wire.channels import AckCodec, ChannelCodec, Values
+from bridge.wire.channels import AckCodec, ChannelCodec, ElementCodec, Values
 from bridge.wire.families import NameCodec
 from bridge.wire.frame import DecodedFrame, Entry, FrameCodec
 from bridge.wire.interest import InterestCodec
@@ -57,6 +57,9 @@ log = logging.getLogger("zab.core")
 
 PEER_STATUS_S = 1.0
 """Least time between two ``peers/<peer>`` status puts of one peer."""
+STALE_SLACK_S = 0.25
+"""How much older than the newest published a latest value may be taken and still be
+published (two estimates of a frame's start differ by less)."""
 
 Anchors = dict[str, tuple[float, float, float]]
 
@@ -96,6 +99,9 @@ class Inbound:
         self.sent_at = 0.0
         """When the frame being decoded left its sender (:func:`frame_start`): its values'
         timestamps count back from it."""
+        self._newest: dict[str, float] = {}
+        """Per output key of a latest-value channel: when the newest value published on it
+        was taken (an older one that comes later is not published)."""
         self._with_meta = {c.index for c in codec.table.channels if any(e.meta for e in
                                                                          c.elements)}
 
@@ -262,6 +268,8 @@ class Inbound:
             said = seen[i] if seen is not None else NOTHING
             encoding = said.encoding or element.encoding
             taken = self.sent_at - (said.age_s or 0.0)
+            if not channel.stream and self._stale(key, taken, element):
+                continue
             if family is not None:
                 self.families.arrived(key, now)
             if latching and self.queries is not None:
@@ -270,6 +278,20 @@ class Inbound:
                 self.ranges.anchor_value(key, value, anchors, now)
             self.outbox.publish(key, None if said.deleted else value, encoding, latching,
                                 element.ros2, taken, said.deleted, said.attachment, src)
+
+    def _stale(self, key: str, taken: float, element: ElementCodec) -> bool:
+        """Whether a latest value on output ``key``, taken at ``taken``, is older than one
+        published there already (beyond the timing's slack and its age's step): then it is
+        counted, not published. A relay that fell behind delivered minutes-old values after
+        newer ones had come directly, rolling back what a subscriber holds."""
+        newest = self._newest.get(key)
+        step = element.meta.age_step_s if element.meta is not None else None
+        if newest is not None and taken < newest - STALE_SLACK_S - (step or 0.0):
+            self.stats.values_stale += 1
+            return True
+        if newest is None or taken > newest:
+            self._newest[key] = taken
+        return False
 
     def _fragment(self, src: str, channel: ChannelCodec, entry: Entry,
                   now: float) -> list[Values]:

@@ -69,6 +69,7 @@ class NodeStats:
     frames_dropped: Counter[str] = field(default_factory=Counter)
     payloads_dropped: Counter[str] = field(default_factory=Counter)
     values_published: int = 0
+    values_stale: int = 0  # latest values older than one published already: not published
     send_errors: int = 0
     left_out: int = 0
     sent_per_channel: Counter[str] = field(default_factory=Counter)
