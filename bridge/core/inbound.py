@@ -99,9 +99,10 @@ class Inbound:
         self.sent_at = 0.0
         """When the frame being decoded left its sender (:func:`frame_start`): its values'
         timestamps count back from it."""
-        self._newest: dict[str, float] = {}
+        self._newest: dict[str, tuple[float, float]] = {}
         """Per output key of a latest-value channel: when the newest value published on it
-        was taken (an older one that comes later is not published)."""
+        was taken, and this node's clock then (an older one that comes later is not
+        published, unless this node's clock went back since)."""
         self._with_meta = {c.index for c in codec.table.channels if any(e.meta for e in
                                                                          c.elements)}
 
@@ -268,7 +269,7 @@ class Inbound:
             said = seen[i] if seen is not None else NOTHING
             encoding = said.encoding or element.encoding
             taken = self.sent_at - (said.age_s or 0.0)
-            if not channel.stream and self._stale(key, taken, element):
+            if not channel.stream and self._stale(key, taken, element, now):
                 continue
             if family is not None:
                 self.families.arrived(key, now)
@@ -279,18 +280,21 @@ class Inbound:
             self.outbox.publish(key, None if said.deleted else value, encoding, latching,
                                 element.ros2, taken, said.deleted, said.attachment, src)
 
-    def _stale(self, key: str, taken: float, element: ElementCodec) -> bool:
+    def _stale(self, key: str, taken: float, element: ElementCodec, now: float) -> bool:
         """Whether a latest value on output ``key``, taken at ``taken``, is older than one
-        published there already (beyond the timing's slack and its age's step): then it is
-        counted, not published. A relay that fell behind delivered minutes-old values after
-        newer ones had come directly, rolling back what a subscriber holds."""
+        published there already (beyond the timing's slack and its age's step, and with this
+        node's clock not gone back since: its times count from it): then it is counted, not
+        published. A relay that fell behind delivered minutes-old values after newer ones had
+        come directly, rolling back what a subscriber holds."""
         newest = self._newest.get(key)
-        step = element.meta.age_step_s if element.meta is not None else None
-        if newest is not None and taken < newest - STALE_SLACK_S - (step or 0.0):
-            self.stats.values_stale += 1
-            return True
-        if newest is None or taken > newest:
-            self._newest[key] = taken
+        if newest is not None and now >= newest[1]:
+            step = element.meta.age_step_s if element.meta is not None else None
+            if taken < newest[0] - STALE_SLACK_S - (step or 0.0):
+                self.stats.values_stale += 1
+                return True
+            if taken <= newest[0]:
+                return False
+        self._newest[key] = (taken, now)
         return False
 
     def _fragment(self, src: str, channel: ChannelCodec, entry: Entry,
