@@ -139,7 +139,6 @@ class BridgeNode:
         self._deleted: set[str] = set()  # output keys deleted (and not put since)
         self._latched_keys: set[str] = set()
         self._sources: dict[str, str] = {}  # latched output key -> the peer it comes from
-        self._ip_up: set[str] = set()  # peers reachable over IP (surfaced)
         self._over_ip: dict[str, Any] = {}  # latched output key -> its subscriber while the
         # peer it comes from is reachable over IP (see _hear_over_ip)
         self._publishers: dict[str, Any] = {}
@@ -508,8 +507,6 @@ class BridgeNode:
         self._interest_entities.extend(self.ip_watch.entities)
 
     def _ip_changed(self, peer: str, up: bool) -> None:
-        (self._ip_up.add if up else self._ip_up.discard)(peer)
-        self._hear_over_ip(peer)
         if up and peer not in self._told_alike:
             self._told_alike.add(peer)
             alike = keys_read_alike(self.mission, self.table, self.node, peer)
@@ -522,6 +519,7 @@ class BridgeNode:
         with self.lock:
             self.core.ip_reachable(peer, up, self.clock())
             self._flush()
+        self._hear_over_ip(peer)
         self._wake_all()  # a dive makes the peer's channels due again
 
     def _steer(self, data: bytes, encoding: str) -> None:
@@ -779,7 +777,8 @@ class BridgeNode:
         a get here must answer those, not the older value that last crossed the water. (A
         subscriber here would say to the demand-driven channels that they are wanted: hence
         not while the peer is under water.)"""
-        up = peer in self._ip_up
+        surfacing = self.core.surfacing
+        up = surfacing is not None and peer in surfacing.reachable
         for key, source in self._sources.items():
             if source != peer:
                 continue
