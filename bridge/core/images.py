@@ -561,7 +561,7 @@ class Images:
                     raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
                 if round(x0 * 64) >= round(x1 * 64) or round(y0 * 64) >= round(y1 * 64):
                     raise ValueError(f"roi {roi!r} is narrower than 1/64 of the picture")
-                roi = (x0, y0, x1, y1)
+                roi = tuple(round(v * 64) / 64 for v in (x0, y0, x1, y1))  # (as applied)
             new["roi"] = roi
         settings.update(new)
         return str(request)

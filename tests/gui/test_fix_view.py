@@ -14,7 +14,7 @@ import pytest
 from bridge.core.loaded import LoadedMission, load_mission
 from bridge.gui.model import GuiModel
 from bridge.ranging.tracker import Estimate
-from tests.conftest import MISSIONS, browser_missing
+from tests.conftest import MISSIONS, needs_browser
 from tests.gui.test_map_view import browser_and_url, open_page
 
 if TYPE_CHECKING:
@@ -60,8 +60,6 @@ def test_model_keeps_state_age_and_ellipse_and_a_lost_reason(morph: LoadedMissio
 
 @pytest.fixture(scope="module")
 def page(browser_and_url: tuple[Browser, str]) -> Iterator[Page]:
-    if reason := browser_missing():
-        pytest.skip(reason)
     yield from open_page(*browser_and_url)
 
 
@@ -85,6 +83,7 @@ def drawn(page: Page) -> dict:
     }""")
 
 
+@needs_browser
 def test_the_page_draws_the_ellipse_and_the_state(page: Page) -> None:
     fix = {"kind": "position", "node": "auv1", "source": "fix", "x": 40.0, "y": 30.0,
            "depth": 8.0, "sigma_m": 2.06, "state": "tracking", "age_s": 0.3,
@@ -103,6 +102,7 @@ def test_the_page_draws_the_ellipse_and_the_state(page: Page) -> None:
     assert got["state"] == "lost" and got["text"] == "lost: no ranges" and got["rx"] is None
 
 
+@needs_browser
 def test_a_peer_never_heard_is_not_heard_yet_not_down(page: Page) -> None:
     """At the start of a mission a link is 'down' until the peer's first frame: that is no
     fault, so the page shows it grey ('not heard yet'), and red only once it was heard."""

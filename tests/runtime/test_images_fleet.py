@@ -461,8 +461,8 @@ def test_a_control_the_camera_would_not_follow_is_refused_not_clamped(
     fleet.run_until(5.0)
     assert fleet.cores["operator"].stats.sent_per_channel["camera.control"] == sent
     edge = {"width": 8, "height": 2048, "budget_bytes": 6400, "roi": [0.5, 0.5, 0.52, 0.52]}
-    assert images.steer("camera/control", edge, 5.0) == {**edge, "roi": (0.5, 0.5, 0.52, 0.52),
-                                                         "request": "none"}
+    assert images.steer("camera/control", edge, 5.0) == {**edge, "roi": (0.5, 0.5, 0.515625,
+                                                                  0.515625), "request": "none"}
 
 
 def test_a_fractional_or_boolean_size_put_by_an_operator_is_a_counted_drop() -> None:
