@@ -55,7 +55,7 @@ from bridge.core.transfer import Transfer, TransferReceiver, TransferSender
 from bridge.errors import DecodeError, EncodeError
 from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.frame import Entry
-from bridge.wire.images import CONTROL_BOUNDS, REQUESTS, ImageSpec, control_payload
+from bridge.wire.images import ImageSpec, control_payload, merge_control
 from bridge.wire.payloads import decode_payload
 
 if TYPE_CHECKING:
@@ -156,19 +156,6 @@ def _settings(saved: Mapping[str, Any], spec: ImageSpec) -> dict[str, Any]:
             "height": int(saved.get("height", spec.height)),
             "budget_bytes": int(saved.get("budget_bytes", spec.budget_bytes)),
             "roi": tuple(float(v) for v in roi) if roi else None}
-
-
-def _whole(value: Any) -> int | None:
-    """``value`` as a whole number: an int, or a float without a fraction (160.0, as some
-    JSON writers put it); None for anything else (160.5 is not 160, nor ``true`` a 1, nor
-    the text "160" a number)."""
-    if isinstance(value, bool):
-        return None
-    if isinstance(value, int):
-        return value
-    if isinstance(value, float) and value.is_integer():
-        return int(value)
-    return None
 
 
 def control_keys(table: ChannelTable, node: str) -> dict[str, tuple[ChannelCodec, int]]:
@@ -499,7 +486,7 @@ class Images:
         try:
             merged = dict(settings)
             spec = _spec(channel)
-            request = self._merge(merged, value, spec.largest_budget, spec)
+            request = merge_control(merged, value, spec)
             payload = channel.pack([control_payload(
                 merged, request, control.camera if len(channel.receivers) > 1 else None)])
         except (EncodeError, TypeError, ValueError) as exc:
@@ -511,60 +498,6 @@ class Images:
             self.outbox.reports(control.sender.offer(payload, now, key, ref))
             self.outbox.unsaved = True
         return {**settings, "request": request}
-
-    @staticmethod
-    def _merge(settings: dict[str, Any], value: Any, largest_budget: int,
-               spec: ImageSpec | None = None) -> str:
-        """Merge an operator's control into ``settings``; returns its request. A value the
-        camera would not follow as given (its control channel clamps, an ROI narrower than
-        its 64ths, a budget below a picture's fewest fragments, which would exceed it) is a
-        :class:`ValueError`: the settings answered are those it applies (``spec``: the
-        channel's, for its smallest budget)."""
-        if not isinstance(value, dict):
-            raise ValueError("a control is a map: {request, width, height, budget_bytes, roi}")
-        unknown = set(value) - {"request", "width", "height", "budget_bytes", "roi"}
-        if unknown:
-            raise ValueError(f"unknown control {', '.join(sorted(map(str, unknown)))}")
-        request = value.get("request", "none")
-        if request not in REQUESTS:
-            raise ValueError(f"request {request!r} is none of {', '.join(REQUESTS)}")
-        new = dict(settings)
-        for name in ("width", "height", "budget_bytes"):
-            if name in value:
-                low, high = CONTROL_BOUNDS[name]
-                if name == "budget_bytes" and spec is not None:
-                    low = max(low, spec.smallest_budget)
-                channels = name == "budget_bytes" and largest_budget <= high
-                high = largest_budget if channels else high
-                number = _whole(value[name])
-                if number is None:
-                    raise ValueError(f"{name} {value[name]!r} is not a whole number")
-                if name == "budget_bytes" and spec is not None \
-                        and number < spec.smallest_budget:
-                    raise ValueError(f"budget_bytes {number} is below one picture's smallest "
-                                     f"stream, {spec.smallest_stream()} (a fragment crosses "
-                                     "whole)")
-                if not low <= number <= high:
-                    raise ValueError(f"{name} {number} is outside {low}..{high}" + (
-                        " (the channel's max_budget_bytes)" if channels else ""))
-                new[name] = number
-        if "roi" in value:
-            roi = value["roi"]
-            if roi is not None:
-                if not isinstance(roi, (list, tuple)) or len(roi) != 4:
-                    raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
-                if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                           for v in roi):  # (true is no 1.0, "0.5" no fraction)
-                    raise ValueError(f"roi {roi!r}: a corner is not a number")
-                x0, y0, x1, y1 = (float(v) for v in roi)
-                if not (0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1):
-                    raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
-                if round(x0 * 64) >= round(x1 * 64) or round(y0 * 64) >= round(y1 * 64):
-                    raise ValueError(f"roi {roi!r} is narrower than 1/64 of the picture")
-                roi = tuple(round(v * 64) / 64 for v in (x0, y0, x1, y1))  # (as applied)
-            new["roi"] = roi
-        settings.update(new)
-        return str(request)
 
     # -- entries in ------------------------------------------------------------------------
 

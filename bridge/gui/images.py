@@ -18,13 +18,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from bridge.core.loaded import LoadedMission
-from bridge.wire.images import CONTROL_FIELDS, REQUESTS, ImageSpec
+from bridge.wire.images import ImageSpec, merge_control
 
 __all__ = ["ImageBoard", "ImageControlError"]
 
 Item = dict[str, Any]
-MIN_SIDE, MAX_SIDE = (next(f for f in CONTROL_FIELDS if f["field"] == "width")[k]
-                      for k in ("min", "max"))
 
 
 class ImageControlError(ValueError):
@@ -113,41 +111,20 @@ class ImageBoard:
         spec = self.specs.get(str(message.get("channel")))
         if spec is None:
             raise ImageControlError(f"no image channel {message.get('channel')!r} here")
-        value: dict[str, Any] = {}
-        request = message.get("request", "none")
-        if request not in REQUESTS:
-            raise ImageControlError(f"request {request!r} is none of {', '.join(REQUESTS)}")
-        value["request"] = request
-        for name in ("width", "height"):
-            if name in message:
-                side = message[name]
-                if isinstance(side, bool) or not isinstance(side, int) \
-                        or not MIN_SIDE <= side <= MAX_SIDE:
-                    raise ImageControlError(f"{name} {side!r} is not {MIN_SIDE}..{MAX_SIDE}")
-                value[name] = side
-        if "budget_bytes" in message:
-            budget = message["budget_bytes"]
-            if isinstance(budget, bool) or not isinstance(budget, int) \
-                    or not spec.smallest_budget <= budget <= spec.largest_budget:
-                raise ImageControlError(f"budget {budget!r} is not {spec.smallest_budget}.."
-                                        f"{spec.largest_budget} (whole fragments of "
-                                        f"{spec.fragment_bytes} bytes)")
-            value["budget_bytes"] = budget
-        if "roi" in message:
-            roi = message["roi"]
-            if roi is not None:
-                if not (isinstance(roi, list) and len(roi) == 4
-                        and all(isinstance(v, int | float) and not isinstance(v, bool)
-                                for v in roi)):
-                    raise ImageControlError("roi is [x0, y0, x1, y1] in fractions, or null")
-                try:
-                    x0, y0, x1, y1 = (min(1.0, max(0.0, float(v))) for v in roi)
-                except OverflowError:  # (an integer past a float's range)
-                    raise ImageControlError("roi is [x0, y0, x1, y1] in fractions") from None
-                if not (x0 < x1 and y0 < y1):
-                    raise ImageControlError("roi needs x0 < x1 and y0 < y1")
-                roi = [round(v, 4) for v in (x0, y0, x1, y1)]
-            value["roi"] = roi
+        value = {name: message[name] for name in ("request", "width", "height",
+                                                  "budget_bytes", "roi") if name in message}
+        value.setdefault("request", "none")
+        roi = value.get("roi")
+        if isinstance(roi, list) and all(type(v) in (int, float) for v in roi):
+            value["roi"] = [min(1.0, max(0.0, v)) for v in roi]  # (drawn with the mouse, it
+            # may reach past the picture's edge)
+        merged: dict[str, Any] = {}
+        try:  # (the bridge's own check, so that the page hears at once what it would refuse)
+            merge_control(merged, value, spec)
+        except ValueError as exc:
+            raise ImageControlError(str(exc)) from None
+        if merged.get("roi"):
+            value["roi"] = list(merged["roi"])  # (the 64ths the camera applies)
         key = spec.control_key
         if "{src}" in key:  # one key per camera: the card's
             camera = message.get("camera")

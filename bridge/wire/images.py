@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
 
 __all__ = ["CONTROL_BOUNDS", "CONTROL_FIELDS", "CONTROL_TTL_S", "PICTURE_METADATA", "REQUESTS",
-           "STREAM_HEADER_BYTES", "ImageSpec", "control_layout", "control_payload"]
+           "STREAM_HEADER_BYTES", "ImageSpec", "control_layout", "control_payload", "merge_control"]
 
 STREAM_HEADER_BYTES = 13
 """Bytes of a progressive stream's header with a region of interest (``bridge.image.codec``'s
@@ -164,3 +164,78 @@ def control_payload(settings: dict[str, Any], request: str,
             "budget_bytes": settings["budget_bytes"], "roi_on": roi is not None,
             **dict(zip(("x0", "y0", "x1", "y1"), corners, strict=True)),
             **({"camera": camera} if camera is not None else {})}
+
+
+def merge_control(settings: dict[str, Any], value: Any, spec: ImageSpec) -> str:
+    """Merge an operator's control (any subset of request, width, height, budget_bytes, roi)
+    into ``settings``, as the camera of ``spec`` applies it; returns its request. A value the
+    camera would not follow as given (its control channel would clamp it, an ROI narrower
+    than its 64ths, a budget below a picture's fewest fragments, which would exceed it) is a
+    :class:`ValueError` and ``settings`` stay; an ROI's corners are kept as the 64ths the
+    camera applies. The one check of a control: the bridge's and the GUI's."""
+    if not isinstance(value, dict):
+        raise ValueError("a control is a map: {request, width, height, budget_bytes, roi}")
+    unknown = set(value) - {"request", "width", "height", "budget_bytes", "roi"}
+    if unknown:
+        raise ValueError(f"unknown control {', '.join(sorted(map(str, unknown)))}")
+    request = value.get("request", "none")
+    if request not in REQUESTS:
+        raise ValueError(f"request {request!r} is none of {', '.join(REQUESTS)}")
+    new: dict[str, Any] = {name: _size(name, value[name], spec)
+                           for name in ("width", "height", "budget_bytes") if name in value}
+    if "roi" in value:
+        new["roi"] = _roi(value["roi"])
+    settings.update(new)
+    return str(request)
+
+
+def _size(name: str, value: Any, spec: ImageSpec) -> int:
+    """A control's width, height or budget_bytes, checked against the control channel's
+    bounds (and a budget against ``spec``'s)."""
+    low, high = CONTROL_BOUNDS[name]
+    number = _whole(value)
+    if number is None:
+        raise ValueError(f"{name} {value!r} is not a whole number")
+    bounded = ""
+    if name == "budget_bytes":
+        if number < spec.smallest_budget:
+            raise ValueError(f"budget_bytes {number} is below one picture's smallest stream, "
+                             f"{spec.smallest_stream()} (a fragment crosses whole)")
+        low = max(low, spec.smallest_budget)
+        if spec.largest_budget <= high:
+            high, bounded = spec.largest_budget, " (the channel's max_budget_bytes)"
+    if not low <= number <= high:
+        raise ValueError(f"{name} {number} is outside {low}..{high}{bounded}")
+    return number
+
+
+def _roi(roi: Any) -> tuple[float, ...] | None:
+    """A control's ROI (``[x0, y0, x1, y1]`` fractions, or None) as the 64ths applied."""
+    if roi is None:
+        return None
+    if not isinstance(roi, (list, tuple)) or len(roi) != 4:
+        raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in roi):
+        raise ValueError(f"roi {roi!r}: a corner is not a number")  # (true is no 1.0)
+    try:
+        x0, y0, x1, y1 = (float(v) for v in roi)
+    except OverflowError:  # (an integer past a float's range)
+        raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1") from None
+    if not (0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1):
+        raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
+    if round(x0 * 64) >= round(x1 * 64) or round(y0 * 64) >= round(y1 * 64):
+        raise ValueError(f"roi {roi!r} is narrower than 1/64 of the picture")
+    return tuple(round(v * 64) / 64 for v in (x0, y0, x1, y1))
+
+
+def _whole(value: Any) -> int | None:
+    """``value`` as a whole number: an int, or a float without a fraction (160.0, as some
+    JSON writers put it); None for anything else (160.5 is not 160, nor ``true`` a 1, nor
+    the text "160" a number)."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return None

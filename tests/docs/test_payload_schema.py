@@ -14,11 +14,11 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from bridge.cli.app import app
-from bridge.core.images import Images
 from bridge.core.loaded import load_mission
 from bridge.image.formats import write_image
 from bridge.image.synthetic import seabed
 from bridge.runtime.virtual_fleet import FastFleet
+from bridge.wire.images import merge_control
 from bridge.wire.payload_schema import json_view, key_schemas, write_payload_schemas
 from tests.conftest import MISSIONS, on_free_ports, udp_ports
 from tests.harness import Inbox, outside_session, put, running_fleet
@@ -126,15 +126,16 @@ def test_an_image_channel_s_keys_say_what_crosses_there() -> None:
                       ("out", "rov/camera"): ("image/png", ["operator"]),
                       ("in", "camera/control"): ("msgpack", ["operator"])}
     control = jsonschema.Draft202012Validator(entries[("in", "camera/control")].schema)
+    spec = next(c.image for c in loaded.table.channels if c.image and not c.image.control)
     for good in ({"request": "now"}, {"roi": [0.25, 0.25, 0.75, 0.75], "budget_bytes": 800},
                  {"roi": None, "width": 320, "height": 240}, {}):
         assert control.is_valid(good), good
-        Images._merge({}, good, 6400)  # (the bridge takes it as well)
+        merge_control({}, good, spec)  # (the bridge takes it as well)
     for bad in ({"roi_on": True}, {"budget_bytes": 6401}, {"request": "later"},
                 {"roi": [0.5, 0.5, 1.5, 1.0]}, {"width": 4}):
         assert not control.is_valid(bad), bad
         with pytest.raises(ValueError):
-            Images._merge({}, bad, 6400)
+            merge_control({}, bad, spec)
     # the metadata the schema lists is what a published picture carries
     fleet = FastFleet(loaded, seed=1)
     fleet.put("rov", "rov/camera", write_image(seabed(120, 160, seed=1, colour=False), "jpeg"),

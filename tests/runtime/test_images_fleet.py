@@ -4,6 +4,7 @@ are repaired; bad pictures are counted drops."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import itertools
 import json
@@ -20,6 +21,7 @@ from bridge.image.formats import write_image
 from bridge.image.synthetic import seabed
 from bridge.mission.loader import MissionProblems
 from bridge.runtime.virtual_fleet import FastFleet
+from bridge.wire.images import ImageSpec, merge_control
 from tests.conftest import MISSIONS
 
 PICTURE = seabed(240, 320, seed=5, colour=False)
@@ -485,15 +487,23 @@ def test_a_fractional_or_boolean_size_put_by_an_operator_is_a_counted_drop() -> 
 def test_a_refused_size_names_its_own_bound() -> None:
     """Only a budget over the channel's max_budget_bytes is said to be over it: a width over
     the control channel's 2048 is not, even when max_budget_bytes is 2048 too."""
-    from bridge.core.images import Images
-
+    spec = dataclasses.replace(_camera_spec(), largest_budget=2048)
     with pytest.raises(ValueError) as refused:
-        Images._merge({}, {"width": 3000}, 2048)
+        merge_control({}, {"width": 3000}, spec)
     assert str(refused.value) == "width 3000 is outside 8..2048"
     with pytest.raises(ValueError) as refused:
-        Images._merge({}, {"budget_bytes": 3000}, 2048)
+        merge_control({}, {"budget_bytes": 3000}, spec)
     assert str(refused.value) == \
         "budget_bytes 3000 is outside 16..2048 (the channel's max_budget_bytes)"
+    with pytest.raises(ValueError) as refused:  # (a corner past a float's range)
+        merge_control({}, {"roi": [0, 0, 10 ** 400, 1]}, spec)
+    assert str(refused.value).endswith("is not [x0, y0, x1, y1] inside 0..1")
+
+
+def _camera_spec() -> ImageSpec:
+    """bluerov_images' camera channel as both ends see it."""
+    table = load_mission(MISSIONS / "bluerov_images.yaml").table
+    return next(c.image for c in table.channels if c.image and not c.image.control)
 
 
 @pytest.mark.parametrize(("control", "out"), [
