@@ -135,7 +135,9 @@ class MicromodemEmulator:
     data-request timeout, ``rev_period_s`` the period of ``$CAREV,…,AUV`` (``None``: never),
     ``boot_s`` how long a reboot takes, ``ping_timeout_s`` how long a ping waits for its reply,
     ``nav_late_s`` how long an LBL ping waits past its window for answers that were in time
-    (default: what the water's preset takes for four transponders' answers, and 0.5 s more).
+    (default: what the water's preset takes for four transponders' answers, and 3 s more: the
+    processes of a loaded machine answer late in real time, though in time in the water's; a
+    real modem waits only the window, so only a missing transponder's $SNTTA comes later).
     """
 
     def __init__(
@@ -164,7 +166,7 @@ class MicromodemEmulator:
         except (KeyError, UnknownPresetError):
             tone_s = 0.05
         self.nav_slot_s = tone_s + NAV_GUARD_S
-        self.nav_late_s = 4 * self.nav_slot_s + 0.5 if nav_late_s is None else nav_late_s
+        self.nav_late_s = 4 * self.nav_slot_s + 3.0 if nav_late_s is None else nav_late_s
         letter = str(setup.options.get("transponder", "")).upper()
         if letter and (len(letter) != 1 or letter not in nav.BEACONS):
             raise BackendError(f"micromodem emulator of {setup.node!r}: transponder must be one "
