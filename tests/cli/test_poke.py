@@ -30,15 +30,16 @@ def put_and_listen(loaded, listen: tuple[str, str], put: tuple[str, str, str]) -
     `zab listen` printed (both exit 0)."""
     listener = subprocess.Popen(
         [*ZAB, "listen", endpoint(loaded, listen[0]), listen[1], "--count", "1",
-         "--duration", "40"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+         "--duration", "90"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert listener.stderr is not None
         assert "listening on" in listener.stderr.readline()  # the subscriber is up
         done = subprocess.run([*ZAB, "put", endpoint(loaded, put[0]), put[1], put[2]],
-                              capture_output=True, text=True, timeout=30)
+                              capture_output=True, text=True, timeout=60)  # (7 s on a quiet
+        # machine, 30 s was seen on CI's 2 loaded cores)
         assert done.returncode == 0, done.stderr
         assert f"put {put[1]} (" in done.stdout.replace("\n", "")  # (rich wraps long keys)
-        out, errors = listener.communicate(timeout=45)
+        out, errors = listener.communicate(timeout=100)
     finally:
         if listener.poll() is None:
             listener.kill()
