@@ -265,10 +265,25 @@ def check(
         retries = "no retry limit" if s["retries"] is None else f"{s['retries']} retries"
         console.print(
             f"channel {s['channel']!r}: {retries}, the first after "
-            f"{s['retry_s']:g} s, ttl {s['ttl_s']:g} s"
+            + ("at most " if s.get("learned") else "")
+            + f"{s['retry_s']:g} s, ttl {s['ttl_s']:g} s"
             + (" (default)" if s["ttl_default"] else "")
             + f": every value is reported delivered or failed within {s['report_within_s']:g} s",
             highlight=False)
+        for way in s.get("learned", ()):
+            if way["hops"] < 2:
+                continue
+            crosses = ", ".join(f"{float(loss):.0%} lost a hop: {share:.0%}"
+                                for loss, share in way["both_cross"].items())
+            console.print(
+                f"  {way['from']} -> {way['to']} ({way['hops']} hops): the first retry waits "
+                f"the worst-case round trip, {way['first_retry_s']:g} s, until round trips "
+                f"are measured (then their mean and 4 deviations, at least "
+                f"{way['floor_s']:g} s; doubling only while {way['to']} is not heard); a "
+                "value whose acknowledgement shows a later one arrived goes again at once. "
+                f"A copy and its acknowledgement both cross with {crosses}: values are "
+                "delivered in order, so each loss holds those behind it about a round trip "
+                "(docs/concepts.md: reliable values over lossy hops)", highlight=False)
     for warning in report.warnings:
         console.print(said(("warning:", "yellow"), f" {warning}"), highlight=False)
     console.print(key.describe() + (f": {note}" if note else ""), highlight=False)

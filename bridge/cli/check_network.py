@@ -30,11 +30,15 @@ def print_network(console: Console, network: dict[str, Any]) -> None:
                            _seconds(route["bound_s"]), others or "-")
         console.print(routes)
     if network["relays"]:
-        relays = Table("relay", "link", "own", "carried", "its turns carry", "fits",
-                       title="relay budgets (bytes per second)")
+        relays = Table("relay", "link", "own", "carried", "frames carried", "its turns carry",
+                       "margin", "fits",
+                       title="relay budgets (bytes per second: whole frames, acknowledgements "
+                       "and headers)")
         for relay in network["relays"]:
             relays.add_row(relay["node"], relay["link"], f"{relay['own_Bps']:g}",
-                           f"{relay['carried_Bps']:g}", f"{relay['capacity_Bps']:g}",
+                           f"{relay['carried_Bps']:g}", f"{relay['carried_fps']:g}/s",
+                           f"{relay['capacity_Bps']:g} ({relay['turns_per_s']:g} turns/s)",
+                           f"{relay['margin_Bps']:g}",
                            "yes" if relay["fits"] else Text("no", style="red"))
         console.print(relays)
     ages = Table("channel", "worst from", "to", "route", "age bound",

@@ -17,7 +17,8 @@ from bridge.core.mac import frame_time_s, mac_for, mac_report
 from bridge.mission.model import Mission
 from bridge.mission.network import Network
 
-__all__ = ["UNBOUNDED_TURN_S", "hop_s", "network_retry_s", "round_trip_s", "route_s"]
+__all__ = ["UNBOUNDED_TURN_S", "hop_s", "network_retry_s", "retry_floor_s", "round_trip_s",
+           "route_s"]
 
 UNBOUNDED_TURN_S = 30.0
 """A node's wait for a turn when the MAC gives no bound."""
@@ -56,3 +57,10 @@ def network_retry_s(mission: Mission) -> float:
     trips = [round_trip_s(network, a, b) for a in mission.nodes for b in mission.nodes
              if a < b]
     return max([links, *(t for t in trips if t != float("inf"))])
+
+
+def retry_floor_s(network: Network, node: str) -> float:
+    """The shortest wait before ``node`` sends a reliable value again once its timer learned
+    the round trips (:meth:`~bridge.core.reliable.ReliableSender.learn`): what its links' own
+    MACs wait for a neighbour (one TDMA cycle, else ten seconds)."""
+    return max(mac_for(link.view).retry_s() for link in network.links_of(node))

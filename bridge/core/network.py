@@ -211,7 +211,8 @@ class NodeNetwork:
         if own is not None:
             if len(own.data) > SEGMENT_MAX:
                 return own
-            picked = routing.pick(side, side.frame_bytes - 1 - len(own.data), now)
+            picked = routing.pick(side, side.frame_bytes - NetCodec.bundle_bytes(
+                [len(own.data)]), now, bundled=True)
         else:
             picked = routing.pick(side, side.frame_bytes, now)
             left = side.frame_bytes - NetCodec.bundle_bytes(len(d) for _, d in picked) - 1

@@ -17,6 +17,7 @@ import random
 from collections.abc import Callable, Collection, Mapping
 from typing import TYPE_CHECKING, Any
 
+from bridge.core.bounds import retry_floor_s, round_trip_s
 from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.drops import DropLedger
 from bridge.core.events import FieldsLeftOut, FrameSent, SendFailed, Surfaced
@@ -179,10 +180,15 @@ class Outbound:
         self.stores = network.linkset.stores
         self._filtered = self._filtered or not network.policy.single
         routes = network.routing.network
+        floor = retry_floor_s(routes, self.node)
         for sender in self.senders.values():
             if isinstance(sender, TransferSender):
                 sender.behind_relays(d for d in sender.dests
                                      if routes.next_hop(self.node, d) not in (d, None))
+            elif isinstance(sender, ReliableSender):
+                sender.learn({d: trip for d in sender.dests
+                              if math.isfinite(trip := round_trip_s(routes, self.node, d))},
+                             floor, network.linkset.node_health.last_heard)
         if self.queries is not None:  # a query's timeout says where its route breaks
             self.queries.explain = network.explain
 
@@ -475,13 +481,18 @@ class Outbound:
         targets: set[str] = set()
         acks: list[tuple[str, int]] = []
         receivers, entries = self.receivers, (1 << codec.count_bits) - 1
+        riding: list[tuple[str, int]] = []  # repeated acks to nodes behind a relay
+        ack_codec = self.table.ack
+        cost = 0 if ack_codec is None else codec.channel_cost_bits(ack_codec)
         if receivers.owing:  # acknowledgements first: they unblock the peer
-            ack_codec = self.table.ack
             assert ack_codec is not None
-            cost = codec.channel_cost_bits(ack_codec)
             for src, index in receivers.owed():
                 if net is not None and not net.policy.serves(side, src):  # type: ignore[arg-type]
                     continue  # owed over another link
+                if net is not None and net.policy.hops.get(src, src) != src \
+                        and not receivers.owed_now(src, index):
+                    riding.append((src, index))  # (only in a frame relayed to it anyway)
+                    continue
                 if cost > budget or len(items) >= entries:
                     break
                 items.append((ack_codec, receivers.ack_bits(src, index)))
@@ -525,6 +536,14 @@ class Outbound:
             targets.update(channel.destinations(node) if net is None
                            else net.targets(side, channel, what))  # type: ignore[arg-type]
             asks_ack = asks_ack or channel.ack
+        if riding:  # a repeat never makes a relay carry a frame: it rides one that goes
+            budget -= sum(codec.channel_cost_bits(c.channel) for c in picked)
+            for src, index in riding:  # to its node anyway, in the room left
+                if src in targets and cost <= budget and len(items) < entries:
+                    assert ack_codec is not None
+                    items.append((ack_codec, receivers.ack_bits(src, index)))
+                    budget -= cost
+                    acks.append((src, index))
         if dropped:
             _dropped(self, dropped, now, side)
         left_out = tuple(c.what for c in left if isinstance(c.what, ChannelState))

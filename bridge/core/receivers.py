@@ -3,9 +3,11 @@
 One receiver per (sender, channel), made when its first entry arrives: a
 :class:`~bridge.core.reliable.ReliableReceiver` window or a
 :class:`~bridge.core.transfer.TransferReceiver`. Every entry heard makes an acknowledgement
-owed now and in the next :data:`ACK_REPEATS` frames (acks can be lost). Each peer's *epoch*
-(drawn when it starts without saved state) is kept here: when it changes, the peer lost its
-windows, so its receivers and the acks owed to it start afresh.
+owed now and in the next :data:`ACK_REPEATS` frames (acks can be lost); to a node behind a
+relay a repeat only rides a frame that goes to that node anyway (each frame relayed for a
+repeat alone cost the relay a turn's share: umci_relay's relay fell behind on them). Each
+peer's *epoch* (drawn when it starts without saved state) is kept here: when it changes, the
+peer lost its windows, so its receivers and the acks owed to it start afresh.
 """
 
 from __future__ import annotations
@@ -90,6 +92,11 @@ class Receivers:
     def owing(self) -> bool:
         """Whether the next frame carries acknowledgements (owed now, or repeated)."""
         return bool(self._acks or self._repeats)
+
+    def owed_now(self, src: str, index: int) -> bool:
+        """Whether the acknowledgement of ``src``'s stream ``index`` changed since it last
+        went out (not only a repeat)."""
+        return (src, index) in self._acks
 
     def owed(self) -> list[tuple[str, int]]:
         """The (sender, channel index) pairs to acknowledge, those owed now first."""

@@ -6,7 +6,11 @@ Rules (seed 003's acknowledged commands; selective repeat with a small window):
   oldest unsent one). Up to ``WINDOW`` values are *in flight*, each with a sequence number
   (``seq``, modulo 256) and ``lag``: how far it is past the oldest value still in flight.
 - A value in flight is (re)sent when its timer is due: at once, then after ``retry_s``,
-  doubling up to four times that. Several values of one channel may share a frame.
+  doubling up to four times that. With several links or routes and no ``retry_s`` of its
+  own, the timer learns each receiver's round trips (:meth:`ReliableSender.learn`), and
+  doubles only while the receiver is not heard. A value whose acknowledgement shows a later
+  one arrived (its copy is lost) goes again at once. Several values of one channel may
+  share a frame.
 - Receivers acknowledge in frames they send anyway: ``base`` (the next seq they will deliver)
   and a bitmap of the ``WINDOW`` seqs after it that they hold. ``base`` past a value completes
   it for that receiver; a bitmap bit only holds back its retransmission.
@@ -25,8 +29,9 @@ Rules (seed 003's acknowledged commands; selective repeat with a small window):
 
 from __future__ import annotations
 
+import math
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,19 +40,16 @@ from bridge.core.events import Delivery
 from bridge.core.ids import Ids
 from bridge.core.mac import mac_for
 from bridge.core.persist import int_from_state, int_to_state
+from bridge.core.round_trips import BACKOFF_CAP, RoundTrips, retry_wait
 from bridge.mission.model import Mission
 from bridge.wire.channels import LAG_BITS, SEQ_BITS, WINDOW, ChannelCodec
 
+__all__ = ["BACKOFF_CAP", "DEFAULT_RETRIES", "SEQ_MOD", "Pending", "ReliableReceiver",
+           "ReliableSender", "default_retry_s", "retry_wait", "seq_after", "stream_ttl_s"]
+
 SEQ_MOD = 1 << SEQ_BITS
 HALF = SEQ_MOD // 2
-BACKOFF_CAP = 4.0
 DEFAULT_RETRIES = 10  # retransmissions when a channel's retries is null (until its TTL)
-
-
-def retry_wait(retry_s: float, attempts: int) -> float:
-    """How long to wait for an acknowledgement after the ``attempts``-th send: ``retry_s``,
-    doubling with each attempt up to ``BACKOFF_CAP`` times it."""
-    return retry_s * min(2.0 ** (attempts - 1), BACKOFF_CAP)
 
 
 def default_retry_s(mission: Mission) -> float:
@@ -91,6 +93,10 @@ class Pending:
     last_sent: float | None = None
     next_send: float = float("-inf")
     held: set[str] = field(default_factory=set)
+    first_sent: float | None = None
+    silent: int = 0
+    """Copies sent in a row with no acknowledgement heard between them from a receiver
+    lacking it (what a learned timer backs off by)."""
 
 
 class ReliableSender:
@@ -103,6 +109,12 @@ class ReliableSender:
         self.retry_s = channel.retry_s or retry_s
         self.ttl_s = channel.ttl_s or stream_ttl_s(self.retry_s, channel.retries,
                                                    channel.queue)
+        self.round_trips: dict[str, RoundTrips] = {}
+        """Per receiver, where the wait before sending again learns (:meth:`learn`)."""
+        self.heard: dict[str, float] = {}
+        """Per receiver, when its last acknowledgement came."""
+        self._alive: Mapping[str, float] = {}
+        """Per receiver, when this node last heard a frame of it (:meth:`learn`)."""
         self.queue: deque[Pending] = deque()  # not yet numbered
         self.flight: list[Pending] = []  # numbered, oldest first
         self.ids = Ids()
@@ -110,6 +122,35 @@ class ReliableSender:
         """Whether the last :meth:`offer` or :meth:`refuse` changed what a restart must resume
         (a refusal does only when its id starts a new block: :mod:`bridge.core.ids`)."""
         self._next_seq = first_seq % SEQ_MOD
+
+    def learn(self, worst: Mapping[str, float], floor: float,
+              heard: Mapping[str, float] | None = None) -> None:
+        """The wait before a value is sent again learns each receiver's round trips from
+        its acknowledgements (:class:`~bridge.core.round_trips.RoundTrips`, as TCP's timer):
+        at first ``worst[d]``, the worst case of the round trip to ``d`` (its route's turns
+        and frames, there and back), then the measured mean plus four deviations, never
+        below ``floor`` (the MAC's own wait, a neighbour's) nor above ``BACKOFF_CAP`` times
+        the worst case. ``heard``: when this node last heard a frame of each node (relayed
+        ones by their origin): a receiver heard proves its route works. A channel's own
+        ``retry_s`` stands as given."""
+        if self.channel.retry_s:
+            return
+        self._alive = heard if heard is not None else {}
+        self.round_trips = {d: RoundTrips(min(floor, worst[d]), BACKOFF_CAP * worst[d],
+                                          initial=worst[d])
+                            for d in self.dests if worst.get(d)}
+
+    def wait(self, item: Pending) -> float:
+        """How long ``item`` waits for its acknowledgements after its last copy: the
+        longest wait of the receivers still lacking it. A learned timer doubles (up to its
+        ceiling) only with the copies sent while nothing is heard of those receivers: a
+        receiver heard between two copies (an acknowledgement, or any frame of it) shows its
+        route works, so the copy was lost, not delayed, and the next waits one round trip
+        again (losses on a lossy route are independent; backing off from them only stalls
+        the values queued behind)."""
+        waits = [self.round_trips[d].wait(max(1, item.silent))
+                 for d in item.waiting - item.held if d in self.round_trips]
+        return max(waits, default=retry_wait(self.retry_s, item.attempts))
 
     def offer(self, payload: int, now: float, key: str | None = None,
               ref: str | None = None) -> list[Delivery]:
@@ -160,9 +201,16 @@ class ReliableSender:
     def sent(self, items: Iterable[Pending], now: float) -> list[Delivery]:
         reports: list[Delivery] = []
         for item in items:
+            before = item.last_sent
             item.attempts += 1
+            lacking = item.waiting - item.held
+            item.silent = 1 if before is None or any(
+                max(self.heard.get(d, -math.inf), self._alive.get(d, -math.inf)) > before
+                for d in lacking) else item.silent + 1
             item.last_sent = now
-            item.next_send = now + retry_wait(self.retry_s, item.attempts)
+            if item.first_sent is None:
+                item.first_sent = now
+            item.next_send = now + self.wait(item)
             if item.attempts == 1:
                 reports += self._report(item, "sent", now)
         return reports
@@ -174,20 +222,43 @@ class ReliableSender:
                 item.held.add(dst)
 
     def on_ack(self, dst: str, base: int, bitmap: int, now: float) -> list[Delivery]:
-        """A receiver's acknowledgement (of this run's epoch)."""
+        """A receiver's acknowledgement (of this run's epoch). Where it shows a gap (a value
+        held whose first copy left after the last copy of one it lacks), that copy is lost
+        (as SACK's loss detection decides): the value goes again at the next opportunity,
+        not after its timer; a copy still on its way is not sent again."""
         reports: list[Delivery] = []
+        self.heard[dst] = now
+        arrived = -math.inf  # the latest first copy among the values it holds
+        timed: list[float] = []  # round trips of values sent once, newly acknowledged
         for item in list(self.flight):
             if dst not in item.waiting:
                 continue
             d = seq_after(item.seq, base)  # type: ignore[arg-type]
+            held = d < 0 or (1 <= d <= WINDOW and bitmap >> (d - 1) & 1)
+            if held and item.first_sent is not None:
+                arrived = max(arrived, item.first_sent)
+                if item.attempts == 1 and dst not in item.held:
+                    timed.append(now - item.first_sent)
             if d < 0:
                 item.waiting.discard(dst)
                 item.held.discard(dst)
                 reports.append(self._one(item, dst, "delivered", now))
                 if not item.waiting:
                     self.flight.remove(item)
-            elif 1 <= d <= WINDOW and bitmap >> (d - 1) & 1:
+            elif held:
                 item.held.add(dst)
+        trips = self.round_trips.get(dst)
+        if trips is not None and timed:  # (Karn: only what was sent once)
+            timeout = trips.timeout
+            trips.sample(min(timed))
+            if trips.timeout > timeout:  # a longer wait for those still on their way
+                for item in self.flight:
+                    if item.last_sent is not None and dst in item.waiting - item.held:
+                        item.next_send = max(item.next_send, item.last_sent + self.wait(item))
+        for item in self.flight:
+            if dst in item.waiting - item.held and item.last_sent is not None \
+                    and item.last_sent < arrived:
+                item.next_send = min(item.next_send, now)
         self._fill()
         return reports
 
@@ -258,14 +329,16 @@ class ReliableSender:
 def _pending_state(item: Pending) -> dict[str, Any]:
     return {"id": item.id, "payload": int_to_state(item.payload), "created": item.created,
             "key": item.key, "ref": item.ref, "waiting": sorted(item.waiting), "seq": item.seq,
-            "attempts": item.attempts, "last_sent": item.last_sent, "held": sorted(item.held)}
+            "attempts": item.attempts, "last_sent": item.last_sent, "held": sorted(item.held),
+            "first_sent": item.first_sent}
 
 
 def _pending_from(state: dict[str, Any]) -> Pending:
     return Pending(int(state["id"]), int_from_state(state["payload"]), float(state["created"]),
                    state["key"], state["ref"], set(state["waiting"]), state["seq"],
                    int(state["attempts"]), state["last_sent"], float("-inf"),
-                   set(state["held"]))
+                   set(state["held"]), state.get("first_sent", state["last_sent"]),
+                   int(state["attempts"]))
 
 
 class ReliableReceiver:

@@ -15,9 +15,16 @@ alone gives (:data:`~bridge.core.reliable.BACKOFF_CAP` times it).
 
 from __future__ import annotations
 
-from bridge.core.reliable import retry_wait
+__all__ = ["BACKOFF_CAP", "RoundTrips", "retry_wait"]
 
-__all__ = ["RoundTrips"]
+BACKOFF_CAP = 4.0
+"""A retransmission waits at most this many times the first wait."""
+
+
+def retry_wait(retry_s: float, attempts: int) -> float:
+    """How long to wait for an acknowledgement after the ``attempts``-th send: ``retry_s``,
+    doubling with each attempt up to ``BACKOFF_CAP`` times it."""
+    return retry_s * min(2.0 ** (attempts - 1), BACKOFF_CAP)
 
 GAIN = 1 / 8
 """How far one sample moves the smoothed round trip (RFC 6298's alpha)."""
@@ -30,11 +37,13 @@ DEVIATIONS = 4
 class RoundTrips:
     """Smoothed round-trip time and the retransmission wait it gives."""
 
-    __slots__ = ("ceiling", "deviation", "floor", "mean")
+    __slots__ = ("ceiling", "deviation", "floor", "initial", "mean")
 
-    def __init__(self, floor: float, ceiling: float) -> None:
+    def __init__(self, floor: float, ceiling: float, initial: float | None = None) -> None:
+        """``initial``: the timeout before any sample (default ``floor``)."""
         self.floor = floor
         self.ceiling = ceiling
+        self.initial = floor if initial is None else initial
         self.mean: float | None = None
         self.deviation = 0.0
 
@@ -50,7 +59,7 @@ class RoundTrips:
     def timeout(self) -> float:
         """How long to wait for the acknowledgement of a first copy."""
         if self.mean is None:
-            return self.floor
+            return self.initial
         return min(max(self.floor, self.mean + DEVIATIONS * self.deviation), self.ceiling)
 
     def wait(self, attempts: int) -> float:

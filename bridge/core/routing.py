@@ -245,22 +245,24 @@ class Routing:
         """The highest rank of the frames waiting on ``side`` (None: none)."""
         return max((c.header.rank for c in self.waiting[side.name]), default=None)
 
-    def pick(self, side: LinkSide, room: int, now: float) -> list[tuple[Carried, bytes]]:
+    def pick(self, side: LinkSide, room: int, now: float, bundled: bool = False
+             ) -> list[tuple[Carried, bytes]]:
         """The frames carried on ``side`` that fit in ``room`` bytes, highest rank first,
         then the oldest, each with its bytes as it leaves now: one alone, or several (and
-        room for them) as a bundle."""
+        room for them) as a bundle; ``bundled``: they join a bundle whose count ``room``
+        left out already, each with its length byte (beside the node's own frame)."""
         self.expire(now)
         picked: list[tuple[Carried, bytes]] = []
-        used = 1  # a bundle's count
+        used = 0 if bundled else 1  # a bundle's count
         for carried in sorted(self.waiting[side.name], key=lambda c: (-c.header.rank,
                                                                       c.arrived)):
             data = self.frame(carried, now)
-            if not picked:
+            if not picked and not bundled:
                 if len(data) <= room:
                     picked.append((carried, data))
                     used += 1 + len(data)
-            elif (len(picked) < BUNDLE_MAX and used + 1 + len(data) <= room
-                  and max(len(data), len(picked[0][1])) <= SEGMENT_MAX):
+            elif (len(picked) < BUNDLE_MAX - bundled and used + 1 + len(data) <= room
+                  and max([len(data), *(len(d) for _, d in picked[:1])]) <= SEGMENT_MAX):
                 picked.append((carried, data))
                 used += 1 + len(data)
         return picked

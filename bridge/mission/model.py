@@ -470,7 +470,9 @@ class Channel(Strict):
                                 "(or fragment) before it is reported failed; null: until ttl_s.")
     retry_s: float | None = Field(None, gt=0, description="Wait for an acknowledgement before "
                                   "the first retransmission (doubles up to 4x); default: one "
-                                  "TDMA cycle, else 10 s.")
+                                  "TDMA cycle, else 10 s; with several links or routes, "
+                                  "learned from each receiver's round trips (at first the "
+                                  "worst-case round trip).")
     always: bool = Field(False, description="With ``demand``: send even while no application "
                          "at a destination subscribes (latched state, safety data).")
     prefer: list[NodeName] | None = Field(None, min_length=1, description="With several "

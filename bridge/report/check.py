@@ -7,6 +7,7 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.core.bounds import retry_floor_s, round_trip_s
 from bridge.core.loaded import LoadedMission
 from bridge.core.mac import mac_for, max_distance_m, node_preset
 from bridge.core.queries import deadline_s
@@ -18,6 +19,7 @@ from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
 from bridge.mission.loader import Problem, located
 from bridge.mission.model import Mission
+from bridge.mission.network import Network
 from bridge.modems.registry import load_backend
 from bridge.modems.setup import modem_options
 from bridge.report.network_check import network_section
@@ -47,15 +49,35 @@ class CheckReport:
         return not self.errors  # (``invalid`` are among them)
 
 
+LOSSES = (0.1, 0.2)
+"""Losses a hop that ``zab check`` says what a reliable value over several hops meets at."""
+
+
 def stream_limits(channel: ChannelCodec, mission: Mission) -> dict[str, Any]:
     """A reliable or fragmented channel's retries, first retry wait and TTL (given or
-    default), and so the longest a value waits for its terminal report."""
+    default), and so the longest a value waits for its terminal report; with several links
+    or routes, per sender and receiver of a reliable channel (``learned``): the first
+    retry's wait (the worst-case round trip, until the timer has measured one), the least
+    it learns to, and how likely a copy and its acknowledgement both cross its hops at a
+    loss of :data:`LOSSES` a hop."""
     retry_s = channel.retry_s or default_retry_s(mission)
     ttl = channel.ttl_s or (transfer_ttl_s(channel, retry_s) if channel.fragmented
                             else stream_ttl_s(retry_s, channel.retries, channel.queue))
-    return {"channel": channel.name, "retries": channel.retries, "retry_s": retry_s,
-            "ttl_s": round(ttl, 3), "ttl_default": channel.ttl_s is None,
-            "report_within_s": round(ttl + TICK_S, 3)}
+    out: dict[str, Any] = {
+        "channel": channel.name, "retries": channel.retries, "retry_s": retry_s,
+        "ttl_s": round(ttl, 3), "ttl_default": channel.ttl_s is None,
+        "report_within_s": round(ttl + TICK_S, 3)}
+    network = Network(mission)
+    if channel.reliable and not channel.retry_s and network.networked:
+        out["learned"] = [  # the timer learns each receiver's round trips from its worst case
+            {"from": sender, "to": dest, "hops": len(path) - 1,
+             "first_retry_s": round(round_trip_s(network, sender, dest), 3),
+             "floor_s": round(retry_floor_s(network, sender), 3),
+             "both_cross": {f"{loss:g}": round((1 - loss) ** (2 * (len(path) - 1)), 3)
+                            for loss in LOSSES}}
+            for sender in channel.senders for dest in channel.destinations(sender)
+            for path, problem in (network.path(sender, dest),) if problem is None]
+    return out
 
 
 def check_mission(loaded: LoadedMission) -> CheckReport:

@@ -44,14 +44,24 @@ def test_check_shows_each_link_the_routes_the_relay_budget_and_the_age_bound() -
 
 
 def test_a_relay_over_its_budget_is_warned(tmp_path: Path) -> None:
-    text = (MISSIONS / "acoustic_line.yaml").read_text().replace(
-        "interval_s: 30", "interval_s: 1")
+    # the status of both ROVs every 4 s: ROV2's frames for the surface (with the
+    # acknowledgements of the surface's goto frames) and ROV1's own overflow its acoustic
+    # turns (tests/core/test_relay_budget.py: the fleet's backlog grows there)
+    text = (MISSIONS / "umci_relay.yaml").read_text().replace("interval_s: 10", "interval_s: 4")
     path = tmp_path / "busy.yaml"
     path.write_text(text)
     data = check(path)
     over = [r for r in data["network"]["relays"] if not r["fits"]]
-    assert {r["node"] for r in over} == {"n1", "n2"}
-    assert any(w.startswith("relay n1 on modem: its own data") for w in data["warnings"])
+    assert [(r["node"], r["link"]) for r in over] == [("rov1", "acoustic")]
+    assert over[0]["margin_Bps"] < 0
+    assert any(w.startswith("relay rov1 on acoustic: its own frames") for w in data["warnings"])
+    # a channel faster than its senders' turns adds nothing: each sends one frame a turn
+    line = (MISSIONS / "acoustic_line.yaml").read_text()
+    fast = tmp_path / "fast.yaml"
+    fast.write_text(line.replace("interval_s: 30", "interval_s: 1"))
+    every_turn = tmp_path / "every_turn.yaml"
+    every_turn.write_text(line.replace("interval_s: 30", "interval_s: 16"))
+    assert check(fast)["network"]["relays"] == check(every_turn)["network"]["relays"]
 
 
 def test_a_routing_loop_is_refused_with_its_place(tmp_path: Path) -> None:

@@ -102,7 +102,7 @@ class Aloha(RandomAccess):
         per_s = 1 / (spacing + mac.backoff_s / 2) if spacing + mac.backoff_s > 0 else None
         return MacReport(round(worst, 4) if worst > 0 else None,
                          airtime_share(airtime_s, per_s, data_per_s),
-                         "random access: collisions possible", True)
+                         "random access: collisions possible", True, per_s)
 
     def check(self, nodes: list[dict[str, Any]]) -> tuple[dict[str, Any], list[str]]:
         mission, mac = self.mission, self.model

@@ -85,6 +85,16 @@ class MacReport:
     airtime_share: float | None
     note: str = ""
     random_access: bool = False
+    turns_per_s: float | None = None
+    """Its transmit opportunities per second on average while it has data (what its turns
+    carry over time: ``zab check``'s relay budgets); None: as many as its worst interval
+    allows."""
+
+    def mean_turns_per_s(self) -> float:
+        """:attr:`turns_per_s`, else one per worst interval (0: it never sends)."""
+        if self.turns_per_s is not None:
+            return self.turns_per_s
+        return 1.0 / self.worst_interval_s if self.worst_interval_s else 0.0
 
 
 def airtime_share(airtime_s: float | None, per_s: float | None,

@@ -50,4 +50,4 @@ class Free(RandomAccess):
         spacing = max(busy_s(self.mission, node) or 0.0, self.model.min_gap_s)
         per_s = 1 / spacing if spacing else None
         return MacReport(spacing or None, airtime_share(airtime_s, per_s, data_per_s),
-                         "no access control: collisions possible", True)
+                         "no access control: collisions possible", True, per_s)

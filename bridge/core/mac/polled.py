@@ -187,8 +187,8 @@ class Polled(Mac):
                                 ipg)
         gap = polled.worst_gap_s()
         note = "master" if polled.is_master else ("" if gap else "never polled: listens only")
-        return MacReport(gap, airtime_share(airtime_s, polled.turns_per_s() if gap else None),
-                         note)
+        per_s = polled.turns_per_s() if gap else None
+        return MacReport(gap, airtime_share(airtime_s, per_s), note, turns_per_s=per_s)
 
     def check(self, nodes: list[dict[str, Any]]) -> tuple[dict[str, Any], list[str]]:
         mission, mac = self.mission, self.model

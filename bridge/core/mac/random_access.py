@@ -62,7 +62,7 @@ class RandomAccess(Mac):
         if slots is not None and node in (slots.requester, *slots.anchors):
             role = "ranging requester" if node == slots.requester else "ranging anchor"
             return MacReport(slots.interval_s, airtime_share(airtime_s, 1 / slots.interval_s),
-                             f"{role}: one frame per round")
+                             f"{role}: one frame per round", turns_per_s=1 / slots.interval_s)
         return self._report(node, airtime_s, data_per_s)
 
     def check(self, nodes: list[dict[str, Any]]) -> tuple[dict[str, Any], list[str]]:

@@ -101,7 +101,8 @@ class Tdma(Mac):
         gap = tdma.worst_gap_s()
         per_s = len(tdma.owned) / tdma.cycle_s
         share = None if airtime_s is None else round(min(1.0, airtime_s * per_s), 4)
-        return MacReport(gap, share, "" if gap else "owns no slot: listens only")
+        return MacReport(gap, share, "" if gap else "owns no slot: listens only",
+                         turns_per_s=per_s)
 
     def check_node(self, node: str, need_s: float | None,
                    airtime_s: float | None) -> tuple[dict[str, Any], list[str]]:
