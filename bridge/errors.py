@@ -7,6 +7,7 @@
      ├── DecodeError         untrusted bytes cannot be decoded: the ONE error decoders raise
      │    └── FrameError     ... a whole acoustic frame (truncated, corrupt, foreign mission)
      ├── BackendError        a modem backend failed to load, open or operate
+     │    └── SendTooLate    ... a frame dropped: its MAC turn ended before it could go out
      ├── SessionError        the Zenoh session cannot open (a port taken, a router unreachable)
      ├── WaterError          the simulated water cannot listen (its port taken or invalid)
      └── NodeFailure         a running node cannot go on (one of its tasks or threads failed)
@@ -60,6 +61,13 @@ class FrameError(DecodeError):
 
 class BackendError(ZabError):
     """A modem backend could not be loaded, opened, or failed while running."""
+
+
+class SendTooLate(BackendError):
+    """A frame was not sent because the MAC turn it was granted ended first (the ``until`` of
+    :meth:`~bridge.modems.base.ModemBackend.send`): too late to begin, or to retry after a
+    failed try. A counted drop (the backend's ``stats["late"]``), not a modem failure: the
+    backend stays up."""
 
 
 class SessionError(ZabError):

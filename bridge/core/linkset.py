@@ -67,7 +67,8 @@ class LinkSide:
         if opp is None or self.idle_at is None or opp.start >= self.idle_at + IDLE_S:
             return opp
         # (past ``latest`` it is none: asked again then, the schedule offers the next one)
-        return Opportunity(self.idle_at + IDLE_S, opp.latest, opp.must_send, opp.poll, opp.kind)
+        return Opportunity(self.idle_at + IDLE_S, opp.latest, opp.must_send, opp.poll, opp.kind,
+                           opp.until)
 
     def used(self, start: float, end: float) -> None:
         """A frame went out from ``start``; the modem was done at ``end``."""

@@ -78,12 +78,12 @@ EPOCHS = 256  # stream epochs, EPOCH_BITS wide
 @direct_init
 @dataclass(frozen=True)
 class SendFrame:
-    """What to do at an open opportunity: send ``frame`` (to ``frame.dest``, asking the modem
-    for its acknowledgement when ``frame.ack``); ``ranged``: its acknowledgement also measures
-    a range to ``frame.dest`` (``ranging.ping`` on a modem that ranges that way)."""
+    """At an open opportunity: send ``frame`` (asking ``frame.dest`` to ack it if ``frame.ack``;
+    ``ranged``: the ack ranges, for ``ranging.ping``); ``until``: its turn's end, no try after."""
 
     frame: OutFrame
     ranged: bool = False
+    until: float = math.inf
 
 
 @dataclass(frozen=True)
@@ -294,7 +294,7 @@ class NodeCore:
             out = replace(out, dest=side.address_of(opp.poll))
         if peer is not None:  # the modem measures the range when the peer acknowledges
             out = replace(out, dest=peer, ack=True)
-        return SendFrame(out, ranged=peer is not None)
+        return SendFrame(out, peer is not None, opp.until)
 
     def done(self, action: Action, start: float, end: float, *,
              confirmed: bool | None = None, error: str | None = None) -> None:

@@ -3,12 +3,20 @@
 Public methods do the shared checks and counting and call one hook each, which backends
 implement: :meth:`ModemBackend._open`, :meth:`~ModemBackend._send`, :meth:`~ModemBackend._recv`
 and :meth:`~ModemBackend._close`. Every failure surfaces as :class:`~bridge.errors.BackendError`.
+
+A frame's MAC turn ends at the ``until`` given to :meth:`ModemBackend.send` (a TDMA slot's end):
+no transmission of it begins from then on, neither its first try nor a retry. The base refuses
+a frame already too late; the send hooks get the end as ``deadline``, on the event loop's clock,
+and a backend that waits (for its lock, for the modem) or retries checks it before each try
+(:meth:`ModemBackend._late`). A frame so dropped is counted in ``stats["late"]``, logged, and
+:class:`~bridge.errors.SendTooLate` raised; the backend stays up.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import re
 import time
 from abc import ABC, abstractmethod
@@ -18,12 +26,14 @@ from types import MappingProxyType
 from typing import Any, ClassVar
 
 from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
-from bridge.errors import BackendError
+from bridge.errors import BackendError, SendTooLate
 
 __all__ = ["BadInputLog", "Inbox", "ModemBackend", "ModemFix", "ModemRange", "ModemSetup",
            "Reception"]
 
 _EMPTY: Mapping[str, Any] = MappingProxyType({})
+
+log = logging.getLogger("zab.modem")
 
 
 @dataclass(frozen=True)
@@ -174,7 +184,7 @@ class ModemBackend(ABC):
 
     async def send(
         self, data: bytes, dest: int | None = None, *, at: float | None = None,
-        ack: bool | None = None,
+        ack: bool | None = None, until: float | None = None,
     ) -> bool | None:
         """Transmit one frame (``dest`` ``None`` = broadcast).
 
@@ -184,16 +194,29 @@ class ModemBackend(ABC):
 
         ``at`` asks for the emission to start at that time of :meth:`clock` (DLBL needs the
         exact start); backends whose ``timed_send`` is False send at once and ignore it.
+        ``until``, a time of :meth:`clock` too (None: none), ends the MAC turn the frame was
+        granted: no transmission of it begins from then on, neither the first try nor a retry;
+        a frame too late (or due ``at`` a start not before it) is dropped, counted in
+        ``stats["late"]``, and :class:`~bridge.errors.SendTooLate` raised.
         When it returns is backend-specific and documented by each backend. Raises
         :class:`BackendError` if the frame is too long or empty, or the backend is not open.
         """
         self._check_frame(data)
         try:
             ack = self.ack if ack is None else ack
+            deadline = self._deadline(until)
+            if at is not None and self.timed_send and until is not None and at >= until:
+                raise self._too_late(f"its start is due {at - until:.3f} s after the end of "
+                                     "its MAC turn")
+            late = self._late(deadline, "its first try")
+            if late is not None:
+                raise late
             if at is not None and self.timed_send:
-                confirmed = await self._send_timed(bytes(data), dest, ack, at)
+                confirmed = await self._send_timed(bytes(data), dest, ack, at, deadline)
             else:
-                confirmed = await self._send(bytes(data), dest, ack)
+                confirmed = await self._send(bytes(data), dest, ack, deadline)
+        except SendTooLate:
+            raise
         except BackendError:
             self.stats["errors"] += 1
             raise
@@ -201,11 +224,15 @@ class ModemBackend(ABC):
         return confirmed
 
     def send_now(self, data: bytes, dest: int | None = None, *,
-                 ack: bool | None = None) -> bool | None:
-        """:meth:`send` without waiting, from any thread: only :attr:`direct` backends."""
+                 ack: bool | None = None, until: float | None = None) -> bool | None:
+        """:meth:`send` without waiting, from any thread: only :attr:`direct` backends (which
+        begin the transmission at once and never retry, so ``until`` is checked here only)."""
         if not self.direct:
             raise BackendError(f"{self!r}: this backend sends only from its event loop")
         self._check_frame(data)
+        if until is not None and (past := self.clock() - until) >= 0:
+            raise self._too_late(f"its first try would begin {past:.3f} s after the end of "
+                                 "its MAC turn")
         try:
             confirmed = self._send_now(bytes(data), dest, self.ack if ack is None else ack)
         except BackendError:
@@ -213,6 +240,35 @@ class ModemBackend(ABC):
             raise
         self.stats["sent"] += 1
         return confirmed
+
+    def _deadline(self, until: float | None) -> float | None:
+        """``until`` (a time of :meth:`clock`) as a time of the running event loop's clock,
+        which the backend's timers follow (None: no end)."""
+        if until is None or math.isinf(until):
+            return None
+        return asyncio.get_running_loop().time() + (until - self.clock())
+
+    def _late(self, deadline: float | None, what: str, need_s: float = 0.0
+              ) -> SendTooLate | None:
+        """The drop to raise (counted and logged) if ``what`` (a try of the frame, which keeps
+        the modem transmitting ``need_s``) would not end by ``deadline`` (the loop's clock; a
+        try that needs nothing: would not begin before it); None while there is time."""
+        if deadline is None:
+            return None
+        left = deadline - asyncio.get_running_loop().time()
+        if left > need_s:
+            return None
+        if left <= 0:
+            return self._too_late(f"{what} would begin {-left:.3f} s after the end of its "
+                                  "MAC turn")
+        return self._too_late(f"{what} needs {need_s:.3f} s on the air, {left:.3f} s of its MAC "
+                              "turn are left")
+
+    def _too_late(self, why: str) -> SendTooLate:
+        """Count and log a frame dropped because its MAC turn ended; the error to raise."""
+        self.stats["late"] = self.stats.get("late", 0) + 1
+        log.warning("%s: frame dropped, %s (counted in late)", self, why)
+        return SendTooLate(f"{self!r}: frame dropped, {why}")
 
     def _check_frame(self, data: bytes) -> None:
         if not self.is_open:
@@ -305,10 +361,11 @@ class ModemBackend(ABC):
         """Hook for :attr:`direct` backends: transmit a checked frame without waiting."""
         raise BackendError(f"{self!r}: this backend sends only from its event loop")
 
-    async def _send_timed(self, data: bytes, dest: int | None, ack: bool,
-                          at: float) -> bool | None:
-        """Hook for backends with ``timed_send``: emit at ``at`` (modem clock)."""
-        return await self._send(data, dest, ack)
+    async def _send_timed(self, data: bytes, dest: int | None, ack: bool, at: float,
+                          deadline: float | None) -> bool | None:
+        """Hook for backends with ``timed_send``: emit at ``at`` (modem clock); ``deadline`` as
+        for :meth:`_send`."""
+        return await self._send(data, dest, ack, deadline)
 
     def clock(self) -> float:
         """The modem's clock, in which it stamps receptions (default: the host's wall clock)."""
@@ -331,8 +388,10 @@ class ModemBackend(ABC):
         """Connect; raise :class:`BackendError` on failure."""
 
     @abstractmethod
-    async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
-        """Transmit a checked frame."""
+    async def _send(self, data: bytes, dest: int | None, ack: bool,
+                    deadline: float | None) -> bool | None:
+        """Transmit a checked frame; begin no try of it from ``deadline`` on (the event
+        loop's clock; None: no end): :meth:`_late` says when a try is too late."""
 
     @abstractmethod
     async def _recv(self) -> Reception:

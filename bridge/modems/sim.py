@@ -17,7 +17,9 @@ water lost at this modem after their signal reached it (``on_loss(src, reason, d
 emulated modem prints them as its CRC failures.
 
 ``send`` returns when the water reports the transmission DONE (the modem is free again), so it
-takes the frame's airtime plus the preset's intrinsic delay.
+takes the frame's airtime plus the preset's intrinsic delay. A frame that waited behind another
+until its MAC turn ended (``until``) is dropped, never handed to the water (counted in
+``stats["late"]``); the water does not retry.
 """
 
 from __future__ import annotations
@@ -134,18 +136,24 @@ class SimBackend(ModemBackend):
             self.frame_bytes = water_max
         self._task = asyncio.create_task(self._read_loop(), name=f"sim-modem-{self.address}")
 
-    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool,
+                    deadline: float | None) -> None:
         """Transmit now (the simulated water has no acknowledgements: ``ack`` is ignored)."""
-        await self._transmit({"data": data, "dest": self.broadcast if dest is None else dest})
+        await self._transmit({"data": data, "dest": self.broadcast if dest is None else dest},
+                             deadline)
 
-    async def _send_timed(self, data: bytes, dest: int | None, ack: bool, at: float) -> None:
+    async def _send_timed(self, data: bytes, dest: int | None, ack: bool, at: float,
+                          deadline: float | None) -> None:
         await self._transmit({"data": data, "dest": self.broadcast if dest is None else dest,
-                              "at": self._wall(at)})
+                              "at": self._wall(at)}, deadline)
 
-    async def _transmit(self, request: dict[str, Any]) -> None:
-        async with self._lock:
+    async def _transmit(self, request: dict[str, Any], deadline: float | None) -> None:
+        async with self._lock:  # (behind a frame still on the air: the turn may end meanwhile)
             if self._failure is not None:
                 raise self._failure
+            late = self._late(deadline, "its transmission")
+            if late is not None:
+                raise late
             tx_id = next(self._ids)
             fut: asyncio.Future[float] = asyncio.get_running_loop().create_future()
             self._pending[tx_id] = fut

@@ -110,8 +110,9 @@ class UdpBackend(ModemBackend):
                                         name=f"udp-{self.setup.node}")
         self._reader.start()
 
-    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
-        self._send_now(data, dest, ack)
+    async def _send(self, data: bytes, dest: int | None, ack: bool,
+                    deadline: float | None) -> None:
+        self._send_now(data, dest, ack)  # at once, never retried: the base checked ``until``
 
     def _send_now(self, data: bytes, dest: int | None, ack: bool) -> None:
         """One datagram per target (an ideal link: ``ack`` is ignored), never blocking: a

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import threading
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -25,12 +26,12 @@ from typing import Any, Protocol
 from bridge.core.events import Event, ModemDown
 from bridge.core.node import NodeCore, Ping, SendFrame
 from bridge.core.reception import RangingMode
-from bridge.errors import BackendError
+from bridge.errors import BackendError, SendTooLate
 from bridge.modems.base import ModemBackend, ModemFix, ModemRange, Reception
 from bridge.runtime.eager import start_eagerly
 from bridge.runtime.intake import Intake
 
-__all__ = ["InputSample", "LinkPort", "ingest_sample", "modem_start"]
+__all__ = ["InputSample", "LinkPort", "ingest_sample", "modem_start", "modem_until"]
 
 log = logging.getLogger("zab.node")
 
@@ -51,6 +52,16 @@ def modem_start(backend: ModemBackend) -> float:
     """The modem time a frame handed to ``backend`` now starts at: with a timed modem the
     emission starts exactly then, so DLBL delays are exact."""
     return backend.clock() + (backend.tx_lead_s if backend.timed_send else 0.0)
+
+
+def modem_until(backend: ModemBackend, until: float, now: float) -> float | None:
+    """A :class:`~bridge.core.node.SendFrame`'s ``until``, on the node's clock whose time is
+    ``now``, as a time of ``backend``'s clock, which its ``send`` takes (None: no end). The
+    node's clock runs at the loop's pace (the transmit loop sleeps ``wake - now`` seconds of
+    it), whatever its origin: a time is carried across as the same distance from now."""
+    if math.isinf(until):
+        return None
+    return backend.clock() + (until - now)
 
 
 class Host(Protocol):
@@ -192,7 +203,9 @@ class LinkPort:
                 await backend.ping(action.peer)
             else:
                 out = action.frame
-                confirmed = await backend.send(out.data, out.dest, at=out.at, ack=out.ack)
+                until = modem_until(backend, action.until, host.clock())
+                confirmed = await backend.send(out.data, out.dest, at=out.at, ack=out.ack,
+                                               until=until)
         except BackendError as exc:
             with host.lock:
                 self._failed(backend, action, now, exc)
@@ -232,7 +245,8 @@ class LinkPort:
             assert isinstance(action, SendFrame)  # a direct backend has no ping
             out = action.frame
             try:
-                confirmed = backend.send_now(out.data, out.dest, ack=out.ack)
+                confirmed = backend.send_now(out.data, out.dest, ack=out.ack,
+                                             until=modem_until(backend, action.until, now))
             except BackendError as exc:
                 self._failed(backend, action, now, exc)
                 return
@@ -248,7 +262,9 @@ class LinkPort:
         the modem loop reopens it."""
         host = self.host
         what = "ping" if isinstance(action, Ping) else "send"
-        log.warning("%s: %s failed: %s", self.name, what, error)
+        # (a frame whose MAC turn ended: a drop the backend counted and logged already)
+        level = logging.INFO if isinstance(error, SendTooLate) else logging.WARNING
+        log.log(level, "%s: %s failed: %s", self.name, what, error)
         host.core.done(action, start, host.clock(), error=str(error))
         host._flush()
         if not backend.is_open:

@@ -42,7 +42,8 @@ class RecordingModem(ModemBackend):
     async def _open(self) -> None:
         pass
 
-    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool,
+                    deadline: float | None) -> None:
         self.sent.append((dest, ack))
 
     async def _recv(self) -> Reception:

@@ -39,7 +39,8 @@ class GatedModem(ModemBackend):
     async def _open(self) -> None:
         pass
 
-    async def _send(self, data: bytes, dest: int | None, ack: bool) -> None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool,
+                    deadline: float | None) -> None:
         self.sent.append(data)
         if self.gate is not None:
             await self.gate

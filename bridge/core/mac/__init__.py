@@ -11,7 +11,9 @@ virtual-clock simulator drive them all alike:
   or a frame arrives meanwhile) and then transmits. An opportunity with ``must_send`` carries
   a frame even when nothing is due (TDMA with DLBL, a master's poll, a slave's reply, a ranging
   request or answer); ``poll`` names the node that frame polls; ``kind`` says why it is offered
-  (:class:`OpportunityKind`).
+  (:class:`OpportunityKind`); ``until`` ends the turn (a TDMA slot's end): the frame's
+  :class:`~bridge.core.node.SendFrame` carries it to the modem, which begins no transmission
+  of it, nor a retry, from then on.
 - :meth:`Schedule.on_sent` ``(start, end)``: a frame went out (``end``: the modem was done);
   :meth:`Schedule.on_skipped` ``(now)``: the opportunity passed without a frame.
 - :meth:`Schedule.on_heard` ``(src, polled_me, end)``: a valid frame from ``src`` ended at ``end``

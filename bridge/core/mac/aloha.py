@@ -1,6 +1,7 @@
 """``aloha``: a node sends when due after a random backoff (uniform in ``[0, backoff_s]``;
 slotted: whole slots, starts on slot boundaries); after a frame of airtime ``a`` the next
-starts at least ``a / max_airtime_share`` later (pure)."""
+starts at least ``a / max_airtime_share`` later (pure). Random access: its opportunities have
+no ``until`` (a modem's retry is one more random access)."""
 
 from __future__ import annotations
 

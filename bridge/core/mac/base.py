@@ -45,13 +45,17 @@ class OpportunityKind(StrEnum):
 @direct_init
 @dataclass(frozen=True)
 class Opportunity:
-    """A transmit opportunity: start at ``start`` (now if already past), never after ``latest``."""
+    """A transmit opportunity: start at ``start`` (now if already past), never after ``latest``;
+    ``until``: the end of the turn it grants (a TDMA slot's end): the modem begins no
+    transmission of its frame from then on, neither the first try nor a retry (inf: no end,
+    under random access)."""
 
     start: float
     latest: float = math.inf
     must_send: bool = False
     poll: str | None = None
     kind: OpportunityKind = OpportunityKind.DUE
+    until: float = math.inf
 
 
 class Schedule(ABC):

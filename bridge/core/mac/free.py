@@ -1,5 +1,6 @@
 """``none``: no access control; a node sends whenever something is due, at least
-``min_gap_s`` after its previous frame (pure)."""
+``min_gap_s`` after its previous frame (pure). Its opportunities have no ``until``: no turn
+ends, so a modem may retry a frame for as long as it tries."""
 
 from __future__ import annotations
 

@@ -1,6 +1,8 @@
 """``polled``: the master sends every ``ipg_s`` (``must_send``), polling the next slave of its
 sequence; a slave sends once (``must_send``) right after hearing a frame polling it, within a
-quarter of the IPG, else the turn is lost. Other nodes never send (pure)."""
+quarter of the IPG, else the turn is lost. Other nodes never send (pure). A turn's ``until``
+(no transmission begins from then on): the master's, its next poll; a slave's, the end of its
+reply window."""
 
 from __future__ import annotations
 
@@ -75,8 +77,9 @@ class PolledSchedule(Schedule):
                 self._next = now
             elif self._next + self.ipg_s <= now:  # far behind: back onto the grid
                 self._next += self.ipg_s * math.floor((now - self._next) / self.ipg_s)
-            return Opportunity(self._next, self._next + self.ipg_s, True, self.poll_target(),
-                               OpportunityKind.POLL)
+            end = self._next + self.ipg_s  # the poll's cycle: its turn ends at the next poll
+            return Opportunity(self._next, end, True, self.poll_target(), OpportunityKind.POLL,
+                               end)
         reply = self._reply
         if reply is not None and reply.latest < now:
             self._reply = None
@@ -100,8 +103,8 @@ class PolledSchedule(Schedule):
 
     def on_heard(self, src: str, polled_me: bool, end: float) -> None:
         if src == self.master and polled_me and not self.is_master:
-            self._reply = Opportunity(end, end + self.reply_window_s, True, None,
-                                       OpportunityKind.REPLY)
+            window = end + self.reply_window_s  # a reply begins within the window, or never
+            self._reply = Opportunity(end, window, True, None, OpportunityKind.REPLY, window)
 
     def worst_gap_s(self) -> float | None:
         """Longest time between two of this node's turns (None: it never sends)."""

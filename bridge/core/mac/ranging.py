@@ -25,7 +25,9 @@ class RangingSchedule(Schedule):
     the latest ``tmax`` after the previous anchor's turn (:class:`AnchorReplier`); until the
     round ends (all answers heard, or ``(n + 1)·tmax``) every other frame waits. Having heard a
     request, a node also keeps the next one's round free: no frame of its own starts from
-    ``2·tmax`` before the next request is due until that round's longest end.
+    ``2·tmax`` before the next request is due until that round's longest end. An anchor's
+    answer has an ``until`` (no transmission begins after its turn, ``tmax`` past when it is
+    due: the next anchor's follows); requests and the inner MAC's frames have none.
     """
 
     def __init__(self, inner: Schedule, node: str, slots: RangingSlots, tmax_s: float) -> None:
@@ -57,8 +59,9 @@ class RangingSchedule(Schedule):
                 self.replier.sent:
             deadline = self.replier.deadline
             if deadline + self.tmax_s >= now:
-                return Opportunity(deadline, deadline + self.tmax_s, True, None,
-                                   OpportunityKind.RANGING_REPLY)
+                turn_end = deadline + self.tmax_s  # then the next anchor's turn begins
+                return Opportunity(deadline, turn_end, True, None,
+                                   OpportunityKind.RANGING_REPLY, turn_end)
             self.replier.sent = True  # missed our turn: the round has moved on
         inner = self.inner.next_opportunity(now, due)
         if inner is not None:
@@ -67,7 +70,7 @@ class RangingSchedule(Schedule):
                 start = self._reserved[1]
             if start != inner.start:
                 inner = Opportunity(start, max(inner.latest, start), inner.must_send,
-                                    inner.poll, inner.kind)
+                                    inner.poll, inner.kind, inner.until)
         if self.node != self.requester:
             return inner
         request = (now if self._last_request is None

@@ -1,6 +1,8 @@
 """``tdma``: slot ``k`` (starting ``k * slot_s`` after the Unix epoch) belongs to
 ``order[k % len(order)]``; vehicles with disciplined clocks agree without talking. The last
-``guard_s`` of a slot stays silent. With DLBL every slot carries a frame (pure)."""
+``guard_s`` of a slot stays silent: a slot's opportunity has that as its ``until``, so a modem
+never begins a transmission or a retry in it, nor in the next node's slot. With DLBL every slot
+carries a frame (pure)."""
 
 from __future__ import annotations
 
@@ -54,7 +56,8 @@ class TdmaSchedule(Schedule):
         slot = self.next_slot(max(self._used, now - late - EPS))
         if slot is None:
             return None
-        return Opportunity(slot.start, slot.start + late, self.always, None, OpportunityKind.SLOT)
+        return Opportunity(slot.start, slot.start + late, self.always, None, OpportunityKind.SLOT,
+                           slot.end)
 
     def on_sent(self, start: float, end: float) -> None:
         self._used = max(self._used, start)

@@ -35,7 +35,11 @@ Ranges: after every delivered acknowledged IM the backend reads ``AT?T`` (one-wa
 of the exchange, µs [V DUNE/evins]) and reports it to ``on_range`` (method ``propagation``).
 
 ``send`` returns when the modem reports the end of the transmission (``SENDEND``); with ``ack``
-and a unicast destination, after the delivery report. A ``FAILEDIM`` is counted in
+and a unicast destination, after the delivery report. The frame's MAC turn
+(``send(until=...)``, a TDMA slot's end) bounds the sending: a frame still waiting for the modem
+(behind another send, a keep-alive) when it ends, or a ``BUSY`` answer whose retry would not
+end before it (the IM's airtime by the §1.9 model), is dropped: counted in ``stats["late"]``,
+:class:`~bridge.errors.SendTooLate` raised, the backend up. A ``FAILEDIM`` is counted in
 ``stats["failed"]`` and logged (the frame was transmitted; the runtime treats a BackendError as a
 dead modem). Any modem failure (no reply, port lost, ``ERROR`` reply, ``BUSY`` after the
 retries) raises :class:`BackendError` from ``send`` *and* ends ``recv``, so the runtime reopens a
@@ -62,7 +66,7 @@ from dataclasses import asdict
 from typing import Any, ClassVar
 
 from bridge.core.reception import RangingMode
-from bridge.errors import BackendError
+from bridge.errors import BackendError, SendTooLate
 from bridge.modems.base import (
     BadInputLog,
     Inbox,
@@ -108,6 +112,12 @@ log = logging.getLogger("zab.evologics")
 
 RECVEND_MATCH_S = 1.0
 """A ``RECVEND`` older than this when its ``RECVIM`` arrives belongs to another signal."""
+
+
+def im_airtime_s(n_bytes: int) -> float:
+    """How long an IM of ``n_bytes`` is on the air: the §1.9 model fitted to real durations
+    (182 ms for 4 B, 221 ms for 7 B) [C]."""
+    return 0.13 + 0.012 * n_bytes
 
 
 class EvologicsBackend(ModemBackend):
@@ -203,17 +213,23 @@ class EvologicsBackend(ModemBackend):
         log.info("%s: modem ready on %s (address %d, %s mode)", self.setup.node, self.device,
                  self.address, self.mode.value)
 
-    async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool,
+                    deadline: float | None) -> bool | None:
         dst = self.broadcast if dest is None else dest
         if dst is None:
             raise BackendError(f"{self}: a frame to every node, but no broadcast address")
         ack = ack and dst != self.broadcast  # broadcast requires noack [V driver practice]
         async with self._lock:
             self._check()
+            late = self._late(deadline, "its AT*SENDIM")  # (it waited for the modem)
+            if late is not None:
+                raise late
             while not self._tx_events.empty():
                 self._tx_events.get_nowait()  # reports of earlier, finished sends
             try:
-                return await self._send_locked(data, dst, ack)
+                return await self._send_locked(data, dst, ack, deadline)
+            except SendTooLate:
+                raise
             except BackendError as exc:
                 self._fail(exc)
                 raise
@@ -332,31 +348,36 @@ class EvologicsBackend(ModemBackend):
 
     # -- sending -------------------------------------------------------------------------------
 
-    async def _send_timed(self, data: bytes, dest: int | None, ack: bool,
-                          at: float) -> bool | None:
+    async def _send_timed(self, data: bytes, dest: int | None, ack: bool, at: float,
+                          deadline: float | None) -> bool | None:
         dst = self.broadcast if dest is None else dest
         if dst is None:
             raise BackendError(f"{self}: a frame to every node, but no broadcast address")
         if ack and dst != self.broadcast:  # SENDIMS has no ack flag: an acked IM at about ``at``
             await asyncio.sleep(max(0.0, at - self.clock()))
-            return await self._send(data, dest, ack)
+            return await self._send(data, dest, ack, deadline)
         async with self._lock:
             self._check()
+            late = self._late(deadline, "its AT*SENDIMS")
+            if late is not None:
+                raise late
             while not self._tx_events.empty():
                 self._tx_events.get_nowait()
             try:
-                await self._send_ims_locked(data, dst, at)
-            except _NotSent:
+                await self._send_ims_locked(data, dst, at, deadline)
+            except (_NotSent, SendTooLate):
                 raise
             except BackendError as exc:
                 self._fail(exc)
                 raise
         return None
 
-    async def _send_ims_locked(self, data: bytes, dst: int, at: float) -> None:
+    async def _send_ims_locked(self, data: bytes, dst: int, at: float,
+                               deadline: float | None) -> None:
         """``AT*SENDIMS`` at modem time ``at``; wait for its ``SENDEND`` (or ``EXPIREDIMS``)."""
         usec = self.modem_clock.counter(at)
-        await self._command_busy(send_ims(data, dst, usec), f"AT*SENDIMS to {dst}")
+        await self._command_busy(send_ims(data, dst, usec), f"AT*SENDIMS to {dst}", deadline,
+                                 im_airtime_s(len(data)))
         wait = max(0.0, at - self.clock()) + self.send_timeout_s
         end = await self._wait_tx(
             lambda e: (isinstance(e, SendEnd) and e.addr == dst) or (
@@ -366,8 +387,10 @@ class EvologicsBackend(ModemBackend):
             raise _NotSent(f"{self._who}: the modem dropped the IMS to {dst} due at {at:.6f} "
                            f"({end.body().decode('latin-1')}): scheduled too late?")
 
-    async def _command_busy(self, text: bytes, what: str) -> None:
-        """A send command, retried while the modem answers ``BUSY``."""
+    async def _command_busy(self, text: bytes, what: str, deadline: float | None = None,
+                            airtime_s: float = 0.0) -> None:
+        """A send command, retried while the modem answers ``BUSY``, as long as a retry
+        (``airtime_s`` on the air) still ends before ``deadline`` (the loop's clock)."""
         delay = self.busy_backoff_s
         for attempt in range(self.busy_retries + 1):
             reply = await self._command(text)
@@ -375,17 +398,23 @@ class EvologicsBackend(ModemBackend):
                 return
             if isinstance(reply, Busy) and attempt < self.busy_retries:
                 self.stats["busy"] += 1
+                late = self._late(deadline, f"a retry of {what} after BUSY {reply.reason}",
+                                  delay + airtime_s)
+                if late is not None:
+                    raise late
                 log.info("%s: modem busy (%s), retry in %.2f s", self._who, reply.reason, delay)
                 await asyncio.sleep(delay)
                 delay *= 2
                 continue
             raise BackendError(f"{self._who}: {what} refused: {_text(reply)}")
 
-    async def _send_locked(self, data: bytes, dst: int, ack: bool) -> bool | None:
+    async def _send_locked(self, data: bytes, dst: int, ack: bool,
+                           deadline: float | None) -> bool | None:
         """Send one IM; with ``ack``, whether the modem reported it delivered."""
-        await self._command_busy(send_im(data, dst, ack=ack), f"AT*SENDIM to {dst}")
+        await self._command_busy(send_im(data, dst, ack=ack), f"AT*SENDIM to {dst}", deadline,
+                                 im_airtime_s(len(data)))
         if not self._extended:
-            await asyncio.sleep(0.13 + 0.012 * len(data))  # the §1.9 airtime model [C]
+            await asyncio.sleep(im_airtime_s(len(data)))
             return None
         await self._wait_tx(lambda e: isinstance(e, SendEnd) and e.addr == dst,
                             self.send_timeout_s, "SENDEND")

@@ -37,6 +37,15 @@ bytes at most) and joined again by the receiving backend. ``send`` returns when 
 left the modem (``$CATXF``), or when every frame was acknowledged with ``ack``; it retries a
 failed cycle ``send_retries`` times, then raises :class:`BackendError`: a frame is sent, or the
 caller is told. A reboot (``$CAREV,…,INIT``) fails the running cycle and re-initialises the modem.
+The frame's MAC turn (``send(until=...)``, a TDMA slot's end) bounds all of it: no cycle begins
+from its end on, and a retry only while the packet's nominal airtime still fits before it (one
+try's timeout, ``tx_timeout_s``, is longer than a 14 s slot at rate 0); a cycle whose data the
+modem has not asked for when the turn ends is called back: each ``$CADRQ`` of it then gets a
+blank ``$CCTXD`` (:meth:`~bridge.modems.micromodem.protocol.HostProtocol.cancel`), so a modem
+that stalled and wakes later sends nothing. Each such frame is a drop, counted in
+``stats["late"]`` (:class:`~bridge.errors.SendTooLate`). Data the modem already holds, and an
+FDP packet, cannot be called back [reference 2.3: no such command is verified]: their cycle
+runs on, without a retry.
 A line with a bad checksum is counted in ``stats["bad_lines"]``, logged (each kind's first at
 WARNING, then one a minute: :class:`~bridge.modems.base.BadInputLog`) and dropped. ``$CAMSG``
 ``BAD_CRC`` and ``PACKET_TIMEOUT`` are counted in ``stats["bad_crc"]`` and
@@ -61,7 +70,7 @@ from collections.abc import Mapping
 from typing import Any, ClassVar
 
 from bridge.core.reception import RangingMode
-from bridge.errors import BackendError
+from bridge.errors import BackendError, SendTooLate
 from bridge.mission.presets import UnknownPresetError, get_preset
 from bridge.modems.base import (
     BadInputLog,
@@ -217,7 +226,8 @@ class MicromodemBackend(ModemBackend):
         self._reader = asyncio.create_task(self._read_loop(), name=f"micromodem-{self.address}")
         await self._initialise()
 
-    async def _send(self, data: bytes, dest: int | None, ack: bool) -> bool | None:
+    async def _send(self, data: bytes, dest: int | None, ack: bool,
+                    deadline: float | None) -> bool | None:
         to = self.broadcast if dest is None else dest
         if to is None:
             raise BackendError(f"{self}: a frame to every node, but no broadcast address")
@@ -225,12 +235,19 @@ class MicromodemBackend(ModemBackend):
         last: BackendError | None = None
         for attempt in range(self.send_retries + 1):
             if attempt:
+                backoff = RETRY_BACKOFF_S * attempt
+                late = self._late(deadline, f"a retry after a failed try ({last})",
+                                  backoff + self.airtime_s(len(data)))
+                if late is not None:
+                    raise late
                 self.stats["retries"] += 1
                 log.warning("%s: %s; retry %d/%d", self, last, attempt, self.send_retries)
-                await asyncio.sleep(RETRY_BACKOFF_S * attempt)
+                await asyncio.sleep(backoff)
             try:
-                await self._cycle(data, to, ack)
+                await self._cycle(data, to, ack, deadline)
                 return True if ack else None  # with ack, a cycle ends with every $CAACK
+            except SendTooLate:
+                raise
             except BackendError as exc:
                 if self._failure is not None:
                     raise self._failure from None
@@ -323,11 +340,23 @@ class MicromodemBackend(ModemBackend):
         if self._failure is not None:
             raise self._failure
 
-    async def _cycle(self, data: bytes, dest: int, ack: bool) -> None:
+    def airtime_s(self, n_bytes: int) -> float:
+        """The least time a packet of ``n_bytes`` keeps the modem transmitting: its frames at
+        the rate's nominal bit rate, a partial frame costing a whole one [C, reference 2.2 and
+        2.6: the PSK probe and header, and rate 0's cycle-init, add to it]."""
+        rate = self.rate
+        return rate.frames_for(n_bytes) * rate.frame_bytes * 8 / rate.bitrate_bps
+
+    async def _cycle(self, data: bytes, dest: int, ack: bool, deadline: float | None) -> None:
         async with self._lock:
             await self._wait_ready()
-            fut: asyncio.Future[TransferDone] = asyncio.get_running_loop().create_future()
+            late = self._late(deadline, "its cycle")  # (a ping, a re-initialisation took long)
+            if late is not None:
+                raise late
+            loop = asyncio.get_running_loop()
+            fut: asyncio.Future[TransferDone] = loop.create_future()
             self._transfer = fut
+            turn_end = None if deadline is None else loop.call_at(deadline, self._turn_ended, fut)
             try:
                 try:
                     start = self.protocol.start_fdp if self.fdp else self.protocol.start_transfer
@@ -345,6 +374,18 @@ class MicromodemBackend(ModemBackend):
                     await fut  # raises the BackendError set by TransferFailed
             finally:
                 self._transfer = None
+                if turn_end is not None:
+                    turn_end.cancel()
+
+    def _turn_ended(self, fut: asyncio.Future[TransferDone]) -> None:
+        """The MAC turn of the frame in ``fut``'s cycle ended: if the modem holds none of its
+        data yet, the cycle is called back and the frame dropped; else its packet is on its way
+        (the cycle runs on, and no retry follows)."""
+        if fut.done() or not self.protocol.cancel("its MAC turn ended"):
+            return
+        fut.set_exception(self._too_late("the modem had not asked for its data when its MAC "
+                                         "turn ended: the cycle is called back"))
+        self._dispatch()  # (the TransferFailed of the cancelled cycle: fut holds the drop)
 
     async def _initialise(self) -> None:
         """Set SRC and the configured keys, each confirmed by its ``$CACFG`` echo; then the

@@ -44,6 +44,9 @@ cycle-init whose data never comes prints ``$CAMSG,PACKET_TIMEOUT,1`` after ``PTO
 each with its ``$CACST``. Travel times come from the water (its propagation, not the modems'
 clocks).
 
+A test makes it stall (:meth:`MicromodemEmulator.stall`): the next ``$CCCYC`` is taken seconds
+late, as a modem busy or hung would, then carried out (echo, cycle-init, ``$CADRQ``).
+
 Not modelled: NVRAM semantics of other keys (stored and echoed only), ``$CCCMD`` modes other
 than ``PNG`` (refused as bad fields), the data of an FDP ping, sleep (``$CCMSC`` with minutes >
 0 is echoed only), USBL (``$CAUSB2``), PPS synchronisation of LBL pings.
@@ -178,7 +181,7 @@ class MicromodemEmulator:
         self.nvram: dict[str, str] = {"SRC": str(setup.address), **self.defaults}
         self.stats: dict[str, int] = {"lines": 0, "bad_checksum": 0, "unknown": 0, "tx": 0,
                                       "rx": 0, "tx_errors": 0, "reboots": 0, "rx_no_cycle_init": 0,
-                                      "bad_crc": 0, "packet_timeout": 0}
+                                      "bad_crc": 0, "packet_timeout": 0, "stalled": 0}
         self.clock_offset_s = 0.0  # modem clock minus host clock, set by $CCCLK / $CCTMS
         self.pty = PtyHost(self._on_host_bytes, link=link)
         self._lines = LineBuffer()
@@ -194,6 +197,8 @@ class MicromodemEmulator:
         self._waiting: dict[int, asyncio.TimerHandle] = {}  # rate-0 data awaited, by sender
         self._seq = 0
         self._booted = time.monotonic()
+        self._stalls: list[float] = []  # holds of the next $CCCYCs (:meth:`stall`)
+        self._held: set[asyncio.TimerHandle] = set()
 
     # -- lifecycle -----------------------------------------------------------------------------
 
@@ -230,6 +235,7 @@ class MicromodemEmulator:
 
     async def close(self) -> None:
         """Close the pty and leave the water; cancel every task. Idempotent."""
+        self._drop_held()
         for timer in self._waiting.values():
             timer.cancel()
         self._waiting.clear()
@@ -261,9 +267,15 @@ class MicromodemEmulator:
         self._lines.clear()
         return await self.pty.replug()
 
+    def stall(self, hold_s: float, count: int = 1) -> None:
+        """Stall on the next ``count`` ``$CCCYC``: each is taken ``hold_s`` seconds late (no
+        echo before), as by a modem busy or hung that then carries the cycle out."""
+        self._stalls += [hold_s] * count
+
     def reboot(self) -> None:
         """Reboot now (power glitch or ``$CCMSC,…,0``): abandon the cycle, print ``INIT``."""
         self.stats["reboots"] += 1
+        self._drop_held()
         self._cancel_cycle()
         self._lines.clear()
         self._heard.clear()
@@ -367,10 +379,31 @@ class MicromodemEmulator:
             self._print("CFG", key, self.nvram.get(key, ""))
 
     def _cc_cyc(self, f: tuple[str, ...]) -> None:
-        src, dest, rate, ack, frames = (int(x) for x in f[1:6])
+        _src, dest, rate, ack, frames = (int(x) for x in f[1:6])
         spec = get_rate(rate)
         if not (0 <= dest <= MAX_ADDRESS and 1 <= frames <= spec.frames and ack in (0, 1)):
             raise ValueError("bad cycle-init")
+        if not self._stalls:
+            self._cycle_init(f)
+            return
+        self.stats["stalled"] += 1  # (stall): taken later, as it is
+
+        def take() -> None:
+            self._held.discard(handle)
+            self._cycle_init(f)
+
+        handle: asyncio.TimerHandle = asyncio.get_running_loop().call_later(
+            self._stalls.pop(0), take)
+        self._held.add(handle)
+
+    def _drop_held(self) -> None:
+        for handle in self._held:
+            handle.cancel()
+        self._held.clear()
+
+    def _cycle_init(self, f: tuple[str, ...]) -> None:
+        """A checked ``$CCCYC``: echo it, then run the cycle (or transmit the poll)."""
+        src, dest, rate, ack, frames = (int(x) for x in f[1:6])
         self._print("CYC", *f[:6])
         if self._busy():
             self._error("CYC", 1, "Busy")  # [U]

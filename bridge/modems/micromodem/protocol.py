@@ -802,10 +802,25 @@ class HostProtocol:
                                          data.hex().upper())))
 
     def abort(self, reason: str) -> None:
-        """Give up the running transfer (the adapter's timeout); emits :class:`TransferFailed`."""
+        """Give up the running transfer (the adapter's timeout); emits :class:`TransferFailed`.
+        A ``$CADRQ`` of its cycle that comes after is answered with a blank ``$CCTXD``."""
         if self._transfer is not None:
             self._transfer = None
             self._events.append(TransferFailed(reason))
+
+    def cancel(self, reason: str) -> bool:
+        """Call the running transfer back if the modem holds none of its data yet: a legacy
+        cycle before its first ``$CCTXD``. It is given up (:meth:`abort`), and each ``$CADRQ``
+        of its cycle then gets a blank ``$CCTXD``, which stops the modem asking (reference 2.3
+        [V]): its packet never goes out. The reference has no verified command that stops a
+        cycle the modem holds data for, nor an FDP packet (its data goes with ``$CCTDP``): for
+        those, False, and the transfer runs on. (At rate 0 the cycle-init mini-packet goes out
+        before the first ``$CADRQ``: a cycle the modem takes late still sends that.)"""
+        t = self._transfer
+        if t is None or t.fdp or t.handed:
+            return False
+        self.abort(reason)
+        return True
 
     # -- internals -----------------------------------------------------------------------------
 

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from bridge.errors import BackendError
+from bridge.errors import BackendError, SendTooLate
 from bridge.mission.presets import get_preset
 from bridge.modems.base import ModemFix, ModemRange, ModemSetup
 from bridge.modems.evologics.driver import EvologicsBackend
@@ -274,6 +274,33 @@ def test_busy_replies_are_retried_then_fail(tmp_path: Path) -> None:
                 await a.send(b"never", 2)
             with pytest.raises(BackendError):  # the backend is down: the runtime reopens
                 await a.recv()
+
+    arun(main)
+
+
+def test_busy_retries_end_with_the_turn(tmp_path: Path) -> None:
+    """A BUSY modem is asked again only while the retry still ends in the frame's MAC turn
+    (``until``): one that would not is a counted drop, and the backend stays up."""
+    async def main() -> None:
+        async with modems(tmp_path, 1, 2) as (_, emu), \
+                driver(emu[1], busy_retries=5, busy_backoff_s=0.2) as a, driver(emu[2]) as b:
+            emu[1].inject_busy(2, "BACKOFF STATE")
+            loop = asyncio.get_running_loop()
+            t0 = loop.time()
+            # BUSY at 0, retry at 0.2 s, BUSY; the next would come at 0.6 s, past the turn
+            with pytest.raises(SendTooLate, match="retry of AT\\*SENDIM"):
+                await a.send(b"my slot", 2, until=a.clock() + 0.5)
+            assert loop.time() - t0 < 0.5
+            assert a.stats["busy"] == 2 and a.stats["late"] == 1
+            assert a.stats["errors"] == 0 and a.stats["sent"] == 0
+            assert emu[1].stats["sent"] == 0  # nothing went on the air
+            with pytest.raises(TimeoutError):
+                await asyncio.wait_for(b.recv(), 0.5)
+            await a.send(b"next slot", 2, until=a.clock() + 2.0)  # not failed: still up
+            assert (await asyncio.wait_for(b.recv(), 2)).data == b"next slot"
+            with pytest.raises(SendTooLate, match="first try would begin"):
+                await a.send(b"late", 2, until=a.clock() - 0.01)
+            assert a.stats["late"] == 2 and emu[1].stats["sent"] == 1
 
     arun(main)
 

@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 import serial
 
-from bridge.errors import BackendError
+from bridge.errors import BackendError, SendTooLate
 from bridge.mission.presets import get_preset
 from bridge.modems.base import ModemRange, ModemSetup
 from bridge.modems.micromodem.driver import MicromodemBackend
@@ -278,6 +278,74 @@ def test_modem_reboot_mid_transfer(tmp_path: Path) -> None:
             await asyncio.sleep(0.5)
             await a.send(b"later", 2)
             assert (await asyncio.wait_for(c.recv(), 2)).data == b"later"
+
+    run(main)
+
+
+async def woken(emulator: MicromodemEmulator, lines: int) -> None:
+    """Until the cycles ``emulator`` stalled on have run, and it has had more than ``lines``
+    lines from its host."""
+    for _ in range(250):
+        if not emulator._held and not emulator._busy() and emulator.stats["lines"] > lines:
+            return
+        await asyncio.sleep(0.02)
+    raise AssertionError("the stalled modem never woke")
+
+
+@pytest.mark.parametrize(("tx_timeout_s", "turn_s", "hold_s", "why"), [
+    (3.0, 0.6, 1.2, "called back"),  # the turn ends during the stalled try
+    (0.5, 0.9, 1.5, "a retry"),  # the try times out first, a retry would not end in the turn
+])
+def test_a_stalled_modem_never_transmits_after_the_turn(
+        tmp_path: Path, tx_timeout_s: float, turn_s: float, hold_s: float, why: str) -> None:
+    """Found from outside: one try's timeout (19.4 s at rate 0) outlasts a 14 s TDMA slot, and
+    the retry, or the stalled cycle the modem carried out late, went into the next node's slot.
+    Now no cycle begins after ``until``, the stalled one is called back (a blank $CCTXD when its
+    $CADRQ comes), and the frame is a counted drop."""
+    async def main() -> None:
+        async with bench(tmp_path) as b:
+            a = await b.modem(1, rate=1, frame_bytes=192, tx_timeout_s=tx_timeout_s,
+                              send_retries=2)
+            c = await b.modem(2, rate=1, frame_bytes=192)
+            sender = b.emulators[1]
+            sender.stall(hold_s)  # the $CCCYC is taken hold_s late, then carried out
+            lines = sender.stats["lines"] + 1  # (and the $CCTXD it ends with)
+            loop = asyncio.get_running_loop()
+            t0 = loop.time()
+            with pytest.raises(SendTooLate, match=why):
+                await a.send(b"in my slot only", 2, until=a.clock() + turn_s)
+            assert loop.time() - t0 < turn_s + 0.3  # dropped at the turn's end, not later
+            assert a.stats["late"] == 1 and a.stats["retries"] == 0
+            assert a.stats["errors"] == 0 and a.stats["sent"] == 0
+            await woken(sender, lines)  # it echoes, asks for the data and gets none
+            assert sender.stats["stalled"] == 1
+            assert sender.stats["tx"] == 0  # it sent nothing, before the turn's end or after
+            with pytest.raises(TimeoutError):
+                await asyncio.wait_for(c.recv(), 0.3)
+            await a.send(b"next slot", 2, until=a.clock() + 5.0)  # the backend is fine
+            assert (await asyncio.wait_for(c.recv(), 2)).data == b"next slot"
+
+    run(main)
+
+
+def test_retries_within_the_turn_and_none_after_it(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with bench(tmp_path) as b:
+            a = await b.modem(1, rate=1, frame_bytes=192, tx_timeout_s=0.5, send_retries=2)
+            c = await b.modem(2, rate=1, frame_bytes=192)
+            b.emulators[1].stall(1.5)
+            lines = b.emulators[1].stats["lines"] + 3  # two $CCCYC, a $CCTXD, and ...
+            # a long turn: the retry (0.5 s backoff, 2 s on the air at 250 bit/s) fits in it
+            await a.send(b"second try", 2, until=a.clock() + 10.0)
+            assert (await asyncio.wait_for(c.recv(), 2)).data == b"second try"
+            assert a.stats["retries"] == 1 and "late" not in a.stats
+            await woken(b.emulators[1], lines)  # ... the stalled first cycle's: no data
+            assert b.emulators[1].stats["tx"] == 1
+            lines = b.emulators[1].stats["lines"]
+            with pytest.raises(SendTooLate, match="first try would begin"):
+                await a.send(b"too late", 2, until=a.clock() - 0.1)
+            assert b.emulators[1].stats["lines"] == lines  # not a line to the modem
+            assert a.stats["late"] == 1
 
     run(main)
 
