@@ -9,6 +9,7 @@ import secrets
 import shutil
 import socket
 import subprocess
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -151,6 +152,16 @@ def _no_frame_key_from_outside(monkeypatch: pytest.MonkeyPatch) -> None:
     every mission without wire.auth into an error (and every test mission into a different
     one)."""
     monkeypatch.delenv("ZAB_KEY", raising=False)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _state_directory_of_the_session(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """A module's fixture starts before a test's own fixtures: its ``zab run`` processes (as
+    test_acomms' lab) save in a $STATE_DIRECTORY of this test session's, never in
+    ~/.local/state/zab, where a second test run on the machine met their locks."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("STATE_DIRECTORY", str(tmp_path_factory.mktemp("session-state")))
+        yield
 
 
 @pytest.fixture(autouse=True)
