@@ -14,8 +14,10 @@ drop *says* is bounded, whatever the input rate:
 Causes: ``too_large`` (over the key's cap, refused before decoding), ``undecodable`` (not
 msgpack, JSON or CDR; not UTF-8; nested too deep), ``unfit`` (decoded, but not what its
 channel packs: a missing field, a wrong type, a value refused out of range), and the few the
-runtime adds (``implausible``, ``unpublishable``), and ``unbuildable``: an entry or a frame the
-core could not build (a bug; left out, keyed by channel, or ``(frame)``).
+runtime adds (``implausible``, ``unpublishable``), ``unbuildable``: an entry or a frame the
+core could not build (a bug; left out, keyed by channel, or ``(frame)``), and ``unresumable``:
+a latching channel's value saved by an earlier run that no longer fits the mission or cannot
+be read (keyed by channel: :mod:`bridge.core.latched`).
 """
 
 from __future__ import annotations

@@ -31,9 +31,9 @@ Outputs are :class:`~bridge.core.outputs.Publish`, :class:`~bridge.core.outputs.
 
 Restarts. What a restart must not lose — every unfinished reliable value and transfer, each
 receiver's delivered window, the authentication counter's reservation and replay windows, the
-peers' epochs — is :meth:`NodeCore.state`, plain data that the runtime saves (atomically,
-before it carries out the outputs or sends the frame that depend on it: see
-:attr:`NodeCore.needs_save`) and hands back to the next run. A node that starts without it
+peers' epochs, each latching channel's value — is :meth:`NodeCore.state`, plain data that the
+runtime saves (atomically, before it carries out the outputs or sends the frame that depend on
+it: :attr:`NodeCore.needs_save`) and hands back to the next run. A node that starts without it
 draws a new *epoch*; peers learn it from its frames and resynchronise (fresh receive windows
 for it; everything outstanding to it sent again), so a reliable channel never wedges.
 """
@@ -195,7 +195,7 @@ class NodeCore:
         return {
             "version": STATE_VERSION, "mission": self.mission.mission, "node": self.node,
             "fingerprint": self.table.fingerprint.hex(), "epoch": self.epoch,
-            "peer_epochs": dict(self.receivers.peer_epochs), "senders": self.outbound.state(),
+            "peer_epochs": dict(self.receivers.peer_epochs), **self.outbound.state(),
             "receivers": self.receivers.state(),
             "auth": self.auth.state() if self.auth is not None else None,
             **({"images": self.images.state()} if self.images is not None else {}),
@@ -359,7 +359,7 @@ class NodeCore:
             self.queries.expire(now)
         if self.images is not None:
             self.images.tick(now)
-        self.outbound.summarise_drops(now)
+        self.outbound.tick(now)  # (drops summarised; latched values saved)
 
     def update_links(self, now: float) -> None:
         """Re-evaluate peers' links; changes go on ``link/``, ``links/``, ``route/<peer>``."""

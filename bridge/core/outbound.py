@@ -26,6 +26,7 @@ from bridge.core.frames import OutFrame, Sender
 from bridge.core.images import MAX_PICTURE_BYTES, Images, ImageSender, control_keys
 from bridge.core.interest import Interest
 from bridge.core.keyspace import Keyspace
+from bridge.core.latched import Latched
 from bridge.core.link import heartbeat_s
 from bridge.core.linkset import LinkSide
 from bridge.core.outputs import Outbox
@@ -117,6 +118,9 @@ class Outbound:
         """The node's links, their policy and its frames' network header (:meth:`attach`)."""
         self.stores = [self.store]
         """The store of each link (the first is :attr:`store`)."""
+        self.latched = Latched(self.store, outbox, node)
+        """The latching channels' values kept across restarts."""
+        self.latched.resume(state.get("latched"), table.channels)
         self.families = Families(table, node)
         self.surfacing = Surfacing(node, mission.surfacing.republish) \
             if mission.surfacing is not None else None
@@ -178,6 +182,7 @@ class Outbound:
         puts the network header on its frames (several links or routes)."""
         self.network = network
         self.stores = network.linkset.stores
+        self.latched.onto(self.stores[1:])  # (the values resumed, on every link)
         self._filtered = self._filtered or not network.policy.single
         routes = network.routing.network
         floor = retry_floor_s(routes, self.node)
@@ -264,6 +269,7 @@ class Outbound:
         """Each binding's packed value into the store (taken at ``taken``), or queued by its
         stream."""
         store = self.store
+        latched = False  # a latching channel's value changed (saved across restarts)
         for channel, index, element in bindings:
             if channel.index in self._never_fit:
                 self.drop_payload(key, self._never_fit[channel.index], now)
@@ -279,12 +285,15 @@ class Outbound:
                 if len(self.stores) > 1:
                     for other in self.stores[1:]:
                         other.update(channel.index, index, packed, now, taken)
+                latched = latched or channel.latching
             elif store.update_value(channel.index, index, packed, now):
                 payload = store.states[channel.index].payload()
                 refused = self.saving.refusal()  # (while the state cannot be saved)
                 reports = sender.offer(payload, now, key, ref) if refused is None \
                     else sender.refuse(now, key, ref, refused)
                 self.outbox.reports(reports, changed=sender.changed)
+        if latched:
+            self.latched.put(now)
 
     def _relay(self, key: str, bindings: Collection[tuple[ChannelCodec, int, ElementCodec]],
                relay: Relay) -> None:
@@ -330,8 +339,13 @@ class Outbound:
         if summary is not None:
             self.outbox.event(summary)
 
-    def summarise_drops(self, now: float) -> None:
-        """The drops not summarised yet, if it is time (a summary a second at most)."""
+    def tick(self, now: float) -> None:
+        """Periodic work: the latched values an earlier run saved that could not be resumed
+        counted as drops, latched values saved if it is time (:mod:`bridge.core.latched`), the
+        drops not summarised yet summarised if it is time (a summary a second at most)."""
+        for name, why in self.latched.take_unresumed():
+            self.drop_payload(name, why, now, "unresumable")
+        self.latched.tick(now)
         if (summary := self.drops.due(now)) is not None:
             self.outbox.event(summary)
 
@@ -654,4 +668,8 @@ class Outbound:
             self.outbox.reports(reports)
 
     def state(self) -> dict[str, Any]:
-        return {s.channel.name: s.state() for s in self.senders.values()}
+        """What a restart resumes of the sending side: its streams' values (``senders``) and
+        its latching channels' (``latched``, when it holds some)."""
+        latched = self.latched.state()
+        return {"senders": {s.channel.name: s.state() for s in self.senders.values()},
+                **({"latched": latched} if latched else {})}

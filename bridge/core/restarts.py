@@ -4,6 +4,9 @@ What a restart must not lose is :meth:`bridge.core.node.NodeCore.state`, plain d
 runtime saves and hands back to the next run. A state saved by another node, under another
 mission file or in another version of it is not resumed: the node starts afresh (a new epoch:
 its peers resynchronise) and every value that state left unfinished is reported ``failed``.
+Only the node's own latching channels' values go on to be looked at channel by channel
+(:mod:`bridge.core.latched`): those whose channel is unchanged resume, the others are
+counted drops.
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ STATE_VERSION = 1
 def resumable(state: Mapping[str, Any] | None, node: str, fingerprint: str,
               outbox: Outbox) -> Mapping[str, Any]:
     """``state`` if it is ``node``'s under the mission file of ``fingerprint`` (hex); else
-    nothing, every value it left unfinished reported failed in ``outbox``."""
+    nothing but ``node``'s latched values (checked per channel when resumed), every value it
+    left unfinished reported failed in ``outbox``."""
     if not state:
         return {}
     same = (state.get("version") == STATE_VERSION and state.get("node") == node
@@ -34,7 +38,8 @@ def resumable(state: Mapping[str, Any] | None, node: str, fingerprint: str,
     if same:
         return state
     log.warning("%s: the saved state is from another mission file or version: starting "
-                "afresh (its unfinished values are reported failed)", node)
+                "afresh (its unfinished values are reported failed; latched values of "
+                "unchanged channels resume)", node)
     for name, sender in (state.get("senders") or {}).items():
         items = [*sender.get("queue", ()), *sender.get("flight", ()), *sender.get("items", ())]
         for item in items:
@@ -43,4 +48,6 @@ def resumable(state: Mapping[str, Any] | None, node: str, fingerprint: str,
                     0.0, name, item["id"], dst, "failed",
                     reason="restarted with another mission file",
                     attempts=item.get("attempts", 0), key=item.get("key"), ref=item.get("ref"))])
+    if state.get("node") == node and state.get("latched") is not None:
+        return {"latched": state["latched"]}  # (each checked against its channel now)
     return {}

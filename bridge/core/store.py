@@ -123,6 +123,16 @@ class OutboundStore:
         state.fresh = True
         self._changed(state)
 
+    def restore(self, index: int, packed: list[int | None], updated: list[float | None],
+                taken: list[float | None]) -> None:
+        """Channel ``index``'s value as an earlier run of the node held it (a latching
+        channel's, :mod:`bridge.core.latched`): due at once, its age and ``ttl_s`` counted
+        from its own times."""
+        state = self.states[index]
+        state.packed[:], state.updated[:], state.taken[:] = packed, updated, taken
+        state.fresh, state.last_sent = False, None
+        self._changed(state)
+
     def due(self, now: float) -> list[ChannelState]:
         """Channels that may go in a frame sent at ``now``."""
         out = []
