@@ -487,14 +487,14 @@ def test_a_fractional_or_boolean_size_put_by_an_operator_is_a_counted_drop() -> 
 def test_a_refused_size_names_its_own_bound() -> None:
     """Only a budget over the channel's max_budget_bytes is said to be over it: a width over
     the control channel's 2048 is not, even when max_budget_bytes is 2048 too."""
-    spec = dataclasses.replace(_camera_spec(), largest_budget=2048)
+    spec = dataclasses.replace(_camera_spec(), largest_budget=2048, fragment_bytes=37)
     with pytest.raises(ValueError) as refused:
         merge_control({}, {"width": 3000}, spec)
     assert str(refused.value) == "width 3000 is outside 8..2048"
     with pytest.raises(ValueError) as refused:
         merge_control({}, {"budget_bytes": 3000}, spec)
     assert str(refused.value) == \
-        "budget_bytes 3000 is outside 16..2048 (the channel's max_budget_bytes)"
+        "budget_bytes 3000 is outside 37..2048 (the channel's max_budget_bytes)"
     with pytest.raises(ValueError) as refused:  # (a corner past a float's range)
         merge_control({}, {"roi": [0, 0, 10 ** 400, 1]}, spec)
     assert str(refused.value).endswith("is not [x0, y0, x1, y1] inside 0..1")
