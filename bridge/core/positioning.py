@@ -7,10 +7,10 @@ fix (:func:`bridge.ranging.localise.attempt`); an attempt without one says why (
 The runtime publishes what this returns under ``@zab/<mission>/<node>/range/<peer>`` and
 ``@zab/<mission>/<node>/position``.
 
-Sound speed: this node's (the mission's ``ranging.water`` or ``sound_speed_mps``, replaced by
-live readings of ``ranging.ctd_key``); with ``ranging.sound_speed_mode: mean_of_ends``, a range
-to a peer whose water is known (``ranging.peer_ctd_key``, :meth:`Positioning.set_peer_water`)
-uses the mean of both ends' sound speeds (seed 001 II-A).
+Sound speed: this node's (the mission's ``ranging.sound_speed_mps``, else its ``ranging.water``'s,
+replaced by live readings of ``ranging.ctd_key``); with ``ranging.sound_speed_mode:
+mean_of_ends``, a range to a peer whose water is known (``ranging.peer_ctd_key``,
+:meth:`Positioning.set_peer_water`) uses the mean of both ends' sound speeds (seed 001 II-A).
 """
 
 from __future__ import annotations
@@ -63,22 +63,34 @@ WATER_LIMITS = {"temperature_c": (-2.0, 40.0), "salinity_psu": (0.0, 42.0),
 """What a CTD reading may hold (the mission's ``ranging.water`` bounds)."""
 
 
+def water_sound_speed_of(mission: Mission) -> SoundSpeed | None:
+    """The sound speed of the mission's ``ranging.water``, if it describes the water."""
+    w = mission.ranging.water
+    if w is None:
+        return None
+    return SoundSpeed.from_ctd(w.temperature_c, w.salinity_psu, w.depth_m,
+                               equation=w.equation, lat_deg=w.latitude_deg)
+
+
 def mission_sound_speed(mission: Mission) -> SoundSpeed:
-    """The sound speed the mission sets: fixed, computed from water properties, or 1500 m/s."""
-    ranging = mission.ranging
-    if ranging.water is not None:
-        w = ranging.water
-        return SoundSpeed.from_ctd(w.temperature_c, w.salinity_psu, w.depth_m,
-                                   equation=w.equation, lat_deg=w.latitude_deg)
-    return SoundSpeed.fixed(ranging.sound_speed_mps or DEFAULT_SOUND_SPEED_MPS)
+    """The sound speed the bridge assumes: ``ranging.sound_speed_mps`` if given, else computed
+    from ``ranging.water``, else 1500 m/s (docs/ranging.md)."""
+    if mission.ranging.sound_speed_mps is not None:
+        return SoundSpeed.fixed(mission.ranging.sound_speed_mps)
+    return water_sound_speed_of(mission) or SoundSpeed.fixed(DEFAULT_SOUND_SPEED_MPS)
 
 
 def simulated_preset(mission: Mission) -> Preset:
-    """The simulated ocean's preset for the mission (``modem.options.preset``); when the
-    mission describes the water, sound crosses the simulated ocean at that speed."""
+    """The simulated ocean's preset for the mission (``modem.options.preset``). Sound crosses
+    the simulated ocean at the speed of ``ranging.water`` when the mission describes it (the
+    truth), else at ``ranging.sound_speed_mps``: with both, the bridge assumes the latter, so a
+    wrong assumption can be simulated."""
     preset = get_preset(mission.modem.options.get("preset", "evologics-s2c-im"))
-    if mission.ranging.water is not None or mission.ranging.sound_speed_mps is not None:
-        preset = preset.replace(sound_speed_mps=mission_sound_speed(mission).mps)
+    truth = water_sound_speed_of(mission)
+    if truth is None and mission.ranging.sound_speed_mps is not None:
+        truth = SoundSpeed.fixed(mission.ranging.sound_speed_mps)
+    if truth is not None:
+        preset = preset.replace(sound_speed_mps=truth.mps)
     return preset
 
 

@@ -85,6 +85,7 @@ from typing import Any
 import numpy as np
 
 from bridge.ranging import kalman
+from bridge.ranging.coast import coast_widened
 from bridge.ranging.kalman import Matrix, Vector
 from bridge.ranging.localise import Fix, attempt
 from bridge.ranging.turns import TurnMixture
@@ -198,6 +199,9 @@ class TrackerConfig:
     turn_prune_share: float = 1e-2  # ... a turned component less likely than this is dropped
     turn_settle_s: float = 1.5  # a turn the compass shows: when it came is open so long
     # (a DLBL range that follows spans it); 0: merged at the heading
+    coast_turn_every_s: float = 10.0  # without a compass, coasting past ``coast_after_s``
+    # widens the track by the turns it may have made meanwhile (:mod:`bridge.ranging.coast`;
+    # 0: not)
 
 
 @dataclass(frozen=True)
@@ -387,6 +391,7 @@ class RangeTracker:
         self.lost_reason = "too_few_anchors" if depth is not None else "no_depth"
         self._recent: dict[str, RangeObs] = {}  # latest range per anchor (initialisation)
         self._used: dict[str, float] = {}  # anchor -> last accepted range (m)
+        self._used_at: dict[str, float] = {}  # ... and its time
         self._refusals: list[tuple[RangeObs, str]] = []  # recent refused ranges, and why
         self._heading: tuple[float, float, float | None] | None = None  # time, rad, speed
         self.manoeuvres = 0
@@ -474,6 +479,7 @@ class RangeTracker:
             self._drop()  # started on an anchor whose position was a guess: start again
             return self._start(obs.time)
         worst_nis, refused = math.inf, True
+        self._after_coast(obs.time)
         wide = self._mode_prepare(obs)
         turns = self._turns_prepare(obs)
         for hyp in self.hypotheses:
@@ -507,6 +513,7 @@ class RangeTracker:
         self._agreed_at[obs.anchor] = obs.time
         self.last_range_time = max(self.last_range_time or obs.time, obs.time)
         self._used[obs.anchor] = obs.range_m
+        self._used_at[obs.anchor] = obs.time
         return Outcome(True, None, worst_nis)
 
     # -- output --------------------------------------------------------------------------------
@@ -514,7 +521,7 @@ class RangeTracker:
     def estimate(self, t: float) -> Estimate:
         """The state at ``t``: position predicted to ``t`` unless the track is lost."""
         cfg = self.config
-        anchors = tuple(sorted(self._used)) if self.hypotheses else tuple(sorted(self._recent))
+        anchors, ranges = self._listed()
         if not self.hypotheses:
             return Estimate("lost", t, reason=self.lost_reason, anchors=anchors)
         if not self.resolved:
@@ -541,6 +548,7 @@ class RangeTracker:
             p = (1 - mu) * (p + np.outer(x - mean, x - mean)) + mu * (
                 wp + np.outer(wx - mean, wx - mean))
             x = mean
+        p = self._coasted(x, p, t, age)
         sigma = math.sqrt(max(p[0, 0] + p[1, 1], 0.0))
         if age > cfg.lost_after_s or not math.isfinite(sigma) or sigma > cfg.max_sigma_m:
             return Estimate("lost", t, reason="no_ranges", anchors=anchors)
@@ -548,7 +556,21 @@ class RangeTracker:
         cov = ((float(p[0, 0]), float(p[0, 1])), (float(p[1, 0]), float(p[1, 1])))
         return Estimate(state, t, float(x[0]), float(x[1]), float(self.depth or 0.0),
                         float(x[2]), float(x[3]), cov, max(age, 0.0), None, anchors,
-                        dict(sorted(self._used.items())), doubt=self.doubt)
+                        ranges, doubt=self.doubt)
+
+    def _listed(self) -> tuple[tuple[str, ...], dict[str, float]]:
+        """The anchors an estimate names, with their latest ranges: those the track used
+        within ``coast_after_s`` of its latest range (an anchor gone silent drops out); without
+        a track, those heard within ``init_window_s`` (the ones a start could take)."""
+        cfg = self.config
+        if not self.hypotheses:
+            heard = sorted(a for a, o in self._recent.items()
+                           if self._now - o.time <= cfg.init_window_s)
+            return tuple(heard), {}
+        latest = max(self._used_at.values(), default=0.0)
+        used = sorted(a for a in self._used
+                      if latest - self._used_at.get(a, latest) <= cfg.coast_after_s)
+        return tuple(used), {a: self._used[a] for a in used}
 
     def drop_if_lost(self, t: float) -> None:
         """Forget a track whose estimate at ``t`` is ``lost`` (``no_ranges``): the next ranges
@@ -557,6 +579,31 @@ class RangeTracker:
             self._restart(t, reason="no_ranges")
 
     # -- internals -----------------------------------------------------------------------------
+
+    def _coasted(self, x: np.ndarray, p: np.ndarray, t: float, age: float) -> np.ndarray:
+        """``p`` widened by the turns a track without a compass may have made in the
+        ``age - coast_after_s`` seconds it coasted beyond its range cycle (:mod:`.coast`)."""
+        cfg = self.config
+        gap = age - cfg.coast_after_s
+        if gap <= 0 or self._steered(t):
+            return p
+        return np.array(coast_widened(x.tolist(), p.tolist(), gap, cfg.coast_turn_every_s))
+
+    def _after_coast(self, t: float) -> None:
+        """A range after the track coasted past ``coast_after_s``: the hypotheses take it as
+        wide as the turns they may have missed make them (:meth:`_coasted`), the turned
+        components and the manoeuvring mode start again from them."""
+        if self.last_range_time is None or not self.resolved:
+            return
+        age = t - self.last_range_time
+        if age <= self.config.coast_after_s or self._steered(t):
+            return
+        for hyp in self.hypotheses:
+            self._settle(hyp)
+            self._predict(hyp, t)
+            hyp.p = self._coasted(hyp.x, hyp.p, t, age)
+        self._turns = None
+        self._wide = None
 
     def _refuse(self, reason: str, nis: float | None = None) -> Outcome:
         self.rejected[reason] += 1
@@ -643,19 +690,30 @@ class RangeTracker:
         guess = (reference[0], reference[1]) if reference is not None else \
             (sum(a[0] for a in anchors) / len(anchors) + 1.0,
              sum(a[1] for a in anchors) / len(anchors) + 1.0)
-        found = attempt(anchors, ranges, self.depth, guess, names=[o.anchor for o in fresh],
-                        range_sigma_m=cfg.range_sigma_m)
-        if not isinstance(found, Fix):
-            self.lost_reason = found.reason
-            return Outcome(False, found.reason)
-        if not math.isfinite(found.sigma_m):  # e.g. on the anchors' line: no telling yet
-            self.lost_reason = "degenerate_geometry"
-            return Outcome(False, "degenerate_geometry")
         spread = max(o.time for o in fresh) - min(o.time for o in fresh)
         if v_sigma < cfg.max_speed_mps:
             spread = 2 * max(t - o.time + o.span_s / 2 for o in fresh)
-        sigma = math.hypot(found.sigma_m, v_sigma * spread / 2, cfg.range_sigma_m,
-                           max(o.anchor_sigma_m for o in fresh))
+        # ranges taken at other times (the node moved meanwhile) and anchors' uncertainty are
+        # errors of the ranges: the geometry magnifies them as it does the ranges' own noise
+        # (far from a short baseline, circles nearly tangent: tens of metres)
+        moved = math.hypot(v_sigma * spread / 2, max(o.anchor_sigma_m for o in fresh))
+        wide = math.hypot(cfg.range_sigma_m, moved)
+        found = attempt(anchors, ranges, self.depth, guess, names=[o.anchor for o in fresh],
+                        range_sigma_m=wide)
+        if not isinstance(found, Fix):
+            self.lost_reason = found.reason
+            return Outcome(False, found.reason)
+        if not math.isfinite(found.sigma_m) or found.sigma_m > cfg.max_sigma_m:
+            # e.g. on the anchors' line, or far away with ranges of different times: no
+            # telling yet (fresher ranges will)
+            self.lost_reason = "degenerate_geometry"
+            return Outcome(False, "degenerate_geometry")
+        # without a compass the track's velocity is the ranges' alone: the start is as wide as
+        # the geometry makes the motion; with one, the heading pulls it in (as before: the
+        # geometry's on the range noise alone)
+        magnified = found.sigma_m if not self._steered(t) else found.sigma_m / wide * \
+            cfg.range_sigma_m
+        sigma = math.hypot(magnified, moved, cfg.range_sigma_m)
         points = [(found.x, found.y)]
         if found.alternative is not None and math.dist(found.alternative, points[0]) > 1.0:
             points.append(found.alternative)  # the mirror image: motion and prior decide
@@ -663,6 +721,7 @@ class RangeTracker:
         self._normalise()
         self.last_range_time = t
         self._used = {o.anchor: o.range_m for o in fresh}
+        self._used_at = {o.anchor: o.time for o in fresh}
         self._refusals.clear()
         return Outcome(True, "started")
 
@@ -700,6 +759,7 @@ class RangeTracker:
         self._ambiguous_since = None
         self.last_range_time = t
         self._used = {o.anchor: o.range_m for o in recent}
+        self._used_at = {o.anchor: o.time for o in recent}
         self._refusals.clear()
         return True
 
@@ -791,6 +851,7 @@ class RangeTracker:
         self._turns = None
         self._refusals.clear()
         self._used.clear()
+        self._used_at.clear()
 
     def _normalise(self) -> None:
         """Weights relative to the best; drop the unlikely; keep the best's mirror image in the

@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from bridge.core.loaded import parse_mission
-from bridge.core.positioning import Positioning, needs_positioning, ping_plan
+from bridge.core.positioning import Positioning, needs_positioning, ping_plan, simulated_preset
 from bridge.errors import MissionError
 from bridge.mission.model import Mission
 from bridge.ranging import Fix, NoFix, SoundSpeed, mackenzie
@@ -78,6 +78,22 @@ def test_no_depth_and_anchors_do_not_localise() -> None:
     anchor = Positioning(loaded.mission, "a1")
     assert not anchor.localises
     assert anchor.on_modem_range("auv", 0.01, "ping", now=1.0).fix is None
+
+
+def test_a_fixed_sound_speed_wins_over_the_water_and_the_simulated_water_keeps_its_own() -> None:
+    # docs/ranging.md: c is ranging.sound_speed_mps if given, else computed from ranging.water
+    p = mission(sound_speed_mps=1450.0)
+    rng = p.on_modem_range("a1", 0.01, "ping", now=1.0).ranges[0]
+    payload = p.range_payload(rng)
+    assert payload["sound_speed_mps"] == 1450.0 and payload["sound_speed_source"] == "fixed"
+    # the simulated ocean's truth is the water's (UNESCO, 12 °C fresh: ~1456 m/s): a bridge
+    # assuming 1450 m/s then measures ranges 0.4 % short, as it would at sea
+    water = mission().sound_speed.mps
+    assert water == pytest.approx(1455.7, abs=0.5)
+    assert simulated_preset(p.mission).sound_speed_mps == water
+    data = yaml.safe_load(yaml.safe_dump(BASE))
+    data["ranging"] = {"sound_speed_mps": 1450.0}  # no water described: the fixed speed
+    assert simulated_preset(parse_mission(yaml.safe_dump(data)).mission).sound_speed_mps == 1450.0
 
 
 def test_mean_of_both_ends_sound_speed() -> None:
