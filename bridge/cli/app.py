@@ -257,6 +257,17 @@ def check(
                       f"{n['frame_bytes']} B", f"{n['fill']:.0%}", airtime, " ".join(n["listen"]))
     console.print(nodes)
     _print_mac(data)
+    if (ranging := data.get("ranging")) is not None:
+        anchors = ", ".join(a["node"] + (f" (live on {a['live_key']})" if a["live_key"] else "")
+                            for a in ranging["anchors"])
+        water = ranging["water_sound_speed_mps"]
+        console.print(
+            f"ranging ({' and '.join(ranging['by'])}): anchors "
+            f"{anchors or 'none (ranges only, no positions)'}; sound speed "
+            f"{ranging['sound_speed_mps']:g} m/s ({ranging['sound_speed_from']}"
+            + (f"; ranging.water gives {water:g} m/s, which zab sim's water uses" if water
+               else "") + (", then each node's live CTD" if ranging["live_ctd"] else "") + ")",
+            highlight=False)
     if data.get("network"):
         from bridge.cli.check_network import print_network
 

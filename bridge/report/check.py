@@ -10,6 +10,7 @@ from typing import Any
 from bridge.core.bounds import retry_floor_s, round_trip_s
 from bridge.core.loaded import LoadedMission
 from bridge.core.mac import mac_for, max_distance_m, node_preset
+from bridge.core.positioning import mission_anchors, mission_sound_speed, water_sound_speed_of
 from bridge.core.queries import deadline_s
 from bridge.core.reliable import default_retry_s, stream_ttl_s
 from bridge.core.shared_inputs import shared_input_warnings
@@ -180,6 +181,7 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
             f"{link.view.mac.type} ({link.name})" for link in network.links),
         "mac_timing": mac_data,
         "dlbl": mission.wire.dlbl,
+        "ranging": _ranging(mission),
         "overhead_bytes": codec.overhead_bytes(),
         "auth": _auth(mission),
         "count_bits": sent_count_bits,
@@ -269,6 +271,29 @@ def _node_on(view: Mission, name: str, codec: FrameCodec, report: CheckReport,
                     "airtime_share": mac.airtime_share, "note": mac.note,
                     "random_access": mac.random_access}
     return entry
+
+
+def _ranging(mission: Mission) -> dict[str, Any] | None:
+    """What the nodes range and localise by: the anchors (each fixed, at its mission position,
+    or live, on its key) and the sound speed the bridges assume, with where it comes from and,
+    when it is not ``ranging.water``'s, the speed that water gives (what ``zab sim`` simulates);
+    None when nothing ranges (no DLBL, no modem pings)."""
+    r = mission.ranging
+    by = [*(["DLBL"] if mission.wire.dlbl else []), *(["modem pings"] if r.ping else [])]
+    if not by:
+        return None
+    assumed, water = mission_sound_speed(mission), water_sound_speed_of(mission)
+    return {
+        "by": by,
+        "anchors": [{"node": a, "live_key": r.anchor_keys.get(a)}
+                    for a in mission_anchors(mission)],
+        "sound_speed_mps": round(assumed.mps, 2),
+        "sound_speed_from": "ranging.sound_speed_mps" if r.sound_speed_mps is not None
+        else "ranging.water" if water is not None else "default",
+        "water_sound_speed_mps": None if water is None or r.sound_speed_mps is None
+        else round(water.mps, 2),
+        "live_ctd": r.ctd_key is not None,
+    }
 
 
 def _auth(mission: Mission) -> dict[str, Any] | None:
