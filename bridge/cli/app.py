@@ -348,7 +348,11 @@ def _print_mac(data: dict[str, Any]) -> None:
     def shown(v: Any) -> str:
         return f"{v:g}" if isinstance(v, float) else " ".join(v) if isinstance(v, list) else str(v)
 
-    timing = ", ".join(f"{k} {shown(v)}" for k, v in data.get("mac_timing", {}).items())
+    def said(timing: dict[str, Any]) -> str:  # (a mission of several links: one per link)
+        return ", ".join(f"{k} ({said(v)})" if isinstance(v, dict) else f"{k} {shown(v)}"
+                         for k, v in timing.items() if v != {})
+
+    timing = said(data.get("mac_timing", {}))
     console.print(f"mac {data['mac']}" + (f": {timing}" if timing else ""), highlight=False)
     table = Table("node", "worst interval", "airtime share", "note", title="transmit turns")
     for n in data["nodes"]:

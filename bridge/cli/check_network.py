@@ -33,7 +33,7 @@ def print_network(console: Console, network: dict[str, Any]) -> None:
         relays = Table("relay", "link", "own", "carried", "frames carried", "its turns carry",
                        "margin", "fits",
                        title="relay budgets (bytes per second: whole frames, acknowledgements "
-                       "and headers)")
+                       "and headers; several carried frames share a turn)")
         for relay in network["relays"]:
             relays.add_row(relay["node"], relay["link"], f"{relay['own_Bps']:g}",
                            f"{relay['carried_Bps']:g}", f"{relay['carried_fps']:g}/s",

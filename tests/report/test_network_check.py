@@ -103,3 +103,13 @@ def test_a_route_listing_two_relays_shows_its_primary_worst_case_and_the_alterna
     problems = json.loads(result.output)["errors"]
     assert any("routing loop r1 -> surface -> r1" in p["message"]
                and p["path"] == "nodes.r1.routes" for p in problems), problems
+
+
+def test_each_link_s_mac_timing_is_said_in_words() -> None:
+    """umci_relay's mac line printed Python's dicts: ``acoustic {}, rf {'ipg_s': 1.0576, …}``."""
+    result = RUNNER.invoke(app, ["check", str(MISSIONS / "umci_relay.yaml"), "--no-key"],
+                           env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    said = " ".join(result.output.split())  # (as one line: the console wraps at its width)
+    assert "mac tdma (acoustic), polled (rf): rf (ipg_s 1.0576, needed_ipg_s 1.0576, " \
+           "sequence rov2) transmit turns" in said, said
