@@ -8,8 +8,8 @@ A frame's MAC turn ends at the ``until`` given to :meth:`ModemBackend.send` (a T
 no transmission of it begins from then on, neither its first try nor a retry. The base refuses
 a frame already too late; the send hooks get the end as ``deadline``, on the event loop's clock,
 and a backend that waits (for its lock, for the modem) or retries checks it before each try
-(:meth:`ModemBackend._late`). A frame so dropped is counted in ``stats["late"]``, logged, and
-:class:`~bridge.errors.SendTooLate` raised; the backend stays up.
+(:meth:`ModemBackend._check_turn`). A frame so dropped is counted in ``stats["late"]``,
+logged, and :class:`~bridge.errors.SendTooLate` raised; the backend stays up.
 """
 
 from __future__ import annotations
@@ -208,9 +208,7 @@ class ModemBackend(ABC):
             if at is not None and self.timed_send and until is not None and at >= until:
                 raise self._too_late(f"its start is due {at - until:.3f} s after the end of "
                                      "its MAC turn")
-            late = self._late(deadline, "its first try")
-            if late is not None:
-                raise late
+            self._check_turn(deadline, "its first try")
             if at is not None and self.timed_send:
                 confirmed = await self._send_timed(bytes(data), dest, ack, at, deadline)
             else:
@@ -248,21 +246,20 @@ class ModemBackend(ABC):
             return None
         return asyncio.get_running_loop().time() + (until - self.clock())
 
-    def _late(self, deadline: float | None, what: str, need_s: float = 0.0
-              ) -> SendTooLate | None:
-        """The drop to raise (counted and logged) if ``what`` (a try of the frame, which keeps
-        the modem transmitting ``need_s``) would not end by ``deadline`` (the loop's clock; a
-        try that needs nothing: would not begin before it); None while there is time."""
+    def _check_turn(self, deadline: float | None, what: str, need_s: float = 0.0) -> None:
+        """Raise the drop (counted and logged: :meth:`_too_late`) if ``what`` (a try of the
+        frame, which keeps the modem transmitting ``need_s``) would not end by ``deadline`` (the
+        loop's clock; a try that needs nothing: would not begin before it)."""
         if deadline is None:
-            return None
+            return
         left = deadline - asyncio.get_running_loop().time()
         if left > need_s:
-            return None
+            return
         if left <= 0:
-            return self._too_late(f"{what} would begin {-left:.3f} s after the end of its "
-                                  "MAC turn")
-        return self._too_late(f"{what} needs {need_s:.3f} s on the air, {left:.3f} s of its MAC "
-                              "turn are left")
+            raise self._too_late(f"{what} would begin {-left:.3f} s after the end of its MAC "
+                                 "turn")
+        raise self._too_late(f"{what} needs {need_s:.3f} s on the air, {left:.3f} s of its MAC "
+                             "turn are left")
 
     def _too_late(self, why: str) -> SendTooLate:
         """Count and log a frame dropped because its MAC turn ended; the error to raise."""
@@ -391,7 +388,7 @@ class ModemBackend(ABC):
     async def _send(self, data: bytes, dest: int | None, ack: bool,
                     deadline: float | None) -> bool | None:
         """Transmit a checked frame; begin no try of it from ``deadline`` on (the event
-        loop's clock; None: no end): :meth:`_late` says when a try is too late."""
+        loop's clock; None: no end): :meth:`_check_turn` raises when a try is too late."""
 
     @abstractmethod
     async def _recv(self) -> Reception:

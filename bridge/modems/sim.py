@@ -151,9 +151,7 @@ class SimBackend(ModemBackend):
         async with self._lock:  # (behind a frame still on the air: the turn may end meanwhile)
             if self._failure is not None:
                 raise self._failure
-            late = self._late(deadline, "its transmission")
-            if late is not None:
-                raise late
+            self._check_turn(deadline, "its transmission")
             tx_id = next(self._ids)
             fut: asyncio.Future[float] = asyncio.get_running_loop().create_future()
             self._pending[tx_id] = fut

@@ -50,9 +50,8 @@ class SlowModem(ModemBackend):
         self.left.append(None if deadline is None else deadline - loop.time())
         if self.stall and deadline is not None:
             await asyncio.sleep(deadline - loop.time() + 0.01)  # a modem that does not answer
-            late = self._late(deadline, "a retry")
-            assert late is not None
-            raise late
+            self._check_turn(deadline, "a retry")  # (raises: the turn is over)
+            raise AssertionError("a retry after the turn's end was not refused")
 
     async def _recv(self) -> Reception:
         await asyncio.Future()

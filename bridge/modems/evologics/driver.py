@@ -221,9 +221,7 @@ class EvologicsBackend(ModemBackend):
         ack = ack and dst != self.broadcast  # broadcast requires noack [V driver practice]
         async with self._lock:
             self._check()
-            late = self._late(deadline, "its AT*SENDIM")  # (it waited for the modem)
-            if late is not None:
-                raise late
+            self._check_turn(deadline, "its AT*SENDIM")  # (it waited for the modem)
             while not self._tx_events.empty():
                 self._tx_events.get_nowait()  # reports of earlier, finished sends
             try:
@@ -358,9 +356,7 @@ class EvologicsBackend(ModemBackend):
             return await self._send(data, dest, ack, deadline)
         async with self._lock:
             self._check()
-            late = self._late(deadline, "its AT*SENDIMS")
-            if late is not None:
-                raise late
+            self._check_turn(deadline, "its AT*SENDIMS")
             while not self._tx_events.empty():
                 self._tx_events.get_nowait()
             try:
@@ -398,10 +394,8 @@ class EvologicsBackend(ModemBackend):
                 return
             if isinstance(reply, Busy) and attempt < self.busy_retries:
                 self.stats["busy"] += 1
-                late = self._late(deadline, f"a retry of {what} after BUSY {reply.reason}",
-                                  delay + airtime_s)
-                if late is not None:
-                    raise late
+                self._check_turn(deadline, f"a retry of {what} after BUSY {reply.reason}",
+                                 delay + airtime_s)
                 log.info("%s: modem busy (%s), retry in %.2f s", self._who, reply.reason, delay)
                 await asyncio.sleep(delay)
                 delay *= 2

@@ -236,10 +236,8 @@ class MicromodemBackend(ModemBackend):
         for attempt in range(self.send_retries + 1):
             if attempt:
                 backoff = RETRY_BACKOFF_S * attempt
-                late = self._late(deadline, f"a retry after a failed try ({last})",
-                                  backoff + self.airtime_s(len(data)))
-                if late is not None:
-                    raise late
+                self._check_turn(deadline, f"a retry after a failed try ({last})",
+                                 backoff + self.airtime_s(len(data)))
                 self.stats["retries"] += 1
                 log.warning("%s: %s; retry %d/%d", self, last, attempt, self.send_retries)
                 await asyncio.sleep(backoff)
@@ -350,9 +348,7 @@ class MicromodemBackend(ModemBackend):
     async def _cycle(self, data: bytes, dest: int, ack: bool, deadline: float | None) -> None:
         async with self._lock:
             await self._wait_ready()
-            late = self._late(deadline, "its cycle")  # (a ping, a re-initialisation took long)
-            if late is not None:
-                raise late
+            self._check_turn(deadline, "its cycle")  # (a ping, a re-initialisation took long)
             loop = asyncio.get_running_loop()
             fut: asyncio.Future[TransferDone] = loop.create_future()
             self._transfer = fut
