@@ -54,8 +54,8 @@ def shape(channel: ChannelCodec) -> str:
     """What a channel's packed value means, as a short digest: its elements' fields as the
     mission fingerprint describes them, and their bits. A saved value whose channel's shape
     changed is not resumed."""
-    description = [[e.layout.bits, [f"{f.path}:{f.describe()}" for f in e.layout.fields]]
-                   for e in channel.elements]
+    description = [[e.layout.bits, fields] for e, fields in zip(
+        channel.elements, channel.fields_described(), strict=True)]
     blob = json.dumps(description, separators=(",", ":")).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
 

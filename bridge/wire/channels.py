@@ -245,6 +245,11 @@ class ChannelCodec:
             n = (n << element.layout.bits) | element.layout.pack(value)
         return n
 
+    def fields_described(self) -> list[list[str]]:
+        """Each element's fields as ``path:description``: what its packed value means (the
+        mission fingerprint's, and a saved latched value's shape)."""
+        return [[f"{f.path}:{f.describe()}" for f in e.layout.fields] for e in self.elements]
+
     def unpack(self, n: int) -> Values:
         out: Values = []
         for element in reversed(self.elements):
@@ -738,8 +743,7 @@ class ChannelTable:
             "auth": [self.auth_tag_bytes, AUTH_VERSION] if self.auth_tag_bytes else 0,
             "nodes": self.nodes,
             "channels": [
-                [c.name, [[f"{f.path}:{f.describe()}" for f in e.layout.fields]
-                          for e in c.elements]]
+                [c.name, c.fields_described()]
                 + ([["reliable"]] if c.reliable else [])
                 + ([["fragments", c.chunk_bytes, c.fragment_bits]] if c.fragmented else [])
                 + ([["keys", c.family.describe()]] if c.family is not None else [])
