@@ -92,6 +92,7 @@ class Latched:
         """The values this run resumed from the saved state, by channel index."""
         self.unresumed: list[tuple[str, str]] = []
         """Saved values not resumed, (channel, why), not counted as drops yet."""
+        self._told = False  # whether the values resumed were told (at the first tick)
 
     # -- saves -------------------------------------------------------------------------------
 
@@ -156,9 +157,6 @@ class Latched:
             self.unresumed.append((name if isinstance(name, str) else "(latched)",
                                    f"a latched value saved by an earlier run is not resumed: "
                                    f"{why}"))
-        if self.resumed:
-            log.info("%s: resumed the latched values of %d channel(s) from its saved state",
-                     self.node, len(self.resumed))
 
     def onto(self, stores: Iterable[OutboundStore]) -> None:
         """The values resumed, in ``stores`` too (the node's other links')."""
@@ -203,7 +201,17 @@ class Latched:
         return packed, updated, [t if t is not None or v is None else u
                                  for v, u, t in zip(packed, updated, taken, strict=True)]
 
-    def take_unresumed(self) -> list[tuple[str, str]]:
-        """The saved values not resumed, (channel, why), once."""
+    def take_unresumed(self, now: float) -> list[tuple[str, str]]:
+        """The saved values not resumed, (channel, why), once; the first call at ``now`` also
+        logs how many were resumed, and how many of those are past their ``ttl_s`` (kept, but
+        not sent: as in the run that saved them)."""
+        if self.resumed and not self._told:
+            self._told = True
+            stale = sum(1 for i in self.resumed
+                        if self.store.states[i].ready_at(now) is None
+                        and self.store.states[i].ready_at() is not None)
+            log.info("%s: resumed the latched values of %d channel(s) from its saved state%s",
+                     self.node, len(self.resumed),
+                     f" ({stale} past their ttl_s, kept unsent)" if stale else "")
         out, self.unresumed = self.unresumed, []
         return out

@@ -343,7 +343,7 @@ class Outbound:
         """Periodic work: the latched values an earlier run saved that could not be resumed
         counted as drops, latched values saved if it is time (:mod:`bridge.core.latched`), the
         drops not summarised yet summarised if it is time (a summary a second at most)."""
-        for name, why in self.latched.take_unresumed():
+        for name, why in self.latched.take_unresumed(now):
             self.drop_payload(name, why, now, "unresumable")
         self.latched.tick(now)
         if (summary := self.drops.due(now)) is not None:

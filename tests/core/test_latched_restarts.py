@@ -116,6 +116,24 @@ def test_a_value_past_its_ttl_is_not_resurrected(tmp_path: Path) -> None:
     assert late.next_due(41.0) is None or late.next_due(41.0) > 41.0
 
 
+def test_the_restart_says_how_many_resumed_values_are_past_their_ttl(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Found from outside: the log said a value past its ttl_s was resumed, as if it would be
+    sent again; it is kept (a later mission edit needs it) but not sent."""
+    auv = NodeCore(LOADED, "auv")
+    put(auv, "status", {"mode": 3}, 10.0)
+    put(auv, "order", {"go": 5}, 10.0)
+    state = saved(auv, tmp_path)
+    with caplog.at_level("INFO", logger="zab.core"):
+        NodeCore(LOADED, "auv", state=state).tick(41.0)
+        NodeCore(LOADED, "auv", state=state).tick(20.0)
+    told = [r.getMessage() for r in caplog.records if "resumed" in r.getMessage()]
+    assert told == [
+        "auv: resumed the latched values of 2 channel(s) from its saved state "
+        "(1 past their ttl_s, kept unsent)",
+        "auv: resumed the latched values of 2 channel(s) from its saved state"]
+
+
 def test_only_latching_channels_are_kept(tmp_path: Path) -> None:
     auv = NodeCore(LOADED, "auv")
     put(auv, "nav", {"depth": 20}, 10.0)
