@@ -7,16 +7,24 @@ the order the sender first sees them, up to the family's bound; a further key is
 counted. Their names cross the water in ``@key`` entries: beside a member's first
 :data:`ANNOUNCE_REPEATS` values and again every :data:`REANNOUNCE_S` seconds, so a receiver
 that missed them (loss, restart) learns them later; until then its values are dropped, counted.
+
+A sender's restart keeps what the node's saved state holds of its families (:meth:`Families.state`):
+the names it learned, in their order, so each keeps its number (a receiver that knew the
+numbers before the restart and missed the names again would otherwise publish one member's
+value on another's key), and a latching family's member values, as :mod:`bridge.core.latched`
+keeps a latching channel's. A saved name or value that no longer fits the mission is not
+resumed: a counted drop, as there.
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.core.builder import Candidate
+from bridge.core.latched import read_entry, saved_entry, shape
 from bridge.core.store import ChannelState
 from bridge.errors import EncodeError
 from bridge.wire.channels import ChannelCodec, ChannelTable, ElementCodec
@@ -87,7 +95,7 @@ class FamilySender:
         self.names.append(name)
         return len(self.names) - 1
 
-    def state(self, member: int) -> MemberState:
+    def state_of(self, member: int) -> MemberState:
         state = self.states.get(member)
         if state is None:
             n = len(self.channel.elements)
@@ -106,17 +114,102 @@ class FamilySender:
         self.announced[member] += 1
         self.announced_at[member] = built
 
+    def state(self) -> dict[str, Any]:
+        """The names learned, in order, and a latching family's member values by name."""
+        out: dict[str, Any] = {"names": list(self.names)} if self.learned else {}
+        if self.channel.latching:
+            digest = shape(self.channel)
+            values = {self.names[m]: entry for m, st in self.states.items()
+                      if (entry := saved_entry(st, digest)) is not None}
+            if values:
+                out["latched"] = values
+        return out
+
+    def resume(self, saved: Mapping[str, Any]) -> list[str]:
+        """Put back what :meth:`state` saved; returns why each part that no longer fits was
+        not resumed."""
+        problems: list[str] = []
+        names = saved.get("names")
+        if names is not None:
+            if not self.learned:
+                problems.append("its keys are no longer learned")
+            elif not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+                problems.append("its saved key names are unreadable")
+            elif (why := self._misfit(names)) is not None:
+                problems.append(why)
+            else:
+                self.names = list(names)
+        values = saved.get("latched") or {}
+        if values and not self.channel.latching:
+            return [*problems, "the channel is no longer latching"]
+        digest = shape(self.channel)
+        for name, entry in values.items() if isinstance(values, Mapping) else ():
+            member = self.names.index(name) if name in self.names else None
+            if member is None:
+                problems.append(f"key {name!r} is not a member now")
+                continue
+            try:
+                got = read_entry(entry, self.channel, digest)
+            except (ValueError, TypeError, KeyError, AttributeError) as exc:
+                problems.append(f"key {name!r}: its saved value is unreadable ({exc})")
+                continue
+            if got is None:
+                problems.append(f"key {name!r}: its fields changed since it was saved")
+                continue
+            state = self.state_of(member)
+            state.packed[:], state.updated[:] = got[0], got[1]
+            state.taken = list(got[2])
+        return problems
+
+    def _misfit(self, names: list[str]) -> str | None:
+        spec = self.channel.family
+        assert spec is not None
+        if len(names) > spec.bound or len(set(names)) != len(names):
+            return f"its {len(names)} saved key names do not fit its bound of {spec.bound}"
+        if any(len(n.encode()) > spec.name_bytes for n in names):
+            return f"a saved key name is longer than {spec.name_bytes} bytes"
+        return None
+
 
 class Families:
     """Every key family of one node: members it sends, and names of members it receives."""
 
-    def __init__(self, table: ChannelTable, node: str) -> None:
+    def __init__(self, table: ChannelTable, node: str,
+                 changed: Callable[[float], None] = lambda now: None) -> None:
+        """``changed(now)``: a name was learned or a latching member's value stored (what
+        the node's saved state holds changed)."""
         self.node = node
         self.names_codec: NameCodec | None = table.names
         self.senders = {c.index: FamilySender(c, node) for c in table.channels
                         if c.family is not None and c.sent_by(node) and c.destinations(node)}
         self.heard: dict[tuple[str, int], dict[int, str]] = {}  # (src, channel) → names
         self.received_at: dict[str, float] = {}  # output key → last arrival
+        self.changed = changed
+
+    # -- restarts ----------------------------------------------------------------------------
+
+    def state(self) -> dict[str, Any]:
+        """What a restart resumes, by channel name (:meth:`FamilySender.state`)."""
+        return {s.channel.name: st for s in self.senders.values() if (st := s.state())}
+
+    def resume(self, saved: Any) -> list[tuple[str, str]]:
+        """Put back what :meth:`state` saved in an earlier run; returns (channel, why) of each
+        part not resumed."""
+        if saved is None:
+            return []
+        if not isinstance(saved, Mapping):
+            return [("(families)", "the saved key families are unreadable")]
+        by_name = {s.channel.name: s for s in self.senders.values()}
+        out: list[tuple[str, str]] = []
+        for name, entry in saved.items():
+            sender = by_name.get(name) if isinstance(name, str) else None
+            if sender is None or not isinstance(entry, Mapping):
+                out.append((str(name), "a key family saved by an earlier run is not resumed: "
+                            "this node no longer sends it as a key family"))
+                continue
+            out += [(name, f"a key family saved by an earlier run is not resumed: {why}")
+                    for why in sender.resume(entry)]
+        return out
 
     # -- sender ------------------------------------------------------------------------------
 
@@ -160,6 +253,7 @@ class Families:
                 element = sender.channel.elements[i]
                 if match is None or (deletes and not (element.meta and element.meta.deletes)):
                     continue
+                known = len(sender.names)
                 member = sender.member(match.group(1))
                 if isinstance(member, str):
                     problems.append(member)
@@ -169,9 +263,11 @@ class Families:
                 except EncodeError as exc:
                     problems.append(f"channel {sender.channel.name!r}: {exc}")
                     continue
-                state = sender.state(member)
+                state = sender.state_of(member)
                 state.packed[i], state.updated[i] = packed, now
                 state.fresh = True
+                if sender.channel.latching or len(sender.names) > known:
+                    self.changed(now)
         return problems
 
     def outputs_for(self, key: str) -> list[tuple[str, str]]:
@@ -229,6 +325,11 @@ class Families:
         """An ``@key`` entry from ``src``: member ``header[1]`` of channel ``header[0]``."""
         channel, member, name = header
         self.heard.setdefault((src, channel), {})[member] = name
+
+    def forget(self, src: str) -> None:
+        """``src`` started afresh: the member numbers it used mean nothing now."""
+        for known in [k for k in self.heard if k[0] == src]:
+            del self.heard[known]
 
     def arrived(self, key: str, now: float) -> None:
         self.received_at[key] = now

@@ -202,6 +202,7 @@ class Inbound:
             known = self.receivers.epoch(src, epoch)
             if known is not None:  # src started without its saved state
                 self.outbound.resync(src)
+                self.families.forget(src)
                 log.info("%s: %s started afresh (epoch %d -> %d): streams resynchronised",
                          self.node, src, known, epoch)
                 self.outbox.event(PeerRestarted(now, src, epoch, known))

@@ -35,10 +35,10 @@ from typing import Any
 
 from bridge.core.outputs import Outbox
 from bridge.core.persist import int_from_state, int_to_state
-from bridge.core.store import OutboundStore
+from bridge.core.store import ChannelState, OutboundStore
 from bridge.wire.channels import ChannelCodec
 
-__all__ = ["KEEP_LATCHED_S", "Latched", "shape"]
+__all__ = ["KEEP_LATCHED_S", "Latched", "read_entry", "saved_entry", "shape"]
 
 log = logging.getLogger("zab.core")
 
@@ -58,6 +58,45 @@ def shape(channel: ChannelCodec) -> str:
         channel.elements, channel.fields_described(), strict=True)]
     blob = json.dumps(description, separators=(",", ":")).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def saved_entry(state: ChannelState, digest: str) -> dict[str, Any] | None:
+    """``state``'s value as a saved entry (``digest``: its channel's :func:`shape`), or None
+    while it holds none."""
+    if all(p is None for p in state.packed):
+        return None
+    n = len(state.packed)
+    return {
+        "shape": digest,
+        "packed": [None if p is None else int_to_state(p) for p in state.packed],
+        "updated": list(state.updated),
+        "taken": list(state.taken) if state.taken else [None] * n,
+    }
+
+
+def read_entry(entry: Any, channel: ChannelCodec, digest: str) -> Saved | None:
+    """A saved entry's packed values and times, checked against ``channel`` (``digest``: its
+    :func:`shape` now); None if its shape changed. ValueError (and the like) if it is
+    unreadable."""
+    if entry["shape"] != digest:
+        return None
+    elements = channel.elements
+    packed = [None if p is None else int_from_state(p) for p in entry["packed"]]
+    updated = [_time(t) for t in entry["updated"]]
+    taken = [_time(t) for t in entry["taken"]]
+    if not len(packed) == len(updated) == len(taken) == len(elements):
+        raise ValueError(f"{len(packed)} values for {len(elements)} elements")
+    for element, value, arrived, when in zip(elements, packed, updated, taken, strict=True):
+        if value is None:
+            if arrived is not None or when is not None:
+                raise ValueError("a time without a value")
+            continue
+        if not isinstance(value, int) or value < 0 or value >> element.layout.bits:
+            raise ValueError(f"a value that does not fit its {element.layout.bits} bits")
+        if arrived is None:
+            raise ValueError("a value without the time it arrived")
+    return packed, updated, [t if t is not None or v is None else u
+                             for v, u, t in zip(packed, updated, taken, strict=True)]
 
 
 def _kept(channel: ChannelCodec) -> bool:
@@ -102,14 +141,8 @@ class Latched:
         out: dict[str, Any] = {}
         for index, digest in self.shapes.items():
             state = self.store.states[index]
-            if all(p is None for p in state.packed):
-                continue
-            out[state.channel.name] = {
-                "shape": digest,
-                "packed": [None if p is None else int_to_state(p) for p in state.packed],
-                "updated": list(state.updated),
-                "taken": list(state.taken),
-            }
+            if (entry := saved_entry(state, digest)) is not None:
+                out[state.channel.name] = entry
         return out
 
     def put(self, now: float) -> None:
@@ -179,27 +212,7 @@ class Latched:
         return "this node no longer sends the channel's latest value"
 
     def _read(self, entry: Any, index: int) -> Saved | None:
-        """A saved entry's packed values and times, checked against channel ``index``; None if
-        its shape changed. ValueError (and the like) if it is unreadable."""
-        if entry["shape"] != self.shapes[index]:
-            return None
-        elements = self.store.states[index].channel.elements
-        packed = [None if p is None else int_from_state(p) for p in entry["packed"]]
-        updated = [_time(t) for t in entry["updated"]]
-        taken = [_time(t) for t in entry["taken"]]
-        if not len(packed) == len(updated) == len(taken) == len(elements):
-            raise ValueError(f"{len(packed)} values for {len(elements)} elements")
-        for element, value, arrived, when in zip(elements, packed, updated, taken, strict=True):
-            if value is None:
-                if arrived is not None or when is not None:
-                    raise ValueError("a time without a value")
-                continue
-            if not isinstance(value, int) or value < 0 or value >> element.layout.bits:
-                raise ValueError(f"a value that does not fit its {element.layout.bits} bits")
-            if arrived is None:
-                raise ValueError("a value without the time it arrived")
-        return packed, updated, [t if t is not None or v is None else u
-                                 for v, u, t in zip(packed, updated, taken, strict=True)]
+        return read_entry(entry, self.store.states[index].channel, self.shapes[index])
 
     def take_unresumed(self, now: float) -> list[tuple[str, str]]:
         """The saved values not resumed, (channel, why), once; the first call at ``now`` also

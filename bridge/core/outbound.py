@@ -121,7 +121,8 @@ class Outbound:
         self.latched = Latched(self.store, outbox, node)
         """The latching channels' values kept across restarts."""
         self.latched.resume(state.get("latched"), table.channels)
-        self.families = Families(table, node)
+        self.families = Families(table, node, self.latched.put)
+        self.latched.unresumed += self.families.resume(state.get("families"))
         self.surfacing = Surfacing(node, mission.surfacing.republish) \
             if mission.surfacing is not None else None
         self.interest = Interest(table.interest, mission.demand.refresh_s) \
@@ -669,7 +670,10 @@ class Outbound:
 
     def state(self) -> dict[str, Any]:
         """What a restart resumes of the sending side: its streams' values (``senders``) and
-        its latching channels' (``latched``, when it holds some)."""
+        its latching channels' (``latched``, when it holds some) and its key families' names and
+        latching values (``families``)."""
         latched = self.latched.state()
+        families = self.families.state()
         return {"senders": {s.channel.name: s.state() for s in self.senders.values()},
-                **({"latched": latched} if latched else {})}
+                **({"latched": latched} if latched else {}),
+                **({"families": families} if families else {})}

@@ -4,9 +4,9 @@ What a restart must not lose is :meth:`bridge.core.node.NodeCore.state`, plain d
 runtime saves and hands back to the next run. A state saved by another node, under another
 mission file or in another version of it is not resumed: the node starts afresh (a new epoch:
 its peers resynchronise) and every value that state left unfinished is reported ``failed``.
-Only the node's own latching channels' values go on to be looked at channel by channel
-(:mod:`bridge.core.latched`): those whose channel is unchanged resume, the others are
-counted drops.
+Only the node's own latching channels' values and key families' names go on to be looked at
+channel by channel (:mod:`bridge.core.latched`, :mod:`bridge.core.families`): those whose
+channel is unchanged resume, the others are counted drops.
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ STATE_VERSION = 1
 def resumable(state: Mapping[str, Any] | None, node: str, fingerprint: str,
               outbox: Outbox) -> Mapping[str, Any]:
     """``state`` if it is ``node``'s under the mission file of ``fingerprint`` (hex); else
-    nothing but ``node``'s latched values (checked per channel when resumed), every value it
-    left unfinished reported failed in ``outbox``."""
+    nothing but ``node``'s latched values and key families (checked per channel when
+    resumed), every value it left unfinished reported failed in ``outbox``."""
     if not state:
         return {}
     same = (state.get("version") == STATE_VERSION and state.get("node") == node
@@ -48,6 +48,7 @@ def resumable(state: Mapping[str, Any] | None, node: str, fingerprint: str,
                     0.0, name, item["id"], dst, "failed",
                     reason="restarted with another mission file",
                     attempts=item.get("attempts", 0), key=item.get("key"), ref=item.get("ref"))])
-    if state.get("node") == node and state.get("latched") is not None:
-        return {"latched": state["latched"]}  # (each checked against its channel now)
-    return {}
+    if state.get("node") != node:
+        return {}
+    # (each checked against its channel now)
+    return {k: state[k] for k in ("latched", "families") if state.get(k) is not None}
