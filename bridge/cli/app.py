@@ -286,15 +286,23 @@ def check(
                 continue
             crosses = ", ".join(f"{float(loss):.0%} lost a hop: {share:.0%}"
                                 for loss, share in way["both_cross"].items())
+            repaired = way.get("repaired", [])
+            repair = (f"a copy lost on {', '.join(repaired)} is sent again by that hop's "
+                      "sender until it hears the next hop carry it on or "
+                      f"{way['to']} acknowledge it" + (
+                          f", on its other hops by {way['from']} only"
+                          if len(repaired) < way["hops"] else "")
+                      if repaired else f"a lost copy is sent again by {way['from']} only")
             console.print(
                 f"  {way['from']} -> {way['to']} ({way['hops']} hops): the first retry waits "
                 f"the worst-case round trip, {way['first_retry_s']:g} s, until round trips "
                 f"are measured (then their mean and 4 deviations, at least "
                 f"{way['floor_s']:g} s; doubling only while {way['to']} is not heard); a "
                 "value whose acknowledgement shows a later one arrived goes again at once. "
-                f"A copy and its acknowledgement both cross with {crosses}: values are "
-                "delivered in order, so each loss holds those behind it about a round trip "
-                "(docs/concepts.md: reliable values over lossy hops)", highlight=False)
+                f"Retried end to end, a copy and its acknowledgement both cross with "
+                f"{crosses}; {repair}. Values are delivered in order, so each loss holds "
+                "those behind it (docs/concepts.md: reliable values over lossy hops)",
+                highlight=False)
     for warning in report.warnings:
         console.print(said(("warning:", "yellow"), f" {warning}"), highlight=False)
     console.print(key.describe() + (f": {note}" if note else ""), highlight=False)

@@ -136,7 +136,8 @@ class Inbound:
         self.sent_at = frame_start(rx, side.info.preset_of(src))
         if arrival is not None:  # the origin built it the header's age before this frame
             self.sent_at -= arrival.header.age
-            network.routing.taken(arrival, rx.data, src, now)  # type: ignore[union-attr]
+            network.routing.taken(arrival, rx.data, src, now,  # type: ignore[union-attr]
+                                  reliable_entries(frame))
             self._takes = self.index in arrival.header.serves
         values: dict[str, Values] = {}
         anchors: Anchors = {}  # live anchor positions the frame carried
@@ -218,6 +219,8 @@ class Inbound:
         if not isinstance(channel, ChannelCodec):  # an acknowledgement or a system entry
             if isinstance(channel, AckCodec):
                 self.outbound.on_ack(src, entry.header, now)
+                if self.network is not None:  # (it may release frames a relay keeps)
+                    self.network.acked(src, entry.header)
             else:
                 self._system(src, channel, entry, now)
             return
@@ -378,6 +381,13 @@ def frame_start(rx: Reception, preset: Preset | None) -> float:
     if travel.__class__ is not float and not isinstance(travel, int | float):
         travel = 0.0
     return rx.time - airtime - travel
+
+
+def reliable_entries(frame: DecodedFrame) -> frozenset[tuple[int, int]]:
+    """The (channel index, seq) of the reliable values ``frame`` carries."""
+    return frozenset((e.channel.index, e.header[0]) for e in frame.entries
+                     if isinstance(e.channel, ChannelCodec) and e.channel.reliable
+                     and not e.channel.fragmented)
 
 
 def _hop_meta(arrival: Arrival, src: str, side: LinkSide) -> dict[str, Any]:

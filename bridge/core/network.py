@@ -201,6 +201,7 @@ class NodeNetwork:
 
         routing = self.routing
         routing.expire(now)
+        routing.resend(side, now)
         if not routing.waiting[side.name]:
             return build(None, always)
         own_rank, best = self.own_rank(due(now, side)), routing.best_rank(side)
@@ -229,8 +230,17 @@ class NodeNetwork:
                         link=side.name, carried=tuple(c for c, _ in picked), own=own)
 
     def relayed(self, side: LinkSide, out: OutFrame, now: float) -> None:
-        """The frames ``out`` carries for others went out on ``side`` at ``now``."""
-        self.routing.sent(side, out.carried)
+        """``out`` went out on ``side`` at ``now``: the frames it carries for others, and the
+        node's own frame kept when it crosses relays with reliable values
+        (:meth:`~bridge.core.routing.Routing.keep_own`)."""
+        own = out.own if out.carried else out
+        if own is not None:
+            self.routing.keep_own(side, own.data, frozenset(
+                (sender.channel.index, item.seq) for sender, item in own.streams
+                if isinstance(sender, ReliableSender)), now)
+        if not out.carried:
+            return
+        self.routing.sent(side, out.carried, now)
         side.last_tx = now
         for carried in out.carried:
             header = carried.header
@@ -238,6 +248,14 @@ class NodeNetwork:
                 now, self.routing.nodes[header.origin], len(carried.frame), side.name,
                 side.name_of(carried.dest) if carried.dest is not None else None,
                 header.hops))
+
+    def acked(self, src: str, header: tuple[int, ...]) -> None:
+        """An acknowledgement entry of ``src`` (for any node's stream) was heard: the frames
+        this node keeps for it that it covers are released (:mod:`bridge.core.custody`)."""
+        peer, stream, _, _, base, bitmap = header
+        table = self.routing.table
+        self.routing.custody.acked(src, table.nodes[peer], table.streams[stream].index, base,
+                                   bitmap)
 
     # -- routes that fail -----------------------------------------------------------------------
 

@@ -309,8 +309,8 @@ class NodeCore:
         if isinstance(action, SendFrame):
             out = action.frame
             if error is None:
-                if out.carried:
-                    self.network.relayed(side, out, start)  # type: ignore[union-attr]
+                if self.network is not None:
+                    self.network.relayed(side, out, start)
                 if (own := out.own if out.carried else out) is not None:
                     self.outbound.sent(own, start, confirmed)
             else:

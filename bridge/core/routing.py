@@ -42,10 +42,13 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from bridge.core.bounds import hop_s
 from bridge.core.builder import FramePlan
+from bridge.core.custody import Custody
 from bridge.core.events import FrameDropped
 from bridge.core.links_policy import LinkPolicy
 from bridge.core.linkset import LinkSet, LinkSide
+from bridge.core.mac import frame_time_s
 from bridge.core.outputs import Outbox
 from bridge.frozen import direct_init
 from bridge.mission.network import Network
@@ -119,6 +122,8 @@ class Routing:
         self.waiting: dict[str, list[Carried]] = {name: [] for name in linkset.sides}
         self.relayed = self.forwarded = 0
         """Frames of others this node sent on (and copies of them it queued)."""
+        self.custody = custody_of(network, self.node)
+        """The carried frames with reliable entries, kept until their next hop has them."""
 
     # -- own frames ----------------------------------------------------------------------------
 
@@ -170,16 +175,22 @@ class Routing:
             self._dropped(src, "malformed", str(exc), now)
             return None
         origin = src if header.origin is None else self.nodes[header.origin]
-        if origin == self.node:
-            return None  # its own frame, carried on by a relay it hears
-        if header.origin is not None and header.seq in self._seen.get(origin, ()):
-            self.stats.frames_dropped["duplicate"] += 1  # (a broadcast medium: expected)
+        self.custody.heard(src, now)
+        mine = origin == self.node  # its own frame, carried on by a relay it hears
+        if mine or (header.origin is not None and header.seq in self._seen.get(origin, ())):
+            if not mine:
+                self.stats.frames_dropped["duplicate"] += 1  # (a broadcast medium: expected)
+            if header.hops:  # a neighbour carried on a frame this node sent: it has it
+                self.custody.forwarded(src, origin, header.seq)
             return None
         return Arrival(origin, header, start)
 
-    def taken(self, arrival: Arrival, data: bytes, src: str, now: float) -> None:
+    def taken(self, arrival: Arrival, data: bytes, src: str, now: float,
+              reliable: frozenset[tuple[int, int]] = frozenset()) -> None:
         """The frame of ``arrival`` (heard from ``src``) was valid: remember its number, and
-        queue it on for the nodes that route through this one."""
+        queue it on for the nodes that route through this one; ``reliable``: its reliable
+        entries (channel index, seq), for which it is kept until its next hop has it
+        (:mod:`bridge.core.custody`)."""
         header = arrival.header
         if header.origin is None:
             return
@@ -210,8 +221,39 @@ class Routing:
             out = NetHeader(frozenset(self.nodes.index(d) for d in dests), header.origin,
                             header.hops + 1, header.seq, header.life, header.age, header.rank,
                             self.via(hop) if hop is not None else 0)
-            self._queue(side, Carried(out, frame, now, side.address_of(next(iter(hops)))
-                                      if len(hops) == 1 else None))
+            carried = Carried(out, frame, now, side.address_of(next(iter(hops)))
+                              if len(hops) == 1 else None)
+            self._queue(side, carried)
+            if reliable and len(hops) == 1 and overhears(
+                    self.network, self.node, arrival.origin, next(iter(hops)), dests):
+                self.custody.keep(carried, link, next(iter(hops)), arrival.origin, header.seq,
+                                  self._owed(arrival.origin, dests, reliable))
+
+    def keep_own(self, side: LinkSide, data: bytes, reliable: frozenset[tuple[int, int]],
+                 now: float) -> None:
+        """An own frame (``data``, its network header and check included) carrying the
+        reliable entries ``reliable`` left on ``side`` at ``now``: when it is routed, through
+        one first hop, it is kept until that hop carries it on, as a relay keeps what it
+        carries (:mod:`bridge.core.custody`)."""
+        header, start = self.codec.decode(data)
+        if not reliable or header.origin is None:
+            return
+        dests = [self.nodes[i] for i in header.serves]
+        hops = {self.policy.hops.get(d) for d in dests}
+        hop = next(iter(hops))
+        if len(hops) != 1 or hop is None or hop in dests \
+                or not overhears(self.network, self.node, self.node, hop, dests):
+            return  # (a frame for a neighbour: the stream's own retries are one hop)
+        carried = Carried(header, data[start:-CHECK_BYTES], now, side.address_of(hop))
+        self.custody.keep(carried, side.name, hop, self.node, header.seq,
+                          self._owed(self.node, dests, reliable))
+        self.custody.sent(carried, now)
+
+    def _owed(self, origin: str, dests: Iterable[str], reliable: Iterable[tuple[int, int]]
+              ) -> dict[str, set[tuple[int, int]]]:
+        """Per destination, the reliable entries of ``origin`` it is to acknowledge."""
+        channels = self.table.channels
+        return {d: {e for e in reliable if channels[e[0]].reaches(origin, d)} for d in dests}
 
     def _queue(self, side: LinkSide, carried: Carried) -> None:
         queue = self.waiting[side.name]
@@ -220,6 +262,7 @@ class Routing:
         if len(queue) > CARRIED_KEPT:
             worst = min(queue, key=lambda c: (c.header.rank, -c.arrived))
             queue.remove(worst)
+            self.custody.forget(worst)
             self.stats.frames_dropped["relay_full"] += 1
 
     def _dropped(self, src: str | None, reason: str, error: str, now: float) -> None:
@@ -233,13 +276,19 @@ class Routing:
         for name, queue in self.waiting.items():
             for carried in [c for c in queue if c.expires() < now]:
                 queue.remove(carried)
+                self.custody.forget(carried)
                 origin = self.nodes[carried.header.origin or 0]
                 self._dropped(origin, "expired", f"frame {carried.header.seq} of {origin} "
                               f"waited past its life on link {name}", now)
 
     def next_due(self, side: LinkSide) -> float | None:
-        """When this node has a frame to carry on ``side`` (now, or None)."""
-        return -math.inf if self.waiting[side.name] else None
+        """When this node has a frame to carry on ``side``: now, when a kept frame is due
+        again, or None."""
+        return -math.inf if self.waiting[side.name] else self.custody.next_time(side.name)
+
+    def resend(self, side: LinkSide, now: float) -> None:
+        """Kept frames due again on ``side`` go back in its queue."""
+        self.waiting[side.name].extend(self.custody.due(side.name, now))
 
     def best_rank(self, side: LinkSide) -> int | None:
         """The highest rank of the frames waiting on ``side`` (None: none)."""
@@ -278,12 +327,13 @@ class Routing:
         data = head + carried.frame
         return data + check_value(data, self.table.fingerprint)
 
-    def sent(self, side: LinkSide, carried: Iterable[Carried]) -> None:
-        """The frames ``carried`` went out on ``side``."""
+    def sent(self, side: LinkSide, carried: Iterable[Carried], now: float) -> None:
+        """The frames ``carried`` went out on ``side`` at ``now``."""
         queue = self.waiting[side.name]
         for item in carried:
             if item in queue:
                 queue.remove(item)
+            self.custody.sent(item, now)
             self.relayed += 1
 
     @staticmethod
@@ -293,4 +343,41 @@ class Routing:
     def snapshot(self) -> dict[str, Any]:
         return {"relayed": self.relayed, "queued": self.forwarded,
                 "waiting": {name: len(q) for name, q in self.waiting.items()},
+                "custody": self.custody.snapshot(),
                 "routes": self.policy.snapshot()}
+
+
+def custody_of(network: Network, node: str) -> Custody[Carried]:
+    """``node``'s custody of the frames it carries, timed per neighbour: a frame of it heard
+    answers a copy once that copy's frame time and its own have passed; unheard, the copy
+    waits its worst-case round trip (:func:`~bridge.core.bounds.hop_s` there and back)."""
+    answer: dict[str, float] = {}
+    trip: dict[str, float] = {}
+    for link in network.links_of(node):
+        for peer in link.members:
+            if peer == node:
+                continue
+            answer[peer] = max(answer.get(peer, 0.0), (frame_time_s(link.view, node) or 0.0)
+                               + (frame_time_s(link.view, peer) or 0.0))
+            trip[peer] = hop_s(network, node, peer) + hop_s(network, peer, node)
+    return Custody[Carried](answer, trip)
+
+
+def overhears(network: Network, node: str, origin: str, hop: str, dests: Iterable[str]
+              ) -> bool:
+    """Whether ``node`` hears what shows that ``hop`` has a frame of ``origin`` for ``dests``:
+    for each, ``hop`` carrying it on (``node`` is on every link ``hop`` shares with each next
+    hop its routes list: whichever it uses), or, ``hop`` being the destination, its
+    acknowledgement coming back (its route to ``origin`` goes through ``node``). Where it
+    would not (umci_relay: the surface does not hear ROV1's RF), custody would only send
+    copies blind: the frame is left to the stream's end-to-end retries."""
+    for dest in dests:
+        if hop == dest:
+            if node not in network.next_hops(dest, origin):
+                return False
+            continue
+        nexts = network.next_hops(hop, dest)
+        if not nexts or not all(node in link.members for n in nexts
+                                for link in network.shared(hop, n)):
+            return False
+    return True

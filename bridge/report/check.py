@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -13,6 +14,7 @@ from bridge.core.mac import mac_for, max_distance_m, node_preset
 from bridge.core.positioning import mission_anchors, mission_sound_speed, water_sound_speed_of
 from bridge.core.queries import deadline_s
 from bridge.core.reliable import default_retry_s, stream_ttl_s
+from bridge.core.routing import overhears
 from bridge.core.shared_inputs import shared_input_warnings
 from bridge.core.transfer import transfer_ttl_s
 from bridge.dccl.numeric import RULES
@@ -59,8 +61,9 @@ def stream_limits(channel: ChannelCodec, mission: Mission) -> dict[str, Any]:
     default), and so the longest a value waits for its terminal report; with several links
     or routes, per sender and receiver of a reliable channel (``learned``): the first
     retry's wait (the worst-case round trip, until the timer has measured one), the least
-    it learns to, and how likely a copy and its acknowledgement both cross its hops at a
-    loss of :data:`LOSSES` a hop."""
+    it learns to, how likely a copy and its acknowledgement both cross its hops at a loss of
+    :data:`LOSSES` a hop, and the hops whose sender sends a lost copy again itself
+    (``repaired``: :mod:`bridge.core.custody`)."""
     retry_s = channel.retry_s or default_retry_s(mission)
     ttl = channel.ttl_s or (transfer_ttl_s(channel, retry_s) if channel.fragmented
                             else stream_ttl_s(retry_s, channel.retries, channel.queue))
@@ -75,7 +78,10 @@ def stream_limits(channel: ChannelCodec, mission: Mission) -> dict[str, Any]:
              "first_retry_s": round(round_trip_s(network, sender, dest), 3),
              "floor_s": round(retry_floor_s(network, sender), 3),
              "both_cross": {f"{loss:g}": round((1 - loss) ** (2 * (len(path) - 1)), 3)
-                            for loss in LOSSES}}
+                            for loss in LOSSES},
+             "repaired": [f"{a} -> {b}" for a, b in itertools.pairwise(path)
+                          if (a, b) != (sender, dest)
+                          and overhears(network, a, sender, b, [dest])]}
             for sender in channel.senders for dest in channel.destinations(sender)
             for path, problem in (network.path(sender, dest),) if problem is None]
     return out

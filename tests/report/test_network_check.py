@@ -113,3 +113,19 @@ def test_each_link_s_mac_timing_is_said_in_words() -> None:
     said = " ".join(result.output.split())  # (as one line: the console wraps at its width)
     assert "mac tdma (acoustic), polled (rf): rf (ipg_s 1.0576, needed_ipg_s 1.0576, " \
            "sequence rov2) transmit turns" in said, said
+
+
+def test_check_says_which_hops_send_a_lost_reliable_copy_again_themselves() -> None:
+    """A relay (and the origin, for its first hop) sends again a copy its next hop did not
+    carry on only where it hears that hop's answer (bridge.core.custody): every hop of
+    acoustic_line; on umci_relay only ROV1's, the surface not hearing ROV1's RF."""
+    def repaired(name: str) -> dict[tuple[str, str], list[str]]:
+        streams = check(MISSIONS / name)["streams"]
+        return {(w["from"], w["to"]): w["repaired"] for s in streams for w in s["learned"]}
+
+    assert repaired("acoustic_line.yaml") == {
+        ("head", "tail"): ["head -> n1", "n1 -> n2", "n2 -> tail"]}
+    assert repaired("umci_relay.yaml") == {("surface", "rov2"): ["rov1 -> rov2"]}
+    result = RUNNER.invoke(app, ["check", str(MISSIONS / "umci_relay.yaml"), "--no-key"])
+    assert "a copy lost on rov1 -> rov2 is sent again by that hop's sender" in " ".join(
+        result.output.split())
