@@ -25,6 +25,9 @@ as they like. Three places could hold what they send, and each is bounded here:
 - *Failures.* A sample whose handling raises (it never should: bad input is a counted drop) is
   counted (:attr:`Intake.errors`) and its traceback logged at most once a minute per key; the
   thread goes on with the next sample. Only the session's end stops it.
+- *The last sample.* A thread holds no sample while it waits for the next: a huge one dropped
+  as over its key's cap would otherwise keep Zenoh's buffers for it (up to the payload's size)
+  until the key's next sample (:mod:`bridge.runtime.heap` gives the freed heap back).
 """
 
 from __future__ import annotations
@@ -113,6 +116,7 @@ class Intake:
                 handle(sample)
             except Exception:
                 self.failed(key)
+            del sample  # (not held while the next is awaited: a huge one's buffers go back)
 
     def failed(self, key: str) -> None:
         """Handling something that came on ``key`` raised: counted, its traceback logged at

@@ -27,7 +27,13 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     memory: Zenoh 1.x maps each local publisher's shared-memory pool (16 MB) into a subscriber
     it sends large samples to, and six applications flooding 1 MB puts on the bridge's inputs
     held ~100 MB in it that way, never given back (40 MB with it off); the samples a bridge
-    takes are small.
+    takes are small. ``transport/link/rx/max_message_size`` stays Zenoh's (1 GiB): a limit
+    keeps a huge put out (Zenoh reassembles a message whole before the bridge can refuse it),
+    but Zenoh keeps the part of a refused message it reassembled, up to the limit, until the
+    next long message on that link (a limit of 65 MB held 58 MB after a put of 100 MB), and no
+    lower limit fits every bridge (pictures take up to 64 MB). A node's ``zenoh`` section can
+    set one: 2 MB kept puts of 20-100 MB out, 3 MB over idle at most (see also
+    :mod:`bridge.runtime.heap`).
     """
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps(settings.mode))

@@ -42,6 +42,7 @@ from bridge.core.surfacing import Relay
 from bridge.errors import DecodeError, EncodeError, NodeFailure
 from bridge.modems.base import ModemBackend, Reception
 from bridge.runtime.gate import EventGate
+from bridge.runtime.heap import HEAP
 from bridge.runtime.image_queries import ImageQueries
 from bridge.runtime.intake import Intake
 from bridge.runtime.ip_watch import IpWatch
@@ -850,7 +851,8 @@ class BridgeNode:
             snapshot["surfacing"]["unproven"] = self.ip_watch.unproven
         if self.intake is not None:
             snapshot["intake"] = {**self.intake.snapshot(), "events_dropped": self.events_dropped,
-                                  "events_held_back": self._gate.held_back}
+                                  "events_held_back": self._gate.held_back,
+                                  "heap": HEAP.snapshot()}
         modems = {port.link: dict(port.backend.stats) for port in self.ports.values()
                   if port.backend is not None}  # (the drivers' counters: bad lines, retries...)
         if modems:
@@ -874,4 +876,5 @@ class BridgeNode:
     async def _stats_loop(self) -> None:
         while True:
             await asyncio.sleep(STATS_PERIOD_S)
+            HEAP.check(time.monotonic())  # (freed heap back to the system, after huge samples)
             self._publish_raw(f"{self.prefix}/stats", self.snapshot())
