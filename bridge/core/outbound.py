@@ -56,6 +56,9 @@ log = logging.getLogger("zab.core")
 
 LEFT_OUT_KEPT = 256
 """Sets of fields left out (per key) said once each; further ones are only counted."""
+LEFT_OUT_EVERY_S = 60.0
+"""Least time between two sets of fields left out told for one key (a flood of new field
+names on a key is counted, told once a minute)."""
 Delays = Callable[[float], list[int | None]]
 """The DLBL delays of a frame starting at a modem time."""
 
@@ -160,6 +163,7 @@ class Outbound:
         """Per key of :attr:`_read`, the names read whole: a sample of only these (the usual
         one) is not walked."""
         self._left_out: set[tuple[str, tuple[str, ...]]] = set()
+        self._left_out_told: dict[str, float] = {}  # key ("" for any) → when last told
         self._never_fit = self._unfit_channels()
         """Channels this node sends that no frame of its can hold (``zab check`` says so):
         a value for one is a counted drop, not a channel due for ever."""
@@ -309,12 +313,17 @@ class Outbound:
 
     def _report_left_out(self, key: str, fields: list[str], now: float) -> None:
         """Fields of a sample on ``key`` that no channel carries: counted per sample, logged
-        and reported (an event) once per key and set of fields (at most
-        :data:`LEFT_OUT_KEPT` sets: a flood of new field names is counted, not told)."""
+        and reported (an event) once per key and set of fields, a set a minute per key
+        (:data:`LEFT_OUT_EVERY_S`) and one a second in all (at most :data:`LEFT_OUT_KEPT`
+        sets: a flood of new field names is counted, not told)."""
         self.stats.fields_left_out[key] += 1
         seen = (key, tuple(fields))
-        if seen not in self._left_out and len(self._left_out) < LEFT_OUT_KEPT:
+        told = self._left_out_told
+        if seen not in self._left_out and len(self._left_out) < LEFT_OUT_KEPT \
+                and not 0.0 <= now - told.get(key, -math.inf) < LEFT_OUT_EVERY_S \
+                and not 0.0 <= now - told.get("", -math.inf) < 1.0:
             self._left_out.add(seen)
+            told[key] = told[""] = now
             log.warning("%s: fields %s of %r are carried by no channel: they do not cross "
                         "(counted; said once)", self.node, ", ".join(fields), key)
             self.outbox.event(FieldsLeftOut(now, key, fields))

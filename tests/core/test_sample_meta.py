@@ -4,6 +4,8 @@ carried deadline."""
 
 from __future__ import annotations
 
+import itertools
+
 import msgpack
 import pytest
 import yaml
@@ -113,6 +115,25 @@ def test_fields_no_channel_reads_are_counted_and_reported_once_per_key() -> None
     reported = [t.output for t in fleet.outputs if isinstance(t.output, FieldsLeftOut)]
     assert [(e.key, e.fields) for e in reported] == [("auv1/status", ["note"])]
     assert "fields_left_out" not in fleet.cores["top"].snapshot(fleet.now)
+
+
+def test_a_flood_of_new_field_names_is_counted_and_told_at_a_bounded_rate() -> None:
+    """Found by bench/flood.py: random field names put fast made four fields_left_out events
+    a second (each new set of names was told)."""
+    fleet = zspace()
+    keys = ("auv1/status", "auv1/alarm")
+    values = ({"battery": 10, "mode": "idle"}, {"leak": False})
+    for i in range(900):  # 90 s, ten a second, a new field name each
+        key, value = keys[i % 2], values[i % 2]
+        fleet.put("auv1", key, {**value, f"x{i}": i}, at=1.0 + i / 10)
+    fleet.run_until(95.0)
+    core = fleet.cores["auv1"]
+    assert core.stats.fields_left_out == {key: 450 for key in keys}
+    told = [t.output for t in fleet.outputs if isinstance(t.output, FieldsLeftOut)]
+    times = [e.time for e in told]
+    assert all(b - a >= 1.0 for a, b in itertools.pairwise(times))  # one a second in all
+    for key in keys:  # one a minute per key: at the start and a minute on
+        assert len([e for e in told if e.key == key]) == 2
 
 
 def test_a_request_that_arrives_after_its_callers_deadline_is_not_served() -> None:
