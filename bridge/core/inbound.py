@@ -18,6 +18,7 @@ the header says the frame serves this node.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections.abc import Mapping
@@ -118,8 +119,11 @@ class Inbound:
             return
         network = self.network
         origin, arrival, address = src, None, rx.src
-        if network is not None:
-            arrival = network.routing.arrived(rx.data, src, now)
+        start = frame_start(rx, side.info.preset_of(src))  # (when src sent it)
+        if network is not None:  # (a copy sent again: its acknowledgements are owed again)
+            arrival = network.routing.arrived(rx.data, src, now,
+                                              functools.partial(self.receivers.again,
+                                                                sent=start))
             if arrival is None:  # a copy of a frame taken already (or malformed): the hop
                 self._hop(rx, src, side, now)
                 return
@@ -133,7 +137,7 @@ class Inbound:
             return
         self._hop(rx, src, side, now)
         self._heard(origin, frame, now)
-        self.sent_at = frame_start(rx, side.info.preset_of(src))
+        self.sent_at = start
         if arrival is not None:  # the origin built it the header's age before this frame
             self.sent_at -= arrival.header.age
             network.routing.taken(arrival, rx.data, src, now,  # type: ignore[union-attr]

@@ -620,7 +620,7 @@ class Outbound:
             self.outbox.reports(sender.sent(group, out.built))
             if confirmed and dest is not None:
                 sender.confirmed(group, dest)
-        self.receivers.acked(out.acks)
+        self.receivers.acked(out.acks, now)
         if out.streams:
             self.outbox.unsaved = True
         for extra in out.extras:

@@ -5,13 +5,16 @@ One receiver per (sender, channel), made when its first entry arrives: a
 :class:`~bridge.core.transfer.TransferReceiver`. Every entry heard makes an acknowledgement
 owed now and in the next :data:`ACK_REPEATS` frames (acks can be lost); to a node behind a
 relay a repeat only rides a frame that goes to that node anyway (each frame relayed for a
-repeat alone cost the relay a turn's share: umci_relay's relay fell behind on them). Each
-peer's *epoch* (drawn when it starts without saved state) is kept here: when it changes, the
-peer lost its windows, so its receivers and the acks owed to it start afresh.
+repeat alone cost the relay a turn's share: umci_relay's relay fell behind on them); a copy
+of a frame taken already, sent again for want of the answer, makes them owed now again
+(:meth:`Receivers.again`). Each peer's *epoch* (drawn when it starts without saved state) is
+kept here: when it changes, the peer lost its windows, so its receivers and the acks owed to
+it start afresh.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -43,6 +46,7 @@ class Receivers:
                 else ReliableReceiver.from_state(saved))
         self._acks: dict[tuple[str, int], None] = {}  # (sender, channel index) owed an ack now
         self._repeats: dict[tuple[str, int], int] = {}  # and in this many more frames
+        self._left: dict[tuple[str, int], float] = {}  # when each last went out
         self._streams = {c.index: i for i, c in enumerate(table.streams)}
 
     def _get(self, src: str, channel: ChannelCodec) -> Receiver:
@@ -79,6 +83,16 @@ class Receivers:
         self._repeats[(src, index)] = ACK_REPEATS
         self.outbox.unsaved = True
 
+    def again(self, src: str, indices: Iterable[int], sent: float) -> None:
+        """A copy of a frame of ``src`` taken already, sent at ``sent``, came again: the
+        acknowledgements of its streams ``indices`` are owed now, each unless one went out
+        since (the copy's sender could not have heard it: a copy that crossed it asks
+        nothing, and an answer to it would cost a relayed frame for nothing)."""
+        for index in indices:
+            key = (src, index)
+            if key in self.by_key and self._left.get(key, -math.inf) < sent:
+                self._acks[key] = None
+
     @property
     def due(self) -> bool:
         """Whether an acknowledgement is owed now (a frame is due at once)."""
@@ -114,10 +128,11 @@ class Receivers:
         return ack_codec.pack(self.table.nodes.index(src), self._streams[index],
                               self.peer_epochs.get(src, 0), tid, base, bitmap)
 
-    def acked(self, keys: Iterable[tuple[str, int]]) -> None:
-        """A frame carrying the acknowledgements of ``keys`` left."""
+    def acked(self, keys: Iterable[tuple[str, int]], now: float) -> None:
+        """A frame carrying the acknowledgements of ``keys`` left at ``now``."""
         for key in keys:
             self._acks.pop(key, None)
+            self._left[key] = now
             left = self._repeats.get(key, 0) - 1
             if left > 0:
                 self._repeats[key] = left
@@ -138,6 +153,7 @@ class Receivers:
             del self.by_key[key]
             self._acks.pop(key, None)
             self._repeats.pop(key, None)
+            self._left.pop(key, None)
         return known
 
     def state(self) -> list[list[Any]]:

@@ -9,7 +9,13 @@ hops, life, age and rank. A node that hears a routed frame
 1. takes it once: the (origin, number) pairs it took lately are kept (:data:`SEEN_KEPT` per
    origin), so a copy heard again (directly and through a relay, or from two relays) is
    counted in ``frames_dropped["duplicate"]`` (no event: on a shared medium that is
-   expected) and not taken again; its own frames carried on by a relay it ignores;
+   expected) and not taken again; its own frames carried on by a relay it ignores. A copy
+   of a frame that carried reliable entries for this node, sent again by a neighbour it
+   heard send it before, is answered as a repeated entry is: their acknowledgements are owed
+   again (that neighbour keeps it until it hears them, :mod:`bridge.core.custody`; dropped
+   unanswered, on umci_relay, where ROV2 takes the surface's frames directly, ROV1's copies
+   were spent for nothing while a lost acknowledgement waited for a frame to the surface).
+   A neighbour's first copy asks nothing: it carries on what it heard, not knowing;
 2. forwards it for each node the frame serves whose route from the node it heard it from goes
    through this one (every node knows every node's routes: they are in the mission file;
    where that route lists several hops, only when the header's ``via`` names this one as
@@ -38,7 +44,7 @@ from __future__ import annotations
 import math
 import random
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -119,6 +125,9 @@ class Routing:
         self._seq = int(state.get("net_seq", rng.randrange(SEQ_MOD)))
         self._reserved = self._seq  # numbers from here on are not saved as used yet
         self._seen: dict[str, deque[int]] = {}
+        self._streams: dict[tuple[str, int], tuple[frozenset[int], set[str]]] = {}
+        """Of the frames taken lately (origin, number), those with reliable entries for
+        this node: their streams (channel indices), and the neighbours heard sending it."""
         self.waiting: dict[str, list[Carried]] = {name: [] for name in linkset.sides}
         self.relayed = self.forwarded = 0
         """Frames of others this node sent on (and copies of them it queued)."""
@@ -166,9 +175,14 @@ class Routing:
 
     # -- frames heard --------------------------------------------------------------------------
 
-    def arrived(self, data: bytes, src: str, now: float) -> Arrival | None:
+    def arrived(self, data: bytes, src: str, now: float,
+                again: Callable[[str, frozenset[int]], None] | None = None
+                ) -> Arrival | None:
         """The network header of a frame heard from neighbour ``src`` (its check passed);
-        None when it is a copy of a frame taken already or malformed (counted)."""
+        None when it is a copy of a frame taken already or malformed (counted). A copy of a
+        frame that carried reliable entries for this node, from a neighbour heard sending it
+        before, calls ``again`` with its origin and their streams (their acknowledgements
+        are owed again)."""
         try:
             header, start = self.codec.decode(data)
         except ValueError as exc:  # (FrameError)
@@ -180,6 +194,12 @@ class Routing:
         if mine or (header.origin is not None and header.seq in self._seen.get(origin, ())):
             if not mine:
                 self.stats.frames_dropped["duplicate"] += 1  # (a broadcast medium: expected)
+                found = self._streams.get((origin, header.seq))
+                if found is not None and again is not None:
+                    streams, senders = found
+                    if src in senders:  # sent again: src did not hear the answer
+                        again(origin, streams)
+                    senders.add(src)
             if header.hops:  # a neighbour carried on a frame this node sent: it has it
                 self.custody.forwarded(src, origin, header.seq)
             return None
@@ -195,7 +215,14 @@ class Routing:
         if header.origin is None:
             return
         seen = self._seen.setdefault(arrival.origin, deque(maxlen=SEEN_KEPT))
+        if len(seen) == SEEN_KEPT:
+            self._streams.pop((arrival.origin, seen[0]), None)
         seen.append(header.seq)
+        channels = self.table.channels
+        streams = frozenset(i for i, _ in reliable
+                            if channels[i].reaches(arrival.origin, self.node))
+        if streams and self.index in header.serves:
+            self._streams[(arrival.origin, header.seq)] = (streams, {src})
         via = self.nodes[header.via] if self.listed else None
         mine = [self.nodes[i] for i in sorted(header.serves)
                 if self.nodes[i] != self.node
