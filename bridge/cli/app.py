@@ -64,6 +64,18 @@ def _error(label: str, message: object = "", style: str = "bold red") -> None:
     err.print(said((label, style), " " if message and label else "", message), highlight=False)
 
 
+def _endpoints(*, listen: bool) -> Any:
+    """An option's callback refusing (exit 2) an endpoint Zenoh would not take, naming it."""
+    def check(values: list[str] | None) -> list[str] | None:
+        from bridge.mission.endpoints import endpoint_problem
+
+        for value in values or ():
+            if (why := endpoint_problem(value, listen=listen)) is not None:
+                raise typer.BadParameter(why)
+        return values
+    return check
+
+
 def _number(low: float, high: float, *, above: bool = False, zero: bool = False,
             unit: str = "") -> Any:
     """An option's callback refusing (exit 2, as click's range) a number that is not finite
@@ -868,7 +880,8 @@ def put(
         show_default=False)],
     mission: Annotated[Path | None, typer.Option(
         "--mission", "-m", help="The fleet's mission: a value that the channels reading the "
-        "key cannot take (a field they have not, a missing DCCL field, a number for a map) "
+        "key cannot take (a field they have not, a missing DCCL field, a number for a map, "
+        "an image control the camera would not follow, anything on a camera's picture key) "
         "is refused, not sent.", show_default=False)] = None,
 ) -> None:
     """Publish one value (JSON on the command line, msgpack on Zenoh) at a Zenoh endpoint.
@@ -1004,9 +1017,11 @@ def log_replay(
                                          "0 = as fast as possible.",
                                          callback=_number(1e-3, 1e6, zero=True))] = 1.0,
     connect: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to connect to "
-                                                      "(repeatable).")] = None,
+                                                      "(repeatable).",
+                                                      callback=_endpoints(listen=False))] = None,
     listen: Annotated[list[str] | None, typer.Option(help="Zenoh endpoint to listen on "
-                                                     "(repeatable).")] = None,
+                                                     "(repeatable).",
+                                                     callback=_endpoints(listen=True))] = None,
     wait: Annotated[float, typer.Option(help="Seconds to let subscribers connect before the "
                                         "first value.", callback=_number(0, 3600, unit=" s"))]
     = 1.0,

@@ -21,6 +21,7 @@ import zenoh
 
 from bridge.cli.rounding import Steps, to_step
 from bridge.errors import DecodeError, EncodeError, SessionError
+from bridge.mission.endpoints import endpoint_problem
 from bridge.mission.keyexpr import key_expr_problem
 from bridge.mission.model import ZenohSettings
 from bridge.runtime.session import close_quietly, open_session
@@ -43,45 +44,6 @@ class PokeError(Exception):
     def __init__(self, message: str, code: int = 2) -> None:
         super().__init__(message)
         self.code = code
-
-
-ENDPOINT_EXAMPLE = "tcp/127.0.0.1:7447"
-HOST_PORT = ("tcp", "udp", "tls", "quic", "ws")
-"""Zenoh's protocols whose address is ``<host>:<port>``."""
-OTHER_PROTOCOLS = ("unixsock-stream", "unixpipe", "serial", "vsock")
-"""Zenoh's protocols whose address is something else (a path, a device): left to Zenoh."""
-
-
-def endpoint_problem(endpoint: str) -> str | None:
-    """What is wrong with a Zenoh ``endpoint`` (``<protocol>/<host>:<port>``), in one line
-    naming it and the form expected; None if nothing is."""
-    protocol, slash, address = endpoint.partition("/")
-    address = address.split("?", 1)[0].split("#", 1)[0]  # (metadata, configuration)
-    why = None
-    if not slash or not protocol or not address:
-        why = "not <protocol>/<address>"
-    elif protocol in OTHER_PROTOCOLS:
-        return None
-    elif protocol not in HOST_PORT:
-        why = f"unknown protocol '{protocol}' (Zenoh's are {', '.join(HOST_PORT)}, " \
-            f"{', '.join(OTHER_PROTOCOLS)})"
-    else:
-        if address.startswith("["):  # an IPv6 address: [::1]:7447
-            inside, _, rest = address.partition("]")
-            host, colon, port = inside + "]", rest.startswith(":"), rest[1:]
-        else:
-            host, separator, port = address.rpartition(":")
-            colon = bool(separator)
-        if not colon:
-            why = f"no port after the host '{address}' (<host>:<port>)"
-        elif host in ("", "[]"):
-            why = "no host before the port (<host>:<port>)"
-        elif not port.isdigit() or not 0 < int(port) < 65536:
-            why = f"'{port}' is not a port (1 to 65535)"
-    if why is None:
-        return None
-    return f"invalid endpoint '{endpoint}': {why}; expected a Zenoh endpoint such as " \
-        f"{ENDPOINT_EXAMPLE}"
 
 
 def key_problem(key: str) -> str | None:

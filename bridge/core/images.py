@@ -66,7 +66,8 @@ if TYPE_CHECKING:
 
     Pixels = NDArray[np.uint8]
 
-__all__ = ["ImageSender", "Images", "picture_file", "pixel_encoding", "ros2_picture"]
+__all__ = ["ImageSender", "Images", "control_keys", "fit_control", "picture_file",
+           "pixel_encoding", "ros2_picture", "settings_of"]
 
 log = logging.getLogger("zab.core")
 
@@ -149,13 +150,31 @@ class Picture:
         return cls(bytes(data), str(encoding), key, ref)
 
 
-def _settings(saved: Mapping[str, Any], spec: ImageSpec) -> dict[str, Any]:
-    """A channel's settings as saved (the mission's where a restart finds none)."""
+def settings_of(saved: Mapping[str, Any], spec: ImageSpec) -> dict[str, Any]:
+    """A channel's settings as saved (the mission's where a restart finds none, or where
+    ``saved`` is empty)."""
     roi = saved.get("roi", spec.roi)
     return {"width": int(saved.get("width", spec.width)),
             "height": int(saved.get("height", spec.height)),
             "budget_bytes": int(saved.get("budget_bytes", spec.budget_bytes)),
             "roi": tuple(float(v) for v in roi) if roi else None}
+
+
+def fit_control(channel: ChannelCodec, camera: int, settings: Mapping[str, Any], value: Any
+                ) -> tuple[dict[str, Any], str, int]:
+    """An operator's control ``value`` on the control ``channel`` (steering ``camera``, as
+    :func:`control_keys` numbers it) merged into ``settings``: the settings then, its request
+    and the channel's packed value. A :class:`ValueError` saying why for a control the
+    camera would not follow: the one check of a put, a get and ``zab put --mission``."""
+    spec = _spec(channel)
+    merged = dict(settings)
+    try:
+        request = merge_control(merged, value, spec)
+        payload = channel.pack([control_payload(
+            merged, request, camera if len(channel.receivers) > 1 else None)])
+    except (EncodeError, TypeError, ValueError) as exc:
+        raise ValueError(f"image control {spec.name!r}: {exc}") from None
+    return merged, request, payload
 
 
 def control_keys(table: ChannelTable, node: str) -> dict[str, tuple[ChannelCodec, int]]:
@@ -185,7 +204,7 @@ class ImageSender(TransferSender):
                  first_seq: int = 0) -> None:
         super().__init__(channel, dests, retry_s, first_seq)
         spec = self.spec = _spec(channel)
-        self.settings: dict[str, Any] = _settings({}, spec)
+        self.settings: dict[str, Any] = settings_of({}, spec)
         self.latest: Picture | None = None  # not sent yet
         self.last: Picture | None = None  # sent last
         self.drop: Drop = _unread  # (set by :class:`Images`: a picture that does not decode)
@@ -203,7 +222,7 @@ class ImageSender(TransferSender):
 
     def restore(self, state: dict[str, Any]) -> None:
         super().restore(state)
-        self.settings = _settings(state.get("settings") or {}, self.spec)
+        self.settings = settings_of(state.get("settings") or {}, self.spec)
         self.latest = Picture.from_state(state.get("latest"))
         self.last = Picture.from_state(state.get("last"))
 
@@ -379,7 +398,7 @@ class Images:
                 self.inputs[channel.image.input_key(node)] = sender
                 self.cameras[channel.index + 1] = sender
         self.controls: dict[str, Control] = {
-            key: Control(channel, senders[channel.index], camera, _settings(
+            key: Control(channel, senders[channel.index], camera, settings_of(
                 (saved or {}).get(key) or {}, _spec(channel)))
             for key, (channel, camera) in control_keys(table, node).items()}
         """This node's steering of cameras, by control key."""
@@ -484,15 +503,10 @@ class Images:
         control = self.controls[key]
         channel, settings = control.channel, control.settings
         try:
-            merged = dict(settings)
-            spec = _spec(channel)
-            request = merge_control(merged, value, spec)
-            payload = channel.pack([control_payload(
-                merged, request, control.camera if len(channel.receivers) > 1 else None)])
-        except (EncodeError, TypeError, ValueError) as exc:
-            reason = f"image control {_spec(channel).name!r}: {exc}"
-            self.drop(key, reason, now, "unfit")
-            raise ValueError(reason) from None
+            merged, request, payload = fit_control(channel, control.camera, settings, value)
+        except ValueError as exc:
+            self.drop(key, str(exc), now, "unfit")
+            raise
         if merged != settings or request != "none":  # (else the operator only asks)
             settings.update(merged)
             self.outbox.reports(control.sender.offer(payload, now, key, ref))

@@ -9,16 +9,48 @@ node with puts on ``control`` (see docs/mission-file.md, "Image channels").
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from bridge.mission.base import MissionModel
 from bridge.mission.keyexpr import AnyTemplateKey
 
-__all__ = ["ImageChannel", "Ros2Pictures"]
+__all__ = ["ROI_STEPS", "ImageChannel", "Ros2Pictures", "roi_applied"]
 
 Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
+
+
+ROI_STEPS = 64
+"""An ROI's corners are whole 64ths of the picture (the stream's header carries them so)."""
+
+
+def roi_applied(roi: Any) -> tuple[float, float, float, float] | None:
+    """An ROI (``[x0, y0, x1, y1]`` fractions, or None) as the 64ths the camera applies, each
+    corner taken to its nearest; a :class:`ValueError` saying why for one it cannot apply
+    (not four numbers inside 0..1, empty, narrower than a 64th). The one rule of an ROI: the
+    mission's and an operator's control's."""
+    if roi is None:
+        return None
+    shown = list(roi) if isinstance(roi, tuple) else roi
+    if not isinstance(roi, (list, tuple)) or len(roi) != 4:
+        raise ValueError(f"roi {shown!r} is not [x0, y0, x1, y1] inside 0..1")
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in roi):
+        raise ValueError(f"roi {shown!r}: a corner is not a number")  # (true is no 1.0)
+    try:
+        x0, y0, x1, y1 = (float(v) for v in roi)
+    except OverflowError:  # (an integer past a float's range)
+        raise ValueError(f"roi {shown!r} is not [x0, y0, x1, y1] inside 0..1") from None
+    if not all(0 <= v <= 1 for v in (x0, y0, x1, y1)):
+        raise ValueError(f"roi {shown!r} is not [x0, y0, x1, y1] inside 0..1")
+    if not (x0 < x1 and y0 < y1):
+        raise ValueError(f"roi {shown!r} is empty (x1 must be > x0 and y1 > y0)")
+    corners = tuple(round(v * ROI_STEPS) for v in (x0, y0, x1, y1))
+    if corners[0] >= corners[2] or corners[1] >= corners[3]:
+        raise ValueError(f"roi {shown!r} is narrower than 1/{ROI_STEPS} of the picture (each "
+                         f"corner is taken to its nearest 1/{ROI_STEPS})")
+    a, b, c, d = (v / ROI_STEPS for v in corners)
+    return a, b, c, d
 
 
 class Ros2Pictures(MissionModel):
@@ -118,10 +150,14 @@ class ImageChannel(MissionModel):
                              "publish the pictures on) or both")
         if self.max_budget_bytes is not None and self.max_budget_bytes < self.budget_bytes:
             raise ValueError("max_budget_bytes is below budget_bytes")
-        roi = self.roi
-        if roi is not None and not (roi[0] < roi[2] and roi[1] < roi[3]):
-            raise ValueError("roi needs x0 < x1 and y0 < y1")
         return self
+
+    @field_validator("roi")
+    @classmethod
+    def _roi(cls, roi: tuple[float, float, float, float] | None
+             ) -> tuple[float, float, float, float] | None:
+        """The 64ths the camera applies, as an operator's control is taken."""
+        return roi_applied(roi)
 
     @property
     def largest_budget(self) -> int:

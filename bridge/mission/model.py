@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import (
+    AfterValidator,
     AwareDatetime,
     ConfigDict,
     Discriminator,
@@ -28,6 +29,7 @@ from pydantic import (
 )
 
 from bridge.mission.base import MissionModel
+from bridge.mission.endpoints import endpoint_problem
 from bridge.mission.fields import FieldSpec
 from bridge.mission.images import ImageChannel
 from bridge.mission.keyexpr import AnyTemplateKey, FixedKey, NodeTemplateKey, PeerTemplateKey
@@ -65,16 +67,29 @@ class Strict(MissionModel):
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
 
+def _checked(listen: bool) -> AfterValidator:
+    """A validator of one endpoint (Zenoh's own refusal does not name it)."""
+    def check(endpoint: str) -> str:
+        if (why := endpoint_problem(endpoint, listen=listen)) is not None:
+            raise ValueError(why)
+        return endpoint
+    return AfterValidator(check)
+
+
+ListenEndpoint = Annotated[str, _checked(listen=True)]
+ConnectEndpoint = Annotated[str, _checked(listen=False)]
+
+
 class ZenohSettings(MissionModel):
     """How a node opens its Zenoh session. Extra keys are Zenoh config paths, passed through."""
 
     model_config = ConfigDict(extra="allow")
 
     mode: Literal["peer", "client", "router"] = "peer"
-    listen: list[str] = Field(
+    listen: list[ListenEndpoint] = Field(
         default_factory=list, description="Endpoints, e.g. tcp/127.0.0.1:7501"
     )
-    connect: list[str] = Field(default_factory=list)
+    connect: list[ConnectEndpoint] = Field(default_factory=list)
 
     def passthrough(self) -> dict[str, Any]:
         """Extra keys, inserted verbatim into the Zenoh configuration."""

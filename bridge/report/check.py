@@ -26,6 +26,7 @@ from bridge.mission.network import Network
 from bridge.modems.registry import load_backend
 from bridge.modems.setup import modem_options
 from bridge.report.network_check import network_section
+from bridge.report.steps import coarse_fields, field_steps
 from bridge.wire.auth import COUNTER_BYTES
 from bridge.wire.channels import ChannelCodec, ChannelTable
 from bridge.wire.families import has_wildcard
@@ -109,9 +110,11 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
                           "at_most": -(-c.value_bytes // c.chunk_bytes)} if c.fragmented else None,
             "keys": _family(c),
             "always": c.always,
+            "fields": field_steps(c) if c.image is None else [],
         }
         for c in table.channels
     ]
+    report.warnings.extend(w for c in table.channels for w in coarse_fields(c))
     _family_warnings(loaded, report)
     report.warnings.extend(shared_input_warnings(mission, table))
     _system_entries_fit(loaded, codec, report)

@@ -78,7 +78,9 @@ def session_problem(text: str, settings: ZenohSettings) -> str:
         where = " ".join(settings.connect) or "(no connect endpoint)"
         return (f"no Zenoh router answers at {where} (start the router, e.g. zenohd -c "
                 "deploy/zenoh/..., or fix zenoh.connect)")
-    return f"cannot open the Zenoh session: {text}"
+    where = "; ".join(f"{side} {' '.join(endpoints)}" for side, endpoints in
+                      (("listen", settings.listen), ("connect", settings.connect)) if endpoints)
+    return f"cannot open the Zenoh session{f' ({where})' if where else ''}: {text}"
 
 
 def close_quietly(session: Any) -> None:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from bridge.codec import Layout
 from bridge.mission.fields import FieldSpec
-from bridge.mission.images import ImageChannel
+from bridge.mission.images import ImageChannel, roi_applied
 
 if TYPE_CHECKING:
     from bridge.ros2.element import Ros2Element
@@ -184,7 +184,7 @@ def merge_control(settings: dict[str, Any], value: Any, spec: ImageSpec) -> str:
     new: dict[str, Any] = {name: _size(name, value[name], spec)
                            for name in ("width", "height", "budget_bytes") if name in value}
     if "roi" in value:
-        new["roi"] = _roi(value["roi"])
+        new["roi"] = roi_applied(value["roi"])
     settings.update(new)
     return str(request)
 
@@ -207,25 +207,6 @@ def _size(name: str, value: Any, spec: ImageSpec) -> int:
     if not low <= number <= high:
         raise ValueError(f"{name} {number} is outside {low}..{high}{bounded}")
     return number
-
-
-def _roi(roi: Any) -> tuple[float, ...] | None:
-    """A control's ROI (``[x0, y0, x1, y1]`` fractions, or None) as the 64ths applied."""
-    if roi is None:
-        return None
-    if not isinstance(roi, (list, tuple)) or len(roi) != 4:
-        raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
-    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in roi):
-        raise ValueError(f"roi {roi!r}: a corner is not a number")  # (true is no 1.0)
-    try:
-        x0, y0, x1, y1 = (float(v) for v in roi)
-    except OverflowError:  # (an integer past a float's range)
-        raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1") from None
-    if not (0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1):
-        raise ValueError(f"roi {roi!r} is not [x0, y0, x1, y1] inside 0..1")
-    if round(x0 * 64) >= round(x1 * 64) or round(y0 * 64) >= round(y1 * 64):
-        raise ValueError(f"roi {roi!r} is narrower than 1/64 of the picture")
-    return tuple(round(v * 64) / 64 for v in (x0, y0, x1, y1))
 
 
 def _whole(value: Any) -> int | None:

@@ -51,6 +51,10 @@ CASES = {  # arguments ({tmp}: a folder, {log}: a mission log, {port}: a free po
                                "--speed", "1e-300", "--wait", "0"], 2, "'--speed'"),
     "replay --wait inf": (["log", "replay", "{log}", "--listen", "tcp/127.0.0.1:{port}",
                            "--wait", "inf"], 2, "'--wait'"),
+    "replay --listen port 99999": (["log", "replay", "{log}", "--listen", "tcp/127.0.0.1:99999",
+                                    "--wait", "0"], 2, "'--listen'"),
+    "replay --connect no protocol": (["log", "replay", "{log}", "--connect", "127.0.0.1:{port}",
+                                      "--wait", "0"], 2, "'--connect'"),
     "sim --water bogus": (["sim", "--duration", "3", "--no-live", "--water", "bogus", LINE], 2,
                           "'--water'"),
 }

@@ -158,3 +158,34 @@ def test_zab_put_with_the_mission_refuses_what_its_channels_cannot_take(
         "nav": '{"x": 1, "y": 2, "depth": 3, "heading": 4, "speed": 1}',
         "command": '{"action": "surface", "leg": 3}'}[key], "--mission", path])
     assert "cannot connect to" in fits.output, fits.output  # (checked, then sent)
+
+
+IMAGES = str(MISSIONS / "bluerov_images.yaml")
+
+
+@pytest.mark.parametrize(("key", "value", "says"), [
+    ("camera/control", '{"width": 4000}', "image control 'camera': width 4000 is outside "
+     "8..2048"),
+    ("camera/control", '{"colour": true}', "image control 'camera': unknown control colour"),
+    ("camera/control", '{"request": "sometime"}', "request 'sometime' is none of none, now, "
+     "cancel"),
+    ("camera/control", '{"budget_bytes": 99999}', "budget_bytes 99999 is outside 37..6400 "
+     "(the channel's max_budget_bytes)"),
+    ("camera/control", '{"roi": [0.5, 0.5, 0.5, 0.5]}', "is empty (x1 must be > x0"),
+    ("camera/control", "5", "a control is a map"),
+    ("rov/camera", '{"a": 1}', "image channel 'camera' takes pictures there: JPEG or PNG "
+     "bytes (image/jpeg, image/png), which zab put does not send"),
+], ids=["width", "unknown", "request", "budget", "roi", "not-a-map", "picture-key"])
+def test_zab_put_with_the_mission_checks_an_image_channel_s_keys(key: str, value: str,
+                                                                  says: str) -> None:
+    """An image control the camera would not follow was sent, then dropped by the bridge as
+    unfit (counted there); JSON on the camera's picture key likewise. With --mission, zab put
+    refuses it as the bridge would, and sends nothing."""
+    result = CliRunner().invoke(app, ["put", DEAD, key, value, "--mission", IMAGES])
+    said = " ".join(result.output.split())
+    assert result.exit_code == 2 and said.startswith(f"cannot put on {key}: "), said
+    assert says in said, said
+    fits = CliRunner().invoke(app, ["put", DEAD, "camera/control",
+                                    '{"request": "now", "width": 80, "roi": [0, 0, 0.5, 0.5]}',
+                                    "--mission", IMAGES])
+    assert "cannot connect to" in fits.output, fits.output  # (checked, then sent)
