@@ -4,7 +4,7 @@ and ``zab put`` join. Zenoh itself says only "invalid port value", without the e
 
 from __future__ import annotations
 
-__all__ = ["endpoint_problem", "same_socket"]
+__all__ = ["endpoint_problem", "same_socket", "shared_listens"]
 
 ENDPOINT_EXAMPLE = "tcp/127.0.0.1:7447"
 HOST_PORT = ("tcp", "udp", "tls", "quic", "ws")
@@ -70,3 +70,20 @@ def same_socket(a: str, b: str) -> bool:
     return (TRANSPORT[pa] == TRANSPORT[pb] and porta is not None and portb is not None
             and int(porta) == int(portb) != 0
             and (ha.lower() == hb.lower() or ha in ANY_HOST or hb in ANY_HOST))
+
+
+def shared_listens(listens: dict[str, list[str]]) -> list[str]:
+    """Each node (of ``listens``: node → its listen endpoints) listening where an earlier one
+    does, said: fine on machines of their own, but on one machine (``zab sim``, ``zab demo``)
+    only the first could listen there."""
+    out: list[str] = []
+    earlier: list[tuple[str, str]] = []
+    for name, endpoints in listens.items():
+        for endpoint in endpoints:
+            owner = next((n for n, e in earlier if same_socket(e, endpoint)), None)
+            if owner is not None:
+                out.append(f"node {name!r} listens on {endpoint}, where node {owner!r} does: "
+                           "fine on machines of their own, but zab sim and zab demo run every "
+                           "node on one machine, where only one can listen there")
+        earlier += [(name, e) for e in endpoints]
+    return out

@@ -16,7 +16,6 @@ import yaml
 from pydantic import ValidationError
 
 from bridge.errors import MissionError
-from bridge.mission.endpoints import same_socket
 from bridge.mission.model import Mission
 
 Loc = tuple[str | int, ...]
@@ -233,7 +232,6 @@ def cross_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
             yield (("nodes", name, "address"),
                    f"address {node.address} already used by node {seen[node.address]!r}")
         seen.setdefault(node.address, name)
-    yield from _shared_listens(mission)
     for i, anchor in enumerate(mission.ranging.anchors or ()):
         if anchor not in mission.nodes:
             yield (("ranging", "anchors", i), f"unknown node {anchor!r}")
@@ -245,20 +243,6 @@ def cross_problems(mission: Mission) -> Iterable[tuple[Loc, str]]:
         for i, name in enumerate(getattr(ping, field) or () if ping is not None else ()):
             if name not in mission.nodes:
                 yield (("ranging", "ping", field, i), f"unknown node {name!r}")
-
-
-def _shared_listens(mission: Mission) -> Iterable[tuple[Loc, str]]:
-    """A node listening where an earlier node does (one machine lets only the first)."""
-    earlier: list[tuple[str, str]] = []
-    for name, node in mission.nodes.items():
-        for i, endpoint in enumerate(node.zenoh.listen):
-            owner = next((n for n, e in earlier if same_socket(e, endpoint)), None)
-            if owner is not None:
-                yield (("nodes", name, "zenoh", "listen", i),
-                       f"{endpoint} is where node {owner!r} listens already: on one machine "
-                       "(zab sim, zab demo) only one can listen there; give each node a port "
-                       "of its own")
-        earlier += [(name, e) for e in node.zenoh.listen]
 
 
 def read_mission_file(path: str | Path) -> str:

@@ -20,6 +20,7 @@ from bridge.core.transfer import transfer_ttl_s
 from bridge.dccl.numeric import RULES
 from bridge.dccl.report import dccl_reports
 from bridge.errors import BackendError
+from bridge.mission.endpoints import shared_listens
 from bridge.mission.loader import Problem, located
 from bridge.mission.model import Mission
 from bridge.mission.network import Network
@@ -117,6 +118,8 @@ def check_mission(loaded: LoadedMission) -> CheckReport:
     report.warnings.extend(w for c in table.channels for w in coarse_fields(c))
     _family_warnings(loaded, report)
     report.warnings.extend(shared_input_warnings(mission, table))
+    report.warnings.extend(shared_listens({n: list(node.zenoh.listen)
+                                           for n, node in mission.nodes.items()}))
     _system_entries_fit(loaded, codec, report)
     for c in table.channels:
         if c.fragmented and c.image is None:

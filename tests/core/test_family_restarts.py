@@ -73,8 +73,8 @@ def test_names_and_values_resume_under_the_same_mission() -> None:
     before = NodeCore(parse_mission(text, "zspace.yaml"), "auv1")
     before.ingest("auv1/contacts/alpha", msgpack.packb({"range_m": 100, "bearing_deg": 0}),
                   "application/msgpack", 1.0)
-    (alpha,) = [s for s in before.outbound.families.senders.values()
-                if s.channel.name == "contacts"][0].states.values()
+    (alpha,) = next(s for s in before.outbound.families.senders.values()
+                    if s.channel.name == "contacts").states.values()
     assert sender.states[0].packed == alpha.packed and sender.states[0].updated == [1.0]
     assert sender.states[1].packed != alpha.packed
     auv.tick(5.0)
