@@ -2,9 +2,10 @@
 
 Checks, in order: the mission (as ``zab check``) and the frame key; the modem (the serial
 device exists and is usable, then the backend opens and the modem answers its start-up
-commands); the Zenoh session (listen endpoints free, connect endpoints reachable); the state
-directory (a save works there, with room to spare: a bridge that cannot save its state refuses
-new reliable values); the clock (TDMA slots are wall-clock aligned, so every node needs a
+commands; a serial modem that does not is asked which kind it is, as each backend would);
+the Zenoh session (listen endpoints free, connect endpoints reachable); the state directory
+(a save works there, with room to spare: a bridge that cannot save its state refuses new
+reliable values); the clock (TDMA slots are wall-clock aligned, so every node needs a
 synchronised clock: chrony, systemd's timesyncd or a PPS source). When a bridge of the node
 is running (it holds the node's state lock), the modem, Zenoh and state checks are skipped:
 they would open what the bridge holds.
@@ -32,6 +33,8 @@ from bridge.core.loaded import LoadedMission
 from bridge.core.mac import mac_for
 from bridge.errors import BackendError
 from bridge.mission.model import Mission
+from bridge.modems.identify import identify
+from bridge.modems.registry import load_backend
 from bridge.modems.setup import backend_factory
 from bridge.report.check import check_mission
 from bridge.runtime.keys import frame_key
@@ -244,14 +247,43 @@ async def _modem(mission: Mission, node: str, label: str, timeout_s: float) -> l
         async with asyncio.timeout(timeout_s):
             await backend.open()
     except TimeoutError:
-        return [Finding(label, "fail", f"{modem.backend}: no answer within {timeout_s:g} s",
-                        _modem_fix(modem.backend))]
+        failed = Finding(label, "fail", f"{modem.backend}: no answer within {timeout_s:g} s",
+                         _modem_fix(modem.backend))
     except BackendError as exc:
-        return [Finding(label, "fail", f"{modem.backend}: {exc}", _modem_fix(modem.backend))]
+        failed = Finding(label, "fail", f"{modem.backend}: {exc}", _modem_fix(modem.backend))
+    else:
+        return [Finding(label, "ok", f"{modem.backend}: opened, the modem answered")]
     finally:
         with contextlib.suppress(BackendError, OSError):
             await backend.close()
-    return [Finding(label, "ok", f"{modem.backend}: opened, the modem answered")]
+    return [await _told_apart(mission, node, label, failed)]
+
+
+async def _told_apart(mission: Mission, node: str, label: str, failed: Finding) -> Finding:
+    """A serial modem that did not start, asked which kind it is: another kind of modem
+    (its first line telling so), a device whose lines no backend speaks (a wrong baud
+    rate?), or ``failed`` as it was (silent, or speaking the backend's own protocol)."""
+    modem = mission.node_modem(node)
+    if modem.backend not in SERIAL_BACKENDS:
+        return failed
+    try:
+        baud = int(modem.options.get("baud", 19200))
+    except (TypeError, ValueError):
+        return failed
+    order = [modem.backend, *sorted(SERIAL_BACKENDS - {modem.backend})]  # its own probe first
+    backends = {name: load_backend(name) for name in order}
+    name, line = await identify(str(modem.options.get("device")), baud, backends)
+    if line is None or name == modem.backend:
+        return failed
+    shown = line.decode("latin-1").strip()[:80]
+    if name is None:
+        return Finding(label, "fail", f"{modem.backend}: the device answers, in no modem "
+                       f"protocol zab knows: {shown!r}", "check the baud option (the modem's "
+                       "serial speed) and that the device is the modem's port")
+    return Finding(label, "fail", f"{modem.backend}: the device answers, but speaks the "
+                   f"{name} protocol: {shown!r}", f"set `backend: {name}` in {node}'s modem "
+                   f"settings, or its device to the port of a modem the {modem.backend} "
+                   "backend drives")
 
 
 def _modem_fix(backend: str) -> str:

@@ -23,6 +23,7 @@ from bridge.core.events import (
     FrameReceived,
     FrameSent,
     ModemDown,
+    ModemUp,
     PayloadDrops,
     SendFailed,
 )
@@ -75,7 +76,8 @@ def simulated(loaded: LoadedMission) -> tuple[LoadedMission, str | None]:
 class EventLog:
     """The last few frame events, for the live view (kept as they come, worded when shown)."""
 
-    KINDS = (FrameSent, FrameReceived, FrameDropped, PayloadDrops, SendFailed, ModemDown)
+    KINDS = (FrameSent, FrameReceived, FrameDropped, PayloadDrops, SendFailed, ModemDown,
+             ModemUp)
 
     def __init__(self, size: int = 10) -> None:
         self._last: deque[tuple[float, str, Event]] = deque(maxlen=size)
@@ -102,6 +104,8 @@ def _wording(node: str, event: Event) -> str:
         case FrameDropped(reason=why) | SendFailed(error=why) \
                 | ModemDown(error=why):
             return f"{node} {event.kind.replace('_', ' ')}: {why}"
+        case ModemUp(down_s=down_s):
+            return f"{node} modem up after {down_s:.1f} s"
     return f"{node} {event.kind}"
 
 

@@ -2,10 +2,10 @@
 
 :class:`~bridge.core.node.NodeCore` outputs one of these for each runtime event (a frame sent,
 heard or dropped, a link change, a range, a fix, a delivery report …); the runtime adds
-:class:`ModemDown`. In-process observers ``match`` on the classes. Where an event leaves the
-process (``@zab/<mission>/<node>/events``, the MCAP logbook, the GUI feed) it becomes the map
-:meth:`Event.to_dict` returns, named by the class's :attr:`Event.kind`: the wire names
-(``frame_sent``, ``bytes``, ``src`` …) live only there.
+:class:`ModemDown` and :class:`ModemUp`. In-process observers ``match`` on the classes. Where
+an event leaves the process (``@zab/<mission>/<node>/events``, the MCAP logbook, the GUI feed)
+it becomes the map :meth:`Event.to_dict` returns, named by the class's :attr:`Event.kind`: the
+wire names (``frame_sent``, ``bytes``, ``src`` …) live only there.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # not imported at run time: the tracker pulls in numpy
 
 __all__ = [
     "Delivery", "Event", "FieldsLeftOut", "FrameDropped", "FrameReceived", "FrameRelayed",
-    "FrameSent", "Link", "LinkSwitched", "MissionMismatch", "ModemDown", "PayloadDrops",
+    "FrameSent", "Link", "LinkSwitched", "MissionMismatch", "ModemDown", "ModemUp", "PayloadDrops",
     "PeerLink", "PeerRestarted", "PicturePublished", "Position", "Range", "RangeFailed",
     "RouteSwitched", "SendFailed",
     "StateSaving", "Surfaced", "UnmappedKey", "notable",
@@ -386,13 +386,27 @@ class Surfaced(Event):
 
 @dataclass(frozen=True, slots=True)
 class ModemDown(Event):
-    """The modem failed or could not be opened (the runtime retries)."""
+    """The modem failed or could not be opened: an outage begins (the runtime retries, with
+    no event until :class:`ModemUp`)."""
 
     kind: ClassVar[str] = "modem_down"
     error: str
 
     def to_dict(self) -> dict[str, Any]:
         return {"time": self.time, "error": self.error}
+
+
+@dataclass(frozen=True, slots=True)
+class ModemUp(Event):
+    """The modem is ready again after :class:`ModemDown`: down ``down_s`` seconds, in which
+    ``retries`` more tries to open it failed."""
+
+    kind: ClassVar[str] = "modem_up"
+    down_s: float
+    retries: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "down_s": round(self.down_s, 3), "retries": self.retries}
 
 
 @dataclass(frozen=True, slots=True)
@@ -409,7 +423,7 @@ class StateSaving(Event):
                 "since": self.since}
 
 
-NOTABLE = (Link, FrameDropped, SendFailed, ModemDown, PayloadDrops, MissionMismatch,
+NOTABLE = (Link, FrameDropped, SendFailed, ModemDown, ModemUp, PayloadDrops, MissionMismatch,
            PeerRestarted, Surfaced, StateSaving, FieldsLeftOut, UnmappedKey, PeerLink,
            LinkSwitched, RouteSwitched)
 """Events also published on ``@zab/<mission>/<node>/events`` (with failed deliveries)."""

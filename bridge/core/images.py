@@ -515,14 +515,18 @@ class Images:
 
     # -- entries in ------------------------------------------------------------------------
 
-    def entry(self, src: str, channel: ChannelCodec, entry: Entry, now: float) -> None:
+    def entry(self, src: str, channel: ChannelCodec, entry: Entry, now: float) -> int:
         """An entry of an image channel from ``src``: a control for our camera, or a
-        fragment of a picture for us."""
+        fragment of a picture for us. Returns the values it delivered here: the controls
+        our camera took (none for one sent again, its first copy taken), or 1 for a
+        fragment."""
         if _spec(channel).control:
             camera = self.cameras.get(channel.index)
             mine = channel.receivers.index(self.node) + 1 if camera is not None else -1
+            taken = 0
             for values in self.receivers.entry(src, channel, entry.header, entry.values):
                 if camera is not None and values[0].get("camera", 0) in (0, mine):
+                    taken += 1
                     value = values[0]
                     picture = camera.latest or camera.last
                     if value["request"] == "now" and picture is not None and self._over_ip(
@@ -530,15 +534,15 @@ class Images:
                         value = {**value, "request": "none"}  # (it went over IP)
                     self.outbox.reports(camera.control(value, now))
                     self.outbox.unsaved = True  # (its settings)
-            return
+            return taken
         data, progress = self.receivers.fragment(src, channel, entry.header, entry.chunk)
-        self.outbox.stats.received_per_channel[channel.name] += 1  # (a fragment: its value)
         receiver = self.receivers.by_key[(src, channel.index)]
         assert isinstance(receiver, TransferReceiver)
         stream = data if data is not None else receiver.prefix()
         self.outbox.status(f"transfer/{channel.name}", {**progress, "peer": src, "time": now,
                                                         "bytes": len(stream)})
         self._show(src, channel, receiver, stream, data is not None, now)
+        return 1
 
     def tick(self, now: float) -> None:
         """Publish the pictures held back by ``publish_interval_s`` whose interval is over

@@ -238,8 +238,11 @@ class Inbound:
             surfacing.duplicates += 1  # it reaches us over IP at full fidelity
             return
         if channel.image is not None and self.images is not None:
-            carried[channel.name] = None
-            self.images.entry(src, channel, entry, now)
+            taken = self.images.entry(src, channel, entry, now)
+            if taken:
+                carried[channel.name] = None
+                self.stats.received_per_channel[channel.name] += taken
+                self.received_at[channel.name] = now
             return
         if channel.fragmented:
             delivered = self._fragment(src, channel, entry, now)

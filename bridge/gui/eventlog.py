@@ -60,7 +60,13 @@ def describe_event(node: str, event: Mapping[str, Any]) -> LogLine | None:
     if kind == "send_failed":
         return LogLine("error", "driver", f"{node}: modem send failed: {event.get('error')}")
     if kind == "modem_down":
-        return LogLine("error", "driver", f"{node}: modem unavailable: {event.get('error')}")
+        return LogLine("error", "driver", f"{node}: modem unavailable: {event.get('error')} "
+                       "(retrying)")
+    if kind == "modem_up":
+        down, retries = event.get("down_s"), event.get("retries")
+        after = f" after {down:.1f} s" if isinstance(down, int | float) else ""
+        tries = f" ({counted(retries, 'retry', 'retries')})" if isinstance(retries, int) else ""
+        return LogLine("info", "driver", f"{node}: modem back{after}{tries}")
     if kind == "surfaced":  # told by each side, the surface's bridge and the vehicle's
         peer = event.get("peer")
         if event.get("ip"):

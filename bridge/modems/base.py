@@ -336,6 +336,16 @@ class ModemBackend(ABC):
     default_broadcast: ClassVar[int | None] = None
     """The backend's own convention for the address that means every node (None: none)."""
 
+    probe: ClassVar[bytes | None] = None
+    """A harmless query a modem of this kind answers in its own protocol, as written to its
+    port (``zab doctor`` asks it of a device that did not start, to tell which modem it is);
+    None: none."""
+
+    @classmethod
+    def speaks(cls, line: bytes) -> bool:
+        """Whether ``line``, one line a device wrote, is in this kind of modem's protocol."""
+        return False
+
     @classmethod
     def broadcast_address(cls, options: Mapping[str, Any]) -> int | None:
         """The address that means every node: the ``broadcast`` option (the mission's

@@ -23,7 +23,8 @@ import threading
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from bridge.core.events import Event, ModemDown
+from bridge.core.events import Event
+from bridge.core.modem_outage import ModemOutage
 from bridge.core.node import NodeCore, Ping, SendFrame
 from bridge.core.reception import RangingMode
 from bridge.errors import BackendError, SendTooLate
@@ -101,6 +102,7 @@ class LinkPort:
         self.data = asyncio.Event()
         """Set when the core may have something new to send on this link."""
         self.modem_up = asyncio.Event()
+        self.outage = ModemOutage()
         self.sending = False
         self.planned: float | None = None  # when the transmit loop wakes by itself
         self.name = host.node if link is None else f"{host.node}/{link}"
@@ -294,7 +296,8 @@ class LinkPort:
             host._flush()
 
     async def modem_loop(self) -> None:
-        """Open the modem, read receptions; on failure, open a fresh one with backoff."""
+        """Open the modem, read receptions; on failure, open a fresh one with backoff (an
+        outage is one ``modem_down`` event, and one ``modem_up`` when it ends)."""
         host = self.host
         backoff = RETRY_MIN_S
         while True:
@@ -306,13 +309,20 @@ class LinkPort:
                 await backend.open()
                 self.modem_up.set()
                 backoff = RETRY_MIN_S
+                up = self.outage.opened(host.clock())
+                if up is not None:
+                    log.info("%s: modem back after %.1f s (%d retries)", self.name,
+                             up.down_s, up.retries)
+                    host._event(up)
                 while True:  # what came before on_reception took over, then its errors
                     self.receive(await backend.recv())
             except BackendError as exc:
                 self.modem_up.clear()
                 log.warning("%s: modem unavailable: %s (retry in %.1f s)", self.name, exc,
                             backoff)
-                host._event(ModemDown(host.clock(), str(exc)))
+                down = self.outage.failed(str(exc), host.clock())
+                if down is not None:
+                    host._event(down)
                 await backend.close()
                 await asyncio.sleep(backoff)
                 backoff = min(backoff * 2, RETRY_MAX_S)

@@ -12,7 +12,8 @@ them as they are. Topics:
 - ``/zab/<node>/picture_published``: each picture an image channel published: its key, its
   metadata and its stream's bytes since the one before (``start``, ``data_hex``);
 - ``/zab/<node>/<kind>`` for every other event: ``range``, ``position``, ``link``,
-  ``payload_drops``, ``send_failed``, ``modem_down``, ``delivery``, ``transfer``, ...
+  ``payload_drops``, ``send_failed``, ``modem_down``, ``modem_up``, ``delivery``,
+  ``transfer``, ...
 
 The mission itself is attached (``mission.yaml``, as validated) with metadata ``zab``
 (mission, node, fingerprint), so :func:`read_log` alone can replay the decoded data and the

@@ -12,9 +12,12 @@ from typer.testing import CliRunner
 
 from bridge.cli.app import app
 from bridge.cli.sim_fast import feed, least_feed_s
-from bridge.core.loaded import parse_mission
+from bridge.core.events import Delivery, FrameReceived
+from bridge.core.loaded import load_mission, parse_mission
 from bridge.mission.presets import PRESETS
-from bridge.runtime.virtual_fleet import FastFleet
+from bridge.report.age import AgeOfInformation
+from bridge.report.model import MissionReport
+from bridge.runtime.virtual_fleet import FastFleet, Timed
 from tests.conftest import MISSIONS
 
 RUNNER = CliRunner()
@@ -40,6 +43,40 @@ def test_a_synthetic_camera_feeds_an_image_channel(mission_key: str) -> None:
     camera, control = rows["camera"], rows["camera.control"]
     assert int(camera[1]) >= 40 and int(camera[2]) >= 40  # a 1600 B picture: 40 trunks
     assert control[1:3] == ["0", "0"]
+
+
+def test_the_operator_s_image_controls_count_as_delivered() -> None:
+    """bluerov_images with two controls put at the surface: the summary's camera.control row
+    says both were delivered, as the delivery reports do and the camera applied them (it
+    said 0: a control's arrival was no value received), its age counted from the first."""
+    loaded = load_mission(MISSIONS / "bluerov_images.yaml")
+    ages = AgeOfInformation()
+    states: list[str] = []
+
+    def outputs(timed: Timed) -> None:
+        event = timed.output
+        if isinstance(event, FrameReceived):
+            for channel in event.channels:
+                ages.arrived(channel, timed.node, timed.time)
+        elif isinstance(event, Delivery) and event.channel == "camera.control":
+            states.append(event.state)
+
+    fleet = FastFleet(loaded, seed=0, on_output=outputs, keep_outputs=False)
+    feed(fleet, random.Random(0), 200.0)
+    fleet.put("operator", "camera/control", {"budget_bytes": 777}, at=20.0, ref="budget")
+    fleet.put("operator", "camera/control", {"roi": [0.25, 0.25, 0.75, 0.75]}, at=60.0,
+              ref="roi")
+    fleet.run_until(200.0)
+    images = fleet.cores["rov"].images
+    assert images is not None
+    camera = images.cameras[loaded.table.by_name("camera").index + 1]
+    assert camera.settings["budget_bytes"] == 777 and camera.settings["roi"] is not None
+    assert states.count("delivered") == 2, states
+    report = MissionReport.build(loaded, fleet.cores, ages, 0.0, fleet.now,
+                                 fleet.water_stats(), clock="virtual")
+    control = report.channels["camera.control"]
+    assert control.sent >= 2 and control.delivered == 2
+    assert control.age is not None and control.age.max_s < 200.0 - 60.0
 
 
 def tiny_interval_odometry() -> str:

@@ -26,9 +26,10 @@ from bridge.cli.doctor import (
     state_findings,
 )
 from bridge.core.loaded import LoadedMission
+from bridge.errors import BackendError
 from bridge.modems.evologics.emulator import EvologicsEmulator
 from bridge.modems.micromodem.emulator import MicromodemEmulator
-from bridge.modems.setup import modem_setup
+from bridge.modems.setup import backend_factory, modem_setup
 from bridge.modems.transport import ByteTransport
 from bridge.runtime.fleet import water_for
 from bridge.runtime.state_file import StateFile
@@ -71,9 +72,10 @@ def prepared(name: str, node: str, device: Path, water_port: int, **options: obj
 
 
 @contextlib.asynccontextmanager
-async def emulated(kind: str, tmp_path: Path, **options: object
+async def emulated(kind: str, tmp_path: Path, device: str | None = None, **options: object
                    ) -> AsyncIterator[tuple[LoadedMission, str, object]]:
-    """The mission's first node with an emulated modem behind a pty link, in the water."""
+    """The mission's first node with an emulated modem behind a pty link, in the water: a
+    ``kind`` modem, or a ``device`` one behind the ``kind`` backend."""
     name = {"evologics": "morph_evologics.yaml", "micromodem": "remus_micromodem.yaml"}[kind]
     node = {"evologics": "ssv", "micromodem": "topside"}[kind]
     water_port = free_port()
@@ -81,7 +83,8 @@ async def emulated(kind: str, tmp_path: Path, **options: object
     water = water_for(loaded)
     await water.start("127.0.0.1", water_port)
     setup = modem_setup(loaded.mission, node)
-    emulator = (EvologicsEmulator(setup, link=tmp_path / f"modem-{node}") if kind == "evologics"
+    emulator = (EvologicsEmulator(setup, link=tmp_path / f"modem-{node}")
+                if (device or kind) == "evologics"
                 else MicromodemEmulator(setup, link=tmp_path / f"modem-{node}",
                                         rev_period_s=None))
     evologics = isinstance(emulator, EvologicsEmulator)
@@ -145,6 +148,49 @@ def test_a_modem_that_does_not_answer_fails_with_a_fix(tmp_path: Path) -> None:
     [modem] = by_check(asyncio.run(asyncio.wait_for(main(), 30)))["modem"]
     assert modem.status == "fail" and "no answer" in modem.message
     assert modem.fix is not None and "cable" in modem.fix
+
+
+@pytest.mark.parametrize(("backend", "device", "said"), [
+    ("evologics", "micromodem", r"'\$CAERR,\d+,NMEA,1,Bad sentence\*[0-9A-F]{2}'"),
+    ("micromodem", "evologics", r"'\+\+\+AT\?MODE:\d+:\w+'")])
+def test_a_modem_of_the_other_kind_is_named_with_the_line_it_answered(
+        tmp_path: Path, backend: str, device: str, said: str) -> None:
+    """Found from outside: the evologics backend at a Micro-Modem said "no answer within 5 s:
+    check the power and cable", though the modem answered $CAERR; the micromodem backend at an
+    EvoLogics "no echo of $CCCFG,SRC". Doctor now names the protocol the device speaks, with
+    the first line telling so, and the backend to set."""
+    quick = {"evologics": {"probe_retries": 1}, "micromodem": {"retries": 0}}[backend]
+
+    async def main() -> list[Finding]:
+        async with emulated(backend, tmp_path, device, timeout_s=0.5, **quick) as (
+                loaded, node, _):
+            return await run_doctor(loaded, node, timeout_s=10, run=no_tools)
+
+    [modem] = by_check(asyncio.run(asyncio.wait_for(main(), 30)))["modem"]
+    assert modem.status == "fail"
+    assert re.fullmatch(rf"{backend}: the device answers, but speaks the {device} protocol: "
+                        f"{said}", modem.message), modem.message
+    assert modem.fix is not None and modem.fix.startswith(f"set `backend: {device}`")
+
+
+def test_the_evologics_driver_says_what_another_modem_wrote(tmp_path: Path) -> None:
+    """What `zab run` logs at each retry, too: not only "no answer"."""
+    async def main() -> str:
+        async with emulated("evologics", tmp_path, "micromodem", timeout_s=0.5,
+                            probe_retries=1) as (loaded, node, _):
+            backend = backend_factory(loaded.mission, node)()
+            try:
+                await backend.open()
+            except BackendError as exc:
+                return str(exc)
+            finally:
+                await backend.close()
+            return "opened"
+
+    error = asyncio.run(asyncio.wait_for(main(), 30))
+    assert re.search(r"no answer from the modem .*; the device wrote '\$CAERR,\d+,NMEA,1,Bad "
+                     r"sentence\*[0-9A-F]{2}' instead \(another kind of modem\? zab doctor "
+                     r"tells\)$", error), error
 
 
 def test_missing_device_and_busy_endpoint_fail(tmp_path: Path) -> None:

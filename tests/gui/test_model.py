@@ -283,6 +283,13 @@ def test_events_read_as_sentences(morph):
     other = describe_event("ssv", {"kind": "mission_mismatch", "peer": "lsv",
                                    "fingerprint": "ab", "ours": "cd", "time": 4.0})
     assert other is not None and "lsv runs another mission file" in other.text
+    down = describe_event("ssv", {"kind": "modem_down", "error": "pty gone", "time": 5.0})
+    assert down is not None and down.level == "error"
+    assert down.text == "ssv: modem unavailable: pty gone (retrying)"
+    back = describe_event("ssv", {"kind": "modem_up", "down_s": 42.3, "retries": 5,
+                                  "time": 47.3})
+    assert back is not None and back.level == "info"
+    assert back.text == "ssv: modem back after 42.3 s (5 retries)"
 
 
 def test_a_node_nobody_answers_for_is_said_plainly(morph):

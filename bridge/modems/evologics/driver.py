@@ -103,6 +103,7 @@ from bridge.modems.evologics.protocol import (
     UsblLong,
     Value,
     firmware_is_legacy,
+    from_modem,
 )
 from bridge.modems.transport import ByteTransport
 
@@ -126,11 +127,16 @@ class EvologicsBackend(ModemBackend):
     name: ClassVar[str] = "evologics"
     ranging: ClassVar[RangingMode | None] = RangingMode.ACK
     default_broadcast: ClassVar[int | None] = BROADCAST  # driver practice [V BIR]
+    probe: ClassVar[bytes | None] = b"+++AT?MODE\r"  # (the start-up's first query)
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
         """Instant messages carry at most 64 bytes."""
         return IM_MAX_BYTES
+
+    @classmethod
+    def speaks(cls, line: bytes) -> bool:
+        return from_modem(line)
 
     def __init__(self, setup: ModemSetup) -> None:
         super().__init__(setup)
@@ -341,8 +347,11 @@ class EvologicsBackend(ModemBackend):
                 await asyncio.sleep(self.timeout_s / 2)  # dmac2 ignores it and asks again
                 continue
             raise BackendError(f"{self._who}: unexpected answer to AT?MODE: {_text(reply)}")
+        wrote = bytes(self._raw).strip().split(b"\n", 1)[0].strip()  # (the last probe's)
         raise BackendError(f"{self._who}: no answer from the modem on {self.device} within "
-                           f"{self.timeout_s:g} s ({self.probe_retries} probes)")
+                           f"{self.timeout_s:g} s ({self.probe_retries} probes)" + (
+                               f"; the device wrote {wrote.decode('latin-1')[:80]!r} instead "
+                               "(another kind of modem? zab doctor tells)" if wrote else ""))
 
     # -- sending -------------------------------------------------------------------------------
 

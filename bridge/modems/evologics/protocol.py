@@ -70,6 +70,7 @@ __all__ = [
     "UsblAngles",
     "UsblLong",
     "Value",
+    "from_modem",
     "parse_body",
     "wrap",
 ]
@@ -586,6 +587,20 @@ KNOWN_NOTIFICATIONS = frozenset(
 """Names that start an asynchronous line (§1.7); any other line in command mode is a reply."""
 
 _NAME = re.compile(r"%?[A-Z][A-Z0-9]*")
+
+
+_DATA_MODE_REPLY = re.compile(rb"\+\+\+AT[^:\r\n]*:\d+:")
+
+
+def from_modem(line: bytes) -> bool:
+    """Whether ``line`` is one an EvoLogics modem writes: a data-mode reply
+    (``+++AT<command>:<len>:…``), a reply (``OK``, ``ERROR …``, ``BUSY …``) or a notification
+    it names (§1.7)."""
+    body = line.strip(b"\r\n")
+    if _DATA_MODE_REPLY.match(body) or body in (b"OK", b"[*]OK"):
+        return True
+    return body.startswith((b"ERROR", b"BUSY")) or \
+        body.partition(b",")[0].decode("latin-1") in KNOWN_NOTIFICATIONS
 
 
 def wrap(body: bytes, mode: Mode, command: str = "") -> bytes:

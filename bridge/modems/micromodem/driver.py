@@ -82,7 +82,7 @@ from bridge.modems.base import (
     Reception,
 )
 from bridge.modems.micromodem.nav import Transponders, TravelTimes
-from bridge.modems.micromodem.nmea import Sentence
+from bridge.modems.micromodem.nmea import Sentence, from_modem
 from bridge.modems.micromodem.protocol import (
     BadSentence,
     Clock,
@@ -127,6 +127,11 @@ class MicromodemBackend(ModemBackend):
     name: ClassVar[str] = "micromodem"
     ranging: ClassVar[RangingMode | None] = RangingMode.PING
     default_broadcast: ClassVar[int | None] = DEFAULT_BROADCAST
+    probe: ClassVar[bytes | None] = Sentence("CC", "CFQ", ("SRC",)).encode()  # its address
+
+    @classmethod
+    def speaks(cls, line: bytes) -> bool:
+        return from_modem(line)
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:

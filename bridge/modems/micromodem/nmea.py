@@ -26,6 +26,7 @@ __all__ = [
     "Sentence",
     "checksum",
     "checksum32",
+    "from_modem",
     "parse_sentence",
 ]
 
@@ -151,6 +152,19 @@ def parse_sentence(line: bytes | str) -> Sentence:
     if not _ADDRESS.fullmatch(address):
         raise NmeaError(f"bad talker/type {address[:12]!r} (want CACYC or CAUSB2)")
     return Sentence(address[:2], address[2:], tuple(fields))
+
+
+MODEM_TALKERS = ("CA", "SN")
+"""The talkers of the sentences a Micro-Modem writes of its own (``GP`` it passes on)."""
+
+
+def from_modem(line: bytes) -> bool:
+    """Whether ``line`` is a sentence a Micro-Modem writes: talker ``CA`` or ``SN``, with a
+    checksum that matches if it has one."""
+    try:
+        return parse_sentence(line).talker in MODEM_TALKERS
+    except NmeaError:
+        return False
 
 
 class LineBuffer:
