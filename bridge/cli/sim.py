@@ -28,6 +28,7 @@ from bridge.core.events import (
     SendFailed,
 )
 from bridge.core.loaded import LoadedMission, parse_mission
+from bridge.mission.backends import SimOptions
 from bridge.report.model import MissionReport, channel_figures, print_report
 from bridge.report.recorder import MissionRecorder, truth_from
 from bridge.runtime.fleet import Fleet
@@ -47,17 +48,35 @@ def link_modems(data: dict[str, Any]) -> list[dict[str, Any]]:
 
 def simulate_real_modems(data: dict[str, Any]) -> list[str]:
     """Make every real modem (EvoLogics, Micro-Modem) of mission ``data`` (its YAML, changed in
-    place) a simulated one with the same timings: the simulated modem reads its preset and
-    water and leaves the other options. Returns the real backends found, sorted."""
-    modems = link_modems(data)
-    modems += [n["modem"] for n in (data.get("nodes") or {}).values()
-               if isinstance(n, dict) and isinstance(n.get("modem"), dict)
-               and "backend" in n["modem"]]
-    real = set()
-    for modem in modems:
-        if modem.get("backend", "sim") not in SIMULATED:
-            real.add(str(modem["backend"]))
+    place) a simulated one with the same timings: the simulated modem keeps the options a sim
+    modem has (its preset and water) and leaves the others. Returns the real backends found,
+    sorted."""
+    real: set[str] = set()
+
+    def simulate(modem: Any, inherited: str) -> str:
+        """Make ``modem`` (a modem section, whose backend is ``inherited`` unless it names
+        one) simulated; its own backend, as it was."""
+        if not isinstance(modem, dict):
+            return inherited
+        backend = str(modem.get("backend", inherited))
+        if backend not in SIMULATED:
+            real.add(backend)
             modem["backend"] = "sim"
+            if isinstance(modem.get("options"), dict):
+                modem["options"] = {k: v for k, v in modem["options"].items()
+                                    if k in SimOptions.model_fields}
+        return backend
+
+    links = data.get("links") or {}
+    for link in links.values() if isinstance(links, dict) else ():
+        shared = simulate(link.setdefault("modem", {}), "sim")
+        for member in (link.get("nodes") or {}).values() if isinstance(link.get("nodes"),
+                                                                        dict) else ():
+            simulate(member.get("modem") if isinstance(member, dict) else None, shared)
+    if not links:
+        shared = simulate(data.setdefault("modem", {}), "sim")
+        for node in (data.get("nodes") or {}).values():
+            simulate(node.get("modem") if isinstance(node, dict) else None, shared)
     return sorted(real)
 
 

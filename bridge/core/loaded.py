@@ -14,6 +14,7 @@ from functools import cached_property
 from pathlib import Path
 
 from bridge.core.mac import mac_for
+from bridge.mission.backends import backend_problems
 from bridge.mission.loader import (
     Loc,
     Marks,
@@ -51,7 +52,8 @@ def parse_mission(text: str, path: str | Path = "<mission>") -> LoadedMission:
     """Validate mission ``text``; raise :class:`~bridge.mission.loader.MissionProblems`
     listing every problem found."""
     mission, marks = read_mission(text, path)
-    network = [*modem_problems(mission), *network_problems(mission)]
+    network = [*backend_problems(mission), *modem_problems(mission),
+               *network_problems(mission)]
     problems = [*cross_problems(mission), *network]
     if not network:  # (each link's MAC sees the mission through its links, its modems'
         problems += _mac_problems(mission)  # timing through their presets)

@@ -119,13 +119,18 @@ BROADCAST_DESCRIPTION = (
     "Every node must agree on it, and no node may have it as its address (zab check).")
 
 
+OPTIONS_DESCRIPTION = (
+    "The backend's options (docs/backends.md has each backend's table); a node's are the "
+    "mission's merged with its own, checked against its backend's (zab check).")
+
+
 class ModemOverride(Strict):
     """Per-node modem settings; unset values come from the mission's ``modem`` defaults."""
 
     backend: str | None = None
     frame_bytes: int | None = Field(None, ge=4, le=4096)
     broadcast: int | None = Field(None, ge=0, le=65535, description=BROADCAST_DESCRIPTION)
-    options: dict[str, Any] = Field(default_factory=dict)
+    options: dict[str, Any] = Field(default_factory=dict, description=OPTIONS_DESCRIPTION)
 
 
 class Node(Strict):
@@ -179,7 +184,7 @@ class Modem(Strict):
     backend: str = Field("sim", description="sim, udp, or a backend from the zab.backends group.")
     frame_bytes: int = Field(64, ge=4, le=4096, description="Largest frame the modem sends.")
     broadcast: int | None = Field(None, ge=0, le=65535, description=BROADCAST_DESCRIPTION)
-    options: dict[str, Any] = Field(default_factory=dict)
+    options: dict[str, Any] = Field(default_factory=dict, description=OPTIONS_DESCRIPTION)
 
 
 class TdmaMac(Strict):

@@ -1,5 +1,6 @@
 """Generated documentation: the mission-file reference from the pydantic models, and each
-backend's options from its module docstring.
+backend's documentation from its module docstring with the table of its options' model
+(:mod:`bridge.mission.backends`).
 
 Used as an mkdocs hook (``hooks: [bridge/mission/reference.py]`` in ``mkdocs.yml``): a page that
 contains ``<!-- zab:mission-reference -->`` or ``<!-- zab:backend:NAME -->`` gets the generated
@@ -14,6 +15,7 @@ import json
 import re
 from typing import Any
 
+from bridge.mission.backends import BACKEND_OPTIONS
 from bridge.mission.model import Mission
 
 MISSION_MARK = "<!-- zab:mission-reference -->"
@@ -135,8 +137,13 @@ def mission_reference() -> str:
 
 
 def backend_reference(name: str) -> str:
-    """A backend module's docstring (its options and behaviour) as Markdown."""
-    return module_doc(BACKEND_MODULES[name])
+    """A backend module's docstring (its options and behaviour) as Markdown, then the table of
+    its options, which ``zab check`` holds a mission's to."""
+    model = BACKEND_OPTIONS[name]
+    table = _section(f"`{name}` options", model.model_json_schema(mode="validation"), 4)
+    table[2:2] = ["Every option a mission gives this backend is checked when it is loaded: "
+                  "an unknown name or a wrong value is an error of the file.", ""]
+    return module_doc(BACKEND_MODULES[name]) + "\n\n" + "\n".join(table)
 
 
 def module_doc(name: str) -> str:

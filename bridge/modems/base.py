@@ -27,6 +27,7 @@ from typing import Any, ClassVar
 
 from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
 from bridge.errors import BackendError, SendTooLate
+from bridge.mission.backends import AnyOptions, ModemOptions, option_errors
 
 __all__ = ["BadInputLog", "Inbox", "ModemBackend", "ModemFix", "ModemRange", "ModemSetup",
            "Reception"]
@@ -133,14 +134,18 @@ class ModemBackend(ABC):
     ranging: ClassVar[RangingMode | None] = None
     """How the modem measures ranges itself (:class:`RangingMode`), or None. Measurements go
     to :attr:`on_range`."""
+    options_model: ClassVar[type[ModemOptions]] = AnyOptions
+    """The backend's options (:mod:`bridge.mission.backends`), which the mission loader checks
+    and :attr:`options` holds."""
 
     def __init__(self, setup: ModemSetup) -> None:
         self.setup = setup
         self.address = setup.address
         self.frame_bytes = setup.frame_bytes
         self.stats: dict[str, int] = {"sent": 0, "received": 0, "errors": 0}
-        self.ack = bool(setup.options.get("ack", False))
-        self.tx_lead_s = float(setup.options.get("tx_lead_s", 0.01))
+        self.options: ModemOptions = self.parse_options(setup.options, setup.node)
+        self.ack = self.options.ack
+        self.tx_lead_s = self.options.tx_lead_s
         """How far ahead of :meth:`clock` a timed emission is scheduled (``timed_send``)."""
         self.on_range: Callable[[ModemRange], None] | None = None
         """Called with every range the modem measures (the runtime sets it)."""
@@ -327,6 +332,16 @@ class ModemBackend(ABC):
     async def _ping(self, dest: int) -> ModemRange:
         """Hook for backends with a ping."""
         raise BackendError(f"{self!r}: this modem has no ping")
+
+    @classmethod
+    def parse_options(cls, options: Mapping[str, Any], node: str) -> ModemOptions:
+        """``options`` as :attr:`options_model`; :class:`BackendError` says what is wrong (a
+        mission's are checked when it is loaded)."""
+        problems = option_errors(cls.options_model, options)
+        if problems:
+            raise BackendError(f"{cls.name} backend of {node!r}: " + "; ".join(
+                f"option {key}: {message}" if key else message for key, message in problems))
+        return cls.options_model.model_validate(dict(options))
 
     @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:

@@ -12,11 +12,10 @@ import importlib
 from importlib.metadata import entry_points
 
 from bridge.errors import BackendError
+from bridge.mission.backends import ENTRY_POINT_GROUP
 from bridge.modems.base import ModemBackend
 
 __all__ = ["BUILTIN_BACKENDS", "ENTRY_POINT_GROUP", "available_backends", "load_backend"]
-
-ENTRY_POINT_GROUP = "zab.backends"
 
 BUILTIN_BACKENDS: dict[str, str] = {
     "sim": "bridge.modems.sim:SimBackend",

@@ -1,16 +1,15 @@
 """``sim``: a simulated modem connected to the water service (:mod:`bridge.sim.service`).
 
-Options: ``water`` = ``"host:port"`` of the water (required), ``broadcast`` (none): the
-address a frame for every node carries in the water, and that marks a frame heard as one
-(the mission's ``modem.broadcast``; without it the water carries no address for them),
-``seed`` (a whole number, default 0) and ``loss`` (a share of frames from 0 to 1, default 0):
-the water's random seed and the frames it loses at random (``zab sim``, ``zab water``; `zab
-check` refuses other values), ``connect_timeout`` (s, default 3),
-``rx_queue`` (receptions kept while nobody calls ``recv``, default 256; the oldest are dropped
-and counted in ``stats["dropped"]``), ``tx_lead_s`` (default 0.05): how far ahead each frame's
-start is scheduled. Like a timed modem, the water refuses a frame whose start has passed when it
-arrives ("expired"), so DLBL delays are never stamped for a start that did not happen; a
-loaded host is easily 10 ms late.
+Options: the table at the end. ``water``, the ``"host:port"`` of the water, is required (``zab sim``
+gives its own); ``broadcast`` (the mission's ``modem.broadcast``) is the address a frame for
+every node carries in the water, and that marks a frame heard as one (without it the water
+carries no address for them); ``seed`` and ``loss`` are the water's random seed and the share
+of frames it loses at random (``zab sim``, ``zab water``; ``zab check`` refuses other values);
+``rx_queue`` receptions are kept while nobody calls ``recv`` (the oldest are dropped and
+counted in ``stats["dropped"]``); each frame's start is scheduled ``tx_lead_s`` ahead. Like a
+timed modem, the water refuses a frame whose start has passed when it arrives ("expired"), so
+DLBL delays are never stamped for a start that did not happen; a loaded host is easily 10 ms
+late.
 
 A caller that sets :attr:`SimBackend.on_loss` before ``open`` also hears of the frames the
 water lost at this modem after their signal reached it (``on_loss(src, reason, dest)``): an
@@ -29,19 +28,17 @@ import contextlib
 import itertools
 import random
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 from bridge.errors import BackendError
+from bridge.mission.backends import ModemOptions, SimOptions
 from bridge.mission.network import water_address
 from bridge.modems.base import Inbox, ModemBackend, ModemSetup, Reception
 from bridge.sim.protocol import PROTOCOL_VERSION, ProtocolError, pack, read_message
 
-__all__ = ["SimBackend", "parse_water_address"]
+__all__ = ["SimBackend", "parse_water_address", "water_options"]
 
-DEFAULT_TX_LEAD_S = 0.05
-DEFAULT_CONNECT_TIMEOUT_S = 3.0
-DEFAULT_RX_QUEUE = 256
 
 
 def parse_water_address(value: Any) -> tuple[str, int]:
@@ -53,6 +50,12 @@ def parse_water_address(value: Any) -> tuple[str, int]:
     return address
 
 
+def water_options(options: Mapping[str, Any]) -> dict[str, Any]:
+    """The options of another backend's node that its emulated modem's :class:`SimBackend`
+    takes (those a sim modem has), without ``broadcast`` (an emulator's water carries none)."""
+    return {k: v for k, v in options.items() if k in SimOptions.model_fields and k != "broadcast"}
+
+
 CLOCK_EPOCH = 1.7e9  # drift is counted from here, so clock readings stay near wall time
 
 
@@ -60,18 +63,21 @@ class SimBackend(ModemBackend):
     """A modem in the simulated water, reached over loopback TCP."""
 
     name: ClassVar[str] = "sim"
+    options_model: ClassVar[type[ModemOptions]] = SimOptions
+    options: SimOptions
     timed_send: ClassVar[bool] = True
 
     def __init__(self, setup: ModemSetup) -> None:
         super().__init__(setup)
-        if "water" not in setup.options:
+        opts = self.options
+        if opts.water is None:
             raise BackendError(
                 f"sim backend of {setup.node!r}: option 'water' (host:port of `zab water`) "
                 "is required"
             )
-        self.water = parse_water_address(setup.options["water"])
-        self._timeout = float(setup.options.get("connect_timeout", DEFAULT_CONNECT_TIMEOUT_S))
-        self._rx_size = int(setup.options.get("rx_queue", DEFAULT_RX_QUEUE))
+        self.water = parse_water_address(opts.water)
+        self._timeout = opts.connect_timeout
+        self._rx_size = opts.rx_queue
         self._inbox = Inbox(self.stats, self._rx_size)
         self._position = setup.position
         self._reader: asyncio.StreamReader | None = None
@@ -82,13 +88,11 @@ class SimBackend(ModemBackend):
         self._lock = asyncio.Lock()
         self._failure: BackendError | None = None
         self.preset_name: str | None = None
-        opts = setup.options
-        self._clock_offset = float(opts.get("clock_offset_s", 0.0))
-        self._clock_drift = float(opts.get("clock_drift_ppm", 0.0)) * 1e-6
-        self._stamp_jitter = float(opts.get("timestamp_jitter_s", 0.0))
-        self._stamp_rng = random.Random(f"{opts.get('seed', 0)}/{setup.address}")
-        self.tx_lead_s = float(opts.get("tx_lead_s", DEFAULT_TX_LEAD_S))
-        self.broadcast = self.broadcast_address(opts)
+        self._clock_offset = opts.clock_offset_s
+        self._clock_drift = opts.clock_drift_ppm * 1e-6
+        self._stamp_jitter = opts.timestamp_jitter_s
+        self._stamp_rng = random.Random(f"{opts.seed}/{setup.address}")
+        self.broadcast = self.broadcast_address(setup.options)
         self.on_loss: Callable[[int, str, Any], None] | None = None
         """Told of each frame lost here after its signal arrived: ``(src, reason, dest)``."""
 

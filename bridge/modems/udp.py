@@ -1,9 +1,9 @@
 """``udp``: an ideal link over UDP datagrams, for running a mission without any water model.
 
-Options: ``port`` (required; 0 = any free port, see :attr:`UdpBackend.port`), ``host``
-(default ``127.0.0.1``), ``allow_remote`` (default false: only loopback addresses are accepted,
-for this node and its peers), ``rx_queue`` (default 256). Each peer whose options have a
-``port`` (and optional ``host``) is a UDP peer.
+Options: the table at the end. ``port`` is required (0 = any free port, see
+:attr:`UdpBackend.port`); without ``allow_remote`` only loopback addresses are accepted, for
+this node and its peers. Each peer whose options have a ``port`` (and optional ``host``) is a
+UDP peer.
 
 Broadcast sends one datagram to every UDP peer; ``dest`` sends to that peer only. Each datagram
 starts with a 5-byte header: magic ``0xA5``, source address (u16), destination address (u16,
@@ -24,6 +24,7 @@ import time
 from typing import Any, ClassVar
 
 from bridge.errors import BackendError
+from bridge.mission.backends import ModemOptions, UdpOptions
 from bridge.modems.base import Inbox, ModemBackend, ModemSetup, Reception
 
 __all__ = ["BROADCAST", "HEADER", "MAGIC", "UdpBackend", "is_loopback"]
@@ -31,7 +32,6 @@ __all__ = ["BROADCAST", "HEADER", "MAGIC", "UdpBackend", "is_loopback"]
 MAGIC = 0xA5
 BROADCAST = 0xFFFF
 HEADER = struct.Struct(">BHH")
-DEFAULT_RX_QUEUE = 256
 
 
 def is_loopback(host: str) -> bool:
@@ -53,31 +53,32 @@ class UdpBackend(ModemBackend):
     """
 
     name: ClassVar[str] = "udp"
+    options_model: ClassVar[type[ModemOptions]] = UdpOptions
+    options: UdpOptions
     direct: ClassVar[bool] = True
 
     def __init__(self, setup: ModemSetup) -> None:
         super().__init__(setup)
-        opts = setup.options
-        allow_remote = bool(opts.get("allow_remote", False))
+        opts = self.options
         if not 0 <= setup.address < BROADCAST:
             raise BackendError(f"udp backend: address {setup.address} outside 0..65534")
-        if "port" not in opts:
+        if opts.port is None:
             raise BackendError(f"udp backend of {setup.node!r}: option 'port' is required")
-        self.host = str(opts.get("host", "127.0.0.1"))
-        self.port = _port(opts["port"], setup.node)
+        self.host = opts.host
+        self.port = opts.port
         self._peers: dict[int, tuple[str, int]] = {}
         for addr, popts in setup.peers.items():
             if "port" not in popts:
                 continue
             self._peers[addr] = (str(popts.get("host", "127.0.0.1")), _port(popts["port"], addr))
-        if not allow_remote:
+        if not opts.allow_remote:
             for where in [self.host, *(h for h, _ in self._peers.values())]:
                 if not is_loopback(where):
                     raise BackendError(
                         f"udp backend of {setup.node!r}: {where!r} is not a loopback address; "
                         "set allow_remote: true to send off this machine"
                     )
-        self._inbox = Inbox(self.stats, int(opts.get("rx_queue", DEFAULT_RX_QUEUE)))
+        self._inbox = Inbox(self.stats, opts.rx_queue)
         self._sock: socket.socket | None = None
         self._targets: dict[int, Any] = {}  # peer address -> resolved socket address
         self._reader: threading.Thread | None = None

@@ -24,6 +24,8 @@ def test_real_backends_of_links_and_nodes_become_simulated() -> None:
     assert data["modem"]["backend"] == "sim"
     assert data["nodes"]["cv2"]["modem"]["backend"] == "sim"
     assert data["modem"]["options"]["preset"] == "evologics-s2c-im"  # same timings
+    assert "baud" not in data["modem"]["options"]  # the real modem's own: no sim option
+    assert "device" not in data["nodes"]["ssv"]["modem"]["options"]
     assert simulate_real_modems(data) == []
 
 

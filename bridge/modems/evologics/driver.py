@@ -1,20 +1,14 @@
 """``evologics``: an EvoLogics S2C modem over serial or TCP, frames as instant messages.
 
-Options (``modem.options`` in the mission):
-
-- ``device`` (required): a serial path, or ``socket://host:9200`` for the modem's TCP port;
-- ``baud`` (19200), ``ack`` (false: ``AT*SENDIM ... noack``; true asks unicast frames to be
-  acknowledged), ``mode`` (``data``, as evins does, or ``command``), ``eol`` (default ``\\r`` on
-  serial, ``\\n`` over TCP [V]);
-- ``timeout_s`` (2.0): wait for a synchronous reply; ``probe_retries`` (3): start-up probes;
-  ``busy_retries`` (5) and ``busy_backoff_s`` (0.2, doubled each time) for ``BUSY`` replies;
-  ``send_timeout_s`` (10): wait for ``SENDEND``; ``ack_timeout_s`` (15): wait for the delivery
-  report; ``keepalive_s`` (10, 0 = off): query ``AT?AL`` when idle to notice a dead or rebooted
-  modem; ``promiscuous`` (true: ``AT!RP1``); ``usbl`` (false: ``AT@ZU1``);
-- ``timed_send`` (true): schedule frames on the modem clock with ``AT*SENDIMS`` when the modem
-  answers ``AT?CLOCK`` and ``AT@ZX1``; ``tx_lead_s`` (0.1): how far ahead of the modem clock a
-  frame is scheduled (the command must reach the modem first: 64 B at 19200 baud take 44 ms);
-  ``clock_sync_s`` (30): how often ``AT?CLOCK`` is read again to follow host–modem drift.
+Options (``modem.options`` in the mission): the table at the end. ``device`` is a serial path, or
+``socket://host:9200`` for the modem's TCP port; ``ack`` asks unicast frames to be acknowledged
+(``AT*SENDIM ... ack``; else ``noack``); ``mode`` is ``data`` (as evins does) or ``command``;
+``eol`` defaults to ``\\r`` on serial, ``\\n`` over TCP [V]; ``busy_backoff_s`` doubles after
+each ``BUSY``; ``keepalive_s`` queries ``AT?AL`` when idle to notice a dead or rebooted modem;
+``timed_send`` schedules frames on the modem clock with ``AT*SENDIMS`` when the modem answers
+``AT?CLOCK`` and ``AT@ZX1``, ``tx_lead_s`` ahead of it (the command must reach the modem first:
+64 B at 19200 baud take 44 ms), and ``AT?CLOCK`` is read again every ``clock_sync_s`` to follow
+host–modem drift.
 
 At start-up the backend asks ``ATI0`` for the firmware version (``stats`` keeps it as
 ``firmware``): firmware before 1.7 prints ``RECVIM``/``RECVPBM`` with bitrate and propagation
@@ -67,6 +61,7 @@ from typing import Any, ClassVar
 
 from bridge.core.reception import RangingMode
 from bridge.errors import BackendError, SendTooLate
+from bridge.mission.backends import EvologicsOptions, ModemOptions
 from bridge.modems.base import (
     BadInputLog,
     Inbox,
@@ -125,6 +120,8 @@ class EvologicsBackend(ModemBackend):
     """An EvoLogics S2C modem through pyserial (serial port or TCP)."""
 
     name: ClassVar[str] = "evologics"
+    options_model: ClassVar[type[ModemOptions]] = EvologicsOptions
+    options: EvologicsOptions
     ranging: ClassVar[RangingMode | None] = RangingMode.ACK
     default_broadcast: ClassVar[int | None] = BROADCAST  # driver practice [V BIR]
     probe: ClassVar[bytes | None] = b"+++AT?MODE\r"  # (the start-up's first query)
@@ -140,39 +137,35 @@ class EvologicsBackend(ModemBackend):
 
     def __init__(self, setup: ModemSetup) -> None:
         super().__init__(setup)
-        opts = setup.options
-        if not opts.get("device"):
+        opts = self.options
+        if not opts.device:
             raise BackendError(
                 f"evologics backend of {setup.node!r}: option 'device' (serial path or "
                 "socket://host:9200) is required"
             )
         if not 1 <= setup.address <= 254:
             raise BackendError(f"evologics backend: address {setup.address} outside 1..254")
-        self.device = str(opts["device"])
-        self.broadcast = self.broadcast_address(opts)
+        self.device = opts.device
+        self.broadcast = self.broadcast_address(setup.options)
         self.frame_bytes = min(self.frame_bytes, IM_MAX_BYTES)
         tcp = self.device.startswith("socket://")
-        mode = str(opts.get("mode", "data"))
-        if mode not in ("data", "command"):
-            raise BackendError(f"evologics backend: mode must be data or command, not {mode!r}")
-        self.mode = Mode(mode)
-        eol = str(opts.get("eol", "\n" if tcp else "\r")).encode()
-        self.timeout_s = float(opts.get("timeout_s", 2.0))
-        self.probe_retries = int(opts.get("probe_retries", 3))
-        self.busy_retries = int(opts.get("busy_retries", 5))
-        self.busy_backoff_s = float(opts.get("busy_backoff_s", 0.2))
-        self.send_timeout_s = float(opts.get("send_timeout_s", 10.0))
-        self.ack_timeout_s = float(opts.get("ack_timeout_s", 15.0))
-        self.keepalive_s = float(opts.get("keepalive_s", 10.0))
-        self.promiscuous = bool(opts.get("promiscuous", True))
-        self.usbl = bool(opts.get("usbl", False))
-        self.want_timed = bool(opts.get("timed_send", True))
-        self.tx_lead_s = float(opts.get("tx_lead_s", 0.1))
-        self.clock_sync_s = float(opts.get("clock_sync_s", 30.0))
+        self.mode = Mode(opts.mode)
+        eol = (opts.eol if opts.eol is not None else "\n" if tcp else "\r").encode()
+        self.timeout_s = opts.timeout_s
+        self.probe_retries = opts.probe_retries
+        self.busy_retries = opts.busy_retries
+        self.busy_backoff_s = opts.busy_backoff_s
+        self.send_timeout_s = opts.send_timeout_s
+        self.ack_timeout_s = opts.ack_timeout_s
+        self.keepalive_s = opts.keepalive_s
+        self.promiscuous = opts.promiscuous
+        self.usbl = opts.usbl
+        self.want_timed = opts.timed_send
+        self.clock_sync_s = opts.clock_sync_s
         self.modem_clock = ModemClock()
         self._timed = False
         self._last_sync = -float("inf")
-        self.transport = ByteTransport(self.device, int(opts.get("baud", 19200)),
+        self.transport = ByteTransport(self.device, opts.baud,
                                        name=f"evologics {setup.node}")
         self.protocol = HostProtocol(Mode.DATA, eol=eol)
         self.stats.update(delivered=0, failed=0, busy=0, malformed=0, modem_errors=0,

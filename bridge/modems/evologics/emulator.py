@@ -51,7 +51,7 @@ from bridge.modems.evologics.commands import CommandReader, HostBurst, HostComma
 from bridge.modems.evologics.protocol import BROADCAST, Mode, firmware_is_legacy, wrap
 from bridge.modems.pty_host import PtyHost, TcpHost
 from bridge.modems.setup import modem_setup
-from bridge.modems.sim import SimBackend
+from bridge.modems.sim import SimBackend, water_options
 
 __all__ = [
     "ACK_TURNAROUND_S",
@@ -219,8 +219,7 @@ class EvologicsEmulator:
         self.setup = setup
         self.firmware = firmware
         # the water's dest carries the emulators' flags beside the address: no broadcast there
-        setup = dataclasses.replace(setup, options={k: v for k, v in setup.options.items()
-                                                    if k != "broadcast"})
+        setup = dataclasses.replace(setup, options=water_options(setup.options))
         self.legacy = firmware_is_legacy(firmware)  # ValueError for a non-version
         self.sim = SimBackend(setup)
         self.pty = PtyHost(self._pty_data, link=link)

@@ -1,33 +1,31 @@
 """``micromodem``: a WHOI Micro-Modem on a serial port, through its NMEA interface.
 
-Options (``modem.options`` of the mission):
+Options (``modem.options`` of the mission): the table at the end.
 
-- ``device`` (required): serial path (``/dev/ttyUSB0``, a pty) or pyserial URL.
-- ``baud`` (19200), ``rate`` (0–6, default 0), ``ack`` (false): ask the destination to
-  acknowledge every frame (only for frames with one destination).
-- ``fdp`` (false): send by MM2's flexible data protocol (``$CCTDP``, rates 1–6) instead of the
+- ``device``: serial path (``/dev/ttyUSB0``, a pty) or pyserial URL; ``ack`` asks the
+  destination to acknowledge every frame (only for frames with one destination).
+- ``fdp``: send by MM2's flexible data protocol (``$CCTDP``, rates 1–6) instead of the
   legacy cycle; packets of either kind are received all the same (``$CARXD``, ``$CARDP``,
   ``$CARFP``, user mini-frames included). An FDP send returns at its ``$CATXF``, or with
   ``ack`` at the destination's ``$CACDR`` acknowledging every data frame.
-- ``timeout_s`` (5): wait for a command's echo; ``retries`` (3): resends of a command
-  (goby: 5 s, 3 tries, reference 2.4 E); ``tx_timeout_s`` (derived from the rate): one whole data
-  cycle; ``send_retries`` (2): cycles retried after a failure; ``ping_timeout_s`` (10).
+- ``timeout_s``, ``retries``: goby's 5 s and 3 tries (reference 2.4 E); ``tx_timeout_s``
+  (derived from the rate) is one whole data cycle.
 - ``broadcast`` (0, Goby's ``BROADCAST_ID``; the mission's ``modem.broadcast`` sets it): the
   address of frames without one destination, and the one that marks a received frame as
   broadcast. Every Micro-Modem passes every packet to its host anyway (seed 003), so it only
   labels frames, but a fleet must agree on it: ``zab check`` says when a node's address is it.
-- ``ping`` (``mpc``): how :meth:`ping` ranges to another modem, ``mpc`` (``$CCMPC`` →
-  ``$CAMPR``) or ``fdp`` (MM2's FDP ping, ``$CCCMD,PNG`` → ``$CACMR,PNR``).
+- ``ping``: how :meth:`ping` ranges to another modem, ``mpc`` (``$CCMPC`` → ``$CAMPR``) or
+  ``fdp`` (MM2's FDP ping, ``$CCCMD,PNG`` → ``$CACMR,PNR``).
 - ``lbl``: LBL transponders among the mission's nodes, which :meth:`ping` ranges to by an
   interrogation (``$CCPDT`` REMUS digital, or ``$CCPNT`` narrowband) → ``$SNTTA``, e.g.
   ``{beacons: {A: 11, B: 12}, max_range_m: 2000}`` or ``{beacons: {A: 11}, kind: narrowband,
   tx_hz: 9000, reply_hz: {A: 10000}}`` (:class:`~bridge.modems.micromodem.nav.Transponders`).
   One interrogation listens for every beacon; the ranges of those not asked for go to
   ``on_range`` too.
-- ``set_clock`` (``none``): at start-up (and after a reboot) set the modem's clock from the
-  host's, ``clk`` with ``$CCCLK`` (MM1 and MM2, 50–100 ms after a second's top, naming the next
+- ``set_clock``: at start-up (and after a reboot) set the modem's clock from the host's,
+  ``clk`` with ``$CCCLK`` (MM1 and MM2, 50–100 ms after a second's top, naming the next
   second as goby does) or ``tms`` with MM2's ``$CCTMS``, then read it back with ``$CCTMQ``;
-  ``stats["clock_offset_ms"]`` is modem minus host as read. ``sound_speed_mps`` (1500) turns a
+  ``stats["clock_offset_ms"]`` is modem minus host as read. ``sound_speed_mps`` turns a
   ``$CAUSB2`` travel time into a range.
 - ``config``: extra ``$CCCFG`` keys set at start-up, e.g. ``{CTO: 10}``.
 
@@ -71,6 +69,7 @@ from typing import Any, ClassVar
 
 from bridge.core.reception import RangingMode
 from bridge.errors import BackendError, SendTooLate
+from bridge.mission.backends import MicromodemOptions, ModemOptions
 from bridge.mission.presets import UnknownPresetError, get_preset
 from bridge.modems.base import (
     BadInputLog,
@@ -100,23 +99,16 @@ from bridge.modems.micromodem.protocol import (
     TransferFailed,
     UsblFix,
 )
-from bridge.modems.micromodem.rates import FDP_RATES, get_rate
+from bridge.modems.micromodem.rates import get_rate
 from bridge.modems.transport import ByteTransport
 
 __all__ = ["MicromodemBackend"]
 
 log = logging.getLogger("zab.micromodem")
 
-DEFAULT_BAUD = 19200
-DEFAULT_TIMEOUT_S = 5.0
-DEFAULT_RETRIES = 3
-DEFAULT_SEND_RETRIES = 2
-DEFAULT_PING_TIMEOUT_S = 10.0
 DEFAULT_BROADCAST = 0
 """Goby's ``BROADCAST_ID`` (reference 2.x, goby ``mm_driver``): the convention of a mixed
 Goby/zab fleet unless the mission says otherwise."""
-CLOCK_MODES = ("none", "clk", "tms")
-PING_MODES = ("mpc", "fdp")
 RX_QUEUE = 256
 RETRY_BACKOFF_S = 0.5
 
@@ -125,6 +117,8 @@ class MicromodemBackend(ModemBackend):
     """A WHOI Micro-Modem (MM1/MM2) driven over NMEA."""
 
     name: ClassVar[str] = "micromodem"
+    options_model: ClassVar[type[ModemOptions]] = MicromodemOptions
+    options: MicromodemOptions
     ranging: ClassVar[RangingMode | None] = RangingMode.PING
     default_broadcast: ClassVar[int | None] = DEFAULT_BROADCAST
     probe: ClassVar[bytes | None] = Sentence("CC", "CFQ", ("SRC",)).encode()  # its address
@@ -134,12 +128,15 @@ class MicromodemBackend(ModemBackend):
         return from_modem(line)
 
     @classmethod
+    def _options(cls, options: Mapping[str, Any]) -> MicromodemOptions:
+        opts = cls.parse_options(options, "(zab check)")
+        assert isinstance(opts, MicromodemOptions)
+        return opts
+
+    @classmethod
     def max_frame_bytes(cls, options: Mapping[str, Any]) -> int | None:
         """A whole packet at the configured rate (the driver spreads it over the rate's frames)."""
-        try:
-            return get_rate(options.get("rate", 0)).max_bytes
-        except ValueError:
-            return None
+        return get_rate(cls._options(options).rate).max_bytes
 
     @classmethod
     def setup_problems(cls, options: Mapping[str, Any], address: int) -> tuple[list[str],
@@ -147,10 +144,11 @@ class MicromodemBackend(ModemBackend):
         """Besides the broadcast address: a water preset whose packets are smaller than the
         rate's (``zab water`` would refuse the frames), or made for another rate."""
         errors, warnings = super().setup_problems(options, address)
+        opts = cls._options(options)
+        rate = get_rate(opts.rate)
         try:
-            rate = get_rate(options.get("rate", 0))
-            preset = get_preset(str(options["preset"])) if "preset" in options else None
-        except (ValueError, UnknownPresetError):
+            preset = get_preset(str(opts.preset)) if opts.preset is not None else None
+        except UnknownPresetError:
             return errors, warnings
         if preset is None or not preset.name.startswith("micromodem-rate"):
             return errors, warnings
@@ -165,38 +163,31 @@ class MicromodemBackend(ModemBackend):
 
     def __init__(self, setup: ModemSetup) -> None:
         super().__init__(setup)
-        opts = setup.options
+        opts = self.options
         where = f"micromodem backend of {setup.node!r}"
-        if not opts.get("device"):
+        if not opts.device:
             raise BackendError(f"{where}: option 'device' (serial path or URL) is required")
+        self.rate = get_rate(opts.rate)
+        self.baud = opts.baud
+        self.timeout_s = opts.timeout_s
+        self.retries = opts.retries
+        self.send_retries = opts.send_retries
+        self.ping_timeout_s = opts.ping_timeout_s
+        self.broadcast = self.broadcast_address(setup.options)
+        self.fdp = opts.fdp
+        self.set_clock = opts.set_clock
+        self.sound_speed = opts.sound_speed_mps
+        self.ping_mode = opts.ping
         try:
-            self.rate = get_rate(opts.get("rate", 0))
-            self.baud = int(opts.get("baud", DEFAULT_BAUD))
-            self.timeout_s = float(opts.get("timeout_s", DEFAULT_TIMEOUT_S))
-            self.retries = int(opts.get("retries", DEFAULT_RETRIES))
-            self.send_retries = int(opts.get("send_retries", DEFAULT_SEND_RETRIES))
-            self.ping_timeout_s = float(opts.get("ping_timeout_s", DEFAULT_PING_TIMEOUT_S))
-            self.broadcast = self.broadcast_address(opts)
-            self.fdp = bool(opts.get("fdp", False))
-            self.set_clock = str(opts.get("set_clock", "none"))
-            self.sound_speed = float(opts.get("sound_speed_mps", 1500.0))
-            self.ping_mode = str(opts.get("ping", "mpc"))
-            self.lbl = Transponders.from_option(opts["lbl"]) if opts.get("lbl") else None
+            self.lbl = Transponders.from_option(opts.lbl) if opts.lbl else None
             self.protocol = HostProtocol(setup.address)
         except (TypeError, ValueError) as exc:
             raise BackendError(f"{where}: {exc}") from None
-        if self.fdp and self.rate.number not in FDP_RATES:
-            raise BackendError(f"{where}: FDP runs at rates {sorted(FDP_RATES)}, not "
-                               f"{self.rate.number}")
-        if self.set_clock not in CLOCK_MODES:
-            raise BackendError(f"{where}: set_clock must be one of {', '.join(CLOCK_MODES)}")
-        if self.ping_mode not in PING_MODES:
-            raise BackendError(f"{where}: ping must be one of {', '.join(PING_MODES)}")
-        self.device = str(opts["device"])
-        self.config: dict[str, Any] = dict(opts.get("config") or {})
+        self.device = opts.device
+        self.config: dict[str, Any] = dict(opts.config)
         # a packet's airtime, cycle-init and travel, with room: [C] estimates (reference 2.6)
         packet_s = self.rate.max_bytes * 8 / self.rate.bitrate_bps + 4.0
-        self.tx_timeout_s = float(opts.get("tx_timeout_s", self.timeout_s + 2 * packet_s))
+        self.tx_timeout_s = opts.tx_timeout_s or self.timeout_s + 2 * packet_s
         self.frame_bytes = min(self.frame_bytes, self.rate.max_bytes)
         if setup.frame_bytes > self.rate.max_bytes:
             log.warning("%s: frame_bytes %d > %d B of a rate-%d packet; frames are capped",

@@ -82,7 +82,7 @@ from bridge.modems.micromodem.nmea import LineBuffer, NmeaError, Sentence, parse
 from bridge.modems.micromodem.rates import FDP_MINI_BYTES, FDP_RATES, get_rate
 from bridge.modems.pty_host import PtyHost
 from bridge.modems.setup import modem_setup
-from bridge.modems.sim import SimBackend
+from bridge.modems.sim import SimBackend, water_options
 
 __all__ = ["MicromodemEmulator", "run_emulator"]
 
@@ -157,8 +157,8 @@ class MicromodemEmulator:
         nav_late_s: float | None = None,
     ) -> None:
         # the water sets the size limit; its dest carries packed headers, never a broadcast
-        self.setup = dataclasses.replace(setup, frame_bytes=4096, options={
-            k: v for k, v in setup.options.items() if k != "broadcast"})
+        self.setup = dataclasses.replace(setup, frame_bytes=4096,
+                                         options=water_options(setup.options))
         self.address = setup.address
         self.rev_period_s = rev_period_s
         self.boot_s = boot_s
