@@ -17,7 +17,9 @@ channel packs: a missing field, a wrong type, a value refused out of range), and
 runtime adds (``implausible``, ``unpublishable``), ``unbuildable``: an entry or a frame the
 core could not build (a bug; left out, keyed by channel, or ``(frame)``), and ``unresumable``:
 a latching channel's value saved by an earlier run that no longer fits the mission or cannot
-be read (keyed by channel: :mod:`bridge.core.latched`).
+be read (keyed by channel: :mod:`bridge.core.latched`). Gets and replies of queries count here
+too (:mod:`bridge.core.queries`), keyed by the asked or local key, with one cause of their own:
+``error_reply``, a queryable's reply error (its text told here, as the water cannot carry it).
 """
 
 from __future__ import annotations

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -367,10 +367,10 @@ class NodeCore:
         if self.network is not None:
             self.network.update(now)
 
-    def ask(self, key: str, parameters: Any, now: float,
-            until: float | None = None) -> Ticket | str:
-        """A Zenoh get on ``key`` with ``parameters`` (a dict), its caller waiting ``until``: the
-        ticket it waits on (replies: QueryAnswer / QueryEnd outputs), or why it ends at once."""
+    def ask(self, key: str, parameters: Any, now: float, until: float | None = None,
+            wildcard: bool = False) -> Ticket | str:
+        """A Zenoh get on ``key`` (``wildcard``: matched by one) with ``parameters`` (a dict), its
+        caller waiting ``until``: the ticket it waits on (QueryAnswer / QueryEnd), or why not."""
         found = self.queries.spec_for(key) if self.queries is not None else None
         if found is None:
             return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
@@ -381,13 +381,13 @@ class NodeCore:
         if refused is not None:
             return refused
         return self.queries.ask(spec, server, parameters, now,  # type: ignore[union-attr]
-                                state, until)
+                                state, until, wildcard)
 
-    def query_served(self, ticket: tuple[int, str, int], values: list[Any],
-                     error: str | None = None) -> None:
-        """The local get of a request ended: queue its replies for the asker."""
+    def query_served(self, ticket: tuple[int, str, int], values: list[Any], now: float,
+                     unusable: Sequence[tuple[str, str]] = ()) -> None:
+        """The local get of a request ended: queue its replies for the asker (Queries.served)."""
         if self.queries is not None:
-            self.queries.served(ticket, values, error)
+            self.queries.served(ticket, values, now, unusable)
 
     @property
     def last_tx(self) -> float | None:

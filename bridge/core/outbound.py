@@ -108,6 +108,8 @@ class Outbound:
         self.saving = Saving()  # whether the runtime can save the state (bridge.core.saving)
         self.receivers = receivers
         self.queries = queries
+        if queries is not None:  # a get or a reply that cannot be used: told as a put's
+            queries.drop, queries.told_left_out = self.drop_payload, self.report_left_out
         self.delays: Delays | None = None
         """The DLBL delays of each frame built (set by the node when it ranges)."""
         self.images: Images | None = None
@@ -230,7 +232,7 @@ class Outbound:
             if read is not None and not (value.__class__ is dict
                                          and value.keys() <= self._whole[key]) \
                     and (extra := left_out(value, read)):
-                self._report_left_out(key, extra, now)
+                self.report_left_out(key, extra, now)
             if self._stamped and (key in self._stamped or self.families.senders):
                 value = stamped(value, encoding_id(encoding, data), attachment)
         except DecodeError as exc:
@@ -311,7 +313,7 @@ class Outbound:
         self.outbox.items.extend(self.surfacing.relays(
             key, outs + self.families.outputs_for(key), relay))
 
-    def _report_left_out(self, key: str, fields: list[str], now: float) -> None:
+    def report_left_out(self, key: str, fields: list[str], now: float) -> None:
         """Fields of a sample on ``key`` that no channel carries: counted per sample, logged
         and reported (an event) once per key and set of fields, a set a minute per key
         (:data:`LEFT_OUT_EVERY_S`) and one a second in all (at most :data:`LEFT_OUT_KEPT`

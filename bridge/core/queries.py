@@ -14,6 +14,16 @@ Serving side: a request becomes a :class:`LocalGet` for the runtime, which runs 
 back in reply entries, each with its index and the last one marked, in the next frames the MAC
 allows.
 
+Unusable input, both sides, goes the put path's way (``drop``: the node's
+:meth:`~bridge.core.outbound.Outbound.drop_payload`, counted per key and cause, logged at a
+bounded rate; ``told_left_out``: fields no request field carries, as a put's): a get refused
+before it is asked (:meth:`Queries.refuse`: too large, undecodable, a parameter given twice),
+a get whose parameters do not fit (``unfit``), and each reply of a local get that cannot be
+sent (an error reply, an undecodable one, one that does not fit the reply fields). Counted
+also in ``dropped`` (by query; ``<name>:reply`` for replies). When a local get gives nothing
+to send back, the failed reply says why in a :class:`~bridge.wire.queries.FailReason`, and
+the asker's reply error names it (``app-error``, ``not-usable``, ``timeout``).
+
 Deadlines: a get may say how long its caller waits (``until``); the query then ends at the
 earlier of that and its own deadline, and a request is never sent past it. With the query's
 ``deadline_bits`` each request carries the time left, in whole steps (see
@@ -31,7 +41,7 @@ a kept answer never meets a newer query.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -44,13 +54,39 @@ from bridge.errors import EncodeError
 from bridge.mission.model import Mission
 from bridge.mission.network import Network
 from bridge.wire.channels import ChannelTable
-from bridge.wire.queries import LEFT, QID_BITS, QueryCodec, QuerySpec, ReplyStatus
+from bridge.wire.queries import LEFT, QID_BITS, FailReason, QueryCodec, QuerySpec, ReplyStatus
+from bridge.wire.unused import left_out, schema_tree
 
 LOCAL_GET_S = 1.0  # time the serving bridge allows its local get, within the deadline
 ANSWERS_KEPT = 32  # answers a serving node keeps for repeated requests (oldest go first)
 
 Ticket = tuple[int, str, int]  # (query index, serving node, query id) at the asking node
 Served = tuple[int, str, int]  # (query index, asking node, query id) at the serving node
+
+ERROR_REPLY, UNDECODABLE, TIMED_OUT = "error_reply", "undecodable", "timeout"
+"""What the runtime says of a local get's reply it could not use (:meth:`Queries.served`): the
+queryable's reply error, a reply neither msgpack nor JSON, and the get's own timeout."""
+_REASONS = {ERROR_REPLY: FailReason.APP_ERROR, UNDECODABLE: FailReason.NOT_USABLE,
+            TIMED_OUT: FailReason.TIMEOUT}
+_FAILED = {
+    FailReason.UNSAID: "the serving node's get failed or gave no usable reply",
+    FailReason.APP_ERROR: "its queryable replied with an error (its text is in {src}'s log)",
+    FailReason.NOT_USABLE: "its replies could not be decoded or did not fit the reply "
+                           "fields (counted and logged at {src})",
+    FailReason.TIMEOUT: "no queryable at {src} answered within its local get's time"}
+"""The asker's reply error for a failed reply, by reason."""
+
+
+def failed_reply(src: str, name: str, code: int) -> str:
+    """The reply error a get is given when ``src`` answers query ``name`` with a failed reply
+    saying ``code`` (a :class:`FailReason`; another number is unsaid)."""
+    try:
+        reason = FailReason(code)
+    except ValueError:  # (fields with room for more than a reason: another number)
+        reason = FailReason.UNSAID
+    if reason is FailReason.UNSAID:
+        return f"{src}: {_FAILED[reason]}"
+    return f"{src}: query {name!r}: {reason.code}: {_FAILED[reason].format(src=src)}"
 
 
 @dataclass(frozen=True)
@@ -170,6 +206,11 @@ class Queries:
     answers_kept: int = ANSWERS_KEPT
     explain: Callable[[str, float], str | None] | None = None
     """Where the route to a server breaks (nodes behind relays): added to a timeout."""
+    drop: Callable[[str, str, float, str], None] | None = None
+    """``(key, reason, now, cause)``: a get or a reply that cannot be used, counted and told
+    as the put path does (the node's ``drop_payload``)."""
+    told_left_out: Callable[[str, list[str], float], None] | None = None
+    """``(key, fields, now)``: fields of a get no request field carries (as a put's)."""
 
     def __post_init__(self) -> None:
         codecs = self.table.query_codecs
@@ -180,6 +221,8 @@ class Queries:
         self._steps = {s.index: left_step_s(self.mission, s) for s in self.table.queries
                        if s.deadline_bits}
         self._serve_until: dict[Served, float] = {}  # a carried deadline, at the server
+        self._read = {s.index: schema_tree(s.request.json_schema()) for s in self.table.queries}
+        """The names each query's request fields read (to tell those a get gives beside)."""
 
     def spec_for(self, key: str) -> tuple[QuerySpec, str] | None:
         """The query asked by a get on concrete ``key`` here, and its server."""
@@ -195,17 +238,43 @@ class Queries:
         return {spec.asked_key(server): (spec, server) for spec in self.table.queries
                 if self.node in spec.askers for server in spec.servers if server != self.node}
 
+    def _drop(self, key: str, reason: str, now: float, cause: str) -> None:
+        if self.drop is not None:
+            self.drop(key, reason, now, cause)
+
+    def clamped(self) -> dict[str, dict[str, int]]:
+        """Reply values clamped into their field's range so far (sent, but counted), per
+        reply entry (``!<name>``) then field path; only fields that clamped some."""
+        return {f"!{s.name}": fields for s in self.table.queries
+                if (fields := {p: n for p, n in s.reply.clamped.items() if n})}
+
     # -- asking ------------------------------------------------------------------------------
 
+    def refuse(self, key: str, cause: str, reason: str, now: float) -> str:
+        """A get on asked ``key`` refused before it is asked (``cause``: ``too_large``,
+        ``undecodable`` or ``unfit``): counted and told, as a put's payload; its reply error."""
+        found = self.spec_for(key)
+        name = found[0].name if found is not None else key
+        self.dropped[name] += 1
+        self._drop(key, reason, now, cause)
+        return f"query {name!r}: {reason}"
+
     def ask(self, spec: QuerySpec, server: str, parameters: Any, now: float,
-            link: LinkState | None, until: float | None = None) -> Ticket | str:
+            link: LinkState | None, until: float | None = None,
+            wildcard: bool = False) -> Ticket | str:
         """Open (or join) a query; returns its ticket, or why it ends at once. A fresh enough
         latched value (``cached_s``) answers at once, even with the link down. ``until``:
-        when the caller stops waiting (None: it waits as long as the query may take)."""
+        when the caller stops waiting (None: it waits as long as the query may take).
+        Parameters no request field reads are told (``told_left_out``), but not a wildcard
+        get's: those are for whichever of its queries read them."""
         if until is not None and until <= now:
             self.failed += 1
             return f"query {spec.name!r}: the caller's deadline has passed, not sent"
-        hit = self.cache.get(spec.asked_key(server))
+        key = spec.asked_key(server)
+        if not wildcard and isinstance(parameters, dict) and self.told_left_out is not None \
+                and (extra := left_out(parameters, self._read[spec.index])):
+            self.told_left_out(key, extra, now)
+        hit = self.cache.get(key)
         if spec.cached_s is not None and hit is not None and now - hit[2] <= spec.cached_s:
             self.cached += 1
             ticket = (spec.index, server, -self.cached)  # never an acoustic query id
@@ -220,9 +289,8 @@ class Queries:
         try:
             packed = spec.request.pack(parameters if spec.request.fields else {})
         except (EncodeError, TypeError, ValueError, KeyError) as exc:
-            self.dropped[spec.name] += 1
             self.failed += 1
-            return f"query {spec.name!r}: malformed parameters: {exc}"
+            return self.refuse(key, "unfit", f"malformed parameters: {exc}", now)
         bound = now + deadline_s(self.mission, spec, self.node, server)
         deadline = bound if until is None else min(bound, until)
         for item in self.open.values():
@@ -317,7 +385,7 @@ class Queries:
 
     def on_reply(self, src: str, codec: QueryCodec, header: tuple[int, ...],
                  values: list[dict[str, Any]] | None, now: float) -> None:
-        qid, asker, status, index = header
+        qid, asker, status, index = header[:4]
         if self.table.nodes[asker] != self.node:
             return  # a reply to somebody else
         ticket = (codec.spec.index, src, qid)
@@ -326,7 +394,7 @@ class Queries:
             self.dropped["late_reply"] += 1
             return
         if status == ReplyStatus.FAILED:
-            self._end(ticket, f"{src}: the serving node's get failed or gave no usable reply")
+            self._end(ticket, failed_reply(src, codec.spec.name, header[4]))
             return
         if status == ReplyStatus.DONE:
             item.count = 0
@@ -421,19 +489,30 @@ class Queries:
             request, now + deadline_s(self.mission, spec, src, self.node))
         self.outputs.append(LocalGet(ticket, spec.served_key(self.node), request, timeout))
 
-    def served(self, ticket: Served, values: list[Any], error: str | None) -> None:
-        """The local get of ``ticket`` ended with ``values`` (or failed with ``error``)."""
+    def served(self, ticket: Served, values: list[Any], now: float,
+               unusable: Sequence[tuple[str, str]] = ()) -> None:
+        """The local get of ``ticket`` ended at ``now`` with ``values`` and the replies it could
+        not use, ``(cause, text)`` each (cause :data:`ERROR_REPLY`, :data:`UNDECODABLE`, or
+        :data:`TIMED_OUT` when no queryable answered in time). Each reply that cannot be sent
+        is counted and told; with none sent, the failed reply says why."""
         spec = self.table.queries[ticket[0]]
         codec = self.reply_codecs[spec.index]
         asker = self.table.nodes.index(ticket[1])
+        reasons = {_REASONS[cause] for cause, _ in unusable}
+        for cause, text in unusable:
+            if cause != TIMED_OUT:  # (no reply came: nothing dropped)
+                self._unusable(spec, cause, text, now)
         packed: list[int] = []
         for value in values[:spec.max_replies]:
             try:
                 packed.append(spec.reply.pack(value))
-            except (EncodeError, TypeError, ValueError, KeyError):
-                self.dropped[f"{spec.name}:reply"] += 1
-        if error is not None or (values and not packed):
-            entries = [codec.pack(ticket[2], asker, 0, ReplyStatus.FAILED)]
+            except (EncodeError, TypeError, ValueError, KeyError) as exc:
+                self._unusable(spec, "unfit", str(exc), now)
+                reasons.add(FailReason.NOT_USABLE)
+        if reasons and not packed:
+            reason = min(reasons)  # the app's own error first, then replies unusable
+            code = reason if reason < 1 << spec.reply.bits else FailReason.UNSAID
+            entries = [codec.pack(ticket[2], asker, code, ReplyStatus.FAILED)]
         elif not packed:
             entries = [codec.pack(ticket[2], asker, 0, ReplyStatus.DONE)]
         else:
@@ -443,6 +522,12 @@ class Queries:
         if (kept := self.answers.get(ticket)) is not None:
             kept.replies = tuple(entries)
         self._queue(ticket, entries)
+
+    def _unusable(self, spec: QuerySpec, cause: str, text: str, now: float) -> None:
+        """A reply of the local get for ``spec`` that cannot be sent: counted and told."""
+        self.dropped[f"{spec.name}:reply"] += 1
+        self._drop(spec.served_key(self.node), f"a reply to query {spec.name!r}: {text}", now,
+                   cause)
 
     def _queue(self, ticket: Served, entries: tuple[int, ...] | list[int]) -> None:
         """Owe the asker ``entries`` (once each: a queued one is not queued twice)."""

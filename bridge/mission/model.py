@@ -350,9 +350,10 @@ class Element(Strict):
     out: AnyTemplateKey | None = Field(None, description="Output key at receivers; may use "
                                        "{src}, {dst} and {node}.")
     encoding: Literal["msgpack", "json", "as_sent"] = Field(
-        "msgpack", description="Published payload: msgpack, json, or as_sent: the encoding the "
-        "sender's application used (msgpack, JSON, JSON as text/plain or untagged), carried in "
-        "2 bits per value.")
+        "msgpack", description="Published payload: msgpack, json, or as_sent: the class of "
+        "encoding the sender's application used (msgpack, JSON, JSON as text/plain, or any "
+        "other label: untagged), carried in 2 bits per value and published as that class's "
+        "(a ;schema suffix or another label is not kept).")
     ros2: Ros2Topic | None = Field(None, description="A ROS 2 topic instead of in/out.")
     fields: list[FieldSpec] = Field(default_factory=list, description="The field codecs "
                                     "(required unless ``dccl`` is given).")

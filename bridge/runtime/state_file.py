@@ -36,6 +36,7 @@ from typing import Any
 import msgpack
 
 from bridge.errors import ZabError
+from bridge.wire.payloads import why_undecodable
 
 log = logging.getLogger("zab.state")
 
@@ -131,8 +132,8 @@ class StateFile:
         except (ValueError, msgpack.UnpackException) as exc:
             aside = self.path.with_name(self.path.name + ".corrupt")
             os.replace(self.path, aside)
-            log.warning("%s is corrupt (%s): moved to %s, starting afresh", self.path, exc,
-                        aside)
+            log.warning("%s is corrupt (%s): moved to %s, starting afresh", self.path,
+                        why_undecodable(exc, data), aside)
             return None
         self.blobs = named
         self._remove_blobs_but(named)  # (left by a crash between a save and its clean-up)

@@ -115,7 +115,7 @@ class VirtualQueries:
             for key, answer in self.queryables.get(node, []):
                 if intersects(key, output.key):
                     values += answer(dict(output.parameters))
-            fleet.cores[node].query_served(output.ticket, values)
+            fleet.cores[node].query_served(output.ticket, values, fleet.now)
             fleet.call_at(fleet.now, lambda: fleet.collect_and_replan(node))
             return True
         if isinstance(output, QueryAnswer):

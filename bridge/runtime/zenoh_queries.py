@@ -2,12 +2,14 @@
 nodes. The core (:mod:`bridge.core.queries`) decides; this module only talks to Zenoh.
 
 Asking node: a queryable on each asked key (``auv1/info``). A get's selector parameters
-(``?detail=2``; numbers, ``true``/``false`` and text; dotted names nest) or its msgpack/JSON
-payload become the request's fields; ``_timeout=<s>`` says how long the caller waits (Zenoh
-does not tell a queryable the getter's timeout): the query is not sent, or ends, once that has
-passed. Other parameters starting with ``_`` are Zenoh's and are not request fields. The query
-object is kept until the core ends the query: each reply is answered on the asked key, then
-the query is dropped (finalised); an error ends it with ``reply_err`` and a plain-text reason.
+(``?detail=2``; numbers, ``true``/``false`` and text; dotted names nest) and its msgpack/JSON
+payload become the request's fields (:func:`get_fields`: a field given in both with two values
+is refused, so is a payload over a put's cap for the request's bits); ``_timeout=<s>`` says
+how long the caller waits (Zenoh does not tell a queryable the getter's timeout): the query is
+not sent, or ends, once that has passed. Other parameters starting with ``_`` are Zenoh's and
+are not request fields. The query object is kept until the core ends the query: each reply is
+answered on the asked key, then the query is dropped (finalised); an error ends it with
+``reply_err`` and a plain-text reason.
 Several replies on one key reach an application only with ``consolidation=NONE`` (Zenoh's
 default keeps the latest per key).
 
@@ -18,7 +20,9 @@ whose parameters the selector gives, and ends with one reply error naming the ot
 Serving node: a :class:`~bridge.core.queries.LocalGet` becomes ``session.get`` on the local key
 with the request's parameters and ``consolidation=NONE``, so every reply of every queryable
 counts (up to the query's ``max_replies``); replies are decoded (msgpack or JSON) and handed
-back to the core when the get ends.
+back to the core when the get ends, with the replies it could not use: reply errors (their
+text, cut to :data:`ERROR_TEXT` characters, for the server's log), undecodable replies, and the
+get's own timeout.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import contextlib
 import functools
 import logging
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,14 +41,33 @@ from typing import Any
 import zenoh
 
 from bridge.core.node import NodeCore
-from bridge.core.queries import LocalGet, QueryAnswer, QueryEnd, Ticket
+from bridge.core.queries import (
+    ERROR_REPLY,
+    TIMED_OUT,
+    UNDECODABLE,
+    LocalGet,
+    QueryAnswer,
+    QueryEnd,
+    Ticket,
+)
 from bridge.errors import DecodeError
-from bridge.wire.payloads import decode_payload, encode_payload
+from bridge.wire.payloads import decode_payload, encode_payload, payload_cap
 
 log = logging.getLogger("zab.queries")
 
 CALLER_TIMEOUT = "_timeout"
 """The selector parameter in which a get says how long its caller waits, seconds."""
+ERROR_TEXT = 200
+"""Characters of a queryable's reply error kept for the serving node's log."""
+
+
+class GetRefused(ValueError):
+    """A get that cannot be asked; ``cause`` as a dropped put's (``too_large``,
+    ``undecodable``, ``unfit``)."""
+
+    def __init__(self, cause: str, reason: str) -> None:
+        super().__init__(reason)
+        self.cause = cause
 
 
 def parse_parameters(text: str) -> dict[str, Any]:
@@ -69,6 +93,50 @@ def parse_parameters(text: str) -> dict[str, Any]:
                 raise ValueError(f"parameter {name!r} clashes with {parent!r}")
         target[leaf] = value
     return out
+
+
+def _merged(selector: dict[str, Any], payload: dict[str, Any], prefix: str = ""
+            ) -> dict[str, Any]:
+    """``payload`` with the fields of ``selector`` added; ``GetRefused`` for a field given in
+    both with different values (Zenoh's own ``_`` parameters: the selector's)."""
+    out = dict(payload)
+    for name, value in selector.items():
+        mine = out.get(name)
+        if name not in out or str(name).startswith("_") or mine == value:
+            out[name] = value
+        elif isinstance(value, dict) and isinstance(mine, dict):
+            out[name] = _merged(value, mine, f"{prefix}{name}.")
+        else:
+            raise GetRefused("unfit", f"parameter {prefix + str(name)!r} given twice, "
+                                      f"{value!r} in the selector and {mine!r} in the payload: "
+                                      "give it once")
+    return out
+
+
+def get_fields(parameters: str, payload: bytes | zenoh.ZBytes | None, encoding: str,
+               cap: int) -> Any:
+    """A get's request fields: its selector ``parameters`` and its ``payload`` (msgpack or
+    JSON, at most ``cap`` bytes, as a put on an input key: a longer one is not copied out of
+    Zenoh), joined. Raises ``GetRefused``."""
+    try:
+        selector = parse_parameters(parameters)
+    except ValueError as exc:
+        raise GetRefused("unfit", f"malformed parameters: {exc}") from None
+    if payload is None:
+        return selector
+    if len(payload) > cap:
+        raise GetRefused("too_large", f"a get payload of {len(payload)} bytes, over this "
+                                      f"query's cap of {cap}")
+    try:
+        value = decode_payload(bytes(payload), encoding)
+    except DecodeError as exc:
+        raise GetRefused("undecodable", f"malformed parameters: {exc}") from None
+    if not selector:
+        return value
+    if not isinstance(value, dict):
+        raise GetRefused("unfit", "malformed parameters: a payload that is not a map, and "
+                                  "selector parameters")
+    return _merged(selector, value)
 
 
 def format_parameters(values: dict[str, Any], prefix: str = "") -> str:
@@ -148,12 +216,10 @@ class QueryBridge:
             if keys[0] != key:
                 query.drop()
                 return
+        cap = payload_cap(max(self.asked[k][0].request.bits for k in keys))
         try:
-            if query.payload is not None:
-                params = decode_payload(query.payload.to_bytes(), str(query.encoding))
-            else:
-                params = parse_parameters(str(query.parameters))
-        except (DecodeError, ValueError) as exc:
+            params = get_fields(str(query.parameters), query.payload, str(query.encoding), cap)
+        except GetRefused as exc:
             params = exc
         self._hand_off((Waiting(query), keys, params, asked != key))
 
@@ -186,11 +252,10 @@ class QueryBridge:
         core = self.core
         with self.lock:
             now = self.clock()
-            if isinstance(params, Exception):
-                spec = core.queries.spec_for(keys[0]) if core.queries else None
-                if spec is not None and core.queries is not None:
-                    core.queries.dropped[spec[0].name] += 1
-                self._finish(waiting, f"malformed parameters: {params}")
+            if isinstance(params, GetRefused):
+                assert core.queries is not None
+                self._finish(waiting, core.queries.refuse(keys[0], params.cause, str(params),
+                                                          now))
                 return
             until = None
             if isinstance(params, dict):
@@ -204,7 +269,7 @@ class QueryBridge:
                         params, found[0].parameters):
                     unasked.append(f"{key} needs {', '.join(found[0].parameters)}")
                     continue
-                ticket = core.ask(key, params, now, until)
+                ticket = core.ask(key, params, now, until, wildcard)
                 if isinstance(ticket, str):
                     waiting.errors.append(ticket)
                 else:
@@ -258,7 +323,8 @@ class QueryBridge:
     def _local_get(self, request: LocalGet) -> None:
         session = self.session
         values: list[Any] = []
-        errors: list[str] = []
+        unusable: list[tuple[str, str]] = []
+        ends = time.monotonic() + request.timeout_s
 
         def on_reply(reply: zenoh.Reply) -> None:
             if reply.ok is not None:
@@ -266,13 +332,16 @@ class QueryBridge:
                 try:
                     values.append(decode_payload(sample.payload.to_bytes(), str(sample.encoding)))
                 except DecodeError as exc:
-                    errors.append(str(exc))
+                    unusable.append((UNDECODABLE, str(exc)))
             elif reply.err is not None:
-                errors.append(reply.err.payload.to_string())
+                text = reply.err.payload.to_bytes()[:4 * ERROR_TEXT].decode(errors="replace")
+                # Zenoh's own error at the get's timeout, or an application's of that text
+                timed_out = text == "Timeout" and time.monotonic() >= ends - 0.05
+                unusable.append((TIMED_OUT, text) if timed_out else (
+                    ERROR_REPLY, f"an error reply: {text[:ERROR_TEXT]!r}"))
 
         def done() -> None:
-            error = "; ".join(errors) if errors and not values else None
-            self.loop.call_soon_threadsafe(self._served, request, list(values), error)
+            self.loop.call_soon_threadsafe(self._served, request, list(values), list(unusable))
 
         params = format_parameters(request.parameters)
         selector = request.key + (f"?{params}" if params else "")
@@ -280,9 +349,10 @@ class QueryBridge:
                     consolidation=zenoh.ConsolidationMode.NONE,
                     timeout=request.timeout_s)
 
-    def _served(self, request: LocalGet, values: list[Any], error: str | None) -> None:
+    def _served(self, request: LocalGet, values: list[Any],
+                unusable: list[tuple[str, str]]) -> None:
         with self.lock:
-            self.core.query_served(request.ticket, values, error)
+            self.core.query_served(request.ticket, values, self.clock(), unusable)
         self.changed()
 
     def close(self) -> None:

@@ -33,6 +33,8 @@ from typing import Any
 
 import msgpack
 
+from bridge.wire.payloads import why_undecodable
+
 __all__ = [
     "DETECTED_LOSSES",
     "MAX_MESSAGE_BYTES",
@@ -72,7 +74,7 @@ def _unpack(body: bytes) -> dict[str, Any]:
     try:
         msg = msgpack.unpackb(body, raw=False, strict_map_key=False)
     except Exception as exc:  # msgpack raises several unrelated types on garbage
-        raise ProtocolError(f"undecodable message: {exc}") from None
+        raise ProtocolError(f"undecodable message: {why_undecodable(exc, body)}") from None
     if not isinstance(msg, dict) or not isinstance(msg.get("t"), str):
         raise ProtocolError("message is not a map with a string 't'")
     return msg

@@ -80,7 +80,9 @@ class Entry:
 
     ``values``: the element values (plain and reliable channels). ``header``: reliable
     ``(seq, lag)``; fragment ``(tid, index, count)``; ``@ack`` ``(peer, stream, epoch, tid,
-    base, bitmap)``. ``chunk``: a fragment's bytes.
+    base, bitmap)``; query ``(qid, node, status, index, reason)`` (``reason``: a failed
+    reply's :class:`~bridge.wire.queries.FailReason` code, else 0). ``chunk``: a fragment's
+    bytes.
     """
 
     channel: WireCodec
@@ -307,8 +309,9 @@ class FrameCodec:
             if index >= channel.spec.max_replies:
                 raise DecodeError(f"reply index {index} beyond max_replies")
             carries = not channel.reply or status <= ReplyStatus.LAST
+            reason = packed if status == ReplyStatus.FAILED else 0  # (a FailReason, or other)
             return Entry(channel, [channel.layout.unpack(packed)] if carries else None,
-                         (qid, node, status, index))
+                         (qid, node, status, index, reason))
         if isinstance(channel, MarkCodec):
             peer, mark = channel.unpack(payload)
             if peer >= len(self.table.nodes):

@@ -9,6 +9,7 @@ caller), never a ``RecursionError`` or a ``TypeError``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import re
@@ -116,6 +117,23 @@ def _msgpack(data: bytes) -> Any:
     return _check_depth(value)
 
 
+def why_undecodable(exc: Exception, data: bytes) -> str:
+    """What a parser found wrong with ``data``, never empty (every path that tells why msgpack
+    or JSON could not be read says it so): msgpack's ``FormatError`` (its only cause, the
+    reserved byte 0xc1) has no text, so it is named with its offset; any other error without
+    text by its type."""
+    if isinstance(exc, msgpack.FormatError):
+        unpacker = msgpack.Unpacker(raw=False, strict_map_key=False)
+        unpacker.feed(data)
+        with contextlib.suppress(Exception):  # it raises again, where it stopped
+            unpacker.unpack()
+        at = unpacker.tell()
+        found = f"byte 0x{data[at]:02x}" if at < len(data) else "end"
+        return f"reserved {found} at offset {at}" if found == "byte 0xc1" \
+            else f"FormatError at offset {at} ({found})"
+    return str(exc) or type(exc).__name__
+
+
 def decode_payload(data: bytes, encoding: str) -> Any:
     """The value a sample carries. Raises :class:`DecodeError` when it is neither format, is not
     strict UTF-8, or nests deeper than :data:`MAX_DEPTH`."""
@@ -126,17 +144,17 @@ def decode_payload(data: bytes, encoding: str) -> Any:
         if kind in (JSON, "text/json", "text/plain"):
             return _json(data)
     except (ValueError, msgpack.UnpackException) as exc:
-        raise DecodeError(f"not valid {kind}: {str(exc) or type(exc).__name__}") from None
+        raise DecodeError(f"not valid {kind}: {why_undecodable(exc, data)}") from None
     # untagged (zenoh/bytes): JSON text first, as a person typing a value would send it
     try:
         return _json(data)
     except ValueError as exc:  # DecodeError too: it may still be msgpack
-        not_json = exc
+        not_json = why_undecodable(exc, data)
     try:
         return _msgpack(data)
     except (ValueError, msgpack.UnpackException) as exc:
-        raise DecodeError(f"neither JSON ({not_json}) nor msgpack ({exc}) ({encoding})"
-                          ) from None
+        raise DecodeError(f"neither JSON ({not_json}) nor msgpack ({why_undecodable(exc, data)}) "
+                          f"({encoding})") from None
 
 
 def _jsonable(value: Any) -> Any:

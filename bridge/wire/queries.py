@@ -5,7 +5,8 @@ mission, ⌈log2 N⌉ bits) + the request fields (+ with ``deadline_bits``, the 
 time in that many bits, last: see :data:`LEFT`). Reply ``!<name>``: query id + the asking node +
 status (2 bits: 0 a reply, 1 the last reply, 2 done without a reply, 3 failed at the server) +
 the reply's index (⌈log2 max_replies⌉ bits: the last reply's index tells the count) + the reply
-fields (zero when the status carries none). Both may repeat in a frame. An asker repeats a
+fields (zero when the status carries none; a failed reply carries a :class:`FailReason` there
+instead, when the fields have room for it). Both may repeat in a frame. An asker repeats a
 request until every reply arrived; the index lets it drop duplicates and see what is missing.
 """
 
@@ -33,6 +34,23 @@ class ReplyStatus(IntEnum):
     LAST = 1
     DONE = 2
     FAILED = 3
+
+
+class FailReason(IntEnum):
+    """Why a serving node's local get gave no reply it could send, in the low bits of a failed
+    reply's (otherwise unused) fields: no bit more on the air. 0, unsaid, is what a node of
+    before these reasons sends, and what is sent when the fields have fewer bits than the
+    reason needs."""
+
+    UNSAID = 0
+    APP_ERROR = 1  # the queryable answered with a reply error (its text stays at the server)
+    NOT_USABLE = 2  # its replies were not msgpack/JSON or did not fit the reply fields
+    TIMEOUT = 3  # no queryable answered within the local get's time
+
+    @property
+    def code(self) -> str:
+        """The reason as the asker's reply error names it: ``app-error``, ``not-usable``…"""
+        return self.name.lower().replace("_", "-")
 
 
 @dataclass(frozen=True)

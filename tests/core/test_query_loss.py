@@ -119,7 +119,7 @@ def test_query_ids_rotate_and_kept_answers_stay_bounded() -> None:
         server.on_request("top", request, header, [{"detail": (n // 16) % 4}], n / 100)
         gets = [o for o in server.take() if isinstance(o, LocalGet)]
         assert len(gets) == 1
-        server.served(gets[0].ticket, TWO, None)
+        server.served(gets[0].ticket, TWO, n / 100)
         server.on_request("top", request, header, [{"detail": (n // 16) % 4}], n / 100)
         assert not any(isinstance(o, LocalGet) for o in server.take())  # a repeat: kept
     assert len(server.answers) == 8 and server.duplicates == 40

@@ -63,6 +63,16 @@ def test_a_msgpack_error_says_what_is_wrong(data: bytes) -> None:
         decode_payload(data, MSGPACK)
 
 
+@pytest.mark.parametrize("encoding", [MSGPACK, "zenoh/bytes", ""])
+def test_every_path_names_a_reserved_byte_and_where_it_is(encoding: str) -> None:
+    """Tagged msgpack and untagged bytes alike: msgpack's FormatError (no text of its own) is
+    named, with its offset, never an empty 'nor msgpack ()'."""
+    for data, offset in ((b"\xc1junk", 0), (b"\x93\x01\x02\xc1", 3),
+                         (b"\x82\xa1a\x01\xa1b\xc1", 6)):
+        with pytest.raises(DecodeError, match=f"reserved byte 0xc1 at offset {offset}\\b"):
+            decode_payload(data, encoding)
+
+
 def test_nesting_up_to_the_limit_decodes() -> None:
     value: object = 1
     for _ in range(MAX_DEPTH):

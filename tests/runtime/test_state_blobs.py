@@ -82,6 +82,15 @@ def test_a_state_whose_picture_is_missing_or_altered_starts_afresh(
     assert (tmp_path / "m.rov.state.corrupt").exists()
 
 
+def test_a_state_file_msgpack_cannot_read_says_why(tmp_path: Path,
+                                                    caplog: pytest.LogCaptureFixture) -> None:
+    StateFile(tmp_path, "m", "rov").save({"epoch": 3})
+    (tmp_path / "m.rov.state").write_bytes(b"\x81\xa5epoch\xc1")
+    with caplog.at_level(logging.WARNING, logger="zab.state"):
+        assert StateFile(tmp_path, "m", "rov").load() is None
+    assert "is corrupt (reserved byte 0xc1 at offset 7): moved to" in caplog.text
+
+
 def test_a_picture_that_comes_while_the_disk_is_full_is_saved_once_it_has_room(
         tmp_path: Path) -> None:
     with small_tmpfs(tmp_path / "state", size="512k") as where:

@@ -46,6 +46,11 @@ queries:
     key: auv1/state
     serve: auv1
     reply: [{field: mode, type: enum, values: [idle, survey]}]
+  - name: probe  # its queryable answers badly as asked (serve_at_auv1)
+    key: auv1/x/probe
+    serve: auv1
+    request: [{field: detail, type: int, min: 0, max: 7}]
+    reply: [{field: v, min: 0, max: 200, resolution: 1}]
 channels:
   - name: status
     from: auv1
@@ -109,8 +114,21 @@ def serve_at_auv1(space: Space) -> None:
         query.reply(query.key_expr, msgpack.packb({"mode": "survey"}))
         query.drop()
 
+    def probe(query: zenoh.Query) -> None:
+        detail = int(str(query.parameters).partition("detail=")[2] or 0)
+        if detail == 4:  # no answer before the local get's time is up
+            threading.Timer(1.5, query.drop).start()
+            return
+        if detail == 1:
+            query.reply_err(b"sensor offline")
+        else:
+            query.reply(query.key_expr, {0: msgpack.packb({"v": 5}), 2: b"\xc1\xff garbage",
+                                         3: msgpack.packb({"v": 500})}[detail])
+        query.drop()
+
     space.auv1.declare_queryable("auv1/info", info)
     space.auv1.declare_queryable("auv1/state", state)
+    space.auv1.declare_queryable("auv1/x/probe", probe)
 
 
 ALL = zenoh.QueryConsolidation(zenoh.ConsolidationMode.NONE)
@@ -378,3 +396,43 @@ def test_a_get_that_maps_to_nothing_says_so(space: Space) -> None:
     stats_of(space.top, "top", lambda s: s.get("received_age_s", {}).get("status", 99) < 1)
     values, errors = get(space.top, "auv1/status")
     assert values and not errors  # the latched value; nothing else to say
+
+
+def test_a_get_payload_may_not_contradict_its_selector_nor_be_too_long(space: Space) -> None:
+    asked = space.served.get("info", 0)
+    for payload, said in ((msgpack.packb({"detail": 2}), "parameter 'detail' given twice, 0 "
+                           "in the selector and 2 in the payload: give it once"),
+                          (msgpack.packb({"detail": 0, "pad": "y" * 1_000_000}),
+                           "a get payload of 1000018 bytes, over this query's cap of 16400"),
+                          (b"\xc1junk", "nor msgpack (reserved byte 0xc1 at offset 0)")):
+        replies = list(space.top.get("auv1/info?detail=0", payload=payload, timeout=20))
+        assert len(replies) == 1 and replies[0].err is not None
+        assert said in replies[0].err.payload.to_string()
+    assert space.served.get("info", 0) == asked  # none crossed
+    replies = list(space.top.get("auv1/info?detail=1", payload=msgpack.packb({"pad": "y"}),
+                                 timeout=20, consolidation=ALL))
+    assert [msgpack.unpackb(r.ok.payload.to_bytes())["detail"] for r in replies] == [1, 1]
+    stats = stats_of(space.top, "top", lambda s: s.get("fields_left_out"))
+    assert stats["fields_left_out"] == {"auv1/info": 1}
+    assert stats["payload_drop_causes"] == {
+        "auv1/info": {"unfit": 1, "too_large": 1, "undecodable": 1}}
+
+
+def test_a_reply_the_vehicle_cannot_send_is_counted_and_the_getter_told_why(
+        space: Space) -> None:
+    said = {}
+    for detail in (1, 2, 4):
+        values, errors = get(space.top, f"auv1/x/probe?detail={detail}")
+        assert values == [] and len(errors) == 1
+        said[detail] = errors[0]
+    assert said[1] == ("auv1: query 'probe': app-error: its queryable replied with an error "
+                       "(its text is in auv1's log)")
+    assert said[2].startswith("auv1: query 'probe': not-usable: ")
+    assert said[4].startswith("auv1: query 'probe': timeout: ")
+    values, errors = get(space.top, "auv1/x/probe?detail=3")
+    assert values == [("auv1/x/probe", {"v": 200.0})] and not errors  # clamped, and counted:
+    stats = stats_of(space.auv1, "auv1", lambda s: "!probe" in s.get("clamped", {}))
+    assert stats["clamped"] == {"!probe": {"v": 1}}
+    assert {k: n for k, n in stats["queries"]["dropped"].items() if n} == {"probe:reply": 2}
+    assert stats["payload_drop_causes"] == {"auv1/x/probe": {"error_reply": 1,
+                                                            "undecodable": 1}}
