@@ -63,8 +63,9 @@ class AnyOptions(ModemOptions):
 class SimOptions(ModemOptions):
     """``sim``: a modem in the simulated water."""
 
-    tx_lead_s: float = Field(0.05, ge=0, description="How far ahead each frame's start is "
-                             "scheduled, seconds.")
+    tx_lead_s: float = Field(0.05, description="How far ahead each frame's start is "
+                             "scheduled, seconds (negative: a host that asks late, each frame "
+                             "refused by the water as expired: for tests of refusals).")
     connect_timeout: Seconds = Field(3.0, description="Wait for the water, seconds.")
     rx_queue: int = Field(256, ge=0, description="Receptions kept while nobody reads them "
                           "(0: no limit); the oldest are dropped.")
