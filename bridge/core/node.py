@@ -57,7 +57,7 @@ from bridge.core.network import AUTH_WINDOW, NodeNetwork
 from bridge.core.outbound import Outbound, OutFrame
 from bridge.core.outputs import NodeStats, Outbox, Output, Publish, Status
 from bridge.core.positioning import Positioning, needs_positioning
-from bridge.core.queries import LocalGet, Queries, QueryAnswer, QueryEnd, Ticket
+from bridge.core.queries import LocalGet, OverIp, Queries, QueryAnswer, QueryEnd, Ticket
 from bridge.core.ranges import Ranges
 from bridge.core.receivers import Receivers
 from bridge.core.reception import ModemFix, ModemRange, RangingMode, Reception
@@ -368,9 +368,10 @@ class NodeCore:
             self.network.update(now)
 
     def ask(self, key: str, parameters: Any, now: float, until: float | None = None,
-            wildcard: bool = False) -> Ticket | str:
+            wildcard: bool = False) -> Ticket | str | OverIp:
         """A Zenoh get on ``key`` (``wildcard``: matched by one) with ``parameters`` (a dict), its
-        caller waiting ``until``: the ticket it waits on (QueryAnswer / QueryEnd), or why not."""
+        caller waiting ``until``: the ticket it waits on (QueryAnswer / QueryEnd), why it ends at
+        once, or :class:`OverIp`: the server is reachable over IP, nothing crosses the water."""
         found = self.queries.spec_for(key) if self.queries is not None else None
         if found is None:
             return f"{key!r} is not a query of mission {self.mission.mission!r} at {self.node}"
@@ -378,10 +379,8 @@ class NodeCore:
         self.links.update(now)
         state, refused = (self.links.states.get(server), None) if self.network is None \
             else self.network.reach(server, key, now)
-        if refused is not None:
-            return refused
         return self.queries.ask(spec, server, parameters, now,  # type: ignore[union-attr]
-                                state, until, wildcard)
+                                state, until, refused, wildcard)
 
     def query_served(self, ticket: tuple[int, str, int], values: list[Any], now: float,
                      unusable: Sequence[tuple[str, str]] = ()) -> None:

@@ -130,6 +130,8 @@ class Outbound:
         self.latched.unresumed += self.families.resume(state.get("families"))
         self.surfacing = Surfacing(node, mission.surfacing.republish) \
             if mission.surfacing is not None else None
+        if queries is not None:  # (a get to a server reachable over IP goes over IP)
+            queries.surfacing = self.surfacing
         self.interest = Interest(table.interest, mission.demand.refresh_s) \
             if table.interest is not None and mission.demand is not None else None
         self.bindings: dict[str, list[tuple[ChannelCodec, int, ElementCodec]]] = {}

@@ -1,13 +1,15 @@
 """Queries across the water in the node core (pure): asking, serving, deadlines, limits.
 
-Asking side: the runtime hands a Zenoh ``get`` to :meth:`Queries.ask`. It is refused at once
-(a reason the runtime sends back as a reply error) when the serving node's link is down, when
-``max_open_queries`` are already open here, or when its parameters do not fit the request
-fields (counted). Otherwise it joins an open query with the same request (one acoustic request
-serves every concurrent ``get``) or opens one: a query id, and a request entry in the next frame
-the MAC allows. Replies become :class:`QueryAnswer` outputs and the end a :class:`QueryEnd`
-(with an error when the deadline passes first: the query's ``timeout_s`` or the MAC's bound
-for a request and its reply, see :func:`deadline_s`).
+Asking side: the runtime hands a Zenoh ``get`` to :meth:`Queries.ask`. While the serving node is
+reachable over IP (``surfacing``) nothing crosses the water: :class:`OverIp`, the get goes to
+the server's applications over IP. Else it is refused at once (a reason the runtime sends back
+as a reply error) when the serving node's link is down, when ``max_open_queries`` are already
+open here, or when its parameters do not fit the request fields (counted). Otherwise it joins an
+open query with the same request (one acoustic request serves every concurrent ``get``) or opens
+one: a query id, and a request entry in the next frame the MAC allows. Replies become
+:class:`QueryAnswer` outputs and the end a :class:`QueryEnd` (with an error when the deadline
+passes first: the query's ``timeout_s`` or the MAC's bound for a request and its reply, see
+:func:`deadline_s`).
 
 Serving side: a request becomes a :class:`LocalGet` for the runtime, which runs the local Zenoh
 ``get`` and calls :meth:`Queries.served` with the replies (at most ``max_replies``); they go
@@ -50,6 +52,7 @@ from bridge.core.builder import Candidate
 from bridge.core.families import Extra
 from bridge.core.link import LinkState
 from bridge.core.mac import frame_time_s, mac_report
+from bridge.core.surfacing import Surfacing
 from bridge.errors import EncodeError
 from bridge.mission.model import Mission
 from bridge.mission.network import Network
@@ -108,6 +111,16 @@ class QueryAnswer:
     key: str
     value: Any
     encoding: str
+
+
+@dataclass(frozen=True)
+class OverIp:
+    """Asking side: the server is reachable over IP, so nothing crosses the water. ``key``: the
+    key its bridge would get there (``local_key``). Where that is the asked key, Zenoh routes
+    the get to the server's applications itself and this bridge answers nothing (at once);
+    elsewhere the runtime gets ``key`` over IP and hands the replies on, as they came."""
+
+    key: str
 
 
 @dataclass(frozen=True)
@@ -211,6 +224,8 @@ class Queries:
     as the put path does (the node's ``drop_payload``)."""
     told_left_out: Callable[[str, list[str], float], None] | None = None
     """``(key, fields, now)``: fields of a get no request field carries (as a put's)."""
+    surfacing: Surfacing | None = None
+    """The peers reachable over IP (set by the node): gets to them do not cross the water."""
 
     def __post_init__(self) -> None:
         codecs = self.table.query_codecs
@@ -261,12 +276,20 @@ class Queries:
 
     def ask(self, spec: QuerySpec, server: str, parameters: Any, now: float,
             link: LinkState | None, until: float | None = None,
-            wildcard: bool = False) -> Ticket | str:
-        """Open (or join) a query; returns its ticket, or why it ends at once. A fresh enough
-        latched value (``cached_s``) answers at once, even with the link down. ``until``:
-        when the caller stops waiting (None: it waits as long as the query may take).
+            refused: str | None = None, wildcard: bool = False) -> Ticket | str | OverIp:
+        """Open (or join) a query; returns its ticket, or why it ends at once, or
+        :class:`OverIp` while the server is reachable over IP (a query opened before it
+        surfaced goes on across the water: its get reached no application over IP). A fresh
+        enough latched value (``cached_s``) answers at once, even with the link down.
+        ``until``: when the caller stops waiting (None: it waits as long as the query may
+        take); ``refused``: why the route to the server is broken (nodes behind relays).
         Parameters no request field reads are told (``told_left_out``), but not a wildcard
         get's: those are for whichever of its queries read them."""
+        if self.surfacing is not None and server in self.surfacing.reachable:
+            self.surfacing.gets_over_ip += 1
+            return OverIp(spec.served_key(server))
+        if refused is not None:
+            return refused
         if until is not None and until <= now:
             self.failed += 1
             return f"query {spec.name!r}: the caller's deadline has passed, not sent"

@@ -11,6 +11,8 @@ Zenoh joined this node's over IP) and, with a mission key, a proof from it
   sender that has not noticed yet never puts a quantised copy beside the full-fidelity one;
 - each input sample feeding a channel to that peer is put, unquantised, on the peer's output
   key (a :class:`Relay`), unless that key is the input key itself.
+- a get here on a query that peer serves crosses nothing: the peer's applications answer it
+  over IP (:class:`~bridge.core.queries.OverIp`, counted as ``gets_over_ip``).
 
 When the token goes (the vehicle dived, the IP path is lost), the peer is acoustic again: the
 store kept the latest value of every channel, so the next opportunity sends those, once each.
@@ -47,6 +49,7 @@ class Surfacing:
     since: dict[str, float] = field(default_factory=dict)
     duplicates: int = 0
     relayed: int = 0
+    gets_over_ip: int = 0
     switches: list[dict[str, Any]] = field(default_factory=list)
 
     def changed(self, peer: str, up: bool, now: float) -> bool:
@@ -81,4 +84,5 @@ class Surfacing:
 
     def snapshot(self) -> dict[str, Any]:
         return {"ip_reachable": sorted(self.reachable), "since": dict(self.since),
-                "surfaced_duplicates": self.duplicates, "relayed": self.relayed}
+                "surfaced_duplicates": self.duplicates, "relayed": self.relayed,
+                "gets_over_ip": self.gets_over_ip}

@@ -113,22 +113,28 @@ class IpWatch:
                     await self._wake.wait()
 
     async def _prove(self, peer: str) -> bool:
-        """Whether ``peer`` answers a fresh challenge with a valid proof now."""
-        if self.key is None:
+        """Whether ``peer`` answers a fresh challenge with a valid proof now. The first valid
+        answer settles it, as it comes (no consolidation, which holds replies to the end): the
+        get itself ends only once every queryable on the key has (or at its timeout), and gets
+        meanwhile would be answered both over IP and acoustically."""
+        key = self.key
+        if key is None:
             return True  # nothing to prove with: the token is believed
         nonce = secrets.token_hex(16)
         selector = f"@zab/{self.mission}/{peer}/prove?nonce={nonce};from={self.node}"
 
-        def ask() -> list[Any]:
-            answers = []
-            for reply in self.session.get(selector, timeout=PROVE_TIMEOUT_S):
+        def ask() -> bool:
+            for reply in self.session.get(selector, timeout=PROVE_TIMEOUT_S,
+                                          consolidation=zenoh.ConsolidationMode.NONE):
+                answer = None
                 if reply.ok is not None:
                     with contextlib.suppress(Exception):  # anything but a map: no proof
-                        answers.append(msgpack.unpackb(reply.ok.payload.to_bytes()).get("proof"))
-            return answers
+                        answer = msgpack.unpackb(reply.ok.payload.to_bytes()).get("proof")
+                if proven(key, self.mission, peer, self.node, nonce, answer):
+                    return True  # (the replies still to come are dropped)
+            return False
 
-        answers = await asyncio.to_thread(ask)
-        if any(proven(self.key, self.mission, peer, self.node, nonce, a) for a in answers):
+        if await asyncio.to_thread(ask):
             self._failing.pop(peer, None)
             return True
         self.unproven += 1

@@ -11,7 +11,7 @@ from typing import Any, Protocol
 from bridge.core.interest import intersects
 from bridge.core.loaded import LoadedMission
 from bridge.core.node import NodeCore
-from bridge.core.queries import LocalGet, QueryAnswer, QueryEnd
+from bridge.core.queries import LocalGet, OverIp, QueryAnswer, QueryEnd
 
 
 class Fleet(Protocol):
@@ -74,9 +74,17 @@ class VirtualQueries:
         fleet = self.fleet
         result = GetResult(node, key, fleet.now)
         until = None if timeout is None else fleet.now + timeout
-        ticket = fleet.cores[node].ask(key, parameters or {}, fleet.now, until)
+        core = fleet.cores[node]
+        ticket = core.ask(key, parameters or {}, fleet.now, until)
         if isinstance(ticket, str):
             result.error, result.ended_at = ticket, fleet.now
+        elif isinstance(ticket, OverIp):  # Zenoh over IP: the server's applications, at once
+            found = core.queries.spec_for(key) if core.queries is not None else None
+            assert found is not None  # (a get over IP is one on a query's key)
+            for served, answer in self.queryables.get(found[1], []):
+                if intersects(served, ticket.key):
+                    result.replies += [(key, v, fleet.now) for v in answer(dict(parameters or {}))]
+            result.ended_at = fleet.now
         else:
             self.waiting.setdefault((node, ticket), []).append(result)
         fleet.collect_and_replan(node)

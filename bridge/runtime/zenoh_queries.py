@@ -17,6 +17,13 @@ A wildcard get (``auv1/**``) meets the queryable of every asked key it matches: 
 them (in key order) answers for all. It asks each matched query that needs no parameters, or
 whose parameters the selector gives, and ends with one reply error naming the others.
 
+While the serving node is reachable over IP (the core says
+:class:`~bridge.core.queries.OverIp`), nothing crosses the water: on a query whose
+``local_key`` is the asked key, Zenoh routes the get to the server's applications itself and
+this queryable answers nothing, at once (a get with ``consolidation=NONE`` waits for every
+queryable's end: holding it open would hold the caller); on another ``local_key``, the bridge
+gets that key over IP and answers each reply on the asked key, as it came (unquantised).
+
 Serving node: a :class:`~bridge.core.queries.LocalGet` becomes ``session.get`` on the local key
 with the request's parameters and ``consolidation=NONE``, so every reply of every queryable
 counts (up to the query's ``max_replies``); replies are decoded (msgpack or JSON) and handed
@@ -43,9 +50,11 @@ import zenoh
 from bridge.core.node import NodeCore
 from bridge.core.queries import (
     ERROR_REPLY,
+    LOCAL_GET_S,
     TIMED_OUT,
     UNDECODABLE,
     LocalGet,
+    OverIp,
     QueryAnswer,
     QueryEnd,
     Ticket,
@@ -167,11 +176,17 @@ WAITING_GETS = 64
 
 @dataclass
 class Waiting:
-    """A Zenoh get held open until every acoustic query it asked has ended."""
+    """A Zenoh get held open until every acoustic query it asked, and every get it made over
+    IP (``forwards``), has ended."""
 
     query: zenoh.Query
     tickets: set[Ticket] = field(default_factory=set)
     errors: list[str] = field(default_factory=list)
+    forwards: int = 0
+
+    @property
+    def over(self) -> bool:
+        return not self.tickets and not self.forwards
 
 
 class QueryBridge:
@@ -272,6 +287,10 @@ class QueryBridge:
                 ticket = core.ask(key, params, now, until, wildcard)
                 if isinstance(ticket, str):
                     waiting.errors.append(ticket)
+                elif isinstance(ticket, OverIp):  # the server answers over IP
+                    if ticket.key != key:  # (else Zenoh routes the get there: nothing to do)
+                        self._over_ip(waiting, key, ticket.key, params,
+                                      LOCAL_GET_S if until is None else until - now)
                 else:
                     waiting.tickets.add(ticket)
                     self.waiting.setdefault(ticket, []).append(waiting)
@@ -279,9 +298,41 @@ class QueryBridge:
                 waiting.errors.append(f"a wildcard get does not ask queries that need "
                                       f"parameters it does not give: {'; '.join(unasked)} "
                                       f"(get each on its key with them)")
-            if not waiting.tickets:
+            if waiting.over:
                 self._finish(waiting, None)
         self.changed()  # a request is due at the next opportunity
+
+    def _over_ip(self, waiting: Waiting, asked: str, served: str, params: Any,
+                 timeout: float) -> None:
+        """Get ``served`` over IP (the server is reachable there) and answer each reply on
+        ``asked``, as it came; ``waiting`` ends with the last of its gets."""
+        waiting.forwards += 1
+
+        def on_reply(reply: zenoh.Reply) -> None:  # Zenoh thread
+            try:
+                if reply.ok is not None:
+                    sample = reply.ok
+                    waiting.query.reply(asked, sample.payload, encoding=sample.encoding,
+                                        attachment=sample.attachment, timestamp=sample.timestamp)
+                elif reply.err is not None:
+                    waiting.errors.append(reply.err.payload.to_string())
+            except zenoh.ZError as exc:  # the getter gave up already
+                log.debug("reply refused: %s", exc)
+
+        def done() -> None:  # Zenoh thread
+            with contextlib.suppress(RuntimeError):  # the loop has closed: the node is gone
+                self.loop.call_soon_threadsafe(self._forwarded, waiting)
+
+        text = format_parameters(params) if isinstance(params, dict) else ""
+        self.session.get(served + (f"?{text}" if text else ""),
+                         zenoh.handlers.Callback(on_reply, done),
+                         consolidation=zenoh.ConsolidationMode.NONE, timeout=max(timeout, 0.0))
+
+    def _forwarded(self, waiting: Waiting) -> None:
+        """On the loop: one of ``waiting``'s gets over IP ended."""
+        waiting.forwards -= 1
+        if waiting.over:
+            self._finish(waiting, None)
 
     @staticmethod
     def _finish(waiting: Waiting, error: str | None) -> None:
@@ -312,7 +363,7 @@ class QueryBridge:
                 waiting.tickets.discard(output.ticket)
                 if output.error is not None:
                     waiting.errors.append(output.error)
-                if not waiting.tickets:
+                if waiting.over:
                     self._finish(waiting, None)
             return True
         if isinstance(output, LocalGet):

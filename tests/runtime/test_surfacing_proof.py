@@ -10,7 +10,9 @@
 - a get on a peer's keyspace that maps to nothing gets the bridge's reply error only while no
   peer's bridge token is on its Zenoh: with one, proven or not yet, it may be answered there.
   (In ``zab demo`` the surfaced cv2's error came beside ssv's own answer: ssv's get crossed
-  the fresh WiFi join before cv2 had proven ssv, then one full suite run in eight.)"""
+  the fresh WiFi join before cv2 had proven ssv, then one full suite run in eight.)
+- a queryable on a peer's prove key that never ends its replies does not hold the switch: the
+  first valid proof settles it, not the end of the challenge's get."""
 
 from __future__ import annotations
 
@@ -129,4 +131,32 @@ def test_a_peers_token_not_yet_proven_silences_the_error_on_its_keyspace() -> No
             errors = errors_of_get(app, "auv/health")
             assert len(errors) == 1 and "maps this key at top" in errors[0]
         finally:
+            app.close()
+
+
+def test_a_queryable_on_the_prove_key_that_never_ends_does_not_hold_the_switch() -> None:
+    """The bridge waited for the challenge's get to end (every queryable on the key, else its
+    timeout) before it took a valid proof: one that held its reply open delayed each switch by
+    PROVE_TIMEOUT_S, and a zab sim surfacing by as much once, while gets at the surface were
+    answered both over IP and across the water."""
+    loaded = on_free_ports(udp_ports(MISSION), "proof.yaml")
+    with running_fleet(loaded, key=KEY) as fleet:
+        top = fleet.nodes["top"]
+        app = outside_session(loaded, "top")
+        held: list[Any] = []
+        try:
+            app.declare_queryable("@zab/proof/auv/prove", held.append)  # never answered
+            assert top.ip_watch is not None and top.core.surfacing is not None
+            wifi = access_point([*loaded.mission.nodes["top"].zenoh.listen,
+                                 *loaded.mission.nodes["auv"].zenoh.listen])
+            try:
+                wait(lambda: top.ip_watch.tokens == {"auv"}, "top sees auv's token")
+                seen = time.time()
+                wait(lambda: top.core.surfacing.reachable == {"auv"}, "top sees auv surfaced")
+                assert time.time() - seen < PROVE_TIMEOUT_S / 2
+                assert held  # (the challenge did reach the queryable that never answers)
+            finally:
+                wifi.close()
+        finally:
+            held.clear()
             app.close()

@@ -380,3 +380,69 @@ def test_two_vehicles_surfaced_at_once_keep_their_own_values(tmp_path: Path) -> 
                 wifi.close()
             for session in (auv1, auv2, top):
                 session.close()
+
+
+def test_a_get_while_the_vehicle_is_surfaced_is_answered_once_over_ip_at_once(
+        tmp_path: Path) -> None:
+    """The serving vehicle up: Zenoh carries the get to its queryable over IP; the surface
+    bridge's queryable for the key ends at once without a reply and asks nothing across the
+    water (it used to: a second, quantised reply seconds later, and the vehicle's bridge asked
+    its queryable again). A query whose ``local_key`` is another key is got there over IP by
+    the surface bridge, each reply handed on as it came. After the dive the get crosses the
+    water again."""
+    data = yaml.safe_load(ZSPACE.read_text())
+    for name in ("top", "auv1"):  # as the deploy kit runs them: routers
+        data["nodes"][name]["zenoh"] = {"mode": "router", "scouting/gossip/enabled": False,
+                                        "scouting/delay": 0}
+    data["queries"].append({**data["queries"][0], "name": "card", "key": "{node}/card",
+                            "local_key": "{node}/info"})
+    mission, endpoints = mission_file(yaml.safe_dump(data, sort_keys=False), tmp_path)
+    exact = {"depth_m": 1.25, "state": "survey", "detail": 1}  # crosses the water as 1.5
+    with zab_sim(mission, endpoints):
+        auv1, top = plain_app(endpoints["auv1"]), plain_app(endpoints["top"])
+        wifi = None
+        try:
+            calls: list[float] = []
+
+            def answer(query) -> None:
+                calls.append(time.time())
+                query.reply(query.key_expr, msgpack.packb(exact))
+                query.drop()
+
+            auv1.declare_queryable("auv1/info", answer)
+            wifi = access_point(endpoints["top"] + endpoints["auv1"])
+            assert wait_for(lambda: token_seen(top, "auv1"), 10.0)
+            time.sleep(2.0)  # the bridges switch over
+
+            def every_reply(key: str = "auv1/info") -> tuple[list, list[str], float]:
+                started = time.time()
+                replies = list(top.get(f"{key}?detail=1", timeout=15.0,
+                                       consolidation=zenoh.ConsolidationMode.NONE))
+                return ([(str(r.ok.key_expr), msgpack.unpackb(r.ok.payload.to_bytes()))
+                         for r in replies if r.ok],
+                        [r.err.payload.to_string() for r in replies if r.err],
+                        time.time() - started)
+
+            values, errors, took = every_reply()
+            assert values == [("auv1/info", exact)] and not errors  # once, unquantised
+            assert took < 1.0, took
+            values, errors, took = every_reply("auv1/card")  # got on auv1/info over IP
+            assert values == [("auv1/card", exact)] and not errors and took < 1.0, took
+            time.sleep(CYCLE_S)  # an acoustic request would have reached auv1 by now
+            assert len(calls) == 2
+            wifi.close()
+            wifi = None
+            assert wait_for(lambda: not token_seen(top, "auv1"), 15.0)  # dived
+            deadline = time.time() + 20  # until the surface has heard auv1 (links up)
+            while True:
+                values, errors, took = every_reply()
+                if values or time.time() > deadline or "link down" not in " ".join(errors):
+                    break
+                time.sleep(1.0)
+            assert values == [("auv1/info", {**exact, "depth_m": 1.5})] and not errors
+            assert took > 0.5
+        finally:
+            if wifi is not None:
+                wifi.close()
+            auv1.close()
+            top.close()
