@@ -163,6 +163,10 @@ class ModemBackend(ABC):
         state = "closed" if self._closed else "open" if self._opened else "new"
         return f"<{type(self).__name__} {self.setup.node}@{self.address} {state}>"
 
+    def __str__(self) -> str:
+        """How log lines and errors name it: ``micromodem modem 'auv1'``."""
+        return f"{self.name} modem {self.setup.node!r}"
+
     @property
     def is_open(self) -> bool:
         """Opened and not yet closed."""

@@ -254,7 +254,7 @@ class EvologicsBackend(ModemBackend):
             await self._write(self.protocol.data_to_send())
             self.protocol.mode = Mode.DATA
             if await self._probe_mode() is not Mode.DATA:
-                raise BackendError(f"{self._who}: ATO did not switch the modem to data mode")
+                raise BackendError(f"{self}: ATO did not switch the modem to data mode")
         elif current is Mode.DATA and self.mode is Mode.COMMAND:
             reply = await self._command("C")  # +++ATC -> OK [V BIR]
             self.protocol.mode = Mode.COMMAND
@@ -263,12 +263,12 @@ class EvologicsBackend(ModemBackend):
         await self._command_ok(f"!AL{self.address}")
         reply = await self._command("?AL")
         if not isinstance(reply, Value) or reply.text.strip() != str(self.address):
-            raise BackendError(f"{self._who}: address is {_text(reply)} after AT!AL{self.address}"
+            raise BackendError(f"{self}: address is {_text(reply)} after AT!AL{self.address}"
                                " (a pending [*]OK value needs a modem reset)")
         reply = await self._command("@ZX1")  # SENDSTART/SENDEND/RECVSTART/RECVEND [V]
         self._extended = isinstance(reply, Ok)
         if not self._extended:
-            log.warning("%s: AT@ZX1 refused (%s): send timing is estimated", self._who,
+            log.warning("%s: AT@ZX1 refused (%s): send timing is estimated", self,
                         _text(reply))
         await self._command_ok(f"!RP{int(self.promiscuous)}")
         if self.usbl:
@@ -278,7 +278,7 @@ class EvologicsBackend(ModemBackend):
             self._timed = await self._sync_clock()
             if not self._timed:
                 log.warning("%s: AT?CLOCK unanswered: frames are sent untimed (AT*SENDIM)",
-                            self._who)
+                            self)
 
     async def _firmware(self) -> None:
         """``ATI0``: the firmware version, and with it the ``RECVIM``/``RECVPBM`` layout."""
@@ -288,11 +288,11 @@ class EvologicsBackend(ModemBackend):
             legacy = firmware_is_legacy(text)
         except ValueError:
             log.warning("%s: ATI0 answered %s, not a firmware version: taking 1.7+ layouts",
-                        self._who, _text(reply))
+                        self, _text(reply))
             legacy = False
         self.firmware = text or None
         self.protocol.legacy_recvim = legacy
-        log.info("%s: firmware %s (%s RECVIM layout)", self._who, text or "?",
+        log.info("%s: firmware %s (%s RECVIM layout)", self, text or "?",
                  "1.6" if legacy else "1.7+")
 
     async def _sync_clock(self, readings: int = 3) -> bool:
@@ -329,9 +329,9 @@ class EvologicsBackend(ModemBackend):
                 reply = await self._command("?MODE")
                 if isinstance(reply, Value):
                     return Mode.COMMAND
-                raise BackendError(f"{self._who}: AT?MODE answered {_text(reply)}")
+                raise BackendError(f"{self}: AT?MODE answered {_text(reply)}")
             if reply is None:
-                log.info("%s: no answer to +++AT?MODE (attempt %d of %d)", self._who, attempt,
+                log.info("%s: no answer to +++AT?MODE (attempt %d of %d)", self, attempt,
                          self.probe_retries)
                 continue
             if isinstance(reply, Value):
@@ -339,9 +339,9 @@ class EvologicsBackend(ModemBackend):
             if isinstance(reply, Error) and reply.reason.startswith("NOT INITIALIZED"):
                 await asyncio.sleep(self.timeout_s / 2)  # dmac2 ignores it and asks again
                 continue
-            raise BackendError(f"{self._who}: unexpected answer to AT?MODE: {_text(reply)}")
+            raise BackendError(f"{self}: unexpected answer to AT?MODE: {_text(reply)}")
         wrote = bytes(self._raw).strip().split(b"\n", 1)[0].strip()  # (the last probe's)
-        raise BackendError(f"{self._who}: no answer from the modem on {self.device} within "
+        raise BackendError(f"{self}: no answer from the modem on {self.device} within "
                            f"{self.timeout_s:g} s ({self.probe_retries} probes)" + (
                                f"; the device wrote {wrote.decode('latin-1')[:80]!r} instead "
                                "(another kind of modem? zab doctor tells)" if wrote else ""))
@@ -382,7 +382,7 @@ class EvologicsBackend(ModemBackend):
                 isinstance(e, ExpiredIms | CanceledIm) and e.dst == dst), wait, "SENDEND")
         if isinstance(end, ExpiredIms | CanceledIm):
             self.stats["expired"] += 1
-            raise _NotSent(f"{self._who}: the modem dropped the IMS to {dst} due at {at:.6f} "
+            raise _NotSent(f"{self}: the modem dropped the IMS to {dst} due at {at:.6f} "
                            f"({end.body().decode('latin-1')}): scheduled too late?")
 
     async def _command_busy(self, text: bytes, what: str, deadline: float | None = None,
@@ -398,11 +398,11 @@ class EvologicsBackend(ModemBackend):
                 self.stats["busy"] += 1
                 self._check_turn(deadline, f"a retry of {what} after BUSY {reply.reason}",
                                  delay + airtime_s)
-                log.info("%s: modem busy (%s), retry in %.2f s", self._who, reply.reason, delay)
+                log.info("%s: modem busy (%s), retry in %.2f s", self, reply.reason, delay)
                 await asyncio.sleep(delay)
                 delay *= 2
                 continue
-            raise BackendError(f"{self._who}: {what} refused: {_text(reply)}")
+            raise BackendError(f"{self}: {what} refused: {_text(reply)}")
 
     async def _send_locked(self, data: bytes, dst: int, ack: bool,
                            deadline: float | None) -> bool | None:
@@ -422,11 +422,11 @@ class EvologicsBackend(ModemBackend):
                 self.ack_timeout_s, "DELIVEREDIM/FAILEDIM")
         except BackendError:
             self.stats["failed"] += 1
-            log.warning("%s: no delivery report for the IM to %d", self._who, dst)
+            log.warning("%s: no delivery report for the IM to %d", self, dst)
             return None
         if isinstance(report, FailedIm):
             self.stats["failed"] += 1
-            log.warning("%s: IM to %d not delivered (FAILEDIM)", self._who, dst)
+            log.warning("%s: IM to %d not delivered (FAILEDIM)", self, dst)
             return False
         self.stats["delivered"] += 1
         reply = await self._command("?T")  # one-way propagation, µs [V DUNE/evins]
@@ -444,7 +444,7 @@ class EvologicsBackend(ModemBackend):
                 async with asyncio.timeout(max(left, 0.0)):
                     event = await self._tx_events.get()
             except TimeoutError:
-                raise BackendError(f"{self._who}: no {what} within {timeout:g} s") from None
+                raise BackendError(f"{self}: no {what} within {timeout:g} s") from None
             self._check()
             if match(event):
                 return event
@@ -467,7 +467,7 @@ class EvologicsBackend(ModemBackend):
             self._check()
             if timeout is not None:
                 raise _NoReply() from None
-            raise BackendError(f"{self._who}: no reply to AT{_show(text)} within "
+            raise BackendError(f"{self}: no reply to AT{_show(text)} within "
                                f"{self.timeout_s:g} s") from None
         finally:
             self._reply = None
@@ -478,7 +478,7 @@ class EvologicsBackend(ModemBackend):
 
     def _expect_ok(self, reply: Event, what: str) -> None:
         if not isinstance(reply, Ok):
-            raise BackendError(f"{self._who}: {what} answered {_text(reply)}")
+            raise BackendError(f"{self}: {what} answered {_text(reply)}")
 
     async def _write(self, data: bytes) -> None:
         self._last_io = time.monotonic()
@@ -505,11 +505,11 @@ class EvologicsBackend(ModemBackend):
             if fut is not None and not fut.done() and event.command == self._expect:
                 fut.set_result(event)
             else:
-                log.debug("%s: late reply ignored: %s", self._who, event)
+                log.debug("%s: late reply ignored: %s", self, event)
             return
         if isinstance(event, Error | Busy):  # asynchronous: ERROR EFAULT, ERROR OVERLOAD
             self.stats["modem_errors"] += 1
-            log.warning("%s: modem reports %s", self._who, _text(event))
+            log.warning("%s: modem reports %s", self, _text(event))
         elif isinstance(event, RecvIm | RecvImLegacy | RecvIms | RecvPbm | RecvPbmLegacy):
             self._deliver(self._reception(event, now))
         elif isinstance(event, RecvEnd):
@@ -575,7 +575,7 @@ class EvologicsBackend(ModemBackend):
                 async with self._lock:
                     try:
                         if not await self._sync_clock(readings=1):
-                            raise BackendError(f"{self._who}: AT?CLOCK no longer answered")
+                            raise BackendError(f"{self}: AT?CLOCK no longer answered")
                     except BackendError as exc:
                         self._fail(exc)
                         return
@@ -586,17 +586,13 @@ class EvologicsBackend(ModemBackend):
                 try:
                     reply = await self._command("?AL")
                     if not isinstance(reply, Value) or reply.text.strip() != str(self.address):
-                        raise BackendError(f"{self._who}: keep-alive AT?AL answered "
+                        raise BackendError(f"{self}: keep-alive AT?AL answered "
                                            f"{_text(reply)} (modem reset?)")
                 except BackendError as exc:
                     self._fail(exc)
                     return
 
     # -- failure -------------------------------------------------------------------------------
-
-    @property
-    def _who(self) -> str:
-        return f"evologics modem {self.setup.node!r}"
 
     def _check(self) -> None:
         if self._failure is not None:

@@ -510,3 +510,10 @@ def test_the_driver_sets_and_reads_the_modem_clock(tmp_path: Path, how: str) -> 
                 b.backend(1, set_clock="gps")
 
     run(main)
+
+
+def test_log_lines_name_the_modem_as_a_user_would() -> None:
+    """Found from outside: lines read '<MicromodemBackend auv1@2 new>: …'."""
+    backend = MicromodemBackend(ModemSetup("auv1", 2, 32, {"device": "/dev/null"}))
+    assert str(backend) == "micromodem modem 'auv1'"
+    assert repr(backend) == "<MicromodemBackend auv1@2 new>"  # (for debugging)
