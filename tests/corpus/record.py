@@ -220,13 +220,19 @@ def _queries(fleet: FastFleet, rng: random.Random, until: float) -> None:
                 if asker == server:
                     continue
 
-                def ask(a: str = asker, key: str = spec.asked_key(server),
-                        layout: Any = spec.request) -> None:
-                    fleet.queries.get(a, key, _values(layout, rng) if layout.fields else {})
-                    if fleet.now + 37.0 <= until:
-                        fleet.call_at(fleet.now + 37.0, ask)
+                fleet.call_at(13.0, _asker(fleet, rng, until, asker, spec.asked_key(server),
+                                           spec.request))
 
-                fleet.call_at(13.0, ask)
+
+def _asker(fleet: FastFleet, rng: random.Random, until: float, asker: str, key: str,
+           layout: Any) -> Callable[[], None]:
+    """``asker``'s get on ``key`` now and every 37 s after (each its own: a closure defined in
+    a loop called back the last one, so only the last asker and server were asked again)."""
+    def ask() -> None:
+        fleet.queries.get(asker, key, _values(layout, rng) if layout.fields else {})
+        if fleet.now + 37.0 <= until:
+            fleet.call_at(fleet.now + 37.0, ask)
+    return ask
 
 
 def run(scenario: Scenario) -> dict[str, Any]:
