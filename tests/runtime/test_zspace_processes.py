@@ -425,9 +425,9 @@ def test_a_get_while_the_vehicle_is_surfaced_is_answered_once_over_ip_at_once(
 
             values, errors, took = every_reply()
             assert values == [("auv1/info", exact)] and not errors  # once, unquantised
-            assert took < 1.0, took
+            assert took < 2.0, took  # (milliseconds; across the water 2 s and more)
             values, errors, took = every_reply("auv1/card")  # got on auv1/info over IP
-            assert values == [("auv1/card", exact)] and not errors and took < 1.0, took
+            assert values == [("auv1/card", exact)] and not errors and took < 2.0, took
             time.sleep(CYCLE_S)  # an acoustic request would have reached auv1 by now
             assert len(calls) == 2
             wifi.close()
