@@ -17,6 +17,21 @@ from bridge.codec.fields import ArrayCodec, FieldCodec, checked_decode, checked_
 __all__ = ["Compiled", "compile_layout"]
 
 
+LITERAL_DIGITS = 1000
+"""Integers up to this many decimal digits go into the generated code as literals; larger
+ones (a mask over a long bytes field) as names bound in its namespace: Python refuses to
+write out an int of over 4300 digits (a mission with a 1.8 kB bytes field after another
+field crashed ``zab check``)."""
+
+
+def _constant(ns: dict[str, Any], name: str, value: int) -> str:
+    """``value`` as the generated code writes it: a literal, or ``name`` bound in ``ns``."""
+    if value.bit_length() <= LITERAL_DIGITS * 3:  # (3 bits a digit at least)
+        return str(value)
+    ns[name] = value
+    return name
+
+
 class _Fallback(Exception):
     """Internal: leave the fast path."""
 
@@ -30,6 +45,7 @@ class Compiled:
         self.unpack: Callable[[int], Any] = functions["unpack"]
         self.encode: Callable[[Any], bytes] = functions["encode"]
         self.decode: Callable[[bytes], Any] = functions["decode"]
+
 
 
 def _indent(lines: list[str], depth: int = 2) -> list[str]:
@@ -107,7 +123,7 @@ def _decode_body(
         for j, (leaf, suffix) in enumerate(leaves):
             s = shift + (len(leaves) - 1 - j) * width
             k = f"k{suffix}"
-            mask = (1 << width) - 1
+            mask = _constant(ns, f"_mask{suffix}", (1 << width) - 1)
             if width == 0:
                 split.append(f"{k} = 0")
             elif s + width == total:
@@ -167,7 +183,8 @@ def compile_layout(
         "        n = int.from_bytes(data, 'big')",
     ]
     if pad:
-        src += [f"        if n & {(1 << pad) - 1}: raise _F", f"        n >>= {pad}"]
+        src += [f"        if n & {_constant(ns, '_pad_mask', (1 << pad) - 1)}: raise _F",
+                f"        n >>= {pad}"]
     src += [*_indent(dec_lines), f"        return {dec_expr}"]
     src += ["    except Exception:", "        return _decode_ref(data)"]
     source = "\n".join(src) + "\n"

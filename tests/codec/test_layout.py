@@ -67,6 +67,22 @@ def test_bytes_padding_and_length_errors() -> None:
         layout.unpack(-1)
 
 
+@pytest.mark.parametrize("kind", ["bytes", "string"])
+def test_a_long_field_after_another_compiles_and_round_trips(kind: str) -> None:
+    """Found from outside: a 1.8 kB bytes (or string) field after an int crashed zab check
+    ("Exceeds the limit (4300 digits) for integer string conversion": the generated code
+    wrote its mask out as a decimal literal)."""
+    layout = Layout.from_fields([{"field": "id", "type": "int", "min": 0, "max": 255},
+                                 {"field": "data", "type": kind, "max_length": 4000},
+                                 {"field": "n", "type": "int", "min": 0, "max": 7}])
+    data = bytes(range(256)) * 12 if kind == "bytes" else "zab " * 700
+    value = {"id": 200, "data": data, "n": 5}
+    assert layout.decode(layout.encode(value)) == value
+    assert layout.unpack(layout.pack(value)) == value
+    with pytest.raises(DecodeError):  # (a corrupt last byte: refused, no crash)
+        layout.decode(layout.encode(value)[:-1] + b"\xff")
+
+
 def test_clamp_counts_and_reject_raises() -> None:
     layout = Layout.from_fields(MORPH)
     low = layout.unpack(layout.pack({"vector": {"x": -5, "y": 1.0}}))
