@@ -15,12 +15,13 @@ import logging
 import math
 import random
 from collections.abc import Callable, Collection, Mapping
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from bridge.core.bounds import retry_floor_s, round_trip_s
 from bridge.core.builder import Candidate, FramePlan, fill
 from bridge.core.drops import DropLedger
-from bridge.core.events import FieldsLeftOut, FrameSent, SendFailed, Surfaced
+from bridge.core.events import Delivery, FieldsLeftOut, FrameSent, SendFailed, Surfaced
 from bridge.core.families import Extra, Families
 from bridge.core.frames import OutFrame, Sender
 from bridge.core.images import MAX_PICTURE_BYTES, Images, ImageSender, control_keys
@@ -33,6 +34,7 @@ from bridge.core.outputs import Outbox
 from bridge.core.queries import Queries
 from bridge.core.receivers import Receivers
 from bridge.core.reliable import SEQ_MOD, ReliableSender, default_retry_s
+from bridge.core.restarts import FAILED
 from bridge.core.saving import Saving
 from bridge.core.store import ChannelState, OutboundStore
 from bridge.core.surfacing import Relay, Surfacing
@@ -126,6 +128,9 @@ class Outbound:
         self.latched = Latched(self.store, outbox, node)
         """The latching channels' values kept across restarts."""
         self.latched.resume(state.get("latched"), table.channels)
+        self._failed: list[Delivery] = list(state.get(FAILED, ()))
+        """Values an earlier run under another mission left unfinished, reported failed at the
+        first tick (at its time)."""
         self.families = Families(table, node, self.latched.put)
         self.latched.unresumed += self.families.resume(state.get("families"))
         self.surfacing = Surfacing(node, mission.surfacing.republish) \
@@ -355,10 +360,14 @@ class Outbound:
 
     def tick(self, now: float) -> None:
         """Periodic work: the latched values an earlier run saved that could not be resumed
-        counted as drops, latched values saved if it is time (:mod:`bridge.core.latched`), the
-        drops not summarised yet summarised if it is time (a summary a second at most)."""
+        counted as drops, the values it left unfinished under another mission reported failed,
+        latched values saved if it is time (:mod:`bridge.core.latched`), the drops not
+        summarised yet summarised if it is time (a summary a second at most)."""
         for name, why in self.latched.take_unresumed(now):
             self.drop_payload(name, why, now, "unresumable")
+        if self._failed:
+            self.outbox.reports([replace(d, time=now) for d in self._failed])
+            self._failed = []
         self.latched.tick(now)
         if (summary := self.drops.due(now)) is not None:
             self.outbox.event(summary)

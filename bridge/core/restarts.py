@@ -18,19 +18,22 @@ from typing import Any
 from bridge.core.events import Delivery
 from bridge.core.outputs import Outbox
 
-__all__ = ["STATE_VERSION", "resumable"]
+__all__ = ["FAILED", "STATE_VERSION", "resumable"]
 
 log = logging.getLogger("zab.core")
 
 STATE_VERSION = 1
 """The version of :meth:`~bridge.core.node.NodeCore.state`'s layout."""
+FAILED = "failed"
+"""Where :func:`resumable` puts the reports of values left unfinished under another mission."""
 
 
 def resumable(state: Mapping[str, Any] | None, node: str, fingerprint: str,
               outbox: Outbox) -> Mapping[str, Any]:
     """``state`` if it is ``node``'s under the mission file of ``fingerprint`` (hex); else
     nothing but ``node``'s latched values and key families (checked per channel when
-    resumed), every value it left unfinished reported failed in ``outbox``."""
+    resumed), and under ``failed`` a report of every value it left unfinished, its time 0
+    (the outbound side reports them at the node's first tick, at its time: :data:`FAILED`)."""
     if not state:
         return {}
     same = (state.get("version") == STATE_VERSION and state.get("node") == node
@@ -40,15 +43,17 @@ def resumable(state: Mapping[str, Any] | None, node: str, fingerprint: str,
     log.warning("%s: the saved state is from another mission file or version: starting "
                 "afresh (its unfinished values are reported failed; latched values of "
                 "unchanged channels resume)", node)
-    for name, sender in (state.get("senders") or {}).items():
-        items = [*sender.get("queue", ()), *sender.get("flight", ()), *sender.get("items", ())]
-        for item in items:
-            for dst in item.get("waiting", item.get("dests", ())):
-                outbox.reports([Delivery(
-                    0.0, name, item["id"], dst, "failed",
-                    reason="restarted with another mission file",
-                    attempts=item.get("attempts", 0), key=item.get("key"), ref=item.get("ref"))])
+    failed = [Delivery(0.0, name, item["id"], dst, "failed",
+                       reason="restarted with another mission file",
+                       attempts=item.get("attempts", 0), key=item.get("key"), ref=item.get("ref"))
+              for name, sender in (state.get("senders") or {}).items()
+              for item in [*sender.get("queue", ()), *sender.get("flight", ()),
+                           *sender.get("items", ())]
+              for dst in item.get("waiting", item.get("dests", ()))]
+    if failed:
+        outbox.unsaved = True  # (the state that held them is gone: saved before they go out)
+    kept = {FAILED: failed} if failed else {}
     if state.get("node") != node:
-        return {}
+        return kept
     # (each checked against its channel now)
-    return {k: state[k] for k in ("latched", "families") if state.get(k) is not None}
+    return {**kept, **{k: state[k] for k in ("latched", "families") if state.get(k) is not None}}

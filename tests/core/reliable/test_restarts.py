@@ -118,10 +118,15 @@ def test_a_state_file_of_another_mission_reports_its_values_failed(tmp_path: Pat
     state = ops.state()
     state["fingerprint"] = "00" * 8
     again = NodeCore(LOADED, "ops", state=state)
+    assert again.needs_save  # (its state is gone: saved before the reports go out)
+    again.tick(1_795_000_000.0)  # (the node's first tick: its clock's time)
     (failed,) = [o.payload for o in again.take()
                  if isinstance(o, Status) and o.topic == "delivery/command"]
     assert failed["state"] == "failed" and failed["ref"] == "one"
     assert "another mission file" in failed["reason"]
+    assert failed["time"] == 1_795_000_000.0  # (found from outside: 0.0, 1970)
+    again.tick(1_795_000_001.0)
+    assert not [o for o in again.take() if isinstance(o, Status)]  # (once)
 
 
 def test_a_corrupt_state_file_is_moved_aside(tmp_path: Path) -> None:
