@@ -57,6 +57,7 @@ from bridge.errors import EncodeError
 from bridge.mission.model import Mission
 from bridge.mission.network import Network
 from bridge.wire.channels import ChannelTable
+from bridge.wire.payloads import payload_cap
 from bridge.wire.queries import LEFT, QID_BITS, FailReason, QueryCodec, QuerySpec, ReplyStatus
 from bridge.wire.unused import left_out, schema_tree
 
@@ -66,11 +67,12 @@ ANSWERS_KEPT = 32  # answers a serving node keeps for repeated requests (oldest 
 Ticket = tuple[int, str, int]  # (query index, serving node, query id) at the asking node
 Served = tuple[int, str, int]  # (query index, asking node, query id) at the serving node
 
-ERROR_REPLY, UNDECODABLE, TIMED_OUT = "error_reply", "undecodable", "timeout"
+ERROR_REPLY, UNDECODABLE, TOO_LARGE, TIMED_OUT = (
+    "error_reply", "undecodable", "too_large", "timeout")
 """What the runtime says of a local get's reply it could not use (:meth:`Queries.served`): the
 queryable's reply error, a reply neither msgpack nor JSON, and the get's own timeout."""
 _REASONS = {ERROR_REPLY: FailReason.APP_ERROR, UNDECODABLE: FailReason.NOT_USABLE,
-            TIMED_OUT: FailReason.TIMEOUT}
+            TOO_LARGE: FailReason.NOT_USABLE, TIMED_OUT: FailReason.TIMEOUT}
 _FAILED = {
     FailReason.UNSAID: "the serving node's get failed or gave no usable reply",
     FailReason.APP_ERROR: "its queryable replied with an error (its text is in {src}'s log)",
@@ -101,6 +103,9 @@ class LocalGet:
     key: str
     parameters: dict[str, Any]
     timeout_s: float
+    cap: int = 1 << 20
+    """The longest reply payload taken (as a put's on a key of the reply's bits); a longer
+    one is an unusable reply, ``too_large``."""
 
 
 @dataclass(frozen=True)
@@ -510,7 +515,8 @@ class Queries:
             del self.answers[next(iter(self.answers))]
         self.answers[ticket] = Answered(
             request, now + deadline_s(self.mission, spec, src, self.node))
-        self.outputs.append(LocalGet(ticket, spec.served_key(self.node), request, timeout))
+        self.outputs.append(LocalGet(ticket, spec.served_key(self.node), request, timeout,
+                                     payload_cap(spec.reply.bits)))
 
     def served(self, ticket: Served, values: list[Any], now: float,
                unusable: Sequence[tuple[str, str]] = ()) -> None:

@@ -52,6 +52,7 @@ from bridge.core.queries import (
     ERROR_REPLY,
     LOCAL_GET_S,
     TIMED_OUT,
+    TOO_LARGE,
     UNDECODABLE,
     LocalGet,
     OverIp,
@@ -380,6 +381,9 @@ class QueryBridge:
         def on_reply(reply: zenoh.Reply) -> None:
             if reply.ok is not None:
                 sample = reply.ok
+                if (size := len(sample.payload)) > request.cap:  # (not copied out of Zenoh)
+                    unusable.append((TOO_LARGE, f"{size} bytes, over the cap of {request.cap}"))
+                    return
                 try:
                     values.append(decode_payload(sample.payload.to_bytes(), str(sample.encoding)))
                 except DecodeError as exc:

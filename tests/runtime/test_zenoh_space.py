@@ -123,7 +123,9 @@ def serve_at_auv1(space: Space) -> None:
             query.reply_err(b"sensor offline")
         else:
             query.reply(query.key_expr, {0: msgpack.packb({"v": 5}), 2: b"\xc1\xff garbage",
-                                         3: msgpack.packb({"v": 500})}[detail])
+                                         3: msgpack.packb({"v": 500}),
+                                         5: msgpack.packb({"v": 5, "pad": "x" * 100_000})
+                                         }[detail])
         query.drop()
 
     space.auv1.declare_queryable("auv1/info", info)
@@ -421,7 +423,7 @@ def test_a_get_payload_may_not_contradict_its_selector_nor_be_too_long(space: Sp
 def test_a_reply_the_vehicle_cannot_send_is_counted_and_the_getter_told_why(
         space: Space) -> None:
     said = {}
-    for detail in (1, 2, 4):
+    for detail in (1, 2, 4, 5):
         values, errors = get(space.top, f"auv1/x/probe?detail={detail}")
         assert values == [] and len(errors) == 1
         said[detail] = errors[0]
@@ -429,10 +431,11 @@ def test_a_reply_the_vehicle_cannot_send_is_counted_and_the_getter_told_why(
                        "(its text is in auv1's log)")
     assert said[2].startswith("auv1: query 'probe': not-usable: ")
     assert said[4].startswith("auv1: query 'probe': timeout: ")
+    assert said[5].startswith("auv1: query 'probe': not-usable: ")  # (100 kB: over the cap)
     values, errors = get(space.top, "auv1/x/probe?detail=3")
     assert values == [("auv1/x/probe", {"v": 200.0})] and not errors  # clamped, and counted:
     stats = stats_of(space.auv1, "auv1", lambda s: "!probe" in s.get("clamped", {}))
     assert stats["clamped"] == {"!probe": {"v": 1}}
-    assert {k: n for k, n in stats["queries"]["dropped"].items() if n} == {"probe:reply": 2}
-    assert stats["payload_drop_causes"] == {"auv1/x/probe": {"error_reply": 1,
+    assert {k: n for k, n in stats["queries"]["dropped"].items() if n} == {"probe:reply": 3}
+    assert stats["payload_drop_causes"] == {"auv1/x/probe": {"error_reply": 1, "too_large": 1,
                                                             "undecodable": 1}}
