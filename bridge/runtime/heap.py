@@ -9,8 +9,9 @@ and ``MALLOC_MMAP_THRESHOLD_`` did not.
 
 :class:`HeapTrim` trims when the resident size has grown :data:`GROWTH_BYTES` over the lowest
 seen and stopped growing (a message being reassembled is still in use), at most every
-:data:`EVERY_S`; after a trim that freed little (memory in use), twice as long each time, up to
-:data:`EVERY_MAX_S`, unless the size grows as much again. One read of
+:data:`EVERY_S`, also while trims free little: a trim costs 0.1-4 ms, and memory a message
+held in use while a trim ran is freed later with no change in the resident size to tell
+(backing off to minutes left a bridge at 101 MB after ``bench/flood.py --huge``). One read of
 ``/proc/self/statm`` a check, no cost on the data path. One per process (:data:`HEAP`: the heap
 is the process's, whatever the number of nodes in it). Elsewhere than Linux with glibc it does
 nothing.
@@ -35,8 +36,6 @@ GROWTH_BYTES = 16 << 20
 """Growth of the resident size over its lowest that makes a trim worth it."""
 EVERY_S = 5.0
 """Least time between two trims."""
-EVERY_MAX_S = 300.0
-"""Longest wait between trims while they free little (memory the process really uses)."""
 STEADY_BYTES = 1 << 20
 """Growth since the last check under which the resident size counts as no longer growing."""
 
@@ -79,9 +78,7 @@ class HeapTrim:
         self.trims = 0
         self.freed = 0
         """Bytes of resident size the trims gave back, in all."""
-        self._wait = every_s  # (after a trim that freed little: longer)
         self._last = -math.inf  # when the last trim was
-        self._after: int | None = None  # the resident size it left
         self._previous: int | None = None  # the resident size at the last check
         self._lock = threading.Lock()  # (nodes of one process may check from several loops)
 
@@ -101,8 +98,7 @@ class HeapTrim:
             self._previous = rss
             if rss - self.lowest < self.growth or growing:
                 return None
-            grown = self._after is None or rss - self._after >= self.growth  # since the last
-            if now - self._last < (self.every_s if grown else self._wait):
+            if now - self._last < self.every_s:
                 return None
             self._trim()
             after = self._rss()
@@ -111,9 +107,7 @@ class HeapTrim:
             self.lowest = min(self.lowest, after)
             self.trims += 1
             self.freed += freed
-            self._wait = self.every_s if freed >= self.growth // 2 \
-                else min(2 * self._wait, EVERY_MAX_S)
-            self._last, self._after, self._previous = now, after, after
+            self._last, self._previous = now, after
             return freed
 
     def snapshot(self) -> dict[str, Any]:
