@@ -175,7 +175,7 @@ class Families:
     """Every key family of one node: members it sends, and names of members it receives."""
 
     def __init__(self, table: ChannelTable, node: str,
-                 changed: Callable[[float], None] = lambda now: None) -> None:
+                 changed: Callable[[float], None]) -> None:
         """``changed(now)``: a name was learned or a latching member's value stored (what
         the node's saved state holds changed)."""
         self.node = node

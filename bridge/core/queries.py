@@ -103,7 +103,7 @@ class LocalGet:
     key: str
     parameters: dict[str, Any]
     timeout_s: float
-    cap: int = 1 << 20
+    cap: int
     """The longest reply payload taken (as a put's on a key of the reply's bits); a longer
     one is an unusable reply, ``too_large``."""
 
